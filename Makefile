@@ -1,0 +1,37 @@
+# FluidGaussian: two commands set everything up on a fresh machine: `make demo` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: venv demo test bench lint clean
+
+venv: $(STAMP)
+
+# torch first: torch==2.13.0 resolves to the CPU wheel already on disk; an unpinned torch
+# would pull several GB of CUDA builds.
+$(STAMP): setup.cfg
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e .[test]
+	@# open3d's wheel needs libusb and libgomp from the system; install them when missing (root + apt).
+	$(PY) -c "import open3d" 2>/dev/null || { command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ] && \
+	  apt-get update -qq && apt-get install -y -qq libusb-1.0-0 libgomp1 libgl1 >/dev/null; }
+	$(PY) -c "import open3d, taichi, torch, h5py, cv2"
+	touch $(STAMP)
+
+demo: venv
+	$(VENV)/bin/fluidgs demo -o out/demo
+
+test: venv lint
+	$(PY) -m pytest -q -p no:dash tests
+
+bench: venv
+	$(VENV)/bin/fluidgs bench sim
+
+lint: venv
+	$(VENV)/bin/ruff check fluidsim recon nbv apps tests
+
+clean:
+	rm -rf out .pytest_cache

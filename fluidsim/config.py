@@ -1,0 +1,144 @@
+"""Solver configuration: one frozen dataclass, validated once (Bender & Koschier 2017 defaults).
+
+Defaults follow SPlisHSPlasH's DFSPH and the paper's Table 2: particle radius 0.025 m, support radius
+4 r, rest density 1000 kg/m^3, dynamic viscosity 10 Pa s, dt 0.002 s, average density error 0.01 %,
+average divergence error 0.1 %, 2 to 100 solver iterations, warm start on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Any
+
+TIME_STEP_MODES = ("fixed", "cfl")
+PRECISIONS = ("f32", "f64")
+
+
+def _finite(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _positive(name: str, value: Any) -> float:
+    v = _finite(name, value)
+    if v <= 0.0:
+        raise ValueError(f"{name} must be > 0, got {value!r}")
+    return v
+
+
+def _vec3(name: str, value: Any) -> tuple[float, float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise ValueError(f"{name} must be a list of 3 numbers [x, y, z], got {value!r}")
+    return tuple(_finite(f"{name}[{i}]", c) for i, c in enumerate(value))  # type: ignore[return-value]
+
+
+def _int_at_least(name: str, value: Any, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    """Physical and numerical parameters of a DFSPH run.
+
+    Attributes:
+        particle_radius: r, metres; particle spacing is 2 r.
+        support_factor: h / r; the SPH support radius is h = support_factor * r (default 4).
+        rest_density: rho_0, kg/m^3.
+        viscosity: dynamic viscosity mu, Pa s, fluid-fluid.
+        boundary_viscosity: dynamic viscosity for fluid-boundary friction, Pa s (None: same as viscosity).
+        gravity: m/s^2, Y-up.
+        dt: fixed time step, or the initial one in CFL mode, seconds.
+        time_step: "fixed" or "cfl" (dt = cfl_factor * 2 r / max speed, clamped to [dt_min, dt_max]).
+        max_density_error: average density error tolerance, percent of rho_0.
+        max_divergence_error: average divergence error tolerance, percent of rho_0 per second of dt.
+        min_iterations / max_iterations: bounds for both solvers.
+        divergence_solver: run the divergence-free solver (B&K 2017 Alg. 2).
+        warm_start: warm-start both solvers from the previous step's stiffness.
+        estimator_radius: h_r of paper Eq. 1, metres (neighbours within this distance).
+        estimator_kernel_radius: h_k of paper Eq. 1, metres (kernel support for grad W).
+        max_speed: a fluid speed above this (m/s) stops the run as diverged.
+        max_capped_steps: stop when a solver hits max_iterations this many steps in a row.
+        max_neighbors: initial neighbour-list capacity per particle (grows automatically).
+        precision: "f32" or "f64" for the particle arrays.
+    """
+
+    particle_radius: float = 0.025
+    support_factor: float = 4.0
+    rest_density: float = 1000.0
+    viscosity: float = 10.0
+    boundary_viscosity: float | None = None
+    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
+    dt: float = 0.002
+    time_step: str = "fixed"
+    cfl_factor: float = 0.5
+    dt_min: float = 1.0e-5
+    dt_max: float = 0.005
+    max_density_error: float = 0.01
+    max_divergence_error: float = 0.1
+    min_iterations: int = 2
+    max_iterations: int = 100
+    divergence_solver: bool = True
+    warm_start: bool = True
+    estimator_radius: float = 0.1
+    estimator_kernel_radius: float = 0.1
+    max_speed: float = 200.0
+    max_capped_steps: int = 20
+    max_neighbors: int = 64
+    precision: str = "f32"
+
+    def __post_init__(self) -> None:
+        _positive("particle_radius", self.particle_radius)
+        if _positive("support_factor", self.support_factor) < 2.0:
+            raise ValueError(f"support_factor must be >= 2 (h >= one particle spacing), got {self.support_factor}")
+        _positive("rest_density", self.rest_density)
+        if _finite("viscosity", self.viscosity) < 0:
+            raise ValueError(f"viscosity must be >= 0 Pa s, got {self.viscosity}")
+        if self.boundary_viscosity is not None and _finite("boundary_viscosity", self.boundary_viscosity) < 0:
+            raise ValueError(f"boundary_viscosity must be >= 0 Pa s, got {self.boundary_viscosity}")
+        object.__setattr__(self, "gravity", _vec3("gravity", self.gravity))
+        _positive("dt", self.dt)
+        if self.time_step not in TIME_STEP_MODES:
+            raise ValueError(f"time_step must be one of {TIME_STEP_MODES}, got {self.time_step!r}")
+        _positive("cfl_factor", self.cfl_factor)
+        if _positive("dt_min", self.dt_min) > _positive("dt_max", self.dt_max):
+            raise ValueError(f"dt_min ({self.dt_min}) must be <= dt_max ({self.dt_max})")
+        _positive("max_density_error", self.max_density_error)
+        _positive("max_divergence_error", self.max_divergence_error)
+        _int_at_least("min_iterations", self.min_iterations, 0)
+        _int_at_least("max_iterations", self.max_iterations, 1)
+        if self.min_iterations > self.max_iterations:
+            raise ValueError(
+                f"min_iterations ({self.min_iterations}) must be <= max_iterations ({self.max_iterations})")
+        for name in ("divergence_solver", "warm_start"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        _positive("estimator_radius", self.estimator_radius)
+        _positive("estimator_kernel_radius", self.estimator_kernel_radius)
+        _positive("max_speed", self.max_speed)
+        _int_at_least("max_capped_steps", self.max_capped_steps, 1)
+        _int_at_least("max_neighbors", self.max_neighbors, 8)
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
+
+    @property
+    def spacing(self) -> float:
+        """Particle spacing 2 r, metres."""
+        return 2.0 * self.particle_radius
+
+    @property
+    def support_radius(self) -> float:
+        """SPH support radius h = support_factor * r, metres."""
+        return self.support_factor * self.particle_radius
+
+    @property
+    def wall_viscosity(self) -> float:
+        """Fluid-boundary dynamic viscosity, Pa s."""
+        return self.viscosity if self.boundary_viscosity is None else self.boundary_viscosity
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls) if not f.name.startswith("_"))

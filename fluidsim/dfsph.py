@@ -1,0 +1,163 @@
+"""Divergence-free SPH (Bender & Koschier 2015, 2017): the solver passes and the time step.
+
+All quantities are normalised by the rest density (as in SPlisHSPlasH): densities are rho / rho_0 and
+neighbour weights are volumes V_j. With ``g_ij = V_j grad W(x_i - x_j, h)`` stored by the
+neighbourhood pass:
+
+- velocity divergence source (B&K 2017, divergence-free solver):
+  s_i = D(rho_i/rho_0)/Dt = sum_j (v_i - v_j) . g_ij + sum_b v_i . g_ib, clamped at 0;
+- predicted density (constant-density solver): rho*_i = rho_i + dt s_i, error max(rho*_i - 1, 0);
+- stiffness k_i = kappa_i / rho_i = s_i factor_i / dt (divergence) or (rho*_i - 1) factor_i / dt^2;
+- velocity update v_i -= dt (sum_j (k_i + k_j) g_ij + sum_b k_i g_ib).
+
+Errors are averaged over the active fluid particles only. Both solvers warm-start from the summed
+stiffness of the previous step (the divergence solver at half strength, as in SPlisHSPlasH), stored
+independent of dt.
+"""
+
+import taichi as ti
+
+from .neighbors import FREE_SURFACE_NEIGHBORS
+from .reductions import ordered_sum
+
+# Modes of the source passes.
+ITERATE = 0  # stiffness from the current error
+FIRST = 1  # as ITERATE, and reset the accumulated stiffness
+WARM = 2  # stiffness from the previous step's value, where the particle is compressed now
+
+
+@ti.func
+def velocity_divergence(i, v: ti.template(), fluid_count: ti.template(), fluid_index: ti.template(),
+                        fluid_grad: ti.template(), boundary_count: ti.template(), boundary_grad: ti.template()):
+    """s_i = sum_j (v_i - v_j) . V_j grad W_ij + sum_b v_i . V_b grad W_ib (1/s); boundary is at rest."""
+    vi = v[i]
+    s = 0.0 * vi[0]
+    for k in range(fluid_count[i]):
+        s += (vi - v[fluid_index[i, k]]).dot(fluid_grad[i, k])
+    for k in range(boundary_count[i]):
+        s += vi.dot(boundary_grad[i, k])
+    return s
+
+
+@ti.kernel
+def divergence_error(
+    n: ti.i32,
+    dt: float,
+    mode: ti.i32,
+    warm_scale: float,
+    v: ti.types.ndarray(ndim=1),
+    fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+    fluid_grad: ti.types.ndarray(ndim=2),
+    boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    boundary_grad: ti.types.ndarray(ndim=2),
+    factor: ti.types.ndarray(ndim=1),
+    kappa: ti.types.ndarray(ndim=1),
+    source: ti.types.ndarray(ndim=1),
+    stiffness: ti.types.ndarray(ndim=1),
+    stiffness_sum: ti.types.ndarray(ndim=1),
+    partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
+) -> ti.f64:
+    """Divergence-free solver, error pass: s_i and k_i; returns the average s_i over fluid (1/s)."""
+    for i in range(n):
+        s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_count, boundary_grad)
+        if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
+            s = 0.0
+        source[i] = s
+        if mode == WARM:
+            k = 0.0
+            if s > 0.0:
+                k = warm_scale * kappa[i] / dt
+            stiffness[i] = k
+        else:
+            stiffness[i] = s * factor[i] / dt
+        if mode != ITERATE:
+            stiffness_sum[i] = 0.0
+    return ordered_sum(source, n, partial) / ti.max(n, 1)
+
+
+@ti.kernel
+def density_error(
+    n: ti.i32,
+    dt: float,
+    mode: ti.i32,
+    warm_scale: float,
+    v: ti.types.ndarray(ndim=1),
+    fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+    fluid_grad: ti.types.ndarray(ndim=2),
+    boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    boundary_grad: ti.types.ndarray(ndim=2),
+    density: ti.types.ndarray(ndim=1),
+    factor: ti.types.ndarray(ndim=1),
+    kappa: ti.types.ndarray(ndim=1),
+    source: ti.types.ndarray(ndim=1),
+    stiffness: ti.types.ndarray(ndim=1),
+    stiffness_sum: ti.types.ndarray(ndim=1),
+    partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
+) -> ti.f64:
+    """Constant-density solver, error pass: rho*_i - 1 and k_i; returns the average error over fluid."""
+    for i in range(n):
+        s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_count, boundary_grad)
+        err = ti.max(density[i] + dt * s - 1.0, 0.0)
+        source[i] = err
+        if mode == WARM:
+            k = 0.0
+            if err > 0.0:
+                k = warm_scale * kappa[i] / (dt * dt)
+            stiffness[i] = k
+        else:
+            stiffness[i] = err * factor[i] / (dt * dt)
+        if mode != ITERATE:
+            stiffness_sum[i] = 0.0
+    return ordered_sum(source, n, partial) / ti.max(n, 1)
+
+
+@ti.kernel
+def apply_stiffness(
+    n: ti.i32,
+    dt: float,
+    v: ti.types.ndarray(ndim=1),
+    fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+    fluid_grad: ti.types.ndarray(ndim=2),
+    boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    boundary_grad: ti.types.ndarray(ndim=2),
+    stiffness: ti.types.ndarray(ndim=1),
+    stiffness_sum: ti.types.ndarray(ndim=1),
+):
+    """Velocity update of both solvers: v_i -= dt (sum_j (k_i + k_j) g_ij + sum_b k_i g_ib)."""
+    for i in range(n):
+        ki = stiffness[i]
+        dv = v[i] * 0.0
+        for k in range(fluid_count[i]):
+            dv += (ki + stiffness[fluid_index[i, k]]) * fluid_grad[i, k]
+        for k in range(boundary_count[i]):
+            dv += ki * boundary_grad[i, k]
+        v[i] -= dt * dv
+        stiffness_sum[i] += ki
+
+
+@ti.kernel
+def store_stiffness(n: ti.i32, scale: float, stiffness_sum: ti.types.ndarray(ndim=1),
+                    kappa: ti.types.ndarray(ndim=1)):
+    """Warm-start memory: the step's summed stiffness times dt (divergence) or dt^2 (density)."""
+    for i in range(n):
+        kappa[i] = stiffness_sum[i] * scale
+
+
+@ti.kernel
+def advect(n: ti.i32, dt: float, x: ti.types.ndarray(ndim=1), v: ti.types.ndarray(ndim=1)) -> ti.types.vector(
+        2, ti.f64):
+    """x_i += dt v_i; returns (max speed in m/s, number of non-finite velocities)."""
+    vmax = 0.0
+    bad = 0
+    for i in range(n):
+        vi = v[i]
+        sp = vi.norm()
+        if not (sp <= 1.0e30):  # NaN or Inf
+            bad += 1
+        else:
+            ti.atomic_max(vmax, sp)
+        x[i] += dt * vi
+    return ti.Vector([ti.cast(vmax, ti.f64), ti.cast(bad, ti.f64)])

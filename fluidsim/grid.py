@@ -1,0 +1,232 @@
+"""Uniform grid for neighbour search: cell assignment, counting sort with a prefix sum, cell ranges.
+
+The grid has an explicit origin and cell size (the support radius h). Cell (cx, cy, cz) has linear index
+``(cx * ny + cy) * nz + cz``. A point outside the grid gets the extra index ``num_cells`` (the
+"retired" bucket) and is never clamped into a border cell, so no neighbour is ever counted twice.
+
+The sort is stable: particles are counted per cell (atomic ranks), the counts are prefix-summed,
+each particle is scattered to its slot and every cell's slots are then ordered by the particles'
+previous positions, so the permutation, and everything computed from it, is deterministic on any
+number of threads.
+
+Numpy twins: :func:`cell_index_np` and :func:`brute_force_neighbors_np`.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+ivec3 = ti.types.vector(3, ti.i32)
+# Block count of the two-level prefix sum; enough parallel slack for CPUs and small GPUs.
+SCAN_BLOCKS = 256
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """A uniform grid of cubic cells.
+
+    Attributes:
+        origin: (3,) metres, the lower corner of cell (0, 0, 0).
+        cell_size: metres.
+        dims: (3,) number of cells per axis.
+    """
+
+    origin: tuple[float, float, float]
+    cell_size: float
+    dims: tuple[int, int, int]
+
+    @property
+    def num_cells(self) -> int:
+        return int(self.dims[0]) * int(self.dims[1]) * int(self.dims[2])
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.asarray(self.origin) + self.cell_size * np.asarray(self.dims)
+
+
+def grid_for_box(box_min, box_max, cell_size: float, pad: float) -> GridSpec:
+    """The grid covering ``[box_min - pad, box_max + pad]`` with cells of ``cell_size``.
+
+    Args:
+        box_min, box_max: (3,) metres.
+        cell_size: metres (the SPH support radius).
+        pad: metres added on every side (walls and a neighbourhood).
+    Returns:
+        GridSpec.
+    Example:
+        >>> grid_for_box([0, 0, 0], [1, 1, 1], 0.1, 0.0).dims
+        (10, 10, 10)
+    """
+    lo = np.asarray(box_min, dtype=np.float64) - pad
+    hi = np.asarray(box_max, dtype=np.float64) + pad
+    dims = np.maximum(np.ceil((hi - lo) / cell_size - 1e-9).astype(np.int64), 1)
+    if int(np.prod(dims)) > 2**31 - 2:
+        raise ValueError(f"grid of {dims.tolist()} cells is too large; increase the particle radius")
+    return GridSpec(tuple(float(v) for v in lo), float(cell_size), tuple(int(v) for v in dims))
+
+
+def cell_index_np(points: np.ndarray, grid: GridSpec) -> np.ndarray:
+    """Numpy twin of :func:`cell_of`: linear cell index per point, ``num_cells`` when outside.
+
+    Args:
+        points: (N, 3) metres.
+        grid: the grid.
+    Returns:
+        (N,) int64 cell indices.
+    """
+    c = np.floor((np.asarray(points, dtype=np.float64) - np.asarray(grid.origin)) / grid.cell_size)
+    c = c.astype(np.int64)
+    dims = np.asarray(grid.dims)
+    inside = np.all((c >= 0) & (c < dims), axis=1)
+    lin = (c[:, 0] * dims[1] + c[:, 1]) * dims[2] + c[:, 2]
+    return np.where(inside, lin, grid.num_cells)
+
+
+@ti.func
+def cell_coord(x, origin, inv_cell):
+    """Integer cell coordinates of point ``x`` (may be out of range)."""
+    return ti.floor((x - origin) * inv_cell, ti.i32)
+
+
+@ti.func
+def cell_linear(c, dims) -> ti.i32:
+    """Linear index of cell ``c``, or -1 when ``c`` lies outside the grid (skipped, never clamped)."""
+    idx = -1
+    if 0 <= c[0] < dims[0] and 0 <= c[1] < dims[1] and 0 <= c[2] < dims[2]:
+        idx = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
+    return idx
+
+
+@ti.kernel
+def assign_cells(
+    xs: ti.types.ndarray(ndim=1),
+    n: ti.i32,
+    origin: ti.types.vector(3, ti.f64),
+    inv_cell: ti.f64,
+    dims: ivec3,
+    box_min: ti.types.vector(3, ti.f64),
+    box_max: ti.types.vector(3, ti.f64),
+    cell_ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    ranks: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+):
+    """Counting-sort pass 1: cell of each particle and its rank within the cell.
+
+    Particles outside ``[box_min, box_max]`` (the simulation domain) go to the retired bucket
+    ``num_cells``; they are counted by the caller and never clamped into the grid.
+    """
+    num_cells = dims[0] * dims[1] * dims[2]
+    for c in range(num_cells + 1):
+        counts[c] = 0
+    for i in range(n):
+        x = ti.cast(xs[i], ti.f64)
+        cell = num_cells
+        inside = True
+        for d in ti.static(range(3)):
+            if not (box_min[d] <= x[d] <= box_max[d]):
+                inside = False
+        if inside:
+            lin = cell_linear(cell_coord(x, origin, inv_cell), dims)
+            if lin >= 0:
+                cell = lin
+        cell_ids[i] = cell
+        ranks[i] = ti.atomic_add(counts[cell], 1)
+
+
+@ti.func
+def exclusive_scan(counts: ti.template(), starts: ti.template(), m: ti.i32, block_sums: ti.template()):
+    """Two-level exclusive prefix sum of ``counts[0:m]`` into ``starts[0:m+1]`` (parallel blocks)."""
+    nb = block_sums.shape[0]
+    for b in range(nb):
+        lo = b * m // nb
+        hi = (b + 1) * m // nb
+        s = 0
+        for c in range(lo, hi):
+            s += counts[c]
+        block_sums[b] = s
+    total = 0
+    ti.loop_config(serialize=True)
+    for b in range(nb):
+        s = block_sums[b]
+        block_sums[b] = total
+        total += s
+    for b in range(nb):
+        lo = b * m // nb
+        hi = (b + 1) * m // nb
+        s = block_sums[b]
+        for c in range(lo, hi):
+            starts[c] = s
+            s += counts[c]
+    starts[m] = total
+
+
+@ti.kernel
+def sort_by_cell(
+    n: ti.i32,
+    capacity: ti.i32,
+    num_buckets: ti.i32,
+    cell_ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    ranks: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    block_sums: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    order: ti.types.ndarray(dtype=ti.i32, ndim=1),
+) -> ti.i32:
+    """Counting-sort passes 2 and 3: prefix sum of the bucket counts, then the stable permutation.
+
+    ``order[k]`` is the old index of the particle that goes to slot ``k`` (identity for the slots
+    ``n <= k < capacity`` of particles retired earlier). ``starts[c]`` is the first slot of bucket
+    ``c``; the last bucket holds the particles retired now. Returns the number kept, ``starts[-2]``.
+    """
+    exclusive_scan(counts, starts, num_buckets, block_sums)
+    for i in range(n):
+        order[starts[cell_ids[i]] + ranks[i]] = i
+    for k in range(n, capacity):
+        order[k] = k
+    # Atomic ranks depend on thread timing; sorting each (small) cell by old index makes the
+    # permutation stable and deterministic. The retired bucket is left as it is: nothing reads it
+    # in slot order.
+    for c in range(num_buckets - 1):
+        lo = starts[c]
+        hi = starts[c + 1]
+        for k in range(lo + 1, hi):
+            v = order[k]
+            j = k - 1
+            while j >= lo:  # Taichi's `and` does not short-circuit: test the bound first
+                if order[j] <= v:
+                    break
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = v
+    return starts[num_buckets - 1]
+
+
+@ti.kernel
+def gather_rows(src: ti.types.ndarray(ndim=1), dst: ti.types.ndarray(ndim=1),
+                order: ti.types.ndarray(dtype=ti.i32, ndim=1), n: ti.i32):
+    """Permutation: ``dst[k] = src[order[k]]`` for k < n."""
+    for k in range(n):
+        dst[k] = src[order[k]]
+
+
+def brute_force_neighbors_np(queries: np.ndarray, points: np.ndarray, radius: float,
+                             exclude_self: bool) -> list[np.ndarray]:
+    """O(N M) reference neighbour search: for each query, the sorted indices of points within ``radius``.
+
+    Args:
+        queries: (N, 3) metres.
+        points: (M, 3) metres.
+        radius: metres; a neighbour has ``|q - p| < radius``.
+        exclude_self: drop index i from query i's list (queries and points are the same set).
+    Returns:
+        list of N int arrays.
+    """
+    out = []
+    for i, q in enumerate(np.asarray(queries, dtype=np.float64)):
+        d2 = np.sum((np.asarray(points, dtype=np.float64) - q) ** 2, axis=1)
+        idx = np.nonzero(d2 < radius * radius)[0]
+        if exclude_self:
+            idx = idx[idx != i]
+        out.append(idx)
+    return out

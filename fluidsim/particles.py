@@ -1,0 +1,142 @@
+"""Particle sets: the fluid (moving, re-sorted every step) and the boundary (static, sorted once).
+
+Each set owns its per-particle arrays. :class:`FluidParticles` knows which arrays carry state from one
+step to the next (``PERSISTENT``) and permutes exactly those when the grid sorts the particles, so
+no caller keeps a hand-written list of buffers. Arrays are Taichi ndarrays, so kernels compile once
+per dtype and never per simulation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import taichi as ti
+
+from .grid import gather_rows
+
+
+def float_dtype(precision: str):
+    """Taichi float type for ``"f32"`` or ``"f64"``."""
+    return ti.f64 if precision == "f64" else ti.f32
+
+
+def _vec_ndarray(dtype, n: int):
+    return ti.Vector.ndarray(3, dtype, shape=max(n, 1))
+
+
+class FluidParticles:
+    """Per-fluid-particle arrays (N = initial fluid count; retired particles stay at the tail).
+
+    Attributes (Taichi ndarrays of length N):
+        x, v: positions (m) and velocities (m/s), vec3.
+        ids: the particle's index in the initial fluid set (stable across sorts).
+        kappa_density, kappa_divergence: warm-start stiffness of the two DFSPH solvers.
+        divergence_sum, divergence_count: run accumulation of D_i (paper Eq. 1).
+        density: normalised density rho_i / rho_0. factor: DFSPH factor alpha_i / rho_i (m^2).
+        stiffness, stiffness_sum, source: per-iteration solver scratch.
+        acceleration: non-pressure acceleration scratch (m/s^2).
+        divergence: D_i of the current step (1/s).
+        cell_ids, ranks, order: counting-sort scratch.
+    """
+
+    PERSISTENT = ("x", "v", "ids", "kappa_density", "kappa_divergence", "divergence_sum", "divergence_count")
+
+    def __init__(self, positions: np.ndarray, velocities: np.ndarray, precision: str):
+        positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        velocities = np.asarray(velocities, dtype=np.float64).reshape(-1, 3)
+        if positions.shape != velocities.shape:
+            raise ValueError(f"positions {positions.shape} and velocities {velocities.shape} differ in shape")
+        fp = float_dtype(precision)
+        n = positions.shape[0]
+        self.capacity = n
+        self.active = n
+        self.dtype = fp
+        self.x = _vec_ndarray(fp, n)
+        self.v = _vec_ndarray(fp, n)
+        self.ids = ti.ndarray(ti.i32, shape=max(n, 1))
+        self.kappa_density = ti.ndarray(fp, shape=max(n, 1))
+        self.kappa_divergence = ti.ndarray(fp, shape=max(n, 1))
+        self.divergence_sum = ti.ndarray(ti.f64, shape=max(n, 1))
+        self.divergence_count = ti.ndarray(ti.i32, shape=max(n, 1))
+        for name in ("density", "factor", "stiffness", "stiffness_sum", "source", "divergence"):
+            setattr(self, name, ti.ndarray(fp, shape=max(n, 1)))
+        self.acceleration = _vec_ndarray(fp, n)
+        for name in ("cell_ids", "ranks", "order"):
+            setattr(self, name, ti.ndarray(ti.i32, shape=max(n, 1)))
+        self._spare = {name: _like(getattr(self, name)) for name in self.PERSISTENT}
+        if n:
+            self.x.from_numpy(positions.astype(_np_dtype(fp)))
+            self.v.from_numpy(velocities.astype(_np_dtype(fp)))
+            self.ids.from_numpy(np.arange(n, dtype=np.int32))
+            self.order.from_numpy(np.arange(n, dtype=np.int32))
+
+    def permute(self) -> None:
+        """Apply ``self.order`` to every persistent array (double-buffered: swap, no copy back)."""
+        for name in self.PERSISTENT:
+            src = getattr(self, name)
+            dst = self._spare[name]
+            gather_rows(src, dst, self.order, self.capacity)
+            setattr(self, name, dst)
+            self._spare[name] = src
+
+    def numpy(self, name: str, active_only: bool = True) -> np.ndarray:
+        """A copy of one array as numpy, the active particles first (sorted order, not by id)."""
+        arr = getattr(self, name).to_numpy()
+        return arr[: self.active] if active_only else arr[: self.capacity]
+
+
+class BoundaryParticles:
+    """Static boundary particles, sorted by grid cell once, with Akinci et al. 2012 volumes.
+
+    Attributes:
+        x: (M,) vec3 positions, metres, in cell order.
+        volume: (M,) Akinci volumes V_b = 1 / sum_k W(x_b - x_k), m^3 (filled by the solver setup).
+        cell_starts: (num_cells + 1,) first slot of each cell.
+    """
+
+    def __init__(self, positions_sorted: np.ndarray, cell_starts: np.ndarray, precision: str):
+        fp = float_dtype(precision)
+        m = positions_sorted.shape[0]
+        self.count = m
+        self.x = _vec_ndarray(fp, m)
+        self.volume = ti.ndarray(fp, shape=max(m, 1))
+        self.cell_starts = ti.ndarray(ti.i32, shape=cell_starts.shape[0])
+        if m:
+            self.x.from_numpy(positions_sorted.astype(_np_dtype(fp)))
+        self.cell_starts.from_numpy(cell_starts.astype(np.int32))
+
+
+class Neighborhoods:
+    """Fixed-capacity neighbour lists per fluid particle, grown when a particle overflows them.
+
+    Fluid-fluid pairs store the neighbour index j and grad W(x_i - x_j, h). Fluid-boundary pairs store
+    the boundary index b and V_b grad W(x_i - x_b, h) (volume-weighted, since V_b never changes).
+    """
+
+    def __init__(self, n: int, capacity: int, precision: str):
+        self.n = max(n, 1)
+        self.fp = float_dtype(precision)
+        self.fluid_count = ti.ndarray(ti.i32, shape=self.n)
+        self.boundary_count = ti.ndarray(ti.i32, shape=self.n)
+        self.fluid_capacity = 0
+        self.boundary_capacity = 0
+        self.resize(capacity, capacity)
+
+    def resize(self, fluid_capacity: int, boundary_capacity: int) -> None:
+        if fluid_capacity != self.fluid_capacity:
+            self.fluid_capacity = fluid_capacity
+            self.fluid_index = ti.ndarray(ti.i32, shape=(self.n, fluid_capacity))
+            self.fluid_grad = ti.Vector.ndarray(3, self.fp, shape=(self.n, fluid_capacity))
+        if boundary_capacity != self.boundary_capacity:
+            self.boundary_capacity = boundary_capacity
+            self.boundary_index = ti.ndarray(ti.i32, shape=(self.n, boundary_capacity))
+            self.boundary_grad = ti.Vector.ndarray(3, self.fp, shape=(self.n, boundary_capacity))
+
+
+def _like(arr):
+    if isinstance(arr, ti.lang.matrix.VectorNdarray):
+        return ti.Vector.ndarray(arr.n, arr.dtype, shape=arr.shape)
+    return ti.ndarray(arr.dtype, shape=arr.shape)
+
+
+def _np_dtype(fp) -> type:
+    return np.float64 if fp == ti.f64 else np.float32

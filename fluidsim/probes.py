@@ -1,0 +1,178 @@
+"""The five fluid probes of the paper (Sec. 3.2, Fig. 3 and the appendix "Fluid Initialization").
+
+For a static solid, a fluid slab is placed upstream of it and released:
+
+- ``-x``, ``+x``, ``-z``, ``+z``: the slab flows along that direction at speed lambda (3 m/s);
+- ``-y``: the slab sits above the solid and falls from rest under gravity (Y-up).
+
+The slab leaves a gap to the solid's bounding box, has a given thickness along the flow and spans the
+solid across the flow with a margin. The domain box is the bounding box of solid and slab, padded.
+All probes reuse the kernels already compiled in this Taichi runtime: arrays are ndarrays, so a new
+probe allocates memory but never recompiles.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import sources
+from .config import SolverConfig
+from .scene import lattice_in_box
+from .simulation import run
+from .solver import DFSPHSolver, StepStats
+
+DIRECTIONS = ("-x", "+x", "-z", "+z", "-y")
+_AXIS = {"x": 0, "y": 1, "z": 2}
+
+
+@dataclass(frozen=True)
+class ProbeConfig:
+    """How the probe slabs are built.
+
+    Attributes:
+        speed: inflow speed lambda of the horizontal probes, m/s (the -y probe starts at rest).
+        slab_thickness: slab size along the flow, m; None = half the solid's extent along the flow.
+        gap: distance from the solid's bounding box to the slab, m; None = two particle spacings.
+        margin: how far the slab spans past the solid across the flow, m; None = 15 % of the largest
+            solid extent.
+        padding: space between the solid/slab box and the domain walls, m; None = 15 % of the largest
+            solid extent (at least 3 particle spacings).
+        walls: close the domain with wall particles (as the paper does).
+        wall_layers: layers of wall particles.
+        directions: which probes to run, a subset of ("-x", "+x", "-z", "+z", "-y").
+    """
+
+    speed: float = 3.0
+    slab_thickness: float | None = None
+    gap: float | None = None
+    margin: float | None = None
+    padding: float | None = None
+    walls: bool = True
+    wall_layers: int = 2
+    directions: tuple[str, ...] = DIRECTIONS
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.speed) and self.speed >= 0):
+            raise ValueError(f"probe speed must be a finite number >= 0 m/s, got {self.speed}")
+        for name in ("slab_thickness", "gap", "margin", "padding"):
+            val = getattr(self, name)
+            if val is not None and not (math.isfinite(val) and val > 0):
+                raise ValueError(f"probe {name} must be > 0 m (or null for the default), got {val}")
+        bad = [d for d in self.directions if d not in DIRECTIONS]
+        if bad or not self.directions:
+            raise ValueError(f"probe directions must be a non-empty subset of {DIRECTIONS}, got {self.directions}")
+        object.__setattr__(self, "directions", tuple(self.directions))
+
+
+@dataclass(frozen=True)
+class ProbeSetup:
+    """One probe's geometry: domain box, fluid slab and its initial velocity (m, m/s)."""
+
+    direction: str
+    velocity: tuple[float, float, float]
+    domain_min: tuple[float, float, float]
+    domain_max: tuple[float, float, float]
+    fluid_min: tuple[float, float, float]
+    fluid_max: tuple[float, float, float]
+
+
+def flow_vector(direction: str) -> np.ndarray:
+    """Unit vector of the flow for a probe name, e.g. ``"-x"`` -> (-1, 0, 0)."""
+    if direction not in DIRECTIONS:
+        raise ValueError(f"unknown probe direction {direction!r}; use one of {DIRECTIONS}")
+    v = np.zeros(3)
+    v[_AXIS[direction[1]]] = -1.0 if direction[0] == "-" else 1.0
+    return v
+
+
+def probe_setup(solid_points: np.ndarray, direction: str, probe: ProbeConfig, spacing: float) -> ProbeSetup:
+    """The slab and domain of one probe around a solid particle set.
+
+    Args:
+        solid_points: (M, 3) m, the static solid.
+        direction: one of :data:`DIRECTIONS`.
+        probe: slab parameters.
+        spacing: particle spacing 2 r, m.
+    Returns:
+        ProbeSetup.
+    """
+    pts = np.asarray(solid_points, np.float64).reshape(-1, 3)
+    if len(pts) == 0 or not np.isfinite(pts).all():
+        raise ValueError("the solid has no particles or non-finite ones; check the solid input")
+    lo, hi = pts.min(0) - 0.5 * spacing, pts.max(0) + 0.5 * spacing
+    extent = hi - lo
+    flow = flow_vector(direction)
+    axis = int(np.argmax(np.abs(flow)))
+    upstream_sign = -flow[axis]  # the slab sits on the side the flow comes from
+    thickness = probe.slab_thickness if probe.slab_thickness is not None else 0.5 * extent[axis]
+    thickness = max(thickness, spacing)
+    gap = probe.gap if probe.gap is not None else 2.0 * spacing
+    margin = probe.margin if probe.margin is not None else 0.15 * extent.max()
+    padding = probe.padding if probe.padding is not None else max(0.15 * extent.max(), 3.0 * spacing)
+    fmin, fmax = lo - margin, hi + margin
+    if upstream_sign > 0:
+        fmin[axis], fmax[axis] = hi[axis] + gap, hi[axis] + gap + thickness
+    else:
+        fmin[axis], fmax[axis] = lo[axis] - gap - thickness, lo[axis] - gap
+    dmin = np.minimum(lo, fmin) - padding
+    dmax = np.maximum(hi, fmax) + padding
+    speed = 0.0 if direction == "-y" else probe.speed
+    return ProbeSetup(direction, tuple(float(c) for c in flow * speed), tuple(dmin.tolist()),
+                      tuple(dmax.tolist()), tuple(fmin.tolist()), tuple(fmax.tolist()))
+
+
+def build_probe_solver(solid_points: np.ndarray, setup: ProbeSetup, config: SolverConfig,
+                       probe: ProbeConfig) -> DFSPHSolver:
+    """A solver for one probe: solid plus optional walls as boundary, the slab as fluid."""
+    spacing = config.spacing
+    boundary = [np.asarray(solid_points, np.float64).reshape(-1, 3)]
+    if probe.walls:
+        boundary.append(sources.wall_particles(setup.domain_min, setup.domain_max, spacing, probe.wall_layers))
+    fluid = lattice_in_box(setup.fluid_min, setup.fluid_max, spacing)
+    vel = np.broadcast_to(np.asarray(setup.velocity), fluid.shape)
+    return DFSPHSolver(config, setup.domain_min, setup.domain_max, fluid, vel, np.concatenate(boundary))
+
+
+def run_probes(solid_points: np.ndarray, config: SolverConfig, probe: ProbeConfig, steps: int,
+               on_step: Callable[[str, DFSPHSolver, StepStats], None] | None = None,
+               on_probe_start: Callable[[str, DFSPHSolver], None] | None = None,
+               on_probe_end: Callable[[str, DFSPHSolver, list[StepStats]], None] | None = None,
+               progress: Callable[[str, StepStats], None] | None = None,
+               directions: Sequence[str] | None = None) -> dict[str, list[StepStats]]:
+    """Run the probes one after another in the current Taichi runtime.
+
+    Args:
+        solid_points: (M, 3) m.
+        config: solver parameters (shared by all probes).
+        probe: slab parameters.
+        steps: steps per probe.
+        on_step(direction, solver, stats): after every step (per-Gaussian accumulation, frames).
+        on_probe_start / on_probe_end: around each probe.
+        progress(direction, stats): after every step.
+        directions: override ``probe.directions``.
+    Returns:
+        the step statistics per direction.
+    """
+    dirs = tuple(directions) if directions is not None else probe.directions
+    out: dict[str, list[StepStats]] = {}
+    for d in dirs:
+        setup = probe_setup(solid_points, d, probe, config.spacing)
+        solver = build_probe_solver(solid_points, setup, config, probe)
+        if on_probe_start is not None:
+            on_probe_start(d, solver)
+        history = run(solver, steps,
+                      on_step=None if on_step is None else (lambda s, st, d=d: on_step(d, s, st)),
+                      progress=None if progress is None else (lambda st, d=d: progress(d, st)))
+        out[d] = history
+        if on_probe_end is not None:
+            on_probe_end(d, solver, history)
+    return out
+
+
+def with_speed(probe: ProbeConfig, speed: float) -> ProbeConfig:
+    """A copy of ``probe`` with another inflow speed (for velocity sweeps)."""
+    return replace(probe, speed=speed)

@@ -1,0 +1,331 @@
+"""The DFSPH time step (Bender & Koschier 2015, Alg. 1; 2017) on fluid and static boundary particles.
+
+``DFSPHSolver.step()`` reads like the algorithm:
+
+    grid sort -> neighbourhoods, density, factor -> divergence solve -> divergence estimate (paper Eq. 1)
+    -> non-pressure forces, predict v -> density solve -> advect
+
+It never prints; it returns :class:`StepStats`. Faults (NaN, runaway speed, a solver stuck at its
+iteration cap) are judged by the caller (:mod:`fluidsim.simulation`), which knows the run.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+from . import dfsph, divergence, grid, neighbors, viscosity
+from .config import SolverConfig
+from .grid import GridSpec
+from .kernels import cubic_w_np
+from .particles import BoundaryParticles, FluidParticles, Neighborhoods, float_dtype
+from .reductions import REDUCTION_CHUNKS
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class StepStats:
+    """What one step did.
+
+    Attributes:
+        step: index of the step (0-based). time: simulated time at its end, s. dt: s.
+        density_iterations / divergence_iterations: solver iterations.
+        density_error: final average density error, percent of rho_0.
+        divergence_error: final average divergence error, percent of rho_0 over one dt.
+        max_speed: largest fluid speed after the step, m/s.
+        nonfinite: fluid particles with a NaN or Inf velocity.
+        retired: fluid particles that left the domain in this step. active: fluid particles left.
+        max_fluid_neighbors / max_boundary_neighbors: largest neighbour counts.
+    """
+
+    step: int
+    time: float
+    dt: float
+    density_iterations: int
+    density_error: float
+    divergence_iterations: int
+    divergence_error: float
+    max_speed: float
+    nonfinite: int
+    retired: int
+    active: int
+    max_fluid_neighbors: int
+    max_boundary_neighbors: int
+
+
+STATS_FIELDS = tuple(StepStats.__dataclass_fields__)
+
+
+def fluid_particle_volume(spacing: float, h: float) -> float:
+    """V_f = m / rho_0 such that a particle inside a lattice of ``spacing`` has exactly rho_0.
+
+    Args:
+        spacing: lattice spacing 2 r, m. h: support radius, m.
+    Returns:
+        m^3 (a bit under spacing^3 for the cubic spline with h = 2 spacing).
+    """
+    reach = int(math.ceil(h / spacing))
+    ax = np.arange(-reach, reach + 1) * spacing
+    pts = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+    return float(1.0 / cubic_w_np(np.linalg.norm(pts, axis=1), h).sum())
+
+
+def sort_points_by_cell(points: np.ndarray, spec: GridSpec) -> tuple[np.ndarray, np.ndarray, int]:
+    """Stable numpy sort of static points by grid cell.
+
+    Returns:
+        (points inside the grid in cell order (M,3), cell starts (num_cells + 1,), dropped count).
+    """
+    cells = grid.cell_index_np(points, spec)
+    keep = cells < spec.num_cells
+    order = np.argsort(cells[keep], kind="stable")
+    pts = points[keep][order]
+    counts = np.bincount(cells[keep], minlength=spec.num_cells)
+    starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return pts, starts, int((~keep).sum())
+
+
+class DFSPHSolver:
+    """DFSPH on one fluid set and one static boundary set inside an axis-aligned domain.
+
+    Args:
+        config: solver parameters.
+        domain_min, domain_max: (3,) m; fluid leaving this box is retired.
+        fluid_positions, fluid_velocities: (N, 3) m and m/s.
+        boundary_points: (M, 3) m, static (walls and solids).
+    """
+
+    def __init__(self, config: SolverConfig, domain_min, domain_max, fluid_positions: np.ndarray,
+                 fluid_velocities: np.ndarray, boundary_points: np.ndarray):
+        runtime_fp = ti.lang.impl.get_runtime().default_fp
+        if runtime_fp != float_dtype(config.precision):
+            raise ValueError(
+                f"precision {config.precision!r} differs from the Taichi runtime's default_fp {runtime_fp}; "
+                f"initialise Taichi with default_fp={'ti.f64' if config.precision == 'f64' else 'ti.f32'}")
+        self.config = config
+        self.domain_min = np.asarray(domain_min, dtype=np.float64)
+        self.domain_max = np.asarray(domain_max, dtype=np.float64)
+        h = config.support_radius
+        self.h = h
+        # Walls sit up to a few spacings outside the domain; one more h keeps their neighbours inside.
+        self.grid = grid.grid_for_box(self.domain_min, self.domain_max, h, pad=4 * config.spacing + h)
+        self.fluid_volume = fluid_particle_volume(config.spacing, h)
+        g = self.grid
+        self._origin = ti.Vector(list(g.origin), ti.f64)
+        self._inv_cell = 1.0 / g.cell_size
+        self._dims = grid.ivec3(*g.dims)
+
+        bpts, bstarts, dropped = sort_points_by_cell(np.asarray(boundary_points, np.float64).reshape(-1, 3), g)
+        if dropped:
+            log.info("dropped %d boundary particles outside the simulation grid", dropped)
+        self.boundary = BoundaryParticles(bpts, bstarts, config.precision)
+        neighbors.compute_boundary_volumes(self.boundary.x, self.boundary.cell_starts, self.boundary.count,
+                                           self._origin, self._inv_cell, self._dims, h, self.boundary.volume)
+
+        fx = np.asarray(fluid_positions, np.float64).reshape(-1, 3)
+        fv = np.asarray(fluid_velocities, np.float64).reshape(-1, 3)
+        self.removed_inside_solid = 0
+        if len(fx) and self.boundary.count:
+            keep = self._outside_boundary(fx)
+            self.removed_inside_solid = int((~keep).sum())
+            fx, fv = fx[keep], fv[keep]
+        self.fluid = FluidParticles(fx, fv, config.precision)
+        n = self.fluid.capacity
+        self.neighborhoods = Neighborhoods(n, config.max_neighbors, config.precision)
+        self._counts = ti.ndarray(ti.i32, shape=g.num_cells + 1)
+        self._starts = ti.ndarray(ti.i32, shape=g.num_cells + 2)
+        self._block_sums = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
+        self._partial = ti.ndarray(ti.f64, shape=REDUCTION_CHUNKS)
+        self.time = 0.0
+        self.step_index = 0
+        self.stage_times: dict[str, float] | None = None  # set to {} to profile stages
+        speeds = np.linalg.norm(fv, axis=1) if len(fv) else np.zeros(1)
+        self._max_speed = float(speeds.max())
+
+    # -- setup helpers -------------------------------------------------------------------------
+    def _outside_boundary(self, fx: np.ndarray) -> np.ndarray:
+        """Mask of fluid positions not overlapping a boundary particle (closer than 0.9 spacing)."""
+        fp = float_dtype(self.config.precision)
+        tmp = ti.Vector.ndarray(3, fp, shape=len(fx))
+        tmp.from_numpy(fx.astype(np.float64 if fp == ti.f64 else np.float32))
+        flags = ti.ndarray(ti.i32, shape=len(fx))
+        neighbors.flag_near_boundary(len(fx), tmp, self.boundary.x, self.boundary.cell_starts, self._origin,
+                                     self._inv_cell, self._dims, 0.9 * self.config.spacing, flags)
+        return flags.to_numpy() == 0
+
+    # -- the time step -------------------------------------------------------------------------
+    def step(self) -> StepStats:
+        """Advance one time step and return its statistics."""
+        stage = self._stage
+        dt = self._time_step()
+        retired = stage("sort", self._sort)                              # grid: counting sort by cell
+        max_f, max_b = stage("neighbors", self._neighborhoods)           # density, DFSPH factor
+        div_it, div_err = stage("divergence_solve", self._divergence_solve, dt)  # B&K divergence-free
+        stage("divergence_estimate", self._estimate_divergence)          # paper Eq. 1
+        stage("non_pressure", self._non_pressure_forces, dt)             # gravity, viscosity; predict v
+        dens_it, dens_err = stage("density_solve", self._density_solve, dt)  # B&K constant density
+        max_speed, bad = stage("advect", self._advect, dt)               # x += dt v
+        self.time += dt
+        stats = StepStats(
+            step=self.step_index, time=self.time, dt=dt,
+            density_iterations=dens_it, density_error=100.0 * dens_err,
+            divergence_iterations=div_it, divergence_error=100.0 * div_err * dt,
+            max_speed=max_speed, nonfinite=bad, retired=retired, active=self.fluid.active,
+            max_fluid_neighbors=max_f, max_boundary_neighbors=max_b)
+        self.step_index += 1
+        return stats
+
+    def _stage(self, name: str, fn, *args):
+        """Run one stage; with ``stage_times`` set (a dict), add its wall time in seconds."""
+        if self.stage_times is None:
+            return fn(*args)
+        ti.sync()
+        t0 = time.perf_counter()
+        out = fn(*args)
+        ti.sync()
+        self.stage_times[name] = self.stage_times.get(name, 0.0) + time.perf_counter() - t0
+        return out
+
+    def _time_step(self) -> float:
+        cfg = self.config
+        if cfg.time_step == "fixed":
+            return cfg.dt
+        if self.step_index == 0 or self._max_speed <= 0.0:
+            return min(max(cfg.dt, cfg.dt_min), cfg.dt_max)
+        return min(max(cfg.cfl_factor * cfg.spacing / self._max_speed, cfg.dt_min), cfg.dt_max)
+
+    def _sort(self) -> int:
+        f = self.fluid
+        if f.active == 0:
+            return 0
+        g = self.grid
+        grid.assign_cells(f.x, f.active, self._origin, self._inv_cell, self._dims,
+                          ti.Vector(list(self.domain_min), ti.f64), ti.Vector(list(self.domain_max), ti.f64),
+                          f.cell_ids, f.ranks, self._counts)
+        kept = grid.sort_by_cell(f.active, f.capacity, g.num_cells + 1, f.cell_ids, f.ranks, self._counts,
+                                 self._starts, self._block_sums, f.order)
+        f.permute()
+        retired = f.active - int(kept)
+        f.active = int(kept)
+        return retired
+
+    def _neighborhoods(self) -> tuple[int, int]:
+        f, nb, b = self.fluid, self.neighborhoods, self.boundary
+        while True:
+            counts = neighbors.build_neighborhoods(
+                f.active, f.x, self._starts, b.x, b.volume, b.cell_starts, self._origin, self._inv_cell,
+                self._dims, self.h, self.fluid_volume, nb.fluid_count, nb.fluid_index, nb.fluid_grad,
+                nb.boundary_count, nb.boundary_index, nb.boundary_grad, f.density, f.factor)
+            max_f, max_b = int(counts[0]), int(counts[1])
+            if max_f <= nb.fluid_capacity and max_b <= nb.boundary_capacity:
+                return max_f, max_b
+            grow_f = max(nb.fluid_capacity, int(max_f * 1.25) + 4)
+            grow_b = max(nb.boundary_capacity, int(max_b * 1.25) + 4)
+            log.info("growing neighbour lists to %d fluid / %d boundary slots", grow_f, grow_b)
+            nb.resize(grow_f, grow_b)
+
+    def _solve(self, error_kernel, extra_args: tuple, kappa, dt: float, tolerance: float,
+               warm_scale: float, store_scale: float) -> tuple[int, float]:
+        """The iteration shared by both DFSPH solvers; returns (iterations, final average error)."""
+        cfg, f, nb = self.config, self.fluid, self.neighborhoods
+        n = f.active
+        lists = (f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count, nb.boundary_grad)
+        scratch = (*extra_args, f.factor, kappa, f.source, f.stiffness, f.stiffness_sum, self._partial)
+
+        def apply() -> None:
+            dfsph.apply_stiffness(n, dt, *lists, f.stiffness, f.stiffness_sum)
+
+        if cfg.warm_start:
+            error_kernel(n, dt, dfsph.WARM, warm_scale, *lists, *scratch)
+            apply()
+            err = error_kernel(n, dt, dfsph.ITERATE, 0.0, *lists, *scratch)
+        else:
+            err = error_kernel(n, dt, dfsph.FIRST, 0.0, *lists, *scratch)
+        iterations = 0
+        while (err > tolerance or iterations < cfg.min_iterations) and iterations < cfg.max_iterations:
+            apply()
+            err = error_kernel(n, dt, dfsph.ITERATE, 0.0, *lists, *scratch)
+            iterations += 1
+        dfsph.store_stiffness(n, store_scale, f.stiffness_sum, kappa)
+        return iterations, float(err)
+
+    def _divergence_solve(self, dt: float) -> tuple[int, float]:
+        if not self.config.divergence_solver or self.fluid.active == 0:
+            return 0, 0.0
+        # Tolerance on the average D(rho/rho_0)/Dt such that one dt changes the density by eta.
+        tol = self.config.max_divergence_error * 0.01 / dt
+        return self._solve(dfsph.divergence_error, (), self.fluid.kappa_divergence, dt, tol, 0.5, dt)
+
+    def _density_solve(self, dt: float) -> tuple[int, float]:
+        if self.fluid.active == 0:
+            return 0, 0.0
+        tol = self.config.max_density_error * 0.01
+        return self._solve(dfsph.density_error, (self.fluid.density,), self.fluid.kappa_density, dt, tol,
+                           1.0, dt * dt)
+
+    def _estimate_divergence(self) -> None:
+        cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
+        if f.active == 0:
+            return
+        if cfg.estimator_radius <= self.h:
+            divergence.estimate_divergence_from_lists(
+                f.active, cfg.estimator_radius, cfg.estimator_kernel_radius, self.fluid_volume, f.x, f.v,
+                f.density, b.x, b.volume, nb.fluid_count, nb.fluid_index, nb.boundary_count, nb.boundary_index,
+                f.divergence, f.divergence_sum, f.divergence_count)
+        else:
+            reach = int(math.ceil(cfg.estimator_radius / self.grid.cell_size))
+            divergence.estimate_divergence_from_grid(
+                f.active, cfg.estimator_radius, cfg.estimator_kernel_radius, self.fluid_volume, reach,
+                self._origin, self._inv_cell, self._dims, f.x, f.v, f.density, self._starts, b.x, b.volume,
+                b.cell_starts, f.divergence, f.divergence_sum, f.divergence_count)
+
+    def _non_pressure_forces(self, dt: float) -> None:
+        cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
+        if f.active == 0:
+            return
+        viscosity.apply_non_pressure_forces(
+            f.active, dt, ti.Vector(list(cfg.gravity)), cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
+            self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count,
+            nb.boundary_index, nb.boundary_grad, f.acceleration)
+
+    def _advect(self, dt: float) -> tuple[float, int]:
+        f = self.fluid
+        if f.active == 0:
+            return 0.0, 0
+        out = dfsph.advect(f.active, dt, f.x, f.v)
+        self._max_speed = float(out[0])
+        return float(out[0]), int(out[1])
+
+    # -- read-back -----------------------------------------------------------------------------
+    def fluid_state(self) -> dict[str, np.ndarray]:
+        """Active fluid particles, ordered by their initial index.
+
+        Returns:
+            dict with ``ids`` (K,), ``x`` (K,3) m, ``v`` (K,3) m/s, ``divergence`` (K,) 1/s,
+            ``density`` (K,) rho/rho_0.
+        """
+        f = self.fluid
+        ids = f.numpy("ids")
+        order = np.argsort(ids, kind="stable")
+        return {"ids": ids[order], "x": f.numpy("x")[order], "v": f.numpy("v")[order],
+                "divergence": f.numpy("divergence")[order], "density": f.numpy("density")[order]}
+
+    def divergence_accumulation(self) -> tuple[np.ndarray, np.ndarray]:
+        """Run sums and counts of D_i per initial fluid particle (retired particles included).
+
+        Returns:
+            (sum (N,) 1/s, count (N,) int), indexed by initial fluid index.
+        """
+        f = self.fluid
+        ids = f.numpy("ids", active_only=False)
+        total = np.zeros(f.capacity)
+        count = np.zeros(f.capacity, dtype=np.int64)
+        total[ids] = f.numpy("divergence_sum", active_only=False)
+        count[ids] = f.numpy("divergence_count", active_only=False)
+        return total, count

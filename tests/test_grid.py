@@ -1,0 +1,102 @@
+"""Uniform-grid neighbour search equals brute force exactly, including corner and edge cells."""
+
+import numpy as np
+import taichi as ti
+
+from fluidsim import grid, neighbors
+from fluidsim.grid import brute_force_neighbors_np, cell_index_np, grid_for_box
+from fluidsim.particles import Neighborhoods
+
+
+def _to_nd(a, dtype=ti.f32):
+    arr = ti.Vector.ndarray(3, dtype, shape=len(a))
+    arr.from_numpy(a.astype(np.float32))
+    return arr
+
+
+def _sorted_on_grid(points, spec, box_min, box_max):
+    n = len(points)
+    x = _to_nd(points)
+    cell_ids = ti.ndarray(ti.i32, shape=n)
+    ranks = ti.ndarray(ti.i32, shape=n)
+    counts = ti.ndarray(ti.i32, shape=spec.num_cells + 1)
+    starts = ti.ndarray(ti.i32, shape=spec.num_cells + 2)
+    order = ti.ndarray(ti.i32, shape=n)
+    grid.assign_cells(x, n, ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims),
+                      ti.Vector(list(box_min), ti.f64), ti.Vector(list(box_max), ti.f64), cell_ids, ranks, counts)
+    kept = grid.sort_by_cell(n, n, spec.num_cells + 1, cell_ids, ranks, counts, starts,
+                             ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS), order)
+    return int(kept), order.to_numpy(), starts.to_numpy(), cell_ids.to_numpy()
+
+
+def test_counting_sort_is_a_stable_sort_by_cell():
+    rng = np.random.default_rng(0)
+    spec = grid_for_box([0, 0, 0], [1, 0.7, 0.5], 0.1, 0.0)
+    pts = rng.uniform([-0.05, 0, 0], [1.05, 0.7, 0.5], (3000, 3))  # a few outside the box -> retired
+    kept, order, starts, cell_ids = _sorted_on_grid(pts, spec, [0, 0, 0], [1, 0.7, 0.5])
+    ref = cell_index_np(pts, spec)
+    np.testing.assert_array_equal(cell_ids, ref)
+    expected = np.argsort(ref, kind="stable")
+    assert kept == int((ref < spec.num_cells).sum())
+    np.testing.assert_array_equal(order[:kept], expected[:kept])
+    np.testing.assert_array_equal(np.diff(starts) >= 0, True)
+    assert starts[-1] == len(pts)
+
+
+def test_points_outside_the_grid_are_retired_not_clamped():
+    spec = grid_for_box([0, 0, 0], [1, 1, 1], 0.25, 0.0)
+    pts = np.array([[0.5, 0.5, 0.5], [1.2, 0.5, 0.5], [-0.01, 0.2, 0.2], [0.99, 0.99, 0.99]])
+    ids = cell_index_np(pts, spec)
+    assert ids[1] == spec.num_cells and ids[2] == spec.num_cells
+    kept, order, _, _ = _sorted_on_grid(pts, spec, [0, 0, 0], [1, 1, 1])
+    assert kept == 2
+    assert set(order[:2]) == {0, 3}
+
+
+def test_neighbour_lists_equal_brute_force_with_corner_cells():
+    rng = np.random.default_rng(3)
+    h = 0.1
+    lo, hi = np.zeros(3), np.array([0.5, 0.4, 0.3])
+    spec = grid_for_box(lo, hi, h, 0.0)  # tight grid: particles fill the corner and edge cells
+    fluid = rng.uniform(lo, hi, (1500, 3))
+    corners = np.array([[x, y, z] for x in (lo[0] + 1e-4, hi[0] - 1e-4) for y in (lo[1] + 1e-4, hi[1] - 1e-4)
+                        for z in (lo[2] + 1e-4, hi[2] - 1e-4)])
+    fluid = np.concatenate([fluid, corners])
+    bpts = rng.uniform(lo, hi, (700, 3))
+    n = len(fluid)
+    kept, order, starts, _ = _sorted_on_grid(fluid, spec, lo, hi)
+    assert kept == n
+    xs = fluid[order]
+    bcells = cell_index_np(bpts, spec)
+    border = np.argsort(bcells, kind="stable")
+    bx = bpts[border]
+    bstarts = np.concatenate([[0], np.cumsum(np.bincount(bcells, minlength=spec.num_cells))])
+    nb = Neighborhoods(n, 16, "f32")  # deliberately small: the caller must grow and retry
+    x_nd, bx_nd = _to_nd(xs), _to_nd(bx)
+    bvol = ti.ndarray(ti.f32, shape=len(bx))
+    bvol.fill(1.0e-4)
+    bst = ti.ndarray(ti.i32, shape=len(bstarts))
+    bst.from_numpy(bstarts.astype(np.int32))
+    st = ti.ndarray(ti.i32, shape=len(starts))
+    st.from_numpy(starts.astype(np.int32))
+    dens, fac = ti.ndarray(ti.f32, shape=n), ti.ndarray(ti.f32, shape=n)
+    args = (ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims), h, 1.0e-4)
+    while True:
+        m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_index,
+                                          nb.fluid_grad, nb.boundary_count, nb.boundary_index, nb.boundary_grad,
+                                          dens, fac)
+        if m[0] <= nb.fluid_capacity and m[1] <= nb.boundary_capacity:
+            break
+        nb.resize(int(m[0]), int(m[1]))
+    fc, fi = nb.fluid_count.to_numpy(), nb.fluid_index.to_numpy()
+    bc, bi = nb.boundary_count.to_numpy(), nb.boundary_index.to_numpy()
+    x32 = xs.astype(np.float32).astype(np.float64)
+    b32 = bx.astype(np.float32).astype(np.float64)
+    ref_f = brute_force_neighbors_np(x32, x32, h, exclude_self=True)
+    ref_b = brute_force_neighbors_np(x32, b32, h, exclude_self=False)
+    for i in range(n):
+        np.testing.assert_array_equal(np.sort(fi[i, : fc[i]]), ref_f[i], err_msg=f"fluid neighbours of {i}")
+        np.testing.assert_array_equal(np.sort(bi[i, : bc[i]]), ref_b[i], err_msg=f"boundary neighbours of {i}")
+    # the relation is symmetric
+    pairs = {(i, j) for i in range(n) for j in fi[i, : fc[i]]}
+    assert all((j, i) in pairs for i, j in pairs)

@@ -1,0 +1,407 @@
+"""Tests for apps/render_frames.py: projection on hand-computed cases, the z-buffer splat against a slow
+painter's twin, PNG and MP4 output on a synthetic OUT.h5, and input errors raised before any output."""
+
+import argparse
+import json
+import logging
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+
+from apps import render_frames as rf
+from apps.render_frames import FrameStyle, project, render_frames, scene_viewport
+
+DOMAIN_MIN = np.array([0.0, 0.0, 0.0])
+DOMAIN_MAX = np.array([2.0, 1.0, 1.0])
+HOT_DIVERGENCE = 100.0  # 1/s, far above every other particle
+W, H = 320, 240
+
+
+COLD_POSITION = np.array([0.2, 0.9, 0.3])  # one particle with zero divergence, apart from the block
+
+
+def _hot_position(i: int) -> np.ndarray:
+    """Where frame i puts its one hot particle: apart from the block, moving along x."""
+    return np.array([1.3 + 0.2 * i, 0.8, 0.9])
+
+
+def _write_h5(path, keys=("000000", "000010", "000020"), n=300, scene=True, boundary=None):
+    """A block of particles with divergence in [0, 1) 1/s in the lower left, one particle with zero
+    divergence at COLD_POSITION and one with HOT_DIVERGENCE at _hot_position(i), where i is the numeric
+    rank of the key (the file stores keys in the order given)."""
+    rng = np.random.default_rng(1)
+    order = {k: i for i, k in enumerate(sorted(keys, key=int))}
+    with h5py.File(path, "w") as f:
+        if scene:
+            domain = {"min": DOMAIN_MIN.tolist(), "max": DOMAIN_MAX.tolist(), "walls": True}
+            f.attrs["scene"] = json.dumps({"domain": domain, "name": "test"})
+        if boundary is not None:
+            f["boundary/x"] = boundary
+        for k in keys:
+            i = order[k]
+            x = rng.random((n, 3)) * [0.6, 0.4, 0.6] + 0.05
+            x[0], x[1] = _hot_position(i), COLD_POSITION
+            divergence = rng.random(n).astype(np.float32)
+            divergence[0], divergence[1] = HOT_DIVERGENCE, 0.0
+            g = f.create_group(f"frames/{k}")
+            g["x"] = x.astype(np.float32)
+            g["v"] = rng.normal(size=(n, 3)).astype(np.float32)
+            g["divergence"] = divergence
+            g.attrs["time"] = 0.01 * i
+            g.attrs["step"] = int(k)
+        f["stats"] = np.zeros(4)
+    return path
+
+
+def _pixel(point, view="front"):
+    """Expected frame pixel (column, row) of a world point, from the public projection and viewport."""
+    x0, y0, w, h = scene_viewport(W, H)
+    uv, _ = project(np.asarray(point)[None], DOMAIN_MIN, DOMAIN_MAX, view, w, h)
+    return int(uv[0, 0] + x0), int(uv[0, 1] + y0)
+
+
+def _is_warm(bgr) -> bool:
+    b, g, r = (int(c) for c in bgr)
+    return r > 100 and r > 2 * b
+
+
+# ----------------------------------------------------------------------------------------------- project
+
+
+def test_front_projection_maps_domain_corners_to_margin_corners():
+    # 4 m x 3 m front face into a canvas whose inner area is 400 x 300 px: 100 px/m on both axes
+    lo, hi, width, height, m = [0, 0, 0], [4, 3, 1], 421, 321, 10
+    pts = np.array([[0, 0, 0], [4, 3, 0], [0, 3, 1], [4, 0, 1], [2, 1.5, 0.5], [1, 1, 0.25]], float)
+    uv, depth = project(pts, lo, hi, "front", width, height, margin=m)
+    assert uv.dtype == np.int64 and uv.shape == (6, 2)
+    assert uv.tolist() == [[10, 310], [410, 10], [10, 10], [410, 310], [210, 160], [110, 210]]
+    np.testing.assert_allclose(depth, -pts[:, 2])  # front looks along -z: larger z is nearer
+
+
+def test_projection_keeps_aspect_ratio_and_centres_the_free_axis():
+    # 1 m cube into 421 x 321: height limits the scale to 300 px/m, width is centred
+    uv, _ = project(np.array([[0, 0, 0], [1, 1, 1]], float), [0] * 3, [1] * 3, "front", 421, 321, margin=10)
+    assert uv.tolist() == [[60, 310], [360, 10]]
+
+
+def test_default_margin_is_small_and_positive():
+    uv, _ = project(np.array([[0, 0, 0], [2, 1, 0]], float), DOMAIN_MIN, DOMAIN_MAX, "front", 961, 721)
+    m = rf.default_margin(961, 721)
+    assert 2 <= m <= 0.05 * 721
+    assert uv[0, 0] == m and uv[1, 0] == 960 - m  # x limits: 2:1 box in a 4:3 canvas
+
+
+@pytest.mark.parametrize(
+    "view, point, expected",
+    [
+        ("side", [0, 0, 4], [410, 110]),  # side looks along +x: +z is right, y up
+        ("side", [2, 1, 0], [10, 10]),
+        ("side", [3, 0.5, 1], [110, 60]),
+        ("top", [0, 0, 0], [10, 10]),  # top looks along -y: x right, -z up, so z = min is at the top
+        ("top", [4, 0.5, 4], [410, 410]),
+        ("top", [1, 0, 3], [110, 310]),
+    ],
+)
+def test_side_and_top_projection_hand_cases(view, point, expected):
+    # domain 4 x 1 x 4 m: the side view sees a 4 x 1 m rectangle in 421 x 121 px, the top view 4 x 4 m in
+    # 421 x 421 px; with a 10 px margin both are 100 px/m
+    lo, hi = [0, 0, 0], [4, 1, 4]
+    uv, _ = project(np.array([point], float), lo, hi, view, 421, 421 if view == "top" else 121, margin=10)
+    assert uv[0].tolist() == expected
+
+
+def test_depth_orders_points_along_each_view():
+    near_far = {
+        "front": ([0.5, 0.5, 0.9], [0.5, 0.5, 0.1]),
+        "side": ([0.1, 0.5, 0.5], [0.9, 0.5, 0.5]),
+        "top": ([0.5, 0.9, 0.5], [0.5, 0.1, 0.5]),
+        "iso": ([0.9, 0.9, 0.9], [0.1, 0.1, 0.1]),
+    }
+    for view, (near, far) in near_far.items():
+        _, depth = project(np.array([near, far]), [0] * 3, [1] * 3, view, 200, 200)
+        assert depth[0] < depth[1], view
+
+
+def test_view_bases_are_orthonormal_and_not_mirrored():
+    for view in rf.VIEWS:
+        right, up, forward = rf.view_basis(view)
+        np.testing.assert_allclose(np.stack([right, up, forward]) @ np.stack([right, up, forward]).T,
+                                   np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(np.cross(right, up), -forward, atol=1e-12)  # right x up points at camera
+
+
+def test_iso_projection_fits_the_box_and_puts_the_top_corner_on_the_margin():
+    corners = rf._box_corners(DOMAIN_MIN, DOMAIN_MAX)
+    uv, _ = project(corners, DOMAIN_MIN, DOMAIN_MAX, "iso", 400, 300, margin=10)
+    assert uv[:, 0].min() >= 10 and uv[:, 0].max() <= 389 and uv[:, 1].min() >= 10 and uv[:, 1].max() <= 289
+    assert uv[:, 1].min() == 10 or uv[:, 0].min() == 10  # one axis touches the margin
+    top = np.argmin(uv[:, 1])
+    # up = (-1, 2, -1)/sqrt(6): the highest corner has x = min, y = max, z = min
+    np.testing.assert_array_equal(corners[top], [DOMAIN_MIN[0], DOMAIN_MAX[1], DOMAIN_MIN[2]])
+
+
+def test_project_rejects_bad_inputs():
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        project(np.zeros((4, 2)), DOMAIN_MIN, DOMAIN_MAX, "front", W, H)
+    with pytest.raises(ValueError, match="NaN"):
+        project(np.full((1, 3), np.nan), DOMAIN_MIN, DOMAIN_MAX, "front", W, H)
+    with pytest.raises(ValueError, match="view"):
+        project(np.zeros((1, 3)), DOMAIN_MIN, DOMAIN_MAX, "back", W, H)
+    with pytest.raises(ValueError, match="min < max"):
+        project(np.zeros((1, 3)), [0, 0, 0], [1, 0, 1], "front", W, H)
+
+
+# ----------------------------------------------------------------------------------------------- splat
+
+
+def splat_reference(image, uv, depth, colors, radius):
+    """Slow twin of rf.splat: paint each disk far to near (stable for equal depth), one pixel at a time."""
+    h, w = image.shape[:2]
+    for i in np.argsort(-depth, kind="stable"):
+        for dx, dy in rf.disk_offsets(radius):
+            x, y = uv[i, 0] + dx, uv[i, 1] + dy
+            if 0 <= x < w and 0 <= y < h:
+                image[y, x] = colors[i]
+    return image
+
+
+@pytest.mark.parametrize("radius", [0, 1, 2, 4])
+def test_splat_matches_painters_reference(radius):
+    rng = np.random.default_rng(radius)
+    n, h, w = 400, 37, 53
+    uv = rng.integers(-6, 60, size=(n, 2))
+    uv[:50] = uv[50:100]  # shared centres: the nearest must win
+    depth = rng.integers(0, 30, size=n).astype(float)  # many ties: input order breaks them
+    colors = rng.integers(0, 256, size=(n, 3), dtype=np.uint8)
+    fast = rf.splat(np.zeros((h, w, 3), np.uint8), uv, depth, colors, radius)
+    slow = splat_reference(np.zeros((h, w, 3), np.uint8), uv, depth, colors, radius)
+    np.testing.assert_array_equal(fast, slow)
+
+
+def test_disk_offsets_shape():
+    assert len(rf.disk_offsets(0)) == 1
+    assert len(rf.disk_offsets(1)) == 9
+    assert len(rf.disk_offsets(2)) == 21
+
+
+def test_colorize_scale_ends():
+    lut = rf._COLORMAP_LUT
+    colors = rf.colorize(np.array([0.0, 5.0, 10.0, 50.0, np.nan]), vmax=10.0)
+    np.testing.assert_array_equal(colors, lut[[0, 128, 255, 255, 255]])
+
+
+# ----------------------------------------------------------------------------------------------- render
+
+
+def test_png_frames_show_the_hot_particle_in_warm_colours(tmp_path):
+    h5 = _write_h5(tmp_path / "OUT.h5")
+    out = tmp_path / "frames"
+    paths = render_frames(h5, out, FrameStyle(width=W, height=H, point_size=2), progress=False)
+    assert [p.name for p in paths] == ["frame_000000.png", "frame_000001.png", "frame_000002.png"]
+    assert sorted(p.name for p in out.iterdir()) == [p.name for p in paths]  # no temporary files left
+    for i, p in enumerate(paths):
+        image = cv2.imread(str(p))
+        assert image.shape == (H, W, 3)
+        u, v = _pixel(_hot_position(i))
+        assert _is_warm(image[v, u]), (i, image[v, u])
+        u, v = _pixel(COLD_POSITION)
+        np.testing.assert_array_equal(image[v, u], rf._COLORMAP_LUT[0])  # bottom of the scale
+
+
+def test_default_vmax_is_the_99th_percentile_over_all_frames(tmp_path):
+    h5 = _write_h5(tmp_path / "OUT.h5")
+    with h5py.File(h5) as f:
+        pooled = np.concatenate([f[f"frames/{k}/divergence"][()] for k in f["frames"]])
+        source = rf._Source.inspect(f, h5, FrameStyle())
+        assert source.percentile_vmax() == pytest.approx(np.percentile(pooled, 99.0), rel=1e-6)
+
+
+def test_frames_are_sorted_numerically(tmp_path):
+    # stored in lexicographic order "300" < "40" < "5"; numeric order is 5, 40, 300
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("300", "40", "5"))
+    paths = render_frames(h5, tmp_path / "frames", FrameStyle(width=W, height=H), progress=False)
+    for i, p in enumerate(paths):
+        u, v = _pixel(_hot_position(i))
+        assert _is_warm(cv2.imread(str(p))[v, u]), i
+
+
+@pytest.mark.parametrize("view", ["side", "top", "iso"])
+def test_other_views_put_the_hot_particle_at_its_projection(tmp_path, view):
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",))
+    paths = render_frames(h5, tmp_path / view, FrameStyle(view=view, width=W, height=H), progress=False)
+    u, v = _pixel(_hot_position(0), view)
+    assert _is_warm(cv2.imread(str(paths[0]))[v, u])
+
+
+def test_color_by_speed_and_fixed_vmax(tmp_path):
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",))
+    with h5py.File(h5, "a") as f:
+        v = f["frames/000000/v"]
+        speeds = np.zeros(v.shape, np.float32)
+        speeds[0] = [3.0, 0.0, 4.0]  # |v| = 5 m/s at the hot particle, 0 elsewhere
+        v[...] = speeds
+    style = FrameStyle(color_by="speed", vmax=5.0, width=W, height=H)
+    image = cv2.imread(str(render_frames(h5, tmp_path / "f", style, progress=False)[0]))
+    u, v = _pixel(_hot_position(0))
+    np.testing.assert_array_equal(image[v, u], rf._COLORMAP_LUT[255])
+
+
+def test_boundary_is_grey_and_can_be_hidden(tmp_path):
+    wall = np.array([[1.6, 0.3, 0.2]])  # alone on the right, below the hot particles
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",), boundary=wall)
+    u, v = _pixel(wall[0])
+    shown = cv2.imread(str(render_frames(h5, tmp_path / "a", FrameStyle(width=W, height=H), False)[0]))
+    b, g, r = (int(c) for c in shown[v, u])
+    assert b == g == r and b >= rf._BOUNDARY_GREY_FAR
+    hidden_style = FrameStyle(width=W, height=H, show_boundary=False)
+    hidden = cv2.imread(str(render_frames(h5, tmp_path / "b", hidden_style, False)[0]))
+    assert tuple(hidden[v, u]) == rf._BACKGROUND
+
+
+def test_boundary_is_subsampled(tmp_path, monkeypatch):
+    monkeypatch.setattr(rf, "MAX_BOUNDARY_POINTS", 100)
+    with h5py.File(tmp_path / "b.h5", "w") as f:
+        f["x"] = np.random.default_rng(0).random((1000, 3))
+        points = rf._read_boundary(f["x"], tmp_path / "b.h5")
+        assert points.shape == (100, 3)
+        assert len(np.unique(points, axis=0)) == 100
+        assert np.isin(points[:, 0], f["x"][:, 0]).all()
+
+
+def test_missing_scene_falls_back_to_particle_bounds(tmp_path, caplog):
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",), scene=False)
+    with caplog.at_level(logging.WARNING, logger="apps.render_frames"):
+        paths = render_frames(h5, tmp_path / "f", FrameStyle(width=W, height=H), progress=False)
+    assert len(paths) == 1 and "scene" in caplog.text
+
+
+def test_mp4_has_one_frame_per_h5_frame(tmp_path):
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000", "000010", "000020", "000030"))
+    out = tmp_path / "video" / "out.mp4"
+    assert render_frames(h5, out, FrameStyle(width=W, height=H, fps=10), progress=False) == [out]
+    assert [p.name for p in out.parent.iterdir()] == ["out.mp4"]  # the temporary file was renamed
+    cap = cv2.VideoCapture(str(out))
+    try:
+        assert cap.isOpened()
+        assert int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) == W and int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == H
+        assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 4
+        count = 0
+        while cap.read()[0]:
+            count += 1
+        assert count == 4
+    finally:
+        cap.release()
+
+
+# ----------------------------------------------------------------------------------------------- errors
+
+
+def _broken_inputs(tmp_path):
+    not_h5 = tmp_path / "notes.h5"
+    not_h5.write_text("not hdf5")
+    no_frames = tmp_path / "no_frames.h5"
+    with h5py.File(no_frames, "w") as f:
+        f["stats"] = np.zeros(3)
+    empty = tmp_path / "empty.h5"
+    with h5py.File(empty, "w") as f:
+        f.create_group("frames")
+    bad_shape = _write_h5(tmp_path / "bad_shape.h5", keys=("000000",))
+    with h5py.File(bad_shape, "a") as f:
+        del f["frames/000000/divergence"]
+        f["frames/000000/divergence"] = np.zeros(7)
+    return [
+        (tmp_path / "missing.h5", FileNotFoundError, "does not exist"),
+        (not_h5, ValueError, "not an HDF5 file"),
+        (no_frames, ValueError, "no /frames group"),
+        (empty, ValueError, "empty"),
+        (bad_shape, ValueError, r"\(7,\)"),
+    ]
+
+
+def test_bad_inputs_raise_naming_the_file_before_writing(tmp_path):
+    for path, error, what in _broken_inputs(tmp_path):
+        out = tmp_path / f"out_{path.stem}"
+        with pytest.raises(error, match=what) as info:
+            render_frames(path, out, FrameStyle(width=W, height=H), progress=False)
+        assert str(path) in str(info.value)
+        assert not out.exists()  # nothing was created
+
+
+def test_missing_color_dataset_names_the_frame(tmp_path):
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",))
+    with h5py.File(h5, "a") as f:
+        del f["frames/000000/v"]
+    with pytest.raises(ValueError, match="000000.*'v'.*color-by"):
+        render_frames(h5, tmp_path / "f", FrameStyle(color_by="speed", width=W, height=H), progress=False)
+
+
+def test_bad_style_values_raise():
+    with pytest.raises(ValueError, match="color_by"):
+        FrameStyle(color_by="pressure")
+    with pytest.raises(ValueError, match="view"):
+        FrameStyle(view="back")
+    with pytest.raises(ValueError, match="width"):
+        FrameStyle(width=10)
+    with pytest.raises(ValueError, match="vmax"):
+        FrameStyle(vmax=0.0)
+
+
+def test_unwritable_outputs_raise_before_rendering(tmp_path):
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",))
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(OSError, match="a_file"):
+        render_frames(h5, blocker / "frames", FrameStyle(width=W, height=H), progress=False)
+    with pytest.raises(OSError, match="a_file"):
+        render_frames(h5, blocker / "out.mp4", FrameStyle(width=W, height=H), progress=False)
+    with pytest.raises(ValueError, match="even"):
+        render_frames(h5, tmp_path / "odd.mp4", FrameStyle(width=W + 1, height=H), progress=False)
+    assert not (tmp_path / "odd.mp4").exists()
+
+
+def test_video_writer_failure_is_an_oserror(tmp_path, monkeypatch):
+    class ClosedWriter:
+        def __init__(self, *args):
+            pass
+
+        def isOpened(self):
+            return False
+
+        def release(self):
+            pass
+
+    monkeypatch.setattr(rf.cv2, "VideoWriter", ClosedWriter)
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",))
+    with pytest.raises(OSError, match="out.mp4"):
+        render_frames(h5, tmp_path / "out.mp4", FrameStyle(width=W, height=H), progress=False)
+    assert list(tmp_path.glob("*.mp4")) == []
+
+
+# ----------------------------------------------------------------------------------------------- CLI
+
+
+def test_cli_arguments_and_run(tmp_path, capsys):
+    parser = argparse.ArgumentParser()
+    rf.add_arguments(parser)
+    help_text = " ".join(parser.format_help().split())
+    for option in ["--color-by", "--view", "--width", "--height", "--point-size", "--vmax", "--no-boundary",
+                   "--fps"]:
+        assert option in help_text
+    for phrase in ["in pixels", "(default: 960)", "(default: 720)", "1/s", "m/s", "99th percentile",
+                   "frames per second, .mp4 only (default: 30)"]:
+        assert phrase in help_text
+
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000", "000010"))
+    args = parser.parse_args([str(h5), "-o", str(tmp_path / "f"), "--width", str(W), "--height", str(H),
+                              "--view", "iso", "--color-by", "speed", "--vmax", "2.5", "--no-boundary"])
+    assert args.no_boundary and args.vmax == 2.5
+    assert rf.run(args) == 0
+    assert len(list((tmp_path / "f").glob("frame_*.png"))) == 2
+    assert "wrote 2 file(s)" in capsys.readouterr().out
+
+    with pytest.raises(SystemExit):
+        parser.parse_args([str(h5)])  # -o is required
+    with pytest.raises(SystemExit):
+        parser.parse_args([str(h5), "-o", "x", "--vmax", "-1"])
