@@ -2,7 +2,8 @@
 
 Defaults follow SPlisHSPlasH's DFSPH and the paper's Table 2: particle radius 0.025 m, support radius
 4 r, rest density 1000 kg/m^3, dynamic viscosity 10 Pa s, dt 0.002 s, average density error 0.01 %,
-average divergence error 0.1 %, 2 to 100 solver iterations, warm start on.
+average divergence error 0.1 %, 2 to 100 density-solver iterations (at least 1 for the divergence
+solver), warm start on.
 """
 
 from __future__ import annotations
@@ -55,7 +56,10 @@ class SolverConfig:
         time_step: "fixed" or "cfl" (dt = cfl_factor * 2 r / max speed, clamped to [dt_min, dt_max]).
         max_density_error: average density error tolerance, percent of rho_0.
         max_divergence_error: average divergence error tolerance, percent of rho_0 per second of dt.
-        min_iterations / max_iterations: bounds for both solvers.
+        min_iterations / max_iterations: iteration bounds of the density solver; max_iterations also
+            bounds the divergence solver.
+        min_divergence_iterations: minimum iterations of the divergence solver (SPlisHSPlasH runs at
+            least one and applies min_iterations to the density solver only).
         divergence_solver: run the divergence-free solver (B&K 2017 Alg. 2).
         warm_start: warm-start both solvers from the previous step's stiffness.
         estimator_radius: h_r of paper Eq. 1, metres (neighbours within this distance).
@@ -80,6 +84,7 @@ class SolverConfig:
     max_density_error: float = 0.01
     max_divergence_error: float = 0.1
     min_iterations: int = 2
+    min_divergence_iterations: int = 1
     max_iterations: int = 100
     divergence_solver: bool = True
     warm_start: bool = True
@@ -109,10 +114,12 @@ class SolverConfig:
         _positive("max_density_error", self.max_density_error)
         _positive("max_divergence_error", self.max_divergence_error)
         _int_at_least("min_iterations", self.min_iterations, 0)
+        _int_at_least("min_divergence_iterations", self.min_divergence_iterations, 0)
         _int_at_least("max_iterations", self.max_iterations, 1)
-        if self.min_iterations > self.max_iterations:
-            raise ValueError(
-                f"min_iterations ({self.min_iterations}) must be <= max_iterations ({self.max_iterations})")
+        for name in ("min_iterations", "min_divergence_iterations"):
+            if getattr(self, name) > self.max_iterations:
+                raise ValueError(
+                    f"{name} ({getattr(self, name)}) must be <= max_iterations ({self.max_iterations})")
         for name in ("divergence_solver", "warm_start"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")

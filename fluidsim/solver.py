@@ -231,7 +231,7 @@ class DFSPHSolver:
             nb.resize(grow_f, grow_b)
 
     def _solve(self, error_kernel, extra_args: tuple, kappa, dt: float, tolerance: float,
-               warm_scale: float, store_scale: float) -> tuple[int, float]:
+               warm_scale: float, store_scale: float, min_iterations: int) -> tuple[int, float]:
         """The iteration shared by both DFSPH solvers; returns (iterations, final average error)."""
         cfg, f, nb = self.config, self.fluid, self.neighborhoods
         n = f.active
@@ -248,7 +248,7 @@ class DFSPHSolver:
         else:
             err = error_kernel(n, dt, dfsph.FIRST, 0.0, *lists, *scratch)
         iterations = 0
-        while (err > tolerance or iterations < cfg.min_iterations) and iterations < cfg.max_iterations:
+        while (err > tolerance or iterations < min_iterations) and iterations < cfg.max_iterations:
             apply()
             err = error_kernel(n, dt, dfsph.ITERATE, 0.0, *lists, *scratch)
             iterations += 1
@@ -260,20 +260,26 @@ class DFSPHSolver:
             return 0, 0.0
         # Tolerance on the average D(rho/rho_0)/Dt such that one dt changes the density by eta.
         tol = self.config.max_divergence_error * 0.01 / dt
-        return self._solve(dfsph.divergence_error, (), self.fluid.kappa_divergence, dt, tol, 0.5, dt)
+        return self._solve(dfsph.divergence_error, (), self.fluid.kappa_divergence, dt, tol, 0.5, dt,
+                           self.config.min_divergence_iterations)
 
     def _density_solve(self, dt: float) -> tuple[int, float]:
         if self.fluid.active == 0:
             return 0, 0.0
         tol = self.config.max_density_error * 0.01
         return self._solve(dfsph.density_error, (self.fluid.density,), self.fluid.kappa_density, dt, tol,
-                           1.0, dt * dt)
+                           1.0, dt * dt, self.config.min_iterations)
 
     def _estimate_divergence(self) -> None:
         cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
         if f.active == 0:
             return
-        if cfg.estimator_radius <= self.h:
+        if cfg.estimator_kernel_radius == self.h and cfg.estimator_radius >= self.h:
+            # The default (h_r = h_k = h): the lists hold exactly the neighbours and their V_f grad W.
+            divergence.estimate_divergence_from_gradients(
+                f.active, f.v, f.density, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count,
+                nb.boundary_grad, f.divergence, f.divergence_sum, f.divergence_count)
+        elif cfg.estimator_radius <= self.h:
             divergence.estimate_divergence_from_lists(
                 f.active, cfg.estimator_radius, cfg.estimator_kernel_radius, self.fluid_volume, f.x, f.v,
                 f.density, b.x, b.volume, nb.fluid_count, nb.fluid_index, nb.boundary_count, nb.boundary_index,

@@ -1,0 +1,86 @@
+"""Scene validation names the bad key; `fluidgs sim` writes the documented HDF5 layout atomically."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from apps import cli
+from fluidsim.scene import SceneError, load_scene, parse_scene
+
+
+def _scene(**over):
+    s = {"particle_radius": 0.05, "rest_density": 1000.0, "viscosity": 10.0, "gravity": [0, -9.81, 0],
+         "dt": 0.002, "steps": 5, "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
+         "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
+         "solids": []}
+    s.update(over)
+    return s
+
+
+@pytest.mark.parametrize("change,key", [
+    ({"partcle_radius": 0.1}, "partcle_radius"),
+    ({"particle_radius": -1.0}, "particle_radius"),
+    ({"dt": float("nan")}, "dt"),
+    ({"gravity": [0, 1]}, "gravity"),
+    ({"steps": 0}, "steps"),
+    ({"domain": {"min": [0, 0, 0], "max": [1, -1, 1]}}, "domain"),
+    ({"domain": {"min": [0, 0, 0], "max": [1, 1, 1], "wals": True}}, "wals"),
+    ({"fluid_blocks": [{"min": [0, 0, 0], "max": [2, 2, 2]}]}, "fluid_blocks[0]"),
+    ({"fluid_blocks": []}, "fluid_blocks"),
+    ({"solids": [{"mesh": "nope.obj"}]}, "solids[0]"),
+    ({"solids": [{"points": "a.npy", "mesh": "b.obj"}]}, "solids[0]"),
+    ({"solver": {"max_density_eror": 0.1}}, "max_density_eror"),
+    ({"solver": {"min_iterations": 5, "max_iterations": 2}}, "min_iterations"),
+])
+def test_bad_scenes_name_the_key(change, key):
+    with pytest.raises(SceneError, match=key.replace("[", r"\[").replace("]", r"\]")):
+        parse_scene(_scene(**change))
+
+
+def test_scene_round_trips(tmp_path):
+    p = tmp_path / "scene.json"
+    p.write_text(json.dumps(_scene(solver={"time_step": "cfl"})))
+    scene = load_scene(p)
+    assert scene.config.time_step == "cfl"
+    again = parse_scene(scene.to_dict(), tmp_path)
+    assert again.config == scene.config and again.domain == scene.domain
+
+
+def test_sim_command_writes_documented_layout(tmp_path):
+    np.save(tmp_path / "cube.npy", np.stack(np.meshgrid(*[np.arange(0.6, 0.8, 0.1)] * 3, indexing="ij"), -1)
+            .reshape(-1, 3))
+    scene = _scene(steps=6, solids=[{"points": "cube.npy"}],
+                   fluid_blocks=[{"min": [0.1, 0.1, 0.1], "max": [0.9, 0.9, 0.9], "velocity": [1, 0, 0]}])
+    (tmp_path / "scene.json").write_text(json.dumps(scene))
+    out = tmp_path / "res" / "out.h5"
+    assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(out), "--save-every", "3"]) == 0
+    assert not list(out.parent.glob(".*tmp"))
+    with h5py.File(out) as f:
+        assert sorted(f["frames"]) == ["000000", "000003", "000006"]
+        fr = f["frames/000006"]
+        n = fr["x"].shape[0]
+        assert fr["v"].shape == (n, 3) and fr["divergence"].shape == (n,)
+        assert abs(fr.attrs["time"] - 6 * 0.002) < 1e-9
+        assert len(f["stats"]) == 6 and "density_iterations" in f["stats"].dtype.names
+        total = f["divergence_sum"].shape[0]
+        assert f["divergence_count"][:].max() == 6 and total >= n
+        assert json.loads(f.attrs["scene"])["steps"] == 6
+        assert f.attrs["status"] == "complete"
+        assert f.attrs["removed_inside_solid"] > 0  # the fluid block overlapped the cube
+
+
+def test_sim_command_refuses_bad_output_before_work(tmp_path):
+    (tmp_path / "scene.json").write_text(json.dumps(_scene()))
+    (tmp_path / "blocker").write_text("")
+    assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "blocker" / "x.h5")]) == 2
+
+
+def test_diverging_sim_keeps_frames(tmp_path):
+    (tmp_path / "scene.json").write_text(json.dumps(_scene(steps=200, solver={"max_speed": 1.2})))
+    out = tmp_path / "out.h5"
+    assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(out), "--save-every", "1"]) == 3
+    with h5py.File(out) as f:
+        assert "diverged at step" in f.attrs["status"]
+        assert len(f["frames"]) >= 2
