@@ -11,7 +11,8 @@ also added to the particle's run sum and count.
 
 Three fast paths give the same result: when h_k = h <= h_r (the default, h = 0.1) the step's stored
 neighbour gradients are reused; when h_r <= h the neighbour lists are filtered by distance and
-grad W(., h_k) recomputed; otherwise the grid is walked with a cell range of ceil(h_r / cell). :func:`divergence_np` is the O(N^2) numpy twin.
+grad W(., h_k) recomputed; otherwise the grid is walked with a cell range of ceil(h_r / cell).
+:func:`divergence_np` is the O(N^2) numpy twin.
 """
 
 import numpy as np
