@@ -274,7 +274,7 @@ class DFSPHSolver:
         cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
         if f.active == 0:
             return
-        if cfg.estimator_kernel_radius == self.h and cfg.estimator_radius >= self.h:
+        if math.isclose(cfg.estimator_kernel_radius, self.h, rel_tol=1e-9) and cfg.estimator_radius >= self.h:
             # The default (h_r = h_k = h): the lists hold exactly the neighbours and their V_f grad W.
             divergence.estimate_divergence_from_gradients(
                 f.active, f.v, f.density, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count,
