@@ -1,111 +1,30 @@
-"""`fluidgs bench sim`: the paper-scale probe, timed, and side by side with SPlisHSPlasH when installed.
+"""`fluidgs bench WHAT`: benchmarks as commands (they print figures; they are not timed tests).
 
-Scene (the issue's benchmark): a solid sphere of radius 1 m filled at spacing 0.05 (about 33k
-particles), a 1 m thick slab flowing -x at 3 m/s (about 58k fluid particles), r = 0.025, dt = 0.002,
-closed walls. It prints particle counts, the median ms per step over steps 2..N, a breakdown by
-stage, solver iterations and peak memory. Quote ratios, not absolute times: machines are shared.
+Each benchmark lives in its own module with ``add_arguments(parser)`` and ``run_command(args)``:
+
+- ``sim``: the paper-scale DFSPH probe, side by side with SPlisHSPlasH when installed (:mod:`apps.bench_sim`).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import resource
-import statistics
-import time
+import importlib
 
-import numpy as np
+# name -> (module, help). Modules are imported when the parser is built.
+BENCHMARKS = {
+    "sim": ("apps.bench_sim", "the paper-scale DFSPH probe (and SPlisHSPlasH when installed)"),
+}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("what", choices=("sim",), help="what to benchmark: sim (the DFSPH probe)")
-    p.add_argument("--steps", type=int, default=100, help="time steps to time (default: 100)")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for both engines (default: 2)")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="compute device (default: cpu)")
-    p.add_argument("--no-peer", action="store_true",
-                   help="skip the SPlisHSPlasH comparison even when pysplishsplash is installed")
-    p.add_argument("--json", type=str, default=None, help="also write the figures to this JSON file")
-
-
-def bench_scene():
-    from .splash_peer import PeerScene
-
-    return PeerScene()
-
-
-def run_ours(scene, steps: int) -> dict:
-    from fluidsim import DFSPHSolver, SolverConfig
-    from fluidsim.scene import lattice_in_box
-    from fluidsim.sources import sphere_particles, wall_particles
-
-    cfg = SolverConfig(particle_radius=scene.particle_radius, dt=scene.dt, viscosity=scene.viscosity,
-                       rest_density=scene.rest_density, gravity=tuple(scene.gravity),
-                       max_density_error=scene.max_density_error_percent,
-                       max_divergence_error=scene.max_divergence_error_percent,
-                       min_iterations=scene.min_iterations, max_iterations=scene.max_iterations,
-                       boundary_viscosity=0.0)
-    sp = cfg.spacing
-    solid = sphere_particles(scene.sphere_center, scene.sphere_radius, sp, fill=True)
-    walls = wall_particles(scene.domain_min, scene.domain_max, sp, 2)
-    fluid = lattice_in_box(scene.fluid_min, scene.fluid_max, sp)
-    vel = np.broadcast_to(np.asarray(scene.fluid_velocity, np.float64), fluid.shape)
-    t0 = time.perf_counter()
-    solver = DFSPHSolver(cfg, scene.domain_min, scene.domain_max, fluid, vel, np.concatenate([solid, walls]))
-    setup_s = time.perf_counter() - t0
-    times, hist = [], []
-    solver.stage_times = {}
-    for k in range(steps):
-        if k == 1:
-            solver.stage_times = {}
-        t = time.perf_counter()
-        hist.append(solver.step())
-        times.append(time.perf_counter() - t)
-    stages = {k: 1e3 * v / max(steps - 1, 1) for k, v in solver.stage_times.items()}
-    return {"fluid_particles": solver.fluid.capacity, "solid_particles": len(solid), "wall_particles": len(walls),
-            "steps": steps, "setup_s": setup_s, "first_step_ms": 1e3 * times[0],
-            "median_ms_steps_2_to_n": 1e3 * statistics.median(times[1:]),
-            "mean_ms_per_stage": stages,
-            "density_iterations_mean": float(np.mean([h.density_iterations for h in hist[1:]])),
-            "divergence_iterations_mean": float(np.mean([h.divergence_iterations for h in hist[1:]])),
-            "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    sub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
+    for name, (module_name, help_text) in BENCHMARKS.items():
+        module = importlib.import_module(module_name)
+        q = sub.add_parser(name, help=help_text, description=(module.__doc__ or help_text).strip().splitlines()[0],
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        module.add_arguments(q)
+        q.set_defaults(_bench=module)
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from .runtime import init_taichi
-    from .splash_peer import run_splash, splash_available
-
-    if args.steps < 2:
-        raise ValueError(f"--steps must be >= 2, got {args.steps}")
-    device = init_taichi(args.device, "f32", args.threads)
-    scene = bench_scene()
-    from dataclasses import replace
-
-    scene = replace(scene, steps=args.steps, threads=args.threads)
-    ours = run_ours(scene, args.steps)
-    report = {"device": device, "threads": args.threads, "fluidgaussian": ours}
-    print(f"FluidGaussian DFSPH ({device}, {args.threads} threads)")
-    print(f"  particles: {ours['fluid_particles']} fluid, {ours['solid_particles']} solid, "
-          f"{ours['wall_particles']} wall")
-    print(f"  first step (JIT compile or cache load): {ours['first_step_ms']:.0f} ms")
-    print(f"  median over steps 2..{args.steps}: {ours['median_ms_steps_2_to_n']:.1f} ms/step "
-          f"({1e3 / ours['median_ms_steps_2_to_n']:.2f} steps/s)")
-    print("  stages (mean ms/step): " + ", ".join(f"{k} {v:.1f}" for k, v in ours["mean_ms_per_stage"].items()))
-    print(f"  solver iterations (mean): density {ours['density_iterations_mean']:.2f}, "
-          f"divergence {ours['divergence_iterations_mean']:.2f}")
-    print(f"  peak memory: {ours['peak_rss_mib']:.0f} MiB")
-    if not args.no_peer:
-        if splash_available():
-            peer = run_splash(scene)
-            report["splishsplash"] = {k: v for k, v in peer.items() if k != "ms_per_step"}
-            ratio = ours["median_ms_steps_2_to_n"] / peer["median_ms_steps_2_to_n"]
-            report["ratio_ours_over_splishsplash"] = ratio
-            print(f"SPlisHSPlasH {peer.get('version', '?')} DFSPH ({args.threads} threads)")
-            print(f"  particles: {peer['fluid_particles']} fluid, {peer['boundary_particles']} boundary")
-            print(f"  median over steps 2..{args.steps}: {peer['median_ms_steps_2_to_n']:.1f} ms/step")
-            print(f"ratio (ours / SPlisHSPlasH step time): {ratio:.2f}  (target <= 0.5)")
-        else:
-            print("SPlisHSPlasH: pysplishsplash not installed (pip install '.[bench]'); no comparison")
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(report, fh, indent=2)
-    return 0
+    return int(args._bench.run_command(args) or 0)

@@ -11,7 +11,7 @@ from . import bench, demo, render_frames, sim
 COMMANDS = {
     "sim": (sim, "run a scene JSON and write OUT.h5 (frames, per-step stats, divergence)"),
     "render-frames": (render_frames, "draw the frames of OUT.h5 as an MP4 or PNGs, coloured by divergence or speed"),
-    "bench": (bench, "benchmark the engine on the paper-scale probe (and SPlisHSPlasH when installed)"),
+    "bench": (bench, "benchmarks: sim (DFSPH probe vs SPlisHSPlasH), and the others listed by `bench --help`"),
     "demo": (demo, "five fluid probes against the bundled solid: HDF5, summary.json and a video"),
 }
 
