@@ -93,7 +93,10 @@ class GaussianSet:
                 or self.sh.shape[2] != 3:
             got = tuple(self.sh.shape) if isinstance(self.sh, torch.Tensor) else type(self.sh).__name__
             raise ValueError(f"GaussianSet.sh must have shape ({n}, K, 3), got {got}")
-        sh_degree_of(self.sh.shape[1])
+        try:
+            sh_degree_of(self.sh.shape[1])
+        except ValueError as exc:
+            raise ValueError(f"GaussianSet.sh: {exc}") from None
         devices = {t.device for t in self.tensors()}
         if len(devices) != 1:
             raise ValueError(f"GaussianSet tensors live on several devices: {sorted(map(str, devices))}")
