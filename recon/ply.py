@@ -1,0 +1,340 @@
+"""Reading and writing Gaussian sets: the standard 3DGS ``.ply`` and a plain ``.npz``.
+
+The ``.ply`` layout is the one of the reference 3DGS trainer (Kerbl et al. 2023, ``GaussianModel.save_ply``), so
+files move both ways between this project and the common viewers and trainers. One ``vertex`` element holds,
+in this order, one float32 property each::
+
+    x y z  nx ny nz  f_dc_0 f_dc_1 f_dc_2  f_rest_0 .. f_rest_{3(K-1)-1}  opacity  scale_0 scale_1 scale_2
+    rot_0 rot_1 rot_2 rot_3
+
+Stored values are the raw parameters of :class:`~recon.gaussians.GaussianSet`: ``opacity`` is the logit,
+``scale_*`` the natural log of the standard deviations, ``rot_*`` the (w, x, y, z) quaternion (not necessarily
+normalised) and ``f_dc_*`` the DC SH coefficient per colour channel. Normals are written as 0 and ignored on
+reading. ``f_rest`` is channel-major: ``f_rest[c * (K - 1) + j]`` is SH coefficient ``j + 1`` of colour
+channel ``c`` (the reference trainer keeps the higher bands as [N, K-1, 3], transposes them to [N, 3, K-1] and
+flattens). The SH degree is read from the number of ``f_rest`` properties: 0, 9, 24 or 45 for degrees 0-3.
+
+Reading accepts ``format binary_little_endian 1.0``, ``binary_big_endian 1.0`` and ``ascii 1.0``; scalar
+properties of any PLY type (char, uchar, short, ushort, int, uint, float, double, and their sized aliases),
+converted to float32; extra vertex properties are ignored, and so are elements after ``vertex``. Writing is
+always binary little-endian float32, atomically (a temporary file in the same folder, then ``os.replace``).
+
+The ``.npz`` layout holds the five tensors of a GaussianSet under their field names, as float32 arrays::
+
+    means [N, 3]   quats [N, 4] (w, x, y, z)   log_scales [N, 3]   opacity_logits [N]   sh [N, K, 3]
+
+and, on reading only, the naming of gsplat's trainer checkpoints is accepted too: ``means``, ``quats``,
+``scales`` (log), ``opacities`` (logits), ``sh0`` [N, 1, 3] and ``shN`` [N, K-1, 3].
+
+Every problem (not a PLY, unsupported format, missing properties, unsupported f_rest count, truncated data,
+NaN or Inf, zero quaternions, no Gaussians) raises ``ValueError`` whose message starts with the file name.
+
+Example:
+    >>> g = GaussianSet.from_points(torch.rand(10, 3), sh_degree=3)
+    >>> save_gaussians(g, "point_cloud.ply")  # doctest: +SKIP
+    >>> load_gaussians("point_cloud.ply").sh.shape  # doctest: +SKIP
+    torch.Size([10, 16, 3])
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import uuid
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .gaussians import GaussianSet, sh_coefficient_count
+
+PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+PLY_FORMATS = {"binary_little_endian": "<", "binary_big_endian": ">", "ascii": None}
+REQUIRED_PROPERTIES = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
+                       "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
+F_REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}  # number of f_rest properties -> SH degree
+NPZ_KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
+GSPLAT_KEYS = ("means", "quats", "scales", "opacities", "sh0", "shN")
+MAX_HEADER_LINES = 10_000
+
+
+def ply_property_names(sh_degree: int) -> list[str]:
+    """The vertex property names of a 3DGS ``.ply`` of SH degree ``sh_degree``, in the reference order."""
+    rest = 3 * (sh_coefficient_count(sh_degree) - 1)
+    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+            + [f"f_rest_{i}" for i in range(rest)]
+            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+
+
+@dataclass(frozen=True)
+class PlyHeader:
+    """The parts of a PLY header the loader needs.
+
+    Attributes:
+        fmt: "ascii", "binary_little_endian" or "binary_big_endian".
+        vertex_count: number of rows of the ``vertex`` element.
+        properties: (name, numpy type code such as "f4") of each vertex property, in file order.
+        data_offset: byte offset of the first data byte (just after ``end_header``).
+    """
+
+    fmt: str
+    vertex_count: int
+    properties: tuple[tuple[str, str], ...]
+    data_offset: int
+
+
+def read_ply_header(fh, source: str) -> PlyHeader:
+    """Parse the header of an open binary file ``fh`` positioned at its start.
+
+    Args:
+        fh: file object opened in binary mode.
+        source: the file name, used in error messages.
+    Returns:
+        The :class:`PlyHeader`; ``fh`` is left just after ``end_header``.
+    Raises:
+        ValueError: not a PLY file, an unsupported format, no ``vertex`` element, a list property in the vertex
+            element, or an element with rows before ``vertex``.
+    """
+    magic = fh.readline()
+    if magic.rstrip(b"\r\n") != b"ply":
+        raise ValueError(f"{source}: not a PLY file (the first line is {magic[:20]!r}, expected 'ply')")
+    fmt = None
+    elements: list[list] = []  # [name, count, [(prop, type)]]
+    for _ in range(MAX_HEADER_LINES):
+        raw = fh.readline()
+        if not raw:
+            raise ValueError(f"{source}: the PLY header has no 'end_header' line (truncated file)")
+        try:
+            words = raw.decode("ascii").split()
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{source}: the PLY header contains non-ASCII bytes ({exc})") from None
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        key = words[0]
+        if key == "end_header":
+            break
+        if key == "format":
+            if len(words) != 3 or words[1] not in PLY_FORMATS or words[2] != "1.0":
+                raise ValueError(f"{source}: unsupported PLY format line {' '.join(words)!r}; expected "
+                                 f"'format ascii|binary_little_endian|binary_big_endian 1.0'")
+            fmt = words[1]
+        elif key == "element":
+            if len(words) != 3 or not words[2].isdigit():
+                raise ValueError(f"{source}: malformed PLY element line {' '.join(words)!r}")
+            elements.append([words[1], int(words[2]), []])
+        elif key == "property":
+            if not elements:
+                raise ValueError(f"{source}: PLY property {' '.join(words)!r} before any element")
+            if len(words) >= 2 and words[1] == "list":
+                elements[-1][2].append((words[-1], "list"))
+            elif len(words) == 3 and words[1] in PLY_TYPES:
+                elements[-1][2].append((words[2], PLY_TYPES[words[1]]))
+            else:
+                raise ValueError(f"{source}: unsupported PLY property line {' '.join(words)!r}")
+        else:
+            raise ValueError(f"{source}: unknown PLY header keyword {key!r}")
+    else:
+        raise ValueError(f"{source}: the PLY header is longer than {MAX_HEADER_LINES} lines")
+    if fmt is None:
+        raise ValueError(f"{source}: the PLY header has no 'format' line")
+    for name, count, props in elements:
+        if name == "vertex":
+            lists = [p for p, t in props if t == "list"]
+            if lists:
+                raise ValueError(f"{source}: the vertex element has list properties {lists}; a 3DGS file has "
+                                 f"scalar properties only")
+            return PlyHeader(fmt, count, tuple(props), fh.tell())
+        if count > 0:
+            raise ValueError(f"{source}: element {name!r} ({count} rows) comes before 'vertex'; a 3DGS .ply "
+                             f"has the vertex element first")
+    raise ValueError(f"{source}: the PLY file has no 'vertex' element, so it holds no Gaussians")
+
+
+def read_ply_vertices(path: str | Path) -> dict[str, np.ndarray]:
+    """All vertex properties of a PLY file as float32 arrays [N], keyed by property name.
+
+    Args:
+        path: a ``.ply`` file (ascii or binary, any scalar property types).
+    Returns:
+        ``{name: array [N]}`` in file order.
+    Raises:
+        ValueError: malformed header or truncated data (the message names the file).
+    """
+    source = str(path)
+    with open(path, "rb") as fh:
+        header = read_ply_header(fh, source)
+        names = [p for p, _ in header.properties]
+        duplicates = sorted({p for p in names if names.count(p) > 1})
+        if duplicates:
+            raise ValueError(f"{source}: duplicate vertex properties {duplicates}")
+        n = header.vertex_count
+        order = PLY_FORMATS[header.fmt]
+        if order is None:
+            return _read_ascii_vertices(fh, header, source)
+        dtype = np.dtype([(p, order + t) for p, t in header.properties])
+        data = np.fromfile(fh, dtype=dtype, count=n) if n > 0 else np.zeros(0, dtype)
+    if data.shape[0] != n:
+        raise ValueError(f"{source}: truncated PLY data: the header declares {n} vertices of {dtype.itemsize} bytes "
+                         f"but only {data.shape[0]} are present")
+    return {p: data[p].astype(np.float32) for p in names}
+
+
+def _read_ascii_vertices(fh, header: PlyHeader, source: str) -> dict[str, np.ndarray]:
+    n, m = header.vertex_count, len(header.properties)
+    tokens = fh.read().split()
+    if len(tokens) < n * m:
+        raise ValueError(f"{source}: truncated PLY data: the header declares {n} vertices of {m} values "
+                         f"but only {len(tokens)} values are present")
+    try:
+        table = np.array(tokens[: n * m], dtype=np.float64).reshape(n, m)
+    except ValueError as exc:
+        raise ValueError(f"{source}: non-numeric value in the ASCII vertex data ({exc})") from None
+    return {p: table[:, i].astype(np.float32) for i, (p, _) in enumerate(header.properties)}
+
+
+def gaussians_from_ply_columns(columns: dict[str, np.ndarray], source: str) -> GaussianSet:
+    """Assemble a :class:`GaussianSet` from 3DGS vertex columns (see the module docstring for the layout).
+
+    Raises:
+        ValueError: missing required properties, or an ``f_rest`` count other than 0, 9, 24 or 45.
+    """
+    missing = [p for p in REQUIRED_PROPERTIES if p not in columns]
+    if missing:
+        raise ValueError(f"{source}: not a 3DGS Gaussian file: vertex properties {missing} are missing "
+                         f"(a plain point cloud .ply has only x, y, z and colours); export the trained Gaussians "
+                         f"with the 3DGS layout")
+    rest_names = sorted((p for p in columns if re.fullmatch(r"f_rest_\d+", p)), key=lambda p: int(p[7:]))
+    if len(rest_names) not in F_REST_COUNTS:
+        raise ValueError(f"{source}: {len(rest_names)} f_rest properties; a 3DGS file has 0, 9, 24 or 45 "
+                         f"(SH degree 0, 1, 2 or 3)")
+    expected = [f"f_rest_{i}" for i in range(len(rest_names))]
+    if rest_names != expected:
+        raise ValueError(f"{source}: f_rest properties are not numbered f_rest_0..f_rest_{len(rest_names) - 1}")
+    n = columns["x"].shape[0]
+    k = sh_coefficient_count(F_REST_COUNTS[len(rest_names)])
+
+    def stack(names: list[str]) -> torch.Tensor:
+        if not names:
+            return torch.zeros(n, 0)
+        return torch.from_numpy(np.stack([columns[p] for p in names], 1).astype(np.float32))
+
+    dc = stack(["f_dc_0", "f_dc_1", "f_dc_2"])
+    rest = stack(rest_names).reshape(n, 3, k - 1).transpose(1, 2)  # channel-major -> [N, K-1, 3]
+    gaussians = GaussianSet(
+        means=stack(["x", "y", "z"]),
+        quats=stack(["rot_0", "rot_1", "rot_2", "rot_3"]),
+        log_scales=stack(["scale_0", "scale_1", "scale_2"]),
+        opacity_logits=stack(["opacity"])[:, 0].contiguous(),
+        sh=torch.cat([dc[:, None, :], rest], 1).contiguous(),
+    )
+    return gaussians.check(source)
+
+
+def load_gaussians(path: str | Path) -> GaussianSet:
+    """Read Gaussians from a 3DGS ``.ply`` or an ``.npz`` (layouts in the module docstring).
+
+    Args:
+        path: the file; the suffix (``.ply`` or ``.npz``, any case) picks the reader.
+    Returns:
+        A float32 :class:`GaussianSet` on the CPU; the SH degree follows the file (0 to 3).
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: any problem with the content; the message starts with the file name.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".ply", ".npz"):
+        raise ValueError(f"{path}: unsupported Gaussian file type {path.suffix!r}; use a 3DGS .ply or an .npz")
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such Gaussian file")
+    if suffix == ".ply":
+        return gaussians_from_ply_columns(read_ply_vertices(path), str(path))
+    return _load_npz(path)
+
+
+def _load_npz(path: Path) -> GaussianSet:
+    source = str(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        raise ValueError(f"{source}: not a readable .npz archive ({exc})") from None
+    if all(k in arrays for k in NPZ_KEYS):
+        tensors = {k: arrays[k] for k in NPZ_KEYS}
+    elif all(k in arrays for k in GSPLAT_KEYS):
+        sh0, shn = arrays["sh0"], arrays["shN"]
+        if sh0.ndim != 3 or shn.ndim != 3:
+            raise ValueError(f"{source}: sh0 and shN must be [N, 1, 3] and [N, K-1, 3], got "
+                             f"{sh0.shape} and {shn.shape}")
+        tensors = {"means": arrays["means"], "quats": arrays["quats"], "log_scales": arrays["scales"],
+                   "opacity_logits": arrays["opacities"], "sh": np.concatenate([sh0, shn], 1)}
+    else:
+        missing = [k for k in NPZ_KEYS if k not in arrays]
+        raise ValueError(f"{source}: the .npz lacks the Gaussian arrays {missing} (it has {sorted(arrays)}); "
+                         f"save it with save_gaussians or use the keys {list(NPZ_KEYS)}")
+    for key, value in tensors.items():
+        if not np.issubdtype(value.dtype, np.number):
+            raise ValueError(f"{source}: array {key!r} has non-numeric dtype {value.dtype}")
+    try:
+        gaussians = GaussianSet(**{k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32))
+                                   for k, v in tensors.items()})
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+    return gaussians.check(source)
+
+
+def save_gaussians(gaussians: GaussianSet, path: str | Path) -> Path:
+    """Write ``gaussians`` as a 3DGS ``.ply`` (binary little-endian float32) or an ``.npz``, atomically.
+
+    The set is checked first (:meth:`GaussianSet.check`), so a file this function writes always loads again.
+    Parent folders are created. Values are converted to float32 on the CPU.
+
+    Args:
+        gaussians: the set (any device or dtype; gradients are ignored).
+        path: destination; the suffix ``.ply`` or ``.npz`` picks the layout.
+    Returns:
+        The written path.
+    Raises:
+        ValueError: an unsupported suffix, or an empty / non-finite set or a zero quaternion (nothing is written).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".ply", ".npz"):
+        raise ValueError(f"{path}: unsupported Gaussian file type {path.suffix!r}; use .ply or .npz")
+    g = gaussians.detach().to(device="cpu", dtype=torch.float32)
+    g.check(str(path))
+    if suffix == ".ply":
+        payload = _ply_bytes(g)
+    else:
+        buffer = io.BytesIO()
+        np.savez(buffer, **{name: t.numpy() for name, t in zip(NPZ_KEYS, g.tensors(), strict=True)})
+        payload = buffer.getvalue()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")  # same folder, so os.replace is atomic
+    try:
+        with open(tmp, "xb") as fh:
+            fh.write(payload)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _ply_bytes(g: GaussianSet) -> bytes:
+    names = ply_property_names(g.sh_degree)
+    n, k = g.num, g.sh.shape[1]
+    rest = g.sh[:, 1:].transpose(1, 2).reshape(n, 3 * (k - 1))  # [N, K-1, 3] -> channel-major [N, 3(K-1)]
+    table = torch.cat([g.means, torch.zeros(n, 3), g.sh[:, 0], rest, g.opacity_logits[:, None], g.log_scales,
+                       g.quats], 1).numpy()
+    header = "".join(["ply\n", "format binary_little_endian 1.0\n", f"element vertex {n}\n",
+                      *(f"property float {p}\n" for p in names), "end_header\n"])
+    return header.encode("ascii") + np.ascontiguousarray(table, dtype="<f4").tobytes()
