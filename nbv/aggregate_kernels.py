@@ -1,0 +1,126 @@
+"""Taichi kernels of :mod:`nbv.aggregate`: the cell -> Gaussian lists and the per-step accumulation.
+
+A Gaussian g is listed in every grid cell whose box comes closer than its reach (n r_g) to mu_g, so a
+fluid particle only tests the Gaussians listed in its own cell. The lists are built once per probe
+(counting pass, prefix sum on the host, fill pass) because the Gaussians do not move.
+"""
+
+import taichi as ti
+
+ivec3 = ti.types.vector(3, ti.i32)
+vec3d = ti.types.vector(3, ti.f64)
+
+# Track modes of :func:`accumulate`: nothing, one bit per (Gaussian, particle id), or (g, id) keys.
+TRACK_NONE = 0
+TRACK_BITS = 1
+TRACK_KEYS = 2
+
+
+@ti.func
+def cell_range(center, radius, origin, inv_cell, dims):
+    """Inclusive range of grid cells overlapped by the box [center - radius, center + radius], clipped."""
+    lo = ti.max(ti.floor((center - radius - origin) * inv_cell, ti.i32), 0)
+    hi = ti.min(ti.floor((center + radius - origin) * inv_cell, ti.i32), dims - 1)
+    return lo, hi
+
+
+@ti.func
+def box_distance2(center, c, origin, cell):
+    """Squared distance from ``center`` to the box of cell ``c`` (0 inside)."""
+    d2 = ti.cast(0.0, ti.f64)
+    for a in ti.static(range(3)):
+        lo = origin[a] + cell * c[a]
+        hi = lo + cell
+        e = ti.max(ti.max(lo - center[a], center[a] - hi), 0.0)
+        d2 += e * e
+    return d2
+
+
+@ti.kernel
+def list_gaussians(
+    centers: ti.types.ndarray(dtype=vec3d, ndim=1),
+    reach: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    origin: vec3d,
+    cell: ti.f64,
+    dims: ivec3,
+    slack: ti.f64,
+    fill: ti.i32,
+    cell_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    cell_starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    items: ti.types.ndarray(dtype=ti.i32, ndim=1),
+):
+    """Counting pass (``fill`` = 0: ``cell_counts[c]`` += 1 per listed Gaussian) or fill pass (``fill`` = 1:
+    ``items[cell_starts[c] + k] = g``, with ``cell_counts`` zeroed by the caller and used as cursors).
+
+    A Gaussian is listed in a cell when the cell's box is closer than ``reach[g] + slack`` to its centre;
+    the slack (a tiny fraction of a cell) absorbs rounding in the particles' cell assignment.
+    """
+    inv_cell = 1.0 / cell
+    for g in range(centers.shape[0]):
+        c = centers[g]
+        r = reach[g] + slack
+        lo, hi = cell_range(c, r, origin, inv_cell, dims)
+        for i, j, k in ti.ndrange((lo[0], hi[0] + 1), (lo[1], hi[1] + 1), (lo[2], hi[2] + 1)):
+            if box_distance2(c, ti.Vector([i, j, k]), origin, cell) < r * r:
+                lin = (i * dims[1] + j) * dims[2] + k
+                slot = ti.atomic_add(cell_counts[lin], 1)
+                if fill:
+                    items[cell_starts[lin] + slot] = g
+
+
+@ti.kernel
+def accumulate(
+    n: ti.i32,
+    xs: ti.types.ndarray(ndim=1),
+    values: ti.types.ndarray(ndim=1),
+    ids: ti.types.ndarray(ndim=1),
+    origin: vec3d,
+    inv_cell: ti.f64,
+    dims: ivec3,
+    domain_min: vec3d,
+    domain_max: vec3d,
+    cell_starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    items: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    centers: ti.types.ndarray(dtype=vec3d, ndim=1),
+    reach2: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    add_values: ti.template(),
+    track: ti.template(),
+    sums: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    counts: ti.types.ndarray(dtype=ti.i64, ndim=1),
+    bits: ti.types.ndarray(dtype=ti.u32, ndim=2),
+    keys: ti.types.ndarray(dtype=ti.i64, ndim=1),
+    key_count: ti.types.ndarray(dtype=ti.i64, ndim=1),
+):
+    """Paper Eq. 2-3: each particle i inside the domain adds ``values[i]`` to ``sums[g]`` and 1 to ``counts[g]``
+    for every Gaussian g with |x_i - mu_g|^2 < reach2[g] (when ``add_values``), and records its id:
+
+    - ``track`` = TRACK_BITS: sets bit ``ids[i]`` of row g of ``bits`` [G, words] (atomic or);
+    - ``track`` = TRACK_KEYS: appends ``g * 2^32 + ids[i]`` to ``keys`` (slot from ``key_count[0]``; slots past
+      the end are counted but not written, so the caller can grow ``keys`` and run again).
+    """
+    for i in range(n):
+        x = ti.cast(xs[i], ti.f64)
+        inside = True
+        for d in ti.static(range(3)):
+            if not (domain_min[d] <= x[d] <= domain_max[d]):
+                inside = False
+        c = ti.floor((x - origin) * inv_cell, ti.i32)
+        if not (0 <= c[0] < dims[0] and 0 <= c[1] < dims[1] and 0 <= c[2] < dims[2]):
+            inside = False
+        if inside:
+            lin = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
+            v = ti.cast(values[i], ti.f64)
+            for s in range(cell_starts[lin], cell_starts[lin + 1]):
+                g = items[s]
+                d = x - centers[g]
+                if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < reach2[g]:
+                    if ti.static(add_values):
+                        sums[g] += v
+                        counts[g] += 1
+                    if ti.static(track == TRACK_BITS):
+                        pid = ti.cast(ids[i], ti.i32)
+                        ti.atomic_or(bits[g, pid >> 5], ti.cast(1, ti.u32) << ti.cast(pid & 31, ti.u32))
+                    if ti.static(track == TRACK_KEYS):
+                        slot = ti.atomic_add(key_count[0], ti.cast(1, ti.i64))
+                        if slot < keys.shape[0]:
+                            keys[slot] = (ti.cast(g, ti.i64) << 32) + ti.cast(ids[i], ti.i64)

@@ -1,0 +1,154 @@
+"""Per-Gaussian accumulation through the grid against the O(N G) twin: sums, counts, distinct particles,
+the numpy path and the solver path."""
+
+import numpy as np
+import pytest
+
+from fluidsim import DFSPHSolver, SolverConfig
+from fluidsim.scene import lattice_in_box
+from fluidsim.sources import sphere_particles, wall_particles
+from nbv.aggregate import GaussianAccumulator, accumulate_reference, within_reach_reference
+
+DOMAIN_MIN = np.array([-1.2, -1.0, -1.1])
+DOMAIN_MAX = np.array([1.1, 1.2, 1.0])
+
+
+def random_gaussians(g: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Centres inside and around the domain, reaches over two decades, a few extreme ones."""
+    rng = np.random.default_rng(seed)
+    centers = rng.uniform(-1.3, 1.3, (g, 3))
+    reach = np.exp(rng.uniform(np.log(0.01), np.log(0.8), g))
+    reach[:3] = [5.0, 0.0, 2.0]          # huge (clipped to the domain), zero, large
+    centers[3] = [3.0, 0.0, 0.0]         # outside the domain, reaching in
+    reach[3] = 2.5
+    return centers, reach
+
+
+def random_step(rng, n: int, pool: int):
+    ids = rng.choice(pool, n, replace=False)
+    return rng.uniform(-1.5, 1.5, (n, 3)), rng.normal(size=n), ids
+
+
+def test_accumulator_equals_brute_force_twin():
+    centers, reach = random_gaussians(150, seed=0)
+    rng = np.random.default_rng(1)
+    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+    sums, counts = np.zeros(len(centers)), np.zeros(len(centers), np.int64)
+    for _ in range(3):
+        pos, val, _ = random_step(rng, 400, 1000)
+        acc.add(pos, val)
+        s, c = accumulate_reference(centers, reach, pos, val, DOMAIN_MIN, DOMAIN_MAX)
+        sums += s
+        counts += c
+    assert np.array_equal(acc.counts, counts)
+    assert counts.min() == 0 and counts.max() > 100 and counts[1] == 0     # zero reach never counts
+    assert np.allclose(acc.sums, sums, rtol=1e-6, atol=1e-9 * np.abs(sums).max())
+    expected = np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
+    assert np.allclose(acc.means(), expected, rtol=1e-6, atol=1e-9)
+    # Particles outside the domain are ignored; the twin without a domain does count them.
+    free = accumulate_reference(centers, reach, pos, val)[1]
+    assert free.sum() > accumulate_reference(centers, reach, pos, val, DOMAIN_MIN, DOMAIN_MAX)[1].sum()
+    acc.reset()
+    assert not acc.counts.any() and not acc.sums.any()
+
+
+def distinct_reference(centers, reach, steps) -> np.ndarray:
+    seen: list[set] = [set() for _ in range(len(centers))]
+    for pos, _, ids in steps:
+        near = within_reach_reference(centers, reach, pos, DOMAIN_MIN, DOMAIN_MAX)
+        for g, i in zip(*np.nonzero(near.T), strict=True):
+            seen[g].add(int(ids[i]))
+    return np.array([len(s) for s in seen])
+
+
+@pytest.mark.parametrize("budget, storage", [(512 * 2**20, ("bits", "bits")), (1000, ("bits", "keys")),
+                                             (64, ("keys", "keys"))])
+def test_distinct_counts_are_exact(budget, storage):
+    """Bit matrix (large budget), bit matrix grown then converted to keys (1000 B), keys from the start (64 B)."""
+    centers, reach = random_gaussians(100, seed=2)
+    rng = np.random.default_rng(3)
+    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True,
+                              distinct_budget_bytes=budget)
+    steps = []
+    for pool in (40, 40, 300, 300):      # small ids first (the storage grows), repeated visits
+        steps.append(random_step(rng, 35, pool))
+        acc.add(*steps[-1])
+        if len(steps) == 1:
+            assert acc.distinct_storage == storage[0]
+    assert acc.distinct_storage == storage[1]
+    expected = distinct_reference(centers, reach, steps)
+    assert np.array_equal(acc.distinct_counts, expected)
+    assert (acc.counts >= expected).all() and (acc.counts > expected).any()   # repeats count once
+    acc.reset()
+    assert not acc.distinct_counts.any()
+
+
+def tiny_probe_solver() -> DFSPHSolver:
+    cfg = SolverConfig(particle_radius=0.05)
+    sp = cfg.spacing
+    lo, hi = np.array([-0.6, -0.6, -0.6]), np.array([0.9, 0.6, 0.6])
+    solid = sphere_particles([0.0, 0.0, 0.0], 0.25, sp, fill=True)
+    fluid = lattice_in_box([0.35, -0.4, -0.4], [0.75, 0.4, 0.4], sp)
+    vel = np.tile([-3.0, 0.0, 0.0], (len(fluid), 1))
+    boundary = np.concatenate([solid, wall_particles(lo, hi, sp, 2)])
+    return DFSPHSolver(cfg, lo, hi, fluid, vel, boundary)
+
+
+def test_add_from_solver_equals_numpy_path():
+    solver = tiny_probe_solver()
+    rng = np.random.default_rng(4)
+    centers = np.concatenate([rng.normal(0.0, 0.2, (60, 3)), [[0.5, 0.0, 0.0]]])
+    reach = 3.0 * np.exp(rng.uniform(np.log(0.01), np.log(0.08), len(centers)))
+    args = (centers, reach, solver.domain_min, solver.domain_max)
+    fast = GaussianAccumulator(*args, track_distinct=True, max_fluid=solver.fluid.capacity)
+    ref = GaussianAccumulator(*args, track_distinct=True)
+    sums, counts = np.zeros(len(centers)), np.zeros(len(centers), np.int64)
+    for _ in range(4):
+        solver.step()
+        fast.add_from_solver(solver)
+        state = solver.fluid_state()
+        ref.add(state["x"], state["divergence"], state["ids"])
+        s, c = accumulate_reference(centers, reach, state["x"], state["divergence"], *args[2:])
+        sums += s
+        counts += c
+    assert counts.sum() > 0 and np.abs(sums).max() > 0
+    assert np.array_equal(fast.counts, counts) and np.array_equal(ref.counts, counts)
+    assert np.allclose(fast.sums, sums, rtol=1e-6, atol=1e-9 * np.abs(sums).max())
+    assert np.array_equal(fast.distinct_counts, ref.distinct_counts)
+    assert (fast.distinct_counts < fast.counts).any()
+
+
+def test_bad_inputs_name_the_argument():
+    centers, reach = random_gaussians(5, seed=5)
+    with pytest.raises(ValueError, match="reach"):
+        GaussianAccumulator(centers, reach[:3], DOMAIN_MIN, DOMAIN_MAX)
+    with pytest.raises(ValueError, match="reach"):
+        GaussianAccumulator(centers, -reach, DOMAIN_MIN, DOMAIN_MAX)
+    with pytest.raises(ValueError, match="domain_min"):
+        GaussianAccumulator(centers, reach, DOMAIN_MAX, DOMAIN_MIN)
+    with pytest.raises(ValueError, match="centers"):
+        GaussianAccumulator(np.zeros((0, 3)), np.zeros(0), DOMAIN_MIN, DOMAIN_MAX)
+    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True)
+    with pytest.raises(ValueError, match="ids"):
+        acc.add(np.zeros((2, 3)), np.zeros(2))
+    with pytest.raises(ValueError, match="values"):
+        acc.add(np.zeros((2, 3)), np.zeros(3), np.arange(2))
+    with pytest.raises(ValueError, match="positions"):
+        acc.add(np.full((2, 3), np.nan), np.zeros(2), np.arange(2))
+    with pytest.raises(ValueError, match="track_distinct"):
+        _ = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX).distinct_counts
+
+
+def test_degenerate_sets_match_the_twin():
+    """One Gaussian, zero reaches, Gaussians wholly outside the domain: still exactly the twin."""
+    rng = np.random.default_rng(6)
+    pos, val, _ = random_step(rng, 500, 1000)
+    cases = [(np.zeros((1, 3)), np.array([0.7])), (rng.uniform(-1, 1, (4, 3)), np.zeros(4)),
+             (np.array([[5.0, 0.0, 0.0], [0.0, -4.0, 0.0]]), np.array([1.0, 3.5]))]
+    for centers, reach in cases:
+        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+        acc.add(pos, val)
+        sums, counts = accumulate_reference(centers, reach, pos, val, DOMAIN_MIN, DOMAIN_MAX)
+        assert np.array_equal(acc.counts, counts)
+        assert np.allclose(acc.sums, sums, rtol=1e-9, atol=1e-9)
+    assert acc.counts[1] > 0 and acc.counts[0] == 0       # the last case: one reaches in, one does not
