@@ -1,0 +1,183 @@
+"""`fluidgs bench render`: forward + backward time of the differentiable rasterizer (recon.render).
+
+Scene (the issue's benchmark): N seeded random Gaussians in the cube [-1, 1]^3 seen from 4 m by a
+60-degree camera, SH degree 3, opacities sigmoid(N(0, 1.5)), per-axis scales log-normal around 2 cm.
+Sizes are in world units, so the footprints average about 3 px of radius at 100 x 100 and about
+5 px at 200 x 200 (a trained scene's scale: a few pixels; the command prints the measured mean).
+The loss is a weighted sum of the image, alpha and depth maps; the figure is the median of forward +
+backward over the repeats. A fixed reference workload (single-thread 512 x 512 float32 matmuls) is
+timed next to it so that figures taken on a loaded machine can be judged: quote ratios, not absolute
+times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+LOG = logging.getLogger("fluidgs.bench.render")
+# (Gaussians, width, height) -> target ms for forward + backward on one thread (the issue's targets)
+TARGETS_MS = {(5000, 100, 100): 40.0, (20000, 200, 200): 450.0}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch CPU threads; the issue's targets are for 1 (default: %(default)s)")
+    p.add_argument("--repeats", type=int, default=10,
+                   help="timed forward+backward passes per case, after one warm-up pass (default: %(default)s)")
+    p.add_argument("--sizes", type=str, default="5000@100x100,20000@200x200",
+                   help="comma-separated N@WxH cases: N Gaussians, W x H pixels (default: %(default)s)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="compute device; cuda falls back to cpu with a warning (default: %(default)s)")
+    p.add_argument("--backend", choices=("torch", "gsplat", "auto"), default="torch",
+                   help="renderer backend (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the scene (default: %(default)s)")
+    p.add_argument("--json", type=str, default=None,
+                   help="also write the figures to this JSON file (default: %(default)s, no file)")
+
+
+def parse_sizes(text: str) -> list[tuple[int, int, int]]:
+    """Parse "N@WxH,..." into (N, W, H) tuples; ValueError naming the bad item."""
+    cases = []
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        try:
+            n, res = item.split("@")
+            w, h = res.lower().split("x")
+            case = (int(n), int(w), int(h))
+        except ValueError as exc:
+            raise ValueError(f"--sizes item {item!r} is not N@WxH (e.g. 5000@100x100)") from exc
+        if min(case) <= 0:
+            raise ValueError(f"--sizes item {item!r}: N, W and H must be positive")
+        cases.append(case)
+    if not cases:
+        raise ValueError(f"--sizes {text!r} holds no case; give e.g. 5000@100x100")
+    return cases
+
+
+def bench_scene(n: int, width: int, height: int, seed: int, device: torch.device):
+    """The benchmark's Gaussians (parameters requiring grad) and camera."""
+    from recon.camera import Camera
+    from recon.gaussians import GaussianSet
+
+    gen = torch.Generator().manual_seed(seed)
+    means = torch.rand(n, 3, generator=gen) * 2.0 - 1.0
+    quats = torch.randn(n, 4, generator=gen)
+    log_scales = math.log(0.02) + 0.5 * torch.randn(n, 3, generator=gen)
+    logits = 1.5 * torch.randn(n, generator=gen)
+    sh = 0.3 * torch.randn(n, 16, 3, generator=gen)
+    sh[:, 1:] *= 0.2
+    gaussians = GaussianSet(means, quats, log_scales, logits, sh).to(device)
+    gaussians = gaussians.map(lambda t: t.detach().requires_grad_(True))
+    camera = Camera.look_at((0.0, 0.0, -4.0), (0.0, 0.0, 0.0), (0.0, -1.0, 0.0), width, height, math.radians(60.0))
+    return gaussians, camera
+
+
+def reference_workload_ms(device: torch.device, repeats: int = 5) -> float:
+    """Median ms of ten 512 x 512 float32 matmuls (a fixed yardstick of the machine's current speed)."""
+    gen = torch.Generator().manual_seed(0)
+    a = torch.rand(512, 512, generator=gen).to(device)
+    b = torch.rand(512, 512, generator=gen).to(device)
+    times = []
+    for _ in range(repeats + 1):
+        t0 = time.perf_counter()
+        for _ in range(10):
+            a @ b
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times[1:])
+
+
+def time_case(n: int, width: int, height: int, args: argparse.Namespace, device: torch.device) -> dict:
+    from recon.render import pair_statistics, render
+
+    gaussians, camera = bench_scene(n, width, height, args.seed, device)
+    bg = torch.tensor([1.0, 1.0, 1.0], device=device)
+    weights = torch.rand(height, width, 3, generator=torch.Generator().manual_seed(1)).to(device)
+    stats = pair_statistics(gaussians.detach(), camera)
+
+    def sync():
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+
+    fwd, total = [], []
+    for k in range(args.repeats + 1):
+        for t in gaussians.tensors():
+            t.grad = None
+        sync()
+        t0 = time.perf_counter()
+        out = render(gaussians, camera, bg, backend=args.backend)
+        sync()
+        t1 = time.perf_counter()
+        loss = (out.image * weights).sum() + 0.1 * out.depth.sum() + out.alpha.sum()
+        loss.backward()
+        sync()
+        t2 = time.perf_counter()
+        if k:  # the first pass warms caches and allocators
+            fwd.append(t1 - t0)
+            total.append(t2 - t0)
+    radii = out.radii[out.visible].float()
+    target = TARGETS_MS.get((n, width, height))
+    return {"gaussians": n, "width": width, "height": height, "pixels": width * height,
+            "visible": stats["visible"], "mean_radius_px": float(radii.mean()) if radii.numel() else 0.0,
+            "candidate_pairs": stats["candidates"], "pairs": stats["pairs"], "stopped_pairs": stats["stopped"],
+            "forward_ms": 1e3 * statistics.median(fwd), "forward_backward_ms": 1e3 * statistics.median(total),
+            "target_ms": target}
+
+
+def _write_json(path: str, report: dict) -> None:
+    out = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=out.parent if str(out.parent) else ".", suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        json.dump(report, fh, indent=2)
+    os.replace(tmp, out)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    if args.threads < 1:
+        raise ValueError(f"--threads must be >= 1, got {args.threads}")
+    if args.repeats < 1:
+        raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+    cases = parse_sizes(args.sizes)
+    device = torch.device(args.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        LOG.warning("--device cuda: no CUDA device is usable; running on the CPU")
+        device = torch.device("cpu")
+    previous_threads = torch.get_num_threads()
+    torch.set_num_threads(args.threads)
+    try:
+        load = os.getloadavg()
+        ref_before = reference_workload_ms(device)
+        results = [time_case(n, w, h, args, device) for n, w, h in tqdm(cases, desc="bench render", unit="case")]
+        ref_after = reference_workload_ms(device)
+    finally:  # the command also runs in-process (tests): leave the thread setting as it was
+        torch.set_num_threads(previous_threads)
+    print(f"recon.render ({args.backend} backend, {device}, {args.threads} thread(s)), forward + backward, "
+          f"median of {args.repeats}")
+    print(f"  machine load average (1/5/15 min): {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; reference workload "
+          f"(10 x 512^2 matmul): {ref_before:.1f} ms before, {ref_after:.1f} ms after")
+    for r in results:
+        target = "no target"
+        if r["target_ms"]:
+            verdict = "met" if r["forward_backward_ms"] <= r["target_ms"] else "MISSED"
+            target = f"target <= {r['target_ms']:.0f} ms ({verdict})"
+        print(f"  {r['gaussians']} Gaussians @ {r['width']}x{r['height']} ({r['pixels']} px): {r['visible']} visible, "
+              f"mean radius {r['mean_radius_px']:.1f} px, {r['candidate_pairs']} pairs in boxes, {r['pairs']} "
+              f"with alpha >= 1/255 ({r['stopped_pairs']} after an early stop)")
+        print(f"    forward {r['forward_ms']:.1f} ms, forward+backward {r['forward_backward_ms']:.1f} ms; {target}")
+    if args.json:
+        _write_json(args.json, {"backend": args.backend, "device": str(device), "threads": args.threads,
+                                "load_average": load, "reference_workload_ms": [ref_before, ref_after],
+                                "cases": results})
+    return 0
