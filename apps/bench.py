@@ -13,6 +13,8 @@ import importlib
 # name -> (module, help). Modules are imported when the parser is built.
 BENCHMARKS = {
     "sim": ("apps.bench_sim", "the paper-scale DFSPH probe (and SPlisHSPlasH when installed)"),
+    "score": ("apps.bench_score", "probes on Gaussians: simulation vs aggregation time, quick five-probe total"),
+    "render": ("apps.bench_render", "forward + backward time of the torch 3DGS rasterizer (5k@100x100, 20k@200x200)"),
 }
 
 

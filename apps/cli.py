@@ -6,13 +6,40 @@ import argparse
 import logging
 import sys
 
-from . import bench, demo, render_frames, sim
+from . import (
+    active,
+    bench,
+    critical,
+    demo,
+    eval,
+    experiment,
+    make_ahmed,
+    make_assets,
+    render_dataset,
+    render_frames,
+    score,
+    sim,
+    simulate,
+    sweep,
+    train,
+)
 
 COMMANDS = {
     "sim": (sim, "run a scene JSON and write OUT.h5 (frames, per-step stats, divergence)"),
     "render-frames": (render_frames, "draw the frames of OUT.h5 as an MP4 or PNGs, coloured by divergence or speed"),
     "bench": (bench, "benchmarks: sim (DFSPH probe vs SPlisHSPlasH), and the others listed by `bench --help`"),
     "demo": (demo, "five fluid probes against the bundled solid: HDF5, summary.json and a video"),
+    "render-dataset": (render_dataset, "render an .obj/.stl/.ply mesh into a Blender-format dataset"),
+    "train": (train, "train 3D Gaussians on a dataset: OUT.ply plus OUT.json (config, timings, test PSNR/SSIM)"),
+    "make-assets": (make_assets, "regenerate the bundled trained Ahmed-body Gaussians and candidate cameras"),
+    "simulate": (simulate, "five probes against a Gaussian set: per-Gaussian D_g, D-bar -> RESULT.h5, coloured .ply"),
+    "score": (score, "rank candidate cameras by the view score S(T) of D_g (paper Eq. 4-5); JSON, table, PNGs"),
+    "sweep": (sweep, "D-bar against inflow speed U and Reynolds number (CFL-constant dt): CSV and PNG plot"),
+    "critical": (critical, "function-critical views: C(T) from distinct particle counts, top-20 subset"),
+    "ahmed": (make_ahmed, "write the procedural Ahmed body (Ahmed et al. 1984, slant 0-40 deg) as .obj/.stl/.ply"),
+    "active": (active, "active reconstruction: biased initial views, one planner pick per round up to the budget"),
+    "eval": (eval, "evaluate an active run: test PSNR/SSIM/LPIPS, D-bar, Chamfer, critical-view PSNR and D-bar"),
+    "experiment": (experiment, "methods x scenes x seeds of active + eval; paper-shaped tables and plots"),
 }
 
 

@@ -1,0 +1,36 @@
+"""nbv: physics-aware view selection for 3D Gaussians (FluidGaussian, Sec. 3.2-3.4).
+
+Bridges ``recon`` (torch) and ``fluidsim`` (Taichi): Gaussians become a solid (:mod:`nbv.solidify`), the five
+fluid probes run against it (:mod:`nbv.physics`), per-particle divergence is aggregated onto Gaussians through a
+grid (:mod:`nbv.aggregate`, paper Eq. 2-3), and views are scored and ranked (:mod:`nbv.scores`, Eq. 4-5).
+Never calls ``ti.init``: the applications and the test fixtures own the Taichi runtime.
+
+=================  ==========================================  ========================================
+symbol             meaning                                     code
+=================  ==========================================  ========================================
+D_g^(IC), D_g      per-Gaussian divergence per probe, max      ``PhysicsResult.per_probe``, ``.divergence``
+n, r_g             reach factor (3), largest principal radius  ``PhysicsConfig.n_radius``, ``max_radii``
+w_g, S(T)          view weight (Eq. 5), view score (Eq. 4)     :func:`view_weights`, :func:`view_scores`
+D-bar              (1/|G|) sum pi tr(Sigma_g)^2 D_g            :func:`geometry_divergence`, ``.dbar``
+|P_g|, C(T)        distinct particles near g, critical score   ``distinct_counts``, :func:`critical_scores`
+=================  ==========================================  ========================================
+"""
+
+from .physics import PhysicsConfig, PhysicsResult, load_result, save_result, simulate_gaussians
+from .scores import (
+    critical_scores,
+    critical_subset,
+    geometry_divergence,
+    projected_counts,
+    rank,
+    unoccluded,
+    view_scores,
+    view_weights,
+)
+from .sweep import SweepPoint, reynolds, run_sweep, schedule
+
+__all__ = [
+    "PhysicsConfig", "PhysicsResult", "SweepPoint", "critical_scores", "critical_subset", "geometry_divergence",
+    "load_result", "projected_counts", "rank", "reynolds", "run_sweep", "save_result", "schedule",
+    "simulate_gaussians", "unoccluded", "view_scores", "view_weights",
+]

@@ -1,0 +1,76 @@
+"""`fluidgs critical GAUSSIANS.ply --cameras transforms.json`: function-critical views (paper Sec. 3.4).
+
+One probe (-x by default) runs with distinct-particle tracking: |P_g| is the number of distinct fluid particles
+that came within n r_g of Gaussian g. Each camera gets C(T) = sum_g w_g |P_g| (w_g of Eq. 5); the top
+``--subset`` views (20 by default) form the critical subset. Prints the ranking, writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from .score import (
+    add_camera_arguments,
+    check_cameras_see,
+    load_cameras,
+    parse_candidates,
+    print_table,
+    render_candidates,
+    render_size,
+    torch_device,
+)
+from .simulate import add_physics_arguments, check_output_file, load_gaussians_checked, physics_config_from_args
+from .simulate import write_json as write_json_atomic
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("gaussians", type=Path, help="3DGS Gaussians (.ply or .npz), scene units")
+    add_camera_arguments(p)
+    p.add_argument("-o", "--output", type=Path, default=Path("critical.json"),
+                   help="JSON with C(T) per camera and the critical subset (written atomically)")
+    p.add_argument("--subset", type=int, default=20, help="size of the critical subset (views)")
+    p.add_argument("--top-k", type=int, default=None, help="print only the best K views (default: all)")
+    add_physics_arguments(p, track_distinct=True)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    import torch
+
+    from nbv.physics import simulate_gaussians
+    from nbv.scores import critical_scores, critical_subset, rank
+
+    from .runtime import init_taichi
+
+    # C(T) needs no empty-scene reference
+    config = replace(physics_config_from_args(args, track_distinct=True, default_directions=("-x",)),
+                     empty_reference=False)
+    output = check_output_file(args.output, (".json",))
+    if args.subset < 1:
+        raise ValueError(f"--subset must be >= 1 view, got {args.subset}")
+    gaussians = load_gaussians_checked(args.gaussians)
+    all_cams = load_cameras(args.cameras, args.res)
+    idx = parse_candidates(args.candidates, len(all_cams))
+    cams = [render_size(all_cams[i], args.render_width) for i in idx]
+    check_cameras_see(gaussians, cams, [c.name for c in cams])
+    init_taichi(args.device, config.precision, args.threads)
+    result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians))
+    distinct = result.distinct_counts()
+    renders = [out for out, _ in render_candidates(gaussians, cams, None, torch_device(args.device))]
+    c = critical_scores(torch.from_numpy(distinct), renders)
+    order = rank(c).tolist()
+    subset = critical_subset(c, args.subset).tolist()
+    rows = [{"rank": r + 1, "index": idx[k], "name": cams[k].name, "critical_score": float(c[k]),
+             "visible": int(renders[k].visible.sum())} for r, k in enumerate(order)]
+    print_table(rows, args.top_k, value="critical_score")
+    print(f"critical subset ({len(subset)} views): {[idx[k] for k in subset]}")
+    write_json_atomic(output, {
+        "cameras": str(args.cameras), "gaussians": str(args.gaussians), "directions": list(config.directions),
+        "distinct_particles": {"total_over_gaussians": int(distinct.sum()),
+                               "gaussians_reached": int((distinct > 0).sum()), "max": int(np.max(distinct))},
+        "views": rows, "critical_subset": [idx[k] for k in subset], "config": config.to_dict()})
+    print(f"critical views: {output}")
+    return 0

@@ -1,0 +1,387 @@
+"""Next-best-view planners: one Protocol, one registry (paper Sec. 3.1 and 3.4, Appendix "view selection").
+
+Every planner is built from a small frozen config dataclass with an explicit seed and answers
+``select(context) -> Selection`` for one round of active reconstruction:
+
+- ``random``: a uniformly random candidate, from a numpy Generator seeded with (seed, round), so runs are
+  reproducible and resumable.
+- ``fisher``: FisherRF (:mod:`nbv.fisher`), the candidate with the largest sum H_c / (H_train + lambda).
+- ``variance``: ActiveNeRF on 3D Gaussians (:mod:`nbv.variance`), the largest variance reduction.
+- ``physics``: the largest physics score S(T) = sum_g w_g(T) D_g (paper Eq. 4-5, :func:`nbv.scores.view_scores`)
+  over all candidates.
+- ``fisher+fluid`` and ``variance+fluid`` (FluidGaussian, Sec. 3.1 "Step 1/Step 2" and the appendix):
+  the visual planner proposes its top-K candidates, K = max(B - n_selected, 2) (the remaining budget,
+  at least 2), FisherRF's list chosen greedily; the physics probes run once on the current Gaussians
+  and the candidate of the list with the largest S(T) is chosen (ties: the visual planner's order).
+
+S(T) needs only the screen-space radii and visibility of the Gaussians in each candidate, which are the
+projection's (``recon.render.render`` returns exactly ``project_gaussians(...).radii``), so no candidate
+is rasterised for it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import torch
+
+from recon.camera import Camera
+from recon.datasets import View
+from recon.gaussians import GaussianSet
+from recon.projection import project_gaussians
+
+from .fisher import FisherConfig, greedy_top_k
+from .scores import view_scores
+from .variance import VarianceConfig, fit_variances, variance_scores
+
+log = logging.getLogger(__name__)
+
+MIN_SHORTLIST = 2  # the smallest top-K of the fused planners (paper appendix: K = max(B - n, 2))
+
+
+@dataclass(frozen=True)
+class PlanningContext:
+    """What a planner knows when it picks the next view.
+
+    Attributes:
+        gaussians: the current reconstruction (detached).
+        train_views: the views selected so far, with their images.
+        candidates: the remaining candidate cameras (their images are unknown to the planner).
+        candidate_ids: their indices in the dataset's candidate (train) split.
+        n_selected: the number of views selected so far.
+        budget: the view budget B.
+        background: [3] render background.
+        physics: per-Gaussian divergence D_g [N] of given Gaussians (runs the probes; called at most once
+            per selection), or None when the planner does not need it.
+        round: the selection round (0-based), seeds the random planner.
+    """
+
+    gaussians: GaussianSet
+    train_views: list[View]
+    candidates: list[Camera]
+    candidate_ids: list[int]
+    n_selected: int
+    budget: int
+    background: torch.Tensor
+    physics: Callable[[GaussianSet], torch.Tensor] | None = None
+    round: int = 0
+
+    def __post_init__(self) -> None:
+        if len(self.candidates) != len(self.candidate_ids):
+            raise ValueError(f"PlanningContext: {len(self.candidates)} candidates but {len(self.candidate_ids)} "
+                             "candidate_ids; pass one id per candidate camera")
+        if self.budget < 1 or self.n_selected < 0:
+            raise ValueError(f"PlanningContext: budget must be >= 1 and n_selected >= 0, got budget={self.budget}, "
+                             f"n_selected={self.n_selected}")
+        if not isinstance(self.gaussians, GaussianSet):
+            raise ValueError(f"PlanningContext.gaussians must be a GaussianSet, got {type(self.gaussians).__name__}")
+
+
+@dataclass
+class Selection:
+    """One planner decision.
+
+    Attributes:
+        pick: position in ``context.candidates`` of the chosen view.
+        shortlist: positions considered, in the visual planner's order (its top-K for the fused planners,
+            all positions otherwise).
+        k: K of the fused planners, else None.
+        scores: per candidate position, "visual" and "physics" (nan where not computed).
+        seconds: time spent per part, "visual" and "physics".
+    """
+
+    pick: int
+    shortlist: list[int]
+    k: int | None
+    scores: dict[str, list[float]]
+    seconds: dict[str, float]
+
+
+@runtime_checkable
+class Planner(Protocol):
+    """A next-best-view planner (see the module docstring for the registered ones)."""
+
+    name: str
+
+    def select(self, context: PlanningContext) -> Selection: ...
+
+
+@dataclass(frozen=True)
+class RandomConfig:
+    """The random planner.
+
+    Attributes:
+        seed: seeds a numpy Generator together with the round number.
+    """
+
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
+            raise ValueError(f"RandomConfig.seed must be an int >= 0, got {self.seed!r}")
+
+
+@dataclass(frozen=True)
+class PhysicsPlannerConfig:
+    """The physics-only planner.
+
+    Attributes:
+        seed: recorded for the registry contract; the planner draws no random numbers.
+        weighted: use the Eq. 5 view weights w_g(T) (False: the plain sum of D_g over the visible Gaussians).
+    """
+
+    seed: int = 0
+    weighted: bool = True
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
+            raise ValueError(f"PhysicsPlannerConfig.seed must be an int, got {self.seed!r}")
+        if not isinstance(self.weighted, bool):
+            raise ValueError(f"PhysicsPlannerConfig.weighted must be a bool, got {self.weighted!r}")
+
+
+def fused_k(budget: int, n_selected: int) -> int:
+    """K = max(B - n_selected, 2), the shortlist size of the fused planners."""
+    return max(budget - n_selected, MIN_SHORTLIST)
+
+
+def _nan_scores(count: int) -> list[float]:
+    return [math.nan] * count
+
+
+def _check_candidates(context: PlanningContext, name: str) -> None:
+    if len(context.candidates) == 0:
+        raise ValueError(f"planner {name!r}: no candidate views are left; stop before the candidate pool is empty")
+
+
+def _descending(scores: list[float]) -> list[int]:
+    """Positions sorted by score, best first (ties keep the lower position first)."""
+    return sorted(range(len(scores)), key=lambda i: (-scores[i], i))
+
+
+def physics_view_scores(gaussians: GaussianSet, cameras: list[Camera], divergence: torch.Tensor,
+                        weighted: bool = True) -> list[float]:
+    """S(T) = sum_g w_g(T) D_g (paper Eq. 4-5) of every camera.
+
+    Args:
+        gaussians: N Gaussians (the set ``divergence`` was computed on).
+        cameras: C cameras.
+        divergence: [N] D_g, 1/s.
+        weighted: Eq. 5 weights (False: plain sum over the visible Gaussians).
+    Returns:
+        C floats.
+    """
+    d = torch.as_tensor(divergence).detach().reshape(-1)
+    if d.numel() != gaussians.num:
+        raise ValueError(f"physics returned {d.numel()} per-Gaussian values for {gaussians.num} Gaussians; "
+                         "the physics callable must score the Gaussians it is given")
+    if not torch.isfinite(d).all():
+        raise ValueError("physics returned NaN or Inf per-Gaussian divergences; check the probe run")
+    out = []
+    with torch.no_grad():
+        g = gaussians.detach()
+        for cam in cameras:
+            radii = project_gaussians(g, cam).radii
+            out.append(float(view_scores(d, radii[None], image_size=(cam.height, cam.width), weighted=weighted)[0]))
+    return out
+
+
+def _run_physics(context: PlanningContext, name: str) -> torch.Tensor:
+    if context.physics is None:
+        raise ValueError(f"planner {name!r} needs PlanningContext.physics (the probe runner giving D_g); "
+                         "pass one, or use a visual-only planner")
+    return context.physics(context.gaussians)
+
+
+class RandomPlanner:
+    """A uniformly random candidate (reproducible from (seed, round))."""
+
+    name = "random"
+    config_type = RandomConfig
+
+    def __init__(self, config: RandomConfig = RandomConfig()) -> None:
+        self.config = config
+
+    def select(self, context: PlanningContext) -> Selection:
+        _check_candidates(context, self.name)
+        start = time.perf_counter()
+        rng = np.random.default_rng([self.config.seed, context.round])
+        pick = int(rng.integers(len(context.candidates)))
+        count = len(context.candidates)
+        return Selection(pick=pick, shortlist=list(range(count)), k=None,
+                         scores={"visual": _nan_scores(count), "physics": _nan_scores(count)},
+                         seconds={"visual": time.perf_counter() - start, "physics": 0.0})
+
+
+class FisherPlanner:
+    """FisherRF: the candidate with the largest expected information gain (:mod:`nbv.fisher`)."""
+
+    name = "fisher"
+    config_type = FisherConfig
+
+    def __init__(self, config: FisherConfig | None = None) -> None:
+        self.config = config if config is not None else FisherConfig()
+
+    def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
+        """The greedy top-k positions and every candidate's score against the selected views."""
+        g = context.gaussians.detach()
+        ranking = greedy_top_k(g, context.candidates, [v.camera for v in context.train_views],
+                               context.background.to(g.device), k, self.config)
+        if ranking.recomputed:
+            log.info("fisher: %d candidate H recomputed (cache_mb=%g)", ranking.recomputed, self.config.cache_mb)
+        return ranking.order, ranking.scores
+
+    def select(self, context: PlanningContext) -> Selection:
+        _check_candidates(context, self.name)
+        start = time.perf_counter()
+        order, scores = self.rank(context, 1)
+        shortlist = order + [i for i in _descending(scores) if i not in order]
+        return Selection(pick=order[0], shortlist=shortlist, k=None,
+                         scores={"visual": scores, "physics": _nan_scores(len(scores))},
+                         seconds={"visual": time.perf_counter() - start, "physics": 0.0})
+
+
+class VariancePlanner:
+    """ActiveNeRF on 3D Gaussians: the largest variance reduction (:mod:`nbv.variance`).
+
+    Keeps the fitted log-variances between rounds and warm-starts the next fit from them when the number
+    of Gaussians is unchanged (a resumed run starts afresh).
+    """
+
+    name = "variance"
+    config_type = VarianceConfig
+
+    def __init__(self, config: VarianceConfig | None = None) -> None:
+        self.config = config if config is not None else VarianceConfig()
+        self.log_variances: torch.Tensor | None = None
+
+    def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
+        """The top-k positions by variance reduction and every candidate's score."""
+        g = context.gaussians.detach()
+        warm = self.log_variances if self.log_variances is not None and self.log_variances.numel() == g.num \
+            else None
+        fit = fit_variances(g, context.train_views, context.background.to(g.device), self.config, warm)
+        self.log_variances = fit.log_variances
+        scores = variance_scores(g, context.candidates, fit.variances, self.config.prior_floor)
+        return _descending(scores)[:k], scores
+
+    def select(self, context: PlanningContext) -> Selection:
+        _check_candidates(context, self.name)
+        start = time.perf_counter()
+        _, scores = self.rank(context, len(context.candidates))
+        return Selection(pick=_descending(scores)[0], shortlist=_descending(scores), k=None,
+                         scores={"visual": scores, "physics": _nan_scores(len(scores))},
+                         seconds={"visual": time.perf_counter() - start, "physics": 0.0})
+
+
+class PhysicsPlanner:
+    """The candidate with the largest physics score S(T) over all candidates."""
+
+    name = "physics"
+    config_type = PhysicsPlannerConfig
+
+    def __init__(self, config: PhysicsPlannerConfig = PhysicsPlannerConfig()) -> None:
+        self.config = config
+
+    def select(self, context: PlanningContext) -> Selection:
+        _check_candidates(context, self.name)
+        start = time.perf_counter()
+        divergence = _run_physics(context, self.name)
+        scores = physics_view_scores(context.gaussians, context.candidates, divergence, self.config.weighted)
+        order = _descending(scores)
+        return Selection(pick=order[0], shortlist=order, k=None,
+                         scores={"visual": _nan_scores(len(scores)), "physics": scores},
+                         seconds={"visual": 0.0, "physics": time.perf_counter() - start})
+
+
+class _FusedPlanner:
+    """FluidGaussian: the visual planner's top-K, re-ranked by S(T) (module docstring)."""
+
+    name = ""
+    visual_type: type = FisherPlanner
+
+    def __init__(self, config) -> None:
+        self.config = config
+        self.visual = self.visual_type(config)
+
+    def select(self, context: PlanningContext) -> Selection:
+        _check_candidates(context, self.name)
+        count = len(context.candidates)
+        k = fused_k(context.budget, context.n_selected)
+        start = time.perf_counter()
+        shortlist, visual = self.visual.rank(context, min(k, count))
+        mid = time.perf_counter()
+        divergence = _run_physics(context, self.name)
+        chosen = physics_view_scores(context.gaussians, [context.candidates[i] for i in shortlist], divergence)
+        physics = _nan_scores(count)
+        for i, s in zip(shortlist, chosen, strict=True):
+            physics[i] = s
+        best = max(range(len(shortlist)), key=lambda j: (chosen[j], -j))
+        log.info("%s: K=%d, visual top-K %s, S(T) %s -> position %d", self.name, k, shortlist,
+                 [f"{s:.4g}" for s in chosen], shortlist[best])
+        return Selection(pick=shortlist[best], shortlist=list(shortlist), k=k,
+                         scores={"visual": list(visual), "physics": physics},
+                         seconds={"visual": mid - start, "physics": time.perf_counter() - mid})
+
+
+class FisherFluidPlanner(_FusedPlanner):
+    """FisherRF + FluidGaussian (config: :class:`nbv.fisher.FisherConfig`)."""
+
+    name = "fisher+fluid"
+    config_type = FisherConfig
+    visual_type = FisherPlanner
+
+    def __init__(self, config: FisherConfig | None = None) -> None:
+        super().__init__(config if config is not None else FisherConfig())
+
+
+class VarianceFluidPlanner(_FusedPlanner):
+    """ActiveNeRF + FluidGaussian (config: :class:`nbv.variance.VarianceConfig`)."""
+
+    name = "variance+fluid"
+    config_type = VarianceConfig
+    visual_type = VariancePlanner
+
+    def __init__(self, config: VarianceConfig | None = None) -> None:
+        super().__init__(config if config is not None else VarianceConfig())
+
+
+PLANNERS: dict[str, type] = {
+    "random": RandomPlanner,
+    "fisher": FisherPlanner,
+    "variance": VariancePlanner,
+    "physics": PhysicsPlanner,
+    "fisher+fluid": FisherFluidPlanner,
+    "variance+fluid": VarianceFluidPlanner,
+}
+
+
+def make_planner(name: str, **overrides) -> Planner:
+    """Build a registered planner from its config dataclass with ``overrides`` (e.g. ``seed=3``).
+
+    Args:
+        name: a key of :data:`PLANNERS`.
+        overrides: fields of the planner's config (``RandomConfig``, ``FisherConfig``, ``VarianceConfig``,
+            ``PhysicsPlannerConfig``; the fused planners take their visual planner's config).
+    Returns:
+        the planner.
+
+    Example:
+        >>> make_planner("fisher+fluid", seed=1).name
+        'fisher+fluid'
+    """
+    if name not in PLANNERS:
+        raise ValueError(f"unknown planner {name!r}; choose one of {sorted(PLANNERS)}")
+    cls = PLANNERS[name]
+    known = {f.name for f in fields(cls.config_type)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"planner {name!r}: unknown config fields {unknown}; "
+                         f"{cls.config_type.__name__} has {sorted(known)}")
+    return cls(cls.config_type(**overrides))

@@ -1,0 +1,167 @@
+"""Per-(pixel, Gaussian) compositing quantities of one view, for view planners (Kerbl et al. 2023, Eqs. 1-3).
+
+The renderer (:mod:`recon.render`) composites a pixel front to back,
+
+    C = sum_i c_i w_i + T_final * background,   w_i = alpha_i T_i,   T_i = prod_{j < i} (1 - alpha_j),
+
+over a sparse list of (pixel, Gaussian) pairs sorted by pixel, then depth. Next-best-view scores need
+these per-pair quantities themselves, not only their sums:
+
+- :func:`view_pairs` returns, per pair, the pixel, the Gaussian, the (clamped) alpha, the transmittance
+  T_i before the Gaussian, the live mask (pairs at or after a pixel's early stop are not composited) and
+  the compositing weight w_i = alpha_i T_i [live]. The ActiveNeRF-style variance planner
+  (:mod:`nbv.variance`) uses alpha_i * T_after_i with T_after_i = T_i (1 - alpha_i).
+- :func:`pair_attribute_gradients` returns, per pair p = (pixel, Gaussian g), the gradient of the pixel's
+  colour summed over channels, sum_c C_{p,c}, with respect to g's 2-D attributes a_g = (means2d 2,
+  conic 3, opacity 1, colour 3). FisherRF (:mod:`nbv.fisher`) needs per-pixel Jacobians; the gradient
+  of the summed image would add the contributions of all pixels before squaring and let them cancel.
+  Here every pair gets its own copy of its Gaussian's attributes (a PairList whose "Gaussians" and
+  footprint rows are the pairs themselves), so one backward pass of the renderer's own compositing
+  function yields every per-pair gradient at once: copy p only influences the pixel of pair p.
+
+The pair list and the compositing are those of :mod:`recon.render` (same skip and early-stop rules), so
+sums of these quantities reproduce the rendered image and opacity exactly (the tests check this).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from .camera import Camera
+from .gaussians import GaussianSet
+from .projection import Projection, project_gaussians
+from .render import PairList, _background_tensor, _Composite, _transmittance, build_pairs, gaussian_colors
+
+ATTRIBUTES = ("u", "v", "conic_a", "conic_b", "conic_c", "opacity", "red", "green", "blue")  # columns of a_g
+
+
+@dataclass
+class ViewPairs:
+    """The composited (pixel, Gaussian) pairs of one view, sorted by pixel, then by depth.
+
+    Attributes:
+        pixels: [P] int32 pixel index y * W + x.
+        gaussians: [P] int32 Gaussian index.
+        alpha: [P] alpha_i clamped at 0.99 (0 for a skipped pair with alpha < 1/255).
+        transmittance: [P] T_i, the transmittance in front of the Gaussian.
+        live: [P] bool, False at and after the pixel's early stop (not composited).
+        weights: [P] w_i = alpha_i T_i where live, else 0.
+        width, height: image size, pixels.
+    """
+
+    pixels: torch.Tensor
+    gaussians: torch.Tensor
+    alpha: torch.Tensor
+    transmittance: torch.Tensor
+    live: torch.Tensor
+    weights: torch.Tensor
+    width: int
+    height: int
+
+    @property
+    def num(self) -> int:
+        """P, the number of pairs."""
+        return int(self.pixels.numel())
+
+    @property
+    def num_pixels(self) -> int:
+        return self.width * self.height
+
+    @property
+    def transmittance_after(self) -> torch.Tensor:
+        """[P] T_i (1 - alpha_i), the transmittance behind the Gaussian (0 for pairs that are not live)."""
+        return torch.where(self.live, self.transmittance * (1.0 - self.alpha), torch.zeros_like(self.alpha))
+
+    def pixel_sum(self, values: torch.Tensor) -> torch.Tensor:
+        """[H * W] per-pixel sums of per-pair ``values`` [P] (differentiable w.r.t. ``values``)."""
+        out = torch.zeros(self.num_pixels, dtype=values.dtype, device=values.device)
+        return out.index_add(0, self.pixels, values)
+
+
+def _pairs_of(gaussians: GaussianSet, camera: Camera) -> tuple[Projection, PairList]:
+    proj = project_gaussians(gaussians, camera)
+    return proj, build_pairs(proj, gaussians.opacities, camera.width, camera.height)
+
+
+def view_pairs(gaussians: GaussianSet, camera: Camera) -> ViewPairs:
+    """The per-pair compositing quantities of one view (no gradient).
+
+    Args:
+        gaussians: N Gaussians (float32 or float64, any device).
+        camera: the view, W x H pixels.
+    Returns:
+        :class:`ViewPairs`; ``pixel_sum(weights)`` is the rendered opacity ``render(...).alpha`` (flattened).
+
+    Example:
+        >>> pairs = view_pairs(gaussians, camera)
+        >>> opacity = pairs.pixel_sum(pairs.weights).reshape(camera.height, camera.width)
+    """
+    if not isinstance(gaussians, GaussianSet):
+        raise ValueError(f"gaussians must be a GaussianSet, got {type(gaussians).__name__}")
+    with torch.no_grad():
+        g = gaussians.detach()
+        _, pairs = _pairs_of(g, camera)
+        alpha, trans, live = _transmittance(pairs, camera.width * camera.height)
+        weights = torch.where(live, alpha * trans, torch.zeros_like(alpha))
+    return ViewPairs(pixels=pairs.pixels, gaussians=pairs.gaussians, alpha=alpha, transmittance=trans, live=live,
+                     weights=weights, width=camera.width, height=camera.height)
+
+
+@dataclass
+class PairGradients:
+    """Per-pair gradients of a pixel's channel-summed colour w.r.t. its Gaussian's 2-D attributes.
+
+    Attributes:
+        pixels: [P] int32 pixel of each pair.
+        gaussians: [P] int32 Gaussian of each pair.
+        grads: [P, 9] d(sum_c C_{pixel,c}) / d a_g, columns as :data:`ATTRIBUTES` (means2d u, v in pixels,
+            conic A, B, C in 1/px^2, opacity, colour R, G, B). Zero for skipped or stopped pairs.
+        image: [H, W, 3] the rendered image (identical to ``render(...).image``).
+    """
+
+    pixels: torch.Tensor
+    gaussians: torch.Tensor
+    grads: torch.Tensor
+    image: torch.Tensor
+
+
+def pair_attribute_gradients(gaussians: GaussianSet, camera: Camera, background: torch.Tensor | float | None = None,
+                             *, sh_degree: int | None = None) -> PairGradients:
+    """Per-(pixel, Gaussian) gradients of the channel-summed pixel colour w.r.t. the 2-D attributes.
+
+    One forward and one backward pass of the renderer's compositing over per-pair copies of the
+    attributes (see the module docstring).
+
+    Args:
+        gaussians: N Gaussians (float32 or float64; gradients are not taken w.r.t. them).
+        camera: the view, W x H pixels.
+        background: [3] tensor, float grey level or None (black); the background enters through T_final.
+        sh_degree: SH bands used for the colours (None = all stored).
+    Returns:
+        :class:`PairGradients` with P pairs.
+    """
+    if not isinstance(gaussians, GaussianSet):
+        raise ValueError(f"gaussians must be a GaussianSet, got {type(gaussians).__name__}")
+    degree = gaussians.sh_degree if sh_degree is None else sh_degree
+    if not isinstance(degree, int) or not 0 <= degree <= gaussians.sh_degree:
+        raise ValueError(f"sh_degree must be an int in 0..{gaussians.sh_degree} (the stored degree), got {sh_degree!r}")
+    g = gaussians.detach()
+    bg = _background_tensor(background, g.means)
+    w, h = camera.width, camera.height
+    with torch.no_grad():
+        proj, pairs = _pairs_of(g, camera)
+        colors = gaussian_colors(g, camera, degree)
+        opacities = g.opacities
+    gid = pairs.gaussians
+    own = torch.arange(pairs.num, dtype=torch.int32, device=gid.device)
+    per_pair = PairList(pixels=pairs.pixels, gaussians=own, rows=own, dx=pairs.dx, alpha=pairs.alpha,
+                        row_gaussians=own, row_dy=pairs.row_dy.index_select(0, pairs.rows),
+                        candidates=pairs.candidates)
+    leaves = [t.index_select(0, gid).requires_grad_(True) for t in (proj.means2d, proj.conics, opacities, colors)]
+    with torch.enable_grad():
+        image, _, _ = _Composite.apply(*leaves, proj.depths.index_select(0, gid), bg, per_pair, w * h)
+        grads = torch.autograd.grad(image.sum(), leaves)
+    stacked = torch.cat([grads[0], grads[1], grads[2][:, None], grads[3]], -1)
+    return PairGradients(pixels=pairs.pixels, gaussians=gid, grads=stacked, image=image.detach().reshape(h, w, 3))

@@ -1,0 +1,165 @@
+"""Tests for nbv/fisher.py and recon/pairs.py: the per-pixel Fisher diagonal against brute force (one backward
+pass per pixel through the dense reference renderer) in float64, with and without rotations, with the early
+stop triggered; that the naive square of the summed-image gradient differs (so the twin test can fail); the
+per-pair compositing quantities against the rendered image and opacity; the score formula by hand; the lazy
+greedy top-K against the plain greedy twin, with and without the H cache; and config validation."""
+
+import math
+
+import pytest
+import torch
+
+from nbv.fisher import (
+    FisherConfig,
+    fisher_score,
+    greedy_top_k,
+    greedy_top_k_reference,
+    parameter_count,
+    view_fisher,
+    view_fisher_reference,
+)
+from recon.camera import Camera
+from recon.gaussians import GaussianSet
+from recon.pairs import pair_attribute_gradients, view_pairs
+from recon.render import render
+
+F64 = torch.float64
+
+
+def _scene(n=6, seed=0, sh_degree=1, logit_mean=0.0, scale=0.25, dtype=F64) -> GaussianSet:
+    gen = torch.Generator().manual_seed(seed)
+    means = (torch.rand(n, 3, generator=gen, dtype=F64) * 2 - 1) * torch.tensor([0.5, 0.5, 0.3], dtype=F64)
+    quats = torch.randn(n, 4, generator=gen, dtype=F64)
+    log_scales = math.log(scale) + 0.3 * torch.randn(n, 3, generator=gen, dtype=F64)
+    logits = logit_mean + torch.randn(n, generator=gen, dtype=F64)
+    sh = 0.4 * torch.randn(n, (sh_degree + 1) ** 2, 3, generator=gen, dtype=F64)
+    return GaussianSet(means, quats, log_scales, logits, sh).to(dtype=dtype)
+
+
+def _camera(eye=(0.3, -0.2, -3.0), size=6, fov_deg=50.0) -> Camera:
+    return Camera.look_at(eye, (0.0, 0.0, 0.0), (0.0, -1.0, 0.0), size, size, math.radians(fov_deg))
+
+
+def _ring(count, size=10, radius=3.0):
+    return [_camera((radius * math.sin(2 * math.pi * i / count), -0.4 + 0.2 * i, -radius * math.cos(2 * math.pi * i /
+                                                                                                    count)), size)
+            for i in range(count)]
+
+
+@pytest.mark.parametrize("include_rotations", [False, True])
+def test_view_fisher_matches_brute_force_per_pixel_backward(include_rotations):
+    g, cam = _scene(), _camera()
+    background = torch.tensor([0.3, 0.5, 0.7], dtype=F64)
+    fast = view_fisher(g, cam, background, include_rotations=include_rotations)
+    slow = view_fisher_reference(g, cam, background, include_rotations=include_rotations)
+    assert fast.shape == (6, parameter_count(1, include_rotations)) == slow.shape
+    assert slow.abs().max() > 1e-2  # the scene is seen: the comparison is not between zeros
+    torch.testing.assert_close(fast, slow, rtol=1e-8, atol=1e-10)
+
+
+def test_view_fisher_matches_brute_force_with_early_stop_and_sh_degree_2():
+    g = _scene(n=8, seed=3, logit_mean=4.0, scale=0.3, sh_degree=2)
+    cam = _camera(size=7)
+    pairs = view_pairs(g, cam)
+    assert (~pairs.live & (pairs.alpha > 0)).any()  # the early stop is exercised
+    fast = view_fisher(g, cam, 1.0)
+    slow = view_fisher_reference(g, cam, 1.0)
+    torch.testing.assert_close(fast, slow, rtol=1e-8, atol=1e-10)
+    # a lower SH degree drops the higher bands' columns
+    low = view_fisher(g, cam, 1.0, sh_degree=0)
+    assert low.shape[1] == parameter_count(0)
+    torch.testing.assert_close(low, view_fisher_reference(g, cam, 1.0, sh_degree=0), rtol=1e-8, atol=1e-10)
+
+
+def test_square_of_summed_gradient_differs_from_per_pixel_squares():
+    g, cam = _scene(), _camera()
+    h = view_fisher(g, cam, 0.5)
+    leaves = [t.clone().requires_grad_(True) for t in (g.means, g.log_scales, g.opacity_logits, g.sh)]
+    gs = GaussianSet(leaves[0], g.quats, leaves[1], leaves[2], leaves[3])
+    grads = torch.autograd.grad(render(gs, cam, 0.5).image.sum(), leaves)
+    naive = torch.cat([d.reshape(g.num, -1) for d in grads], -1) ** 2
+    assert naive.shape == h.shape
+    assert (naive - h).abs().max() > 0.1 * h.abs().max()
+
+
+def test_pair_quantities_reproduce_the_render():
+    g, cam = _scene(n=10, seed=5, logit_mean=2.0), _camera(size=9)
+    background = torch.tensor([0.2, 0.4, 0.9], dtype=F64)
+    out = render(g, cam, background)
+    pairs = view_pairs(g, cam)
+    opacity = pairs.pixel_sum(pairs.weights)
+    torch.testing.assert_close(opacity, out.alpha.reshape(-1), rtol=1e-12, atol=1e-12)
+    # T_after = T (1 - alpha) on the composited pairs; pairs after the early stop have no weight
+    torch.testing.assert_close(pairs.transmittance_after[pairs.live],
+                               (pairs.transmittance * (1 - pairs.alpha))[pairs.live])
+    assert torch.all(pairs.weights[~pairs.live] == 0)
+    grads = pair_attribute_gradients(g, cam, background)
+    torch.testing.assert_close(grads.image, out.image, rtol=1e-12, atol=1e-12)
+    assert grads.grads.shape == (pairs.num, 9)
+    assert torch.equal(grads.pixels, pairs.pixels) and torch.equal(grads.gaussians, pairs.gaussians)
+
+
+def test_pair_gradients_sum_to_the_summed_image_gradient():
+    """Summed over a Gaussian's pairs, the per-pair gradients are the gradient of the summed image."""
+    g, cam = _scene(n=7, seed=2, logit_mean=1.0), _camera(size=8)
+    grads = pair_attribute_gradients(g, cam, 0.25)
+    per_gaussian = torch.zeros(g.num, 9, dtype=F64).index_add_(0, grads.gaussians, grads.grads)
+    means, opacity_logits = g.means.clone().requires_grad_(True), g.opacity_logits.clone().requires_grad_(True)
+    gs = GaussianSet(means, g.quats, g.log_scales, opacity_logits, g.sh)
+    out = render(gs, cam, 0.25)
+    (d_means2d, d_logits) = torch.autograd.grad(out.image.sum(), [out.means2d, opacity_logits])
+    torch.testing.assert_close(per_gaussian[:, :2], d_means2d, rtol=1e-10, atol=1e-12)
+    opac = torch.sigmoid(g.opacity_logits)
+    torch.testing.assert_close(per_gaussian[:, 5] * opac * (1 - opac), d_logits, rtol=1e-10, atol=1e-12)
+
+
+def test_fisher_score_by_hand():
+    h_c = torch.tensor([[1.0, 2.0], [0.5, 0.0]], dtype=F64)
+    h_t = torch.tensor([[0.0, 1.0], [3.0, 2.0]], dtype=F64)
+    expected = 1.0 / 1e-6 + 2.0 / (1.0 + 1e-6) + 0.5 / (3.0 + 1e-6)
+    assert fisher_score(h_c, h_t) == pytest.approx(expected, rel=1e-12)
+    assert fisher_score(h_c, h_t, 0.5) == pytest.approx(1 / 0.5 + 2 / 1.5 + 0.5 / 3.5, rel=1e-12)
+    with pytest.raises(ValueError, match="differ"):
+        fisher_score(h_c, h_t[:1])
+
+
+@pytest.mark.parametrize("cache_mb", [256.0, 0.0])
+def test_lazy_greedy_top_k_matches_plain_greedy(cache_mb):
+    g = _scene(n=12, seed=7, scale=0.2, dtype=torch.float32)
+    cams = _ring(7)
+    train = [_camera((0.0, 0.0, -3.0), 10)]
+    config = FisherConfig(cache_mb=cache_mb)
+    ranking = greedy_top_k(g, cams, train, 1.0, 5, config)
+    h_train = view_fisher(g, train[0], 1.0).double()
+    h_cands = [view_fisher(g, c, 1.0) for c in cams]
+    assert ranking.order == greedy_top_k_reference(h_train, h_cands, 5)
+    assert ranking.order[0] == max(range(7), key=lambda i: ranking.scores[i])
+    assert ranking.scores == pytest.approx([fisher_score(h, h_train) for h in h_cands], rel=1e-6)
+    assert len(set(ranking.order)) == 5
+    if cache_mb == 0.0:
+        assert ranking.recomputed > 0
+
+
+def test_greedy_list_accounts_for_picked_views():
+    """A duplicate of the best candidate carries little new information once the best is picked: it ties in
+    the first-round scores but the greedy list does not take it second."""
+    g = _scene(n=12, seed=7, scale=0.2, dtype=torch.float32)
+    cams, train = _ring(5), [_camera((0.0, 0.0, -3.0), 10)]
+    first = greedy_top_k(g, cams, train, 1.0, 1).order[0]
+    ranking = greedy_top_k(g, cams + [cams[first]], train, 1.0, 3)
+    assert ranking.scores[5] == pytest.approx(ranking.scores[first])
+    assert ranking.order[0] == first
+    assert 5 not in ranking.order[1:2]
+    by_score = sorted(range(6), key=lambda i: (-ranking.scores[i], i))
+    assert by_score[1] == 5  # plain sorting would have taken the duplicate second
+
+
+def test_fisher_config_validation_and_inputs():
+    with pytest.raises(ValueError, match="regularization"):
+        FisherConfig(regularization=0.0)
+    with pytest.raises(ValueError, match="cache_mb"):
+        FisherConfig(cache_mb=-1.0)
+    with pytest.raises(ValueError, match="sh_degree"):
+        view_fisher(_scene(sh_degree=0), _camera(), sh_degree=2)
+    with pytest.raises(ValueError, match="no candidate"):
+        greedy_top_k(_scene(), [], [], 1.0, 1)

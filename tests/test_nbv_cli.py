@@ -1,0 +1,145 @@
+"""Smoke tests of `fluidgs simulate | score | critical | sweep | bench score` on a tiny sphere, and bad input."""
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from apps import cli
+from nbv.physics import load_result
+from recon.camera import Camera
+from recon.gaussians import GaussianSet
+from recon.ply import load_gaussians, save_gaussians
+
+FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
+
+
+def _sphere(n: int = 300) -> GaussianSet:
+    i = np.arange(n) + 0.5
+    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
+    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
+    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
+
+
+FOV = math.radians(50)
+
+
+def _write_cameras(path, cams, width=48, height=40, fov=FOV):
+    frames = [{"file_path": f"./{c.name}", "transform_matrix": c.opengl_c2w().tolist()} for c in cams]
+    path.write_text(json.dumps({"camera_angle_x": fov, "w": width, "h": height, "frames": frames}))
+    return path
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    root = tmp_path_factory.mktemp("nbv_cli")
+    ply = save_gaussians(_sphere(), root / "sphere.ply")
+    cams = [Camera.look_at((2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40,
+                           math.radians(50), name=f"cam{k}") for k, a in enumerate(np.arange(6) * math.pi / 3)]
+    cameras = _write_cameras(root / "transforms.json", cams)
+    h5 = root / "result.h5"
+    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", "--video=-x", *FAST]) == 0
+    return dict(root=root, ply=ply, cameras=cameras, h5=h5)
+
+
+def test_simulate_outputs(scene):
+    res = load_result(scene["h5"])
+    assert res.directions == ("-x", "+z") and res.per_probe.shape == (2, 300)
+    assert res.divergence.max() > 0
+    colored = load_gaussians(scene["root"] / "result_divergence.ply")
+    assert colored.sh_degree == 0 and colored.num == 300
+    torch.testing.assert_close(colored.means, _sphere().means)
+    # colours follow D_g: the Gaussian with the largest D_g is not coloured like one with D_g = 0
+    hi, lo = int(np.argmax(res.divergence)), int(np.argmin(res.divergence))
+    assert (colored.sh[hi, 0] - colored.sh[lo, 0]).abs().max() > 0.5
+    assert (scene["root"] / "result_probe-x.mp4").stat().st_size > 0
+
+
+def test_score_ranks_views(scene, tmp_path):
+    out = tmp_path / "scores.json"
+    assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "--result", str(scene["h5"]),
+                     "-o", str(out), "--top-k", "3"]) == 0
+    data = json.loads(out.read_text())
+    views = data["views"]
+    assert [v["rank"] for v in views] == list(range(1, 7))
+    assert all(a["score"] >= b["score"] for a, b in zip(views, views[1:], strict=False))
+    assert sorted(v["index"] for v in views) == list(range(6)) and views[0]["score"] > 0
+    assert len(list((tmp_path / "scores_views").glob("rank*.png"))) == 6
+    # a subset keeps the camera indices of the file, and the same scores
+    out2 = tmp_path / "subset.json"
+    assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "--result", str(scene["h5"]),
+                     "-o", str(out2), "--candidates", "1,4", "--no-png"]) == 0
+    sub = {v["index"]: v["score"] for v in json.loads(out2.read_text())["views"]}
+    full = {v["index"]: v["score"] for v in views}
+    assert set(sub) == {1, 4} and all(sub[k] == pytest.approx(full[k]) for k in sub)
+
+
+def test_score_simulates_without_result(scene, tmp_path):
+    out = tmp_path / "s.json"
+    assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(out), "--no-png",
+                     "--directions=-x", "--occlusion", "--save-result", str(tmp_path / "r.h5"), *FAST]) == 0
+    assert json.loads(out.read_text())["occlusion"] is True
+    assert load_result(tmp_path / "r.h5").directions == ("-x",)
+
+
+def test_critical_subset(scene, tmp_path):
+    out = tmp_path / "critical.json"
+    assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(out),
+                     "--subset", "4", *FAST]) == 0
+    data = json.loads(out.read_text())
+    assert data["directions"] == ["-x"] and data["distinct_particles"]["gaussians_reached"] > 0
+    assert data["critical_subset"] == [v["index"] for v in data["views"][:4]]
+    assert data["views"][0]["critical_score"] >= data["views"][-1]["critical_score"]
+
+
+def test_sweep_csv_and_plot(scene, tmp_path):
+    out = tmp_path / "sweep.csv"
+    assert cli.main(["sweep", str(scene["ply"]), "--velocities", "3,6", "--directions=-x", "-o", str(out),
+                     "--compare", str(scene["ply"]), *FAST]) == 0
+    rows = list(csv.DictReader(out.open()))
+    assert [r["steps"] for r in rows] == ["40", "80"]
+    assert float(rows[0]["gap_m4_s"]) == pytest.approx(0.0, abs=1e-12)  # OTHER = the same set
+    assert out.with_suffix(".png").stat().st_size > 0
+
+
+def test_bench_score_prints_share(scene, capsys):
+    assert cli.main(["bench", "score", "--gaussians", str(scene["ply"]), "--particle-radius", "0.08", "--steps",
+                     "20", "--directions=-x"]) == 0
+    text = capsys.readouterr().out
+    assert "aggregation share of the step time" in text and "fluid particles" in text
+
+
+def test_bad_inputs_fail_early(scene, tmp_path, caplog):
+    not_3dgs = tmp_path / "points.ply"
+    not_3dgs.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                        "property float z\nend_header\n0 0 0\n")
+    assert cli.main(["simulate", str(not_3dgs), "-o", str(tmp_path / "a.h5"), *FAST]) == 2
+    away = [Camera.look_at((0, 0, 3), (0, 0, 6), (0, 1, 0), 48, 40, math.radians(50), name="away")]
+    cams_away = _write_cameras(tmp_path / "away.json", away)
+    caplog.clear()
+    assert cli.main(["score", str(scene["ply"]), "--cameras", str(cams_away), "-o", str(tmp_path / "s.json"),
+                     *FAST]) == 2
+    assert "sees any Gaussian" in caplog.text
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file, not a folder")
+    assert cli.main(["simulate", str(scene["ply"]), "-o", str(blocker / "r.h5"), *FAST]) == 2
+    caplog.clear()
+    assert cli.main(["simulate", str(scene["ply"]), "-o", str(tmp_path / "big.h5"), "--particle-radius", "0.002",
+                     "--steps", "5", "--no-empty-reference"]) == 2
+    assert "GiB" in caplog.text and "particle radius" in caplog.text
+    assert not (tmp_path / "big.h5").exists()
+    assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "--result", str(scene["h5"]),
+                     "-o", str(tmp_path / "x.json"), "--candidates", "9"]) == 2
+
+
+def test_demo_runs_on_given_gaussians(scene, tmp_path):
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "-o", str(out), "--gaussians", str(scene["ply"]), "--cameras", str(scene["cameras"]),
+                     "--particle-radius", "0.08", "--steps", "20", "--no-video", "--threads", "2"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["gaussians"] == 300 and set(summary["probes"]) == {"-x", "+x", "-z", "+z", "-y"}
+    assert len(json.loads((out / "scores.json").read_text())["views"]) == 6
+    assert (out / "gaussians_divergence.ply").is_file() and len(list((out / "views").glob("*.png"))) == 6

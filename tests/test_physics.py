@@ -1,0 +1,161 @@
+"""Probe runs on Gaussians (paper Eq. 2-3): orchestration vs a brute-force twin, D-bar, HDF5, guards, sweep."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from fluidsim.probes import build_probe_solver, probe_setup
+from nbv import physics, scores, sweep
+from nbv.aggregate import accumulate_reference
+from nbv.physics import PhysicsConfig, load_result, save_result, simulate_gaussians
+from recon.gaussians import GaussianSet
+
+# coarse settings: a unit sphere (after auto scaling) probed with 0.16 m particle spacing
+COARSE = dict(particle_radius=0.08, steps=40, dt=0.004, empty_reference=False)
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    i = np.arange(n) + 0.5
+    phi = np.arccos(1 - 2 * i / n)
+    th = math.pi * (1 + 5**0.5) * i
+    return np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1)
+
+
+def sphere_gaussians(n: int = 300, radius: float = 0.5, scale: float = 0.06) -> GaussianSet:
+    return GaussianSet.from_points(torch.tensor(fibonacci_sphere(n) * radius, dtype=torch.float32), scale=scale,
+                                   opacity=0.9)
+
+
+@pytest.fixture(scope="module")
+def sphere() -> GaussianSet:
+    return sphere_gaussians()
+
+
+def test_config_validation_names_the_field():
+    with pytest.raises(ValueError, match="particle_radius"):
+        PhysicsConfig(particle_radius=-1)
+    with pytest.raises(ValueError, match="steps"):
+        PhysicsConfig(steps=0)
+    with pytest.raises(ValueError, match="directions"):
+        PhysicsConfig(directions=("-x", "up"))
+    with pytest.raises(ValueError, match="scale"):
+        PhysicsConfig(scale="big")
+    with pytest.raises(ValueError, match="unknown SolverConfig keys"):
+        PhysicsConfig(solver={"tolerance": 1})
+    cfg = PhysicsConfig.quick(solver={"max_density_error": 0.05})
+    assert (cfg.particle_radius, cfg.steps) == (0.05, 300)
+    assert cfg.solver_config().max_density_error == 0.05
+    assert PhysicsConfig.from_dict(cfg.to_dict()) == cfg
+    with pytest.raises(ValueError, match="unknown PhysicsConfig keys"):
+        PhysicsConfig.from_dict({"radius": 1})
+
+
+def test_auto_scale_puts_largest_extent_at_two_metres(sphere):
+    t = physics.scene_transform(sphere, PhysicsConfig())
+    extent = np.ptp(t.to_sim(sphere.means.double().numpy()), axis=0).max()
+    assert extent == pytest.approx(2.0, rel=1e-6)
+    assert physics.scene_transform(sphere, PhysicsConfig(scale=3.0)).scale == 3.0
+
+
+def test_simulation_matches_brute_force_twin(sphere):
+    """The orchestrated run (grid accumulator, every 2nd step) equals stepping the same probe by hand and
+    accumulating every particle against every Gaussian."""
+    cfg = PhysicsConfig(**COARSE, directions=("-x", "+z"), accumulate_every=2, track_distinct=True)
+    res = simulate_gaussians(sphere, cfg, progress=False)
+    assert res.per_probe.shape == (2, sphere.num)
+    np.testing.assert_array_equal(res.divergence, res.per_probe.max(0))
+    np.testing.assert_allclose(res.divergence_mean, res.per_probe.mean(0))
+    assert res.dbar == pytest.approx(scores.geometry_divergence(torch.from_numpy(res.covariances),
+                                                                torch.from_numpy(res.divergence)))
+    assert res.dbar >= res.dbar_mean > 0
+    # the flow reaches the upstream side of the sphere: many Gaussians get samples, not all
+    touched = (res.per_probe_counts[0] > 0).mean()
+    assert 0.1 < touched < 0.95
+
+    scfg = cfg.solver_config()
+    setup = probe_setup(res.solid, "+z", cfg.probe_config(), scfg.spacing)
+    solver = build_probe_solver(res.solid, setup, scfg, cfg.probe_config())
+    sums = np.zeros(sphere.num)
+    counts = np.zeros(sphere.num, np.int64)
+    seen = [set() for _ in range(sphere.num)]
+    for step in range(cfg.steps):
+        solver.step()
+        if (step + 1) % 2:
+            continue
+        st = solver.fluid_state()
+        s, c = accumulate_reference(res.means, res.reach, st["x"], st["divergence"], solver.domain_min,
+                                    solver.domain_max)
+        sums += s
+        counts += c
+        d = np.linalg.norm(st["x"][:, None] - res.means[None], axis=-1)
+        for i, g in zip(*np.nonzero(d < res.reach[None]), strict=True):
+            seen[g].add(int(st["ids"][i]))
+    np.testing.assert_array_equal(res.per_probe_counts[1], counts)
+    np.testing.assert_allclose(res.per_probe[1], np.where(counts > 0, sums / np.maximum(counts, 1), 0), rtol=1e-5,
+                               atol=1e-6)
+    np.testing.assert_array_equal(res.per_probe_distinct[1], [len(s) for s in seen])
+
+
+def test_result_roundtrip_and_empty_reference(sphere, tmp_path):
+    cfg = PhysicsConfig(**{**COARSE, "empty_reference": True}, directions=("-x",))
+    res = simulate_gaussians(sphere, cfg, progress=False, source="sphere")
+    assert res.dbar_empty is not None and math.isfinite(res.dbar_empty)
+    # the solid disturbs the flow: D-bar with the sphere is far above the walls-only reference
+    assert res.dbar > 10 * res.dbar_empty
+    again = simulate_gaussians(sphere, cfg, progress=False)  # the empty-scene runs are cached in-process
+    assert again.dbar_empty == res.dbar_empty
+    assert again.timings["empty_reference"] < 0.5 * res.timings["empty_reference"]
+    path = save_result(tmp_path / "r.h5", res)
+    back = load_result(path)
+    for key in ("per_probe", "per_probe_counts", "divergence", "divergence_mean", "solid", "means", "covariances",
+                "reach", "empty_per_probe"):
+        np.testing.assert_array_equal(getattr(back, key), getattr(res, key))
+    assert (back.dbar, back.dbar_empty, back.config, back.source) == (res.dbar, res.dbar_empty, res.config, "sphere")
+    assert back.transform.scale == res.transform.scale
+    np.testing.assert_array_equal(back.stats["-x"]["density_iterations"], res.stats["-x"]["density_iterations"])
+    assert list(tmp_path.iterdir()) == [path]  # no temporary file left
+
+
+def test_bad_inputs_fail_before_simulating(sphere, tmp_path):
+    with pytest.raises(ValueError, match="GiB"):
+        simulate_gaussians(sphere, PhysicsConfig(**COARSE, max_memory_gb=1e-6), progress=False)
+    faint = GaussianSet.from_points(sphere.means, scale=0.06, opacity=0.01)
+    with pytest.raises(ValueError):
+        simulate_gaussians(faint, PhysicsConfig(**COARSE), progress=False)
+    bad = tmp_path / "x.h5"
+    bad.write_bytes(b"not hdf5")
+    with pytest.raises(ValueError, match="x.h5"):
+        load_result(bad)
+    with pytest.raises(ValueError, match="does not exist"):
+        load_result(tmp_path / "missing.h5")
+
+
+def test_memory_estimate_grows_with_resolution(sphere):
+    coarse = physics.estimate_memory(sphere, PhysicsConfig(particle_radius=0.05))
+    fine = physics.estimate_memory(sphere, PhysicsConfig(particle_radius=0.025))
+    assert 6 < fine["fluid_particles"] / coarse["fluid_particles"] < 10  # ~ 2^3
+    assert fine["bytes"] > 6 * coarse["bytes"]
+
+
+def test_sweep_schedule_is_cfl_constant():
+    plan = sweep.schedule([3, 6, 50], dt_base=0.002, steps_base=750)
+    assert [p.steps for p in plan] == [750, 1500, 12500]
+    for p in plan:
+        assert p.speed * p.dt == pytest.approx(3 * 0.002)  # U dt constant (Courant number)
+        assert p.duration == pytest.approx(1.5)
+    assert sweep.reynolds(3.0, 3.0, 1000.0, 10.0) == pytest.approx(900.0)
+    assert sweep.parse_velocities("3, 4,50") == (3.0, 4.0, 50.0)
+    with pytest.raises(ValueError, match="velocities"):
+        sweep.parse_velocities("3,-1")
+
+
+def test_sweep_runs_and_writes_csv(sphere, tmp_path):
+    cfg = PhysicsConfig(**COARSE, directions=("-x",))
+    pts = sweep.run_sweep(sphere, cfg, [3.0, 6.0], other=sphere_gaussians(200), progress=False)
+    assert [p.steps for p in pts] == [40, 80]
+    assert all(p.dbar > 0 and p.gap is not None for p in pts)
+    assert pts[1].reynolds == pytest.approx(2 * pts[0].reynolds)
+    text = (sweep.write_csv(tmp_path / "s.csv", pts)).read_text().splitlines()
+    assert text[0].split(",") == list(sweep.CSV_FIELDS) and len(text) == 3
