@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from .help_format import HelpFormatter
+
 # name -> (module, help). Modules are imported when the parser is built.
 BENCHMARKS = {
     "sim": ("apps.bench_sim", "the paper-scale DFSPH probe (and SPlisHSPlasH when installed)"),
@@ -23,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     for name, (module_name, help_text) in BENCHMARKS.items():
         module = importlib.import_module(module_name)
         q = sub.add_parser(name, help=help_text, description=(module.__doc__ or help_text).strip().splitlines()[0],
-                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                           formatter_class=HelpFormatter)
         module.add_arguments(q)
         q.set_defaults(_bench=module)
 

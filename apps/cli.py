@@ -23,12 +23,13 @@ from . import (
     sweep,
     train,
 )
+from .help_format import HelpFormatter
 
 COMMANDS = {
     "sim": (sim, "run a scene JSON and write OUT.h5 (frames, per-step stats, divergence)"),
     "render-frames": (render_frames, "draw the frames of OUT.h5 as an MP4 or PNGs, coloured by divergence or speed"),
     "bench": (bench, "benchmarks: sim (DFSPH probe vs SPlisHSPlasH), and the others listed by `bench --help`"),
-    "demo": (demo, "five fluid probes against the bundled solid: HDF5, summary.json and a video"),
+    "demo": (demo, "the main job on the bundled Ahmed Gaussians: five quick probes, D_g, view scores, PNGs, video"),
     "render-dataset": (render_dataset, "render an .obj/.stl/.ply mesh into a Blender-format dataset"),
     "train": (train, "train 3D Gaussians on a dataset: OUT.ply plus OUT.json (config, timings, test PSNR/SSIM)"),
     "make-assets": (make_assets, "regenerate the bundled trained Ahmed-body Gaussians and candidate cameras"),
@@ -49,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text,
-                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                           formatter_class=HelpFormatter)
         module.add_arguments(p)
         p.set_defaults(_module=module)
     return parser
