@@ -5,10 +5,11 @@ neighbour weights are volumes V_j. With ``g_ij = V_j grad W(x_i - x_j, h)`` stor
 neighbourhood pass:
 
 - velocity divergence source (B&K 2017, divergence-free solver):
-  s_i = D(rho_i/rho_0)/Dt = sum_j (v_i - v_j) . g_ij + sum_b v_i . g_ib, clamped at 0;
+  s_i = D(rho_i/rho_0)/Dt = sum_j (v_i - v_j) . g_ij + v_i . sum_b g_ib, clamped at 0 (the boundary is
+  static, so its gradients enter only through their sum, stored once per step);
 - predicted density (constant-density solver): rho*_i = rho_i + dt s_i, error max(rho*_i - 1, 0);
 - stiffness k_i = kappa_i / rho_i = s_i factor_i / dt (divergence) or (rho*_i - 1) factor_i / dt^2;
-- velocity update v_i -= dt (sum_j (k_i + k_j) g_ij + sum_b k_i g_ib).
+- velocity update v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib).
 
 Errors are averaged over the active fluid particles only. Both solvers warm-start from the summed
 stiffness of the previous step (the divergence solver at half strength, as in SPlisHSPlasH), stored
@@ -28,14 +29,12 @@ WARM = 2  # stiffness from the previous step's value, where the particle is comp
 
 @ti.func
 def velocity_divergence(i, v: ti.template(), fluid_count: ti.template(), fluid_index: ti.template(),
-                        fluid_grad: ti.template(), boundary_count: ti.template(), boundary_grad: ti.template()):
-    """s_i = sum_j (v_i - v_j) . V_j grad W_ij + sum_b v_i . V_b grad W_ib (1/s); boundary is at rest."""
+                        fluid_grad: ti.template(), boundary_grad_sum: ti.template()):
+    """s_i = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib (1/s); boundary is at rest."""
     vi = v[i]
-    s = 0.0 * vi[0]
+    s = vi.dot(boundary_grad_sum[i])
     for k in range(fluid_count[i]):
         s += (vi - v[fluid_index[i, k]]).dot(fluid_grad[i, k])
-    for k in range(boundary_count[i]):
-        s += vi.dot(boundary_grad[i, k])
     return s
 
 
@@ -50,7 +49,7 @@ def divergence_error(
     fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
     fluid_grad: ti.types.ndarray(ndim=2),
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    boundary_grad: ti.types.ndarray(ndim=2),
+    boundary_grad_sum: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
     kappa: ti.types.ndarray(ndim=1),
     source: ti.types.ndarray(ndim=1),
@@ -58,21 +57,49 @@ def divergence_error(
     stiffness_sum: ti.types.ndarray(ndim=1),
     partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
 ) -> ti.f64:
-    """Divergence-free solver, error pass: s_i and k_i; returns the average s_i over fluid (1/s)."""
+    """Divergence-free solver, error pass: s_i and k_i; returns the average s_i over fluid (1/s).
+
+    Modes ITERATE and FIRST; the solve starts with :func:`start_divergence` (the neighbourhood pass
+    measured the first source), so ``warm_scale`` and ``kappa`` are unused, kept so that both error
+    passes take the same arguments.
+    """
     for i in range(n):
-        s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_count, boundary_grad)
+        s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_grad_sum)
         if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
             s = 0.0
         source[i] = s
+        stiffness[i] = s * factor[i] / dt
+        if mode != ITERATE:
+            stiffness_sum[i] = 0.0
+    return ordered_sum(source, n, partial) / ti.max(n, 1)
+
+
+@ti.kernel
+def start_divergence(
+    n: ti.i32,
+    dt: float,
+    mode: ti.i32,
+    warm_scale: float,
+    source: ti.types.ndarray(ndim=1),
+    factor: ti.types.ndarray(ndim=1),
+    kappa: ti.types.ndarray(ndim=1),
+    stiffness: ti.types.ndarray(ndim=1),
+    stiffness_sum: ti.types.ndarray(ndim=1),
+    partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
+) -> ti.f64:
+    """Divergence-free solver, start (FIRST or WARM) from the source s_i of the neighbourhood pass.
+
+    Returns the average s_i over fluid (1/s); resets the accumulated stiffness.
+    """
+    for i in range(n):
+        s = source[i]
+        k = s * factor[i] / dt
         if mode == WARM:
             k = 0.0
             if s > 0.0:
                 k = warm_scale * kappa[i] / dt
-            stiffness[i] = k
-        else:
-            stiffness[i] = s * factor[i] / dt
-        if mode != ITERATE:
-            stiffness_sum[i] = 0.0
+        stiffness[i] = k
+        stiffness_sum[i] = 0.0
     return ordered_sum(source, n, partial) / ti.max(n, 1)
 
 
@@ -87,7 +114,7 @@ def density_error(
     fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
     fluid_grad: ti.types.ndarray(ndim=2),
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    boundary_grad: ti.types.ndarray(ndim=2),
+    boundary_grad_sum: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
     kappa: ti.types.ndarray(ndim=1),
@@ -98,7 +125,7 @@ def density_error(
 ) -> ti.f64:
     """Constant-density solver, error pass: rho*_i - 1 and k_i; returns the average error over fluid."""
     for i in range(n):
-        s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_count, boundary_grad)
+        s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_grad_sum)
         err = ti.max(density[i] + dt * s - 1.0, 0.0)
         source[i] = err
         if mode == WARM:
@@ -122,18 +149,16 @@ def apply_stiffness(
     fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
     fluid_grad: ti.types.ndarray(ndim=2),
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    boundary_grad: ti.types.ndarray(ndim=2),
+    boundary_grad_sum: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
 ):
-    """Velocity update of both solvers: v_i -= dt (sum_j (k_i + k_j) g_ij + sum_b k_i g_ib)."""
+    """Velocity update of both solvers: v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib)."""
     for i in range(n):
         ki = stiffness[i]
-        dv = v[i] * 0.0
+        dv = ki * boundary_grad_sum[i]
         for k in range(fluid_count[i]):
             dv += (ki + stiffness[fluid_index[i, k]]) * fluid_grad[i, k]
-        for k in range(boundary_count[i]):
-            dv += ki * boundary_grad[i, k]
         v[i] -= dt * dv
         stiffness_sum[i] += ki
 

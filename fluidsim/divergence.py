@@ -11,7 +11,10 @@ also added to the particle's run sum and count.
 
 Three fast paths give the same result: when h_k = h <= h_r (the default, h = 0.1) the step's stored
 neighbour gradients are reused; when h_r <= h the neighbour lists are filtered by distance and
-grad W(., h_k) recomputed; otherwise the grid is walked with a cell range of ceil(h_r / cell).
+grad W(., h_k) recomputed; otherwise the grid is walked with a cell range of ceil(h_r / cell). In a
+time step the first case is computed inside the viscosity pass (:mod:`fluidsim.viscosity`), which reads
+the same velocities, densities and gradients; :func:`estimate_divergence_from_gradients` is its
+stand-alone twin.
 :func:`divergence_np` is the O(N^2) numpy twin.
 """
 
@@ -39,21 +42,18 @@ def estimate_divergence_from_gradients(
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
     fluid_grad: ti.types.ndarray(ndim=2),
-    boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    boundary_grad: ti.types.ndarray(ndim=2),
+    boundary_grad_sum: ti.types.ndarray(ndim=1),
     divergence: ti.types.ndarray(ndim=1),
     divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
     divergence_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
 ):
-    """Paper Eq. 1 when h_k = h <= h_r: the stored V grad W of the step (fluid V_f, boundary V_b)."""
+    """Paper Eq. 1 when h_k = h <= h_r: the stored V grad W of the step (fluid V_f, boundary sum of V_b)."""
     for i in range(n):
         vi = v[i]
-        s = 0.0 * vi[0]
+        s = -vi.dot(boundary_grad_sum[i])
         for k in range(fluid_count[i]):
             j = fluid_index[i, k]
             s += (v[j] - vi).dot(fluid_grad[i, k]) / density[j]
-        for k in range(boundary_count[i]):
-            s -= vi.dot(boundary_grad[i, k])
         _accumulate(i, ti.abs(s), divergence, divergence_sum, divergence_count)
 
 

@@ -2,11 +2,15 @@
 
 For every active fluid particle i, one pass over the 27 grid cells around it:
 - collects fluid neighbours j != i with |x_i - x_j| < h and boundary neighbours b, storing
-  ``V_j grad W_ij`` with the neighbour index (V_j = m / rho_0 for fluid, the Akinci volume for boundary);
+  ``V_j grad W_ij`` with the neighbour index (V_j = m / rho_0 for fluid, the Akinci volume for boundary),
+  and the sum ``sum_b V_b grad W_ib`` (the boundary is static, so every solver pass needs only this sum);
 - sums the normalised density rho_i / rho_0 = V_f W(0) + sum_j V_f W_ij + sum_b V_b W_ib
   (Akinci et al. 2012 boundary contribution, divided by rho_0);
 - computes the DFSPH factor (Bender & Koschier 2017, the factor alpha_i / rho_i; rho_i cancels):
   factor_i = 1 / (|sum_j V_j grad W_ij + sum_b V_b grad W_ib|^2 + sum_j |V_j grad W_ij|^2).
+- measures the divergence-free solver's first source (:mod:`fluidsim.dfsph`), s_i = D(rho_i/rho_0)/Dt
+  = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib, zero where negative or at the free
+  surface, while the gradients are at hand; the solver then needs no pass of its own to start.
 
 Akinci boundary volumes (Akinci et al. 2012): V_b = 1 / sum_k W(x_b - x_k) over boundary
 particles k within h (k = b included).
@@ -75,10 +79,15 @@ def build_neighborhoods(
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
     boundary_grad: ti.types.ndarray(ndim=2),
+    boundary_grad_sum: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
+    v: ti.types.ndarray(ndim=1),
+    source: ti.types.ndarray(ndim=1),
 ) -> ivec3:
-    """Neighbour lists, normalised density and DFSPH factor; returns (max fluid, max boundary, 0) counts.
+    """Neighbour lists, normalised density, DFSPH factor and divergence source (1/s).
+
+    Returns (max fluid, max boundary, 0) neighbour counts.
 
     A particle whose neighbours exceed the list capacity still gets its full density and factor; the
     caller sees the returned maxima, grows the lists and runs the pass again.
@@ -94,8 +103,11 @@ def build_neighborhoods(
         c = cell_coord(ti.cast(xi, ti.f64), origin, inv_cell)
         z0 = ti.max(c[2] - 1, 0)
         z1 = ti.min(c[2] + 1, dims[2] - 1)
+        vi = v[i]
         rho = fluid_volume * w0
+        div = 0.0 * rho
         grad_sum = xi * 0.0
+        grad_sum_b = xi * 0.0
         sq_sum = 0.0
         nf = 0
         nb = 0
@@ -112,6 +124,7 @@ def build_neighborhoods(
                         g = fluid_volume * cubic_grad_w(r, h)
                         grad_sum += g
                         sq_sum += g.dot(g)
+                        div += (vi - v[j]).dot(g)
                         if nf < cap_f:
                             fluid_index[i, nf] = j
                             fluid_grad[i, nf] = g
@@ -123,12 +136,18 @@ def build_neighborhoods(
                         vb = bvolume[b]
                         rho += vb * cubic_w(ti.sqrt(r2), h)
                         g = vb * cubic_grad_w(r, h)
-                        grad_sum += g
+                        grad_sum_b += g
                         if nb < cap_b:
                             boundary_index[i, nb] = b
                             boundary_grad[i, nb] = g
                         nb += 1
         density[i] = rho
+        boundary_grad_sum[i] = grad_sum_b
+        div += vi.dot(grad_sum_b)
+        if div < 0.0 or nf + nb < FREE_SURFACE_NEIGHBORS:
+            div = 0.0
+        source[i] = div
+        grad_sum += grad_sum_b
         denom = grad_sum.dot(grad_sum) + sq_sum
         f = 0.0
         if denom > FACTOR_EPS:

@@ -108,8 +108,9 @@ class BoundaryParticles:
 class Neighborhoods:
     """Fixed-capacity neighbour lists per fluid particle, grown when a particle overflows them.
 
-    Fluid-fluid pairs store the neighbour index j and grad W(x_i - x_j, h). Fluid-boundary pairs store
-    the boundary index b and V_b grad W(x_i - x_b, h) (volume-weighted, since V_b never changes).
+    Fluid-fluid pairs store the neighbour index j and V_f grad W(x_i - x_j, h). Fluid-boundary pairs
+    store the boundary index b and V_b grad W(x_i - x_b, h) (volume-weighted, since V_b never changes);
+    ``boundary_grad_sum`` (vec3 per particle) holds their sum, all the pressure solvers need of them.
     """
 
     def __init__(self, n: int, capacity: int, precision: str):
@@ -117,6 +118,7 @@ class Neighborhoods:
         self.fp = float_dtype(precision)
         self.fluid_count = ti.ndarray(ti.i32, shape=self.n)
         self.boundary_count = ti.ndarray(ti.i32, shape=self.n)
+        self.boundary_grad_sum = ti.Vector.ndarray(3, self.fp, shape=self.n)
         self.fluid_capacity = 0
         self.boundary_capacity = 0
         self.resize(capacity, capacity)

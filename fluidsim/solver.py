@@ -5,6 +5,8 @@
     grid sort -> neighbourhoods, density, factor -> divergence solve -> divergence estimate (paper Eq. 1)
     -> non-pressure forces, predict v -> density solve -> advect
 
+(with the default estimator radii the estimate rides on the viscosity pass, which reads the same data).
+
 It never prints; it returns :class:`StepStats`. Faults (NaN, runaway speed, a solver stuck at its
 iteration cap) are judged by the caller (:mod:`fluidsim.simulation`), which knows the run.
 """
@@ -20,7 +22,7 @@ import numpy as np
 import taichi as ti
 
 from . import dfsph, divergence, grid, neighbors, viscosity
-from .config import SolverConfig
+from .config import RETIRE_MARGIN_MAX, SolverConfig
 from .grid import GridSpec
 from .kernels import cubic_w_np
 from .particles import BoundaryParticles, FluidParticles, Neighborhoods, float_dtype
@@ -40,7 +42,8 @@ class StepStats:
         divergence_error: final average divergence error, percent of rho_0 over one dt.
         max_speed: largest fluid speed after the step, m/s.
         nonfinite: fluid particles with a NaN or Inf velocity.
-        retired: fluid particles that left the domain in this step. active: fluid particles left.
+        retired: fluid particles that left the domain (past the retire margin) in this step.
+        active: fluid particles left.
         max_fluid_neighbors / max_boundary_neighbors: largest neighbour counts.
     """
 
@@ -96,7 +99,8 @@ class DFSPHSolver:
 
     Args:
         config: solver parameters.
-        domain_min, domain_max: (3,) m; fluid leaving this box is retired.
+        domain_min, domain_max: (3,) m; fluid farther than ``config.retire_margin`` spacings outside this
+            box is retired.
         fluid_positions, fluid_velocities: (N, 3) m and m/s.
         boundary_points: (M, 3) m, static (walls and solids).
     """
@@ -114,7 +118,11 @@ class DFSPHSolver:
         h = config.support_radius
         self.h = h
         # Walls sit up to a few spacings outside the domain; one more h keeps their neighbours inside.
-        self.grid = grid.grid_for_box(self.domain_min, self.domain_max, h, pad=4 * config.spacing + h)
+        self.grid = grid.grid_for_box(self.domain_min, self.domain_max, h,
+                                      pad=RETIRE_MARGIN_MAX * config.spacing + h)
+        margin = config.retire_margin * config.spacing
+        self._retire_min = ti.Vector(list(self.domain_min - margin), ti.f64)
+        self._retire_max = ti.Vector(list(self.domain_max + margin), ti.f64)
         self.fluid_volume = fluid_particle_volume(config.spacing, h)
         g = self.grid
         self._origin = ti.Vector(list(g.origin), ti.f64)
@@ -167,8 +175,10 @@ class DFSPHSolver:
         retired = stage("sort", self._sort)                              # grid: counting sort by cell
         max_f, max_b = stage("neighbors", self._neighborhoods)           # density, DFSPH factor
         div_it, div_err = stage("divergence_solve", self._divergence_solve, dt)  # B&K divergence-free
-        stage("divergence_estimate", self._estimate_divergence)          # paper Eq. 1
-        stage("non_pressure", self._non_pressure_forces, dt)             # gravity, viscosity; predict v
+        fused = self._estimate_with_viscosity()
+        if not fused:
+            stage("divergence_estimate", self._estimate_divergence)      # paper Eq. 1
+        stage("non_pressure", self._non_pressure_forces, dt, fused)      # gravity, viscosity (and Eq. 1); predict v
         dens_it, dens_err = stage("density_solve", self._density_solve, dt)  # B&K constant density
         max_speed, bad = stage("advect", self._advect, dt)               # x += dt v
         self.time += dt
@@ -205,9 +215,8 @@ class DFSPHSolver:
         if f.active == 0:
             return 0
         g = self.grid
-        grid.assign_cells(f.x, f.active, self._origin, self._inv_cell, self._dims,
-                          ti.Vector(list(self.domain_min), ti.f64), ti.Vector(list(self.domain_max), ti.f64),
-                          f.cell_ids, f.ranks, self._counts)
+        grid.assign_cells(f.x, f.active, self._origin, self._inv_cell, self._dims, self._retire_min,
+                          self._retire_max, f.cell_ids, f.ranks, self._counts)
         kept = grid.sort_by_cell(f.active, f.capacity, g.num_cells + 1, f.cell_ids, f.ranks, self._counts,
                                  self._starts, self._block_sums, f.order)
         f.permute()
@@ -221,7 +230,8 @@ class DFSPHSolver:
             counts = neighbors.build_neighborhoods(
                 f.active, f.x, self._starts, b.x, b.volume, b.cell_starts, self._origin, self._inv_cell,
                 self._dims, self.h, self.fluid_volume, nb.fluid_count, nb.fluid_index, nb.fluid_grad,
-                nb.boundary_count, nb.boundary_index, nb.boundary_grad, f.density, f.factor)
+                nb.boundary_count, nb.boundary_index, nb.boundary_grad, nb.boundary_grad_sum, f.density, f.factor,
+                f.v, f.source)
             max_f, max_b = int(counts[0]), int(counts[1])
             if max_f <= nb.fluid_capacity and max_b <= nb.boundary_capacity:
                 return max_f, max_b
@@ -231,20 +241,29 @@ class DFSPHSolver:
             nb.resize(grow_f, grow_b)
 
     def _solve(self, error_kernel, extra_args: tuple, kappa, dt: float, tolerance: float,
-               warm_scale: float, store_scale: float, min_iterations: int) -> tuple[int, float]:
-        """The iteration shared by both DFSPH solvers; returns (iterations, final average error)."""
+               warm_scale: float, store_scale: float, min_iterations: int, start=None) -> tuple[int, float]:
+        """The iteration shared by both DFSPH solvers; returns (iterations, final average error).
+
+        ``start(mode)``, when given, begins the solve (FIRST or WARM) from an error measured already,
+        instead of an error pass.
+        """
         cfg, f, nb = self.config, self.fluid, self.neighborhoods
         n = f.active
-        lists = (f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count, nb.boundary_grad)
+        lists = (f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count, nb.boundary_grad_sum)
         scratch = (*extra_args, f.factor, kappa, f.source, f.stiffness, f.stiffness_sum, self._partial)
 
         def apply() -> None:
             dfsph.apply_stiffness(n, dt, *lists, f.stiffness, f.stiffness_sum)
 
         if cfg.warm_start:
-            error_kernel(n, dt, dfsph.WARM, warm_scale, *lists, *scratch)
+            if start is None:
+                error_kernel(n, dt, dfsph.WARM, warm_scale, *lists, *scratch)
+            else:
+                start(dfsph.WARM)
             apply()
             err = error_kernel(n, dt, dfsph.ITERATE, 0.0, *lists, *scratch)
+        elif start is not None:
+            err = start(dfsph.FIRST)
         else:
             err = error_kernel(n, dt, dfsph.FIRST, 0.0, *lists, *scratch)
         iterations = 0
@@ -260,8 +279,14 @@ class DFSPHSolver:
             return 0, 0.0
         # Tolerance on the average D(rho/rho_0)/Dt such that one dt changes the density by eta.
         tol = self.config.max_divergence_error * 0.01 / dt
-        return self._solve(dfsph.divergence_error, (), self.fluid.kappa_divergence, dt, tol, 0.5, dt,
-                           self.config.min_divergence_iterations)
+        f = self.fluid
+
+        def start(mode: int) -> float:  # the neighbourhood pass measured the source (f.source)
+            return dfsph.start_divergence(f.active, dt, mode, 0.5, f.source, f.factor, f.kappa_divergence,
+                                          f.stiffness, f.stiffness_sum, self._partial)
+
+        return self._solve(dfsph.divergence_error, (), f.kappa_divergence, dt, tol, 0.5, dt,
+                           self.config.min_divergence_iterations, start=start)
 
     def _density_solve(self, dt: float) -> tuple[int, float]:
         if self.fluid.active == 0:
@@ -270,15 +295,21 @@ class DFSPHSolver:
         return self._solve(dfsph.density_error, (self.fluid.density,), self.fluid.kappa_density, dt, tol,
                            1.0, dt * dt, self.config.min_iterations)
 
+    def _estimate_with_viscosity(self) -> bool:
+        """Whether paper Eq. 1 can use the stored gradients (h_k = h <= h_r), fused into the viscosity pass."""
+        cfg = self.config
+        return math.isclose(cfg.estimator_kernel_radius, self.h, rel_tol=1e-9) and cfg.estimator_radius >= self.h
+
     def _estimate_divergence(self) -> None:
+        """Paper Eq. 1 as a pass of its own (the step fuses the stored-gradient case into the viscosity pass)."""
         cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
         if f.active == 0:
             return
-        if math.isclose(cfg.estimator_kernel_radius, self.h, rel_tol=1e-9) and cfg.estimator_radius >= self.h:
+        if self._estimate_with_viscosity():
             # The default (h_r = h_k = h): the lists hold exactly the neighbours and their V_f grad W.
             divergence.estimate_divergence_from_gradients(
-                f.active, f.v, f.density, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count,
-                nb.boundary_grad, f.divergence, f.divergence_sum, f.divergence_count)
+                f.active, f.v, f.density, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_grad_sum,
+                f.divergence, f.divergence_sum, f.divergence_count)
         elif cfg.estimator_radius <= self.h:
             divergence.estimate_divergence_from_lists(
                 f.active, cfg.estimator_radius, cfg.estimator_kernel_radius, self.fluid_volume, f.x, f.v,
@@ -291,14 +322,16 @@ class DFSPHSolver:
                 self._origin, self._inv_cell, self._dims, f.x, f.v, f.density, self._starts, b.x, b.volume,
                 b.cell_starts, f.divergence, f.divergence_sum, f.divergence_count)
 
-    def _non_pressure_forces(self, dt: float) -> None:
+    def _non_pressure_forces(self, dt: float, estimate: bool = False) -> None:
+        """Gravity and viscosity; with ``estimate``, also paper Eq. 1 from the stored gradients."""
         cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
         if f.active == 0:
             return
         viscosity.apply_non_pressure_forces(
             f.active, dt, ti.Vector(list(cfg.gravity)), cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
             self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count,
-            nb.boundary_index, nb.boundary_grad, f.acceleration)
+            nb.boundary_index, nb.boundary_grad, f.acceleration, int(estimate), nb.boundary_grad_sum, f.divergence,
+            f.divergence_sum, f.divergence_count)
 
     def _advect(self, dt: float) -> tuple[float, int]:
         f = self.fluid

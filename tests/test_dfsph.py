@@ -101,3 +101,31 @@ def test_precision_must_match_runtime():
         DFSPHSolver(SolverConfig(precision="f64"), [0, 0, 0], [1, 1, 1], np.zeros((1, 3)) + 0.5,
                     np.zeros((1, 3)), np.zeros((0, 3)))
     assert ti.lang.impl.get_runtime().default_fp == ti.f32
+
+
+@pytest.mark.parametrize("margin, expect_loss", [(0.0, True), (2.0, False)])
+def test_fast_wall_impact_retires_no_particle_that_stays_by_the_wall(margin, expect_loss):
+    # A block thrown at a wall at 15 m/s (as splash in the r = 0.05 probes): the first fluid layer is
+    # squeezed up to about a tenth of a spacing past the domain face before the wall pushes it back.
+    # Retiring at the face (margin 0) loses those particles; the default margin keeps them.
+    cfg = SolverConfig(particle_radius=0.05, gravity=(0.0, 0.0, 0.0), retire_margin=margin)
+    lo, hi = np.zeros(3), np.array([1.0, 0.6, 0.6])
+    x = lattice_in_box([0.3, 0.0, 0.0], [0.8, 0.6, 0.6], cfg.spacing)
+    v = np.tile([-15.0, 0.0, 0.0], (len(x), 1))
+    solver = DFSPHSolver(cfg, lo, hi, x, v, wall_particles(lo, hi, cfg.spacing, 2))
+    history = run(solver, 60)
+    lost = sum(s.retired for s in history)
+    assert (lost > 0) == expect_loss
+    if not expect_loss:
+        xs = solver.fluid_state()["x"]
+        assert np.max(np.maximum(lo - xs, xs - hi)) < 0.5 * cfg.spacing  # back against the wall, not through it
+
+
+def test_fluid_past_the_retire_margin_is_retired():
+    cfg = SolverConfig(particle_radius=0.05, gravity=(0.0, 0.0, 0.0))
+    x = np.array([[0.5, 0.5, 0.5], [0.95, 0.5, 0.5]])
+    v = np.array([[0.0, 0.0, 0.0], [20.0, 0.0, 0.0]])  # no walls: the second one leaves along +x
+    solver = DFSPHSolver(cfg, [0, 0, 0], [1, 1, 1], x, v, np.zeros((0, 3)))
+    history = run(solver, 8)  # 0.32 m: past the 0.2 m margin, still inside the grid
+    assert sum(s.retired for s in history) == 1 and history[-1].active == 1
+    assert solver.fluid_state()["ids"].tolist() == [0]

@@ -1,4 +1,5 @@
-"""Paper Eq. 1: the divergence of a linear field is tr(A); both fast paths equal the numpy twin."""
+"""Paper Eq. 1: the divergence of a linear field is tr(A); every fast path (the stand-alone passes and the
+one fused into the viscosity pass) equals the numpy twin."""
 
 import numpy as np
 import pytest
@@ -16,14 +17,20 @@ def solver_volume(cfg):
     return fluid_particle_volume(cfg.spacing, cfg.support_radius)
 
 
-def _estimate(config, x, v, boundary=None):
+def _estimate(config, x, v, boundary=None, fused=False):
+    """D_i by the stand-alone estimator pass, or (``fused``) by the viscosity pass of a time step."""
     boundary = np.zeros((0, 3)) if boundary is None else boundary
     solver = DFSPHSolver(config, [0, 0, 0], [1, 1, 1], x, v, boundary)
     solver._sort()
     solver._neighborhoods()
-    solver._estimate_divergence()
     f = solver.fluid
-    return solver, f.numpy("x"), f.numpy("v"), f.numpy("density"), f.numpy("divergence")
+    vs = f.numpy("v")  # the viscosity pass changes v after reading it; D_i is of these velocities
+    if fused:
+        assert solver._estimate_with_viscosity()
+        solver._non_pressure_forces(config.dt, estimate=True)
+    else:
+        solver._estimate_divergence()
+    return solver, f.numpy("x"), vs, f.numpy("density"), f.numpy("divergence")
 
 
 @pytest.mark.parametrize("h_r", [0.1, 0.13])  # 0.1: stored-gradient path; 0.13 > h: grid path
@@ -44,14 +51,15 @@ def test_linear_field_gives_trace_at_interior_particles(h_r):
     np.testing.assert_allclose(d[interior], c * abs(np.trace(A)), rtol=1e-4)
 
 
-@pytest.mark.parametrize("h_r,h_k", [(0.1, 0.1), (0.08, 0.1), (0.15, 0.12), (0.12, 0.1)])
-def test_fast_paths_match_numpy_twin(h_r, h_k):
+@pytest.mark.parametrize("h_r,h_k,fused", [(0.1, 0.1, False), (0.1, 0.1, True), (0.12, 0.1, True), (0.08, 0.1, False),
+                                          (0.15, 0.12, False), (0.12, 0.1, False)])
+def test_fast_paths_match_numpy_twin(h_r, h_k, fused):
     rng = np.random.default_rng(7)
     cfg = SolverConfig(particle_radius=0.025, estimator_radius=h_r, estimator_kernel_radius=h_k)
     x = lattice_in_box([0.3, 0.3, 0.3], [0.6, 0.6, 0.6], cfg.spacing) + rng.normal(0, 0.004, (216, 3))
     v = rng.normal(0, 1.0, x.shape)
     wall = lattice_in_box([0.3, 0.2, 0.3], [0.6, 0.3, 0.6], cfg.spacing)[:, :] - [0, 0.002, 0]
-    solver, xs, vs, rho, d = _estimate(cfg, x, v, wall)
+    solver, xs, vs, rho, d = _estimate(cfg, x, v, wall, fused)
     b = solver.boundary
     ref = divergence_np(xs, vs, solver.fluid_volume / rho, b.x.to_numpy()[: b.count], b.volume.to_numpy()[: b.count],
                         h_r, h_k)

@@ -5,6 +5,7 @@ import taichi as ti
 
 from fluidsim import grid, neighbors
 from fluidsim.grid import brute_force_neighbors_np, cell_index_np, grid_for_box
+from fluidsim.kernels import cubic_grad_w_np
 from fluidsim.particles import Neighborhoods
 
 
@@ -80,11 +81,14 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
     st = ti.ndarray(ti.i32, shape=len(starts))
     st.from_numpy(starts.astype(np.int32))
     dens, fac = ti.ndarray(ti.f32, shape=n), ti.ndarray(ti.f32, shape=n)
+    bsum = ti.Vector.ndarray(3, ti.f32, shape=n)
+    vel = rng.normal(0.0, 1.0, (n, 3)).astype(np.float32)
+    v_nd, src = _to_nd(vel), ti.ndarray(ti.f32, shape=n)
     args = (ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims), h, 1.0e-4)
     while True:
         m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_index,
                                           nb.fluid_grad, nb.boundary_count, nb.boundary_index, nb.boundary_grad,
-                                          dens, fac)
+                                          bsum, dens, fac, v_nd, src)
         if m[0] <= nb.fluid_capacity and m[1] <= nb.boundary_capacity:
             break
         nb.resize(int(m[0]), int(m[1]))
@@ -97,6 +101,21 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
     for i in range(n):
         np.testing.assert_array_equal(np.sort(fi[i, : fc[i]]), ref_f[i], err_msg=f"fluid neighbours of {i}")
         np.testing.assert_array_equal(np.sort(bi[i, : bc[i]]), ref_b[i], err_msg=f"boundary neighbours of {i}")
+    # the stored boundary gradient sum = the numpy sum of V_b grad W over the brute-force neighbours
+    ref_sum = np.array([1.0e-4 * cubic_grad_w_np(x32[i] - b32[ref_b[i]], h).sum(0) for i in range(n)])
+    assert np.abs(ref_sum).max() > 0  # some particles do see the boundary
+    np.testing.assert_allclose(bsum.to_numpy(), ref_sum, rtol=1e-4, atol=1e-5 * np.abs(ref_sum).max())
+    # the divergence source: sum_j (v_i - v_j) . V_f grad W_ij + v_i . sum_b V_b grad W_ib, zero where
+    # negative or with fewer than FREE_SURFACE_NEIGHBORS neighbours
+    v64 = vel.astype(np.float64)
+    ref_src = np.zeros(n)
+    for i in range(n):
+        g = 1.0e-4 * cubic_grad_w_np(x32[i] - x32[ref_f[i]], h)
+        s = np.sum((v64[i] - v64[ref_f[i]]) * g) + v64[i] @ ref_sum[i]
+        if s > 0 and len(ref_f[i]) + len(ref_b[i]) >= neighbors.FREE_SURFACE_NEIGHBORS:
+            ref_src[i] = s
+    assert (ref_src > 0).sum() > n // 4
+    np.testing.assert_allclose(src.to_numpy(), ref_src, rtol=1e-3, atol=1e-5 * np.abs(ref_src).max())
     # the relation is symmetric
     pairs = {(i, j) for i in range(n) for j in fi[i, : fc[i]]}
     assert all((j, i) in pairs for i, j in pairs)
