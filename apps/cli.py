@@ -11,7 +11,7 @@ from . import (
     bench,
     critical,
     demo,
-    eval,
+    evaluate,
     experiment,
     make_ahmed,
     make_assets,
@@ -39,7 +39,7 @@ COMMANDS = {
     "critical": (critical, "function-critical views: C(T) from distinct particle counts, top-20 subset"),
     "ahmed": (make_ahmed, "write the procedural Ahmed body (Ahmed et al. 1984, slant 0-40 deg) as .obj/.stl/.ply"),
     "active": (active, "active reconstruction: biased initial views, one planner pick per round up to the budget"),
-    "eval": (eval, "evaluate an active run: test PSNR/SSIM/LPIPS, D-bar, Chamfer, critical-view PSNR and D-bar"),
+    "eval": (evaluate, "evaluate an active run: test PSNR/SSIM/LPIPS, D-bar, Chamfer, critical-view PSNR and D-bar"),
     "experiment": (experiment, "methods x scenes x seeds of active + eval; paper-shaped tables and plots"),
 }
 

@@ -1,0 +1,66 @@
+"""`fluidgs experiment CONFIG.json`: methods x scenes x seeds of `active` + `eval`, and the paper's tables.
+
+Writes OUTPUT/runs/..., OUTPUT/results.json, OUTPUT/tables.md, OUTPUT/tables/*.md|.csv and OUTPUT/plots/*.png
+(see :mod:`nbv.experiment` for the config keys and the tables). Finished jobs are skipped, so re-running
+resumes. ``--executor local`` uses a process pool on this machine; ``--executor ray --address ADDR`` sends the
+jobs to an existing Ray cluster (optional dependency: pip install ray).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", type=Path, help="experiment JSON (scenes, methods, seeds, preset, output, ...)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local: a process pool here; ray: tasks on a Ray cluster")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--threads", type=int, default=1, help="torch and Taichi CPU threads per worker")
+    p.add_argument("--address", default=None,
+                   help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
+                        "(default: start a local Ray instance)")
+    p.add_argument("--output", type=Path, default=None, help="results folder (default: the config's 'output')")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def init_worker(threads: int, precision: str) -> None:
+    """Worker set-up: logging, torch threads and the worker's own Taichi runtime (CPU)."""
+    import torch
+
+    from .runtime import init_taichi
+
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    torch.set_num_threads(threads)
+    init_taichi("cpu", precision, threads)
+
+
+def make_executor(kind: str, workers: int, threads: int, address: str | None, precision: str = "f32",
+                  local_mode: bool = False):
+    """A :mod:`nbv.executors` executor whose workers run :func:`init_worker`."""
+    from nbv.executors import LocalExecutor, RayExecutor
+
+    if threads < 1:
+        raise ValueError(f"--threads must be >= 1 per worker, got {threads}")
+    if kind == "local":
+        return LocalExecutor(workers, init_worker, (threads, precision))
+    return RayExecutor(address, init_worker, (threads, precision), num_cpus=threads, local_mode=local_mode)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from nbv.experiment import ExperimentConfig, run_experiment
+
+    config = ExperimentConfig.load(args.config)
+    if args.output is not None:
+        config = replace(config, output=str(args.output))
+    precision = config.active_config(config.methods[0], config.seeds[0]).physics.precision
+    executor = make_executor(args.executor, args.workers, args.threads, args.address, precision)
+    out = run_experiment(config, executor, progress=not args.no_progress)
+    print(out["tables"]["visual"])
+    print(out["tables"]["physics"])
+    print(f"wrote {Path(config.output) / 'tables.md'} and {len(out['files'])} table / plot files")
+    return 0

@@ -1,0 +1,318 @@
+"""Evaluation of a finished active run (paper Sec. 4.1-4.4): visual metrics, D-bar, Chamfer, critical views.
+
+For ``RUN/gaussians.ply`` against the run's dataset (the test split, at the run's resolution):
+
+- **Visual**: mean PSNR (dB) and SSIM over the test views (renders over the dataset background, the metrics of
+  :func:`recon.train.evaluate`); LPIPS (AlexNet) when :func:`recon.metrics.lpips_available`, else "unavailable"
+  with the reason.
+- **Geometry divergence**: one run of the probes (:func:`nbv.physics.simulate_gaussians`, five directions by default)
+  gives D-bar = (1/|G|) sum_g pi s_g^2 D_g (D_g = max over the probes), the empty-scene D-bar (the same probes
+  without the solid, accumulated onto the same Gaussians) and, for the per-direction ablation, D-bar of every
+  probe's own D_g^(IC).
+- **Chamfer distance** to the reference mesh (``Dataset.mesh_path``, same frame, scene units): between the centres of
+  the Gaussians with opacity > ``chamfer_opacity`` (0.5) and ``chamfer_samples`` points sampled uniformly (by area,
+  seeded) on the mesh surface. Centres rather than the solid particles: they need no simulation transform and no
+  lattice, so the number depends on the reconstruction alone.
+- **Scale**: with the physics config's ``scale="auto"`` and a reference mesh, the scene -> metres scale is pinned to the
+  mesh (:func:`fixed_scale`), so D-bar is comparable between the runs of a dataset.
+- **Function-critical views** (Sec. 3.4): |P_g| = distinct fluid particles of the ``critical_direction`` (-x) probe
+  that came within n r_g of g, taken from the same probe run (it tracks distinct particles); C(T) = sum_g w_g |P_g|
+  ranks the test views and the top ``critical_views`` (20) form the subset. Reported: mean PSNR on the subset, and
+  D-bar restricted to the Gaussians seen in those views: visible in at least one critical view *and* not hidden
+  behind the rendered surface (:func:`nbv.scores.unoccluded`, depth tolerance 3 r_g).
+
+Writes ``RUN/eval.json`` (all of the above, per view and per direction) and ``RUN/eval.md`` (one Markdown table).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .active import ActiveConfig, is_empty_solid, json_safe, write_atomic, write_json_atomic
+from .physics import PhysicsConfig
+
+log = logging.getLogger(__name__)
+
+SUMMARY_KEYS = ("psnr", "ssim", "lpips", "dbar", "dbar_empty", "chamfer", "critical_psnr", "critical_dbar")
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Evaluation settings.
+
+    Attributes:
+        physics: probe settings; None: the run's own physics config (with the empty-scene reference and
+            distinct-particle tracking switched on).
+        critical_views: size of the critical subset (paper: 20).
+        critical_direction: the probe whose distinct counts |P_g| rank the views (paper: -x).
+        chamfer_samples: points sampled on the reference mesh.
+        chamfer_opacity: Gaussians above this opacity enter the Chamfer distance.
+        lpips: compute LPIPS when available.
+        seed: seed of the mesh samples.
+    """
+
+    physics: PhysicsConfig | None = None
+    critical_views: int = 20
+    critical_direction: str = "-x"
+    chamfer_samples: int = 20000
+    chamfer_opacity: float = 0.5
+    lpips: bool = True
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("critical_views", "chamfer_samples"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"EvalConfig.{name} must be an integer >= 1, got {v!r}")
+        if not 0.0 <= self.chamfer_opacity < 1.0:
+            raise ValueError(f"EvalConfig.chamfer_opacity must be in [0, 1), got {self.chamfer_opacity!r}")
+        if self.critical_direction not in ("-x", "+x", "-z", "+z", "-y"):
+            raise ValueError(f"EvalConfig.critical_direction must be one of -x,+x,-z,+z,-y, "
+                             f"got {self.critical_direction!r}")
+        if self.physics is not None and not isinstance(self.physics, PhysicsConfig):
+            raise ValueError(f"EvalConfig.physics must be a PhysicsConfig or None, got {type(self.physics).__name__}")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["physics"] = None if self.physics is None else self.physics.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EvalConfig:
+        known = {f.name for f in fields(cls)}
+        bad = sorted(set(data) - known)
+        if bad:
+            raise ValueError(f"unknown EvalConfig keys {bad}; valid keys: {sorted(known)}")
+        d = dict(data)
+        if d.get("physics") is not None and not isinstance(d["physics"], PhysicsConfig):
+            d["physics"] = PhysicsConfig.from_dict(d["physics"])
+        return cls(**d)
+
+
+def eval_physics_config(run_physics: PhysicsConfig, config: EvalConfig, up_axis: str) -> PhysicsConfig:
+    """The probe settings of an evaluation: empty reference and distinct tracking on, the dataset's up axis."""
+    base = config.physics if config.physics is not None else run_physics
+    dirs = base.directions if config.critical_direction in base.directions else \
+        tuple(base.directions) + (config.critical_direction,)
+    return replace(base, empty_reference=True, track_distinct=True, up_axis=up_axis, directions=dirs)
+
+
+def fixed_scale(physics: PhysicsConfig, mesh_path: Path | None) -> PhysicsConfig:
+    """Pin ``scale="auto"`` to the reference mesh: metres per unit = target_extent / the mesh's largest extent.
+
+    "auto" would scale every reconstruction by the extent of its own opaque Gaussians, so floaters would change the
+    scale and, with s_g in m^2, D-bar by scale^4: runs would not be comparable. With a reference mesh every run of a
+    dataset gets the same scale; without one (COLMAP scenes) "auto" stays, and eval.json records the scale used.
+    """
+    if physics.scale != "auto" or mesh_path is None:
+        return physics
+    from recon.mesh_render import load_mesh
+
+    vertices, _ = load_mesh(mesh_path)
+    extent = float(np.ptp(np.asarray(vertices, np.float64), axis=0).max())
+    if not extent > 0:
+        return physics
+    return replace(physics, scale=physics.target_extent / extent)
+
+
+def sample_mesh_surface(vertices: np.ndarray, triangles: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+    """``count`` points uniformly distributed over a triangle mesh's surface (area-weighted, seeded).
+
+    Args:
+        vertices: [V, 3]. triangles: [T, 3] vertex indices.
+        count: number of points. seed: numpy seed.
+    Returns:
+        [count, 3] float64.
+    """
+    v = np.asarray(vertices, np.float64)
+    t = np.asarray(triangles, np.int64)
+    if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0:
+        raise ValueError(f"sample_mesh_surface: triangles must be [T, 3] with T >= 1, got {t.shape}")
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    if not area.sum() > 0:
+        raise ValueError("sample_mesh_surface: the mesh has zero area")
+    rng = np.random.default_rng(seed)
+    tri = rng.choice(len(t), size=count, p=area / area.sum())
+    u, w = rng.random(count), rng.random(count)
+    flip = u + w > 1.0
+    u[flip], w[flip] = 1.0 - u[flip], 1.0 - w[flip]
+    return a[tri] + u[:, None] * (b[tri] - a[tri]) + w[:, None] * (c[tri] - a[tri])
+
+
+def chamfer_to_mesh(gaussians, mesh_path: Path, config: EvalConfig) -> dict[str, Any]:
+    """Chamfer distance (scene units) between opaque Gaussian centres and points on the reference mesh."""
+    from recon.mesh_render import load_mesh
+    from recon.metrics import chamfer_distance
+
+    keep = gaussians.opacities > config.chamfer_opacity
+    if int(keep.sum()) == 0:
+        return {"chamfer": None, "reason": f"no Gaussian has opacity > {config.chamfer_opacity}"}
+    vertices, triangles = load_mesh(mesh_path)
+    surface = sample_mesh_surface(vertices, triangles, config.chamfer_samples, config.seed)
+    points = gaussians.means[keep].detach().cpu().double().numpy()
+    return {"chamfer": chamfer_distance(points, surface), "gaussians_used": int(keep.sum()),
+            "mesh_samples": config.chamfer_samples, "mesh": str(mesh_path)}
+
+
+@torch.no_grad()
+def render_test_views(gaussians, views, background, backend: str = "auto") -> tuple[list, list[dict]]:
+    """Render every test view; returns (RenderOutputs, per-view {"name", "psnr", "ssim"})."""
+    from recon.metrics import psnr, ssim
+    from recon.render import render
+
+    bg = torch.tensor([float(c) for c in background], dtype=torch.float32, device=gaussians.means.device)
+    outs, rows = [], []
+    for v in views:
+        out = render(gaussians, v.camera, bg, backend=backend)
+        image = out.image.clamp(0, 1)
+        ref = v.image.to(image)
+        outs.append(out)
+        rows.append({"name": v.name, "psnr": float(psnr(image, ref)), "ssim": float(ssim(image, ref))})
+    return outs, rows
+
+
+def lpips_scores(gaussians, views, renders) -> dict[str, Any]:
+    """Mean LPIPS over the views, or {"lpips": "unavailable", "reason": ...}."""
+    from recon.metrics import load_lpips, lpips, lpips_unavailable_reason
+
+    reason = lpips_unavailable_reason()
+    if reason is not None:
+        return {"lpips": "unavailable", "reason": reason}
+    net = load_lpips(device=gaussians.means.device)
+    values = [float(lpips(out.image.clamp(0, 1), v.image.to(out.image), net)) for out, v in zip(renders, views,
+                                                                                                  strict=True)]
+    return {"lpips": sum(values) / len(values), "per_view": values}
+
+
+def critical_metrics(gaussians, result, renders, rows, views, config: EvalConfig) -> dict[str, Any]:
+    """PSNR and D-bar on the top-k test views by C(T) (see the module docstring)."""
+    from .scores import critical_scores, critical_subset, geometry_divergence, unoccluded
+
+    row = result.directions.index(config.critical_direction)
+    distinct = torch.from_numpy(np.asarray(result.per_probe_distinct[row], np.float64))
+    c = critical_scores(distinct, renders)
+    subset = critical_subset(c, config.critical_views).tolist()
+    reach = 3.0 * gaussians.max_radii().detach().cpu().double()
+    seen = torch.zeros(gaussians.num, dtype=torch.bool)
+    for k in subset:
+        seen |= unoccluded(gaussians.means, reach, views[k].camera, renders[k])
+    covs = torch.from_numpy(result.covariances)
+    d = torch.from_numpy(result.divergence)
+    return {"critical_psnr": sum(rows[k]["psnr"] for k in subset) / len(subset),
+            "critical_dbar": geometry_divergence(covs[seen], d[seen]),
+            "critical_views": [views[k].name for k in subset], "critical_scores": [float(v) for v in c],
+            "critical_gaussians": int(seen.sum()), "critical_direction": config.critical_direction}
+
+
+def physics_metrics(result) -> dict[str, Any]:
+    """D-bar, the empty-scene D-bar and the per-direction D-bars of one probe run."""
+    from .scores import geometry_divergence
+
+    covs = torch.from_numpy(result.covariances)
+    per_dir = {d: geometry_divergence(covs, torch.from_numpy(result.per_probe[i]))
+               for i, d in enumerate(result.directions)}
+    empty_dir = None
+    if result.empty_per_probe is not None:
+        empty_dir = {d: geometry_divergence(covs, torch.from_numpy(result.empty_per_probe[i]))
+                     for i, d in enumerate(result.directions)}
+    return {"dbar": result.dbar, "dbar_mean": result.dbar_mean, "dbar_empty": result.dbar_empty,
+            "dbar_per_direction": per_dir, "dbar_empty_per_direction": empty_dir,
+            "solid_particles": int(len(result.solid)), "physics_seconds": result.timings.get("total")}
+
+
+def evaluate_run(run_dir: str | Path, config: EvalConfig | None = None, *, device: str = "cpu",
+                 progress: bool = True) -> dict[str, Any]:
+    """Evaluate ``RUN/gaussians.ply`` and write ``RUN/eval.json`` and ``RUN/eval.md``.
+
+    Needs an initialised Taichi runtime (the probes).
+
+    Args:
+        run_dir: a finished ``fluidgs active`` run folder.
+        config: evaluation settings (default :class:`EvalConfig`).
+        device: torch device of the renders.
+        progress: tqdm bars for the probes.
+    Returns:
+        The eval.json content; ``summary`` holds the headline numbers (None where not computable).
+    Raises:
+        ValueError: the folder is not a finished run, or its dataset has no test views.
+    """
+    from recon.datasets import load_dataset
+    from recon.ply import load_gaussians
+    from recon.train import view_to
+
+    from .physics import simulate_gaussians
+
+    config = config or EvalConfig()
+    run_dir = Path(run_dir)
+    cfg_path, ply = run_dir / "config.json", run_dir / "gaussians.ply"
+    if not cfg_path.is_file() or not ply.is_file():
+        raise ValueError(f"{run_dir} is not a finished active run (needs config.json and gaussians.ply); "
+                         "run `fluidgs active DATASET -o RUN` first")
+    run_cfg = json.loads(cfg_path.read_text())
+    active = ActiveConfig.from_dict(run_cfg["active"])
+    ds = load_dataset(run_cfg["dataset"], resolution=active.resolution)
+    if not ds.test:
+        raise ValueError(f"{run_cfg['dataset']} has no test views; evaluation needs a test split")
+    pcfg = fixed_scale(eval_physics_config(active.physics, config, ds.up_axis), ds.mesh_path)
+    t0 = time.perf_counter()
+    gaussians = load_gaussians(ply).to(device)
+    views = [view_to(v, device) for v in ds.test]
+    renders, rows = render_test_views(gaussians, views, ds.background, active.backend)
+    out: dict[str, Any] = {
+        "run": str(run_dir), "dataset": run_cfg["dataset"], "method": active.method, "seed": active.seed,
+        "num_gaussians": gaussians.num, "test_views": len(views), "config": config.to_dict(),
+        "physics_config": pcfg.to_dict(),
+        "psnr": sum(r["psnr"] for r in rows) / len(rows), "ssim": sum(r["ssim"] for r in rows) / len(rows),
+        "per_view": rows}
+    out.update(lpips_scores(gaussians, views, renders) if config.lpips else
+               {"lpips": "unavailable", "reason": "disabled"})
+    if ds.mesh_path is not None:
+        out.update(chamfer_to_mesh(gaussians, ds.mesh_path, config))
+    else:
+        out.update({"chamfer": None, "reason_chamfer": "the dataset has no reference mesh"})
+    try:
+        result = simulate_gaussians(gaussians.to("cpu"), pcfg, progress=progress, source=str(ply))
+    except ValueError as exc:
+        if not is_empty_solid(exc):
+            raise
+        log.warning("%s: %s; no D-bar", run_dir, exc)
+        out.update({"dbar": None, "dbar_empty": None, "critical_psnr": None, "critical_dbar": None,
+                    "physics_error": str(exc)})
+    else:
+        out.update(physics_metrics(result))
+        out["scale_m_per_unit"] = float(result.transform.scale)
+        out.update(critical_metrics(gaussians.to("cpu"), result, renders, rows, views, config))
+    out["seconds"] = time.perf_counter() - t0
+    out["summary"] = {k: (out.get(k) if isinstance(out.get(k), (int, float)) else None) for k in SUMMARY_KEYS}
+    out["summary"]["dbar_per_direction"] = out.get("dbar_per_direction")
+    write_json_atomic(run_dir / "eval.json", out)
+    text = markdown_line(out)
+    write_atomic(run_dir / "eval.md", lambda tmp: tmp.write_text(text))
+    return json_safe(out)
+
+
+def _fmt(v: Any, digits: int = 4) -> str:
+    if v is None or isinstance(v, str):
+        return "n/a" if v is None else v
+    if isinstance(v, float) and (abs(v) >= 1e4 or (v != 0 and abs(v) < 1e-3)):
+        return f"{v:.3e}"
+    return f"{v:.{digits}f}" if math.isfinite(v) else "n/a"
+
+
+def markdown_line(out: dict[str, Any]) -> str:
+    """A Markdown table (header and one row) of the headline metrics."""
+    cols = ("method", "seed", "psnr", "ssim", "lpips", "dbar", "dbar_empty", "chamfer", "critical_psnr",
+            "critical_dbar")
+    head = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
+    return head + "| " + " | ".join(str(out.get(c)) if c in ("method", "seed") else _fmt(out.get(c))
+                                    for c in cols) + " |\n"

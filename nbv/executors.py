@@ -1,0 +1,113 @@
+"""Where the jobs of an experiment run: a local process pool or an existing Ray cluster.
+
+No paper equation here. Both executors take a picklable job function, a list of picklable jobs and an
+``initializer`` (called with ``initargs`` in every worker before its first job: e.g. set the torch threads and
+initialise Taichi, which only ``apps`` may do) and yield ``(job, result)`` pairs as jobs finish.
+
+- :class:`LocalExecutor`: ``concurrent.futures.ProcessPoolExecutor`` with the *spawn* start method (fork would copy a
+  live Taichi / OpenMP runtime into the children).
+- :class:`RayExecutor`: ``ray.init(address=...)`` connects to a running cluster (``address=None`` starts a local
+  one, ``local_mode=True`` runs the tasks in this process, for tests). Ray is an optional dependency, imported only
+  here; without it the error says ``pip install ray``. The initializer runs inside every task (Ray may place
+  consecutive tasks in different worker processes).
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+
+def _noop(*_args: Any) -> None:
+    """Initializer that does nothing."""
+
+
+class LocalExecutor:
+    """A process pool on this machine.
+
+    Args:
+        workers: worker processes (>= 1).
+        initializer: called as ``initializer(*initargs)`` once in every worker.
+        initargs: its arguments (picklable).
+    """
+
+    name = "local"
+
+    def __init__(self, workers: int = 1, initializer: Callable[..., None] | None = None,
+                 initargs: Sequence[Any] = ()) -> None:
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ValueError(f"--workers must be an integer >= 1, got {workers!r}")
+        self.workers = workers
+        self.initializer = initializer or _noop
+        self.initargs = tuple(initargs)
+
+    def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
+        """Run ``fn(job)`` for every job; yields (job, result) in completion order (a job's error is raised)."""
+        if not jobs:
+            return
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(self.workers, len(jobs)), mp_context=ctx,
+                                 initializer=self.initializer, initargs=self.initargs) as pool:
+            futures = {pool.submit(fn, job): job for job in jobs}
+            for fut in as_completed(futures):
+                yield futures[fut], fut.result()
+
+
+def _ray_task(fn: Callable[[Any], Any], job: Any, initializer: Callable[..., None], initargs: tuple) -> Any:
+    initializer(*initargs)
+    return fn(job)
+
+
+def import_ray():
+    """The ``ray`` module, or ValueError telling how to install it."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise ValueError("--executor ray needs the optional Ray package: pip install ray "
+                         "(or use --executor local)") from exc
+    return ray
+
+
+class RayExecutor:
+    """Tasks on a Ray cluster.
+
+    Args:
+        address: cluster address for ``ray.init(address=...)`` (e.g. "ray://head:10001" or "auto"); None starts a
+            local Ray instance.
+        initializer, initargs: run inside every task before the job.
+        num_cpus: CPUs Ray reserves per task.
+        local_mode: run tasks serially in this process (Ray's local mode; for tests).
+    """
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None, initializer: Callable[..., None] | None = None,
+                 initargs: Sequence[Any] = (), num_cpus: float = 1.0, local_mode: bool = False) -> None:
+        self.ray = import_ray()
+        self.address = address
+        self.initializer = initializer or _noop
+        self.initargs = tuple(initargs)
+        self.num_cpus = float(num_cpus)
+        self.local_mode = local_mode
+
+    def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
+        """Submit every job as a Ray task; yields (job, result) in completion order."""
+        ray = self.ray
+        if not jobs:
+            return
+        if not ray.is_initialized():
+            kwargs: dict[str, Any] = {"local_mode": True} if self.local_mode else {}
+            ray.init(address=self.address, **kwargs)
+            log.info("connected to Ray at %s", self.address or "a new local instance")
+        task = ray.remote(num_cpus=self.num_cpus)(_ray_task)
+        pending = {task.remote(fn, job, self.initializer, self.initargs): job for job in jobs}
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            ref = done[0]
+            job = pending.pop(ref)
+            yield job, ray.get(ref)

@@ -1,0 +1,383 @@
+"""Experiments: methods x scenes x seeds of active runs plus evaluation, and the paper's tables (Sec. 4, Tab. 1-4).
+
+Config (JSON; paths relative to the file)::
+
+    {
+      "scenes": ["data/ahmed64"],                 # datasets (Blender or COLMAP folders)
+      "methods": ["random", "fisher", "fisher+fluid"],
+      "seeds": [0, 1, 2],
+      "preset": "cpu-small",                      # ActiveConfig preset ("paper" or "cpu-small")
+      "output": "out/experiment",                 # results folder
+      "reference_views": 20,                      # many-view reference: a run on this many views (null: none)
+      "active": {"budget": 10, "mode": "continue", "train": {...}, "physics": {...}},   # ActiveConfig overrides
+      "eval": {"critical_views": 20}              # EvalConfig overrides
+    }
+
+Jobs: one ``active`` run + ``eval`` per (scene, method, seed) in ``OUTPUT/runs/<scene>/<method>/seed<k>``, and per
+(scene, seed) the many-view reference in ``OUTPUT/runs/<scene>/reference-<N>views/seed<k>``: the first N candidate
+views as initial views with budget N, so no selection happens and it trains ``total_iterations`` on N views.
+A job whose eval.json matches its config is skipped, and an interrupted run resumes (:mod:`nbv.active`), so the
+whole experiment is resumable.
+
+Tables (``OUTPUT/tables/*.md`` and ``*.csv``, all in ``tables.md``; mean +- sample std over scenes x seeds, n runs):
+
+- ``visual``: PSNR, SSIM, LPIPS, Chamfer per method (and the many-view reference);
+- ``physics``: D-bar, critical-view PSNR and D-bar per method, with the *empty scene* (the empty-scene D-bar of the
+  method runs) and the *many-view* reference rows;
+- ``ablation_random``: the selection ablation, random vs visual shortlist, with and without the physics pick
+  (random, random+fluid, fisher, fisher+fluid, variance, variance+fluid: those that ran);
+- ``ablation_direction``: D-bar of every probe direction's own D_g^(IC) per method (the per-direction ablation).
+
+Plots (OpenCV bar charts with +-std whiskers): ``OUTPUT/plots/psnr.png``, ``dbar.png``, ``dbar_direction.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .active import ActiveConfig, config_differences, json_safe, run_active, write_atomic, write_json_atomic
+from .evaluate import EvalConfig, evaluate_run
+
+log = logging.getLogger(__name__)
+
+CONFIG_KEYS = ("scenes", "methods", "seeds", "preset", "output", "reference_views", "active", "eval")
+DIRECTIONS = ("-x", "+x", "-z", "+z", "-y")
+ABLATION_ORDER = ("random", "random+fluid", "fisher", "fisher+fluid", "variance", "variance+fluid")
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """An experiment (see the module docstring for the JSON form).
+
+    Attributes:
+        scenes: dataset folders.
+        methods: planner names.
+        seeds: run seeds.
+        preset: ActiveConfig preset.
+        output: results folder.
+        reference_views: views of the many-view reference run (None: no reference).
+        active: ActiveConfig overrides (``train`` and ``physics`` are dicts).
+        eval: EvalConfig overrides (``physics`` a dict).
+    """
+
+    scenes: tuple[str, ...]
+    methods: tuple[str, ...]
+    seeds: tuple[int, ...] = (0,)
+    preset: str = "cpu-small"
+    output: str = "out/experiment"
+    reference_views: int | None = 20
+    active: dict = field(default_factory=dict)
+    eval: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("scenes", "methods", "seeds"):
+            v = getattr(self, name)
+            if isinstance(v, (str, bytes)) or not isinstance(v, Sequence) or len(v) == 0:
+                raise ValueError(f"experiment config: {name!r} must be a non-empty list, got {v!r}")
+            object.__setattr__(self, name, tuple(v))
+        if len(set(self.methods)) != len(self.methods) or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError("experiment config: 'methods' and 'seeds' must not repeat entries")
+        if any(isinstance(s, bool) or not isinstance(s, int) or s < 0 for s in self.seeds):
+            raise ValueError(f"experiment config: 'seeds' must be integers >= 0, got {list(self.seeds)}")
+        if self.reference_views is not None and (isinstance(self.reference_views, bool)
+                                                 or not isinstance(self.reference_views, int)
+                                                 or self.reference_views < 1):
+            raise ValueError(f"experiment config: 'reference_views' must be null or an integer >= 1 "
+                             f"(the paper: >= 20), got {self.reference_views!r}")
+        for name in ("active", "eval"):
+            if not isinstance(getattr(self, name), dict):
+                raise ValueError(f"experiment config: {name!r} must be an object of overrides")
+        for method in self.methods:  # validates the overrides and the preset before any job starts
+            self.active_config(method, self.seeds[0])
+        self.eval_config()
+
+    @classmethod
+    def load(cls, path: str | Path) -> ExperimentConfig:
+        """Read a JSON config; relative scene and output paths are taken relative to the file."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"experiment config {path} does not exist")
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"experiment config {path} is not valid JSON: {exc}") from exc
+        if not isinstance(data, dict):
+            raise ValueError(f"experiment config {path} must hold a JSON object")
+        bad = sorted(set(data) - set(CONFIG_KEYS))
+        if bad:
+            raise ValueError(f"experiment config {path}: unknown keys {bad}; valid keys: {list(CONFIG_KEYS)}")
+        for key in ("scenes", "methods"):
+            if key not in data:
+                raise ValueError(f"experiment config {path}: missing {key!r}")
+        base = path.parent
+        data["scenes"] = [str((base / s).resolve()) for s in data["scenes"]]
+        if "output" in data:
+            data["output"] = str((base / data["output"]).resolve())
+        return cls(**data)
+
+    def active_config(self, method: str, seed: int, **extra: Any) -> ActiveConfig:
+        """The ActiveConfig of one run."""
+        return ActiveConfig.from_preset(self.preset, **{**self.active, **extra, "method": method, "seed": seed})
+
+    def eval_config(self) -> EvalConfig:
+        return EvalConfig.from_dict(self.eval)
+
+
+def scene_names(scenes: Sequence[str]) -> list[str]:
+    """Folder names of the scenes, made unique with an index suffix."""
+    names = [Path(s).name or "scene" for s in scenes]
+    return [n if names.count(n) == 1 else f"{n}-{i}" for i, n in enumerate(names)]
+
+
+def reference_label(views: int) -> str:
+    return f"reference-{views}views"
+
+
+def plan_jobs(config: ExperimentConfig) -> list[dict]:
+    """One job dict (picklable) per (scene, method, seed), plus the many-view references."""
+    out = Path(config.output)
+    eval_cfg = config.eval_config().to_dict()
+    jobs = []
+    for scene, name in zip(config.scenes, scene_names(config.scenes), strict=True):
+        for seed in config.seeds:
+            for method in config.methods:
+                jobs.append({"kind": "method", "scene": name, "dataset": scene, "method": method, "seed": seed,
+                             "run_dir": str(out / "runs" / name / method.replace("+", "_") / f"seed{seed}"),
+                             "active": config.active_config(method, seed).to_dict(), "eval": eval_cfg})
+            if config.reference_views is not None:
+                n = config.reference_views
+                ref = config.active_config("random", seed, budget=n, initial_ids=tuple(range(n)))
+                label = reference_label(n)
+                jobs.append({"kind": "reference", "scene": name, "dataset": scene, "method": label, "seed": seed,
+                             "run_dir": str(out / "runs" / name / label / f"seed{seed}"), "active": ref.to_dict(),
+                             "eval": eval_cfg})
+    return jobs
+
+
+def run_job(job: dict) -> dict:
+    """Run (or resume) one job's active run and evaluation; returns its result row.
+
+    Needs an initialised Taichi runtime in this process (the executor's initializer). A job whose eval.json
+    exists with the same evaluation config and a finished run is not recomputed.
+    """
+    run_dir = Path(job["run_dir"])
+    eval_path = run_dir / "eval.json"
+    eval_cfg = EvalConfig.from_dict(job["eval"])
+    rounds = run_active(job["dataset"], run_dir, ActiveConfig.from_dict(job["active"]), progress=False)
+    result = None
+    if eval_path.is_file() and (run_dir / "gaussians.ply").stat().st_mtime <= eval_path.stat().st_mtime:
+        stored = json.loads(eval_path.read_text())
+        if not config_differences(stored.get("config", {}), json_safe(eval_cfg.to_dict())):
+            result = stored
+            log.info("%s: already evaluated", run_dir)
+    if result is None:
+        result = evaluate_run(run_dir, eval_cfg, progress=False)
+    return {"kind": job["kind"], "scene": job["scene"], "method": job["method"], "seed": job["seed"],
+            "run_dir": str(run_dir), "selected": rounds.get("selected"), **result["summary"]}
+
+
+def run_experiment(config: ExperimentConfig, executor, progress: bool = True) -> dict[str, Any]:
+    """Run every job through ``executor`` (``nbv.executors``), then write results.json, the tables and plots.
+
+    Returns:
+        {"rows": per-job result rows, "tables": {name: Markdown}, "files": written paths}.
+    """
+    from tqdm import tqdm
+
+    out = Path(config.output)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "experiment.json", {"config": {k: getattr(config, k) for k in CONFIG_KEYS}})
+    jobs = plan_jobs(config)
+    rows = []
+    with tqdm(total=len(jobs), desc="jobs", unit="job", disable=not progress) as bar:
+        for job, row in executor.map(run_job, jobs):
+            rows.append(row)
+            bar.update(1)
+            log.info("done: %s %s seed %d (PSNR %s, D-bar %s)", job["scene"], job["method"], job["seed"],
+                     row.get("psnr"), row.get("dbar"))
+    order = {(j["scene"], j["method"], j["seed"]): i for i, j in enumerate(jobs)}
+    rows.sort(key=lambda r: order[(r["scene"], r["method"], r["seed"])])
+    write_json_atomic(out / "results.json", {"rows": rows})
+    return write_tables(rows, config, out)
+
+
+# ---- tables ------------------------------------------------------------------------------------------
+def mean_std(values: Sequence[Any]) -> tuple[float | None, float | None, int]:
+    """(mean, sample std (0 for one value), n) over the finite numbers of ``values``; (None, None, 0) if none."""
+    xs = [float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(float(v))]
+    if not xs:
+        return None, None, 0
+    arr = np.asarray(xs)
+    return float(arr.mean()), float(arr.std(ddof=1)) if len(xs) > 1 else 0.0, len(xs)
+
+
+def _cell(values: Sequence[Any]) -> str:
+    m, s, n = mean_std(values)
+    if m is None:
+        return "n/a"
+    big = abs(m) >= 1e4 or (m != 0 and abs(m) < 1e-2)
+    return f"{m:.3e} ± {s:.1e}" if big else f"{m:.4f} ± {s:.4f}"
+
+
+def _table(title: str, header: list[str], body: list[list[str]]) -> tuple[str, str]:
+    md = [f"### {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    md += ["| " + " | ".join(r) + " |" for r in body]
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(header)
+    writer.writerows(body)
+    return "\n".join(md) + "\n", buf.getvalue()
+
+
+def _by_method(rows: list[dict], kind: str | None = "method") -> dict[str, list[dict]]:
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        if kind is None or r["kind"] == kind:
+            groups.setdefault(r["method"], []).append(r)
+    return groups
+
+
+def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
+    """The four tables as {name: (Markdown, CSV)} from the job rows (see the module docstring)."""
+    methods, refs = _by_method(rows), _by_method(rows, "reference")
+
+    def n_col(rs: list[dict]) -> str:
+        return str(len(rs))
+
+    tables = {}
+    vis_cols = ["method", "n", "PSNR (dB)", "SSIM", "LPIPS", "Chamfer (scene units)"]
+    body = [[m, n_col(rs), _cell([r["psnr"] for r in rs]), _cell([r["ssim"] for r in rs]),
+             _cell([r["lpips"] for r in rs]), _cell([r["chamfer"] for r in rs])]
+            for m, rs in {**methods, **refs}.items()]
+    tables["visual"] = _table("Visual metrics (test views)", vis_cols, body)
+
+    phys_cols = ["method", "n", "D-bar (m^4/s)", "critical PSNR (dB)", "critical D-bar (m^4/s)"]
+    body = [[m, n_col(rs), _cell([r["dbar"] for r in rs]), _cell([r["critical_psnr"] for r in rs]),
+             _cell([r["critical_dbar"] for r in rs])] for m, rs in methods.items()]
+    all_runs = [r for rs in methods.values() for r in rs]
+    body.append(["empty scene (reference)", n_col(all_runs), _cell([r["dbar_empty"] for r in all_runs]), "", ""])
+    for m, rs in refs.items():
+        body.append([f"many-view: {m}", n_col(rs), _cell([r["dbar"] for r in rs]),
+                     _cell([r["critical_psnr"] for r in rs]), _cell([r["critical_dbar"] for r in rs])])
+    tables["physics"] = _table("Geometry divergence D-bar (lower is better) with the references", phys_cols, body)
+
+    abl_cols = ["method", "shortlist", "physics pick", "n", "PSNR (dB)", "D-bar (m^4/s)", "critical D-bar (m^4/s)"]
+    body = []
+    for m in [m for m in ABLATION_ORDER if m in methods] + [m for m in methods if m not in ABLATION_ORDER]:
+        rs = methods[m]
+        visual = m.split("+")[0]
+        shortlist = "random K" if m == "random+fluid" else ("all (random pick)" if m == "random" else
+                                                            f"{visual} top-K" if m.endswith("+fluid") else "all")
+        body.append([m, shortlist, "yes" if m.endswith("+fluid") or m == "physics" else "no", n_col(rs),
+                     _cell([r["psnr"] for r in rs]), _cell([r["dbar"] for r in rs]),
+                     _cell([r["critical_dbar"] for r in rs])])
+    tables["ablation_random"] = _table("Selection ablation: random vs visual shortlist, with / without physics",
+                                       abl_cols, body)
+
+    dirs = [d for d in DIRECTIONS if any((r.get("dbar_per_direction") or {}).get(d) is not None for r in rows)]
+    dir_cols = ["method", "n"] + [f"D-bar {d} (m^4/s)" for d in dirs] + ["D-bar max (m^4/s)"]
+    body = [[m, n_col(rs)] + [_cell([(r.get("dbar_per_direction") or {}).get(d) for r in rs]) for d in dirs]
+            + [_cell([r["dbar"] for r in rs])] for m, rs in {**methods, **refs}.items()]
+    tables["ablation_direction"] = _table("Per-direction ablation: D-bar of each probe's own D_g", dir_cols, body)
+    return tables
+
+
+def bar_chart(labels: Sequence[str], means: Sequence[float | None], stds: Sequence[float | None], title: str,
+              width: int = 720, height: int = 420) -> np.ndarray:
+    """A BGR uint8 bar chart (OpenCV) with +-std whiskers; missing values are drawn as "n/a"."""
+    import cv2
+
+    img = np.full((height, width, 3), 255, np.uint8)
+    left, right, top, bottom = 70, 20, 40, 110
+    cv2.putText(img, title, (left, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+    vals = [(m or 0.0) + (s or 0.0) for m, s in zip(means, stds, strict=True)]
+    lo = min([0.0] + [m for m in means if m is not None])
+    hi = max(vals + [1e-30])
+    span = hi - lo if hi > lo else 1.0
+    plot_h = height - top - bottom
+
+    def y_of(v: float) -> int:
+        return int(top + plot_h * (1.0 - (v - lo) / span))
+
+    cv2.line(img, (left, top), (left, height - bottom), (0, 0, 0), 1)
+    cv2.line(img, (left, y_of(0.0)), (width - right, y_of(0.0)), (0, 0, 0), 1)
+    for frac in (0.0, 0.5, 1.0):
+        v = lo + frac * span
+        cv2.putText(img, f"{v:.3g}", (4, y_of(v) + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (60, 60, 60), 1, cv2.LINE_AA)
+    n = max(len(labels), 1)
+    slot = (width - left - right) / n
+    palette = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148), (75, 86, 140)]
+    for i, (lab, m, s) in enumerate(zip(labels, means, stds, strict=True)):
+        x0, x1 = int(left + i * slot + 0.2 * slot), int(left + (i + 1) * slot - 0.2 * slot)
+        xc = (x0 + x1) // 2
+        if m is None:
+            cv2.putText(img, "n/a", (x0, y_of(0.0) - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        else:
+            cv2.rectangle(img, (x0, min(y_of(m), y_of(0.0))), (x1, max(y_of(m), y_of(0.0))), palette[i % 6], -1)
+            if s:
+                cv2.line(img, (xc, y_of(m - s)), (xc, y_of(m + s)), (0, 0, 0), 1)
+                for v in (m - s, m + s):
+                    cv2.line(img, (xc - 5, y_of(v)), (xc + 5, y_of(v)), (0, 0, 0), 1)
+            cv2.putText(img, f"{m:.3g}", (x0, max(y_of(m), top) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1,
+                        cv2.LINE_AA)
+        words = lab if len(lab) <= 14 else lab[:13] + "."
+        cv2.putText(img, words, (x0 - 4, height - bottom + 18 + 14 * (i % 2)), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                    (0, 0, 0), 1, cv2.LINE_AA)
+    return img
+
+
+def write_png(path: Path, image: np.ndarray) -> Path:
+    """Encode with OpenCV and write atomically."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise ValueError(f"could not encode {path}")
+    return write_atomic(path, lambda tmp: tmp.write_bytes(buf.tobytes()))
+
+
+def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[str, Any]:
+    """Write OUTPUT/tables/{name}.md|.csv, OUTPUT/tables.md and the plots."""
+    tables = build_tables(rows)
+    tdir, pdir = out / "tables", out / "plots"
+    tdir.mkdir(exist_ok=True)
+    pdir.mkdir(exist_ok=True)
+    files = []
+    for name, (md, text) in tables.items():
+        files.append(write_atomic(tdir / f"{name}.md", lambda tmp, md=md: tmp.write_text(md)))
+        files.append(write_atomic(tdir / f"{name}.csv", lambda tmp, text=text: tmp.write_text(text)))
+    head = (f"# Experiment\n\nscenes: {', '.join(scene_names(config.scenes))}; methods: {', '.join(config.methods)}; "
+            f"seeds: {list(config.seeds)}; preset: {config.preset}. Cells: mean ± sample std over scenes x seeds "
+            "(n runs).\n\n")
+    combined = head + "\n".join(md for md, _ in tables.values())
+    files.append(write_atomic(out / "tables.md", lambda tmp: tmp.write_text(combined)))
+    groups = {**_by_method(rows), **_by_method(rows, "reference")}
+    labels = list(groups)
+    for key, title in (("psnr", "test PSNR (dB)"), ("dbar", "geometry divergence D-bar (m^4/s)")):
+        stats = [mean_std([r[key] for r in groups[m]]) for m in labels]
+        img = bar_chart(labels, [s[0] for s in stats], [s[1] for s in stats], title)
+        files.append(write_png(pdir / f"{key}.png", img))
+    dir_labels, dir_means, dir_stds = [], [], []
+    for m in labels:
+        for d in DIRECTIONS:
+            vals = [(r.get("dbar_per_direction") or {}).get(d) for r in groups[m]]
+            mean, std, n = mean_std(vals)
+            if n:
+                dir_labels.append(f"{m[:8]} {d}")
+                dir_means.append(mean)
+                dir_stds.append(std)
+    if dir_labels:
+        img = bar_chart(dir_labels, dir_means, dir_stds, "D-bar per probe direction (m^4/s)",
+                        width=max(720, 60 * len(dir_labels)))
+        files.append(write_png(pdir / "dbar_direction.png", img))
+    return {"rows": rows, "tables": {k: md for k, (md, _) in tables.items()}, "files": [str(f) for f in files]}

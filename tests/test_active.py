@@ -1,0 +1,214 @@
+"""The active-reconstruction loop (nbv.active, `fluidgs active`): schedule, initial views, round logs, resume."""
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from nbv.active import ActiveConfig, biased_initial_views, config_differences, run_active
+from nbv.physics import PhysicsConfig
+from recon.camera import Camera
+from recon.ply import load_gaussians
+
+TORUS = Path(__file__).resolve().parents[1] / "assets" / "torus.obj"
+TINY_TRAIN = {"init_points": 150, "sh_degree": 0, "max_gaussians": 300, "init_opacity": 0.5}
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    """The torus rendered at 24 px: 8 candidate views, 3 test views."""
+    from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
+
+    out = tmp_path_factory.mktemp("active") / "torus"
+    return render_mesh_dataset(TORUS, out, MeshDatasetConfig(n_train=8, n_test=3, resolution=24, supersample=1),
+                               progress=False)
+
+
+def tiny_config(**overrides) -> ActiveConfig:
+    base = dict(method="random", budget=4, iterations_per_view=2, total_iterations=30, resolution=16,
+                train=TINY_TRAIN, backend="torch", physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004))
+    return ActiveConfig(**{**base, **overrides})
+
+
+def leftover_temp_files(folder: Path) -> list[Path]:
+    return [p for p in folder.rglob("*") if p.name.endswith(".tmp")]
+
+
+# ---- config and schedule -------------------------------------------------------------------------
+
+
+def test_schedule_and_validation():
+    cfg = ActiveConfig(budget=10, initial_count=2, iterations_per_view=100, total_iterations=30000)
+    assert cfg.rounds() == [2, 3, 4, 5, 6, 7, 8, 9]  # eight selections reach the budget of 10
+    assert cfg.schedule_iterations() == 100 * sum(range(2, 10))
+    with pytest.raises(ValueError, match="total_iterations"):
+        ActiveConfig(budget=10, iterations_per_view=100, total_iterations=1000)
+    ActiveConfig(budget=10, iterations_per_view=100, total_iterations=1000, mode="reset")  # reset: no constraint
+    with pytest.raises(ValueError, match="mode"):
+        ActiveConfig(mode="restart")
+    with pytest.raises(ValueError, match="initial_count"):
+        ActiveConfig(budget=2, initial_count=3)
+    with pytest.raises(ValueError, match="ActiveConfig.train"):
+        ActiveConfig(train={"learning_rate": 1})
+    assert ActiveConfig(initial_ids=(4, 1, 7)).initial_count == 3
+    small = ActiveConfig.from_preset("cpu-small", method="fisher")
+    assert small.resolution == 64 and small.physics.particle_radius == 0.05 and small.preset == "cpu-small"
+    assert ActiveConfig.from_dict(json.loads(json.dumps(small.to_dict()))) == small
+
+
+def test_biased_initial_views_pick_the_anchor_and_its_neighbours():
+    # 12 cameras on a circle around the origin; the anchor +x is closest to camera 3 (placed at +x)
+    angles = [2 * math.pi * (k - 3) / 12 for k in range(12)]
+    cams = [Camera.look_at([4 * math.cos(a), 0.3, 4 * math.sin(a)], [0, 0, 0], [0, 1, 0], 16, 16, 0.9)
+            for a in angles]
+    ids = biased_initial_views(cams, 3, direction=(1.0, 0.0, 0.0))
+    assert ids[0] == 3 and set(ids[1:]) == {2, 4}  # the two circle neighbours of camera 3
+    assert biased_initial_views(cams, 2, seed=5) == biased_initial_views(cams, 2, seed=5)
+    firsts = {biased_initial_views(cams, 1, seed=s)[0] for s in range(8)}
+    assert len(firsts) > 1  # the seed moves the anchor
+    with pytest.raises(ValueError, match="count"):
+        biased_initial_views(cams, 13)
+
+
+def test_config_differences_names_nested_keys():
+    assert config_differences({"a": 1, "b": {"c": 2, "d": 3}}, {"a": 1, "b": {"c": 5, "d": 3}, "e": 0}) == ["b.c", "e"]
+
+
+# ---- the loop ------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def straight_run(tiny_dataset, tmp_path_factory):
+    """An uninterrupted random-planner run: budget 5 from views 0 and 1 (three selections)."""
+    run = tmp_path_factory.mktemp("straight") / "run"
+    cfg = tiny_config(budget=5, initial_ids=(0, 1))
+    return cfg, run, run_active(tiny_dataset, run, cfg, progress=False)
+
+
+def test_round_log_and_outputs(straight_run):
+    cfg, run, rounds = straight_run
+    logged = json.loads((run / "rounds.json").read_text())
+    assert logged == rounds
+    assert logged["selected"][:2] == [0, 1] and len(logged["selected"]) == 5 == len(set(logged["selected"]))
+    assert len(logged["rounds"]) == 3
+    for r, rec in enumerate(logged["rounds"]):
+        before = logged["selected"][:2 + r]
+        assert rec["round"] == r and rec["n_selected"] == 2 + r
+        assert rec["training"]["iterations"] == (2 + r) * cfg.iterations_per_view
+        assert sorted(rec["candidates"] + before) == list(range(8))  # the candidates are the unselected views
+        assert rec["pick"] in rec["candidates"] and rec["pick"] == logged["selected"][2 + r]
+        assert rec["shortlist"] == rec["candidates"] and rec["k"] is None  # random: every candidate considered
+        assert set(rec["scores"]) >= {"visual"} and set(rec["scores"]["visual"]) == {str(i) for i in rec["candidates"]}
+    assert logged["final"]["iterations"] == cfg.total_iterations
+    g = load_gaussians(run / "gaussians.ply")
+    assert g.num == logged["final"]["num_gaussians"]
+    assert json.loads((run / "config.json").read_text())["active"]["method"] == "random"
+    assert not leftover_temp_files(run)
+
+
+def test_resume_after_interruption_equals_uninterrupted_run(tiny_dataset, straight_run, tmp_path):
+    cfg, straight_dir, straight = straight_run
+
+    class Interrupt(Exception):
+        pass
+
+    def stop_after_second(record):
+        if record["round"] == 1:
+            raise Interrupt
+
+    with pytest.raises(Interrupt):
+        run_active(tiny_dataset, tmp_path / "resumed", cfg, on_round=stop_after_second, progress=False)
+    partial = json.loads((tmp_path / "resumed" / "rounds.json").read_text())
+    assert len(partial["rounds"]) == 2 and "final" not in partial
+    assert not (tmp_path / "resumed" / "gaussians.ply").exists()
+    assert not leftover_temp_files(tmp_path / "resumed")
+
+    seen = []
+    resumed = run_active(tiny_dataset, tmp_path / "resumed", cfg, on_round=lambda rec: seen.append(rec["round"]),
+                         progress=False)
+    assert seen == [2]  # rounds 0 and 1 are not recomputed
+    assert resumed["selected"] == straight["selected"]
+    for a, b in zip(load_gaussians(tmp_path / "resumed" / "gaussians.ply").tensors(),
+                    load_gaussians(straight_dir / "gaussians.ply").tensors(), strict=True):
+        assert torch.equal(a, b)
+    again = run_active(tiny_dataset, tmp_path / "resumed", cfg, on_round=seen.append, progress=False)
+    assert again == resumed and seen == [2]  # a finished run is not recomputed
+
+
+def test_mismatched_config_is_refused_unless_overwrite(tiny_dataset, tmp_path):
+    run = tmp_path / "run"
+    short = dict(total_iterations=8, iterations_per_view=1)
+    run_active(tiny_dataset, run, tiny_config(budget=3, **short), progress=False)
+    with pytest.raises(ValueError, match=r"differing keys: active\.budget, active\.seed"):
+        run_active(tiny_dataset, run, tiny_config(budget=4, seed=1, **short), progress=False)
+    out = run_active(tiny_dataset, run, tiny_config(budget=4, seed=1, **short), overwrite=True, progress=False)
+    assert len(out["selected"]) == 4
+
+
+def test_fused_method_logs_k_and_physics_scores(tiny_dataset, tmp_path):
+    calls = []
+
+    def fake_physics(gaussians):
+        """A stand-in for the five probes: D_g = distance of g from the origin."""
+        calls.append(gaussians.num)
+        return gaussians.means.detach().norm(dim=-1).double()
+
+    cfg = tiny_config(method="fisher+fluid", budget=4, mode="reset", total_iterations=12)
+    rounds = run_active(tiny_dataset, tmp_path / "run", cfg, physics_fn=fake_physics, progress=False)
+    assert len(calls) == 2  # the probes run once per selection
+    for rec in rounds["rounds"]:
+        k = max(cfg.budget - rec["n_selected"], 2)
+        assert rec["k"] == k and len(rec["shortlist"]) == k
+        physics = rec["scores"]["physics"]
+        scored = {int(i) for i, v in physics.items() if v is not None}
+        assert scored == set(rec["shortlist"])
+        assert rec["pick"] == max(rec["shortlist"], key=lambda i: physics[str(i)])
+        assert rec["physics"]["source"] == "custom"
+        assert rec["training"]["iterations"] == rec["n_selected"] * cfg.iterations_per_view
+    assert rounds["final"]["iterations"] == cfg.total_iterations  # reset: a fresh full-length final run
+
+
+def test_real_probes_inside_the_loop(tiny_dataset, tmp_path):
+    cfg = tiny_config(method="physics", budget=3, physics=PhysicsConfig(particle_radius=0.1, steps=8, dt=0.004,
+                                                                         directions=("-x",), empty_reference=False))
+    rounds = run_active(tiny_dataset, tmp_path / "run", cfg, progress=False)
+    phys = rounds["rounds"][0]["physics"]
+    assert "error" in phys or (math.isfinite(phys["dbar"]) and set(phys["dbar_per_direction"]) == {"-x"})
+
+
+# ---- CLI -----------------------------------------------------------------------------------------
+
+
+def test_active_cli_smoke(tiny_dataset, tmp_path):
+    from apps.cli import main
+
+    run = tmp_path / "run"
+    args = ["active", str(tiny_dataset), "-o", str(run), "--method", "random", "--preset", "cpu-small", "--res", "24",
+            "--budget", "3", "--iters-per-view", "2", "--iterations", "10", "--init-points", "150",
+            "--max-gaussians", "300", "--sh-degree", "0", "--backend", "torch", "--threads", "1", "--no-progress"]
+    assert main(args) == 0
+    assert len(json.loads((run / "rounds.json").read_text())["selected"]) == 3
+    assert (run / "gaussians.ply").is_file()
+    # bad input fails before any training and names the option
+    assert main(args[:3] + [str(tmp_path / "bad"), "--initial-views", "0,99", "--res", "24"]) == 2
+    assert not (tmp_path / "bad" / "checkpoint.pt").exists()
+    assert main(args + ["--seed", "3"]) == 2  # another config in the same folder
+
+
+def test_write_atomic_leaves_nothing_behind_on_failure(tmp_path):
+    from nbv.active import write_atomic, write_json_atomic
+
+    target = tmp_path / "data.json"
+    write_json_atomic(target, {"a": float("nan"), "b": (1, 2)})
+    assert json.loads(target.read_text()) == {"a": None, "b": [1, 2]}  # strict JSON: NaN -> null
+
+    def half_write(tmp):
+        tmp.write_text("{\"partial\": ")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_atomic(target, half_write)
+    assert json.loads(target.read_text()) == {"a": None, "b": [1, 2]}  # the old file is intact
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.json"]  # and no temporary file is left

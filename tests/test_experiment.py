@@ -1,0 +1,197 @@
+"""Evaluation of active runs (nbv.evaluate, `fluidgs eval`) and experiments (nbv.experiment, `fluidgs experiment`)."""
+
+import csv
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from nbv.active import ActiveConfig, run_active
+from nbv.evaluate import EvalConfig, evaluate_run, sample_mesh_surface
+from nbv.experiment import build_tables, mean_std
+from nbv.physics import PhysicsConfig
+
+TORUS = Path(__file__).resolve().parents[1] / "assets" / "torus.obj"
+COARSE = {"particle_radius": 0.08, "steps": 20, "dt": 0.004, "directions": ["-x", "+z"]}
+TINY_ACTIVE = {"budget": 3, "iterations_per_view": 2, "total_iterations": 40, "resolution": 16, "backend": "torch",
+               "train": {"init_points": 150, "sh_degree": 0, "max_gaussians": 300, "init_opacity": 0.5,
+                         "opacity_reset_interval": 100000, "densify_from_iter": 0},
+               "physics": COARSE}
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    """The torus rendered at 24 px: 8 candidate views, 3 test views, with its reference mesh."""
+    from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
+
+    out = tmp_path_factory.mktemp("experiment") / "torus"
+    return render_mesh_dataset(TORUS, out, MeshDatasetConfig(n_train=8, n_test=3, resolution=24, supersample=1),
+                               progress=False)
+
+
+@pytest.fixture(scope="module")
+def finished_run(tiny_dataset, tmp_path_factory):
+    run = tmp_path_factory.mktemp("eval") / "run"
+    cfg = ActiveConfig.from_preset("cpu-small", method="random", **TINY_ACTIVE)
+    run_active(tiny_dataset, run, cfg, progress=False)
+    return run
+
+
+# ---- evaluation ----------------------------------------------------------------------------------
+
+
+def test_sample_mesh_surface_is_on_the_surface_and_area_weighted():
+    # two triangles in the z = 0 plane with areas 0.5 and 1.5
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [3, 0, 0], [3, 1, 0], [0, 0, 0]], float)
+    vertices[5] = [0, 3, 0]
+    triangles = np.array([[0, 1, 2], [3, 4, 5]])
+    pts = sample_mesh_surface(vertices, triangles, 20000, seed=1)
+    assert np.allclose(pts[:, 2], 0.0)
+    in_first = (pts[:, 0] >= 0) & (pts[:, 1] >= 0) & (pts[:, 0] + pts[:, 1] <= 1 + 1e-12)
+    area2 = 0.5 * np.linalg.norm(np.cross(vertices[4] - vertices[3], vertices[5] - vertices[3]))
+    assert abs(in_first.mean() - 0.5 / (0.5 + area2)) < 0.02
+    np.testing.assert_array_equal(pts, sample_mesh_surface(vertices, triangles, 20000, seed=1))
+
+
+def test_eval_json_keys_and_finite_metrics(finished_run):
+    from recon.datasets import load_dataset
+    from recon.ply import load_gaussians
+    from recon.train import evaluate
+
+    out = evaluate_run(finished_run, EvalConfig(physics=PhysicsConfig.from_dict(COARSE), critical_views=2),
+                       progress=False)
+    stored = json.loads((finished_run / "eval.json").read_text())
+    assert stored == out
+    for key in ("psnr", "ssim", "dbar", "dbar_empty", "chamfer", "critical_psnr", "critical_dbar"):
+        assert isinstance(out[key], float) and math.isfinite(out[key]), key
+    assert out["lpips"] == "unavailable" or math.isfinite(out["lpips"])
+    assert set(out["dbar_per_direction"]) == {"-x", "+z"}
+    # D_g is the max over the probes, so D-bar lies between the largest and the sum of the per-direction D-bars
+    per_dir = list(out["dbar_per_direction"].values())
+    assert max(per_dir) * (1 - 1e-9) <= out["dbar"] <= sum(per_dir) * (1 + 1e-9)
+    assert len(out["critical_views"]) == 2 and len(out["critical_scores"]) == 3
+    # the critical subset is the top 2 by C(T), and its PSNR is the mean over those views
+    order = sorted(range(3), key=lambda i: -out["critical_scores"][i])[:2]
+    names = [out["per_view"][i]["name"] for i in order]
+    assert out["critical_views"] == names
+    assert out["critical_psnr"] == pytest.approx(np.mean([out["per_view"][i]["psnr"] for i in order]))
+    # visual metrics agree with the trainer's evaluate (the reference computation)
+    ds = load_dataset(json.loads((finished_run / "config.json").read_text())["dataset"], resolution=16)
+    ref = evaluate(load_gaussians(finished_run / "gaussians.ply"), ds.test, ds.background, backend="torch")
+    assert out["psnr"] == pytest.approx(ref["psnr"], abs=1e-5) and out["ssim"] == pytest.approx(ref["ssim"], abs=1e-6)
+    # the scene -> metres scale is pinned to the reference mesh (largest extent -> target_extent = 2 m)
+    from recon.mesh_render import load_mesh
+
+    vertices, _ = load_mesh(ds.mesh_path)
+    assert out["scale_m_per_unit"] == pytest.approx(2.0 / np.ptp(vertices, axis=0).max())
+    assert "| random |" in (finished_run / "eval.md").read_text()
+    assert not [p for p in finished_run.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_eval_cli_smoke_and_bad_input(finished_run, tmp_path):
+    from apps.cli import main
+
+    assert main(["eval", str(finished_run), "--particle-radius", "0.1", "--probe-steps", "6", "--directions=-x",
+                 "--critical-views", "1", "--chamfer-samples", "500", "--threads", "1", "--no-progress"]) == 0
+    out = json.loads((finished_run / "eval.json").read_text())
+    assert out["physics_config"]["particle_radius"] == 0.1 and len(out["critical_views"]) == 1
+    assert main(["eval", str(tmp_path)]) == 2  # not a run folder
+
+
+# ---- tables --------------------------------------------------------------------------------------
+
+
+def row(method, seed, psnr, dbar, kind="method"):
+    return {"kind": kind, "scene": "s", "method": method, "seed": seed, "psnr": psnr, "ssim": 0.9, "lpips": None,
+            "chamfer": 0.1, "dbar": dbar, "dbar_empty": 2.0, "critical_psnr": psnr - 1, "critical_dbar": dbar / 2,
+            "dbar_per_direction": {"-x": dbar, "+x": dbar / 4}}
+
+
+def test_mean_std_and_tables():
+    assert mean_std([1.0, 3.0, None, float("nan")]) == (2.0, pytest.approx(math.sqrt(2.0)), 2)
+    assert mean_std([None]) == (None, None, 0)
+    rows = [row("random", 0, 20.0, 0.5), row("random", 1, 22.0, 0.7), row("fisher+fluid", 0, 21.0, 0.3),
+            row("reference-20views", 0, 25.0, 0.1, kind="reference")]
+    tables = build_tables(rows)
+    assert set(tables) == {"visual", "physics", "ablation_random", "ablation_direction"}
+    vis = list(csv.reader(tables["visual"][1].splitlines()))
+    assert vis[0][:3] == ["method", "n", "PSNR (dB)"]
+    assert vis[1][:3] == ["random", "2", "21.0000 ± 1.4142"] and vis[2][:3] == ["fisher+fluid", "1", "21.0000 ± 0.0000"]
+    assert vis[3][0] == "reference-20views"
+    phys = {r[0]: r for r in csv.reader(tables["physics"][1].splitlines())}
+    assert phys["empty scene (reference)"][2] == "2.0000 ± 0.0000"
+    assert phys["many-view: reference-20views"][2] == "0.1000 ± 0.0000"
+    abl = [r[0] for r in csv.reader(tables["ablation_random"][1].splitlines())][1:]
+    assert abl == ["random", "fisher+fluid"]
+    dirs = list(csv.reader(tables["ablation_direction"][1].splitlines()))
+    assert dirs[0][2:4] == ["D-bar -x (m^4/s)", "D-bar +x (m^4/s)"] and dirs[1][3] == "0.1500 ± 0.0354"
+
+
+# ---- experiment ----------------------------------------------------------------------------------
+
+
+def test_experiment_local_executor_end_to_end(tiny_dataset, tmp_path):
+    from apps.cli import main
+
+    config = {"scenes": [str(tiny_dataset)], "methods": ["random", "physics"], "seeds": [0, 1], "preset": "cpu-small",
+              "output": "out", "reference_views": 4, "active": TINY_ACTIVE,
+              "eval": {"physics": COARSE, "critical_views": 2, "chamfer_samples": 500}}
+    path = tmp_path / "exp.json"
+    path.write_text(json.dumps(config))
+    args = ["experiment", str(path), "--executor", "local", "--workers", "1", "--threads", "1", "--no-progress"]
+    assert main(args) == 0
+    out = tmp_path / "out"
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert len(rows) == 2 * 2 + 2  # methods x seeds, plus one many-view reference per seed
+    assert {(r["method"], r["seed"]) for r in rows} >= {("random", 0), ("random", 1), ("physics", 0), ("physics", 1)}
+    for name in ("visual", "physics", "ablation_random", "ablation_direction"):
+        assert (out / "tables" / f"{name}.md").is_file()
+        body = list(csv.reader((out / "tables" / f"{name}.csv").read_text().splitlines()))
+        assert len(body) >= 3
+    vis = {r[0]: r for r in csv.reader((out / "tables" / "visual.csv").read_text().splitlines())}
+    assert vis["random"][1] == "2" and vis["physics"][1] == "2" and vis["reference-4views"][1] == "2"
+    for png in ("psnr.png", "dbar.png"):
+        img = cv2.imread(str(out / "plots" / png))
+        assert img is not None and img.shape[2] == 3
+    ref = json.loads((out / "runs" / "torus" / "reference-4views" / "seed0" / "rounds.json").read_text())
+    assert ref["selected"] == [0, 1, 2, 3] and ref["rounds"] == []  # the reference trains on 4 views, no selection
+    stamp = (out / "runs" / "torus" / "random" / "seed0" / "eval.json").stat().st_mtime
+    assert main(args) == 0  # finished jobs are skipped
+    assert (out / "runs" / "torus" / "random" / "seed0" / "eval.json").stat().st_mtime == stamp
+    assert json.loads((out / "results.json").read_text())["rows"] == rows
+    assert not [p for p in out.rglob("*.tmp")]
+
+
+def test_experiment_config_errors(tmp_path):
+    from nbv.experiment import ExperimentConfig
+
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps({"scenes": ["a"], "methods": ["random"], "sedes": [0]}))
+    with pytest.raises(ValueError, match="unknown keys"):
+        ExperimentConfig.load(path)
+    with pytest.raises(ValueError, match="seeds"):
+        ExperimentConfig(scenes=("a",), methods=("random",), seeds=())
+    with pytest.raises(ValueError, match="ActiveConfig"):
+        ExperimentConfig(scenes=("a",), methods=("random",), active={"budgte": 3})
+
+
+def test_ray_executor_local_mode(tmp_path):
+    if importlib.util.find_spec("ray") is None:
+        pytest.skip("Ray is not installed (optional extra: pip install ray)")
+    from nbv.executors import RayExecutor
+
+    ex = RayExecutor(initializer=None, local_mode=True)
+    assert sorted(r for _, r in ex.map(abs, [-1, -2, 3])) == [1, 2, 3]
+
+
+def test_ray_missing_is_a_clear_error():
+    if importlib.util.find_spec("ray") is not None:
+        pytest.skip("Ray is installed; the missing-package message cannot be shown")
+    from nbv.executors import RayExecutor
+
+    with pytest.raises(ValueError, match="pip install ray"):
+        RayExecutor()
