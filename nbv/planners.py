@@ -13,6 +13,8 @@ Every planner is built from a small frozen config dataclass with an explicit see
   the visual planner proposes its top-K candidates, K = max(B - n_selected, 2) (the remaining budget,
   at least 2), FisherRF's list chosen greedily; the physics probes run once on the current Gaussians
   and the candidate of the list with the largest S(T) is chosen (ties: the visual planner's order).
+- ``random+fluid`` (the paper's random-selection ablation): the same re-ranking of K candidates drawn at random,
+  which separates what the physics pick adds from what the visual shortlist adds.
 
 S(T) needs only the screen-space radii and visibility of the Gaussians in each candidate, which are the
 projection's (``recon.render.render`` returns exactly ``project_gaussians(...).radii``), so no candidate
@@ -208,6 +210,12 @@ class RandomPlanner:
     def __init__(self, config: RandomConfig = RandomConfig()) -> None:
         self.config = config
 
+    def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
+        """k distinct positions drawn uniformly at random (from (seed, round)) and NaN scores."""
+        rng = np.random.default_rng([self.config.seed, context.round, k])
+        count = len(context.candidates)
+        return [int(i) for i in rng.permutation(count)[:k]], _nan_scores(count)
+
     def select(self, context: PlanningContext) -> Selection:
         _check_candidates(context, self.name)
         start = time.perf_counter()
@@ -352,8 +360,20 @@ class VarianceFluidPlanner(_FusedPlanner):
         super().__init__(config if config is not None else VarianceConfig())
 
 
+class RandomFluidPlanner(_FusedPlanner):
+    """The random-selection ablation: K random candidates, re-ranked by S(T) (config: :class:`RandomConfig`)."""
+
+    name = "random+fluid"
+    config_type = RandomConfig
+    visual_type = RandomPlanner
+
+    def __init__(self, config: RandomConfig | None = None) -> None:
+        super().__init__(config if config is not None else RandomConfig())
+
+
 PLANNERS: dict[str, type] = {
     "random": RandomPlanner,
+    "random+fluid": RandomFluidPlanner,
     "fisher": FisherPlanner,
     "variance": VariancePlanner,
     "physics": PhysicsPlanner,

@@ -95,7 +95,8 @@ def _check_selection(sel: Selection, count: int) -> None:
 
 
 def test_registry_names_and_make_planner():
-    assert set(PLANNERS) == {"random", "fisher", "variance", "physics", "fisher+fluid", "variance+fluid"}
+    assert set(PLANNERS) == {"random", "fisher", "variance", "physics", "fisher+fluid", "variance+fluid",
+                             "random+fluid"}
     for name in PLANNERS:
         planner = make_planner(name, seed=3)
         assert isinstance(planner, Planner)
@@ -124,6 +125,22 @@ def test_random_planner_is_reproducible_per_seed_and_round():
     sel = RandomPlanner().select(_context(g, train=[], candidates=cams))
     _check_selection(sel, 9)
     assert sel.k is None and all(math.isnan(s) for s in sel.scores["visual"])
+
+
+def test_random_fluid_picks_the_best_physics_score_of_k_random_candidates():
+    g, cams = _scene(), _candidates()
+    full = physics_view_scores(g, cams, FakePhysics()(g))
+    shortlists = set()
+    for seed in range(6):
+        physics = FakePhysics()
+        ctx = _context(g, candidates=cams, n_selected=2, budget=4, physics=physics)
+        sel = make_planner("random+fluid", seed=seed).select(ctx)
+        _check_selection(sel, 4)
+        assert sel.k == 2 and len(set(sel.shortlist)) == 2 and physics.calls == 1
+        assert sel.pick == max(sel.shortlist, key=lambda i: full[i])
+        assert make_planner("random+fluid", seed=seed).select(ctx).shortlist == sel.shortlist  # reproducible
+        shortlists.add(tuple(sorted(sel.shortlist)))
+    assert len(shortlists) > 1  # the shortlist is drawn, not fixed
 
 
 def test_fused_k_rule():
