@@ -38,7 +38,7 @@ def init_worker(threads: int, precision: str) -> None:
 
 
 def make_executor(kind: str, workers: int, threads: int, address: str | None, precision: str = "f32",
-                  local_mode: bool = False):
+                  local_cpus: int | None = None):
     """A :mod:`nbv.executors` executor whose workers run :func:`init_worker`."""
     from nbv.executors import LocalExecutor, RayExecutor
 
@@ -46,7 +46,7 @@ def make_executor(kind: str, workers: int, threads: int, address: str | None, pr
         raise ValueError(f"--threads must be >= 1 per worker, got {threads}")
     if kind == "local":
         return LocalExecutor(workers, init_worker, (threads, precision))
-    return RayExecutor(address, init_worker, (threads, precision), num_cpus=threads, local_mode=local_mode)
+    return RayExecutor(address, init_worker, (threads, precision), num_cpus=threads, local_cpus=local_cpus)
 
 
 def run_command(args: argparse.Namespace) -> int:

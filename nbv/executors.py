@@ -7,7 +7,8 @@ initialise Taichi, which only ``apps`` may do) and yield ``(job, result)`` pairs
 - :class:`LocalExecutor`: ``concurrent.futures.ProcessPoolExecutor`` with the *spawn* start method (fork would copy a
   live Taichi / OpenMP runtime into the children).
 - :class:`RayExecutor`: ``ray.init(address=...)`` connects to a running cluster (``address=None`` starts a local
-  one, ``local_mode=True`` runs the tasks in this process, for tests). Ray is an optional dependency, imported only
+  one on this machine, with ``local_cpus`` CPUs; Ray 2.x no longer has the serial "local mode", so tests start such
+  a small local instance). Ray is an optional dependency, imported only
   here; without it the error says ``pip install ray``. The initializer runs inside every task (Ray may place
   consecutive tasks in different worker processes).
 """
@@ -81,19 +82,22 @@ class RayExecutor:
             local Ray instance.
         initializer, initargs: run inside every task before the job.
         num_cpus: CPUs Ray reserves per task.
-        local_mode: run tasks serially in this process (Ray's local mode; for tests).
+        local_cpus: CPUs of the local instance started when ``address`` is None (None: all of this machine).
     """
 
     name = "ray"
 
     def __init__(self, address: str | None = None, initializer: Callable[..., None] | None = None,
-                 initargs: Sequence[Any] = (), num_cpus: float = 1.0, local_mode: bool = False) -> None:
+                 initargs: Sequence[Any] = (), num_cpus: float = 1.0, local_cpus: int | None = None) -> None:
         self.ray = import_ray()
         self.address = address
         self.initializer = initializer or _noop
         self.initargs = tuple(initargs)
         self.num_cpus = float(num_cpus)
-        self.local_mode = local_mode
+        if local_cpus is not None and (isinstance(local_cpus, bool) or not isinstance(local_cpus, int)
+                                       or local_cpus < 1):
+            raise ValueError(f"local_cpus must be None or an integer >= 1, got {local_cpus!r}")
+        self.local_cpus = local_cpus
 
     def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
         """Submit every job as a Ray task; yields (job, result) in completion order."""
@@ -101,7 +105,9 @@ class RayExecutor:
         if not jobs:
             return
         if not ray.is_initialized():
-            kwargs: dict[str, Any] = {"local_mode": True} if self.local_mode else {}
+            kwargs: dict[str, Any] = {"include_dashboard": False}
+            if self.address is None and self.local_cpus is not None:
+                kwargs["num_cpus"] = self.local_cpus
             ray.init(address=self.address, **kwargs)
             log.info("connected to Ray at %s", self.address or "a new local instance")
         task = ray.remote(num_cpus=self.num_cpus)(_ray_task)

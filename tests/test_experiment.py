@@ -4,6 +4,7 @@ import csv
 import importlib.util
 import json
 import math
+import sys
 from pathlib import Path
 
 import cv2
@@ -179,19 +180,26 @@ def test_experiment_config_errors(tmp_path):
         ExperimentConfig(scenes=("a",), methods=("random",), active={"budgte": 3})
 
 
-def test_ray_executor_local_mode(tmp_path):
+def test_ray_executor_on_a_local_instance(tmp_path):
     if importlib.util.find_spec("ray") is None:
-        pytest.skip("Ray is not installed (optional extra: pip install ray)")
+        pytest.skip("Ray is not installed (optional extra: pip install -e .[ray])")
+    import ray
+
     from nbv.executors import RayExecutor
 
-    ex = RayExecutor(initializer=None, local_mode=True)
-    assert sorted(r for _, r in ex.map(abs, [-1, -2, 3])) == [1, 2, 3]
+    with pytest.raises(ValueError, match="local_cpus"):
+        RayExecutor(local_cpus=0)
+    ex = RayExecutor(initializer=None, local_cpus=1)
+    try:
+        assert sorted(r for _, r in ex.map(abs, [-1, -2, 3])) == [1, 2, 3]
+        assert ray.cluster_resources().get("CPU") == 1.0
+    finally:
+        ray.shutdown()
 
 
-def test_ray_missing_is_a_clear_error():
-    if importlib.util.find_spec("ray") is not None:
-        pytest.skip("Ray is installed; the missing-package message cannot be shown")
+def test_ray_missing_is_a_clear_error(monkeypatch):
     from nbv.executors import RayExecutor
 
+    monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` sees without the package
     with pytest.raises(ValueError, match="pip install ray"):
         RayExecutor()
