@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -23,8 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"Gaussian set (default: {ASSET.name} when present, else 4,000 Gaussians on the Ahmed body "
                         "surface)")
     p.add_argument("--paper", action="store_true", help="paper setting: r = 0.025 m, 750 steps (default: quick preset)")
-    p.add_argument("--particle-radius", type=float, default=None, help="override r in m")
-    p.add_argument("--steps", type=int, default=None, help="override steps per probe")
+    p.add_argument("--particle-radius", type=float, default=None,
+                   help="particle radius r in m (default: 0.05, or 0.025 with --paper)")
+    p.add_argument("--steps", type=int, default=None, help="steps per probe (default: 300, or 750 with --paper)")
     p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes")
     p.add_argument("--empty-reference", action="store_true", help="also time the empty-scene reference runs")
     p.add_argument("--fill-cavities", action="store_true", help="fill enclosed cavities of the solid")
@@ -39,8 +41,10 @@ def run_command(args: argparse.Namespace) -> int:
 
     from .demo import ahmed_surface_gaussians
     from .runtime import init_taichi
-    from .simulate import load_gaussians_checked
+    from .simulate import check_output_file, load_gaussians_checked
 
+    if args.json is not None:
+        check_output_file(args.json, (".json",))
     path = args.gaussians or (ASSET if ASSET.is_file() else None)
     gaussians = load_gaussians_checked(path) if path is not None else ahmed_surface_gaussians()
     fill = path is None  # the surface samples form a closed shell: fill it as the demo does
@@ -71,7 +75,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.empty_reference:
         print(f"empty-scene reference: {t['empty_reference']:.1f} s more")
     if args.json is not None:
-        args.json.write_text(json.dumps({"timings": t, "aggregation_share": share, "steps": steps,
-                                         "particle_radius": radius, "directions": list(cfg.directions),
-                                         "gaussians": res.num_gaussians, "solid": len(res.solid)}, indent=2))
+        tmp = args.json.with_name(f".{args.json.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({"timings": t, "aggregation_share": share, "steps": steps,
+                                   "particle_radius": radius, "directions": list(cfg.directions),
+                                   "gaussians": res.num_gaussians, "solid": len(res.solid)}, indent=2))
+        os.replace(tmp, args.json)
     return 0

@@ -17,6 +17,7 @@ import argparse
 import json
 import logging
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -308,8 +309,10 @@ def score_views(gaussians, cams, idx: list[int], result, metric: str = "max", pn
             left = label(to_bgr(rgb), [f"#{ranks[k]} {cams[k].name}", f"S = {float(s[k]):.4g}"])
             right = label(to_bgr(himg), [f"D_g ({metric}), 0..{vmax:.3g} 1/s"])
             path = png_dir / f"rank{ranks[k]:03d}_{idx[k]:03d}_{cams[k].name}.png"
-            if not cv2.imwrite(str(path), np.hstack([left, right])):
+            tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
+            if not cv2.imwrite(str(tmp), np.hstack([left, right])):
                 raise OSError(f"cannot write {path}; choose a writable --png-dir")
+            os.replace(tmp, path)
     return rows
 
 

@@ -179,7 +179,8 @@ def run_command(args: argparse.Namespace) -> int:
     if args.video is not None:
         from nbv.physics import parse_directions
 
-        parse_directions(args.video)
+        if len(parse_directions(args.video)) != 1:
+            raise ValueError(f"--video takes one probe (e.g. -x), got {args.video!r}")
         if args.video_every < 1:
             raise ValueError(f"--video-every must be >= 1 step, got {args.video_every}")
     gaussians = load_gaussians_checked(args.gaussians)

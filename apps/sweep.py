@@ -1,10 +1,11 @@
 """`fluidgs sweep GAUSSIANS.ply --velocities 3,4,5,...`: D-bar against the inflow speed U and Re = rho U L / mu.
 
-Delta t is CFL-constant: Delta t = Delta t_base * 3 m/s / U over the same physical duration as the base setting
-(``--steps`` x ``--dt`` at 3 m/s), so high speeds take many steps. L is the largest extent of the -x probe's
-domain (m). Writes a CSV (U, Re, Delta t, steps, D-bar, and with ``--compare OTHER.ply`` D-bar of OTHER and
-the gap D-bar(OTHER) - D-bar) and a PNG plot drawn with OpenCV: D-bar against U (log x) and a table of Re and
-Delta t.
+Delta t is CFL-constant: Delta t = Delta t_base * U_base / U over the same physical duration as the base
+setting (``--steps`` x ``--dt`` at U_base = ``--speed``, default 3 m/s), so high speeds take many steps.
+With ``--compare`` both sets use the scale resolved on the first (D-bar scales with its fourth power).
+L is the largest extent of the -x probe's domain (m). Writes a CSV (U, Re, Delta t, steps, D-bar, and
+with ``--compare OTHER.ply`` D-bar of OTHER and the gap D-bar(OTHER) - D-bar) and a PNG plot drawn with
+OpenCV: D-bar against U (log x) and a table of Re and Delta t.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("gaussians", type=Path, help="3DGS Gaussians (.ply or .npz), scene units")
     p.add_argument("--velocities", default=PAPER_VELOCITIES, help="comma list of inflow speeds U in m/s")
     p.add_argument("--compare", type=Path, default=None,
-                   help="a second Gaussian set OTHER (same frame); reports D-bar(OTHER) - D-bar per U")
+                   help="a second Gaussian set OTHER (same frame, simulated at the first set's scale); reports "
+                        "D-bar(OTHER) - D-bar per U")
     p.add_argument("-o", "--output", type=Path, default=Path("sweep.csv"),
                    help="CSV file (written atomically); the plot goes next to it as .png")
     add_physics_arguments(p)

@@ -147,6 +147,10 @@ class GaussianAccumulator:
         counts.fill(0)
         kernels.list_gaussians(*args, 1, counts, starts, items)
         self._cell_starts, self._items = starts, items
+        self._grid = ti.ndarray(ti.f64, shape=10)
+        self._grid.from_numpy(np.concatenate([lo, [1.0 / cell], self.domain_min, self.domain_max]))
+        self._grid_dims = ti.ndarray(ti.i32, shape=3)
+        self._grid_dims.from_numpy(np.asarray(self.dims, np.int32))
         self.list_entries = total
         log.debug("Gaussian cell lists: %s cells of %.4g m, %d entries (%.1f per Gaussian)", self.dims, cell,
                   total, total / self.num_gaussians)
@@ -205,9 +209,7 @@ class GaussianAccumulator:
         if self.track_distinct:
             track = kernels.TRACK_BITS if self._keys is None else kernels.TRACK_KEYS
             bits = self._bits if self._keys is None else self._no_bits
-        common = (n, xs, values, ids, ti.Vector(self.origin.tolist(), ti.f64), 1.0 / self.cell_size,
-                  kernels.ivec3(*self.dims), ti.Vector(self.domain_min.tolist(), ti.f64),
-                  ti.Vector(self.domain_max.tolist(), ti.f64), self._cell_starts, self._items, self._centers,
+        common = (n, xs, values, ids, self._grid, self._grid_dims, self._cell_starts, self._items, self._centers,
                   self._reach2)
         if track != kernels.TRACK_KEYS:
             kernels.accumulate(*common, True, track, self._sums, self._counts, bits, self._no_keys,

@@ -74,11 +74,8 @@ def accumulate(
     xs: ti.types.ndarray(ndim=1),
     values: ti.types.ndarray(ndim=1),
     ids: ti.types.ndarray(ndim=1),
-    origin: vec3d,
-    inv_cell: ti.f64,
-    dims: ivec3,
-    domain_min: vec3d,
-    domain_max: vec3d,
+    grid: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    dims: ti.types.ndarray(dtype=ti.i32, ndim=1),
     cell_starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
     items: ti.types.ndarray(dtype=ti.i32, ndim=1),
     centers: ti.types.ndarray(dtype=vec3d, ndim=1),
@@ -92,7 +89,10 @@ def accumulate(
     key_count: ti.types.ndarray(dtype=ti.i64, ndim=1),
 ):
     """Paper Eq. 2-3: each particle i inside the domain adds ``values[i]`` to ``sums[g]`` and 1 to ``counts[g]``
-    for every Gaussian g with |x_i - mu_g|^2 < reach2[g] (when ``add_values``), and records its id:
+    for every Gaussian g with |x_i - mu_g|^2 < reach2[g] (when ``add_values``), and records its id.
+    ``grid`` = [origin (3), 1 / cell, domain_min (3), domain_max (3)] and ``dims`` = the cell counts (3) come
+    as two small arrays built once, because vector arguments cost more per launch than the kernel's work on
+    small probes:
 
     - ``track`` = TRACK_BITS: sets bit ``ids[i]`` of row g of ``bits`` [G, words] (atomic or);
     - ``track`` = TRACK_KEYS: appends ``g * 2^32 + ids[i]`` to ``keys`` (slot from ``key_count[0]``; slots past
@@ -102,11 +102,13 @@ def accumulate(
         x = ti.cast(xs[i], ti.f64)
         inside = True
         for d in ti.static(range(3)):
-            if not (domain_min[d] <= x[d] <= domain_max[d]):
+            if not (grid[4 + d] <= x[d] <= grid[7 + d]):
                 inside = False
-        c = ti.floor((x - origin) * inv_cell, ti.i32)
-        if not (0 <= c[0] < dims[0] and 0 <= c[1] < dims[1] and 0 <= c[2] < dims[2]):
-            inside = False
+        c = ti.Vector([0, 0, 0])
+        for d in ti.static(range(3)):
+            c[d] = ti.cast(ti.floor((x[d] - grid[d]) * grid[3]), ti.i32)
+            if not (0 <= c[d] < dims[d]):
+                inside = False
         if inside:
             lin = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
             v = ti.cast(values[i], ti.f64)

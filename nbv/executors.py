@@ -48,7 +48,11 @@ class LocalExecutor:
         self.initargs = tuple(initargs)
 
     def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
-        """Run ``fn(job)`` for every job; yields (job, result) in completion order (a job's error is raised)."""
+        """Run ``fn(job)`` for every job; yields (job, result) in completion order.
+
+        The first job that fails cancels the jobs not yet started (those running finish) and its error is raised
+        with the job attached as ``error.job``.
+        """
         if not jobs:
             return
         ctx = multiprocessing.get_context("spawn")
@@ -56,7 +60,13 @@ class LocalExecutor:
                                  initializer=self.initializer, initargs=self.initargs) as pool:
             futures = {pool.submit(fn, job): job for job in jobs}
             for fut in as_completed(futures):
-                yield futures[fut], fut.result()
+                try:
+                    result = fut.result()
+                except Exception as exc:
+                    pool.shutdown(wait=False, cancel_futures=True)
+                    exc.job = futures[fut]
+                    raise
+                yield futures[fut], result
 
 
 def _ray_task(fn: Callable[[Any], Any], job: Any, initializer: Callable[..., None], initargs: tuple) -> Any:
@@ -100,7 +110,10 @@ class RayExecutor:
         self.local_cpus = local_cpus
 
     def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
-        """Submit every job as a Ray task; yields (job, result) in completion order."""
+        """Submit every job as a Ray task; yields (job, result) in completion order.
+
+        The first failing task cancels the others and its error is raised with the job as ``error.job``.
+        """
         ray = self.ray
         if not jobs:
             return
@@ -116,4 +129,11 @@ class RayExecutor:
             done, _ = ray.wait(list(pending), num_returns=1)
             ref = done[0]
             job = pending.pop(ref)
-            yield job, ray.get(ref)
+            try:
+                result = ray.get(ref)
+            except Exception as exc:
+                for other in pending:
+                    ray.cancel(other)
+                exc.job = job
+                raise
+            yield job, result

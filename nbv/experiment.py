@@ -194,13 +194,31 @@ def run_experiment(config: ExperimentConfig, executor, progress: bool = True) ->
     """
     from tqdm import tqdm
 
+    from recon.datasets import dataset_format
+
+    for scene in config.scenes:  # a mistyped scene fails now, not after the other scenes' jobs
+        try:
+            dataset_format(scene)
+        except ValueError as exc:
+            raise ValueError(f"experiment config 'scenes': {exc}") from exc
     out = Path(config.output)
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "experiment.json", {"config": {k: getattr(config, k) for k in CONFIG_KEYS}})
     jobs = plan_jobs(config)
     rows = []
     with tqdm(total=len(jobs), desc="jobs", unit="job", disable=not progress) as bar:
-        for job, row in executor.map(run_job, jobs):
+        results = executor.map(run_job, jobs)
+        while True:
+            try:
+                job, row = next(results)
+            except StopIteration:
+                break
+            except Exception as exc:
+                failed = getattr(exc, "job", None)
+                where = f"{failed['scene']} {failed['method']} seed {failed['seed']} ({failed['run_dir']})" if failed \
+                    else "a job"
+                raise RuntimeError(f"experiment job {where} failed: {exc}. Finished jobs are kept under {out}; "
+                                   f"fix the cause and run the same command again to resume") from exc
             rows.append(row)
             bar.update(1)
             log.info("done: %s %s seed %d (PSNR %s, D-bar %s)", job["scene"], job["method"], job["seed"],

@@ -2,13 +2,16 @@
 
 For each inflow speed U the probes run with a CFL-constant time step over the same physical duration:
 
-- Delta t(U) = Delta t_base * U_base / U (U_base = 3 m/s, the paper's lambda; Delta t_base = the config's dt),
+- Delta t(U) = Delta t_base * U_base / U (U_base = the config's speed, by default the paper's lambda = 3 m/s;
+  Delta t_base = the config's dt),
   so U Delta t / (2 r), the Courant number, stays that of the base setting;
 - steps(U) = round(T / Delta t(U)) with T = steps_base * Delta t_base;
 - Re = rho U L / mu with rho the rest density (kg/m^3), mu the dynamic viscosity (Pa s) and L the largest
   extent of the probe domain (m; the -x probe's domain, or the first probe's).
 
-With a second Gaussian set ("OTHER") the gap Delta = D-bar(OTHER) - D-bar is reported per U.
+With a second Gaussian set ("OTHER") the gap Delta = D-bar(OTHER) - D-bar is reported per U. Both sets use
+the same scene -> metre scale (with ``scale="auto"`` it is resolved on the first set), because D-bar grows
+with the fourth power of the scale and a set with a missing part would otherwise be scaled differently.
 """
 
 from __future__ import annotations
@@ -109,9 +112,10 @@ def run_sweep(gaussians, config: PhysicsConfig, velocities: Sequence[float], oth
     """D-bar (and D-bar of ``other`` and the gap) at each speed, CFL-constant Delta t, same duration.
 
     Args:
-        gaussians: GaussianSet (scene units). other: an optional second GaussianSet.
-        config: the base settings (its dt and steps are the base at U_base = 3 m/s); the empty-scene
-            reference is not run.
+        gaussians: GaussianSet (scene units). other: an optional second GaussianSet, simulated at the
+            scale resolved on ``gaussians``.
+        config: the base settings (its dt and steps are the base at U_base = ``config.speed``); the
+            empty-scene reference is not run.
         velocities: speeds, m/s.
         progress: a bar over the speeds (and the per-probe bars).
     Returns:
@@ -119,7 +123,11 @@ def run_sweep(gaussians, config: PhysicsConfig, velocities: Sequence[float], oth
     """
     from tqdm import tqdm
 
-    plan = schedule(velocities, config.dt, config.steps)
+    from .physics import scene_transform
+
+    plan = schedule(velocities, config.dt, config.steps, u_base=config.speed)
+    if config.scale == "auto":
+        config = replace(config, scale=scene_transform(gaussians, config).scale)
     points = []
     for st in tqdm(plan, desc="sweep", unit="speed", disable=not progress):
         cfg = replace(config, speed=st.speed, dt=st.dt, steps=st.steps, empty_reference=False)

@@ -514,6 +514,27 @@ def load_colmap(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
 # ---- auto-detection ------------------------------------------------------------------------------
 
 
+def dataset_format(path) -> str:
+    """``"blender"`` or ``"colmap"``: the format of a dataset folder, detected from its files without loading them.
+
+    Args:
+        path: the dataset folder (or its ``transforms_*.json`` file).
+    Raises:
+        ValueError: the folder does not exist or holds neither format (the message lists what was looked for).
+    """
+    root = Path(path)
+    if root.is_file() and root.name.startswith("transforms_") and root.suffix == ".json":
+        root = root.parent
+    if not root.is_dir():
+        raise ValueError(f"{root}: dataset folder does not exist")
+    if (root / "transforms_train.json").is_file():
+        return "blender"
+    if find_colmap_sparse(root) is not None:
+        return "colmap"
+    raise ValueError(f"{root}: not a dataset; looked for transforms_train.json (Blender / NeRF-synthetic) and "
+                     f"{', '.join(COLMAP_FILES)} in sparse/0, sparse or the folder (COLMAP text)")
+
+
 def load_dataset(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
                  resolution: int | None = None) -> Dataset:
     """Load a Blender/NeRF-synthetic or COLMAP text dataset, detected from the folder's contents.
@@ -529,13 +550,7 @@ def load_dataset(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
         ValueError: the folder holds neither format (the message lists what was looked for).
     """
     root = Path(path)
-    if root.is_file() and root.name.startswith("transforms_") and root.suffix == ".json":
+    if root.is_file():
         root = root.parent
-    if not root.is_dir():
-        raise ValueError(f"{root}: dataset folder does not exist")
-    if (root / "transforms_train.json").is_file():
-        return load_blender(root, background=background, downscale=downscale, resolution=resolution)
-    if find_colmap_sparse(root) is not None:
-        return load_colmap(root, background=background, downscale=downscale, resolution=resolution)
-    raise ValueError(f"{root}: not a dataset; looked for transforms_train.json (Blender / NeRF-synthetic) and "
-                     f"{', '.join(COLMAP_FILES)} in sparse/0, sparse or the folder (COLMAP text)")
+    loader = load_blender if dataset_format(root) == "blender" else load_colmap
+    return loader(root, background=background, downscale=downscale, resolution=resolution)

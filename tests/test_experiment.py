@@ -180,6 +180,36 @@ def test_experiment_config_errors(tmp_path):
         ExperimentConfig(scenes=("a",), methods=("random",), active={"budgte": 3})
 
 
+def _fail_on_two(job: int) -> int:
+    if job == 2:
+        raise ArithmeticError("job two is bad")
+    return job
+
+
+def test_local_executor_names_the_failed_job_and_cancels_the_rest():
+    from nbv.executors import LocalExecutor
+
+    seen = []
+    with pytest.raises(ArithmeticError, match="job two") as info:
+        for _job, result in LocalExecutor(workers=1).map(_fail_on_two, [1, 2, 3, 4, 5, 6]):
+            seen.append(result)
+    assert info.value.job == 2
+    assert 1 in seen and len(seen) < 5  # the jobs queued behind the failure were cancelled, not run
+
+
+def test_experiment_checks_every_scene_before_any_job(tiny_dataset, tmp_path):
+    from nbv.experiment import ExperimentConfig, run_experiment
+
+    class Recorder:
+        def map(self, fn, jobs):
+            raise AssertionError("no job may start with a bad scene in the config")
+
+    config = ExperimentConfig(scenes=(str(tiny_dataset), str(tmp_path / "tiyn")), methods=("random",), seeds=(0,),
+                              output=str(tmp_path / "out"))
+    with pytest.raises(ValueError, match="'scenes'.*tiyn.*does not exist"):
+        run_experiment(config, Recorder(), progress=False)
+
+
 def test_ray_executor_on_a_local_instance(tmp_path):
     if importlib.util.find_spec("ray") is None:
         pytest.skip("Ray is not installed (optional extra: pip install -e .[ray])")

@@ -1,6 +1,7 @@
 """Probe runs on Gaussians (paper Eq. 2-3): orchestration vs a brute-force twin, D-bar, HDF5, guards, sweep."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -159,3 +160,23 @@ def test_sweep_runs_and_writes_csv(sphere, tmp_path):
     assert pts[1].reynolds == pytest.approx(2 * pts[0].reynolds)
     text = (sweep.write_csv(tmp_path / "s.csv", pts)).read_text().splitlines()
     assert text[0].split(",") == list(sweep.CSV_FIELDS) and len(text) == 3
+
+
+def test_sweep_pins_one_scale_and_uses_the_config_speed_as_base(sphere, monkeypatch):
+    """--compare OTHER runs at the scale resolved on the first set (D-bar ~ scale^4), and U_base = config.speed."""
+    seen = []
+
+    def fake(gaussians, config, progress=True):
+        seen.append((len(gaussians.means), config.scale, config.speed, config.dt, config.steps))
+        return SimpleNamespace(dbar=1.0)
+
+    monkeypatch.setattr(sweep, "simulate_gaussians", fake)
+    monkeypatch.setattr(sweep, "domain_length", lambda res: 3.0)
+    shrunk = sphere_gaussians(200, radius=0.25)  # a smaller OTHER would get a 2x larger "auto" scale
+    cfg = PhysicsConfig(**COARSE, directions=("-x",), speed=6.0)
+    sweep.run_sweep(sphere, cfg, [6.0, 12.0], other=shrunk, progress=False)
+    expected = physics.scene_transform(sphere, cfg).scale
+    assert expected != pytest.approx(physics.scene_transform(shrunk, cfg).scale)
+    assert [s[1] for s in seen] == [expected] * 4
+    assert [s[2] for s in seen] == [6.0, 6.0, 12.0, 12.0]
+    assert seen[0][3] == cfg.dt and seen[2][3] == pytest.approx(cfg.dt / 2) and seen[2][4] == 2 * cfg.steps
