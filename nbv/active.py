@@ -34,10 +34,13 @@ Run folder (every file is written atomically: a temporary file in the same folde
 
     RUN/config.json     {"dataset": absolute path, "active": ActiveConfig.to_dict()}
     RUN/rounds.json     {"rounds": [one record per selection], "final": {...} once finished}
-    RUN/checkpoint.pt   completed rounds, selected ids, Trainer.state_dict (continue mode), torch RNG, phase
+    RUN/checkpoint.pt   completed rounds, selected ids, Trainer.state_dict (continue mode, and during the final
+                        training in both modes), torch RNG, phase
     RUN/gaussians.ply   the final Gaussians (3DGS .ply)
 
-Re-running on an existing RUN with the same config resumes after the last complete round; a different config is
+The final training (to ``total_iterations``) is checkpointed every ``final_checkpoint_every`` iterations, so an
+interruption there loses at most that many iterations. Re-running on an existing RUN with the same config
+resumes after the last complete round (or the last final-training checkpoint); a different config is
 an error naming the differing keys (``overwrite=True`` starts again).
 """
 
@@ -310,7 +313,7 @@ class RunState:
 
     selected: list[int]
     rounds: list[dict]
-    phase: str = "rounds"  # "rounds" while selecting, "done" once gaussians.ply is written
+    phase: str = "rounds"  # "rounds" while selecting, "final" while training to the end, "done" once written
 
 
 def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
@@ -387,6 +390,8 @@ class ActiveRun:
         physics_fn: per-Gaussian D_g [N] of a Gaussian set; default: the five probes of ``config.physics``
             (needs an initialised Taichi runtime). Tests pass a cheap stand-in.
         on_round: called with each round record after its checkpoint is written.
+        final_checkpoint_every: iterations between checkpoints of the final training (>= 1; default 1000).
+        on_final_checkpoint: called with the trainer's iteration after each final-training checkpoint.
         device: torch device of the Gaussians and images.
         overwrite: discard an existing run in ``run_dir``.
         progress: tqdm bars.
@@ -395,8 +400,15 @@ class ActiveRun:
     def __init__(self, dataset_path: str | Path, run_dir: str | Path, config: ActiveConfig, *,
                  physics_fn: Callable[[GaussianSet], torch.Tensor] | None = None,
                  on_round: Callable[[dict], None] | None = None, device: str = "cpu", overwrite: bool = False,
-                 progress: bool = True) -> None:
+                 progress: bool = True, final_checkpoint_every: int = 1000,
+                 on_final_checkpoint: Callable[[int], None] | None = None) -> None:
         from .planners import PLANNERS
+
+        if isinstance(final_checkpoint_every, bool) or not isinstance(final_checkpoint_every, int) \
+                or final_checkpoint_every < 1:
+            raise ValueError(f"final_checkpoint_every must be an integer >= 1, got {final_checkpoint_every!r}")
+        self.final_checkpoint_every = final_checkpoint_every
+        self.on_final_checkpoint = on_final_checkpoint
 
         if config.method not in PLANNERS:
             raise ValueError(f"unknown method {config.method!r}; use one of {sorted(PLANNERS)}")
@@ -470,6 +482,27 @@ class ActiveRun:
             out = trainer.train(views, iterations, callback=lambda st: bar.update(1))
         return {"iterations": iterations, "seconds": out.wall_time_s, "final_loss": out.losses[-1],
                 "final_psnr": out.psnrs[-1], "num_gaussians": out.num_gaussians[-1]}
+
+    def _train_final(self, state: RunState, trainer: Trainer, views: list) -> dict:
+        """Train to ``total_iterations`` in chunks, with a checkpoint (trainer included) after each chunk."""
+        from tqdm import tqdm
+
+        total = self.config.total_iterations
+        start = trainer.iteration
+        summary: dict[str, Any] = {"iterations": 0, "seconds": 0.0}
+        with tqdm(total=max(total - start, 0), desc="final train", unit="it", disable=not self.progress,
+                  leave=False) as bar:
+            while trainer.iteration < total:
+                n = min(self.final_checkpoint_every, total - trainer.iteration)
+                out = trainer.train(views, n, callback=lambda st: bar.update(1))
+                summary.update({"iterations": summary["iterations"] + n,
+                                "seconds": summary["seconds"] + out.wall_time_s, "final_loss": out.losses[-1],
+                                "final_psnr": out.psnrs[-1], "num_gaussians": out.num_gaussians[-1]})
+                self._save_checkpoint(state, trainer)
+                if self.on_final_checkpoint is not None:
+                    self.on_final_checkpoint(trainer.iteration)
+        summary["resumed_from_iteration"] = start
+        return summary
 
     def _save_checkpoint(self, state: RunState, trainer: Trainer | None) -> None:
         payload = {"version": CHECKPOINT_VERSION, "config": self.config.to_dict(), "selected": list(state.selected),
@@ -564,9 +597,10 @@ class ActiveRun:
 
         c = self.config
         views = [self.views[i] for i in state.selected]
-        if c.mode == "reset" or trainer is None:
+        if trainer is None or (c.mode == "reset" and state.phase != "final"):
             trainer = self.new_trainer(c.total_iterations)
-        training = self._train(trainer, views, c.total_iterations - trainer.iteration, "final train")
+        state.phase = "final"
+        training = self._train_final(state, trainer, views)
         gaussians = trainer.gaussians
         save_gaussians(gaussians, self.run_dir / "gaussians.ply")
         state.phase = "done"

@@ -137,6 +137,42 @@ def test_resume_after_interruption_equals_uninterrupted_run(tiny_dataset, straig
     assert again == resumed and seen == [2]  # a finished run is not recomputed
 
 
+@pytest.mark.parametrize("mode", ["continue", "reset"])
+def test_resume_inside_the_final_training(tiny_dataset, tmp_path, mode):
+    """The final training is checkpointed in chunks: an interruption there resumes from the last chunk, and
+    chunked or not, interrupted or not, the final Gaussians are bit-identical."""
+    cfg = tiny_config(mode=mode, total_iterations=24)
+    straight = run_active(tiny_dataset, tmp_path / "straight", cfg, progress=False)
+
+    class Interrupt(Exception):
+        pass
+
+    seen = []
+
+    def stop_at_second_chunk(iteration):
+        seen.append(iteration)
+        if len(seen) == 2:
+            raise Interrupt
+
+    with pytest.raises(Interrupt):
+        run_active(tiny_dataset, tmp_path / "resumed", cfg, final_checkpoint_every=4,
+                   on_final_checkpoint=stop_at_second_chunk, progress=False)
+    assert not (tmp_path / "resumed" / "gaussians.ply").exists()
+    rounds = []
+    resumed = run_active(tiny_dataset, tmp_path / "resumed", cfg, final_checkpoint_every=4,
+                         on_final_checkpoint=seen.append, on_round=rounds.append, progress=False)
+    assert rounds == []  # every selection was kept
+    assert seen[2] == seen[1] + 4 and seen[-1] == 24  # training went on from the second chunk's checkpoint
+    assert resumed["final"]["training"]["resumed_from_iteration"] == seen[1]
+    assert resumed["selected"] == straight["selected"]
+    for a, b in zip(load_gaussians(tmp_path / "resumed" / "gaussians.ply").tensors(),
+                    load_gaussians(tmp_path / "straight" / "gaussians.ply").tensors(), strict=True):
+        assert torch.equal(a, b)
+    assert not leftover_temp_files(tmp_path / "resumed")
+    with pytest.raises(ValueError, match="final_checkpoint_every"):
+        run_active(tiny_dataset, tmp_path / "other", cfg, final_checkpoint_every=0, progress=False)
+
+
 def test_mismatched_config_is_refused_unless_overwrite(tiny_dataset, tmp_path):
     run = tmp_path / "run"
     short = dict(total_iterations=8, iterations_per_view=1)
