@@ -90,6 +90,7 @@ class GaussianAccumulator:
         self.domain_min, self.domain_max = dmin, dmax
         self.track_distinct = bool(track_distinct)
         self.distinct_budget_bytes = int(distinct_budget_bytes)
+        self._centers_np, self._reach_np = centers, reach
         self._centers = ti.Vector.ndarray(3, ti.f64, shape=self.num_gaussians)
         self._centers.from_numpy(centers)
         self._reach2 = ti.ndarray(ti.f64, shape=self.num_gaussians)
@@ -111,9 +112,11 @@ class GaussianAccumulator:
             self._ensure_ids(int(max_fluid))
 
     # -- the static lists --------------------------------------------------------------------
-    def _build_lists(self, centers: np.ndarray, reach: np.ndarray) -> None:
-        lo = np.maximum((centers - reach[:, None]).min(0), self.domain_min)
-        hi = np.minimum((centers + reach[:, None]).max(0), self.domain_max)
+    def _geometry(self, dmin: np.ndarray, dmax: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """(origin, cell size, dims) of the list grid: the Gaussians' reach box clipped to the domain."""
+        centers, reach = self._centers_np, self._reach_np
+        lo = np.maximum((centers - reach[:, None]).min(0), dmin)
+        hi = np.minimum((centers + reach[:, None]).max(0), dmax)
         extent = np.maximum(hi - lo, 0.0)
         positive = reach[reach > 0]
         cell = 0.5 * float(np.median(positive)) if len(positive) else 0.0
@@ -121,6 +124,28 @@ class GaussianAccumulator:
         while np.prod(np.maximum(np.ceil(extent / cell), 1.0)) > _MAX_CELLS:
             cell *= 1.25
         dims = np.maximum(np.ceil(extent / cell), 1).astype(np.int64)
+        return lo, cell, dims
+
+    def retarget(self, domain_min, domain_max) -> bool:
+        """Reuse this accumulator for another domain (e.g. the next probe): when the clipped list grid is the
+        same, switch the domain, zero the sums, counts and distinct records and return True (the cell lists
+        are kept, nothing is rebuilt); otherwise change nothing and return False (build a new accumulator).
+        """
+        dmin = np.asarray(domain_min, dtype=np.float64).reshape(3)
+        dmax = np.asarray(domain_max, dtype=np.float64).reshape(3)
+        if not (np.isfinite(dmin).all() and np.isfinite(dmax).all() and (dmin < dmax).all()):
+            raise ValueError(f"domain_min {dmin.tolist()} must be finite and below domain_max {dmax.tolist()}")
+        lo, cell, dims = self._geometry(dmin, dmax)
+        same = np.array_equal(lo, self.origin) and cell == self.cell_size
+        if not (same and tuple(int(d) for d in dims) == self.dims):
+            return False
+        self.domain_min, self.domain_max = dmin, dmax
+        self._grid.from_numpy(np.concatenate([lo, [1.0 / cell], dmin, dmax]))
+        self.reset()
+        return True
+
+    def _build_lists(self, centers: np.ndarray, reach: np.ndarray) -> None:
+        lo, cell, dims = self._geometry(self.domain_min, self.domain_max)
         self.origin = lo
         self.cell_size = cell
         self.dims = tuple(int(d) for d in dims)

@@ -351,8 +351,12 @@ class _ProbeRecorder:
         from .aggregate import GaussianAccumulator
 
         t0 = time.perf_counter()
-        self.acc = GaussianAccumulator(self.centers, self.reach, solver.domain_min, solver.domain_max,
-                                       track_distinct=self.config.track_distinct, max_fluid=solver.fluid.capacity)
+        # The probes' domains differ, but the Gaussians' list grid (their reach box clipped to the domain) is
+        # usually the same: then the lists are reused and only the sums are zeroed.
+        if self.acc is None or not self.acc.retarget(solver.domain_min, solver.domain_max):
+            self.acc = GaussianAccumulator(self.centers, self.reach, solver.domain_min, solver.domain_max,
+                                           track_distinct=self.config.track_distinct,
+                                           max_fluid=solver.fluid.capacity)
         self.build_s += time.perf_counter() - t0
         self.domains[direction] = (solver.domain_min.copy(), solver.domain_max.copy())
         self.bar = _progress_bar(f"{self.label}{direction}", self.config.steps, self.progress)

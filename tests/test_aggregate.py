@@ -152,3 +152,34 @@ def test_degenerate_sets_match_the_twin():
         assert np.array_equal(acc.counts, counts)
         assert np.allclose(acc.sums, sums, rtol=1e-9, atol=1e-9)
     assert acc.counts[1] > 0 and acc.counts[0] == 0       # the last case: one reaches in, one does not
+
+
+def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
+    """The next probe's domain: same clipped list grid -> lists kept, sums zeroed, new domain bounds applied;
+    a domain that clips the Gaussians differently is refused (a new accumulator is needed)."""
+    rng = np.random.default_rng(5)
+    centers = rng.uniform(-0.5, 0.5, (80, 3))
+    reach = rng.uniform(0.05, 0.2, 80)
+    acc = GaussianAccumulator(centers, reach, [-2.0, -2.0, -2.0], [2.0, 2.0, 2.0], track_distinct=True, max_fluid=500)
+    pos, val, ids = random_step(rng, 300, 500)
+    pos *= 0.5
+    acc.add(pos, val, ids)
+    assert acc.counts.sum() > 0
+    lists = acc._items.to_numpy().copy()
+    # A smaller domain that still contains the Gaussians' reach box: same grid.
+    new_min, new_max = np.full(3, -0.72), np.full(3, 0.72)  # the reach box is within +-0.7
+    assert acc.retarget(new_min, new_max)
+    assert not acc.counts.any() and not acc.sums.any() and not acc.distinct_counts.any()
+    assert np.array_equal(acc._items.to_numpy(), lists)
+    acc.add(pos, val, ids)
+    fresh = GaussianAccumulator(centers, reach, new_min, new_max, track_distinct=True, max_fluid=500)
+    fresh.add(pos, val, ids)
+    s, c = accumulate_reference(centers, reach, pos, val, new_min, new_max)
+    assert np.array_equal(acc.counts, c) and np.array_equal(fresh.counts, c)
+    assert np.allclose(acc.sums, s, rtol=1e-12, atol=1e-12)
+    assert np.array_equal(acc.distinct_counts, fresh.distinct_counts)
+    # A domain that clips the reach box changes the grid: refused, nothing changed.
+    assert not acc.retarget([-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
+    assert acc.counts.sum() == c.sum()
+    with pytest.raises(ValueError, match="domain_min"):
+        acc.retarget([0.0, 0.0, 0.0], [0.0, 1.0, 1.0])
