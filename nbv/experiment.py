@@ -4,7 +4,7 @@ Config (JSON; paths relative to the file)::
 
     {
       "scenes": ["data/ahmed64"],                 # datasets (Blender or COLMAP folders)
-      "methods": ["random", "fisher", "fisher+fluid"],
+      "methods": ["random", "fisher", "fisher+fluid", "fisher+fluid@-x"],
       "seeds": [0, 1, 2],
       "preset": "cpu-small",                      # ActiveConfig preset ("paper" or "cpu-small")
       "output": "out/experiment",                 # results folder
@@ -12,6 +12,11 @@ Config (JSON; paths relative to the file)::
       "active": {"budget": 10, "mode": "continue", "train": {...}, "physics": {...}},   # ActiveConfig overrides
       "eval": {"critical_views": 20}              # EvalConfig overrides
     }
+
+A method ``M@D`` (``M`` a physics-driven method: ``fisher+fluid``, ``variance+fluid``, ``random+fluid`` or
+``physics``; ``D`` one of -x, +x, -z, +z, -y) runs ``M`` with the selection's physics driven by the single probe
+``D``: the paper's per-direction ablation (Tab. 6), where NBV selection uses one initial condition. Evaluation
+always uses all five probes.
 
 Jobs: one ``active`` run + ``eval`` per (scene, method, seed) in ``OUTPUT/runs/<scene>/<method>/seed<k>``, and per
 (scene, seed) the many-view reference in ``OUTPUT/runs/<scene>/reference-<N>views/seed<k>``: the first N candidate
@@ -26,7 +31,11 @@ Tables (``OUTPUT/tables/*.md`` and ``*.csv``, all in ``tables.md``; mean +- samp
   method runs) and the *many-view* reference rows;
 - ``ablation_random``: the selection ablation, random vs visual shortlist, with and without the physics pick
   (random, random+fluid, fisher, fisher+fluid, variance, variance+fluid: those that ran);
-- ``ablation_direction``: D-bar of every probe direction's own D_g^(IC) per method (the per-direction ablation).
+- ``ablation_direction``: D-bar of every probe direction's own D_g^(IC) per method (how each initial condition
+  sees the result);
+- ``ablation_selection_direction`` (when ``M@D`` methods ran): PSNR, SSIM, D-bar and critical D-bar of the runs whose
+  selection was driven by one direction, beside the visual planner alone and the five-direction fused method (the
+  paper's per-direction ablation).
 
 Plots (OpenCV bar charts with +-std whiskers): ``OUTPUT/plots/psnr.png``, ``dbar.png``, ``dbar_direction.png``.
 """
@@ -126,11 +135,40 @@ class ExperimentConfig:
         return cls(**data)
 
     def active_config(self, method: str, seed: int, **extra: Any) -> ActiveConfig:
-        """The ActiveConfig of one run."""
-        return ActiveConfig.from_preset(self.preset, **{**self.active, **extra, "method": method, "seed": seed})
+        """The ActiveConfig of one run (``M@D``: method ``M`` with the selection's probes restricted to ``D``)."""
+        base, direction = split_method(method)
+        overrides = {**self.active, **extra, "method": base, "seed": seed}
+        if direction is not None:
+            physics = overrides.get("physics") or {}
+            physics = physics.to_dict() if hasattr(physics, "to_dict") else dict(physics)
+            overrides["physics"] = {**physics, "directions": [direction]}
+        return ActiveConfig.from_preset(self.preset, **overrides)
 
     def eval_config(self) -> EvalConfig:
         return EvalConfig.from_dict(self.eval)
+
+
+def split_method(method: str) -> tuple[str, str | None]:
+    """``"fisher+fluid@-x"`` -> ("fisher+fluid", "-x"); a plain method -> (method, None).
+
+    Raises:
+        ValueError: an unknown direction, or a direction on a method whose pick does not use the physics.
+    """
+    if "@" not in method:
+        return method, None
+    base, _, direction = method.partition("@")
+    if direction not in DIRECTIONS:
+        raise ValueError(f"experiment method {method!r}: unknown probe direction {direction!r}; use one of "
+                         f"{', '.join(DIRECTIONS)}")
+    if not (base.endswith("+fluid") or base == "physics"):
+        raise ValueError(f"experiment method {method!r}: a single-direction variant needs a method whose pick uses "
+                         "the physics (fisher+fluid, variance+fluid, random+fluid or physics)")
+    return base, direction
+
+
+def method_folder(method: str) -> str:
+    """Run folder name of a method: ``fisher+fluid@-x`` -> ``fisher_fluid_at-x``."""
+    return method.replace("+", "_").replace("@", "_at")
 
 
 def scene_names(scenes: Sequence[str]) -> list[str]:
@@ -152,7 +190,7 @@ def plan_jobs(config: ExperimentConfig) -> list[dict]:
         for seed in config.seeds:
             for method in config.methods:
                 jobs.append({"kind": "method", "scene": name, "dataset": scene, "method": method, "seed": seed,
-                             "run_dir": str(out / "runs" / name / method.replace("+", "_") / f"seed{seed}"),
+                             "run_dir": str(out / "runs" / name / method_folder(method) / f"seed{seed}"),
                              "active": config.active_config(method, seed).to_dict(), "eval": eval_cfg})
             if config.reference_views is not None:
                 n = config.reference_views
@@ -291,7 +329,8 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
 
     abl_cols = ["method", "shortlist", "physics pick", "n", "PSNR (dB)", "D-bar (m^4/s)", "critical D-bar (m^4/s)"]
     body = []
-    for m in [m for m in ABLATION_ORDER if m in methods] + [m for m in methods if m not in ABLATION_ORDER]:
+    for m in [m for m in ABLATION_ORDER if m in methods] + [m for m in methods
+                                                            if m not in ABLATION_ORDER and "@" not in m]:
         rs = methods[m]
         visual = m.split("+")[0]
         shortlist = "random K" if m == "random+fluid" else ("all (random pick)" if m == "random" else
@@ -307,6 +346,26 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
     body = [[m, n_col(rs)] + [_cell([(r.get("dbar_per_direction") or {}).get(d) for r in rs]) for d in dirs]
             + [_cell([r["dbar"] for r in rs])] for m, rs in {**methods, **refs}.items()]
     tables["ablation_direction"] = _table("Per-direction ablation: D-bar of each probe's own D_g", dir_cols, body)
+
+    single = {m: rs for m, rs in methods.items() if "@" in m}
+    if single:
+        bases = list(dict.fromkeys(split_method(m)[0] for m in single))
+        names = []
+        for base in bases:
+            visual = base.split("+")[0]
+            names += [m for m in (visual, base) if m in methods]
+            names += sorted((m for m in single if split_method(m)[0] == base),
+                            key=lambda m: DIRECTIONS.index(split_method(m)[1]))
+        cols = ["method", "selection physics", "n", "PSNR (dB)", "SSIM", "D-bar (m^4/s)", "critical D-bar (m^4/s)"]
+        body = []
+        for m in dict.fromkeys(names):
+            base, direction = split_method(m)
+            driven = direction or ("all five probes" if base.endswith("+fluid") or base == "physics" else "none")
+            rs = methods[m]
+            body.append([m, driven, n_col(rs), _cell([r["psnr"] for r in rs]), _cell([r["ssim"] for r in rs]),
+                         _cell([r["dbar"] for r in rs]), _cell([r["critical_dbar"] for r in rs])])
+        tables["ablation_selection_direction"] = _table(
+            "Per-direction ablation of the selection: physics from one probe direction", cols, body)
     return tables
 
 

@@ -132,6 +132,33 @@ def test_mean_std_and_tables():
     assert dirs[0][2:4] == ["D-bar -x (m^4/s)", "D-bar +x (m^4/s)"] and dirs[1][3] == "0.1500 ± 0.0354"
 
 
+def test_single_direction_methods_and_their_table():
+    from nbv.experiment import ExperimentConfig, method_folder, split_method
+
+    assert split_method("fisher+fluid@-x") == ("fisher+fluid", "-x") and split_method("fisher") == ("fisher", None)
+    assert method_folder("fisher+fluid@-x") == "fisher_fluid_at-x"
+    with pytest.raises(ValueError, match="unknown probe direction"):
+        split_method("fisher+fluid@+y")
+    with pytest.raises(ValueError, match="uses\\s+the physics|uses the physics"):
+        split_method("fisher@-x")
+    config = ExperimentConfig(scenes=("a",), methods=("fisher", "fisher+fluid", "fisher+fluid@-z"), seeds=(0,),
+                              active={"physics": {"steps": 30}})
+    single = config.active_config("fisher+fluid@-z", 0)
+    assert single.method == "fisher+fluid" and single.physics.directions == ("-z",) and single.physics.steps == 30
+    assert config.active_config("fisher+fluid", 0).physics.directions == ("-x", "+x", "-z", "+z", "-y")
+    with pytest.raises(ValueError, match="unknown probe direction"):
+        ExperimentConfig(scenes=("a",), methods=("fisher+fluid@up",), seeds=(0,))
+
+    rows = [row("fisher", 0, 20.0, 0.5), row("fisher+fluid", 0, 22.0, 0.3), row("fisher+fluid@-z", 0, 21.0, 0.4),
+            row("fisher+fluid@-x", 0, 21.5, 0.35), row("random", 0, 19.0, 0.6)]
+    tables = build_tables(rows)
+    body = list(csv.reader(tables["ablation_selection_direction"][1].splitlines()))
+    assert [r[0] for r in body[1:]] == ["fisher", "fisher+fluid", "fisher+fluid@-x", "fisher+fluid@-z"]
+    assert [r[1] for r in body[1:]] == ["none", "all five probes", "-x", "-z"]
+    assert body[3][3] == "21.5000 ± 0.0000"
+    assert "@" not in "".join(r[0] for r in csv.reader(tables["ablation_random"][1].splitlines()))
+
+
 # ---- experiment ----------------------------------------------------------------------------------
 
 
