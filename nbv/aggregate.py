@@ -62,6 +62,8 @@ class GaussianAccumulator:
         max_fluid: number of fluid particle ids expected (ids < max_fluid), to size the distinct-id
             bit matrix up front; 0 = size it on first use (it grows when needed).
         distinct_budget_bytes: largest bit matrix; beyond it the exact key-set fallback is used.
+        grid_bounds: (min [3], max [3]) m that the cell lists cover (with the domain), e.g. the union of all
+            probes' domains so that :meth:`retarget` can reuse the lists for each of them; default the domain.
 
     Example:
         >>> acc = GaussianAccumulator(means, 3.0 * radii, setup.domain_min, setup.domain_max)
@@ -71,7 +73,7 @@ class GaussianAccumulator:
 
     def __init__(self, centers: np.ndarray, reach: np.ndarray, domain_min, domain_max, *,
                  track_distinct: bool = False, max_fluid: int = 0,
-                 distinct_budget_bytes: int = DEFAULT_DISTINCT_BUDGET):
+                 distinct_budget_bytes: int = DEFAULT_DISTINCT_BUDGET, grid_bounds=None):
         centers = _as_points("centers", centers)
         reach = np.asarray(reach, dtype=np.float64)
         if reach.shape != (len(centers),):
@@ -91,6 +93,12 @@ class GaussianAccumulator:
         self.track_distinct = bool(track_distinct)
         self.distinct_budget_bytes = int(distinct_budget_bytes)
         self._centers_np, self._reach_np = centers, reach
+        self._grid_bounds = (dmin, dmax)
+        if grid_bounds is not None:
+            gmin, gmax = (np.asarray(b, dtype=np.float64).reshape(3) for b in grid_bounds)
+            if not (np.isfinite(gmin).all() and np.isfinite(gmax).all() and (gmin < gmax).all()):
+                raise ValueError(f"grid_bounds {gmin.tolist()}, {gmax.tolist()} must be finite with min < max")
+            self._grid_bounds = (np.minimum(gmin, dmin), np.maximum(gmax, dmax))
         self._centers = ti.Vector.ndarray(3, ti.f64, shape=self.num_gaussians)
         self._centers.from_numpy(centers)
         self._reach2 = ti.ndarray(ti.f64, shape=self.num_gaussians)
@@ -127,25 +135,29 @@ class GaussianAccumulator:
         return lo, cell, dims
 
     def retarget(self, domain_min, domain_max) -> bool:
-        """Reuse this accumulator for another domain (e.g. the next probe): when the clipped list grid is the
-        same, switch the domain, zero the sums, counts and distinct records and return True (the cell lists
-        are kept, nothing is rebuilt); otherwise change nothing and return False (build a new accumulator).
+        """Reuse this accumulator for another domain (e.g. the next probe).
+
+        When the list grid covers the Gaussians' reach box clipped to the new domain, switch the domain (the
+        kernel filters particles by it), zero the sums, counts and distinct records and return True: nothing is
+        rebuilt. Otherwise change nothing and return False (build a new accumulator).
         """
         dmin = np.asarray(domain_min, dtype=np.float64).reshape(3)
         dmax = np.asarray(domain_max, dtype=np.float64).reshape(3)
         if not (np.isfinite(dmin).all() and np.isfinite(dmax).all() and (dmin < dmax).all()):
             raise ValueError(f"domain_min {dmin.tolist()} must be finite and below domain_max {dmax.tolist()}")
-        lo, cell, dims = self._geometry(dmin, dmax)
-        same = np.array_equal(lo, self.origin) and cell == self.cell_size
-        if not (same and tuple(int(d) for d in dims) == self.dims):
+        centers, reach = self._centers_np, self._reach_np
+        need_lo = np.maximum((centers - reach[:, None]).min(0), dmin)
+        need_hi = np.minimum((centers + reach[:, None]).max(0), dmax)
+        grid_hi = self.origin + self.cell_size * np.asarray(self.dims, np.float64)
+        if not ((need_lo >= self.origin).all() and (need_hi <= grid_hi).all()):
             return False
         self.domain_min, self.domain_max = dmin, dmax
-        self._grid.from_numpy(np.concatenate([lo, [1.0 / cell], dmin, dmax]))
+        self._grid.from_numpy(np.concatenate([self.origin, [1.0 / self.cell_size], dmin, dmax]))
         self.reset()
         return True
 
     def _build_lists(self, centers: np.ndarray, reach: np.ndarray) -> None:
-        lo, cell, dims = self._geometry(self.domain_min, self.domain_max)
+        lo, cell, dims = self._geometry(*self._grid_bounds)
         self.origin = lo
         self.cell_size = cell
         self.dims = tuple(int(d) for d in dims)

@@ -334,8 +334,9 @@ class _ProbeRecorder:
     """Callbacks for ``fluidsim.run_probes``: one accumulator per probe, timings and a progress bar."""
 
     def __init__(self, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig, progress: bool,
-                 label: str = ""):
+                 label: str = "", grid_bounds: tuple[np.ndarray, np.ndarray] | None = None):
         self.centers, self.reach, self.config, self.progress, self.label = centers, reach, config, progress, label
+        self.grid_bounds = grid_bounds
         self.acc = None
         self.bar = None
         self.means: dict[str, np.ndarray] = {}
@@ -351,12 +352,11 @@ class _ProbeRecorder:
         from .aggregate import GaussianAccumulator
 
         t0 = time.perf_counter()
-        # The probes' domains differ, but the Gaussians' list grid (their reach box clipped to the domain) is
-        # usually the same: then the lists are reused and only the sums are zeroed.
+        # The lists cover the union of the probes' domains, so every probe reuses them (only the sums are zeroed).
         if self.acc is None or not self.acc.retarget(solver.domain_min, solver.domain_max):
             self.acc = GaussianAccumulator(self.centers, self.reach, solver.domain_min, solver.domain_max,
                                            track_distinct=self.config.track_distinct,
-                                           max_fluid=solver.fluid.capacity)
+                                           max_fluid=solver.fluid.capacity, grid_bounds=self.grid_bounds)
         self.build_s += time.perf_counter() - t0
         self.domains[direction] = (solver.domain_min.copy(), solver.domain_max.copy())
         self.bar = _progress_bar(f"{self.label}{direction}", self.config.steps, self.progress)
@@ -386,6 +386,13 @@ class _ProbeRecorder:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+def probe_domains_union(solid: np.ndarray, config: PhysicsConfig, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """(min [3], max [3]) m: the box around the domains of all of ``config``'s probes."""
+    setups = [probe_setup(solid, d, config.probe_config(), spacing) for d in config.directions]
+    return (np.min([np.asarray(s.domain_min, np.float64) for s in setups], axis=0),
+            np.max([np.asarray(s.domain_max, np.float64) for s in setups], axis=0))
 
 
 def _run_with(recorder: _ProbeRecorder, solid: np.ndarray, config: PhysicsConfig, steps: int,
@@ -476,7 +483,8 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     log.info("solid: %d particles from %d Gaussians (scale %.4g m/unit)", len(solid.points), len(means),
              transform.scale)
 
-    recorder = _ProbeRecorder(means, reach, config, progress)
+    recorder = _ProbeRecorder(means, reach, config, progress,
+                              grid_bounds=probe_domains_union(solid.points, config, scfg.spacing))
     histories = _run_with(recorder, solid.points, config, config.steps, scfg)
     dirs = config.directions
     per_probe = np.stack([recorder.means[d] for d in dirs])

@@ -155,8 +155,8 @@ def test_degenerate_sets_match_the_twin():
 
 
 def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
-    """The next probe's domain: same clipped list grid -> lists kept, sums zeroed, new domain bounds applied;
-    a domain that clips the Gaussians differently is refused (a new accumulator is needed)."""
+    """The next probe's domain: lists kept when they cover it, sums zeroed, new domain bounds applied; refused
+    when the new domain needs cells the lists do not have."""
     rng = np.random.default_rng(5)
     centers = rng.uniform(-0.5, 0.5, (80, 3))
     reach = rng.uniform(0.05, 0.2, 80)
@@ -178,8 +178,21 @@ def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
     assert np.array_equal(acc.counts, c) and np.array_equal(fresh.counts, c)
     assert np.allclose(acc.sums, s, rtol=1e-12, atol=1e-12)
     assert np.array_equal(acc.distinct_counts, fresh.distinct_counts)
-    # A domain that clips the reach box changes the grid: refused, nothing changed.
-    assert not acc.retarget([-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
-    assert acc.counts.sum() == c.sum()
+    # A domain that clips the reach box differently is fine (the grid covers it; the kernel filters by the
+    # domain); a domain that needs cells beyond the grid is refused and nothing changes.
+    small = GaussianAccumulator(centers, reach, [-0.3] * 3, [0.3] * 3)
+    assert not small.retarget([-2.0] * 3, [2.0] * 3)
+    assert small.domain_max.tolist() == [0.3] * 3
+    assert acc.retarget([-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
+    acc.add(pos, val, ids)
+    s, c = accumulate_reference(centers, reach, pos, val, [-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
+    assert np.array_equal(acc.counts, c) and np.allclose(acc.sums, s, rtol=1e-12, atol=1e-12)
+    # grid_bounds: lists built for a union of domains serve each of them exactly.
+    union = GaussianAccumulator(centers, reach, [-0.3] * 3, [0.3] * 3, grid_bounds=([-2.0] * 3, [2.0] * 3))
+    union.add(pos, val)
+    assert np.array_equal(union.counts, accumulate_reference(centers, reach, pos, val, [-0.3] * 3, [0.3] * 3)[1])
+    assert union.retarget([-2.0] * 3, [2.0] * 3)
+    union.add(pos, val)
+    assert np.array_equal(union.counts, accumulate_reference(centers, reach, pos, val, [-2.0] * 3, [2.0] * 3)[1])
     with pytest.raises(ValueError, match="domain_min"):
         acc.retarget([0.0, 0.0, 0.0], [0.0, 1.0, 1.0])
