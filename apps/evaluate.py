@@ -40,6 +40,9 @@ def run_command(args: argparse.Namespace) -> int:
     if not cfg_path.is_file() or not (args.run / "gaussians.ply").is_file():
         raise ValueError(f"{args.run} is not a finished active run (needs config.json and gaussians.ply); "
                          "run `fluidgs active DATASET -o RUN` first")
+    from fluidsim.output import check_writable
+
+    check_writable(args.run / "eval.json")  # fail before the probes run, not after
     physics = ActiveConfig.from_dict(json.loads(cfg_path.read_text())["active"]).physics
     if args.particle_radius is not None:
         physics = replace(physics, particle_radius=args.particle_radius)

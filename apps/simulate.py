@@ -17,8 +17,10 @@ from pathlib import Path
 log = logging.getLogger("fluidgs")
 
 
-def add_physics_arguments(p: argparse.ArgumentParser, track_distinct: bool = False) -> None:
-    """The probe options shared by simulate, score, sweep, critical and bench score."""
+def add_physics_arguments(p: argparse.ArgumentParser, track_distinct: bool = False,
+                          empty_reference: bool = True) -> None:
+    """The probe options shared by simulate, score, sweep, critical and bench score (``empty_reference``:
+    offer --no-empty-reference; commands that never run the empty scene leave it out)."""
     g = p.add_argument_group("probes")
     g.add_argument("--quick", action="store_true",
                    help="quick preset: particle radius 0.05 m and 300 steps per probe (unless given explicitly)")
@@ -39,8 +41,9 @@ def add_physics_arguments(p: argparse.ArgumentParser, track_distinct: bool = Fal
     g.add_argument("--scale", default="auto",
                    help="metres per scene unit, or 'auto' (largest object extent -> 2 m, the paper's domain)")
     g.add_argument("--fill-cavities", action="store_true", help="fill enclosed empty regions of the solid")
-    g.add_argument("--no-empty-reference", action="store_true",
-                   help="skip the empty-scene D-bar reference (halves the run time)")
+    if empty_reference:
+        g.add_argument("--no-empty-reference", action="store_true",
+                       help="skip the empty-scene D-bar reference (halves the run time)")
     g.add_argument("--max-memory-gb", type=float, default=None,
                    help="refuse to start above this estimated memory in GiB (default: the available memory)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
@@ -69,7 +72,8 @@ def physics_config_from_args(args: argparse.Namespace, track_distinct: bool = Fa
                          directions=tuple(dirs), accumulate_every=args.accumulate_every,
                          opacity_threshold=args.opacity_threshold, up_axis=args.up_axis, scale=scale,
                          fill_cavities=args.fill_cavities, track_distinct=track_distinct,
-                         empty_reference=not args.no_empty_reference, max_memory_gb=args.max_memory_gb)
+                         empty_reference=not getattr(args, "no_empty_reference", True),
+                         max_memory_gb=args.max_memory_gb)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -30,7 +30,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "D-bar(OTHER) - D-bar per U")
     p.add_argument("-o", "--output", type=Path, default=Path("sweep.csv"),
                    help="CSV file (written atomically); the plot goes next to it as .png")
-    add_physics_arguments(p)
+    add_physics_arguments(p, empty_reference=False)  # the sweep compares D-bar across speeds, never the empty scene
 
 
 def _ticks_log(lo: float, hi: float) -> list[float]:
