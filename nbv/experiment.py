@@ -167,8 +167,11 @@ def split_method(method: str) -> tuple[str, str | None]:
 
 
 def method_folder(method: str) -> str:
-    """Run folder name of a method: ``fisher+fluid@-x`` -> ``fisher_fluid_at-x``."""
-    return method.replace("+", "_").replace("@", "_at")
+    """Run folder name of a method: ``fisher+fluid`` -> ``fisher_fluid``,
+    ``fisher+fluid@-x`` -> ``fisher_fluid_at-x``, ``fisher+fluid@+x`` -> ``fisher_fluid_at+x``
+    (the direction keeps its sign, so the +x and -x folders read as such)."""
+    base, sep, direction = method.partition("@")
+    return base.replace("+", "_") + (f"_at{direction}" if sep else "")
 
 
 def scene_names(scenes: Sequence[str]) -> list[str]:

@@ -272,12 +272,15 @@ def _available_memory_bytes() -> int:
     return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
-def estimate_memory(gaussians, config: PhysicsConfig, transform=None) -> dict[str, float]:
-    """A cheap upper estimate of the memory one probe needs, before anything is allocated.
+def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
+                    solid_points: np.ndarray | None = None) -> dict[str, float]:
+    """An upper estimate of the memory one probe needs, before any probe is allocated.
 
-    Uses the bounding box of the Gaussians (centres +- 3 sigma, Gaussians with opacity >= tau / 10) as the
-    solid's box, the per-particle byte counts ``BYTES_PER_*`` and the solid lattice estimate of
-    :func:`nbv.solidify.estimate_lattice_points`.
+    Without ``solid_points`` it is cheap: the bounding box of the Gaussians (centres +- 3 sigma, Gaussians
+    with opacity >= tau / 10) stands for the solid's box. With ``solid_points`` [P, 3] (sim metres, the
+    solidified Gaussians) the probes are laid out around the real solid, which is smaller when faint or
+    scattered Gaussians widen the box but make no solid. Uses the per-particle byte counts ``BYTES_PER_*``
+    and the solid lattice estimate of :func:`nbv.solidify.estimate_lattice_points`.
 
     Returns:
         dict: lattice_points, fluid_particles (largest probe), boundary_particles, bytes.
@@ -289,13 +292,17 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None) -> dict[st
     scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold,
                           fill_cavities=config.fill_cavities, max_points=2**62)
     lattice = int(estimate_lattice_points(gaussians, scfg, transform))
-    means, _, opacities, radii = gaussian_arrays_in_sim(gaussians, transform)
-    # faint Gaussians (under a tenth of tau) cannot make the solid on their own: they do not widen the box
-    solid_like = opacities >= 0.1 * config.opacity_threshold
-    if solid_like.any():
-        means, radii = means[solid_like], radii[solid_like]
-    lo, hi = (means - 3 * radii[:, None]).min(0), (means + 3 * radii[:, None]).max(0)
-    box = np.array([[lo[0], lo[1], lo[2]], [hi[0], hi[1], hi[2]]])
+    if solid_points is not None and len(solid_points):
+        pts = np.asarray(solid_points, np.float64)
+        box, solid_count = np.stack([pts.min(0), pts.max(0)]), len(pts)
+    else:
+        means, _, opacities, radii = gaussian_arrays_in_sim(gaussians, transform)
+        # faint Gaussians (under a tenth of tau) cannot make the solid on their own: they do not widen the box
+        solid_like = opacities >= 0.1 * config.opacity_threshold
+        if solid_like.any():
+            means, radii = means[solid_like], radii[solid_like]
+        lo, hi = (means - 3 * radii[:, None]).min(0), (means + 3 * radii[:, None]).max(0)
+        box, solid_count = np.array([[lo[0], lo[1], lo[2]], [hi[0], hi[1], hi[2]]]), lattice
     probe = config.probe_config()
     fluid = boundary = 0
     for d in config.directions:
@@ -304,16 +311,24 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None) -> dict[st
         ext = np.subtract(s.domain_max, s.domain_min)
         area = 2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2])
         walls = area * probe.wall_layers / spacing**2
-        fluid, boundary = max(fluid, int(f)), max(boundary, int(walls) + lattice)
+        fluid, boundary = max(fluid, int(f)), max(boundary, int(walls) + solid_count)
     total = fluid * BYTES_PER_FLUID + boundary * BYTES_PER_BOUNDARY + lattice * BYTES_PER_LATTICE_POINT
     return {"lattice_points": lattice, "fluid_particles": fluid, "boundary_particles": boundary,
             "bytes": float(total)}
 
 
-def check_memory(gaussians, config: PhysicsConfig, transform=None) -> dict[str, float]:
-    """Raise ValueError, with the estimate and the fix, when a probe would not fit in memory."""
-    est = estimate_memory(gaussians, config, transform)
-    limit = config.max_memory_gb * 2**30 if config.max_memory_gb is not None else _available_memory_bytes()
+def memory_limit_bytes(config: PhysicsConfig) -> float:
+    """The memory a probe may use: ``config.max_memory_gb``, or the memory available now."""
+    return config.max_memory_gb * 2**30 if config.max_memory_gb is not None else float(_available_memory_bytes())
+
+
+def check_memory(gaussians, config: PhysicsConfig, transform=None,
+                 solid_points: np.ndarray | None = None) -> dict[str, float]:
+    """Raise ValueError, with the estimate and the fix, when a probe would not fit in memory.
+
+    See :func:`estimate_memory` for ``solid_points`` (the exact check once the solid is known)."""
+    est = estimate_memory(gaussians, config, transform, solid_points)
+    limit = memory_limit_bytes(config)
     if est["bytes"] > limit:
         raise ValueError(
             f"the probe would need about {est['bytes'] / 2**30:.1f} GiB ({est['fluid_particles']:,} fluid and "
@@ -470,13 +485,21 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     t_total = time.perf_counter()
     gaussians = gaussians.detach().to("cpu").check(source or "Gaussians")
     transform = scene_transform(gaussians, config)
-    check_memory(gaussians, config, transform)
+    # The cheap bound (the Gaussians' box) decides first; when it does not fit but the lattice does, the
+    # solid is computed and the probes are re-estimated around it, since scattered faint Gaussians widen
+    # the box without making solid. Either way the check comes before any probe is allocated.
+    cheap = estimate_memory(gaussians, config, transform)
+    exact_check = cheap["bytes"] > memory_limit_bytes(config)
+    if exact_check and cheap["lattice_points"] * BYTES_PER_LATTICE_POINT > memory_limit_bytes(config):
+        check_memory(gaussians, config, transform)  # raises with the estimate and the fix
     scfg = config.solver_config()
     t0 = time.perf_counter()
     solid = gaussians_to_solid(gaussians, SolidifyConfig(spacing=scfg.spacing,
                                                          opacity_threshold=config.opacity_threshold,
                                                          fill_cavities=config.fill_cavities), transform)
     solidify_s = time.perf_counter() - t0
+    if exact_check:
+        check_memory(gaussians, config, transform, solid_points=solid.points)
     means, covs, _, radii = gaussian_arrays_in_sim(gaussians, transform)
     means, covs = np.ascontiguousarray(means, np.float64), np.ascontiguousarray(covs, np.float64)
     reach = np.ascontiguousarray(config.n_radius * np.asarray(radii, np.float64))

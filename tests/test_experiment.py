@@ -137,6 +137,8 @@ def test_single_direction_methods_and_their_table():
 
     assert split_method("fisher+fluid@-x") == ("fisher+fluid", "-x") and split_method("fisher") == ("fisher", None)
     assert method_folder("fisher+fluid@-x") == "fisher_fluid_at-x"
+    assert method_folder("fisher+fluid@+x") == "fisher_fluid_at+x"
+    assert method_folder("variance+fluid") == "variance_fluid"
     with pytest.raises(ValueError, match="unknown probe direction"):
         split_method("fisher+fluid@+y")
     with pytest.raises(ValueError, match="uses\\s+the physics|uses the physics"):

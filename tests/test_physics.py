@@ -180,3 +180,25 @@ def test_sweep_pins_one_scale_and_uses_the_config_speed_as_base(sphere, monkeypa
     assert [s[1] for s in seen] == [expected] * 4
     assert [s[2] for s in seen] == [6.0, 6.0, 12.0, 12.0]
     assert seen[0][3] == cfg.dt and seen[2][3] == pytest.approx(cfg.dt / 2) and seen[2][4] == 2 * cfg.steps
+
+
+def test_memory_check_uses_the_real_solid_when_faint_gaussians_widen_the_box(sphere):
+    # faint Gaussians (opacity 0.05 < tau = 0.3, yet above tau / 10) far from the sphere make no solid but
+    # widen the cheap estimate's box; the run must go on when the solid itself fits, and refuse when not
+    far = torch.tensor([[-4.0, -4.0, -4.0], [4.0, 4.0, 4.0], [4.0, -4.0, 4.0]])
+    faint = GaussianSet.from_points(far, scale=0.05, opacity=0.05)
+    from recon.gaussians import concat
+
+    scene = concat([sphere, faint])
+    cfg = PhysicsConfig(**{**COARSE, "steps": 5}, directions=("-x",), scale=1.0)
+    transform = physics.scene_transform(scene, cfg)
+    cheap = physics.estimate_memory(scene, cfg, transform)
+    only_sphere = physics.estimate_memory(sphere, cfg, transform)
+    assert cheap["fluid_particles"] > 20 * only_sphere["fluid_particles"]
+    limit_gb = (cheap["bytes"] + only_sphere["bytes"]) / 2 / 2**30  # between the real need and the cheap bound
+    result = simulate_gaussians(scene, PhysicsConfig(**{**COARSE, "steps": 5}, directions=("-x",), scale=1.0,
+                                                     max_memory_gb=limit_gb), progress=False)
+    assert np.ptp(result.solid, axis=0).max() < 1.5  # the faint Gaussians made no solid
+    with pytest.raises(ValueError, match="would need about"):
+        simulate_gaussians(scene, PhysicsConfig(**{**COARSE, "steps": 5}, directions=("-x",), scale=1.0,
+                                                max_memory_gb=only_sphere["bytes"] / 4 / 2**30), progress=False)
