@@ -165,12 +165,12 @@ def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
     pos *= 0.5
     acc.add(pos, val, ids)
     assert acc.counts.sum() > 0
-    lists = acc._items.to_numpy().copy()
+    lists = acc._lists.to_numpy().copy()
     # A smaller domain that still contains the Gaussians' reach box: same grid.
     new_min, new_max = np.full(3, -0.72), np.full(3, 0.72)  # the reach box is within +-0.7
     assert acc.retarget(new_min, new_max)
     assert not acc.counts.any() and not acc.sums.any() and not acc.distinct_counts.any()
-    assert np.array_equal(acc._items.to_numpy(), lists)
+    assert np.array_equal(acc._lists.to_numpy(), lists)
     acc.add(pos, val, ids)
     fresh = GaussianAccumulator(centers, reach, new_min, new_max, track_distinct=True, max_fluid=500)
     fresh.add(pos, val, ids)
@@ -196,3 +196,30 @@ def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
     assert np.array_equal(union.counts, accumulate_reference(centers, reach, pos, val, [-2.0] * 3, [2.0] * 3)[1])
     with pytest.raises(ValueError, match="domain_min"):
         acc.retarget([0.0, 0.0, 0.0], [0.0, 1.0, 1.0])
+
+
+@pytest.mark.parametrize("rows, private", [(1, False), (1, True), (3, True)])
+def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, private):
+    # (1, False) is the GPU path (atomic adds), run here on the CPU; (3, True) has more rows than threads
+    import nbv.aggregate as aggregate
+
+    monkeypatch.setattr(aggregate, "accumulation_rows", lambda g: (rows, private))
+    centers, reach = random_gaussians(120, seed=5)
+    rng = np.random.default_rng(6)
+    steps = [random_step(rng, 300, 700) for _ in range(3)]
+
+    def run():
+        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=700)
+        assert acc.rows == rows and acc._acc.shape == (rows, len(centers), 2)
+        for pos, val, ids in steps:
+            acc.add(pos, val, ids)
+        return acc
+
+    acc = run()
+    sums = sum(accumulate_reference(centers, reach, p, v, DOMAIN_MIN, DOMAIN_MAX)[0] for p, v, _ in steps)
+    counts = sum(accumulate_reference(centers, reach, p, v, DOMAIN_MIN, DOMAIN_MAX)[1] for p, v, _ in steps)
+    assert np.array_equal(acc.counts, counts) and counts.max() > 50
+    assert np.allclose(acc.sums, sums, rtol=1e-9, atol=1e-12 * np.abs(sums).max())
+    assert np.array_equal(acc.distinct_counts, distinct_reference(centers, reach, steps))
+    if private:  # every row is written by one task in a fixed order: bitwise deterministic
+        assert np.array_equal(run().sums, acc.sums)
