@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from fluidsim.probes import DIRECTIONS
+
 from .active import ActiveConfig, is_empty_solid, json_safe, write_atomic, write_json_atomic
 from .physics import PhysicsConfig
 
@@ -50,8 +52,8 @@ class EvalConfig:
     """Evaluation settings.
 
     Attributes:
-        physics: probe settings; None: the run's own physics config (with the empty-scene reference and
-            distinct-particle tracking switched on).
+        physics: probe settings; None: the run's own physics config over all five probes (with the empty-scene
+            reference and distinct-particle tracking switched on).
         critical_views: size of the critical subset (paper: 20).
         critical_direction: the probe whose distinct counts |P_g| rank the views (paper: -x).
         chamfer_samples: points sampled on the reference mesh.
@@ -99,10 +101,18 @@ class EvalConfig:
 
 
 def eval_physics_config(run_physics: PhysicsConfig, config: EvalConfig, up_axis: str) -> PhysicsConfig:
-    """The probe settings of an evaluation: empty reference and distinct tracking on, the dataset's up axis."""
-    base = config.physics if config.physics is not None else run_physics
-    dirs = base.directions if config.critical_direction in base.directions else \
-        tuple(base.directions) + (config.critical_direction,)
+    """The probe settings of an evaluation: empty reference and distinct tracking on, the dataset's up axis.
+
+    D-bar is defined over the five probes, so without an explicit ``config.physics`` the evaluation runs all five
+    even when the run's selection used fewer (``--directions``, or a ``METHOD@DIR`` experiment method); with one,
+    its directions are kept and the critical direction is added when missing.
+    """
+    if config.physics is not None:
+        base = config.physics
+        dirs = base.directions if config.critical_direction in base.directions else \
+            tuple(base.directions) + (config.critical_direction,)
+    else:
+        base, dirs = run_physics, DIRECTIONS
     return replace(base, empty_reference=True, track_distinct=True, up_axis=up_axis, directions=dirs)
 
 

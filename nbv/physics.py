@@ -490,8 +490,9 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     # the box without making solid. Either way the check comes before any probe is allocated.
     cheap = estimate_memory(gaussians, config, transform)
     exact_check = cheap["bytes"] > memory_limit_bytes(config)
-    if exact_check and cheap["lattice_points"] * BYTES_PER_LATTICE_POINT > memory_limit_bytes(config):
-        check_memory(gaussians, config, transform)  # raises with the estimate and the fix
+    if exact_check and (cheap["lattice_points"] > SolidifyConfig.max_points
+                        or cheap["lattice_points"] * BYTES_PER_LATTICE_POINT > memory_limit_bytes(config)):
+        check_memory(gaussians, config, transform)  # the solid is too costly to compute: raise with the estimate
     scfg = config.solver_config()
     t0 = time.perf_counter()
     solid = gaussians_to_solid(gaussians, SolidifyConfig(spacing=scfg.spacing,

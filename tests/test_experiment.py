@@ -159,6 +159,14 @@ def test_single_direction_methods_and_their_table():
     assert [r[1] for r in body[1:]] == ["none", "all five probes", "-x", "-z"]
     assert body[3][3] == "21.5000 ± 0.0000"
     assert "@" not in "".join(r[0] for r in csv.reader(tables["ablation_random"][1].splitlines()))
+    # the evaluation of a single-direction run still measures D-bar over all five probes
+    from nbv.evaluate import EvalConfig, eval_physics_config
+
+    ev = eval_physics_config(single.physics, EvalConfig(), "z")
+    assert ev.directions == ("-x", "+x", "-z", "+z", "-y") and ev.up_axis == "z" and ev.track_distinct
+    assert ev.steps == single.physics.steps
+    explicit = eval_physics_config(single.physics, EvalConfig(physics=PhysicsConfig(directions=("+z",))), "y")
+    assert explicit.directions == ("+z", "-x")  # an explicit choice is kept; the critical direction is added
 
 
 # ---- experiment ----------------------------------------------------------------------------------
