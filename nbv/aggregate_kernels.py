@@ -1,7 +1,7 @@
 """Taichi kernels of :mod:`nbv.aggregate`: the cell -> Gaussian lists and the per-step accumulation.
 
 A Gaussian g is listed in every grid cell whose box comes closer than its reach (n r_g) to mu_g, so a
-fluid particle only tests the Gaussians listed in its own cell. The lists are built once per probe
+fluid particle only tests the Gaussians listed in its own cell. The lists are built once per run
 (counting pass, prefix sum on the host, fill pass) because the Gaussians do not move.
 """
 
@@ -10,7 +10,7 @@ import taichi as ti
 ivec3 = ti.types.vector(3, ti.i32)
 vec3d = ti.types.vector(3, ti.f64)
 
-# Track modes of :func:`accumulate`: nothing, one bit per (Gaussian, particle id), or (g, id) keys.
+# Track modes of :func:`accumulate_tracked`: nothing, one bit per (Gaussian, particle id), or (g, id) keys.
 TRACK_NONE = 0
 TRACK_BITS = 1
 TRACK_KEYS = 2
@@ -124,11 +124,14 @@ def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.tem
 @ti.func
 def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), grid: ti.template(),
               lists: ti.template(), gauss: ti.template(), add_values: ti.template(), track: ti.template(),
-              private: ti.template(), acc: ti.template(), bits: ti.template(), keys: ti.template(),
-              key_count: ti.template()):
+              private: ti.template(), serial: ti.template(), acc: ti.template(), bits: ti.template(),
+              keys: ti.template(), key_count: ti.template()):
     if ti.static(private):
         rows = acc.shape[0]
-        ti.loop_config(block_dim=1)
+        if ti.static(serial):
+            ti.loop_config(serialize=True)
+        else:
+            ti.loop_config(block_dim=1)
         for r in range(rows):
             i = r
             while i < n:
@@ -150,6 +153,7 @@ def accumulate(
     lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
     gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
     private: ti.template(),
+    serial: ti.template(),
     acc: ti.types.ndarray(dtype=ti.f64, ndim=3),
 ):
     """Paper Eq. 2-3: each particle i inside the domain adds ``values[i]`` to ``acc[row, g, 0]`` and 1 to
@@ -159,8 +163,10 @@ def accumulate(
     ``private`` (CPUs): ``acc`` has one row per task; task r takes particles r, r + R, ... (R = the number of
     rows) and alone writes row r, so no add is atomic; the caller sums the rows, and the result is bitwise
     deterministic for a given R. Otherwise (GPUs) one row and atomic adds. Counts are exact in f64 up to 2^53.
+    ``serial`` (with ``private``): the rows run one after the other on the launching thread, which on small
+    probes costs less than waking the thread pool.
     """
-    visit_all(n, xs, values, values, grid, lists, gauss, True, TRACK_NONE, private, acc, acc, acc, acc)
+    visit_all(n, xs, values, values, grid, lists, gauss, True, TRACK_NONE, private, serial, acc, acc, acc, acc)
 
 
 @ti.kernel
@@ -186,4 +192,5 @@ def accumulate_tracked(
     - ``track`` = TRACK_KEYS: appends ``g * 2^32 + ids[i]`` to ``keys`` (slot from ``key_count[0]``; slots past
       the end are counted but not written, so the caller can grow ``keys`` and run again).
     """
-    visit_all(n, xs, values, ids, grid, lists, gauss, add_values, track, private, acc, bits, keys, key_count)
+    visit_all(n, xs, values, ids, grid, lists, gauss, add_values, track, private, False, acc, bits, keys,
+              key_count)

@@ -198,9 +198,11 @@ def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
         acc.retarget([0.0, 0.0, 0.0], [0.0, 1.0, 1.0])
 
 
-@pytest.mark.parametrize("rows, private", [(1, False), (1, True), (3, True)])
-def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, private):
-    # (1, False) is the GPU path (atomic adds), run here on the CPU; (3, True) has more rows than threads
+@pytest.mark.parametrize("rows, private, serial_below", [(1, False, 0), (1, True, 10**6), (3, True, 10**6),
+                                                         (3, True, 0)])
+def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, private, serial_below):
+    # (1, False) is the GPU path (atomic adds), run here on the CPU; 3 rows is more rows than threads; the rows
+    # run on the launching thread (serial_below above the particle count) or as parallel tasks
     import nbv.aggregate as aggregate
 
     monkeypatch.setattr(aggregate, "accumulation_rows", lambda g: (rows, private))
@@ -208,18 +210,36 @@ def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, priva
     rng = np.random.default_rng(6)
     steps = [random_step(rng, 300, 700) for _ in range(3)]
 
-    def run():
-        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=700)
+    def run(track: bool):
+        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=700)
+        acc.serial_below = serial_below
         assert acc.rows == rows and acc._acc.shape == (rows, len(centers), 2)
         for pos, val, ids in steps:
             acc.add(pos, val, ids)
         return acc
 
-    acc = run()
     sums = sum(accumulate_reference(centers, reach, p, v, DOMAIN_MIN, DOMAIN_MAX)[0] for p, v, _ in steps)
     counts = sum(accumulate_reference(centers, reach, p, v, DOMAIN_MIN, DOMAIN_MAX)[1] for p, v, _ in steps)
-    assert np.array_equal(acc.counts, counts) and counts.max() > 50
-    assert np.allclose(acc.sums, sums, rtol=1e-9, atol=1e-12 * np.abs(sums).max())
-    assert np.array_equal(acc.distinct_counts, distinct_reference(centers, reach, steps))
-    if private:  # every row is written by one task in a fixed order: bitwise deterministic
-        assert np.array_equal(run().sums, acc.sums)
+    assert counts.max() > 50
+    for track in (False, True):  # the plain kernel, and the one that also records particle ids
+        acc = run(track)
+        assert np.array_equal(acc.counts, counts)
+        assert np.allclose(acc.sums, sums, rtol=1e-9, atol=1e-12 * np.abs(sums).max())
+        if track:
+            assert np.array_equal(acc.distinct_counts, distinct_reference(centers, reach, steps))
+        if private:  # every row is written by one task in a fixed order: bitwise deterministic
+            assert np.array_equal(run(track).sums, acc.sums)
+
+
+def test_morton_order_is_a_z_curve_permutation():
+    from nbv.aggregate import morton_order
+
+    corners = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], float)  # Morton order
+    shuffled = np.random.default_rng(0).permutation(8)
+    assert np.array_equal(corners[shuffled][morton_order(corners[shuffled])], corners)
+    pts = np.random.default_rng(1).uniform(-3, 5, (500, 3))
+    order = morton_order(pts)
+    assert np.array_equal(np.sort(order), np.arange(500))
+    # consecutive points along the curve are much closer than random pairs
+    step = np.linalg.norm(np.diff(pts[order], axis=0), axis=1).mean()
+    assert step < 0.5 * np.linalg.norm(np.diff(pts, axis=0), axis=1).mean()
