@@ -13,7 +13,9 @@ neighbourhood pass:
 
 Errors are averaged over the active fluid particles only. Both solvers warm-start from the summed
 stiffness of the previous step (the divergence solver at half strength, as in SPlisHSPlasH), stored
-independent of dt.
+independent of dt, where the particle is compressed: the divergence solver judges that from the source
+measured by the neighbourhood pass, the density solver from the density predicted by the non-pressure
+pass (:mod:`fluidsim.viscosity`), so neither start reads the neighbour lists.
 """
 
 import taichi as ti
@@ -24,7 +26,7 @@ from .reductions import ordered_sum
 # Modes of the source passes.
 ITERATE = 0  # stiffness from the current error
 FIRST = 1  # as ITERATE, and reset the accumulated stiffness
-WARM = 2  # stiffness from the previous step's value, where the particle is compressed now
+WARM = 2  # stiffness from the previous step's value, where the particle is compressed now (start passes)
 
 
 @ti.func
@@ -42,8 +44,6 @@ def velocity_divergence(i, v: ti.template(), fluid_count: ti.template(), fluid_i
 def divergence_error(
     n: ti.i32,
     dt: float,
-    mode: ti.i32,
-    warm_scale: float,
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
@@ -51,17 +51,15 @@ def divergence_error(
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
-    kappa: ti.types.ndarray(ndim=1),
     source: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
-    stiffness_sum: ti.types.ndarray(ndim=1),
     partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
 ) -> ti.f64:
-    """Divergence-free solver, error pass: s_i and k_i; returns the average s_i over fluid (1/s).
+    """Divergence-free solver, error pass (ITERATE): s_i and k_i; returns the average s_i over fluid (1/s).
 
-    Modes ITERATE and FIRST; the solve starts with :func:`start_divergence` (the neighbourhood pass
-    measured the first source), so ``warm_scale`` and ``kappa`` are unused, kept so that both error
-    passes take the same arguments.
+    The solve starts with :func:`start_divergence` (the neighbourhood pass measured the first source),
+    and a pass that may end the solve is :func:`fluidsim.viscosity.forces_and_divergence_error`, which
+    computes the same s_i and k_i.
     """
     for i in range(n):
         s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_grad_sum)
@@ -69,8 +67,6 @@ def divergence_error(
             s = 0.0
         source[i] = s
         stiffness[i] = s * factor[i] / dt
-        if mode != ITERATE:
-            stiffness_sum[i] = 0.0
     return ordered_sum(source, n, partial) / ti.max(n, 1)
 
 
@@ -108,36 +104,52 @@ def density_error(
     n: ti.i32,
     dt: float,
     mode: ti.i32,
-    warm_scale: float,
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
     fluid_grad: ti.types.ndarray(ndim=2),
-    boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
-    kappa: ti.types.ndarray(ndim=1),
     source: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
     partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
 ) -> ti.f64:
-    """Constant-density solver, error pass: rho*_i - 1 and k_i; returns the average error over fluid."""
+    """Constant-density solver, error pass (ITERATE or FIRST): rho*_i - 1 and k_i; returns the average error.
+
+    The warm start needs no pass of its own: :func:`start_density` reads the density predicted by the
+    non-pressure pass.
+    """
     for i in range(n):
         s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_grad_sum)
         err = ti.max(density[i] + dt * s - 1.0, 0.0)
         source[i] = err
-        if mode == WARM:
-            k = 0.0
-            if err > 0.0:
-                k = warm_scale * kappa[i] / (dt * dt)
-            stiffness[i] = k
-        else:
-            stiffness[i] = err * factor[i] / (dt * dt)
+        stiffness[i] = err * factor[i] / (dt * dt)
         if mode != ITERATE:
             stiffness_sum[i] = 0.0
     return ordered_sum(source, n, partial) / ti.max(n, 1)
+
+
+@ti.kernel
+def start_density(
+    n: ti.i32,
+    dt: float,
+    warm_scale: float,
+    prediction: ti.types.ndarray(ndim=1),
+    kappa: ti.types.ndarray(ndim=1),
+    stiffness: ti.types.ndarray(ndim=1),
+    stiffness_sum: ti.types.ndarray(ndim=1),
+):
+    """Constant-density solver, warm start: k_i = warm_scale kappa_i / dt^2 where the predicted density
+    rho*_i (from :func:`fluidsim.viscosity.forces_and_divergence_error`) exceeds rest, else 0; resets the
+    accumulated stiffness."""
+    for i in range(n):
+        k = 0.0
+        if prediction[i] > 1.0:
+            k = warm_scale * kappa[i] / (dt * dt)
+        stiffness[i] = k
+        stiffness_sum[i] = 0.0
 
 
 @ti.kernel
@@ -148,7 +160,6 @@ def apply_stiffness(
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
     fluid_grad: ti.types.ndarray(ndim=2),
-    boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),

@@ -35,6 +35,7 @@ class FluidParticles:
         stiffness, stiffness_sum, source: per-iteration solver scratch.
         acceleration: non-pressure acceleration scratch (m/s^2).
         divergence: D_i of the current step (1/s).
+        prediction: density rho*_i / rho_0 predicted after the non-pressure forces (density warm start).
         cell_ids, ranks, order: counting-sort scratch.
     """
 
@@ -57,7 +58,7 @@ class FluidParticles:
         self.kappa_divergence = ti.ndarray(fp, shape=max(n, 1))
         self.divergence_sum = ti.ndarray(ti.f64, shape=max(n, 1))
         self.divergence_count = ti.ndarray(ti.i32, shape=max(n, 1))
-        for name in ("density", "factor", "stiffness", "stiffness_sum", "source", "divergence"):
+        for name in ("density", "factor", "stiffness", "stiffness_sum", "source", "divergence", "prediction"):
             setattr(self, name, ti.ndarray(fp, shape=max(n, 1)))
         self.acceleration = _vec_ndarray(fp, n)
         for name in ("cell_ids", "ranks", "order"):

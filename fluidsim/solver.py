@@ -5,7 +5,10 @@
     grid sort -> neighbourhoods, density, factor -> divergence solve -> divergence estimate (paper Eq. 1)
     -> non-pressure forces, predict v -> density solve -> advect
 
-(with the default estimator radii the estimate rides on the viscosity pass, which reads the same data).
+The passes over the neighbour lists are fused where they read the same data: the neighbourhood pass
+measures the divergence solver's first source; the divergence solver's error pass that may end the solve
+also computes the non-pressure accelerations, the density solver's warm-start prediction and (with the
+default estimator radii) paper Eq. 1, which are applied once the solve has ended.
 
 It never prints; it returns :class:`StepStats`. Faults (NaN, runaway speed, a solver stuck at its
 iteration cap) are judged by the caller (:mod:`fluidsim.simulation`), which knows the run.
@@ -153,6 +156,7 @@ class DFSPHSolver:
         self.time = 0.0
         self.step_index = 0
         self.stage_times: dict[str, float] | None = None  # set to {} to profile stages
+        self._forces_ready = False  # the divergence solve's last pass computed this step's forces
         speeds = np.linalg.norm(fv, axis=1) if len(fv) else np.zeros(1)
         self._max_speed = float(speeds.max())
 
@@ -240,60 +244,82 @@ class DFSPHSolver:
             log.info("growing neighbour lists to %d fluid / %d boundary slots", grow_f, grow_b)
             nb.resize(grow_f, grow_b)
 
-    def _solve(self, error_kernel, extra_args: tuple, kappa, dt: float, tolerance: float,
-               warm_scale: float, store_scale: float, min_iterations: int, start=None) -> tuple[int, float]:
+    def _solve(self, error, start, kappa, dt: float, tolerance: float, store_scale: float,
+               min_iterations: int) -> tuple[int, float]:
         """The iteration shared by both DFSPH solvers; returns (iterations, final average error).
 
-        ``start(mode)``, when given, begins the solve (FIRST or WARM) from an error measured already,
-        instead of an error pass.
+        Args:
+            error: ``error(last)`` runs an ITERATE error pass and returns the average error; ``last`` says
+                the pass may end the solve (the divergence solver then fuses it with the non-pressure pass).
+            start: ``start(mode)`` begins the solve: WARM sets the warm-start stiffness, FIRST sets the first
+                stiffness and returns the first error.
+            kappa: the warm-start memory the solve stores at its end (summed stiffness x ``store_scale``).
         """
         cfg, f, nb = self.config, self.fluid, self.neighborhoods
         n = f.active
-        lists = (f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count, nb.boundary_grad_sum)
-        scratch = (*extra_args, f.factor, kappa, f.source, f.stiffness, f.stiffness_sum, self._partial)
+        max_it = cfg.max_iterations
 
         def apply() -> None:
-            dfsph.apply_stiffness(n, dt, *lists, f.stiffness, f.stiffness_sum)
+            dfsph.apply_stiffness(n, dt, f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_grad_sum,
+                                  f.stiffness, f.stiffness_sum)
 
-        if cfg.warm_start:
-            if start is None:
-                error_kernel(n, dt, dfsph.WARM, warm_scale, *lists, *scratch)
-            else:
-                start(dfsph.WARM)
-            apply()
-            err = error_kernel(n, dt, dfsph.ITERATE, 0.0, *lists, *scratch)
-        elif start is not None:
-            err = start(dfsph.FIRST)
-        else:
-            err = error_kernel(n, dt, dfsph.FIRST, 0.0, *lists, *scratch)
         iterations = 0
-        while (err > tolerance or iterations < min_iterations) and iterations < cfg.max_iterations:
+        if cfg.warm_start:
+            start(dfsph.WARM)
             apply()
-            err = error_kernel(n, dt, dfsph.ITERATE, 0.0, *lists, *scratch)
+            err = error(min_iterations <= 0)
+        else:
+            err = start(dfsph.FIRST)
+        while (err > tolerance or iterations < min_iterations) and iterations < max_it:
+            apply()
             iterations += 1
+            err = error(iterations >= min_iterations or iterations >= max_it)
         dfsph.store_stiffness(n, store_scale, f.stiffness_sum, kappa)
         return iterations, float(err)
 
     def _divergence_solve(self, dt: float) -> tuple[int, float]:
+        self._forces_ready = False
         if not self.config.divergence_solver or self.fluid.active == 0:
             return 0, 0.0
         # Tolerance on the average D(rho/rho_0)/Dt such that one dt changes the density by eta.
         tol = self.config.max_divergence_error * 0.01 / dt
-        f = self.fluid
+        f, nb = self.fluid, self.neighborhoods
 
         def start(mode: int) -> float:  # the neighbourhood pass measured the source (f.source)
             return dfsph.start_divergence(f.active, dt, mode, 0.5, f.source, f.factor, f.kappa_divergence,
                                           f.stiffness, f.stiffness_sum, self._partial)
 
-        return self._solve(dfsph.divergence_error, (), f.kappa_divergence, dt, tol, 0.5, dt,
-                           self.config.min_divergence_iterations, start=start)
+        def error(last: bool) -> float:
+            if last:  # the error pass that may end the solve also computes the non-pressure forces
+                err = self._forces_pass(dt, self._estimate_with_viscosity())
+                self._forces_ready = True
+                return err
+            self._forces_ready = False
+            return dfsph.divergence_error(f.active, dt, f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad,
+                                          nb.boundary_count, nb.boundary_grad_sum, f.factor, f.source, f.stiffness,
+                                          self._partial)
+
+        return self._solve(error, start, f.kappa_divergence, dt, tol, dt, self.config.min_divergence_iterations)
 
     def _density_solve(self, dt: float) -> tuple[int, float]:
-        if self.fluid.active == 0:
+        f, nb = self.fluid, self.neighborhoods
+        if f.active == 0:
             return 0, 0.0
         tol = self.config.max_density_error * 0.01
-        return self._solve(dfsph.density_error, (self.fluid.density,), self.fluid.kappa_density, dt, tol,
-                           1.0, dt * dt, self.config.min_iterations)
+
+        def error_pass(mode: int) -> float:
+            return dfsph.density_error(f.active, dt, mode, f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad,
+                                       nb.boundary_grad_sum, f.density, f.factor, f.source, f.stiffness,
+                                       f.stiffness_sum, self._partial)
+
+        def start(mode: int) -> float:
+            if mode == dfsph.WARM:  # where the non-pressure pass predicted compression
+                dfsph.start_density(f.active, dt, 1.0, f.prediction, f.kappa_density, f.stiffness, f.stiffness_sum)
+                return 0.0
+            return error_pass(dfsph.FIRST)
+
+        return self._solve(lambda last: error_pass(dfsph.ITERATE), start, f.kappa_density, dt, tol, dt * dt,
+                           self.config.min_iterations)
 
     def _estimate_with_viscosity(self) -> bool:
         """Whether paper Eq. 1 can use the stored gradients (h_k = h <= h_r), fused into the viscosity pass."""
@@ -322,16 +348,27 @@ class DFSPHSolver:
                 self._origin, self._inv_cell, self._dims, f.x, f.v, f.density, self._starts, b.x, b.volume,
                 b.cell_starts, f.divergence, f.divergence_sum, f.divergence_count)
 
-    def _non_pressure_forces(self, dt: float, estimate: bool = False) -> None:
-        """Gravity and viscosity; with ``estimate``, also paper Eq. 1 from the stored gradients."""
+    def _forces_pass(self, dt: float, estimate: bool) -> float:
+        """Non-pressure accelerations, the divergence solver's error pass, Eq. 1 (with ``estimate``) and the
+        density prediction, in one sweep (:func:`fluidsim.viscosity.forces_and_divergence_error`)."""
         cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
-        if f.active == 0:
-            return
-        viscosity.apply_non_pressure_forces(
+        return viscosity.forces_and_divergence_error(
             f.active, dt, ti.Vector(list(cfg.gravity)), cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
             self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count,
-            nb.boundary_index, nb.boundary_grad, f.acceleration, int(estimate), nb.boundary_grad_sum, f.divergence,
-            f.divergence_sum, f.divergence_count)
+            nb.boundary_index, nb.boundary_grad, nb.boundary_grad_sum, f.factor, f.source, f.stiffness,
+            f.acceleration, int(estimate), f.divergence, f.prediction, self._partial)
+
+    def _non_pressure_forces(self, dt: float, estimate: bool = False) -> None:
+        """Gravity and viscosity, v += dt a; with ``estimate``, also paper Eq. 1 from the stored gradients
+        (added to the run sums). Reuses the pass that ended the divergence solve when there was one."""
+        f = self.fluid
+        if f.active == 0:
+            return
+        if not self._forces_ready:
+            self._forces_pass(dt, estimate)
+        self._forces_ready = False
+        viscosity.commit_forces(f.active, dt, int(estimate), f.v, f.acceleration, f.divergence, f.divergence_sum,
+                                f.divergence_count)
 
     def _advect(self, dt: float) -> tuple[float, int]:
         f = self.fluid

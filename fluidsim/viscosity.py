@@ -7,21 +7,38 @@ viscosity:
 
     lap(v)_i = 2 (d + 2) sum_j (m_j / rho_j) (v_ij . x_ij) / (|x_ij|^2 + 0.01 h^2) grad W_ij,  d = 3,
 
-and a_i = (mu / rho_i) lap(v)_i. Fluid-boundary friction uses the same operator with the boundary at
-rest, V_b in place of m_j / rho_j and its own dynamic viscosity mu_b.
+and a_i = g + (mu / rho_i) lap(v)_i. Fluid-boundary friction uses the same operator with the boundary
+at rest, V_b in place of m_j / rho_j and its own dynamic viscosity mu_b.
 
-The pass reads exactly what the divergence estimator of the paper (Eq. 1, :mod:`fluidsim.divergence`)
-reads when h_k = h <= h_r: the velocities after the divergence solve, the neighbours' densities and the
-stored gradients. With ``estimate`` set it also computes D_i (the stored-gradient estimator, fused here
-to save a pass over the neighbour lists), equal to
-:func:`fluidsim.divergence.estimate_divergence_from_gradients`.
+The pass reads what three other computations of the step read, the velocities after the divergence
+solve and the stored neighbour gradients, so it computes them in the same sweep over the lists:
+
+- the divergence-free solver's error pass (:func:`fluidsim.dfsph.divergence_error`): the source s_i and
+  stiffness k_i, and the average source. The solver calls this pass as its error pass whenever that pass
+  may be its last, so a step whose divergence solve converges there reads the lists once less;
+- paper Eq. 1 (:func:`fluidsim.divergence.estimate_divergence_from_gradients`) when h_k = h <= h_r;
+- the constant-density solver's warm-start test: the density predicted after the forces,
+  rho*_i = rho_i + dt (s_i + dt a_i . sum_b V_b grad W_ib). The neighbours' viscous accelerations are left
+  out of it (they are not known yet in this sweep); the test only picks which particles start from last
+  step's stiffness, and the solve then iterates to its tolerance on the exact error.
+
+The accelerations are stored, not applied: :func:`commit_forces` adds dt a_i to v_i (and D_i to the run
+sums) once the divergence solve has ended. :func:`non_pressure_np` is the numpy twin.
 """
 
+import numpy as np
 import taichi as ti
+
+from .kernels import cubic_grad_w_np
+from .neighbors import FREE_SURFACE_NEIGHBORS
+from .reductions import ordered_sum
+
+LAPLACIAN_FACTOR = 2.0 * (3 + 2)  # 2 (d + 2), d = 3
+LAPLACIAN_EPS = 0.01  # times h^2, in the denominator of the Laplacian
 
 
 @ti.kernel
-def apply_non_pressure_forces(
+def forces_and_divergence_error(
     n: ti.i32,
     dt: float,
     gravity: ti.types.vector(3, float),
@@ -39,40 +56,115 @@ def apply_non_pressure_forces(
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
     boundary_grad: ti.types.ndarray(ndim=2),
+    boundary_grad_sum: ti.types.ndarray(ndim=1),
+    factor: ti.types.ndarray(ndim=1),
+    source: ti.types.ndarray(ndim=1),
+    stiffness: ti.types.ndarray(ndim=1),
     acceleration: ti.types.ndarray(ndim=1),
     estimate: ti.i32,
-    boundary_grad_sum: ti.types.ndarray(ndim=1),
     divergence: ti.types.ndarray(ndim=1),
-    divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
-    divergence_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-):
-    """a_i = g + (mu / rho_i) lap(v)_i, then v_i += dt a_i (two passes: all reads before any write).
+    prediction: ti.types.ndarray(ndim=1),
+    partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
+) -> ti.f64:
+    """a_i = g + (mu / rho_i) lap(v)_i (m/s^2, stored), the divergence error pass and the density prediction.
 
-    With ``estimate`` = 1, also D_i = |sum_j (v_j - v_i) . V_f grad W_ij / rho_j - v_i . sum_b V_b grad W_ib|
-    (paper Eq. 1 with the stored gradients) from the velocities before the update, stored in
-    ``divergence`` and added to the run sum and count.
+    Writes ``acceleration``; ``source`` s_i and ``stiffness`` k_i = s_i factor_i / dt as the ITERATE error
+    pass of the divergence-free solver (B&K 2017); ``prediction`` rho*_i / rho_0; and, with ``estimate`` = 1,
+    ``divergence`` D_i = |sum_j (v_j - v_i) . V_f grad W_ij / rho_j - v_i . sum_b V_b grad W_ib| (paper
+    Eq. 1, stored gradients). Returns the average s_i over fluid (1/s). Reads v only: the velocities are
+    those after the divergence solve.
     """
-    eps = 0.01 * h * h
+    eps = LAPLACIAN_EPS * h * h
     for i in range(n):
         xi = x[i]
         vi = v[i]
+        grad_b = boundary_grad_sum[i]
         lap_f = vi * 0.0
-        d = -vi.dot(boundary_grad_sum[i])
+        s = vi.dot(grad_b)  # B&K source: sum_j (v_i - v_j) . g_ij + v_i . sum_b g_ib
+        d = -s  # paper Eq. 1: sum_j (v_j - v_i) . g_ij / rho_j - v_i . sum_b g_ib
         for k in range(fluid_count[i]):
             j = fluid_index[i, k]
+            g = fluid_grad[i, k]
             xij = xi - x[j]
-            lap_f += (vi - v[j]).dot(xij) / ((xij.dot(xij) + eps) * density[j]) * fluid_grad[i, k]
-            d += (v[j] - vi).dot(fluid_grad[i, k]) / density[j]
-        if estimate:
-            divergence[i] = ti.abs(d)
-            divergence_sum[i] += ti.cast(ti.abs(d), ti.f64)
-            divergence_count[i] += 1
+            vij = vi - v[j]
+            rho_j = density[j]
+            lap_f += vij.dot(xij) / ((xij.dot(xij) + eps) * rho_j) * g
+            t = vij.dot(g)
+            s += t
+            d -= t / rho_j
         lap_b = vi * 0.0
         if mu_boundary != 0.0:  # free-slip boundaries (mu_b = 0) skip the boundary list
             for k in range(boundary_count[i]):
                 xib = xi - bx[boundary_index[i, k]]
                 lap_b += vi.dot(xib) / (xib.dot(xib) + eps) * boundary_grad[i, k]
-        rho_i = rest_density * density[i]
-        acceleration[i] = gravity + 10.0 * (mu * lap_f + mu_boundary * lap_b) / rho_i
+        rho_i = density[i]
+        a = gravity + LAPLACIAN_FACTOR * (mu * lap_f + mu_boundary * lap_b) / (rest_density * rho_i)
+        acceleration[i] = a
+        if estimate:
+            divergence[i] = ti.abs(d)
+        prediction[i] = rho_i + dt * (s + dt * a.dot(grad_b))
+        if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
+            s = 0.0
+        source[i] = s
+        stiffness[i] = s * factor[i] / dt
+    return ordered_sum(source, n, partial) / ti.max(n, 1)
+
+
+@ti.kernel
+def commit_forces(
+    n: ti.i32,
+    dt: float,
+    estimate: ti.i32,
+    v: ti.types.ndarray(ndim=1),
+    acceleration: ti.types.ndarray(ndim=1),
+    divergence: ti.types.ndarray(ndim=1),
+    divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    divergence_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+):
+    """v_i += dt a_i; with ``estimate`` = 1, D_i added to the run sum and count (paper Eq. 1)."""
     for i in range(n):
         v[i] += dt * acceleration[i]
+        if estimate:
+            divergence_sum[i] += ti.cast(divergence[i], ti.f64)
+            divergence_count[i] += 1
+
+
+def non_pressure_np(x: np.ndarray, v: np.ndarray, density: np.ndarray, fluid_volume: float,
+                    boundary_x: np.ndarray, boundary_volumes: np.ndarray, h: float, mu: float, mu_boundary: float,
+                    rest_density: float, gravity) -> np.ndarray:
+    """O(N^2) numpy twin of the acceleration of :func:`forces_and_divergence_error`.
+
+    Args:
+        x, v: (N, 3) fluid positions (m) and velocities (m/s). density: (N,) rho_i / rho_0.
+        fluid_volume: V_f = m / rho_0, m^3. boundary_x: (M, 3) m, at rest. boundary_volumes: (M,) m^3.
+        h: support radius, m. mu, mu_boundary: dynamic viscosities, Pa s. rest_density: kg/m^3.
+        gravity: (3,) m/s^2.
+    Returns:
+        (N, 3) a_i, m/s^2.
+    Example:
+        >>> non_pressure_np(np.zeros((1, 3)), np.zeros((1, 3)), np.ones(1), 1e-3, np.zeros((0, 3)),
+        ...                 np.zeros(0), 0.1, 0.01, 0.0, 1000.0, (0, -9.81, 0)).tolist()
+        [[0.0, -9.81, 0.0]]
+    """
+    x = np.asarray(x, np.float64)
+    v = np.asarray(v, np.float64)
+    bx = np.asarray(boundary_x, np.float64).reshape(-1, 3)
+    eps = LAPLACIAN_EPS * h * h
+    out = np.zeros_like(x)
+    for i in range(len(x)):
+        r = x[i] - x
+        near = np.sum(r * r, axis=1) < h * h
+        near[i] = False
+        g = fluid_volume * cubic_grad_w_np(r[near], h)
+        w = np.sum((v[i] - v[near]) * r[near], axis=1) / ((np.sum(r[near] ** 2, axis=1) + eps) * density[near])
+        lap = (w[:, None] * g).sum(0)
+        lap_b = np.zeros(3)
+        if len(bx):
+            rb = x[i] - bx
+            nb = np.sum(rb * rb, axis=1) < h * h
+            gb = np.asarray(boundary_volumes)[nb, None] * cubic_grad_w_np(rb[nb], h)
+            wb = (rb[nb] @ v[i]) / (np.sum(rb[nb] ** 2, axis=1) + eps)
+            lap_b = (wb[:, None] * gb).sum(0)
+        out[i] = np.asarray(gravity, np.float64) + LAPLACIAN_FACTOR * (mu * lap + mu_boundary * lap_b) / (
+            rest_density * density[i])
+    return out
