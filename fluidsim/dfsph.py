@@ -1,8 +1,8 @@
 """Divergence-free SPH (Bender & Koschier 2015, 2017): the solver passes and the time step.
 
 All quantities are normalised by the rest density (as in SPlisHSPlasH): densities are rho / rho_0 and
-neighbour weights are volumes V_j. With ``g_ij = V_j grad W(x_i - x_j, h)`` stored by the
-neighbourhood pass:
+neighbour weights are volumes V_j. With ``g_ij = V_j grad W(x_i - x_j, h) = c_ij (x_i - x_j)``, c_ij
+stored by the neighbourhood pass (:mod:`fluidsim.neighbors`):
 
 - velocity divergence source (B&K 2017, divergence-free solver):
   s_i = D(rho_i/rho_0)/Dt = sum_j (v_i - v_j) . g_ij + v_i . sum_b g_ib, clamped at 0 (the boundary is
@@ -20,7 +20,7 @@ pass (:mod:`fluidsim.viscosity`), so neither start reads the neighbour lists.
 
 import taichi as ti
 
-from .neighbors import FREE_SURFACE_NEIGHBORS
+from .neighbors import FREE_SURFACE_NEIGHBORS, unpack_pair
 from .reductions import ordered_sum
 
 # Modes of the source passes.
@@ -30,13 +30,15 @@ WARM = 2  # stiffness from the previous step's value, where the particle is comp
 
 
 @ti.func
-def velocity_divergence(i, v: ti.template(), fluid_count: ti.template(), fluid_index: ti.template(),
-                        fluid_grad: ti.template(), boundary_grad_sum: ti.template()):
+def velocity_divergence(i, x: ti.template(), v: ti.template(), fluid_count: ti.template(),
+                        fluid_pairs: ti.template(), boundary_grad_sum: ti.template()):
     """s_i = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib (1/s); boundary is at rest."""
+    xi = x[i]
     vi = v[i]
     s = vi.dot(boundary_grad_sum[i])
     for k in range(fluid_count[i]):
-        s += (vi - v[fluid_index[i, k]]).dot(fluid_grad[i, k])
+        j, c = unpack_pair(fluid_pairs[i, k])
+        s += c * (vi - v[j]).dot(xi - x[j])
     return s
 
 
@@ -44,10 +46,10 @@ def velocity_divergence(i, v: ti.template(), fluid_count: ti.template(), fluid_i
 def divergence_error(
     n: ti.i32,
     dt: float,
+    x: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-    fluid_grad: ti.types.ndarray(ndim=2),
+    fluid_pairs: ti.types.ndarray(ndim=2),
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
@@ -62,7 +64,7 @@ def divergence_error(
     computes the same s_i and k_i.
     """
     for i in range(n):
-        s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_grad_sum)
+        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, boundary_grad_sum)
         if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
             s = 0.0
         source[i] = s
@@ -104,10 +106,10 @@ def density_error(
     n: ti.i32,
     dt: float,
     mode: ti.i32,
+    x: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-    fluid_grad: ti.types.ndarray(ndim=2),
+    fluid_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
@@ -122,7 +124,7 @@ def density_error(
     non-pressure pass.
     """
     for i in range(n):
-        s = velocity_divergence(i, v, fluid_count, fluid_index, fluid_grad, boundary_grad_sum)
+        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, boundary_grad_sum)
         err = ti.max(density[i] + dt * s - 1.0, 0.0)
         source[i] = err
         stiffness[i] = err * factor[i] / (dt * dt)
@@ -156,20 +158,22 @@ def start_density(
 def apply_stiffness(
     n: ti.i32,
     dt: float,
+    x: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-    fluid_grad: ti.types.ndarray(ndim=2),
+    fluid_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
 ):
     """Velocity update of both solvers: v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib)."""
     for i in range(n):
+        xi = x[i]
         ki = stiffness[i]
         dv = ki * boundary_grad_sum[i]
         for k in range(fluid_count[i]):
-            dv += (ki + stiffness[fluid_index[i, k]]) * fluid_grad[i, k]
+            j, c = unpack_pair(fluid_pairs[i, k])
+            dv += ((ki + stiffness[j]) * c) * (xi - x[j])
         v[i] -= dt * dv
         stiffness_sum[i] += ki
 

@@ -10,7 +10,7 @@ The estimator runs after each step's divergence solve, as in the authors' code, 
 also added to the particle's run sum and count.
 
 Three fast paths give the same result: when h_k = h <= h_r (the default, h = 0.1) the step's stored
-neighbour gradients are reused; when h_r <= h the neighbour lists are filtered by distance and
+neighbour gradient coefficients are reused; when h_r <= h the neighbour lists are filtered by distance and
 grad W(., h_k) recomputed; otherwise the grid is walked with a cell range of ceil(h_r / cell). In a
 time step the first case is computed inside the viscosity pass (:mod:`fluidsim.viscosity`), which reads
 the same velocities, densities and gradients; :func:`estimate_divergence_from_gradients` is its
@@ -23,6 +23,7 @@ import taichi as ti
 
 from .grid import cell_coord, ivec3
 from .kernels import cubic_grad_w, cubic_grad_w_np
+from .neighbors import unpack_pair
 
 vec3d = ti.types.vector(3, ti.f64)
 
@@ -37,11 +38,11 @@ def _accumulate(i, d, divergence: ti.template(), divergence_sum: ti.template(), 
 @ti.kernel
 def estimate_divergence_from_gradients(
     n: ti.i32,
+    x: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-    fluid_grad: ti.types.ndarray(ndim=2),
+    fluid_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     divergence: ti.types.ndarray(ndim=1),
     divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
@@ -49,11 +50,12 @@ def estimate_divergence_from_gradients(
 ):
     """Paper Eq. 1 when h_k = h <= h_r: the stored V grad W of the step (fluid V_f, boundary sum of V_b)."""
     for i in range(n):
+        xi = x[i]
         vi = v[i]
         s = -vi.dot(boundary_grad_sum[i])
         for k in range(fluid_count[i]):
-            j = fluid_index[i, k]
-            s += (v[j] - vi).dot(fluid_grad[i, k]) / density[j]
+            j, c = unpack_pair(fluid_pairs[i, k])
+            s += c * (v[j] - vi).dot(xi - x[j]) / density[j]
         _accumulate(i, ti.abs(s), divergence, divergence_sum, divergence_count)
 
 
@@ -69,9 +71,9 @@ def estimate_divergence_from_lists(
     bx: ti.types.ndarray(ndim=1),
     bvolume: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+    fluid_pairs: ti.types.ndarray(ndim=2),
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    boundary_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+    boundary_pairs: ti.types.ndarray(ndim=2),
     divergence: ti.types.ndarray(ndim=1),
     divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
     divergence_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
@@ -83,12 +85,12 @@ def estimate_divergence_from_lists(
         vi = v[i]
         s = 0.0 * vi[0]
         for k in range(fluid_count[i]):
-            j = fluid_index[i, k]
+            j, _ = unpack_pair(fluid_pairs[i, k])
             r = xi - x[j]
             if r.dot(r) <= hr2:
                 s += fluid_volume / density[j] * (v[j] - vi).dot(cubic_grad_w(r, h_k))
         for k in range(boundary_count[i]):
-            b = boundary_index[i, k]
+            b, _ = unpack_pair(boundary_pairs[i, k])
             r = xi - bx[b]
             if r.dot(r) <= hr2:
                 s -= bvolume[b] * vi.dot(cubic_grad_w(r, h_k))

@@ -34,20 +34,24 @@ def cubic_w(r_norm, h):
 
 
 @ti.func
-def cubic_grad_w(r, h):
-    """grad_i W(x_i - x_j, h) for ``r = x_i - x_j`` (a 3-vector, metres); zero at r = 0 and |r| > h."""
-    r_norm = r.norm()
+def cubic_grad_coef(r_norm, h):
+    """W'(|r|, h) / |r| (1/m^5): ``grad W(r, h) = cubic_grad_coef(|r|, h) r``; zero at r = 0 and |r| > h."""
     q = r_norm / h
-    g = r * 0.0
+    c = 0.0 * q
     if r_norm > 1.0e-9 * h and q <= 1.0:
         l = 48.0 / (math.pi * h * h * h)
-        gradq = r / (r_norm * h)
         if q <= 0.5:
-            g = l * q * (3.0 * q - 2.0) * gradq
+            c = l * q * (3.0 * q - 2.0) / (r_norm * h)
         else:
             factor = 1.0 - q
-            g = l * (-factor * factor) * gradq
-    return g
+            c = -l * factor * factor / (r_norm * h)
+    return c
+
+
+@ti.func
+def cubic_grad_w(r, h):
+    """grad_i W(x_i - x_j, h) for ``r = x_i - x_j`` (a 3-vector, metres); zero at r = 0 and |r| > h."""
+    return cubic_grad_coef(r.norm(), h) * r
 
 
 def cubic_w_np(r_norm: np.ndarray, h: float) -> np.ndarray:

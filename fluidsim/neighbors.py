@@ -1,9 +1,12 @@
 """Neighbourhood pass on the uniform grid: neighbour lists, SPH density and the DFSPH factor.
 
 For every active fluid particle i, one pass over the 27 grid cells around it:
-- collects fluid neighbours j != i with |x_i - x_j| < h and boundary neighbours b, storing
-  ``V_j grad W_ij`` with the neighbour index (V_j = m / rho_0 for fluid, the Akinci volume for boundary),
-  and the sum ``sum_b V_b grad W_ib`` (the boundary is static, so every solver pass needs only this sum);
+- collects fluid neighbours j != i with |x_i - x_j| < h and boundary neighbours b, storing per pair the
+  neighbour index and the scalar c_ij with ``V_j grad W_ij = c_ij (x_i - x_j)`` (V_j = m / rho_0 for fluid,
+  the Akinci volume for boundary), packed in one 2-vector of integers (the index and the bits of c_ij,
+  :func:`pack_pair`); positions do not move until the step's advection, so every later pass rebuilds the
+  gradient from x_i - x_j, and reads 8 bytes per pair (f32) instead of 16;
+- stores the sum ``sum_b V_b grad W_ib`` (the boundary is static, so every solver pass needs only this sum);
 - sums the normalised density rho_i / rho_0 = V_f W(0) + sum_j V_f W_ij + sum_b V_b W_ib
   (Akinci et al. 2012 boundary contribution, divided by rho_0);
 - computes the DFSPH factor (Bender & Koschier 2017, the factor alpha_i / rho_i; rho_i cancels):
@@ -19,16 +22,50 @@ The three cells along z for fixed (x, y) offsets are contiguous in the sorted or
 visits 9 runs of slots. Cells outside the grid are skipped, never clamped.
 """
 
+import numpy as np
 import taichi as ti
+from taichi.lang import impl
 
 from .grid import cell_coord, ivec3
-from .kernels import cubic_grad_w, cubic_w
+from .kernels import cubic_grad_coef, cubic_w
 
 vec3d = ti.types.vector(3, ti.f64)
 # Below this many neighbours a particle is at the free surface and takes no divergence correction
 # (SPlisHSPlasH's heuristic for 3-D, Bender & Koschier 2017, Sec. 4.4).
 FREE_SURFACE_NEIGHBORS = 20
 FACTOR_EPS = 1.0e-5
+
+
+def _wide() -> bool:
+    """Whether the runtime's floats are f64 (pairs are then two i64, else two i32)."""
+    return impl.get_runtime().default_fp == ti.f64
+
+
+def pair_dtype(precision: str):
+    """Integer type of the packed (index, c_ij bits) pairs for ``"f32"`` or ``"f64"``."""
+    return ti.i64 if precision == "f64" else ti.i32
+
+
+@ti.func
+def pack_pair(j, c):
+    """(neighbour index ``j``, gradient coefficient ``c``) as one integer 2-vector: j and the bits of c."""
+    it = ti.i64 if ti.static(_wide()) else ti.i32
+    ft = ti.f64 if ti.static(_wide()) else ti.f32
+    return ti.Vector([ti.cast(j, it), ti.bit_cast(ti.cast(c, ft), it)])
+
+
+@ti.func
+def unpack_pair(e):
+    """Inverse of :func:`pack_pair`: (index j, c with V_j grad W_ij = c (x_i - x_j))."""
+    ft = ti.f64 if ti.static(_wide()) else ti.f32
+    return ti.cast(e[0], ti.i32), ti.bit_cast(e[1], ft)
+
+
+def unpack_pairs_np(pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Numpy twin of :func:`unpack_pair` on a whole list array [N, cap, 2] -> (index [N, cap], c [N, cap])."""
+    ints = np.ascontiguousarray(pairs)
+    floats = ints.view(np.float64 if ints.dtype == np.int64 else np.float32)
+    return ints[..., 0].astype(np.int64), floats[..., 1].astype(np.float64)
 
 
 @ti.kernel
@@ -74,11 +111,9 @@ def build_neighborhoods(
     h: float,
     fluid_volume: float,
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-    fluid_grad: ti.types.ndarray(ndim=2),
+    fluid_pairs: ti.types.ndarray(ndim=2),
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    boundary_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-    boundary_grad: ti.types.ndarray(ndim=2),
+    boundary_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
@@ -92,8 +127,8 @@ def build_neighborhoods(
     A particle whose neighbours exceed the list capacity still gets its full density and factor; the
     caller sees the returned maxima, grows the lists and runs the pass again.
     """
-    cap_f = fluid_index.shape[1]
-    cap_b = boundary_index.shape[1]
+    cap_f = fluid_pairs.shape[1]
+    cap_b = boundary_pairs.shape[1]
     h2 = h * h
     w0 = cubic_w(0.0, h)
     max_f = 0
@@ -120,26 +155,27 @@ def build_neighborhoods(
                     r = xi - x[j]
                     r2 = r.dot(r)
                     if r2 < h2 and j != i:
-                        rho += fluid_volume * cubic_w(ti.sqrt(r2), h)
-                        g = fluid_volume * cubic_grad_w(r, h)
+                        rn = ti.sqrt(r2)
+                        rho += fluid_volume * cubic_w(rn, h)
+                        cg = fluid_volume * cubic_grad_coef(rn, h)
+                        g = cg * r
                         grad_sum += g
                         sq_sum += g.dot(g)
                         div += (vi - v[j]).dot(g)
                         if nf < cap_f:
-                            fluid_index[i, nf] = j
-                            fluid_grad[i, nf] = g
+                            fluid_pairs[i, nf] = pack_pair(j, cg)
                         nf += 1
                 for b in range(boundary_starts[base + z0], boundary_starts[base + z1 + 1]):
                     r = xi - bx[b]
                     r2 = r.dot(r)
                     if r2 < h2:
                         vb = bvolume[b]
-                        rho += vb * cubic_w(ti.sqrt(r2), h)
-                        g = vb * cubic_grad_w(r, h)
-                        grad_sum_b += g
+                        rn = ti.sqrt(r2)
+                        rho += vb * cubic_w(rn, h)
+                        cg = vb * cubic_grad_coef(rn, h)
+                        grad_sum_b += cg * r
                         if nb < cap_b:
-                            boundary_index[i, nb] = b
-                            boundary_grad[i, nb] = g
+                            boundary_pairs[i, nb] = pack_pair(b, cg)
                         nb += 1
         density[i] = rho
         boundary_grad_sum[i] = grad_sum_b

@@ -109,14 +109,23 @@ class BoundaryParticles:
 class Neighborhoods:
     """Fixed-capacity neighbour lists per fluid particle, grown when a particle overflows them.
 
-    Fluid-fluid pairs store the neighbour index j and V_f grad W(x_i - x_j, h). Fluid-boundary pairs
-    store the boundary index b and V_b grad W(x_i - x_b, h) (volume-weighted, since V_b never changes);
-    ``boundary_grad_sum`` (vec3 per particle) holds their sum, all the pressure solvers need of them.
+    Each pair is one integer 2-vector (:func:`fluidsim.neighbors.pack_pair`): the neighbour's index and the
+    bits of the scalar c_ij with ``V_j grad W(x_i - x_j, h) = c_ij (x_i - x_j)`` (fluid V_f; boundary V_b,
+    volume-weighted since V_b never changes). ``boundary_grad_sum`` (vec3 per particle) holds
+    sum_b V_b grad W_ib, all the pressure solvers need of the boundary.
+
+    Attributes:
+        fluid_count, boundary_count: (N,) i32 pairs per particle (capped at the capacity).
+        fluid_pairs: (N, fluid_capacity) 2-vectors of i32 (f32 runs) or i64 (f64 runs).
+        boundary_pairs: (N, boundary_capacity) likewise.
     """
 
     def __init__(self, n: int, capacity: int, precision: str):
+        from .neighbors import pair_dtype
+
         self.n = max(n, 1)
         self.fp = float_dtype(precision)
+        self.pair_int = pair_dtype(precision)
         self.fluid_count = ti.ndarray(ti.i32, shape=self.n)
         self.boundary_count = ti.ndarray(ti.i32, shape=self.n)
         self.boundary_grad_sum = ti.Vector.ndarray(3, self.fp, shape=self.n)
@@ -127,12 +136,24 @@ class Neighborhoods:
     def resize(self, fluid_capacity: int, boundary_capacity: int) -> None:
         if fluid_capacity != self.fluid_capacity:
             self.fluid_capacity = fluid_capacity
-            self.fluid_index = ti.ndarray(ti.i32, shape=(self.n, fluid_capacity))
-            self.fluid_grad = ti.Vector.ndarray(3, self.fp, shape=(self.n, fluid_capacity))
+            self.fluid_pairs = ti.Vector.ndarray(2, self.pair_int, shape=(self.n, fluid_capacity))
         if boundary_capacity != self.boundary_capacity:
             self.boundary_capacity = boundary_capacity
-            self.boundary_index = ti.ndarray(ti.i32, shape=(self.n, boundary_capacity))
-            self.boundary_grad = ti.Vector.ndarray(3, self.fp, shape=(self.n, boundary_capacity))
+            self.boundary_pairs = ti.Vector.ndarray(2, self.pair_int, shape=(self.n, boundary_capacity))
+
+    def lists(self, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Decoded lists as numpy, for tests and inspection.
+
+        Args:
+            kind: ``"fluid"`` or ``"boundary"``.
+        Returns:
+            (count (N,), index (N, cap), c (N, cap)); slots past a particle's count are unspecified.
+        """
+        from .neighbors import unpack_pairs_np
+
+        count = getattr(self, f"{kind}_count").to_numpy()
+        index, coef = unpack_pairs_np(getattr(self, f"{kind}_pairs").to_numpy())
+        return count, index, coef
 
 
 def _like(arr):

@@ -233,8 +233,8 @@ class DFSPHSolver:
         while True:
             counts = neighbors.build_neighborhoods(
                 f.active, f.x, self._starts, b.x, b.volume, b.cell_starts, self._origin, self._inv_cell,
-                self._dims, self.h, self.fluid_volume, nb.fluid_count, nb.fluid_index, nb.fluid_grad,
-                nb.boundary_count, nb.boundary_index, nb.boundary_grad, nb.boundary_grad_sum, f.density, f.factor,
+                self._dims, self.h, self.fluid_volume, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
+                nb.boundary_pairs, nb.boundary_grad_sum, f.density, f.factor,
                 f.v, f.source)
             max_f, max_b = int(counts[0]), int(counts[1])
             if max_f <= nb.fluid_capacity and max_b <= nb.boundary_capacity:
@@ -260,7 +260,7 @@ class DFSPHSolver:
         max_it = cfg.max_iterations
 
         def apply() -> None:
-            dfsph.apply_stiffness(n, dt, f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_grad_sum,
+            dfsph.apply_stiffness(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.boundary_grad_sum,
                                   f.stiffness, f.stiffness_sum)
 
         iterations = 0
@@ -295,7 +295,7 @@ class DFSPHSolver:
                 self._forces_ready = True
                 return err
             self._forces_ready = False
-            return dfsph.divergence_error(f.active, dt, f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad,
+            return dfsph.divergence_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs,
                                           nb.boundary_count, nb.boundary_grad_sum, f.factor, f.source, f.stiffness,
                                           self._partial)
 
@@ -308,7 +308,7 @@ class DFSPHSolver:
         tol = self.config.max_density_error * 0.01
 
         def error_pass(mode: int) -> float:
-            return dfsph.density_error(f.active, dt, mode, f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad,
+            return dfsph.density_error(f.active, dt, mode, f.x, f.v, nb.fluid_count, nb.fluid_pairs,
                                        nb.boundary_grad_sum, f.density, f.factor, f.source, f.stiffness,
                                        f.stiffness_sum, self._partial)
 
@@ -334,12 +334,12 @@ class DFSPHSolver:
         if self._estimate_with_viscosity():
             # The default (h_r = h_k = h): the lists hold exactly the neighbours and their V_f grad W.
             divergence.estimate_divergence_from_gradients(
-                f.active, f.v, f.density, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_grad_sum,
+                f.active, f.x, f.v, f.density, nb.fluid_count, nb.fluid_pairs, nb.boundary_grad_sum,
                 f.divergence, f.divergence_sum, f.divergence_count)
         elif cfg.estimator_radius <= self.h:
             divergence.estimate_divergence_from_lists(
                 f.active, cfg.estimator_radius, cfg.estimator_kernel_radius, self.fluid_volume, f.x, f.v,
-                f.density, b.x, b.volume, nb.fluid_count, nb.fluid_index, nb.boundary_count, nb.boundary_index,
+                f.density, b.x, b.volume, nb.fluid_count, nb.fluid_pairs, nb.boundary_count, nb.boundary_pairs,
                 f.divergence, f.divergence_sum, f.divergence_count)
         else:
             reach = int(math.ceil(cfg.estimator_radius / self.grid.cell_size))
@@ -354,8 +354,8 @@ class DFSPHSolver:
         cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
         return viscosity.forces_and_divergence_error(
             f.active, dt, ti.Vector(list(cfg.gravity)), cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
-            self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_index, nb.fluid_grad, nb.boundary_count,
-            nb.boundary_index, nb.boundary_grad, nb.boundary_grad_sum, f.factor, f.source, f.stiffness,
+            self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
+            nb.boundary_pairs, nb.boundary_grad_sum, f.factor, f.source, f.stiffness,
             f.acceleration, int(estimate), f.divergence, f.prediction, self._partial)
 
     def _non_pressure_forces(self, dt: float, estimate: bool = False) -> None:

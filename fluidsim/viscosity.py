@@ -30,7 +30,7 @@ import numpy as np
 import taichi as ti
 
 from .kernels import cubic_grad_w_np
-from .neighbors import FREE_SURFACE_NEIGHBORS
+from .neighbors import FREE_SURFACE_NEIGHBORS, unpack_pair
 from .reductions import ordered_sum
 
 LAPLACIAN_FACTOR = 2.0 * (3 + 2)  # 2 (d + 2), d = 3
@@ -51,11 +51,9 @@ def forces_and_divergence_error(
     density: ti.types.ndarray(ndim=1),
     bx: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    fluid_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-    fluid_grad: ti.types.ndarray(ndim=2),
+    fluid_pairs: ti.types.ndarray(ndim=2),
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    boundary_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-    boundary_grad: ti.types.ndarray(ndim=2),
+    boundary_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
     source: ti.types.ndarray(ndim=1),
@@ -83,20 +81,21 @@ def forces_and_divergence_error(
         s = vi.dot(grad_b)  # B&K source: sum_j (v_i - v_j) . g_ij + v_i . sum_b g_ib
         d = -s  # paper Eq. 1: sum_j (v_j - v_i) . g_ij / rho_j - v_i . sum_b g_ib
         for k in range(fluid_count[i]):
-            j = fluid_index[i, k]
-            g = fluid_grad[i, k]
+            j, c = unpack_pair(fluid_pairs[i, k])
             xij = xi - x[j]
             vij = vi - v[j]
             rho_j = density[j]
-            lap_f += vij.dot(xij) / ((xij.dot(xij) + eps) * rho_j) * g
-            t = vij.dot(g)
+            vx = vij.dot(xij)
+            lap_f += (vx * c / ((xij.dot(xij) + eps) * rho_j)) * xij
+            t = c * vx  # (v_i - v_j) . g_ij
             s += t
             d -= t / rho_j
         lap_b = vi * 0.0
         if mu_boundary != 0.0:  # free-slip boundaries (mu_b = 0) skip the boundary list
             for k in range(boundary_count[i]):
-                xib = xi - bx[boundary_index[i, k]]
-                lap_b += vi.dot(xib) / (xib.dot(xib) + eps) * boundary_grad[i, k]
+                b, c = unpack_pair(boundary_pairs[i, k])
+                xib = xi - bx[b]
+                lap_b += (vi.dot(xib) * c / (xib.dot(xib) + eps)) * xib
         rho_i = density[i]
         a = gravity + LAPLACIAN_FACTOR * (mu * lap_f + mu_boundary * lap_b) / (rest_density * rho_i)
         acceleration[i] = a

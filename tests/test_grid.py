@@ -86,14 +86,14 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
     v_nd, src = _to_nd(vel), ti.ndarray(ti.f32, shape=n)
     args = (ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims), h, 1.0e-4)
     while True:
-        m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_index,
-                                          nb.fluid_grad, nb.boundary_count, nb.boundary_index, nb.boundary_grad,
+        m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
+                                          nb.boundary_count, nb.boundary_pairs,
                                           bsum, dens, fac, v_nd, src)
         if m[0] <= nb.fluid_capacity and m[1] <= nb.boundary_capacity:
             break
         nb.resize(int(m[0]), int(m[1]))
-    fc, fi = nb.fluid_count.to_numpy(), nb.fluid_index.to_numpy()
-    bc, bi = nb.boundary_count.to_numpy(), nb.boundary_index.to_numpy()
+    fc, fi, fcoef = nb.lists("fluid")
+    bc, bi, bcoef = nb.lists("boundary")
     x32 = xs.astype(np.float32).astype(np.float64)
     b32 = bx.astype(np.float32).astype(np.float64)
     ref_f = brute_force_neighbors_np(x32, x32, h, exclude_self=True)
@@ -101,6 +101,13 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
     for i in range(n):
         np.testing.assert_array_equal(np.sort(fi[i, : fc[i]]), ref_f[i], err_msg=f"fluid neighbours of {i}")
         np.testing.assert_array_equal(np.sort(bi[i, : bc[i]]), ref_b[i], err_msg=f"boundary neighbours of {i}")
+    # the stored coefficients give V grad W: c_ij (x_i - x_j) = V cubic_grad_w(x_i - x_j)
+    for i in range(0, n, 7):
+        for lists, pts, coef in ((fi, x32, fcoef), (bi, b32, bcoef)):
+            cnt = fc[i] if lists is fi else bc[i]
+            r = x32[i] - pts[lists[i, :cnt]]
+            np.testing.assert_allclose(coef[i, :cnt, None] * r, 1.0e-4 * cubic_grad_w_np(r, h), rtol=1e-4,
+                                       atol=1e-6 * 1.0e-4 * 48 / np.pi / h**4)
     # the stored boundary gradient sum = the numpy sum of V_b grad W over the brute-force neighbours
     ref_sum = np.array([1.0e-4 * cubic_grad_w_np(x32[i] - b32[ref_b[i]], h).sum(0) for i in range(n)])
     assert np.abs(ref_sum).max() > 0  # some particles do see the boundary

@@ -71,7 +71,7 @@ def test_forces_pass_is_the_divergence_solvers_error_pass():
     cfg, solver = _solver(0.0)
     f, nb = solver.fluid, solver.neighborhoods
     dt = cfg.dt
-    stand_alone = dfsph.divergence_error(f.active, dt, f.v, nb.fluid_count, nb.fluid_index, nb.fluid_grad,
+    stand_alone = dfsph.divergence_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs,
                                          nb.boundary_count, nb.boundary_grad_sum, f.factor, f.source, f.stiffness,
                                          solver._partial)
     src, k = f.numpy("source"), f.numpy("stiffness")
