@@ -145,6 +145,24 @@ def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), g
 
 
 @ti.kernel
+def stage_particles(
+    n: ti.i32,
+    offset: ti.i32,
+    xs: ti.types.ndarray(ndim=1),
+    values: ti.types.ndarray(ndim=1),
+    ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    staged_x: ti.types.ndarray(ndim=1),
+    staged_values: ti.types.ndarray(ndim=1),
+    staged_ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
+):
+    """Copy particles 0..n-1 (positions, values, ids) to slots offset..offset+n-1 of the staging arrays."""
+    for i in range(n):
+        staged_x[offset + i] = xs[i]
+        staged_values[offset + i] = values[i]
+        staged_ids[offset + i] = ids[i]
+
+
+@ti.kernel
 def accumulate(
     n: ti.i32,
     xs: ti.types.ndarray(ndim=1),

@@ -391,6 +391,10 @@ class _ProbeRecorder:
                              vmax=f"{stats.max_speed:.2f}", fluid=stats.active, refresh=False)
 
     def end(self, direction: str, solver: DFSPHSolver, history: list[StepStats]) -> None:
+        t0 = time.perf_counter()
+        self.acc.flush()  # the last staged steps count as aggregation time
+        ti.sync()
+        self.aggregation_s += time.perf_counter() - t0
         self.probe_s += time.perf_counter() - self._t_start
         self.bar.close()
         self.means[direction] = np.asarray(self.acc.means(), np.float64)
