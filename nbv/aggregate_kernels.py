@@ -133,11 +133,9 @@ def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), g
         else:
             ti.loop_config(block_dim=1)
         for r in range(rows):
-            i = r
-            while i < n:
+            for i in range(r * n // rows, (r + 1) * n // rows):
                 visit_particle(i, r, xs, values, ids, grid, lists, gauss, add_values, track, private, acc, bits,
                                keys, key_count)
-                i += rows
     else:
         for i in range(n):
             visit_particle(i, 0, xs, values, ids, grid, lists, gauss, add_values, track, private, acc, bits, keys,
@@ -178,9 +176,11 @@ def accumulate(
     ``acc[row, g, 1]`` for every Gaussian g with |x_i - mu_g|^2 < r_g'^2 (``gauss[g]`` = (mu_g, (n r_g)^2)).
 
     ``grid``: see ``GRID_SIZE``. ``lists``: cell starts (cells + 1), then the Gaussian ids of all cells.
-    ``private`` (CPUs): ``acc`` has one row per task; task r takes particles r, r + R, ... (R = the number of
-    rows) and alone writes row r, so no add is atomic; the caller sums the rows, and the result is bitwise
-    deterministic for a given R. Otherwise (GPUs) one row and atomic adds. Counts are exact in f64 up to 2^53.
+    ``private`` (CPUs): ``acc`` has one row per task; task r takes the r-th of R contiguous chunks of the
+    particles (R = the number of rows; particles come in cell order, so a chunk is a region of space and its
+    Gaussians stay in that core's cache) and alone writes row r, so no add is atomic; the caller sums the
+    rows, and the result is bitwise deterministic for a given R. Otherwise (GPUs) one row and atomic adds.
+    Counts are exact in f64 up to 2^53.
     ``serial`` (with ``private``): the rows run one after the other on the launching thread, which on small
     probes costs less than waking the thread pool.
     """
