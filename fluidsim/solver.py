@@ -27,7 +27,7 @@ import taichi as ti
 from . import dfsph, divergence, grid, neighbors, viscosity
 from .config import RETIRE_MARGIN_MAX, SolverConfig
 from .grid import GridSpec
-from .kernels import cubic_w_np
+from .kernels import CUBIC_TABLE_SIZE, cubic_table_np, cubic_w_np
 from .particles import BoundaryParticles, FluidParticles, Neighborhoods, float_dtype
 from .reductions import REDUCTION_CHUNKS
 
@@ -146,6 +146,8 @@ class DFSPHSolver:
             keep = self._outside_boundary(fx)
             self.removed_inside_solid = int((~keep).sum())
             fx, fv = fx[keep], fv[keep]
+        self._kernel_table = ti.Vector.ndarray(2, float_dtype(config.precision), shape=CUBIC_TABLE_SIZE + 2)
+        self._kernel_table.from_numpy(cubic_table_np(h).astype(np.float64 if config.precision == "f64" else np.float32))
         self.fluid = FluidParticles(fx, fv, config.precision)
         n = self.fluid.capacity
         self.neighborhoods = Neighborhoods(n, config.max_neighbors, config.precision)
@@ -235,7 +237,7 @@ class DFSPHSolver:
                 f.active, f.x, self._starts, b.x, b.volume, b.cell_starts, self._origin, self._inv_cell,
                 self._dims, self.h, self.fluid_volume, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
                 nb.boundary_pairs, nb.boundary_grad_sum, f.density, f.factor,
-                f.v, f.source)
+                f.v, f.source, self._kernel_table)
             max_f, max_b = int(counts[0]), int(counts[1])
             if max_f <= nb.fluid_capacity and max_b <= nb.boundary_capacity:
                 return max_f, max_b

@@ -5,7 +5,7 @@ import taichi as ti
 
 from fluidsim import grid, neighbors
 from fluidsim.grid import brute_force_neighbors_np, cell_index_np, grid_for_box
-from fluidsim.kernels import cubic_grad_w_np
+from fluidsim.kernels import CUBIC_TABLE_SIZE, cubic_grad_w_np, cubic_table_np
 from fluidsim.particles import Neighborhoods
 
 
@@ -85,10 +85,12 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
     vel = rng.normal(0.0, 1.0, (n, 3)).astype(np.float32)
     v_nd, src = _to_nd(vel), ti.ndarray(ti.f32, shape=n)
     args = (ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims), h, 1.0e-4)
+    table = ti.Vector.ndarray(2, ti.f32, shape=CUBIC_TABLE_SIZE + 2)
+    table.from_numpy(cubic_table_np(h).astype(np.float32))
     while True:
         m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
                                           nb.boundary_count, nb.boundary_pairs,
-                                          bsum, dens, fac, v_nd, src)
+                                          bsum, dens, fac, v_nd, src, table)
         if m[0] <= nb.fluid_capacity and m[1] <= nb.boundary_capacity:
             break
         nb.resize(int(m[0]), int(m[1]))
