@@ -23,6 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="compute device (default: cpu)")
     p.add_argument("--no-peer", action="store_true",
                    help="skip the SPlisHSPlasH comparison even when pysplishsplash is installed")
+    p.add_argument("--no-divergence-warm-start", action="store_true",
+                   help="our engine: start the divergence solver cold (solver.divergence_warm_start = false; two "
+                        "list passes fewer per step); SPlisHSPlasH always warm-starts (default: warm start)")
     p.add_argument("--json", type=str, default=None, help="also write the figures to this JSON file")
 
 
@@ -32,7 +35,7 @@ def bench_scene():
     return PeerScene()
 
 
-def run_ours(scene, steps: int) -> dict:
+def run_ours(scene, steps: int, divergence_warm_start: bool = True) -> dict:
     from fluidsim import DFSPHSolver, SolverConfig
     from fluidsim.scene import lattice_in_box
     from fluidsim.sources import sphere_particles, wall_particles
@@ -42,7 +45,7 @@ def run_ours(scene, steps: int) -> dict:
                        max_density_error=scene.max_density_error_percent,
                        max_divergence_error=scene.max_divergence_error_percent,
                        min_iterations=scene.min_iterations, max_iterations=scene.max_iterations,
-                       boundary_viscosity=0.0)
+                       boundary_viscosity=0.0, divergence_warm_start=divergence_warm_start)
     sp = cfg.spacing
     solid = sphere_particles(scene.sphere_center, scene.sphere_radius, sp, fill=True)
     walls = wall_particles(scene.domain_min, scene.domain_max, sp, 2)
@@ -80,9 +83,11 @@ def run_command(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     scene = replace(scene, steps=args.steps, threads=args.threads)
-    ours = run_ours(scene, args.steps)
-    report = {"device": device, "threads": args.threads, "fluidgaussian": ours}
-    print(f"FluidGaussian DFSPH ({device}, {args.threads} threads)")
+    ours = run_ours(scene, args.steps, divergence_warm_start=not args.no_divergence_warm_start)
+    report = {"device": device, "threads": args.threads, "fluidgaussian": ours,
+              "divergence_warm_start": not args.no_divergence_warm_start}
+    cold = ", divergence solver not warm-started" if args.no_divergence_warm_start else ""
+    print(f"FluidGaussian DFSPH ({device}, {args.threads} threads{cold})")
     print(f"  particles: {ours['fluid_particles']} fluid, {ours['solid_particles']} solid, "
           f"{ours['wall_particles']} wall")
     print(f"  first step (JIT compile or cache load): {ours['first_step_ms']:.0f} ms")

@@ -247,7 +247,7 @@ class DFSPHSolver:
             nb.resize(grow_f, grow_b)
 
     def _solve(self, error, start, kappa, dt: float, tolerance: float, store_scale: float,
-               min_iterations: int) -> tuple[int, float]:
+               min_iterations: int, warm: bool) -> tuple[int, float]:
         """The iteration shared by both DFSPH solvers; returns (iterations, final average error).
 
         Args:
@@ -256,6 +256,7 @@ class DFSPHSolver:
             start: ``start(mode)`` begins the solve: WARM sets the warm-start stiffness, FIRST sets the first
                 stiffness and returns the first error.
             kappa: the warm-start memory the solve stores at its end (summed stiffness x ``store_scale``).
+            warm: start from ``start(WARM)`` and one velocity update, else from ``start(FIRST)``.
         """
         cfg, f, nb = self.config, self.fluid, self.neighborhoods
         n = f.active
@@ -266,7 +267,7 @@ class DFSPHSolver:
                                   f.stiffness, f.stiffness_sum)
 
         iterations = 0
-        if cfg.warm_start:
+        if warm:
             start(dfsph.WARM)
             apply()
             err = error(min_iterations <= 0)
@@ -301,7 +302,9 @@ class DFSPHSolver:
                                           nb.boundary_count, nb.boundary_grad_sum, f.factor, f.source, f.stiffness,
                                           self._partial)
 
-        return self._solve(error, start, f.kappa_divergence, dt, tol, dt, self.config.min_divergence_iterations)
+        cfg = self.config
+        return self._solve(error, start, f.kappa_divergence, dt, tol, dt, cfg.min_divergence_iterations,
+                           cfg.warm_start and cfg.divergence_warm_start)
 
     def _density_solve(self, dt: float) -> tuple[int, float]:
         f, nb = self.fluid, self.neighborhoods
@@ -321,7 +324,7 @@ class DFSPHSolver:
             return error_pass(dfsph.FIRST)
 
         return self._solve(lambda last: error_pass(dfsph.ITERATE), start, f.kappa_density, dt, tol, dt * dt,
-                           self.config.min_iterations)
+                           self.config.min_iterations, self.config.warm_start)
 
     def _estimate_with_viscosity(self) -> bool:
         """Whether paper Eq. 1 can use the stored gradients (h_k = h <= h_r), fused into the viscosity pass."""
