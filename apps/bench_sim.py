@@ -24,8 +24,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-peer", action="store_true",
                    help="skip the SPlisHSPlasH comparison even when pysplishsplash is installed")
     p.add_argument("--no-divergence-warm-start", action="store_true",
-                   help="our engine: start the divergence solver cold (solver.divergence_warm_start = false; two "
-                        "list passes fewer per step); SPlisHSPlasH always warm-starts (default: warm start)")
+                   help="our engine: start the divergence solver cold (solver.divergence_warm_start = false; one "
+                        "list pass fewer per step); SPlisHSPlasH always warm-starts (default: warm start)")
     p.add_argument("--json", type=str, default=None, help="also write the figures to this JSON file")
 
 

@@ -11,11 +11,24 @@ stored by the neighbourhood pass (:mod:`fluidsim.neighbors`):
 - stiffness k_i = kappa_i / rho_i = s_i factor_i / dt (divergence) or (rho*_i - 1) factor_i / dt^2;
 - velocity update v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib).
 
-Errors are averaged over the active fluid particles only. Both solvers warm-start from the summed
-stiffness of the previous step (the divergence solver at half strength, as in SPlisHSPlasH), stored
-independent of dt, where the particle is compressed: the divergence solver judges that from the source
-measured by the neighbourhood pass, the density solver from the density predicted by the non-pressure
-pass (:mod:`fluidsim.viscosity`), so neither start reads the neighbour lists.
+Errors are averaged over the active fluid particles only. Each iteration is one error pass (the
+average error, and the stiffness k_i of the Jacobi update) and one velocity update; the solve ends after
+the update of the iteration whose measured error met the tolerance (with at least the minimum number of
+iterations), so the last update is always applied, as in SPlisHSPlasH: its check reads the error before
+that iteration's update, and the final state is at least that accurate.
+
+Warm start (B&K 2017): both solvers start from the summed stiffness kappa of the previous step (stored
+independent of dt), applied as one velocity change -dt (k_i sum_k g_ik + sum_j k_j g_ij) that needs no
+list pass of its own:
+- divergence-free solver: k_i = kappa_i / (2 dt) for every particle (half strength, as SPlisHSPlasH's
+  stiffness-based DFSPH). The change depends only on the positions and the stored kappa, so the
+  neighbourhood pass sums it (the "push" P_i, :func:`fluidsim.neighbors.build_neighborhoods`) and
+  :func:`start_divergence` applies it per particle;
+- constant-density solver: k_i = kappa_i / dt^2 where the particle is compressing after the divergence
+  solve (:func:`density_warm_stiffness`), else 0, so the start is symmetric and moves no particle that
+  is not pushed by a compressed neighbour (a start from every particle's kappa was measured to double
+  the splash speeds). The non-pressure pass sums the push (:mod:`fluidsim.viscosity`) and
+  :func:`start_density` applies it.
 """
 
 import taichi as ti
@@ -23,22 +36,24 @@ import taichi as ti
 from .neighbors import FREE_SURFACE_NEIGHBORS, unpack_pair
 from .reductions import ordered_sum
 
-# Modes of the source passes.
-ITERATE = 0  # stiffness from the current error
-FIRST = 1  # as ITERATE, and reset the accumulated stiffness
-WARM = 2  # stiffness from the previous step's value, where the particle is compressed now (start passes)
+# Modes of the start kernels.
+FIRST = 1  # cold start: no stiffness yet (the divergence solver takes its first stiffness from the source)
+WARM = 2  # warm start: apply the push of the previous step's stiffness
 
 
 @ti.func
 def velocity_divergence(i, x: ti.template(), v: ti.template(), fluid_count: ti.template(),
-                        fluid_pairs: ti.template(), boundary_grad_sum: ti.template()):
-    """s_i = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib (1/s); boundary is at rest."""
+                        fluid_pairs: ti.template(), grad_sum: ti.template()):
+    """s_i = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib (1/s); boundary is at rest.
+
+    Evaluated as v_i . G_i - sum_j c_ij v_j . (x_i - x_j) with the stored G_i = sum_j g_ij + sum_b g_ib,
+    three operations fewer per pair.
+    """
     xi = x[i]
-    vi = v[i]
-    s = vi.dot(boundary_grad_sum[i])
+    s = v[i].dot(grad_sum[i])
     for k in range(fluid_count[i]):
         j, c = unpack_pair(fluid_pairs[i, k])
-        s += c * (vi - v[j]).dot(xi - x[j])
+        s -= c * v[j].dot(xi - x[j])
     return s
 
 
@@ -51,20 +66,17 @@ def divergence_error(
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    boundary_grad_sum: ti.types.ndarray(ndim=1),
+    grad_sum: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
     source: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
     partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
 ) -> ti.f64:
-    """Divergence-free solver, error pass (ITERATE): s_i and k_i; returns the average s_i over fluid (1/s).
-
-    The solve starts with :func:`start_divergence` (the neighbourhood pass measured the first source),
-    and a pass that may end the solve is :func:`fluidsim.viscosity.forces_and_divergence_error`, which
-    computes the same s_i and k_i.
-    """
+    """Divergence-free solver, error pass: s_i (clamped at 0, and 0 at the free surface) and k_i; returns
+    the average s_i over fluid (1/s). A cold start takes its first s_i from the neighbourhood pass instead
+    (:func:`start_divergence`)."""
     for i in range(n):
-        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, boundary_grad_sum)
+        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum)
         if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
             s = 0.0
         source[i] = s
@@ -81,23 +93,25 @@ def start_divergence(
     source: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
     kappa: ti.types.ndarray(ndim=1),
+    push: ti.types.ndarray(ndim=1),
+    v: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
     partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
 ) -> ti.f64:
-    """Divergence-free solver, start (FIRST or WARM) from the source s_i of the neighbourhood pass.
+    """Divergence-free solver, start; returns the average source s_i over fluid (1/s) of the neighbourhood pass.
 
-    Returns the average s_i over fluid (1/s); resets the accumulated stiffness.
+    FIRST: the first stiffness k_i = s_i factor_i / dt from that source (its error is then known without a
+    pass) and an empty stiffness sum. WARM: v_i -= warm_scale P_i (k_i = warm_scale kappa_i / dt, so
+    -dt (k_i sum_k g_ik + sum_j k_j g_ij) = -warm_scale P_i), and the stiffness sum starts at k_i.
     """
     for i in range(n):
-        s = source[i]
-        k = s * factor[i] / dt
         if mode == WARM:
-            k = 0.0
-            if s > 0.0:
-                k = warm_scale * kappa[i] / dt
-        stiffness[i] = k
-        stiffness_sum[i] = 0.0
+            v[i] -= warm_scale * push[i]
+            stiffness_sum[i] = warm_scale * kappa[i] / dt
+        else:
+            stiffness[i] = source[i] * factor[i] / dt
+            stiffness_sum[i] = 0.0
     return ordered_sum(source, n, partial) / ti.max(n, 1)
 
 
@@ -105,53 +119,66 @@ def start_divergence(
 def density_error(
     n: ti.i32,
     dt: float,
-    mode: ti.i32,
     x: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
-    boundary_grad_sum: ti.types.ndarray(ndim=1),
+    grad_sum: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
     source: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
-    stiffness_sum: ti.types.ndarray(ndim=1),
     partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
 ) -> ti.f64:
-    """Constant-density solver, error pass (ITERATE or FIRST): rho*_i - 1 and k_i; returns the average error.
-
-    The warm start needs no pass of its own: :func:`start_density` reads the density predicted by the
-    non-pressure pass.
-    """
+    """Constant-density solver, error pass: rho*_i - 1 (clamped at 0) and k_i; returns the average error."""
     for i in range(n):
-        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, boundary_grad_sum)
+        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum)
         err = ti.max(density[i] + dt * s - 1.0, 0.0)
         source[i] = err
         stiffness[i] = err * factor[i] / (dt * dt)
-        if mode != ITERATE:
-            stiffness_sum[i] = 0.0
     return ordered_sum(source, n, partial) / ti.max(n, 1)
+
+
+@ti.kernel
+def density_warm_stiffness(
+    n: ti.i32,
+    dt: float,
+    gravity: ti.types.vector(3, float),
+    density: ti.types.ndarray(ndim=1),
+    source: ti.types.ndarray(ndim=1),
+    boundary_grad_sum: ti.types.ndarray(ndim=1),
+    kappa: ti.types.ndarray(ndim=1),
+    warm_kappa: ti.types.ndarray(ndim=1),
+):
+    """Constant-density solver, warm-start stiffness: w_i = kappa_i where the particle is compressing,
+    rho_i + dt s_i > 1 (s_i the last divergence source measured, clamped at 0), else 0."""
+    for i in range(n):
+        w = 0.0 * kappa[i]
+        if density[i] + dt * (source[i] + dt * gravity.dot(boundary_grad_sum[i])) > 1.0:
+            w = kappa[i]
+        warm_kappa[i] = w
 
 
 @ti.kernel
 def start_density(
     n: ti.i32,
     dt: float,
+    mode: ti.i32,
     warm_scale: float,
-    prediction: ti.types.ndarray(ndim=1),
-    kappa: ti.types.ndarray(ndim=1),
-    stiffness: ti.types.ndarray(ndim=1),
+    warm_kappa: ti.types.ndarray(ndim=1),
+    push: ti.types.ndarray(ndim=1),
+    v: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
 ):
-    """Constant-density solver, warm start: k_i = warm_scale kappa_i / dt^2 where the predicted density
-    rho*_i (from :func:`fluidsim.viscosity.forces_and_divergence_error`) exceeds rest, else 0; resets the
-    accumulated stiffness."""
+    """Constant-density solver, start. WARM: v_i -= warm_scale P_i / dt with the push P_i of the non-pressure
+    pass (k_i = warm_scale w_i / dt^2, w from :func:`density_warm_stiffness`), and the stiffness sum starts
+    at k_i; FIRST: an empty stiffness sum."""
     for i in range(n):
-        k = 0.0
-        if prediction[i] > 1.0:
-            k = warm_scale * kappa[i] / (dt * dt)
-        stiffness[i] = k
-        stiffness_sum[i] = 0.0
+        if mode == WARM:
+            v[i] -= (warm_scale / dt) * push[i]
+            stiffness_sum[i] = warm_scale * warm_kappa[i] / (dt * dt)
+        else:
+            stiffness_sum[i] = 0.0
 
 
 @ti.kernel
@@ -162,18 +189,19 @@ def apply_stiffness(
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
-    boundary_grad_sum: ti.types.ndarray(ndim=1),
+    grad_sum: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
 ):
-    """Velocity update of both solvers: v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib)."""
+    """Velocity update of both solvers: v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib), evaluated as
+    k_i G_i + sum_j k_j c_ij (x_i - x_j) with the stored G_i = sum_j g_ij + sum_b g_ib."""
     for i in range(n):
         xi = x[i]
         ki = stiffness[i]
-        dv = ki * boundary_grad_sum[i]
+        dv = ki * grad_sum[i]
         for k in range(fluid_count[i]):
             j, c = unpack_pair(fluid_pairs[i, k])
-            dv += ((ki + stiffness[j]) * c) * (xi - x[j])
+            dv += (stiffness[j] * c) * (xi - x[j])
         v[i] -= dt * dv
         stiffness_sum[i] += ki
 

@@ -6,7 +6,9 @@ For every active fluid particle i, one pass over the 27 grid cells around it:
   the Akinci volume for boundary), packed in one 2-vector of integers (the index and the bits of c_ij,
   :func:`pack_pair`); positions do not move until the step's advection, so every later pass rebuilds the
   gradient from x_i - x_j, and reads 8 bytes per pair (f32) instead of 16;
-- stores the sum ``sum_b V_b grad W_ib`` (the boundary is static, so every solver pass needs only this sum);
+- stores the sum ``sum_b V_b grad W_ib`` (the boundary is static, so every solver pass needs only this sum)
+  and the whole sum G_i = sum_j V_j grad W_ij + sum_b V_b grad W_ib (the solver passes then take one term
+  out of their per-pair work);
 - sums the normalised density rho_i / rho_0 = V_f W(0) + sum_j V_f W_ij + sum_b V_b W_ib, with W and the
   gradient coefficient interpolated in a table over [0, h] (:func:`fluidsim.kernels.cubic_from_table`,
   within 4e-7 of the exact spline; no division or spline-piece branch per pair)
@@ -15,7 +17,11 @@ For every active fluid particle i, one pass over the 27 grid cells around it:
   factor_i = 1 / (|sum_j V_j grad W_ij + sum_b V_b grad W_ib|^2 + sum_j |V_j grad W_ij|^2).
 - measures the divergence-free solver's first source (:mod:`fluidsim.dfsph`), s_i = D(rho_i/rho_0)/Dt
   = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib, zero where negative or at the free
-  surface, while the gradients are at hand; the solver then needs no pass of its own to start.
+  surface, while the gradients are at hand; the solver then needs no pass of its own to start;
+- with the warm start on, sums the divergence-free solver's warm-start push P_i = kappa_i sum_k g_ik
+  + sum_j kappa_j g_ij (k over fluid and boundary, j over fluid) from the stiffness kappa stored at the
+  previous step: it depends only on positions, which do not move until advection, so the warm start is
+  applied per particle (:func:`fluidsim.dfsph.start_divergence`).
 
 Akinci boundary volumes (Akinci et al. 2012): V_b = 1 / sum_k W(x_b - x_k) over boundary
 particles k within h (k = b included).
@@ -117,15 +123,23 @@ def build_neighborhoods(
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
+    grad_sum_out: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
     source: ti.types.ndarray(ndim=1),
     kernel_table: ti.types.ndarray(ndim=1),
+    warm: ti.i32,
+    kappa: ti.types.ndarray(ndim=1),
+    push: ti.types.ndarray(ndim=1),
 ) -> ivec3:
-    """Neighbour lists, normalised density, DFSPH factor and divergence source (1/s).
+    """Neighbour lists, normalised density, DFSPH factor, divergence source (1/s) and warm-start pushes.
 
     Returns (max fluid, max boundary, 0) neighbour counts.
+
+    With ``warm`` = 1, also the divergence-free solver's warm-start push from its stored stiffness kappa
+    (B&K 2017, Alg. 2; :func:`fluidsim.dfsph.start_divergence`): P_i = kappa_i (sum_j g_ij + sum_b g_ib)
+    + sum_j kappa_j g_ij (kappa's units per metre), so the solver needs no list pass of its own to warm-start.
 
     A particle whose neighbours exceed the list capacity still gets its full density and factor; the
     caller sees the returned maxima, grows the lists and runs the pass again.
@@ -143,6 +157,7 @@ def build_neighborhoods(
         z0 = ti.max(c[2] - 1, 0)
         z1 = ti.min(c[2] + 1, dims[2] - 1)
         vi = v[i]
+        push_v = xi * 0.0
         rho = fluid_volume * w0
         div = 0.0 * rho
         grad_sum = xi * 0.0
@@ -166,6 +181,8 @@ def build_neighborhoods(
                         grad_sum += g
                         sq_sum += g.dot(g)
                         div += (vi - v[j]).dot(g)
+                        if warm:
+                            push_v += kappa[j] * g
                         if nf < cap_f:
                             fluid_pairs[i, nf] = pack_pair(j, cg)
                         nf += 1
@@ -188,6 +205,9 @@ def build_neighborhoods(
             div = 0.0
         source[i] = div
         grad_sum += grad_sum_b
+        grad_sum_out[i] = grad_sum
+        if warm:
+            push[i] = push_v + kappa[i] * grad_sum
         denom = grad_sum.dot(grad_sum) + sq_sum
         f = 0.0
         if denom > FACTOR_EPS:

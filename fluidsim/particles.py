@@ -35,7 +35,10 @@ class FluidParticles:
         stiffness, stiffness_sum, source: per-iteration solver scratch.
         acceleration: non-pressure acceleration scratch (m/s^2).
         divergence: D_i of the current step (1/s).
-        prediction: density rho*_i / rho_0 predicted after the non-pressure forces (density warm start).
+        warm_kappa: the density solver's warm-start stiffness of this step (kappa_density where compressing).
+        push_divergence, push_density: the solvers' warm-start pushes P_i of this step (vec3, 1/m times the
+            units of kappa; :func:`fluidsim.neighbors.build_neighborhoods`,
+            :func:`fluidsim.viscosity.non_pressure_accelerations`).
         cell_ids, ranks, order: counting-sort scratch.
     """
 
@@ -58,9 +61,11 @@ class FluidParticles:
         self.kappa_divergence = ti.ndarray(fp, shape=max(n, 1))
         self.divergence_sum = ti.ndarray(ti.f64, shape=max(n, 1))
         self.divergence_count = ti.ndarray(ti.i32, shape=max(n, 1))
-        for name in ("density", "factor", "stiffness", "stiffness_sum", "source", "divergence", "prediction"):
+        for name in ("density", "factor", "stiffness", "stiffness_sum", "source", "divergence", "warm_kappa"):
             setattr(self, name, ti.ndarray(fp, shape=max(n, 1)))
         self.acceleration = _vec_ndarray(fp, n)
+        self.push_divergence = _vec_ndarray(fp, n)
+        self.push_density = _vec_ndarray(fp, n)
         for name in ("cell_ids", "ranks", "order"):
             setattr(self, name, ti.ndarray(ti.i32, shape=max(n, 1)))
         self._spare = {name: _like(getattr(self, name)) for name in self.PERSISTENT}
@@ -112,7 +117,8 @@ class Neighborhoods:
     Each pair is one integer 2-vector (:func:`fluidsim.neighbors.pack_pair`): the neighbour's index and the
     bits of the scalar c_ij with ``V_j grad W(x_i - x_j, h) = c_ij (x_i - x_j)`` (fluid V_f; boundary V_b,
     volume-weighted since V_b never changes). ``boundary_grad_sum`` (vec3 per particle) holds
-    sum_b V_b grad W_ib, all the pressure solvers need of the boundary.
+    sum_b V_b grad W_ib, all the pressure solvers need of the boundary, and ``grad_sum`` the whole
+    sum_j V_j grad W_ij + sum_b V_b grad W_ib.
 
     Attributes:
         fluid_count, boundary_count: (N,) i32 pairs per particle (capped at the capacity).
@@ -129,6 +135,7 @@ class Neighborhoods:
         self.fluid_count = ti.ndarray(ti.i32, shape=self.n)
         self.boundary_count = ti.ndarray(ti.i32, shape=self.n)
         self.boundary_grad_sum = ti.Vector.ndarray(3, self.fp, shape=self.n)
+        self.grad_sum = ti.Vector.ndarray(3, self.fp, shape=self.n)
         self.fluid_capacity = 0
         self.boundary_capacity = 0
         self.resize(capacity, capacity)

@@ -6,9 +6,10 @@
     -> non-pressure forces, predict v -> density solve -> advect
 
 The passes over the neighbour lists are fused where they read the same data: the neighbourhood pass
-measures the divergence solver's first source; the divergence solver's error pass that may end the solve
-also computes the non-pressure accelerations, the density solver's warm-start prediction and (with the
-default estimator radii) paper Eq. 1, which are applied once the solve has ended.
+measures the divergence solver's first source and sums both solvers' warm-start pushes (so neither warm
+start reads the lists), and the non-pressure pass computes paper Eq. 1 with the default estimator radii.
+A step with both solvers at their minimum iterations reads the lists 7 times after the neighbourhood
+pass: 2 (divergence), 1 (non-pressure forces), 4 (density).
 
 It never prints; it returns :class:`StepStats`. Faults (NaN, runaway speed, a solver stuck at its
 iteration cap) are judged by the caller (:mod:`fluidsim.simulation`), which knows the run.
@@ -158,7 +159,6 @@ class DFSPHSolver:
         self.time = 0.0
         self.step_index = 0
         self.stage_times: dict[str, float] | None = None  # set to {} to profile stages
-        self._forces_ready = False  # the divergence solve's last pass computed this step's forces
         speeds = np.linalg.norm(fv, axis=1) if len(fv) else np.zeros(1)
         self._max_speed = float(speeds.max())
 
@@ -182,7 +182,7 @@ class DFSPHSolver:
         max_f, max_b = stage("neighbors", self._neighborhoods)           # density, DFSPH factor
         div_it, div_err = stage("divergence_solve", self._divergence_solve, dt)  # B&K divergence-free
         fused = self._estimate_with_viscosity()
-        if not fused:
+        if not fused:  # paper Eq. 1 with its own radii
             stage("divergence_estimate", self._estimate_divergence)      # paper Eq. 1
         stage("non_pressure", self._non_pressure_forces, dt, fused)      # gravity, viscosity (and Eq. 1); predict v
         dens_it, dens_err = stage("density_solve", self._density_solve, dt)  # B&K constant density
@@ -230,14 +230,21 @@ class DFSPHSolver:
         f.active = int(kept)
         return retired
 
+    def _warm(self) -> tuple[bool, bool]:
+        """Whether the divergence and the density solver warm-start this step."""
+        cfg = self.config
+        divergence_warm = cfg.warm_start and cfg.divergence_warm_start and cfg.divergence_solver
+        return divergence_warm, cfg.warm_start
+
     def _neighborhoods(self) -> tuple[int, int]:
         f, nb, b = self.fluid, self.neighborhoods, self.boundary
         while True:
             counts = neighbors.build_neighborhoods(
                 f.active, f.x, self._starts, b.x, b.volume, b.cell_starts, self._origin, self._inv_cell,
                 self._dims, self.h, self.fluid_volume, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
-                nb.boundary_pairs, nb.boundary_grad_sum, f.density, f.factor,
-                f.v, f.source, self._kernel_table)
+                nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.density, f.factor,
+                f.v, f.source, self._kernel_table, int(self._warm()[0]), f.kappa_divergence,
+                f.push_divergence)
             max_f, max_b = int(counts[0]), int(counts[1])
             if max_f <= nb.fluid_capacity and max_b <= nb.boundary_capacity:
                 return max_f, max_b
@@ -247,84 +254,73 @@ class DFSPHSolver:
             nb.resize(grow_f, grow_b)
 
     def _solve(self, error, start, kappa, dt: float, tolerance: float, store_scale: float,
-               min_iterations: int, warm: bool) -> tuple[int, float]:
-        """The iteration shared by both DFSPH solvers; returns (iterations, final average error).
+               min_iterations: int) -> tuple[int, float]:
+        """The iteration shared by both DFSPH solvers; returns (iterations, last measured average error).
+
+        Each iteration measures the error (setting the stiffness of a Jacobi update) and applies the update;
+        the solve ends after the iteration whose measured error is within ``tolerance``, once at least
+        ``min_iterations`` ran, or after ``config.max_iterations`` (SPlisHSPlasH's loop).
 
         Args:
-            error: ``error(last)`` runs an ITERATE error pass and returns the average error; ``last`` says
-                the pass may end the solve (the divergence solver then fuses it with the non-pressure pass).
-            start: ``start(mode)`` begins the solve: WARM sets the warm-start stiffness, FIRST sets the first
-                stiffness and returns the first error.
+            error: ``error()`` runs an error pass and returns the average error.
+            start: ``start()`` begins the solve (warm or cold) and returns the first average error when it is
+                already known (the cold divergence solve reads it from the neighbourhood pass), else None.
             kappa: the warm-start memory the solve stores at its end (summed stiffness x ``store_scale``).
-            warm: start from ``start(WARM)`` and one velocity update, else from ``start(FIRST)``.
         """
         cfg, f, nb = self.config, self.fluid, self.neighborhoods
         n = f.active
-        max_it = cfg.max_iterations
-
-        def apply() -> None:
-            dfsph.apply_stiffness(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.boundary_grad_sum,
-                                  f.stiffness, f.stiffness_sum)
-
+        known = start()
         iterations = 0
-        if warm:
-            start(dfsph.WARM)
-            apply()
-            err = error(min_iterations <= 0)
-        else:
-            err = start(dfsph.FIRST)
-        while (err > tolerance or iterations < min_iterations) and iterations < max_it:
-            apply()
+        err = 0.0
+        while iterations < cfg.max_iterations:
+            err = known if known is not None else error()
+            known = None
+            dfsph.apply_stiffness(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.grad_sum,
+                                  f.stiffness, f.stiffness_sum)
             iterations += 1
-            err = error(iterations >= min_iterations or iterations >= max_it)
+            if err <= tolerance and iterations >= min_iterations:
+                break
         dfsph.store_stiffness(n, store_scale, f.stiffness_sum, kappa)
         return iterations, float(err)
 
     def _divergence_solve(self, dt: float) -> tuple[int, float]:
-        self._forces_ready = False
         if not self.config.divergence_solver or self.fluid.active == 0:
             return 0, 0.0
         # Tolerance on the average D(rho/rho_0)/Dt such that one dt changes the density by eta.
         tol = self.config.max_divergence_error * 0.01 / dt
         f, nb = self.fluid, self.neighborhoods
+        warm = self._warm()[0]
 
-        def start(mode: int) -> float:  # the neighbourhood pass measured the source (f.source)
-            return dfsph.start_divergence(f.active, dt, mode, 0.5, f.source, f.factor, f.kappa_divergence,
-                                          f.stiffness, f.stiffness_sum, self._partial)
+        def start() -> float | None:  # the neighbourhood pass measured the source (f.source)
+            avg = dfsph.start_divergence(f.active, dt, dfsph.WARM if warm else dfsph.FIRST, 0.5, f.source,
+                                         f.factor, f.kappa_divergence, f.push_divergence, f.v, f.stiffness,
+                                         f.stiffness_sum, self._partial)
+            return None if warm else avg
 
-        def error(last: bool) -> float:
-            if last:  # the error pass that may end the solve also computes the non-pressure forces
-                err = self._forces_pass(dt, self._estimate_with_viscosity())
-                self._forces_ready = True
-                return err
-            self._forces_ready = False
+        def error() -> float:
             return dfsph.divergence_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs,
-                                          nb.boundary_count, nb.boundary_grad_sum, f.factor, f.source, f.stiffness,
+                                          nb.boundary_count, nb.grad_sum, f.factor, f.source, f.stiffness,
                                           self._partial)
 
-        cfg = self.config
-        return self._solve(error, start, f.kappa_divergence, dt, tol, dt, cfg.min_divergence_iterations,
-                           cfg.warm_start and cfg.divergence_warm_start)
+        return self._solve(error, start, f.kappa_divergence, dt, tol, dt, self.config.min_divergence_iterations)
 
     def _density_solve(self, dt: float) -> tuple[int, float]:
         f, nb = self.fluid, self.neighborhoods
         if f.active == 0:
             return 0, 0.0
         tol = self.config.max_density_error * 0.01
+        warm = self._warm()[1]
 
-        def error_pass(mode: int) -> float:
-            return dfsph.density_error(f.active, dt, mode, f.x, f.v, nb.fluid_count, nb.fluid_pairs,
-                                       nb.boundary_grad_sum, f.density, f.factor, f.source, f.stiffness,
-                                       f.stiffness_sum, self._partial)
+        def start() -> None:
+            dfsph.start_density(f.active, dt, dfsph.WARM if warm else dfsph.FIRST, 1.0, f.warm_kappa,
+                                f.push_density, f.v, f.stiffness_sum)
 
-        def start(mode: int) -> float:
-            if mode == dfsph.WARM:  # where the non-pressure pass predicted compression
-                dfsph.start_density(f.active, dt, 1.0, f.prediction, f.kappa_density, f.stiffness, f.stiffness_sum)
-                return 0.0
-            return error_pass(dfsph.FIRST)
+        def error() -> float:
+            return dfsph.density_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs,
+                                       nb.grad_sum, f.density, f.factor, f.source, f.stiffness,
+                                       self._partial)
 
-        return self._solve(lambda last: error_pass(dfsph.ITERATE), start, f.kappa_density, dt, tol, dt * dt,
-                           self.config.min_iterations, self.config.warm_start)
+        return self._solve(error, start, f.kappa_density, dt, tol, dt * dt, self.config.min_iterations)
 
     def _estimate_with_viscosity(self) -> bool:
         """Whether paper Eq. 1 can use the stored gradients (h_k = h <= h_r), fused into the viscosity pass."""
@@ -353,25 +349,23 @@ class DFSPHSolver:
                 self._origin, self._inv_cell, self._dims, f.x, f.v, f.density, self._starts, b.x, b.volume,
                 b.cell_starts, f.divergence, f.divergence_sum, f.divergence_count)
 
-    def _forces_pass(self, dt: float, estimate: bool) -> float:
-        """Non-pressure accelerations, the divergence solver's error pass, Eq. 1 (with ``estimate``) and the
-        density prediction, in one sweep (:func:`fluidsim.viscosity.forces_and_divergence_error`)."""
-        cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
-        return viscosity.forces_and_divergence_error(
-            f.active, dt, ti.Vector(list(cfg.gravity)), cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
-            self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
-            nb.boundary_pairs, nb.boundary_grad_sum, f.factor, f.source, f.stiffness,
-            f.acceleration, int(estimate), f.divergence, f.prediction, self._partial)
-
     def _non_pressure_forces(self, dt: float, estimate: bool = False) -> None:
         """Gravity and viscosity, v += dt a; with ``estimate``, also paper Eq. 1 from the stored gradients
-        (added to the run sums). Reuses the pass that ended the divergence solve when there was one."""
-        f = self.fluid
+        (added to the run sums), and with the warm start the density solver's push, in the same sweep
+        (:func:`fluidsim.viscosity.non_pressure_accelerations`)."""
+        cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
         if f.active == 0:
             return
-        if not self._forces_ready:
-            self._forces_pass(dt, estimate)
-        self._forces_ready = False
+        warm = self._warm()[1]
+        if warm:  # where the particle is compressing after the divergence solve (its last measured source)
+            dfsph.density_warm_stiffness(f.active, dt, ti.Vector(list(cfg.gravity)), f.density, f.source,
+                                         nb.boundary_grad_sum, f.kappa_density, f.warm_kappa)
+        viscosity.non_pressure_accelerations(
+            f.active, ti.Vector(list(cfg.gravity)), cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
+            self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
+            nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.acceleration, int(estimate), f.divergence,
+            int(warm),
+            f.warm_kappa, f.push_density)
         viscosity.commit_forces(f.active, dt, int(estimate), f.v, f.acceleration, f.divergence, f.divergence_sum,
                                 f.divergence_count)
 

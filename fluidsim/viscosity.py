@@ -10,37 +10,27 @@ viscosity:
 and a_i = g + (mu / rho_i) lap(v)_i. Fluid-boundary friction uses the same operator with the boundary
 at rest, V_b in place of m_j / rho_j and its own dynamic viscosity mu_b.
 
-The pass reads what three other computations of the step read, the velocities after the divergence
-solve and the stored neighbour gradients, so it computes them in the same sweep over the lists:
+The pass reads the velocities after the divergence solve and the stored neighbour gradients, which is
+what paper Eq. 1 reads (:func:`fluidsim.divergence.estimate_divergence_from_gradients`) when
+h_k = h <= h_r, so it computes D_i in the same sweep.
 
-- the divergence-free solver's error pass (:func:`fluidsim.dfsph.divergence_error`): the source s_i and
-  stiffness k_i, and the average source. The solver calls this pass as its error pass whenever that pass
-  may be its last, so a step whose divergence solve converges there reads the lists once less;
-- paper Eq. 1 (:func:`fluidsim.divergence.estimate_divergence_from_gradients`) when h_k = h <= h_r;
-- the constant-density solver's warm-start test: the density predicted after the forces,
-  rho*_i = rho_i + dt (s_i + dt a_i . sum_b V_b grad W_ib). The neighbours' viscous accelerations are left
-  out of it (they are not known yet in this sweep); the test only picks which particles start from last
-  step's stiffness, and the solve then iterates to its tolerance on the exact error.
-
-The accelerations are stored, not applied: :func:`commit_forces` adds dt a_i to v_i (and D_i to the run
-sums) once the divergence solve has ended. :func:`non_pressure_np` is the numpy twin.
+The accelerations are stored, not applied (the sweep reads the neighbours' velocities):
+:func:`commit_forces` then adds dt a_i to v_i (and D_i to the run sums). :func:`non_pressure_np` is the numpy twin.
 """
 
 import numpy as np
 import taichi as ti
 
 from .kernels import cubic_grad_w_np
-from .neighbors import FREE_SURFACE_NEIGHBORS, unpack_pair
-from .reductions import ordered_sum
+from .neighbors import unpack_pair
 
 LAPLACIAN_FACTOR = 2.0 * (3 + 2)  # 2 (d + 2), d = 3
 LAPLACIAN_EPS = 0.01  # times h^2, in the denominator of the Laplacian
 
 
 @ti.kernel
-def forces_and_divergence_error(
+def non_pressure_accelerations(
     n: ti.i32,
-    dt: float,
     gravity: ti.types.vector(3, float),
     mu: float,
     mu_boundary: float,
@@ -55,41 +45,38 @@ def forces_and_divergence_error(
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
-    factor: ti.types.ndarray(ndim=1),
-    source: ti.types.ndarray(ndim=1),
-    stiffness: ti.types.ndarray(ndim=1),
+    grad_sum: ti.types.ndarray(ndim=1),
     acceleration: ti.types.ndarray(ndim=1),
     estimate: ti.i32,
     divergence: ti.types.ndarray(ndim=1),
-    prediction: ti.types.ndarray(ndim=1),
-    partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
-) -> ti.f64:
-    """a_i = g + (mu / rho_i) lap(v)_i (m/s^2, stored), the divergence error pass and the density prediction.
+    warm: ti.i32,
+    warm_kappa: ti.types.ndarray(ndim=1),
+    push: ti.types.ndarray(ndim=1),
+):
+    """a_i = g + (mu / rho_i) lap(v)_i (m/s^2, stored); with ``estimate`` = 1, paper Eq. 1 from the stored
+    gradients, D_i = |sum_j (v_j - v_i) . V_f grad W_ij / rho_j - v_i . sum_b V_b grad W_ib| (1/s, stored);
+    and with ``warm`` = 1 the constant-density solver's warm-start push from the masked stiffness w
+    (:func:`fluidsim.dfsph.density_warm_stiffness`), P_i = w_i (sum_j g_ij + sum_b g_ib) + sum_j w_j g_ij
+    (stored; :func:`fluidsim.dfsph.start_density` applies it).
 
-    Writes ``acceleration``; ``source`` s_i and ``stiffness`` k_i = s_i factor_i / dt as the ITERATE error
-    pass of the divergence-free solver (B&K 2017); ``prediction`` rho*_i / rho_0; and, with ``estimate`` = 1,
-    ``divergence`` D_i = |sum_j (v_j - v_i) . V_f grad W_ij / rho_j - v_i . sum_b V_b grad W_ib| (paper
-    Eq. 1, stored gradients). Returns the average s_i over fluid (1/s). Reads v only: the velocities are
-    those after the divergence solve.
+    Reads v only: the velocities are those after the divergence solve.
     """
     eps = LAPLACIAN_EPS * h * h
     for i in range(n):
         xi = x[i]
         vi = v[i]
-        grad_b = boundary_grad_sum[i]
         lap_f = vi * 0.0
-        s = vi.dot(grad_b)  # B&K source: sum_j (v_i - v_j) . g_ij + v_i . sum_b g_ib
-        d = -s  # paper Eq. 1: sum_j (v_j - v_i) . g_ij / rho_j - v_i . sum_b g_ib
+        pushed = vi * 0.0  # sum_j w_j g_ij
+        d = -vi.dot(boundary_grad_sum[i])  # paper Eq. 1: sum_j (v_j - v_i) . g_ij / rho_j - v_i . sum_b g_ib
         for k in range(fluid_count[i]):
             j, c = unpack_pair(fluid_pairs[i, k])
             xij = xi - x[j]
-            vij = vi - v[j]
             rho_j = density[j]
-            vx = vij.dot(xij)
+            vx = (vi - v[j]).dot(xij)
             lap_f += (vx * c / ((xij.dot(xij) + eps) * rho_j)) * xij
-            t = c * vx  # (v_i - v_j) . g_ij
-            s += t
-            d -= t / rho_j
+            d -= c * vx / rho_j
+            if warm:
+                pushed += (warm_kappa[j] * c) * xij
         lap_b = vi * 0.0
         if mu_boundary != 0.0:  # free-slip boundaries (mu_b = 0) skip the boundary list
             for k in range(boundary_count[i]):
@@ -101,12 +88,8 @@ def forces_and_divergence_error(
         acceleration[i] = a
         if estimate:
             divergence[i] = ti.abs(d)
-        prediction[i] = rho_i + dt * (s + dt * a.dot(grad_b))
-        if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
-            s = 0.0
-        source[i] = s
-        stiffness[i] = s * factor[i] / dt
-    return ordered_sum(source, n, partial) / ti.max(n, 1)
+        if warm:
+            push[i] = pushed + warm_kappa[i] * grad_sum[i]
 
 
 @ti.kernel
@@ -131,7 +114,7 @@ def commit_forces(
 def non_pressure_np(x: np.ndarray, v: np.ndarray, density: np.ndarray, fluid_volume: float,
                     boundary_x: np.ndarray, boundary_volumes: np.ndarray, h: float, mu: float, mu_boundary: float,
                     rest_density: float, gravity) -> np.ndarray:
-    """O(N^2) numpy twin of the acceleration of :func:`forces_and_divergence_error`.
+    """O(N^2) numpy twin of the acceleration of :func:`non_pressure_accelerations`.
 
     Args:
         x, v: (N, 3) fluid positions (m) and velocities (m/s). density: (N,) rho_i / rho_0.

@@ -81,16 +81,20 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
     st = ti.ndarray(ti.i32, shape=len(starts))
     st.from_numpy(starts.astype(np.int32))
     dens, fac = ti.ndarray(ti.f32, shape=n), ti.ndarray(ti.f32, shape=n)
-    bsum = ti.Vector.ndarray(3, ti.f32, shape=n)
+    bsum, gsum = ti.Vector.ndarray(3, ti.f32, shape=n), ti.Vector.ndarray(3, ti.f32, shape=n)
     vel = rng.normal(0.0, 1.0, (n, 3)).astype(np.float32)
     v_nd, src = _to_nd(vel), ti.ndarray(ti.f32, shape=n)
     args = (ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims), h, 1.0e-4)
     table = ti.Vector.ndarray(2, ti.f32, shape=CUBIC_TABLE_SIZE + 2)
     table.from_numpy(cubic_table_np(h).astype(np.float32))
+    kappa = rng.uniform(0.0, 2.0, n).astype(np.float32)  # the divergence solver's stored stiffness
+    kappa_nd = ti.ndarray(ti.f32, shape=n)
+    kappa_nd.from_numpy(kappa)
+    push = ti.Vector.ndarray(3, ti.f32, shape=n)
     while True:
         m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
                                           nb.boundary_count, nb.boundary_pairs,
-                                          bsum, dens, fac, v_nd, src, table)
+                                          bsum, gsum, dens, fac, v_nd, src, table, 1, kappa_nd, push)
         if m[0] <= nb.fluid_capacity and m[1] <= nb.boundary_capacity:
             break
         nb.resize(int(m[0]), int(m[1]))
@@ -125,6 +129,16 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
             ref_src[i] = s
     assert (ref_src > 0).sum() > n // 4
     np.testing.assert_allclose(src.to_numpy(), ref_src, rtol=1e-3, atol=1e-5 * np.abs(ref_src).max())
+    # the divergence solver's warm-start push: P_i = kappa_i (sum_j g_ij + sum_b g_ib) + sum_j kappa_j g_ij
+    k = kappa.astype(np.float64)
+    ref_push, ref_gsum = np.zeros((n, 3)), np.zeros((n, 3))
+    for i in range(n):
+        g = 1.0e-4 * cubic_grad_w_np(x32[i] - x32[ref_f[i]], h)
+        ref_gsum[i] = g.sum(0) + ref_sum[i]
+        ref_push[i] = k[i] * ref_gsum[i] + (k[ref_f[i], None] * g).sum(0)
+    # G_i = sum_j V_f grad W_ij + sum_b V_b grad W_ib (its scale: one neighbour's gradient)
+    np.testing.assert_allclose(gsum.to_numpy(), ref_gsum, atol=1e-5 * 1.0e-4 * 48 / np.pi / h**4)
+    np.testing.assert_allclose(push.to_numpy(), ref_push, rtol=1e-3, atol=1e-4 * np.abs(ref_push).max())
     # the relation is symmetric
     pairs = {(i, j) for i in range(n) for j in fi[i, : fc[i]]}
     assert all((j, i) in pairs for i, j in pairs)

@@ -1,0 +1,212 @@
+"""The solver's passes over the neighbour lists against numpy twins on a jittered block by a wall: the error
+passes of both DFSPH solvers and the velocity update; the non-pressure pass (viscosity, gravity) and what
+rides on it (Eq. 1, the density solver's warm-start push); and the warm starts that need no list pass,
+which change the velocities as the numpy twin of the velocity update does with the same stiffness."""
+
+import numpy as np
+import pytest
+
+from fluidsim import dfsph
+from fluidsim.config import SolverConfig
+from fluidsim.divergence import divergence_np
+from fluidsim.kernels import cubic_grad_w_np
+from fluidsim.neighbors import FREE_SURFACE_NEIGHBORS
+from fluidsim.scene import lattice_in_box
+from fluidsim.solver import DFSPHSolver
+from fluidsim.viscosity import non_pressure_np
+
+
+def _solver(mu_b, kappa_divergence_max=0.0):
+    rng = np.random.default_rng(3)
+    cfg = SolverConfig(particle_radius=0.025, viscosity=4.0, boundary_viscosity=mu_b)
+    x = lattice_in_box([0.3, 0.3, 0.3], [0.6, 0.6, 0.6], cfg.spacing) + rng.normal(0, 0.004, (216, 3))
+    v = rng.normal(0, 1.0, x.shape)
+    wall = lattice_in_box([0.3, 0.2, 0.3], [0.6, 0.3, 0.6], cfg.spacing) - [0, 0.002, 0]
+    solver = DFSPHSolver(cfg, [0, 0, 0], [1, 1, 1], x, v, wall)
+    solver._sort()
+    if kappa_divergence_max:
+        kappa = rng.uniform(0.0, kappa_divergence_max, solver.fluid.capacity)
+        solver.fluid.kappa_divergence.from_numpy(kappa.astype(np.float32))
+    solver._neighborhoods()
+    return cfg, solver
+
+
+def _gradients(solver):
+    """Numpy V grad W per fluid pair (dict i -> (neighbour indices, (k, 3) gradients)) and sum_b V_b grad W_ib."""
+    f, b, h = solver.fluid, solver.boundary, solver.config.support_radius
+    xs = f.numpy("x").astype(np.float64)
+    bx, bvol = b.x.to_numpy()[: b.count].astype(np.float64), b.volume.to_numpy()[: b.count]
+    pairs, grad_b = {}, np.zeros((len(xs), 3))
+    for i in range(len(xs)):
+        r = xs[i] - xs
+        near = np.nonzero((np.sum(r * r, 1) < h * h) & (np.arange(len(xs)) != i))[0]
+        pairs[i] = near, solver.fluid_volume * cubic_grad_w_np(r[near], h)
+        rb = xs[i] - bx
+        nearb = np.sum(rb * rb, 1) < h * h
+        grad_b[i] = (bvol[nearb, None] * cubic_grad_w_np(rb[nearb], h)).sum(0)
+    return pairs, grad_b
+
+
+@pytest.mark.parametrize("mu_b", [0.0, 2.5])  # free-slip walls skip the boundary list; no-slip walls read it
+def test_forces_pass_matches_numpy_twins(mu_b):
+    cfg, solver = _solver(mu_b)
+    f, b = solver.fluid, solver.boundary
+    xs, vs, rho = f.numpy("x").astype(np.float64), f.numpy("v").astype(np.float64), f.numpy("density")
+    bx, bvol = b.x.to_numpy()[: b.count].astype(np.float64), b.volume.to_numpy()[: b.count]
+    rng = np.random.default_rng(5)
+    f.kappa_density.from_numpy(rng.uniform(0.0, 1e-3, f.capacity).astype(np.float32))
+    v_before = f.numpy("v")
+    solver._non_pressure_forces(cfg.dt, estimate=True)
+    acc = f.numpy("acceleration")
+    w = f.numpy("warm_kappa").astype(np.float64)  # kappa where compressing (tested below)
+    assert 0 < (w > 0).sum() < f.active
+    np.testing.assert_allclose(f.numpy("v"), v_before + cfg.dt * acc, rtol=1e-6, atol=1e-6)
+
+    ref = non_pressure_np(xs, vs, rho, solver.fluid_volume, bx, bvol, cfg.support_radius, cfg.viscosity, mu_b,
+                          cfg.rest_density, cfg.gravity)
+    visc = ref - np.asarray(cfg.gravity)
+    assert np.abs(visc).max() > 1.0  # the viscous part is far from negligible here
+    np.testing.assert_allclose(acc, ref, rtol=2e-3, atol=2e-3 * np.abs(visc).max())
+
+    d_ref = divergence_np(xs, vs, solver.fluid_volume / rho, bx, bvol, 0.1, 0.1)
+    np.testing.assert_allclose(f.numpy("divergence"), d_ref, rtol=2e-3, atol=2e-3 * d_ref.max())
+
+    # the density solver's push P_i = w_i (sum_j g_ij + sum_b g_ib) + sum_j w_j g_ij
+    pairs, grad_b = _gradients(solver)
+    push_ref = np.array([w[i] * (g.sum(0) + grad_b[i]) + (w[j, None] * g).sum(0) for i, (j, g) in pairs.items()])
+    assert np.abs(push_ref).max() > 0
+    np.testing.assert_allclose(f.numpy("push_density"), push_ref, rtol=1e-3, atol=1e-4 * np.abs(push_ref).max())
+
+
+def test_density_warm_stiffness_masks_the_particles_that_are_not_compressing():
+    cfg, solver = _solver(0.0)
+    f, nb = solver.fluid, solver.neighborhoods
+    n, dt = f.active, cfg.dt
+    rng = np.random.default_rng(7)
+    kappa = rng.uniform(0.1, 1.0, n)
+    f.kappa_density.from_numpy(np.pad(kappa, (0, f.capacity - n)).astype(np.float32))
+    dfsph.density_warm_stiffness(n, dt, np.asarray(cfg.gravity, np.float32), f.density, f.source,
+                                 nb.boundary_grad_sum, f.kappa_density, f.warm_kappa)
+    rho, src = f.numpy("density").astype(np.float64), f.numpy("source").astype(np.float64)
+    grad_b = nb.boundary_grad_sum.to_numpy()[:n].astype(np.float64)
+    compressing = rho + dt * (src + dt * grad_b @ np.asarray(cfg.gravity)) > 1.0
+    assert 0 < compressing.sum() < n
+    np.testing.assert_allclose(f.numpy("warm_kappa"), np.where(compressing, kappa, 0.0), rtol=1e-6)
+
+
+def _apply_with(solver, stiffness, dt):
+    """Numpy twin of one list pass: v_i - dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib), k in sorted order."""
+    pairs, grad_b = _gradients(solver)
+    v = solver.fluid.numpy("v").astype(np.float64)
+    k = np.asarray(stiffness, np.float64)
+    return np.array([v[i] - dt * (((k[i] + k[j])[:, None] * g).sum(0) + k[i] * grad_b[i])
+                     for i, (j, g) in pairs.items()])
+
+
+def _divergence_np(solver):
+    """Numpy twin of s_i = sum_j (v_i - v_j) . g_ij + v_i . sum_b g_ib (unclamped)."""
+    pairs, grad_b = _gradients(solver)
+    v = solver.fluid.numpy("v").astype(np.float64)
+    return np.array([np.sum((v[i] - v[j]) * g) + v[i] @ grad_b[i] for i, (j, g) in pairs.items()])
+
+
+def test_velocity_update_pass_matches_numpy_twin():
+    cfg, solver = _solver(0.0)
+    f, nb = solver.fluid, solver.neighborhoods
+    n, dt = f.active, cfg.dt
+    k = np.random.default_rng(17).uniform(-50.0, 200.0, f.capacity)
+    expected = _apply_with(solver, k, dt)
+    v0 = f.numpy("v")
+    f.stiffness.from_numpy(k.astype(np.float32))
+    f.stiffness_sum.fill(1.0)
+    dfsph.apply_stiffness(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.grad_sum, f.stiffness,
+                          f.stiffness_sum)
+    scale = np.abs(expected - v0).max()
+    assert scale > 1e-2
+    np.testing.assert_allclose(f.numpy("v"), expected, atol=1e-3 * scale)
+    np.testing.assert_allclose(f.numpy("stiffness_sum"), 1.0 + k[:n], rtol=1e-6)
+
+
+def test_divergence_error_pass_matches_numpy_twin():
+    cfg, solver = _solver(0.0)
+    f, nb = solver.fluid, solver.neighborhoods
+    n, dt = f.active, cfg.dt
+    s_raw = _divergence_np(solver)
+    avg = dfsph.divergence_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.boundary_count, nb.grad_sum,
+                                 f.factor, f.source, f.stiffness, solver._partial)
+    counts = nb.fluid_count.to_numpy()[:n] + nb.boundary_count.to_numpy()[:n]
+    s_ref = np.where((s_raw < 0) | (counts < FREE_SURFACE_NEIGHBORS), 0.0, s_raw)
+    assert 10 < (s_ref > 0).sum() < n - 10
+    scale = np.abs(s_raw).max()
+    np.testing.assert_allclose(f.numpy("source"), s_ref, atol=1e-4 * scale)
+    np.testing.assert_allclose(f.numpy("stiffness"), f.numpy("source") * f.numpy("factor") / dt, rtol=1e-5)
+    assert avg == pytest.approx(s_ref.mean(), rel=1e-3)
+    # the neighbourhood pass measured the same first source
+    solver._neighborhoods()
+    np.testing.assert_allclose(f.numpy("source"), s_ref, atol=1e-4 * scale)
+
+
+def test_density_error_pass_matches_numpy_twin():
+    cfg, solver = _solver(0.0)
+    f, nb = solver.fluid, solver.neighborhoods
+    n, dt = f.active, cfg.dt
+    rho = f.numpy("density").astype(np.float64)
+    err_ref = np.maximum(rho + dt * _divergence_np(solver) - 1.0, 0.0)
+    assert 10 < (err_ref > 0).sum() < n - 10
+    avg = dfsph.density_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.grad_sum, f.density, f.factor,
+                              f.source, f.stiffness, solver._partial)
+    np.testing.assert_allclose(f.numpy("source"), err_ref, atol=2e-6)
+    np.testing.assert_allclose(f.numpy("stiffness"), f.numpy("source") * f.numpy("factor") / dt**2, rtol=1e-5)
+    assert avg == pytest.approx(err_ref.mean(), rel=1e-3, abs=1e-7)
+
+
+def test_divergence_warm_start_equals_the_list_pass():
+    """The push summed by the neighbourhood pass moves every particle as a list pass with
+    k_j = 0.5 kappa_j / dt would."""
+    cfg, solver = _solver(0.0, kappa_divergence_max=2e-3)
+    f = solver.fluid
+    n, dt = f.active, cfg.dt
+    k = 0.5 * f.numpy("kappa_divergence", active_only=False).astype(np.float64) / dt  # sorted order
+    expected = _apply_with(solver, k, dt)
+    v0 = f.numpy("v")
+    dfsph.start_divergence(n, dt, dfsph.WARM, 0.5, f.source, f.factor, f.kappa_divergence, f.push_divergence, f.v,
+                           f.stiffness, f.stiffness_sum, solver._partial)
+    v = f.numpy("v")
+    scale = np.abs(expected - v0).max()
+    assert scale > 1e-3
+    np.testing.assert_allclose(v, expected, atol=2e-3 * scale)
+    np.testing.assert_allclose(f.numpy("stiffness_sum"), k[:n], rtol=1e-6)
+
+
+def test_density_warm_start_equals_the_list_pass():
+    """The push summed by the non-pressure pass moves every particle as a list pass with k_j = w_j / dt^2."""
+    cfg, solver = _solver(0.0)
+    f = solver.fluid
+    n, dt = f.active, cfg.dt
+    rng = np.random.default_rng(13)
+    f.kappa_density.from_numpy(rng.uniform(0.0, 2e-6, f.capacity).astype(np.float32))
+    v_start = f.numpy("v", active_only=False)
+    solver._non_pressure_forces(dt)  # computes the masked stiffness w and the push (and a, taken out below)
+    v_forces = f.numpy("v")
+    w = f.numpy("warm_kappa", active_only=False).astype(np.float64)
+    assert 0 < (w[:n] > 0).sum() < n
+    f.v.from_numpy(v_start)
+    expected = _apply_with(solver, w / dt**2, dt)
+    f.v.from_numpy(np.concatenate([v_forces, v_start[n:]]))
+    dfsph.start_density(n, dt, dfsph.WARM, 1.0, f.warm_kappa, f.push_density, f.v, f.stiffness_sum)
+    v0 = v_forces - dt * f.numpy("acceleration")
+    scale = np.abs(expected - v0).max()
+    assert scale > 1e-3
+    np.testing.assert_allclose(f.numpy("v") - v_forces, expected - v0, atol=2e-3 * scale)
+    np.testing.assert_allclose(f.numpy("stiffness_sum"), w[:n] / dt**2, rtol=1e-6)
+
+
+def test_commit_applies_the_stored_forces_once():
+    cfg, solver = _solver(0.0)
+    f = solver.fluid
+    v0 = f.numpy("v").astype(np.float64)
+    solver._non_pressure_forces(cfg.dt, estimate=True)
+    acc = f.numpy("acceleration")
+    np.testing.assert_allclose(f.numpy("v"), v0 + cfg.dt * acc, rtol=1e-6, atol=1e-6)
+    sums, counts = solver.divergence_accumulation()
+    assert counts.min() == 1 and counts.max() == 1
