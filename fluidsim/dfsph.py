@@ -33,7 +33,7 @@ list pass of its own:
 
 import taichi as ti
 
-from .neighbors import FREE_SURFACE_NEIGHBORS, unpack_pair
+from .neighbors import FREE_SURFACE_NEIGHBORS, fluid_pair
 from .reductions import ordered_sum
 
 # Modes of the start kernels.
@@ -43,7 +43,7 @@ WARM = 2  # warm start: apply the push of the previous step's stiffness
 
 @ti.func
 def velocity_divergence(i, x: ti.template(), v: ti.template(), fluid_count: ti.template(),
-                        fluid_pairs: ti.template(), grad_sum: ti.template()):
+                        fluid_pairs: ti.template(), grad_sum: ti.template(), fmt: ti.template(), inv_scale):
     """s_i = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib (1/s); boundary is at rest.
 
     Evaluated as v_i . G_i - sum_j c_ij v_j . (x_i - x_j) with the stored G_i = sum_j g_ij + sum_b g_ib,
@@ -52,7 +52,7 @@ def velocity_divergence(i, x: ti.template(), v: ti.template(), fluid_count: ti.t
     xi = x[i]
     s = v[i].dot(grad_sum[i])
     for k in range(fluid_count[i]):
-        j, c = unpack_pair(fluid_pairs[i, k])
+        j, c = fluid_pair(fluid_pairs, i, k, fmt, inv_scale)
         s -= c * v[j].dot(xi - x[j])
     return s
 
@@ -65,6 +65,8 @@ def divergence_error(
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
+    fmt: ti.template(),
+    inv_scale: float,
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     grad_sum: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
@@ -76,7 +78,7 @@ def divergence_error(
     the average s_i over fluid (1/s). A cold start takes its first s_i from the neighbourhood pass instead
     (:func:`start_divergence`)."""
     for i in range(n):
-        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum)
+        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum, fmt, inv_scale)
         if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
             s = 0.0
         source[i] = s
@@ -123,6 +125,8 @@ def density_error(
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
+    fmt: ti.template(),
+    inv_scale: float,
     grad_sum: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
@@ -132,7 +136,7 @@ def density_error(
 ) -> ti.f64:
     """Constant-density solver, error pass: rho*_i - 1 (clamped at 0) and k_i; returns the average error."""
     for i in range(n):
-        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum)
+        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum, fmt, inv_scale)
         err = ti.max(density[i] + dt * s - 1.0, 0.0)
         source[i] = err
         stiffness[i] = err * factor[i] / (dt * dt)
@@ -189,6 +193,8 @@ def apply_stiffness(
     v: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
+    fmt: ti.template(),
+    inv_scale: float,
     grad_sum: ti.types.ndarray(ndim=1),
     stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
@@ -200,7 +206,7 @@ def apply_stiffness(
         ki = stiffness[i]
         dv = ki * grad_sum[i]
         for k in range(fluid_count[i]):
-            j, c = unpack_pair(fluid_pairs[i, k])
+            j, c = fluid_pair(fluid_pairs, i, k, fmt, inv_scale)
             dv += (stiffness[j] * c) * (xi - x[j])
         v[i] -= dt * dv
         stiffness_sum[i] += ki

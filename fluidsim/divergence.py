@@ -23,7 +23,7 @@ import taichi as ti
 
 from .grid import cell_coord, ivec3
 from .kernels import cubic_grad_w, cubic_grad_w_np
-from .neighbors import unpack_pair
+from .neighbors import fluid_pair, unpack_pair
 
 vec3d = ti.types.vector(3, ti.f64)
 
@@ -43,6 +43,8 @@ def estimate_divergence_from_gradients(
     density: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
+    fmt: ti.template(),
+    inv_scale: float,
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     divergence: ti.types.ndarray(ndim=1),
     divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
@@ -54,7 +56,7 @@ def estimate_divergence_from_gradients(
         vi = v[i]
         s = -vi.dot(boundary_grad_sum[i])
         for k in range(fluid_count[i]):
-            j, c = unpack_pair(fluid_pairs[i, k])
+            j, c = fluid_pair(fluid_pairs, i, k, fmt, inv_scale)
             s += c * (v[j] - vi).dot(xi - x[j]) / density[j]
         _accumulate(i, ti.abs(s), divergence, divergence_sum, divergence_count)
 
@@ -72,6 +74,7 @@ def estimate_divergence_from_lists(
     bvolume: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
+    fmt: ti.template(),
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_pairs: ti.types.ndarray(ndim=2),
     divergence: ti.types.ndarray(ndim=1),
@@ -85,7 +88,7 @@ def estimate_divergence_from_lists(
         vi = v[i]
         s = 0.0 * vi[0]
         for k in range(fluid_count[i]):
-            j, _ = unpack_pair(fluid_pairs[i, k])
+            j, _ = fluid_pair(fluid_pairs, i, k, fmt, 1.0)
             r = xi - x[j]
             if r.dot(r) <= hr2:
                 s += fluid_volume / density[j] * (v[j] - vi).dot(cubic_grad_w(r, h_k))

@@ -76,6 +76,48 @@ def unpack_pairs_np(pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ints[..., 0].astype(np.int64), floats[..., 1].astype(np.float64)
 
 
+# Formats of the fluid pair lists (a compile-time argument of every pass that reads them).
+WIDE = 0  # (j, c_ij) as an integer 2-vector (:func:`pack_pair`): i32 in f32 runs, i64 in f64 runs; 8 / 16 bytes
+NARROW = 1  # one i32 (f32 runs): the offset j - i in the low 16 bits, c_ij h^2 as an f16 in the high 16; 4 bytes
+NARROW_MAX_OFFSET = 32767
+
+
+@ti.func
+def pack_fluid_pair(i, j, c, fmt: ti.template(), coef_scale):
+    """Fluid pair (i, j, c_ij) in format ``fmt``; ``coef_scale`` is h^2 for NARROW (c h^2 <= 8 / s^3 * 12 * 8 / pi
+    for support factor s, so the f16 never overflows and keeps 11 significant bits), 1 for WIDE."""
+    e = ti.cast(0, ti.i32)
+    if ti.static(fmt == NARROW):
+        half = ti.bit_cast(ti.cast(c * coef_scale, ti.f16), ti.u16)
+        bits = ti.cast((j - i) & 0xFFFF, ti.u32) | (ti.cast(half, ti.u32) << ti.u32(16))
+        e = ti.bit_cast(bits, ti.i32)
+    return e
+
+
+@ti.func
+def fluid_pair(pairs: ti.template(), i, k, fmt: ti.template(), inv_scale):
+    """The k-th fluid pair of particle i in format ``fmt``: (j, c_ij) with V_j grad W_ij = c_ij (x_i - x_j)."""
+    j = 0
+    c = 0.0
+    if ti.static(fmt == NARROW):
+        e = pairs[i, k]
+        j = i + ti.cast(ti.cast(e & 0xFFFF, ti.i16), ti.i32)
+        c = ti.cast(ti.bit_cast(ti.cast((e >> 16) & 0xFFFF, ti.u16), ti.f16), float) * inv_scale
+    else:
+        j, c = unpack_pair(pairs[i, k])
+    return j, c
+
+
+def unpack_fluid_pairs_np(pairs: np.ndarray, fmt: int, inv_scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Numpy twin of :func:`fluid_pair` on a whole list array -> (index [N, cap], c [N, cap])."""
+    if fmt == WIDE:
+        return unpack_pairs_np(pairs)
+    ints = np.ascontiguousarray(pairs).astype(np.int32)
+    offset = (ints & 0xFFFF).astype(np.uint16).view(np.int16).astype(np.int64)
+    half = ((ints >> 16) & 0xFFFF).astype(np.uint16).view(np.float16).astype(np.float64)
+    return offset + np.arange(ints.shape[0])[:, None], half * inv_scale
+
+
 @ti.kernel
 def compute_boundary_volumes(
     bx: ti.types.ndarray(ndim=1),
@@ -132,10 +174,13 @@ def build_neighborhoods(
     warm: ti.i32,
     kappa: ti.types.ndarray(ndim=1),
     push: ti.types.ndarray(ndim=1),
+    fmt: ti.template(),
+    coef_scale: float,
 ) -> ivec3:
     """Neighbour lists, normalised density, DFSPH factor, divergence source (1/s) and warm-start pushes.
 
-    Returns (max fluid, max boundary, 0) neighbour counts.
+    Returns (max fluid, max boundary neighbour counts, 1 if a NARROW list met an offset |j - i| beyond
+    NARROW_MAX_OFFSET, else 0); the caller then switches to WIDE lists and runs the pass again.
 
     With ``warm`` = 1, also the divergence-free solver's warm-start push from its stored stiffness kappa
     (B&K 2017, Alg. 2; :func:`fluidsim.dfsph.start_divergence`): P_i = kappa_i (sum_j g_ij + sum_b g_ib)
@@ -151,6 +196,7 @@ def build_neighborhoods(
     scale = (kernel_table.shape[0] - 2) / h  # table samples per metre (fluidsim.kernels.cubic_table_np)
     max_f = 0
     max_b = 0
+    too_far = 0
     for i in range(n):
         xi = x[i]
         c = cell_coord(ti.cast(xi, ti.f64), origin, inv_cell)
@@ -184,7 +230,12 @@ def build_neighborhoods(
                         if warm:
                             push_v += kappa[j] * g
                         if nf < cap_f:
-                            fluid_pairs[i, nf] = pack_pair(j, cg)
+                            if ti.static(fmt == NARROW):
+                                fluid_pairs[i, nf] = pack_fluid_pair(i, j, cg, fmt, coef_scale)
+                                if ti.abs(j - i) > NARROW_MAX_OFFSET:
+                                    ti.atomic_max(too_far, 1)
+                            else:
+                                fluid_pairs[i, nf] = pack_pair(j, cg)
                         nf += 1
                 for b in range(boundary_starts[base + z0], boundary_starts[base + z1 + 1]):
                     r = xi - bx[b]
@@ -217,7 +268,7 @@ def build_neighborhoods(
         boundary_count[i] = ti.min(nb, cap_b)
         ti.atomic_max(max_f, nf)
         ti.atomic_max(max_b, nb)
-    return ivec3(max_f, max_b, 0)
+    return ivec3(max_f, max_b, too_far)
 
 
 @ti.kernel

@@ -114,24 +114,30 @@ class BoundaryParticles:
 class Neighborhoods:
     """Fixed-capacity neighbour lists per fluid particle, grown when a particle overflows them.
 
-    Each pair is one integer 2-vector (:func:`fluidsim.neighbors.pack_pair`): the neighbour's index and the
-    bits of the scalar c_ij with ``V_j grad W(x_i - x_j, h) = c_ij (x_i - x_j)`` (fluid V_f; boundary V_b,
-    volume-weighted since V_b never changes). ``boundary_grad_sum`` (vec3 per particle) holds
+    A fluid pair stores the neighbour and the scalar c_ij with ``V_j grad W(x_i - x_j, h) = c_ij (x_i - x_j)``
+    in one of two formats (:mod:`fluidsim.neighbors`): NARROW, one i32 with the offset j - i and c_ij h^2 as an
+    f16 (f32 runs: 4 bytes per pair and pass; c_ij to 11 significant bits, the same for (i, j) and (j, i),
+    so the pressure forces stay antisymmetric), or WIDE, an integer 2-vector of the index and the bits of
+    c_ij (f64 runs, and f32 runs whose offsets outgrow 16 bits: the solver switches once and logs it).
+    Boundary pairs are always WIDE (b, V_b-weighted c_ib). ``boundary_grad_sum`` (vec3 per particle) holds
     sum_b V_b grad W_ib, all the pressure solvers need of the boundary, and ``grad_sum`` the whole
     sum_j V_j grad W_ij + sum_b V_b grad W_ib.
 
     Attributes:
         fluid_count, boundary_count: (N,) i32 pairs per particle (capped at the capacity).
-        fluid_pairs: (N, fluid_capacity) 2-vectors of i32 (f32 runs) or i64 (f64 runs).
-        boundary_pairs: (N, boundary_capacity) likewise.
+        fluid_pairs: (N, fluid_capacity) i32 (NARROW) or 2-vectors of i32 / i64 (WIDE).
+        boundary_pairs: (N, boundary_capacity) 2-vectors of i32 (f32 runs) or i64 (f64 runs).
+        format: NARROW or WIDE. coef_scale / inv_scale: the factor c_ij is stored with and its inverse.
     """
 
-    def __init__(self, n: int, capacity: int, precision: str):
-        from .neighbors import pair_dtype
+    def __init__(self, n: int, capacity: int, precision: str, support_radius: float = 1.0):
+        from .neighbors import NARROW, WIDE, pair_dtype
 
         self.n = max(n, 1)
         self.fp = float_dtype(precision)
         self.pair_int = pair_dtype(precision)
+        self.format = NARROW if precision == "f32" else WIDE
+        self._h2 = float(support_radius) ** 2
         self.fluid_count = ti.ndarray(ti.i32, shape=self.n)
         self.boundary_count = ti.ndarray(ti.i32, shape=self.n)
         self.boundary_grad_sum = ti.Vector.ndarray(3, self.fp, shape=self.n)
@@ -140,10 +146,37 @@ class Neighborhoods:
         self.boundary_capacity = 0
         self.resize(capacity, capacity)
 
+    @property
+    def coef_scale(self) -> float:
+        from .neighbors import NARROW
+
+        return self._h2 if self.format == NARROW else 1.0
+
+    @property
+    def inv_scale(self) -> float:
+        return 1.0 / self.coef_scale
+
+    def widen(self) -> None:
+        """Switch the fluid lists to the WIDE format (offsets beyond 16 bits)."""
+        from .neighbors import WIDE
+
+        if self.format != WIDE:
+            self.format = WIDE
+            self._alloc_fluid()
+
+    def _alloc_fluid(self) -> None:
+        from .neighbors import NARROW
+
+        shape = (self.n, self.fluid_capacity)
+        if self.format == NARROW:
+            self.fluid_pairs = ti.ndarray(ti.i32, shape=shape)
+        else:
+            self.fluid_pairs = ti.Vector.ndarray(2, self.pair_int, shape=shape)
+
     def resize(self, fluid_capacity: int, boundary_capacity: int) -> None:
         if fluid_capacity != self.fluid_capacity:
             self.fluid_capacity = fluid_capacity
-            self.fluid_pairs = ti.Vector.ndarray(2, self.pair_int, shape=(self.n, fluid_capacity))
+            self._alloc_fluid()
         if boundary_capacity != self.boundary_capacity:
             self.boundary_capacity = boundary_capacity
             self.boundary_pairs = ti.Vector.ndarray(2, self.pair_int, shape=(self.n, boundary_capacity))
@@ -156,10 +189,13 @@ class Neighborhoods:
         Returns:
             (count (N,), index (N, cap), c (N, cap)); slots past a particle's count are unspecified.
         """
-        from .neighbors import unpack_pairs_np
+        from .neighbors import unpack_fluid_pairs_np, unpack_pairs_np
 
         count = getattr(self, f"{kind}_count").to_numpy()
-        index, coef = unpack_pairs_np(getattr(self, f"{kind}_pairs").to_numpy())
+        if kind == "fluid":
+            index, coef = unpack_fluid_pairs_np(self.fluid_pairs.to_numpy(), self.format, self.inv_scale)
+        else:
+            index, coef = unpack_pairs_np(self.boundary_pairs.to_numpy())
         return count, index, coef
 
 

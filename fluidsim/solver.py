@@ -151,7 +151,7 @@ class DFSPHSolver:
         self._kernel_table.from_numpy(cubic_table_np(h).astype(np.float64 if config.precision == "f64" else np.float32))
         self.fluid = FluidParticles(fx, fv, config.precision)
         n = self.fluid.capacity
-        self.neighborhoods = Neighborhoods(n, config.max_neighbors, config.precision)
+        self.neighborhoods = Neighborhoods(n, config.max_neighbors, config.precision, h)
         self._counts = ti.ndarray(ti.i32, shape=g.num_cells + 1)
         self._starts = ti.ndarray(ti.i32, shape=g.num_cells + 2)
         self._block_sums = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
@@ -244,8 +244,13 @@ class DFSPHSolver:
                 self._dims, self.h, self.fluid_volume, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
                 nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.density, f.factor,
                 f.v, f.source, self._kernel_table, int(self._warm()[0]), f.kappa_divergence,
-                f.push_divergence)
+                f.push_divergence, nb.format, nb.coef_scale)
             max_f, max_b = int(counts[0]), int(counts[1])
+            if int(counts[2]):
+                log.info("a neighbour's index is over %d from its particle's: the fluid lists switch to the wide "
+                         "format (8 bytes per pair) for the rest of the run", neighbors.NARROW_MAX_OFFSET)
+                nb.widen()
+                continue
             if max_f <= nb.fluid_capacity and max_b <= nb.boundary_capacity:
                 return max_f, max_b
             grow_f = max(nb.fluid_capacity, int(max_f * 1.25) + 4)
@@ -275,7 +280,7 @@ class DFSPHSolver:
         while iterations < cfg.max_iterations:
             err = known if known is not None else error()
             known = None
-            dfsph.apply_stiffness(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.grad_sum,
+            dfsph.apply_stiffness(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
                                   f.stiffness, f.stiffness_sum)
             iterations += 1
             if err <= tolerance and iterations >= min_iterations:
@@ -298,8 +303,8 @@ class DFSPHSolver:
             return None if warm else avg
 
         def error() -> float:
-            return dfsph.divergence_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs,
-                                          nb.boundary_count, nb.grad_sum, f.factor, f.source, f.stiffness,
+            return dfsph.divergence_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
+                                          nb.inv_scale, nb.boundary_count, nb.grad_sum, f.factor, f.source, f.stiffness,
                                           self._partial)
 
         return self._solve(error, start, f.kappa_divergence, dt, tol, dt, self.config.min_divergence_iterations)
@@ -316,8 +321,8 @@ class DFSPHSolver:
                                 f.push_density, f.v, f.stiffness_sum)
 
         def error() -> float:
-            return dfsph.density_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs,
-                                       nb.grad_sum, f.density, f.factor, f.source, f.stiffness,
+            return dfsph.density_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
+                                       nb.inv_scale, nb.grad_sum, f.density, f.factor, f.source, f.stiffness,
                                        self._partial)
 
         return self._solve(error, start, f.kappa_density, dt, tol, dt * dt, self.config.min_iterations)
@@ -335,12 +340,14 @@ class DFSPHSolver:
         if self._estimate_with_viscosity():
             # The default (h_r = h_k = h): the lists hold exactly the neighbours and their V_f grad W.
             divergence.estimate_divergence_from_gradients(
-                f.active, f.x, f.v, f.density, nb.fluid_count, nb.fluid_pairs, nb.boundary_grad_sum,
+                f.active, f.x, f.v, f.density, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
+                nb.boundary_grad_sum,
                 f.divergence, f.divergence_sum, f.divergence_count)
         elif cfg.estimator_radius <= self.h:
             divergence.estimate_divergence_from_lists(
                 f.active, cfg.estimator_radius, cfg.estimator_kernel_radius, self.fluid_volume, f.x, f.v,
-                f.density, b.x, b.volume, nb.fluid_count, nb.fluid_pairs, nb.boundary_count, nb.boundary_pairs,
+                f.density, b.x, b.volume, nb.fluid_count, nb.fluid_pairs, nb.format, nb.boundary_count,
+                nb.boundary_pairs,
                 f.divergence, f.divergence_sum, f.divergence_count)
         else:
             reach = int(math.ceil(cfg.estimator_radius / self.grid.cell_size))
@@ -362,7 +369,8 @@ class DFSPHSolver:
                                          nb.boundary_grad_sum, f.kappa_density, f.warm_kappa)
         viscosity.non_pressure_accelerations(
             f.active, ti.Vector(list(cfg.gravity)), cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
-            self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
+            self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
+            nb.boundary_count,
             nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.acceleration, int(estimate), f.divergence,
             int(warm),
             f.warm_kappa, f.push_density)

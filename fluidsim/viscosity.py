@@ -22,7 +22,7 @@ import numpy as np
 import taichi as ti
 
 from .kernels import cubic_grad_w_np
-from .neighbors import unpack_pair
+from .neighbors import fluid_pair, unpack_pair
 
 LAPLACIAN_FACTOR = 2.0 * (3 + 2)  # 2 (d + 2), d = 3
 LAPLACIAN_EPS = 0.01  # times h^2, in the denominator of the Laplacian
@@ -42,6 +42,8 @@ def non_pressure_accelerations(
     bx: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
+    fmt: ti.template(),
+    inv_scale: float,
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
@@ -69,7 +71,7 @@ def non_pressure_accelerations(
         pushed = vi * 0.0  # sum_j w_j g_ij
         d = -vi.dot(boundary_grad_sum[i])  # paper Eq. 1: sum_j (v_j - v_i) . g_ij / rho_j - v_i . sum_b g_ib
         for k in range(fluid_count[i]):
-            j, c = unpack_pair(fluid_pairs[i, k])
+            j, c = fluid_pair(fluid_pairs, i, k, fmt, inv_scale)
             xij = xi - x[j]
             rho_j = density[j]
             vx = (vi - v[j]).dot(xij)

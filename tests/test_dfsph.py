@@ -159,3 +159,29 @@ def test_probe_without_divergence_warm_start_meets_the_same_tolerances():
     # measured: median 4.0 mm, 95th percentile 18 mm (spacing 100 mm; splash particles part the most)
     assert np.median(gap) < 0.005 and np.percentile(gap, 95) < 0.025
     assert gap.max() > 0  # the two starts differ
+
+
+def test_neighbour_offsets_beyond_16_bits_switch_the_fluid_lists_to_wide():
+    """A slab 13 m wide holds 33,282 particles in one layer of cells, so some neighbours in the next layer
+    sit more than 32,767 places away in the cell order: the lists switch to WIDE once, still equal brute
+    force, and the step runs."""
+    cfg = SolverConfig(particle_radius=0.05, gravity=(0.0, 0.0, 0.0))
+    sp = cfg.spacing
+    x = lattice_in_box([0.0, 0.0, 0.0], [0.4 - 1e-6, 13.0 - 1e-6, 13.0 - 1e-6], sp) + sp / 2
+    solver = DFSPHSolver(cfg, [-0.5, -0.5, -0.5], [1.0, 13.5, 13.5], x, np.zeros_like(x), np.zeros((0, 3)))
+    nb = solver.neighborhoods
+    assert nb.format == neighbors.NARROW
+    solver._sort()
+    solver._neighborhoods()
+    assert nb.format == neighbors.WIDE
+    count, index, coef = nb.lists("fluid")
+    xs = solver.fluid.numpy("x").astype(np.float64)
+    far = [i for i in range(solver.fluid.active) if np.abs(index[i, : count[i]] - i).max() > 32767]
+    assert len(far) > 100
+    far = far[:: len(far) // 20]
+    h = cfg.support_radius
+    for i in far:
+        near = np.nonzero(np.sum((xs - xs[i]) ** 2, axis=1) < h * h)[0]
+        np.testing.assert_array_equal(np.sort(index[i, : count[i]]), near[near != i])
+    stats = solver.step()
+    assert stats.active == len(x) and stats.max_speed < 0.5

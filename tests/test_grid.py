@@ -1,6 +1,7 @@
 """Uniform-grid neighbour search equals brute force exactly, including corner and edge cells."""
 
 import numpy as np
+import pytest
 import taichi as ti
 
 from fluidsim import grid, neighbors
@@ -54,7 +55,8 @@ def test_points_outside_the_grid_are_retired_not_clamped():
     assert set(order[:2]) == {0, 3}
 
 
-def test_neighbour_lists_equal_brute_force_with_corner_cells():
+@pytest.mark.parametrize("fmt", [neighbors.NARROW, neighbors.WIDE])
+def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt):
     rng = np.random.default_rng(3)
     h = 0.1
     lo, hi = np.zeros(3), np.array([0.5, 0.4, 0.3])
@@ -72,7 +74,10 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
     border = np.argsort(bcells, kind="stable")
     bx = bpts[border]
     bstarts = np.concatenate([[0], np.cumsum(np.bincount(bcells, minlength=spec.num_cells))])
-    nb = Neighborhoods(n, 16, "f32")  # deliberately small: the caller must grow and retry
+    nb = Neighborhoods(n, 16, "f32", h)  # deliberately small: the caller must grow and retry
+    if fmt == neighbors.WIDE:
+        nb.widen()
+    assert nb.format == fmt
     x_nd, bx_nd = _to_nd(xs), _to_nd(bx)
     bvol = ti.ndarray(ti.f32, shape=len(bx))
     bvol.fill(1.0e-4)
@@ -94,7 +99,9 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
     while True:
         m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
                                           nb.boundary_count, nb.boundary_pairs,
-                                          bsum, gsum, dens, fac, v_nd, src, table, 1, kappa_nd, push)
+                                          bsum, gsum, dens, fac, v_nd, src, table, 1, kappa_nd, push,
+                                          nb.format, nb.coef_scale)
+        assert m[2] == 0  # no offset beyond 16 bits among 1,508 particles
         if m[0] <= nb.fluid_capacity and m[1] <= nb.boundary_capacity:
             break
         nb.resize(int(m[0]), int(m[1]))
@@ -108,11 +115,13 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
         np.testing.assert_array_equal(np.sort(fi[i, : fc[i]]), ref_f[i], err_msg=f"fluid neighbours of {i}")
         np.testing.assert_array_equal(np.sort(bi[i, : bc[i]]), ref_b[i], err_msg=f"boundary neighbours of {i}")
     # the stored coefficients give V grad W: c_ij (x_i - x_j) = V cubic_grad_w(x_i - x_j)
+    # (to f32 precision, or to the f16's 11 significant bits in NARROW fluid lists)
     for i in range(0, n, 7):
         for lists, pts, coef in ((fi, x32, fcoef), (bi, b32, bcoef)):
             cnt = fc[i] if lists is fi else bc[i]
             r = x32[i] - pts[lists[i, :cnt]]
-            np.testing.assert_allclose(coef[i, :cnt, None] * r, 1.0e-4 * cubic_grad_w_np(r, h), rtol=1e-4,
+            rtol = 5e-4 if lists is fi and fmt == neighbors.NARROW else 1e-4
+            np.testing.assert_allclose(coef[i, :cnt, None] * r, 1.0e-4 * cubic_grad_w_np(r, h), rtol=rtol,
                                        atol=1e-6 * 1.0e-4 * 48 / np.pi / h**4)
     # the stored boundary gradient sum = the numpy sum of V_b grad W over the brute-force neighbours
     ref_sum = np.array([1.0e-4 * cubic_grad_w_np(x32[i] - b32[ref_b[i]], h).sum(0) for i in range(n)])
@@ -139,6 +148,6 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells():
     # G_i = sum_j V_f grad W_ij + sum_b V_b grad W_ib (its scale: one neighbour's gradient)
     np.testing.assert_allclose(gsum.to_numpy(), ref_gsum, atol=1e-5 * 1.0e-4 * 48 / np.pi / h**4)
     np.testing.assert_allclose(push.to_numpy(), ref_push, rtol=1e-3, atol=1e-4 * np.abs(ref_push).max())
-    # the relation is symmetric
-    pairs = {(i, j) for i in range(n) for j in fi[i, : fc[i]]}
-    assert all((j, i) in pairs for i, j in pairs)
+    # the relation is symmetric, and so are the stored coefficients, bit for bit (antisymmetric forces)
+    pairs = {(i, j): fcoef[i, k] for i in range(n) for k, j in enumerate(fi[i, : fc[i]])}
+    assert all(pairs.get((j, i)) == c for (i, j), c in pairs.items())
