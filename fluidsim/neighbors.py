@@ -15,10 +15,11 @@ For every active fluid particle i, one pass over the 27 grid cells around it:
   (Akinci et al. 2012 boundary contribution, divided by rho_0);
 - computes the DFSPH factor (Bender & Koschier 2017, the factor alpha_i / rho_i; rho_i cancels):
   factor_i = 1 / (|sum_j V_j grad W_ij + sum_b V_b grad W_ib|^2 + sum_j |V_j grad W_ij|^2).
-- measures the divergence-free solver's first source (:mod:`fluidsim.dfsph`), s_i = D(rho_i/rho_0)/Dt
-  = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib, zero where negative or at the free
-  surface, while the gradients are at hand; the solver then needs no pass of its own to start;
-- with the warm start on, sums the divergence-free solver's warm-start push P_i = kappa_i sum_k g_ik
+- for a cold-started divergence-free solver, measures its first source (:mod:`fluidsim.dfsph`),
+  s_i = D(rho_i/rho_0)/Dt = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib, zero where
+  negative or at the free surface, while the gradients are at hand; the solver then needs no pass of its
+  own to start;
+- with the warm start on, sums instead the divergence-free solver's warm-start push P_i = kappa_i sum_k g_ik
   + sum_j kappa_j g_ij (k over fluid and boundary, j over fluid) from the stiffness kappa stored at the
   previous step: it depends only on positions, which do not move until advection, so the warm start is
   applied per particle (:func:`fluidsim.dfsph.start_divergence`).
@@ -182,9 +183,10 @@ def build_neighborhoods(
     Returns (max fluid, max boundary neighbour counts, 1 if a NARROW list met an offset |j - i| beyond
     NARROW_MAX_OFFSET, else 0); the caller then switches to WIDE lists and runs the pass again.
 
-    With ``warm`` = 1, also the divergence-free solver's warm-start push from its stored stiffness kappa
+    With ``warm`` = 1, the divergence-free solver's warm-start push from its stored stiffness kappa
     (B&K 2017, Alg. 2; :func:`fluidsim.dfsph.start_divergence`): P_i = kappa_i (sum_j g_ij + sum_b g_ib)
-    + sum_j kappa_j g_ij (kappa's units per metre), so the solver needs no list pass of its own to warm-start.
+    + sum_j kappa_j g_ij (kappa's units per metre), so the solver needs no list pass of its own to warm-start;
+    the source is then left unset (the solver measures it after the push).
 
     A particle whose neighbours exceed the list capacity still gets its full density and factor; the
     caller sees the returned maxima, grows the lists and runs the pass again.
@@ -226,7 +228,8 @@ def build_neighborhoods(
                         g = cg * r
                         grad_sum += g
                         sq_sum += g.dot(g)
-                        div += (vi - v[j]).dot(g)
+                        if not warm:  # a warm-started solve measures its first source after the push
+                            div += (vi - v[j]).dot(g)
                         if warm:
                             push_v += kappa[j] * g
                         if nf < cap_f:
