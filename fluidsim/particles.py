@@ -32,10 +32,11 @@ class FluidParticles:
         kappa_density, kappa_divergence: warm-start stiffness of the two DFSPH solvers.
         divergence_sum, divergence_count: run accumulation of D_i (paper Eq. 1).
         density: normalised density rho_i / rho_0. factor: DFSPH factor alpha_i / rho_i (m^2).
-        stiffness, stiffness_sum, source: per-iteration solver scratch.
+        position_stiffness: (x_i, k_i) vec4, the solver's current stiffness with the position it multiplies
+            (one record per neighbour for the velocity update); before the non-pressure pass, (x_i, w_i) with
+            the density solver's warm-start stiffness w_i. stiffness_sum, source: solver scratch.
         acceleration: non-pressure acceleration scratch (m/s^2).
         divergence: D_i of the current step (1/s).
-        warm_kappa: the density solver's warm-start stiffness of this step (kappa_density where compressing).
         push_divergence, push_density: the solvers' warm-start pushes P_i of this step (vec3, 1/m times the
             units of kappa; :func:`fluidsim.neighbors.build_neighborhoods`,
             :func:`fluidsim.viscosity.non_pressure_accelerations`).
@@ -61,8 +62,9 @@ class FluidParticles:
         self.kappa_divergence = ti.ndarray(fp, shape=max(n, 1))
         self.divergence_sum = ti.ndarray(ti.f64, shape=max(n, 1))
         self.divergence_count = ti.ndarray(ti.i32, shape=max(n, 1))
-        for name in ("density", "factor", "stiffness", "stiffness_sum", "source", "divergence", "warm_kappa"):
+        for name in ("density", "factor", "stiffness_sum", "source", "divergence"):
             setattr(self, name, ti.ndarray(fp, shape=max(n, 1)))
+        self.position_stiffness = ti.Vector.ndarray(4, fp, shape=max(n, 1))
         self.acceleration = _vec_ndarray(fp, n)
         self.push_divergence = _vec_ndarray(fp, n)
         self.push_density = _vec_ndarray(fp, n)

@@ -280,8 +280,8 @@ class DFSPHSolver:
         while iterations < cfg.max_iterations:
             err = known if known is not None else error()
             known = None
-            dfsph.apply_stiffness(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
-                                  f.stiffness, f.stiffness_sum)
+            dfsph.apply_stiffness(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
+                                  f.position_stiffness, f.stiffness_sum)
             iterations += 1
             if err <= tolerance and iterations >= min_iterations:
                 break
@@ -298,14 +298,14 @@ class DFSPHSolver:
 
         def start() -> float | None:  # the neighbourhood pass measured the source (f.source)
             avg = dfsph.start_divergence(f.active, dt, dfsph.WARM if warm else dfsph.FIRST, 0.5, f.source,
-                                         f.factor, f.kappa_divergence, f.push_divergence, f.v, f.stiffness,
-                                         f.stiffness_sum, self._partial)
+                                         f.factor, f.kappa_divergence, f.push_divergence, f.x, f.v,
+                                         f.position_stiffness, f.stiffness_sum, self._partial)
             return None if warm else avg
 
         def error() -> float:
             return dfsph.divergence_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
-                                          nb.inv_scale, nb.boundary_count, nb.grad_sum, f.factor, f.source, f.stiffness,
-                                          self._partial)
+                                          nb.inv_scale, nb.boundary_count, nb.grad_sum, f.factor, f.source,
+                                          f.position_stiffness, self._partial)
 
         return self._solve(error, start, f.kappa_divergence, dt, tol, dt, self.config.min_divergence_iterations)
 
@@ -317,13 +317,13 @@ class DFSPHSolver:
         warm = self._warm()[1]
 
         def start() -> None:
-            dfsph.start_density(f.active, dt, dfsph.WARM if warm else dfsph.FIRST, 1.0, f.warm_kappa,
+            dfsph.start_density(f.active, dt, dfsph.WARM if warm else dfsph.FIRST, 1.0, f.position_stiffness,
                                 f.push_density, f.v, f.stiffness_sum)
 
         def error() -> float:
             return dfsph.density_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
-                                       nb.inv_scale, nb.grad_sum, f.density, f.factor, f.source, f.stiffness,
-                                       self._partial)
+                                       nb.inv_scale, nb.grad_sum, f.density, f.factor, f.source,
+                                       f.position_stiffness, self._partial)
 
         return self._solve(error, start, f.kappa_density, dt, tol, dt * dt, self.config.min_iterations)
 
@@ -364,16 +364,14 @@ class DFSPHSolver:
         if f.active == 0:
             return
         warm = self._warm()[1]
-        if warm:  # where the particle is compressing after the divergence solve (its last measured source)
-            dfsph.density_warm_stiffness(f.active, dt, ti.Vector(list(cfg.gravity)), f.density, f.source,
-                                         nb.boundary_grad_sum, f.kappa_density, f.warm_kappa)
+        # (x_i, w_i): w_i = kappa_i where the particle is compressing after the divergence solve, else 0
+        dfsph.density_warm_stiffness(f.active, dt, int(warm), ti.Vector(list(cfg.gravity)), f.x, f.density,
+                                     f.source, nb.boundary_grad_sum, f.kappa_density, f.position_stiffness)
         viscosity.non_pressure_accelerations(
             f.active, ti.Vector(list(cfg.gravity)), cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
-            self.h, f.x, f.v, f.density, b.x, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
-            nb.boundary_count,
-            nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.acceleration, int(estimate), f.divergence,
-            int(warm),
-            f.warm_kappa, f.push_density)
+            self.h, f.x, f.v, f.density, f.position_stiffness, b.x, nb.fluid_count, nb.fluid_pairs, nb.format,
+            nb.inv_scale, nb.boundary_count, nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.acceleration,
+            int(estimate), f.divergence, int(warm), f.push_density)
         viscosity.commit_forces(f.active, dt, int(estimate), f.v, f.acceleration, f.divergence, f.divergence_sum,
                                 f.divergence_count)
 

@@ -39,6 +39,7 @@ def non_pressure_accelerations(
     x: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
+    position_stiffness: ti.types.ndarray(ndim=1),
     bx: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
@@ -52,7 +53,6 @@ def non_pressure_accelerations(
     estimate: ti.i32,
     divergence: ti.types.ndarray(ndim=1),
     warm: ti.i32,
-    warm_kappa: ti.types.ndarray(ndim=1),
     push: ti.types.ndarray(ndim=1),
 ):
     """a_i = g + (mu / rho_i) lap(v)_i (m/s^2, stored); with ``estimate`` = 1, paper Eq. 1 from the stored
@@ -72,13 +72,14 @@ def non_pressure_accelerations(
         d = -vi.dot(boundary_grad_sum[i])  # paper Eq. 1: sum_j (v_j - v_i) . g_ij / rho_j - v_i . sum_b g_ib
         for k in range(fluid_count[i]):
             j, c = fluid_pair(fluid_pairs, i, k, fmt, inv_scale)
-            xij = xi - x[j]
+            q = position_stiffness[j]  # (x_j, w_j): one gather for both
+            xij = xi - ti.Vector([q[0], q[1], q[2]])
             rho_j = density[j]
             vx = (vi - v[j]).dot(xij)
             lap_f += (vx * c / ((xij.dot(xij) + eps) * rho_j)) * xij
             d -= c * vx / rho_j
             if warm:
-                pushed += (warm_kappa[j] * c) * xij
+                pushed += (q[3] * c) * xij
         lap_b = vi * 0.0
         if mu_boundary != 0.0:  # free-slip boundaries (mu_b = 0) skip the boundary list
             for k in range(boundary_count[i]):
@@ -91,7 +92,7 @@ def non_pressure_accelerations(
         if estimate:
             divergence[i] = ti.abs(d)
         if warm:
-            push[i] = pushed + warm_kappa[i] * grad_sum[i]
+            push[i] = pushed + position_stiffness[i][3] * grad_sum[i]
 
 
 @ti.kernel

@@ -58,7 +58,7 @@ def test_forces_pass_matches_numpy_twins(mu_b):
     v_before = f.numpy("v")
     solver._non_pressure_forces(cfg.dt, estimate=True)
     acc = f.numpy("acceleration")
-    w = f.numpy("warm_kappa").astype(np.float64)  # kappa where compressing (tested below)
+    w = f.numpy("position_stiffness")[:, 3].astype(np.float64)  # kappa where compressing (tested below)
     assert 0 < (w > 0).sum() < f.active
     np.testing.assert_allclose(f.numpy("v"), v_before + cfg.dt * acc, rtol=1e-6, atol=1e-6)
 
@@ -85,13 +85,18 @@ def test_density_warm_stiffness_masks_the_particles_that_are_not_compressing():
     rng = np.random.default_rng(7)
     kappa = rng.uniform(0.1, 1.0, n)
     f.kappa_density.from_numpy(np.pad(kappa, (0, f.capacity - n)).astype(np.float32))
-    dfsph.density_warm_stiffness(n, dt, np.asarray(cfg.gravity, np.float32), f.density, f.source,
-                                 nb.boundary_grad_sum, f.kappa_density, f.warm_kappa)
+    for warm in (0, 1):
+        dfsph.density_warm_stiffness(n, dt, warm, np.asarray(cfg.gravity, np.float32), f.x, f.density, f.source,
+                                     nb.boundary_grad_sum, f.kappa_density, f.position_stiffness)
+        if not warm:  # no warm start: w = 0 everywhere, and the record still carries x
+            np.testing.assert_array_equal(f.numpy("position_stiffness")[:, 3], 0.0)
     rho, src = f.numpy("density").astype(np.float64), f.numpy("source").astype(np.float64)
     grad_b = nb.boundary_grad_sum.to_numpy()[:n].astype(np.float64)
     compressing = rho + dt * (src + dt * grad_b @ np.asarray(cfg.gravity)) > 1.0
     assert 0 < compressing.sum() < n
-    np.testing.assert_allclose(f.numpy("warm_kappa"), np.where(compressing, kappa, 0.0), rtol=1e-6)
+    record = f.numpy("position_stiffness")
+    np.testing.assert_array_equal(record[:, :3], f.numpy("x"))
+    np.testing.assert_allclose(record[:, 3], np.where(compressing, kappa, 0.0), rtol=1e-6)
 
 
 def _apply_with(solver, stiffness, dt):
@@ -122,10 +127,11 @@ def test_velocity_update_pass_matches_numpy_twin():
     k = np.random.default_rng(17).uniform(-50.0, 200.0, f.capacity)
     expected = _apply_with(solver, k, dt)
     v0 = f.numpy("v")
-    f.stiffness.from_numpy(k.astype(np.float32))
+    xk = np.concatenate([f.numpy("x", active_only=False), k[:, None]], axis=1)
+    f.position_stiffness.from_numpy(xk.astype(np.float32))
     f.stiffness_sum.fill(1.0)
-    dfsph.apply_stiffness(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
-                          f.stiffness,
+    dfsph.apply_stiffness(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
+                          f.position_stiffness,
                           f.stiffness_sum)
     scale = np.abs(expected - v0).max()
     assert scale > 1e-2
@@ -140,13 +146,15 @@ def test_divergence_error_pass_matches_numpy_twin():
     s_raw, bound = _divergence_np(solver)
     avg = dfsph.divergence_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
                                  nb.boundary_count, nb.grad_sum,
-                                 f.factor, f.source, f.stiffness, solver._partial)
+                                 f.factor, f.source, f.position_stiffness, solver._partial)
     counts = nb.fluid_count.to_numpy()[:n] + nb.boundary_count.to_numpy()[:n]
     s_ref = np.where((s_raw < 0) | (counts < FREE_SURFACE_NEIGHBORS), 0.0, s_raw)
     assert 10 < (s_ref > 0).sum() < n - 10
     scale = np.abs(s_raw).max()
     assert np.all(np.abs(f.numpy("source") - s_ref) <= bound + 1e-5 * scale)
-    np.testing.assert_allclose(f.numpy("stiffness"), f.numpy("source") * f.numpy("factor") / dt, rtol=1e-5)
+    xk = f.numpy("position_stiffness")
+    np.testing.assert_array_equal(xk[:, :3], f.numpy("x"))
+    np.testing.assert_allclose(xk[:, 3], f.numpy("source") * f.numpy("factor") / dt, rtol=1e-5)
     assert abs(avg - s_ref.mean()) <= bound.mean() + 1e-5 * scale
     # the neighbourhood pass measures the same first source for a cold-started solve
     solver._warm = lambda: (False, True)
@@ -164,9 +172,11 @@ def test_density_error_pass_matches_numpy_twin():
     assert 10 < (err_ref > 0).sum() < n - 10
     avg = dfsph.density_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
                               f.density, f.factor,
-                              f.source, f.stiffness, solver._partial)
+                              f.source, f.position_stiffness, solver._partial)
     assert np.all(np.abs(f.numpy("source") - err_ref) <= dt * bound + 2e-6)
-    np.testing.assert_allclose(f.numpy("stiffness"), f.numpy("source") * f.numpy("factor") / dt**2, rtol=1e-5)
+    xk = f.numpy("position_stiffness")
+    np.testing.assert_array_equal(xk[:, :3], f.numpy("x"))
+    np.testing.assert_allclose(xk[:, 3], f.numpy("source") * f.numpy("factor") / dt**2, rtol=1e-5)
     assert abs(avg - err_ref.mean()) <= dt * bound.mean() + 1e-7
 
 
@@ -179,8 +189,8 @@ def test_divergence_warm_start_equals_the_list_pass():
     k = 0.5 * f.numpy("kappa_divergence", active_only=False).astype(np.float64) / dt  # sorted order
     expected = _apply_with(solver, k, dt)
     v0 = f.numpy("v")
-    dfsph.start_divergence(n, dt, dfsph.WARM, 0.5, f.source, f.factor, f.kappa_divergence, f.push_divergence, f.v,
-                           f.stiffness, f.stiffness_sum, solver._partial)
+    dfsph.start_divergence(n, dt, dfsph.WARM, 0.5, f.source, f.factor, f.kappa_divergence, f.push_divergence, f.x,
+                           f.v, f.position_stiffness, f.stiffness_sum, solver._partial)
     v = f.numpy("v")
     scale = np.abs(expected - v0).max()
     assert scale > 1e-3
@@ -198,12 +208,12 @@ def test_density_warm_start_equals_the_list_pass():
     v_start = f.numpy("v", active_only=False)
     solver._non_pressure_forces(dt)  # computes the masked stiffness w and the push (and a, taken out below)
     v_forces = f.numpy("v")
-    w = f.numpy("warm_kappa", active_only=False).astype(np.float64)
+    w = f.numpy("position_stiffness", active_only=False)[:, 3].astype(np.float64)
     assert 0 < (w[:n] > 0).sum() < n
     f.v.from_numpy(v_start)
     expected = _apply_with(solver, w / dt**2, dt)
     f.v.from_numpy(np.concatenate([v_forces, v_start[n:]]))
-    dfsph.start_density(n, dt, dfsph.WARM, 1.0, f.warm_kappa, f.push_density, f.v, f.stiffness_sum)
+    dfsph.start_density(n, dt, dfsph.WARM, 1.0, f.position_stiffness, f.push_density, f.v, f.stiffness_sum)
     v0 = v_forces - dt * f.numpy("acceleration")
     scale = np.abs(expected - v0).max()
     assert scale > 1e-3
