@@ -22,8 +22,8 @@ independent of dt), applied as one velocity change -dt (k_i sum_k g_ik + sum_j k
 list pass of its own:
 - divergence-free solver: k_i = kappa_i / (2 dt) for every particle (half strength, as SPlisHSPlasH's
   stiffness-based DFSPH). The change depends only on the positions and the stored kappa, so the
-  neighbourhood pass sums it (the "push" P_i, :func:`fluidsim.neighbors.build_neighborhoods`) and
-  :func:`start_divergence` applies it per particle;
+  neighbourhood pass sums it (the "push" P_i, :func:`fluidsim.neighbors.build_neighborhoods`) and applies
+  it;
 - constant-density solver: k_i = kappa_i / dt^2 where the particle is compressing after the divergence
   solve (:func:`density_warm_stiffness`), else 0, so the start is symmetric and moves no particle that
   is not pushed by a compressed neighbour (a start from every particle's kappa was measured to double
@@ -36,9 +36,10 @@ import taichi as ti
 from .neighbors import FREE_SURFACE_NEIGHBORS, fluid_pair
 from .reductions import ordered_sum
 
-# Modes of the start kernels.
-FIRST = 1  # cold start: no stiffness yet (the divergence solver takes its first stiffness from the source)
+# Modes of :func:`start_density`.
+FIRST = 1  # cold start: no stiffness yet
 WARM = 2  # warm start: apply the push of the previous step's stiffness
+DIVERGENCE_WARM_SCALE = 0.5  # the divergence solver warm-starts at half strength (SPlisHSPlasH)
 
 
 @ti.func
@@ -96,32 +97,28 @@ def divergence_error(
 def start_divergence(
     n: ti.i32,
     dt: float,
-    mode: ti.i32,
-    warm_scale: float,
     source: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
-    kappa: ti.types.ndarray(ndim=1),
-    push: ti.types.ndarray(ndim=1),
     x: ti.types.ndarray(ndim=1),
-    v: ti.types.ndarray(ndim=1),
     position_stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
     partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
 ) -> ti.f64:
-    """Divergence-free solver, start; returns the average source s_i over fluid (1/s) of the neighbourhood pass.
-
-    FIRST: the first stiffness k_i = s_i factor_i / dt from that source (its error is then known without a
-    pass) and an empty stiffness sum. WARM: v_i -= warm_scale P_i (k_i = warm_scale kappa_i / dt, so
-    -dt (k_i sum_k g_ik + sum_j k_j g_ij) = -warm_scale P_i), and the stiffness sum starts at k_i.
-    """
+    """Divergence-free solver, cold start: the first stiffness k_i = s_i factor_i / dt from the source of the
+    neighbourhood pass (whose average, returned in 1/s, is then the first error, known without a pass) and an
+    empty stiffness sum. The warm start happens in the neighbourhood pass
+    (:func:`fluidsim.neighbors.build_neighborhoods`)."""
     for i in range(n):
-        if mode == WARM:
-            v[i] -= warm_scale * push[i]
-            stiffness_sum[i] = warm_scale * kappa[i] / dt
-        else:
-            position_stiffness[i] = with_stiffness(x[i], source[i] * factor[i] / dt)
-            stiffness_sum[i] = 0.0
+        position_stiffness[i] = with_stiffness(x[i], source[i] * factor[i] / dt)
+        stiffness_sum[i] = 0.0
     return ordered_sum(source, n, partial) / ti.max(n, 1)
+
+
+@ti.kernel
+def undo_push(n: ti.i32, warm_scale: float, push: ti.types.ndarray(ndim=1), v: ti.types.ndarray(ndim=1)):
+    """v_i += warm_scale P_i: takes back the divergence warm start of a neighbourhood pass that must run again."""
+    for i in range(n):
+        v[i] += warm_scale * push[i]
 
 
 @ti.kernel
@@ -179,20 +176,49 @@ def start_density(
     dt: float,
     mode: ti.i32,
     warm_scale: float,
+    acceleration: ti.types.ndarray(ndim=1),
+    estimate: ti.i32,
+    divergence: ti.types.ndarray(ndim=1),
+    divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    divergence_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     position_stiffness: ti.types.ndarray(ndim=1),
     push: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
 ):
-    """Constant-density solver, start. WARM: v_i -= warm_scale P_i / dt with the push P_i of the non-pressure
-    pass (k_i = warm_scale w_i / dt^2, w_i the last entry of the record of :func:`density_warm_stiffness`),
-    and the stiffness sum starts at k_i; FIRST: an empty stiffness sum."""
+    """Constant-density solver, start: the predicted velocity v*_i = v_i + dt a_i with the non-pressure
+    acceleration a_i of :func:`fluidsim.viscosity.non_pressure_accelerations` (and, with ``estimate`` = 1, D_i
+    of paper Eq. 1 added to the run sum and count), then WARM: v*_i -= warm_scale P_i / dt with the push P_i of
+    that pass (k_i = warm_scale w_i / dt^2, w_i the last entry of the record of :func:`density_warm_stiffness`)
+    and the stiffness sum starts at k_i; FIRST: an empty stiffness sum. One launch for all of it."""
     for i in range(n):
+        dv = dt * acceleration[i]
         if mode == WARM:
-            v[i] -= (warm_scale / dt) * push[i]
+            dv -= (warm_scale / dt) * push[i]
             stiffness_sum[i] = warm_scale * position_stiffness[i][3] / (dt * dt)
         else:
             stiffness_sum[i] = 0.0
+        v[i] += dv
+        if estimate:
+            divergence_sum[i] += ti.cast(divergence[i], ti.f64)
+            divergence_count[i] += 1
+
+
+@ti.func
+def velocity_update(i, fluid_count: ti.template(), fluid_pairs: ti.template(), fmt: ti.template(), inv_scale,
+                    grad_sum: ti.template(), position_stiffness: ti.template()):
+    """(dv, k_i) with dv = sum_j (k_i + k_j) g_ij + k_i sum_b g_ib = k_i G_i + sum_j k_j c_ij (x_i - x_j) (G_i the
+    stored sum_j g_ij + sum_b g_ib); (x_j, k_j) come as one 16-byte record (``position_stiffness``, written by
+    the error passes): one gather per pair instead of two, a third less time per pass on the bench scene."""
+    qi = position_stiffness[i]
+    xi = ti.Vector([qi[0], qi[1], qi[2]])
+    ki = qi[3]
+    dv = ki * grad_sum[i]
+    for k in range(fluid_count[i]):
+        j, c = fluid_pair(fluid_pairs, i, k, fmt, inv_scale)
+        q = position_stiffness[j]
+        dv += (q[3] * c) * (xi - ti.Vector([q[0], q[1], q[2]]))
+    return dv, ki
 
 
 @ti.kernel
@@ -208,43 +234,49 @@ def apply_stiffness(
     position_stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
 ):
-    """Velocity update of both solvers: v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib), evaluated as
-    k_i G_i + sum_j k_j c_ij (x_i - x_j) with the stored G_i = sum_j g_ij + sum_b g_ib. Reads (x_j, k_j) as one
-    16-byte record (``position_stiffness``, written by the error passes): one gather per pair instead of two,
-    a third less time per pass on the bench scene."""
+    """Velocity update of both solvers: v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib)
+    (:func:`velocity_update`); adds k_i to the step's stiffness sum."""
     for i in range(n):
-        qi = position_stiffness[i]
-        xi = ti.Vector([qi[0], qi[1], qi[2]])
-        ki = qi[3]
-        dv = ki * grad_sum[i]
-        for k in range(fluid_count[i]):
-            j, c = fluid_pair(fluid_pairs, i, k, fmt, inv_scale)
-            q = position_stiffness[j]
-            dv += (q[3] * c) * (xi - ti.Vector([q[0], q[1], q[2]]))
+        dv, ki = velocity_update(i, fluid_count, fluid_pairs, fmt, inv_scale, grad_sum, position_stiffness)
         v[i] -= dt * dv
         stiffness_sum[i] += ki
 
 
 @ti.kernel
-def store_stiffness(n: ti.i32, scale: float, stiffness_sum: ti.types.ndarray(ndim=1),
-                    kappa: ti.types.ndarray(ndim=1)):
-    """Warm-start memory: the step's summed stiffness times dt (divergence) or dt^2 (density)."""
-    for i in range(n):
-        kappa[i] = stiffness_sum[i] * scale
-
-
-@ti.kernel
-def advect(n: ti.i32, dt: float, x: ti.types.ndarray(ndim=1), v: ti.types.ndarray(ndim=1)) -> ti.types.vector(
-        2, ti.f64):
-    """x_i += dt v_i; returns (max speed in m/s, number of non-finite velocities)."""
+def finish_solve(
+    n: ti.i32,
+    dt: float,
+    v: ti.types.ndarray(ndim=1),
+    fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    fluid_pairs: ti.types.ndarray(ndim=2),
+    fmt: ti.template(),
+    inv_scale: float,
+    grad_sum: ti.types.ndarray(ndim=1),
+    position_stiffness: ti.types.ndarray(ndim=1),
+    stiffness_sum: ti.types.ndarray(ndim=1),
+    store_scale: float,
+    kappa: ti.types.ndarray(ndim=1),
+    advect: ti.i32,
+    x: ti.types.ndarray(ndim=1),
+) -> ti.types.vector(2, ti.f64):
+    """A solve's last velocity update (:func:`apply_stiffness`) with what follows it per particle, in one launch:
+    the warm-start memory kappa_i = (summed stiffness) x ``store_scale`` (dt for the divergence solver, dt^2 for
+    the density solver) and, with ``advect`` = 1 (the density solver), x_i += dt v_i. Returns (max speed in
+    m/s, number of non-finite velocities) of the updated velocities with ``advect``, else zeros. Writing x_i
+    here is safe: the update reads positions from the records, never from x.
+    """
     vmax = 0.0
     bad = 0
     for i in range(n):
-        vi = v[i]
-        sp = vi.norm()
-        if not (sp <= 1.0e30):  # NaN or Inf
-            bad += 1
-        else:
-            ti.atomic_max(vmax, sp)
-        x[i] += dt * vi
+        dv, ki = velocity_update(i, fluid_count, fluid_pairs, fmt, inv_scale, grad_sum, position_stiffness)
+        vi = v[i] - dt * dv
+        v[i] = vi
+        kappa[i] = (stiffness_sum[i] + ki) * store_scale
+        if advect:
+            sp = vi.norm()
+            if not (sp <= 1.0e30):  # NaN or Inf
+                bad += 1
+            else:
+                ti.atomic_max(vmax, sp)
+            x[i] += dt * vi
     return ti.Vector([ti.cast(vmax, ti.f64), ti.cast(bad, ti.f64)])

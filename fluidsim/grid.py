@@ -210,6 +210,28 @@ def gather_rows(src: ti.types.ndarray(ndim=1), dst: ti.types.ndarray(ndim=1),
         dst[k] = src[order[k]]
 
 
+@ti.kernel
+def gather_persistent(order: ti.types.ndarray(dtype=ti.i32, ndim=1), n: ti.i32,
+                      x: ti.types.ndarray(ndim=1), x_out: ti.types.ndarray(ndim=1),
+                      v: ti.types.ndarray(ndim=1), v_out: ti.types.ndarray(ndim=1),
+                      ids: ti.types.ndarray(ndim=1), ids_out: ti.types.ndarray(ndim=1),
+                      kappa_density: ti.types.ndarray(ndim=1), kappa_density_out: ti.types.ndarray(ndim=1),
+                      kappa_divergence: ti.types.ndarray(ndim=1), kappa_divergence_out: ti.types.ndarray(ndim=1),
+                      divergence_sum: ti.types.ndarray(ndim=1), divergence_sum_out: ti.types.ndarray(ndim=1),
+                      divergence_count: ti.types.ndarray(ndim=1), divergence_count_out: ti.types.ndarray(ndim=1)):
+    """The permutation of :meth:`fluidsim.particles.FluidParticles.permute` on its seven persistent arrays at
+    once: ``a_out[k] = a[order[k]]`` for k < n (:func:`gather_rows` for seven arrays in one launch)."""
+    for k in range(n):
+        o = order[k]
+        x_out[k] = x[o]
+        v_out[k] = v[o]
+        ids_out[k] = ids[o]
+        kappa_density_out[k] = kappa_density[o]
+        kappa_divergence_out[k] = kappa_divergence[o]
+        divergence_sum_out[k] = divergence_sum[o]
+        divergence_count_out[k] = divergence_count[o]
+
+
 def brute_force_neighbors_np(queries: np.ndarray, points: np.ndarray, radius: float,
                              exclude_self: bool) -> list[np.ndarray]:
     """O(N M) reference neighbour search: for each query, the sorted indices of points within ``radius``.

@@ -21,8 +21,8 @@ For every active fluid particle i, one pass over the 27 grid cells around it:
   own to start;
 - with the warm start on, sums instead the divergence-free solver's warm-start push P_i = kappa_i sum_k g_ik
   + sum_j kappa_j g_ij (k over fluid and boundary, j over fluid) from the stiffness kappa stored at the
-  previous step: it depends only on positions, which do not move until advection, so the warm start is
-  applied per particle (:func:`fluidsim.dfsph.start_divergence`).
+  previous step (it depends only on positions, which do not move until advection) and applies it: the
+  warm start costs no pass and no launch of its own.
 
 Akinci boundary volumes (Akinci et al. 2012): V_b = 1 / sum_k W(x_b - x_k) over boundary
 particles k within h (k = b included).
@@ -177,16 +177,21 @@ def build_neighborhoods(
     push: ti.types.ndarray(ndim=1),
     fmt: ti.template(),
     coef_scale: float,
+    warm_scale: float,
+    dt: float,
+    stiffness_sum: ti.types.ndarray(ndim=1),
 ) -> ivec3:
     """Neighbour lists, normalised density, DFSPH factor, divergence source (1/s) and warm-start pushes.
 
     Returns (max fluid, max boundary neighbour counts, 1 if a NARROW list met an offset |j - i| beyond
     NARROW_MAX_OFFSET, else 0); the caller then switches to WIDE lists and runs the pass again.
 
-    With ``warm`` = 1, the divergence-free solver's warm-start push from its stored stiffness kappa
-    (B&K 2017, Alg. 2; :func:`fluidsim.dfsph.start_divergence`): P_i = kappa_i (sum_j g_ij + sum_b g_ib)
-    + sum_j kappa_j g_ij (kappa's units per metre), so the solver needs no list pass of its own to warm-start;
-    the source is then left unset (the solver measures it after the push).
+    With ``warm`` = 1, the divergence-free solver's warm start (B&K 2017, Alg. 2) instead of the source:
+    the push P_i = kappa_i (sum_j g_ij + sum_b g_ib) + sum_j kappa_j g_ij from its stored stiffness kappa
+    (kappa's units per metre; stored in ``push``), applied at once as v_i -= warm_scale P_i (the stiffness
+    k_i = warm_scale kappa_i / dt of every particle; the pass reads no neighbour's velocity then), and the
+    solver's stiffness sum set to k_i. The solver measures the source after the push. A caller that runs the
+    pass again (grown lists) first undoes the push (:func:`fluidsim.dfsph.undo_push`).
 
     A particle whose neighbours exceed the list capacity still gets its full density and factor; the
     caller sees the returned maxima, grows the lists and runs the pass again.
@@ -261,7 +266,10 @@ def build_neighborhoods(
         grad_sum += grad_sum_b
         grad_sum_out[i] = grad_sum
         if warm:
-            push[i] = push_v + kappa[i] * grad_sum
+            p = push_v + kappa[i] * grad_sum
+            push[i] = p
+            v[i] = vi - warm_scale * p
+            stiffness_sum[i] = warm_scale * kappa[i] / dt
         denom = grad_sum.dot(grad_sum) + sq_sum
         f = 0.0
         if denom > FACTOR_EPS:

@@ -3,7 +3,7 @@
 ``DFSPHSolver.step()`` reads like the algorithm:
 
     grid sort -> neighbourhoods, density, factor -> divergence solve -> divergence estimate (paper Eq. 1)
-    -> non-pressure forces, predict v -> density solve -> advect
+    -> non-pressure forces, predict v -> density solve -> advect (in the density solve's last pass)
 
 The passes over the neighbour lists are fused where they read the same data: the neighbourhood pass
 measures the divergence solver's first source and sums both solvers' warm-start pushes (so neither warm
@@ -161,6 +161,7 @@ class DFSPHSolver:
         self.stage_times: dict[str, float] | None = None  # set to {} to profile stages
         speeds = np.linalg.norm(fv, axis=1) if len(fv) else np.zeros(1)
         self._max_speed = float(speeds.max())
+        self._pending_estimate = False  # the non-pressure pass computed D_i; the density start adds it
 
     # -- setup helpers -------------------------------------------------------------------------
     def _outside_boundary(self, fx: np.ndarray) -> np.ndarray:
@@ -179,14 +180,15 @@ class DFSPHSolver:
         stage = self._stage
         dt = self._time_step()
         retired = stage("sort", self._sort)                              # grid: counting sort by cell
-        max_f, max_b = stage("neighbors", self._neighborhoods)           # density, DFSPH factor
+        max_f, max_b = stage("neighbors", self._neighborhoods, dt)           # density, DFSPH factor
         div_it, div_err = stage("divergence_solve", self._divergence_solve, dt)  # B&K divergence-free
         fused = self._estimate_with_viscosity()
         if not fused:  # paper Eq. 1 with its own radii
             stage("divergence_estimate", self._estimate_divergence)      # paper Eq. 1
         stage("non_pressure", self._non_pressure_forces, dt, fused)      # gravity, viscosity (and Eq. 1); predict v
-        dens_it, dens_err = stage("density_solve", self._density_solve, dt)  # B&K constant density
-        max_speed, bad = stage("advect", self._advect, dt)               # x += dt v
+        # B&K constant density; its last velocity update also advects, x += dt v
+        dens_it, dens_err, (max_speed, bad) = stage("density_solve", self._density_solve, dt)
+        self._max_speed = max_speed
         self.time += dt
         stats = StepStats(
             step=self.step_index, time=self.time, dt=dt,
@@ -236,35 +238,41 @@ class DFSPHSolver:
         divergence_warm = cfg.warm_start and cfg.divergence_warm_start and cfg.divergence_solver
         return divergence_warm, cfg.warm_start
 
-    def _neighborhoods(self) -> tuple[int, int]:
+    def _neighborhoods(self, dt: float | None = None) -> tuple[int, int]:
         f, nb, b = self.fluid, self.neighborhoods, self.boundary
+        dt = self.config.dt if dt is None else dt
+        warm = self._warm()[0]
         while True:
             counts = neighbors.build_neighborhoods(
                 f.active, f.x, self._starts, b.x, b.volume, b.cell_starts, self._origin, self._inv_cell,
                 self._dims, self.h, self.fluid_volume, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
                 nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.density, f.factor,
-                f.v, f.source, self._kernel_table, int(self._warm()[0]), f.kappa_divergence,
-                f.push_divergence, nb.format, nb.coef_scale)
+                f.v, f.source, self._kernel_table, int(warm), f.kappa_divergence, f.push_divergence, nb.format,
+                nb.coef_scale, dfsph.DIVERGENCE_WARM_SCALE, dt, f.stiffness_sum)
             max_f, max_b = int(counts[0]), int(counts[1])
+            if not int(counts[2]) and max_f <= nb.fluid_capacity and max_b <= nb.boundary_capacity:
+                return max_f, max_b
+            if warm:  # the pass applied the divergence warm start; the next run applies it again
+                dfsph.undo_push(f.active, dfsph.DIVERGENCE_WARM_SCALE, f.push_divergence, f.v)
             if int(counts[2]):
                 log.info("a neighbour's index is over %d from its particle's: the fluid lists switch to the wide "
                          "format (8 bytes per pair) for the rest of the run", neighbors.NARROW_MAX_OFFSET)
                 nb.widen()
                 continue
-            if max_f <= nb.fluid_capacity and max_b <= nb.boundary_capacity:
-                return max_f, max_b
             grow_f = max(nb.fluid_capacity, int(max_f * 1.25) + 4)
             grow_b = max(nb.boundary_capacity, int(max_b * 1.25) + 4)
             log.info("growing neighbour lists to %d fluid / %d boundary slots", grow_f, grow_b)
             nb.resize(grow_f, grow_b)
 
     def _solve(self, error, start, kappa, dt: float, tolerance: float, store_scale: float,
-               min_iterations: int) -> tuple[int, float]:
-        """The iteration shared by both DFSPH solvers; returns (iterations, last measured average error).
+               min_iterations: int, advect: bool = False) -> tuple[int, float, tuple[float, int]]:
+        """The iteration shared by both DFSPH solvers; returns (iterations, last measured average error,
+        (max speed, non-finite count) after advection when ``advect``, else (0, 0)).
 
         Each iteration measures the error (setting the stiffness of a Jacobi update) and applies the update;
         the solve ends after the iteration whose measured error is within ``tolerance``, once at least
-        ``min_iterations`` ran, or after ``config.max_iterations`` (SPlisHSPlasH's loop).
+        ``min_iterations`` ran, or after ``config.max_iterations`` (SPlisHSPlasH's loop). The last update also
+        stores the warm-start memory and, with ``advect``, moves the particles (:func:`dfsph.finish_solve`).
 
         Args:
             error: ``error()`` runs an error pass and returns the average error.
@@ -276,17 +284,17 @@ class DFSPHSolver:
         n = f.active
         known = start()
         iterations = 0
-        err = 0.0
-        while iterations < cfg.max_iterations:
+        while True:
             err = known if known is not None else error()
             known = None
+            iterations += 1
+            if (err <= tolerance and iterations >= min_iterations) or iterations >= cfg.max_iterations:
+                out = dfsph.finish_solve(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
+                                         nb.grad_sum, f.position_stiffness, f.stiffness_sum, store_scale, kappa,
+                                         int(advect), f.x)
+                return iterations, float(err), (float(out[0]), int(out[1]))
             dfsph.apply_stiffness(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
                                   f.position_stiffness, f.stiffness_sum)
-            iterations += 1
-            if err <= tolerance and iterations >= min_iterations:
-                break
-        dfsph.store_stiffness(n, store_scale, f.stiffness_sum, kappa)
-        return iterations, float(err)
 
     def _divergence_solve(self, dt: float) -> tuple[int, float]:
         if not self.config.divergence_solver or self.fluid.active == 0:
@@ -296,36 +304,41 @@ class DFSPHSolver:
         f, nb = self.fluid, self.neighborhoods
         warm = self._warm()[0]
 
-        def start() -> float | None:  # the neighbourhood pass measured the source (f.source)
-            avg = dfsph.start_divergence(f.active, dt, dfsph.WARM if warm else dfsph.FIRST, 0.5, f.source,
-                                         f.factor, f.kappa_divergence, f.push_divergence, f.x, f.v,
-                                         f.position_stiffness, f.stiffness_sum, self._partial)
-            return None if warm else avg
+        def start() -> float | None:  # a warm start happened in the neighbourhood pass
+            if warm:
+                return None
+            return dfsph.start_divergence(f.active, dt, f.source, f.factor, f.x, f.position_stiffness,
+                                          f.stiffness_sum, self._partial)
 
         def error() -> float:
             return dfsph.divergence_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
                                           nb.inv_scale, nb.boundary_count, nb.grad_sum, f.factor, f.source,
                                           f.position_stiffness, self._partial)
 
-        return self._solve(error, start, f.kappa_divergence, dt, tol, dt, self.config.min_divergence_iterations)
+        iterations, err, _ = self._solve(error, start, f.kappa_divergence, dt, tol, dt,
+                                         self.config.min_divergence_iterations)
+        return iterations, err
 
-    def _density_solve(self, dt: float) -> tuple[int, float]:
+    def _density_solve(self, dt: float) -> tuple[int, float, tuple[float, int]]:
+        """The constant-density solve, ending with the advection x += dt v; returns (iterations, error,
+        (max speed m/s, non-finite velocities))."""
         f, nb = self.fluid, self.neighborhoods
         if f.active == 0:
-            return 0, 0.0
+            return 0, 0.0, (0.0, 0)
         tol = self.config.max_density_error * 0.01
         warm = self._warm()[1]
 
-        def start() -> None:
-            dfsph.start_density(f.active, dt, dfsph.WARM if warm else dfsph.FIRST, 1.0, f.position_stiffness,
-                                f.push_density, f.v, f.stiffness_sum)
+        def start() -> None:  # v* = v + dt a (and the Eq. 1 sums), then the warm start
+            dfsph.start_density(f.active, dt, dfsph.WARM if warm else dfsph.FIRST, 1.0, f.acceleration,
+                                int(self._pending_estimate), f.divergence, f.divergence_sum, f.divergence_count,
+                                f.position_stiffness, f.push_density, f.v, f.stiffness_sum)
 
         def error() -> float:
             return dfsph.density_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
                                        nb.inv_scale, nb.grad_sum, f.density, f.factor, f.source,
                                        f.position_stiffness, self._partial)
 
-        return self._solve(error, start, f.kappa_density, dt, tol, dt * dt, self.config.min_iterations)
+        return self._solve(error, start, f.kappa_density, dt, tol, dt * dt, self.config.min_iterations, advect=True)
 
     def _estimate_with_viscosity(self) -> bool:
         """Whether paper Eq. 1 can use the stored gradients (h_k = h <= h_r), fused into the viscosity pass."""
@@ -357,9 +370,10 @@ class DFSPHSolver:
                 b.cell_starts, f.divergence, f.divergence_sum, f.divergence_count)
 
     def _non_pressure_forces(self, dt: float, estimate: bool = False) -> None:
-        """Gravity and viscosity, v += dt a; with ``estimate``, also paper Eq. 1 from the stored gradients
-        (added to the run sums), and with the warm start the density solver's push, in the same sweep
-        (:func:`fluidsim.viscosity.non_pressure_accelerations`)."""
+        """Gravity and viscosity a_i; with ``estimate``, also paper Eq. 1 from the stored gradients, and with the
+        warm start the density solver's push, in the same sweep
+        (:func:`fluidsim.viscosity.non_pressure_accelerations`). The density solver's start applies v += dt a
+        (and adds D_i to the run sums)."""
         cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
         if f.active == 0:
             return
@@ -372,16 +386,7 @@ class DFSPHSolver:
             self.h, f.x, f.v, f.density, f.position_stiffness, b.x, nb.fluid_count, nb.fluid_pairs, nb.format,
             nb.inv_scale, nb.boundary_count, nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.acceleration,
             int(estimate), f.divergence, int(warm), f.push_density)
-        viscosity.commit_forces(f.active, dt, int(estimate), f.v, f.acceleration, f.divergence, f.divergence_sum,
-                                f.divergence_count)
-
-    def _advect(self, dt: float) -> tuple[float, int]:
-        f = self.fluid
-        if f.active == 0:
-            return 0.0, 0
-        out = dfsph.advect(f.active, dt, f.x, f.v)
-        self._max_speed = float(out[0])
-        return float(out[0]), int(out[1])
+        self._pending_estimate = estimate
 
     # -- read-back -----------------------------------------------------------------------------
     def fluid_state(self) -> dict[str, np.ndarray]:

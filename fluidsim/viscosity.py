@@ -15,7 +15,8 @@ what paper Eq. 1 reads (:func:`fluidsim.divergence.estimate_divergence_from_grad
 h_k = h <= h_r, so it computes D_i in the same sweep.
 
 The accelerations are stored, not applied (the sweep reads the neighbours' velocities):
-:func:`commit_forces` then adds dt a_i to v_i (and D_i to the run sums). :func:`non_pressure_np` is the numpy twin.
+:func:`fluidsim.dfsph.start_density` then adds dt a_i to v_i (and D_i to the run sums).
+:func:`non_pressure_np` is the numpy twin.
 """
 
 import numpy as np
@@ -93,25 +94,6 @@ def non_pressure_accelerations(
             divergence[i] = ti.abs(d)
         if warm:
             push[i] = pushed + position_stiffness[i][3] * grad_sum[i]
-
-
-@ti.kernel
-def commit_forces(
-    n: ti.i32,
-    dt: float,
-    estimate: ti.i32,
-    v: ti.types.ndarray(ndim=1),
-    acceleration: ti.types.ndarray(ndim=1),
-    divergence: ti.types.ndarray(ndim=1),
-    divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
-    divergence_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-):
-    """v_i += dt a_i; with ``estimate`` = 1, D_i added to the run sum and count (paper Eq. 1)."""
-    for i in range(n):
-        v[i] += dt * acceleration[i]
-        if estimate:
-            divergence_sum[i] += ti.cast(divergence[i], ti.f64)
-            divergence_count[i] += 1
 
 
 def non_pressure_np(x: np.ndarray, v: np.ndarray, density: np.ndarray, fluid_volume: float,

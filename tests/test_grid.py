@@ -96,11 +96,12 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt):
     kappa_nd = ti.ndarray(ti.f32, shape=n)
     kappa_nd.from_numpy(kappa)
     push = ti.Vector.ndarray(3, ti.f32, shape=n)
+    ssum = ti.ndarray(ti.f32, shape=n)
     while True:
         m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
                                           nb.boundary_count, nb.boundary_pairs,
                                           bsum, gsum, dens, fac, v_nd, src, table, 0, kappa_nd, push,
-                                          nb.format, nb.coef_scale)
+                                          nb.format, nb.coef_scale, 0.5, 0.002, ssum)
         assert m[2] == 0  # no offset beyond 16 bits among 1,508 particles
         if m[0] <= nb.fluid_capacity and m[1] <= nb.boundary_capacity:
             break
@@ -143,7 +144,7 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt):
     before = [a.to_numpy() for a in (nb.fluid_pairs, dens, fac, gsum)]
     neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
                                   nb.boundary_count, nb.boundary_pairs, bsum, gsum, dens, fac, v_nd, src, table, 1,
-                                  kappa_nd, push, nb.format, nb.coef_scale)
+                                  kappa_nd, push, nb.format, nb.coef_scale, 0.5, 0.002, ssum)
     for a, b in zip(before, (nb.fluid_pairs, dens, fac, gsum), strict=True):
         np.testing.assert_array_equal(a, b.to_numpy())
     k = kappa.astype(np.float64)
@@ -155,6 +156,9 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt):
     # G_i = sum_j V_f grad W_ij + sum_b V_b grad W_ib (its scale: one neighbour's gradient)
     np.testing.assert_allclose(gsum.to_numpy(), ref_gsum, atol=1e-5 * 1.0e-4 * 48 / np.pi / h**4)
     np.testing.assert_allclose(push.to_numpy(), ref_push, rtol=1e-3, atol=1e-4 * np.abs(ref_push).max())
+    # ... and applied: v_i -= 0.5 P_i, the stiffness sum starts at 0.5 kappa_i / dt
+    np.testing.assert_allclose(v_nd.to_numpy(), vel - 0.5 * push.to_numpy(), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(ssum.to_numpy(), 0.5 * kappa / 0.002, rtol=1e-6)
     # the relation is symmetric, and so are the stored coefficients, bit for bit (antisymmetric forces)
     pairs = {(i, j): fcoef[i, k] for i in range(n) for k, j in enumerate(fi[i, : fc[i]])}
     assert all(pairs.get((j, i)) == c for (i, j), c in pairs.items())

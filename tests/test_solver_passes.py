@@ -16,9 +16,9 @@ from fluidsim.solver import DFSPHSolver
 from fluidsim.viscosity import non_pressure_np
 
 
-def _solver(mu_b, kappa_divergence_max=0.0):
+def _solver(mu_b, kappa_divergence_max=0.0, neighborhoods=True, max_neighbors=64):
     rng = np.random.default_rng(3)
-    cfg = SolverConfig(particle_radius=0.025, viscosity=4.0, boundary_viscosity=mu_b)
+    cfg = SolverConfig(particle_radius=0.025, viscosity=4.0, boundary_viscosity=mu_b, max_neighbors=max_neighbors)
     x = lattice_in_box([0.3, 0.3, 0.3], [0.6, 0.6, 0.6], cfg.spacing) + rng.normal(0, 0.004, (216, 3))
     v = rng.normal(0, 1.0, x.shape)
     wall = lattice_in_box([0.3, 0.2, 0.3], [0.6, 0.3, 0.6], cfg.spacing) - [0, 0.002, 0]
@@ -27,7 +27,8 @@ def _solver(mu_b, kappa_divergence_max=0.0):
     if kappa_divergence_max:
         kappa = rng.uniform(0.0, kappa_divergence_max, solver.fluid.capacity)
         solver.fluid.kappa_divergence.from_numpy(kappa.astype(np.float32))
-    solver._neighborhoods()
+    if neighborhoods:
+        solver._neighborhoods()
     return cfg, solver
 
 
@@ -58,9 +59,9 @@ def test_forces_pass_matches_numpy_twins(mu_b):
     v_before = f.numpy("v")
     solver._non_pressure_forces(cfg.dt, estimate=True)
     acc = f.numpy("acceleration")
+    np.testing.assert_array_equal(f.numpy("v"), v_before)  # the pass reads v; the density start commits
     w = f.numpy("position_stiffness")[:, 3].astype(np.float64)  # kappa where compressing (tested below)
     assert 0 < (w > 0).sum() < f.active
-    np.testing.assert_allclose(f.numpy("v"), v_before + cfg.dt * acc, rtol=1e-6, atol=1e-6)
 
     ref = non_pressure_np(xs, vs, rho, solver.fluid_volume, bx, bvol, cfg.support_radius, cfg.viscosity, mu_b,
                           cfg.rest_density, cfg.gravity)
@@ -139,6 +140,39 @@ def test_velocity_update_pass_matches_numpy_twin():
     np.testing.assert_allclose(f.numpy("stiffness_sum"), 1.0 + k[:n], rtol=1e-6)
 
 
+def test_last_velocity_update_stores_the_warm_start_memory_and_advects():
+    cfg, solver = _solver(0.0)
+    f, nb = solver.fluid, solver.neighborhoods
+    n, dt = f.active, cfg.dt
+    k = np.random.default_rng(19).uniform(-50.0, 200.0, f.capacity)
+    expected = _apply_with(solver, k, dt)
+    scale = np.abs(expected - f.numpy("v")).max()
+    assert scale > 1e-2
+    x0 = f.numpy("x").astype(np.float64)
+    xk = np.concatenate([f.numpy("x", active_only=False), k[:, None]], axis=1)
+    f.position_stiffness.from_numpy(xk.astype(np.float32))
+    f.stiffness_sum.fill(1.0)
+    out = dfsph.finish_solve(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
+                             f.position_stiffness, f.stiffness_sum, 0.5, f.kappa_density, 1, f.x)
+    v = f.numpy("v").astype(np.float64)
+    np.testing.assert_allclose(v, expected, atol=1e-3 * scale)
+    np.testing.assert_allclose(f.numpy("kappa_density"), 0.5 * (1.0 + k[:n]), rtol=1e-6)
+    np.testing.assert_allclose(f.numpy("x"), x0 + dt * v, rtol=0, atol=1e-6)
+    assert out[0] == pytest.approx(np.linalg.norm(v, axis=1).max(), rel=1e-5) and out[1] == 0
+    # without advect: x stays, nothing is measured; a NaN velocity is counted when advecting
+    x1 = f.numpy("x")
+    out = dfsph.finish_solve(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
+                             f.position_stiffness, f.stiffness_sum, 0.5, f.kappa_density, 0, f.x)
+    np.testing.assert_array_equal(f.numpy("x"), x1)
+    assert out[0] == 0 and out[1] == 0
+    vv = f.numpy("v", active_only=False)
+    vv[3] = np.nan
+    f.v.from_numpy(vv)
+    out = dfsph.finish_solve(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
+                             f.position_stiffness, f.stiffness_sum, 0.5, f.kappa_density, 1, f.x)
+    assert out[1] >= 1
+
+
 def test_divergence_error_pass_matches_numpy_twin():
     cfg, solver = _solver(0.0)
     f, nb = solver.fluid, solver.neighborhoods
@@ -180,17 +214,18 @@ def test_density_error_pass_matches_numpy_twin():
     assert abs(avg - err_ref.mean()) <= dt * bound.mean() + 1e-7
 
 
-def test_divergence_warm_start_equals_the_list_pass():
-    """The push summed by the neighbourhood pass moves every particle as a list pass with
-    k_j = 0.5 kappa_j / dt would."""
-    cfg, solver = _solver(0.0, kappa_divergence_max=2e-3)
+@pytest.mark.parametrize("max_neighbors", [64, 8])  # 8: the lists overflow and the pass runs again
+def test_divergence_warm_start_equals_the_list_pass(max_neighbors):
+    """The neighbourhood pass moves every particle as a list pass with k_j = 0.5 kappa_j / dt would, once, even
+    when it has to run again with grown lists (it takes its first push back)."""
+    cfg, solver = _solver(0.0, kappa_divergence_max=2e-3, neighborhoods=False, max_neighbors=max_neighbors)
     f = solver.fluid
     n, dt = f.active, cfg.dt
     k = 0.5 * f.numpy("kappa_divergence", active_only=False).astype(np.float64) / dt  # sorted order
     expected = _apply_with(solver, k, dt)
     v0 = f.numpy("v")
-    dfsph.start_divergence(n, dt, dfsph.WARM, 0.5, f.source, f.factor, f.kappa_divergence, f.push_divergence, f.x,
-                           f.v, f.position_stiffness, f.stiffness_sum, solver._partial)
+    solver._neighborhoods(dt)
+    assert solver.neighborhoods.fluid_capacity >= (64 if max_neighbors == 64 else 9)
     v = f.numpy("v")
     scale = np.abs(expected - v0).max()
     assert scale > 1e-3
@@ -205,28 +240,30 @@ def test_density_warm_start_equals_the_list_pass():
     n, dt = f.active, cfg.dt
     rng = np.random.default_rng(13)
     f.kappa_density.from_numpy(rng.uniform(0.0, 2e-6, f.capacity).astype(np.float32))
-    v_start = f.numpy("v", active_only=False)
-    solver._non_pressure_forces(dt)  # computes the masked stiffness w and the push (and a, taken out below)
-    v_forces = f.numpy("v")
+    v0 = f.numpy("v")
+    solver._non_pressure_forces(dt)  # computes the masked stiffness w, the push and a
     w = f.numpy("position_stiffness", active_only=False)[:, 3].astype(np.float64)
     assert 0 < (w[:n] > 0).sum() < n
-    f.v.from_numpy(v_start)
-    expected = _apply_with(solver, w / dt**2, dt)
-    f.v.from_numpy(np.concatenate([v_forces, v_start[n:]]))
-    dfsph.start_density(n, dt, dfsph.WARM, 1.0, f.position_stiffness, f.push_density, f.v, f.stiffness_sum)
-    v0 = v_forces - dt * f.numpy("acceleration")
+    expected = _apply_with(solver, w / dt**2, dt)  # the list pass on the velocities before the forces
+    dfsph.start_density(n, dt, dfsph.WARM, 1.0, f.acceleration, 0, f.divergence, f.divergence_sum,
+                        f.divergence_count, f.position_stiffness, f.push_density, f.v, f.stiffness_sum)
+    v_forces = v0 + dt * f.numpy("acceleration")
     scale = np.abs(expected - v0).max()
     assert scale > 1e-3
     np.testing.assert_allclose(f.numpy("v") - v_forces, expected - v0, atol=2e-3 * scale)
     np.testing.assert_allclose(f.numpy("stiffness_sum"), w[:n] / dt**2, rtol=1e-6)
 
 
-def test_commit_applies_the_stored_forces_once():
+def test_density_start_commits_the_stored_forces_once():
     cfg, solver = _solver(0.0)
     f = solver.fluid
     v0 = f.numpy("v").astype(np.float64)
     solver._non_pressure_forces(cfg.dt, estimate=True)
     acc = f.numpy("acceleration")
+    dfsph.start_density(f.active, cfg.dt, dfsph.FIRST, 1.0, f.acceleration, 1, f.divergence, f.divergence_sum,
+                        f.divergence_count, f.position_stiffness, f.push_density, f.v, f.stiffness_sum)
     np.testing.assert_allclose(f.numpy("v"), v0 + cfg.dt * acc, rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(f.numpy("stiffness_sum"), 0.0)
     sums, counts = solver.divergence_accumulation()
     assert counts.min() == 1 and counts.max() == 1
+    np.testing.assert_allclose(sums[counts > 0], f.numpy("divergence")[np.argsort(f.numpy("ids"))], rtol=1e-6)
