@@ -98,6 +98,27 @@ def cell_linear(c, dims) -> ti.i32:
     return idx
 
 
+@ti.func
+def _assign(xs: ti.template(), n, origin, inv_cell, dims, box_min, box_max, cell_ids: ti.template(),
+            ranks: ti.template(), counts: ti.template()):
+    num_cells = dims[0] * dims[1] * dims[2]
+    for c in range(num_cells + 1):
+        counts[c] = 0
+    for i in range(n):
+        x = ti.cast(xs[i], ti.f64)
+        cell = num_cells
+        inside = True
+        for d in ti.static(range(3)):
+            if not (box_min[d] <= x[d] <= box_max[d]):
+                inside = False
+        if inside:
+            lin = cell_linear(cell_coord(x, origin, inv_cell), dims)
+            if lin >= 0:
+                cell = lin
+        cell_ids[i] = cell
+        ranks[i] = ti.atomic_add(counts[cell], 1)
+
+
 @ti.kernel
 def assign_cells(
     xs: ti.types.ndarray(ndim=1),
@@ -116,22 +137,7 @@ def assign_cells(
     Particles outside ``[box_min, box_max]`` (the simulation domain) go to the retired bucket
     ``num_cells``; they are counted by the caller and never clamped into the grid.
     """
-    num_cells = dims[0] * dims[1] * dims[2]
-    for c in range(num_cells + 1):
-        counts[c] = 0
-    for i in range(n):
-        x = ti.cast(xs[i], ti.f64)
-        cell = num_cells
-        inside = True
-        for d in ti.static(range(3)):
-            if not (box_min[d] <= x[d] <= box_max[d]):
-                inside = False
-        if inside:
-            lin = cell_linear(cell_coord(x, origin, inv_cell), dims)
-            if lin >= 0:
-                cell = lin
-        cell_ids[i] = cell
-        ranks[i] = ti.atomic_add(counts[cell], 1)
+    _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts)
 
 
 @ti.func
@@ -179,11 +185,18 @@ def sort_by_cell(
     ``n <= k < capacity`` of particles retired earlier). ``starts[c]`` is the first slot of bucket
     ``c``; the last bucket holds the particles retired now. Returns the number kept, ``starts[-2]``.
     """
+    return _sort(n, capacity, num_buckets, cell_ids, ranks, counts, starts, block_sums, order)
+
+
+@ti.func
+def _sort(n, capacity, num_buckets, cell_ids: ti.template(), ranks: ti.template(), counts: ti.template(),
+          starts: ti.template(), block_sums: ti.template(), order: ti.template()):
     exclusive_scan(counts, starts, num_buckets, block_sums)
-    for i in range(n):
-        order[starts[cell_ids[i]] + ranks[i]] = i
-    for k in range(n, capacity):
-        order[k] = k
+    for i in range(capacity):  # slots of particles retired earlier keep the identity
+        if i < n:
+            order[starts[cell_ids[i]] + ranks[i]] = i
+        else:
+            order[i] = i
     # Atomic ranks depend on thread timing; sorting each (small) cell by old index makes the
     # permutation stable and deterministic. The retired bucket is left as it is: nothing reads it
     # in slot order.
@@ -200,6 +213,29 @@ def sort_by_cell(
                 j -= 1
             order[j + 1] = v
     return starts[num_buckets - 1]
+
+
+@ti.kernel
+def counting_sort(
+    xs: ti.types.ndarray(ndim=1),
+    n: ti.i32,
+    capacity: ti.i32,
+    origin: ti.types.vector(3, ti.f64),
+    inv_cell: ti.f64,
+    dims: ivec3,
+    box_min: ti.types.vector(3, ti.f64),
+    box_max: ti.types.vector(3, ti.f64),
+    cell_ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    ranks: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    block_sums: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    order: ti.types.ndarray(dtype=ti.i32, ndim=1),
+) -> ti.i32:
+    """:func:`assign_cells` then :func:`sort_by_cell` in one launch (a launch costs tens of microseconds of
+    thread-pool wake-up); returns the number of particles kept."""
+    _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts)
+    return _sort(n, capacity, dims[0] * dims[1] * dims[2] + 1, cell_ids, ranks, counts, starts, block_sums, order)
 
 
 @ti.kernel

@@ -12,18 +12,34 @@ REDUCTION_CHUNKS = 128
 
 
 @ti.func
+def chunk_bounds(c, n, chunks):
+    """Items [lo, hi) of chunk c of ``chunks`` over n items (the partition every ordered sum uses)."""
+    return c * n // chunks, (c + 1) * n // chunks
+
+
+@ti.func
+def ordered_total(partial: ti.template()) -> ti.f64:
+    """The chunk sums added in chunk order, on one thread (call at the top level of a kernel)."""
+    total = ti.cast(0.0, ti.f64)
+    ti.loop_config(serialize=True)
+    for c in range(partial.shape[0]):
+        total += partial[c]
+    return total
+
+
+@ti.func
 def ordered_sum(values: ti.template(), n, partial: ti.template()) -> ti.f64:
-    """Sum of ``values[0:n]`` in float64, in an order independent of the thread count."""
+    """Sum of ``values[0:n]`` in float64, in an order independent of the thread count.
+
+    A pass that produces the values can sum them as it goes instead (one parallel loop fewer): loop over the
+    chunks of :func:`chunk_bounds`, add each item's value in item order to a float64 chunk total, store the
+    totals in ``partial`` and return :func:`ordered_total` -- bit for bit the same sum.
+    """
     chunks = partial.shape[0]
     for c in range(chunks):
-        lo = c * n // chunks
-        hi = (c + 1) * n // chunks
+        lo, hi = chunk_bounds(c, n, chunks)
         s = ti.cast(0.0, ti.f64)
         for i in range(lo, hi):
             s += ti.cast(values[i], ti.f64)
         partial[c] = s
-    total = ti.cast(0.0, ti.f64)
-    ti.loop_config(serialize=True)
-    for c in range(chunks):
-        total += partial[c]
-    return total
+    return ordered_total(partial)

@@ -222,11 +222,9 @@ class DFSPHSolver:
         f = self.fluid
         if f.active == 0:
             return 0
-        g = self.grid
-        grid.assign_cells(f.x, f.active, self._origin, self._inv_cell, self._dims, self._retire_min,
-                          self._retire_max, f.cell_ids, f.ranks, self._counts)
-        kept = grid.sort_by_cell(f.active, f.capacity, g.num_cells + 1, f.cell_ids, f.ranks, self._counts,
-                                 self._starts, self._block_sums, f.order)
+        kept = grid.counting_sort(f.x, f.active, f.capacity, self._origin, self._inv_cell, self._dims,
+                                  self._retire_min, self._retire_max, f.cell_ids, f.ranks, self._counts,
+                                  self._starts, self._block_sums, f.order)
         f.permute()
         retired = f.active - int(kept)
         f.active = int(kept)

@@ -16,18 +16,23 @@ def _to_nd(a, dtype=ti.f32):
     return arr
 
 
-def _sorted_on_grid(points, spec, box_min, box_max):
+def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=None):
     n = len(points)
+    capacity = n if capacity is None else capacity
     x = _to_nd(points)
     cell_ids = ti.ndarray(ti.i32, shape=n)
     ranks = ti.ndarray(ti.i32, shape=n)
     counts = ti.ndarray(ti.i32, shape=spec.num_cells + 1)
     starts = ti.ndarray(ti.i32, shape=spec.num_cells + 2)
-    order = ti.ndarray(ti.i32, shape=n)
-    grid.assign_cells(x, n, ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims),
-                      ti.Vector(list(box_min), ti.f64), ti.Vector(list(box_max), ti.f64), cell_ids, ranks, counts)
-    kept = grid.sort_by_cell(n, n, spec.num_cells + 1, cell_ids, ranks, counts, starts,
-                             ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS), order)
+    order = ti.ndarray(ti.i32, shape=capacity)
+    args = (ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims),
+            ti.Vector(list(box_min), ti.f64), ti.Vector(list(box_max), ti.f64), cell_ids, ranks, counts)
+    blocks = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
+    if one_launch:
+        kept = grid.counting_sort(x, n, capacity, *args, starts, blocks, order)
+    else:
+        grid.assign_cells(x, n, *args)
+        kept = grid.sort_by_cell(n, capacity, spec.num_cells + 1, cell_ids, ranks, counts, starts, blocks, order)
     return int(kept), order.to_numpy(), starts.to_numpy(), cell_ids.to_numpy()
 
 
@@ -43,6 +48,12 @@ def test_counting_sort_is_a_stable_sort_by_cell():
     np.testing.assert_array_equal(order[:kept], expected[:kept])
     np.testing.assert_array_equal(np.diff(starts) >= 0, True)
     assert starts[-1] == len(pts)
+    # the one-launch sort gives the same permutation and starts (slots past n: identity)
+    one = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], one_launch=True, capacity=3000)
+    two = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], capacity=3000)
+    for a, b in zip(one, two, strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(one[1][2900:], np.arange(2900, 3000))
 
 
 def test_points_outside_the_grid_are_retired_not_clamped():

@@ -121,6 +121,18 @@ def _divergence_np(solver):
     return s, (2.0**-11 * bound if narrow else 0.0 * bound)
 
 
+def _ordered_average(values, chunks):
+    """The deterministic average of fluidsim.reductions: f64 chunk sums in item order, added in chunk order."""
+    n = len(values)
+    total = 0.0
+    for c in range(chunks):
+        part = 0.0
+        for val in values[c * n // chunks:(c + 1) * n // chunks]:
+            part += float(val)
+        total += part
+    return total / max(n, 1)
+
+
 def test_velocity_update_pass_matches_numpy_twin():
     cfg, solver = _solver(0.0)
     f, nb = solver.fluid, solver.neighborhoods
@@ -190,6 +202,7 @@ def test_divergence_error_pass_matches_numpy_twin():
     np.testing.assert_array_equal(xk[:, :3], f.numpy("x"))
     np.testing.assert_allclose(xk[:, 3], f.numpy("source") * f.numpy("factor") / dt, rtol=1e-5)
     assert abs(avg - s_ref.mean()) <= bound.mean() + 1e-5 * scale
+    assert avg == _ordered_average(f.numpy("source"), solver._partial.shape[0])  # summed as it went, bit for bit
     # the neighbourhood pass measures the same first source for a cold-started solve
     solver._warm = lambda: (False, True)
     solver._neighborhoods()
@@ -212,6 +225,7 @@ def test_density_error_pass_matches_numpy_twin():
     np.testing.assert_array_equal(xk[:, :3], f.numpy("x"))
     np.testing.assert_allclose(xk[:, 3], f.numpy("source") * f.numpy("factor") / dt**2, rtol=1e-5)
     assert abs(avg - err_ref.mean()) <= dt * bound.mean() + 1e-7
+    assert avg == _ordered_average(f.numpy("source"), solver._partial.shape[0])
 
 
 @pytest.mark.parametrize("max_neighbors", [64, 8])  # 8: the lists overflow and the pass runs again
