@@ -34,7 +34,7 @@ list pass of its own:
 import taichi as ti
 
 from .neighbors import FREE_SURFACE_NEIGHBORS, fluid_pair
-from .reductions import chunk_bounds, ordered_sum, ordered_total
+from .reductions import ordered_sum
 
 # Modes of :func:`start_density`.
 FIRST = 1  # cold start: no stiffness yet
@@ -84,20 +84,13 @@ def divergence_error(
     """Divergence-free solver, error pass: s_i (clamped at 0, and 0 at the free surface) and k_i; returns
     the average s_i over fluid (1/s). A cold start takes its first s_i from the neighbourhood pass instead
     (:func:`start_divergence`)."""
-    chunks = partial.shape[0]
-    ti.loop_config(block_dim=1)
-    for c in range(chunks):  # the average is summed as it goes, chunk by chunk (reductions.ordered_sum)
-        lo, hi = chunk_bounds(c, n, chunks)
-        total = ti.cast(0.0, ti.f64)
-        for i in range(lo, hi):
-            s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum, fmt, inv_scale)
-            if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
-                s = 0.0
-            source[i] = s
-            position_stiffness[i] = with_stiffness(x[i], s * factor[i] / dt)
-            total += ti.cast(s, ti.f64)
-        partial[c] = total
-    return ordered_total(partial) / ti.max(n, 1)
+    for i in range(n):
+        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum, fmt, inv_scale)
+        if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
+            s = 0.0
+        source[i] = s
+        position_stiffness[i] = with_stiffness(x[i], s * factor[i] / dt)
+    return ordered_sum(source, n, partial) / ti.max(n, 1)
 
 
 @ti.kernel
@@ -146,19 +139,12 @@ def density_error(
     partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
 ) -> ti.f64:
     """Constant-density solver, error pass: rho*_i - 1 (clamped at 0) and k_i; returns the average error."""
-    chunks = partial.shape[0]
-    ti.loop_config(block_dim=1)
-    for c in range(chunks):  # the average is summed as it goes, chunk by chunk (reductions.ordered_sum)
-        lo, hi = chunk_bounds(c, n, chunks)
-        total = ti.cast(0.0, ti.f64)
-        for i in range(lo, hi):
-            s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum, fmt, inv_scale)
-            err = ti.max(density[i] + dt * s - 1.0, 0.0)
-            source[i] = err
-            position_stiffness[i] = with_stiffness(x[i], err * factor[i] / (dt * dt))
-            total += ti.cast(err, ti.f64)
-        partial[c] = total
-    return ordered_total(partial) / ti.max(n, 1)
+    for i in range(n):
+        s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum, fmt, inv_scale)
+        err = ti.max(density[i] + dt * s - 1.0, 0.0)
+        source[i] = err
+        position_stiffness[i] = with_stiffness(x[i], err * factor[i] / (dt * dt))
+    return ordered_sum(source, n, partial) / ti.max(n, 1)
 
 
 @ti.kernel
