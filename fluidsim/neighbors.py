@@ -84,15 +84,13 @@ NARROW_MAX_OFFSET = 32767
 
 
 @ti.func
-def pack_fluid_pair(i, j, c, fmt: ti.template(), coef_scale):
-    """Fluid pair (i, j, c_ij) in format ``fmt``; ``coef_scale`` is h^2 for NARROW (c h^2 <= 8 / s^3 * 12 * 8 / pi
-    for support factor s, so the f16 never overflows and keeps 11 significant bits), 1 for WIDE."""
-    e = ti.cast(0, ti.i32)
-    if ti.static(fmt == NARROW):
-        half = ti.bit_cast(ti.cast(c * coef_scale, ti.f16), ti.u16)
-        bits = ti.cast((j - i) & 0xFFFF, ti.u32) | (ti.cast(half, ti.u32) << ti.u32(16))
-        e = ti.bit_cast(bits, ti.i32)
-    return e
+def pack_narrow_pair(i, j, c, coef_scale):
+    """Fluid pair (i, j, c_ij) in the NARROW format (WIDE lists use :func:`pack_pair`); ``coef_scale`` = h^2
+    (|c| h^2 <= 8 / s^3 * 12 * 8 / pi for support factor s, so the f16 never overflows and keeps 11 significant
+    bits)."""
+    half = ti.bit_cast(ti.cast(c * coef_scale, ti.f16), ti.u16)
+    bits = ti.cast((j - i) & 0xFFFF, ti.u32) | (ti.cast(half, ti.u32) << ti.u32(16))
+    return ti.bit_cast(bits, ti.i32)
 
 
 @ti.func
@@ -239,7 +237,7 @@ def build_neighborhoods(
                             push_v += kappa[j] * g
                         if nf < cap_f:
                             if ti.static(fmt == NARROW):
-                                fluid_pairs[i, nf] = pack_fluid_pair(i, j, cg, fmt, coef_scale)
+                                fluid_pairs[i, nf] = pack_narrow_pair(i, j, cg, coef_scale)
                                 if ti.abs(j - i) > NARROW_MAX_OFFSET:
                                     ti.atomic_max(too_far, 1)
                             else:

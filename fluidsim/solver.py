@@ -3,11 +3,12 @@
 ``DFSPHSolver.step()`` reads like the algorithm:
 
     grid sort -> neighbourhoods, density, factor -> divergence solve -> divergence estimate (paper Eq. 1)
-    -> non-pressure forces, predict v -> density solve -> advect (in the density solve's last pass)
+    -> non-pressure forces -> (predict v) density solve -> advect (in the density solve's last pass)
 
 The passes over the neighbour lists are fused where they read the same data: the neighbourhood pass
-measures the divergence solver's first source and sums both solvers' warm-start pushes (so neither warm
-start reads the lists), and the non-pressure pass computes paper Eq. 1 with the default estimator radii.
+measures the divergence solver's first source (cold start) or sums and applies its warm-start push, the
+non-pressure pass sums the density solver's push and computes paper Eq. 1 with the default estimator
+radii, and the density solver's start predicts v* = v + dt a; no warm start reads the lists.
 A step with both solvers at their minimum iterations reads the lists 7 times after the neighbourhood
 pass: 2 (divergence), 1 (non-pressure forces), 4 (density).
 
@@ -180,13 +181,13 @@ class DFSPHSolver:
         stage = self._stage
         dt = self._time_step()
         retired = stage("sort", self._sort)                              # grid: counting sort by cell
-        max_f, max_b = stage("neighbors", self._neighborhoods, dt)           # density, DFSPH factor
+        max_f, max_b = stage("neighbors", self._neighborhoods, dt)       # density, factor, warm start
         div_it, div_err = stage("divergence_solve", self._divergence_solve, dt)  # B&K divergence-free
         fused = self._estimate_with_viscosity()
         if not fused:  # paper Eq. 1 with its own radii
             stage("divergence_estimate", self._estimate_divergence)      # paper Eq. 1
-        stage("non_pressure", self._non_pressure_forces, dt, fused)      # gravity, viscosity (and Eq. 1); predict v
-        # B&K constant density; its last velocity update also advects, x += dt v
+        stage("non_pressure", self._non_pressure_forces, dt, fused)      # gravity, viscosity (and Eq. 1)
+        # B&K constant density: starts with v* = v + dt a; its last velocity update also advects, x += dt v
         dens_it, dens_err, (max_speed, bad) = stage("density_solve", self._density_solve, dt)
         self._max_speed = max_speed
         self.time += dt
