@@ -133,6 +133,13 @@ def _ordered_average(values, chunks):
     return total / max(n, 1)
 
 
+def _set_stiffness(f, k):
+    """The records (x_i, k_i) the velocity update reads, and a stiffness sum of 1 to add to."""
+    xk = np.concatenate([f.numpy("x", active_only=False), k[:, None]], axis=1)
+    f.position_stiffness.from_numpy(xk.astype(np.float32))
+    f.stiffness_sum.fill(1.0)
+
+
 def test_velocity_update_pass_matches_numpy_twin():
     cfg, solver = _solver(0.0)
     f, nb = solver.fluid, solver.neighborhoods
@@ -140,9 +147,7 @@ def test_velocity_update_pass_matches_numpy_twin():
     k = np.random.default_rng(17).uniform(-50.0, 200.0, f.capacity)
     expected = _apply_with(solver, k, dt)
     v0 = f.numpy("v")
-    xk = np.concatenate([f.numpy("x", active_only=False), k[:, None]], axis=1)
-    f.position_stiffness.from_numpy(xk.astype(np.float32))
-    f.stiffness_sum.fill(1.0)
+    _set_stiffness(f, k)
     dfsph.apply_stiffness(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
                           f.position_stiffness,
                           f.stiffness_sum)
@@ -161,9 +166,7 @@ def test_last_velocity_update_stores_the_warm_start_memory_and_advects():
     scale = np.abs(expected - f.numpy("v")).max()
     assert scale > 1e-2
     x0 = f.numpy("x").astype(np.float64)
-    xk = np.concatenate([f.numpy("x", active_only=False), k[:, None]], axis=1)
-    f.position_stiffness.from_numpy(xk.astype(np.float32))
-    f.stiffness_sum.fill(1.0)
+    _set_stiffness(f, k)
     out = dfsph.finish_solve(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
                              f.position_stiffness, f.stiffness_sum, 0.5, f.kappa_density, 1, f.x)
     v = f.numpy("v").astype(np.float64)
