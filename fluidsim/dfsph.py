@@ -25,10 +25,11 @@ list pass of its own:
   neighbourhood pass sums it (the "push" P_i, :func:`fluidsim.neighbors.build_neighborhoods`) and applies
   it;
 - constant-density solver: k_i = kappa_i / dt^2 where the particle is compressing after the divergence
-  solve (:func:`density_warm_stiffness`), else 0, so the start is symmetric and moves no particle that
-  is not pushed by a compressed neighbour (a start from every particle's kappa was measured to double
-  the splash speeds). The non-pressure pass sums the push (:mod:`fluidsim.viscosity`) and
-  :func:`start_density` applies it.
+  solve (:func:`density_warm_record`, written by the divergence solver's error pass), else 0, so the start is
+  symmetric and moves no particle that is not pushed by a compressed neighbour (a start from every
+  particle's kappa was measured to double the splash speeds). The non-pressure pass sums the push and
+  applies it with the non-pressure forces, v*_i = v_i + dt a_i - P_i / dt
+  (:func:`fluidsim.viscosity.predict_velocities`).
 """
 
 import taichi as ti
@@ -36,9 +37,6 @@ import taichi as ti
 from .neighbors import FREE_SURFACE_NEIGHBORS, fluid_pair
 from .reductions import ordered_sum
 
-# Modes of :func:`start_density`.
-FIRST = 1  # cold start: no stiffness yet
-WARM = 2  # warm start: apply the push of the previous step's stiffness
 DIVERGENCE_WARM_SCALE = 0.5  # the divergence solver warm-starts at half strength (SPlisHSPlasH)
 
 
@@ -64,6 +62,18 @@ def velocity_divergence(i, x: ti.template(), v: ti.template(), fluid_count: ti.t
     return s
 
 
+@ti.func
+def density_warm_record(i, dt, warm, gravity, x: ti.template(), density: ti.template(), source: ti.template(),
+                        boundary_grad_sum: ti.template(), kappa: ti.template()):
+    """The record (x_i, w_i) of the constant-density solver's warm start: w_i = kappa_i where the particle is
+    compressing after the divergence solve, rho_i + dt (s_i + dt g . sum_b g_ib) > 1 (s_i the last divergence
+    source measured, clamped at 0), else 0 (and 0 everywhere without ``warm``)."""
+    w = 0.0 * kappa[i]
+    if warm and density[i] + dt * (source[i] + dt * gravity.dot(boundary_grad_sum[i])) > 1.0:
+        w = kappa[i]
+    return with_stiffness(x[i], w)
+
+
 @ti.kernel
 def divergence_error(
     n: ti.i32,
@@ -80,16 +90,30 @@ def divergence_error(
     source: ti.types.ndarray(ndim=1),
     position_stiffness: ti.types.ndarray(ndim=1),
     partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    warm_density: ti.i32,
+    gravity: ti.types.vector(3, float),
+    density: ti.types.ndarray(ndim=1),
+    boundary_grad_sum: ti.types.ndarray(ndim=1),
+    kappa_density: ti.types.ndarray(ndim=1),
+    density_record: ti.types.ndarray(ndim=1),
 ) -> ti.f64:
     """Divergence-free solver, error pass: s_i (clamped at 0, and 0 at the free surface) and k_i; returns
     the average s_i over fluid (1/s). A cold start takes its first s_i from the neighbourhood pass instead
-    (:func:`start_divergence`)."""
+    (:func:`start_divergence`).
+
+    Also writes the constant-density solver's warm-start record from this s_i (:func:`density_warm_record`,
+    ``warm_density`` = 1 for a warm start): the last error pass of the divergence solve leaves the records the
+    non-pressure pass reads, so they cost no pass and no launch of their own (:func:`density_warm_stiffness`
+    writes them when no error pass ran).
+    """
     for i in range(n):
         s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum, fmt, inv_scale)
         if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
             s = 0.0
         source[i] = s
         position_stiffness[i] = with_stiffness(x[i], s * factor[i] / dt)
+        density_record[i] = density_warm_record(i, dt, warm_density, gravity, x, density, source,
+                                                boundary_grad_sum, kappa_density)
     return ordered_sum(source, n, partial) / ti.max(n, 1)
 
 
@@ -158,50 +182,13 @@ def density_warm_stiffness(
     source: ti.types.ndarray(ndim=1),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     kappa: ti.types.ndarray(ndim=1),
-    position_stiffness: ti.types.ndarray(ndim=1),
+    density_record: ti.types.ndarray(ndim=1),
 ):
-    """Constant-density solver, warm-start stiffness: the record (x_i, w_i) with w_i = kappa_i where the particle
-    is compressing, rho_i + dt (s_i + dt g . sum_b g_ib) > 1 (s_i the last divergence source measured,
-    clamped at 0), else 0 (and 0 everywhere without ``warm``)."""
+    """Constant-density solver, warm-start records (:func:`density_warm_record`) as a pass of its own: for the
+    steps whose divergence solve ran no error pass (a cold start that met its tolerance at once, or no
+    divergence solver); otherwise :func:`divergence_error` writes them."""
     for i in range(n):
-        w = 0.0 * kappa[i]
-        if warm and density[i] + dt * (source[i] + dt * gravity.dot(boundary_grad_sum[i])) > 1.0:
-            w = kappa[i]
-        position_stiffness[i] = with_stiffness(x[i], w)
-
-
-@ti.kernel
-def start_density(
-    n: ti.i32,
-    dt: float,
-    mode: ti.i32,
-    warm_scale: float,
-    acceleration: ti.types.ndarray(ndim=1),
-    estimate: ti.i32,
-    divergence: ti.types.ndarray(ndim=1),
-    divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
-    divergence_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    position_stiffness: ti.types.ndarray(ndim=1),
-    push: ti.types.ndarray(ndim=1),
-    v: ti.types.ndarray(ndim=1),
-    stiffness_sum: ti.types.ndarray(ndim=1),
-):
-    """Constant-density solver, start: the predicted velocity v*_i = v_i + dt a_i with the non-pressure
-    acceleration a_i of :func:`fluidsim.viscosity.non_pressure_accelerations` (and, with ``estimate`` = 1, D_i
-    of paper Eq. 1 added to the run sum and count), then WARM: v*_i -= warm_scale P_i / dt with the push P_i of
-    that pass (k_i = warm_scale w_i / dt^2, w_i the last entry of the record of :func:`density_warm_stiffness`)
-    and the stiffness sum starts at k_i; FIRST: an empty stiffness sum. One launch for all of it."""
-    for i in range(n):
-        dv = dt * acceleration[i]
-        if mode == WARM:
-            dv -= (warm_scale / dt) * push[i]
-            stiffness_sum[i] = warm_scale * position_stiffness[i][3] / (dt * dt)
-        else:
-            stiffness_sum[i] = 0.0
-        v[i] += dv
-        if estimate:
-            divergence_sum[i] += ti.cast(divergence[i], ti.f64)
-            divergence_count[i] += 1
+        density_record[i] = density_warm_record(i, dt, warm, gravity, x, density, source, boundary_grad_sum, kappa)
 
 
 @ti.func

@@ -33,14 +33,16 @@ class FluidParticles:
         divergence_sum, divergence_count: run accumulation of D_i (paper Eq. 1).
         density: normalised density rho_i / rho_0. factor: DFSPH factor alpha_i / rho_i (m^2).
         position_stiffness: (x_i, k_i) vec4, the solver's current stiffness with the position it multiplies
-            (one record per neighbour for the velocity update); before the non-pressure pass, (x_i, w_i) with
-            the density solver's warm-start stiffness w_i. stiffness_sum, source: solver scratch.
-        acceleration: non-pressure acceleration scratch (m/s^2).
+            (one record per neighbour for the velocity update). density_record: (x_i, w_i) vec4 with the density
+            solver's warm-start stiffness w_i (:func:`fluidsim.dfsph.density_warm_record`), read by the
+            non-pressure pass. stiffness_sum, source: solver scratch.
         divergence: D_i of the current step (1/s).
-        push_divergence, push_density: the solvers' warm-start pushes P_i of this step (vec3, 1/m times the
-            units of kappa; :func:`fluidsim.neighbors.build_neighborhoods`,
-            :func:`fluidsim.viscosity.non_pressure_accelerations`).
+        push_divergence: the divergence solver's warm-start push P_i of this step (vec3, 1/m times the units of
+            kappa; :func:`fluidsim.neighbors.build_neighborhoods`).
         cell_ids, ranks, order: counting-sort scratch.
+
+    The velocities are double-buffered: :meth:`velocity_scratch` is the buffer a pass that reads every
+    neighbour's v writes its new velocities to, and :meth:`swap_velocity` makes it ``v``.
     """
 
     PERSISTENT = ("x", "v", "ids", "kappa_density", "kappa_divergence", "divergence_sum", "divergence_count")
@@ -65,9 +67,8 @@ class FluidParticles:
         for name in ("density", "factor", "stiffness_sum", "source", "divergence"):
             setattr(self, name, ti.ndarray(fp, shape=max(n, 1)))
         self.position_stiffness = ti.Vector.ndarray(4, fp, shape=max(n, 1))
-        self.acceleration = _vec_ndarray(fp, n)
+        self.density_record = ti.Vector.ndarray(4, fp, shape=max(n, 1))
         self.push_divergence = _vec_ndarray(fp, n)
-        self.push_density = _vec_ndarray(fp, n)
         for name in ("cell_ids", "ranks", "order"):
             setattr(self, name, ti.ndarray(ti.i32, shape=max(n, 1)))
         self._spare = {name: _like(getattr(self, name)) for name in self.PERSISTENT}
@@ -86,6 +87,14 @@ class FluidParticles:
         for name, a, b in zip(self.PERSISTENT, src, dst, strict=True):
             setattr(self, name, b)
             self._spare[name] = a
+
+    def velocity_scratch(self):
+        """The spare velocity buffer (the permutation's target, free between sorts): (N,) vec3 to write."""
+        return self._spare["v"]
+
+    def swap_velocity(self) -> None:
+        """Make the buffer of :meth:`velocity_scratch` the velocities ``v`` (the old ``v`` becomes the spare)."""
+        self.v, self._spare["v"] = self._spare["v"], self.v
 
     def numpy(self, name: str, active_only: bool = True) -> np.ndarray:
         """A copy of one array as numpy, the active particles first (sorted order, not by id)."""

@@ -3,14 +3,15 @@
 ``DFSPHSolver.step()`` reads like the algorithm:
 
     grid sort -> neighbourhoods, density, factor -> divergence solve -> divergence estimate (paper Eq. 1)
-    -> non-pressure forces -> (predict v) density solve -> advect (in the density solve's last pass)
+    -> non-pressure forces, predict v* -> density solve -> advect (in the density solve's last pass)
 
 The passes over the neighbour lists are fused where they read the same data: the neighbourhood pass
 measures the divergence solver's first source (cold start) or sums and applies its warm-start push, the
-non-pressure pass sums the density solver's push and computes paper Eq. 1 with the default estimator
-radii, and the density solver's start predicts v* = v + dt a; no warm start reads the lists.
+divergence solver's error pass writes the density solver's warm-start records, and the non-pressure pass
+sums the density solver's push, computes paper Eq. 1 with the default estimator radii and writes
+v* = v + dt a - P / dt; no warm start reads the lists.
 A step with both solvers at their minimum iterations reads the lists 7 times after the neighbourhood
-pass: 2 (divergence), 1 (non-pressure forces), 4 (density).
+pass: 2 (divergence), 1 (non-pressure forces), 4 (density), in 10 kernel launches.
 
 It never prints; it returns :class:`StepStats`. Faults (NaN, runaway speed, a solver stuck at its
 iteration cap) are judged by the caller (:mod:`fluidsim.simulation`), which knows the run.
@@ -162,7 +163,8 @@ class DFSPHSolver:
         self.stage_times: dict[str, float] | None = None  # set to {} to profile stages
         speeds = np.linalg.norm(fv, axis=1) if len(fv) else np.zeros(1)
         self._max_speed = float(speeds.max())
-        self._pending_estimate = False  # the non-pressure pass computed D_i; the density start adds it
+        self._gravity = ti.Vector(list(config.gravity))
+        self._density_records = False  # this step's divergence error pass wrote the density warm-start records
 
     # -- setup helpers -------------------------------------------------------------------------
     def _outside_boundary(self, fx: np.ndarray) -> np.ndarray:
@@ -180,14 +182,16 @@ class DFSPHSolver:
         """Advance one time step and return its statistics."""
         stage = self._stage
         dt = self._time_step()
+        self._density_records = False
         retired = stage("sort", self._sort)                              # grid: counting sort by cell
         max_f, max_b = stage("neighbors", self._neighborhoods, dt)       # density, factor, warm start
         div_it, div_err = stage("divergence_solve", self._divergence_solve, dt)  # B&K divergence-free
         fused = self._estimate_with_viscosity()
         if not fused:  # paper Eq. 1 with its own radii
             stage("divergence_estimate", self._estimate_divergence)      # paper Eq. 1
-        stage("non_pressure", self._non_pressure_forces, dt, fused)      # gravity, viscosity (and Eq. 1)
-        # B&K constant density: starts with v* = v + dt a; its last velocity update also advects, x += dt v
+        # gravity, viscosity (and Eq. 1): v* = v + dt a, with the density solver's warm start
+        stage("non_pressure", self._non_pressure_forces, dt, fused)
+        # B&K constant density; its last velocity update also advects, x += dt v
         dens_it, dens_err, (max_speed, bad) = stage("density_solve", self._density_solve, dt)
         self._max_speed = max_speed
         self.time += dt
@@ -309,10 +313,13 @@ class DFSPHSolver:
             return dfsph.start_divergence(f.active, dt, f.source, f.factor, f.x, f.position_stiffness,
                                           f.stiffness_sum, self._partial)
 
-        def error() -> float:
+        def error() -> float:  # also writes the density solver's warm-start records from this source
+            self._density_records = True
             return dfsph.divergence_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
                                           nb.inv_scale, nb.boundary_count, nb.grad_sum, f.factor, f.source,
-                                          f.position_stiffness, self._partial)
+                                          f.position_stiffness, self._partial, int(self._warm()[1]),
+                                          self._gravity, f.density, nb.boundary_grad_sum, f.kappa_density,
+                                          f.density_record)
 
         iterations, err, _ = self._solve(error, start, f.kappa_divergence, dt, tol, dt,
                                          self.config.min_divergence_iterations)
@@ -325,12 +332,9 @@ class DFSPHSolver:
         if f.active == 0:
             return 0, 0.0, (0.0, 0)
         tol = self.config.max_density_error * 0.01
-        warm = self._warm()[1]
 
-        def start() -> None:  # v* = v + dt a (and the Eq. 1 sums), then the warm start
-            dfsph.start_density(f.active, dt, dfsph.WARM if warm else dfsph.FIRST, 1.0, f.acceleration,
-                                int(self._pending_estimate), f.divergence, f.divergence_sum, f.divergence_count,
-                                f.position_stiffness, f.push_density, f.v, f.stiffness_sum)
+        def start() -> None:  # the non-pressure pass predicted v* and applied the warm start
+            return None
 
         def error() -> float:
             return dfsph.density_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
@@ -369,23 +373,22 @@ class DFSPHSolver:
                 b.cell_starts, f.divergence, f.divergence_sum, f.divergence_count)
 
     def _non_pressure_forces(self, dt: float, estimate: bool = False) -> None:
-        """Gravity and viscosity a_i; with ``estimate``, also paper Eq. 1 from the stored gradients, and with the
-        warm start the density solver's push, in the same sweep
-        (:func:`fluidsim.viscosity.non_pressure_accelerations`). The density solver's start applies v += dt a
-        (and adds D_i to the run sums)."""
+        """Gravity and viscosity, v*_i = v_i + dt a_i, with the density solver's warm start (and, with
+        ``estimate``, paper Eq. 1 from the stored gradients) in one sweep
+        (:func:`fluidsim.viscosity.predict_velocities`), into the spare velocity buffer, which then becomes v."""
         cfg, f, nb, b = self.config, self.fluid, self.neighborhoods, self.boundary
         if f.active == 0:
             return
         warm = self._warm()[1]
-        # (x_i, w_i): w_i = kappa_i where the particle is compressing after the divergence solve, else 0
-        dfsph.density_warm_stiffness(f.active, dt, int(warm), ti.Vector(list(cfg.gravity)), f.x, f.density,
-                                     f.source, nb.boundary_grad_sum, f.kappa_density, f.position_stiffness)
-        viscosity.non_pressure_accelerations(
-            f.active, ti.Vector(list(cfg.gravity)), cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
-            self.h, f.x, f.v, f.density, f.position_stiffness, b.x, nb.fluid_count, nb.fluid_pairs, nb.format,
-            nb.inv_scale, nb.boundary_count, nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.acceleration,
-            int(estimate), f.divergence, int(warm), f.push_density)
-        self._pending_estimate = estimate
+        if not self._density_records:  # no divergence error pass wrote them this step
+            dfsph.density_warm_stiffness(f.active, dt, int(warm), self._gravity, f.x, f.density, f.source,
+                                         nb.boundary_grad_sum, f.kappa_density, f.density_record)
+        viscosity.predict_velocities(
+            f.active, f.capacity, dt, self._gravity, cfg.viscosity, cfg.wall_viscosity, cfg.rest_density, self.h,
+            f.x, f.v, f.density, f.density_record, b.x, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
+            nb.boundary_count, nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, int(estimate), f.divergence,
+            f.divergence_sum, f.divergence_count, int(warm), f.stiffness_sum, f.velocity_scratch())
+        f.swap_velocity()
 
     # -- read-back -----------------------------------------------------------------------------
     def fluid_state(self) -> dict[str, np.ndarray]:

@@ -14,8 +14,9 @@ The pass reads the velocities after the divergence solve and the stored neighbou
 what paper Eq. 1 reads (:func:`fluidsim.divergence.estimate_divergence_from_gradients`) when
 h_k = h <= h_r, so it computes D_i in the same sweep.
 
-The accelerations are stored, not applied (the sweep reads the neighbours' velocities):
-:func:`fluidsim.dfsph.start_density` then adds dt a_i to v_i (and D_i to the run sums).
+The pass also starts the constant-density solver: it sums that solver's warm-start push and writes the
+predicted velocities v*_i = v_i + dt a_i - P_i / dt to a second buffer (:func:`predict_velocities`; the sweep
+reads the neighbours' velocities, so it cannot update them in place), so the start costs no pass of its own.
 :func:`non_pressure_np` is the numpy twin.
 """
 
@@ -30,8 +31,10 @@ LAPLACIAN_EPS = 0.01  # times h^2, in the denominator of the Laplacian
 
 
 @ti.kernel
-def non_pressure_accelerations(
+def predict_velocities(
     n: ti.i32,
+    capacity: ti.i32,
+    dt: float,
     gravity: ti.types.vector(3, float),
     mu: float,
     mu_boundary: float,
@@ -40,7 +43,7 @@ def non_pressure_accelerations(
     x: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
-    position_stiffness: ti.types.ndarray(ndim=1),
+    density_record: ti.types.ndarray(ndim=1),
     bx: ti.types.ndarray(ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
@@ -50,19 +53,29 @@ def non_pressure_accelerations(
     boundary_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
     grad_sum: ti.types.ndarray(ndim=1),
-    acceleration: ti.types.ndarray(ndim=1),
     estimate: ti.i32,
     divergence: ti.types.ndarray(ndim=1),
+    divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    divergence_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     warm: ti.i32,
-    push: ti.types.ndarray(ndim=1),
+    stiffness_sum: ti.types.ndarray(ndim=1),
+    v_out: ti.types.ndarray(ndim=1),
 ):
-    """a_i = g + (mu / rho_i) lap(v)_i (m/s^2, stored); with ``estimate`` = 1, paper Eq. 1 from the stored
-    gradients, D_i = |sum_j (v_j - v_i) . V_f grad W_ij / rho_j - v_i . sum_b V_b grad W_ib| (1/s, stored);
-    and with ``warm`` = 1 the constant-density solver's warm-start push from the masked stiffness w
-    (:func:`fluidsim.dfsph.density_warm_stiffness`), P_i = w_i (sum_j g_ij + sum_b g_ib) + sum_j w_j g_ij
-    (stored; :func:`fluidsim.dfsph.start_density` applies it).
+    """Non-pressure forces and the constant-density solver's start, in one sweep over the lists
+    (B&K 2017, Alg. 1 and 2):
 
-    Reads v only: the velocities are those after the divergence solve.
+    - the non-pressure acceleration a_i = g + (mu / rho_i) lap(v)_i (m/s^2);
+    - with ``warm`` = 1, the warm-start push P_i = w_i (sum_j g_ij + sum_b g_ib) + sum_j w_j g_ij from the masked
+      stiffness w of the records (x_j, w_j) (:func:`fluidsim.dfsph.density_warm_record`), and k_i = w_i / dt^2;
+    - the predicted velocity v*_i = v_i + dt a_i - P_i / dt, written to ``v_out`` (the sweep reads the
+      neighbours' v, so it cannot update v in place; the caller swaps the buffers), and the stiffness sum
+      started at k_i (0 without ``warm``);
+    - with ``estimate`` = 1, paper Eq. 1 from the stored gradients,
+      D_i = |sum_j (v_j - v_i) . V_f grad W_ij / rho_j - v_i . sum_b V_b grad W_ib| (1/s), stored and added to
+      the run sum and count.
+
+    Reads v only: the velocities are those after the divergence solve. Slots ``n <= i < capacity`` (retired
+    particles) copy their velocity, so ``v_out`` is whole.
     """
     eps = LAPLACIAN_EPS * h * h
     for i in range(n):
@@ -73,7 +86,7 @@ def non_pressure_accelerations(
         d = -vi.dot(boundary_grad_sum[i])  # paper Eq. 1: sum_j (v_j - v_i) . g_ij / rho_j - v_i . sum_b g_ib
         for k in range(fluid_count[i]):
             j, c = fluid_pair(fluid_pairs, i, k, fmt, inv_scale)
-            q = position_stiffness[j]  # (x_j, w_j): one gather for both
+            q = density_record[j]  # (x_j, w_j): one gather for both
             xij = xi - ti.Vector([q[0], q[1], q[2]])
             rho_j = density[j]
             vx = (vi - v[j]).dot(xij)
@@ -89,17 +102,28 @@ def non_pressure_accelerations(
                 lap_b += (vi.dot(xib) * c / (xib.dot(xib) + eps)) * xib
         rho_i = density[i]
         a = gravity + LAPLACIAN_FACTOR * (mu * lap_f + mu_boundary * lap_b) / (rest_density * rho_i)
-        acceleration[i] = a
-        if estimate:
-            divergence[i] = ti.abs(d)
+        dv = dt * a
+        ki = 0.0 * rho_i
         if warm:
-            push[i] = pushed + position_stiffness[i][3] * grad_sum[i]
+            wi = density_record[i][3]
+            dv -= (pushed + wi * grad_sum[i]) / dt
+            ki = wi / (dt * dt)
+        v_out[i] = vi + dv
+        stiffness_sum[i] = ki
+        if estimate:
+            di = ti.abs(d)
+            divergence[i] = di
+            divergence_sum[i] += ti.cast(di, ti.f64)
+            divergence_count[i] += 1
+    ti.loop_config(serialize=True)  # usually empty; serial, so it costs no thread-pool wake-up
+    for i in range(n, capacity):
+        v_out[i] = v[i]
 
 
 def non_pressure_np(x: np.ndarray, v: np.ndarray, density: np.ndarray, fluid_volume: float,
                     boundary_x: np.ndarray, boundary_volumes: np.ndarray, h: float, mu: float, mu_boundary: float,
                     rest_density: float, gravity) -> np.ndarray:
-    """O(N^2) numpy twin of the acceleration of :func:`non_pressure_accelerations`.
+    """O(N^2) numpy twin of the acceleration a_i of :func:`predict_velocities`.
 
     Args:
         x, v: (N, 3) fluid positions (m) and velocities (m/s). density: (N,) rho_i / rho_0.
