@@ -11,7 +11,8 @@ stored by the neighbourhood pass (:mod:`fluidsim.neighbors`):
 - stiffness k_i = kappa_i / rho_i = s_i factor_i / dt (divergence) or (rho*_i - 1) factor_i / dt^2;
 - velocity update v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib).
 
-Errors are averaged over the active fluid particles only. Each iteration is one error pass (the
+Errors are averaged over the active fluid particles only, as fixed-point sums (:mod:`fluidsim.reductions`:
+the same bits on any number of threads, summed inside the error pass). Each iteration is one error pass (the
 average error, and the stiffness k_i of the Jacobi update) and one velocity update; the solve ends after
 the update of the iteration whose measured error met the tolerance (with at least the minimum number of
 iterations), so the last update is always applied, as in SPlisHSPlasH: its check reads the error before
@@ -35,7 +36,7 @@ list pass of its own:
 import taichi as ti
 
 from .neighbors import FREE_SURFACE_NEIGHBORS, fluid_pair
-from .reductions import ordered_sum
+from .reductions import quanta_average, quantum_cap, to_quanta
 
 DIVERGENCE_WARM_SCALE = 0.5  # the divergence solver warm-starts at half strength (SPlisHSPlasH)
 
@@ -89,7 +90,7 @@ def divergence_error(
     factor: ti.types.ndarray(ndim=1),
     source: ti.types.ndarray(ndim=1),
     position_stiffness: ti.types.ndarray(ndim=1),
-    partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    inv_quantum: ti.f64,
     warm_density: ti.i32,
     gravity: ti.types.vector(3, float),
     density: ti.types.ndarray(ndim=1),
@@ -106,15 +107,21 @@ def divergence_error(
     non-pressure pass reads, so they cost no pass and no launch of their own (:func:`density_warm_stiffness`
     writes them when no error pass ran).
     """
+    cap = quantum_cap(n)
+    total = ti.i64(0)
+    over = ti.i64(0)
     for i in range(n):
         s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum, fmt, inv_scale)
         if s < 0.0 or fluid_count[i] + boundary_count[i] < FREE_SURFACE_NEIGHBORS:
             s = 0.0
         source[i] = s
+        q, o = to_quanta(s, inv_quantum, cap)
+        total += q
+        over += o
         position_stiffness[i] = with_stiffness(x[i], s * factor[i] / dt)
         density_record[i] = density_warm_record(i, dt, warm_density, gravity, x, density, source,
                                                 boundary_grad_sum, kappa_density)
-    return ordered_sum(source, n, partial) / ti.max(n, 1)
+    return quanta_average(total, over, n, inv_quantum)
 
 
 @ti.kernel
@@ -126,16 +133,22 @@ def start_divergence(
     x: ti.types.ndarray(ndim=1),
     position_stiffness: ti.types.ndarray(ndim=1),
     stiffness_sum: ti.types.ndarray(ndim=1),
-    partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    inv_quantum: ti.f64,
 ) -> ti.f64:
     """Divergence-free solver, cold start: the first stiffness k_i = s_i factor_i / dt from the source of the
     neighbourhood pass (whose average, returned in 1/s, is then the first error, known without a pass) and an
     empty stiffness sum. The warm start happens in the neighbourhood pass
     (:func:`fluidsim.neighbors.build_neighborhoods`)."""
+    cap = quantum_cap(n)
+    total = ti.i64(0)
+    over = ti.i64(0)
     for i in range(n):
         position_stiffness[i] = with_stiffness(x[i], source[i] * factor[i] / dt)
         stiffness_sum[i] = 0.0
-    return ordered_sum(source, n, partial) / ti.max(n, 1)
+        q, o = to_quanta(source[i], inv_quantum, cap)
+        total += q
+        over += o
+    return quanta_average(total, over, n, inv_quantum)
 
 
 @ti.kernel
@@ -160,15 +173,21 @@ def density_error(
     factor: ti.types.ndarray(ndim=1),
     source: ti.types.ndarray(ndim=1),
     position_stiffness: ti.types.ndarray(ndim=1),
-    partial: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    inv_quantum: ti.f64,
 ) -> ti.f64:
     """Constant-density solver, error pass: rho*_i - 1 (clamped at 0) and k_i; returns the average error."""
+    cap = quantum_cap(n)
+    total = ti.i64(0)
+    over = ti.i64(0)
     for i in range(n):
         s = velocity_divergence(i, x, v, fluid_count, fluid_pairs, grad_sum, fmt, inv_scale)
         err = ti.max(density[i] + dt * s - 1.0, 0.0)
         source[i] = err
+        q, o = to_quanta(err, inv_quantum, cap)
+        total += q
+        over += o
         position_stiffness[i] = with_stiffness(x[i], err * factor[i] / (dt * dt))
-    return ordered_sum(source, n, partial) / ti.max(n, 1)
+    return quanta_average(total, over, n, inv_quantum)
 
 
 @ti.kernel

@@ -100,10 +100,11 @@ def cell_linear(c, dims) -> ti.i32:
 
 @ti.func
 def _assign(xs: ti.template(), n, origin, inv_cell, dims, box_min, box_max, cell_ids: ti.template(),
-            ranks: ti.template(), counts: ti.template()):
+            ranks: ti.template(), counts: ti.template(), clear: ti.template()):
     num_cells = dims[0] * dims[1] * dims[2]
-    for c in range(num_cells + 1):
-        counts[c] = 0
+    if ti.static(clear):  # else the counts are zero already (the previous sort's scan consumed them)
+        for c in range(num_cells + 1):
+            counts[c] = 0
     for i in range(n):
         x = ti.cast(xs[i], ti.f64)
         cell = num_cells
@@ -137,12 +138,13 @@ def assign_cells(
     Particles outside ``[box_min, box_max]`` (the simulation domain) go to the retired bucket
     ``num_cells``; they are counted by the caller and never clamped into the grid.
     """
-    _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts)
+    _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, True)
 
 
 @ti.func
 def exclusive_scan(counts: ti.template(), starts: ti.template(), m: ti.i32, block_sums: ti.template()):
-    """Two-level exclusive prefix sum of ``counts[0:m]`` into ``starts[0:m+1]`` (parallel blocks)."""
+    """Two-level exclusive prefix sum of ``counts[0:m]`` into ``starts[0:m+1]`` (parallel blocks); consumes the
+    counts (leaves them zero, ready for the next counting pass)."""
     nb = block_sums.shape[0]
     for b in range(nb):
         lo = b * m // nb
@@ -164,6 +166,7 @@ def exclusive_scan(counts: ti.template(), starts: ti.template(), m: ti.i32, bloc
         for c in range(lo, hi):
             starts[c] = s
             s += counts[c]
+            counts[c] = 0
     starts[m] = total
 
 
@@ -233,8 +236,9 @@ def counting_sort(
     order: ti.types.ndarray(dtype=ti.i32, ndim=1),
 ) -> ti.i32:
     """:func:`assign_cells` then :func:`sort_by_cell` in one launch (a launch costs tens of microseconds of
-    thread-pool wake-up); returns the number of particles kept."""
-    _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts)
+    thread-pool wake-up); returns the number of particles kept. ``counts`` must be zero on entry (fill it once
+    when allocated): the prefix sum leaves it zero, so no pass clears it."""
+    _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, False)
     return _sort(n, capacity, dims[0] * dims[1] * dims[2] + 1, cell_ids, ranks, counts, starts, block_sums, order)
 
 

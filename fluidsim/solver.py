@@ -32,7 +32,7 @@ from .config import RETIRE_MARGIN_MAX, SolverConfig
 from .grid import GridSpec
 from .kernels import CUBIC_TABLE_SIZE, cubic_table_np, cubic_w_np
 from .particles import BoundaryParticles, FluidParticles, Neighborhoods, float_dtype
-from .reductions import REDUCTION_CHUNKS
+from .reductions import inverse_quantum
 
 log = logging.getLogger(__name__)
 
@@ -155,9 +155,9 @@ class DFSPHSolver:
         n = self.fluid.capacity
         self.neighborhoods = Neighborhoods(n, config.max_neighbors, config.precision, h)
         self._counts = ti.ndarray(ti.i32, shape=g.num_cells + 1)
+        self._counts.fill(0)  # the counting sort leaves it zero for the next step
         self._starts = ti.ndarray(ti.i32, shape=g.num_cells + 2)
         self._block_sums = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
-        self._partial = ti.ndarray(ti.f64, shape=REDUCTION_CHUNKS)
         self.time = 0.0
         self.step_index = 0
         self.stage_times: dict[str, float] | None = None  # set to {} to profile stages
@@ -304,6 +304,7 @@ class DFSPHSolver:
             return 0, 0.0
         # Tolerance on the average D(rho/rho_0)/Dt such that one dt changes the density by eta.
         tol = self.config.max_divergence_error * 0.01 / dt
+        inv_quantum = inverse_quantum(tol)  # the error averages are fixed-point sums, exact to 2^-21 tol
         f, nb = self.fluid, self.neighborhoods
         warm = self._warm()[0]
 
@@ -311,13 +312,13 @@ class DFSPHSolver:
             if warm:
                 return None
             return dfsph.start_divergence(f.active, dt, f.source, f.factor, f.x, f.position_stiffness,
-                                          f.stiffness_sum, self._partial)
+                                          f.stiffness_sum, inv_quantum)
 
         def error() -> float:  # also writes the density solver's warm-start records from this source
             self._density_records = True
             return dfsph.divergence_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
                                           nb.inv_scale, nb.boundary_count, nb.grad_sum, f.factor, f.source,
-                                          f.position_stiffness, self._partial, int(self._warm()[1]),
+                                          f.position_stiffness, inv_quantum, int(self._warm()[1]),
                                           self._gravity, f.density, nb.boundary_grad_sum, f.kappa_density,
                                           f.density_record)
 
@@ -332,6 +333,7 @@ class DFSPHSolver:
         if f.active == 0:
             return 0, 0.0, (0.0, 0)
         tol = self.config.max_density_error * 0.01
+        inv_quantum = inverse_quantum(tol)
 
         def start() -> None:  # the non-pressure pass predicted v* and applied the warm start
             return None
@@ -339,7 +341,7 @@ class DFSPHSolver:
         def error() -> float:
             return dfsph.density_error(f.active, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format,
                                        nb.inv_scale, nb.grad_sum, f.density, f.factor, f.source,
-                                       f.position_stiffness, self._partial)
+                                       f.position_stiffness, inv_quantum)
 
         return self._solve(error, start, f.kappa_density, dt, tol, dt * dt, self.config.min_iterations, advect=True)
 

@@ -29,7 +29,11 @@ def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=N
             ti.Vector(list(box_min), ti.f64), ti.Vector(list(box_max), ti.f64), cell_ids, ranks, counts)
     blocks = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
     if one_launch:
+        counts.fill(0)
         kept = grid.counting_sort(x, n, capacity, *args, starts, blocks, order)
+        assert not counts.to_numpy().any()  # consumed: ready for the next sort, which clears nothing
+        again = grid.counting_sort(x, n, capacity, *args, starts, blocks, order)
+        assert again == kept and not counts.to_numpy().any()
     else:
         grid.assign_cells(x, n, *args)
         kept = grid.sort_by_cell(n, capacity, spec.num_cells + 1, cell_ids, ranks, counts, starts, blocks, order)

@@ -11,9 +11,12 @@ from fluidsim.config import SolverConfig
 from fluidsim.divergence import divergence_np
 from fluidsim.kernels import cubic_grad_w_np
 from fluidsim.neighbors import FREE_SURFACE_NEIGHBORS
+from fluidsim.reductions import fixed_point_average_np
 from fluidsim.scene import lattice_in_box
 from fluidsim.solver import DFSPHSolver
 from fluidsim.viscosity import non_pressure_np
+
+INV_Q = 2.0**20 / 1e-4  # quanta per unit of the error averages (a density tolerance of 0.01 %)
 
 
 def _solver(mu_b, kappa_divergence_max=0.0, neighborhoods=True, max_neighbors=64):
@@ -142,7 +145,7 @@ def test_divergence_error_pass_writes_the_density_warm_records():
     f.density_record.fill(-1.0)
     dfsph.divergence_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
                            nb.boundary_count, nb.grad_sum, f.factor, f.source, f.position_stiffness,
-                           solver._partial, 1, solver._gravity, f.density, nb.boundary_grad_sum, f.kappa_density,
+                           INV_Q, 1, solver._gravity, f.density, nb.boundary_grad_sum, f.kappa_density,
                            f.density_record)
     fused = f.numpy("density_record")
     assert 0 < (fused[:, 3] > 0).sum() < n
@@ -180,18 +183,6 @@ def _divergence_np(solver):
     bound = np.array([np.abs(np.sum(v[j] * g, axis=1)).sum() for i, (j, g) in pairs.items()])
     narrow = solver.neighborhoods.format == neighbors.NARROW
     return s, (2.0**-11 * bound if narrow else 0.0 * bound)
-
-
-def _ordered_average(values, chunks):
-    """The deterministic average of fluidsim.reductions: f64 chunk sums in item order, added in chunk order."""
-    n = len(values)
-    total = 0.0
-    for c in range(chunks):
-        part = 0.0
-        for val in values[c * n // chunks:(c + 1) * n // chunks]:
-            part += float(val)
-        total += part
-    return total / max(n, 1)
 
 
 def _set_stiffness(f, k):
@@ -256,7 +247,7 @@ def test_divergence_error_pass_matches_numpy_twin():
     s_raw, bound = _divergence_np(solver)
     avg = dfsph.divergence_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
                                  nb.boundary_count, nb.grad_sum, f.factor, f.source, f.position_stiffness,
-                                 solver._partial, 0, solver._gravity, f.density, nb.boundary_grad_sum,
+                                 INV_Q, 0, solver._gravity, f.density, nb.boundary_grad_sum,
                                  f.kappa_density, f.density_record)
     counts = nb.fluid_count.to_numpy()[:n] + nb.boundary_count.to_numpy()[:n]
     s_ref = np.where((s_raw < 0) | (counts < FREE_SURFACE_NEIGHBORS), 0.0, s_raw)
@@ -267,7 +258,7 @@ def test_divergence_error_pass_matches_numpy_twin():
     np.testing.assert_array_equal(xk[:, :3], f.numpy("x"))
     np.testing.assert_allclose(xk[:, 3], f.numpy("source") * f.numpy("factor") / dt, rtol=1e-5)
     assert abs(avg - s_ref.mean()) <= bound.mean() + 1e-5 * scale
-    assert avg == _ordered_average(f.numpy("source"), solver._partial.shape[0])  # summed as it went, bit for bit
+    assert avg == fixed_point_average_np(f.numpy("source"), INV_Q)  # summed as it went, bit for bit
     # the neighbourhood pass measures the same first source for a cold-started solve
     solver._warm = lambda: (False, True)
     solver._neighborhoods()
@@ -284,13 +275,13 @@ def test_density_error_pass_matches_numpy_twin():
     assert 10 < (err_ref > 0).sum() < n - 10
     avg = dfsph.density_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
                               f.density, f.factor,
-                              f.source, f.position_stiffness, solver._partial)
+                              f.source, f.position_stiffness, INV_Q)
     assert np.all(np.abs(f.numpy("source") - err_ref) <= dt * bound + 2e-6)
     xk = f.numpy("position_stiffness")
     np.testing.assert_array_equal(xk[:, :3], f.numpy("x"))
     np.testing.assert_allclose(xk[:, 3], f.numpy("source") * f.numpy("factor") / dt**2, rtol=1e-5)
     assert abs(avg - err_ref.mean()) <= dt * bound.mean() + 1e-7
-    assert avg == _ordered_average(f.numpy("source"), solver._partial.shape[0])
+    assert avg == fixed_point_average_np(f.numpy("source"), INV_Q)
 
 
 @pytest.mark.parametrize("max_neighbors", [64, 8])  # 8: the lists overflow and the pass runs again
@@ -340,3 +331,32 @@ def test_forces_pass_adds_eq1_to_the_run_sums_once():
     sums, counts = solver.divergence_accumulation()
     assert counts.min() == 1 and counts.max() == 1
     np.testing.assert_allclose(sums[counts > 0], f.numpy("divergence")[np.argsort(f.numpy("ids"))], rtol=1e-6)
+
+
+def test_error_averages_are_fixed_point_sums_independent_of_order():
+    """The solvers' averages: within 2^-21 tolerances of the exact mean, the same bits for any order of the
+    values (integer sums), and +Inf (never a small error) for NaN or a value past the representable range."""
+    cfg, solver = _solver(0.0)
+    f = solver.fluid
+    n, dt = f.active, cfg.dt
+    tol = 1e-4
+    inv_q = 2.0**20 / tol
+
+    def average(values):
+        f.source.from_numpy(np.pad(values, (0, f.capacity - n)).astype(np.float32))
+        return dfsph.start_divergence(n, dt, f.source, f.factor, f.x, f.position_stiffness, f.stiffness_sum, inv_q)
+
+    values = np.random.default_rng(21).exponential(3e-4, n).astype(np.float32)
+    avg = average(values)
+    assert avg == fixed_point_average_np(values, inv_q)
+    assert abs(avg - values.astype(np.float64).mean()) <= tol * 2.0**-21
+    assert average(values[::-1].copy()) == avg
+    assert average(np.roll(values, 17)) == avg
+    bad = values.copy()
+    bad[5] = np.nan
+    assert average(bad) == np.inf
+    huge = values.copy()
+    huge[7] = tol * 2.0**42 / n * 1.01  # past 2^62 / n quanta
+    assert average(huge) == np.inf == fixed_point_average_np(huge, inv_q)
+    huge[7] = tol * 2.0**42 / n * 0.5
+    assert np.isfinite(average(huge))
