@@ -156,6 +156,7 @@ class DFSPHSolver:
         self.neighborhoods = Neighborhoods(n, config.max_neighbors, config.precision, h)
         self._counts = ti.ndarray(ti.i32, shape=g.num_cells + 1)
         self._counts.fill(0)  # the counting sort leaves it zero for the next step
+        self._serial_sort = grid.serial_sort()
         self._starts = ti.ndarray(ti.i32, shape=g.num_cells + 2)
         self._block_sums = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
         self.time = 0.0
@@ -229,7 +230,7 @@ class DFSPHSolver:
             return 0
         kept = grid.counting_sort(f.x, f.active, f.capacity, self._origin, self._inv_cell, self._dims,
                                   self._retire_min, self._retire_max, f.cell_ids, f.ranks, self._counts,
-                                  self._starts, self._block_sums, f.order)
+                                  self._starts, self._block_sums, f.order, self._serial_sort)
         f.permute()
         retired = f.active - int(kept)
         f.active = int(kept)

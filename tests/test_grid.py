@@ -16,7 +16,7 @@ def _to_nd(a, dtype=ti.f32):
     return arr
 
 
-def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=None):
+def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=None, serial=False):
     n = len(points)
     capacity = n if capacity is None else capacity
     x = _to_nd(points)
@@ -30,9 +30,9 @@ def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=N
     blocks = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
     if one_launch:
         counts.fill(0)
-        kept = grid.counting_sort(x, n, capacity, *args, starts, blocks, order)
+        kept = grid.counting_sort(x, n, capacity, *args, starts, blocks, order, serial)
         assert not counts.to_numpy().any()  # consumed: ready for the next sort, which clears nothing
-        again = grid.counting_sort(x, n, capacity, *args, starts, blocks, order)
+        again = grid.counting_sort(x, n, capacity, *args, starts, blocks, order, serial)
         assert again == kept and not counts.to_numpy().any()
     else:
         grid.assign_cells(x, n, *args)
@@ -52,12 +52,16 @@ def test_counting_sort_is_a_stable_sort_by_cell():
     np.testing.assert_array_equal(order[:kept], expected[:kept])
     np.testing.assert_array_equal(np.diff(starts) >= 0, True)
     assert starts[-1] == len(pts)
-    # the one-launch sort gives the same permutation and starts (slots past n: identity)
-    one = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], one_launch=True, capacity=3000)
+    # the one-launch sorts (GPU path; CPU path with its serial ranks, scan and scatter) give the same
+    # permutation and starts (slots past n: identity)
     two = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], capacity=3000)
-    for a, b in zip(one, two, strict=True):
-        np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(one[1][2900:], np.arange(2900, 3000))
+    for serial in (False, True):
+        one = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], one_launch=True, capacity=3000,
+                              serial=serial)
+        for a, b in zip(one, two, strict=True):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(one[1][2900:], np.arange(2900, 3000))
+    assert grid.serial_sort()  # the tests run on a CPU backend
 
 
 def test_points_outside_the_grid_are_retired_not_clamped():
