@@ -107,8 +107,9 @@ def estimate_divergence_from_grid(
     h_k: float,
     fluid_volume: float,
     reach: ti.i32,
+    reach_z: ti.i32,
     origin: vec3d,
-    inv_cell: ti.f64,
+    inv_cell: vec3d,
     dims: ivec3,
     x: ti.types.ndarray(ndim=1),
     v: ti.types.ndarray(ndim=1),
@@ -121,14 +122,14 @@ def estimate_divergence_from_grid(
     divergence_sum: ti.types.ndarray(dtype=ti.f64, ndim=1),
     divergence_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
 ):
-    """Paper Eq. 1 walking ``reach`` cells in each direction (any h_r)."""
+    """Paper Eq. 1 walking ``reach`` cells along x and y and ``reach_z`` along z in each direction (any h_r)."""
     hr2 = h_r * h_r
     for i in range(n):
         xi = x[i]
         vi = v[i]
         c = cell_coord(ti.cast(xi, ti.f64), origin, inv_cell)
-        z0 = ti.max(c[2] - reach, 0)
-        z1 = ti.min(c[2] + reach, dims[2] - 1)
+        z0 = ti.max(c[2] - reach_z, 0)
+        z1 = ti.min(c[2] + reach_z, dims[2] - 1)
         s = 0.0 * vi[0]
         for dx, dy in ti.ndrange((-reach, reach + 1), (-reach, reach + 1)):
             cx = c[0] + dx

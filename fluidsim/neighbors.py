@@ -27,15 +27,16 @@ For every active fluid particle i, one pass over the 27 grid cells around it:
 Akinci boundary volumes (Akinci et al. 2012): V_b = 1 / sum_k W(x_b - x_k) over boundary
 particles k within h (k = b included).
 
-The three cells along z for fixed (x, y) offsets are contiguous in the sorted order, so each particle
-visits 9 runs of slots. Cells outside the grid are skipped, never clamped.
+The cells along z for fixed (x, y) offsets are contiguous in the sorted order, so each particle visits 9
+runs of slots (3 cells each, or 5 half-height cells in the simulation's grid, :data:`fluidsim.grid.Z_SPLIT`).
+Cells outside the grid are skipped, never clamped.
 """
 
 import numpy as np
 import taichi as ti
 from taichi.lang import impl
 
-from .grid import cell_coord, ivec3
+from .grid import cell_coord, ivec3, z_reach
 from .kernels import cubic_from_table, cubic_w
 
 vec3d = ti.types.vector(3, ti.f64)
@@ -123,17 +124,18 @@ def compute_boundary_volumes(
     starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
     m: ti.i32,
     origin: vec3d,
-    inv_cell: ti.f64,
+    inv_cell: vec3d,
     dims: ivec3,
     h: float,
     volume: ti.types.ndarray(ndim=1),
 ):
     """Akinci et al. 2012: V_b = 1 / sum_k W(x_b - x_k, h) over boundary neighbours (self included)."""
+    zr = z_reach(inv_cell)
     for b in range(m):
         xb = bx[b]
         c = cell_coord(ti.cast(xb, ti.f64), origin, inv_cell)
-        z0 = ti.max(c[2] - 1, 0)
-        z1 = ti.min(c[2] + 1, dims[2] - 1)
+        z0 = ti.max(c[2] - zr, 0)
+        z1 = ti.min(c[2] + zr, dims[2] - 1)
         s = 0.0
         for dx, dy in ti.ndrange((-1, 2), (-1, 2)):
             cx = c[0] + dx
@@ -155,7 +157,7 @@ def build_neighborhoods(
     bvolume: ti.types.ndarray(ndim=1),
     boundary_starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
     origin: vec3d,
-    inv_cell: ti.f64,
+    inv_cell: vec3d,
     dims: ivec3,
     h: float,
     fluid_volume: float,
@@ -202,11 +204,12 @@ def build_neighborhoods(
     max_f = 0
     max_b = 0
     too_far = 0
+    zr = z_reach(inv_cell)
     for i in range(n):
         xi = x[i]
         c = cell_coord(ti.cast(xi, ti.f64), origin, inv_cell)
-        z0 = ti.max(c[2] - 1, 0)
-        z1 = ti.min(c[2] + 1, dims[2] - 1)
+        z0 = ti.max(c[2] - zr, 0)
+        z1 = ti.min(c[2] + zr, dims[2] - 1)
         vi = v[i]
         push_v = xi * 0.0
         rho = fluid_volume * w0
@@ -287,18 +290,19 @@ def flag_near_boundary(
     bx: ti.types.ndarray(ndim=1),
     boundary_starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
     origin: vec3d,
-    inv_cell: ti.f64,
+    inv_cell: vec3d,
     dims: ivec3,
     radius: float,
     flags: ti.types.ndarray(dtype=ti.i32, ndim=1),
 ):
-    """flags[i] = 1 where a boundary particle lies closer than ``radius`` (<= one cell) to x_i."""
+    """flags[i] = 1 where a boundary particle lies closer than ``radius`` (<= h, the x-y cell size) to x_i."""
     r2max = radius * radius
+    zr = z_reach(inv_cell)
     for i in range(n):
         xi = x[i]
         c = cell_coord(ti.cast(xi, ti.f64), origin, inv_cell)
-        z0 = ti.max(c[2] - 1, 0)
-        z1 = ti.min(c[2] + 1, dims[2] - 1)
+        z0 = ti.max(c[2] - zr, 0)
+        z1 = ti.min(c[2] + zr, dims[2] - 1)
         hit = 0
         for dx, dy in ti.ndrange((-1, 2), (-1, 2)):
             cx = c[0] + dx

@@ -125,14 +125,14 @@ class DFSPHSolver:
         self.h = h
         # Walls sit up to a few spacings outside the domain; one more h keeps their neighbours inside.
         self.grid = grid.grid_for_box(self.domain_min, self.domain_max, h,
-                                      pad=RETIRE_MARGIN_MAX * config.spacing + h)
+                                      pad=RETIRE_MARGIN_MAX * config.spacing + h, z_split=grid.Z_SPLIT)
         margin = config.retire_margin * config.spacing
         self._retire_min = ti.Vector(list(self.domain_min - margin), ti.f64)
         self._retire_max = ti.Vector(list(self.domain_max + margin), ti.f64)
         self.fluid_volume = fluid_particle_volume(config.spacing, h)
         g = self.grid
         self._origin = ti.Vector(list(g.origin), ti.f64)
-        self._inv_cell = 1.0 / g.cell_size
+        self._inv_cell = ti.Vector(list(g.inv_cell), ti.f64)
         self._dims = grid.ivec3(*g.dims)
 
         bpts, bstarts, dropped = sort_points_by_cell(np.asarray(boundary_points, np.float64).reshape(-1, 3), g)
@@ -370,8 +370,9 @@ class DFSPHSolver:
                 f.divergence, f.divergence_sum, f.divergence_count)
         else:
             reach = int(math.ceil(cfg.estimator_radius / self.grid.cell_size))
+            reach_z = int(math.ceil(cfg.estimator_radius / self.grid.cell_sizes[2]))
             divergence.estimate_divergence_from_grid(
-                f.active, cfg.estimator_radius, cfg.estimator_kernel_radius, self.fluid_volume, reach,
+                f.active, cfg.estimator_radius, cfg.estimator_kernel_radius, self.fluid_volume, reach, reach_z,
                 self._origin, self._inv_cell, self._dims, f.x, f.v, f.density, self._starts, b.x, b.volume,
                 b.cell_starts, f.divergence, f.divergence_sum, f.divergence_count)
 

@@ -25,7 +25,7 @@ def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=N
     counts = ti.ndarray(ti.i32, shape=spec.num_cells + 1)
     starts = ti.ndarray(ti.i32, shape=spec.num_cells + 2)
     order = ti.ndarray(ti.i32, shape=capacity)
-    args = (ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims),
+    args = (ti.Vector(list(spec.origin), ti.f64), ti.Vector(list(spec.inv_cell), ti.f64), grid.ivec3(*spec.dims),
             ti.Vector(list(box_min), ti.f64), ti.Vector(list(box_max), ti.f64), cell_ids, ranks, counts)
     blocks = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
     if one_launch:
@@ -40,9 +40,10 @@ def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=N
     return int(kept), order.to_numpy(), starts.to_numpy(), cell_ids.to_numpy()
 
 
-def test_counting_sort_is_a_stable_sort_by_cell():
+@pytest.mark.parametrize("z_split", [1, 2])
+def test_counting_sort_is_a_stable_sort_by_cell(z_split):
     rng = np.random.default_rng(0)
-    spec = grid_for_box([0, 0, 0], [1, 0.7, 0.5], 0.1, 0.0)
+    spec = grid_for_box([0, 0, 0], [1, 0.7, 0.5], 0.1, 0.0, z_split)
     pts = rng.uniform([-0.05, 0, 0], [1.05, 0.7, 0.5], (3000, 3))  # a few outside the box -> retired
     kept, order, starts, cell_ids = _sorted_on_grid(pts, spec, [0, 0, 0], [1, 0.7, 0.5])
     ref = cell_index_np(pts, spec)
@@ -75,11 +76,13 @@ def test_points_outside_the_grid_are_retired_not_clamped():
 
 
 @pytest.mark.parametrize("fmt", [neighbors.NARROW, neighbors.WIDE])
-def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt):
+@pytest.mark.parametrize("z_split", [1, 2])  # 2: the simulation's grid, half-height cells along z
+def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
     rng = np.random.default_rng(3)
     h = 0.1
     lo, hi = np.zeros(3), np.array([0.5, 0.4, 0.3])
-    spec = grid_for_box(lo, hi, h, 0.0)  # tight grid: particles fill the corner and edge cells
+    spec = grid_for_box(lo, hi, h, 0.0, z_split)  # tight grid: particles fill the corner and edge cells
+    assert spec.dims[2] == 3 * z_split
     fluid = rng.uniform(lo, hi, (1500, 3))
     corners = np.array([[x, y, z] for x in (lo[0] + 1e-4, hi[0] - 1e-4) for y in (lo[1] + 1e-4, hi[1] - 1e-4)
                         for z in (lo[2] + 1e-4, hi[2] - 1e-4)])
@@ -108,7 +111,8 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt):
     bsum, gsum = ti.Vector.ndarray(3, ti.f32, shape=n), ti.Vector.ndarray(3, ti.f32, shape=n)
     vel = rng.normal(0.0, 1.0, (n, 3)).astype(np.float32)
     v_nd, src = _to_nd(vel), ti.ndarray(ti.f32, shape=n)
-    args = (ti.Vector(list(spec.origin), ti.f64), 1.0 / spec.cell_size, grid.ivec3(*spec.dims), h, 1.0e-4)
+    args = (ti.Vector(list(spec.origin), ti.f64), ti.Vector(list(spec.inv_cell), ti.f64), grid.ivec3(*spec.dims),
+            h, 1.0e-4)
     table = ti.Vector.ndarray(2, ti.f32, shape=CUBIC_TABLE_SIZE + 2)
     table.from_numpy(cubic_table_np(h).astype(np.float32))
     kappa = rng.uniform(0.0, 2.0, n).astype(np.float32)  # the divergence solver's stored stiffness
