@@ -30,8 +30,8 @@ def _estimate(config, x, v, boundary=None, fused=False):
         solver._non_pressure_forces(config.dt, estimate=True)
     else:
         solver._estimate_divergence()
-    return solver, f.numpy("x"), vs, f.numpy("density"), f.numpy("divergence")  # the fused pass also adds D_i
-    # to the run sums
+    # (the fused pass also adds D_i to the run sums)
+    return solver, f.numpy("x"), vs, f.numpy("density"), f.numpy("divergence")
 
 
 @pytest.mark.parametrize("h_r", [0.1, 0.13])  # 0.1: stored-gradient path; 0.13 > h: grid path
