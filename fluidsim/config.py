@@ -72,7 +72,10 @@ class SolverConfig:
         estimator_kernel_radius: h_k of paper Eq. 1, metres (kernel support for grad W).
         max_speed: a fluid speed above this (m/s) stops the run as diverged.
         max_capped_steps: stop when a solver hits max_iterations this many steps in a row.
-        max_neighbors: initial neighbour-list capacity per particle (grows automatically).
+        max_neighbors: initial neighbour-list capacity per particle (None: from the rest lattice, the
+            neighbours within h of a lattice point plus an eighth); the lists then follow the largest count
+            (grow at once, shrink when much too large), because padded rows cost memory traffic in every
+            list pass.
         retire_margin: fluid is retired once it is this many particle spacings outside the domain box
             (default 2: past both layers of the default walls; 0 retires at the box face). Fast splash
             particles cross the face by up to about 0.15 spacing before the wall pushes them back.
@@ -102,7 +105,7 @@ class SolverConfig:
     estimator_kernel_radius: float = 0.1
     max_speed: float = 200.0
     max_capped_steps: int = 20
-    max_neighbors: int = 64
+    max_neighbors: int | None = None
     retire_margin: float = 2.0
     precision: str = "f32"
 
@@ -138,7 +141,8 @@ class SolverConfig:
         _positive("estimator_kernel_radius", self.estimator_kernel_radius)
         _positive("max_speed", self.max_speed)
         _int_at_least("max_capped_steps", self.max_capped_steps, 1)
-        _int_at_least("max_neighbors", self.max_neighbors, 8)
+        if self.max_neighbors is not None:
+            _int_at_least("max_neighbors", self.max_neighbors, 8)
         if not 0.0 <= _finite("retire_margin", self.retire_margin) <= RETIRE_MARGIN_MAX:
             raise ValueError(f"retire_margin must be in [0, {RETIRE_MARGIN_MAX}] particle spacings (the simulation "
                              f"grid reaches {RETIRE_MARGIN_MAX} spacings past the domain), got {self.retire_margin}")

@@ -118,6 +118,29 @@ def unpack_fluid_pairs_np(pairs: np.ndarray, fmt: int, inv_scale: float) -> tupl
     return offset + np.arange(ints.shape[0])[:, None], half * inv_scale
 
 
+MIN_LIST_CAPACITY = 8
+
+
+def list_capacity(count: int) -> int:
+    """Slots per particle for lists whose largest count is ``count``: an eighth more, plus two (at least 8)."""
+    return max(MIN_LIST_CAPACITY, int(count) + int(count) // 8 + 2)
+
+
+def shrink_threshold(count: int) -> int:
+    """Capacity above which lists with largest count ``count`` are reallocated smaller (half again more, plus
+    four: hysteresis, so a count that moves a little never reallocates)."""
+    return max(MIN_LIST_CAPACITY, int(count) + int(count) // 2 + 4)
+
+
+def lattice_neighbor_count(spacing: float, h: float) -> int:
+    """Lattice points within h (those at exactly h included: the slightest compression brings them in) of a point
+    of a cubic lattice of ``spacing``, itself excluded: the neighbour count of a fluid at rest."""
+    reach = int(np.ceil(h / spacing))
+    ax = np.arange(-reach, reach + 1) * spacing
+    pts = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+    return int((np.sum(pts * pts, axis=1) <= h * h * (1.0 + 1e-9)).sum()) - 1
+
+
 @ti.kernel
 def compute_boundary_volumes(
     bx: ti.types.ndarray(ndim=1),
@@ -180,6 +203,7 @@ def build_neighborhoods(
     warm_scale: float,
     dt: float,
     stiffness_sum: ti.types.ndarray(ndim=1),
+    store_boundary: ti.template(),
 ) -> ivec3:
     """Neighbour lists, normalised density, DFSPH factor, divergence source (1/s) and warm-start pushes.
 
@@ -195,6 +219,9 @@ def build_neighborhoods(
 
     A particle whose neighbours exceed the list capacity still gets its full density and factor; the
     caller sees the returned maxima, grows the lists and runs the pass again.
+
+    With ``store_boundary`` = False the boundary pairs are counted (``boundary_count`` is the full count) but not
+    stored: no pass reads them when the boundary viscosity is 0 and Eq. 1 does not walk the lists.
     """
     cap_f = fluid_pairs.shape[1]
     cap_b = boundary_pairs.shape[1]
@@ -255,8 +282,9 @@ def build_neighborhoods(
                         rho += vb * w
                         cg *= vb
                         grad_sum_b += cg * r
-                        if nb < cap_b:
-                            boundary_pairs[i, nb] = pack_pair(b, cg)
+                        if ti.static(store_boundary):
+                            if nb < cap_b:
+                                boundary_pairs[i, nb] = pack_pair(b, cg)
                         nb += 1
         density[i] = rho
         boundary_grad_sum[i] = grad_sum_b
@@ -277,7 +305,10 @@ def build_neighborhoods(
             f = 1.0 / denom
         factor[i] = f
         fluid_count[i] = ti.min(nf, cap_f)
-        boundary_count[i] = ti.min(nb, cap_b)
+        if ti.static(store_boundary):
+            boundary_count[i] = ti.min(nb, cap_b)
+        else:
+            boundary_count[i] = nb
         ti.atomic_max(max_f, nf)
         ti.atomic_max(max_b, nb)
     return ivec3(max_f, max_b, too_far)

@@ -153,7 +153,12 @@ class DFSPHSolver:
         self._kernel_table.from_numpy(cubic_table_np(h).astype(np.float64 if config.precision == "f64" else np.float32))
         self.fluid = FluidParticles(fx, fv, config.precision)
         n = self.fluid.capacity
-        self.neighborhoods = Neighborhoods(n, config.max_neighbors, config.precision, h)
+        capacity = config.max_neighbors
+        if capacity is None:
+            capacity = neighbors.list_capacity(neighbors.lattice_neighbor_count(config.spacing, h))
+        self.neighborhoods = Neighborhoods(n, capacity, config.precision, h,
+                                           store_boundary=self._reads_boundary_lists())
+        self._list_capacity: tuple[int, int] | None = None  # a smaller capacity for the next neighbourhood pass
         self._counts = ti.ndarray(ti.i32, shape=g.num_cells + 1)
         self._counts.fill(0)  # the counting sort leaves it zero for the next step
         self._serial_sort = grid.serial_sort()
@@ -242,19 +247,30 @@ class DFSPHSolver:
         divergence_warm = cfg.warm_start and cfg.divergence_warm_start and cfg.divergence_solver
         return divergence_warm, cfg.warm_start
 
+    def _reads_boundary_lists(self) -> bool:
+        """Whether a pass reads the boundary pairs: the fluid-boundary viscosity, or Eq. 1 walking the lists."""
+        cfg = self.config
+        return cfg.wall_viscosity != 0.0 or (not self._estimate_with_viscosity()
+                                              and cfg.estimator_radius <= cfg.support_radius)
+
     def _neighborhoods(self, dt: float | None = None) -> tuple[int, int]:
         f, nb, b = self.fluid, self.neighborhoods, self.boundary
         dt = self.config.dt if dt is None else dt
         warm = self._warm()[0]
+        if self._list_capacity is not None:  # shrink planned by the last pass (its lists were still in use)
+            nb.resize(*self._list_capacity)
+            self._list_capacity = None
         while True:
             counts = neighbors.build_neighborhoods(
                 f.active, f.x, self._starts, b.x, b.volume, b.cell_starts, self._origin, self._inv_cell,
                 self._dims, self.h, self.fluid_volume, nb.fluid_count, nb.fluid_pairs, nb.boundary_count,
                 nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, f.density, f.factor,
                 f.v, f.source, self._kernel_table, int(warm), f.kappa_divergence, f.push_divergence, nb.format,
-                nb.coef_scale, dfsph.DIVERGENCE_WARM_SCALE, dt, f.stiffness_sum)
+                nb.coef_scale, dfsph.DIVERGENCE_WARM_SCALE, dt, f.stiffness_sum, nb.store_boundary)
             max_f, max_b = int(counts[0]), int(counts[1])
-            if not int(counts[2]) and max_f <= nb.fluid_capacity and max_b <= nb.boundary_capacity:
+            need_b = max_b if nb.store_boundary else 0
+            if not int(counts[2]) and max_f <= nb.fluid_capacity and need_b <= nb.boundary_capacity:
+                self._plan_list_capacity(max_f, need_b)
                 return max_f, max_b
             if warm:  # the pass applied the divergence warm start; the next run applies it again
                 dfsph.undo_push(f.active, dfsph.DIVERGENCE_WARM_SCALE, f.push_divergence, f.v)
@@ -263,10 +279,23 @@ class DFSPHSolver:
                          "format (8 bytes per pair) for the rest of the run", neighbors.NARROW_MAX_OFFSET)
                 nb.widen()
                 continue
-            grow_f = max(nb.fluid_capacity, int(max_f * 1.25) + 4)
-            grow_b = max(nb.boundary_capacity, int(max_b * 1.25) + 4)
-            log.info("growing neighbour lists to %d fluid / %d boundary slots", grow_f, grow_b)
+            grow_f = max(nb.fluid_capacity, neighbors.list_capacity(max_f))
+            grow_b = max(nb.boundary_capacity, neighbors.list_capacity(need_b))
+            log.debug("growing neighbour lists to %d fluid / %d boundary slots", grow_f, grow_b)
             nb.resize(grow_f, grow_b)
+
+    def _plan_list_capacity(self, max_f: int, max_b: int) -> None:
+        """Plan smaller lists for the next neighbourhood pass where the capacity is far above the largest count
+        (:func:`fluidsim.neighbors.shrink_threshold`; padded rows cost every list pass memory traffic)."""
+        nb = self.neighborhoods
+        cap_f, cap_b = nb.fluid_capacity, nb.boundary_capacity
+        if cap_f > neighbors.shrink_threshold(max_f):
+            cap_f = neighbors.list_capacity(max_f)
+        if nb.store_boundary and cap_b > neighbors.shrink_threshold(max_b):
+            cap_b = neighbors.list_capacity(max_b)
+        if (cap_f, cap_b) != (nb.fluid_capacity, nb.boundary_capacity):
+            log.debug("neighbour lists shrink to %d fluid / %d boundary slots", cap_f, cap_b)
+            self._list_capacity = (cap_f, cap_b)
 
     def _solve(self, error, start, kappa, dt: float, tolerance: float, store_scale: float,
                min_iterations: int, advect: bool = False) -> tuple[int, float, tuple[float, int]]:

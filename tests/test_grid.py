@@ -124,7 +124,7 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
         m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
                                           nb.boundary_count, nb.boundary_pairs,
                                           bsum, gsum, dens, fac, v_nd, src, table, 0, kappa_nd, push,
-                                          nb.format, nb.coef_scale, 0.5, 0.002, ssum)
+                                          nb.format, nb.coef_scale, 0.5, 0.002, ssum, True)
         assert m[2] == 0  # no offset beyond 16 bits among 1,508 particles
         if m[0] <= nb.fluid_capacity and m[1] <= nb.boundary_capacity:
             break
@@ -167,7 +167,7 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
     before = [a.to_numpy() for a in (nb.fluid_pairs, dens, fac, gsum)]
     neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
                                   nb.boundary_count, nb.boundary_pairs, bsum, gsum, dens, fac, v_nd, src, table, 1,
-                                  kappa_nd, push, nb.format, nb.coef_scale, 0.5, 0.002, ssum)
+                                  kappa_nd, push, nb.format, nb.coef_scale, 0.5, 0.002, ssum, True)
     for a, b in zip(before, (nb.fluid_pairs, dens, fac, gsum), strict=True):
         np.testing.assert_array_equal(a, b.to_numpy())
     k = kappa.astype(np.float64)

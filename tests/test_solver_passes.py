@@ -360,3 +360,45 @@ def test_error_averages_are_fixed_point_sums_independent_of_order():
     assert average(huge) == np.inf == fixed_point_average_np(huge, inv_q)
     huge[7] = tol * 2.0**42 / n * 0.5
     assert np.isfinite(average(huge))
+
+
+def test_neighbour_lists_follow_the_largest_count():
+    """Capacity starts from the rest lattice, shrinks (at the next pass) when far above the largest count, grows
+    at once when below it; the lists stay exact either way."""
+    assert neighbors.lattice_neighbor_count(0.05, 0.1) == 32  # h = 2 spacings: 32 lattice neighbours
+    default = SolverConfig(particle_radius=0.025)
+    lone = DFSPHSolver(default, [0, 0, 0], [1, 1, 1], np.array([[0.5, 0.5, 0.5]]), np.zeros((1, 3)), np.zeros((0, 3)))
+    assert lone.neighborhoods.fluid_capacity == neighbors.list_capacity(32) == 38
+    cfg, solver = _solver(2.5, max_neighbors=64)  # a no-slip wall: the boundary lists are stored too
+    nb = solver.neighborhoods
+    max_f = int(nb.fluid_count.to_numpy()[: solver.fluid.active].max())
+    max_b = int(nb.boundary_count.to_numpy()[: solver.fluid.active].max())
+    assert nb.fluid_capacity == 64 and neighbors.shrink_threshold(max_f) < 64  # smaller lists are planned
+    solver._neighborhoods()
+    assert nb.fluid_capacity == neighbors.list_capacity(max_f) < 64
+    assert nb.boundary_capacity == neighbors.list_capacity(max_b) < 64
+    pairs, _ = _gradients(solver)
+    count, index, _ = nb.lists("fluid")
+    for i, (j, _) in pairs.items():
+        np.testing.assert_array_equal(np.sort(index[i, : count[i]]), j)
+    # a count past the capacity grows the lists at once (and the pass runs again)
+    nb.resize(8, 8)
+    solver._neighborhoods()
+    assert nb.fluid_capacity >= max_f and nb.boundary_capacity >= max_b
+    count, index, _ = nb.lists("fluid")
+    assert all(np.array_equal(np.sort(index[i, : count[i]]), j) for i, (j, _) in pairs.items())
+
+
+def test_boundary_pairs_are_stored_only_where_a_pass_reads_them():
+    _, slip = _solver(0.0)  # free-slip walls, Eq. 1 from the stored gradients: nothing reads boundary pairs
+    _, no_slip = _solver(2.5)
+    assert not slip.neighborhoods.store_boundary and no_slip.neighborhoods.store_boundary
+    assert slip.neighborhoods.boundary_pairs.shape[1] == 1
+    # the counts are full either way (the free-surface test reads them)
+    n = slip.fluid.active
+    np.testing.assert_array_equal(slip.neighborhoods.boundary_count.to_numpy()[:n],
+                                  no_slip.neighborhoods.boundary_count.to_numpy()[:n])
+    assert slip.neighborhoods.boundary_count.to_numpy()[:n].max() > 8
+    cfg = SolverConfig(particle_radius=0.025, boundary_viscosity=0.0, estimator_radius=0.08)  # Eq. 1 walks lists
+    x = lattice_in_box([0.3, 0.3, 0.3], [0.6, 0.6, 0.6], cfg.spacing)
+    assert DFSPHSolver(cfg, [0, 0, 0], [1, 1, 1], x, np.zeros_like(x), x[:5] - 0.3).neighborhoods.store_boundary
