@@ -199,6 +199,7 @@ def accumulate_tracked(
     add_values: ti.template(),
     track: ti.template(),
     private: ti.template(),
+    serial: ti.template(),
     acc: ti.types.ndarray(dtype=ti.f64, ndim=3),
     bits: ti.types.ndarray(dtype=ti.u32, ndim=2),
     keys: ti.types.ndarray(dtype=ti.i64, ndim=1),
@@ -209,6 +210,8 @@ def accumulate_tracked(
     - ``track`` = TRACK_BITS: sets bit ``ids[i]`` of row g of ``bits`` [G, words] (atomic or);
     - ``track`` = TRACK_KEYS: appends ``g * 2^32 + ids[i]`` to ``keys`` (slot from ``key_count[0]``; slots past
       the end are counted but not written, so the caller can grow ``keys`` and run again).
+
+    ``serial``: as in :func:`accumulate`.
     """
-    visit_all(n, xs, values, ids, grid, lists, gauss, add_values, track, private, False, acc, bits, keys,
+    visit_all(n, xs, values, ids, grid, lists, gauss, add_values, track, private, serial, acc, bits, keys,
               key_count)
