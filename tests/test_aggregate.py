@@ -255,10 +255,14 @@ def test_staged_steps_equal_step_by_step_accumulation():
     batched = GaussianAccumulator(*args, batch_steps=3, track_distinct=True, max_fluid=solver.fluid.capacity)
     single = GaussianAccumulator(*args, batch_steps=1, track_distinct=True, max_fluid=solver.fluid.capacity)
     assert batched.batch_steps == 3
+    unstaged = GaussianAccumulator(*args, batch_steps=3, track_distinct=True, max_fluid=solver.fluid.capacity)
+    batched.serial_below = 0  # stage this small probe too (probes under SERIAL_BELOW particles are not staged)
     for step in range(5):
         solver.step()
         batched.add_from_solver(solver)
         single.add_from_solver(solver)
+        unstaged.add_from_solver(solver)
+        assert unstaged._staged == 0
         if step == 3:  # mid-batch (one step staged): the read includes it
             assert batched._staged > 0
             assert np.array_equal(batched.counts, single.counts)
@@ -268,6 +272,8 @@ def test_staged_steps_equal_step_by_step_accumulation():
     assert np.array_equal(batched.counts, single.counts)
     np.testing.assert_allclose(batched.sums, single.sums, rtol=1e-12, atol=1e-12 * np.abs(single.sums).max())
     assert np.array_equal(batched.distinct_counts, single.distinct_counts)
+    assert np.array_equal(unstaged.counts, single.counts)
+    np.testing.assert_array_equal(unstaged.sums, single.sums)
     batched.reset()  # drops staged steps too
     assert batched._staged == 0 and batched.counts.sum() == 0
     with pytest.raises(ValueError, match="batch_steps"):
