@@ -9,7 +9,9 @@ and |P_g| is the number of distinct fluid particles that ever came within n r_g 
 function-critical regions). Accumulation never loops over all particles x all Gaussians: the static
 Gaussians are listed once per probe in the cells of a uniform grid (CSR: counting pass, prefix sum,
 fill pass); at every step each active fluid particle walks the list of its own cell. On a CPU each thread
-adds into its own row of sums and counts (no atomics; rows summed on read), on a GPU atomics do.
+adds into its own row of sums and counts (no atomics; rows summed on read), on a GPU atomics do. The sums are
+fixed-point integers (values rounded to 6e-8, exact sums), so they are the same bits whatever the thread
+count or the order of the additions.
 
 A solver's steps are staged (positions, values and ids copied, a sequential 20 bytes per particle) and
 accumulated ``batch_steps`` at a time: after a solver step the Gaussians' records, lists and sums are out
@@ -61,15 +63,15 @@ _STAGE_BUDGET = 64 * 2**20
 def accumulation_rows(num_gaussians: int) -> tuple[int, bool]:
     """(rows, private) of the sums and counts for the current Taichi runtime.
 
-    On a CPU every thread gets its own row of sums and counts (plain, branch-free adds, summed on read; about
-    2x faster than atomic adds behind the unpredictable within-reach branch), up to ``_ROWS_BUDGET`` bytes.
-    On a GPU one row with atomic adds, which are cheap there.
+    On a CPU every thread of the pool gets its own row of sums and counts (plain, branch-free adds, summed on
+    read; about 2x faster than atomic adds behind the unpredictable within-reach branch), while the rows fit
+    ``_ROWS_BUDGET`` bytes. Otherwise (GPUs, or too many Gaussians) one row with atomic adds.
     """
     cfg = ti.lang.impl.current_cfg()
-    if cfg.arch not in (ti.x64, ti.arm64):
-        return 1, False
     threads = max(int(cfg.cpu_max_num_threads or 0), 1)
-    return max(1, min(threads, _ROWS_BUDGET // (16 * max(num_gaussians, 1)))), True
+    if cfg.arch not in (ti.x64, ti.arm64) or threads * 16 * (max(num_gaussians, 1) + 1) > _ROWS_BUDGET:
+        return 1, False
+    return threads, True
 
 
 def _as_points(name: str, arr, dtype=np.float64) -> np.ndarray:
@@ -149,8 +151,11 @@ class GaussianAccumulator:
         self._gauss.from_numpy(np.concatenate([centers, (reach * reach)[:, None]], axis=1))
         self._build_lists(centers, reach)
         self.rows, self._private = accumulation_rows(self.num_gaussians)
+        self._pool_threads = max(int(ti.lang.impl.current_cfg().cpu_max_num_threads or 0), 1)
         self.serial_below = SERIAL_BELOW
-        self._acc = ti.ndarray(ti.f64, shape=(self.rows, self.num_gaussians, 2))  # per row: sum, count
+        # per row: fixed-point sum and count of each Gaussian, and in slot G the count of saturated values
+        self._acc = ti.ndarray(ti.i64, shape=(self.rows, self.num_gaussians + 1, 2))
+        self._saturation_logged = False
         self._no_bits = ti.ndarray(ti.u32, shape=(1, 1))
         self._no_keys = ti.ndarray(ti.i64, shape=1)
         self._key_count = ti.ndarray(ti.i64, shape=1)
@@ -299,18 +304,18 @@ class GaussianAccumulator:
         if self.track_distinct:
             track = kernels.TRACK_BITS if self._keys is None else kernels.TRACK_KEYS
             bits = self._bits if self._keys is None else self._no_bits
+        # CPU: small batches on the launching thread; parallel rows need a row per pool thread (fewer rows, a
+        # caller's choice, also run on the launching thread)
+        serial = self._private and (n < self.serial_below or self.rows < self._pool_threads)
         if track == kernels.TRACK_NONE:
-            kernels.accumulate(n, xs, values, self._grid, self._lists, self._gauss, self._private,
-                               self._private and n < self.serial_below, self._acc)
+            kernels.accumulate(n, xs, values, self._grid, self._lists, self._gauss, self._private, serial, self._acc)
             return
         common = (n, xs, values, ids, self._grid, self._lists, self._gauss)
-        serial = self._private and n < self.serial_below
         if track != kernels.TRACK_KEYS:
             kernels.accumulate_tracked(*common, True, track, self._private, serial, self._acc, bits, self._no_keys,
                                        self._key_count)
             return
-        kernels.accumulate(n, xs, values, self._grid, self._lists, self._gauss, self._private,
-                           self._private and n < self.serial_below, self._acc)
+        kernels.accumulate(n, xs, values, self._grid, self._lists, self._gauss, self._private, serial, self._acc)
         while True:
             self._key_count.fill(0)
             kernels.accumulate_tracked(*common, False, track, self._private, serial, self._acc, bits, self._keys,
@@ -419,7 +424,7 @@ class GaussianAccumulator:
     def reset(self) -> None:
         """Zero the sums, counts and distinct-particle records and drop staged steps (the cell lists stay)."""
         self._staged = self._staged_steps = 0
-        self._acc.fill(0.0)
+        self._acc.fill(0)
         if self._bits is not None:
             self._bits.fill(0)
         self._unique_keys = np.zeros(0, np.int64)
@@ -430,17 +435,27 @@ class GaussianAccumulator:
         out[self._order] = internal
         return out
 
+    def _totals(self) -> np.ndarray:
+        """[G + 1, 2] int64: the rows summed (exact integers); warns once about saturated values."""
+        self.flush()
+        total = self._acc.to_numpy().sum(axis=0)
+        if total[-1, 0] and not self._saturation_logged:
+            self._saturation_logged = True
+            log.warning("%d accumulated values were NaN or beyond +-%g and were clamped (NaN: 0)", total[-1, 0],
+                        kernels.VALUE_LIMIT / kernels.VALUE_SCALE)
+        return total
+
     @property
     def sums(self) -> np.ndarray:
-        """[G] float64 sum of the values added near each Gaussian (the per-thread rows summed)."""
-        self.flush()
-        return self._caller_order(self._acc.to_numpy()[:, :, 0].sum(axis=0))
+        """[G] float64 sum of the values added near each Gaussian: each value rounded to a multiple of
+        1 / ``aggregate_kernels.VALUE_SCALE`` (6e-8) and the sums exact, so they are the same bits on any
+        thread count."""
+        return self._caller_order(self._totals()[:-1, 0].astype(np.float64) / kernels.VALUE_SCALE)
 
     @property
     def counts(self) -> np.ndarray:
         """[G] int64 number of (particle, step) samples near each Gaussian (the per-thread rows summed)."""
-        self.flush()
-        return self._caller_order(np.rint(self._acc.to_numpy()[:, :, 1].sum(axis=0)).astype(np.int64))
+        return self._caller_order(self._totals()[:-1, 1].astype(np.int64))
 
     @property
     def distinct_counts(self) -> np.ndarray:

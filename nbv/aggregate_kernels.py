@@ -68,6 +68,30 @@ def list_gaussians(
                     items[cell_starts[lin] + slot] = g
 
 
+# Fixed-point sums: a value v is added as floor(v * VALUE_SCALE + 1/2) in an i64, clamped to +-VALUE_LIMIT quanta (NaN
+# adds 0; both are counted as saturated in the extra Gaussian slot G). Integer sums are exact and do
+# not depend on the order of the additions, so the per-thread rows give the same bits on any thread count.
+VALUE_SCALE = float(2**24)  # quanta per unit of the value: 6e-8 (1/s for D_i)
+VALUE_LIMIT = float(2**38)  # largest |v| = 16384 units; a Gaussian's sum holds 2^25 such samples
+
+
+@ti.func
+def fixed_point(v):
+    """(quanta, saturated): floor(v * VALUE_SCALE + 1/2) as an i64, clamped to +-VALUE_LIMIT (NaN: 0), and
+    saturated = 1 where it was clamped."""
+    q = ti.cast(v, ti.f64) * VALUE_SCALE
+    quanta = ti.i64(0)
+    saturated = ti.i64(1)
+    if ti.abs(q) <= VALUE_LIMIT:  # False for NaN
+        quanta = ti.cast(ti.floor(q + 0.5), ti.i64)  # halves round up (f32 values below 0.5 can be ties)
+        saturated = ti.i64(0)
+    elif q > VALUE_LIMIT:
+        quanta = ti.cast(VALUE_LIMIT, ti.i64)
+    elif q < -VALUE_LIMIT:
+        quanta = -ti.cast(VALUE_LIMIT, ti.i64)
+    return quanta, saturated
+
+
 # Layout of the ``grid`` array of :func:`accumulate`: origin (3), 1 / cell, domain_min (3), domain_max (3),
 # cell counts (3), offset of the items in ``lists`` (1). One small array, because every kernel argument costs
 # launch time, which on small probes is a good part of the aggregation.
@@ -80,9 +104,10 @@ def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.tem
                    lists: ti.template(), gauss: ti.template(), add_values: ti.template(), track: ti.template(),
                    private: ti.template(), acc: ti.template(), bits: ti.template(), keys: ti.template(),
                    key_count: ti.template()):
-    """Paper Eq. 2-3 for fluid particle i: add ``values[i]`` (and 1) to row ``row`` of every Gaussian within reach.
+    """Paper Eq. 2-3 for fluid particle i: add ``values[i]`` (fixed point, :func:`fixed_point`) and 1 to row ``row``
+    of every Gaussian within reach.
 
-    With ``private`` the row belongs to one task only: the adds are plain and branch-free (a select on the
+    With ``private`` the row belongs to one thread only: the adds are plain and branch-free (a select on the
     hit), which on a CPU is about twice as fast as an atomic add behind an unpredictable branch.
     """
     x = ti.cast(xs[i], ti.f64)
@@ -99,19 +124,25 @@ def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.tem
     if inside:
         lin = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
         base = ti.cast(grid[13], ti.i32)
-        v = ti.cast(values[i], ti.f64)
+        q, saturated = fixed_point(values[i])
+        if ti.static(add_values):
+            if saturated:
+                if ti.static(private):
+                    acc[row, acc.shape[1] - 1, 0] += 1
+                else:
+                    ti.atomic_add(acc[0, acc.shape[1] - 1, 0], ti.i64(1))
         for s in range(lists[lin], lists[lin + 1]):
             g = lists[base + s]
-            q = gauss[g]
-            dx, dy, dz = x[0] - q[0], x[1] - q[1], x[2] - q[2]
-            hit = dx * dx + dy * dy + dz * dz < q[3]
+            p = gauss[g]
+            dx, dy, dz = x[0] - p[0], x[1] - p[1], x[2] - p[2]
+            hit = dx * dx + dy * dy + dz * dz < p[3]
             if ti.static(add_values and private):
-                acc[row, g, 0] = acc[row, g, 0] + ti.select(hit, v, 0.0)
-                acc[row, g, 1] = acc[row, g, 1] + ti.select(hit, 1.0, 0.0)
+                acc[row, g, 0] = acc[row, g, 0] + ti.select(hit, q, ti.i64(0))
+                acc[row, g, 1] = acc[row, g, 1] + ti.select(hit, ti.i64(1), ti.i64(0))
             if hit:
                 if ti.static(add_values and not private):
-                    acc[row, g, 0] += v
-                    acc[row, g, 1] += 1.0
+                    ti.atomic_add(acc[0, g, 0], q)
+                    ti.atomic_add(acc[0, g, 1], ti.i64(1))
                 if ti.static(track == TRACK_BITS):
                     pid = ti.cast(ids[i], ti.i32)
                     ti.atomic_or(bits[g, pid >> 5], ti.cast(1, ti.u32) << ti.cast(pid & 31, ti.u32))
@@ -126,19 +157,20 @@ def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), g
               lists: ti.template(), gauss: ti.template(), add_values: ti.template(), track: ti.template(),
               private: ti.template(), serial: ti.template(), acc: ti.template(), bits: ti.template(),
               keys: ti.template(), key_count: ti.template()):
-    if ti.static(private):
-        rows = acc.shape[0]
-        if ti.static(serial):
-            ti.loop_config(serialize=True)
-        else:
-            ti.loop_config(block_dim=1)
-        for r in range(rows):
-            for i in range(r * n // rows, (r + 1) * n // rows):
-                visit_particle(i, r, xs, values, ids, grid, lists, gauss, add_values, track, private, acc, bits,
-                               keys, key_count)
-    else:
+    """All particles: on the launching thread into row 0 (``serial``), in parallel with each CPU thread adding into
+    its own row (``private``: row = the thread's index, so the caller gives at least as many rows as threads),
+    or in parallel with atomic adds into row 0 (GPUs)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
         for i in range(n):
             visit_particle(i, 0, xs, values, ids, grid, lists, gauss, add_values, track, private, acc, bits, keys,
+                           key_count)
+    else:
+        for i in range(n):
+            row = 0
+            if ti.static(private):
+                row = ti.global_thread_idx()
+            visit_particle(i, row, xs, values, ids, grid, lists, gauss, add_values, track, private, acc, bits, keys,
                            key_count)
 
 
@@ -170,19 +202,18 @@ def accumulate(
     gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
     private: ti.template(),
     serial: ti.template(),
-    acc: ti.types.ndarray(dtype=ti.f64, ndim=3),
+    acc: ti.types.ndarray(dtype=ti.i64, ndim=3),
 ):
-    """Paper Eq. 2-3: each particle i inside the domain adds ``values[i]`` to ``acc[row, g, 0]`` and 1 to
-    ``acc[row, g, 1]`` for every Gaussian g with |x_i - mu_g|^2 < r_g'^2 (``gauss[g]`` = (mu_g, (n r_g)^2)).
+    """Paper Eq. 2-3: each particle i inside the domain adds ``values[i]`` (in quanta of 1 / VALUE_SCALE) to
+    ``acc[row, g, 0]`` and 1 to ``acc[row, g, 1]`` for every Gaussian g with |x_i - mu_g|^2 < r_g'^2
+    (``gauss[g]`` = (mu_g, (n r_g)^2)); ``acc[row, G, 0]`` counts saturated values.
 
     ``grid``: see ``GRID_SIZE``. ``lists``: cell starts (cells + 1), then the Gaussian ids of all cells.
-    ``private`` (CPUs): ``acc`` has one row per task; task r takes the r-th of R contiguous chunks of the
-    particles (R = the number of rows; particles come in cell order, so a chunk is a region of space and its
-    Gaussians stay in that core's cache) and alone writes row r, so no add is atomic; the caller sums the
-    rows, and the result is bitwise deterministic for a given R. Otherwise (GPUs) one row and atomic adds.
-    Counts are exact in f64 up to 2^53.
-    ``serial`` (with ``private``): the rows run one after the other on the launching thread, which on small
-    probes costs less than waking the thread pool.
+    ``private`` (CPUs): ``acc`` has a row per thread of the pool, each thread adds into its own row without
+    atomics, and the caller sums the rows; the sums are integers, so the result is bitwise the same for any
+    thread count or schedule. Otherwise (GPUs) one row and atomic adds.
+    ``serial``: the particles run on the launching thread (row 0), which on small probes costs less than
+    waking the thread pool.
     """
     visit_all(n, xs, values, values, grid, lists, gauss, True, TRACK_NONE, private, serial, acc, acc, acc, acc)
 
@@ -200,7 +231,7 @@ def accumulate_tracked(
     track: ti.template(),
     private: ti.template(),
     serial: ti.template(),
-    acc: ti.types.ndarray(dtype=ti.f64, ndim=3),
+    acc: ti.types.ndarray(dtype=ti.i64, ndim=3),
     bits: ti.types.ndarray(dtype=ti.u32, ndim=2),
     keys: ti.types.ndarray(dtype=ti.i64, ndim=1),
     key_count: ti.types.ndarray(dtype=ti.i64, ndim=1),

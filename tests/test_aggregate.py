@@ -8,6 +8,7 @@ from fluidsim import DFSPHSolver, SolverConfig
 from fluidsim.scene import lattice_in_box
 from fluidsim.sources import sphere_particles, wall_particles
 from nbv.aggregate import GaussianAccumulator, accumulate_reference, within_reach_reference
+from nbv.aggregate_kernels import VALUE_LIMIT, VALUE_SCALE
 
 DOMAIN_MIN = np.array([-1.2, -1.0, -1.1])
 DOMAIN_MAX = np.array([1.1, 1.2, 1.0])
@@ -24,6 +25,14 @@ def random_gaussians(g: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return centers, reach
 
 
+def quantized_sums(centers, reach, steps, *domain) -> np.ndarray:
+    """The twin's sums of the values as the kernels add them: each rounded to 1 / VALUE_SCALE, summed exactly
+    (integers in f64), so the accumulator must equal them bit for bit."""
+    total = sum(accumulate_reference(centers, reach, pos, np.floor(np.asarray(val, np.float64) * VALUE_SCALE + 0.5),
+                                     *domain)[0] for pos, val in steps)
+    return total / VALUE_SCALE
+
+
 def random_step(rng, n: int, pool: int):
     ids = rng.choice(pool, n, replace=False)
     return rng.uniform(-1.5, 1.5, (n, 3)), rng.normal(size=n), ids
@@ -34,15 +43,19 @@ def test_accumulator_equals_brute_force_twin():
     rng = np.random.default_rng(1)
     acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
     sums, counts = np.zeros(len(centers)), np.zeros(len(centers), np.int64)
+    steps = []
     for _ in range(3):
         pos, val, _ = random_step(rng, 400, 1000)
         acc.add(pos, val)
+        steps.append((pos, val))
         s, c = accumulate_reference(centers, reach, pos, val, DOMAIN_MIN, DOMAIN_MAX)
         sums += s
         counts += c
     assert np.array_equal(acc.counts, counts)
     assert counts.min() == 0 and counts.max() > 100 and counts[1] == 0     # zero reach never counts
-    assert np.allclose(acc.sums, sums, rtol=1e-6, atol=1e-9 * np.abs(sums).max())
+    np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, steps, DOMAIN_MIN, DOMAIN_MAX))
+    # within half a quantum per sample of the unrounded sums
+    assert np.all(np.abs(acc.sums - sums) <= 0.5 * counts / VALUE_SCALE + 1e-12 * np.abs(sums).max())
     expected = np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
     assert np.allclose(acc.means(), expected, rtol=1e-6, atol=1e-9)
     # Particles outside the domain are ignored; the twin without a domain does count them.
@@ -102,18 +115,20 @@ def test_add_from_solver_equals_numpy_path():
     args = (centers, reach, solver.domain_min, solver.domain_max)
     fast = GaussianAccumulator(*args, track_distinct=True, max_fluid=solver.fluid.capacity)
     ref = GaussianAccumulator(*args, track_distinct=True)
-    sums, counts = np.zeros(len(centers)), np.zeros(len(centers), np.int64)
-    for _ in range(4):
+    counts = np.zeros(len(centers), np.int64)
+    steps = []
+    for _ in range(12):
         solver.step()
         fast.add_from_solver(solver)
         state = solver.fluid_state()
         ref.add(state["x"], state["divergence"], state["ids"])
-        s, c = accumulate_reference(centers, reach, state["x"], state["divergence"], *args[2:])
-        sums += s
-        counts += c
-    assert counts.sum() > 0 and np.abs(sums).max() > 0
+        steps.append((state["x"], state["divergence"]))
+        counts += accumulate_reference(centers, reach, state["x"], state["divergence"], *args[2:])[1]
+    sums = quantized_sums(centers, reach, steps, *args[2:])
+    assert counts.sum() > 0 and np.abs(sums).max() > 1e-3  # the fluid has reached the sphere: D_i is not noise
     assert np.array_equal(fast.counts, counts) and np.array_equal(ref.counts, counts)
-    assert np.allclose(fast.sums, sums, rtol=1e-6, atol=1e-9 * np.abs(sums).max())
+    np.testing.assert_array_equal(fast.sums, sums)
+    np.testing.assert_array_equal(ref.sums, sums)
     assert np.array_equal(fast.distinct_counts, ref.distinct_counts)
     assert (fast.distinct_counts < fast.counts).any()
 
@@ -148,9 +163,9 @@ def test_degenerate_sets_match_the_twin():
     for centers, reach in cases:
         acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
         acc.add(pos, val)
-        sums, counts = accumulate_reference(centers, reach, pos, val, DOMAIN_MIN, DOMAIN_MAX)
+        counts = accumulate_reference(centers, reach, pos, val, DOMAIN_MIN, DOMAIN_MAX)[1]
         assert np.array_equal(acc.counts, counts)
-        assert np.allclose(acc.sums, sums, rtol=1e-9, atol=1e-9)
+        np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, [(pos, val)], DOMAIN_MIN, DOMAIN_MAX))
     assert acc.counts[1] > 0 and acc.counts[0] == 0       # the last case: one reaches in, one does not
 
 
@@ -174,9 +189,9 @@ def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
     acc.add(pos, val, ids)
     fresh = GaussianAccumulator(centers, reach, new_min, new_max, track_distinct=True, max_fluid=500)
     fresh.add(pos, val, ids)
-    s, c = accumulate_reference(centers, reach, pos, val, new_min, new_max)
+    c = accumulate_reference(centers, reach, pos, val, new_min, new_max)[1]
     assert np.array_equal(acc.counts, c) and np.array_equal(fresh.counts, c)
-    assert np.allclose(acc.sums, s, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, [(pos, val)], new_min, new_max))
     assert np.array_equal(acc.distinct_counts, fresh.distinct_counts)
     # A domain that clips the reach box differently is fine (the grid covers it; the kernel filters by the
     # domain); a domain that needs cells beyond the grid is refused and nothing changes.
@@ -185,8 +200,10 @@ def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
     assert small.domain_max.tolist() == [0.3] * 3
     assert acc.retarget([-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
     acc.add(pos, val, ids)
-    s, c = accumulate_reference(centers, reach, pos, val, [-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
-    assert np.array_equal(acc.counts, c) and np.allclose(acc.sums, s, rtol=1e-12, atol=1e-12)
+    c = accumulate_reference(centers, reach, pos, val, [-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])[1]
+    assert np.array_equal(acc.counts, c)
+    np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, [(pos, val)], [-0.1, -2.0, -2.0],
+                                                           [2.0, 2.0, 2.0]))
     # grid_bounds: lists built for a union of domains serve each of them exactly.
     union = GaussianAccumulator(centers, reach, [-0.3] * 3, [0.3] * 3, grid_bounds=([-2.0] * 3, [2.0] * 3))
     union.add(pos, val)
@@ -201,8 +218,9 @@ def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
 @pytest.mark.parametrize("rows, private, serial_below", [(1, False, 0), (1, True, 10**6), (3, True, 10**6),
                                                          (3, True, 0)])
 def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, private, serial_below):
-    # (1, False) is the GPU path (atomic adds), run here on the CPU; 3 rows is more rows than threads; the rows
-    # run on the launching thread (serial_below above the particle count) or as parallel tasks
+    # (1, False) is the GPU path (atomic adds), run here on the CPU; 3 rows is more rows than threads; the particles
+    # run on the launching thread (serial_below above the particle count, or fewer rows than pool threads) or in
+    # parallel, each thread adding into its own row
     import nbv.aggregate as aggregate
 
     monkeypatch.setattr(aggregate, "accumulation_rows", lambda g: (rows, private))
@@ -213,22 +231,20 @@ def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, priva
     def run(track: bool):
         acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=700)
         acc.serial_below = serial_below
-        assert acc.rows == rows and acc._acc.shape == (rows, len(centers), 2)
+        assert acc.rows == rows and acc._acc.shape == (rows, len(centers) + 1, 2)
         for pos, val, ids in steps:
             acc.add(pos, val, ids)
         return acc
 
-    sums = sum(accumulate_reference(centers, reach, p, v, DOMAIN_MIN, DOMAIN_MAX)[0] for p, v, _ in steps)
+    sums = quantized_sums(centers, reach, [(p, v) for p, v, _ in steps], DOMAIN_MIN, DOMAIN_MAX)
     counts = sum(accumulate_reference(centers, reach, p, v, DOMAIN_MIN, DOMAIN_MAX)[1] for p, v, _ in steps)
     assert counts.max() > 50
     for track in (False, True):  # the plain kernel, and the one that also records particle ids
         acc = run(track)
         assert np.array_equal(acc.counts, counts)
-        assert np.allclose(acc.sums, sums, rtol=1e-9, atol=1e-12 * np.abs(sums).max())
+        np.testing.assert_array_equal(acc.sums, sums)  # fixed-point sums: the same bits on every path
         if track:
             assert np.array_equal(acc.distinct_counts, distinct_reference(centers, reach, steps))
-        if private:  # every row is written by one task in a fixed order: bitwise deterministic
-            assert np.array_equal(run(track).sums, acc.sums)
 
 
 def test_morton_order_is_a_z_curve_permutation():
@@ -278,3 +294,22 @@ def test_staged_steps_equal_step_by_step_accumulation():
     assert batched._staged == 0 and batched.counts.sum() == 0
     with pytest.raises(ValueError, match="batch_steps"):
         GaussianAccumulator(*args, batch_steps=0)
+
+
+def test_values_out_of_the_fixed_point_range_saturate_with_a_warning(caplog):
+    centers, reach = np.zeros((1, 3)), np.array([0.5])
+    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+    assert acc.rows >= 1 and acc._acc.dtype == ti_i64()
+    pos = np.array([[0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]])
+    assert VALUE_LIMIT / VALUE_SCALE == 16384.0 < 1e9
+    acc.add(pos, np.array([2.5, 1e9, -3e9]))  # the two are clamped to +-16384 (and cancel); all three are counted
+    with caplog.at_level("WARNING", logger="nbv.aggregate"):
+        assert acc.counts.tolist() == [3]
+        assert acc.sums.tolist() == [2.5]
+    assert "2 accumulated values were NaN or beyond" in caplog.text
+
+
+def ti_i64():
+    import taichi as ti
+
+    return ti.i64
