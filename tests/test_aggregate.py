@@ -313,3 +313,21 @@ def ti_i64():
     import taichi as ti
 
     return ti.i64
+
+
+def test_thread_index_stays_below_the_pool_size():
+    """The per-thread rows rely on Taichi's CPU thread index being below cpu_max_num_threads."""
+    import taichi as ti
+
+    from nbv.aggregate import accumulation_rows
+
+    @ti.kernel
+    def largest_thread_index(n: ti.i32) -> ti.i32:
+        m = 0
+        for _ in range(n):
+            ti.atomic_max(m, ti.global_thread_idx())
+        return m
+
+    rows, private = accumulation_rows(100)
+    assert private and rows == ti.lang.impl.current_cfg().cpu_max_num_threads
+    assert max(largest_thread_index(100_000) for _ in range(20)) < rows
