@@ -212,6 +212,9 @@ class Neighborhoods:
         """
         from .neighbors import unpack_fluid_pairs_np, unpack_pairs_np
 
+        if kind == "boundary" and not self.store_boundary:
+            raise ValueError("these lists keep boundary counts only (no pass reads the pairs: the boundary viscosity "
+                             "is 0 and Eq. 1 does not walk the lists); use store_boundary=True to keep them")
         count = getattr(self, f"{kind}_count").to_numpy()
         if kind == "fluid":
             index, coef = unpack_fluid_pairs_np(self.fluid_pairs.to_numpy(), self.format, self.inv_scale)

@@ -394,6 +394,8 @@ def test_boundary_pairs_are_stored_only_where_a_pass_reads_them():
     _, no_slip = _solver(2.5)
     assert not slip.neighborhoods.store_boundary and no_slip.neighborhoods.store_boundary
     assert slip.neighborhoods.boundary_pairs.shape[1] == 1
+    with pytest.raises(ValueError, match="boundary counts only"):
+        slip.neighborhoods.lists("boundary")
     # the counts are full either way (the free-surface test reads them)
     n = slip.fluid.active
     np.testing.assert_array_equal(slip.neighborhoods.boundary_count.to_numpy()[:n],
