@@ -132,12 +132,18 @@ def shrink_threshold(count: int) -> int:
     return max(MIN_LIST_CAPACITY, int(count) + int(count) // 2 + 4)
 
 
+def lattice_offsets(spacing: float, h: float) -> np.ndarray:
+    """(K, 3) offsets, m, of the points of a cubic lattice of ``spacing`` in the cube of half-width >= h around
+    one of them (itself included)."""
+    reach = int(np.ceil(h / spacing))
+    ax = np.arange(-reach, reach + 1) * spacing
+    return np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+
+
 def lattice_neighbor_count(spacing: float, h: float) -> int:
     """Lattice points within h (those at exactly h included: the slightest compression brings them in) of a point
     of a cubic lattice of ``spacing``, itself excluded: the neighbour count of a fluid at rest."""
-    reach = int(np.ceil(h / spacing))
-    ax = np.arange(-reach, reach + 1) * spacing
-    pts = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+    pts = lattice_offsets(spacing, h)
     return int((np.sum(pts * pts, axis=1) <= h * h * (1.0 + 1e-9)).sum()) - 1
 
 

@@ -79,9 +79,7 @@ def fluid_particle_volume(spacing: float, h: float) -> float:
     Returns:
         m^3 (a bit under spacing^3 for the cubic spline with h = 2 spacing).
     """
-    reach = int(math.ceil(h / spacing))
-    ax = np.arange(-reach, reach + 1) * spacing
-    pts = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+    pts = neighbors.lattice_offsets(spacing, h)
     return float(1.0 / cubic_w_np(np.linalg.norm(pts, axis=1), h).sum())
 
 
