@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 
@@ -10,6 +11,10 @@ log = logging.getLogger("fluidgs")
 
 def init_taichi(device: str = "cpu", precision: str = "f32", threads: int | None = None, debug: bool = False) -> str:
     """Initialise Taichi once for this process; returns the device actually used ("cpu" or "cuda").
+
+    A runtime that already runs with these settings is kept (no re-initialisation, no recompilation).
+    Before a new ``ti.init`` the garbage collector runs, so that arrays of the old runtime that only cycles
+    still hold are released by the runtime that owns them (:func:`release_unreachable_arrays`).
 
     Args:
         device: "cpu" or "cuda"; "cuda" falls back to the CPU with a logged notice when unavailable.
@@ -24,6 +29,10 @@ def init_taichi(device: str = "cpu", precision: str = "f32", threads: int | None
     if precision not in ("f32", "f64"):
         raise ValueError(f"--precision must be f32 or f64, got {precision!r}")
     fp = ti.f64 if precision == "f64" else ti.f32
+    if _running_with(ti, device, fp, threads, debug):
+        log.info("Taichi already running on %s, %s; kept", device, precision)
+        return device
+    release_unreachable_arrays()
     kwargs = dict(default_fp=fp, offline_cache=True, log_level=ti.WARN, debug=debug)
     if threads:
         kwargs["cpu_max_num_threads"] = int(threads)
@@ -42,3 +51,27 @@ def init_taichi(device: str = "cpu", precision: str = "f32", threads: int | None
         ti.init(arch=ti.cpu, **kwargs)
     log.info("Taichi on %s, %s, %s threads", used, precision, threads or os.cpu_count())
     return used
+
+
+def _running_with(ti, device: str, fp, threads: int | None, debug: bool) -> bool:
+    """Whether the current Taichi runtime already has these settings (arch, float type, threads, debug)."""
+    runtime = ti.lang.impl.get_runtime()
+    if runtime.prog is None:
+        return False
+    cfg = ti.lang.impl.current_cfg()
+    arch_ok = cfg.arch == ti.cuda if device == "cuda" else cfg.arch in (ti.x64, ti.arm64)
+    return (arch_ok and runtime.default_fp == fp and bool(cfg.debug) == bool(debug)
+            and cfg.cpu_max_num_threads == int(threads or os.cpu_count() or 1))
+
+
+def release_unreachable_arrays() -> None:
+    """Collect garbage before ``ti.init`` replaces the runtime.
+
+    Taichi 1.7 frees an ndarray through the runtime that is current when the Python object dies, by the
+    address of its C++ array. An array of the old runtime that a reference cycle kept alive past
+    ``ti.init`` would hand the new runtime a stale address, which the allocator may already have given to
+    a live array of the new runtime: that array is then freed under its owner's feet (seen as
+    ``RuntimeError: argument not found`` at a later launch). Collecting first releases such arrays
+    while their own runtime still exists.
+    """
+    gc.collect()
