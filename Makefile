@@ -14,11 +14,11 @@ $(STAMP): setup.cfg
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e .[test]
+	$(PY) -m pip install --quiet -e .[test,view,ray]
 	@# open3d's wheel needs libusb and libgomp from the system; install them when missing (root + apt).
 	$(PY) -c "import open3d" 2>/dev/null || { command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ] && \
 	  apt-get update -qq && apt-get install -y -qq libusb-1.0-0 libgomp1 libgl1 >/dev/null; }
-	$(PY) -c "import open3d, taichi, torch, h5py, cv2"
+	$(PY) -c "import open3d, taichi, torch, h5py, cv2, viser, ray"
 	touch $(STAMP)
 
 demo: venv
@@ -31,7 +31,7 @@ bench: venv
 	$(VENV)/bin/fluidgs bench sim
 
 lint: venv
-	$(VENV)/bin/ruff check fluidsim recon nbv apps tests
+	$(VENV)/bin/ruff check fluidsim recon nbv apps viz tests
 
 clean:
 	rm -rf out .pytest_cache

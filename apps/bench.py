@@ -17,6 +17,7 @@ BENCHMARKS = {
     "sim": ("apps.bench_sim", "the paper-scale DFSPH probe (and SPlisHSPlasH when installed)"),
     "score": ("apps.bench_score", "probes on Gaussians: simulation vs aggregation time, quick five-probe total"),
     "render": ("apps.bench_render", "forward + backward time of the torch 3DGS rasterizer (5k@100x100, 20k@200x200)"),
+    "views": ("apps.bench_views", "view scores without renders: 200 cameras x 1M Gaussians; ranking vs full renders"),
 }
 
 

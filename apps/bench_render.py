@@ -24,13 +24,15 @@ from pathlib import Path
 
 import torch
 
+from .runtime import positive_int
+
 LOG = logging.getLogger("fluidgs.bench.render")
 # (Gaussians, width, height) -> target ms for forward + backward on one thread (the targets)
 TARGETS_MS = {(5000, 100, 100): 40.0, (20000, 200, 200): 450.0}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--threads", type=int, default=1,
+    p.add_argument("--threads", type=positive_int, default=1,
                    help="torch CPU threads; the issue's targets are for 1 (default: %(default)s)")
     p.add_argument("--repeats", type=int, default=10,
                    help="timed forward+backward passes per case, after one warm-up pass (default: %(default)s)")

@@ -10,11 +10,11 @@ and 750 steps (add ``--directions -x`` for one probe). Machines are shared: quot
 from __future__ import annotations
 
 import argparse
-import json
-import os
 from pathlib import Path
 
 import numpy as np
+
+from .runtime import positive_int
 
 ASSET = Path(__file__).resolve().parent.parent / "assets" / "ahmed_gaussians.ply"
 
@@ -29,29 +29,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=None, help="steps per probe (default: 300, or 750 with --paper)")
     p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes")
     p.add_argument("--empty-reference", action="store_true", help="also time the empty-scene reference runs")
-    p.add_argument("--fill-cavities", action="store_true", help="fill enclosed cavities of the solid")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads")
+    p.add_argument("--no-fill", action="store_true", help="keep the solid hollow (filling is the default)")
+    p.add_argument("--fill-cavities", action="store_true",
+                   help="accepted for old scripts and does nothing: filling is now the default (see --no-fill)")
+    p.add_argument("--threads", type=positive_int, default=2, help="CPU threads")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device; cuda falls back to cpu with a logged warning")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
 
 
 def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.output import check_not_input
     from nbv.physics import QUICK, PhysicsConfig, parse_directions, simulate_gaussians
 
     from .demo import ahmed_surface_gaussians
     from .runtime import init_taichi
-    from .simulate import check_output_file, load_gaussians_checked
+    from .simulate import check_output_file, load_gaussians_checked, write_json
 
     if args.json is not None:
         check_output_file(args.json, (".json",))
+        check_not_input({"--json": args.json}, {"--gaussians": args.gaussians})
     path = args.gaussians or (ASSET if ASSET.is_file() else None)
     gaussians = load_gaussians_checked(path) if path is not None else ahmed_surface_gaussians()
-    fill = path is None  # the surface samples form a closed shell: fill it as the demo does
     radius = args.particle_radius or (0.025 if args.paper else QUICK["particle_radius"])
     steps = args.steps or (750 if args.paper else QUICK["steps"])
     cfg = PhysicsConfig(particle_radius=radius, steps=steps, directions=parse_directions(args.directions),
-                        empty_reference=args.empty_reference, fill_cavities=fill or args.fill_cavities)
+                        empty_reference=args.empty_reference, fill_cavities=not args.no_fill)
     init_taichi(args.device, cfg.precision, args.threads)
     res = simulate_gaussians(gaussians, cfg, progress=True, source=str(path or "Ahmed body surface samples"))
     t = res.timings
@@ -75,9 +78,7 @@ def run_command(args: argparse.Namespace) -> int:
     if args.empty_reference:
         print(f"empty-scene reference: {t['empty_reference']:.1f} s more")
     if args.json is not None:
-        tmp = args.json.with_name(f".{args.json.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps({"timings": t, "aggregation_share": share, "steps": steps,
-                                   "particle_radius": radius, "directions": list(cfg.directions),
-                                   "gaussians": res.num_gaussians, "solid": len(res.solid)}, indent=2))
-        os.replace(tmp, args.json)
+        write_json(args.json, {"timings": t, "aggregation_share": share, "steps": steps, "particle_radius": radius,
+                               "directions": list(cfg.directions), "gaussians": res.num_gaussians,
+                               "solid": len(res.solid)})
     return 0

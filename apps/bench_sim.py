@@ -9,17 +9,19 @@ stage, solver iterations and peak memory. Quote ratios, not absolute times: mach
 from __future__ import annotations
 
 import argparse
-import json
 import resource
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
+
+from .runtime import positive_int
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=100, help="time steps to time (default: 100)")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for both engines (default: 2)")
+    p.add_argument("--threads", type=positive_int, default=2, help="CPU threads for both engines (default: 2)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="compute device (default: cpu)")
     p.add_argument("--no-peer", action="store_true",
                    help="skip the SPlisHSPlasH comparison even when pysplishsplash is installed")
@@ -95,8 +97,11 @@ def _more_rounds(args: argparse.Namespace, scene, ours: dict, peer: dict, run_sp
 
 def run_command(args: argparse.Namespace) -> int:
     from .runtime import init_taichi
+    from .simulate import check_output_file, write_json
     from .splash_peer import run_splash, splash_available
 
+    if args.json:
+        check_output_file(Path(args.json), (".json",))
     if args.steps < 2:
         raise ValueError(f"--steps must be >= 2, got {args.steps}")
     if args.rounds < 1:
@@ -135,6 +140,5 @@ def run_command(args: argparse.Namespace) -> int:
         else:
             print("SPlisHSPlasH: pysplishsplash not installed (pip install '.[bench]'); no comparison")
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(report, fh, indent=2)
+        write_json(Path(args.json), report)
     return 0

@@ -1,8 +1,28 @@
-"""The `fluidgs` command: one entry point, one subcommand per job."""
+"""The `fluidgs` command: one entry point, one subcommand per job.
+
+Exit codes (also in docs/exit-codes.md):
+
+====  ==========================================================================================================
+code  meaning
+====  ==========================================================================================================
+0     success
+1     an unexpected error (a traceback): a bug, please report it
+2     bad input: a file, an option or a combination of them is invalid, or an output would overwrite an input;
+      nothing was computed, and the message names the file or option and the fix
+3     a simulation diverged: the message names the probe (or `sim`'s scene) and the step; what was computed
+      before it is saved (RESULT.h5 with status "diverged", OUT.h5 with the fault as status; `score` only
+      with --save-result)
+4     an output cannot be written: full disk (ENOSPC) or quota, read-only file system (EROFS), no permission,
+      a name too long (ENAMETOOLONG), a parent that is a file, a folder where a file is wanted
+130   interrupted by Ctrl-C (SIGINT); `sim` first saves its frames so far (status "interrupted")
+143   `sim` stopped by SIGTERM (kill, timeout, a batch scheduler) after saving its frames so far
+====  ==========================================================================================================
+"""
 
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import sys
 
@@ -13,6 +33,7 @@ from . import (
     demo,
     evaluate,
     experiment,
+    inspect_gaussians,
     make_ahmed,
     make_assets,
     render_dataset,
@@ -22,10 +43,26 @@ from . import (
     simulate,
     sweep,
     train,
+    view,
 )
 from .help_format import HelpFormatter
 
+EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT = 2, 3, 4
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
+# errno values that only writing causes: full disk or quota, file too large, read-only file system, name too long
+OUTPUT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.ENAMETOOLONG})
+
+
+def is_output_error(exc: BaseException) -> bool:
+    """Whether ``exc`` means that an output could not be written (exit 4): a ``fluidsim.output.OutputError``
+    (from the checks before the work and from every atomic writer), or an ``OSError`` of :data:`OUTPUT_ERRNOS`."""
+    output = sys.modules.get("fluidsim.output")  # an OutputError needs that module loaded: no Taichi import here
+    if output is not None and isinstance(exc, output.OutputError):
+        return True
+    return isinstance(exc, OSError) and exc.errno in OUTPUT_ERRNOS
+
 COMMANDS = {
+    "inspect": (inspect_gaussians, "what the fluid will see: format, boxes, frame, solid count; PNG of three views"),
     "sim": (sim, "run a scene JSON and write OUT.h5 (frames, per-step stats, divergence)"),
     "render-frames": (render_frames, "draw the frames of OUT.h5 as an MP4 or PNGs, coloured by divergence or speed"),
     "bench": (bench, "benchmarks: sim (DFSPH probe vs SPlisHSPlasH), and the others listed by `bench --help`"),
@@ -41,6 +78,7 @@ COMMANDS = {
     "active": (active, "active reconstruction: biased initial views, one planner pick per round up to the budget"),
     "eval": (evaluate, "evaluate an active run: test PSNR/SSIM/LPIPS, D-bar, Chamfer, critical-view PSNR and D-bar"),
     "experiment": (experiment, "methods x scenes x seeds of active + eval; paper-shaped tables and plots"),
+    "view": (view, "see RESULT.h5 in a browser: splat coloured by D_g, solid, probe fluid over time, ranked cameras"),
 }
 
 
@@ -56,8 +94,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# Options whose values may start with '-' (an up direction "-y", a crop box "-1,-1,-1,1,1,1", a vector "-0.1,1,0"):
+# argparse would read such a value as an option, so "--up -y" is rewritten to "--up=-y" before parsing.
+DASH_VALUE_OPTIONS = ("--up", "--up-axis", "--crop", "--initial-direction", "--record-probe", "--probe")
+
+
+def join_dash_values(argv: list[str], options: tuple[str, ...] = DASH_VALUE_OPTIONS) -> list[str]:
+    """``[..., "--up", "-y", ...]`` -> ``[..., "--up=-y", ...]`` for ``options`` (other tokens unchanged)."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        tok = argv[i]
+        if tok in options and i + 1 < len(argv) and argv[i + 1].startswith("-") and argv[i + 1] != "--" \
+                and not argv[i + 1].startswith("--"):
+            out.append(f"{tok}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(tok)
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(join_dash_values(list(sys.argv[1:] if argv is None else argv)))
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     module = args._module
@@ -66,7 +125,17 @@ def main(argv: list[str] | None = None) -> int:
         return int(runner(args) or 0)
     except (ValueError, OSError, FileNotFoundError) as exc:
         logging.getLogger("fluidgs").error("%s", exc)
-        return 2
+        return EXIT_OUTPUT if is_output_error(exc) else EXIT_BAD_INPUT
+    except RuntimeError as exc:
+        from fluidsim.simulation import SimulationDiverged
+
+        if not isinstance(exc, SimulationDiverged):
+            raise
+        logging.getLogger("fluidgs").error("%s", exc)
+        return EXIT_DIVERGED
+    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (what is already written stays written)
+        logging.getLogger("fluidgs").error("interrupted")
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

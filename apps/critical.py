@@ -34,31 +34,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="JSON with C(T) per camera and the critical subset (written atomically)")
     p.add_argument("--subset", type=int, default=20, help="size of the critical subset (views)")
     p.add_argument("--top-k", type=int, default=None, help="print only the best K views (default: all)")
-    add_physics_arguments(p, track_distinct=True)
+    add_physics_arguments(p, track_distinct=True, cameras=True)
 
 
 def run_command(args: argparse.Namespace) -> int:
     import torch
 
+    from fluidsim.output import check_not_input
     from nbv.physics import simulate_gaussians
     from nbv.scores import critical_scores, critical_subset, rank
 
     from .runtime import init_taichi
 
     # C(T) needs no empty-scene reference
-    config = replace(physics_config_from_args(args, track_distinct=True, default_directions=("-x",)),
+    all_cams = load_cameras(args.cameras, args.res)
+    config = replace(physics_config_from_args(args, track_distinct=True, default_directions=("-x",), cameras=all_cams),
                      empty_reference=False)
     output = check_output_file(args.output, (".json",))
+    check_not_input({"-o": output}, {"GAUSSIANS": args.gaussians, "--cameras": args.cameras})
     if args.subset < 1:
         raise ValueError(f"--subset must be >= 1 view, got {args.subset}")
     gaussians = load_gaussians_checked(args.gaussians)
-    all_cams = load_cameras(args.cameras, args.res)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     check_cameras_see(gaussians, cams, [c.name for c in cams])
     init_taichi(args.device, config.precision, args.threads)
     result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians))
     distinct = result.distinct_counts()
+    if not distinct.any():
+        raise ValueError(f"{args.gaussians}: no probe fluid particle came within reach of any of the {len(distinct)} "
+                         "Gaussians, so every view would score C(T) = 0; re-run with a smaller --dt, or check "
+                         "--scale and --up")
     renders = [out for out, _ in render_candidates(gaussians, cams, None, torch_device(args.device))]
     c = critical_scores(torch.from_numpy(distinct), renders)
     order = rank(c).tolist()

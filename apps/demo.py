@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .runtime import positive_int
+
 log = logging.getLogger("fluidgs")
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 ASSET = ASSETS / "torus.obj"
@@ -42,7 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"Gaussian set (default: assets/{GAUSSIANS.name}, else Gaussians on the Ahmed body surface)")
     p.add_argument("--cameras", type=Path, default=None,
                    help=f"candidate cameras, transforms.json (default: assets/{CAMERAS.name}, else an orbit of 12)")
-    p.add_argument("--up-axis", choices=("y", "z"), default="y", help="up axis of the Gaussians' frame")
+    p.add_argument("--up", "--up-axis", dest="up", default="+y", metavar="UP",
+                   help="the Gaussians' up direction: +x, -x, +y, -y, +z, -z or a vector such as 0,-1,0 "
+                        "(default: +y)")
     p.add_argument("--particle-radius", type=float, default=None,
                    help="particle radius r in m (default: 0.05, the quick preset; 0.04 for --solid)")
     p.add_argument("--steps", type=int, default=None,
@@ -51,7 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--render-width", type=int, default=240, help="width of the scored views in pixels")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device; cuda falls back to cpu with a notice")
-    p.add_argument("--threads", type=int, default=None, help="CPU threads (default: all cores)")
+    p.add_argument("--threads", type=positive_int, default=None, help="CPU threads (default: all cores)")
     p.add_argument("--no-video", action="store_true", help="skip the MP4 of the -x probe")
 
 
@@ -86,7 +90,15 @@ def demo_cameras(gaussians, path: Path | None, width: int):
     return orbit(12, 1.6 * extent, 20.0, width, int(width * 3 / 4), math.radians(50), target=tuple(centre))
 
 
+DEMO_FILES = ("result.h5", "gaussians_divergence.ply", "scores.json", "summary.json", "probe_-x.mp4",
+              *(f"probe_{d}.h5" for d in ("-x", "+x", "-z", "+z", "-y")))
+
+
 def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.output import check_not_input
+
+    check_not_input([("-o (demo file)", Path(args.output) / name) for name in DEMO_FILES],
+                    {"--solid": args.solid, "--gaussians": args.gaussians, "--cameras": args.cameras})
     if args.solid is not None:
         return run_mesh_demo(args)
     from dataclasses import replace
@@ -102,7 +114,7 @@ def run_command(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if not os.access(out, os.W_OK):
         raise OSError(f"output folder {out} is not writable; pass another -o")
-    cfg = PhysicsConfig.quick(speed=args.speed, up_axis=args.up_axis, fill_cavities=True, empty_reference=False)
+    cfg = PhysicsConfig.quick(speed=args.speed, up=args.up, fill_cavities=True, empty_reference=False)
     cfg = replace(cfg, **{k: v for k, v in (("particle_radius", args.particle_radius), ("steps", args.steps))
                           if v is not None})
     gpath = args.gaussians or (GAUSSIANS if GAUSSIANS.is_file() else None)
@@ -115,7 +127,10 @@ def run_command(args: argparse.Namespace) -> int:
     cams = demo_cameras(gaussians, cpath, args.render_width)
     centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
     init_taichi(args.device, cfg.precision, args.threads)
-    result = simulate_gaussians(gaussians, cfg, progress=True, source=source)
+    from nbv.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view`
+
+    result = simulate_gaussians(gaussians, cfg, progress=True, source=source,
+                                record=RecordConfig(("-x",), every=max(1, cfg.steps // 30)))
     save_result(out / "result.h5", result)
     write_colored_ply(gaussians, result.divergence, out / "gaussians_divergence.ply")
     rows = score_views(gaussians, cams, list(range(len(cams))), result, "max", out / "views",
@@ -131,6 +146,8 @@ def run_command(args: argparse.Namespace) -> int:
     print(f"{result.num_gaussians} Gaussians ({source}); D-bar {result.dbar:.4g} m^4/s; best view {rows[0]['name']}")
     print(f"outputs in {out}: result.h5, gaussians_divergence.ply, scores.json, views/, summary.json"
           + ("" if args.no_video else ", probe_-x.mp4") + f" ({summary['wall_time_s']:.0f} s)")
+    print(f"see them in a browser: fluidgs view {out / 'result.h5'}" + (f" --gaussians {gpath}" if gpath else "")
+          + (f" --scores {out / 'scores.json'}" if cpath else ""))
     return 0
 
 

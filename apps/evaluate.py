@@ -8,6 +8,8 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from .runtime import positive_int
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run", type=Path, help="a finished `fluidgs active` run folder (writes RUN/eval.json, eval.md)")
@@ -24,7 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="hide the probe progress bars")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device; cuda falls back to cpu with a logged warning when unavailable")
-    p.add_argument("--threads", type=int, default=None, help="CPU threads for torch and Taichi (default: all cores)")
+    p.add_argument("--threads", type=positive_int, default=None,
+                   help="CPU threads for torch and Taichi (default: all cores)")
 
 
 def run_command(args: argparse.Namespace) -> int:

@@ -12,13 +12,15 @@ import argparse
 import logging
 from pathlib import Path
 
+from .runtime import positive_int
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", type=Path, help="experiment JSON (scenes, methods, seeds, preset, output, ...)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local: a process pool here; ray: tasks on a Ray cluster")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
-    p.add_argument("--threads", type=int, default=1, help="torch and Taichi CPU threads per worker")
+    p.add_argument("--threads", type=positive_int, default=1, help="torch and Taichi CPU threads per worker")
     p.add_argument("--address", default=None,
                    help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
                         "(default: start a local Ray instance)")
@@ -52,11 +54,14 @@ def make_executor(kind: str, workers: int, threads: int, address: str | None, pr
 def run_command(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
+    from fluidsim.output import check_not_input
     from nbv.experiment import ExperimentConfig, run_experiment
 
     config = ExperimentConfig.load(args.config)
     if args.output is not None:
         config = replace(config, output=str(args.output))
+    check_not_input([("output file", Path(config.output) / name) for name in ("experiment.json", "results.json",
+                                                                               "tables.md")], {"CONFIG": args.config})
     precision = config.active_config(config.methods[0], config.seeds[0]).physics.precision
     executor = make_executor(args.executor, args.workers, args.threads, args.address, precision)
     out = run_experiment(config, executor, progress=not args.no_progress)

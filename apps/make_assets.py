@@ -24,6 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from .runtime import positive_int
 from .train import deterministic_torch, write_json_atomic
 
 log = logging.getLogger("fluidgs")
@@ -44,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-gaussians", type=int, default=20000,
                    help="cap on the Gaussian count (20000 x 68 bytes keeps the .ply under 1.4 MB)")
     p.add_argument("--sh-degree", type=int, default=0, choices=(0, 1), help="SH degree of the asset (size!)")
-    p.add_argument("--threads", type=int, default=1,
+    p.add_argument("--threads", type=positive_int, default=1,
                    help="torch CPU threads (the result is bit-reproducible for a fixed thread count)")
 
 
@@ -58,15 +59,10 @@ def cameras_json(cameras, fov_x: float) -> dict:
 
 
 def read_cameras_json(path: Path) -> list:
-    """The cameras of a :func:`cameras_json` file (for tests and tools): list of :class:`recon.camera.Camera`."""
-    from recon.camera import Camera
+    """The cameras of a :func:`cameras_json` file (for tests and tools): :func:`recon.datasets.load_cameras`."""
+    from recon.datasets import load_cameras
 
-    meta = json.loads(Path(path).read_text())
-    try:
-        return [Camera.from_opengl_c2w(f["transform_matrix"], meta["w"], meta["h"], meta["camera_angle_x"],
-                                       name=f.get("name", "")) for f in meta["frames"]]
-    except KeyError as exc:
-        raise ValueError(f"{path}: missing key {exc}; regenerate it with `fluidgs make-assets`") from None
+    return load_cameras(path)
 
 
 def run_command(args: argparse.Namespace) -> int:

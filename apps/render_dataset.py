@@ -31,8 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="camera distance from the centre, scene units")
     p.add_argument("--color", default=_DEFAULTS.color, help="object colour, '#RRGGBB'")
     p.add_argument("--ambient", type=float, default=_DEFAULTS.ambient, help="ambient shading term, in [0, 1]")
-    p.add_argument("--up", choices=("y", "z"), default=_DEFAULTS.up_axis,
-                   help="the mesh's up axis (kept up in the images; recorded in dataset.json)")
+    p.add_argument("--up", "--up-axis", dest="up", default=_DEFAULTS.up_axis, metavar="UP",
+                   help="the mesh's up axis, y or z (+y, +z accepted; kept up in the images; recorded in dataset.json; "
+                        f"default: {_DEFAULTS.up_axis})")
     p.add_argument("--hemisphere", action="store_true",
                    help="cameras on the upper hemisphere only (e.g. a car on a road) instead of the full sphere")
     p.add_argument("--supersample", type=int, default=_DEFAULTS.supersample,
@@ -42,11 +43,49 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
+def mesh_up_axis(text: str) -> str:
+    """``--up`` of render-dataset -> "y" or "z" (the renderer's lights and orbits are built for those two)."""
+    from nbv.scene_frame import parse_up, up_label
+
+    label = up_label(parse_up(text))
+    if label not in ("+y", "+z"):
+        raise ValueError(f"--up {text!r}: render-dataset renders y-up or z-up meshes (--up y or --up z); rotate the "
+                         "mesh first, or render it and pass --up to the commands that read the Gaussians")
+    return label[1]
+
+
+def make_parents(out: Path) -> None:
+    """Create the missing folders above the dataset folder ``out`` (as ``sim`` does for its file).
+
+    Raises:
+        OutputError: a parent is a file, or a folder cannot be created (naming it and the fix).
+    """
+    from fluidsim.output import OutputError
+
+    parent = out.absolute().parent
+    if parent.is_dir():
+        return
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError) as exc:
+        raise OutputError(f"-o {out}: a parent of the output is a file, not a folder ({exc.filename}); choose "
+                          "another -o") from exc
+    except OSError as exc:
+        raise OutputError(f"cannot create the folder {parent} for -o {out}: {exc.strerror}; choose a writable "
+                          "path") from exc
+
+
 def run_command(args: argparse.Namespace) -> int:
+    args.up = mesh_up_axis(args.up)
     config = MeshDatasetConfig(n_train=args.train, n_test=args.test, resolution=args.res, fov_x=args.fov,
                                box_size=args.box, radius=args.radius, color=args.color, ambient=args.ambient,
                                up_axis=args.up, hemisphere=args.hemisphere, seed=args.seed,
                                supersample=args.supersample)
+    from fluidsim.output import check_not_input
+
+    check_not_input({"-o": args.output}, {"MESH": args.mesh}, replaced={"-o": args.output})
+    if args.mesh.is_file():  # a missing mesh is reported by the renderer, before any folder is made
+        make_parents(args.output)
     out = render_mesh_dataset(args.mesh, args.output, config, overwrite=args.overwrite,
                               progress=not args.no_progress)
     print(f"wrote {out} ({config.n_train} train, {config.n_test} test views at {config.resolution} px)")

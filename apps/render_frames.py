@@ -40,7 +40,6 @@ import json
 import logging
 import math
 import os
-import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -215,7 +214,8 @@ def scene_viewport(width: int, height: int) -> tuple[int, int, int, int]:
     return layout.viewport
 
 
-def render_frames(h5_path, out, style: FrameStyle = FrameStyle(), progress: bool = True) -> list[Path]:
+def render_frames(h5_path, out, style: FrameStyle = FrameStyle(), progress: bool = True,
+                  png: bool = False) -> list[Path]:
     """Render every frame of a simulation output file.
 
     All inputs are checked (file, frame groups, dataset shapes, output location, video writer)
@@ -223,10 +223,12 @@ def render_frames(h5_path, out, style: FrameStyle = FrameStyle(), progress: bool
 
     Args:
         h5_path: simulation output file (``OUT.h5``).
-        out: a path ending in ``.mp4`` writes one video (codec mp4v); any other path is a directory
-            that receives ``frame_000000.png``, ``frame_000001.png``, ... numbered by frame order.
+        out: a path ending in ``.mp4`` writes one video (codec mp4v); a path without a suffix (or an existing
+            directory) is a directory that receives ``frame_000000.png``, ``frame_000001.png``, ... numbered by
+            frame order; any other suffix is an error (:func:`output_is_video`).
         style: drawing options.
         progress: show a tqdm progress bar on stderr.
+        png: write PNG frames into the directory ``out`` whatever its name (a folder named ``run.v2``).
 
     Returns:
         The written paths: ``[video]`` or the PNGs in frame order.
@@ -241,7 +243,7 @@ def render_frames(h5_path, out, style: FrameStyle = FrameStyle(), progress: bool
     if not isinstance(style, FrameStyle):
         raise ValueError(f"style must be a FrameStyle, got {type(style).__name__}")
     h5_path, out = Path(h5_path), Path(out)
-    is_video = out.suffix.lower() == ".mp4"
+    is_video = output_is_video(out, png)
     _check_input_file(h5_path)
     with h5py.File(h5_path, "r") as f:
         source = _Source.inspect(f, h5_path, style)
@@ -261,14 +263,41 @@ def render_frames(h5_path, out, style: FrameStyle = FrameStyle(), progress: bool
     return paths
 
 
+def output_is_video(out: Path, png: bool = False) -> bool:
+    """What ``-o`` asks for: True for an MP4 video (a path ending in .mp4), False for a directory of PNG frames
+    (a path without a suffix, an existing directory, or ``png``).
+
+    Raises:
+        ValueError: any other suffix (.avi, .gif, .png, ...: only MP4 video is written, and silently making a
+            directory named ``x.avi`` is not what was asked), or ``png`` with a path ending in .mp4.
+    """
+    out = Path(out)
+    suffix = out.suffix.lower()
+    if png:
+        if suffix == ".mp4":
+            raise ValueError(f"-o {out} ends in .mp4 but --png asks for a directory of PNG frames; drop --png for a "
+                             "video, or give a directory path")
+        return False
+    if suffix == ".mp4":
+        return True
+    if not suffix or out.is_dir():
+        return False
+    raise ValueError(f"-o {out}: render-frames writes an MP4 video (a path ending in .mp4) or a directory of PNG "
+                     f"frames (a path without a suffix), not {out.suffix!r}; use -o {out.with_suffix('.mp4')} for "
+                     f"a video, or add --png to write the frames into the directory {out}")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``render-frames`` arguments to a parser; :func:`run` consumes the parsed namespace."""
     d = FrameStyle()
     parser.add_argument("h5", type=Path, help="simulation output file (OUT.h5)")
     parser.add_argument(
         "-o", "--output", type=Path, required=True,
-        help="a path ending in .mp4 writes one video; any other path is a directory of frame_NNNNNN.png",
+        help="a path ending in .mp4 writes one video; a path without a suffix is a directory of "
+        "frame_NNNNNN.png (other suffixes are an error)",
     )
+    parser.add_argument("--png", action="store_true",
+                        help="write PNG frames into the directory -o whatever its name (e.g. a folder named run.v2)")
     parser.add_argument(
         "--color-by", choices=sorted(COLOR_BY), default=d.color_by,
         help="particle colour: divergence |div v| in 1/s, or speed |v| in m/s (default: %(default)s)",
@@ -307,7 +336,10 @@ def run(args: argparse.Namespace) -> int:
         show_boundary=not args.no_boundary,
         fps=args.fps,
     )
-    paths = render_frames(args.h5, args.output, style)
+    from fluidsim.output import check_not_input
+
+    check_not_input({"-o": args.output}, {"H5": args.h5})
+    paths = render_frames(args.h5, args.output, style, png=args.png)
     where = paths[0] if len(paths) == 1 else args.output
     print(f"wrote {len(paths)} file(s) to {where}")
     return 0
@@ -534,7 +566,9 @@ def _prepare_output(out: Path, is_video: bool, style: FrameStyle) -> None:
 
 def _write_video(frames: Iterator[np.ndarray], out: Path, style: FrameStyle) -> list[Path]:
     # The temporary name must end in .mp4: OpenCV picks the container from the extension.
-    tmp = out.with_name(f".{out.stem}.{uuid.uuid4().hex[:8]}.tmp.mp4")
+    from fluidsim.output import temp_path
+
+    tmp = temp_path(out, ".mp4")
     fourcc = cv2.VideoWriter_fourcc(*"mp4v")
     writer = cv2.VideoWriter(str(tmp), fourcc, style.fps, (style.width, style.height))
     try:
@@ -567,7 +601,9 @@ def _write_pngs(frames: Iterator[np.ndarray], directory: Path) -> list[Path]:
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
+    from fluidsim.output import temp_path
+
+    tmp = temp_path(path)
     try:
         tmp.write_bytes(data)
         os.replace(tmp, path)

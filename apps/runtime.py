@@ -2,11 +2,38 @@
 
 from __future__ import annotations
 
+import argparse
 import gc
 import logging
+import numbers
 import os
 
 log = logging.getLogger("fluidgs")
+
+
+def positive_int(text: str) -> int:
+    """argparse type of a count that must be >= 1 (``--threads``): ``"4"`` -> 4; ``"-1"``, ``"0"``, ``"x"`` are
+    usage errors (exit 2) that say so, before anything is loaded."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
+    return value
+
+
+def check_threads(threads: int | None, option: str = "--threads") -> int | None:
+    """``threads`` unchanged when None (all cores) or an integer >= 1; else ValueError naming ``option``.
+
+    Taichi takes any integer: 0 silently meant all cores and -1 failed inside its C++ runtime with
+    ``vector::_M_default_append``."""
+    if threads is None:
+        return None
+    if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
+        raise ValueError(f"{option} must be an integer >= 1 (CPU threads; leave it out for all cores), "
+                         f"got {threads!r}")
+    return int(threads)
 
 
 def init_taichi(device: str = "cpu", precision: str = "f32", threads: int | None = None, debug: bool = False) -> str:
@@ -19,11 +46,12 @@ def init_taichi(device: str = "cpu", precision: str = "f32", threads: int | None
     Args:
         device: "cpu" or "cuda"; "cuda" falls back to the CPU with a logged notice when unavailable.
         precision: "f32" or "f64" (the default float type of every kernel).
-        threads: CPU threads (None: all cores).
+        threads: CPU threads, >= 1 (None: all cores); anything else is a ValueError naming ``--threads``.
         debug: Taichi debug mode (bounds checks).
     """
     import taichi as ti
 
+    threads = check_threads(threads)
     if device not in ("cpu", "cuda"):
         raise ValueError(f"--device must be cpu or cuda, got {device!r}")
     if precision not in ("f32", "f64"):

@@ -14,24 +14,25 @@ The cameras' frame must be the Gaussians' frame (scene units).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import math
-import os
 from pathlib import Path
 
 import numpy as np
 
 from .simulate import (
     add_physics_arguments,
+    add_record_arguments,
     check_output_file,
     load_gaussians_checked,
     physics_config_from_args,
+    record_config_from_args,
+    save_diverged,
     write_json,
 )
 
 log = logging.getLogger("fluidgs")
 METRICS = ("max", "mean", "-x", "+x", "-z", "+z", "-y")
+PNG_TOP = 5  # views rendered to PNG by default (the scores themselves need no render)
 
 
 def add_camera_arguments(p: argparse.ArgumentParser) -> None:
@@ -58,96 +59,48 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="per-Gaussian metric: D_g max over probes, mean over probes, or one probe's D_g (1/s)")
     p.add_argument("--unweighted", action="store_true", help="sum D_g over visible Gaussians without Eq. 5 weights")
     p.add_argument("--occlusion", action="store_true",
-                   help="count only Gaussians not hidden behind the rendered surface (depth test; not in the paper, "
-                        "whose visibility is frustum culling)")
+                   help="count only Gaussians not hidden behind the opaque ones (a coarse depth buffer of the "
+                        "projected centres, 64 cells on the long side; not in the paper, whose visibility is "
+                        "frustum culling)")
     p.add_argument("--png-dir", type=Path, default=None,
                    help="folder for the per-view PNGs (default: next to the output, <stem>_views)")
     p.add_argument("--no-png", action="store_true", help="skip the per-view PNGs")
-    add_physics_arguments(p)
+    p.add_argument("--png-top", type=int, default=PNG_TOP,
+                   help="render PNGs of the best N views only (scores need no render; default: %(default)s)")
+    p.add_argument("--png-all", action="store_true", help="render a PNG of every candidate view")
+    add_record_arguments(p)
+    add_physics_arguments(p, cameras=True)
 
 
 def load_cameras(path: Path, res: int | None = None) -> list:
-    """Cameras of a Blender/NeRF ``transforms.json`` (camera part only; images are not loaded).
+    """Cameras of a Blender/NeRF ``transforms.json`` scaled to width ``res``: :func:`recon.datasets.load_cameras`.
 
     Raises:
-        ValueError: naming the file and the key when something is missing or malformed.
+        ValueError: naming the file, the frame and the key when something is missing or malformed.
     """
-    import cv2
-    import torch
+    from recon.datasets import load_cameras as read_cameras
 
-    from recon.camera import Camera
-
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"cameras file {p} does not exist; pass a Blender transforms.json")
-    try:
-        meta = json.loads(p.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{p} is not JSON ({exc}); pass a Blender transforms.json") from exc
-    frames = meta.get("frames") if isinstance(meta, dict) else None
-    if not frames:
-        raise ValueError(f"{p}: no 'frames' list; a transforms.json needs frames with 'transform_matrix'")
-    cams = []
-    gl_to_cv = np.diag([1.0, -1.0, -1.0, 1.0])
-    for i, fr in enumerate(frames):
-        get = lambda k, fr=fr: fr.get(k, meta.get(k))  # noqa: E731 - frame keys override file keys
-        if "transform_matrix" not in fr:
-            raise ValueError(f"{p}: frame {i} has no 'transform_matrix'")
-        c2w = np.asarray(fr["transform_matrix"], np.float64)
-        if c2w.shape == (3, 4):
-            c2w = np.vstack([c2w, [0, 0, 0, 1.0]])
-        if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-            raise ValueError(f"{p}: frame {i} 'transform_matrix' must be a finite 4x4 matrix")
-        w, h = get("w"), get("h")
-        name = Path(str(fr.get("file_path", f"view_{i:03d}"))).stem
-        if w is None or h is None:
-            img = None
-            if "file_path" in fr:
-                base = p.parent / str(fr["file_path"])
-                for cand in (base, Path(str(base) + ".png")):
-                    if cand.is_file():
-                        img = cv2.imread(str(cand), cv2.IMREAD_UNCHANGED)
-                        break
-            if img is not None:
-                h, w = img.shape[:2]
-            elif res is not None:
-                w, h = res, res
-            else:
-                raise ValueError(f"{p}: frame {i} has no 'w'/'h' keys and no readable image; pass --res WIDTH")
-        w0, h0 = int(w), int(h)
-        w, h = (res, max(1, round(res * h0 / w0))) if res is not None else (w0, h0)
-        if get("fl_x") is not None:
-            fx = float(get("fl_x")) * w / w0
-        elif get("camera_angle_x") is not None:
-            angle = float(get("camera_angle_x"))
-            if not 0 < angle < math.pi:
-                raise ValueError(f"{p}: 'camera_angle_x' must be in (0, pi) radians, got {angle}")
-            fx = 0.5 * w / math.tan(0.5 * angle)
-        else:
-            raise ValueError(f"{p}: missing 'camera_angle_x' (radians) or 'fl_x' (pixels) for frame {i}")
-        fy = float(get("fl_y")) * h / h0 if get("fl_y") is not None else fx
-        cx = float(get("cx")) * w / w0 if get("cx") is not None else w / 2.0
-        cy = float(get("cy")) * h / h0 if get("cy") is not None else h / 2.0
-        w2c = np.linalg.inv(c2w @ gl_to_cv)
-        try:
-            cams.append(Camera(w, h, fx, fy, cx, cy, torch.from_numpy(w2c), name=name))
-        except ValueError as exc:
-            raise ValueError(f"{p}: frame {i}: {exc}") from exc
-    return cams
+    return read_cameras(path, res)
 
 
 def parse_candidates(text: str | None, count: int) -> list[int]:
-    """'0,3,5' -> indices (all when None); ValueError naming --candidates on bad or out-of-range entries."""
+    """'0,3,5' -> indices (all when None); ValueError naming --candidates on an empty list, a non-integer, an
+    out-of-range or a repeated entry."""
     if text is None:
         return list(range(count))
     try:
         idx = [int(s) for s in text.split(",") if s.strip()]
     except ValueError as exc:
-        raise ValueError(f"--candidates must be a comma list of camera indices, got {text!r}") from exc
+        raise ValueError(f"--candidates must be a comma list of camera indices such as 0,3,5, got {text!r}") from exc
+    if not idx:
+        raise ValueError(f"--candidates {text!r} lists no camera; give indices such as 0,3,5 (0..{count - 1}), or "
+                         f"leave the option out to score all {count} cameras")
     bad = [i for i in idx if not 0 <= i < count]
-    if bad or not idx:
-        raise ValueError(f"--candidates {bad or text!r} out of range: the cameras file has {count} cameras "
-                         f"(0..{count - 1})")
+    if bad:
+        raise ValueError(f"--candidates {bad} out of range: the cameras file has {count} cameras (0..{count - 1})")
+    repeated = sorted({i for i in idx if idx.count(i) > 1})
+    if repeated:
+        raise ValueError(f"--candidates {text!r} lists camera(s) {repeated} more than once; list each camera once")
     return idx
 
 
@@ -184,18 +137,22 @@ def metric_values(result, metric: str) -> np.ndarray:
     return result.per_probe[result.directions.index(metric)]
 
 
-def obtain_result(args, gaussians, config):
-    """PhysicsResult from --result, or a fresh simulation (then saved to --save-result when given)."""
+def obtain_result(args, gaussians, config, record=None):
+    """PhysicsResult from --result, or a fresh simulation (then saved to --save-result when given; ``record``: the
+    probes to record, :class:`nbv.trajectory.RecordConfig`)."""
     from nbv.physics import check_result_matches, load_result, save_result, simulate_gaussians
 
     from .runtime import init_taichi
 
     if args.result is not None:
         result = load_result(args.result)
-        check_result_matches(result, gaussians.num, args.result)
+        check_result_matches(result, gaussians, args.result)
+        for d, notes in result.warnings.items():  # a fresh simulation logs them as its probes end
+            for note in notes:
+                log.warning("%s, probe %s: %s", args.result, d, note)
         return result
     init_taichi(args.device, config.precision, args.threads)
-    result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians))
+    result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians), record=record)
     if args.save_result is not None:
         save_result(args.save_result, result)
     return result
@@ -262,83 +219,128 @@ def print_table(rows: list[dict], top_k: int | None, value: str = "score") -> No
 
 def score_views(gaussians, cams, idx: list[int], result, metric: str = "max", png_dir: Path | None = None, *,
                 weighted: bool = True, occlusion: bool = False, device: str = "cpu",
-                visible_centres=None, progress: bool = True) -> list[dict]:
-    """Render the candidates, score them with the chosen per-Gaussian metric and write the per-view PNGs.
+                visible_centres=None, progress: bool = True, png_top: int | None = PNG_TOP) -> list[dict]:
+    """Score the candidates from the projection alone, rank them and render PNGs of the best ones.
+
+    S(T) needs the screen radii and visibility only (:func:`nbv.scores.projected_view_scores`, equal to the
+    renderer's), so no candidate is rendered to score it; full images are made for the PNGs only.
 
     Args:
         gaussians: the GaussianSet (scene units). cams: the candidate cameras; idx: their indices in the file.
         result: a PhysicsResult of these Gaussians. metric: see --metric.
         png_dir: folder for ``rank<r>_<index>_<name>.png`` (render | D_g heat-map), or None.
-        weighted: Eq. 5 weights. occlusion: depth-tested visibility (:func:`nbv.scores.unoccluded`).
-        device: torch device for rendering. visible_centres: [C] projected-centre counts for the rows.
+        weighted: Eq. 5 weights. occlusion: the coarse depth test (:class:`nbv.scores.DepthBuffer`).
+        device: torch device. visible_centres: [C] projected-centre counts for the rows.
+        png_top: PNGs for the best ``png_top`` views only (None: every view).
     Returns:
-        rows (best first): rank, index, name, score, visible (and visible_centres when given).
+        rows (best first): rank, index, name, score, visible (the Gaussians counted; and visible_centres when
+        given).
     """
-    import cv2
+    import time
+
     import torch
 
-    from nbv.heatmap import color_scale, colored_gaussians
-    from nbv.scores import rank, unoccluded, view_scores
+    from nbv.scores import DepthBuffer, projected_view_scores, rank
 
     values = metric_values(result, metric)
-    vmax = color_scale(values)
-    heat = colored_gaussians(gaussians, values, vmax=vmax) if png_dir is not None else None
-    renders, images = [], []
-    for out, himg in render_candidates(gaussians, cams, heat, torch_device(device), progress):
-        renders.append(out)
-        images.append((out.image, himg) if png_dir is not None else None)
-    vis = None
-    if occlusion:
-        reach = 3.0 * gaussians.max_radii().double()
-        vis = torch.stack([unoccluded(gaussians.means, reach, c, o) for c, o in zip(cams, renders, strict=True)])
-    s = view_scores(torch.from_numpy(np.asarray(values)), renders, weighted=weighted, visible=vis)
+    dev = torch.device(torch_device(device))
+    start = time.perf_counter()
+    scored = projected_view_scores(torch.from_numpy(np.asarray(values)), gaussians.detach().to(dev), cams,
+                                   weighted=weighted, depth_buffer=DepthBuffer() if occlusion else None)
+    log.info("scored %d views of %d Gaussians from the projection in %.2f s", len(cams), gaussians.num,
+             time.perf_counter() - start)
+    s = scored.scores
     order = rank(s).tolist()
     ranks = {i: r + 1 for r, i in enumerate(order)}
-    counted = torch.stack([o.visible.cpu() for o in renders]) if vis is None else vis
     rows = []
     for k in order:
         row = {"rank": ranks[k], "index": idx[k], "name": cams[k].name, "score": float(s[k]),
-               "visible": int(counted[k].sum())}
+               "visible": int(scored.counted[k])}
         if visible_centres is not None:
             row["visible_centres"] = int(visible_centres[k])
         rows.append(row)
     if png_dir is not None:
-        png_dir.mkdir(parents=True, exist_ok=True)
-        for k in order:
-            rgb, himg = images[k]
-            left = label(to_bgr(rgb), [f"#{ranks[k]} {cams[k].name}", f"S = {float(s[k]):.4g}"])
-            right = label(to_bgr(himg), [f"D_g ({metric}), 0..{vmax:.3g} 1/s"])
-            path = png_dir / f"rank{ranks[k]:03d}_{idx[k]:03d}_{cams[k].name}.png"
-            tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-            if not cv2.imwrite(str(tmp), np.hstack([left, right])):
-                raise OSError(f"cannot write {path}; choose a writable --png-dir")
-            os.replace(tmp, path)
+        shown = order if png_top is None else order[:png_top]
+        write_view_pngs(gaussians, cams, shown, rows, values, metric, png_dir, str(dev), progress)
     return rows
 
 
+def write_view_pngs(gaussians, cams, shown: list[int], rows: list[dict], values, metric: str, png_dir: Path,
+                    device: str, progress: bool) -> None:
+    """Render the views ``shown`` (positions in ``cams``, best first) and write render | D_g heat-map PNGs."""
+    import cv2
+
+    from fluidsim.output import atomic_output
+    from nbv.heatmap import color_scale, colored_gaussians
+
+    vmax = color_scale(values)
+    heat = colored_gaussians(gaussians, values, vmax=vmax)
+    png_dir.mkdir(parents=True, exist_ok=True)
+    renders = render_candidates(gaussians, [cams[k] for k in shown], heat, device, progress)
+    for r, (k, (out, himg)) in enumerate(zip(shown, renders, strict=True)):
+        row = rows[r]
+        left = label(to_bgr(out.image), [f"#{row['rank']} {cams[k].name}", f"S = {row['score']:.4g}"])
+        right = label(to_bgr(himg), [f"D_g ({metric}), 0..{vmax:.3g} 1/s"])
+        path = png_dir / f"rank{row['rank']:03d}_{row['index']:03d}_{cams[k].name}.png"
+        with atomic_output(path, ".png") as tmp:  # OpenCV picks the format from the suffix
+            if not cv2.imwrite(str(tmp), np.hstack([left, right])):
+                raise OSError("OpenCV could not write the PNG (choose a writable --png-dir)")
+
+
+def check_some_divergence(result, metric: str, where) -> np.ndarray:
+    """The per-Gaussian metric of ``result``; ValueError when it is 0 for every Gaussian (no probe fluid reached
+    them: every view would score 0 and the ranking would be the cameras' order)."""
+    values = np.asarray(metric_values(result, metric))
+    if np.any(values > 0):
+        return values
+    notes = "; ".join(f"probe {d}: {w}" for d, ws in result.warnings.items() for w in ws)
+    raise ValueError(f"{where}: D_g ({metric}) is 0 for every one of the {len(values)} Gaussians, so every view "
+                     f"would score 0{' (' + notes + ')' if notes else ''}; re-run `fluidgs simulate` with a smaller "
+                     "--dt, or check --scale and --up")
+
+
 def run_command(args: argparse.Namespace) -> int:
-    config = physics_config_from_args(args)
+    from fluidsim.output import check_not_input
+    from nbv.physics import ProbeDiverged
+
+    all_cams = load_cameras(args.cameras, args.res)
+    config = physics_config_from_args(args, cameras=all_cams)
     output = check_output_file(args.output, (".json",))
     if args.top_k is not None and args.top_k < 1:
         raise ValueError(f"--top-k must be >= 1, got {args.top_k}")
+    if args.png_top < 1:
+        raise ValueError(f"--png-top must be >= 1 view, got {args.png_top}; use --no-png for no PNGs")
     png_dir = None if args.no_png else (args.png_dir or output.with_name(output.stem + "_views"))
+    check_not_input({"-o": output, "--save-result": args.save_result, "--png-dir": png_dir},
+                    {"GAUSSIANS": args.gaussians, "--cameras": args.cameras, "--result": args.result})
     if png_dir is not None:
         check_output_file(png_dir / "view.png", (".png",))
     if args.save_result is not None:
         check_output_file(args.save_result, (".h5", ".hdf5"))
     if args.result is None and args.metric not in ("max", "mean") and args.metric not in config.directions:
         raise ValueError(f"--metric {args.metric} needs that probe in --directions ({','.join(config.directions)})")
+    record = record_config_from_args(args, config)
+    if record is not None and (args.result is not None or args.save_result is None):
+        raise ValueError("--record-probe records into the RESULT.h5 of a fresh simulation: pass --save-result "
+                         "RESULT.h5" + (" and drop --result" if args.result is not None else ""))
     gaussians = load_gaussians_checked(args.gaussians)
-    all_cams = load_cameras(args.cameras, args.res)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     visible_centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
-    result = obtain_result(args, gaussians, config)
+    try:
+        result = obtain_result(args, gaussians, config, record)
+    except ProbeDiverged as exc:
+        return save_diverged(exc, args.save_result)
+    check_some_divergence(result, args.metric, args.result or args.gaussians)
     rows = score_views(gaussians, cams, idx, result, args.metric, png_dir, weighted=not args.unweighted,
-                       occlusion=args.occlusion, device=args.device, visible_centres=visible_centres)
+                       occlusion=args.occlusion, device=args.device, visible_centres=visible_centres,
+                       png_top=None if args.png_all else args.png_top)
     print_table(rows, args.top_k)
     write_json(output, {"cameras": str(args.cameras), "gaussians": str(args.gaussians), "metric": args.metric,
                         "weighted": not args.unweighted, "occlusion": args.occlusion, "dbar_m4_s": result.dbar,
                         "dbar_empty_m4_s": result.dbar_empty, "views": rows, "config": result.config.to_dict()})
     print(f"scores: {output}" + (f"\nviews: {png_dir}" if png_dir is not None else ""))
+    h5 = args.result or args.save_result
+    if h5 is not None:
+        print(f"see them in a browser: fluidgs view {h5} --gaussians {args.gaussians} --scores {output}")
     return 0

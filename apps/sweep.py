@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -94,14 +93,16 @@ def plot_sweep(points, path: Path, title: str = "") -> Path:
         cv2.putText(img, name, (8, y), font, 0.45, black, 1, cv2.LINE_AA)
         for c, text in enumerate(cells):
             cv2.putText(img, text, (90 + c * col, y), font, 0.4, black, 1, cv2.LINE_AA)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-    if not cv2.imwrite(str(tmp), img):
-        raise OSError(f"cannot write the plot {path}; choose a writable output folder")
-    os.replace(tmp, path)
+    from fluidsim.output import atomic_output
+
+    with atomic_output(path, ".png") as tmp:  # OpenCV picks the format from the suffix
+        if not cv2.imwrite(str(tmp), img):
+            raise OSError("OpenCV could not write the plot; choose a writable output folder")
     return path
 
 
 def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.output import check_not_input, check_writable
     from nbv.sweep import parse_velocities, run_sweep, write_csv
 
     from .runtime import init_taichi
@@ -109,6 +110,9 @@ def run_command(args: argparse.Namespace) -> int:
     config = physics_config_from_args(args)
     velocities = parse_velocities(args.velocities)
     output = check_output_file(args.output, (".csv",))
+    check_not_input({"-o": output, "plot": output.with_suffix(".png")},
+                    {"GAUSSIANS": args.gaussians, "--compare": args.compare})
+    check_writable(output.with_suffix(".png"))
     gaussians = load_gaussians_checked(args.gaussians)
     other = load_gaussians_checked(args.compare) if args.compare is not None else None
     init_taichi(args.device, config.precision, args.threads)

@@ -7,9 +7,10 @@ import json
 import logging
 import os
 import time
-import uuid
 from contextlib import contextmanager
 from pathlib import Path
+
+from .runtime import positive_int
 
 log = logging.getLogger("fluidgs")
 
@@ -35,7 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
     p.add_argument("--eval-every", type=int, default=0,
                    help="evaluate PSNR/SSIM on the test split every N iterations (0: only at the end), iterations")
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (None: torch's choice)")
+    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (None: torch's choice)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device; cuda falls back to cpu with a logged warning when unavailable")
 
@@ -73,13 +74,26 @@ def check_output(path: Path) -> None:
 
 def write_json_atomic(path: Path, data: dict) -> None:
     """Write ``data`` as indented JSON via a temporary file in the same folder and os.replace."""
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    try:
+    from fluidsim.output import atomic_output
+
+    with atomic_output(path) as tmp:
         tmp.write_text(json.dumps(data, indent=2) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+
+
+# The files of a dataset folder that loading reads (cameras, points, normalisation), at the top, in sparse/ and in
+# sparse/0/: no output may overwrite them. Images are left out: no command that reads a dataset writes images.
+DATASET_FILES = ("transforms_*.json", "dataset.json", "mesh.ply", "cameras.txt", "cameras.bin", "images.txt",
+                 "images.bin", "points3D.txt", "points3D.bin", "points3D.ply")
+
+
+def dataset_inputs(dataset: Path) -> list[tuple[str, Path]]:
+    """("DATASET file", path) for each existing :data:`DATASET_FILES` file of a dataset folder (or the
+    transforms_*.json given), for :func:`fluidsim.output.check_not_input`."""
+    root = Path(dataset)
+    if root.is_file():
+        return [("DATASET file", root)]
+    return [("DATASET file", f) for folder in (root, root / "sparse", root / "sparse" / "0") if folder.is_dir()
+            for pattern in DATASET_FILES for f in sorted(folder.glob(pattern))]
 
 
 @contextmanager
@@ -109,11 +123,15 @@ def run_command(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
+    from fluidsim.output import check_not_input, check_writable
     from recon.datasets import load_dataset
     from recon.ply import save_gaussians
     from recon.train import TrainConfig, evaluate, train, view_to
 
     check_output(args.output)
+    check_not_input({"-o": args.output, "report": args.output.with_suffix(".json")}, dataset_inputs(args.dataset))
+    check_writable(args.output)
+    check_writable(args.output.with_suffix(".json"))
     if args.res < 0:
         raise ValueError(f"--res must be a width in pixels >= 1 (or 0 for native), got {args.res}")
     if args.eval_every < 0:

@@ -71,6 +71,9 @@ class SolverConfig:
         estimator_radius: h_r of paper Eq. 1, metres (neighbours within this distance).
         estimator_kernel_radius: h_k of paper Eq. 1, metres (kernel support for grad W).
         max_speed: a fluid speed above this (m/s) stops the run as diverged.
+        max_cfl: the largest CFL number v dt / (2 r) a run may reach, with v the speed bound of
+            :func:`fluidsim.simulation.speed_bound` (inflow plus free fall); a run above it is refused before
+            its first step. 1 = a particle may cross one spacing per step, twice the adaptive mode's cfl_factor.
         max_capped_steps: stop when a solver hits max_iterations this many steps in a row.
         max_neighbors: initial neighbour-list capacity per particle (None: from the rest lattice, the
             neighbours within h of a lattice point plus an eighth); the lists then follow the largest count
@@ -104,6 +107,7 @@ class SolverConfig:
     estimator_radius: float = 0.1
     estimator_kernel_radius: float = 0.1
     max_speed: float = 200.0
+    max_cfl: float = 1.0
     max_capped_steps: int = 20
     max_neighbors: int | None = None
     retire_margin: float = 2.0
@@ -140,6 +144,7 @@ class SolverConfig:
         _positive("estimator_radius", self.estimator_radius)
         _positive("estimator_kernel_radius", self.estimator_kernel_radius)
         _positive("max_speed", self.max_speed)
+        _positive("max_cfl", self.max_cfl)
         _int_at_least("max_capped_steps", self.max_capped_steps, 1)
         if self.max_neighbors is not None:
             _int_at_least("max_neighbors", self.max_neighbors, 8)

@@ -1,15 +1,17 @@
-"""Divergence-free SPH (Bender & Koschier 2015, 2017): the solver passes and the time step.
+"""Divergence-free SPH (Bender & Koschier 2015, 2017): the passes of both pressure solvers.
 
+The divergence-free solver (correctDivergenceError of Algorithm 1, the step's ``divergence_solve``) drives the
+velocity divergence to zero; it is not the divergence *estimate* D_i of the paper (:mod:`fluidsim.estimator`).
 All quantities are normalised by the rest density (as in SPlisHSPlasH): densities are rho / rho_0 and
 neighbour weights are volumes V_j. With ``g_ij = V_j grad W(x_i - x_j, h) = c_ij (x_i - x_j)``, c_ij
-stored by the neighbourhood pass (:mod:`fluidsim.neighbors`):
+stored by the neighbourhood pass (:mod:`fluidsim.neighbors`), and the equation labels of :mod:`fluidsim.solver`:
 
-- velocity divergence source (B&K 2017, divergence-free solver):
+- velocity divergence source (E3, divergence-free solver):
   s_i = D(rho_i/rho_0)/Dt = sum_j (v_i - v_j) . g_ij + v_i . sum_b g_ib, clamped at 0 (the boundary is
   static, so its gradients enter only through their sum, stored once per step);
-- predicted density (constant-density solver): rho*_i = rho_i + dt s_i, error max(rho*_i - 1, 0);
-- stiffness k_i = kappa_i / rho_i = s_i factor_i / dt (divergence) or (rho*_i - 1) factor_i / dt^2;
-- velocity update v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib).
+- predicted density (E6, constant-density solver): rho*_i = rho_i + dt s_i, error max(rho*_i - 1, 0);
+- stiffness (E4) k_i = kappa_i / rho_i = s_i factor_i / dt (divergence) or (rho*_i - 1) factor_i / dt^2;
+- velocity update (E5) v_i -= dt (sum_j (k_i + k_j) g_ij + k_i sum_b g_ib).
 
 Errors are averaged over the active fluid particles only, as fixed-point sums (:mod:`fluidsim.reductions`:
 the same bits on any number of threads, summed inside the error pass). Each iteration is one error pass (the
@@ -18,8 +20,8 @@ the update of the iteration whose measured error met the tolerance (with at leas
 iterations), so the last update is always applied, as in SPlisHSPlasH: its check reads the error before
 that iteration's update, and the final state is at least that accurate.
 
-Warm start (B&K 2017): both solvers start from the summed stiffness kappa of the previous step (stored
-independent of dt), applied as one velocity change -dt (k_i sum_k g_ik + sum_j k_j g_ij) that needs no
+Warm start (B&K 2017; W1-W3): both solvers start from the summed stiffness kappa of the previous step (stored
+independent of dt, W3), applied as one velocity change -dt (k_i sum_k g_ik + sum_j k_j g_ij) that needs no
 list pass of its own:
 - divergence-free solver: k_i = kappa_i / (2 dt) for every particle (half strength, as SPlisHSPlasH's
   stiffness-based DFSPH). The change depends only on the positions and the stored kappa, so the
@@ -76,7 +78,7 @@ def density_warm_record(i, dt, warm, gravity, x: ti.template(), density: ti.temp
 
 
 @ti.kernel
-def divergence_error(
+def divergence_solve_error(
     n: ti.i32,
     dt: float,
     x: ti.types.ndarray(ndim=1),
@@ -100,7 +102,7 @@ def divergence_error(
 ) -> ti.f64:
     """Divergence-free solver, error pass: s_i (clamped at 0, and 0 at the free surface) and k_i; returns
     the average s_i over fluid (1/s). A cold start takes its first s_i from the neighbourhood pass instead
-    (:func:`start_divergence`).
+    (:func:`divergence_solve_cold_start`).
 
     Also writes the constant-density solver's warm-start record from this s_i (:func:`density_warm_record`,
     ``warm_density`` = 1 for a warm start): the last error pass of the divergence solve leaves the records the
@@ -125,7 +127,7 @@ def divergence_error(
 
 
 @ti.kernel
-def start_divergence(
+def divergence_solve_cold_start(
     n: ti.i32,
     dt: float,
     source: ti.types.ndarray(ndim=1),
@@ -159,7 +161,7 @@ def undo_push(n: ti.i32, warm_scale: float, push: ti.types.ndarray(ndim=1), v: t
 
 
 @ti.kernel
-def density_error(
+def density_solve_error(
     n: ti.i32,
     dt: float,
     x: ti.types.ndarray(ndim=1),
@@ -205,7 +207,7 @@ def density_warm_stiffness(
 ):
     """Constant-density solver, warm-start records (:func:`density_warm_record`) as a pass of its own: for the
     steps whose divergence solve ran no error pass (a cold start that met its tolerance at once, or no
-    divergence solver); otherwise :func:`divergence_error` writes them."""
+    divergence solver); otherwise :func:`divergence_solve_error` writes them."""
     for i in range(n):
         density_record[i] = density_warm_record(i, dt, warm, gravity, x, density, source, boundary_grad_sum, kappa)
 

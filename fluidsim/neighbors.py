@@ -9,17 +9,17 @@ For every active fluid particle i, one pass over the 27 grid cells around it:
 - stores the sum ``sum_b V_b grad W_ib`` (the boundary is static, so every solver pass needs only this sum)
   and the whole sum G_i = sum_j V_j grad W_ij + sum_b V_b grad W_ib (the solver passes then take one term
   out of their per-pair work);
-- sums the normalised density rho_i / rho_0 = V_f W(0) + sum_j V_f W_ij + sum_b V_b W_ib, with W and the
+- sums the normalised density (E1) rho_i / rho_0 = V_f W(0) + sum_j V_f W_ij + sum_b V_b W_ib, with W and the
   gradient coefficient interpolated in a table over [0, h] (:func:`fluidsim.kernels.cubic_from_table`,
   within 4e-7 of the exact spline; no division or spline-piece branch per pair)
   (Akinci et al. 2012 boundary contribution, divided by rho_0);
-- computes the DFSPH factor (Bender & Koschier 2017, the factor alpha_i / rho_i; rho_i cancels):
+- computes the DFSPH factor (E2) (Bender & Koschier 2017, the factor alpha_i / rho_i; rho_i cancels):
   factor_i = 1 / (|sum_j V_j grad W_ij + sum_b V_b grad W_ib|^2 + sum_j |V_j grad W_ij|^2).
-- for a cold-started divergence-free solver, measures its first source (:mod:`fluidsim.dfsph`),
+- for a cold-started divergence-free solver, measures its first source (E3) (:mod:`fluidsim.dfsph`),
   s_i = D(rho_i/rho_0)/Dt = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib, zero where
   negative or at the free surface, while the gradients are at hand; the solver then needs no pass of its
   own to start;
-- with the warm start on, sums instead the divergence-free solver's warm-start push P_i = kappa_i sum_k g_ik
+- with the warm start on, sums instead the divergence-free solver's warm-start push (W1) P_i = kappa_i sum_k g_ik
   + sum_j kappa_j g_ij (k over fluid and boundary, j over fluid) from the stiffness kappa stored at the
   previous step (it depends only on positions, which do not move until advection) and applies it: the
   warm start costs no pass and no launch of its own.
@@ -29,8 +29,13 @@ particles k within h (k = b included).
 
 The cells along z for fixed (x, y) offsets are contiguous in the sorted order, so each particle visits 9
 runs of slots (3 cells each, or 5 half-height cells in the simulation's grid, :data:`fluidsim.grid.Z_SPLIT`).
-Cells outside the grid are skipped, never clamped.
+Cells outside the grid are skipped, never clamped. One neighbour walk, :func:`for_each_neighbor`, does this
+for every pass that searches the grid (the boundary volumes, the neighbourhood pass, the fluid-in-solid test
+at set-up and Eq. 1 beyond h, :func:`fluidsim.estimator.divergence_estimate_from_grid`); each hands it a
+visitor for the candidates. The equation labels (E1)-(E3), (W1) are those of :mod:`fluidsim.solver`.
 """
+
+from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
@@ -147,6 +152,59 @@ def lattice_neighbor_count(spacing: float, h: float) -> int:
     return int((np.sum(pts * pts, axis=1) <= h * h * (1.0 + 1e-9)).sum()) - 1
 
 
+@ti.func
+def for_each_neighbor(xi, origin, inv_cell, dims, reach: ti.template(), reach_z, sets: ti.template(),
+                      visit: ti.template(), ctx: ti.template()):
+    """The neighbour walk on the uniform grid: every candidate of each point set in the cells around ``xi``.
+
+    The cells along z for fixed (x, y) are contiguous in the sorted order, so the walk visits the
+    (2 reach + 1)^2 columns of cells around x_i's cell, each as one run of slots from z0 to z1 (2 reach_z + 1
+    cells; :func:`fluidsim.grid.z_reach`). Columns outside the grid are skipped, never clamped, so no candidate
+    is visited twice. In each column it walks the point sets of ``sets`` in their order and calls, for every
+    slot j of the run,
+
+        visit(s, j, xi - points_s[j], ctx)
+
+    with s the set's index in ``sets`` (a compile-time constant) and r = x_i - x_j. The visitor applies its own
+    radius test (and j != i where the set is the particle's own).
+
+    Args:
+        xi: the query point, vec3 m. origin, inv_cell, dims: the grid (vec3 f64 m, vec3 f64 1/m, ivec3).
+        reach: columns on each side along x and y (1 when the cell is >= the radius; a compile-time int or a
+            kernel scalar). reach_z: cells on each side along z.
+        sets: a tuple of (points (M,) vec3 m, cell starts (num_cells + 1,) i32) pairs.
+        visit: a ``@ti.func`` (s: ti.template(), j, r, ctx: ti.template()).
+        ctx: what the visitor reads and sums into, as a tuple built inside ``ti.static(...)``: kernel arguments
+            and local variables by reference (Taichi functions take ti.template() arguments by reference and are
+            inlined, so the walk compiles to the loops it replaces).
+    """
+    c = cell_coord(ti.cast(xi, ti.f64), origin, inv_cell)
+    z0 = ti.max(c[2] - reach_z, 0)
+    z1 = ti.min(c[2] + reach_z, dims[2] - 1)
+    for dx, dy in ti.ndrange((-reach, reach + 1), (-reach, reach + 1)):
+        cx = c[0] + dx
+        cy = c[1] + dy
+        if 0 <= cx < dims[0] and 0 <= cy < dims[1] and z0 <= z1:
+            base = (cx * dims[1] + cy) * dims[2]
+            for s in ti.static(range(len(sets))):
+                points, starts = ti.static(sets[s])
+                for j in range(starts[base + z0], starts[base + z1 + 1]):
+                    visit(s, j, xi - points[j], ctx)
+
+
+class _VolumeSum(NamedTuple):
+    """What :func:`_add_weight` reads and sums into (references, bound at compile time)."""
+
+    h: object
+    total: object
+
+
+@ti.func
+def _add_weight(s: ti.template(), k, r, ctx: ti.template()):
+    """sum_k W(x_b - x_k, h) over the boundary neighbours k (b itself included: r = 0 is within h)."""
+    ctx.total += cubic_w(r.norm(), ctx.h)
+
+
 @ti.kernel
 def compute_boundary_volumes(
     bx: ti.types.ndarray(ndim=1),
@@ -161,20 +219,79 @@ def compute_boundary_volumes(
     """Akinci et al. 2012: V_b = 1 / sum_k W(x_b - x_k, h) over boundary neighbours (self included)."""
     zr = z_reach(inv_cell)
     for b in range(m):
-        xb = bx[b]
-        c = cell_coord(ti.cast(xb, ti.f64), origin, inv_cell)
-        z0 = ti.max(c[2] - zr, 0)
-        z1 = ti.min(c[2] + zr, dims[2] - 1)
-        s = 0.0
-        for dx, dy in ti.ndrange((-1, 2), (-1, 2)):
-            cx = c[0] + dx
-            cy = c[1] + dy
-            if 0 <= cx < dims[0] and 0 <= cy < dims[1] and z0 <= z1:
-                base = (cx * dims[1] + cy) * dims[2]
-                for k in range(starts[base + z0], starts[base + z1 + 1]):
-                    r = xb - bx[k]
-                    s += cubic_w(r.norm(), h)
-        volume[b] = 1.0 / s
+        total = 0.0
+        for_each_neighbor(bx[b], origin, inv_cell, dims, 1, zr, ((bx, starts),), _add_weight,
+                          ti.static(_VolumeSum(h, total)))
+        volume[b] = 1.0 / total
+
+
+class _Gather(NamedTuple):
+    """The neighbourhood pass's inputs and per-particle sums, handed to :func:`_gather_pair` by the walk."""
+
+    i: object
+    vi: object
+    h2: object
+    scale: object
+    table: object
+    fluid_volume: object
+    v: object
+    warm: object
+    kappa: object
+    fluid_pairs: object
+    cap_f: object
+    fmt: int
+    coef_scale: object
+    too_far: object
+    bvolume: object
+    boundary_pairs: object
+    cap_b: object
+    store_boundary: bool
+    rho: object  # the sums (local variables)
+    grad_sum: object
+    sq_sum: object
+    div: object
+    push_v: object
+    nf: object
+    grad_sum_b: object
+    nb: object
+
+
+@ti.func
+def _gather_pair(s: ti.template(), j, r, ctx: ti.template()):
+    """One candidate of the neighbourhood pass (set 0 fluid, 1 boundary): within h, it adds its terms to the
+    density, the gradient sums, the factor's sum of squares and the source or warm-start push, and is stored."""
+    r2 = r.dot(r)
+    if ti.static(s == 0):
+        if r2 < ctx.h2 and j != ctx.i:
+            w, cg = cubic_from_table(ti.sqrt(r2), ctx.scale, ctx.table)
+            ctx.rho += ctx.fluid_volume * w
+            cg *= ctx.fluid_volume
+            g = cg * r
+            ctx.grad_sum += g
+            ctx.sq_sum += g.dot(g)
+            if not ctx.warm:  # a warm-started solve measures its first source after the push
+                ctx.div += (ctx.vi - ctx.v[j]).dot(g)
+            if ctx.warm:
+                ctx.push_v += ctx.kappa[j] * g
+            if ctx.nf < ctx.cap_f:
+                if ti.static(ctx.fmt == NARROW):
+                    ctx.fluid_pairs[ctx.i, ctx.nf] = pack_narrow_pair(ctx.i, j, cg, ctx.coef_scale)
+                    if ti.abs(j - ctx.i) > NARROW_MAX_OFFSET:
+                        ti.atomic_max(ctx.too_far, 1)
+                else:
+                    ctx.fluid_pairs[ctx.i, ctx.nf] = pack_pair(j, cg)
+            ctx.nf += 1
+    else:
+        if r2 < ctx.h2:
+            vb = ctx.bvolume[j]
+            w, cg = cubic_from_table(ti.sqrt(r2), ctx.scale, ctx.table)
+            ctx.rho += vb * w
+            cg *= vb
+            ctx.grad_sum_b += cg * r
+            if ti.static(ctx.store_boundary):
+                if ctx.nb < ctx.cap_b:
+                    ctx.boundary_pairs[ctx.i, ctx.nb] = pack_pair(j, cg)
+            ctx.nb += 1
 
 
 @ti.kernel
@@ -240,9 +357,6 @@ def build_neighborhoods(
     zr = z_reach(inv_cell)
     for i in range(n):
         xi = x[i]
-        c = cell_coord(ti.cast(xi, ti.f64), origin, inv_cell)
-        z0 = ti.max(c[2] - zr, 0)
-        z1 = ti.min(c[2] + zr, dims[2] - 1)
         vi = v[i]
         push_v = xi * 0.0
         rho = fluid_volume * w0
@@ -252,46 +366,11 @@ def build_neighborhoods(
         sq_sum = 0.0
         nf = 0
         nb = 0
-        for dx, dy in ti.ndrange((-1, 2), (-1, 2)):
-            cx = c[0] + dx
-            cy = c[1] + dy
-            if 0 <= cx < dims[0] and 0 <= cy < dims[1] and z0 <= z1:
-                base = (cx * dims[1] + cy) * dims[2]
-                for j in range(fluid_starts[base + z0], fluid_starts[base + z1 + 1]):
-                    r = xi - x[j]
-                    r2 = r.dot(r)
-                    if r2 < h2 and j != i:
-                        w, cg = cubic_from_table(ti.sqrt(r2), scale, kernel_table)
-                        rho += fluid_volume * w
-                        cg *= fluid_volume
-                        g = cg * r
-                        grad_sum += g
-                        sq_sum += g.dot(g)
-                        if not warm:  # a warm-started solve measures its first source after the push
-                            div += (vi - v[j]).dot(g)
-                        if warm:
-                            push_v += kappa[j] * g
-                        if nf < cap_f:
-                            if ti.static(fmt == NARROW):
-                                fluid_pairs[i, nf] = pack_narrow_pair(i, j, cg, coef_scale)
-                                if ti.abs(j - i) > NARROW_MAX_OFFSET:
-                                    ti.atomic_max(too_far, 1)
-                            else:
-                                fluid_pairs[i, nf] = pack_pair(j, cg)
-                        nf += 1
-                for b in range(boundary_starts[base + z0], boundary_starts[base + z1 + 1]):
-                    r = xi - bx[b]
-                    r2 = r.dot(r)
-                    if r2 < h2:
-                        vb = bvolume[b]
-                        w, cg = cubic_from_table(ti.sqrt(r2), scale, kernel_table)
-                        rho += vb * w
-                        cg *= vb
-                        grad_sum_b += cg * r
-                        if ti.static(store_boundary):
-                            if nb < cap_b:
-                                boundary_pairs[i, nb] = pack_pair(b, cg)
-                        nb += 1
+        for_each_neighbor(xi, origin, inv_cell, dims, 1, zr, ((x, fluid_starts), (bx, boundary_starts)),
+                          _gather_pair, ti.static(_Gather(
+                              i, vi, h2, scale, kernel_table, fluid_volume, v, warm, kappa, fluid_pairs, cap_f, fmt,
+                              coef_scale, too_far, bvolume, boundary_pairs, cap_b, store_boundary,
+                              rho, grad_sum, sq_sum, div, push_v, nf, grad_sum_b, nb)))
         density[i] = rho
         boundary_grad_sum[i] = grad_sum_b
         div += vi.dot(grad_sum_b)
@@ -336,18 +415,21 @@ def flag_near_boundary(
     r2max = radius * radius
     zr = z_reach(inv_cell)
     for i in range(n):
-        xi = x[i]
-        c = cell_coord(ti.cast(xi, ti.f64), origin, inv_cell)
-        z0 = ti.max(c[2] - zr, 0)
-        z1 = ti.min(c[2] + zr, dims[2] - 1)
         hit = 0
-        for dx, dy in ti.ndrange((-1, 2), (-1, 2)):
-            cx = c[0] + dx
-            cy = c[1] + dy
-            if 0 <= cx < dims[0] and 0 <= cy < dims[1] and z0 <= z1:
-                base = (cx * dims[1] + cy) * dims[2]
-                for b in range(boundary_starts[base + z0], boundary_starts[base + z1 + 1]):
-                    r = xi - bx[b]
-                    if r.dot(r) < r2max:
-                        hit = 1
+        for_each_neighbor(x[i], origin, inv_cell, dims, 1, zr, ((bx, boundary_starts),), _flag_near,
+                          ti.static(_Near(r2max, hit)))
         flags[i] = hit
+
+
+class _Near(NamedTuple):
+    """What :func:`_flag_near` reads and sets (references, bound at compile time)."""
+
+    r2max: object
+    hit: object
+
+
+@ti.func
+def _flag_near(s: ti.template(), b, r, ctx: ti.template()):
+    """Sets the flag when the boundary candidate b is closer than the radius."""
+    if r.dot(r) < ctx.r2max:
+        ctx.hit = 1

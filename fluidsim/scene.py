@@ -134,6 +134,18 @@ def _box(obj: dict, key: str) -> tuple[tuple, tuple]:
     return lo, hi
 
 
+def _check_block_holds_fluid(key: str, lo: tuple, hi: tuple, spacing: float) -> None:
+    """SceneError when a fluid block is thinner than the particle spacing on an axis: its lattice is empty."""
+    counts = lattice_counts(lo, hi, spacing)
+    if counts.min() >= 1:
+        return
+    axis = int(np.argmin(counts))
+    size = hi[axis] - lo[axis]
+    raise SceneError(f"scene key '{key}' box {list(lo)}..{list(hi)} is {size:.4g} m along {'xyz'[axis]}, less than "
+                     f"the particle spacing {spacing:.4g} m (2 x particle_radius), so it holds no fluid particle; "
+                     f"make it at least {spacing:.4g} m on every axis or use a smaller particle_radius")
+
+
 def parse_scene(data: dict, base_dir: str | Path = ".") -> Scene:
     """Validate a scene dictionary (see the module docstring) into a :class:`Scene`.
 
@@ -173,6 +185,7 @@ def parse_scene(data: dict, base_dir: str | Path = ".") -> Scene:
         if any(l < a or h > c for l, h, a, c in zip(lo, hi, dmin, dmax, strict=True)):
             raise SceneError(f"scene key '{key}' box {list(lo)}..{list(hi)} must lie inside the domain "
                              f"{list(dmin)}..{list(dmax)}")
+        _check_block_holds_fluid(key, lo, hi, config.spacing)
         blocks.append(FluidBlock(lo, hi, vel))
     solids_raw = data.get("solids", [])
     if not isinstance(solids_raw, list):
@@ -226,7 +239,19 @@ def lattice_in_box(box_min, box_max, spacing: float) -> np.ndarray:
         (K, 3) float64 points.
     """
     lo = np.asarray(box_min, np.float64)
-    hi = np.asarray(box_max, np.float64)
-    counts = np.floor((hi - lo) / spacing + 1e-9).astype(int)
+    counts = lattice_counts(box_min, box_max, spacing).astype(int)
     axes = [lo[d] + (np.arange(counts[d]) + 0.5) * spacing for d in range(3)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+
+
+def lattice_counts(box_min, box_max, spacing: float) -> np.ndarray:
+    """Points per axis of :func:`lattice_in_box` (nothing is allocated; may be astronomically large).
+
+    Args:
+        box_min, box_max: (3,) m. spacing: m.
+    Returns:
+        (3,) float64 counts, ``floor((max - min) / spacing)`` (0 on an axis shorter than the spacing).
+    """
+    lo = np.asarray(box_min, np.float64)
+    hi = np.asarray(box_max, np.float64)
+    return np.maximum(np.floor((hi - lo) / spacing + 1e-9), 0.0)

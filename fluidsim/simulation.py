@@ -1,6 +1,8 @@
 """Running a simulation: building the solver from a scene, stepping it, and stopping on faults.
 
-A run stops with :class:`SimulationDiverged`, naming the step, when a velocity becomes NaN or Inf,
+A run whose time step is too large for the particle spacing (CFL number above ``config.max_cfl``, from the
+inflow speed and free fall: :func:`check_time_step`) is refused before its first step. A run stops with
+:class:`SimulationDiverged`, naming the step, when a velocity becomes NaN or Inf,
 when a fluid speed exceeds ``config.max_speed``, or when a solver hits ``max_iterations`` for
 ``config.max_capped_steps`` steps in a row. Whatever the caller saved before that stays saved.
 """
@@ -8,6 +10,7 @@ when a fluid speed exceeds ``config.max_speed``, or when a solver hits ``max_ite
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -85,8 +88,85 @@ def build_solver(scene: Scene) -> DFSPHSolver:
     if removed:
         log.warning("removed %d fluid particles that started inside a solid", removed)
     if solver.fluid.capacity == 0:
-        raise ValueError("no fluid particle left: every fluid block lies inside a solid; move the blocks")
+        if removed == 0:
+            raise ValueError(f"no fluid particle: the fluid blocks hold no lattice point (each must be at least the "
+                             f"particle spacing, {scene.config.spacing:.4g} m, on every axis)")
+        walls = " or the domain walls" if scene.domain.walls else ""
+        raise ValueError(f"no fluid particle left: all {removed} fluid particles of the blocks start inside a solid "
+                         f"or closer than 0.9 particle spacings to a particle of a solid{walls}; move the blocks "
+                         "away from them")
     return solver
+
+
+def speed_bound(initial_speed: float, gravity: float, height: float, duration: float) -> float:
+    """An upper bound of a fluid particle's speed during a run, m/s, from free fall.
+
+    A particle that starts at ``initial_speed`` and falls freely reaches, by energy conservation,
+    sqrt(v0^2 + 2 g H) after falling the whole height ``H`` it can fall in the domain, and v0 + g T after
+    the run's ``duration`` T; the smaller of the two bounds both. Pressure and splashes redistribute this
+    speed rather than add to it, which is why the check compares it with a CFL limit of about one.
+
+    Args:
+        initial_speed: v0, the fastest initial fluid speed, m/s.
+        gravity: g = |gravity|, m/s^2.
+        height: H, the domain's extent along gravity, m.
+        duration: T, simulated seconds.
+    """
+    v0 = float(initial_speed)
+    return min(math.sqrt(v0 * v0 + 2.0 * gravity * max(height, 0.0)), v0 + gravity * max(duration, 0.0))
+
+
+def run_cfl(config: SolverConfig, initial_speed: float, domain_min, domain_max, steps: int) -> tuple[float, float]:
+    """(the largest CFL number v dt / (2 r) the run can reach, the speed bound v in m/s).
+
+    Fixed steps: v = :func:`speed_bound` over ``steps * dt``, so CFL = v dt / (2 r). Adaptive steps
+    (``time_step`` "cfl"): the first step at the clamped initial dt, then cfl_factor, unless dt_min holds the
+    step above it (v dt_min / 2 r) or dt_max below it.
+    """
+    g = float(np.linalg.norm(config.gravity))
+    extent = np.subtract(np.asarray(domain_max, np.float64), np.asarray(domain_min, np.float64))
+    height = float(np.abs(np.asarray(config.gravity)) @ extent / g) if g > 0 else 0.0
+    sp = config.spacing
+    if config.time_step == "fixed":
+        v = speed_bound(initial_speed, g, height, steps * config.dt)
+        return v * config.dt / sp, v
+    dt0 = min(max(config.dt, config.dt_min), config.dt_max)
+    v = speed_bound(initial_speed, g, height, steps * config.dt_max)
+    first = speed_bound(initial_speed, g, height, dt0) * dt0 / sp
+    later = max(min(config.cfl_factor, v * config.dt_max / sp), v * config.dt_min / sp)
+    return max(first, later), v
+
+
+def check_time_step(config: SolverConfig, initial_speed: float, domain_min, domain_max, steps: int,
+                    where: str = "the run") -> float:
+    """Refuse, before the first step, a time step at which fluid could jump more than ``config.max_cfl``
+    particle spacings per step (it would skip its neighbours, pass through walls and solids and leave the
+    domain: a run that "completes" with no fluid left). Returns the run's CFL number (:func:`run_cfl`).
+
+    Raises:
+        ValueError: naming ``where``, the CFL number, the speed bound and the largest dt that passes.
+    """
+    cfl, v = run_cfl(config, initial_speed, domain_min, domain_max, steps)
+    if cfl <= config.max_cfl:
+        return cfl
+    sp = config.spacing
+    if config.time_step == "fixed":
+        fix = (f"use dt <= {config.max_cfl * sp / v:.3g} s (and more steps for the same duration), a larger "
+               "particle radius, or time_step 'cfl'")
+    else:
+        fix = "lower cfl_factor, dt_min or the initial dt"
+    raise ValueError(
+        f"{where}: time step too large for the particle spacing: CFL number {cfl:.3g} > max_cfl {config.max_cfl:g} "
+        f"(a fluid particle at the speed bound {v:.3g} m/s, the fastest initial speed {initial_speed:.3g} m/s plus "
+        f"free fall through the domain, would move {cfl:.3g} spacings of {sp:g} m in one step of "
+        f"{config.dt:g} s, past its neighbours and through walls and solids, out of the domain); {fix}")
+
+
+def check_solver_time_step(solver: DFSPHSolver, steps: int, where: str = "the run") -> float:
+    """:func:`check_time_step` for a built solver (its domain, its fluid's fastest speed now)."""
+    v = solver.fluid.numpy("v") if solver.fluid.active else np.zeros((0, 3))
+    v0 = float(np.sqrt((np.asarray(v, np.float64) ** 2).sum(1)).max()) if len(v) else 0.0
+    return check_time_step(solver.config, v0, solver.domain_min, solver.domain_max, steps, where)
 
 
 class FaultMonitor:
@@ -125,8 +205,10 @@ def run(solver: DFSPHSolver, steps: int, on_step: Callable[[DFSPHSolver, StepSta
     Returns:
         the stats of every step.
     Raises:
+        ValueError: before the first step, when the time step is too large (:func:`check_solver_time_step`).
         SimulationDiverged: on a fault; ``on_step`` has seen every step before it.
     """
+    check_solver_time_step(solver, steps)
     monitor = FaultMonitor(solver.config)
     history: list[StepStats] = []
     for _ in range(steps):

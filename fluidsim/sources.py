@@ -8,7 +8,8 @@ boundary particles' own neighbourhood) compensates for any residual non-uniformi
 
 Sources:
 
-- ``wall_particles``: the closed box walls just outside the simulation domain, on a lattice.
+- ``wall_particles``: the closed box walls just outside the simulation domain, on a lattice
+  (``wall_particle_count``: how many, without building them).
 - ``load_points``: a ready-made boundary point cloud (``.npy`` N×3 or ``.ply``).
 - ``load_mesh`` / ``mesh_particles``: a triangle mesh (``.obj``, ``.stl``, ``.ply``) sampled on its
   surface (blue-noise Poisson-disk sample, Yuksel 2015) and optionally filled with a regular lattice.
@@ -161,6 +162,21 @@ def wall_particles(domain_min, domain_max, spacing: float, layers: int = 2) -> n
         _product(inner[0], inner[1], outer[2]),  # z faces, minus what the x and y faces own
     ]
     return np.concatenate(walls, axis=0)
+
+
+def wall_particle_count(domain_min, domain_max, spacing: float, layers: int = 2) -> int:
+    """Number of particles :func:`wall_particles` returns, ``prod(n + 2 layers) - prod(n)``, without building them.
+
+    Args:
+        domain_min, domain_max: (3,) box corners, metres. spacing: m. layers: wall layers per face.
+    Returns:
+        the count (a Python int, exact even where the walls would not fit in memory).
+    """
+    lo = _check_vec3("domain_min", domain_min)
+    hi = _check_vec3("domain_max", domain_max)
+    spacing = _check_spacing(spacing)
+    n = [max(1, math.ceil((hi[a] - lo[a]) / spacing - _LATTICE_TOL)) for a in range(3)]
+    return math.prod(k + 2 * int(layers) for k in n) - math.prod(n)
 
 
 def sphere_particles(center, radius: float, spacing: float, fill: bool = True) -> np.ndarray:

@@ -11,7 +11,7 @@ and a_i = g + (mu / rho_i) lap(v)_i. Fluid-boundary friction uses the same opera
 at rest, V_b in place of m_j / rho_j and its own dynamic viscosity mu_b.
 
 The pass reads the velocities after the divergence solve and the stored neighbour gradients, which is
-what paper Eq. 1 reads (:func:`fluidsim.divergence.estimate_divergence_from_gradients`) when
+what paper Eq. 1 reads (:func:`fluidsim.estimator.divergence_estimate_from_gradients`) when
 h_k = h <= h_r, so it computes D_i in the same sweep.
 
 The pass also starts the constant-density solver: it sums that solver's warm-start push and writes the
@@ -23,6 +23,7 @@ reads the neighbours' velocities, so it cannot update them in place), so the sta
 import numpy as np
 import taichi as ti
 
+from .estimator import record_estimate
 from .kernels import cubic_grad_w_np
 from .neighbors import fluid_pair, unpack_pair
 
@@ -111,10 +112,7 @@ def predict_velocities(
         v_out[i] = vi + dv
         stiffness_sum[i] = ki
         if estimate:
-            di = ti.abs(d)
-            divergence[i] = di
-            divergence_sum[i] += ti.cast(di, ti.f64)
-            divergence_count[i] += 1
+            record_estimate(i, ti.abs(d), divergence, divergence_sum, divergence_count)
     ti.loop_config(serialize=True)  # usually empty; serial, so it costs no thread-pool wake-up
     for i in range(n, capacity):
         v_out[i] = v[i]

@@ -18,10 +18,12 @@ D-bar              (1/|G|) sum pi tr(Sigma_g)^2 D_g            :func:`geometry_d
 
 from .physics import PhysicsConfig, PhysicsResult, load_result, save_result, simulate_gaussians
 from .scores import (
+    DepthBuffer,
     critical_scores,
     critical_subset,
     geometry_divergence,
     projected_counts,
+    projected_view_scores,
     rank,
     unoccluded,
     view_scores,
@@ -30,7 +32,7 @@ from .scores import (
 from .sweep import SweepPoint, reynolds, run_sweep, schedule
 
 __all__ = [
-    "PhysicsConfig", "PhysicsResult", "SweepPoint", "critical_scores", "critical_subset", "geometry_divergence",
-    "load_result", "projected_counts", "rank", "reynolds", "run_sweep", "save_result", "schedule",
-    "simulate_gaussians", "unoccluded", "view_scores", "view_weights",
+    "DepthBuffer", "PhysicsConfig", "PhysicsResult", "SweepPoint", "critical_scores", "critical_subset",
+    "geometry_divergence", "load_result", "projected_counts", "projected_view_scores", "rank", "reynolds", "run_sweep",
+    "save_result", "schedule", "simulate_gaussians", "unoccluded", "view_scores", "view_weights",
 ]

@@ -8,7 +8,8 @@ the view budget B (10) is reached:
 2. the planner (:mod:`nbv.planners`) sees the current Gaussians, the selected views and the remaining
    candidate *cameras* (never their images) and picks one; fused methods (``fisher+fluid``...) shortlist the
    visual top-K, K = max(B - n_selected, 2), run the five fluid probes once (:func:`nbv.physics.simulate_gaussians`)
-   and take the candidate with the largest S(T) (Eq. 4-5);
+   and take the candidate with the largest S(T) (Eq. 4-5); the controls ``fisher+area`` (coverage, no probes) and
+   ``fisher+shuffled`` (D_g permuted), and the same on ``variance`` and ``random``, keep that shortlist and K;
 3. after the budget is reached training continues to ``total_iterations`` (30k in the paper).
 
 Two modes (``ActiveConfig.mode``):
@@ -49,9 +50,7 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import time
-import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -64,6 +63,7 @@ from recon.gaussians import GaussianSet
 from recon.train import TrainConfig, Trainer, initial_gaussians, look_at_point, scene_extent, view_to
 
 from .physics import PhysicsConfig
+from .scene_frame import parse_up, up_label
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +104,9 @@ class ActiveConfig:
         seed: seed of the training, the initial-view rule and the planners.
         resolution: image width the dataset is resized to, pixels (None: native).
         train: TrainConfig overrides as (key, value) pairs (``iterations`` and ``seed`` are set by the loop).
-        physics: probe settings of the fused planners (its up axis is replaced by the dataset's).
+        physics: probe settings of the fused planners (its up direction is replaced by ``up``'s).
+        up: the scene's up direction for the probes: None (the dataset's up axis), "auto" (the mean up vector of
+            the training cameras, as nerfstudio orients) or anything :func:`nbv.scene_frame.parse_up` takes.
         planner: planner config overrides as (key, value) pairs (``seed`` is set per round).
         backend: renderer backend ("auto", "torch", "gsplat").
         preset: the preset the values came from (recorded only).
@@ -125,8 +127,13 @@ class ActiveConfig:
     planner: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
     backend: str = "auto"
     preset: str = "paper"
+    up: str | tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
+        if self.up is not None and self.up != "auto":
+            parse_up(self.up, "ActiveConfig.up")
+            if not isinstance(self.up, str):
+                object.__setattr__(self, "up", tuple(float(c) for c in self.up))
         if not isinstance(self.method, str) or not self.method:
             raise ValueError(f"ActiveConfig.method must be a planner name, got {self.method!r}")
         for name, low in (("budget", 1), ("initial_count", 1), ("iterations_per_view", 0), ("total_iterations", 1),
@@ -219,6 +226,8 @@ class ActiveConfig:
         for key in ("initial_ids", "initial_direction"):
             if d.get(key) is not None:
                 d[key] = tuple(d[key])
+        if isinstance(d.get("up"), list):
+            d["up"] = tuple(d["up"])
         return cls(**d)
 
 
@@ -228,14 +237,11 @@ def write_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
 
     The temporary file is removed when ``write`` raises, so no half-written file is ever left.
     """
+    from fluidsim.output import atomic_output  # the project's one temporary-name pattern and error wrapping
+
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    try:
+    with atomic_output(path) as tmp:
         write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
 
 
@@ -380,6 +386,26 @@ def load_active_dataset(dataset_path: str | Path, config: ActiveConfig):
     return ds
 
 
+def dataset_up(spec: str | tuple[float, float, float] | None, dataset) -> str | tuple[float, float, float]:
+    """The probes' up direction for ``dataset`` (a ``recon.datasets.Dataset``).
+
+    Args:
+        spec: None (the dataset's ``up_axis``), "auto" (:func:`recon.frames.up_from_cameras` of the training
+            cameras, logged) or an explicit direction.
+    Returns:
+        An up spec for :class:`nbv.physics.PhysicsConfig` ("+y", "-y", or a 3-tuple).
+    """
+    if spec is None:
+        return "+" + dataset.up_axis
+    if spec != "auto":
+        return spec
+    from recon.frames import up_from_cameras
+
+    up = up_from_cameras([v.camera for v in dataset.train])
+    log.info("--up auto: the training cameras' mean up vector is %s", up_label(up))
+    return tuple(float(c) for c in up)
+
+
 class ActiveRun:
     """One active-reconstruction run in a folder: :meth:`run` executes or resumes it.
 
@@ -419,7 +445,7 @@ class ActiveRun:
         self.on_round = on_round
         self.progress = progress
         self.dataset = load_active_dataset(dataset_path, config)
-        self.physics_config = replace(config.physics, up_axis=self.dataset.up_axis)
+        self.physics_config = replace(config.physics, up=dataset_up(config.up, self.dataset))
         self.physics_fn = physics_fn
         self.resumable = prepare_run_dir(self.run_dir, _dataset_run_config(self.dataset_path, config), overwrite)
         self.views = [view_to(v, device) for v in self.dataset.train]

@@ -6,32 +6,44 @@ Fluid particle i contributes its divergence D_i (paper Eq. 1) to Gaussian g when
     D_g = sum_{steps} sum_{i near g} D_i / #(i, step) pairs    (0 when no particle came near g),
 
 and |P_g| is the number of distinct fluid particles that ever came within n r_g of g (the
-function-critical regions). Accumulation never loops over all particles x all Gaussians: the static
-Gaussians are listed once per probe in the cells of a uniform grid (CSR: counting pass, prefix sum,
-fill pass); at every step each active fluid particle walks the list of its own cell. On a CPU each thread
-adds into its own row of sums and counts (no atomics; rows summed on read), on a GPU atomics do. The sums are
-fixed-point integers (values rounded to 6e-8, exact sums), so they are the same bits whatever the thread
-count or the order of the additions.
+function-critical regions). Accumulation never loops over all particles x all Gaussians, and its memory is
+O(G + particles):
 
-A solver's steps are staged (positions, values and ids copied, a sequential 20 bytes per particle) and
-accumulated ``batch_steps`` at a time: after a solver step the Gaussians' records, lists and sums are out
-of the caches, and a list entry then costs a memory round trip (about 100 ns, against a few ns warm),
-so one pass over eight steps' particles pays that once instead of eight times. Probes under
-``SERIAL_BELOW`` fluid particles are not staged: each step accumulates at once on the launching thread
-(a small step leaves the Gaussians cached, and the staging copy would cost a launch per step). Every read (sums,
-counts, means, distinct counts) accumulates what is staged first.
+- **Levels** (:func:`build_levels`). The static Gaussians are sorted into a few classes by reach (a factor
+  ``LEVEL_RATIO`` = 2 each), adjacent classes are merged where a cost model says one grid is cheaper than two, and
+  each level is a uniform grid with a cell of R_l / d (R_l the level's largest reach, d in 1..3 chosen by the same
+  model). Each Gaussian is stored ONCE, in the cell of its centre (CSR: the Gaussians renumbered by level and linear
+  cell index, so a cell's Gaussians are contiguous in memory and a run of cells along z is one range). The cells per
+  level are capped at ``CELLS_PER_GAUSSIAN`` per Gaussian (or ``MIN_LEVEL_CELLS``), so the grids are O(G) too.
+  Gaussians that cannot reach the grid bounds (the union of the probes' domains) and zero-reach ones are dropped.
+- **Per step**, each fluid particle inside the domain visits, on every level, the cells that the sphere of radius
+  R_l around it touches: per (a, b) row of cells, the z-range of the sphere's chord (one contiguous range of
+  Gaussians), and tests |x_i - mu_g|^2 < r_g^2 in f64, as the numpy twin does.
+- **Sums.** On a CPU each thread adds into its own row of sums and counts (row = ``ti.global_thread_idx()``; no
+  atomics; rows summed on read), on a GPU atomics do. The sums are fixed-point integers (values rounded to
+  2^-24 = 6e-8, exact sums), so they are the same bits whatever the thread count or the order of the additions.
+- **Staging.** A solver's steps are staged (positions, values and ids copied, a sequential 20 bytes per particle)
+  and accumulated ``batch_steps`` at a time: after a solver step the Gaussians' records and sums are out of the
+  caches, and one pass over eight steps' particles pays the cold misses once instead of eight times. Probes under
+  ``SERIAL_BELOW`` fluid particles are not staged (without distinct tracking): each step accumulates at once on
+  the launching thread (a small step leaves the Gaussians cached, and the staging copy would cost a launch per
+  step). Every read (sums, counts, means, distinct counts) accumulates what is staged first.
+- **Distinct particles** |P_g| are exact. A pair (g, id) is recorded only on the first step of each visit: the
+  staging copy keeps each particle's previous sample (per id, O(particles)), and a hit whose previous sample was
+  within reach of g too is not recorded again (it was recorded then). The records are one bit per (Gaussian, fluid
+  id) (``atomic_or``) while that matrix fits ``distinct_budget_bytes`` (512 MiB by default: 20k Gaussians x 60k
+  particles take 150 MB), else a lock-free open-addressing hash set of g * 2^32 + id keys (ordered linear probing
+  with ``atomic_max``), 8-16 bytes per distinct pair (load <= 1/2), grown by rehashing when half full.
 
-Distinct particles are tracked exactly, with one bit per (Gaussian, fluid particle id) (``atomic_or``)
-while that matrix fits ``distinct_budget_bytes`` (512 MiB by default: 20k Gaussians x 60k particles
-take 150 MB); beyond, (g, id) keys are collected per step, deduplicated and merged in chunks (exact,
-memory proportional to the distinct pairs, slower).
-
+:meth:`GaussianAccumulator.estimate_bytes` bounds the memory before anything is allocated.
 :func:`accumulate_reference` (and :func:`within_reach_reference`) are the O(N G) numpy twins.
 """
 
 from __future__ import annotations
 
 import logging
+import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -44,12 +56,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+# Largest distinct-particle bit matrix; beyond it the hash set of pairs is used.
 DEFAULT_DISTINCT_BUDGET = 512 * 2**20
-# Grid limits: cells, and Gaussian entries in all cell lists.
-_MAX_CELLS = 1 << 23
-_MAX_ITEMS = 1 << 28
-# Keys collected per step before a merge into the sorted unique set.
-_KEY_CHUNK = 1 << 24
 # Below this many fluid particles a step's accumulation runs on the launching thread (CPU): waking the thread
 # pool costs more than a second thread saves on a small probe.
 SERIAL_BELOW = 4096
@@ -58,14 +66,36 @@ _ROWS_BUDGET = 256 * 2**20
 # Solver steps staged per accumulation pass, and the most bytes the staged particles may take.
 BATCH_STEPS = 8
 _STAGE_BUDGET = 64 * 2**20
+# Levels: reach classes span a factor LEVEL_RATIO (at most MAX_LEVELS classes); a level's cell is CELL_FRACTION of
+# its largest reach; the merge model weighs a particle's cell lookup on a level as LOOKUP_COST Gaussian tests. The
+# list entries are capped at ENTRIES_PER_GAUSSIAN per kept Gaussian on average (cells grow beyond), the cells of a
+# level at CELLS_PER_GAUSSIAN per Gaussian of the level (or MIN_LEVEL_CELLS).
+LEVEL_RATIO = 2.0
+MAX_LEVELS = 16
+CELL_FRACTION = 0.5
+MIN_CELL_FRACTION = 1.0 / 16
+LOOKUP_COST = 4.0
+ENTRIES_PER_GAUSSIAN = 128
+CELLS_PER_GAUSSIAN = 32
+MIN_LEVEL_CELLS = 1 << 16
+_ENTRY_SLACK = 1 << 20
+# Hash set of distinct pairs: grown (x2) when more than _HASH_LOAD full after a launch; inserts are refused
+# (and the launch repeated after growing) above _HASH_LIMIT.
+_HASH_LOAD = 0.5
+_HASH_LIMIT = 0.75
+_HASH_MIN_SLOTS = 1 << 16
+# Per-id records of the previous sample (24 bytes each): ids must stay below this.
+MAX_PARTICLE_IDS = 1 << 27
+# Bytes per Gaussian while the levels are built (numpy temporaries: sort keys, permutations, sorted copies).
+_BUILD_BYTES_PER_GAUSSIAN = 120
 
 
 def accumulation_rows(num_gaussians: int) -> tuple[int, bool]:
     """(rows, private) of the sums and counts for the current Taichi runtime.
 
-    On a CPU every thread of the pool gets its own row of sums and counts (plain, branch-free adds, summed on
-    read; about 2x faster than atomic adds behind the unpredictable within-reach branch), while the rows fit
-    ``_ROWS_BUDGET`` bytes. Otherwise (GPUs, or too many Gaussians) one row with atomic adds.
+    On a CPU every thread of the pool gets its own row of sums and counts (plain adds without atomics, summed on
+    read), while the rows fit ``_ROWS_BUDGET`` bytes. Otherwise (GPUs, or too many Gaussians) one row with atomic
+    adds.
     """
     cfg = ti.lang.impl.current_cfg()
     threads = max(int(cfg.cpu_max_num_threads or 0), 1)
@@ -83,22 +113,227 @@ def _as_points(name: str, arr, dtype=np.float64) -> np.ndarray:
     return a
 
 
+def _as_box(name: str, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.asarray(lo, dtype=np.float64).reshape(3)
+    hi = np.asarray(hi, dtype=np.float64).reshape(3)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
+        raise ValueError(f"{name}: {lo.tolist()} must be finite and below {hi.tolist()}")
+    return lo, hi
+
+
+# ---- the levels ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class GaussianLevels:
+    """The plan of the per-level cell lists (see :func:`plan_levels`); the lists themselves are built by the
+    accumulator.
+
+    Attributes:
+        order: [K] int64, the caller's index of internal Gaussian k (the kept Gaussians, sorted by level and by the
+            cell of their centre).
+        table: [L, kernels.TABLE_WIDTH] f64, one row per level: origin (3, m), 1 / cell, cell (m), dims (3), offset
+            of its first cell in the cell starts.
+        first: [L + 1] int64, level l holds the internal Gaussians first[l]..first[l + 1] - 1.
+        centre_starts: [cells + 1] int64, the first internal Gaussian whose centre lies in each cell (all levels'
+            cells in a row; centres outside a level's grid are clipped into it).
+        entries_bound: an upper bound of the list entries (every Gaussian's clipped cell box).
+        bounds: (min [3], max [3]) m, the box the particles may come from (Gaussians that cannot reach it are not
+            kept).
+    """
+
+    order: np.ndarray
+    table: np.ndarray
+    first: np.ndarray
+    centre_starts: np.ndarray
+    entries_bound: int
+    bounds: tuple[np.ndarray, np.ndarray]
+
+    @property
+    def num_levels(self) -> int:
+        return int(self.table.shape[0])
+
+    @property
+    def counts(self) -> np.ndarray:
+        """[L] Gaussians per level."""
+        return np.diff(self.first)
+
+    @property
+    def cell_sizes(self) -> np.ndarray:
+        """[L] cell edge of each level, m."""
+        return self.table[:, 4].copy()
+
+    @property
+    def num_cells(self) -> int:
+        return int(np.prod(self.table[:, 5:8], axis=1).sum())
+
+
+@dataclass
+class _Group:
+    """A class of Gaussians by reach while the levels are merged: members, their largest reach, their reach box
+    and the sums of r, r^2, r^3 (for the tested volume)."""
+
+    members: list[np.ndarray]
+    count: int
+    reach: float
+    lo: np.ndarray
+    hi: np.ndarray
+    moments: np.ndarray
+
+    def merged(self, other: _Group) -> _Group:
+        return _Group(self.members + other.members, self.count + other.count, max(self.reach, other.reach),
+                      np.minimum(self.lo, other.lo), np.maximum(self.hi, other.hi), self.moments + other.moments)
+
+    def tested(self, cell: float) -> float:
+        """The volume (m^3) where particles test this group's Gaussians with cells of edge C: a Gaussian of reach r
+        is tested in the cells its sphere touches, the sphere dilated by a cell, C^3 + 6 C^2 r + 3 pi C r^2 +
+        4/3 pi r^3 (per unit particle density: the tests)."""
+        s1, s2, s3 = self.moments
+        return self.count * cell**3 + 6 * cell * cell * s1 + 3 * math.pi * cell * s2 + 4.0 / 3.0 * math.pi * s3
+
+    def cost(self) -> float:
+        """Cost of this group as one level per unit particle density, in units of one Gaussian test: a lookup
+        (``LOOKUP_COST``) per particle in its box, plus the tests at ``CELL_FRACTION``."""
+        return LOOKUP_COST * float(np.prod(self.hi - self.lo)) + self.tested(CELL_FRACTION * self.reach)
+
+
+def _reach_groups(centers: np.ndarray, reach: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[_Group]:
+    """The kept Gaussians in classes of reach (r_max / LEVEL_RATIO^(k+1), r_max / LEVEL_RATIO^k] (the last class
+    holds all smaller ones), smallest first, adjacent classes merged while one level costs less than two."""
+    top = float(reach.max())
+    k = np.floor(np.log(top / reach) / math.log(LEVEL_RATIO)).astype(np.int64).clip(0, MAX_LEVELS - 1)
+    groups = []
+    for cls in np.unique(k)[::-1]:
+        idx = np.nonzero(k == cls)[0]
+        c, r = centers[idx], reach[idx]
+        box_lo = np.maximum((c - r[:, None]).min(0), lo)
+        box_hi = np.minimum((c + r[:, None]).max(0), hi)
+        groups.append(_Group([idx], len(idx), float(r.max()), box_lo, box_hi,
+                             np.array([r.sum(), (r * r).sum(), (r**3).sum()])))
+    merged = [groups[0]]
+    for g in groups[1:]:
+        both = merged[-1].merged(g)
+        if both.cost() < merged[-1].cost() + g.cost():
+            merged[-1] = both
+        else:
+            merged.append(g)
+    return merged[::-1]
+
+
+def _cell_boxes(centers: np.ndarray, reach: np.ndarray, origin: np.ndarray, cell: float,
+                dims: np.ndarray) -> np.ndarray:
+    """[N] int64 cells in each Gaussian's clipped cell box (an upper bound of the cells it is listed in)."""
+    first = np.clip(np.floor((centers - reach[:, None] - origin) / cell), 0, dims - 1)
+    last = np.clip(np.floor((centers + reach[:, None] - origin) / cell), -1, dims - 1)
+    return np.prod(np.maximum(last - first + 1, 0), axis=1).astype(np.int64)
+
+
+def _level_grid(group: _Group, cell: float) -> tuple[float, np.ndarray]:
+    """(cell, dims) of a level over its reach box: at least ``cell``, enlarged until the cells fit the cap (a larger
+    cell is still exact, it only tests more Gaussians). dims = floor(extent / cell) + 1, so the box's far faces lie
+    inside the grid."""
+    extent = group.hi - group.lo
+    scale = max(float(np.abs(np.concatenate([group.lo, group.hi])).max()), float(extent.max()), 1e-3)
+    cell = max(cell, 1e-7 * scale)  # rounding stays far below the listing slack
+    limit = max(CELLS_PER_GAUSSIAN * group.count, MIN_LEVEL_CELLS)
+    while True:
+        dims = np.floor(extent / cell).astype(np.int64) + 1
+        if int(np.prod(dims)) <= limit:
+            return cell, dims
+        cell *= 1.25
+
+
+def _fit_cells(groups: list[_Group], centers: list[np.ndarray], reach: list[np.ndarray],
+               budget: int) -> tuple[list[tuple[float, np.ndarray]], list[int]]:
+    """The (cell, dims) of every level and its list-entry bound (:func:`_cell_boxes`), within ``budget`` entries.
+
+    Every level starts at ``CELL_FRACTION`` of its largest reach; while the bounds exceed the budget, the level with
+    the most entries coarsens (x 1.25). Then, while the budget allows, the level whose finer cell (/ 1.25, down to
+    ``MIN_CELL_FRACTION``) saves the most tested volume (:meth:`_Group.tested`) per added entry refines: levels of
+    few large Gaussians (which many particles test) get fine cells for little memory.
+    """
+    grids = [_level_grid(g, CELL_FRACTION * g.reach) for g in groups]
+    boxes = [int(_cell_boxes(c, r, g.lo, *grid).sum()) for g, c, r, grid in zip(groups, centers, reach, grids,
+                                                                               strict=True)]
+    while sum(boxes) > budget:
+        w = int(np.argmax(boxes))
+        grids[w] = _level_grid(groups[w], 1.25 * grids[w][0])
+        boxes[w] = int(_cell_boxes(centers[w], reach[w], groups[w].lo, *grids[w]).sum())
+
+    def finer(w: int):
+        cell = grids[w][0] / 1.25
+        if cell < MIN_CELL_FRACTION * groups[w].reach:
+            return None
+        grid = _level_grid(groups[w], cell)
+        if grid[0] >= grids[w][0]:  # the cell cap holds it
+            return None
+        box = int(_cell_boxes(centers[w], reach[w], groups[w].lo, *grid).sum())
+        saved = groups[w].tested(grids[w][0]) - groups[w].tested(grid[0])
+        return saved / max(box - boxes[w], 1), grid, box
+
+    options = [finer(w) for w in range(len(groups))]
+    while True:
+        fitting = [(o[0], w) for w, o in enumerate(options) if o is not None and sum(boxes) - boxes[w] + o[2] <= budget]
+        if not fitting:
+            return grids, boxes
+        w = max(fitting)[1]
+        _, grids[w], boxes[w] = options[w]
+        options[w] = finer(w)
+
+
+def plan_levels(centers: np.ndarray, reach: np.ndarray, bounds_min, bounds_max) -> GaussianLevels:
+    """Sort the Gaussians into levels by reach and lay out each level's grid (numpy; nothing is listed yet).
+
+    Args:
+        centers: [G, 3] m. reach: [G] m (>= 0).
+        bounds_min, bounds_max: [3] m, the box the particles come from; Gaussians whose reach sphere cannot touch
+            it, and zero reaches, are dropped.
+    Returns:
+        GaussianLevels. The list entries stay below ``ENTRIES_PER_GAUSSIAN`` per kept Gaussian (plus a constant),
+        see :func:`_fit_cells`.
+    """
+    lo, hi = _as_box("plan_levels bounds", bounds_min, bounds_max)
+    gap = np.maximum(np.maximum(lo - centers, centers - hi), 0.0)
+    # generous by a rounding margin: a kept Gaussian that no particle reaches costs nothing but a slot
+    keep = (reach > 0) & ((gap * gap).sum(1) < reach * reach * (1 + 1e-9) + 1e-300)
+    kept = np.nonzero(keep)[0]
+    if len(kept) == 0:
+        return GaussianLevels(np.zeros(0, np.int64), np.zeros((0, kernels.TABLE_WIDTH)), np.zeros(1, np.int64),
+                              np.zeros(1, np.int64), 0, (lo, hi))
+    c_kept, r_kept = centers[kept], reach[kept]
+    groups = _reach_groups(c_kept, r_kept, lo, hi)
+    members = [np.sort(np.concatenate(g.members)) for g in groups]
+    grids, boxes = _fit_cells(groups, [c_kept[m] for m in members], [r_kept[m] for m in members],
+                              ENTRIES_PER_GAUSSIAN * len(kept) + _ENTRY_SLACK)
+    orders, rows, first, centre_counts = [], [], [0], []
+    offset = 0
+    for g, m, (cell, dims) in zip(groups, members, grids, strict=True):
+        ijk = np.clip(np.floor((c_kept[m] - g.lo) / cell).astype(np.int64), 0, dims - 1)
+        lin = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+        orders.append(kept[m[np.argsort(lin, kind="stable")]])
+        centre_counts.append(np.bincount(lin, minlength=int(np.prod(dims))))
+        rows.append([*g.lo, 1.0 / cell, cell, *dims.astype(np.float64), offset])
+        first.append(first[-1] + len(m))
+        offset += int(np.prod(dims))
+    centre_starts = np.concatenate([[0], np.cumsum(np.concatenate(centre_counts), dtype=np.int64)])
+    return GaussianLevels(np.concatenate(orders), np.asarray(rows, np.float64), np.asarray(first, np.int64),
+                          centre_starts, sum(boxes), (lo, hi))
+
+
+# ---- the accumulator ----------------------------------------------------------------------------
 class GaussianAccumulator:
     """Sums, counts and distinct particle counts of per-particle values near each Gaussian.
 
     Args:
         centers: [G, 3] Gaussian means, simulation metres.
         reach: [G] n r_g, simulation metres (>= 0); particle i is near g when |x_i - mu_g| < reach[g].
-        domain_min, domain_max: [3] simulation domain, m; particles outside it (retired fluid) are ignored,
-            and Gaussians reaching out of it are clipped to it.
+        domain_min, domain_max: [3] simulation domain, m; particles outside it (retired fluid) are ignored.
         track_distinct: also count the distinct particle ids near each Gaussian (|P_g|).
-        max_fluid: number of fluid particle ids expected (ids < max_fluid), to size the distinct-id
-            bit matrix up front; 0 = size it on first use (it grows when needed).
-        distinct_budget_bytes: largest bit matrix; beyond it the exact key-set fallback is used.
-        grid_bounds: (min [3], max [3]) m that the cell lists cover (with the domain), e.g. the union of all
-            probes' domains so that :meth:`retarget` can reuse the lists for each of them; default the domain.
+        max_fluid: number of fluid particle ids expected (ids < max_fluid), to size the per-id records (and the
+            bit matrix) up front; 0 = size them on first use (they grow when needed).
+        distinct_budget_bytes: largest bit matrix; beyond it the exact hash set of pairs is used.
+        grid_bounds: (min [3], max [3]) m that the levels cover (with the domain), e.g. the union of all probes'
+            domains so that :meth:`retarget` can reuse them for each of them; default the domain.
         batch_steps: solver steps staged per accumulation pass (:meth:`add_from_solver`); 1 = accumulate each
-            step at once. Results are the same up to the order of float additions.
+            step at once. The sums are the same bits either way.
 
     Example:
         >>> acc = GaussianAccumulator(means, 3.0 * radii, setup.domain_min, setup.domain_max)
@@ -118,225 +353,271 @@ class GaussianAccumulator:
             raise ValueError("centers is empty: there are no Gaussians to accumulate onto")
         if not (np.isfinite(reach).all() and (reach >= 0).all()):
             raise ValueError("reach must be finite and >= 0 m; check the Gaussians' scales")
-        dmin = np.asarray(domain_min, dtype=np.float64).reshape(3)
-        dmax = np.asarray(domain_max, dtype=np.float64).reshape(3)
-        if not (np.isfinite(dmin).all() and np.isfinite(dmax).all() and (dmin < dmax).all()):
-            raise ValueError(f"domain_min {dmin.tolist()} must be finite and below domain_max {dmax.tolist()}")
+        dmin, dmax = _as_box("domain_min/domain_max", domain_min, domain_max)
         if int(max_fluid) < 0:
             raise ValueError(f"max_fluid must be >= 0, got {max_fluid}")
         if int(batch_steps) < 1:
             raise ValueError(f"batch_steps must be >= 1 (1: accumulate every step at once), got {batch_steps}")
-        self.batch_steps = int(batch_steps)
-        self._stage_x = self._stage_values = self._stage_ids = None
-        self._stage_capacity = 0
-        self._staged = 0
-        self._staged_steps = 0
+        bmin, bmax = dmin, dmax
+        if grid_bounds is not None:
+            gmin, gmax = _as_box("grid_bounds", *grid_bounds)
+            bmin, bmax = np.minimum(gmin, dmin), np.maximum(gmax, dmax)
         self.num_gaussians = len(centers)
         self.domain_min, self.domain_max = dmin, dmax
         self.track_distinct = bool(track_distinct)
         self.distinct_budget_bytes = int(distinct_budget_bytes)
-        # Internally the Gaussians are numbered along a Morton curve, so that the Gaussians listed in one cell sit
-        # close together in memory (fewer cache misses when the lists are cold after a solver step); every result
-        # is returned in the caller's order.
-        self._order = morton_order(centers)
-        centers, reach = centers[self._order], reach[self._order]
-        self._centers_np, self._reach_np = centers, reach
-        self._grid_bounds = (dmin, dmax)
-        if grid_bounds is not None:
-            gmin, gmax = (np.asarray(b, dtype=np.float64).reshape(3) for b in grid_bounds)
-            if not (np.isfinite(gmin).all() and np.isfinite(gmax).all() and (gmin < gmax).all()):
-                raise ValueError(f"grid_bounds {gmin.tolist()}, {gmax.tolist()} must be finite with min < max")
-            self._grid_bounds = (np.minimum(gmin, dmin), np.maximum(gmax, dmax))
-        self._gauss = ti.Vector.ndarray(4, ti.f64, shape=self.num_gaussians)  # (mu_g, reach_g^2)
-        self._gauss.from_numpy(np.concatenate([centers, (reach * reach)[:, None]], axis=1))
-        self._build_lists(centers, reach)
-        self.rows, self._private = accumulation_rows(self.num_gaussians)
-        self._pool_threads = max(int(ti.lang.impl.current_cfg().cpu_max_num_threads or 0), 1)
+        self.batch_steps = int(batch_steps)
         self.serial_below = SERIAL_BELOW
-        # per row: fixed-point sum and count of each Gaussian, and in slot G the count of saturated values
-        self._acc = ti.ndarray(ti.i64, shape=(self.rows, self.num_gaussians + 1, 2))
+        # Internally the kept Gaussians are numbered by level and by the cell of their centre (the Gaussians listed in
+        # one cell sit close together in memory); every result is returned in the caller's order.
+        self.levels = plan_levels(centers, reach, bmin, bmax)
+        self._order = self.levels.order
+        kept = len(self._order)
+        self.num_kept = kept
+        self._gauss = ti.Vector.ndarray(4, ti.f64, shape=max(kept, 1))  # (mu_g, reach_g^2)
+        if kept:
+            c, r = centers[self._order], reach[self._order]
+            self._gauss.from_numpy(np.concatenate([c, (r * r)[:, None]], axis=1))
+        self._table = ti.ndarray(ti.f64, shape=(self.levels.num_levels + 1, kernels.TABLE_WIDTH))
+        self._items_offset = self.levels.num_cells + 1
+        self._table.from_numpy(self._table_array())
+        self._build_lists(reach[self._order])
+        self.rows, self._private = accumulation_rows(kept)
+        self._pool_threads = max(int(ti.lang.impl.current_cfg().cpu_max_num_threads or 0), 1)
+        # per row: fixed-point sum and count of each Gaussian, and in slot K the count of saturated values
+        self._acc = ti.ndarray(ti.i64, shape=(self.rows, kept + 1, 2))
         self._saturation_logged = False
+        self._stage_x = self._stage_values = self._stage_ids = None
+        self._stage_capacity = self._staged = self._staged_steps = 0
         self._no_bits = ti.ndarray(ti.u32, shape=(1, 1))
-        self._no_keys = ti.ndarray(ti.i64, shape=1)
-        self._key_count = ti.ndarray(ti.i64, shape=1)
+        self._no_hash = ti.ndarray(ti.i64, shape=1)
+        self._no_prev = ti.Vector.ndarray(3, ti.f64, shape=1)
+        self._hash_state = ti.ndarray(ti.i64, shape=3)
+        self._storage = "bits" if self.track_distinct else "none"
         self._bits = None
         self._bit_width = 0
-        self._keys = None
-        self._unique_keys = np.zeros(0, np.int64)
-        self._pending: list[np.ndarray] = []
-        self._pending_size = 0
+        self._hashes = None
+        self._last = self._no_prev  # per particle id: the previous sample's position (NaN: none)
+        self._stage_prev = self._no_prev
+        self._id_capacity = 0
         self.reset()
         if self.track_distinct and max_fluid:
             self._ensure_ids(int(max_fluid))
 
-    # -- the static lists --------------------------------------------------------------------
-    def _geometry(self, dmin: np.ndarray, dmax: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-        """(origin, cell size, dims) of the list grid: the Gaussians' reach box clipped to the domain."""
-        centers, reach = self._centers_np, self._reach_np
-        lo = np.maximum((centers - reach[:, None]).min(0), dmin)
-        hi = np.minimum((centers + reach[:, None]).max(0), dmax)
-        extent = np.maximum(hi - lo, 0.0)
-        positive = reach[reach > 0]
-        cell = 0.5 * float(np.median(positive)) if len(positive) else 0.0
-        cell = max(cell, float(extent.max()) / 1024.0, 1e-9)
-        while np.prod(np.maximum(np.ceil(extent / cell), 1.0)) > _MAX_CELLS:
-            cell *= 1.25
-        dims = np.maximum(np.ceil(extent / cell), 1).astype(np.int64)
-        return lo, cell, dims
+    def _build_lists(self, reach: np.ndarray) -> None:
+        """The cell lists of every level (counting pass, prefix sum, fill pass, each cell gathering its own items)
+        in one ``lists`` array: the start of every cell's items (all levels' cells, then the end), then the items."""
+        lv = self.levels
+        cells = lv.num_cells
+        centres = ti.ndarray(ti.i32, shape=cells + 1)
+        centres.from_numpy(lv.centre_starts.astype(np.int32))
+        ti_reach = ti.ndarray(ti.f64, shape=max(len(reach), 1))
+        if len(reach):
+            ti_reach.from_numpy(reach)
+        counts = ti.ndarray(ti.i32, shape=max(cells, 1))
+
+        def passes(fill: bool, counts, lists) -> None:
+            for level in range(lv.num_levels):
+                cell = float(lv.table[level, 4])
+                slack = 1e-6 * cell
+                reach_cells = int(math.floor(float(reach[lv.first[level]: lv.first[level + 1]].max() + slack) / cell)) + 1
+                kernels.list_cells(level + 1, reach_cells, slack, fill, self._gauss, ti_reach, self._table, centres,
+                                   counts, lists)
+
+        passes(False, counts, counts)
+        starts = np.concatenate([[0], np.cumsum(counts.to_numpy()[:cells], dtype=np.int64)])
+        total = int(starts[-1])
+        if total > lv.entries_bound:  # the bound decided the memory: it must hold
+            raise RuntimeError(f"cell lists hold {total} entries, above their bound {lv.entries_bound}")
+        self._lists = ti.ndarray(ti.i32, shape=self._items_offset + max(total, 1))
+        head = ti.ndarray(ti.i32, shape=cells + 1)
+        head.from_numpy(starts.astype(np.int32))
+        kernels.copy_into(head, self._lists)
+        del head
+        passes(True, counts, self._lists)
+        del counts
+        self.list_entries = total
+        log.debug("Gaussian levels: %d of %d Gaussians kept in %d levels (%s), cells %s m, %d cells, %d list entries "
+                  "(%.1f per Gaussian)", self.num_kept, self.num_gaussians, lv.num_levels, lv.counts.tolist(),
+                  [float(f"{c:.3g}") for c in lv.cell_sizes], cells, total, total / max(self.num_kept, 1))
+
+    def _table_array(self) -> np.ndarray:
+        """The ``table`` argument of the kernels (see ``aggregate_kernels.TABLE_WIDTH``)."""
+        head = np.zeros((1, kernels.TABLE_WIDTH))
+        # Particles outside the levels' grids reach no Gaussian: the kernels' domain test also skips them (most of a
+        # probe's fluid is away from the object), with every level lookup.
+        table = self.levels.table.reshape(-1, kernels.TABLE_WIDTH)
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        if len(table):
+            lo = np.maximum(table[:, 0:3].min(0), self.domain_min)
+            hi = np.minimum((table[:, 0:3] + table[:, 4:5] * table[:, 5:8]).max(0), self.domain_max)
+        head[0, :6] = np.concatenate([lo, hi])
+        head[0, kernels.ITEMS_OFFSET] = self._items_offset
+        return np.concatenate([head, table])
 
     def retarget(self, domain_min, domain_max) -> bool:
         """Reuse this accumulator for another domain (e.g. the next probe).
 
-        When the list grid covers the Gaussians' reach box clipped to the new domain, switch the domain (the
-        kernel filters particles by it), zero the sums, counts and distinct records and return True: nothing is
-        rebuilt. Otherwise change nothing and return False (build a new accumulator).
+        When the new domain lies within the box the levels were built for (the grid bounds and the first domain),
+        switch the domain (the kernel filters particles by it), zero the sums, counts and distinct records and
+        return True: nothing is rebuilt. Otherwise change nothing and return False (build a new accumulator).
         """
-        dmin = np.asarray(domain_min, dtype=np.float64).reshape(3)
-        dmax = np.asarray(domain_max, dtype=np.float64).reshape(3)
-        if not (np.isfinite(dmin).all() and np.isfinite(dmax).all() and (dmin < dmax).all()):
-            raise ValueError(f"domain_min {dmin.tolist()} must be finite and below domain_max {dmax.tolist()}")
-        centers, reach = self._centers_np, self._reach_np
-        need_lo = np.maximum((centers - reach[:, None]).min(0), dmin)
-        need_hi = np.minimum((centers + reach[:, None]).max(0), dmax)
-        grid_hi = self.origin + self.cell_size * np.asarray(self.dims, np.float64)
-        if not ((need_lo >= self.origin).all() and (need_hi <= grid_hi).all()):
+        dmin, dmax = _as_box("domain_min/domain_max", domain_min, domain_max)
+        bmin, bmax = self.levels.bounds
+        if not ((dmin >= bmin).all() and (dmax <= bmax).all()):
             return False
         self.domain_min, self.domain_max = dmin, dmax
-        self._grid.from_numpy(self._grid_array())
+        self._table.from_numpy(self._table_array())
         self.reset()
         return True
 
-    def _build_lists(self, centers: np.ndarray, reach: np.ndarray) -> None:
-        lo, cell, dims = self._geometry(*self._grid_bounds)
-        self.origin = lo
-        self.cell_size = cell
-        self.dims = tuple(int(d) for d in dims)
-        # Upper bound of the list entries (whole clipped boxes), checked before anything is allocated.
-        first = np.clip(np.floor((centers - reach[:, None] - lo) / cell), 0, dims - 1)
-        last = np.clip(np.floor((centers + reach[:, None] - lo) / cell), -1, dims - 1)
-        bound = float(np.prod(np.maximum(last - first + 1, 0), axis=1).sum())
-        if bound > _MAX_ITEMS:
-            raise ValueError(f"the Gaussians' reach spheres would fill {bound:.3g} cell-list entries (> {_MAX_ITEMS}); "
-                             f"the set holds many huge Gaussians: prune floaters or lower the reach factor n")
-        num_cells = int(np.prod(dims))
-        counts = ti.ndarray(ti.i32, shape=num_cells)
-        counts.fill(0)
-        starts = ti.ndarray(ti.i32, shape=num_cells + 1)
-        ti_centers = ti.Vector.ndarray(3, ti.f64, shape=self.num_gaussians)
-        ti_centers.from_numpy(centers)
-        args = (ti_centers, self._ti_reach(reach), ti.Vector(lo.tolist(), ti.f64), cell,
-                kernels.ivec3(*self.dims), 1e-6 * cell)
-        dummy = ti.ndarray(ti.i32, shape=1)
-        kernels.list_gaussians(*args, 0, counts, starts, dummy)
-        c = counts.to_numpy()
-        s = np.concatenate([[0], np.cumsum(c, dtype=np.int64)])
-        total = int(s[-1])
-        starts.from_numpy(s.astype(np.int32))
-        items = ti.ndarray(ti.i32, shape=max(total, 1))
-        counts.fill(0)
-        kernels.list_gaussians(*args, 1, counts, starts, items)
-        # one array: the cell starts, then the items (the kernel finds them at grid[13])
-        self._lists = ti.ndarray(ti.i32, shape=num_cells + 1 + max(total, 1))
-        self._lists.from_numpy(np.concatenate([s.astype(np.int32), items.to_numpy()]))
-        self._grid = ti.ndarray(ti.f64, shape=kernels.GRID_SIZE)
-        self._grid.from_numpy(self._grid_array())
-        self.list_entries = total
-        log.debug("Gaussian cell lists: %s cells of %.4g m, %d entries (%.1f per Gaussian)", self.dims, cell,
-                  total, total / self.num_gaussians)
+    # -- memory ---------------------------------------------------------------------------------
+    @staticmethod
+    def estimate_bytes(num_gaussians: int, max_fluid: int, track_distinct: bool = False, *,
+                       distinct_pairs: int | None = None, threads: int | None = None,
+                       batch_steps: int = BATCH_STEPS, distinct_budget_bytes: int = DEFAULT_DISTINCT_BUDGET,
+                       float_bytes: int = 4) -> int:
+        """An upper estimate of the bytes an accumulator takes at its peak, before anything is allocated.
 
-    def _grid_array(self) -> np.ndarray:
-        """The ``grid`` argument of the kernels (see ``aggregate_kernels.GRID_SIZE``)."""
-        num_cells = int(np.prod(self.dims))
-        return np.concatenate([self.origin, [1.0 / self.cell_size], self.domain_min, self.domain_max,
-                               np.asarray(self.dims, np.float64), [num_cells + 1]])
+        Args:
+            num_gaussians: G.
+            max_fluid: fluid particles of the largest probe (ids < max_fluid).
+            track_distinct: with the distinct-particle records (|P_g|).
+            distinct_pairs: expected distinct (Gaussian, particle) pairs of one probe, for the hash set (used when
+                the bit matrix G x max_fluid exceeds ``distinct_budget_bytes``); default
+                :func:`default_distinct_pairs`.
+            threads: CPU threads (rows of sums); default the current Taichi runtime's (1 row on GPUs).
+            batch_steps: staged steps. float_bytes: 4 (f32 solver) or 8.
+        Returns:
+            bytes: the levels (gauss records 32 B, permutation 8 B, cells <= 4 per Gaussian x 4 B, and the numpy
+            temporaries of the build), the rows of sums (16 B per Gaussian and row), the staging, the read-back of
+            the sums, and the distinct records (bit matrix, or the hash set at up to 48 B per pair while it grows:
+            a half-full set and its double).
+        """
+        g, f = int(num_gaussians), int(max_fluid)
+        if threads is None:
+            rows, _ = accumulation_rows(g)
+        else:
+            rows = max(int(threads), 1) if 16 * max(int(threads), 1) * (g + 1) <= _ROWS_BUDGET else 1
+        levels = g * (32 + 8 + 4 * CELLS_PER_GAUSSIAN) + 4 * MIN_LEVEL_CELLS * 8
+        build = g * _BUILD_BYTES_PER_GAUSSIAN
+        sums = 16 * rows * (g + 1)
+        readback = sums + 16 * (g + 1) + 16 * g
+        per_staged = 4 * float_bytes + 4 + (24 if track_distinct else 0)
+        staged = min(f * batch_steps, max(f, _STAGE_BUDGET // per_staged)) * per_staged
+        distinct = 0
+        if track_distinct:
+            bits = g * ((f + 31) // 32) * 4
+            if bits <= distinct_budget_bytes:
+                distinct = bits
+            else:
+                pairs = default_distinct_pairs(g, f) if distinct_pairs is None else int(distinct_pairs)
+                slots = 1 << max(int(math.ceil(math.log2(max(pairs / _HASH_LOAD, _HASH_MIN_SLOTS)))), 0)
+                distinct = 3 * 8 * slots  # while growing: the old set and its double
+            distinct += 24 * f
+        return int(max(build, readback) + levels + sums + staged + distinct)
 
-    def _ti_reach(self, reach: np.ndarray):
-        arr = ti.ndarray(ti.f64, shape=len(reach))
-        arr.from_numpy(reach)
-        return arr
-
-    # -- distinct-id storage -----------------------------------------------------------------
+    # -- distinct-id storage ----------------------------------------------------------------------
     def _ensure_ids(self, needed: int) -> None:
-        """Make room for particle ids < ``needed`` (bit matrix while it fits the budget, else keys)."""
-        if self._keys is not None:
+        """Make room for particle ids < ``needed``: the per-id previous samples, and the bit matrix while it fits the
+        budget (else the hash set)."""
+        if needed <= self._id_capacity:
             return
-        width = (needed + 31) // 32
-        if width <= self._bit_width:
-            return
-        width = max(width, (self._bit_width * 5) // 4)
-        if self.num_gaussians * width * 4 > self.distinct_budget_bytes:
-            log.info("distinct-particle bit matrix of %d x %d words exceeds %.0f MiB: using exact key sets",
-                     self.num_gaussians, width, self.distinct_budget_bytes / 2**20)
-            old = self._bit_rows()
-            self._bits, self._bit_width = None, 0
-            self._keys = ti.ndarray(ti.i64, shape=1 << 20)
+        cap = max(needed, (self._id_capacity * 5) // 4)
+        if cap > MAX_PARTICLE_IDS:
+            raise ValueError(f"particle ids up to {needed - 1} need {24 * cap / 2**30:.1f} GiB of per-id records "
+                             f"(ids must stay below {MAX_PARTICLE_IDS}); number the particles densely from 0")
+        old = None if self._id_capacity == 0 else self._last.to_numpy()
+        self._last = ti.Vector.ndarray(3, ti.f64, shape=cap)
+        self._last.fill(float("nan"))
+        if old is not None:
+            grown = np.full((cap, 3), np.nan)
+            grown[: len(old)] = old
+            self._last.from_numpy(grown)
+        self._id_capacity = cap
+        if self._storage == "bits":
+            self._grow_bits((cap + 31) // 32)
+
+    def _grow_bits(self, width: int) -> None:
+        kept = max(self.num_kept, 1)
+        if kept * width * 4 > self.distinct_budget_bytes:
+            log.info("distinct-particle bit matrix of %d x %d words exceeds %.0f MiB: using an exact hash set of pairs",
+                     kept, width, self.distinct_budget_bytes / 2**20)
+            old = self._bits
+            self._bits, self._bit_width, self._storage = None, 0, "hash"
+            self._new_hash(_HASH_MIN_SLOTS)
             if old is not None:
-                g, pid = np.nonzero(old)
-                self._unique_keys = (g.astype(np.int64) << 32) + pid
+                self._insert_bit_rows(old)
             return
         old = None if self._bits is None else self._bits.to_numpy()
-        self._bits = ti.ndarray(ti.u32, shape=(self.num_gaussians, width))
+        self._bits = ti.ndarray(ti.u32, shape=(kept, width))
         self._bits.fill(0)
         if old is not None:
-            grown = np.zeros((self.num_gaussians, width), np.uint32)
+            grown = np.zeros((kept, width), np.uint32)
             grown[:, : old.shape[1]] = old
             self._bits.from_numpy(grown)
         self._bit_width = width
 
+    def _insert_bit_rows(self, bits) -> None:
+        """Move the pairs of a bit matrix into the hash set (chunks of Gaussians, to bound the host memory)."""
+        words = bits.to_numpy()
+        chunk = max(1, (1 << 22) // max(words.shape[1], 1))
+        for g0 in range(0, words.shape[0], chunk):
+            block = np.unpackbits(np.ascontiguousarray(words[g0: g0 + chunk]).view(np.uint8), axis=1,
+                                  bitorder="little")
+            g, pid = np.nonzero(block)
+            if len(g):
+                self._insert_keys(((g + g0).astype(np.int64) << 32) + pid)
+
+    def _new_hash(self, slots: int) -> None:
+        self._hashes = ti.ndarray(ti.i64, shape=slots)
+        self._hashes.fill(kernels.EMPTY_KEY)
+        self._hash_state.from_numpy(np.array([0, int(_HASH_LIMIT * slots), 0], np.int64))
+
+    def _insert_keys(self, keys: np.ndarray) -> None:
+        while int(self._hash_state.to_numpy()[0]) + len(keys) > _HASH_LOAD * self._hashes.shape[0]:
+            self._grow_hash()
+        arr = ti.ndarray(ti.i64, shape=len(keys))
+        arr.from_numpy(keys)
+        kernels.insert_keys(arr, self._hashes, self._hash_state)
+
+    def _grow_hash(self) -> None:
+        """Double the hash set (rehash on the device)."""
+        old = self._hashes
+        self._new_hash(2 * old.shape[0])
+        kernels.insert_keys(old, self._hashes, self._hash_state)
+        log.debug("distinct pairs: hash set grown to %d slots (%.0f MiB)", self._hashes.shape[0],
+                  8 * self._hashes.shape[0] / 2**20)
+
     @property
     def distinct_storage(self) -> str:
-        """How distinct particles are recorded: ``"none"``, ``"bits"`` (bit matrix) or ``"keys"`` (key sets)."""
-        if not self.track_distinct:
-            return "none"
-        return "keys" if self._keys is not None else "bits"
-
-    def _bit_rows(self) -> np.ndarray | None:
-        """[G, 32 * words] bool, bit ``id`` of row g set when particle ``id`` came near g."""
-        if self._bits is None:
-            return None
-        words = np.ascontiguousarray(self._bits.to_numpy(), dtype=np.uint32)
-        return np.unpackbits(words.view(np.uint8), axis=1, bitorder="little").astype(bool)
+        """How distinct particles are recorded: ``"none"``, ``"bits"`` (bit matrix) or ``"hash"`` (hash set)."""
+        return self._storage
 
     # -- accumulation --------------------------------------------------------------------------
-    def _run(self, n: int, xs, values, ids) -> None:
-        track = kernels.TRACK_NONE
-        bits = self._no_bits
-        if self.track_distinct:
-            track = kernels.TRACK_BITS if self._keys is None else kernels.TRACK_KEYS
-            bits = self._bits if self._keys is None else self._no_bits
+    def _run(self, n: int, xs, values, ids, prevs) -> None:
         # CPU: small batches on the launching thread; parallel rows need a row per pool thread (fewer rows, a
         # caller's choice, also run on the launching thread)
         serial = self._private and (n < self.serial_below or self.rows < self._pool_threads)
-        if track == kernels.TRACK_NONE:
-            kernels.accumulate(n, xs, values, self._grid, self._lists, self._gauss, self._private, serial, self._acc)
+        geometry = (self._table, self._lists, self._gauss)
+        if self._storage == "none":
+            kernels.accumulate(n, xs, values, *geometry, self._private, serial, self._acc)
             return
-        common = (n, xs, values, ids, self._grid, self._lists, self._gauss)
-        if track != kernels.TRACK_KEYS:
-            kernels.accumulate_tracked(*common, True, track, self._private, serial, self._acc, bits, self._no_keys,
-                                       self._key_count)
+        common = (n, xs, values, ids, prevs, *geometry)
+        if self._storage == "bits":
+            kernels.accumulate_tracked(*common, True, kernels.TRACK_BITS, self._private, serial, self._acc,
+                                       self._bits, self._no_hash, self._hash_state)
             return
-        kernels.accumulate(n, xs, values, self._grid, self._lists, self._gauss, self._private, serial, self._acc)
-        while True:
-            self._key_count.fill(0)
-            kernels.accumulate_tracked(*common, False, track, self._private, serial, self._acc, bits, self._keys,
-                                       self._key_count)
-            emitted = int(self._key_count.to_numpy()[0])
-            if emitted <= self._keys.shape[0]:
-                break
-            self._keys = ti.ndarray(ti.i64, shape=int(emitted * 1.25) + 1)
-        if emitted:
-            self._add_keys(np.unique(self._keys.to_numpy()[:emitted]))
-
-    def _add_keys(self, keys: np.ndarray) -> None:
-        self._pending.append(keys)
-        self._pending_size += len(keys)
-        if self._pending_size > max(_KEY_CHUNK, len(self._unique_keys)):
-            self._merge_keys()
-
-    def _merge_keys(self) -> None:
-        if self._pending:
-            self._unique_keys = np.unique(np.concatenate([self._unique_keys, *self._pending]))
-            self._pending, self._pending_size = [], 0
+        add_values = True
+        while True:  # a full set refuses inserts: grow it and run the batch's records again (idempotent)
+            kernels.accumulate_tracked(*common, add_values, kernels.TRACK_HASH, self._private, serial, self._acc,
+                                       self._no_bits, self._hashes, self._hash_state)
+            add_values = False
+            fill, _, overflow = (int(v) for v in self._hash_state.to_numpy())
+            if overflow or fill > _HASH_LOAD * self._hashes.shape[0]:
+                self._grow_hash()
+            if not overflow:
+                return
 
     def add_from_solver(self, solver: DFSPHSolver) -> None:
         """Add this step's D_i of the solver's active fluid particles (device-side copies to the staging
@@ -351,48 +632,58 @@ class GaussianAccumulator:
         f = solver.fluid
         if f.active == 0:
             return
+        small = self.batch_steps == 1 or f.active < self.serial_below
         if self.track_distinct:
             self._ensure_ids(f.capacity)
-        if self.batch_steps == 1 or f.active < self.serial_below:
+        elif small:
             # Small probes: their steps leave the Gaussians in the caches, so staging buys nothing and its copy
             # launch costs more than the accumulation (quick preset: 0.55 -> 0.42 s for five probes).
             self.flush()
-            self._run(f.active, f.x, f.divergence, f.ids)
+            self._run(f.active, f.x, f.divergence, f.ids, self._no_prev)
             return
-        self._stage(f.active, f.capacity, f.x, f.divergence, f.ids)
+        # with distinct tracking every step is staged: the copy also hands each particle its previous sample
+        self._stage(f.active, f.capacity, f.x, f.divergence, f.ids, serial=False)
+        if small:
+            self.flush()
 
-    def _stage(self, n: int, capacity: int, xs, values, ids) -> None:
+    def _stage(self, n: int, capacity: int, xs, values, ids, serial: bool) -> None:
         """Copy one step's n particles to the staging arrays; accumulate when ``batch_steps`` are staged."""
         same_type = self._stage_x is not None and self._stage_x.dtype == xs.dtype
         if not same_type or self._staged + n > self._stage_capacity:
             self.flush()
             if not same_type or n > self._stage_capacity:
-                fp_bytes = 8 if xs.dtype == ti.f64 else 4
-                per_particle = 4 * fp_bytes + 4
-                cap = max(n, min(max(n, capacity) * self.batch_steps, _STAGE_BUDGET // per_particle))
-                self._stage_x = ti.Vector.ndarray(3, xs.dtype, shape=cap)
-                self._stage_values = ti.ndarray(values.dtype, shape=cap)
-                self._stage_ids = ti.ndarray(ti.i32, shape=cap)
-                self._stage_capacity = cap
-        kernels.stage_particles(n, self._staged, xs, values, ids, self._stage_x, self._stage_values, self._stage_ids)
+                self._allocate_stage(n, capacity, xs.dtype, values.dtype)
+        kernels.stage_particles(n, self._staged, xs, values, ids, self._stage_x, self._stage_values, self._stage_ids,
+                                self._last, self._stage_prev, self.track_distinct, serial)
         self._staged += n
         self._staged_steps += 1
         if self._staged_steps >= self.batch_steps:
             self.flush()
 
+    def _allocate_stage(self, n: int, capacity: int, x_dtype, value_dtype) -> None:
+        fp_bytes = 8 if x_dtype == ti.f64 else 4
+        per_particle = 4 * fp_bytes + 4 + (24 if self.track_distinct else 0)
+        cap = max(n, min(max(n, capacity) * self.batch_steps, _STAGE_BUDGET // per_particle))
+        self._stage_x = ti.Vector.ndarray(3, x_dtype, shape=cap)
+        self._stage_values = ti.ndarray(value_dtype, shape=cap)
+        self._stage_ids = ti.ndarray(ti.i32, shape=cap)
+        self._stage_prev = ti.Vector.ndarray(3, ti.f64, shape=cap) if self.track_distinct else self._no_prev
+        self._stage_capacity = cap
+
     def flush(self) -> None:
         """Accumulate the staged steps now (every read does this first)."""
         if self._staged:
             n, self._staged, self._staged_steps = self._staged, 0, 0
-            self._run(n, self._stage_x, self._stage_values, self._stage_ids)
+            self._run(n, self._stage_x, self._stage_values, self._stage_ids, self._stage_prev)
 
     def add(self, positions: np.ndarray, values: np.ndarray, ids: np.ndarray | None = None) -> None:
-        """Numpy path: add ``values`` of particles at ``positions``.
+        """Numpy path: add ``values`` of particles at ``positions`` (one step; with distinct tracking, a particle
+        whose id repeats within a call sees its earlier row as its previous sample).
 
         Args:
             positions: [P, 3] simulation metres.
             values: [P] per-particle values (e.g. D_i, 1/s).
-            ids: [P] non-negative integer particle ids (< 2^31), required with ``track_distinct``.
+            ids: [P] non-negative integer particle ids (< ``MAX_PARTICLE_IDS``), required with ``track_distinct``.
         """
         pos = _as_points("positions", positions)
         vals = np.asarray(values, dtype=np.float64)
@@ -411,32 +702,39 @@ class GaussianAccumulator:
         if len(pos) == 0:
             return
         self.flush()  # keep the order of additions
-        if self.track_distinct:
-            self._ensure_ids(int(pid.max()) + 1)
         xs = ti.Vector.ndarray(3, ti.f64, shape=len(pos))
         xs.from_numpy(pos)
         v = ti.ndarray(ti.f64, shape=len(pos))
         v.from_numpy(vals)
         i = ti.ndarray(ti.i32, shape=len(pos))
         i.from_numpy(pid)
-        self._run(len(pos), xs, v, i)
+        if not self.track_distinct:
+            self._run(len(pos), xs, v, i, self._no_prev)
+            return
+        self._ensure_ids(int(pid.max()) + 1)
+        self._stage(len(pos), len(pos), xs, v, i, serial=True)
+        self.flush()
 
     def reset(self) -> None:
-        """Zero the sums, counts and distinct-particle records and drop staged steps (the cell lists stay)."""
+        """Zero the sums, counts and distinct-particle records and drop staged steps (the levels stay)."""
         self._staged = self._staged_steps = 0
         self._acc.fill(0)
         if self._bits is not None:
             self._bits.fill(0)
-        self._unique_keys = np.zeros(0, np.int64)
-        self._pending, self._pending_size = [], 0
+        if self._hashes is not None:
+            self._hashes.fill(kernels.EMPTY_KEY)
+            self._hash_state.from_numpy(np.array([0, int(_HASH_LIMIT * self._hashes.shape[0]), 0], np.int64))
+        if self._id_capacity:
+            self._last.fill(float("nan"))
 
+    # -- results ---------------------------------------------------------------------------------
     def _caller_order(self, internal: np.ndarray) -> np.ndarray:
-        out = np.empty_like(internal)
+        out = np.zeros(self.num_gaussians, internal.dtype)
         out[self._order] = internal
         return out
 
     def _totals(self) -> np.ndarray:
-        """[G + 1, 2] int64: the rows summed (exact integers); warns once about saturated values."""
+        """[K + 1, 2] int64: the rows summed (exact integers); warns once about saturated values."""
         self.flush()
         total = self._acc.to_numpy().sum(axis=0)
         if total[-1, 0] and not self._saturation_logged:
@@ -463,13 +761,13 @@ class GaussianAccumulator:
         if not self.track_distinct:
             raise ValueError("distinct_counts needs GaussianAccumulator(..., track_distinct=True)")
         self.flush()
-        if self._keys is None:
-            if self._bits is None:
-                return np.zeros(self.num_gaussians, np.int64)
-            words = np.ascontiguousarray(self._bits.to_numpy(), dtype=np.uint32).view(np.uint8)
-            return self._caller_order(np.unpackbits(words, axis=1).sum(axis=1, dtype=np.int64))
-        self._merge_keys()
-        return self._caller_order(np.bincount(self._unique_keys >> 32, minlength=self.num_gaussians).astype(np.int64))
+        counts = ti.ndarray(ti.i64, shape=max(self.num_kept, 1))
+        counts.fill(0)
+        if self._storage == "hash":
+            kernels.count_keys(self._hashes, counts)
+        elif self._bits is not None:
+            kernels.count_bits(self._bits, counts)
+        return self._caller_order(counts.to_numpy()[: self.num_kept])
 
     def means(self) -> np.ndarray:
         """[G] sum / count (D_g of paper Eq. 3), 0 where the count is 0."""
@@ -477,17 +775,14 @@ class GaussianAccumulator:
         return np.where(counts > 0, self.sums / np.maximum(counts, 1), 0.0)
 
 
-def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
-    """[N] int64 permutation that sorts ``points`` [N, 3] along a Morton (Z-order) curve of their bounding box
-    (``bits`` per axis)."""
-    p = np.asarray(points, np.float64)
-    extent = float(np.ptp(p, axis=0).max()) if len(p) else 0.0
-    q = np.floor((p - p.min(axis=0)) / max(extent, 1e-300) * ((1 << bits) - 1)).astype(np.uint64)
-    code = np.zeros(len(p), np.uint64)
-    for b in range(bits):
-        for a in range(3):
-            code |= ((q[:, a] >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b + a)
-    return np.argsort(code, kind="stable")
+def default_distinct_pairs(num_gaussians: int, max_fluid: int) -> int:
+    """Distinct (Gaussian, particle) pairs of one probe assumed by :meth:`GaussianAccumulator.estimate_bytes` when
+    none are given: ``PAIRS_PER_GAUSSIAN`` per Gaussian, at most G x max_fluid."""
+    return int(min(PAIRS_PER_GAUSSIAN * num_gaussians, num_gaussians * max(max_fluid, 1)))
+
+
+# Distinct pairs per Gaussian of one probe assumed by the estimate (measured: see the module docstring).
+PAIRS_PER_GAUSSIAN = 256
 
 
 def within_reach_reference(centers: np.ndarray, reach: np.ndarray, positions: np.ndarray,
@@ -518,4 +813,3 @@ def accumulate_reference(centers: np.ndarray, reach: np.ndarray, positions: np.n
     near = within_reach_reference(centers, reach, positions, domain_min, domain_max)
     vals = np.asarray(values, np.float64).reshape(-1)
     return near.T.astype(np.float64) @ vals, near.sum(axis=0).astype(np.int64)
-

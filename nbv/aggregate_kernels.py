@@ -1,72 +1,34 @@
-"""Taichi kernels of :mod:`nbv.aggregate`: the cell -> Gaussian lists and the per-step accumulation.
+"""Taichi kernels of :mod:`nbv.aggregate`: the per-level cell lists, the per-step accumulation (paper Eq. 2-3), the
+staging copy, and the set of (Gaussian, particle id) pairs behind the distinct counts |P_g|.
 
-A Gaussian g is listed in every grid cell whose box comes closer than its reach (n r_g) to mu_g, so a
-fluid particle only tests the Gaussians listed in its own cell. The lists are built once per run
-(counting pass, prefix sum on the host, fill pass) because the Gaussians do not move.
+The static Gaussians are sorted into a few levels by reach (see ``nbv.aggregate.plan_levels``); a level is a uniform
+grid whose cell is a fraction of the level's largest reach, and a Gaussian of that level is listed in every cell of
+it whose box comes closer than its reach to its centre (at most (2 / fraction + 1)^3 cells, whatever the other
+levels hold). The lists are built once per run (counting pass, prefix sum on the host, fill pass). A fluid particle
+tests, on every level, the Gaussians listed in its own cell: |x - mu_g|^2 < r_g^2 in f64, as the numpy twin does.
 """
 
 import taichi as ti
 
-ivec3 = ti.types.vector(3, ti.i32)
 vec3d = ti.types.vector(3, ti.f64)
+vec4d = ti.types.vector(4, ti.f64)
 
-# Track modes of :func:`accumulate_tracked`: nothing, one bit per (Gaussian, particle id), or (g, id) keys.
+# Track modes of :func:`accumulate_tracked`: nothing, one bit per (Gaussian, particle id), or a hash set of (g, id)
+# keys.
 TRACK_NONE = 0
 TRACK_BITS = 1
-TRACK_KEYS = 2
+TRACK_HASH = 2
+# An empty slot of the hash set (keys are g * 2^32 + id >= 0).
+EMPTY_KEY = -1
+# Slots of the ``hash_state`` array: filled slots, the fill above which inserts are refused, the overflow flag.
+HASH_FILL, HASH_LIMIT, HASH_OVERFLOW = 0, 1, 2
 
-
-@ti.func
-def cell_range(center, radius, origin, inv_cell, dims):
-    """Inclusive range of grid cells overlapped by the box [center - radius, center + radius], clipped."""
-    lo = ti.max(ti.floor((center - radius - origin) * inv_cell, ti.i32), 0)
-    hi = ti.min(ti.floor((center + radius - origin) * inv_cell, ti.i32), dims - 1)
-    return lo, hi
-
-
-@ti.func
-def box_distance2(center, c, origin, cell):
-    """Squared distance from ``center`` to the box of cell ``c`` (0 inside)."""
-    d2 = ti.cast(0.0, ti.f64)
-    for a in ti.static(range(3)):
-        lo = origin[a] + cell * c[a]
-        hi = lo + cell
-        e = ti.max(ti.max(lo - center[a], center[a] - hi), 0.0)
-        d2 += e * e
-    return d2
-
-
-@ti.kernel
-def list_gaussians(
-    centers: ti.types.ndarray(dtype=vec3d, ndim=1),
-    reach: ti.types.ndarray(dtype=ti.f64, ndim=1),
-    origin: vec3d,
-    cell: ti.f64,
-    dims: ivec3,
-    slack: ti.f64,
-    fill: ti.i32,
-    cell_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    cell_starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    items: ti.types.ndarray(dtype=ti.i32, ndim=1),
-):
-    """Counting pass (``fill`` = 0: ``cell_counts[c]`` += 1 per listed Gaussian) or fill pass (``fill`` = 1:
-    ``items[cell_starts[c] + k] = g``, with ``cell_counts`` zeroed by the caller and used as cursors).
-
-    A Gaussian is listed in a cell when the cell's box is closer than ``reach[g] + slack`` to its centre;
-    the slack (a tiny fraction of a cell) absorbs rounding in the particles' cell assignment.
-    """
-    inv_cell = 1.0 / cell
-    for g in range(centers.shape[0]):
-        c = centers[g]
-        r = reach[g] + slack
-        lo, hi = cell_range(c, r, origin, inv_cell, dims)
-        for i, j, k in ti.ndrange((lo[0], hi[0] + 1), (lo[1], hi[1] + 1), (lo[2], hi[2] + 1)):
-            if box_distance2(c, ti.Vector([i, j, k]), origin, cell) < r * r:
-                lin = (i * dims[1] + j) * dims[2] + k
-                slot = ti.atomic_add(cell_counts[lin], 1)
-                if fill:
-                    items[cell_starts[lin] + slot] = g
-
+# Layout of the ``table`` [L + 1, TABLE_WIDTH] f64 array. Row 0: domain_min (3), domain_max (3), offset of the items
+# in ``lists``. Row 1 + l, level l: origin (3), 1 / cell, cell (m), dims (3), offset of the level's first cell in the
+# cell starts. One small array, because every kernel argument costs launch time, which on small probes is a good part
+# of the aggregation.
+TABLE_WIDTH = 9
+ITEMS_OFFSET = 6
 
 # Fixed-point sums: a value v is added as floor(v * VALUE_SCALE + 1/2) in an i64, clamped to +-VALUE_LIMIT quanta (NaN
 # adds 0; both are counted as saturated in the extra Gaussian slot G). Integer sums are exact and do
@@ -92,38 +54,186 @@ def fixed_point(v):
     return quanta, saturated
 
 
-# Layout of the ``grid`` array of :func:`accumulate`: origin (3), 1 / cell, domain_min (3), domain_max (3),
-# cell counts (3), offset of the items in ``lists`` (1). One small array, because every kernel argument costs
-# launch time, which on small probes is a good part of the aggregation.
-GRID_SIZE = 14
-vec4d = ti.types.vector(4, ti.f64)
+@ti.func
+def inside_domain(table: ti.template(), x):
+    """x within [domain_min, domain_max] (row 0 of ``table``), bounds included; False for NaN."""
+    ok = True
+    for d in ti.static(range(3)):
+        if not (table[0, d] <= x[d] <= table[0, 3 + d]):
+            ok = False
+    return ok
 
 
 @ti.func
-def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.template(), grid: ti.template(),
-                   lists: ti.template(), gauss: ti.template(), add_values: ti.template(), track: ti.template(),
-                   private: ti.template(), acc: ti.template(), bits: ti.template(), keys: ti.template(),
-                   key_count: ti.template()):
-    """Paper Eq. 2-3 for fluid particle i: add ``values[i]`` (fixed point, :func:`fixed_point`) and 1 to row ``row``
-    of every Gaussian within reach.
+def box_distance2(center, c, origin, cell):
+    """Squared distance from ``center`` to the box of cell ``c`` (0 inside)."""
+    d2 = ti.cast(0.0, ti.f64)
+    for a in ti.static(range(3)):
+        lo = origin[a] + cell * c[a]
+        hi = lo + cell
+        e = ti.max(ti.max(lo - center[a], center[a] - hi), 0.0)
+        d2 += e * e
+    return d2
 
-    With ``private`` the row belongs to one thread only: the adds are plain and branch-free (a select on the
-    hit), which on a CPU is about twice as fast as an atomic add behind an unpredictable branch.
-    """
-    x = ti.cast(xs[i], ti.f64)
+
+@ti.func
+def level_cell(table: ti.template(), lv, x):
+    """(inside, index): the cell of x in level ``lv`` (row ``lv`` of ``table``) and its index in the cell starts; a
+    cell outside the level's grid is never clamped (inside = False: no Gaussian of the level reaches there)."""
     inside = True
+    lin = 0
     for d in ti.static(range(3)):
-        if not (grid[4 + d] <= x[d] <= grid[7 + d]):
+        f = ti.floor((x[d] - table[lv, d]) * table[lv, 3])
+        if not (0.0 <= f < table[lv, 5 + d]):  # also False for NaN
             inside = False
-    c = ti.Vector([0, 0, 0])
-    dims = ti.Vector([ti.cast(grid[10], ti.i32), ti.cast(grid[11], ti.i32), ti.cast(grid[12], ti.i32)])
-    for d in ti.static(range(3)):
-        c[d] = ti.cast(ti.floor((x[d] - grid[d]) * grid[3]), ti.i32)
-        if not (0 <= c[d] < dims[d]):
-            inside = False
+        else:
+            lin = lin * ti.cast(table[lv, 5 + d], ti.i32) + ti.cast(f, ti.i32)
+    return inside, lin + ti.cast(table[lv, 8], ti.i32)
+
+
+@ti.kernel
+def list_cells(
+    lv: ti.i32,
+    reach_cells: ti.i32,
+    slack: ti.f64,
+    fill: ti.template(),
+    gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
+    reach: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    table: ti.types.ndarray(dtype=ti.f64, ndim=2),
+    centres: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    cell_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
+):
+    """Counting pass (``fill`` False: ``cell_counts[c]`` = the Gaussians listed in cell c) or fill pass (``fill`` True:
+    the items of cell c, from ``lists[c]`` on, the cell starts having been copied there) of level ``lv``.
+
+    Each cell gathers its own items (no atomics, sequential writes, items in ascending order): the Gaussians whose
+    centre cell lies within ``reach_cells`` cells along each axis (``centres``: the first internal Gaussian of each
+    centre cell, the Gaussians being sorted by it), kept when the cell's box is closer than ``reach[g] + slack`` to
+    the centre. The slack (a tiny fraction of a cell) absorbs rounding in the particles' cell assignment. A centre
+    outside the grid was clipped into it, which only brings its cell closer to every cell of the grid.
+    """
+    origin = ti.Vector([table[lv, 0], table[lv, 1], table[lv, 2]])
+    cell = table[lv, 4]
+    d0, d1, d2 = ti.cast(table[lv, 5], ti.i32), ti.cast(table[lv, 6], ti.i32), ti.cast(table[lv, 7], ti.i32)
+    offset = ti.cast(table[lv, 8], ti.i32)
+    items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
+    m = reach_cells
+    for t in range(d0 * d1 * d2):
+        tc = ti.Vector([t // (d1 * d2), (t // d2) % d1, t % d2])
+        found = 0
+        start = 0
+        if ti.static(fill):
+            start = items + lists[offset + t]
+        for a in range(ti.max(tc[0] - m, 0), ti.min(tc[0] + m, d0 - 1) + 1):
+            for b in range(ti.max(tc[1] - m, 0), ti.min(tc[1] + m, d1 - 1) + 1):
+                row = offset + (a * d1 + b) * d2
+                k0, k1 = ti.max(tc[2] - m, 0), ti.min(tc[2] + m, d2 - 1)
+                for g in range(centres[row + k0], centres[row + k1 + 1]):
+                    p = gauss[g]
+                    r = reach[g] + slack
+                    if box_distance2(ti.Vector([p[0], p[1], p[2]]), tc, origin, cell) < r * r:
+                        if ti.static(fill):
+                            lists[start + found] = g
+                        found += 1
+        if ti.static(not fill):
+            cell_counts[offset + t] = found
+
+
+@ti.func
+def hash_slot(key, mask):
+    """Slot of ``key`` = g * 2^32 + id in a table of mask + 1 (a power of two) slots: Fibonacci hashing of the two
+    32-bit halves (every product fits 64 bits, so Taichi's debug mode sees no overflow)."""
+    k = ti.cast(key, ti.u64)
+    u = (k & ti.u64(0xFFFFFFFF)) * ti.u64(0x9E3779B1) ^ (k >> ti.u64(32)) * ti.u64(0x85EBCA77)
+    lo = (u ^ (u >> ti.u64(32))) & ti.u64(0xFFFFFFFF)
+    h = lo * ti.u64(0x9E3779B1)
+    return ti.cast((h ^ (h >> ti.u64(32))) & ti.cast(mask, ti.u64), ti.i64)
+
+
+@ti.func
+def set_insert(hashes: ti.template(), hash_state: ti.template(), key):
+    """Insert ``key`` (>= 0) into the open-addressing set ``hashes`` (linear probing, lock-free).
+
+    Every slot only grows (``atomic_max``), so the keys along a probe run stay in decreasing order from their home
+    slot (an ordered hash table): a key meets either itself (a duplicate: done), an empty slot (placed: the fill
+    grows by one), a larger key (probe on) or a smaller one, which it displaces and whose insertion it carries on.
+    When the set is filled up to ``hash_state[HASH_LIMIT]`` the key is not inserted and the overflow flag is set: the
+    caller grows the set and runs the batch again (inserting is idempotent).
+    """
+    if hash_state[HASH_FILL] >= hash_state[HASH_LIMIT]:
+        hash_state[HASH_OVERFLOW] = 1
+    else:
+        mask = ti.cast(hashes.shape[0] - 1, ti.i64)
+        slot = hash_slot(key, mask)
+        k = key
+        while True:
+            old = ti.atomic_max(hashes[slot], k)
+            if old == k:
+                break
+            if old == EMPTY_KEY:
+                ti.atomic_add(hash_state[HASH_FILL], ti.i64(1))
+                break
+            if old < k:  # k took the slot: carry the displaced key on
+                k = old
+            slot = (slot + 1) & mask
+
+
+@ti.func
+def visit_gaussian(g, x, q, row, pid, prev, prev_ok, gauss: ti.template(), add_values: ti.template(),
+                   track: ti.template(), private: ti.template(), acc: ti.template(), bits: ti.template(),
+                   hashes: ti.template(), hash_state: ti.template()):
+    """Paper Eq. 2-3 for one (particle, Gaussian) pair: when |x - mu_g|^2 < r_g^2 add the value (quanta q) and 1 to
+    row ``row`` of g, and record the particle id ``pid`` unless the particle's previous sample ``prev`` (``prev_ok``:
+    it was inside the domain) was within reach of g too, which recorded the pair then.
+
+    With ``private`` the row belongs to one thread only and the adds are plain; otherwise atomic (GPUs).
+    """
+    p = gauss[g]
+    dx, dy, dz = x[0] - p[0], x[1] - p[1], x[2] - p[2]
+    hit = dx * dx + dy * dy + dz * dz < p[3]
+    if ti.static(add_values and private):
+        # branch-free: a plain add of 0 on a miss is cheaper than the mispredicted branch of an unpredictable test
+        acc[row, g, 0] = acc[row, g, 0] + ti.select(hit, q, ti.i64(0))
+        acc[row, g, 1] = acc[row, g, 1] + ti.select(hit, ti.i64(1), ti.i64(0))
+    if hit:
+        if ti.static(add_values and not private):
+            ti.atomic_add(acc[0, g, 0], q)
+            ti.atomic_add(acc[0, g, 1], ti.i64(1))
+        if ti.static(track != TRACK_NONE):
+            fresh = True
+            if prev_ok:
+                ex, ey, ez = prev[0] - p[0], prev[1] - p[1], prev[2] - p[2]
+                fresh = not (ex * ex + ey * ey + ez * ez < p[3])
+            if fresh:
+                if ti.static(track == TRACK_BITS):
+                    ti.atomic_or(bits[g, pid >> 5], ti.cast(1, ti.u32) << ti.cast(pid & 31, ti.u32))
+                if ti.static(track == TRACK_HASH):
+                    set_insert(hashes, hash_state, (ti.cast(g, ti.i64) << 32) + ti.cast(pid, ti.i64))
+
+
+@ti.func
+def visit_level(lv, x, q, row, pid, prev, prev_ok, table: ti.template(), lists: ti.template(),
+                gauss: ti.template(), add_values: ti.template(), track: ti.template(), private: ti.template(),
+                acc: ti.template(), bits: ti.template(), hashes: ti.template(), hash_state: ti.template()):
+    """The Gaussians of level ``lv`` listed in the cell of x."""
+    inside, c = level_cell(table, lv, x)
     if inside:
-        lin = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
-        base = ti.cast(grid[13], ti.i32)
+        items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
+        for s in range(lists[c], lists[c + 1]):
+            visit_gaussian(lists[items + s], x, q, row, pid, prev, prev_ok, gauss, add_values, track, private, acc,
+                           bits, hashes, hash_state)
+
+
+@ti.func
+def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
+                   table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
+                   track: ti.template(), private: ti.template(), acc: ti.template(), bits: ti.template(),
+                   hashes: ti.template(), hash_state: ti.template()):
+    """Paper Eq. 2-3 for fluid particle i inside the domain: every level (:func:`visit_level`); a saturated value
+    (:func:`fixed_point`) is counted in the extra slot G."""
+    x = ti.cast(xs[i], ti.f64)
+    if inside_domain(table, x):
         q, saturated = fixed_point(values[i])
         if ti.static(add_values):
             if saturated:
@@ -131,47 +241,111 @@ def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.tem
                     acc[row, acc.shape[1] - 1, 0] += 1
                 else:
                     ti.atomic_add(acc[0, acc.shape[1] - 1, 0], ti.i64(1))
-        for s in range(lists[lin], lists[lin + 1]):
-            g = lists[base + s]
-            p = gauss[g]
-            dx, dy, dz = x[0] - p[0], x[1] - p[1], x[2] - p[2]
-            hit = dx * dx + dy * dy + dz * dz < p[3]
-            if ti.static(add_values and private):
-                acc[row, g, 0] = acc[row, g, 0] + ti.select(hit, q, ti.i64(0))
-                acc[row, g, 1] = acc[row, g, 1] + ti.select(hit, ti.i64(1), ti.i64(0))
-            if hit:
-                if ti.static(add_values and not private):
-                    ti.atomic_add(acc[0, g, 0], q)
-                    ti.atomic_add(acc[0, g, 1], ti.i64(1))
-                if ti.static(track == TRACK_BITS):
-                    pid = ti.cast(ids[i], ti.i32)
-                    ti.atomic_or(bits[g, pid >> 5], ti.cast(1, ti.u32) << ti.cast(pid & 31, ti.u32))
-                if ti.static(track == TRACK_KEYS):
-                    slot = ti.atomic_add(key_count[0], ti.cast(1, ti.i64))
-                    if slot < keys.shape[0]:
-                        keys[slot] = (ti.cast(g, ti.i64) << 32) + ti.cast(ids[i], ti.i64)
+        prev = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+        prev_ok = False
+        pid = 0
+        if ti.static(track != TRACK_NONE):
+            prev = prevs[i]
+            prev_ok = inside_domain(table, prev)
+            pid = ti.cast(ids[i], ti.i32)
+        for lv in range(1, table.shape[0]):
+            visit_level(lv, x, q, row, pid, prev, prev_ok, table, lists, gauss, add_values, track, private, acc,
+                        bits, hashes, hash_state)
 
 
 @ti.func
-def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), grid: ti.template(),
-              lists: ti.template(), gauss: ti.template(), add_values: ti.template(), track: ti.template(),
-              private: ti.template(), serial: ti.template(), acc: ti.template(), bits: ti.template(),
-              keys: ti.template(), key_count: ti.template()):
+def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
+              table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
+              track: ti.template(), private: ti.template(), serial: ti.template(), acc: ti.template(),
+              bits: ti.template(), hashes: ti.template(), hash_state: ti.template()):
     """All particles: on the launching thread into row 0 (``serial``), in parallel with each CPU thread adding into
     its own row (``private``: row = the thread's index, so the caller gives at least as many rows as threads),
     or in parallel with atomic adds into row 0 (GPUs)."""
     if ti.static(serial):
         ti.loop_config(serialize=True)
         for i in range(n):
-            visit_particle(i, 0, xs, values, ids, grid, lists, gauss, add_values, track, private, acc, bits, keys,
-                           key_count)
+            visit_particle(i, 0, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc, bits,
+                           hashes, hash_state)
     else:
         for i in range(n):
             row = 0
             if ti.static(private):
                 row = ti.global_thread_idx()
-            visit_particle(i, row, xs, values, ids, grid, lists, gauss, add_values, track, private, acc, bits, keys,
-                           key_count)
+            visit_particle(i, row, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc,
+                           bits, hashes, hash_state)
+
+
+@ti.kernel
+def accumulate(
+    n: ti.i32,
+    xs: ti.types.ndarray(ndim=1),
+    values: ti.types.ndarray(ndim=1),
+    table: ti.types.ndarray(dtype=ti.f64, ndim=2),
+    lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
+    private: ti.template(),
+    serial: ti.template(),
+    acc: ti.types.ndarray(dtype=ti.i64, ndim=3),
+):
+    """Paper Eq. 2-3: each particle i inside the domain adds ``values[i]`` (in quanta of 1 / VALUE_SCALE) to
+    ``acc[row, g, 0]`` and 1 to ``acc[row, g, 1]`` for every Gaussian g with |x_i - mu_g|^2 < r_g^2
+    (``gauss[g]`` = (mu_g, (n r_g)^2)); ``acc[row, G, 0]`` counts saturated values.
+
+    ``table``: see ``TABLE_WIDTH``. ``lists``: the start of every cell's items (all levels' cells, then one end),
+    then the items (internal Gaussian ids).
+    ``private`` (CPUs): ``acc`` has a row per thread of the pool, each thread adds into its own row without
+    atomics, and the caller sums the rows; the sums are integers, so the result is bitwise the same for any
+    thread count or schedule. Otherwise (GPUs) one row and atomic adds.
+    ``serial``: the particles run on the launching thread (row 0), which on small probes costs less than
+    waking the thread pool.
+    """
+    visit_all(n, xs, values, values, xs, table, lists, gauss, True, TRACK_NONE, private, serial, acc, acc, acc, acc)
+
+
+@ti.kernel
+def accumulate_tracked(
+    n: ti.i32,
+    xs: ti.types.ndarray(ndim=1),
+    values: ti.types.ndarray(ndim=1),
+    ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    prevs: ti.types.ndarray(dtype=vec3d, ndim=1),
+    table: ti.types.ndarray(dtype=ti.f64, ndim=2),
+    lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
+    add_values: ti.template(),
+    track: ti.template(),
+    private: ti.template(),
+    serial: ti.template(),
+    acc: ti.types.ndarray(dtype=ti.i64, ndim=3),
+    bits: ti.types.ndarray(dtype=ti.u32, ndim=2),
+    hashes: ti.types.ndarray(dtype=ti.i64, ndim=1),
+    hash_state: ti.types.ndarray(dtype=ti.i64, ndim=1),
+):
+    """:func:`accumulate` (when ``add_values``) that also records the ids of the particles that come within reach of
+    each Gaussian. A pair is recorded when particle ``ids[i]`` is within reach of g now and its previous sample
+    ``prevs[i]`` was not (or was outside the domain, or there is none: NaN), since every visit starts with such a
+    step; the set of pairs is the same, at the cost of one record per visit instead of one per step.
+
+    - ``track`` = TRACK_BITS: sets bit ``ids[i]`` of row g of ``bits`` [G, words] (atomic or);
+    - ``track`` = TRACK_HASH: inserts g * 2^32 + ids[i] into the set ``hashes`` (:func:`set_insert`).
+
+    ``serial``: as in :func:`accumulate`.
+    """
+    visit_all(n, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, bits, hashes,
+              hash_state)
+
+
+@ti.func
+def stage_one(i, offset, xs: ti.template(), values: ti.template(), ids: ti.template(), staged_x: ti.template(),
+              staged_values: ti.template(), staged_ids: ti.template(), last: ti.template(), staged_prev: ti.template(),
+              track: ti.template()):
+    staged_x[offset + i] = xs[i]
+    staged_values[offset + i] = values[i]
+    staged_ids[offset + i] = ids[i]
+    if ti.static(track):
+        pid = ids[i]
+        staged_prev[offset + i] = last[pid]
+        last[pid] = ti.cast(xs[i], ti.f64)
 
 
 @ti.kernel
@@ -184,65 +358,56 @@ def stage_particles(
     staged_x: ti.types.ndarray(ndim=1),
     staged_values: ti.types.ndarray(ndim=1),
     staged_ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
-):
-    """Copy particles 0..n-1 (positions, values, ids) to slots offset..offset+n-1 of the staging arrays."""
-    for i in range(n):
-        staged_x[offset + i] = xs[i]
-        staged_values[offset + i] = values[i]
-        staged_ids[offset + i] = ids[i]
-
-
-@ti.kernel
-def accumulate(
-    n: ti.i32,
-    xs: ti.types.ndarray(ndim=1),
-    values: ti.types.ndarray(ndim=1),
-    grid: ti.types.ndarray(dtype=ti.f64, ndim=1),
-    lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
-    private: ti.template(),
-    serial: ti.template(),
-    acc: ti.types.ndarray(dtype=ti.i64, ndim=3),
-):
-    """Paper Eq. 2-3: each particle i inside the domain adds ``values[i]`` (in quanta of 1 / VALUE_SCALE) to
-    ``acc[row, g, 0]`` and 1 to ``acc[row, g, 1]`` for every Gaussian g with |x_i - mu_g|^2 < r_g'^2
-    (``gauss[g]`` = (mu_g, (n r_g)^2)); ``acc[row, G, 0]`` counts saturated values.
-
-    ``grid``: see ``GRID_SIZE``. ``lists``: cell starts (cells + 1), then the Gaussian ids of all cells.
-    ``private`` (CPUs): ``acc`` has a row per thread of the pool, each thread adds into its own row without
-    atomics, and the caller sums the rows; the sums are integers, so the result is bitwise the same for any
-    thread count or schedule. Otherwise (GPUs) one row and atomic adds.
-    ``serial``: the particles run on the launching thread (row 0), which on small probes costs less than
-    waking the thread pool.
-    """
-    visit_all(n, xs, values, values, grid, lists, gauss, True, TRACK_NONE, private, serial, acc, acc, acc, acc)
-
-
-@ti.kernel
-def accumulate_tracked(
-    n: ti.i32,
-    xs: ti.types.ndarray(ndim=1),
-    values: ti.types.ndarray(ndim=1),
-    ids: ti.types.ndarray(ndim=1),
-    grid: ti.types.ndarray(dtype=ti.f64, ndim=1),
-    lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
-    add_values: ti.template(),
+    last: ti.types.ndarray(dtype=vec3d, ndim=1),
+    staged_prev: ti.types.ndarray(dtype=vec3d, ndim=1),
     track: ti.template(),
-    private: ti.template(),
     serial: ti.template(),
-    acc: ti.types.ndarray(dtype=ti.i64, ndim=3),
-    bits: ti.types.ndarray(dtype=ti.u32, ndim=2),
-    keys: ti.types.ndarray(dtype=ti.i64, ndim=1),
-    key_count: ti.types.ndarray(dtype=ti.i64, ndim=1),
 ):
-    """:func:`accumulate` (when ``add_values``) that also records the ids of the particles near each Gaussian:
+    """Copy particles 0..n-1 (positions, values, ids) to slots offset..offset+n-1 of the staging arrays; with
+    ``track``, also each particle's previous sample ``last[id]`` (NaN: none), and make this one the last.
 
-    - ``track`` = TRACK_BITS: sets bit ``ids[i]`` of row g of ``bits`` [G, words] (atomic or);
-    - ``track`` = TRACK_KEYS: appends ``g * 2^32 + ids[i]`` to ``keys`` (slot from ``key_count[0]``; slots past
-      the end are counted but not written, so the caller can grow ``keys`` and run again).
-
-    ``serial``: as in :func:`accumulate`.
+    ``serial`` keeps the particles' order (ids may repeat within one call of the numpy path: each then sees the one
+    before it as its previous sample); the solver's ids are distinct within a step.
     """
-    visit_all(n, xs, values, ids, grid, lists, gauss, add_values, track, private, serial, acc, bits, keys,
-              key_count)
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for i in range(n):
+            stage_one(i, offset, xs, values, ids, staged_x, staged_values, staged_ids, last, staged_prev, track)
+    else:
+        for i in range(n):
+            stage_one(i, offset, xs, values, ids, staged_x, staged_values, staged_ids, last, staged_prev, track)
+
+
+@ti.kernel
+def insert_keys(keys: ti.types.ndarray(dtype=ti.i64, ndim=1), hashes: ti.types.ndarray(dtype=ti.i64, ndim=1),
+                hash_state: ti.types.ndarray(dtype=ti.i64, ndim=1)):
+    """Insert the keys >= 0 of ``keys`` (another set's slots, or listed keys) into ``hashes``."""
+    for i in range(keys.shape[0]):
+        if keys[i] != EMPTY_KEY:
+            set_insert(hashes, hash_state, keys[i])
+
+
+@ti.kernel
+def count_keys(hashes: ti.types.ndarray(dtype=ti.i64, ndim=1), counts: ti.types.ndarray(dtype=ti.i64, ndim=1)):
+    """``counts[g]`` += the number of keys g * 2^32 + id in the set (the distinct ids recorded for g)."""
+    for s in range(hashes.shape[0]):
+        key = hashes[s]
+        if key != EMPTY_KEY:
+            ti.atomic_add(counts[ti.cast(key >> 32, ti.i32)], ti.i64(1))
+
+
+@ti.kernel
+def count_bits(bits: ti.types.ndarray(dtype=ti.u32, ndim=2), counts: ti.types.ndarray(dtype=ti.i64, ndim=1)):
+    """``counts[g]`` = the bits set in row g of ``bits`` (the distinct ids recorded for g)."""
+    for g in range(bits.shape[0]):
+        total = ti.i64(0)
+        for w in range(bits.shape[1]):
+            total += ti.cast(ti.math.popcnt(bits[g, w]), ti.i64)
+        counts[g] = total
+
+
+@ti.kernel
+def copy_into(src: ti.types.ndarray(dtype=ti.i32, ndim=1), dst: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+    """``dst[:len(src)] = src``."""
+    for c in range(src.shape[0]):
+        dst[c] = src[c]

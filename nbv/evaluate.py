@@ -39,7 +39,7 @@ import torch
 
 from fluidsim.probes import DIRECTIONS
 
-from .active import ActiveConfig, is_empty_solid, json_safe, write_atomic, write_json_atomic
+from .active import ActiveConfig, dataset_up, is_empty_solid, json_safe, write_atomic, write_json_atomic
 from .physics import PhysicsConfig
 
 log = logging.getLogger(__name__)
@@ -100,8 +100,8 @@ class EvalConfig:
         return cls(**d)
 
 
-def eval_physics_config(run_physics: PhysicsConfig, config: EvalConfig, up_axis: str) -> PhysicsConfig:
-    """The probe settings of an evaluation: empty reference and distinct tracking on, the dataset's up axis.
+def eval_physics_config(run_physics: PhysicsConfig, config: EvalConfig, up) -> PhysicsConfig:
+    """The probe settings of an evaluation: empty reference and distinct tracking on, the run's up direction.
 
     D-bar is defined over the five probes, so without an explicit ``config.physics`` the evaluation runs all five
     even when the run's selection used fewer (``--directions``, or a ``METHOD@DIR`` experiment method); with one,
@@ -113,7 +113,7 @@ def eval_physics_config(run_physics: PhysicsConfig, config: EvalConfig, up_axis:
             tuple(base.directions) + (config.critical_direction,)
     else:
         base, dirs = run_physics, DIRECTIONS
-    return replace(base, empty_reference=True, track_distinct=True, up_axis=up_axis, directions=dirs)
+    return replace(base, empty_reference=True, track_distinct=True, up=up, directions=dirs)
 
 
 def fixed_scale(physics: PhysicsConfig, mesh_path: Path | None) -> PhysicsConfig:
@@ -257,7 +257,7 @@ def evaluate_run(run_dir: str | Path, config: EvalConfig | None = None, *, devic
         ValueError: the folder is not a finished run, or its dataset has no test views.
     """
     from recon.datasets import load_dataset
-    from recon.ply import load_gaussians
+    from recon.formats import load_gaussians
     from recon.train import view_to
 
     from .physics import simulate_gaussians
@@ -273,7 +273,7 @@ def evaluate_run(run_dir: str | Path, config: EvalConfig | None = None, *, devic
     ds = load_dataset(run_cfg["dataset"], resolution=active.resolution)
     if not ds.test:
         raise ValueError(f"{run_cfg['dataset']} has no test views; evaluation needs a test split")
-    pcfg = fixed_scale(eval_physics_config(active.physics, config, ds.up_axis), ds.mesh_path)
+    pcfg = fixed_scale(eval_physics_config(active.physics, config, dataset_up(active.up, ds)), ds.mesh_path)
     t0 = time.perf_counter()
     gaussians = load_gaussians(ply).to(device)
     views = [view_to(v, device) for v in ds.test]

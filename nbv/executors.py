@@ -6,11 +6,13 @@ initialise Taichi, which only ``apps`` may do) and yield ``(job, result)`` pairs
 
 - :class:`LocalExecutor`: ``concurrent.futures.ProcessPoolExecutor`` with the *spawn* start method (fork would copy a
   live Taichi / OpenMP runtime into the children).
-- :class:`RayExecutor`: ``ray.init(address=...)`` connects to a running cluster (``address=None`` starts a local
-  one on this machine, with ``local_cpus`` CPUs; Ray 2.x no longer has the serial "local mode", so tests start such
-  a small local instance). Ray is an optional dependency, imported only
+- :class:`RayExecutor`: ``ray.init(address=...)`` connects to a running cluster (``address=None`` starts a new local
+  one on this machine, with ``local_cpus`` CPUs, even when another Ray instance runs here; Ray 2.x no longer has the
+  serial "local mode", so tests start such a small local instance). Ray is an optional dependency, imported only
   here; without it the error says ``pip install ray``. The initializer runs inside every task (Ray may place
-  consecutive tasks in different worker processes).
+  consecutive tasks in different worker processes). Tasks are spread over the cluster's nodes; a task whose worker
+  process or node dies is run again up to ``max_retries`` times, and past that the error names the job
+  (:class:`JobLost`). A job's own exception is never retried (the jobs are deterministic).
 """
 
 from __future__ import annotations
@@ -74,6 +76,23 @@ def _ray_task(fn: Callable[[Any], Any], job: Any, initializer: Callable[..., Non
     return fn(job)
 
 
+# Ray's errors for a task whose worker process or node died (not the job's own exception); some Ray versions
+# lack one of them.
+_LOST = ("WorkerCrashedError", "NodeDiedError", "LocalRayletDiedError")
+
+
+class JobLost(RuntimeError):
+    """A job whose Ray worker (or node) died on every try; ``job`` is the job."""
+
+    def __init__(self, job: Any, tries: int, cause: BaseException) -> None:
+        text = repr(job)
+        text = text if len(text) <= 300 else text[:297] + "..."
+        super().__init__(f"Ray lost job {text}: its worker died on all {tries} tries ({type(cause).__name__}: "
+                         f"{str(cause).splitlines()[0] if str(cause) else 'no detail'}); check the nodes' memory and "
+                         "logs, or raise max_retries")
+        self.job = job
+
+
 def import_ray():
     """The ``ray`` module, or ValueError telling how to install it."""
     try:
@@ -93,13 +112,21 @@ class RayExecutor:
         initializer, initargs: run inside every task before the job.
         num_cpus: CPUs Ray reserves per task.
         local_cpus: CPUs of the local instance started when ``address`` is None (None: all of this machine).
+        max_retries: times a task whose worker process or node died is run again (>= 0), anywhere in the cluster.
+        spread: place the tasks on as many nodes as possible (Ray's "SPREAD" strategy) rather than filling one
+            node first.
     """
 
     name = "ray"
 
     def __init__(self, address: str | None = None, initializer: Callable[..., None] | None = None,
-                 initargs: Sequence[Any] = (), num_cpus: float = 1.0, local_cpus: int | None = None) -> None:
+                 initargs: Sequence[Any] = (), num_cpus: float = 1.0, local_cpus: int | None = None,
+                 max_retries: int = 2, spread: bool = True) -> None:
+        if isinstance(max_retries, bool) or not isinstance(max_retries, int) or max_retries < 0:
+            raise ValueError(f"max_retries must be an integer >= 0, got {max_retries!r}")
         self.ray = import_ray()
+        self.max_retries = max_retries
+        self.spread = bool(spread)
         self.address = address
         self.initializer = initializer or _noop
         self.initargs = tuple(initargs)
@@ -112,7 +139,9 @@ class RayExecutor:
     def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
         """Submit every job as a Ray task; yields (job, result) in completion order.
 
-        The first failing task cancels the others and its error is raised with the job as ``error.job``.
+        A task whose worker died is retried (``max_retries``); the first task that fails for good cancels the
+        others and its error is raised with the job as ``error.job``: the job's own exception, or
+        :class:`JobLost` when its worker died on every try.
         """
         ray = self.ray
         if not jobs:
@@ -121,10 +150,13 @@ class RayExecutor:
             kwargs: dict[str, Any] = {"include_dashboard": False}
             if self.address is None and self.local_cpus is not None:
                 kwargs["num_cpus"] = self.local_cpus
-            ray.init(address=self.address, **kwargs)
+            # "local": a new instance, never the last one started on this machine (ray.init's default)
+            ray.init(address=self.address or "local", **kwargs)
             log.info("connected to Ray at %s", self.address or "a new local instance")
-        task = ray.remote(num_cpus=self.num_cpus)(_ray_task)
+        task = ray.remote(num_cpus=self.num_cpus, max_retries=self.max_retries, retry_exceptions=False,
+                          scheduling_strategy="SPREAD" if self.spread else "DEFAULT")(_ray_task)
         pending = {task.remote(fn, job, self.initializer, self.initargs): job for job in jobs}
+        lost = tuple(getattr(ray.exceptions, name) for name in _LOST if hasattr(ray.exceptions, name))
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             ref = done[0]
@@ -134,6 +166,9 @@ class RayExecutor:
             except Exception as exc:
                 for other in pending:
                     ray.cancel(other)
+                if isinstance(exc, lost):
+                    log.error("Ray lost job %r after %d tries: %s", job, self.max_retries + 1, exc)
+                    raise JobLost(job, self.max_retries + 1, exc) from exc
                 exc.job = job
                 raise
             yield job, result

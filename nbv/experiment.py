@@ -13,10 +13,10 @@ Config (JSON; paths relative to the file)::
       "eval": {"critical_views": 20}              # EvalConfig overrides
     }
 
-A method ``M@D`` (``M`` a physics-driven method: ``fisher+fluid``, ``variance+fluid``, ``random+fluid`` or
-``physics``; ``D`` one of -x, +x, -z, +z, -y) runs ``M`` with the selection's physics driven by the single probe
-``D``: the paper's per-direction ablation (Tab. 6), where NBV selection uses one initial condition. Evaluation
-always uses all five probes.
+A method ``M@D`` (``M`` a physics-driven method: ``fisher+fluid``, ``variance+fluid``, ``random+fluid``, a
+``+shuffled`` control or ``physics``; ``D`` one of -x, +x, -z, +z, -y) runs ``M`` with the selection's physics
+driven by the single probe ``D``: the paper's per-direction ablation (Tab. 6), where NBV selection uses one initial
+condition. Evaluation always uses all five probes.
 
 Jobs: one ``active`` run + ``eval`` per (scene, method, seed) in ``OUTPUT/runs/<scene>/<method>/seed<k>``, and per
 (scene, seed) the many-view reference in ``OUTPUT/runs/<scene>/reference-<N>views/seed<k>``: the first N candidate
@@ -30,7 +30,12 @@ Tables (``OUTPUT/tables/*.md`` and ``*.csv``, all in ``tables.md``; mean +- samp
 - ``physics``: D-bar, critical-view PSNR and D-bar per method, with the *empty scene* (the empty-scene D-bar of the
   method runs) and the *many-view* reference rows;
 - ``ablation_random``: the selection ablation, random vs visual shortlist, with and without the physics pick
-  (random, random+fluid, fisher, fisher+fluid, variance, variance+fluid: those that ran);
+  (random, random+fluid, fisher, fisher+fluid, variance, variance+fluid and the +area / +shuffled controls: those
+  that ran);
+- ``paired`` (when a fused method and its planner or a control ran): per (scene, seed) pair, each ``<visual>+fluid``
+  against ``<visual>``, ``<visual>+area`` and ``<visual>+shuffled``, and ``<visual>+area`` against ``<visual>``: wins,
+  mean and median difference, exact sign-test and Wilcoxon p-values per metric, and which differences clear
+  p < 0.05 (:mod:`nbv.paired`);
 - ``ablation_direction``: D-bar of every probe direction's own D_g^(IC) per method (how each initial condition
   sees the result);
 - ``ablation_selection_direction`` (when ``M@D`` methods ran): PSNR, SSIM, D-bar and critical D-bar of the runs whose
@@ -56,12 +61,16 @@ import numpy as np
 
 from .active import ActiveConfig, config_differences, json_safe, run_active, write_atomic, write_json_atomic
 from .evaluate import EvalConfig, evaluate_run
+from .paired import paired_table
 
 log = logging.getLogger(__name__)
 
 CONFIG_KEYS = ("scenes", "methods", "seeds", "preset", "output", "reference_views", "active", "eval")
 DIRECTIONS = ("-x", "+x", "-z", "+z", "-y")
-ABLATION_ORDER = ("random", "random+fluid", "fisher", "fisher+fluid", "variance", "variance+fluid")
+ABLATION_ORDER = ("random", "random+fluid", "random+area", "random+shuffled", "fisher", "fisher+fluid", "fisher+area",
+                  "fisher+shuffled", "variance", "variance+fluid", "variance+area", "variance+shuffled")
+# what re-ranks the shortlist of a fused method <visual>+<pick> (the ablation table's "physics pick" column)
+PICKS = {"fluid": "yes", "area": "no: coverage sum w_g (D_g = 1)", "shuffled": "D_g shuffled across the Gaussians"}
 
 
 @dataclass(frozen=True)
@@ -106,7 +115,8 @@ class ExperimentConfig:
         for name in ("active", "eval"):
             if not isinstance(getattr(self, name), dict):
                 raise ValueError(f"experiment config: {name!r} must be an object of overrides")
-        for method in self.methods:  # validates the overrides and the preset before any job starts
+        for method in self.methods:  # validates the names, the overrides and the preset before any job starts
+            check_method(method)
             self.active_config(method, self.seeds[0])
         self.eval_config()
 
@@ -148,6 +158,29 @@ class ExperimentConfig:
         return EvalConfig.from_dict(self.eval)
 
 
+def check_method(method: str) -> str:
+    """``method`` unchanged when it names a registered planner (``M`` or ``M@D``, :data:`nbv.planners.PLANNERS`).
+
+    Raises:
+        ValueError: naming the method, the registered planners and, for a near miss, the closest name.
+    """
+    import difflib
+
+    from .planners import PLANNERS
+
+    if not isinstance(method, str) or not method:
+        raise ValueError(f"experiment config: 'methods' entries must be planner names, got {method!r}")
+    base = method.partition("@")[0]
+    if base not in PLANNERS:
+        close = difflib.get_close_matches(base, list(PLANNERS), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"experiment config: method {method!r} is not a planner{hint}; the methods are "
+                         f"{', '.join(sorted(PLANNERS))}, each optionally with @ and a probe direction "
+                         f"({', '.join(DIRECTIONS)})")
+    split_method(method)  # the direction, and whether the method's pick runs the probes
+    return method
+
+
 def split_method(method: str) -> tuple[str, str | None]:
     """``"fisher+fluid@-x"`` -> ("fisher+fluid", "-x"); a plain method -> (method, None).
 
@@ -160,9 +193,10 @@ def split_method(method: str) -> tuple[str, str | None]:
     if direction not in DIRECTIONS:
         raise ValueError(f"experiment method {method!r}: unknown probe direction {direction!r}; use one of "
                          f"{', '.join(DIRECTIONS)}")
-    if not (base.endswith("+fluid") or base == "physics"):
+    if not (base.endswith(("+fluid", "+shuffled")) or base == "physics"):
         raise ValueError(f"experiment method {method!r}: a single-direction variant needs a method whose pick uses "
-                         "the physics (fisher+fluid, variance+fluid, random+fluid or physics)")
+                         "the physics (fisher+fluid, variance+fluid, random+fluid, a +shuffled control or physics; "
+                         "the +area controls run no probe)")
     return base, direction
 
 
@@ -335,14 +369,22 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
     for m in [m for m in ABLATION_ORDER if m in methods] + [m for m in methods
                                                             if m not in ABLATION_ORDER and "@" not in m]:
         rs = methods[m]
-        visual = m.split("+")[0]
-        shortlist = "random K" if m == "random+fluid" else ("all (random pick)" if m == "random" else
-                                                            f"{visual} top-K" if m.endswith("+fluid") else "all")
-        body.append([m, shortlist, "yes" if m.endswith("+fluid") or m == "physics" else "no", n_col(rs),
+        visual, _, pick = m.partition("+")
+        fused = pick in PICKS
+        shortlist = ("random K" if visual == "random" else f"{visual} top-K") if fused else \
+            ("all (random pick)" if m == "random" else "all")
+        physics_pick = PICKS[pick] if fused else ("yes" if m == "physics" else "no")
+        body.append([m, shortlist, physics_pick, n_col(rs),
                      _cell([r["psnr"] for r in rs]), _cell([r["dbar"] for r in rs]),
                      _cell([r["critical_dbar"] for r in rs])])
     tables["ablation_random"] = _table("Selection ablation: random vs visual shortlist, with / without physics",
                                        abl_cols, body)
+    paired = paired_table(rows)
+    if paired is not None:
+        header, body, summary = paired
+        md, text = _table("Paired: each physics pick against its planner and its controls (same scene and seed)",
+                          header, body)
+        tables["paired"] = (md + "\n" + "\n".join(summary) + "\n", text)
 
     dirs = [d for d in DIRECTIONS if any((r.get("dbar_per_direction") or {}).get(d) is not None for r in rows)]
     dir_cols = ["method", "n"] + [f"D-bar {d} (m^4/s)" for d in dirs] + ["D-bar max (m^4/s)"]

@@ -25,7 +25,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -36,14 +35,19 @@ import h5py
 import numpy as np
 import taichi as ti
 
-from fluidsim import DIRECTIONS, DFSPHSolver, ProbeConfig, SolverConfig, StepStats, run_probes
-from fluidsim.output import check_writable, stats_table
+from fluidsim import DIRECTIONS, DFSPHSolver, ProbeConfig, SimulationDiverged, SolverConfig, StepStats, run_probes
+from fluidsim.memory import available_memory_bytes
+from fluidsim.output import atomic_output, check_writable, stats_table
 from fluidsim.probes import probe_setup
 from fluidsim.scene import lattice_in_box
+from fluidsim.simulation import check_time_step
 from fluidsim.simulation import run as run_solver
 from fluidsim.sources import wall_particles
 
-from . import scores
+from . import floaters, scores
+from .leaks import LeakCounter, read_probe_leaks, write_probe_leaks
+from .scene_frame import crop_box, inside_box, parse_crop, parse_up, robust_box, up_label
+from .trajectory import TrajectoryRecorder, check_record_size, probe_fluid_counts, read_trajectory, write_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +60,8 @@ ESTIMATOR_RADII = 4.0
 BYTES_PER_FLUID = 4096
 BYTES_PER_BOUNDARY = 160
 BYTES_PER_LATTICE_POINT = 2
+# A probe that retires more than this fraction of its fluid (it left the walled domain) gets a warning.
+RETIRED_WARNING_FRACTION = 0.5
 
 
 @dataclass(frozen=True)
@@ -73,10 +79,15 @@ class PhysicsConfig:
         accumulate_every: accumulate D_i every k-th step (k >= 1).
         n_radius: n of Eq. 2: particles within n r_g of a Gaussian count for it.
         opacity_threshold: tau of the solidification (combined opacity >= tau is solid).
-        up_axis: the scene's up axis, "y" or "z" (z-up scenes are rotated to Y-up).
-        scale: metres per scene unit, or "auto" (largest object extent -> ``target_extent``).
+        up: the scene's up direction, which becomes simulation +y: an axis ("+y", "-y", "+z", ...) or a 3-tuple
+            (:func:`nbv.scene_frame.parse_up`). COLMAP captures are often y-down: up "-y".
+        scale: metres per scene unit, or "auto" (largest extent of the robust object box -> ``target_extent``).
+        crop: None (every Gaussian), "auto" (the robust object box grown by 10 % per side) or (xmin, ymin, zmin,
+            xmax, ymax, zmax) in scene units: only the Gaussians whose centres lie inside make solid, are scored
+            and size the domain; the others get D_g = 0 and are marked in ``PhysicsResult.kept``.
         target_extent: m, the object's largest extent when ``scale`` is "auto".
-        fill_cavities: fill enclosed empty regions of the solid (hollow shells become solid).
+        fill_cavities: fill what the Gaussians enclose (default: a closed shell of thin surface Gaussians becomes a
+            filled body; :mod:`nbv.solidify`). False keeps the one-point-thick shell.
         track_distinct: count distinct fluid particles per Gaussian (|P_g|, for critical regions).
         empty_reference: also run the probes without the solid for the empty-scene D-bar.
         precision: "f32" or "f64"; must match the Taichi runtime's default float.
@@ -95,10 +106,11 @@ class PhysicsConfig:
     accumulate_every: int = 1
     n_radius: float = 3.0
     opacity_threshold: float = 0.3
-    up_axis: str = "y"
+    up: str | tuple[float, float, float] = "+y"
     scale: float | str = "auto"
+    crop: str | tuple[float, ...] | None = None
     target_extent: float = 2.0
-    fill_cavities: bool = False
+    fill_cavities: bool = True
     track_distinct: bool = False
     empty_reference: bool = True
     precision: str = "f32"
@@ -124,8 +136,9 @@ class PhysicsConfig:
         if not dirs or any(d not in DIRECTIONS for d in dirs) or len(set(dirs)) != len(dirs):
             raise ValueError(f"PhysicsConfig.directions must be distinct probes from {DIRECTIONS}, got {dirs}")
         object.__setattr__(self, "directions", dirs)
-        if self.up_axis not in ("y", "z"):
-            raise ValueError(f"PhysicsConfig.up_axis must be 'y' or 'z', got {self.up_axis!r}")
+        up = parse_up(self.up, "PhysicsConfig.up")
+        object.__setattr__(self, "up", up_label(up) if isinstance(self.up, str) else tuple(float(c) for c in up))
+        object.__setattr__(self, "crop", parse_crop(self.crop))
         if self.scale != "auto" and (isinstance(self.scale, bool) or not isinstance(self.scale, (int, float))
                                      or not math.isfinite(self.scale) or self.scale <= 0):
             raise ValueError(f"PhysicsConfig.scale must be 'auto' or a number > 0 (m per scene unit), "
@@ -166,16 +179,24 @@ class PhysicsConfig:
         d = asdict(self)
         d["directions"] = list(self.directions)
         d["solver"] = dict(self.solver)
+        d["up"] = self.up if isinstance(self.up, str) else list(self.up)
+        d["crop"] = self.crop if self.crop is None or isinstance(self.crop, str) else list(self.crop)
         return d
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> PhysicsConfig:
         """Inverse of :meth:`to_dict`; unknown keys are errors naming the key."""
         known = {f.name for f in fields(cls)}
-        bad = sorted(set(data) - known)
+        d = dict(data)
+        if "up_axis" in d and "up" not in d:  # results written before `up` replaced `up_axis` ("y" or "z")
+            d["up"] = d.pop("up_axis")
+        bad = sorted(set(d) - known)
         if bad:
             raise ValueError(f"unknown PhysicsConfig keys {bad}; valid keys: {sorted(known)}")
-        d = dict(data)
+        if isinstance(d.get("up"), list):
+            d["up"] = tuple(d["up"])
+        if isinstance(d.get("crop"), list):
+            d["crop"] = tuple(d["crop"])
         if "directions" in d:
             d["directions"] = tuple(d["directions"])
         if "solver" in d:
@@ -205,6 +226,16 @@ class PhysicsResult:
         domains: per direction, (domain_min, domain_max) in sim metres.
         timings: seconds: solidify, simulation (steps only), aggregation, empty_reference, total.
         config: the PhysicsConfig. source: where the Gaussians came from.
+        kept: [G] bool, the Gaussians inside ``config.crop`` (None without a crop; the others have D_g = 0).
+        warnings: per direction, what makes that probe's D_g suspect (no fluid reached any Gaussian, most fluid
+            left the domain); empty lists when all is well.
+        gaussians_sha256: :func:`gaussians_sha256` of the Gaussians simulated ("" in files written before it).
+        status: "complete", or "diverged" (then ``directions`` are the probes completed before ``failure``).
+        failure: None, or {"probe", "step", "reason"} of the probe that diverged.
+        leaks: per direction, the probe's final fluid state and leak measure (:class:`nbv.leaks.ProbeLeaks`);
+            empty in files written before it.
+        trajectories: per recorded direction, its fluid every k steps (:class:`nbv.trajectory.ProbeTrajectory`;
+            only with ``record``); :func:`load_result` reads them only when asked (``trajectories=True``).
     """
 
     directions: tuple[str, ...]
@@ -228,6 +259,13 @@ class PhysicsResult:
     timings: dict[str, float]
     config: PhysicsConfig
     source: str = ""
+    kept: np.ndarray | None = None
+    warnings: dict[str, list[str]] = field(default_factory=dict)
+    gaussians_sha256: str = ""
+    status: str = "complete"
+    failure: dict[str, Any] | None = None
+    leaks: dict[str, Any] = field(default_factory=dict)
+    trajectories: dict[str, Any] = field(default_factory=dict)
 
     @property
     def num_gaussians(self) -> int:
@@ -240,44 +278,103 @@ class PhysicsResult:
         return self.per_probe_distinct.sum(0)
 
 
+class ProbeDiverged(SimulationDiverged):
+    """A probe diverged. ``probe`` and ``step`` say where; ``result`` holds the probes completed before it
+    (``status`` "diverged", ``failure`` set), for saving: nothing computed is lost."""
+
+    def __init__(self, probe: str, step: int, reason: str, result: PhysicsResult):
+        super().__init__(step, reason)
+        self.probe, self.result = probe, result
+        done = ", ".join(result.directions) or "none"
+        self.args = (f"probe {probe} diverged at step {step}: {reason} (probes completed: {done})",)
+
+
+def gaussians_sha256(gaussians) -> str:
+    """SHA-256 (hex) of what the probes depend on: the float32 bytes of means, quats, log_scales and
+    opacity_logits, in that order (colours are left out, so a re-coloured copy has the same digest)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for t in (gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits):
+        h.update(np.ascontiguousarray(t.detach().cpu().numpy(), np.float32).tobytes())
+    return h.hexdigest()
+
+
+def probe_warnings(direction: str, counts: np.ndarray, history: list[StepStats]) -> list[str]:
+    """What makes one probe's D_g suspect, logged as warnings: no fluid particle came within reach of any
+    Gaussian (its D_g^(IC) is 0 everywhere), or more than RETIRED_WARNING_FRACTION of the fluid left the domain."""
+    out = []
+    steps = len(history)
+    if not np.any(np.asarray(counts) > 0):
+        out.append(f"no fluid particle came within reach of any Gaussian in {steps} steps, so D_g of this probe is 0 "
+                   "everywhere; check the time step (--dt), the scale and the up direction")
+    initial = history[0].active + history[0].retired if history else 0
+    retired = sum(s.retired for s in history)
+    if initial and retired > RETIRED_WARNING_FRACTION * initial:
+        out.append(f"{retired} of {initial} fluid particles ({100.0 * retired / initial:.0f} %) left the domain "
+                   f"within {steps} steps; reduce the time step (--dt)")
+    for w in out:
+        log.warning("probe %s: %s", direction, w)
+    return out
+
+
 # ---- transform and guards ------------------------------------------------------------------------
-def scene_transform(gaussians, config: PhysicsConfig):
-    """The :class:`nbv.solidify.SceneTransform` for ``config.up_axis`` and ``config.scale`` ("auto" resolved).
+def kept_gaussians(gaussians, config: PhysicsConfig) -> np.ndarray | None:
+    """[G] bool: the Gaussians that ``config.crop`` keeps (centres inside the crop box), or None without a crop.
 
-    "auto": metres per scene unit such that the largest extent of the centres of the Gaussians with
-    opacity >= ``opacity_threshold`` (all centres when none reach it) is ``target_extent`` m.
+    Raises:
+        ValueError: the crop keeps no Gaussian (naming the box, the Gaussians' box and the fix).
     """
-    from .solidify import SceneTransform
-
-    if config.scale != "auto":
-        return SceneTransform(up_axis=config.up_axis, scale=float(config.scale))
+    if config.crop is None:
+        return None
     means = gaussians.means.detach().cpu().double().numpy()
-    opaque = gaussians.opacities.detach().cpu().numpy() >= config.opacity_threshold
-    pts = means[opaque] if opaque.sum() >= 2 else means
-    extent = float(np.ptp(pts, axis=0).max()) if len(pts) >= 2 else 0.0
+    opacities = gaussians.opacities.detach().cpu().double().numpy()
+    lo, hi = crop_box(config.crop, means, opacities, config.opacity_threshold)
+    kept = inside_box(means, lo, hi)
+    if not kept.any():
+        raise ValueError(f"--crop {config.crop}: the box [{', '.join(f'{v:.4g}' for v in lo)}] - "
+                         f"[{', '.join(f'{v:.4g}' for v in hi)}] (scene units) keeps none of the {len(means):,} "
+                         f"Gaussians, whose centres span [{', '.join(f'{v:.4g}' for v in means.min(0))}] - "
+                         f"[{', '.join(f'{v:.4g}' for v in means.max(0))}]; widen the box or use --crop auto")
+    log.info("crop %s: kept %d of %d Gaussians (%d dropped)", config.crop, int(kept.sum()), len(kept),
+             int((~kept).sum()))
+    return kept
+
+
+def scene_transform(gaussians, config: PhysicsConfig):
+    """The :class:`nbv.scene_frame.SceneTransform` for ``config.up`` and ``config.scale`` ("auto" resolved).
+
+    "auto": metres per scene unit such that the largest extent of the robust object box
+    (:func:`nbv.scene_frame.robust_box`, in simulation axes; only the Gaussians that ``config.crop`` keeps)
+    is ``target_extent`` m.
+    """
+    from .scene_frame import SceneTransform
+
+    rotated = SceneTransform(config.up, 1.0)
+    if config.scale != "auto":
+        return SceneTransform(config.up, float(config.scale))
+    means = gaussians.means.detach().cpu().double().numpy()
+    opacities = gaussians.opacities.detach().cpu().double().numpy()
+    kept = kept_gaussians(gaussians, config)
+    if kept is not None:
+        means, opacities = means[kept], opacities[kept]
+    extent = 0.0
+    if len(means) >= 2:
+        lo, hi = robust_box(rotated.to_sim(means), opacities, config.opacity_threshold)
+        extent = float((hi - lo).max())
     if not extent > 0:
         raise ValueError("cannot pick scale='auto': the Gaussians have no spatial extent; "
                          "pass a number (metres per scene unit) as the scale")
-    return SceneTransform(up_axis=config.up_axis, scale=config.target_extent / extent)
-
-
-def _available_memory_bytes() -> int:
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    return SceneTransform(config.up, config.target_extent / extent)
 
 
 def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
                     solid_points: np.ndarray | None = None) -> dict[str, float]:
     """An upper estimate of the memory one probe needs, before any probe is allocated.
 
-    Without ``solid_points`` it is cheap: the bounding box of the Gaussians (centres +- 3 sigma, Gaussians
-    with opacity >= tau / 10) stands for the solid's box. With ``solid_points`` [P, 3] (sim metres, the
+    Without ``solid_points`` it is cheap: the box of the solid lattice stands for the solid's box (the
+    Gaussians' 3-sigma boxes where they can make solid: a Gaussian with opacity < tau clipped to the others'
+    box, those under tau / 10 left out, :mod:`nbv.floaters`). With ``solid_points`` [P, 3] (sim metres, the
     solidified Gaussians) the probes are laid out around the real solid, which is smaller when faint or
     scattered Gaussians widen the box but make no solid. Uses the per-particle byte counts ``BYTES_PER_*``
     and the solid lattice estimate of :func:`nbv.solidify.estimate_lattice_points`.
@@ -285,7 +382,7 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
     Returns:
         dict: lattice_points, fluid_particles (largest probe), boundary_particles, bytes.
     """
-    from .solidify import SolidifyConfig, estimate_lattice_points, gaussian_arrays_in_sim
+    from .solidify import SolidifyConfig, estimate_lattice_points, gaussian_arrays_in_sim, solid_boxes
 
     transform = transform if transform is not None else scene_transform(gaussians, config)
     spacing = 2.0 * config.particle_radius
@@ -296,13 +393,8 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
         pts = np.asarray(solid_points, np.float64)
         box, solid_count = np.stack([pts.min(0), pts.max(0)]), len(pts)
     else:
-        means, _, opacities, radii = gaussian_arrays_in_sim(gaussians, transform)
-        # faint Gaussians (under a tenth of tau) cannot make the solid on their own: they do not widen the box
-        solid_like = opacities >= 0.1 * config.opacity_threshold
-        if solid_like.any():
-            means, radii = means[solid_like], radii[solid_like]
-        lo, hi = (means - 3 * radii[:, None]).min(0), (means + 3 * radii[:, None]).max(0)
-        box, solid_count = np.array([[lo[0], lo[1], lo[2]], [hi[0], hi[1], hi[2]]]), lattice
+        means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+        box, solid_count = np.stack(floaters.lattice_extent(*solid_boxes(means, covs, opacities, scfg))), lattice
     probe = config.probe_config()
     fluid = boundary = 0
     for d in config.directions:
@@ -319,7 +411,7 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
 
 def memory_limit_bytes(config: PhysicsConfig) -> float:
     """The memory a probe may use: ``config.max_memory_gb``, or the memory available now."""
-    return config.max_memory_gb * 2**30 if config.max_memory_gb is not None else float(_available_memory_bytes())
+    return config.max_memory_gb * 2**30 if config.max_memory_gb is not None else float(available_memory_bytes())
 
 
 def check_memory(gaussians, config: PhysicsConfig, transform=None,
@@ -330,12 +422,37 @@ def check_memory(gaussians, config: PhysicsConfig, transform=None,
     est = estimate_memory(gaussians, config, transform, solid_points)
     limit = memory_limit_bytes(config)
     if est["bytes"] > limit:
+        available = "allowed (--max-memory-gb)" if config.max_memory_gb is not None else "available"
         raise ValueError(
-            f"the probe would need about {est['bytes'] / 2**30:.1f} GiB ({est['fluid_particles']:,} fluid and "
+            f"the probe would need about {est['bytes'] / 2**30:.4g} GiB ({est['fluid_particles']:,} fluid and "
             f"{est['boundary_particles']:,} boundary particles at r = {config.particle_radius} m, a solid lattice of "
-            f"{est['lattice_points']:,} points) but {limit / 2**30:.1f} GiB are available; use a larger particle "
-            "radius (--particle-radius or --quick) or a smaller scale")
+            f"{est['lattice_points']:,} points) but {limit / 2**30:.3g} GiB are {available}"
+            f"{_memory_fix(gaussians, config, transform, est, limit)}")
     return est
+
+
+def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, float], limit: float) -> str:
+    """The advice of :func:`check_memory`: the Gaussian that alone widens the lattice, if one does (a larger
+    radius cannot help then), else the particle radius that would fit, if the object is still resolved."""
+    from .solidify import SolidifyConfig, gaussian_arrays_in_sim, solid_boxes
+
+    transform = transform if transform is not None else scene_transform(gaussians, config)
+    spacing = 2.0 * config.particle_radius
+    scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold, max_points=2**62)
+    means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    boxes = solid_boxes(means, covs, opacities, scfg)
+    note = floaters.dominant_note(*boxes, spacing, means, covs, opacities, transform)
+    if note:
+        return f"{note.replace('widens it', 'widens the solid lattice')}; a larger particle radius cannot help"
+    # the fluid (most of the bytes) scales as 1 / r^3: the radius that would fit, if the object stays resolved
+    radius = config.particle_radius * (est["bytes"] / limit) ** (1.0 / 3.0)
+    extent = float(np.max(np.subtract(*floaters.lattice_extent(*boxes)[::-1])))
+    if 2.0 * radius <= extent / 4.0:
+        return (f"; use a particle radius of about {radius:.3g} m or more (--particle-radius; --quick is "
+                f"{QUICK['particle_radius']} m), a smaller scale (--scale), or crop the Gaussians (--crop)")
+    return (f"; a particle radius that fits ({radius:.3g} m) would leave the {extent:.3g} m solid box fewer than 4 "
+            "particles across: crop the Gaussians to the object (--crop auto, or --crop xmin,ymin,zmin,xmax,ymax,zmax "
+            "in scene units) or use a smaller scale (--scale)")
 
 
 # ---- the probe runs --------------------------------------------------------------------------------
@@ -349,8 +466,14 @@ class _ProbeRecorder:
     """Callbacks for ``fluidsim.run_probes``: one accumulator per probe, timings and a progress bar."""
 
     def __init__(self, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig, progress: bool,
-                 label: str = "", grid_bounds: tuple[np.ndarray, np.ndarray] | None = None):
+                 label: str = "", grid_bounds: tuple[np.ndarray, np.ndarray] | None = None, solid=None,
+                 record=None):
         self.centers, self.reach, self.config, self.progress, self.label = centers, reach, config, progress, label
+        # fluid particles deep inside the (filled) solid lattice, counted at every step (nbv.leaks)
+        self.leak_counter = None if solid is None else LeakCounter(solid.occupancy, solid.lattice_min, solid.spacing)
+        # the fluid of the recorded probes every k steps (nbv.trajectory; None: nothing recorded)
+        self.trajectory = None if record is None else TrajectoryRecorder(record, config.steps)
+        self.leaks: dict[str, Any] = {}
         self.grid_bounds = grid_bounds
         self.acc = None
         self.bar = None
@@ -358,6 +481,8 @@ class _ProbeRecorder:
         self.counts: dict[str, np.ndarray] = {}
         self.distinct: dict[str, np.ndarray] = {}
         self.domains: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.histories: dict[str, list[StepStats]] = {}
+        self.current: str | None = None  # the probe running now (the one that diverged, on a divergence)
         self.aggregation_s = 0.0
         self.build_s = 0.0
         self._t_start = 0.0
@@ -374,10 +499,19 @@ class _ProbeRecorder:
                                            max_fluid=solver.fluid.capacity, grid_bounds=self.grid_bounds)
         self.build_s += time.perf_counter() - t0
         self.domains[direction] = (solver.domain_min.copy(), solver.domain_max.copy())
+        self.current = direction
+        if self.leak_counter is not None:
+            self.leak_counter.start(self.config.steps)
+        if self.trajectory is not None:
+            self.trajectory.start(direction, solver)
         self.bar = _progress_bar(f"{self.label}{direction}", self.config.steps, self.progress)
         self._t_start = time.perf_counter()
 
     def step(self, direction: str, solver: DFSPHSolver, stats: StepStats) -> None:
+        if self.leak_counter is not None:
+            self.leak_counter.count(solver, stats.step)
+        if self.trajectory is not None:
+            self.trajectory.step(direction, solver, stats.step)
         if (stats.step + 1) % self.config.accumulate_every == 0:
             ti.sync()  # on a GPU, wait for the solver's step so that only the aggregation is timed
             t0 = time.perf_counter()
@@ -401,6 +535,11 @@ class _ProbeRecorder:
         self.counts[direction] = np.asarray(self.acc.counts, np.int64)
         if self.config.track_distinct:
             self.distinct[direction] = np.asarray(self.acc.distinct_counts, np.int64)
+        if self.leak_counter is not None:
+            self.leaks[direction] = self.leak_counter.finish(solver)
+        self.histories[direction] = history
+        if self.trajectory is not None:
+            self.trajectory.end(direction)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -457,6 +596,9 @@ def empty_scene_probes(solid: np.ndarray, centers: np.ndarray, reach: np.ndarray
         try:
             history = run_solver(solver, config.steps, on_step=lambda s, st, d=d, r=rec: r.step(d, s, st),
                                  progress=lambda st, d=d, r=rec: r.tick(d, st))
+        except SimulationDiverged as exc:
+            exc.probe = f"empty-scene {d}"  # which run diverged, for ProbeDiverged
+            raise
         finally:
             rec.close()
         rec.end(d, solver, history)
@@ -469,7 +611,8 @@ def empty_scene_probes(solid: np.ndarray, centers: np.ndarray, reach: np.ndarray
 _EMPTY_CACHE: dict = {}
 
 
-def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, source: str = "") -> PhysicsResult:
+def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, source: str = "",
+                       record=None) -> PhysicsResult:
     """Run the probes against the solid of ``gaussians`` and aggregate D_i onto every Gaussian (Eq. 2-3).
 
     Uses the Taichi runtime already initialised by the caller (never calls ``ti.init``).
@@ -479,16 +622,35 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
         config: probe settings.
         progress: a tqdm bar per probe (steps, solver iterations, max speed).
         source: a label for the result (the .ply path).
+        record: a :class:`nbv.trajectory.RecordConfig`: keep those probes' fluid every k steps in
+            ``PhysicsResult.trajectories`` (None: nothing recorded).
     Returns:
         PhysicsResult.
     Raises:
-        ValueError: bad Gaussians, an empty solid, or a run too large for memory, before any simulation.
+        ValueError: bad Gaussians, an empty solid, a run too large for memory, a time step too large for the
+            particle spacing (CFL), or a recording too large or of a probe not run, before any simulation.
+        ProbeDiverged: a probe diverged; its ``result`` holds the probes completed before it.
     """
     from .solidify import SolidifyConfig, gaussian_arrays_in_sim, gaussians_to_solid
 
     t_total = time.perf_counter()
+    if record is not None:
+        record.check_probes(config.directions, config.steps)
     gaussians = gaussians.detach().to("cpu").check(source or "Gaussians")
+    digest = gaussians_sha256(gaussians)
     transform = scene_transform(gaussians, config)
+    kept = kept_gaussians(gaussians, config)
+    if kept is not None:  # simulate the kept Gaussians at the resolved scale, then give every Gaussian its row
+        import torch
+
+        inner = replace(config, crop=None, scale=transform.scale)
+        try:
+            part = simulate_gaussians(gaussians.subset(torch.from_numpy(np.nonzero(kept)[0])), inner, progress,
+                                      source, record)
+        except ProbeDiverged as exc:
+            exc.result = replace(expand_to_all(exc.result, gaussians, kept, config), gaussians_sha256=digest)
+            raise
+        return replace(expand_to_all(part, gaussians, kept, config), gaussians_sha256=digest)
     # The cheap bound (the Gaussians' box) decides first; when it does not fit but the lattice does, the
     # solid is computed and the probes are re-estimated around it, since scattered faint Gaussians widen
     # the box without making solid. Either way the check comes before any probe is allocated.
@@ -511,34 +673,103 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     log.info("solid: %d particles from %d Gaussians (scale %.4g m/unit)", len(solid.points), len(means),
              transform.scale)
 
-    recorder = _ProbeRecorder(means, reach, config, progress,
+    check_probe_time_steps(solid.points, config, scfg)
+    if record is not None:
+        check_record_size(probe_fluid_counts(solid.points, record.directions, config.probe_config(), scfg.spacing),
+                          config.steps, record)
+    recorder = _ProbeRecorder(means, reach, config, progress, solid=solid, record=record,
                               grid_bounds=probe_domains_union(solid.points, config, scfg.spacing))
-    histories = _run_with(recorder, solid.points, config, config.steps, scfg)
-    dirs = config.directions
-    per_probe = np.stack([recorder.means[d] for d in dirs])
-    counts = np.stack([recorder.counts[d] for d in dirs])
-    distinct = np.stack([recorder.distinct[d] for d in dirs]) if config.track_distinct else None
-    d_max, d_mean = per_probe.max(0), per_probe.mean(0)
-    dbar = scores.geometry_divergence(_t(covs), _t(d_max))
-    dbar_mean = scores.geometry_divergence(_t(covs), _t(d_mean))
+    base = dict(solid=np.asarray(solid.points, np.float64), transform=transform, means=means, covariances=covs,
+                reach=reach, config=config, source=source, gaussians_sha256=digest)
 
-    empty = dbar_empty = dbar_empty_mean = None
-    empty_s = 0.0
-    if config.empty_reference:
+    def timings(empty_s: float = 0.0) -> dict[str, float]:
+        return {"solidify": solidify_s, "simulation": recorder.probe_s - recorder.aggregation_s,
+                "aggregation": recorder.aggregation_s, "accumulator_setup": recorder.build_s,
+                "empty_reference": empty_s, "total": time.perf_counter() - t_total}
+
+    try:
+        _run_with(recorder, solid.points, config, config.steps, scfg)
+    except SimulationDiverged as exc:  # keep the probes completed before it, say which one diverged where
+        done = tuple(d for d in config.directions if d in recorder.histories)
+        failure = {"probe": recorder.current, "step": int(exc.step), "reason": exc.reason}
+        result = _assemble(recorder, done, base, timings(), status="diverged", failure=failure)
+        raise ProbeDiverged(str(recorder.current), exc.step, exc.reason, result) from exc
+    result = _assemble(recorder, config.directions, base, timings())
+    if not config.empty_reference:
+        return result
+    try:
         empty, empty_s = empty_scene_probes(solid.points, means, reach, config, progress, _EMPTY_CACHE)
-        dbar_empty = scores.geometry_divergence(_t(covs), _t(empty.max(0)))
-        dbar_empty_mean = scores.geometry_divergence(_t(covs), _t(empty.mean(0)))
-    simulation_s = recorder.probe_s - recorder.aggregation_s
-    timings = {"solidify": solidify_s, "simulation": simulation_s, "aggregation": recorder.aggregation_s,
-               "accumulator_setup": recorder.build_s,
-               "empty_reference": empty_s, "total": time.perf_counter() - t_total}
+    except SimulationDiverged as exc:
+        probe = getattr(exc, "probe", "empty-scene")
+        failure = {"probe": probe, "step": int(exc.step), "reason": exc.reason}
+        raise ProbeDiverged(probe, exc.step, exc.reason, replace(result, status="diverged", failure=failure)) from exc
+    return replace(result, empty_per_probe=empty, timings=timings(empty_s),
+                   dbar_empty=scores.geometry_divergence(_t(covs), _t(empty.max(0))),
+                   dbar_empty_mean=scores.geometry_divergence(_t(covs), _t(empty.mean(0))))
+
+
+def check_probe_time_steps(solid: np.ndarray, config: PhysicsConfig, scfg: SolverConfig) -> None:
+    """Refuse, before any probe runs, a time step too large for the particle spacing in any probe's domain
+    (:func:`fluidsim.simulation.check_time_step`: inflow speed plus free fall through the domain)."""
+    probe = config.probe_config()
+    for d in config.directions:
+        s = probe_setup(solid, d, probe, scfg.spacing)
+        check_time_step(scfg, float(np.linalg.norm(s.velocity)), s.domain_min, s.domain_max, config.steps,
+                        where=f"probe {d} (--dt {scfg.dt:g} s, --speed {config.speed:g} m/s)")
+
+
+def _assemble(recorder: _ProbeRecorder, dirs: Sequence[str], base: dict[str, Any], timings: dict[str, float],
+              **extra: Any) -> PhysicsResult:
+    """The PhysicsResult of the probes ``dirs`` that ``recorder`` completed (none: D_g = 0, D-bar NaN)."""
+    covs = base["covariances"]
+    g, dirs = len(covs), tuple(dirs)
+    if dirs:
+        per_probe = np.stack([recorder.means[d] for d in dirs])
+        counts = np.stack([recorder.counts[d] for d in dirs])
+        distinct = np.stack([recorder.distinct[d] for d in dirs]) if recorder.config.track_distinct else None
+        d_max, d_mean = per_probe.max(0), per_probe.mean(0)
+        dbar = scores.geometry_divergence(_t(covs), _t(d_max))
+        dbar_mean = scores.geometry_divergence(_t(covs), _t(d_mean))
+    else:
+        per_probe, counts = np.zeros((0, g)), np.zeros((0, g), np.int64)
+        distinct = counts.copy() if recorder.config.track_distinct else None
+        d_max, d_mean, dbar, dbar_mean = np.zeros(g), np.zeros(g), float("nan"), float("nan")
     return PhysicsResult(
         directions=dirs, per_probe=per_probe, per_probe_counts=counts, per_probe_distinct=distinct,
-        divergence=d_max, divergence_mean=d_mean, dbar=dbar, dbar_mean=dbar_mean, dbar_empty=dbar_empty,
-        dbar_empty_mean=dbar_empty_mean, empty_per_probe=empty, solid=np.asarray(solid.points, np.float64),
-        transform=transform, means=means, covariances=covs, reach=reach,
-        stats={d: stats_table(histories[d]) for d in dirs}, domains=recorder.domains, timings=timings,
-        config=config, source=source)
+        divergence=d_max, divergence_mean=d_mean, dbar=dbar, dbar_mean=dbar_mean, dbar_empty=None,
+        dbar_empty_mean=None, empty_per_probe=None, stats={d: stats_table(recorder.histories[d]) for d in dirs},
+        domains={d: recorder.domains[d] for d in dirs}, timings=timings,
+        warnings={d: probe_warnings(d, recorder.counts[d], recorder.histories[d]) for d in dirs},
+        leaks={d: recorder.leaks[d] for d in dirs if d in recorder.leaks},
+        trajectories={} if recorder.trajectory is None else
+        {d: recorder.trajectory.results[d] for d in dirs if d in recorder.trajectory.results}, **base, **extra)
+
+
+def expand_to_all(part: PhysicsResult, gaussians, kept: np.ndarray, config: PhysicsConfig) -> PhysicsResult:
+    """A result on the kept Gaussians -> one row per Gaussian of ``gaussians`` (the dropped ones: D_g = 0, no
+    samples), with ``kept`` recorded and ``config`` (the crop) restored. D-bar stays the kept Gaussians' own."""
+    from .solidify import gaussian_arrays_in_sim
+
+    g = len(kept)
+
+    def full(a: np.ndarray | None, axis: int = 0) -> np.ndarray | None:
+        if a is None:
+            return None
+        shape = list(a.shape)
+        shape[axis] = g
+        out = np.zeros(shape, a.dtype)
+        index = [slice(None)] * a.ndim
+        index[axis] = kept
+        out[tuple(index)] = a
+        return out
+
+    means, covs, _, radii = gaussian_arrays_in_sim(gaussians, part.transform)
+    return replace(
+        part, per_probe=full(part.per_probe, 1), per_probe_counts=full(part.per_probe_counts, 1),
+        per_probe_distinct=full(part.per_probe_distinct, 1), divergence=full(part.divergence),
+        divergence_mean=full(part.divergence_mean), empty_per_probe=full(part.empty_per_probe, 1),
+        means=np.ascontiguousarray(means), covariances=np.ascontiguousarray(covs),
+        reach=np.ascontiguousarray(config.n_radius * radii), config=config, kept=kept.copy())
 
 
 def _t(a: np.ndarray):
@@ -563,17 +794,27 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         /probes/<dir>/distinct  (G,) |P_g| (only with track_distinct)
         /probes/<dir>/D_empty   (G,) the empty-scene D_g^(IC) (only with the empty reference)
         /probes/<dir>/stats     one row per step (fluidsim StepStats fields)
-                                attributes: domain_min, domain_max (sim metres)
+                                attributes: domain_min, domain_max (sim metres), warnings (JSON list of text)
+        /probes/<dir>/leaked    (K,) int32 ids of the fluid particles inside the filled solid at the end (nbv.leaks:
+                                the nearest lattice point and its 6 neighbours are solid; contact is not a leak)
+                                attributes: final (K), max (the most inside after any step), max_step (0-based)
+        /probes/<dir>/leaked_per_step  (S,) int32 particles inside after each step
+        /probes/<dir>/x_final   (F, 3) float32 final fluid positions, sim metres, ordered by id (gzip)
+        /probes/<dir>/ids_final (F,) int32 their ids (index in the probe's initial fluid set)
         /solid/x                (M, 3) solid particles, sim metres
         attributes: config (PhysicsConfig JSON), directions, dbar, dbar_mean, dbar_empty, dbar_empty_mean
-                    (m^4/s; NaN when not computed), up_axis, scale (m per scene unit), source, timings (JSON)
+                    (m^4/s; NaN when not computed), up (the scene's up vector, 3 floats), up_label ("-y", ...),
+                    scale (m per scene unit), scene_to_sim (4x4: x_sim = M [x_scene, 1]), source, timings (JSON)
+        /gaussians/kept         (G,) bool, the Gaussians inside the crop (only with a crop)
+        attributes too: gaussians_sha256 (:func:`gaussians_sha256`), status ("complete" or "diverged": then
+                    /probes holds the probes completed before it, and diverged_probe, diverged_step,
+                    diverged_reason say which probe diverged at which step and why)
 
     Returns:
         the path written.
     """
     p = check_writable(path)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    try:
+    with atomic_output(p) as tmp:
         with h5py.File(tmp, "w") as f:
             g = f.create_group("gaussians")
             g["D"], g["D_mean"], g["means"] = result.divergence, result.divergence_mean, result.means
@@ -588,30 +829,38 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
                 pg["stats"] = result.stats[d]
                 if d in result.domains:
                     pg.attrs["domain_min"], pg.attrs["domain_max"] = result.domains[d]
+                pg.attrs["warnings"] = json.dumps(list(result.warnings.get(d, [])))
+                if d in result.leaks:
+                    write_probe_leaks(pg, result.leaks[d])
+                if d in result.trajectories:
+                    write_trajectory(pg, result.trajectories[d])
             f.create_dataset("solid/x", data=result.solid, compression="gzip", compression_opts=1)
             f.attrs["config"] = json.dumps(result.config.to_dict())
             f.attrs["directions"] = json.dumps(list(result.directions))
             for key in ("dbar", "dbar_mean", "dbar_empty", "dbar_empty_mean"):
                 v = getattr(result, key)
                 f.attrs[key] = float("nan") if v is None else float(v)
-            f.attrs["up_axis"], f.attrs["scale"] = result.transform.up_axis, float(result.transform.scale)
+            f.attrs["up"], f.attrs["up_label"] = np.asarray(result.transform.up), result.transform.up_label
+            f.attrs["scale"], f.attrs["scene_to_sim"] = float(result.transform.scale), result.transform.matrix
+            if result.kept is not None:
+                g["kept"] = np.asarray(result.kept, bool)
             f.attrs["source"] = str(result.source)
             f.attrs["timings"] = json.dumps(result.timings)
-        os.replace(tmp, p)
-    except BaseException:
-        if tmp.exists():
-            tmp.unlink()
-        raise
+            f.attrs["gaussians_sha256"], f.attrs["status"] = result.gaussians_sha256, result.status
+            if result.failure is not None:
+                for key in ("probe", "step", "reason"):
+                    f.attrs[f"diverged_{key}"] = result.failure[key]
     return p
 
 
-def load_result(path: str | Path) -> PhysicsResult:
-    """Read a result written by :func:`save_result`.
+def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
+    """Read a result written by :func:`save_result` (``trajectories``: also the recorded probe trajectories, which
+    can be large; by default ``PhysicsResult.trajectories`` is left empty).
 
     Raises:
         ValueError: naming the file when it is not such a result.
     """
-    from .solidify import SceneTransform
+    from .scene_frame import SceneTransform
 
     p = Path(path)
     if not p.is_file():
@@ -622,13 +871,19 @@ def load_result(path: str | Path) -> PhysicsResult:
                 raise ValueError(f"{p} is not a `fluidgs simulate` result (no /gaussians/D); re-run `fluidgs simulate`")
             dirs = tuple(json.loads(f.attrs["directions"]))
             probes = [f[f"probes/{d}"] for d in dirs]
-            per_probe = np.stack([pg["D"][()] for pg in probes])
-            counts = np.stack([pg["counts"][()] for pg in probes])
-            distinct = np.stack([pg["distinct"][()] for pg in probes]) if all("distinct" in pg for pg in probes) \
-                else None
-            empty = np.stack([pg["D_empty"][()] for pg in probes]) if all("D_empty" in pg for pg in probes) else None
+            g = f["gaussians/D"].shape[0]
+            per_probe = np.stack([pg["D"][()] for pg in probes]) if probes else np.zeros((0, g))
+            counts = np.stack([pg["counts"][()] for pg in probes]) if probes else np.zeros((0, g), np.int64)
+            distinct = np.stack([pg["distinct"][()] for pg in probes]) \
+                if probes and all("distinct" in pg for pg in probes) else None
+            empty = np.stack([pg["D_empty"][()] for pg in probes]) \
+                if probes and all("D_empty" in pg for pg in probes) else None
             domains = {d: (np.asarray(pg.attrs["domain_min"]), np.asarray(pg.attrs["domain_max"]))
                        for d, pg in zip(dirs, probes, strict=True) if "domain_min" in pg.attrs}
+            warnings = {d: list(json.loads(pg.attrs["warnings"])) if "warnings" in pg.attrs else []
+                        for d, pg in zip(dirs, probes, strict=True)}
+            failure = {"probe": str(f.attrs["diverged_probe"]), "step": int(f.attrs["diverged_step"]),
+                       "reason": str(f.attrs["diverged_reason"])} if "diverged_probe" in f.attrs else None
 
             def opt(key: str) -> float | None:
                 v = float(f.attrs[key])
@@ -639,20 +894,63 @@ def load_result(path: str | Path) -> PhysicsResult:
                 divergence=f["gaussians/D"][()], divergence_mean=f["gaussians/D_mean"][()],
                 dbar=float(f.attrs["dbar"]), dbar_mean=float(f.attrs["dbar_mean"]), dbar_empty=opt("dbar_empty"),
                 dbar_empty_mean=opt("dbar_empty_mean"), empty_per_probe=empty, solid=f["solid/x"][()],
-                transform=SceneTransform(up_axis=str(f.attrs["up_axis"]), scale=float(f.attrs["scale"])),
+                transform=SceneTransform(tuple(f.attrs["up"]) if "up" in f.attrs else str(f.attrs["up_axis"]),
+                                         float(f.attrs["scale"])),
+                kept=f["gaussians/kept"][()] if "gaussians/kept" in f else None,
                 means=f["gaussians/means"][()], covariances=f["gaussians/covariances"][()],
                 reach=f["gaussians/reach"][()], stats={d: pg["stats"][()] for d, pg in zip(dirs, probes, strict=True)},
                 domains=domains, timings=json.loads(f.attrs["timings"]),
-                config=PhysicsConfig.from_dict(json.loads(f.attrs["config"])), source=str(f.attrs["source"]))
+                config=PhysicsConfig.from_dict(json.loads(f.attrs["config"])), source=str(f.attrs["source"]),
+                warnings=warnings, gaussians_sha256=str(f.attrs.get("gaussians_sha256", "")),
+                status=str(f.attrs.get("status", "complete")), failure=failure,
+                leaks={d: read_probe_leaks(pg) for d, pg in zip(dirs, probes, strict=True) if "leaked" in pg},
+                trajectories={d: read_trajectory(pg) for d, pg in zip(dirs, probes, strict=True)
+                              if trajectories and "trajectory" in pg})
     except (OSError, KeyError) as exc:
         raise ValueError(f"cannot read the result file {p}: {exc}; re-run `fluidgs simulate`") from exc
 
 
-def check_result_matches(result: PhysicsResult, num_gaussians: int, path: str | Path) -> None:
-    """Raise ValueError when a stored result was computed for another Gaussian set."""
-    if result.num_gaussians != num_gaussians:
-        raise ValueError(f"{path} holds D_g for {result.num_gaussians} Gaussians but the .ply has {num_gaussians}; "
+def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> None:
+    """Raise ValueError when a stored result was not computed, completely, for ``gaussians``.
+
+    Args:
+        result: a loaded result.
+        gaussians: the ``GaussianSet`` the result is used with (an int: only the count is compared).
+        path: the result file, for the message.
+
+    The count must match and the run must be complete. Then :func:`gaussians_sha256` must match the stored
+    digest; in files written before the digest, the Gaussians' centres mapped by the stored transform must
+    match the stored centres (to 1e-5 of the object's size).
+    """
+    num = gaussians if isinstance(gaussians, int) else gaussians.num
+    if result.num_gaussians != num:
+        raise ValueError(f"{path} holds D_g for {result.num_gaussians} Gaussians but the .ply has {num}; "
                          "pass the result of this .ply or drop --result to simulate again")
+    if result.status != "complete":
+        f = result.failure or {}
+        raise ValueError(f"{path} is the result of a run that diverged (probe {f.get('probe')} at step "
+                         f"{f.get('step')}: {f.get('reason')}); it has only the probes "
+                         f"{', '.join(result.directions) or 'none'}; re-run `fluidgs simulate` with a smaller --dt")
+    if isinstance(gaussians, int):
+        return
+    if result.gaussians_sha256:
+        digest = gaussians_sha256(gaussians)
+        if digest != result.gaussians_sha256:
+            raise ValueError(f"{path} was computed for other Gaussians (same count, {num}, but different positions, "
+                             f"shapes or opacities: content hash {result.gaussians_sha256[:12]}... vs "
+                             f"{digest[:12]}... of this file); pass the result of these Gaussians or drop --result "
+                             "to simulate again")
+        return
+    from .solidify import gaussian_arrays_in_sim
+
+    means = np.asarray(gaussian_arrays_in_sim(gaussians, result.transform)[0], np.float64)
+    stored = np.asarray(result.means, np.float64)
+    size = float(np.ptp(stored, axis=0).max()) if len(stored) else 0.0
+    gap = float(np.abs(means - stored).max()) if len(stored) else 0.0
+    if not gap <= 1e-5 * max(size, 1e-12):
+        raise ValueError(f"{path} was computed for other Gaussians (same count, {num}, but centres up to {gap:.3g} m "
+                         "away from the stored ones); pass the result of these Gaussians or drop --result to "
+                         "simulate again")
 
 
 def parse_directions(text: str | Sequence[str]) -> tuple[str, ...]:

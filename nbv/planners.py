@@ -15,10 +15,19 @@ Every planner is built from a small frozen config dataclass with an explicit see
   and the candidate of the list with the largest S(T) is chosen (ties: the visual planner's order).
 - ``random+fluid`` (the paper's random-selection ablation): the same re-ranking of K candidates drawn at random,
   which separates what the physics pick adds from what the visual shortlist adds.
+- Controls of the physics pick, on each visual planner (``fisher``, ``variance``, ``random``), with the same
+  shortlist and K schedule as ``<visual>+fluid``:
+
+  - ``<visual>+area``: S(T) with D_g = 1, i.e. the coverage sum_{g visible} w_g(T); no probe runs.
+  - ``<visual>+shuffled``: S(T) with the probes' D_g permuted across the Gaussians (a numpy Generator seeded
+    with (seed, round)), which keeps the values and destroys where they are.
+
+  A physics pick that beats neither control adds nothing a coverage term or the magnitudes alone would not.
 
 S(T) needs only the screen-space radii and visibility of the Gaussians in each candidate, which are the
 projection's (``recon.render.render`` returns exactly ``project_gaussians(...).radii``), so no candidate
-is rasterised for it.
+is rasterised for it: :func:`physics_view_scores` takes them from the batched projection
+(:func:`nbv.scores.projected_view_scores`).
 """
 
 from __future__ import annotations
@@ -36,10 +45,9 @@ import torch
 from recon.camera import Camera
 from recon.datasets import View
 from recon.gaussians import GaussianSet
-from recon.projection import project_gaussians
 
 from .fisher import FisherConfig, greedy_top_k
-from .scores import view_scores
+from .scores import projected_view_scores
 from .variance import VarianceConfig, fit_variances, variance_scores
 
 log = logging.getLogger(__name__)
@@ -169,7 +177,7 @@ def _descending(scores: list[float]) -> list[int]:
 
 def physics_view_scores(gaussians: GaussianSet, cameras: list[Camera], divergence: torch.Tensor,
                         weighted: bool = True) -> list[float]:
-    """S(T) = sum_g w_g(T) D_g (paper Eq. 4-5) of every camera.
+    """S(T) = sum_g w_g(T) D_g (paper Eq. 4-5) of every camera, from the batched projection (no render).
 
     Args:
         gaussians: N Gaussians (the set ``divergence`` was computed on).
@@ -185,13 +193,25 @@ def physics_view_scores(gaussians: GaussianSet, cameras: list[Camera], divergenc
                          "the physics callable must score the Gaussians it is given")
     if not torch.isfinite(d).all():
         raise ValueError("physics returned NaN or Inf per-Gaussian divergences; check the probe run")
-    out = []
-    with torch.no_grad():
-        g = gaussians.detach()
-        for cam in cameras:
-            radii = project_gaussians(g, cam).radii
-            out.append(float(view_scores(d, radii[None], image_size=(cam.height, cam.width), weighted=weighted)[0]))
-    return out
+    if not cameras:
+        return []
+    return projected_view_scores(d, gaussians.detach(), list(cameras), weighted=weighted).scores.tolist()
+
+
+def shuffled_divergence(divergence: torch.Tensor, seed: int, round_index: int = 0) -> torch.Tensor:
+    """D_g permuted across the Gaussians: the same values in random places (the ``+shuffled`` control).
+
+    Args:
+        divergence: [N] D_g, 1/s.
+        seed: planner seed (any int; negative ones are taken modulo 2^64).
+        round_index: selection round, mixed into the seed so every round draws its own permutation.
+    Returns:
+        [N] ``divergence[perm]`` with perm a permutation from a numpy Generator seeded with (seed, round_index):
+        the same multiset of values, deterministic per (seed, round_index).
+    """
+    d = torch.as_tensor(divergence).detach().reshape(-1)
+    rng = np.random.default_rng([int(seed) % 2**64, int(round_index) % 2**64])
+    return d[torch.from_numpy(rng.permutation(d.numel())).to(d.device)]
 
 
 def _run_physics(context: PlanningContext, name: str) -> torch.Tensor:
@@ -309,14 +329,33 @@ class PhysicsPlanner:
 
 
 class _FusedPlanner:
-    """FluidGaussian: the visual planner's top-K, re-ranked by S(T) (module docstring)."""
+    """FluidGaussian: the visual planner's top-K, re-ranked by S(T) (module docstring).
+
+    ``control`` says which per-Gaussian values re-rank the shortlist: "fluid" the probes' D_g, "area" ones (the
+    coverage control; the probes never run), "shuffled" the probes' D_g permuted (:func:`shuffled_divergence`).
+    """
 
     name = ""
     visual_type: type = FisherPlanner
+    control = "fluid"
 
     def __init__(self, config) -> None:
         self.config = config
         self.visual = self.visual_type(config)
+
+    @property
+    def uses_physics(self) -> bool:
+        """Whether the pick runs the probes (False for the coverage control)."""
+        return self.control != "area"
+
+    def per_gaussian(self, context: PlanningContext) -> torch.Tensor:
+        """[N] the values S(T) sums with the view weights: D_g (1/s), ones, or D_g permuted."""
+        if self.control == "area":
+            return torch.ones(context.gaussians.num, dtype=torch.float64)
+        divergence = _run_physics(context, self.name)
+        if self.control == "shuffled":
+            return shuffled_divergence(divergence, self.config.seed, context.round)
+        return divergence
 
     def select(self, context: PlanningContext) -> Selection:
         _check_candidates(context, self.name)
@@ -325,7 +364,7 @@ class _FusedPlanner:
         start = time.perf_counter()
         shortlist, visual = self.visual.rank(context, min(k, count))
         mid = time.perf_counter()
-        divergence = _run_physics(context, self.name)
+        divergence = self.per_gaussian(context)
         chosen = physics_view_scores(context.gaussians, [context.candidates[i] for i in shortlist], divergence)
         physics = _nan_scores(count)
         for i, s in zip(shortlist, chosen, strict=True):
@@ -371,6 +410,48 @@ class RandomFluidPlanner(_FusedPlanner):
         super().__init__(config if config is not None else RandomConfig())
 
 
+class FisherAreaPlanner(FisherFluidPlanner):
+    """Control: FisherRF's top-K re-ranked by the coverage sum_g w_g (S(T) with D_g = 1; no probes)."""
+
+    name = "fisher+area"
+    control = "area"
+
+
+class FisherShuffledPlanner(FisherFluidPlanner):
+    """Control: FisherRF's top-K re-ranked by S(T) with the probes' D_g permuted across the Gaussians."""
+
+    name = "fisher+shuffled"
+    control = "shuffled"
+
+
+class VarianceAreaPlanner(VarianceFluidPlanner):
+    """Control: the variance planner's top-K re-ranked by the coverage sum_g w_g (no probes)."""
+
+    name = "variance+area"
+    control = "area"
+
+
+class VarianceShuffledPlanner(VarianceFluidPlanner):
+    """Control: the variance planner's top-K re-ranked by S(T) with D_g permuted across the Gaussians."""
+
+    name = "variance+shuffled"
+    control = "shuffled"
+
+
+class RandomAreaPlanner(RandomFluidPlanner):
+    """Control: K random candidates re-ranked by the coverage sum_g w_g (no probes)."""
+
+    name = "random+area"
+    control = "area"
+
+
+class RandomShuffledPlanner(RandomFluidPlanner):
+    """Control: K random candidates re-ranked by S(T) with D_g permuted across the Gaussians."""
+
+    name = "random+shuffled"
+    control = "shuffled"
+
+
 PLANNERS: dict[str, type] = {
     "random": RandomPlanner,
     "random+fluid": RandomFluidPlanner,
@@ -379,7 +460,21 @@ PLANNERS: dict[str, type] = {
     "physics": PhysicsPlanner,
     "fisher+fluid": FisherFluidPlanner,
     "variance+fluid": VarianceFluidPlanner,
+    "fisher+area": FisherAreaPlanner,
+    "fisher+shuffled": FisherShuffledPlanner,
+    "variance+area": VarianceAreaPlanner,
+    "variance+shuffled": VarianceShuffledPlanner,
+    "random+area": RandomAreaPlanner,
+    "random+shuffled": RandomShuffledPlanner,
 }
+
+
+def uses_physics(name: str) -> bool:
+    """Whether the registered planner ``name`` runs the probes for its pick (physics, +fluid, +shuffled)."""
+    if name not in PLANNERS:
+        raise ValueError(f"unknown planner {name!r}; choose one of {sorted(PLANNERS)}")
+    cls = PLANNERS[name]
+    return cls is PhysicsPlanner or (issubclass(cls, _FusedPlanner) and cls.control != "area")
 
 
 def make_planner(name: str, **overrides) -> Planner:

@@ -1,6 +1,7 @@
-"""Taichi kernels of :mod:`nbv.solidify`: splatting Gaussians onto a lattice as log-transmittance.
+"""Taichi kernels of :mod:`nbv.solidify` (splatting Gaussians onto the lattice points and edges as
+log-transmittance) and of :mod:`nbv.leaks` (fluid particles deep inside the solid).
 
-The work is flattened: every (Gaussian, lattice point of its sigma box) pair is one work item, so a
+The splats' work is flattened: every (Gaussian, lattice point of its sigma box) pair is one work item, so a
 few large Gaussians do not leave all but one thread idle. A work item finds its Gaussian by binary
 search in the exclusive prefix sum of the box sizes.
 """
@@ -62,3 +63,107 @@ def splat_log_transmittance(
                 d2 += d[a] * inv_covs[g, a, b] * d[b]
         alpha = ti.min(opacities[g] * ti.exp(-0.5 * d2), max_alpha)
         log_transmittance[i, j, k] += ti.cast(ti.log(1.0 - alpha), ti.f32)
+
+
+@ti.kernel
+def splat_edge_log_transmittance(
+    work_start: ti.i64,
+    work_count: ti.i32,
+    axis: ti.i32,
+    offsets: ti.types.ndarray(dtype=ti.i64, ndim=1),
+    box_lo: ti.types.ndarray(dtype=ti.i32, ndim=2),
+    box_dims: ti.types.ndarray(dtype=ti.i32, ndim=2),
+    means: ti.types.ndarray(dtype=ti.f64, ndim=2),
+    inv_covs: ti.types.ndarray(dtype=ti.f64, ndim=3),
+    opacities: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    lattice_min: ti.types.vector(3, ti.f64),
+    spacing: ti.f64,
+    max_alpha: ti.f64,
+    edge_log_transmittance: ti.types.ndarray(dtype=ti.f32, ndim=4),
+):
+    """Add log(1 - o_g max_t exp(-d_g(x(t))^2 / 2)) of each Gaussian to the lattice edges along ``axis`` in its box.
+
+    The edge from point p to p + spacing e_axis is the segment x(t) = p + t spacing e_axis, t in [0, 1]. Along
+    it d_g^2 is a convex quadratic in t, smallest at t* = clamp(-(A d)_axis / (spacing A_axis,axis), 0, 1) with
+    A = Sigma_g^-1 and d = p - mu_g, so the Gaussian's peak on the edge is exact: o_g exp(-d_g(x(t*))^2 / 2).
+
+    Args:
+        work_start, work_count: the range of flattened (Gaussian, edge start point) work items of this call.
+        axis: 0, 1 or 2, the direction of the edges.
+        offsets: (G + 1,) exclusive prefix sum of the boxes' sizes (strictly increasing).
+        box_lo: (G, 3) first edge start point of each box. box_dims: (G, 3) box size in lattice points.
+        means: (G, 3) m. inv_covs: (G, 3, 3) 1/m^2. opacities: (G,).
+        lattice_min: lattice point (0, 0, 0), m. spacing: m.
+        max_alpha: clamp of the peak, so that the logarithm stays finite.
+        edge_log_transmittance: (3, X, Y, Z) accumulated sums (atomic adds) per edge start point and axis.
+    """
+    num_g = offsets.shape[0] - 1
+    for t in range(work_count):
+        w = work_start + ti.cast(t, ti.i64)
+        lo = 0
+        hi = num_g
+        while hi - lo > 1:  # invariant: offsets[lo] <= w < offsets[hi]
+            mid = (lo + hi) // 2
+            if offsets[mid] <= w:
+                lo = mid
+            else:
+                hi = mid
+        g = lo
+        local = w - offsets[g]
+        nz = ti.cast(box_dims[g, 2], ti.i64)
+        ny = ti.cast(box_dims[g, 1], ti.i64)
+        k = ti.cast(local % nz, ti.i32) + box_lo[g, 2]
+        rest = local // nz
+        j = ti.cast(rest % ny, ti.i32) + box_lo[g, 1]
+        i = ti.cast(rest // ny, ti.i32) + box_lo[g, 0]
+        d = ti.Vector([lattice_min[0] + spacing * i - means[g, 0],
+                       lattice_min[1] + spacing * j - means[g, 1],
+                       lattice_min[2] + spacing * k - means[g, 2]], ti.f64)
+        ad = ti.cast(0.0, ti.f64)
+        for b in ti.static(range(3)):
+            ad += inv_covs[g, axis, b] * d[b]
+        t_star = ti.min(ti.max(-ad / (spacing * inv_covs[g, axis, axis]), 0.0), 1.0)
+        for a in ti.static(range(3)):
+            if a == axis:
+                d[a] += t_star * spacing
+        q = ti.cast(0.0, ti.f64)
+        for a in ti.static(range(3)):
+            for b in ti.static(range(3)):
+                q += d[a] * inv_covs[g, a, b] * d[b]
+        alpha = ti.min(opacities[g] * ti.exp(-0.5 * q), max_alpha)
+        edge_log_transmittance[axis, i, j, k] += ti.cast(ti.log(1.0 - alpha), ti.f32)
+
+
+@ti.kernel
+def flag_deep_inside(
+    n: ti.i32,
+    x: ti.types.ndarray(ndim=1),
+    deep: ti.types.ndarray(dtype=ti.u8, ndim=3),
+    lattice_min: ti.types.vector(3, ti.f64),
+    inv_spacing: ti.f64,
+    slot: ti.i32,
+    flags: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+):
+    """flags[p] = 1 when fluid particle p's nearest lattice point is a deep-interior point of the solid.
+
+    The nearest lattice point is floor((x - lattice_min) / spacing + 1/2) per axis (in float64); points off the
+    lattice are not inside. When ``slot`` >= 0 the number of flagged particles is added to ``counts[slot]``.
+
+    Args:
+        n: the active fluid particles (the first n of ``x``).
+        x: (N,) vec3 positions, m (f32 or f64). deep: (X, Y, Z) 1 at the deep-interior lattice points.
+        lattice_min: lattice point (0, 0, 0), m. inv_spacing: 1 / spacing, 1/m.
+        slot: index into ``counts`` (the step), or -1 to only write the flags.
+        flags: (N,) i32 output. counts: (S,) i32, atomically incremented.
+    """
+    for p in range(n):
+        inside = 0
+        i = ti.cast(ti.floor((ti.cast(x[p][0], ti.f64) - lattice_min[0]) * inv_spacing + 0.5), ti.i32)
+        j = ti.cast(ti.floor((ti.cast(x[p][1], ti.f64) - lattice_min[1]) * inv_spacing + 0.5), ti.i32)
+        k = ti.cast(ti.floor((ti.cast(x[p][2], ti.f64) - lattice_min[2]) * inv_spacing + 0.5), ti.i32)
+        if 0 <= i < deep.shape[0] and 0 <= j < deep.shape[1] and 0 <= k < deep.shape[2]:
+            inside = ti.cast(deep[i, j, k], ti.i32)
+        flags[p] = inside
+        if inside != 0 and slot >= 0:
+            ti.atomic_add(counts[slot], 1)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import csv
 import logging
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -144,14 +143,14 @@ CSV_FIELDS = ("speed_m_s", "reynolds", "dt_s", "steps", "dbar_m4_s", "dbar_other
 
 def write_csv(path: str | Path, points: Sequence[SweepPoint]) -> Path:
     """Write the sweep as CSV atomically (columns: :data:`CSV_FIELDS`; empty cells where no OTHER)."""
+    from fluidsim.output import atomic_output
+
     p = Path(path)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    with open(tmp, "w", newline="") as fh:
+    with atomic_output(p) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(CSV_FIELDS)
         for pt in points:
             w.writerow([f"{pt.speed:g}", f"{pt.reynolds:.6g}", f"{pt.dt:.6g}", pt.steps, f"{pt.dbar:.6g}",
                         "" if pt.dbar_other is None else f"{pt.dbar_other:.6g}",
                         "" if pt.gap is None else f"{pt.gap:.6g}"])
-    os.replace(tmp, p)
     return p

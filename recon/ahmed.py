@@ -326,7 +326,8 @@ def save_mesh(mesh: o3d.geometry.TriangleMesh, path: str | Path) -> Path:
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise ValueError(f"{path}: unsupported mesh file type {path.suffix!r}; use one of {list(MESH_SUFFIXES)}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex}{path.suffix}")  # open3d picks the writer by suffix
+    # open3d picks the writer by suffix; the short pattern of fluidsim.output.temp_path (any legal output name works)
+    tmp = path.parent / f".fgs-{uuid.uuid4().hex[:8]}.tmp{path.suffix}"
     try:
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):  # OBJ cannot hold face normals
             written = o3d.io.write_triangle_mesh(str(tmp), mesh, write_vertex_normals=path.suffix.lower() != ".stl")

@@ -1,27 +1,32 @@
-"""Multi-view datasets: NeRF-synthetic / Blender ``transforms_*.json`` and COLMAP text models.
+"""Multi-view datasets: NeRF-synthetic / Blender ``transforms_*.json`` and COLMAP models (binary or text).
 
 No paper equation is implemented here. The paper evaluates on NeRF Synthetic (Blender), Mip-NeRF 360
 (COLMAP) and DrivAerNet++ rendered in the Blender format (appendix, "Rendering"); ``fluidgs
 render-dataset`` writes the latter (:mod:`recon.mesh_render`).
 
-Blender / NeRF-synthetic (:func:`load_blender`):
+Blender / NeRF-synthetic (:func:`load_blender`; :func:`load_cameras` reads the cameras of one file
+without images):
     ``transforms_{train,val,test}.json`` next to each other; train is required, val and test are
     optional (empty lists when missing). Intrinsics from ``camera_angle_x`` (radians; focal
     ``0.5 W / tan(angle / 2)``), or nerfstudio's ``fl_x`` (pixels), with optional ``camera_angle_y`` /
     ``fl_y`` (default: square pixels), ``cx``, ``cy`` (default: the image centre) and ``w``, ``h``; a
     frame may override any of these keys. Frames give ``file_path`` (relative to the json, with or
-    without ``.png``) and ``transform_matrix`` (4x4 or 3x4 OpenGL camera-to-world). Images are read with
-    cv2 (8- or 16-bit, grey, RGB or RGBA); RGBA is composited on ``background`` (straight alpha).
-    Without a ``dataset.json`` the up axis is "z" (Blender's world, as in NeRF-synthetic).
-COLMAP text (:func:`load_colmap`):
-    ``cameras.txt``, ``images.txt``, ``points3D.txt`` in ``sparse/0/``, ``sparse/`` or the folder
-    itself; images in an ``images/`` folder next to the sparse folder or one or two levels above it.
+    without ``.png``) and ``transform_matrix`` (4x4 or 3x4 OpenGL camera-to-world: a rotation and a
+    translation). Images are read with cv2 (8- or 16-bit, grey, RGB or RGBA); RGBA is composited on
+    ``background`` (straight alpha). Without a ``dataset.json`` the up axis is "z" (Blender's world, as
+    in NeRF-synthetic). A malformed key raises a ValueError naming the file, the frame (index and
+    ``file_path``) and the key.
+COLMAP (:func:`load_colmap`, files read by :mod:`recon.colmap`):
+    ``cameras``, ``images``, ``points3D`` as ``.bin`` (COLMAP's default; preferred when both exist, as in
+    graphdeco's 3DGS) or ``.txt`` in ``sparse/0/``, ``sparse/`` or the folder itself; images in an
+    ``images/`` folder next to the sparse folder or one or two levels above it.
     Models SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL and OPENCV; distortion is ignored (a warning
     names the camera), so undistorted models are expected. COLMAP's pose is world-to-camera in the
     OpenCV axes with pixel centres at i + 0.5, exactly :class:`~recon.camera.Camera`'s convention.
     Images are sorted by name and every 8th (index 0, 8, 16, ...) goes to test, the rest to train,
     as in the LLFF / 3DGS evaluations; val is empty. COLMAP frames are arbitrary: the up axis is
-    reported as "y" by convention only (for Mip-NeRF 360 scenes the true up is often close to -y).
+    reported as "y" by convention only (for Mip-NeRF 360 scenes the true up is often close to -y;
+    :func:`recon.frames.up_from_cameras` estimates it).
 ``dataset.json`` (written by ``render-dataset``), when present in the dataset folder, provides the
 reference mesh (``mesh_path``, relative to the folder) and ``up_axis``.
 
@@ -48,20 +53,27 @@ import numpy as np
 import torch
 
 from .camera import Camera
+from .colmap import (  # noqa: F401 - re-exported: these readers lived here before recon.colmap
+    BINARY_FILES,
+    SUPPORTED_MODELS,
+    TEXT_FILES,
+    find_colmap_sparse,
+    quaternion_wxyz_to_matrix,
+    read_colmap_cameras,
+    read_colmap_cameras_binary,
+    read_colmap_images,
+    read_colmap_images_binary,
+    read_colmap_model,
+    read_colmap_points,
+    read_colmap_points_binary,
+)
 
 logger = logging.getLogger(__name__)
 
 SPLITS = ("train", "val", "test")
 COLMAP_TEST_EVERY = 8
-COLMAP_FILES = ("cameras.txt", "images.txt", "points3D.txt")
-# COLMAP camera model -> number of parameters (focal length(s), principal point, then distortion)
-COLMAP_MODELS = {
-    "SIMPLE_PINHOLE": 3,
-    "PINHOLE": 4,
-    "SIMPLE_RADIAL": 4,
-    "RADIAL": 5,
-    "OPENCV": 8,
-}
+COLMAP_FILES = TEXT_FILES  # the text model's file names (kept for callers of the text-only loader)
+COLMAP_MODELS = SUPPORTED_MODELS  # COLMAP camera model -> number of parameters, for the models read
 
 
 @dataclass
@@ -222,92 +234,205 @@ def _read_dataset_json(root: Path) -> tuple[Path | None, str | None]:
 # ---- Blender / NeRF-synthetic --------------------------------------------------------------------
 
 
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff")
+_INTRINSIC_KEYS = ("camera_angle_x", "camera_angle_y", "fl_x", "fl_y", "cx", "cy", "w", "h")
+_GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL camera axes (y up, z back) -> OpenCV (y down, z forward)
+
+
+def _frame_where(json_path: Path, frame: dict, index: int) -> str:
+    """``"FILE: frame I (file_path 'P')"``, the prefix of every error about one frame."""
+    fp = frame.get("file_path")
+    return f"{json_path}: frame {index}" + ("" if fp is None else f" (file_path {str(fp)!r})")
+
+
+def _frame_image_candidates(json_path: Path, frame: dict) -> list[Path]:
+    base = json_path.parent / str(frame["file_path"])
+    return ([base] if base.suffix.lower() in _IMAGE_SUFFIXES else []) + [Path(str(base) + ".png")]
+
+
 def _frame_image_path(json_path: Path, frame: dict, index: int) -> Path:
     if "file_path" not in frame:
         raise ValueError(f"{json_path}: frame {index} has no 'file_path' key")
-    rel = str(frame["file_path"])
-    base = json_path.parent / rel
-    candidates = [base] if base.suffix.lower() in (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff") else []
-    candidates += [Path(str(base) + ".png")]
+    candidates = _frame_image_candidates(json_path, frame)
     for cand in candidates:
         if cand.is_file():
             return cand
-    raise ValueError(f"{json_path}: frame {index} 'file_path' = {rel!r}: no image file at "
+    raise ValueError(f"{_frame_where(json_path, frame, index)}: no image file at "
                      f"{' or '.join(str(c) for c in candidates)}")
 
 
 def _blender_pose(json_path: Path, frame: dict, index: int) -> np.ndarray:
-    """[4, 4] world-to-camera (OpenCV axes) of a frame's OpenGL ``transform_matrix``."""
+    """[4, 4] world-to-camera (OpenCV axes) of a frame's OpenGL ``transform_matrix`` (camera-to-world).
+
+    Raises:
+        ValueError: naming the file and the frame when the matrix is missing, not numeric, not 4x4 / 3x4,
+            not finite, has a last row other than (0, 0, 0, 1), or a 3x3 part that is not a rotation.
+    """
+    where = _frame_where(json_path, frame, index)
     if "transform_matrix" not in frame:
-        raise ValueError(f"{json_path}: frame {index} has no 'transform_matrix' key")
+        raise ValueError(f"{where} has no 'transform_matrix' key (its 4x4 camera-to-world matrix)")
     try:
         c2w = np.asarray(frame["transform_matrix"], dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{json_path}: frame {index} 'transform_matrix' is not a numeric matrix") from exc
-    if c2w.shape not in ((4, 4), (3, 4)) or not np.isfinite(c2w).all():
-        raise ValueError(f"{json_path}: frame {index} 'transform_matrix' must be a finite 4x4 (or 3x4) matrix, "
-                         f"got shape {c2w.shape}")
+        raise ValueError(f"{where}: 'transform_matrix' is not a numeric matrix ({exc}); it must be 4 rows of "
+                         "4 numbers") from exc
+    if c2w.shape not in ((4, 4), (3, 4)):
+        raise ValueError(f"{where}: 'transform_matrix' must be a 4x4 (or 3x4) matrix, got shape {c2w.shape}")
+    if not np.isfinite(c2w).all():
+        raise ValueError(f"{where}: 'transform_matrix' holds NaN or infinite entries")
     if c2w.shape == (3, 4):
         c2w = np.vstack([c2w, [0.0, 0.0, 0.0, 1.0]])
-    if abs(np.linalg.det(c2w[:3, :3])) < 1e-9:
-        raise ValueError(f"{json_path}: frame {index} 'transform_matrix' has a singular rotation")
-    return np.linalg.inv(c2w @ np.diag([1.0, -1.0, -1.0, 1.0]))
+    if np.abs(c2w[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-6:
+        raise ValueError(f"{where}: 'transform_matrix' last row must be [0, 0, 0, 1], got {c2w[3].tolist()}")
+    rot = c2w[:3, :3]
+    det = float(np.linalg.det(rot))
+    if abs(det) < 1e-9:
+        raise ValueError(f"{where}: 'transform_matrix' is singular (its 3x3 rotation part has determinant "
+                         f"{det:.3g}); it must be a rotation and a translation")
+    err = float(np.abs(rot @ rot.T - np.eye(3)).max())
+    if err > 1e-4 or det < 0:
+        what = "a reflection (determinant -1)" if err <= 1e-4 else f"not orthonormal (max |R R^T - I| = {err:.3g})"
+        raise ValueError(f"{where}: 'transform_matrix' 3x3 part is {what}; it must be a rotation (no scale, "
+                         "shear or mirror) and a translation")
+    return np.linalg.inv(c2w @ _GL_TO_CV)
+
+
+def _intrinsic_value(where: str, key: str, raw, top_level: bool):
+    """One intrinsic key as a checked number: w, h positive integers; focal lengths > 0; angles in (0, pi)."""
+    origin = " (top level)" if top_level else ""
+    try:
+        if isinstance(raw, bool):
+            raise TypeError
+        val = float(raw)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: key '{key}'{origin} must be a number, got {raw!r}") from exc
+    if not math.isfinite(val):
+        raise ValueError(f"{where}: key '{key}'{origin} must be finite, got {raw!r}")
+    if key in ("w", "h"):
+        if val != int(val) or val < 1:
+            raise ValueError(f"{where}: key '{key}'{origin} must be a positive integer image size in pixels, got "
+                             f"{raw!r}; fix it, or remove 'w' and 'h' to take the size from the image")
+        return int(val)
+    if key in ("fl_x", "fl_y") and val <= 0:
+        raise ValueError(f"{where}: key '{key}'{origin} (focal length, pixels) must be > 0, got {raw!r}")
+    if key.startswith("camera_angle") and not 0.0 < val < math.pi:
+        raise ValueError(f"{where}: key '{key}'{origin} (field of view) must be in (0, pi) radians, got {raw!r}")
+    return val
 
 
 def _blender_intrinsics(json_path: Path, meta: dict, frame: dict, index: int) -> dict:
-    """The intrinsic keys of a frame (frame values override the file's), checked for a focal length."""
-    keys = {k: frame[k] if k in frame else meta.get(k)
-            for k in ("camera_angle_x", "camera_angle_y", "fl_x", "fl_y", "cx", "cy", "w", "h")}
+    """The intrinsic keys of a frame (frame values override the file's), checked; None where absent."""
+    where = _frame_where(json_path, frame, index)
+    keys = {}
+    for key in _INTRINSIC_KEYS:
+        raw = frame[key] if key in frame else meta.get(key)
+        keys[key] = None if raw is None else _intrinsic_value(where, key, raw, key not in frame)
     if keys["fl_x"] is None and keys["camera_angle_x"] is None:
         raise ValueError(f"{json_path}: missing 'camera_angle_x' (horizontal field of view, radians) "
-                         "or 'fl_x' (focal length, pixels); add one of them")
-    if keys["camera_angle_x"] is not None and not 0.0 < float(keys["camera_angle_x"]) < math.pi:
-        raise ValueError(f"{json_path}: 'camera_angle_x' must be in (0, pi) radians, got {keys['camera_angle_x']}")
+                         f"or 'fl_x' (focal length, pixels) for frame {index}; add one of them")
     return keys
 
 
-def _blender_camera(json_path: Path, keys: dict, w2c: np.ndarray, index: int, name: str,
+def _blender_camera(json_path: Path, keys: dict, w2c: np.ndarray, where: str, name: str,
                     image_width: int, image_height: int) -> Camera:
-    width = int(keys["w"]) if keys["w"] is not None else image_width
-    height = int(keys["h"]) if keys["h"] is not None else image_height
-    if keys["fl_x"] is not None:
-        fx = float(keys["fl_x"])
-    else:
-        fx = 0.5 * width / math.tan(0.5 * float(keys["camera_angle_x"]))
+    """The camera of checked intrinsic ``keys``; the image size fills in a missing ``w`` / ``h``."""
+    width = keys["w"] if keys["w"] is not None else image_width
+    height = keys["h"] if keys["h"] is not None else image_height
+    fx = keys["fl_x"] if keys["fl_x"] is not None else 0.5 * width / math.tan(0.5 * keys["camera_angle_x"])
     if keys["fl_y"] is not None:
-        fy = float(keys["fl_y"])
+        fy = keys["fl_y"]
     elif keys["camera_angle_y"] is not None:
-        fy = 0.5 * height / math.tan(0.5 * float(keys["camera_angle_y"]))
+        fy = 0.5 * height / math.tan(0.5 * keys["camera_angle_y"])
     else:
         fy = fx
-    cx = float(keys["cx"]) if keys["cx"] is not None else width / 2.0
-    cy = float(keys["cy"]) if keys["cy"] is not None else height / 2.0
+    cx = keys["cx"] if keys["cx"] is not None else width / 2.0
+    cy = keys["cy"] if keys["cy"] is not None else height / 2.0
     try:
         return Camera(width, height, fx, fy, cx, cy, torch.from_numpy(w2c), name=name)
     except ValueError as exc:
-        raise ValueError(f"{json_path}: frame {index}: {exc}") from exc
+        raise ValueError(f"{where}: {exc}") from exc
+
+
+def _read_transforms(json_path: Path) -> tuple[dict, list[dict]]:
+    """(the file's top-level dict, its frames) of a transforms json, checked to be a dict with a list of dicts."""
+    if not json_path.is_file():
+        raise ValueError(f"{json_path}: no such file; pass a Blender / NeRF transforms.json")
+    try:
+        meta = json.loads(json_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{json_path}: not valid JSON ({exc}); pass a Blender / NeRF transforms.json") from exc
+    frames = meta.get("frames") if isinstance(meta, dict) else None
+    if not isinstance(frames, list):
+        raise ValueError(f"{json_path}: missing 'frames' list; a transforms.json holds frames with 'file_path' and "
+                         "'transform_matrix'")
+    for i, frame in enumerate(frames):
+        if not isinstance(frame, dict):
+            raise ValueError(f"{json_path}: frame {i} is not an object")
+    return meta, frames
+
+
+def _frame_size(json_path: Path, frame: dict, keys: dict, index: int, res: int | None) -> tuple[int, int]:
+    """(width, height) of a frame for :func:`load_cameras`: ``w`` / ``h``, else its image, else ``res`` (square)."""
+    if keys["w"] is not None and keys["h"] is not None:
+        return keys["w"], keys["h"]
+    if "file_path" in frame:
+        for cand in _frame_image_candidates(json_path, frame):
+            img = cv2.imread(str(cand), cv2.IMREAD_UNCHANGED) if cand.is_file() else None
+            if img is not None:
+                return img.shape[1], img.shape[0]
+    if res is None:
+        raise ValueError(f"{_frame_where(json_path, frame, index)} has no 'w'/'h' keys and no readable image; add "
+                         "'w' and 'h' (pixels) or give a width (res; the --res option)")
+    width = keys["w"] if keys["w"] is not None else res
+    return width, keys["h"] if keys["h"] is not None else width
+
+
+def load_cameras(path, res: int | None = None) -> list[Camera]:
+    """The cameras of one Blender / NeRF ``transforms.json`` (camera part only: images are not loaded).
+
+    The image size comes from the ``w`` / ``h`` keys, else from the frame's image file (its header is
+    read), else from ``res`` (square).
+
+    Args:
+        path: the transforms json file.
+        res: target image width in pixels: every camera is scaled to it (:meth:`Camera.scaled`, keeping the
+            aspect); None keeps the file's sizes.
+    Returns:
+        list of :class:`Camera` in frame order, named after the stem of ``file_path`` (``view_000``, ...
+        without one).
+    Raises:
+        ValueError: naming the file, the frame (index and ``file_path``) and the key that is missing or wrong.
+    """
+    json_path = Path(path)
+    if res is not None and (isinstance(res, bool) or int(res) != res or res < 1):
+        raise ValueError(f"res (--res) must be a positive integer image width in pixels, got {res!r}")
+    meta, frames = _read_transforms(json_path)
+    if not frames:
+        raise ValueError(f"{json_path}: 'frames' is empty; a cameras file needs at least one frame with "
+                         "'transform_matrix'")
+    cams = []
+    for i, frame in enumerate(frames):
+        keys = _blender_intrinsics(json_path, meta, frame, i)
+        w2c = _blender_pose(json_path, frame, i)
+        width, height = _frame_size(json_path, frame, keys, i, res)
+        name = Path(str(frame["file_path"])).stem if "file_path" in frame else f"view_{i:03d}"
+        cam = _blender_camera(json_path, keys, w2c, _frame_where(json_path, frame, i), name, width, height)
+        cams.append(cam if res is None or cam.width == res else cam.scaled(res / cam.width))
+    return cams
 
 
 def _load_blender_split(json_path: Path, background, downscale: float, resolution: int | None,
                         cache: dict) -> list[View]:
-    try:
-        meta = json.loads(json_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{json_path}: not valid JSON ({exc})") from exc
-    frames = meta.get("frames") if isinstance(meta, dict) else None
-    if not isinstance(frames, list):
-        raise ValueError(f"{json_path}: missing 'frames' list")
+    meta, frames = _read_transforms(json_path)
     # Validate every frame (keys, paths, matrices) before reading any pixel data.
     checked = []
     for i, frame in enumerate(frames):
-        if not isinstance(frame, dict):
-            raise ValueError(f"{json_path}: frame {i} is not an object")
         checked.append((i, _frame_image_path(json_path, frame, i), _blender_intrinsics(json_path, meta, frame, i),
                         _blender_pose(json_path, frame, i)))
     views = []
     for i, path, keys, w2c in checked:
         def make_camera(w, h, i=i, path=path, keys=keys, w2c=w2c):
-            return _blender_camera(json_path, keys, w2c, i, path.stem, w, h)
+            return _blender_camera(json_path, keys, w2c, f"{json_path}: frame {i}", path.stem, w, h)
         views.append(_make_view(make_camera, path, background, downscale, resolution, cache))
     return views
 
@@ -341,119 +466,7 @@ def load_blender(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
                    point_colors=None, mesh_path=mesh_path, up_axis=up_axis or "z", root=root)
 
 
-# ---- COLMAP text ---------------------------------------------------------------------------------
-
-
-def quaternion_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:
-    """[3, 3] rotation of a (w, x, y, z) quaternion (normalised first)."""
-    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def _data_lines(path: Path) -> list[tuple[int, str]]:
-    """(line number, text) of the lines of a COLMAP text file, comments dropped, blank lines kept."""
-    return [(i + 1, line.strip()) for i, line in enumerate(path.read_text().splitlines())
-            if not line.lstrip().startswith("#")]
-
-
-def read_colmap_cameras(path: Path) -> dict[int, tuple[int, int, float, float, float, float]]:
-    """``cameras.txt`` -> {camera_id: (width, height, fx, fy, cx, cy)}; distortion dropped with a warning."""
-    cams = {}
-    for lineno, line in _data_lines(path):
-        if not line:
-            continue
-        tok = line.split()
-        try:
-            cam_id, model, width, height = int(tok[0]), tok[1], int(tok[2]), int(tok[3])
-            params = [float(t) for t in tok[4:]]
-        except (IndexError, ValueError) as exc:
-            raise ValueError(f"{path}:{lineno}: expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...', "
-                             f"got {line!r}") from exc
-        if model not in COLMAP_MODELS:
-            raise ValueError(f"{path}:{lineno}: camera {cam_id} has model {model}; supported: "
-                             f"{', '.join(COLMAP_MODELS)} (undistort the images with COLMAP first)")
-        if len(params) != COLMAP_MODELS[model]:
-            raise ValueError(f"{path}:{lineno}: model {model} takes {COLMAP_MODELS[model]} parameters, "
-                             f"got {len(params)}")
-        if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
-            fx = fy = params[0]
-            cx, cy = params[1], params[2]
-            distortion = params[3:]
-        else:
-            fx, fy, cx, cy = params[:4]
-            distortion = params[4:]
-        if any(d != 0.0 for d in distortion):
-            logger.warning("%s: camera %d (%s) has distortion %s, which is ignored; undistort the images for "
-                           "exact projections", path, cam_id, model, distortion)
-        cams[cam_id] = (width, height, fx, fy, cx, cy)
-    return cams
-
-
-def read_colmap_images(path: Path) -> list[tuple[int, np.ndarray, int, str]]:
-    """``images.txt`` -> [(image_id, world_to_camera [4, 4], camera_id, name)] in file order.
-
-    Each image takes two lines: ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` then its 2-D points
-    (possibly an empty line), which are skipped.
-    """
-    lines = _data_lines(path)
-    out = []
-    i = 0
-    while i < len(lines):
-        lineno, line = lines[i]
-        if not line:
-            i += 1
-            continue
-        tok = line.split()
-        try:
-            image_id = int(tok[0])
-            q = np.array([float(t) for t in tok[1:5]])
-            t = np.array([float(t) for t in tok[5:8]])
-            cam_id = int(tok[8])
-            name = " ".join(tok[9:])
-            if not name or len(q) != 4 or len(t) != 3:
-                raise IndexError
-        except (IndexError, ValueError) as exc:
-            raise ValueError(f"{path}:{lineno}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME', "
-                             f"got {line!r}") from exc
-        if not (np.isfinite(q).all() and np.isfinite(t).all()) or np.linalg.norm(q) == 0:
-            raise ValueError(f"{path}:{lineno}: image {image_id} has a non-finite or zero quaternion/translation")
-        w2c = np.eye(4)
-        w2c[:3, :3] = quaternion_wxyz_to_matrix(q)
-        w2c[:3, 3] = t
-        out.append((image_id, w2c, cam_id, name))
-        i += 2  # the POINTS2D line follows (it may be empty)
-    return out
-
-
-def read_colmap_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """``points3D.txt`` -> (xyz [P, 3] float32, rgb [P, 3] float32 in [0, 1])."""
-    xyz, rgb = [], []
-    for lineno, line in _data_lines(path):
-        if not line:
-            continue
-        tok = line.split()
-        try:
-            xyz.append([float(t) for t in tok[1:4]])
-            rgb.append([int(t) for t in tok[4:7]])
-            if len(xyz[-1]) != 3 or len(rgb[-1]) != 3:
-                raise IndexError
-        except (IndexError, ValueError) as exc:
-            raise ValueError(f"{path}:{lineno}: expected 'POINT3D_ID X Y Z R G B ERROR TRACK...', "
-                             f"got {line!r}") from exc
-    return (np.asarray(xyz, dtype=np.float32).reshape(-1, 3),
-            np.asarray(rgb, dtype=np.float32).reshape(-1, 3) / 255.0)
-
-
-def find_colmap_sparse(root: Path) -> Path | None:
-    """The folder holding cameras.txt / images.txt / points3D.txt: ``sparse/0``, ``sparse`` or ``root``."""
-    for cand in (root / "sparse" / "0", root / "sparse", root):
-        if all((cand / f).is_file() for f in COLMAP_FILES):
-            return cand
-    return None
+# ---- COLMAP ---------------------------------------------------------------------------------------
 
 
 def _colmap_images_dir(sparse: Path) -> Path:
@@ -464,51 +477,63 @@ def _colmap_images_dir(sparse: Path) -> Path:
     raise ValueError(f"{sparse}: no images folder; looked for {', '.join(str(c) for c in candidates)}")
 
 
+_NO_COLMAP = (f"no COLMAP model ({', '.join(BINARY_FILES)} or {', '.join(TEXT_FILES)}) in sparse/0, sparse or "
+              "the folder itself")
+
+
+def _colmap_entries(model, images_dir: Path) -> list[tuple[Camera, Path]]:
+    """(camera, image file) of every image of a :class:`recon.colmap.ColmapModel`, sorted by image name."""
+    cams_file, images_file = (model.folder / f for f in model.files[:2])
+    entries = []
+    for image_id, w2c, cam_id, name in sorted(model.images, key=lambda e: e[3]):
+        if cam_id not in model.cameras:
+            raise ValueError(f"{images_file}: image {image_id} ({name}) uses camera {cam_id}, which is "
+                             f"not in {cams_file.name}")
+        image_path = images_dir / name
+        if not image_path.is_file():
+            raise ValueError(f"{images_file}: image {image_id}: no file {image_path}")
+        width, height, fx, fy, cx, cy = model.cameras[cam_id]
+        try:
+            cam = Camera(width, height, fx, fy, cx, cy, torch.from_numpy(w2c), name=Path(name).stem)
+        except ValueError as exc:
+            raise ValueError(f"{cams_file} / {images_file.name}: image {image_id} ({name}), camera {cam_id}: "
+                             f"{exc}") from exc
+        entries.append((cam, image_path))
+    return entries
+
+
 def load_colmap(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
                 resolution: int | None = None) -> Dataset:
-    """Load a COLMAP text model and its images.
+    """Load a COLMAP model (binary, else text) and its images.
 
     Args:
-        path: the scene folder (holding ``sparse/0``, ``sparse`` or the text files) or the sparse folder.
+        path: the scene folder (holding ``sparse/0``, ``sparse`` or the model files) or the sparse folder.
         background: (r, g, b) in [0, 1] that RGBA images (if any) are composited on.
         downscale: divide the image size by this factor (>= 1).
         resolution: target image width in pixels (overrides ``downscale``).
     Returns:
         :class:`Dataset` with views sorted by image name, every 8th in test, val empty, ``points`` and
-        ``point_colors`` from points3D.txt, ``up_axis`` "y" (a convention: COLMAP frames are arbitrary).
+        ``point_colors`` from points3D, ``up_axis`` "y" (a convention: COLMAP frames are arbitrary).
     """
     root = Path(path)
     bg = _check_background(background)
     _check_scale(downscale, resolution)
     sparse = find_colmap_sparse(root)
     if sparse is None:
-        raise ValueError(f"{root}: no COLMAP text model ({', '.join(COLMAP_FILES)}) in sparse/0, sparse or the "
-                         "folder itself; convert a binary model with `colmap model_converter --output_type TXT`")
-    cams = read_colmap_cameras(sparse / "cameras.txt")
-    images = read_colmap_images(sparse / "images.txt")
-    xyz, rgb = read_colmap_points(sparse / "points3D.txt")
-    images_dir = _colmap_images_dir(sparse)
-    entries = []
-    for image_id, w2c, cam_id, name in sorted(images, key=lambda e: e[3]):
-        if cam_id not in cams:
-            raise ValueError(f"{sparse / 'images.txt'}: image {image_id} ({name}) uses camera {cam_id}, which is "
-                             f"not in cameras.txt")
-        image_path = images_dir / name
-        if not image_path.is_file():
-            raise ValueError(f"{sparse / 'images.txt'}: image {image_id}: no file {image_path}")
-        width, height, fx, fy, cx, cy = cams[cam_id]
-        entries.append((Camera(width, height, fx, fy, cx, cy, torch.from_numpy(w2c), name=Path(name).stem),
-                        image_path))
+        raise ValueError(f"{root}: {_NO_COLMAP}; run COLMAP's mapper, or point at the folder holding the model")
+    model = read_colmap_model(sparse)
+    entries = _colmap_entries(model, _colmap_images_dir(sparse))
     cache: dict = {}
     train, test = [], []
     for index, (cam, image_path) in enumerate(entries):
         view = _make_view(lambda w, h, cam=cam: cam, image_path, bg, downscale, resolution, cache)
         (test if index % COLMAP_TEST_EVERY == 0 else train).append(view)
     mesh_path, up_axis = _read_dataset_json(root)
-    logger.info("loaded COLMAP dataset %s: %d train, %d test views, %d points", root, len(train), len(test),
-                len(xyz))
-    return Dataset(train=train, val=[], test=test, background=bg, points=torch.from_numpy(xyz),
-                   point_colors=torch.from_numpy(rgb), mesh_path=mesh_path, up_axis=up_axis or "y", root=root)
+    logger.info("loaded COLMAP %s dataset %s: %d train, %d test views, %d points", model.kind, root, len(train),
+                len(test), len(model.points))
+    return Dataset(train=train, val=[], test=test, background=bg, points=torch.from_numpy(model.points),
+                   point_colors=torch.from_numpy(model.point_colors), mesh_path=mesh_path, up_axis=up_axis or "y",
+                   root=root)
 
 
 # ---- auto-detection ------------------------------------------------------------------------------
@@ -531,13 +556,14 @@ def dataset_format(path) -> str:
         return "blender"
     if find_colmap_sparse(root) is not None:
         return "colmap"
-    raise ValueError(f"{root}: not a dataset; looked for transforms_train.json (Blender / NeRF-synthetic) and "
-                     f"{', '.join(COLMAP_FILES)} in sparse/0, sparse or the folder (COLMAP text)")
+    raise ValueError(f"{root}: not a dataset; looked for transforms_train.json (Blender / NeRF-synthetic) and a "
+                     f"COLMAP model ({', '.join(BINARY_FILES)} or {', '.join(TEXT_FILES)}) in sparse/0, sparse or "
+                     "the folder")
 
 
 def load_dataset(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
                  resolution: int | None = None) -> Dataset:
-    """Load a Blender/NeRF-synthetic or COLMAP text dataset, detected from the folder's contents.
+    """Load a Blender/NeRF-synthetic or COLMAP (binary or text) dataset, detected from the folder's contents.
 
     Args:
         path: the dataset folder (or its ``transforms_*.json`` file).

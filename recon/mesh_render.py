@@ -392,7 +392,7 @@ def render_mesh_dataset(mesh_path, out_dir, config: MeshDatasetConfig | None = N
     normals = triangle_normals(vertices, triangles)
 
     out_dir = out_dir.absolute()
-    tmp = out_dir.parent / f".{out_dir.name}.tmp-{uuid.uuid4().hex[:8]}"
+    tmp = out_dir.parent / f".fgs-{uuid.uuid4().hex[:8]}.tmp"  # fluidsim.output.temp_path's short pattern
     tmp.mkdir()
     try:
         with tqdm(total=len(cameras), desc="render-dataset", unit="view", disable=not progress, leave=False) as bar:
@@ -445,7 +445,7 @@ def _move_into_place(tmp: Path, out_dir: Path) -> None:
     if not out_dir.exists():
         os.replace(tmp, out_dir)
         return
-    old = out_dir.parent / f".{out_dir.name}.old-{uuid.uuid4().hex[:8]}"
+    old = out_dir.parent / f".fgs-{uuid.uuid4().hex[:8]}.old"
     os.replace(out_dir, old)
     os.replace(tmp, out_dir)
     shutil.rmtree(old, ignore_errors=True)

@@ -28,6 +28,13 @@ and, on reading only, the naming of gsplat's trainer checkpoints is accepted too
 
 Every problem (not a PLY, unsupported format, missing properties, unsupported f_rest count, truncated data,
 NaN or Inf, zero quaternions, no Gaussians) raises ``ValueError`` whose message starts with the file name.
+Declared sizes (PLY element rows, ``.npy`` shapes) are compared with the file size before anything is allocated,
+and an ``.npz`` is read member by member without ever unpickling.
+
+This is the low-level module: :func:`load_standard_ply` and :func:`load_npz` read one layout each. The loader
+to call is :func:`recon.formats.load_gaussians`, which recognises a file by its content (also the compressed
+.ply, .spz and .splat formats of :mod:`recon.compressed_ply`, :mod:`recon.spz` and :mod:`recon.dotsplat`);
+``recon.ply.load_gaussians`` is the same function under its old name.
 
 Example:
     >>> g = GaussianSet.from_points(torch.rand(10, 3), sh_degree=3)
@@ -64,6 +71,7 @@ F_REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}  # number of f_rest properties -> SH 
 NPZ_KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
 GSPLAT_KEYS = ("means", "quats", "scales", "opacities", "sh0", "shN")
 MAX_HEADER_LINES = 10_000
+MAX_HEADER_LINE_BYTES = 4096
 
 
 def ply_property_names(sh_degree: int) -> list[str]:
@@ -72,6 +80,40 @@ def ply_property_names(sh_degree: int) -> list[str]:
     return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
             + [f"f_rest_{i}" for i in range(rest)]
             + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+
+
+@dataclass(frozen=True)
+class PlyElement:
+    """One ``element`` of a PLY header.
+
+    Attributes:
+        name: the element name (``vertex``, ``chunk``, ``sh``, ``face``, ...).
+        count: number of rows the header declares.
+        properties: (name, numpy type code such as "f4", or "list") of each property, in file order.
+    """
+
+    name: str
+    count: int
+    properties: tuple[tuple[str, str], ...]
+
+    def row_bytes(self) -> int | None:
+        """Bytes per row in a binary file, or None when a list property makes rows variable."""
+        if any(t == "list" for _, t in self.properties):
+            return None
+        return sum(np.dtype(t).itemsize for _, t in self.properties)
+
+
+@dataclass(frozen=True)
+class PlyLayout:
+    """Everything a PLY header says: the format, the elements in file order and where the data starts."""
+
+    fmt: str
+    elements: tuple[PlyElement, ...]
+    data_offset: int
+
+    def element(self, name: str) -> PlyElement | None:
+        """The first element called ``name``, or None."""
+        return next((e for e in self.elements if e.name == name), None)
 
 
 @dataclass(frozen=True)
@@ -91,25 +133,25 @@ class PlyHeader:
     data_offset: int
 
 
-def read_ply_header(fh, source: str) -> PlyHeader:
-    """Parse the header of an open binary file ``fh`` positioned at its start.
+def parse_ply_header(fh, source: str) -> PlyLayout:
+    """Parse a whole PLY header (any elements) of an open binary file ``fh`` positioned at its start.
 
     Args:
         fh: file object opened in binary mode.
         source: the file name, used in error messages.
     Returns:
-        The :class:`PlyHeader`; ``fh`` is left just after ``end_header``.
+        The :class:`PlyLayout`; ``fh`` is left just after ``end_header``.
     Raises:
-        ValueError: not a PLY file, an unsupported format, no ``vertex`` element, a list property in the vertex
-            element, or an element with rows before ``vertex``.
+        ValueError: not a PLY file, an unsupported format line, malformed element or property lines, or no
+            ``end_header``.
     """
-    magic = fh.readline()
+    magic = fh.readline(64)
     if magic.rstrip(b"\r\n") != b"ply":
         raise ValueError(f"{source}: not a PLY file (the first line is {magic[:20]!r}, expected 'ply')")
     fmt = None
     elements: list[list] = []  # [name, count, [(prop, type)]]
     for _ in range(MAX_HEADER_LINES):
-        raw = fh.readline()
+        raw = fh.readline(MAX_HEADER_LINE_BYTES)
         if not raw:
             raise ValueError(f"{source}: the PLY header has no 'end_header' line (truncated file)")
         try:
@@ -145,17 +187,91 @@ def read_ply_header(fh, source: str) -> PlyHeader:
         raise ValueError(f"{source}: the PLY header is longer than {MAX_HEADER_LINES} lines")
     if fmt is None:
         raise ValueError(f"{source}: the PLY header has no 'format' line")
-    for name, count, props in elements:
-        if name == "vertex":
-            lists = [p for p, t in props if t == "list"]
+    return PlyLayout(fmt, tuple(PlyElement(n, c, tuple(p)) for n, c, p in elements), fh.tell())
+
+
+def read_ply_header(fh, source: str) -> PlyHeader:
+    """Parse the header of a standard 3DGS PLY (``vertex`` first) of an open binary file ``fh``.
+
+    Args:
+        fh: file object opened in binary mode, positioned at its start.
+        source: the file name, used in error messages.
+    Returns:
+        The :class:`PlyHeader`; ``fh`` is left just after ``end_header``.
+    Raises:
+        ValueError: not a PLY file, an unsupported format, no ``vertex`` element, a list property in the vertex
+            element, or an element with rows before ``vertex``.
+    """
+    layout = parse_ply_header(fh, source)
+    for element in layout.elements:
+        if element.name == "vertex":
+            lists = [p for p, t in element.properties if t == "list"]
             if lists:
                 raise ValueError(f"{source}: the vertex element has list properties {lists}; a 3DGS file has "
                                  f"scalar properties only")
-            return PlyHeader(fmt, count, tuple(props), fh.tell())
-        if count > 0:
-            raise ValueError(f"{source}: element {name!r} ({count} rows) comes before 'vertex'; a 3DGS .ply "
-                             f"has the vertex element first")
+            return PlyHeader(layout.fmt, element.count, element.properties, layout.data_offset)
+        if element.count > 0:
+            raise ValueError(f"{source}: element {element.name!r} ({element.count} rows) comes before 'vertex'; "
+                             f"a 3DGS .ply has the vertex element first")
     raise ValueError(f"{source}: the PLY file has no 'vertex' element, so it holds no Gaussians")
+
+
+def check_declared_size(source: str, what: str, declared: int, available: int) -> None:
+    """Raise ``ValueError`` when a header declares more bytes than the file holds (checked before allocating).
+
+    Args:
+        source: the file name, for the message.
+        what: what the bytes are, e.g. "152746 vertices of 16 bytes".
+        declared: bytes the header implies.
+        available: bytes actually present after the header.
+    """
+    if declared > available:
+        raise ValueError(f"{source}: truncated or corrupt file: the header declares {what} ({declared} bytes) but "
+                         f"only {available} bytes follow; re-export or re-download the file")
+
+
+def read_binary_elements(path: str | Path, names: tuple[str, ...]) -> tuple[PlyLayout, dict[str, np.ndarray]]:
+    """The rows of the binary PLY elements ``names`` as structured numpy arrays, in one pass over the file.
+
+    Every element before the last one asked for must have fixed-size rows (scalar properties only), so the
+    offsets are known. The declared sizes are compared with the file size before anything is allocated.
+
+    Args:
+        path: a binary (little- or big-endian) PLY file.
+        names: the elements to return; each must be present.
+    Returns:
+        (layout, {name: structured array [count]}) with the file's own property types.
+    Raises:
+        ValueError: an ASCII file, a missing element, a list property in the way, or truncated data.
+    """
+    source = str(path)
+    with open(path, "rb") as fh:
+        layout = parse_ply_header(fh, source)
+        order = PLY_FORMATS[layout.fmt]
+        if order is None:
+            raise ValueError(f"{source}: ASCII PLY is not supported for this layout; export it as binary")
+        missing = [n for n in names if layout.element(n) is None]
+        if missing:
+            raise ValueError(f"{source}: the PLY file has no element(s) {missing}")
+        last = max(i for i, e in enumerate(layout.elements) if e.name in names)
+        sizes = []
+        for element in layout.elements[: last + 1]:
+            row = element.row_bytes()
+            if row is None:
+                raise ValueError(f"{source}: element {element.name!r} has list properties; expected fixed-size rows")
+            sizes.append(element.count * row)
+        available = os.fstat(fh.fileno()).st_size - layout.data_offset
+        what = ", ".join(f"{e.count} {e.name} rows" for e in layout.elements[: last + 1])
+        check_declared_size(source, what, sum(sizes), available)
+        out = {}
+        offset = layout.data_offset
+        for element, size in zip(layout.elements[: last + 1], sizes, strict=True):
+            if element.name in names:
+                dtype = np.dtype([(p, order + t) for p, t in element.properties])
+                fh.seek(offset)
+                out[element.name] = np.fromfile(fh, dtype=dtype, count=element.count)
+            offset += size
+    return layout, out
 
 
 def read_ply_vertices(path: str | Path) -> dict[str, np.ndarray]:
@@ -180,6 +296,8 @@ def read_ply_vertices(path: str | Path) -> dict[str, np.ndarray]:
         if order is None:
             return _read_ascii_vertices(fh, header, source)
         dtype = np.dtype([(p, order + t) for p, t in header.properties])
+        available = os.fstat(fh.fileno()).st_size - header.data_offset
+        check_declared_size(source, f"{n} vertices of {dtype.itemsize} bytes", n * dtype.itemsize, available)
         data = np.fromfile(fh, dtype=dtype, count=n) if n > 0 else np.zeros(0, dtype)
     if data.shape[0] != n:
         raise ValueError(f"{source}: truncated PLY data: the header declares {n} vertices of {dtype.itemsize} bytes "
@@ -238,35 +356,65 @@ def gaussians_from_ply_columns(columns: dict[str, np.ndarray], source: str) -> G
     return gaussians.check(source)
 
 
-def load_gaussians(path: str | Path) -> GaussianSet:
-    """Read Gaussians from a 3DGS ``.ply`` or an ``.npz`` (layouts in the module docstring).
+def gaussians_from_arrays(source: str, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
+                          opacity_logits: np.ndarray, sh: np.ndarray) -> GaussianSet:
+    """A checked float32 :class:`GaussianSet` from decoded numpy arrays (the shared last step of every reader).
 
     Args:
-        path: the file; the suffix (``.ply`` or ``.npz``, any case) picks the reader.
+        source: the file name, for error messages.
+        means: [N, 3]; quats: [N, 4] (w, x, y, z); log_scales: [N, 3]; opacity_logits: [N]; sh: [N, K, 3].
+    Raises:
+        ValueError: wrong shapes, an empty set, NaN or Inf, or a zero quaternion (the message names ``source``).
+    """
+    try:
+        gaussians = GaussianSet(*(torch.from_numpy(np.require(a, np.float32, ('C_CONTIGUOUS', 'WRITEABLE')))
+                                  for a in (means, quats, log_scales, opacity_logits, sh)))
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+    return gaussians.check(source)
+
+
+def opacity_logits_from_unit(opacity: np.ndarray, step: float = 1.0 / 255.0) -> np.ndarray:
+    """Logits of quantised opacities in [0, 1], kept half a quantisation step off 0 and 1 so they stay finite.
+
+    A stored 0 or 1 is the nearest code of an opacity within half a step of it, so clamping there changes no
+    rendered value by more than the quantisation itself.
+
+    Args:
+        opacity: opacities in [0, 1], any shape.
+        step: the quantisation step (1/255 for 8-bit codes).
+    Returns:
+        float32 logits, same shape.
+    """
+    p = np.clip(opacity.astype(np.float64), 0.5 * step, 1.0 - 0.5 * step)
+    return np.log(p / (1.0 - p)).astype(np.float32)
+
+
+def load_standard_ply(path: str | Path) -> GaussianSet:
+    """Read Gaussians from a standard 3DGS ``.ply`` (layout in the module docstring).
+
+    Args:
+        path: the file (any suffix; the content must be a PLY with a 3DGS ``vertex`` element).
     Returns:
         A float32 :class:`GaussianSet` on the CPU; the SH degree follows the file (0 to 3).
     Raises:
-        FileNotFoundError: the file does not exist.
         ValueError: any problem with the content; the message starts with the file name.
     """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".ply", ".npz"):
-        raise ValueError(f"{path}: unsupported Gaussian file type {path.suffix!r}; use a 3DGS .ply or an .npz")
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such Gaussian file")
-    if suffix == ".ply":
-        return gaussians_from_ply_columns(read_ply_vertices(path), str(path))
-    return _load_npz(path)
+    return gaussians_from_ply_columns(read_ply_vertices(path), str(path))
 
 
-def _load_npz(path: Path) -> GaussianSet:
+def load_npz(path: str | Path) -> GaussianSet:
+    """Read Gaussians from an ``.npz`` (layout in the module docstring), never unpickling anything.
+
+    Every member's ``.npy`` header is read first: object arrays are refused, and each declared array size is
+    compared with the member's size before any array is allocated.
+
+    Raises:
+        ValueError: not a zip archive, a member that is not a plain numeric ``.npy`` array, truncated members,
+            missing keys, wrong shapes, or values that fail :meth:`GaussianSet.check`.
+    """
     source = str(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
-        raise ValueError(f"{source}: not a readable .npz archive ({exc})") from None
+    arrays = _read_npz_arrays(Path(path), source)
     if all(k in arrays for k in NPZ_KEYS):
         tensors = {k: arrays[k] for k in NPZ_KEYS}
     elif all(k in arrays for k in GSPLAT_KEYS):
@@ -281,14 +429,75 @@ def _load_npz(path: Path) -> GaussianSet:
         raise ValueError(f"{source}: the .npz lacks the Gaussian arrays {missing} (it has {sorted(arrays)}); "
                          f"save it with save_gaussians or use the keys {list(NPZ_KEYS)}")
     for key, value in tensors.items():
-        if not np.issubdtype(value.dtype, np.number):
+        if not np.issubdtype(value.dtype, np.number) or np.issubdtype(value.dtype, np.complexfloating):
             raise ValueError(f"{source}: array {key!r} has non-numeric dtype {value.dtype}")
+    return gaussians_from_arrays(source, *(tensors[k] for k in NPZ_KEYS))
+
+
+NPZ_MAX_DEFLATE_RATIO = 1100  # deflate cannot expand data more than ~1032:1; a larger claim is a corrupt directory
+
+
+def _read_npz_arrays(path: Path, source: str) -> dict[str, np.ndarray]:
+    """All members of an .npz as arrays, checking each .npy header against the member size before reading."""
+    fix = "save it again with save_gaussians (or numpy.savez)"
     try:
-        gaussians = GaussianSet(**{k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32))
-                                   for k, v in tensors.items()})
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
-    return gaussians.check(source)
+        archive = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        raise ValueError(f"{source}: not a readable .npz archive ({exc}); {fix}") from None
+    arrays = {}
+    with archive:
+        infos = archive.infolist()
+        if sum(i.compress_size for i in infos) > path.stat().st_size:
+            raise ValueError(f"{source}: not a readable .npz archive (its directory lists more data than the file "
+                             f"holds: truncated or corrupt); {fix}")
+        for info in infos:
+            if not info.filename.endswith(".npy"):
+                raise ValueError(f"{source}: not a readable .npz archive (member {info.filename!r} is not a .npy "
+                                 f"array); {fix}")
+            if info.file_size > max(info.compress_size, 1) * NPZ_MAX_DEFLATE_RATIO:
+                raise ValueError(f"{source}: not a readable .npz archive (member {info.filename!r} claims "
+                                 f"{info.file_size} bytes from {info.compress_size}: corrupt); {fix}")
+            arrays[info.filename[:-4]] = _read_npy_member(archive, info, source, fix)
+    return arrays
+
+
+def _read_npy_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: str, fix: str) -> np.ndarray:
+    name = info.filename[:-4]
+    try:
+        with archive.open(info) as fp:
+            version = np.lib.format.read_magic(fp)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(fp)
+            elif version == (2, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(fp)
+            else:
+                raise ValueError(f".npy format version {version} is not supported")
+            if dtype.hasobject:
+                raise ValueError("it holds Python objects, which are never loaded from a Gaussian file")
+            declared = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+            available = info.file_size - fp.tell()
+            if declared > available:
+                raise ValueError(f"the header declares {shape} {dtype} ({declared} bytes) but only {available} "
+                                 f"bytes follow: truncated or corrupt")
+            data = fp.read(declared)
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        raise ValueError(f"{source}: not a readable .npz archive (array {name!r}: {exc}); {fix}") from None
+    if len(data) != declared:
+        raise ValueError(f"{source}: not a readable .npz archive (array {name!r} is truncated); {fix}")
+    return np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
+
+
+def __getattr__(name: str):
+    """``recon.ply.load_gaussians``: the format-detecting loader of :mod:`recon.formats`, under its old name.
+
+    :mod:`recon.formats` sits above this module (it imports the standard reader from here), so the old name is
+    resolved on first use instead of by an import at the top, which would be a cycle.
+    """
+    if name == "load_gaussians":
+        from .formats import load_gaussians
+
+        return load_gaussians
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def save_gaussians(gaussians: GaussianSet, path: str | Path) -> Path:
@@ -318,7 +527,9 @@ def save_gaussians(gaussians: GaussianSet, path: str | Path) -> Path:
         np.savez(buffer, **{name: t.numpy() for name, t in zip(NPZ_KEYS, g.tensors(), strict=True)})
         payload = buffer.getvalue()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")  # same folder, so os.replace is atomic
+    # same folder, so os.replace is atomic; the short pattern of fluidsim.output.temp_path (recon does not import
+    # fluidsim), so that any output name the file system accepts has a temporary name it accepts too
+    tmp = path.parent / f".fgs-{uuid.uuid4().hex[:8]}.tmp"
     try:
         with open(tmp, "xb") as fh:
             fh.write(payload)

@@ -248,3 +248,18 @@ def test_write_atomic_leaves_nothing_behind_on_failure(tmp_path):
         write_atomic(target, half_write)
     assert json.loads(target.read_text()) == {"a": None, "b": [1, 2]}  # the old file is intact
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.json"]  # and no temporary file is left
+
+
+def test_coverage_control_runs_in_the_loop_without_probes(tiny_dataset, tmp_path):
+    def no_physics(gaussians):
+        raise AssertionError("fisher+area must not run the probes")
+
+    cfg = tiny_config(method="fisher+area", budget=4, mode="reset", total_iterations=12)
+    rounds = run_active(tiny_dataset, tmp_path / "run", cfg, physics_fn=no_physics, progress=False)
+    assert len(rounds["selected"]) == 4
+    for rec in rounds["rounds"]:
+        assert "physics" not in rec  # no probe ran, so no probe record
+        assert rec["k"] == max(cfg.budget - rec["n_selected"], 2) == len(rec["shortlist"])
+        coverage = rec["scores"]["physics"]
+        assert all(coverage[str(i)] > 0 for i in rec["shortlist"])
+        assert rec["pick"] == max(rec["shortlist"], key=lambda i: coverage[str(i)])

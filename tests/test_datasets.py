@@ -216,7 +216,7 @@ def _edit(path, fn):
     (lambda m: m.pop("camera_angle_x"), r"transforms_train\.json.*camera_angle_x"),
     (lambda m: m["frames"][0].update(file_path="./train/missing"), r"transforms_train\.json.*missing"),
     (lambda m: m["frames"][1].update(transform_matrix=[[1, 0, 0], [0, 1, 0]]),
-     r"transforms_train\.json.*frame 1 'transform_matrix'"),
+     r"transforms_train\.json: frame 1 \(file_path './train/r_1.png'\): 'transform_matrix'"),
     (lambda m: m["frames"][1].pop("transform_matrix"), r"transforms_train\.json.*transform_matrix"),
     (lambda m: m.update(w=16, h=12), r"r_0\.png.*8x6"),
 ])

@@ -12,6 +12,10 @@ hole's axis (front and back) gain the most and the back cameras outrank the fron
 visibility. With ``occlusion=True`` (a depth test against the rendered surface, not in the paper) only the
 Gaussians a camera actually sees count, and the four cameras on the hole's axis take the top four places;
 that is what the ranking test asserts.
+
+The coverage control (S(T) with D_g = 1, no physics) ranks the hole camera last: the hole removes what that camera
+sees. The physics is what lifts it (to 4th of 8 with the depth test); see
+``test_coverage_alone_does_not_find_the_hole``.
 """
 
 import math
@@ -103,3 +107,37 @@ def test_defect_axis_cameras_gain_most(runs):
     axis, side = [0, 3, 4, 5], [1, 2, 6, 7]
     assert min(gain[k] for k in axis) > 1.5 * max(gain[k] for k in side)
     assert set(rank(s_h)[:4].tolist()) == set(axis)
+
+
+
+def test_coverage_alone_does_not_find_the_hole(runs):
+    """The coverage control (issue 19): rank the views by A(T) = sum_{g visible} w_g, i.e. S(T) with D_g = 1.
+
+    Measured on this scene (holed cube): coverage ranks the camera facing the hole *last* of the eight, with and
+    without the depth test, because the hole removed Gaussians from exactly that view (A = 26.5 vs 26.6-27.0
+    without occlusion; 10.8 vs 11.4-13.2 with it). So coverage alone does not pick the hole camera, and the
+    physics margin is what moves it: with the depth test, S(T) lifts camera 0 from 8th (coverage) to 4th, inside
+    the four cameras on the hole's axis, and S(T) / A(T) (the area-weighted mean D_g a view sees) ranks it 4th too.
+    Between the intact and the holed cube, camera 0's coverage falls (x0.95) while its S(T) rises (x3.2).
+    Under the paper's frustum-only visibility the physics does not rescue it: S(T) also ranks camera 0 last, since
+    every camera counts the inner wall that the inflow hits (the module docstring).
+    """
+    cams, g_i, g_h = runs["cams"], runs["intact"], runs["holed"]
+    d_i, d_h = runs["res_i"].divergence, runs["res_h"].divergence
+    last = len(cams) - 1
+
+    def position(scores: torch.Tensor, cam: int) -> int:
+        return rank(scores).tolist().index(cam)
+
+    for occlusion in (False, True):
+        area = _scores(g_h, np.ones(g_h.num), cams, occlusion)
+        assert position(area, 0) == last  # coverage ranks the hole camera last
+    area_i = _scores(g_i, np.ones(g_i.num), cams, occlusion=True)
+    area_h = _scores(g_h, np.ones(g_h.num), cams, occlusion=True)
+    s_i = _scores(g_i, d_i, cams, occlusion=True)
+    s_h = _scores(g_h, d_h, cams, occlusion=True)
+    assert position(s_h, 0) <= 3 < position(area_h, 0)  # the physics margin: top 4 with D_g, last with ones
+    assert position(s_h / area_h, 0) <= 3
+    assert area_h[0] < area_i[0] and s_h[0] > 2.0 * s_i[0]
+    # the negative result under the paper's visibility: S(T) ranks the hole camera last as well
+    assert position(_scores(g_h, d_h, cams, occlusion=False), 0) == last

@@ -171,8 +171,8 @@ def test_neighbour_offsets_beyond_16_bits_switch_the_fluid_lists_to_wide():
     solver = DFSPHSolver(cfg, [-0.5, -0.5, -0.5], [1.0, 13.5, 13.5], x, np.zeros_like(x), np.zeros((0, 3)))
     nb = solver.neighborhoods
     assert nb.format == neighbors.NARROW
-    solver._sort()
-    solver._neighborhoods()
+    solver.sort()
+    solver.find_neighborhoods()
     assert nb.format == neighbors.WIDE
     count, index, coef = nb.lists("fluid")
     xs = solver.fluid.numpy("x").astype(np.float64)

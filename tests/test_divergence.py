@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fluidsim.config import SolverConfig
-from fluidsim.divergence import divergence_np
+from fluidsim.estimator import divergence_estimate_np
 from fluidsim.kernels import cubic_grad_w_np
 from fluidsim.scene import lattice_in_box
 from fluidsim.solver import DFSPHSolver, fluid_particle_volume
@@ -21,15 +21,15 @@ def _estimate(config, x, v, boundary=None, fused=False):
     """D_i by the stand-alone estimator pass, or (``fused``) by the viscosity pass of a time step."""
     boundary = np.zeros((0, 3)) if boundary is None else boundary
     solver = DFSPHSolver(config, [0, 0, 0], [1, 1, 1], x, v, boundary)
-    solver._sort()
-    solver._neighborhoods()
+    solver.sort()
+    solver.find_neighborhoods()
     f = solver.fluid
     vs = f.numpy("v")
     if fused:
-        assert solver._estimate_with_viscosity()
-        solver._non_pressure_forces(config.dt, estimate=True)
+        assert solver.estimate_in_non_pressure_pass
+        solver.non_pressure_forces(config.dt, estimate=True)
     else:
-        solver._estimate_divergence()
+        solver.divergence_estimate()
     # (the fused pass also adds D_i to the run sums)
     return solver, f.numpy("x"), vs, f.numpy("density"), f.numpy("divergence")
 
@@ -62,8 +62,8 @@ def test_fast_paths_match_numpy_twin(h_r, h_k, fused):
     wall = lattice_in_box([0.3, 0.2, 0.3], [0.6, 0.3, 0.6], cfg.spacing)[:, :] - [0, 0.002, 0]
     solver, xs, vs, rho, d = _estimate(cfg, x, v, wall, fused)
     b = solver.boundary
-    ref = divergence_np(xs, vs, solver.fluid_volume / rho, b.x.to_numpy()[: b.count], b.volume.to_numpy()[: b.count],
-                        h_r, h_k)
+    ref = divergence_estimate_np(xs, vs, solver.fluid_volume / rho, b.x.to_numpy()[: b.count],
+                                 b.volume.to_numpy()[: b.count], h_r, h_k)
     np.testing.assert_allclose(d, ref, rtol=2e-3, atol=2e-3 * ref.max())
     sums, counts = solver.divergence_accumulation()
     assert counts.min() == 1 and counts.max() == 1

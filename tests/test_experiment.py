@@ -163,7 +163,7 @@ def test_single_direction_methods_and_their_table():
     from nbv.evaluate import EvalConfig, eval_physics_config
 
     ev = eval_physics_config(single.physics, EvalConfig(), "z")
-    assert ev.directions == ("-x", "+x", "-z", "+z", "-y") and ev.up_axis == "z" and ev.track_distinct
+    assert ev.directions == ("-x", "+x", "-z", "+z", "-y") and ev.up == "+z" and ev.track_distinct
     assert ev.steps == single.physics.steps
     explicit = eval_physics_config(single.physics, EvalConfig(physics=PhysicsConfig(directions=("+z",))), "y")
     assert explicit.directions == ("+z", "-x")  # an explicit choice is kept; the critical direction is added
@@ -247,12 +247,16 @@ def test_experiment_checks_every_scene_before_any_job(tiny_dataset, tmp_path):
         run_experiment(config, Recorder(), progress=False)
 
 
-def test_ray_executor_on_a_local_instance(tmp_path):
+def test_ray_executor_on_a_local_instance(tmp_path, monkeypatch):
     if importlib.util.find_spec("ray") is None:
         pytest.skip("Ray is not installed (optional extra: pip install -e .[ray])")
     import ray
 
     from nbv.executors import RayExecutor
+
+    # a single-machine instance on the loopback address (tests/test_ray_cluster.py runs a two-node cluster)
+    monkeypatch.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+    monkeypatch.setattr(ray._private.ray_constants, "ENABLE_RAY_CLUSTER", False)
 
     with pytest.raises(ValueError, match="local_cpus"):
         RayExecutor(local_cpus=0)

@@ -133,7 +133,7 @@ def test_dataset_layout_and_json(torus_dataset):
     assert info["config"]["n_train"] == 6 and info["source_mesh"].endswith("torus.obj")
     image = cv2.imread(str(root / "train" / "r_000.png"), cv2.IMREAD_UNCHANGED)
     assert image.shape == (56, 56, 4) and image.dtype == np.uint8
-    assert not list(root.parent.glob(".torus.tmp-*"))  # the temporary folder was renamed away
+    assert not list(root.parent.glob(".fgs-*"))  # the temporary folder was renamed away
 
 
 def test_normalised_mesh_and_recorded_transform(torus_dataset):

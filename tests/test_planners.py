@@ -96,7 +96,8 @@ def _check_selection(sel: Selection, count: int) -> None:
 
 def test_registry_names_and_make_planner():
     assert set(PLANNERS) == {"random", "fisher", "variance", "physics", "fisher+fluid", "variance+fluid",
-                             "random+fluid"}
+                             "random+fluid", "fisher+area", "fisher+shuffled", "variance+area", "variance+shuffled",
+                             "random+area", "random+shuffled"}
     for name in PLANNERS:
         planner = make_planner(name, seed=3)
         assert isinstance(planner, Planner)
@@ -249,3 +250,109 @@ def test_context_validation():
         PlanningContext(_scene(), [], _candidates(), [0, 1, 2, 3], 0, 0, torch.ones(3))
     with pytest.raises(ValueError, match="no candidate views"):
         make_planner("random").select(_context(candidates=[]))
+
+
+# ---- controls of the physics pick (issue 19): +area (D_g = 1, no probes) and +shuffled (D_g permuted) ----------
+
+
+def _raising_physics(gaussians):
+    raise AssertionError("the coverage control must not run the probes")
+
+
+def _coverage(g: GaussianSet, cams: list[Camera]) -> list[float]:
+    """sum_{g visible} w_g(T), the coverage, from the renderer's radii (independent of physics_view_scores)."""
+    from nbv.scores import view_weights
+
+    out = []
+    for cam in cams:
+        rend = render(g, cam, 1.0)
+        out.append(float((view_weights(rend.radii, cam.height, cam.width) * rend.visible.double()).sum()))
+    return out
+
+
+def test_control_planners_are_registered_and_say_whether_they_simulate():
+    from nbv.planners import uses_physics
+
+    for visual in ("fisher", "variance", "random"):
+        area, shuffled, fluid = (make_planner(f"{visual}+{c}", seed=2) for c in ("area", "shuffled", "fluid"))
+        assert (area.control, shuffled.control, fluid.control) == ("area", "shuffled", "fluid")
+        assert type(area.visual) is type(fluid.visual) and area.config.seed == 2
+        assert not area.uses_physics and shuffled.uses_physics and fluid.uses_physics
+        assert not uses_physics(f"{visual}+area") and uses_physics(f"{visual}+shuffled")
+        assert not uses_physics(visual)
+    assert uses_physics("physics") and uses_physics("fisher+fluid")
+    with pytest.raises(ValueError, match="unknown planner"):
+        uses_physics("fisher+coverage")
+
+
+@pytest.mark.parametrize("visual", ["fisher", "variance", "random"])
+def test_area_control_is_the_physics_score_with_ones_and_never_simulates(visual):
+    g, cams = _scene(), _candidates()
+    planner = make_planner(f"{visual}+area")
+    if visual != "random":
+        planner.visual = StubVisual([1, 0, 3, 2])
+    # K = max(5 - 1, 2) = 4: the whole pool is shortlisted, so the pick is the coverage argmax over all four
+    sel = planner.select(_context(g, candidates=cams, n_selected=1, budget=5, physics=_raising_physics))
+    _check_selection(sel, 4)
+    assert sel.k == 4 and sorted(sel.shortlist) == [0, 1, 2, 3]
+    ones = physics_view_scores(g, cams, torch.ones(g.num, dtype=torch.float64))
+    assert sel.scores["physics"] == pytest.approx(ones, rel=1e-12)
+    assert ones == pytest.approx(_coverage(g, cams), rel=1e-9)
+    assert sel.pick == max(range(4), key=lambda i: (ones[i], -sel.shortlist.index(i)))
+    # the nearer right-hand camera covers more than the same view from further away: coverage, not physics
+    assert ones[2] > ones[3]
+    # no physics callable at all is fine too
+    assert planner.select(_context(g, candidates=cams, n_selected=1, budget=5, physics=None)).pick == sel.pick
+
+
+def test_area_control_differs_from_the_physics_pick_where_d_g_matters():
+    """The right group seen from further away (D_g = 5) against the left group from nearer (D_g = 0): the
+    physics pick takes the far right view, the coverage control the near left one."""
+    g = _scene()
+    cams = [_cam(1.2, distance=3.0), _cam(-1.2)]
+    cover = physics_view_scores(g, cams, torch.ones(g.num))
+    assert cover[1] > 1.5 * cover[0]
+    for visual in ("fisher", "variance"):
+        fluid, area = make_planner(f"{visual}+fluid"), make_planner(f"{visual}+area")
+        fluid.visual, area.visual = StubVisual([0, 1]), StubVisual([0, 1])
+        ctx = _context(g, candidates=cams, n_selected=1, budget=4, physics=FakePhysics())
+        assert fluid.select(ctx).pick == 0
+        assert area.select(ctx).pick == 1
+
+
+def test_shuffled_divergence_is_a_seeded_permutation():
+    from nbv.planners import shuffled_divergence
+
+    d = torch.linspace(0.0, 3.0, 200, dtype=torch.float64) ** 2
+    a = shuffled_divergence(d, 7, 2)
+    torch.testing.assert_close(torch.sort(a).values, torch.sort(d).values, rtol=0, atol=0)  # the same multiset
+    torch.testing.assert_close(shuffled_divergence(d, 7, 2), a, rtol=0, atol=0)  # deterministic per (seed, round)
+    assert not torch.equal(shuffled_divergence(d, 8, 2), a)
+    assert not torch.equal(shuffled_divergence(d, 7, 3), a)
+    assert (a != d).float().mean() > 0.9  # a real shuffle: almost every Gaussian gets another value
+    assert shuffled_divergence(d, -3, 0).shape == d.shape  # any int seed
+
+
+@pytest.mark.parametrize("visual", ["fisher", "variance", "random"])
+def test_shuffled_control_scores_the_permuted_divergence(visual):
+    from nbv.planners import shuffled_divergence
+
+    g, cams = _scene(), _candidates()
+    picks = set()
+    for seed in range(6):
+        planner = make_planner(f"{visual}+shuffled", seed=seed)
+        if visual != "random":
+            planner.visual = StubVisual([0, 1, 2, 3])
+        physics = FakePhysics()
+        ctx = _context(g, candidates=cams, n_selected=1, budget=5, physics=physics, round_=3)
+        sel = planner.select(ctx)
+        _check_selection(sel, 4)
+        assert physics.calls == 1  # the probes run (once)
+        expected = physics_view_scores(g, cams, shuffled_divergence(FakePhysics()(g), seed, 3))
+        assert [sel.scores["physics"][i] for i in range(4)] == pytest.approx(expected, rel=1e-12)
+        assert make_planner(f"{visual}+shuffled", seed=seed).select(ctx).scores["physics"] == \
+            pytest.approx(sel.scores["physics"], rel=0)  # reproducible from the seed
+        picks.add(sel.pick)
+    fluid = physics_view_scores(g, cams, FakePhysics()(g))
+    assert max(range(4), key=lambda i: fluid[i]) in (2, 3)  # the true D_g points right ...
+    assert picks - {2, 3}  # ... the shuffled one sends some seeds elsewhere

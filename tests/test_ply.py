@@ -191,6 +191,7 @@ def test_bad_files_raise_naming_the_file_and_problem(tmp_path):
 def test_missing_file_and_wrong_suffix(tmp_path):
     with pytest.raises(FileNotFoundError, match=re.escape(str(tmp_path / "none.ply"))):
         load_gaussians(tmp_path / "none.ply")
+    (tmp_path / "g.txt").write_text("x y z\n")
     with pytest.raises(ValueError, match=r"\.txt"):
         load_gaussians(tmp_path / "g.txt")
     with pytest.raises(ValueError, match=r"\.obj"):

@@ -74,7 +74,7 @@ def test_sim_command_writes_documented_layout(tmp_path):
 def test_sim_command_refuses_bad_output_before_work(tmp_path):
     (tmp_path / "scene.json").write_text(json.dumps(_scene()))
     (tmp_path / "blocker").write_text("")
-    assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "blocker" / "x.h5")]) == 2
+    assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "blocker" / "x.h5")]) == 4
 
 
 def test_diverging_sim_keeps_frames(tmp_path):

@@ -3,17 +3,19 @@ passes of both DFSPH solvers and the velocity update; the non-pressure pass (vis
 rides on it (Eq. 1, the density solver's warm-start push); and the warm starts that need no list pass,
 which change the velocities as the numpy twin of the velocity update does with the same stiffness."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from fluidsim import dfsph, neighbors, viscosity
+from fluidsim import neighbors, passes
 from fluidsim.config import SolverConfig
-from fluidsim.divergence import divergence_np
+from fluidsim.estimator import divergence_estimate_np
 from fluidsim.kernels import cubic_grad_w_np
 from fluidsim.neighbors import FREE_SURFACE_NEIGHBORS
 from fluidsim.reductions import fixed_point_average_np
 from fluidsim.scene import lattice_in_box
-from fluidsim.solver import DFSPHSolver
+from fluidsim.solver import DFSPHSolver, WarmStart
 from fluidsim.viscosity import non_pressure_np
 
 INV_Q = 2.0**20 / 1e-4  # quanta per unit of the error averages (a density tolerance of 0.01 %)
@@ -26,12 +28,12 @@ def _solver(mu_b, kappa_divergence_max=0.0, neighborhoods=True, max_neighbors=64
     v = rng.normal(0, 1.0, x.shape)
     wall = lattice_in_box([0.3, 0.2, 0.3], [0.6, 0.3, 0.6], cfg.spacing) - [0, 0.002, 0]
     solver = DFSPHSolver(cfg, [0, 0, 0], [1, 1, 1], x, v, wall)
-    solver._sort()
+    solver.sort()
     if kappa_divergence_max:
         kappa = rng.uniform(0.0, kappa_divergence_max, solver.fluid.capacity)
         solver.fluid.kappa_divergence.from_numpy(kappa.astype(np.float32))
     if neighborhoods:
-        solver._neighborhoods()
+        solver.find_neighborhoods()
     return cfg, solver
 
 
@@ -56,9 +58,8 @@ def _forces_pass(solver, v0, warm, estimate=False):
     returns the velocities it predicts (the pass writes the spare buffer, which then becomes v)."""
     f = solver.fluid
     f.v.from_numpy(v0)
-    solver._warm = lambda: (True, warm)
-    solver._density_records = False  # no divergence error pass ran: the pass writes the records first
-    solver._non_pressure_forces(solver.config.dt, estimate=estimate)
+    solver.warm = WarmStart(divergence=True, density=warm)
+    solver.non_pressure_forces(solver.config.dt, estimate=estimate)  # no error pass ran: it writes the records first
     return f.numpy("v").astype(np.float64)
 
 
@@ -84,7 +85,7 @@ def test_forces_pass_matches_numpy_twins(mu_b):
     assert np.abs(visc).max() > 1.0  # the viscous part is far from negligible here
     np.testing.assert_allclose(acc, ref, rtol=2e-3, atol=2e-3 * np.abs(visc).max())
 
-    d_ref = divergence_np(xs, vs, solver.fluid_volume / rho, bx, bvol, 0.1, 0.1)
+    d_ref = divergence_estimate_np(xs, vs, solver.fluid_volume / rho, bx, bvol, 0.1, 0.1)
     np.testing.assert_allclose(f.numpy("divergence"), d_ref, rtol=2e-3, atol=2e-3 * d_ref.max())
 
     # the density solver's push P_i = w_i (sum_j g_ij + sum_b g_ib) + sum_j w_j g_ij, applied as v -= P / dt
@@ -101,15 +102,14 @@ def test_forces_pass_matches_numpy_twins(mu_b):
 def test_forces_pass_copies_the_velocities_of_retired_slots():
     cfg, solver = _solver(0.0)
     f, nb, b = solver.fluid, solver.neighborhoods, solver.boundary
-    n = f.active - 5  # the last five slots as if retired
+    f.active -= 5  # the last five slots as if retired
+    n = f.active
     v0 = f.numpy("v", active_only=False)
     out = f.velocity_scratch()
     out.fill(7.0)
-    viscosity.predict_velocities(
-        n, f.capacity, cfg.dt, solver._gravity, cfg.viscosity, cfg.wall_viscosity, cfg.rest_density, solver.h,
-        f.x, f.v, f.density, f.density_record, b.x, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
-        nb.boundary_count, nb.boundary_pairs, nb.boundary_grad_sum, nb.grad_sum, 0, f.divergence,
-        f.divergence_sum, f.divergence_count, 0, f.stiffness_sum, out)
+    passes.predict_velocities(f, b, nb, cfg.dt, solver.gravity, cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
+                              solver.h, warm=False, estimate=False)
+    assert f.v is out  # the pass wrote the spare buffer, which is now v
     new = out.to_numpy()
     np.testing.assert_array_equal(new[n:], v0[n:])
     assert np.all(new[:n] != 7.0)
@@ -123,8 +123,7 @@ def test_density_warm_records_mask_the_particles_that_are_not_compressing():
     kappa = rng.uniform(0.1, 1.0, n)
     f.kappa_density.from_numpy(np.pad(kappa, (0, f.capacity - n)).astype(np.float32))
     for warm in (0, 1):
-        dfsph.density_warm_stiffness(n, dt, warm, solver._gravity, f.x, f.density, f.source,
-                                     nb.boundary_grad_sum, f.kappa_density, f.density_record)
+        passes.density_warm_records(f, nb, dt, bool(warm), solver.gravity)
         if not warm:  # no warm start: w = 0 everywhere, and the record still carries x
             np.testing.assert_array_equal(f.numpy("density_record")[:, 3], 0.0)
     rho, src = f.numpy("density").astype(np.float64), f.numpy("source").astype(np.float64)
@@ -143,25 +142,27 @@ def test_divergence_error_pass_writes_the_density_warm_records():
     n, dt = f.active, cfg.dt
     f.kappa_density.from_numpy(np.random.default_rng(9).uniform(0.1, 1.0, f.capacity).astype(np.float32))
     f.density_record.fill(-1.0)
-    dfsph.divergence_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
-                           nb.boundary_count, nb.grad_sum, f.factor, f.source, f.position_stiffness,
-                           INV_Q, 1, solver._gravity, f.density, nb.boundary_grad_sum, f.kappa_density,
-                           f.density_record)
+    passes.divergence_solve_error(f, nb, dt, INV_Q, True, solver.gravity)
     fused = f.numpy("density_record")
     assert 0 < (fused[:, 3] > 0).sum() < n
-    dfsph.density_warm_stiffness(n, dt, 1, solver._gravity, f.x, f.density, f.source, nb.boundary_grad_sum,
-                                 f.kappa_density, f.density_record)
+    passes.density_warm_records(f, nb, dt, True, solver.gravity)
     np.testing.assert_array_equal(fused, f.numpy("density_record"))
     # the step uses them: a step whose divergence solve ran an error pass does not recompute them
     calls = []
-    solver._warm = lambda: (True, True)
-    original = dfsph.density_warm_stiffness
+    solver.warm = WarmStart(divergence=True, density=True)
+    original = passes.density_warm_records
     try:
-        dfsph.density_warm_stiffness = lambda *a: (calls.append(1), original(*a))
+        passes.density_warm_records = lambda *a: (calls.append(1), original(*a))
         solver.step()
+        assert calls == []
+        # a cold divergence solve that meets its tolerance at once runs no error pass: the records get their own
+        _, still = _solver(0.0)
+        still.warm = WarmStart(divergence=False, density=True)
+        still.fluid.v.fill(0.0)
+        stats = still.step()
+        assert stats.divergence_iterations == 1 and calls == [1]
     finally:
-        dfsph.density_warm_stiffness = original
-    assert calls == []
+        passes.density_warm_records = original
 
 
 def _apply_with(solver, stiffness, dt):
@@ -200,9 +201,7 @@ def test_velocity_update_pass_matches_numpy_twin():
     expected = _apply_with(solver, k, dt)
     v0 = f.numpy("v")
     _set_stiffness(f, k)
-    dfsph.apply_stiffness(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
-                          f.position_stiffness,
-                          f.stiffness_sum)
+    passes.velocity_update(f, nb, dt)
     scale = np.abs(expected - v0).max()
     assert scale > 1e-2
     np.testing.assert_allclose(f.numpy("v"), expected, atol=1e-3 * scale)
@@ -219,8 +218,7 @@ def test_last_velocity_update_stores_the_warm_start_memory_and_advects():
     assert scale > 1e-2
     x0 = f.numpy("x").astype(np.float64)
     _set_stiffness(f, k)
-    out = dfsph.finish_solve(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
-                             f.position_stiffness, f.stiffness_sum, 0.5, f.kappa_density, 1, f.x)
+    out = passes.finish_solve(f, nb, dt, 0.5, f.kappa_density, advect=True)
     v = f.numpy("v").astype(np.float64)
     np.testing.assert_allclose(v, expected, atol=1e-3 * scale)
     np.testing.assert_allclose(f.numpy("kappa_density"), 0.5 * (1.0 + k[:n]), rtol=1e-6)
@@ -228,15 +226,13 @@ def test_last_velocity_update_stores_the_warm_start_memory_and_advects():
     assert out[0] == pytest.approx(np.linalg.norm(v, axis=1).max(), rel=1e-5) and out[1] == 0
     # without advect: x stays, nothing is measured; a NaN velocity is counted when advecting
     x1 = f.numpy("x")
-    out = dfsph.finish_solve(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
-                             f.position_stiffness, f.stiffness_sum, 0.5, f.kappa_density, 0, f.x)
+    out = passes.finish_solve(f, nb, dt, 0.5, f.kappa_density, advect=False)
     np.testing.assert_array_equal(f.numpy("x"), x1)
     assert out[0] == 0 and out[1] == 0
     vv = f.numpy("v", active_only=False)
     vv[3] = np.nan
     f.v.from_numpy(vv)
-    out = dfsph.finish_solve(n, dt, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
-                             f.position_stiffness, f.stiffness_sum, 0.5, f.kappa_density, 1, f.x)
+    out = passes.finish_solve(f, nb, dt, 0.5, f.kappa_density, advect=True)
     assert out[1] >= 1
 
 
@@ -245,10 +241,7 @@ def test_divergence_error_pass_matches_numpy_twin():
     f, nb = solver.fluid, solver.neighborhoods
     n, dt = f.active, cfg.dt
     s_raw, bound = _divergence_np(solver)
-    avg = dfsph.divergence_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale,
-                                 nb.boundary_count, nb.grad_sum, f.factor, f.source, f.position_stiffness,
-                                 INV_Q, 0, solver._gravity, f.density, nb.boundary_grad_sum,
-                                 f.kappa_density, f.density_record)
+    avg = passes.divergence_solve_error(f, nb, dt, INV_Q, False, solver.gravity)
     counts = nb.fluid_count.to_numpy()[:n] + nb.boundary_count.to_numpy()[:n]
     s_ref = np.where((s_raw < 0) | (counts < FREE_SURFACE_NEIGHBORS), 0.0, s_raw)
     assert 10 < (s_ref > 0).sum() < n - 10
@@ -260,8 +253,8 @@ def test_divergence_error_pass_matches_numpy_twin():
     assert abs(avg - s_ref.mean()) <= bound.mean() + 1e-5 * scale
     assert avg == fixed_point_average_np(f.numpy("source"), INV_Q)  # summed as it went, bit for bit
     # the neighbourhood pass measures the same first source for a cold-started solve
-    solver._warm = lambda: (False, True)
-    solver._neighborhoods()
+    solver.warm = WarmStart(divergence=False, density=True)
+    solver.find_neighborhoods()
     np.testing.assert_allclose(f.numpy("source"), s_ref, atol=1e-4 * scale)
 
 
@@ -273,9 +266,7 @@ def test_density_error_pass_matches_numpy_twin():
     s_raw, bound = _divergence_np(solver)
     err_ref = np.maximum(rho + dt * s_raw - 1.0, 0.0)
     assert 10 < (err_ref > 0).sum() < n - 10
-    avg = dfsph.density_error(n, dt, f.x, f.v, nb.fluid_count, nb.fluid_pairs, nb.format, nb.inv_scale, nb.grad_sum,
-                              f.density, f.factor,
-                              f.source, f.position_stiffness, INV_Q)
+    avg = passes.density_solve_error(f, nb, dt, INV_Q)
     assert np.all(np.abs(f.numpy("source") - err_ref) <= dt * bound + 2e-6)
     xk = f.numpy("position_stiffness")
     np.testing.assert_array_equal(xk[:, :3], f.numpy("x"))
@@ -294,7 +285,7 @@ def test_divergence_warm_start_equals_the_list_pass(max_neighbors):
     k = 0.5 * f.numpy("kappa_divergence", active_only=False).astype(np.float64) / dt  # sorted order
     expected = _apply_with(solver, k, dt)
     v0 = f.numpy("v")
-    solver._neighborhoods(dt)
+    solver.find_neighborhoods(dt)
     assert solver.neighborhoods.fluid_capacity >= (64 if max_neighbors == 64 else 9)
     v = f.numpy("v")
     scale = np.abs(expected - v0).max()
@@ -344,7 +335,7 @@ def test_error_averages_are_fixed_point_sums_independent_of_order():
 
     def average(values):
         f.source.from_numpy(np.pad(values, (0, f.capacity - n)).astype(np.float32))
-        return dfsph.start_divergence(n, dt, f.source, f.factor, f.x, f.position_stiffness, f.stiffness_sum, inv_q)
+        return passes.divergence_solve_cold_start(f, dt, inv_q)
 
     values = np.random.default_rng(21).exponential(3e-4, n).astype(np.float32)
     avg = average(values)
@@ -374,7 +365,7 @@ def test_neighbour_lists_follow_the_largest_count():
     max_f = int(nb.fluid_count.to_numpy()[: solver.fluid.active].max())
     max_b = int(nb.boundary_count.to_numpy()[: solver.fluid.active].max())
     assert nb.fluid_capacity == 64 and neighbors.shrink_threshold(max_f) < 64  # smaller lists are planned
-    solver._neighborhoods()
+    solver.find_neighborhoods()
     assert nb.fluid_capacity == neighbors.list_capacity(max_f) < 64
     assert nb.boundary_capacity == neighbors.list_capacity(max_b) < 64
     pairs, _ = _gradients(solver)
@@ -383,7 +374,7 @@ def test_neighbour_lists_follow_the_largest_count():
         np.testing.assert_array_equal(np.sort(index[i, : count[i]]), j)
     # a count past the capacity grows the lists at once (and the pass runs again)
     nb.resize(8, 8)
-    solver._neighborhoods()
+    solver.find_neighborhoods()
     assert nb.fluid_capacity >= max_f and nb.boundary_capacity >= max_b
     count, index, _ = nb.lists("fluid")
     assert all(np.array_equal(np.sort(index[i, : count[i]]), j) for i, (j, _) in pairs.items())
@@ -404,3 +395,36 @@ def test_boundary_pairs_are_stored_only_where_a_pass_reads_them():
     cfg = SolverConfig(particle_radius=0.025, boundary_viscosity=0.0, estimator_radius=0.08)  # Eq. 1 walks lists
     x = lattice_in_box([0.3, 0.3, 0.3], [0.6, 0.6, 0.6], cfg.spacing)
     assert DFSPHSolver(cfg, [0, 0, 0], [1, 1, 1], x, np.zeros_like(x), x[:5] - 0.3).neighborhoods.store_boundary
+
+
+def test_warm_starts_are_named_and_follow_the_config():
+    assert WarmStart.of(SolverConfig()) == WarmStart(divergence=True, density=True)
+    assert WarmStart.of(SolverConfig(divergence_warm_start=False)) == WarmStart(divergence=False, density=True)
+    assert WarmStart.of(SolverConfig(divergence_solver=False)) == WarmStart(divergence=False, density=True)
+    assert WarmStart.of(SolverConfig(warm_start=False)) == WarmStart(divergence=False, density=False)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        WarmStart(True, True).density = False
+
+
+@pytest.mark.parametrize("h_r", [0.1, 0.13])  # 0.13 > h: Eq. 1 is a stage of its own
+def test_step_runs_the_stages_in_the_order_of_algorithm_1(h_r):
+    cfg = SolverConfig(particle_radius=0.025, estimator_radius=h_r, estimator_kernel_radius=h_r)
+    x = lattice_in_box([0.3, 0.3, 0.3], [0.6, 0.6, 0.6], cfg.spacing)
+    solver = DFSPHSolver(cfg, [0, 0, 0], [1, 1, 1], x, np.zeros_like(x), x[:40] - [0, 0.3, 0])
+    solver.stage_times = {}
+    stats = solver.step()
+    own = ["divergence_estimate"] if h_r > cfg.support_radius else []
+    assert list(solver.stage_times) == ["sort", "neighbors", "divergence_solve", *own, "non_pressure",
+                                        "density_solve"]
+    assert stats.divergence_iterations >= 1 and stats.density_iterations >= cfg.min_iterations
+    _, counts = solver.divergence_accumulation()
+    assert counts.max() == 1  # Eq. 1 ran once, in one stage or the other
+
+
+def test_the_estimator_keeps_its_former_module_name():
+    from fluidsim import divergence, estimator
+
+    assert divergence.divergence_np is estimator.divergence_estimate_np
+    assert divergence.estimate_divergence_from_gradients is estimator.divergence_estimate_from_gradients
+    assert divergence.estimate_divergence_from_lists is estimator.divergence_estimate_from_lists
+    assert divergence.estimate_divergence_from_grid is estimator.divergence_estimate_from_grid

@@ -1,0 +1,43 @@
+"""`fluidgs view RESULT.h5`: the fluid against your splat in a browser (viser; :mod:`viz`).
+
+Serves, on 127.0.0.1 unless ``--host`` says otherwise, a page that shows the Gaussians coloured by their own
+colours or by D_g with a colour bar (1/s), the solid particles, one probe's fluid replayed over time (when
+RESULT.h5 holds its trajectory: ``fluidgs simulate ... --record-probe -x``), the candidate cameras of
+``--scores`` coloured by S(T) with their rank (a click moves the view to one), and the leak counts. Ctrl-C stops it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+log = logging.getLogger("fluidgs")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("result", type=Path, help="RESULT.h5 of `fluidgs simulate` (or `fluidgs score --save-result`)")
+    p.add_argument("--gaussians", type=Path, default=None,
+                   help="the Gaussian file RESULT.h5 was computed from, for their own colours and opacities "
+                        "(default: the source recorded in RESULT.h5, when it exists)")
+    p.add_argument("--scores", type=Path, default=None,
+                   help="scores.json of `fluidgs score`: the candidate cameras coloured by S(T), with their rank")
+    p.add_argument("--cameras", type=Path, default=None,
+                   help="the candidates' transforms.json, scene units (default: the file --scores names)")
+    p.add_argument("--probe", default=None, metavar="DIR",
+                   help="the probe whose fluid is replayed: -x, +x, -z, +z or -y (default: the first recorded)")
+    p.add_argument("--port", type=int, default=8080,
+                   help="port (default: 8080; a port in use moves to the next free one, logged; 0: any free port)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to bind (default: 127.0.0.1, this machine only; 0.0.0.0 serves every interface, "
+                        "to anyone who can reach it)")
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from viz.viewer import ViewerOptions, open_viewer, serve
+
+    logging.getLogger("websockets").setLevel(logging.WARNING)  # one line per connection otherwise
+    options = ViewerOptions(host=args.host, port=args.port, probe=args.probe)
+    viewer = open_viewer(args.result, gaussians=args.gaussians, scores=args.scores, cameras=args.cameras,
+                         options=options)
+    return serve(viewer, announce=lambda line: print(line, flush=True))

@@ -1,0 +1,181 @@
+"""Writers of the shared splat formats, for the reader tests only (fluidgs itself writes standard .ply / .npz).
+
+Each encoder follows the format's public definition (the writers of SuperSplat/splat-transform, the Niantic spz
+library and antimatter15's viewer), vectorised with numpy: the tests decode what these write and compare with
+the quantisation steps of each format.
+"""
+
+from __future__ import annotations
+
+import gzip
+import math
+import struct
+from pathlib import Path
+
+import numpy as np
+import torch
+import zstandard
+
+from recon.gaussians import SH_C0, GaussianSet
+
+RUB_FLIP_POSITION = np.array([1.0, -1.0, -1.0], np.float32)  # RDF <-> RUB, a half turn about x
+
+
+def _arrays(g: GaussianSet) -> dict[str, np.ndarray]:
+    g = g.detach().to(device="cpu", dtype=torch.float32)
+    return {"means": g.means.numpy(), "quats": g.quats.numpy(), "log_scales": g.log_scales.numpy(),
+            "logits": g.opacity_logits.numpy(), "sh": g.sh.numpy()}
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-x.astype(np.float64)))
+
+
+def _unit_quats(q: np.ndarray) -> np.ndarray:
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+# ---- SuperSplat / PlayCanvas compressed .ply ------------------------------------------------------------------
+def pack_unorm(value: np.ndarray, bits: int) -> np.ndarray:
+    top = (1 << bits) - 1
+    return np.clip(np.floor(value * top + 0.5), 0, top).astype(np.uint32)
+
+
+def _normalize(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    span = hi - lo
+    t = np.where(span < 1e-5, 0.0, (x - lo) / np.where(span < 1e-5, 1.0, span))
+    return np.clip(t, 0.0, 1.0)
+
+
+def pack_rotation(quats_wxyz: np.ndarray) -> np.ndarray:
+    """2-10-10-10 words: index of the largest |component| (rot_0..rot_3 order), then the other three."""
+    q = _unit_quats(quats_wxyz.astype(np.float64))
+    largest = np.abs(q).argmax(1)
+    q = np.where(q[np.arange(len(q)), largest][:, None] < 0, -q, q)
+    word = largest.astype(np.uint32)
+    for j in range(4):
+        keep = largest != j
+        code = pack_unorm(q[:, j] / math.sqrt(2.0) + 0.5, 10)
+        word = np.where(keep, (word << np.uint32(10)) | code, word)
+    return word
+
+
+def encode_compressed_ply(g: GaussianSet, path: Path, chunk_colors: bool = True, with_sh: bool = True) -> Path:
+    """Write ``g`` as a SuperSplat compressed .ply (chunk bounds per 256 splats, packed words, uchar SH)."""
+    a = _arrays(g)
+    n = a["means"].shape[0]
+    chunks = math.ceil(n / 256)
+    rgb = a["sh"][:, 0] * SH_C0 + 0.5
+    index = np.arange(n) // 256
+
+    def bounds(x):
+        lo = np.array([x[index == c].min(0) for c in range(chunks)])
+        hi = np.array([x[index == c].max(0) for c in range(chunks)])
+        return lo, hi
+
+    (plo, phi), (slo, shi), (clo, chi) = bounds(a["means"]), bounds(a["log_scales"]), bounds(rgb)
+    slo, shi = np.clip(slo, -20, 20), np.clip(shi, -20, 20)
+
+    def pack_111011(x, lo, hi):
+        t = _normalize(x, lo[index], hi[index])
+        return (pack_unorm(t[:, 0], 11) << np.uint32(21)) | (pack_unorm(t[:, 1], 10) << np.uint32(11)) \
+            | pack_unorm(t[:, 2], 11)
+
+    t = _normalize(rgb, clo[index], chi[index]) if chunk_colors else rgb
+    color = (pack_unorm(t[:, 0], 8) << np.uint32(24)) | (pack_unorm(t[:, 1], 8) << np.uint32(16)) \
+        | (pack_unorm(t[:, 2], 8) << np.uint32(8)) | pack_unorm(_sigmoid(a["logits"]), 8)
+    vertex = np.stack([pack_111011(a["means"], plo, phi), pack_rotation(a["quats"]),
+                       pack_111011(a["log_scales"], slo, shi), color], 1).astype("<u4")
+    chunk_cols = [plo, phi, slo, shi] + ([clo, chi] if chunk_colors else [])
+    chunk = np.concatenate(chunk_cols, 1).astype("<f4")
+    names = ["min_x", "min_y", "min_z", "max_x", "max_y", "max_z", "min_scale_x", "min_scale_y", "min_scale_z",
+             "max_scale_x", "max_scale_y", "max_scale_z"]
+    names += ["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"] if chunk_colors else []
+    header = ["ply", "format binary_little_endian 1.0", "comment test encoder", f"element chunk {chunks}"]
+    header += [f"property float {p}" for p in names]
+    header += [f"element vertex {n}"] + [f"property uint packed_{p}" for p in ("position", "rotation", "scale",
+                                                                                "color")]
+    body = chunk.tobytes() + vertex.tobytes()
+    k = a["sh"].shape[1]
+    if with_sh and k > 1:
+        rest = a["sh"][:, 1:].transpose(0, 2, 1).reshape(n, 3 * (k - 1))  # channel-major f_rest
+        codes = np.clip(np.floor((rest / 8.0 + 0.5) * 256.0), 0, 255).astype(np.uint8)
+        header += [f"element sh {n}"] + [f"property uchar f_rest_{i}" for i in range(3 * (k - 1))]
+        body += codes.tobytes()
+    path.write_bytes(("\n".join(header + ["end_header"]) + "\n").encode() + body)
+    return path
+
+
+# ---- Niantic .spz -------------------------------------------------------------------------------------------
+RUB_SH_SIGNS = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1], np.float32)
+
+
+def _to_uint8(x: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(x), 0, 255).astype(np.uint8)
+
+
+def spz_attributes(g: GaussianSet, version: int, frame: str = "rdf", fractional_bits: int = 12) -> dict[str, bytes]:
+    """The six packed attribute arrays; ``frame='rdf'`` converts a .ply-frame set to SPZ's RUB first."""
+    a = _arrays(g)
+    n, k = a["sh"].shape[:2]
+    flip = frame == "rdf"
+    means = a["means"] * (RUB_FLIP_POSITION if flip else 1.0)
+    fixed = np.round(means.astype(np.float64) * (1 << fractional_bits)).astype(np.int64) & 0xFFFFFF
+    positions = np.stack([fixed & 0xFF, (fixed >> 8) & 0xFF, (fixed >> 16) & 0xFF], -1).astype(np.uint8)
+    xyzw = _unit_quats(a["quats"][:, [1, 2, 3, 0]].astype(np.float64))
+    if flip:
+        xyzw[:, 1:3] *= -1
+    if version >= 3:
+        largest = np.abs(xyzw).argmax(1)
+        negate = xyzw[np.arange(n), largest] < 0
+        word = largest.astype(np.uint32)
+        for j in range(4):
+            keep = largest != j
+            neg = ((xyzw[:, j] < 0) ^ negate).astype(np.uint32)
+            mag = (511.0 * (np.abs(xyzw[:, j]) / math.sqrt(0.5)) + 0.5).astype(np.uint32)
+            word = np.where(keep, (word << np.uint32(10)) | (neg << np.uint32(9)) | mag, word)
+        rotations = word.astype("<u4").tobytes()
+    else:
+        s = np.where(xyzw[:, 3:4] < 0, -127.5, 127.5)
+        rotations = _to_uint8(xyzw[:, :3] * s + 127.5).tobytes()
+    rest = a["sh"][:, 1:] * (RUB_SH_SIGNS[: k - 1, None] if flip else 1.0)
+    return {"positions": positions.tobytes(), "alphas": _to_uint8(_sigmoid(a["logits"]) * 255.0).tobytes(),
+            "colors": _to_uint8(a["sh"][:, 0] * (0.15 * 255.0) + 127.5).tobytes(),
+            "scales": _to_uint8((a["log_scales"] + 10.0) * 16.0).tobytes(), "rotations": rotations,
+            "sh": _to_uint8(rest * 128.0 + 128.0).tobytes()}
+
+
+def encode_spz(g: GaussianSet, path: Path, version: int = 4, frame: str = "rdf", flags: int = 0,
+               extension: bytes = b"", extension_first: bool = False) -> Path:
+    """Write an .spz: versions 2-3 as one gzip stream, version 4 as header + TOC + zstd streams."""
+    attrs = spz_attributes(g, version, frame)
+    n, degree = g.num, g.sh_degree
+    order = ("positions", "alphas", "colors", "scales", "rotations", "sh")
+    if version < 4:
+        header = struct.pack("<4sIIBBBB", b"NGSP", version, n, degree, 12, flags, 0)
+        body = b"".join(attrs[k] for k in order)
+        raw = header + (extension + body if extension_first else body + extension)
+        path.write_bytes(gzip.compress(raw))
+        return path
+    streams = [zstandard.ZstdCompressor(level=3).compress(attrs[k]) for k in order if attrs[k]]
+    sizes = [len(attrs[k]) for k in order if attrs[k]]
+    toc = 32 + len(extension)
+    header = struct.pack("<4sIIBBBBI12s", b"NGSP", version, n, degree, 12, flags, len(streams), toc, b"")
+    table = b"".join(struct.pack("<QQ", len(s), u) for s, u in zip(streams, sizes, strict=True))
+    path.write_bytes(header + extension + table + b"".join(streams))
+    return path
+
+
+# ---- antimatter15 .splat ------------------------------------------------------------------------------------
+def encode_splat(g: GaussianSet, path: Path) -> Path:
+    """Write ``g`` (DC colour only) as 32-byte .splat records."""
+    a = _arrays(g)
+    n = a["means"].shape[0]
+    records = np.zeros(n, dtype=[("p", "<f4", (3,)), ("s", "<f4", (3,)), ("c", "u1", (4,)), ("r", "u1", (4,))])
+    records["p"] = a["means"]
+    records["s"] = np.exp(a["log_scales"])
+    records["c"][:, :3] = _to_uint8((0.5 + SH_C0 * a["sh"][:, 0]) * 255.0)
+    records["c"][:, 3] = _to_uint8(_sigmoid(a["logits"]) * 255.0)
+    records["r"] = _to_uint8(_unit_quats(a["quats"]) * 128.0 + 128.0)
+    path.write_bytes(records.tobytes())
+    return path

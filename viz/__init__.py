@@ -1,0 +1,24 @@
+"""viz: `fluidgs view`, the browser viewer of a probe run (viser).
+
+It shows a RESULT.h5 of `fluidgs simulate` against the Gaussians it was computed from, in the simulation frame
+(metres, Y-up): the splats in their own colours or coloured by D_g (paper Eq. 2-3; max, mean or one probe),
+the solid particles, one probe's fluid replayed over time (recorded with ``--record-probe``, coloured by D_i of
+paper Eq. 1 or by speed), the candidate cameras coloured by their view score S(T) (paper Eq. 4) with their rank,
+and the probes' leak counts. It reads files only (h5py, JSON, the Gaussian formats of :mod:`recon.formats`):
+no Taichi, never a simulation.
+
+=================  ==========================================  ========================================
+module             what                                        main entry
+=================  ==========================================  ========================================
+:mod:`.data`       RESULT.h5 for the viewer, trajectories      :func:`load_view_data`, :func:`load_trajectory`
+:mod:`.splats`     own colours and opacities, match check      :func:`splat_looks`
+:mod:`.cameras`    candidate cameras in the sim frame, S(T)    :func:`candidate_views`
+:mod:`.colors`     TURBO map and colour bars (nbv.heatmap's)   :func:`turbo`, :func:`colorbar_image`
+:mod:`.viewer`     the viser server                            :func:`open_viewer`, :func:`serve`
+=================  ==========================================  ========================================
+"""
+
+from .data import ViewData, load_trajectory, load_view_data
+from .viewer import FluidViewer, ViewerOptions, open_viewer, serve
+
+__all__ = ["FluidViewer", "ViewData", "ViewerOptions", "load_trajectory", "load_view_data", "open_viewer", "serve"]

@@ -1,0 +1,462 @@
+"""The browser viewer (viser): the Gaussians as splats coloured by their own colours or by D_g, the solid, one probe's
+fluid replayed over time, the candidate cameras ranked by S(T), and the leak counts.
+
+Everything is drawn in the simulation frame (metres, Y-up). viser sends a splat's covariance as float16: below
+6e-5 m^2 (sigma 8 mm) its values are subnormal, in steps of 6e-8 m^2, which still leaves a Gaussian of sigma 1 mm
+within a few per cent of its size (and under a pixel at the usual distances).
+
+Example:
+    >>> viewer = open_viewer("out/demo/result.h5", scores="out/demo/scores.json")  # doctest: +SKIP
+    >>> print(viewer.url)  # doctest: +SKIP
+    http://127.0.0.1:8080
+    >>> viewer.wait()  # until Ctrl-C  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import ipaddress
+import logging
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .cameras import CandidateView, cameras_path_of, candidate_views, read_scores
+from .colors import color_scale, colorbar_image, score_colors, turbo
+from .data import Trajectory, ViewData, load_trajectory, load_view_data, no_trajectory_message
+from .splats import SplatLooks, splat_looks
+
+log = logging.getLogger(__name__)
+
+OWN_COLORS = "own colours"
+FLUID_VALUES = {"D_i, 1/s": "divergence", "speed, m/s": "speed"}
+SOLID_RGB = (150, 150, 150)
+LEAK_RGB = (255, 0, 255)
+BACKGROUND = "white"
+# values sampled to pick a trajectory's colour scale (the 99th percentile over all its frames)
+SCALE_SAMPLES = 2_000_000
+INSTALL_HINT = "`fluidgs view` needs viser: pip install -e .[view] (or pip install 'viser>=1.0')"
+
+
+@dataclass(frozen=True)
+class ViewerOptions:
+    """Where to serve and what to show first.
+
+    Attributes:
+        host: the address to bind (127.0.0.1: this machine only; 0.0.0.0: every interface).
+        port: the port (0: any free one); a port in use moves to the next free one, logged.
+        probe: the probe whose fluid is replayed (None: the first recorded one, else the first probe).
+        fps: replay frames per second.
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 8080
+    probe: str | None = None
+    fps: float = 10.0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.port, bool) or not isinstance(self.port, int) or not 0 <= self.port <= 65535:
+            raise ValueError(f"--port must be an integer in 0..65535 (0: any free port), got {self.port!r}")
+        if not isinstance(self.host, str) or not self.host.strip():
+            raise ValueError(f"--host must be an address such as 127.0.0.1, got {self.host!r}")
+        if not self.fps > 0:
+            raise ValueError(f"--fps must be > 0 frames per second, got {self.fps}")
+
+
+def import_viser():
+    """viser, or a ValueError saying how to install it."""
+    try:
+        import viser
+    except ImportError as exc:
+        raise ValueError(f"{INSTALL_HINT} ({exc})") from None
+    return viser
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class FluidViewer:
+    """A running viser server showing one RESULT.h5 (see the module docstring).
+
+    Args:
+        data: RESULT.h5's arrays (:func:`viz.data.load_view_data`).
+        looks: the Gaussians' colours and opacities (:func:`viz.splats.splat_looks`).
+        views: the candidate cameras, simulation frame (:func:`viz.cameras.candidate_views`), maybe empty.
+        options: host, port, first probe.
+    """
+
+    def __init__(self, data: ViewData, looks: SplatLooks, views: list[CandidateView],
+                 options: ViewerOptions | None = None):
+        viser = import_viser()
+        self.data, self.looks, self.views = data, looks, views
+        self.options = options or ViewerOptions()
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._trajectory: Trajectory | None = None
+        self._frame = 0
+        self._playing = False
+        self._fluid_vmax = {"divergence": 1.0, "speed": 1.0}
+        self._fluid_bar_of: tuple[str, str] | None = None
+        self._shown_probe: str | None = None
+        with contextlib.redirect_stdout(io.StringIO()):  # viser prints a banner; `fluidgs view` prints one line
+            self.server = viser.ViserServer(host=self.options.host, port=self.options.port,
+                                            label="FluidGaussian", verbose=False)
+        self.port = int(self.server.get_port())
+        if self.options.port and self.port != self.options.port:
+            log.warning("port %d is in use; serving on port %d instead", self.options.port, self.port)
+        self.server.gui.configure_theme(show_share_button=False, control_width="medium")
+        self.server.scene.set_up_direction("+y")
+        self._centre, self._extent = self._object_box()
+        self._add_splats()
+        self._add_solid()
+        self._add_fluid()
+        self._add_cameras()
+        self._set_initial_camera()
+        self._player = threading.Thread(target=self._play_loop, name="fluidgs-view-player", daemon=True)
+        self._player.start()
+
+    # ---- what it serves --------------------------------------------------------------------------
+    @property
+    def url(self) -> str:
+        host = self.options.host
+        shown = {"0.0.0.0": "127.0.0.1", "::": "[::1]"}.get(host, f"[{host}]" if ":" in host else host)
+        return f"http://{shown}:{self.port}"
+
+    def _object_box(self) -> tuple[np.ndarray, float]:
+        """(centre [3], largest extent) of the simulated Gaussians' robust box (0.5-99.5 % quantiles), m."""
+        means = self.data.means if self.data.kept is None else self.data.means[self.data.kept]
+        if len(means) == 0:
+            means = self.data.solid if len(self.data.solid) else np.zeros((1, 3))
+        lo, hi = np.quantile(means, 0.005, axis=0), np.quantile(means, 0.995, axis=0)
+        return (lo + hi) / 2.0, max(float((hi - lo).max()), 4.0 * self.data.particle_radius)
+
+    # ---- Gaussians -------------------------------------------------------------------------------
+    def _splat_subset(self) -> np.ndarray:
+        """[G] bool, the Gaussians drawn (all, or the simulated ones when the crop is hidden)."""
+        show_all = self.data.kept is None or self._show_cropped.value
+        return np.ones(self.data.num_gaussians, bool) if show_all else self.data.kept
+
+    def _color_modes(self) -> list[str]:
+        modes = ["D_g max", "D_g mean", *(f"D_g {d}" for d in self.data.directions)]
+        return modes + [OWN_COLORS] if self.looks.rgb is not None else modes
+
+    def _add_splats(self) -> None:
+        gui = self.server.gui
+        d = self.data
+        gui.add_markdown(f"**{d.path.name}**: {d.num_gaussians:,} Gaussians, probes {', '.join(d.directions)}; "
+                         f"D-bar {d.dbar:.4g} m^4/s")
+        with gui.add_folder("Gaussians"):
+            self._color_mode = gui.add_dropdown("colour", self._color_modes(), initial_value="D_g max",
+                                                hint="their own colours (SH DC) or D_g, max or mean over the probes "
+                                                     "or one probe's, on the TURBO map")
+            self._colorbar = gui.add_image(colorbar_image(1.0, "D_g (max), 1/s"), format="png")
+            self._show_splats = gui.add_checkbox("show Gaussians", True)
+            self._show_cropped = gui.add_checkbox("show Gaussians outside the crop", False,
+                                                  visible=d.kept is not None,
+                                                  hint="they were not simulated: their D_g is 0")
+        keep, (rgb, _) = self._splat_subset(), self.splat_colors("D_g max")  # set_color_mode then sends nothing new
+        self._splats = self.server.scene.add_gaussian_splats(
+            "/gaussians", centers=d.means[keep], covariances=d.covariances[keep], rgbs=rgb[keep],
+            opacities=self.looks.opacity[keep].reshape(-1, 1))
+        self._color_mode.on_update(lambda _: self.set_color_mode(self._color_mode.value))
+        self._show_cropped.on_update(lambda _: self.set_color_mode(self._color_mode.value))
+        self._show_splats.on_update(lambda _: setattr(self._splats, "visible", self._show_splats.value))
+        self.set_color_mode("D_g max")
+
+    def splat_colors(self, mode: str) -> tuple[np.ndarray, float | None]:
+        """([G, 3] float32 RGB, the D_g at the top of the scale or None) of a colour mode of the dropdown."""
+        if mode == OWN_COLORS:
+            if self.looks.rgb is None:
+                raise ValueError("no own colours without --gaussians")
+            return self.looks.rgb, None
+        if not mode.startswith("D_g "):
+            raise ValueError(f"unknown colour mode {mode!r}; one of {self._color_modes()}")
+        values = self.data.metric(mode[4:])
+        shown = values if self.data.kept is None else values[self.data.kept]
+        vmax = color_scale(shown)
+        return turbo(values, vmax), vmax
+
+    def set_color_mode(self, mode: str) -> None:
+        """Colour the splats by ``mode`` (an entry of the dropdown) and redraw the colour bar."""
+        rgb, vmax = self.splat_colors(mode)
+        keep = self._splat_subset()
+        d = self.data
+        with self._lock, self.server.atomic():
+            self._splats.set_gaussians(centers=d.means[keep],
+                                       covariances=d.covariances[keep], rgbs=rgb[keep],
+                                       opacities=self.looks.opacity[keep].reshape(-1, 1))
+            if vmax is not None:
+                self._colorbar.image = colorbar_image(vmax, f"{mode}, 1/s")
+            self._colorbar.visible = vmax is not None
+            if self._color_mode.value != mode:
+                self._color_mode.value = mode
+
+    # ---- solid and leaks -------------------------------------------------------------------------
+    def _add_solid(self) -> None:
+        gui, d = self.server.gui, self.data
+        r = d.particle_radius
+        with gui.add_folder("Solid"):
+            show = gui.add_checkbox(f"solid particles ({len(d.solid):,})", False,
+                                    hint="the boundary particles the probes flowed against (sim metres)")
+        self._solid = self.server.scene.add_point_cloud("/solid", points=d.solid.astype(np.float32),
+                                                        colors=SOLID_RGB, point_size=r, point_shape="circle",
+                                                        visible=False)
+        show.on_update(lambda _: setattr(self._solid, "visible", show.value))
+
+    def _leak_markdown(self) -> str:
+        if not self.data.leaks:
+            return "leaks: not recorded in this file (re-run `fluidgs simulate` to count them)"
+        rows = [f"| {d} | {lk.final:,} | {lk.max:,}" + (f" (step {lk.max_step + 1})" if lk.max else "") + " |"
+                for d, lk in self.data.leaks.items()]
+        return "\n".join(["fluid inside the filled solid", "", "| probe | at the end | most |", "|---|---|---|",
+                          *rows])
+
+    # ---- fluid -----------------------------------------------------------------------------------
+    def _first_probe(self) -> str:
+        d = self.data
+        probe = self.options.probe or (d.recorded[0] if d.recorded else d.directions[0])
+        if probe not in d.directions:
+            raise ValueError(f"--probe {probe}: {d.path} has the probes {', '.join(d.directions)}")
+        return probe
+
+    def _add_fluid(self) -> None:
+        gui, d = self.server.gui, self.data
+        probe = self._first_probe()
+        with gui.add_folder("Fluid"):
+            self._probe = gui.add_dropdown("probe", list(d.directions), initial_value=probe)
+            self._fluid_note = gui.add_markdown("")
+            self._fluid_by = gui.add_dropdown("colour by", list(FLUID_VALUES), initial_value="D_i, 1/s")
+            self._play = gui.add_button("Play", hint="play / pause the replay")
+            self._slider = gui.add_slider("frame", 0, 1, 1, 0)
+            self._fluid_bar = gui.add_image(colorbar_image(1.0, "D_i, 1/s"), format="png")
+            self._show_leaks = gui.add_checkbox("leaked particles (end)", True,
+                                                hint="fluid particles inside the filled solid at the probe's end")
+            gui.add_markdown(self._leak_markdown())
+        self._fluid = self.server.scene.add_point_cloud("/fluid", points=np.zeros((1, 3), np.float32),
+                                                        colors=(0, 0, 255), point_size=0.8 * d.particle_radius,
+                                                        point_shape="circle", visible=False)
+        self._leaked = self.server.scene.add_point_cloud("/leaked", points=np.zeros((1, 3), np.float32),
+                                                         colors=LEAK_RGB, point_size=1.5 * d.particle_radius,
+                                                         point_shape="circle", visible=False)
+        self._probe.on_update(lambda _: self.set_probe(self._probe.value))
+        self._fluid_by.on_update(lambda _: self.show_frame(self._frame))
+        self._slider.on_update(lambda _: self.show_frame(int(self._slider.value)))
+        self._play.on_click(lambda _: self.set_playing(not self._playing))
+        self._show_leaks.on_update(lambda _: self._update_leaks())
+        self.set_probe(probe)
+
+    def set_probe(self, probe: str) -> None:
+        """Replay ``probe``'s fluid (or say how to record it when it has no trajectory)."""
+        d = self.data
+        with self._lock:
+            if probe == self._shown_probe:  # the dropdown's own update, when set from here
+                return
+            self._shown_probe = probe
+            self.set_playing(False)
+            if probe in d.recorded:
+                self._trajectory = load_trajectory(d, probe)
+                t = self._trajectory
+                for key in FLUID_VALUES.values():
+                    values = getattr(t, key).reshape(-1)
+                    stride = max(1, values.size // SCALE_SAMPLES)
+                    self._fluid_vmax[key] = color_scale(values[::stride].astype(np.float32))
+                self._slider.max = max(t.num_frames - 1, 1)
+                self._slider.disabled = self._play.disabled = self._fluid_by.disabled = False
+            else:
+                self._trajectory = None
+                message = no_trajectory_message(d, probe)
+                log.warning("%s", message)
+                self._fluid_note.content = message.replace("re-run `", "re-run\n\n`", 1)
+                self._slider.disabled = self._play.disabled = self._fluid_by.disabled = True
+            self._fluid_bar.visible = self._trajectory is not None
+            self._fluid.visible = self._trajectory is not None
+            if self._probe.value != probe:
+                self._probe.value = probe
+            self._update_leaks()
+            self._frame, self._fluid_bar_of = -1, None
+            self.show_frame(0 if self._trajectory is None else self._trajectory.num_frames - 1)
+
+    def _update_leaks(self) -> None:
+        lk = self.data.leaks.get(self._probe.value)
+        has = lk is not None and len(lk.x_leaked) > 0
+        with self.server.atomic():
+            if has:
+                self._leaked.points = lk.x_leaked.astype(np.float32)
+                self._leaked.colors = np.tile(np.asarray(LEAK_RGB, np.uint8), (len(lk.x_leaked), 1))
+            self._leaked.visible = has and self._show_leaks.value
+
+    def fluid_colors(self, values: np.ndarray, key: str) -> np.ndarray:
+        """[K, 3] uint8 colours of D_i or speed values on the trajectory's fixed scale."""
+        return np.round(turbo(values, self._fluid_vmax[key]) * 255).astype(np.uint8)
+
+    def show_frame(self, index: int) -> None:
+        """Draw frame ``index`` of the replayed probe (no-op without a trajectory)."""
+        t = self._trajectory
+        if t is None:
+            return
+        index = int(np.clip(index, 0, t.num_frames - 1))
+        key = FLUID_VALUES[self._fluid_by.value]
+        with self._lock:
+            x, values = t.frame(index, key)
+            self._frame = index
+            if len(x) == 0:  # every particle retired
+                x, values = np.full((1, 3), np.nan, np.float32), np.zeros(1, np.float32)
+            with self.server.atomic():
+                self._fluid.points = x
+                self._fluid.colors = self.fluid_colors(values, key)
+            if int(self._slider.value) != index:
+                self._slider.value = index
+            bar = (t.direction, key)
+            if self._fluid_bar_of != bar:  # the scale changes with the probe and the quantity only
+                self._fluid_bar.image = colorbar_image(self._fluid_vmax[key], f"probe {t.direction}: "
+                                                       f"{self._fluid_by.value}")
+                self._fluid_bar_of = bar
+            self._fluid_note.content = (f"probe {t.direction}: t = {t.steps[index] * t.dt:.3f} s (step "
+                                        f"{t.steps[index]} of {self.data.steps}), {len(x):,} particles")
+
+    def set_playing(self, playing: bool) -> None:
+        """Start or pause the replay."""
+        self._playing = bool(playing) and self._trajectory is not None
+        self._play.label = "Pause" if self._playing else "Play"
+
+    def _play_loop(self) -> None:
+        while not self._stop.wait(1.0 / self.options.fps):
+            if self._playing and self._trajectory is not None:
+                self.show_frame((self._frame + 1) % self._trajectory.num_frames)
+
+    # ---- cameras ---------------------------------------------------------------------------------
+    def _add_cameras(self) -> None:
+        if not self.views:
+            return
+        gui, scene = self.server.gui, self.server.scene
+        scored = [v for v in self.views if v.score is not None]
+        values = np.array([v.score for v in scored])
+        colors = score_colors(values) if scored else np.zeros((0, 3), np.uint8)
+        color_of = {v.index: tuple(int(c) for c in col) for v, col in zip(scored, colors, strict=True)}
+        size = 0.05 * self._extent
+        self._frustums = []
+        for v in self.views:
+            frustum = scene.add_camera_frustum(f"/cameras/{v.index:03d}", fov=v.fov_y, aspect=v.aspect, scale=size,
+                                               thickness=0.06 * size, color=color_of.get(v.index, (60, 60, 60)),
+                                               wxyz=v.wxyz, position=v.position)
+            frustum.on_click(lambda event, v=v: self.go_to(event.client, v))
+            self._frustums.append(frustum)
+            if v.rank is not None:
+                scene.add_label(f"/cameras/{v.index:03d}/rank", f"#{v.rank}", position=(0.0, 0.0, 0.0))
+        ranked = sorted(scored, key=lambda v: v.rank)
+        with gui.add_folder("Cameras"):
+            show = gui.add_checkbox(f"cameras ({len(self.views)})", True)
+            options = ["-", *(self._view_label(v) for v in (ranked or self.views))]
+            goto = gui.add_dropdown("go to view", options, initial_value="-",
+                                    hint="move the viewport to a candidate camera (or click its frustum)")
+            if ranked:
+                gui.add_image(colorbar_image(float(values.max()), "view score S(T) of the frustums",
+                                             vmin=float(values.min())), format="png")
+        show.on_update(lambda _: [setattr(h, "visible", show.value) for h in self._frustums])
+        by_label = {self._view_label(v): v for v in self.views}
+        goto.on_update(lambda event: event.client is not None and goto.value in by_label and
+                       self.go_to(event.client, by_label[goto.value]))
+
+    @staticmethod
+    def _view_label(v: CandidateView) -> str:
+        return f"#{v.rank} {v.name} (S = {v.score:.4g})" if v.rank is not None else f"{v.index}: {v.name}"
+
+    def go_to(self, client, view: CandidateView) -> None:
+        """Move ``client``'s viewport to ``view``: its centre, direction and vertical field of view."""
+        distance = max(float(np.linalg.norm(self._centre - view.position)), 1e-3)
+        with client.atomic():
+            client.camera.fov = view.fov_y
+            client.camera.wxyz = view.wxyz
+            client.camera.position = view.position
+            client.camera.look_at = view.position + view.forward * distance
+        log.info("view moved to camera %d %s%s", view.index, view.name,
+                 "" if view.rank is None else f" (rank {view.rank}, S = {view.score:.4g})")
+
+    def _set_initial_camera(self) -> None:
+        """A view of the object's side from outside the candidate cameras (at most 5 object sizes away)."""
+        cam = self.server.initial_camera
+        direction = np.array([0.35, 0.5, 1.0])  # from +z, a little above: the probes along x pass across the view
+        reach = max((float(np.linalg.norm(v.position - self._centre)) for v in self.views), default=0.0)
+        distance = min(max(2.0 * self._extent, 1.3 * reach), 5.0 * self._extent)
+        cam.position = tuple(self._centre + distance * direction / np.linalg.norm(direction))
+        cam.look_at = tuple(self._centre)
+        cam.up = (0.0, 1.0, 0.0)
+
+    # ---- life ------------------------------------------------------------------------------------
+    def wait(self) -> None:
+        """Serve until :meth:`close` (from another thread) or Ctrl-C (KeyboardInterrupt, raised to the caller)."""
+        while not self._stop.wait(0.5):
+            pass
+
+    def close(self) -> None:
+        """Stop the replay and the server (quietly: viser's own 'Server stopped' line is swallowed)."""
+        self._stop.set()
+        if self._player.is_alive() and threading.current_thread() is not self._player:
+            self._player.join(timeout=2.0)
+        with contextlib.redirect_stdout(io.StringIO()):
+            self.server.stop()
+
+
+def open_viewer(result: str | Path, gaussians: str | Path | None = None, scores: str | Path | None = None,
+                cameras: str | Path | None = None, options: ViewerOptions | None = None) -> FluidViewer:
+    """Read everything, check that it belongs together, and start the server.
+
+    Args:
+        result: RESULT.h5 of `fluidgs simulate` (or `score --save-result`).
+        gaussians: the Gaussian file it was computed from (None: RESULT.h5's source when it exists).
+        scores: scores.json of `fluidgs score` (ranks and S(T) of the candidate cameras), or None.
+        cameras: the candidates' transforms.json (None: the one scores.json names, when it exists).
+        options: host, port, first probe.
+    Raises:
+        ValueError: bad or mismatched inputs (the message names the file and the fix); viser not installed.
+    """
+    options = options or ViewerOptions()
+    import_viser()
+    data = load_view_data(result)
+    if options.probe is not None and options.probe not in data.directions:
+        raise ValueError(f"--probe {options.probe}: {data.path} has the probes {', '.join(data.directions)}")
+    looks = splat_looks(gaussians, data)
+    score_data = read_scores(scores) if scores is not None else None
+    if cameras is None and score_data is not None:
+        cameras = cameras_path_of(score_data, Path(scores))
+        if cameras is None:
+            raise ValueError(f"--scores {scores} names the cameras {score_data.get('cameras')!r}, which are not "
+                             "there; pass --cameras transforms.json")
+    if cameras is not None and not Path(cameras).is_file():
+        raise ValueError(f"--cameras {cameras} does not exist; pass the transforms.json of the candidate cameras")
+    views = candidate_views(cameras, data.scene_to_sim, score_data, str(data.path)) if cameras is not None else []
+    if not _is_loopback(options.host):
+        log.warning("serving on %s: anyone who can reach this machine on port %d can open the viewer",
+                    options.host, options.port)
+    return FluidViewer(data, looks, views, options)
+
+
+def serve(viewer: FluidViewer, announce=print) -> int:
+    """Announce the URL, serve until Ctrl-C (or SIGTERM), stop cleanly; returns 0."""
+    import signal
+
+    def on_term(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term) if threading.current_thread() is threading.main_thread() \
+        else None
+    announce(f"fluidgs view: {viewer.url} (Ctrl-C stops)")
+    try:
+        viewer.wait()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.close()
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    log.info("viewer stopped")
+    return 0
