@@ -55,6 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--up", "--up-axis", dest="up", default=None, metavar="UP",
                    help="the scene's up direction for the probes: +x, -x, +y, -y, +z, -z, a vector such as 0,-1,0, or "
                         "'auto': the training cameras' mean up vector (default: the dataset's up axis)")
+    p.add_argument("--occlusion", action="store_true",
+                   help="the physics planners count only Gaussians a coarse depth test finds unhidden (not in the "
+                        "paper, whose visibility is frustum culling; default: off)")
     p.add_argument("--backend", choices=("auto", "torch", "gsplat"), default="auto", help="renderer backend")
     p.add_argument("--overwrite", action="store_true", help="discard an existing run in the output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
@@ -152,7 +155,8 @@ def config_from_args(args: argparse.Namespace):
 
     preset = PRESETS[args.preset]
     over: dict = {"method": args.method, "budget": args.budget, "initial_count": args.initial_count,
-                  "mode": args.mode, "seed": args.seed, "backend": args.backend, "up": args.up}
+                  "mode": args.mode, "seed": args.seed, "backend": args.backend, "up": args.up,
+                  "occlusion": args.occlusion}
     if args.initial_views is not None:
         over["initial_ids"] = parse_ints(args.initial_views, "--initial-views")
     if args.initial_direction is not None:

@@ -3,13 +3,19 @@
 By default the ``--quick`` preset (r = 0.05 m, 300 steps) runs the five probes on the bundled asset
 (``assets/ahmed_gaussians.ply``; 4,000 Gaussians sampled on the Ahmed body mesh when it is not there) and
 prints particle counts, steps per second, solver iterations, the aggregation's share of the step time
-(target < 10 %) and the five-probe total (target < 60 s on the 2-core CPU). ``--paper`` uses r = 0.025 m
-and 750 steps (add ``--directions -x`` for one probe). Machines are shared: quote ratios.
+(target < 10 %), the five-probe total (target < 60 s on the 2-core CPU) and the peak resident memory. ``--paper``
+uses r = 0.025 m and 750 steps (add ``--directions -x`` for one probe). Machines are shared: quote ratios.
+
+``--densify K`` also runs a K x denser set of the same object, in the same process after the set itself: K - 1
+jittered copies of every Gaussian (its mean moved by ``--jitter`` standard deviations along its own axes, all other
+attributes kept) added to the original; the ratio of the two runs' times is printed (``--densify-only`` skips the
+original's run, so that the peak memory is the dense set's alone).
 """
 
 from __future__ import annotations
 
 import argparse
+import resource
 from pathlib import Path
 
 import numpy as np
@@ -36,11 +42,91 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device; cuda falls back to cpu with a logged warning")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
+    p.add_argument("--up", "--up-axis", dest="up", default="+y", metavar="UP",
+                   help="the scene's up direction, rotated to simulation +y: +x, -x, +y, -y, +z, -z or a vector "
+                        "such as 0,-1,0 (COLMAP captures are often -y; default: +y)")
+    p.add_argument("--densify", type=positive_int, default=None, metavar="K",
+                   help="also time a K x denser copy of the set (K - 1 jittered copies added), same object")
+    p.add_argument("--jitter", type=float, default=0.5,
+                   help="--densify: each copy's means move by this many standard deviations along the Gaussian's "
+                        "axes (default: 0.5)")
+    p.add_argument("--densify-only", action="store_true",
+                   help="--densify: time only the dense set (its peak memory alone)")
+    p.add_argument("--seed", type=int, default=0, help="--densify: random seed of the jitter")
+
+
+def jittered_copies(gaussians, copies: int, jitter: float, seed: int = 0):
+    """A ``copies`` x denser set of the same object: the original, then ``copies`` - 1 copies whose means move by
+    ``jitter`` x N(0, 1) standard deviations along each Gaussian's principal axes (scales, rotations, opacities and
+    colours kept).
+
+    Args:
+        gaussians: a ``recon.gaussians.GaussianSet`` (N Gaussians).
+        copies: K >= 1. jitter: >= 0, in standard deviations. seed: of the jitter.
+    Returns:
+        GaussianSet of K N Gaussians; the first N are ``gaussians``.
+    """
+    import torch
+
+    from recon.gaussians import GaussianSet, concat, quaternion_to_rotation
+
+    if copies < 1 or not (jitter >= 0 and np.isfinite(jitter)):
+        raise ValueError(f"--densify must be >= 1 and --jitter a finite number >= 0, got {copies} and {jitter}")
+    gen = torch.Generator().manual_seed(seed)
+    rot = quaternion_to_rotation(gaussians.quats.double())
+    sigma = gaussians.log_scales.double().exp()
+    sets = [gaussians]
+    for _ in range(copies - 1):
+        z = torch.randn(sigma.shape, generator=gen, dtype=torch.float64) * jitter * sigma
+        means = gaussians.means + torch.einsum("nij,nj->ni", rot, z).to(gaussians.means.dtype)
+        sets.append(GaussianSet(means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh))
+    return concat(sets)
+
+
+def peak_rss_bytes() -> int:
+    """The process's peak resident memory so far, bytes (Linux reports KiB)."""
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+
+def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
+    """Run the probes on one set, print its figures and return them (timings, share, peak memory)."""
+    from nbv.aggregate import GaussianAccumulator
+    from nbv.physics import simulate_gaussians
+
+    res = simulate_gaussians(gaussians, cfg, progress=True, source=source)
+    t = res.timings
+    total_steps = cfg.steps * len(cfg.directions)
+    share = t["aggregation"] / max(t["simulation"], 1e-12)
+    print(f"Gaussians: {res.num_gaussians} ({source}), solid particles {len(res.solid)}, "
+          f"r = {cfg.particle_radius} m, {cfg.steps} steps x {len(cfg.directions)} probes")
+    fluid = 0
+    for d in cfg.directions:
+        st = res.stats[d]
+        fluid = max(fluid, int(st["active"][0]))
+        print(f"  probe {d:>3}: {int(st['active'][0])} fluid particles, density/divergence iterations "
+              f"{np.mean(st['density_iterations']):.2f}/{np.mean(st['divergence_iterations']):.2f}")
+    print(f"simulation {t['simulation']:.2f} s ({total_steps / max(t['simulation'], 1e-12):.1f} steps/s), "
+          f"aggregation {t['aggregation']:.3f} s (+{t['accumulator_setup']:.3f} s grid set-up), "
+          f"solidify {t['solidify']:.2f} s")
+    print(f"aggregation share of the step time: {100 * share:.1f} % (target < 10 %; < 15 % at 1M Gaussians): "
+          f"{'met' if share < 0.10 else 'NOT met'}")
+    total = t["total"] - t["empty_reference"]
+    label = "paper-setting" if paper else "quick"
+    print(f"{label} total for {len(cfg.directions)} probes: {total:.1f} s"
+          + ("" if paper else f" (target < 60 s for five probes): {'met' if total < 60 else 'NOT met'}"))
+    if cfg.empty_reference:
+        print(f"empty-scene reference: {t['empty_reference']:.1f} s more")
+    estimate = GaussianAccumulator.estimate_bytes(res.num_gaussians, fluid, cfg.track_distinct)
+    rss = peak_rss_bytes()
+    print(f"peak resident memory so far {rss / 2**30:.2f} GiB (the accumulator's estimate {estimate / 2**30:.2f} GiB)")
+    return {"timings": t, "aggregation_share": share, "total": total, "gaussians": res.num_gaussians,
+            "solid": len(res.solid), "fluid_particles": fluid, "peak_rss_bytes": rss,
+            "accumulator_estimate_bytes": estimate}
 
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.output import check_not_input
-    from nbv.physics import QUICK, PhysicsConfig, parse_directions, simulate_gaussians
+    from nbv.physics import QUICK, PhysicsConfig, parse_directions
 
     from .demo import ahmed_surface_gaussians
     from .runtime import init_taichi
@@ -49,36 +135,28 @@ def run_command(args: argparse.Namespace) -> int:
     if args.json is not None:
         check_output_file(args.json, (".json",))
         check_not_input({"--json": args.json}, {"--gaussians": args.gaussians})
+    if args.densify_only and args.densify is None:
+        raise ValueError("--densify-only needs --densify K")
     path = args.gaussians or (ASSET if ASSET.is_file() else None)
     gaussians = load_gaussians_checked(path) if path is not None else ahmed_surface_gaussians()
+    dense = None if args.densify is None else jittered_copies(gaussians, args.densify, args.jitter, args.seed)
     radius = args.particle_radius or (0.025 if args.paper else QUICK["particle_radius"])
     steps = args.steps or (750 if args.paper else QUICK["steps"])
     cfg = PhysicsConfig(particle_radius=radius, steps=steps, directions=parse_directions(args.directions),
-                        empty_reference=args.empty_reference, fill_cavities=not args.no_fill)
+                        empty_reference=args.empty_reference, fill_cavities=not args.no_fill, up=args.up)
     init_taichi(args.device, cfg.precision, args.threads)
-    res = simulate_gaussians(gaussians, cfg, progress=True, source=str(path or "Ahmed body surface samples"))
-    t = res.timings
-    total_steps = steps * len(cfg.directions)
-    share = t["aggregation"] / max(t["simulation"], 1e-12)
-    print(f"Gaussians: {res.num_gaussians} ({path or 'Ahmed body surface samples'}), solid particles {len(res.solid)}, "
-          f"r = {radius} m, {steps} steps x {len(cfg.directions)} probes")
-    for d in cfg.directions:
-        st = res.stats[d]
-        print(f"  probe {d:>3}: {int(st['active'][0])} fluid particles, density/divergence iterations "
-              f"{np.mean(st['density_iterations']):.2f}/{np.mean(st['divergence_iterations']):.2f}")
-    print(f"simulation {t['simulation']:.2f} s ({total_steps / max(t['simulation'], 1e-12):.1f} steps/s), "
-          f"aggregation {t['aggregation']:.3f} s (+{t['accumulator_setup']:.3f} s grid set-up), "
-          f"solidify {t['solidify']:.2f} s")
-    print(f"aggregation share of the step time: {100 * share:.1f} % (target < 10 %): "
-          f"{'met' if share < 0.10 else 'NOT met'}")
-    total = t["total"] - t["empty_reference"]
-    label = "paper-setting" if args.paper else "quick"
-    print(f"{label} total for {len(cfg.directions)} probes: {total:.1f} s"
-          + ("" if args.paper else f" (target < 60 s for five probes): {'met' if total < 60 else 'NOT met'}"))
-    if args.empty_reference:
-        print(f"empty-scene reference: {t['empty_reference']:.1f} s more")
+    source = str(path or "Ahmed body surface samples")
+    figures = {"steps": steps, "particle_radius": radius, "directions": list(cfg.directions)}
+    if not args.densify_only:
+        figures.update(_time_set(gaussians, cfg, args.paper, source))
+    if dense is not None:
+        del gaussians
+        figures["dense"] = _time_set(dense, cfg, args.paper, f"{source}, {args.densify} x jittered copies")
+        if not args.densify_only:
+            ratio = figures["dense"]["total"] / max(figures["total"], 1e-12)
+            figures["dense_time_ratio"] = ratio
+            print(f"{args.densify} x denser set: {figures['dense']['gaussians']} Gaussians, {ratio:.2f} x the time of "
+                  f"the {figures['gaussians']} Gaussians (same run)")
     if args.json is not None:
-        write_json(args.json, {"timings": t, "aggregation_share": share, "steps": steps, "particle_radius": radius,
-                               "directions": list(cfg.directions), "gaussians": res.num_gaussians,
-                               "solid": len(res.solid)})
+        write_json(args.json, figures)
     return 0

@@ -200,8 +200,8 @@ def print_ranking(r: dict, source: str) -> None:
     if "occlusion" in r:
         o = r["occlusion"]
         print(f"  --occlusion: coarse depth buffer vs render-based depth test: {100 * o['verdict_agreement']:.1f} % of "
-              f"the visible (view, Gaussian) pairs agree (hidden: {100 * o['hidden_coarse']:.1f} % vs "
-              f"{100 * o['hidden_render']:.1f} %); S(T) Spearman {o['spearman']:.4f}, same best view: "
+              f"the visible (view, Gaussian) pairs agree (hidden: {100 * o['hidden_coarse']:.2f} % vs "
+              f"{100 * o['hidden_render']:.2f} %); S(T) Spearman {o['spearman']:.4f}, same best view: "
               f"{o['same_best']}, top-5 overlap {o['top5_overlap']}/5")
 
 

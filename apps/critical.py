@@ -19,7 +19,6 @@ from .score import (
     load_cameras,
     parse_candidates,
     print_table,
-    render_candidates,
     render_size,
     torch_device,
 )
@@ -42,7 +41,7 @@ def run_command(args: argparse.Namespace) -> int:
 
     from fluidsim.output import check_not_input
     from nbv.physics import simulate_gaussians
-    from nbv.scores import critical_scores, critical_subset, rank
+    from nbv.scores import critical_subset, projected_view_scores, rank
 
     from .runtime import init_taichi
 
@@ -65,12 +64,14 @@ def run_command(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.gaussians}: no probe fluid particle came within reach of any of the {len(distinct)} "
                          "Gaussians, so every view would score C(T) = 0; re-run with a smaller --dt, or check "
                          "--scale and --up")
-    renders = [out for out, _ in render_candidates(gaussians, cams, None, torch_device(args.device))]
-    c = critical_scores(torch.from_numpy(distinct), renders)
+    # C(T) = sum_g w_g |P_g| needs only the projection's radii and visibility (no render)
+    scored = projected_view_scores(torch.from_numpy(distinct).to(torch.float64),
+                                   gaussians.to(torch_device(args.device)), cams)
+    c = scored.scores
     order = rank(c).tolist()
     subset = critical_subset(c, args.subset).tolist()
     rows = [{"rank": r + 1, "index": idx[k], "name": cams[k].name, "critical_score": float(c[k]),
-             "visible": int(renders[k].visible.sum())} for r, k in enumerate(order)]
+             "visible": int(scored.counted[k])} for r, k in enumerate(order)]
     print_table(rows, args.top_k, value="critical_score")
     print(f"critical subset ({len(subset)} views): {[idx[k] for k in subset]}")
     write_json_atomic(output, {

@@ -59,9 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="per-Gaussian metric: D_g max over probes, mean over probes, or one probe's D_g (1/s)")
     p.add_argument("--unweighted", action="store_true", help="sum D_g over visible Gaussians without Eq. 5 weights")
     p.add_argument("--occlusion", action="store_true",
-                   help="count only Gaussians not hidden behind the opaque ones (a coarse depth buffer of the "
-                        "projected centres, 64 cells on the long side; not in the paper, whose visibility is "
-                        "frustum culling)")
+                   help="count only Gaussians not hidden behind the others (a coarse depth buffer of the projected "
+                        "centres, composited front to back in cells of about one footprint radius; not in the "
+                        "paper, whose visibility is frustum culling)")
     p.add_argument("--png-dir", type=Path, default=None,
                    help="folder for the per-view PNGs (default: next to the output, <stem>_views)")
     p.add_argument("--no-png", action="store_true", help="skip the per-view PNGs")

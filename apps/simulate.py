@@ -41,7 +41,7 @@ def add_frame_arguments(g, cameras: bool = False, scale: bool = True, crop: bool
 
 def up_from_args(args: argparse.Namespace, cameras=None):
     """``args.up`` resolved: an up spec for PhysicsConfig ('auto' -> the cameras' mean up vector, logged)."""
-    from nbv.scene_frame import parse_up, up_label
+    from nbv.scene_frame import describe_auto_up, parse_up
 
     if str(args.up).strip().lower() != "auto":
         parse_up(args.up)  # the error names --up
@@ -52,7 +52,7 @@ def up_from_args(args: argparse.Namespace, cameras=None):
     from recon.frames import up_from_cameras
 
     up = up_from_cameras(cameras)
-    log.info("--up auto: the cameras' mean up vector is %s", up_label(up))
+    log.info("%s", describe_auto_up(up))
     return tuple(float(c) for c in up)
 
 

@@ -21,7 +21,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the Gaussian file RESULT.h5 was computed from, for their own colours and opacities "
                         "(default: the source recorded in RESULT.h5, when it exists)")
     p.add_argument("--scores", type=Path, default=None,
-                   help="scores.json of `fluidgs score`: the candidate cameras coloured by S(T), with their rank")
+                   help="scores.json of `fluidgs score`: the candidate cameras coloured by S(T), with their rank "
+                        "(default: none; then --cameras alone draws them uncoloured)")
     p.add_argument("--cameras", type=Path, default=None,
                    help="the candidates' transforms.json, scene units (default: the file --scores names)")
     p.add_argument("--probe", default=None, metavar="DIR",

@@ -272,17 +272,17 @@ class DFSPHSolver:
     def step(self) -> StepStats:
         """Advance one time step (Algorithm 1; equations as numbered in the module docstring)."""
         stage = self._stage
-        dt = self.time_step()                                                 # (E10)
-        retired = stage("sort", self.sort)                                    # N_i: counting sort by cell
-        counts = stage("neighbors", self.find_neighborhoods, dt)              # N_i, (E1), (E2); (E3) or (W1)
-        div = stage("divergence_solve", self.divergence_solve, dt)            # D rho/Dt -> 0: (E3)-(E5), (W3)
         fused = self.estimate_in_non_pressure_pass
+        dt = self.time_step()                                            # adapt dt (E10)
+        retired = stage("sort", self.sort)                               # find N_i: sort by cell
+        counts = stage("neighbors", self.find_neighborhoods, dt)         # N_i, rho (E1), alpha (E2); s (E3) or (W1)
+        div = stage("divergence_solve", self.divergence_solve, dt)       # correctDivergenceError: (E3)-(E5), (W3)
         if not fused:
-            stage("divergence_estimate", self.divergence_estimate)            # paper Eq. 1, its own radii
-        # (E7), v* (E8), (W2) [+ Eq. 1]; the divergence solve's error passes wrote the records of (W2)
-        stage("non_pressure", self.non_pressure_forces, dt, fused, div.error_passes > 0)
-        dens = stage("density_solve", self.density_solve, dt)                 # rho* -> rho_0: (E6), (E4), (E5),
-        self._max_speed = dens.max_speed                                      # (W3); advect x += dt v (E9)
+            stage("divergence_estimate", self.divergence_estimate)       # D_i, paper Eq. 1 (its own radii)
+        stage("non_pressure", self.non_pressure_forces, dt, fused,       # a (E7), v* (E8), warm start (W2),
+              div.error_passes > 0)                                      # [D_i, Eq. 1]; (W2) records written?
+        dens = stage("density_solve", self.density_solve, dt)            # correctDensityError: (E6), (E4), (E5),
+        self._max_speed = dens.max_speed                                 # (W3); x += dt v (E9)
         self.time += dt
         stats = StepStats(
             step=self.step_index, time=self.time, dt=dt,

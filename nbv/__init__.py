@@ -16,7 +16,7 @@ D-bar              (1/|G|) sum pi tr(Sigma_g)^2 D_g            :func:`geometry_d
 =================  ==========================================  ========================================
 """
 
-from .physics import PhysicsConfig, PhysicsResult, load_result, save_result, simulate_gaussians
+from .physics import PhysicsConfig, PhysicsResult, ProbeDiverged, load_result, save_result, simulate_gaussians
 from .scores import (
     DepthBuffer,
     critical_scores,
@@ -32,7 +32,8 @@ from .scores import (
 from .sweep import SweepPoint, reynolds, run_sweep, schedule
 
 __all__ = [
-    "DepthBuffer", "PhysicsConfig", "PhysicsResult", "SweepPoint", "critical_scores", "critical_subset",
-    "geometry_divergence", "load_result", "projected_counts", "projected_view_scores", "rank", "reynolds", "run_sweep",
-    "save_result", "schedule", "simulate_gaussians", "unoccluded", "view_scores", "view_weights",
+    "DepthBuffer", "PhysicsConfig", "PhysicsResult", "ProbeDiverged", "SweepPoint", "critical_scores",
+    "critical_subset", "geometry_divergence", "load_result", "projected_counts", "projected_view_scores", "rank",
+    "reynolds", "run_sweep", "save_result", "schedule", "simulate_gaussians", "unoccluded", "view_scores",
+    "view_weights",
 ]

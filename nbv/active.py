@@ -63,7 +63,7 @@ from recon.gaussians import GaussianSet
 from recon.train import TrainConfig, Trainer, initial_gaussians, look_at_point, scene_extent, view_to
 
 from .physics import PhysicsConfig
-from .scene_frame import parse_up, up_label
+from .scene_frame import describe_auto_up, parse_up
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +107,8 @@ class ActiveConfig:
         physics: probe settings of the fused planners (its up direction is replaced by ``up``'s).
         up: the scene's up direction for the probes: None (the dataset's up axis), "auto" (the mean up vector of
             the training cameras, as nerfstudio orients) or anything :func:`nbv.scene_frame.parse_up` takes.
+        occlusion: the physics planners' S(T) counts only the Gaussians the coarse depth test finds unhidden
+            (:class:`nbv.scores.DepthBuffer`; not in the paper, whose visibility is frustum culling).
         planner: planner config overrides as (key, value) pairs (``seed`` is set per round).
         backend: renderer backend ("auto", "torch", "gsplat").
         preset: the preset the values came from (recorded only).
@@ -128,8 +130,11 @@ class ActiveConfig:
     backend: str = "auto"
     preset: str = "paper"
     up: str | tuple[float, float, float] | None = None
+    occlusion: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.occlusion, bool):
+            raise ValueError(f"ActiveConfig.occlusion must be a bool, got {self.occlusion!r}")
         if self.up is not None and self.up != "auto":
             parse_up(self.up, "ActiveConfig.up")
             if not isinstance(self.up, str):
@@ -402,7 +407,7 @@ def dataset_up(spec: str | tuple[float, float, float] | None, dataset) -> str | 
     from recon.frames import up_from_cameras
 
     up = up_from_cameras([v.camera for v in dataset.train])
-    log.info("--up auto: the training cameras' mean up vector is %s", up_label(up))
+    log.info("%s (training cameras)", describe_auto_up(up))
     return tuple(float(c) for c in up)
 
 
@@ -592,7 +597,7 @@ class ActiveRun:
             context = PlanningContext(
                 gaussians=trainer.gaussians, train_views=train_views, candidates=[self.cameras[i] for i in remaining],
                 candidate_ids=remaining, n_selected=n, budget=c.budget, background=self.background,
-                physics=self._physics(record), round=r)
+                physics=self._physics(record), round=r, occlusion=c.occlusion)
             planner = make_planner(c.method, **{**dict(c.planner), "seed": planner_seed(c.seed, r)})
             t_plan = time.perf_counter()
             sel = planner.select(context)

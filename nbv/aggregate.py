@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -74,7 +74,7 @@ LEVEL_RATIO = 2.0
 MAX_LEVELS = 16
 CELL_FRACTION = 0.5
 MIN_CELL_FRACTION = 1.0 / 16
-LOOKUP_COST = 4.0
+LOOKUP_COST = 16.0
 ENTRIES_PER_GAUSSIAN = 128
 CELLS_PER_GAUSSIAN = 32
 MIN_LEVEL_CELLS = 1 << 16
@@ -86,8 +86,8 @@ _HASH_LIMIT = 0.75
 _HASH_MIN_SLOTS = 1 << 16
 # Per-id records of the previous sample (24 bytes each): ids must stay below this.
 MAX_PARTICLE_IDS = 1 << 27
-# Bytes per Gaussian while the levels are built (numpy temporaries: sort keys, permutations, sorted copies).
-_BUILD_BYTES_PER_GAUSSIAN = 120
+# Bytes per Gaussian while the levels are planned (numpy temporaries: masks, gaps, cell indices, sort keys).
+_PLAN_BYTES_PER_GAUSSIAN = 160
 
 
 def accumulation_rows(num_gaussians: int) -> tuple[int, bool]:
@@ -134,7 +134,7 @@ class GaussianLevels:
             of its first cell in the cell starts.
         first: [L + 1] int64, level l holds the internal Gaussians first[l]..first[l + 1] - 1.
         centre_starts: [cells + 1] int64, the first internal Gaussian whose centre lies in each cell (all levels'
-            cells in a row; centres outside a level's grid are clipped into it).
+            cells in a row; centres outside a level's grid are clipped into it); emptied once the lists are built.
         entries_bound: an upper bound of the list entries (every Gaussian's clipped cell box).
         bounds: (min [3], max [3]) m, the box the particles may come from (Gaussians that cannot reach it are not
             kept).
@@ -436,6 +436,7 @@ class GaussianAccumulator:
         del head
         passes(True, counts, self._lists)
         del counts
+        self.levels = replace(lv, centre_starts=np.zeros(0, np.int64))  # only the build needs them
         self.list_entries = total
         log.debug("Gaussian levels: %d of %d Gaussians kept in %d levels (%s), cells %s m, %d cells, %d list entries "
                   "(%.1f per Gaussian)", self.num_kept, self.num_gaussians, lv.num_levels, lv.counts.tolist(),
@@ -489,20 +490,23 @@ class GaussianAccumulator:
             threads: CPU threads (rows of sums); default the current Taichi runtime's (1 row on GPUs).
             batch_steps: staged steps. float_bytes: 4 (f32 solver) or 8.
         Returns:
-            bytes: the levels (gauss records 32 B, permutation 8 B, cells <= 4 per Gaussian x 4 B, and the numpy
-            temporaries of the build), the rows of sums (16 B per Gaussian and row), the staging, the read-back of
-            the sums, and the distinct records (bit matrix, or the hash set at up to 48 B per pair while it grows:
-            a half-full set and its double).
+            bytes: the Gaussian records (32 B), the permutation (8 B), the cell lists (entries at most
+            ``ENTRIES_PER_GAUSSIAN`` per Gaussian, cells at most ``CELLS_PER_GAUSSIAN`` per Gaussian or
+            ``MIN_LEVEL_CELLS`` per level, 4 B each), the rows of sums (16 B per Gaussian and row), the staging, and
+            the largest of the temporaries (the plan's numpy arrays, the build's per-cell arrays, the read-back of
+            the sums); with distinct tracking the per-id previous samples (24 B per particle id) and the bit matrix,
+            or the hash set at up to 48 B per pair while it grows (a half-full set and its double).
         """
         g, f = int(num_gaussians), int(max_fluid)
         if threads is None:
             rows, _ = accumulation_rows(g)
         else:
             rows = max(int(threads), 1) if 16 * max(int(threads), 1) * (g + 1) <= _ROWS_BUDGET else 1
-        levels = g * (32 + 8 + 4 * CELLS_PER_GAUSSIAN) + 4 * MIN_LEVEL_CELLS * 8
-        build = g * _BUILD_BYTES_PER_GAUSSIAN
+        cells = CELLS_PER_GAUSSIAN * g + MAX_LEVELS * MIN_LEVEL_CELLS
+        entries = ENTRIES_PER_GAUSSIAN * g + _ENTRY_SLACK
         sums = 16 * rows * (g + 1)
-        readback = sums + 16 * (g + 1) + 16 * g
+        persistent = 40 * g + 4 * (cells + 1 + entries) + sums
+        temporaries = max(_PLAN_BYTES_PER_GAUSSIAN * g + 8 * cells, 8 * g + 24 * cells, sums + 48 * g)
         per_staged = 4 * float_bytes + 4 + (24 if track_distinct else 0)
         staged = min(f * batch_steps, max(f, _STAGE_BUDGET // per_staged)) * per_staged
         distinct = 0
@@ -514,8 +518,8 @@ class GaussianAccumulator:
                 pairs = default_distinct_pairs(g, f) if distinct_pairs is None else int(distinct_pairs)
                 slots = 1 << max(int(math.ceil(math.log2(max(pairs / _HASH_LOAD, _HASH_MIN_SLOTS)))), 0)
                 distinct = 3 * 8 * slots  # while growing: the old set and its double
-            distinct += 24 * f
-        return int(max(build, readback) + levels + sums + staged + distinct)
+            distinct += 24 * f + 16 * g  # previous samples; the distinct counts read back
+        return int(persistent + temporaries + staged + distinct)
 
     # -- distinct-id storage ----------------------------------------------------------------------
     def _ensure_ids(self, needed: int) -> None:

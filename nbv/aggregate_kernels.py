@@ -20,8 +20,6 @@ TRACK_BITS = 1
 TRACK_HASH = 2
 # An empty slot of the hash set (keys are g * 2^32 + id >= 0).
 EMPTY_KEY = -1
-# Slots of the ``hash_state`` array: filled slots, the fill above which inserts are refused, the overflow flag.
-HASH_FILL, HASH_LIMIT, HASH_OVERFLOW = 0, 1, 2
 
 # Layout of the ``table`` [L + 1, TABLE_WIDTH] f64 array. Row 0: domain_min (3), domain_max (3), offset of the items
 # in ``lists``. Row 1 + l, level l: origin (3), 1 / cell, cell (m), dims (3), offset of the level's first cell in the
@@ -152,37 +150,33 @@ def hash_slot(key, mask):
 
 
 @ti.func
-def set_insert(hashes: ti.template(), hash_state: ti.template(), key):
-    """Insert ``key`` (>= 0) into the open-addressing set ``hashes`` (linear probing, lock-free).
+def set_insert(hashes: ti.template(), fill: ti.template(), key):
+    """Insert ``key`` (>= 0) into the open-addressing set ``hashes`` (linear probing, lock-free); ``fill[0]`` counts
+    the filled slots. The caller keeps the set at most half full, so a probe run ends soon.
 
     Every slot only grows (``atomic_max``), so the keys along a probe run stay in decreasing order from their home
     slot (an ordered hash table): a key meets either itself (a duplicate: done), an empty slot (placed: the fill
     grows by one), a larger key (probe on) or a smaller one, which it displaces and whose insertion it carries on.
-    When the set is filled up to ``hash_state[HASH_LIMIT]`` the key is not inserted and the overflow flag is set: the
-    caller grows the set and runs the batch again (inserting is idempotent).
     """
-    if hash_state[HASH_FILL] >= hash_state[HASH_LIMIT]:
-        hash_state[HASH_OVERFLOW] = 1
-    else:
-        mask = ti.cast(hashes.shape[0] - 1, ti.i64)
-        slot = hash_slot(key, mask)
-        k = key
-        while True:
-            old = ti.atomic_max(hashes[slot], k)
-            if old == k:
-                break
-            if old == EMPTY_KEY:
-                ti.atomic_add(hash_state[HASH_FILL], ti.i64(1))
-                break
-            if old < k:  # k took the slot: carry the displaced key on
-                k = old
-            slot = (slot + 1) & mask
+    mask = ti.cast(hashes.shape[0] - 1, ti.i64)
+    slot = hash_slot(key, mask)
+    k = key
+    while True:
+        old = ti.atomic_max(hashes[slot], k)
+        if old == k:
+            break
+        if old == EMPTY_KEY:
+            ti.atomic_add(fill[0], ti.i64(1))
+            break
+        if old < k:  # k took the slot: carry the displaced key on
+            k = old
+        slot = (slot + 1) & mask
 
 
 @ti.func
 def visit_gaussian(g, x, q, row, pid, prev, prev_ok, gauss: ti.template(), add_values: ti.template(),
                    track: ti.template(), private: ti.template(), acc: ti.template(), bits: ti.template(),
-                   hashes: ti.template(), hash_state: ti.template()):
+                   keys: ti.template(), emitted: ti.template()):
     """Paper Eq. 2-3 for one (particle, Gaussian) pair: when |x - mu_g|^2 < r_g^2 add the value (quanta q) and 1 to
     row ``row`` of g, and record the particle id ``pid`` unless the particle's previous sample ``prev`` (``prev_ok``:
     it was inside the domain) was within reach of g too, which recorded the pair then.
@@ -196,40 +190,41 @@ def visit_gaussian(g, x, q, row, pid, prev, prev_ok, gauss: ti.template(), add_v
         # branch-free: a plain add of 0 on a miss is cheaper than the mispredicted branch of an unpredictable test
         acc[row, g, 0] = acc[row, g, 0] + ti.select(hit, q, ti.i64(0))
         acc[row, g, 1] = acc[row, g, 1] + ti.select(hit, ti.i64(1), ti.i64(0))
-    if hit:
-        if ti.static(add_values and not private):
+    if ti.static(add_values and not private):
+        if hit:
             ti.atomic_add(acc[0, g, 0], q)
             ti.atomic_add(acc[0, g, 1], ti.i64(1))
-        if ti.static(track != TRACK_NONE):
-            fresh = True
-            if prev_ok:
-                ex, ey, ez = prev[0] - p[0], prev[1] - p[1], prev[2] - p[2]
-                fresh = not (ex * ex + ey * ey + ez * ez < p[3])
-            if fresh:
-                if ti.static(track == TRACK_BITS):
-                    ti.atomic_or(bits[g, pid >> 5], ti.cast(1, ti.u32) << ti.cast(pid & 31, ti.u32))
-                if ti.static(track == TRACK_HASH):
-                    set_insert(hashes, hash_state, (ti.cast(g, ti.i64) << 32) + ti.cast(pid, ti.i64))
+    if ti.static(track != TRACK_NONE):
+        # the previous sample's test, computed branch-free: only the rare first step of a visit branches
+        ex, ey, ez = prev[0] - p[0], prev[1] - p[1], prev[2] - p[2]
+        seen = ti.select(prev_ok, ex * ex + ey * ey + ez * ez < p[3], False)
+        if ti.select(seen, False, hit):
+            if ti.static(track == TRACK_BITS):
+                ti.atomic_or(bits[g, pid >> 5], ti.cast(1, ti.u32) << ti.cast(pid & 31, ti.u32))
+            if ti.static(track == TRACK_HASH):  # listed here, inserted by :func:`insert_keys` (a lean inner loop)
+                slot = ti.atomic_add(emitted[0], ti.i64(1))
+                if slot < keys.shape[0]:
+                    keys[slot] = (ti.cast(g, ti.i64) << 32) + ti.cast(pid, ti.i64)
 
 
 @ti.func
 def visit_level(lv, x, q, row, pid, prev, prev_ok, table: ti.template(), lists: ti.template(),
                 gauss: ti.template(), add_values: ti.template(), track: ti.template(), private: ti.template(),
-                acc: ti.template(), bits: ti.template(), hashes: ti.template(), hash_state: ti.template()):
+                acc: ti.template(), bits: ti.template(), keys: ti.template(), emitted: ti.template()):
     """The Gaussians of level ``lv`` listed in the cell of x."""
     inside, c = level_cell(table, lv, x)
     if inside:
         items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
         for s in range(lists[c], lists[c + 1]):
             visit_gaussian(lists[items + s], x, q, row, pid, prev, prev_ok, gauss, add_values, track, private, acc,
-                           bits, hashes, hash_state)
+                           bits, keys, emitted)
 
 
 @ti.func
 def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
                    table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
                    track: ti.template(), private: ti.template(), acc: ti.template(), bits: ti.template(),
-                   hashes: ti.template(), hash_state: ti.template()):
+                   keys: ti.template(), emitted: ti.template()):
     """Paper Eq. 2-3 for fluid particle i inside the domain: every level (:func:`visit_level`); a saturated value
     (:func:`fixed_point`) is counted in the extra slot G."""
     x = ti.cast(xs[i], ti.f64)
@@ -250,14 +245,14 @@ def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.tem
             pid = ti.cast(ids[i], ti.i32)
         for lv in range(1, table.shape[0]):
             visit_level(lv, x, q, row, pid, prev, prev_ok, table, lists, gauss, add_values, track, private, acc,
-                        bits, hashes, hash_state)
+                        bits, keys, emitted)
 
 
 @ti.func
 def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
               table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
               track: ti.template(), private: ti.template(), serial: ti.template(), acc: ti.template(),
-              bits: ti.template(), hashes: ti.template(), hash_state: ti.template()):
+              bits: ti.template(), keys: ti.template(), emitted: ti.template()):
     """All particles: on the launching thread into row 0 (``serial``), in parallel with each CPU thread adding into
     its own row (``private``: row = the thread's index, so the caller gives at least as many rows as threads),
     or in parallel with atomic adds into row 0 (GPUs)."""
@@ -265,14 +260,14 @@ def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), p
         ti.loop_config(serialize=True)
         for i in range(n):
             visit_particle(i, 0, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc, bits,
-                           hashes, hash_state)
+                           keys, emitted)
     else:
         for i in range(n):
             row = 0
             if ti.static(private):
                 row = ti.global_thread_idx()
             visit_particle(i, row, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc,
-                           bits, hashes, hash_state)
+                           bits, keys, emitted)
 
 
 @ti.kernel
@@ -318,8 +313,8 @@ def accumulate_tracked(
     serial: ti.template(),
     acc: ti.types.ndarray(dtype=ti.i64, ndim=3),
     bits: ti.types.ndarray(dtype=ti.u32, ndim=2),
-    hashes: ti.types.ndarray(dtype=ti.i64, ndim=1),
-    hash_state: ti.types.ndarray(dtype=ti.i64, ndim=1),
+    keys: ti.types.ndarray(dtype=ti.i64, ndim=1),
+    emitted: ti.types.ndarray(dtype=ti.i64, ndim=1),
 ):
     """:func:`accumulate` (when ``add_values``) that also records the ids of the particles that come within reach of
     each Gaussian. A pair is recorded when particle ``ids[i]`` is within reach of g now and its previous sample
@@ -327,12 +322,13 @@ def accumulate_tracked(
     step; the set of pairs is the same, at the cost of one record per visit instead of one per step.
 
     - ``track`` = TRACK_BITS: sets bit ``ids[i]`` of row g of ``bits`` [G, words] (atomic or);
-    - ``track`` = TRACK_HASH: inserts g * 2^32 + ids[i] into the set ``hashes`` (:func:`set_insert`).
+    - ``track`` = TRACK_HASH: appends g * 2^32 + ids[i] to ``keys`` (slot from ``emitted[0]``; slots past the end are
+      counted but not written, so the caller can grow ``keys`` and record the batch again), for :func:`insert_keys`.
 
     ``serial``: as in :func:`accumulate`.
     """
-    visit_all(n, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, bits, hashes,
-              hash_state)
+    visit_all(n, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, bits, keys,
+              emitted)
 
 
 @ti.func
@@ -379,12 +375,12 @@ def stage_particles(
 
 
 @ti.kernel
-def insert_keys(keys: ti.types.ndarray(dtype=ti.i64, ndim=1), hashes: ti.types.ndarray(dtype=ti.i64, ndim=1),
-                hash_state: ti.types.ndarray(dtype=ti.i64, ndim=1)):
-    """Insert the keys >= 0 of ``keys`` (another set's slots, or listed keys) into ``hashes``."""
-    for i in range(keys.shape[0]):
+def insert_keys(n: ti.i64, keys: ti.types.ndarray(dtype=ti.i64, ndim=1), hashes: ti.types.ndarray(dtype=ti.i64, ndim=1),
+                fill: ti.types.ndarray(dtype=ti.i64, ndim=1)):
+    """Insert the keys >= 0 among ``keys[:n]`` (listed pairs, or another set's slots) into the set ``hashes``."""
+    for i in range(n):
         if keys[i] != EMPTY_KEY:
-            set_insert(hashes, hash_state, keys[i])
+            set_insert(hashes, fill, keys[i])
 
 
 @ti.kernel

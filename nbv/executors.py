@@ -87,7 +87,8 @@ class JobLost(RuntimeError):
     def __init__(self, job: Any, tries: int, cause: BaseException) -> None:
         text = repr(job)
         text = text if len(text) <= 300 else text[:297] + "..."
-        super().__init__(f"Ray lost job {text}: its worker died on all {tries} tries ({type(cause).__name__}: "
+        super().__init__(f"Ray lost job {text}: its worker died on {tries} {'try' if tries == 1 else 'tries'} "
+                         f"({type(cause).__name__}: "
                          f"{str(cause).splitlines()[0] if str(cause) else 'no detail'}); check the nodes' memory and "
                          "logs, or raise max_retries")
         self.job = job

@@ -319,7 +319,7 @@ def probe_warnings(direction: str, counts: np.ndarray, history: list[StepStats])
 
 
 # ---- transform and guards ------------------------------------------------------------------------
-def kept_gaussians(gaussians, config: PhysicsConfig) -> np.ndarray | None:
+def kept_gaussians(gaussians, config: PhysicsConfig, report: bool = True) -> np.ndarray | None:
     """[G] bool: the Gaussians that ``config.crop`` keeps (centres inside the crop box), or None without a crop.
 
     Raises:
@@ -336,8 +336,9 @@ def kept_gaussians(gaussians, config: PhysicsConfig) -> np.ndarray | None:
                          f"[{', '.join(f'{v:.4g}' for v in hi)}] (scene units) keeps none of the {len(means):,} "
                          f"Gaussians, whose centres span [{', '.join(f'{v:.4g}' for v in means.min(0))}] - "
                          f"[{', '.join(f'{v:.4g}' for v in means.max(0))}]; widen the box or use --crop auto")
-    log.info("crop %s: kept %d of %d Gaussians (%d dropped)", config.crop, int(kept.sum()), len(kept),
-             int((~kept).sum()))
+    if report:
+        log.info("crop %s: kept %d of %d Gaussians (%d dropped)", config.crop, int(kept.sum()), len(kept),
+                 int((~kept).sum()))
     return kept
 
 
@@ -355,7 +356,7 @@ def scene_transform(gaussians, config: PhysicsConfig):
         return SceneTransform(config.up, float(config.scale))
     means = gaussians.means.detach().cpu().double().numpy()
     opacities = gaussians.opacities.detach().cpu().double().numpy()
-    kept = kept_gaussians(gaussians, config)
+    kept = kept_gaussians(gaussians, config, report=False)
     if kept is not None:
         means, opacities = means[kept], opacities[kept]
     extent = 0.0
@@ -801,6 +802,8 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         /probes/<dir>/leaked_per_step  (S,) int32 particles inside after each step
         /probes/<dir>/x_final   (F, 3) float32 final fluid positions, sim metres, ordered by id (gzip)
         /probes/<dir>/ids_final (F,) int32 their ids (index in the probe's initial fluid set)
+        /probes/<dir>/trajectory  only for the probes recorded (``record``): x (T, F, 3), D (T, F), speed (T, F),
+                                steps (T,) every k steps (:mod:`nbv.trajectory`; NaN: retired)
         /solid/x                (M, 3) solid particles, sim metres
         attributes: config (PhysicsConfig JSON), directions, dbar, dbar_mean, dbar_empty, dbar_empty_mean
                     (m^4/s; NaN when not computed), up (the scene's up vector, 3 floats), up_label ("-y", ...),

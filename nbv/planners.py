@@ -47,7 +47,7 @@ from recon.datasets import View
 from recon.gaussians import GaussianSet
 
 from .fisher import FisherConfig, greedy_top_k
-from .scores import projected_view_scores
+from .scores import DepthBuffer, projected_view_scores
 from .variance import VarianceConfig, fit_variances, variance_scores
 
 log = logging.getLogger(__name__)
@@ -70,6 +70,8 @@ class PlanningContext:
         physics: per-Gaussian divergence D_g [N] of given Gaussians (runs the probes; called at most once
             per selection), or None when the planner does not need it.
         round: the selection round (0-based), seeds the random planner.
+        occlusion: S(T) counts only the Gaussians the coarse depth test (:class:`nbv.scores.DepthBuffer`) finds
+            unhidden (not in the paper, whose visibility is frustum culling); the ``+area`` controls use it too.
     """
 
     gaussians: GaussianSet
@@ -81,6 +83,7 @@ class PlanningContext:
     background: torch.Tensor
     physics: Callable[[GaussianSet], torch.Tensor] | None = None
     round: int = 0
+    occlusion: bool = False
 
     def __post_init__(self) -> None:
         if len(self.candidates) != len(self.candidate_ids):
@@ -176,7 +179,7 @@ def _descending(scores: list[float]) -> list[int]:
 
 
 def physics_view_scores(gaussians: GaussianSet, cameras: list[Camera], divergence: torch.Tensor,
-                        weighted: bool = True) -> list[float]:
+                        weighted: bool = True, occlusion: bool = False) -> list[float]:
     """S(T) = sum_g w_g(T) D_g (paper Eq. 4-5) of every camera, from the batched projection (no render).
 
     Args:
@@ -184,6 +187,7 @@ def physics_view_scores(gaussians: GaussianSet, cameras: list[Camera], divergenc
         cameras: C cameras.
         divergence: [N] D_g, 1/s.
         weighted: Eq. 5 weights (False: plain sum over the visible Gaussians).
+        occlusion: count only the Gaussians the coarse depth test finds unhidden (:class:`nbv.scores.DepthBuffer`).
     Returns:
         C floats.
     """
@@ -195,7 +199,9 @@ def physics_view_scores(gaussians: GaussianSet, cameras: list[Camera], divergenc
         raise ValueError("physics returned NaN or Inf per-Gaussian divergences; check the probe run")
     if not cameras:
         return []
-    return projected_view_scores(d, gaussians.detach(), list(cameras), weighted=weighted).scores.tolist()
+    buffer = DepthBuffer() if occlusion else None
+    return projected_view_scores(d, gaussians.detach(), list(cameras), weighted=weighted,
+                                 depth_buffer=buffer).scores.tolist()
 
 
 def shuffled_divergence(divergence: torch.Tensor, seed: int, round_index: int = 0) -> torch.Tensor:
@@ -321,7 +327,8 @@ class PhysicsPlanner:
         _check_candidates(context, self.name)
         start = time.perf_counter()
         divergence = _run_physics(context, self.name)
-        scores = physics_view_scores(context.gaussians, context.candidates, divergence, self.config.weighted)
+        scores = physics_view_scores(context.gaussians, context.candidates, divergence, self.config.weighted,
+                                     context.occlusion)
         order = _descending(scores)
         return Selection(pick=order[0], shortlist=order, k=None,
                          scores={"visual": _nan_scores(len(scores)), "physics": scores},
@@ -365,7 +372,8 @@ class _FusedPlanner:
         shortlist, visual = self.visual.rank(context, min(k, count))
         mid = time.perf_counter()
         divergence = self.per_gaussian(context)
-        chosen = physics_view_scores(context.gaussians, [context.candidates[i] for i in shortlist], divergence)
+        chosen = physics_view_scores(context.gaussians, [context.candidates[i] for i in shortlist], divergence,
+                                     occlusion=context.occlusion)
         physics = _nan_scores(count)
         for i, s in zip(shortlist, chosen, strict=True):
             physics[i] = s

@@ -88,6 +88,21 @@ def up_label(up: np.ndarray) -> str:
     return ",".join(f"{c:.6g}" for c in u)
 
 
+def nearest_axis(up: np.ndarray) -> tuple[str, float]:
+    """(``"+y"``-style name, angle in degrees) of the coordinate axis closest to the unit vector ``up``."""
+    u = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    k = int(np.argmax(np.abs(u)))
+    name = ("+" if u[k] > 0 else "-") + "xyz"[k]
+    return name, float(np.degrees(np.arccos(min(1.0, abs(u[k])))))
+
+
+def describe_auto_up(up: np.ndarray) -> str:
+    """The log line of ``--up auto``: the vector, and the nearest axis with its angle (to pass it explicitly)."""
+    name, angle = nearest_axis(up)
+    return (f"--up auto: the cameras' mean up vector is {up_label(up)}, {angle:.1f} deg from {name} "
+            f"(pass --up {name} to use the axis itself)")
+
+
 def rotation_to_y_up(up: np.ndarray) -> np.ndarray:
     """[3, 3] the smallest rotation R with R up = +y (the half turn about x when up = -y).
 

@@ -30,6 +30,8 @@ import torch
 
 from recon.projection import NEAR_PLANE, GaussianTerms, check_batch, inline_ops, view_blocks
 
+RADIUS_HISTOGRAM = 4096  # radii are capped here for the depth buffer's median footprint radius (pixels)
+
 
 def view_weights(radii: torch.Tensor, height: int, width: int) -> torch.Tensor:
     """Per-Gaussian view weights w_g = clamp(pi R_g^2 / (H W), 0, 1) (paper Eq. 5).
@@ -281,16 +283,17 @@ class DepthBuffer:
     """The coarse depth test of :func:`projected_view_scores` (``fluidgs score --occlusion``; not in the paper).
 
     A coarse, depth-binned twin of the render-based :func:`unoccluded`, built from the projection alone. Per
-    view, every visible Gaussian whose centre lies in the image is splatted into the buffer cell of its
-    centre and into one of ``depth_bins`` depth slices (uniform over the view's depth range), with the cell
+    view, every visible Gaussian is splatted into the buffer cell of its centre (clamped to the image border)
+    and into one of ``depth_bins`` depth slices (uniform over the visible depth range), with the cell
     opacity alpha_g = min(0.99, o_g min(1, 2 pi sqrt(det Sigma'_g) / cell^2)): its footprint's mass spread
     over the cell. Each cell composites its slices front to back as the renderer composites a pixel (slice
     transmittance prod (1 - alpha_g)), giving an accumulated opacity A and a mean surface depth Z (the
     compositing-weighted mean of the slices' mean depths). A visible Gaussian counts unless A >= ``min_alpha``
     and z_g > Z + ``reach_sigmas`` r_g (r_g its largest principal standard deviation): the render-based
-    test's rule, at the cell of its centre (clamped to the border for centres outside the image).
+    test's rule, at the cell of its centre.
 
-    The cell side is ``cell_radii`` times the view's median footprint radius (at least 1 pixel): the buffer
+    The cell side is ``cell_radii`` times the view's median footprint radius (radii capped at 4096 px; the
+    cell at least 1 pixel): the buffer
     follows the splats' size rather than the image's, because a Gaussian contributes to its centre cell only.
     Measured against the render-based test on the bundled asset (share of the visible (view, Gaussian) pairs
     with the same verdict): 40 views at 64 px, cell_radii 0.25 / 0.5 / 1.0 -> 75 / 91 / 91 % (S(T) Spearman
@@ -339,13 +342,30 @@ class ProjectedScores:
     counted: torch.Tensor
 
 
-def _cell_index(u: torch.Tensor, v: torch.Tensor, width: int, height: int, cell: int):
-    """Flat buffer cell of each centre (clamped to the border), whether it lies in the image, and the cell count."""
-    px, py = torch.floor(u).to(torch.int64), torch.floor(v).to(torch.int64)
-    inside = (px >= 0) & (px < width) & (py >= 0) & (py < height)
+def _median_radius(radii: torch.Tensor) -> int:
+    """Lower median of the visible (> 0) radii, each capped at RADIUS_HISTOGRAM pixels (0 when none is visible).
+
+    From a histogram of the integer radii: a bincount and a cumulative sum, 5x cheaper than a selection.
+    """
+    counts = torch.bincount(radii.clamp_max(RADIUS_HISTOGRAM).to(torch.int64), minlength=2)
+    counts[0] = 0
+    total = int(counts.sum())
+    if total == 0:
+        return 0
+    return int(torch.searchsorted(torch.cumsum(counts, 0), (total + 1) // 2))
+
+
+def _cell_index(u: torch.Tensor, v: torch.Tensor, width: int, height: int, cell: int) -> tuple[torch.Tensor, int]:
+    """Flat buffer cell of each centre, clamped to the image border, and the cell count.
+
+    floor(clamp(u, 0, W - 1) / cell) = floor(u) // cell for the clamped pixel column; the division runs in
+    float64, whose rounding cannot reach the next integer (float32 centres lie >= 1 ulp away from it).
+    """
     cols = -(-width // cell)
-    index = (py.clamp(0, height - 1) // cell) * cols + px.clamp(0, width - 1) // cell
-    return index, inside, cols * (-(-height // cell))
+    inv = 1.0 / cell
+    ix = (u.clamp(0.0, width - 1).to(torch.float64) * inv).floor()
+    iy = (v.clamp(0.0, height - 1).to(torch.float64) * inv).floor()
+    return (iy * cols + ix).to(torch.int64), cols * (-(-height // cell))
 
 
 def _composite_cells(index, bins, alpha, depths, cells: int, depth_bins: int):
@@ -370,25 +390,24 @@ def depth_test(u: torch.Tensor, v: torch.Tensor, depths: torch.Tensor, radii: to
 
     Args:
         u, v: [N] projected centres, pixels. depths: [N] camera-frame depths, scene units.
-        radii: [N] screen radii, pixels (0 = culled). dets: [N] det Sigma', px^4. opacities: [N] in (0, 1).
-        tolerance: [N] depth tolerance reach_sigmas r_g, scene units. width, height: the view, pixels.
-        config: the buffer settings.
+        radii: [N] integer-valued float screen radii, pixels (0 = culled). dets: [N] det Sigma', px^4.
+        opacities: [N] in (0, 1). tolerance: [N] depth tolerance reach_sigmas r_g, scene units.
+        width, height: the view, pixels. config: the buffer settings.
     Returns:
         [N] bool: visible and not hidden.
     """
     visible = radii > 0
-    if not bool(visible.any()):
+    median = _median_radius(radii)
+    if median == 0:
         return visible
-    cell = config.cell_pixels(float(radii[visible].median()))
-    index, inside, cells = _cell_index(u, v, width, height, cell)
-    splat = torch.nonzero(visible & inside).flatten()
-    z = depths.index_select(0, splat)
-    alpha = (opacities.index_select(0, splat) * (2.0 * math.pi / cell ** 2 * dets.index_select(0, splat).sqrt())
-             .clamp_max(1.0)).clamp_max(0.99)
-    near, far = (float(t) for t in torch.aminmax(z)) if splat.numel() else (0.0, 1.0)
-    bins = ((z - near) * (config.depth_bins / max(far - near, 1e-12))).floor().to(torch.int64)
-    accumulated, surface = _composite_cells(index.index_select(0, splat), bins.clamp(0, config.depth_bins - 1),
-                                            alpha, z, cells, config.depth_bins)
+    cell = config.cell_pixels(float(median))
+    index, cells = _cell_index(u, v, width, height, cell)
+    shown = radii.clamp(0.0, 1.0)  # 1 for the visible, 0 for the culled (radii are integers)
+    alpha = (opacities * (dets.sqrt() * (2.0 * math.pi / cell ** 2)).clamp_max(1.0)).clamp_max(0.99) * shown
+    far_away = (1.0 - shown) * 1e30  # keeps the culled out of the depth range without inf * 0
+    near, far = float((depths + far_away).min()), float((depths - far_away).max())
+    bins = ((depths - near) * (config.depth_bins / max(far - near, 1e-12))).floor().clamp(0, config.depth_bins - 1)
+    accumulated, surface = _composite_cells(index, bins.to(torch.int64), alpha, depths, cells, config.depth_bins)
     hidden = (accumulated.index_select(0, index) >= config.min_alpha) & \
         (depths > surface.index_select(0, index) + tolerance)
     return visible & ~hidden
@@ -516,22 +535,21 @@ def coarse_unoccluded_reference(gaussians, camera, config: DepthBuffer = DepthBu
     visible = [g for g in range(gaussians.num) if radii[g] > 0]
     if not visible:
         return [False] * gaussians.num
-    cell = config.cell_pixels(float(torch.tensor([float(radii[g]) for g in visible]).median()))
+    cell = config.cell_pixels(float(sorted(min(radii[g], RADIUS_HISTOGRAM) for g in visible)[(len(visible) - 1) // 2]))
 
     def cell_of(g):
         px, py = math.floor(uv[g][0]), math.floor(uv[g][1])
-        return (min(max(py, 0), h - 1) // cell, min(max(px, 0), w - 1) // cell), 0 <= px < w and 0 <= py < h
+        return min(max(py, 0), h - 1) // cell, min(max(px, 0), w - 1) // cell
 
-    splat = [g for g in visible if cell_of(g)[1]]
-    near, far = (min(depths[g] for g in splat), max(depths[g] for g in splat)) if splat else (0.0, 1.0)
+    near, far = min(depths[g] for g in visible), max(depths[g] for g in visible)
     slices: dict = {}
-    for g in splat:
+    for g in visible:
         a, b, c = conics[g]
         det = 1.0 / (a * c - b * b)  # det Sigma' = 1 / det(conic)
         alpha = min(0.99, opacities[g] * min(1.0, 2.0 * math.pi * math.sqrt(det) / cell ** 2))
         k = min(max(math.floor((depths[g] - near) * (config.depth_bins / max(far - near, 1e-12))), 0),
                 config.depth_bins - 1)
-        slot = slices.setdefault(cell_of(g)[0], {}).setdefault(k, [1.0, 0.0, 0.0])
+        slot = slices.setdefault(cell_of(g), {}).setdefault(k, [1.0, 0.0, 0.0])
         slot[0] *= 1.0 - alpha
         slot[1] += alpha
         slot[2] += alpha * depths[g]
@@ -547,6 +565,6 @@ def coarse_unoccluded_reference(gaussians, camera, config: DepthBuffer = DepthBu
         surfaces[key] = (acc, moment / acc)
     out = []
     for g in range(gaussians.num):
-        acc, surface = surfaces.get(cell_of(g)[0], (0.0, 0.0))
+        acc, surface = surfaces.get(cell_of(g), (0.0, 0.0))
         out.append(radii[g] > 0 and not (acc >= config.min_alpha and depths[g] > surface + reach[g]))
     return out

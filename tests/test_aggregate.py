@@ -1,5 +1,10 @@
-"""Per-Gaussian accumulation through the grid against the O(N G) twin: sums, counts, distinct particles,
-the numpy path and the solver path."""
+"""Per-Gaussian accumulation through the per-level cell lists against the O(N G) twin: sums, counts, distinct
+particles, the numpy path and the solver path, the levels themselves, thread-count independence and memory."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -7,9 +12,16 @@ import pytest
 from fluidsim import DFSPHSolver, SolverConfig
 from fluidsim.scene import lattice_in_box
 from fluidsim.sources import sphere_particles, wall_particles
-from nbv.aggregate import GaussianAccumulator, accumulate_reference, within_reach_reference
+from nbv.aggregate import (
+    ENTRIES_PER_GAUSSIAN,
+    GaussianAccumulator,
+    accumulate_reference,
+    plan_levels,
+    within_reach_reference,
+)
 from nbv.aggregate_kernels import VALUE_LIMIT, VALUE_SCALE
 
+ROOT = Path(__file__).resolve().parent.parent
 DOMAIN_MIN = np.array([-1.2, -1.0, -1.1])
 DOMAIN_MAX = np.array([1.1, 1.2, 1.0])
 
@@ -19,7 +31,7 @@ def random_gaussians(g: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     centers = rng.uniform(-1.3, 1.3, (g, 3))
     reach = np.exp(rng.uniform(np.log(0.01), np.log(0.8), g))
-    reach[:3] = [5.0, 0.0, 2.0]          # huge (clipped to the domain), zero, large
+    reach[:3] = [5.0, 0.0, 2.0]          # huge (covering the domain), zero, large
     centers[3] = [3.0, 0.0, 0.0]         # outside the domain, reaching in
     reach[3] = 2.5
     return centers, reach
@@ -36,6 +48,33 @@ def quantized_sums(centers, reach, steps, *domain) -> np.ndarray:
 def random_step(rng, n: int, pool: int):
     ids = rng.choice(pool, n, replace=False)
     return rng.uniform(-1.5, 1.5, (n, 3)), rng.normal(size=n), ids
+
+
+def distinct_reference(centers, reach, steps, lo=DOMAIN_MIN, hi=DOMAIN_MAX) -> np.ndarray:
+    seen: list[set] = [set() for _ in range(len(centers))]
+    for pos, _, ids in steps:
+        near = within_reach_reference(centers, reach, pos, lo, hi)
+        for g, i in zip(*np.nonzero(near.T), strict=True):
+            seen[g].add(int(ids[i]))
+    return np.array([len(s) for s in seen])
+
+
+def chunks(steps, size: int = 256):
+    """The steps' particles in chunks (the twin holds a [P, G, 3] array)."""
+    for p, v, *rest in steps:
+        for i in range(0, len(p), size):
+            yield (p[i: i + size], v[i: i + size], *[r[i: i + size] for r in rest])
+
+
+def check_against_twin(acc: GaussianAccumulator, centers, reach, steps, lo=DOMAIN_MIN, hi=DOMAIN_MAX) -> np.ndarray:
+    """Counts exactly, sums bit for bit (fixed point) and, when tracked, distinct counts exactly; returns counts."""
+    counts = sum(accumulate_reference(centers, reach, p, v, lo, hi)[1] for p, v, *_ in chunks(steps))
+    assert np.array_equal(acc.counts, counts)
+    np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, [(p, v) for p, v, *_ in chunks(steps)],
+                                                           lo, hi))
+    if acc.track_distinct:
+        assert np.array_equal(acc.distinct_counts, distinct_reference(centers, reach, list(chunks(steps)), lo, hi))
+    return counts
 
 
 def test_accumulator_equals_brute_force_twin():
@@ -65,19 +104,10 @@ def test_accumulator_equals_brute_force_twin():
     assert not acc.counts.any() and not acc.sums.any()
 
 
-def distinct_reference(centers, reach, steps) -> np.ndarray:
-    seen: list[set] = [set() for _ in range(len(centers))]
-    for pos, _, ids in steps:
-        near = within_reach_reference(centers, reach, pos, DOMAIN_MIN, DOMAIN_MAX)
-        for g, i in zip(*np.nonzero(near.T), strict=True):
-            seen[g].add(int(ids[i]))
-    return np.array([len(s) for s in seen])
-
-
-@pytest.mark.parametrize("budget, storage", [(512 * 2**20, ("bits", "bits")), (1000, ("bits", "keys")),
-                                             (64, ("keys", "keys"))])
+@pytest.mark.parametrize("budget, storage", [(512 * 2**20, ("bits", "bits")), (1000, ("bits", "hash")),
+                                             (64, ("hash", "hash"))])
 def test_distinct_counts_are_exact(budget, storage):
-    """Bit matrix (large budget), bit matrix grown then converted to keys (1000 B), keys from the start (64 B)."""
+    """Bit matrix (large budget), bit matrix grown then moved to the hash set (1000 B), hash set from the start."""
     centers, reach = random_gaussians(100, seed=2)
     rng = np.random.default_rng(3)
     acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True,
@@ -94,6 +124,41 @@ def test_distinct_counts_are_exact(budget, storage):
     assert (acc.counts >= expected).all() and (acc.counts > expected).any()   # repeats count once
     acc.reset()
     assert not acc.distinct_counts.any()
+
+
+def test_distinct_particles_that_leave_and_return_count_once(monkeypatch):
+    """A visit is recorded on its first step only; a particle that leaves a Gaussian and comes back, or steps outside
+    the domain in between, must not count twice, and one that is never recorded near g must count. The hash set
+    starts at 16 slots, so it grows (and a full set refuses inserts and the batch is recorded again) many times."""
+    import nbv.aggregate as aggregate
+
+    monkeypatch.setattr(aggregate, "_HASH_MIN_SLOTS", 16)
+    centers = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.9, 0.9, 0.9]])
+    reach = np.array([0.2, 0.2, 0.05])
+    ids = np.arange(4)
+    # particle 0: in g0, in neither, in g0 again; 1: in g0, outside the domain, in g0; 2: g0 -> g1 -> g0; 3: never near
+    path = [np.array([[0.1, 0, 0], [0.1, 0, 0], [0.05, 0, 0], [0.6, 0.6, 0.6]]),
+            np.array([[0.25, 0, 0], [5.0, 0, 0], [0.5, 0.05, 0], [0.6, 0.6, 0.6]]),
+            np.array([[0.0, 0.05, 0], [0.0, 0.1, 0], [0.0, 0.0, 0.05], [0.6, 0.6, 0.6]])]
+    steps = [(p, np.ones(4), ids) for p in path]
+    for budget in (512 * 2**20, 0):
+        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=4,
+                                  distinct_budget_bytes=budget)
+        for p, v, i in steps:
+            acc.add(p, v, i)
+        assert acc.distinct_storage == ("bits" if budget else "hash")
+        assert acc.distinct_counts.tolist() == [3, 1, 0]
+        assert acc.counts.tolist() == [6, 1, 0]
+    # many pairs into the 16-slot set: growth with refused inserts, pairs never lost nor doubled
+    many, many_reach = random_gaussians(300, seed=11)
+    rng = np.random.default_rng(12)
+    acc = GaussianAccumulator(many, many_reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True,
+                              distinct_budget_bytes=0)
+    steps = [random_step(rng, 500, 600) for _ in range(3)]
+    for p, v, i in steps:
+        acc.add(p, v, i)
+    assert acc.distinct_storage == "hash" and acc._hashes.shape[0] > 1024
+    check_against_twin(acc, many, many_reach, steps)
 
 
 def tiny_probe_solver() -> DFSPHSolver:
@@ -122,14 +187,15 @@ def test_add_from_solver_equals_numpy_path():
         fast.add_from_solver(solver)
         state = solver.fluid_state()
         ref.add(state["x"], state["divergence"], state["ids"])
-        steps.append((state["x"], state["divergence"]))
+        steps.append((state["x"], state["divergence"], state["ids"]))
         counts += accumulate_reference(centers, reach, state["x"], state["divergence"], *args[2:])[1]
-    sums = quantized_sums(centers, reach, steps, *args[2:])
+    sums = quantized_sums(centers, reach, [s[:2] for s in steps], *args[2:])
     assert counts.sum() > 0 and np.abs(sums).max() > 1e-3  # the fluid has reached the sphere: D_i is not noise
     assert np.array_equal(fast.counts, counts) and np.array_equal(ref.counts, counts)
     np.testing.assert_array_equal(fast.sums, sums)
     np.testing.assert_array_equal(ref.sums, sums)
-    assert np.array_equal(fast.distinct_counts, ref.distinct_counts)
+    distinct = distinct_reference(centers, reach, steps, *args[2:])
+    assert np.array_equal(fast.distinct_counts, distinct) and np.array_equal(ref.distinct_counts, distinct)
     assert (fast.distinct_counts < fast.counts).any()
 
 
@@ -150,6 +216,8 @@ def test_bad_inputs_name_the_argument():
         acc.add(np.zeros((2, 3)), np.zeros(3), np.arange(2))
     with pytest.raises(ValueError, match="positions"):
         acc.add(np.full((2, 3), np.nan), np.zeros(2), np.arange(2))
+    with pytest.raises(ValueError, match="densely"):
+        acc.add(np.zeros((1, 3)), np.zeros(1), np.array([2**30]))
     with pytest.raises(ValueError, match="track_distinct"):
         _ = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX).distinct_counts
 
@@ -163,15 +231,14 @@ def test_degenerate_sets_match_the_twin():
     for centers, reach in cases:
         acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
         acc.add(pos, val)
-        counts = accumulate_reference(centers, reach, pos, val, DOMAIN_MIN, DOMAIN_MAX)[1]
-        assert np.array_equal(acc.counts, counts)
-        np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, [(pos, val)], DOMAIN_MIN, DOMAIN_MAX))
+        check_against_twin(acc, centers, reach, [(pos, val)])
     assert acc.counts[1] > 0 and acc.counts[0] == 0       # the last case: one reaches in, one does not
+    assert acc.num_kept == 1                               # and the other one is not even kept
 
 
-def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
-    """The next probe's domain: lists kept when they cover it, sums zeroed, new domain bounds applied; refused
-    when the new domain needs cells the lists do not have."""
+def test_retarget_reuses_the_lists_for_a_domain_within_the_bounds():
+    """The next probe's domain: lists kept when the levels were built for it, sums zeroed, new domain bounds
+    applied; refused when the new domain reaches beyond the bounds the levels were built for."""
     rng = np.random.default_rng(5)
     centers = rng.uniform(-0.5, 0.5, (80, 3))
     reach = rng.uniform(0.05, 0.2, 80)
@@ -181,36 +248,29 @@ def test_retarget_reuses_the_lists_for_a_domain_with_the_same_grid():
     acc.add(pos, val, ids)
     assert acc.counts.sum() > 0
     lists = acc._lists.to_numpy().copy()
-    # A smaller domain that still contains the Gaussians' reach box: same grid.
-    new_min, new_max = np.full(3, -0.72), np.full(3, 0.72)  # the reach box is within +-0.7
+    new_min, new_max = np.full(3, -0.72), np.full(3, 0.72)
     assert acc.retarget(new_min, new_max)
     assert not acc.counts.any() and not acc.sums.any() and not acc.distinct_counts.any()
     assert np.array_equal(acc._lists.to_numpy(), lists)
     acc.add(pos, val, ids)
     fresh = GaussianAccumulator(centers, reach, new_min, new_max, track_distinct=True, max_fluid=500)
     fresh.add(pos, val, ids)
-    c = accumulate_reference(centers, reach, pos, val, new_min, new_max)[1]
-    assert np.array_equal(acc.counts, c) and np.array_equal(fresh.counts, c)
-    np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, [(pos, val)], new_min, new_max))
-    assert np.array_equal(acc.distinct_counts, fresh.distinct_counts)
-    # A domain that clips the reach box differently is fine (the grid covers it; the kernel filters by the
-    # domain); a domain that needs cells beyond the grid is refused and nothing changes.
+    check_against_twin(acc, centers, reach, [(pos, val, ids)], new_min, new_max)
+    check_against_twin(fresh, centers, reach, [(pos, val, ids)], new_min, new_max)
+    # a domain beyond the bounds is refused and nothing changes; any domain within them is exact
     small = GaussianAccumulator(centers, reach, [-0.3] * 3, [0.3] * 3)
     assert not small.retarget([-2.0] * 3, [2.0] * 3)
     assert small.domain_max.tolist() == [0.3] * 3
     assert acc.retarget([-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
     acc.add(pos, val, ids)
-    c = accumulate_reference(centers, reach, pos, val, [-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])[1]
-    assert np.array_equal(acc.counts, c)
-    np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, [(pos, val)], [-0.1, -2.0, -2.0],
-                                                           [2.0, 2.0, 2.0]))
-    # grid_bounds: lists built for a union of domains serve each of them exactly.
+    check_against_twin(acc, centers, reach, [(pos, val, ids)], [-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
+    # grid_bounds: levels built for a union of domains serve each of them exactly
     union = GaussianAccumulator(centers, reach, [-0.3] * 3, [0.3] * 3, grid_bounds=([-2.0] * 3, [2.0] * 3))
     union.add(pos, val)
-    assert np.array_equal(union.counts, accumulate_reference(centers, reach, pos, val, [-0.3] * 3, [0.3] * 3)[1])
+    check_against_twin(union, centers, reach, [(pos, val)], [-0.3] * 3, [0.3] * 3)
     assert union.retarget([-2.0] * 3, [2.0] * 3)
     union.add(pos, val)
-    assert np.array_equal(union.counts, accumulate_reference(centers, reach, pos, val, [-2.0] * 3, [2.0] * 3)[1])
+    check_against_twin(union, centers, reach, [(pos, val)], [-2.0] * 3, [2.0] * 3)
     with pytest.raises(ValueError, match="domain_min"):
         acc.retarget([0.0, 0.0, 0.0], [0.0, 1.0, 1.0])
 
@@ -227,38 +287,13 @@ def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, priva
     centers, reach = random_gaussians(120, seed=5)
     rng = np.random.default_rng(6)
     steps = [random_step(rng, 300, 700) for _ in range(3)]
-
-    def run(track: bool):
+    for track in (False, True):  # the plain kernel, and the one that also records particle ids
         acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=700)
         acc.serial_below = serial_below
-        assert acc.rows == rows and acc._acc.shape == (rows, len(centers) + 1, 2)
+        assert acc.rows == rows and acc._acc.shape == (rows, acc.num_kept + 1, 2)
         for pos, val, ids in steps:
             acc.add(pos, val, ids)
-        return acc
-
-    sums = quantized_sums(centers, reach, [(p, v) for p, v, _ in steps], DOMAIN_MIN, DOMAIN_MAX)
-    counts = sum(accumulate_reference(centers, reach, p, v, DOMAIN_MIN, DOMAIN_MAX)[1] for p, v, _ in steps)
-    assert counts.max() > 50
-    for track in (False, True):  # the plain kernel, and the one that also records particle ids
-        acc = run(track)
-        assert np.array_equal(acc.counts, counts)
-        np.testing.assert_array_equal(acc.sums, sums)  # fixed-point sums: the same bits on every path
-        if track:
-            assert np.array_equal(acc.distinct_counts, distinct_reference(centers, reach, steps))
-
-
-def test_morton_order_is_a_z_curve_permutation():
-    from nbv.aggregate import morton_order
-
-    corners = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], float)  # Morton order
-    shuffled = np.random.default_rng(0).permutation(8)
-    assert np.array_equal(corners[shuffled][morton_order(corners[shuffled])], corners)
-    pts = np.random.default_rng(1).uniform(-3, 5, (500, 3))
-    order = morton_order(pts)
-    assert np.array_equal(np.sort(order), np.arange(500))
-    # consecutive points along the curve are much closer than random pairs
-    step = np.linalg.norm(np.diff(pts[order], axis=0), axis=1).mean()
-    assert step < 0.5 * np.linalg.norm(np.diff(pts, axis=0), axis=1).mean()
+        assert check_against_twin(acc, centers, reach, steps).max() > 50
 
 
 def test_staged_steps_equal_step_by_step_accumulation():
@@ -271,7 +306,7 @@ def test_staged_steps_equal_step_by_step_accumulation():
     batched = GaussianAccumulator(*args, batch_steps=3, track_distinct=True, max_fluid=solver.fluid.capacity)
     single = GaussianAccumulator(*args, batch_steps=1, track_distinct=True, max_fluid=solver.fluid.capacity)
     assert batched.batch_steps == 3
-    unstaged = GaussianAccumulator(*args, batch_steps=3, track_distinct=True, max_fluid=solver.fluid.capacity)
+    unstaged = GaussianAccumulator(*args, batch_steps=3, max_fluid=solver.fluid.capacity)
     batched.serial_below = 0  # stage this small probe too (probes under SERIAL_BELOW particles are not staged)
     for step in range(5):
         solver.step()
@@ -286,7 +321,7 @@ def test_staged_steps_equal_step_by_step_accumulation():
     assert batched._staged > 0  # step 4 staged, not yet accumulated
     assert single.counts.sum() > 0
     assert np.array_equal(batched.counts, single.counts)
-    np.testing.assert_allclose(batched.sums, single.sums, rtol=1e-12, atol=1e-12 * np.abs(single.sums).max())
+    np.testing.assert_array_equal(batched.sums, single.sums)  # fixed point: the same bits, whatever the batching
     assert np.array_equal(batched.distinct_counts, single.distinct_counts)
     assert np.array_equal(unstaged.counts, single.counts)
     np.testing.assert_array_equal(unstaged.sums, single.sums)
@@ -331,3 +366,212 @@ def test_thread_index_stays_below_the_pool_size():
     rows, private = accumulation_rows(100)
     assert private and rows == ti.lang.impl.current_cfg().cpu_max_num_threads
     assert max(largest_thread_index(100_000) for _ in range(20)) < rows
+
+
+# ---- the levels --------------------------------------------------------------------------------------------------
+def multi_level_set(g: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussians on a sphere-like shell (a surface, as real captures are) with reaches spanning 100x."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(g, 3))
+    centers = 0.6 * d / np.linalg.norm(d, axis=1, keepdims=True) + rng.normal(0.0, 0.02, (g, 3))
+    reach = np.exp(rng.uniform(np.log(0.006), np.log(0.6), g))
+    return centers, reach
+
+
+def near_surface_steps(rng, centers, steps: int, n: int, pool: int):
+    """Particles near the Gaussians (most within reach of some) and a few far away, ids reused across steps."""
+    out = []
+    for _ in range(steps):
+        pick = rng.integers(0, len(centers), n)
+        pos = centers[pick] + rng.normal(0.0, 0.08, (n, 3))
+        pos[: n // 10] = rng.uniform(-1.5, 1.5, (n // 10, 3))
+        out.append((pos, rng.normal(size=n), rng.choice(pool, n, replace=False)))
+    return out
+
+
+def listed_reference(levels, centers, reach, lists: np.ndarray, rng, sample: int = 3000) -> None:
+    """Brute force over cells of every level (all the non-empty ones up to ``sample``, and as many random ones): the
+    listed Gaussians are exactly those whose reach sphere (plus the listing slack) comes closer to the cell's box, in
+    ascending internal order."""
+    order = levels.order
+    c, r = centers[order], reach[order]
+    cells = levels.num_cells
+    for lv, row in enumerate(levels.table):
+        origin, cell, dims, offset = row[0:3], row[4], row[5:8].astype(int), int(row[8])
+        first, last = levels.first[lv], levels.first[lv + 1]
+        count = int(np.prod(dims))
+        sizes = lists[offset + 1: offset + count + 1] - lists[offset: offset + count]
+        busy = np.nonzero(sizes)[0]
+        picked = np.unique(np.concatenate([rng.permutation(busy)[:sample], rng.integers(0, count, sample)]))
+        ijk = np.stack([picked // (dims[1] * dims[2]), (picked // dims[2]) % dims[1], picked % dims[2]], -1)
+        lo = origin + ijk * cell
+        for t, box in zip(picked, lo, strict=True):
+            gap = np.maximum(np.maximum(box - c[first:last], c[first:last] - box - cell), 0.0)
+            touch = (gap**2).sum(-1) < (r[first:last] + 1e-6 * cell) ** 2
+            items = lists[cells + 1 + lists[offset + t]: cells + 1 + lists[offset + t + 1]]
+            assert np.array_equal(items, first + np.nonzero(touch)[0])
+
+
+@pytest.mark.parametrize("lookup_cost, levels", [(None, 2), (0.0, 6)])
+def test_levels_of_a_set_with_reaches_spanning_100x_are_exact(monkeypatch, lookup_cost, levels):
+    """Several levels (reach classes of a factor 2, merged by cost; a cheap lookup keeps more of them apart); every
+    Gaussian listed exactly in the cells its sphere touches (brute force over the cells), the entries within their
+    bound; sums, counts and distinct counts exactly the twin's."""
+    import nbv.aggregate as aggregate
+
+    if lookup_cost is not None:
+        monkeypatch.setattr(aggregate, "LOOKUP_COST", lookup_cost)
+    centers, reach = multi_level_set(3000, seed=21)
+    rng = np.random.default_rng(22)
+    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=2000)
+    lv = acc.levels
+    assert lv.num_levels >= levels and acc.num_kept == len(centers)
+    assert np.array_equal(np.sort(lv.order), np.arange(len(centers)))      # each Gaussian in exactly one level
+    assert (np.diff(lv.cell_sizes) <= 0).all()                              # largest reaches first
+    for level in range(lv.num_levels):
+        members = reach[lv.order[lv.first[level]: lv.first[level + 1]]]
+        assert members.max() / members.min() > 1.2                          # a class, not a single reach
+    assert acc.list_entries <= lv.entries_bound <= ENTRIES_PER_GAUSSIAN * len(centers) + (1 << 20)
+    listed_reference(lv, centers, reach, acc._lists.to_numpy(), rng)
+    steps = near_surface_steps(rng, centers, 4, 1500, 2000)
+    for pos, val, ids in steps:
+        acc.add(pos, val, ids)
+    counts = check_against_twin(acc, centers, reach, steps)
+    assert (counts > 0).mean() > 0.5
+
+
+def test_gaussians_on_level_and_cell_boundaries_are_exact(monkeypatch):
+    """Reaches exactly at the class boundaries r_max / 2^k and one ulp either side, centres exactly on cell faces,
+    particles exactly on cell faces and one ulp inside and outside the reach: the twin's results.
+
+    Anchors (two Gaussians of every reach, just outside the domain's corners) clip every level's box to the
+    domain, so that the grids do not move when the other centres are moved onto their cell faces."""
+    import nbv.aggregate as aggregate
+
+    monkeypatch.setattr(aggregate, "LOOKUP_COST", 0.0)  # no merges: one level per reach class
+    lo, hi = np.full(3, -0.5), np.full(3, 0.5)
+    bounds = 0.4 / 2.0 ** np.arange(5)
+    reach = np.concatenate([bounds, np.nextafter(bounds, 0), np.nextafter(bounds, 1)])
+    anchors = np.concatenate([lo - 0.5 * reach[:, None], hi + 0.5 * reach[:, None]])
+    reach = np.concatenate([reach, reach, reach])
+    rng = np.random.default_rng(31)
+    free = rng.uniform(-0.45, 0.45, (len(reach) // 3, 3))
+    first = GaussianAccumulator(np.concatenate([free, anchors]), reach, lo, hi)
+    lv = first.levels
+    assert lv.num_levels >= 4 and (lv.table[:, 0:3] == lo).all()
+    level_of = np.empty(len(reach), int)
+    for level in range(lv.num_levels):
+        level_of[lv.order[lv.first[level]: lv.first[level + 1]]] = level
+    cell = lv.table[level_of[: len(free)], 4][:, None]
+    free = lo + np.round((free - lo) / cell) * cell          # onto the faces of their level's cells
+    centers = np.concatenate([free, anchors])
+    acc = GaussianAccumulator(centers, reach, lo, hi)
+    assert np.array_equal(acc.levels.table, lv.table)        # the same grids
+    pts = [free + s * reach[: len(free), None] * e for e in np.eye(3) for s in (1.0, -1.0)]  # at the reach
+    for f in (1 - 1e-15, 1 + 1e-15, 1 - 1e-12, 0.5):
+        pts.append(free + f * reach[: len(free), None] * np.array([1.0, 0.0, 0.0]))
+    faces = lo + lv.table[:, 4][:, None, None] * rng.integers(0, 8, (lv.num_levels, 60, 3))
+    pts.append(faces.reshape(-1, 3))                          # on cell faces of every level
+    pos = np.concatenate(pts)
+    steps = [(pos, rng.normal(size=len(pos)))]
+    acc.add(*steps[0])
+    counts = check_against_twin(acc, centers, reach, steps, lo, hi)
+    assert counts[: len(free)].min() > 0
+
+
+def test_a_set_the_old_cell_lists_refused_fits_in_bounded_memory():
+    """A few Gaussians reaching across the whole domain among many tiny ones (a single grid at the tiny ones' cell
+    would list the big ones in millions of cells): the entries stay within ENTRIES_PER_GAUSSIAN per Gaussian."""
+    rng = np.random.default_rng(41)
+    centers = rng.uniform(-1.0, 1.0, (5000, 3))
+    reach = np.full(5000, 0.004)
+    reach[:40] = 2.0
+    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+    assert acc.levels.num_levels == 2
+    assert acc.list_entries <= ENTRIES_PER_GAUSSIAN * len(centers) + (1 << 20)
+    pos, val, _ = random_step(rng, 2000, 2000)
+    pos[:1000] = centers[40:1040] + rng.normal(0.0, 0.002, (1000, 3))  # within reach of the tiny ones
+    acc.add(pos, val)
+    counts = check_against_twin(acc, centers, reach, [(pos, val)])
+    assert counts[:40].min() > 500 and (counts[40:] > 0).sum() > 500
+
+
+def test_plan_levels_drops_what_no_particle_can_reach():
+    centers = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [1.5, 0.0, 0.0], [0.2, 0.1, 0.0]])
+    reach = np.array([0.1, 0.5, 0.6, 0.0])
+    lv = plan_levels(centers, reach, [-1.0] * 3, [1.0] * 3)
+    assert sorted(lv.order.tolist()) == [0, 2]   # 1 is 2 m away with a 0.5 m reach; 3 has no reach
+    empty = plan_levels(centers[1:2], reach[1:2], [-1.0] * 3, [1.0] * 3)
+    assert empty.num_levels == 0 and len(empty.order) == 0
+
+
+THREADS_SCRIPT = """
+import json, sys
+import numpy as np
+import taichi as ti
+ti.init(arch=ti.cpu, cpu_max_num_threads=int(sys.argv[1]), default_fp=ti.f32, offline_cache=True, log_level=ti.ERROR)
+sys.path.insert(0, sys.argv[2])
+from tests.test_aggregate import multi_level_set, near_surface_steps, DOMAIN_MIN, DOMAIN_MAX
+from nbv.aggregate import GaussianAccumulator
+centers, reach = multi_level_set(2000, seed=51)
+steps = near_surface_steps(np.random.default_rng(52), centers, 3, 6000, 8000)
+out = []
+for budget in (512 * 2**20, 0):
+    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=8000,
+                              distinct_budget_bytes=budget)
+    acc.serial_below = 0
+    for p, v, i in steps:
+        acc.add(p, v, i)
+    out.append({"rows": acc.rows, "sums": acc.sums.tobytes().hex(), "counts": acc.counts.tolist(),
+                "distinct": acc.distinct_counts.tolist(), "storage": acc.distinct_storage})
+print(json.dumps(out))
+"""
+
+
+def test_results_are_the_same_bits_on_any_thread_count():
+    """One, two and three CPU threads (a row of sums each, the particles split differently): the same bits of the
+    sums, the same counts and distinct counts (bit matrix and hash set)."""
+    runs = []
+    for threads in (1, 2, 3):
+        out = subprocess.run([sys.executable, "-c", THREADS_SCRIPT, str(threads), str(ROOT)], capture_output=True,
+                             text=True, cwd=ROOT, timeout=300, check=True)
+        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    assert [[r["rows"] for r in run] for run in runs] == [[1, 1], [2, 2], [3, 3]]
+    assert [r["storage"] for r in runs[0]] == ["bits", "hash"]
+    assert sum(runs[0][0]["counts"]) > 10000
+    for run in runs:
+        for r in run:
+            assert r["sums"] == runs[0][0]["sums"] and r["counts"] == runs[0][0]["counts"]
+            assert r["distinct"] == runs[0][0]["distinct"]
+
+
+# ---- memory ------------------------------------------------------------------------------------------------------
+def allocated_bytes(acc: GaussianAccumulator) -> int:
+    """Bytes of the accumulator's Taichi arrays."""
+    import taichi as ti
+
+    total = 0
+    for value in vars(acc).values():
+        if isinstance(value, ti.lang._ndarray.Ndarray):
+            itemsize = 8 if value.dtype in (ti.f64, ti.i64) else 4
+            lanes = int(np.prod(getattr(value, "element_shape", ()) or (1,)))
+            total += int(np.prod(value.shape)) * lanes * itemsize
+    return total
+
+
+def test_estimate_bytes_bounds_what_is_allocated():
+    centers, reach = multi_level_set(20000, seed=61)
+    rng = np.random.default_rng(62)
+    for track, budget in ((False, 512 * 2**20), (True, 512 * 2**20), (True, 0)):
+        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=3000,
+                                  distinct_budget_bytes=budget)
+        for p, v, i in near_surface_steps(rng, centers, 3, 3000, 3000):
+            acc.add(p, v, i)
+        pairs = int(acc.distinct_counts.sum()) if track else None
+        estimate = GaussianAccumulator.estimate_bytes(len(centers), 3000, track, distinct_pairs=pairs,
+                                                      distinct_budget_bytes=budget)
+        assert allocated_bytes(acc) <= estimate
+    # the scale the bit matrix cannot reach: 1M Gaussians x 100k particles (12.5 GB of bits) -> the hash set
+    big = GaussianAccumulator.estimate_bytes(10**6, 10**5, True, distinct_pairs=5 * 10**7, threads=2)
+    assert big < 4 * 2**30
+    assert GaussianAccumulator.estimate_bytes(10**6, 10**5, False, threads=2) < 2**30

@@ -356,3 +356,20 @@ def test_shuffled_control_scores_the_permuted_divergence(visual):
     fluid = physics_view_scores(g, cams, FakePhysics()(g))
     assert max(range(4), key=lambda i: fluid[i]) in (2, 3)  # the true D_g points right ...
     assert picks - {2, 3}  # ... the shuffled one sends some seeds elsewhere
+
+
+def test_occlusion_in_the_context_reaches_the_physics_score():
+    from dataclasses import replace
+
+    from nbv.scores import DepthBuffer, projected_view_scores
+
+    g, cams = _scene(), _candidates()
+    d = torch.linspace(0.5, 2.0, g.num, dtype=torch.float64)
+    want = projected_view_scores(d, g, cams, depth_buffer=DepthBuffer()).scores.tolist()
+    assert physics_view_scores(g, cams, d, occlusion=True) == pytest.approx(want, rel=1e-12)
+    planner = make_planner("physics")
+    ctx = _context(g, candidates=cams, physics=lambda _: d)
+    sel = planner.select(replace(ctx, occlusion=True))
+    assert sel.scores["physics"] == pytest.approx(want, rel=1e-12)
+    plain = planner.select(ctx).scores["physics"]
+    assert plain == pytest.approx(physics_view_scores(g, cams, d), rel=1e-12)

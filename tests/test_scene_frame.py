@@ -180,3 +180,34 @@ def test_every_gaussian_command_takes_up():
                        ("inspect", ["g.ply"]), ("active", ["data", "-o", "run"])):
         args = parser.parse_args(join_dash_values([cmd, *extra, "--up", "-y"]))
         assert args.up == "-y", cmd
+
+
+def test_auto_up_names_the_nearest_axis_and_its_angle():
+    from nbv.scene_frame import describe_auto_up, nearest_axis
+
+    u = parse_up("0.1,-1,0")
+    name, angle = nearest_axis(u)
+    assert name == "-y" and angle == pytest.approx(np.degrees(np.arctan(0.1)))
+    assert "--up -y" in describe_auto_up(u)
+
+
+def test_a_cropped_simulation_gives_every_gaussian_a_row_and_records_the_crop(tmp_path):
+    from nbv.physics import load_result, save_result, simulate_gaussians
+
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(300, 3))
+    pts = 0.5 * pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    g = _gaussians(np.vstack([pts, [[30.0, 0.0, 0.0]]]), scale=0.06)
+    cfg = PhysicsConfig(particle_radius=0.08, steps=60, dt=0.004, empty_reference=False, directions=("-x",),
+                        crop=(-1, -1, -1, 1, 1, 1))
+    res = simulate_gaussians(g, cfg, progress=False)
+    assert res.divergence.shape == (301,) and res.per_probe.shape == (1, 301)
+    assert res.kept is not None and res.kept[:300].all() and not res.kept[300]
+    assert res.divergence[300] == 0 and res.per_probe_counts[0, 300] == 0
+    assert (res.per_probe_counts[0, :300] > 0).any()
+    assert res.means.shape == (301, 3) and res.config.crop == (-1, -1, -1, 1, 1, 1)
+    # the floater does not size the object: 1 unit across -> 2 m
+    assert res.transform.scale == pytest.approx(2.0, rel=0.05)
+    back = load_result(save_result(tmp_path / "r.h5", res))
+    assert np.array_equal(back.kept, res.kept) and back.config == res.config
+    assert np.allclose(back.transform.matrix, res.transform.matrix)

@@ -34,6 +34,9 @@ log = logging.getLogger(__name__)
 OWN_COLORS = "own colours"
 FLUID_VALUES = {"D_i, 1/s": "divergence", "speed, m/s": "speed"}
 SOLID_RGB = (150, 150, 150)
+# the direction each probe's fluid flows (fluidsim.probes.flow_vector, restated: fluidsim loads Taichi)
+PROBE_FLOWS = {"-x": (-1.0, 0.0, 0.0), "+x": (1.0, 0.0, 0.0), "-z": (0.0, 0.0, -1.0), "+z": (0.0, 0.0, 1.0),
+               "-y": (0.0, -1.0, 0.0)}
 LEAK_RGB = (255, 0, 255)
 BACKGROUND = "white"
 # values sampled to pick a trajectory's colour scale (the 99th percentile over all its frames)
@@ -107,6 +110,7 @@ class FluidViewer:
         self._fluid_vmax = {"divergence": 1.0, "speed": 1.0}
         self._fluid_bar_of: tuple[str, str] | None = None
         self._shown_probe: str | None = None
+        self._frustums: list = []
         with contextlib.redirect_stdout(io.StringIO()):  # viser prints a banner; `fluidgs view` prints one line
             self.server = viser.ViserServer(host=self.options.host, port=self.options.port,
                                             label="FluidGaussian", verbose=False)
@@ -132,12 +136,16 @@ class FluidViewer:
         return f"http://{shown}:{self.port}"
 
     def _object_box(self) -> tuple[np.ndarray, float]:
-        """(centre [3], largest extent) of the simulated Gaussians' robust box (0.5-99.5 % quantiles), m."""
-        means = self.data.means if self.data.kept is None else self.data.means[self.data.kept]
-        if len(means) == 0:
-            means = self.data.solid if len(self.data.solid) else np.zeros((1, 3))
-        lo, hi = np.quantile(means, 0.005, axis=0), np.quantile(means, 0.995, axis=0)
-        return (lo + hi) / 2.0, max(float((hi - lo).max()), 4.0 * self.data.particle_radius)
+        """(centre [3], largest extent) of the solid the probes saw, m (without a solid: the robust box, 0.5-99.5 %
+        quantiles, of the simulated Gaussians' centres)."""
+        d = self.data
+        if len(d.solid):
+            lo, hi = d.solid.min(axis=0), d.solid.max(axis=0)
+        else:
+            means = d.means if d.kept is None else d.means[d.kept]
+            means = means if len(means) else np.zeros((1, 3))
+            lo, hi = np.quantile(means, 0.005, axis=0), np.quantile(means, 0.995, axis=0)
+        return (lo + hi) / 2.0, max(float((hi - lo).max()), 4.0 * d.particle_radius)
 
     # ---- Gaussians -------------------------------------------------------------------------------
     def _splat_subset(self) -> np.ndarray:
@@ -308,11 +316,11 @@ class FluidViewer:
         with self._lock:
             x, values = t.frame(index, key)
             self._frame = index
-            if len(x) == 0:  # every particle retired
-                x, values = np.full((1, 3), np.nan, np.float32), np.zeros(1, np.float32)
             with self.server.atomic():
-                self._fluid.points = x
-                self._fluid.colors = self.fluid_colors(values, key)
+                if len(x):
+                    self._fluid.points = x
+                    self._fluid.colors = self.fluid_colors(values, key)
+                self._fluid.visible = len(x) > 0  # hidden when every particle has left the domain
             if int(self._slider.value) != index:
                 self._slider.value = index
             bar = (t.direction, key)
@@ -343,7 +351,6 @@ class FluidViewer:
         colors = score_colors(values) if scored else np.zeros((0, 3), np.uint8)
         color_of = {v.index: tuple(int(c) for c in col) for v, col in zip(scored, colors, strict=True)}
         size = 0.05 * self._extent
-        self._frustums = []
         for v in self.views:
             frustum = scene.add_camera_frustum(f"/cameras/{v.index:03d}", fov=v.fov_y, aspect=v.aspect, scale=size,
                                                thickness=0.06 * size, color=color_of.get(v.index, (60, 60, 60)),
@@ -361,10 +368,20 @@ class FluidViewer:
             if ranked:
                 gui.add_image(colorbar_image(float(values.max()), "view score S(T) of the frustums",
                                              vmin=float(values.min())), format="png")
-        show.on_update(lambda _: [setattr(h, "visible", show.value) for h in self._frustums])
         by_label = {self._view_label(v): v for v in self.views}
-        goto.on_update(lambda event: event.client is not None and goto.value in by_label and
-                       self.go_to(event.client, by_label[goto.value]))
+
+        def show_cameras(_) -> None:
+            for frustum in self._frustums:
+                frustum.visible = show.value
+
+        def go_to_chosen(event) -> None:
+            view = by_label.get(goto.value)
+            if view is not None and event.client is not None:
+                self.go_to(event.client, view)
+                goto.value = "-"  # so that choosing the same view again moves there again
+
+        show.on_update(show_cameras)
+        goto.on_update(go_to_chosen)
 
     @staticmethod
     def _view_label(v: CandidateView) -> str:
@@ -382,11 +399,14 @@ class FluidViewer:
                  "" if view.rank is None else f" (rank {view.rank}, S = {view.score:.4g})")
 
     def _set_initial_camera(self) -> None:
-        """A view of the object's side from outside the candidate cameras (at most 5 object sizes away)."""
+        """A view from a little above, downstream of the replayed probe and to its side (the fluid comes towards the
+        object from behind it), outside the candidate cameras (at most 5 object sizes away)."""
         cam = self.server.initial_camera
-        direction = np.array([0.35, 0.5, 1.0])  # from +z, a little above: the probes along x pass across the view
+        flow = np.asarray(PROBE_FLOWS.get(self._probe.value, (0.0, -1.0, 0.0)))
+        side = np.array([flow[2], 0.0, -flow[0]])  # the flow turned 90 degrees about +y
+        direction = 0.7 * flow + side + np.array([0.0, 0.5, 0.0]) if flow[1] == 0 else np.array([0.35, 0.5, 1.0])
         reach = max((float(np.linalg.norm(v.position - self._centre)) for v in self.views), default=0.0)
-        distance = min(max(2.0 * self._extent, 1.3 * reach), 5.0 * self._extent)
+        distance = min(max(1.4 * self._extent, 1.3 * reach), 5.0 * self._extent)
         cam.position = tuple(self._centre + distance * direction / np.linalg.norm(direction))
         cam.look_at = tuple(self._centre)
         cam.up = (0.0, 1.0, 0.0)
@@ -440,8 +460,9 @@ def open_viewer(result: str | Path, gaussians: str | Path | None = None, scores:
     return FluidViewer(data, looks, views, options)
 
 
-def serve(viewer: FluidViewer, announce=print) -> int:
-    """Announce the URL, serve until Ctrl-C (or SIGTERM), stop cleanly; returns 0."""
+def serve(viewer: FluidViewer, announce=log.info) -> int:
+    """Announce the URL (``announce(line)``; `fluidgs view` prints it), serve until Ctrl-C (or SIGTERM), stop
+    cleanly; returns 0."""
     import signal
 
     def on_term(signum, frame):
