@@ -1,14 +1,24 @@
-"""Taichi runtime set-up for the command-line tools (the only place, with test fixtures, that calls ti.init)."""
+"""Runtime helpers of the command-line tools: argparse types, and the Taichi set-up of :mod:`fluidsim.runtime`.
+
+``init_taichi``, ``check_threads`` and ``release_unreachable_arrays`` are re-exported from :mod:`fluidsim.runtime`
+on first use (PEP 562 module ``__getattr__``): importing ``fluidsim`` loads Taichi, which ``fluidgs --help`` and the
+argparse types here never need. The tools and test fixtures are the only callers of ``init_taichi``.
+"""
 
 from __future__ import annotations
 
 import argparse
-import gc
-import logging
-import numbers
-import os
 
-log = logging.getLogger("fluidgs")
+_FROM_FLUIDSIM = ("check_threads", "init_taichi", "release_unreachable_arrays")
+__all__ = [*_FROM_FLUIDSIM, "positive_int"]
+
+
+def __getattr__(name: str):
+    if name in _FROM_FLUIDSIM:
+        from fluidsim import runtime
+
+        return getattr(runtime, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def positive_int(text: str) -> int:
@@ -21,85 +31,3 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
     return value
-
-
-def check_threads(threads: int | None, option: str = "--threads") -> int | None:
-    """``threads`` unchanged when None (all cores) or an integer >= 1; else ValueError naming ``option``.
-
-    Taichi takes any integer: 0 silently meant all cores and -1 failed inside its C++ runtime with
-    ``vector::_M_default_append``."""
-    if threads is None:
-        return None
-    if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
-        raise ValueError(f"{option} must be an integer >= 1 (CPU threads; leave it out for all cores), "
-                         f"got {threads!r}")
-    return int(threads)
-
-
-def init_taichi(device: str = "cpu", precision: str = "f32", threads: int | None = None, debug: bool = False) -> str:
-    """Initialise Taichi once for this process; returns the device actually used ("cpu" or "cuda").
-
-    A runtime that already runs with these settings is kept (no re-initialisation, no recompilation).
-    Before a new ``ti.init`` the garbage collector runs, so that arrays of the old runtime that only cycles
-    still hold are released by the runtime that owns them (:func:`release_unreachable_arrays`).
-
-    Args:
-        device: "cpu" or "cuda"; "cuda" falls back to the CPU with a logged notice when unavailable.
-        precision: "f32" or "f64" (the default float type of every kernel).
-        threads: CPU threads, >= 1 (None: all cores); anything else is a ValueError naming ``--threads``.
-        debug: Taichi debug mode (bounds checks).
-    """
-    import taichi as ti
-
-    threads = check_threads(threads)
-    if device not in ("cpu", "cuda"):
-        raise ValueError(f"--device must be cpu or cuda, got {device!r}")
-    if precision not in ("f32", "f64"):
-        raise ValueError(f"--precision must be f32 or f64, got {precision!r}")
-    fp = ti.f64 if precision == "f64" else ti.f32
-    if _running_with(ti, device, fp, threads, debug):
-        log.info("Taichi already running on %s, %s; kept", device, precision)
-        return device
-    release_unreachable_arrays()
-    kwargs = dict(default_fp=fp, offline_cache=True, log_level=ti.WARN, debug=debug)
-    if threads:
-        kwargs["cpu_max_num_threads"] = int(threads)
-    used = "cpu"
-    if device == "cuda":
-        try:
-            ti.init(arch=ti.cuda, **kwargs)
-            used = "cuda" if ti.lang.impl.current_cfg().arch == ti.cuda else "cpu"
-        except Exception as exc:  # noqa: BLE001 - any CUDA start-up failure means "use the CPU"
-            log.warning("CUDA unavailable (%s)", exc)
-            used = "cpu"
-        if used == "cpu":
-            log.warning("--device cuda requested but no CUDA device is usable; falling back to the CPU")
-            ti.init(arch=ti.cpu, **kwargs)
-    else:
-        ti.init(arch=ti.cpu, **kwargs)
-    log.info("Taichi on %s, %s, %s threads", used, precision, threads or os.cpu_count())
-    return used
-
-
-def _running_with(ti, device: str, fp, threads: int | None, debug: bool) -> bool:
-    """Whether the current Taichi runtime already has these settings (arch, float type, threads, debug)."""
-    runtime = ti.lang.impl.get_runtime()
-    if runtime.prog is None:
-        return False
-    cfg = ti.lang.impl.current_cfg()
-    arch_ok = cfg.arch == ti.cuda if device == "cuda" else cfg.arch in (ti.x64, ti.arm64)
-    return (arch_ok and runtime.default_fp == fp and bool(cfg.debug) == bool(debug)
-            and cfg.cpu_max_num_threads == int(threads or os.cpu_count() or 1))
-
-
-def release_unreachable_arrays() -> None:
-    """Collect garbage before ``ti.init`` replaces the runtime.
-
-    Taichi 1.7 frees an ndarray through the runtime that is current when the Python object dies, by the
-    address of its C++ array. An array of the old runtime that a reference cycle kept alive past
-    ``ti.init`` would hand the new runtime a stale address, which the allocator may already have given to
-    a live array of the new runtime: that array is then freed under its owner's feet (seen as
-    ``RuntimeError: argument not found`` at a later launch). Collecting first releases such arrays
-    while their own runtime still exists.
-    """
-    gc.collect()

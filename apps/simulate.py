@@ -186,10 +186,11 @@ def write_colored_ply(gaussians, divergence, path: Path) -> Path:
 
 
 def write_probe_video(result, direction: str, out: Path, every: int = 10, progress: bool = True) -> Path:
-    """Re-run one probe of ``result`` against its solid and draw it as an MP4 coloured by divergence."""
+    """Re-run one probe of ``result`` against its solid and draw it as an H.264 MP4 (plays in browsers) coloured by
+    divergence."""
     from fluidsim.probes import build_probe_solver, probe_setup
+    from viz.frames import FrameStyle, render_frames
 
-    from .render_frames import FrameStyle, render_frames
     from .sim import simulate_to_h5
 
     cfg = result.config

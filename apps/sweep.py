@@ -5,16 +5,13 @@ setting (``--steps`` x ``--dt`` at U_base = ``--speed``, default 3 m/s), so high
 With ``--compare`` both sets use the scale resolved on the first (D-bar scales with its fourth power).
 L is the largest extent of the -x probe's domain (m). Writes a CSV (U, Re, Delta t, steps, D-bar, and
 with ``--compare OTHER.ply`` D-bar of OTHER and the gap D-bar(OTHER) - D-bar) and a PNG plot drawn with
-OpenCV: D-bar against U (log x) and a table of Re and Delta t.
+matplotlib (:mod:`viz.plots`): D-bar against U (log x) and a table of Re, Delta t and steps.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
-
-import numpy as np
 
 from .simulate import add_physics_arguments, check_output_file, load_gaussians_checked, physics_config_from_args
 
@@ -32,73 +29,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_physics_arguments(p, empty_reference=False)  # the sweep compares D-bar across speeds, never the empty scene
 
 
-def _ticks_log(lo: float, hi: float) -> list[float]:
-    out = []
-    for e in range(math.floor(math.log10(lo)), math.ceil(math.log10(hi)) + 1):
-        for m in (1, 2, 3, 5):
-            v = m * 10.0**e
-            if lo * 0.999 <= v <= hi * 1.001:
-                out.append(v)
-    return out or [lo, hi]
-
-
 def plot_sweep(points, path: Path, title: str = "") -> Path:
-    """Draw D-bar (and OTHER's) against U on a log-x axis, with a Re / Delta t table; PNG written atomically."""
-    import cv2
+    """Draw D-bar (and OTHER's) against U on a log-x axis, with a Re / Delta t table (:func:`viz.plots.plot_sweep`);
+    PNG written atomically."""
+    from viz.plots import plot_sweep as draw
 
-    width, height, ml, mr, mt, mb = 900, 620, 90, 30, 50, 230
-    img = np.full((height, width, 3), 255, np.uint8)
-    font, black, grey = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0), (200, 200, 200)
-    us = np.array([p.speed for p in points])
-    series = [("D-bar", np.array([p.dbar for p in points]), (200, 80, 0))]
-    if all(p.dbar_other is not None for p in points):
-        series.append(("D-bar OTHER", np.array([p.dbar_other for p in points]), (0, 0, 220)))
-    ulo, uhi = (us.min() / 1.2, us.max() * 1.2) if len(us) else (1.0, 10.0)
-    ymax = max(max(float(s.max()) for _, s, _ in series), 1e-30) * 1.1
-    x0, x1, y0, y1 = ml, width - mr, height - mb, mt
-
-    def px(u: float) -> int:
-        return int(x0 + (math.log10(u) - math.log10(ulo)) / (math.log10(uhi) - math.log10(ulo)) * (x1 - x0))
-
-    def py(v: float) -> int:
-        return int(y0 - v / ymax * (y0 - y1))
-
-    for t in _ticks_log(ulo, uhi):
-        cv2.line(img, (px(t), y0), (px(t), y1), grey, 1)
-        cv2.putText(img, f"{t:g}", (px(t) - 10, y0 + 18), font, 0.45, black, 1, cv2.LINE_AA)
-    for k in range(6):
-        v = ymax * k / 5
-        cv2.line(img, (x0, py(v)), (x1, py(v)), grey, 1)
-        cv2.putText(img, f"{v:.3g}", (4, py(v) + 4), font, 0.4, black, 1, cv2.LINE_AA)
-    cv2.rectangle(img, (x0, y1), (x1, y0), black, 1)
-    cv2.putText(img, "U (m/s, log scale)", ((x0 + x1) // 2 - 70, y0 + 40), font, 0.5, black, 1, cv2.LINE_AA)
-    cv2.putText(img, "D-bar (m^4/s)", (4, y1 - 12), font, 0.5, black, 1, cv2.LINE_AA)
-    cv2.putText(img, title or "geometry divergence vs inflow speed", (x0 + 120, 24), font, 0.6, black, 1, cv2.LINE_AA)
-    for k, (name, vals, color) in enumerate(series):
-        pts = np.array([[px(u), py(v)] for u, v in zip(us, vals, strict=True)], np.int32)
-        cv2.polylines(img, [pts], False, color, 2, cv2.LINE_AA)
-        for q in pts:
-            cv2.circle(img, tuple(int(c) for c in q), 4, color, -1, cv2.LINE_AA)
-        ly = y1 + 20 + 20 * k
-        cv2.line(img, (x0 + 10, ly - 4), (x0 + 40, ly - 4), color, 2)
-        cv2.putText(img, name, (x0 + 50, ly), font, 0.45, black, 1, cv2.LINE_AA)
-    rows = [("U m/s", [f"{p.speed:g}" for p in points]), ("Re", [f"{p.reynolds:.3g}" for p in points]),
-            ("dt s", [f"{p.dt:.2e}" for p in points]), ("steps", [str(p.steps) for p in points]),
-            ("D-bar", [f"{p.dbar:.3g}" for p in points])]
-    if series[1:]:
-        rows.append(("gap", [f"{p.gap:.3g}" for p in points]))
-    col = max(1, (width - 100) // max(1, len(points)))
-    for r, (name, cells) in enumerate(rows):
-        y = y0 + 70 + 24 * r
-        cv2.putText(img, name, (8, y), font, 0.45, black, 1, cv2.LINE_AA)
-        for c, text in enumerate(cells):
-            cv2.putText(img, text, (90 + c * col, y), font, 0.4, black, 1, cv2.LINE_AA)
-    from fluidsim.output import atomic_output
-
-    with atomic_output(path, ".png") as tmp:  # OpenCV picks the format from the suffix
-        if not cv2.imwrite(str(tmp), img):
-            raise OSError("OpenCV could not write the plot; choose a writable output folder")
-    return path
+    other = [p.dbar_other for p in points] if all(p.dbar_other is not None for p in points) else None
+    return draw(path, [p.speed for p in points], [p.dbar for p in points], dbar_other=other,
+                reynolds=[p.reynolds for p in points], dts=[p.dt for p in points], steps=[p.steps for p in points],
+                title=title)
 
 
 def run_command(args: argparse.Namespace) -> int:

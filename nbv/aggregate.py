@@ -76,14 +76,14 @@ CELL_FRACTION = 0.5
 MIN_CELL_FRACTION = 1.0 / 16
 LOOKUP_COST = 16.0
 ENTRIES_PER_GAUSSIAN = 128
-CELLS_PER_GAUSSIAN = 32
+CELLS_PER_GAUSSIAN = 8
 MIN_LEVEL_CELLS = 1 << 16
 _ENTRY_SLACK = 1 << 20
-# Hash set of distinct pairs: grown (x2) when more than _HASH_LOAD full after a launch; inserts are refused
-# (and the launch repeated after growing) above _HASH_LIMIT.
+# Hash set of distinct pairs: doubled before an insert would fill it beyond _HASH_LOAD; the listed first steps of
+# visits (the keys to insert) start in a buffer of _KEY_BUFFER keys, grown when a batch lists more.
 _HASH_LOAD = 0.5
-_HASH_LIMIT = 0.75
 _HASH_MIN_SLOTS = 1 << 16
+_KEY_BUFFER = 1 << 16
 # Per-id records of the previous sample (24 bytes each): ids must stay below this.
 MAX_PARTICLE_IDS = 1 << 27
 # Bytes per Gaussian while the levels are planned (numpy temporaries: masks, gaps, cell indices, sort keys).
@@ -389,10 +389,11 @@ class GaussianAccumulator:
         self._saturation_logged = False
         self._stage_x = self._stage_values = self._stage_ids = None
         self._stage_capacity = self._staged = self._staged_steps = 0
-        self._no_bits = ti.ndarray(ti.u32, shape=(1, 1))
-        self._no_hash = ti.ndarray(ti.i64, shape=1)
+        self._no_keys = ti.ndarray(ti.i64, shape=1)
         self._no_prev = ti.Vector.ndarray(3, ti.f64, shape=1)
-        self._hash_state = ti.ndarray(ti.i64, shape=3)
+        self._hash_fill = ti.ndarray(ti.i64, shape=1)  # filled slots of the hash set
+        self._emitted = ti.ndarray(ti.i64, shape=1)    # keys listed by the last launch
+        self._keys = self._no_keys
         self._storage = "bits" if self.track_distinct else "none"
         self._bits = None
         self._bit_width = 0
@@ -420,7 +421,8 @@ class GaussianAccumulator:
             for level in range(lv.num_levels):
                 cell = float(lv.table[level, 4])
                 slack = 1e-6 * cell
-                reach_cells = int(math.floor(float(reach[lv.first[level]: lv.first[level + 1]].max() + slack) / cell)) + 1
+                largest = float(reach[lv.first[level]: lv.first[level + 1]].max())
+                reach_cells = int(math.floor((largest + slack) / cell)) + 1
                 kernels.list_cells(level + 1, reach_cells, slack, fill, self._gauss, ti_reach, self._table, centres,
                                    counts, lists)
 
@@ -495,7 +497,8 @@ class GaussianAccumulator:
             ``MIN_LEVEL_CELLS`` per level, 4 B each), the rows of sums (16 B per Gaussian and row), the staging, and
             the largest of the temporaries (the plan's numpy arrays, the build's per-cell arrays, the read-back of
             the sums); with distinct tracking the per-id previous samples (24 B per particle id) and the bit matrix,
-            or the hash set at up to 48 B per pair while it grows (a half-full set and its double).
+            or the hash set at up to 48 B per pair while it grows (a half-full set and its double) and the buffer of
+            listed pairs (64 per staged particle).
         """
         g, f = int(num_gaussians), int(max_fluid)
         if threads is None:
@@ -517,8 +520,9 @@ class GaussianAccumulator:
             else:
                 pairs = default_distinct_pairs(g, f) if distinct_pairs is None else int(distinct_pairs)
                 slots = 1 << max(int(math.ceil(math.log2(max(pairs / _HASH_LOAD, _HASH_MIN_SLOTS)))), 0)
-                distinct = 3 * 8 * slots  # while growing: the old set and its double
-            distinct += 24 * f + 16 * g  # previous samples; the distinct counts read back
+                distinct = 12 * slots  # the last doubling holds the old set and the new one
+            # previous samples, the distinct counts read back, the largest buffer of listed pairs of a batch
+            distinct += 24 * f + 16 * g + 8 * max(_KEY_BUFFER, 64 * min(f * batch_steps, _STAGE_BUDGET // per_staged))
         return int(persistent + temporaries + staged + distinct)
 
     # -- distinct-id storage ----------------------------------------------------------------------
@@ -576,20 +580,24 @@ class GaussianAccumulator:
     def _new_hash(self, slots: int) -> None:
         self._hashes = ti.ndarray(ti.i64, shape=slots)
         self._hashes.fill(kernels.EMPTY_KEY)
-        self._hash_state.from_numpy(np.array([0, int(_HASH_LIMIT * slots), 0], np.int64))
+        self._hash_fill.fill(0)
 
     def _insert_keys(self, keys: np.ndarray) -> None:
-        while int(self._hash_state.to_numpy()[0]) + len(keys) > _HASH_LOAD * self._hashes.shape[0]:
-            self._grow_hash()
         arr = ti.ndarray(ti.i64, shape=len(keys))
         arr.from_numpy(keys)
-        kernels.insert_keys(arr, self._hashes, self._hash_state)
+        self._insert_listed(arr, len(keys))
+
+    def _insert_listed(self, keys, n: int) -> None:
+        """Insert ``keys[:n]`` (a Taichi array) into the hash set, doubled first while it would be over half full."""
+        while int(self._hash_fill.to_numpy()[0]) + n > _HASH_LOAD * self._hashes.shape[0]:
+            self._grow_hash()
+        kernels.insert_keys(n, keys, self._hashes, self._hash_fill)
 
     def _grow_hash(self) -> None:
         """Double the hash set (rehash on the device)."""
         old = self._hashes
         self._new_hash(2 * old.shape[0])
-        kernels.insert_keys(old, self._hashes, self._hash_state)
+        kernels.insert_keys(old.shape[0], old, self._hashes, self._hash_fill)
         log.debug("distinct pairs: hash set grown to %d slots (%.0f MiB)", self._hashes.shape[0],
                   8 * self._hashes.shape[0] / 2**20)
 
@@ -607,21 +615,24 @@ class GaussianAccumulator:
         if self._storage == "none":
             kernels.accumulate(n, xs, values, *geometry, self._private, serial, self._acc)
             return
-        common = (n, xs, values, ids, prevs, *geometry)
-        if self._storage == "bits":
-            kernels.accumulate_tracked(*common, True, kernels.TRACK_BITS, self._private, serial, self._acc,
-                                       self._bits, self._no_hash, self._hash_state)
-            return
+        if self._keys.shape[0] < _KEY_BUFFER:
+            self._keys = ti.ndarray(ti.i64, shape=_KEY_BUFFER)
         add_values = True
-        while True:  # a full set refuses inserts: grow it and run the batch's records again (idempotent)
-            kernels.accumulate_tracked(*common, add_values, kernels.TRACK_HASH, self._private, serial, self._acc,
-                                       self._no_bits, self._hashes, self._hash_state)
+        while True:  # a full key buffer: grow it and list the batch's pairs again (without adding the values again)
+            self._emitted.fill(0)
+            kernels.accumulate_tracked(n, xs, values, ids, prevs, *geometry, add_values, True, self._private, serial,
+                                       self._acc, self._keys, self._emitted)
             add_values = False
-            fill, _, overflow = (int(v) for v in self._hash_state.to_numpy())
-            if overflow or fill > _HASH_LOAD * self._hashes.shape[0]:
-                self._grow_hash()
-            if not overflow:
-                return
+            emitted = int(self._emitted.to_numpy()[0])
+            if emitted <= self._keys.shape[0]:
+                break
+            self._keys = ti.ndarray(ti.i64, shape=int(1.25 * emitted) + 1)
+        if not emitted:
+            return
+        if self._storage == "bits":
+            kernels.set_bits(emitted, self._keys, self._bits)
+        else:
+            self._insert_listed(self._keys, emitted)
 
     def add_from_solver(self, solver: DFSPHSolver) -> None:
         """Add this step's D_i of the solver's active fluid particles (device-side copies to the staging
@@ -727,7 +738,7 @@ class GaussianAccumulator:
             self._bits.fill(0)
         if self._hashes is not None:
             self._hashes.fill(kernels.EMPTY_KEY)
-            self._hash_state.from_numpy(np.array([0, int(_HASH_LIMIT * self._hashes.shape[0]), 0], np.int64))
+            self._hash_fill.fill(0)
         if self._id_capacity:
             self._last.fill(float("nan"))
 
@@ -785,8 +796,11 @@ def default_distinct_pairs(num_gaussians: int, max_fluid: int) -> int:
     return int(min(PAIRS_PER_GAUSSIAN * num_gaussians, num_gaussians * max(max_fluid, 1)))
 
 
-# Distinct pairs per Gaussian of one probe assumed by the estimate (measured: see the module docstring).
-PAIRS_PER_GAUSSIAN = 256
+# Distinct pairs per Gaussian of one probe assumed by the estimate. Measured in the paper setting (r = 0.025 m,
+# 750 steps, the -x probe of `critical`): 4.7 per Gaussian on the 152,746-Gaussian person capture and on its 7 x
+# jittered copy (1.07M Gaussians, 5.0M pairs); the bundled Ahmed asset (larger Gaussians, 17,952 of them) has about
+# 60 per Gaussian after 200 steps, but a set that small keeps the bit matrix.
+PAIRS_PER_GAUSSIAN = 16
 
 
 def within_reach_reference(centers: np.ndarray, reach: np.ndarray, positions: np.ndarray,

@@ -13,11 +13,6 @@ import taichi as ti
 vec3d = ti.types.vector(3, ti.f64)
 vec4d = ti.types.vector(4, ti.f64)
 
-# Track modes of :func:`accumulate_tracked`: nothing, one bit per (Gaussian, particle id), or a hash set of (g, id)
-# keys.
-TRACK_NONE = 0
-TRACK_BITS = 1
-TRACK_HASH = 2
 # An empty slot of the hash set (keys are g * 2^32 + id >= 0).
 EMPTY_KEY = -1
 
@@ -175,7 +170,7 @@ def set_insert(hashes: ti.template(), fill: ti.template(), key):
 
 @ti.func
 def visit_gaussian(g, x, q, row, pid, prev, prev_ok, gauss: ti.template(), add_values: ti.template(),
-                   track: ti.template(), private: ti.template(), acc: ti.template(), bits: ti.template(),
+                   track: ti.template(), private: ti.template(), acc: ti.template(),
                    keys: ti.template(), emitted: ti.template()):
     """Paper Eq. 2-3 for one (particle, Gaussian) pair: when |x - mu_g|^2 < r_g^2 add the value (quanta q) and 1 to
     row ``row`` of g, and record the particle id ``pid`` unless the particle's previous sample ``prev`` (``prev_ok``:
@@ -194,36 +189,33 @@ def visit_gaussian(g, x, q, row, pid, prev, prev_ok, gauss: ti.template(), add_v
         if hit:
             ti.atomic_add(acc[0, g, 0], q)
             ti.atomic_add(acc[0, g, 1], ti.i64(1))
-    if ti.static(track != TRACK_NONE):
+    if ti.static(track):
         # the previous sample's test, computed branch-free: only the rare first step of a visit branches
         ex, ey, ez = prev[0] - p[0], prev[1] - p[1], prev[2] - p[2]
         seen = ti.select(prev_ok, ex * ex + ey * ey + ez * ez < p[3], False)
-        if ti.select(seen, False, hit):
-            if ti.static(track == TRACK_BITS):
-                ti.atomic_or(bits[g, pid >> 5], ti.cast(1, ti.u32) << ti.cast(pid & 31, ti.u32))
-            if ti.static(track == TRACK_HASH):  # listed here, inserted by :func:`insert_keys` (a lean inner loop)
-                slot = ti.atomic_add(emitted[0], ti.i64(1))
-                if slot < keys.shape[0]:
-                    keys[slot] = (ti.cast(g, ti.i64) << 32) + ti.cast(pid, ti.i64)
+        if ti.select(seen, False, hit):  # listed here, recorded by another kernel: a lean inner loop
+            slot = ti.atomic_add(emitted[0], ti.i64(1))
+            if slot < keys.shape[0]:
+                keys[slot] = (ti.cast(g, ti.i64) << 32) + ti.cast(pid, ti.i64)
 
 
 @ti.func
 def visit_level(lv, x, q, row, pid, prev, prev_ok, table: ti.template(), lists: ti.template(),
                 gauss: ti.template(), add_values: ti.template(), track: ti.template(), private: ti.template(),
-                acc: ti.template(), bits: ti.template(), keys: ti.template(), emitted: ti.template()):
+                acc: ti.template(), keys: ti.template(), emitted: ti.template()):
     """The Gaussians of level ``lv`` listed in the cell of x."""
     inside, c = level_cell(table, lv, x)
     if inside:
         items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
         for s in range(lists[c], lists[c + 1]):
             visit_gaussian(lists[items + s], x, q, row, pid, prev, prev_ok, gauss, add_values, track, private, acc,
-                           bits, keys, emitted)
+                           keys, emitted)
 
 
 @ti.func
 def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
                    table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
-                   track: ti.template(), private: ti.template(), acc: ti.template(), bits: ti.template(),
+                   track: ti.template(), private: ti.template(), acc: ti.template(),
                    keys: ti.template(), emitted: ti.template()):
     """Paper Eq. 2-3 for fluid particle i inside the domain: every level (:func:`visit_level`); a saturated value
     (:func:`fixed_point`) is counted in the extra slot G."""
@@ -239,35 +231,35 @@ def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.tem
         prev = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         prev_ok = False
         pid = 0
-        if ti.static(track != TRACK_NONE):
+        if ti.static(track):
             prev = prevs[i]
             prev_ok = inside_domain(table, prev)
             pid = ti.cast(ids[i], ti.i32)
         for lv in range(1, table.shape[0]):
             visit_level(lv, x, q, row, pid, prev, prev_ok, table, lists, gauss, add_values, track, private, acc,
-                        bits, keys, emitted)
+                        keys, emitted)
 
 
 @ti.func
 def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
               table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
               track: ti.template(), private: ti.template(), serial: ti.template(), acc: ti.template(),
-              bits: ti.template(), keys: ti.template(), emitted: ti.template()):
+              keys: ti.template(), emitted: ti.template()):
     """All particles: on the launching thread into row 0 (``serial``), in parallel with each CPU thread adding into
     its own row (``private``: row = the thread's index, so the caller gives at least as many rows as threads),
     or in parallel with atomic adds into row 0 (GPUs)."""
     if ti.static(serial):
         ti.loop_config(serialize=True)
         for i in range(n):
-            visit_particle(i, 0, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc, bits,
-                           keys, emitted)
+            visit_particle(i, 0, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc, keys,
+                           emitted)
     else:
         for i in range(n):
             row = 0
             if ti.static(private):
                 row = ti.global_thread_idx()
             visit_particle(i, row, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc,
-                           bits, keys, emitted)
+                           keys, emitted)
 
 
 @ti.kernel
@@ -294,7 +286,7 @@ def accumulate(
     ``serial``: the particles run on the launching thread (row 0), which on small probes costs less than
     waking the thread pool.
     """
-    visit_all(n, xs, values, values, xs, table, lists, gauss, True, TRACK_NONE, private, serial, acc, acc, acc, acc)
+    visit_all(n, xs, values, values, xs, table, lists, gauss, True, False, private, serial, acc, acc, acc)
 
 
 @ti.kernel
@@ -312,23 +304,20 @@ def accumulate_tracked(
     private: ti.template(),
     serial: ti.template(),
     acc: ti.types.ndarray(dtype=ti.i64, ndim=3),
-    bits: ti.types.ndarray(dtype=ti.u32, ndim=2),
     keys: ti.types.ndarray(dtype=ti.i64, ndim=1),
     emitted: ti.types.ndarray(dtype=ti.i64, ndim=1),
 ):
     """:func:`accumulate` (when ``add_values``) that also records the ids of the particles that come within reach of
-    each Gaussian. A pair is recorded when particle ``ids[i]`` is within reach of g now and its previous sample
-    ``prevs[i]`` was not (or was outside the domain, or there is none: NaN), since every visit starts with such a
-    step; the set of pairs is the same, at the cost of one record per visit instead of one per step.
-
-    - ``track`` = TRACK_BITS: sets bit ``ids[i]`` of row g of ``bits`` [G, words] (atomic or);
-    - ``track`` = TRACK_HASH: appends g * 2^32 + ids[i] to ``keys`` (slot from ``emitted[0]``; slots past the end are
-      counted but not written, so the caller can grow ``keys`` and record the batch again), for :func:`insert_keys`.
+    each Gaussian (``track``, True). A pair is listed when particle ``ids[i]`` is within reach of g now and its
+    previous sample ``prevs[i]`` was not (or was outside the domain, or there is none: NaN), since every visit starts
+    with such a step: the set of pairs is the same, at the cost of one record per visit instead of one per step.
+    The key g * 2^32 + ids[i] goes to ``keys`` (slot from ``emitted[0]``; slots past the end are counted but not
+    written, so the caller can grow ``keys`` and list the batch again), and :func:`set_bits` or :func:`insert_keys`
+    records the listed keys.
 
     ``serial``: as in :func:`accumulate`.
     """
-    visit_all(n, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, bits, keys,
-              emitted)
+    visit_all(n, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, keys, emitted)
 
 
 @ti.func
@@ -375,12 +364,21 @@ def stage_particles(
 
 
 @ti.kernel
-def insert_keys(n: ti.i64, keys: ti.types.ndarray(dtype=ti.i64, ndim=1), hashes: ti.types.ndarray(dtype=ti.i64, ndim=1),
+def insert_keys(n: ti.i32, keys: ti.types.ndarray(dtype=ti.i64, ndim=1), hashes: ti.types.ndarray(dtype=ti.i64, ndim=1),
                 fill: ti.types.ndarray(dtype=ti.i64, ndim=1)):
     """Insert the keys >= 0 among ``keys[:n]`` (listed pairs, or another set's slots) into the set ``hashes``."""
     for i in range(n):
         if keys[i] != EMPTY_KEY:
             set_insert(hashes, fill, keys[i])
+
+
+@ti.kernel
+def set_bits(n: ti.i32, keys: ti.types.ndarray(dtype=ti.i64, ndim=1), bits: ti.types.ndarray(dtype=ti.u32, ndim=2)):
+    """Set bit id of row g of ``bits`` [G, words] for every key g * 2^32 + id among ``keys[:n]`` (atomic or)."""
+    for i in range(n):
+        g = ti.cast(keys[i] >> 32, ti.i32)
+        pid = ti.cast(keys[i] & ti.i64(0xFFFFFFFF), ti.i32)
+        ti.atomic_or(bits[g, pid >> 5], ti.cast(1, ti.u32) << ti.cast(pid & 31, ti.u32))
 
 
 @ti.kernel

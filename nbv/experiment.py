@@ -42,7 +42,8 @@ Tables (``OUTPUT/tables/*.md`` and ``*.csv``, all in ``tables.md``; mean +- samp
   selection was driven by one direction, beside the visual planner alone and the five-direction fused method (the
   paper's per-direction ablation).
 
-Plots (OpenCV bar charts with +-std whiskers): ``OUTPUT/plots/psnr.png``, ``dbar.png``, ``dbar_direction.png``.
+Plots (matplotlib bar charts with +-std whiskers, :func:`viz.plots.bar_chart`): ``OUTPUT/plots/psnr.png``,
+``dbar.png``, ``dbar_direction.png``.
 """
 
 from __future__ import annotations
@@ -414,62 +415,10 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
     return tables
 
 
-def bar_chart(labels: Sequence[str], means: Sequence[float | None], stds: Sequence[float | None], title: str,
-              width: int = 720, height: int = 420) -> np.ndarray:
-    """A BGR uint8 bar chart (OpenCV) with +-std whiskers; missing values are drawn as "n/a"."""
-    import cv2
-
-    img = np.full((height, width, 3), 255, np.uint8)
-    left, right, top, bottom = 70, 20, 40, 110
-    cv2.putText(img, title, (left, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
-    vals = [(m or 0.0) + (s or 0.0) for m, s in zip(means, stds, strict=True)]
-    lo = min([0.0] + [m for m in means if m is not None])
-    hi = max(vals + [1e-30])
-    span = hi - lo if hi > lo else 1.0
-    plot_h = height - top - bottom
-
-    def y_of(v: float) -> int:
-        return int(top + plot_h * (1.0 - (v - lo) / span))
-
-    cv2.line(img, (left, top), (left, height - bottom), (0, 0, 0), 1)
-    cv2.line(img, (left, y_of(0.0)), (width - right, y_of(0.0)), (0, 0, 0), 1)
-    for frac in (0.0, 0.5, 1.0):
-        v = lo + frac * span
-        cv2.putText(img, f"{v:.3g}", (4, y_of(v) + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (60, 60, 60), 1, cv2.LINE_AA)
-    n = max(len(labels), 1)
-    slot = (width - left - right) / n
-    palette = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148), (75, 86, 140)]
-    for i, (lab, m, s) in enumerate(zip(labels, means, stds, strict=True)):
-        x0, x1 = int(left + i * slot + 0.2 * slot), int(left + (i + 1) * slot - 0.2 * slot)
-        xc = (x0 + x1) // 2
-        if m is None:
-            cv2.putText(img, "n/a", (x0, y_of(0.0) - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-        else:
-            cv2.rectangle(img, (x0, min(y_of(m), y_of(0.0))), (x1, max(y_of(m), y_of(0.0))), palette[i % 6], -1)
-            if s:
-                cv2.line(img, (xc, y_of(m - s)), (xc, y_of(m + s)), (0, 0, 0), 1)
-                for v in (m - s, m + s):
-                    cv2.line(img, (xc - 5, y_of(v)), (xc + 5, y_of(v)), (0, 0, 0), 1)
-            cv2.putText(img, f"{m:.3g}", (x0, max(y_of(m), top) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1,
-                        cv2.LINE_AA)
-        words = lab if len(lab) <= 14 else lab[:13] + "."
-        cv2.putText(img, words, (x0 - 4, height - bottom + 18 + 14 * (i % 2)), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
-                    (0, 0, 0), 1, cv2.LINE_AA)
-    return img
-
-
-def write_png(path: Path, image: np.ndarray) -> Path:
-    """Encode with OpenCV and write atomically."""
-    import cv2
-
-    ok, buf = cv2.imencode(".png", image)
-    if not ok:
-        raise ValueError(f"could not encode {path}")
-    return write_atomic(path, lambda tmp: tmp.write_bytes(buf.tobytes()))
-
-
 def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[str, Any]:
     """Write OUTPUT/tables/{name}.md|.csv, OUTPUT/tables.md and the plots."""
+    from viz.plots import DBAR_LABEL, bar_chart
+
     tables = build_tables(rows)
     tdir, pdir = out / "tables", out / "plots"
     tdir.mkdir(exist_ok=True)
@@ -485,10 +434,11 @@ def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[
     files.append(write_atomic(out / "tables.md", lambda tmp: tmp.write_text(combined)))
     groups = {**_by_method(rows), **_by_method(rows, "reference")}
     labels = list(groups)
-    for key, title in (("psnr", "test PSNR (dB)"), ("dbar", "geometry divergence D-bar (m^4/s)")):
+    for key, title, ylabel in (("psnr", "test PSNR", "PSNR (dB)"),
+                               ("dbar", "geometry divergence D-bar", DBAR_LABEL)):
         stats = [mean_std([r[key] for r in groups[m]]) for m in labels]
-        img = bar_chart(labels, [s[0] for s in stats], [s[1] for s in stats], title)
-        files.append(write_png(pdir / f"{key}.png", img))
+        files.append(bar_chart(pdir / f"{key}.png", labels, [s[0] for s in stats], [s[1] for s in stats],
+                               title=title, ylabel=ylabel))
     dir_labels, dir_means, dir_stds = [], [], []
     for m in labels:
         for d in DIRECTIONS:
@@ -499,7 +449,7 @@ def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[
                 dir_means.append(mean)
                 dir_stds.append(std)
     if dir_labels:
-        img = bar_chart(dir_labels, dir_means, dir_stds, "D-bar per probe direction (m^4/s)",
-                        width=max(720, 60 * len(dir_labels)))
-        files.append(write_png(pdir / "dbar_direction.png", img))
+        files.append(bar_chart(pdir / "dbar_direction.png", dir_labels, dir_means, dir_stds,
+                               title="D-bar per probe direction", ylabel=DBAR_LABEL, xlabel="method and probe",
+                               width=max(720, 60 * len(dir_labels))))
     return {"rows": rows, "tables": {k: md for k, (md, _) in tables.items()}, "files": [str(f) for f in files]}

@@ -85,7 +85,10 @@ def detect_format(path: str | Path) -> str:
                 ".npz": "not a readable .npz archive (no zip signature)",
                 ".spz": "not an .spz file (neither gzip-wrapped nor starting with 'NGSP')"}
     what = expected.get(suffix, f"unrecognised Gaussian file format (suffix {path.suffix!r})")
-    raise ValueError(f"{path}: {what}; it starts with {head!r}; {SUPPORTED}")
+    size = path.stat().st_size
+    hint = (f" (its {size} bytes are a whole number of 32-byte records: if it is an antimatter15 .splat, which has "
+            f"no header, rename it to {path.stem}.splat)" if size % dotsplat.RECORD_BYTES == 0 else "")
+    raise ValueError(f"{path}: {what}; it starts with {head!r}{hint}; {SUPPORTED}")
 
 
 def load_gaussians_with_format(path: str | Path) -> tuple[GaussianSet, str]:

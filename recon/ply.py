@@ -203,17 +203,41 @@ def read_ply_header(fh, source: str) -> PlyHeader:
             element, or an element with rows before ``vertex``.
     """
     layout = parse_ply_header(fh, source)
+    offset = layout.data_offset
     for element in layout.elements:
         if element.name == "vertex":
             lists = [p for p, t in element.properties if t == "list"]
             if lists:
                 raise ValueError(f"{source}: the vertex element has list properties {lists}; a 3DGS file has "
                                  f"scalar properties only")
-            return PlyHeader(layout.fmt, element.count, element.properties, layout.data_offset)
-        if element.count > 0:
-            raise ValueError(f"{source}: element {element.name!r} ({element.count} rows) comes before 'vertex'; "
-                             f"a 3DGS .ply has the vertex element first")
+            return PlyHeader(layout.fmt, element.count, element.properties, offset)
+        offset = _skip_element(fh, element, layout.fmt, offset, source)
     raise ValueError(f"{source}: the PLY file has no 'vertex' element, so it holds no Gaussians")
+
+
+def _skip_element(fh, element: PlyElement, fmt: str, offset: int, source: str) -> int:
+    """Move ``fh`` past the rows of an element that comes before ``vertex`` (a camera, a chunk table, ...).
+
+    Binary rows must have a fixed size (their bytes are checked against the file size before seeking); ASCII
+    rows are one line each. Returns the new byte offset.
+    """
+    if element.count == 0:
+        return offset
+    row = element.row_bytes()
+    if PLY_FORMATS[fmt] is not None:
+        if row is None:
+            raise ValueError(f"{source}: element {element.name!r} ({element.count} rows) comes before 'vertex' and "
+                             f"has list properties, so the vertex data cannot be located; re-export the file with "
+                             f"the vertex element first")
+        size = element.count * row
+        check_declared_size(source, f"{element.count} {element.name!r} rows before the vertices", size,
+                            os.fstat(fh.fileno()).st_size - offset)
+        fh.seek(offset + size)
+        return offset + size
+    for _ in range(element.count):
+        if not fh.readline():
+            raise ValueError(f"{source}: truncated PLY data inside element {element.name!r} (before 'vertex')")
+    return fh.tell()
 
 
 def check_declared_size(source: str, what: str, declared: int, available: int) -> None:

@@ -115,6 +115,15 @@ def _attribute_sizes(n: int, version: int, sh_degree: int) -> dict[str, int]:
             "rotations": (4 if version >= 3 else 3) * n, "sh": 3 * SH_DIMS[sh_degree] * n}
 
 
+def _check_sh_matches(source: str, n: int, version: int, degree: int, data_bytes: int) -> None:
+    """Raise ``ValueError`` when ``data_bytes`` of arrays fit another SH degree than the header's ``degree``."""
+    fits = [d for d in SH_DIMS if d != degree and sum(_attribute_sizes(n, version, d).values()) == data_bytes]
+    if fits:
+        raise ValueError(f"{source}: SH data does not match the header: it declares SH degree {degree} for {n} "
+                         f"points, but the {data_bytes} bytes of arrays are those of SH degree {fits[0]}; "
+                         f"re-export the .spz (or set the header's SH degree byte to {fits[0]})")
+
+
 def _check_fits(source: str, n: int, payload: int, file_bytes: int, ratio: int) -> None:
     """Reject a header whose ``n`` points could not come out of ``file_bytes`` compressed bytes (before inflating)."""
     if payload > file_bytes * ratio:
@@ -138,10 +147,18 @@ def _gunzip_legacy(data: bytes, source: str) -> bytes:
     except zlib.error as exc:
         raise ValueError(f"{source}: corrupt gzip stream ({exc}); re-download or re-export the .spz") from None
     if len(body) > limit:
+        most = max(sum(_attribute_sizes(n, version, d).values()) for d in SH_DIMS)
+        try:
+            rest = stream.decompress(stream.unconsumed_tail, max(0, most - len(body)) + 1)
+        except zlib.error:
+            rest = b""
+        if not flags & FLAG_EXTENSIONS:
+            _check_sh_matches(source, n, version, degree, len(body) + len(rest))
         raise ValueError(f"{source}: the gzip stream holds more data than the .spz header declares (corrupt)")
     if not stream.eof:
-        raise ValueError(f"{source}: truncated .spz: the gzip stream ends early ({len(body)} of {payload} bytes "
-                         f"after the header); re-download the file")
+        where = (f"{len(body)} of {payload} bytes after the header" if len(body) < payload
+                 else "the gzip trailer with its checksum is missing")
+        raise ValueError(f"{source}: truncated .spz: the gzip stream ends early ({where}); re-download the file")
     if stream.unused_data:
         raise ValueError(f"{source}: {len(stream.unused_data)} stray bytes after the gzip stream (corrupt .spz)")
     return head + body
@@ -156,6 +173,8 @@ def _read_legacy(raw: bytes, source: str) -> tuple[tuple[int, ...], dict[str, np
     sizes = _attribute_sizes(n, version, degree)
     payload = sum(sizes.values())
     available = len(raw) - LEGACY_HEADER.size
+    if payload > available:
+        _check_sh_matches(source, n, version, degree, available)
     check_declared_size(source, f"{n} points of SH degree {degree}", payload, available)
     offset = LEGACY_HEADER.size
     if flags & FLAG_EXTENSIONS and _is_extension_chain(raw, offset, available - payload):
@@ -195,7 +214,8 @@ def _read_ngsp(data: bytes, source: str) -> tuple[tuple[int, ...], dict[str, np.
     total = streams_at + sum(c for c, _ in entries)
     if total != len(data):
         what = "truncated .spz" if total > len(data) else "corrupt .spz"
-        raise ValueError(f"{source}: {what}: the stream table adds up to {total} bytes, the file has {len(data)}")
+        raise ValueError(f"{source}: {what}: the stream table adds up to {total} bytes, the file has {len(data)}; "
+                         f"re-download or re-export the file")
     arrays, offset = {}, streams_at
     for (name, size), (compressed, _) in zip(sizes.items(), entries, strict=True):
         arrays[name] = np.frombuffer(_unzstd(data[offset:offset + compressed], size, name, source), np.uint8)

@@ -166,7 +166,8 @@ def _bad_files(tmp_path):
     out["binary_middle_endian"] = tmp_path / "fmt.ply"
     out["binary_middle_endian"].write_bytes(full.replace(b"binary_little_endian", b"binary_middle_endian"))
     out["comes before 'vertex'"] = tmp_path / "order.ply"
-    out["comes before 'vertex'"].write_bytes(full.replace(b"element vertex", b"element face 2\nelement vertex"))
+    face = b"element face 2\nproperty list uchar int vertex_indices\nelement vertex"  # list rows: cannot be skipped
+    out["comes before 'vertex'"].write_bytes(full.replace(b"element vertex", face))
     out["no 'end_header'"] = tmp_path / "noend.ply"
     out["no 'end_header'"].write_bytes(full.split(b"end_header")[0])
     out["not a readable .npz"] = tmp_path / "junk.npz"

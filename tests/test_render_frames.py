@@ -1,5 +1,6 @@
-"""Tests for apps/render_frames.py: projection on hand-computed cases, the z-buffer splat against a slow
-painter's twin, PNG and MP4 output on a synthetic OUT.h5, and input errors raised before any output."""
+"""Tests for viz/frames.py (the renderer) and apps/render_frames.py (its command line): projection on hand-computed
+cases, the z-buffer splat against a slow painter's twin, PNG and H.264 MP4 output on a synthetic OUT.h5, and input
+errors raised before any output."""
 
 import argparse
 import json
@@ -10,8 +11,10 @@ import h5py
 import numpy as np
 import pytest
 
-from apps import render_frames as rf
-from apps.render_frames import FrameStyle, project, render_frames, scene_viewport
+from apps import render_frames as cli
+from viz import frames as rf
+from viz.frames import FrameStyle, project, render_frames, scene_viewport
+from viz.video import probe_video, read_mp4
 
 DOMAIN_MIN = np.array([0.0, 0.0, 0.0])
 DOMAIN_MAX = np.array([2.0, 1.0, 1.0])
@@ -272,7 +275,7 @@ def test_boundary_is_subsampled(tmp_path, monkeypatch):
 
 def test_missing_scene_falls_back_to_particle_bounds(tmp_path, caplog):
     h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",), scene=False)
-    with caplog.at_level(logging.WARNING, logger="apps.render_frames"):
+    with caplog.at_level(logging.WARNING, logger="viz.frames"):
         paths = render_frames(h5, tmp_path / "f", FrameStyle(width=W, height=H), progress=False)
     assert len(paths) == 1 and "scene" in caplog.text
 
@@ -282,17 +285,29 @@ def test_mp4_has_one_frame_per_h5_frame(tmp_path):
     out = tmp_path / "video" / "out.mp4"
     assert render_frames(h5, out, FrameStyle(width=W, height=H, fps=10), progress=False) == [out]
     assert [p.name for p in out.parent.iterdir()] == ["out.mp4"]  # the temporary file was renamed
-    cap = cv2.VideoCapture(str(out))
-    try:
-        assert cap.isOpened()
-        assert int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) == W and int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == H
-        assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 4
-        count = 0
-        while cap.read()[0]:
-            count += 1
-        assert count == 4
-    finally:
-        cap.release()
+    info = probe_video(out)
+    assert (info.codec, info.pixel_format, info.width, info.height, info.frames) == ("h264", "yuv420p", W, H, 4)
+    assert info.fps == pytest.approx(10.0)
+    # the video shows what the PNG frames show: same hot pixel, and close overall
+    pngs = render_frames(h5, tmp_path / "png", FrameStyle(width=W, height=H), progress=False)
+    decoded = read_mp4(out)[..., ::-1]  # RGB -> BGR
+    for i, png in enumerate(pngs):
+        image = cv2.imread(str(png)).astype(np.float64)
+        assert np.abs(decoded[i] - image).mean() < 4.0, i
+        u, v = _pixel(_hot_position(i))
+        assert _is_warm(decoded[i][v, u]), (i, decoded[i][v, u])
+
+
+def test_odd_mp4_size_is_padded_by_one_edge_pixel(tmp_path):
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",))
+    out = tmp_path / "odd.mp4"
+    render_frames(h5, out, FrameStyle(width=W + 1, height=H + 1), progress=False)
+    info = probe_video(out)
+    assert (info.codec, info.width, info.height, info.frames) == ("h264", W + 2, H + 2, 1)
+    frame = read_mp4(out)[0].astype(np.int64)
+    # the padding repeats the last column and row (lossy: compared as the mean absolute difference)
+    assert np.abs(frame[:, -1] - frame[:, -2]).mean() < 3.0
+    assert np.abs(frame[-1] - frame[-2]).mean() < 3.0
 
 
 # ----------------------------------------------------------------------------------------------- errors
@@ -356,27 +371,30 @@ def test_unwritable_outputs_raise_before_rendering(tmp_path):
         render_frames(h5, blocker / "frames", FrameStyle(width=W, height=H), progress=False)
     with pytest.raises(OSError, match="a_file"):
         render_frames(h5, blocker / "out.mp4", FrameStyle(width=W, height=H), progress=False)
-    with pytest.raises(ValueError, match="even"):
-        render_frames(h5, tmp_path / "odd.mp4", FrameStyle(width=W + 1, height=H), progress=False)
-    assert not (tmp_path / "odd.mp4").exists()
 
 
-def test_video_writer_failure_is_an_oserror(tmp_path, monkeypatch):
-    class ClosedWriter:
-        def __init__(self, *args):
-            pass
+def test_video_encoder_failure_is_an_oserror_and_leaves_no_file(tmp_path, monkeypatch):
+    import imageio_ffmpeg._io
 
-        def isOpened(self):
-            return False
-
-        def release(self):
-            pass
-
-    monkeypatch.setattr(rf.cv2, "VideoWriter", ClosedWriter)
-    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",))
+    monkeypatch.setattr(imageio_ffmpeg._io, "get_ffmpeg_exe", lambda: "/bin/false")  # FFmpeg dies at once
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000", "000010"))
     with pytest.raises(OSError, match="out.mp4"):
         render_frames(h5, tmp_path / "out.mp4", FrameStyle(width=W, height=H), progress=False)
-    assert list(tmp_path.glob("*.mp4")) == []
+    assert list(tmp_path.glob("*.mp4")) == []  # pathlib's glob sees the hidden temporary names too
+
+
+def test_missing_ffmpeg_fails_before_the_first_frame(tmp_path, monkeypatch):
+    import imageio_ffmpeg
+
+    def no_ffmpeg():
+        raise RuntimeError("No ffmpeg exe could be found")
+
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", no_ffmpeg)
+    monkeypatch.setattr(rf._Renderer, "draw", lambda *a: pytest.fail("drew a frame without an encoder"))
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",))
+    with pytest.raises(OSError, match="out.mp4.*imageio-ffmpeg"):
+        render_frames(h5, tmp_path / "out.mp4", FrameStyle(width=W, height=H), progress=False)
+    assert not (tmp_path / "out.mp4").exists()
 
 
 # ----------------------------------------------------------------------------------------------- CLI
@@ -384,7 +402,7 @@ def test_video_writer_failure_is_an_oserror(tmp_path, monkeypatch):
 
 def test_cli_arguments_and_run(tmp_path, capsys):
     parser = argparse.ArgumentParser()
-    rf.add_arguments(parser)
+    cli.add_arguments(parser)
     help_text = " ".join(parser.format_help().split())
     for option in ["--color-by", "--view", "--width", "--height", "--point-size", "--vmax", "--no-boundary",
                    "--fps"]:
@@ -397,7 +415,7 @@ def test_cli_arguments_and_run(tmp_path, capsys):
     args = parser.parse_args([str(h5), "-o", str(tmp_path / "f"), "--width", str(W), "--height", str(H),
                               "--view", "iso", "--color-by", "speed", "--vmax", "2.5", "--no-boundary"])
     assert args.no_boundary and args.vmax == 2.5
-    assert rf.run(args) == 0
+    assert cli.run(args) == 0
     assert len(list((tmp_path / "f").glob("frame_*.png"))) == 2
     assert "wrote 2 file(s)" in capsys.readouterr().out
 
@@ -405,3 +423,30 @@ def test_cli_arguments_and_run(tmp_path, capsys):
         parser.parse_args([str(h5)])  # -o is required
     with pytest.raises(SystemExit):
         parser.parse_args([str(h5), "-o", "x", "--vmax", "-1"])
+
+
+def test_cli_is_thin_and_reexports_the_renderer():
+    assert cli.FrameStyle is FrameStyle and cli.render_frames is render_frames
+    assert cli.output_is_video is rf.output_is_video
+    source = open(cli.__file__).read()
+    assert len(source.splitlines()) <= 150 and "cv2" not in source and "h5py" not in source
+
+
+def test_viz_frames_needs_neither_taichi_nor_torch():
+    import subprocess
+    import sys
+
+    code = ("import sys, viz.frames, viz.video, viz.plots, viz.atomic; "
+            "print(sorted(m for m in ('taichi', 'torch') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_viz_temp_names_follow_fluidsim_output():
+    from fluidsim import output
+    from viz import atomic
+
+    assert atomic.TEMP_PREFIX == output.TEMP_PREFIX
+    a, b = atomic.temp_path("/x/out.mp4", ".mp4"), output.temp_path("/x/out.mp4", ".mp4")
+    assert a.parent == b.parent and len(a.name) == len(b.name) and a.name.startswith(output.TEMP_PREFIX)
+    assert a.name.endswith(".tmp.mp4") and b.name.endswith(".tmp.mp4")

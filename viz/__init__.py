@@ -1,6 +1,7 @@
-"""viz: `fluidgs view`, the browser viewer of a probe run (viser).
+"""viz: `fluidgs view`, the browser viewer of a probe run (viser), and the project's other pictures: the particle
+renderer of `fluidgs render-frames`, browser-playable H.264 video and the matplotlib charts.
 
-It shows a RESULT.h5 of `fluidgs simulate` against the Gaussians it was computed from, in the simulation frame
+The viewer shows a RESULT.h5 of `fluidgs simulate` against the Gaussians it was computed from, in the simulation frame
 (metres, Y-up): the splats in their own colours or coloured by D_g (paper Eq. 2-3; max, mean or one probe),
 the solid particles, one probe's fluid replayed over time (recorded with ``--record-probe``, coloured by D_i of
 paper Eq. 1 or by speed), the candidate cameras coloured by their view score S(T) (paper Eq. 4) with their rank,
@@ -15,6 +16,10 @@ module             what                                        main entry
 :mod:`.cameras`    candidate cameras in the sim frame, S(T)    :func:`candidate_views`
 :mod:`.colors`     TURBO map and colour bars (nbv.heatmap's)   :func:`turbo`, :func:`colorbar_image`
 :mod:`.viewer`     the viser server                            :func:`open_viewer`, :func:`serve`
+:mod:`.frames`     OUT.h5 as orthographic depth-sorted dots    :func:`render_frames`, :class:`FrameStyle`
+:mod:`.video`      H.264 MP4 (yuv420p, faststart), atomic      :func:`write_mp4`, :func:`probe_video`
+:mod:`.plots`      sweep plot, bar charts (matplotlib, Agg)    :func:`plot_sweep`, :func:`bar_chart`
+:mod:`.atomic`     temporary name + rename (no Taichi)         :func:`atomic_output`
 =================  ==========================================  ========================================
 """
 

@@ -12,6 +12,9 @@ import cv2
 import numpy as np
 
 PERCENTILE = 99.0
+# OpenCV's TURBO map as a lookup table: row k is the BGR colour of k / 255 (uint8, shape (256, 3)).
+TURBO_BGR = cv2.applyColorMap(np.arange(256, dtype=np.uint8).reshape(-1, 1), cv2.COLORMAP_TURBO).reshape(256, 3)
+TURBO_BGR.setflags(write=False)
 
 
 def color_scale(values: np.ndarray, percentile: float = PERCENTILE) -> float:
@@ -30,8 +33,8 @@ def turbo(values: np.ndarray, vmax: float) -> np.ndarray:
     if not vmax > 0:
         raise ValueError(f"vmax must be > 0, got {vmax}")
     v = np.nan_to_num(np.asarray(values, np.float64).reshape(-1), nan=0.0, posinf=0.0, neginf=0.0)
-    idx = np.clip(np.round(v / vmax * 255.0), 0, 255).astype(np.uint8)
-    bgr = cv2.applyColorMap(idx.reshape(-1, 1), cv2.COLORMAP_TURBO).reshape(-1, 3)
+    idx = np.clip(np.round(v / vmax * 255.0), 0, 255).astype(np.intp)
+    bgr = TURBO_BGR[idx]
     return (bgr[:, ::-1].astype(np.float32) / 255.0).copy()
 
 

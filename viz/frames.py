@@ -1,0 +1,718 @@
+"""Render the frames of a simulation output file (``OUT.h5``) to PNG images or an MP4 video.
+
+No paper equations are implemented here; this is a viewer for the file the fluid simulation writes:
+
+- ``/frames/<k>/x`` (N_k, 3) particle positions [m, Y-up], ``/frames/<k>/v`` (N_k, 3) velocities [m/s],
+  ``/frames/<k>/divergence`` (N_k,) per-particle |div v| [1/s]; each frame group carries the
+  attributes ``time`` [s] and ``step``. Keys ``<k>`` are decimal strings, sorted numerically.
+- optional ``/boundary/x`` (M, 3) static solid particles (subsampled to at most 50,000 for drawing).
+- root attribute ``scene``: the scene JSON; its ``domain.min`` / ``domain.max`` give the box the
+  orthographic camera is fitted to. Without a usable domain the camera is fitted to the particles.
+
+Drawing model. Each view is an orthographic camera given by an orthonormal basis (right, up, forward):
+screen coordinates are (p . right, p . up) and the depth is p . forward, larger meaning farther.
+
+====== ================ ======== =========== ==========================================
+view   forward (looks)  right    up          note
+====== ================ ======== =========== ==========================================
+front  -z               +x       +y          camera on the +z side
+side   +x               +z       +y          camera on the -x side (not mirrored)
+top    -y               +x       -z          camera above; +z points down the image
+iso    -(1,1,1)/sqrt3   (1,0,-1) (-1,2,-1)   camera at the (+x,+y,+z) corner, normalised
+====== ================ ======== =========== ==========================================
+
+The domain box is fitted into the scene viewport (the frame minus a header line and a colour-bar
+panel, see :func:`scene_viewport`) keeping the aspect ratio. Dots are splatted with a z-buffer: the
+nearest particle wins each pixel (painter's order, far to near). Boundary particles are drawn in grey
+(lighter is nearer) behind all fluid particles, so a solid wall in front of the camera never hides the
+fluid. Fluid is coloured with the TURBO colormap on a fixed scale [0, vmax] shared by all frames;
+values above vmax take the top colour.
+
+Output. An ``.mp4`` is H.264 in yuv420p with the index at the front, which web browsers play
+(:func:`viz.video.write_mp4`; an odd frame size is padded by one edge pixel); otherwise a folder of PNG frames.
+Every file is written atomically (:mod:`viz.atomic`). This module never imports Taichi or torch; the command
+line is ``fluidgs render-frames`` (:mod:`apps.render_frames`).
+
+Example:
+    >>> from viz.frames import FrameStyle, render_frames
+    >>> render_frames("out/demo/OUT.h5", "out/demo/frames.mp4", FrameStyle(view="iso"))  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+from tqdm import tqdm
+
+from .atomic import write_bytes_atomic
+from .colors import TURBO_BGR
+from .video import check_encoder, write_mp4
+
+logger = logging.getLogger(__name__)
+
+VIEWS = ("front", "side", "top", "iso")
+# color_by -> (dataset in each frame group, colour-bar title, unit)
+COLOR_BY = {
+    "divergence": ("divergence", "|div v|", "1/s"),
+    "speed": ("v", "speed |v|", "m/s"),
+}
+MAX_BOUNDARY_POINTS = 50_000
+VMAX_PERCENTILE = 99.0
+VMAX_MAX_SAMPLES = 2_000_000  # values pooled over all frames to estimate the percentile
+MIN_WIDTH, MIN_HEIGHT = 160, 120
+
+_SQRT2, _SQRT3, _SQRT6 = math.sqrt(2.0), math.sqrt(3.0), math.sqrt(6.0)
+# rows: right, up, forward (viewing direction); right x up = -forward, so no view is mirrored.
+_VIEW_BASES = {
+    "front": np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]),
+    "side": np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),
+    "top": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]]),
+    "iso": np.array(
+        [
+            [1.0 / _SQRT2, 0.0, -1.0 / _SQRT2],
+            [-1.0 / _SQRT6, 2.0 / _SQRT6, -1.0 / _SQRT6],
+            [-1.0 / _SQRT3, -1.0 / _SQRT3, -1.0 / _SQRT3],
+        ]
+    ),
+}
+_BOX_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
+
+_BACKGROUND = (28, 28, 28)  # BGR
+_BOX_COLOR = (200, 200, 200)
+_TEXT_COLOR = (240, 240, 240)
+_BOUNDARY_GREY_NEAR, _BOUNDARY_GREY_FAR = 170, 80
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+_COLORMAP_LUT = TURBO_BGR  # (256, 3) uint8 BGR
+
+
+@dataclass(frozen=True)
+class FrameStyle:
+    """How frames are drawn. Validated on construction.
+
+    Attributes:
+        color_by: "divergence" (|div v| [1/s]) or "speed" (|v| [m/s]).
+        view: "front", "side", "top" or "iso"; see the module docstring for the axes.
+        width, height: frame size [px], at least 160 x 120; an .mp4 pads an odd size by one edge pixel.
+        point_size: dot radius [px]; 0 draws single pixels.
+        vmax: top of the colour scale [1/s or m/s]; None takes the 99th percentile over all frames.
+        show_boundary: draw ``/boundary/x`` in grey when the file has it.
+        fps: frames per second of the .mp4 video (ignored for PNG output).
+    """
+
+    color_by: str = "divergence"
+    view: str = "front"
+    width: int = 960
+    height: int = 720
+    point_size: int = 2
+    vmax: float | None = None
+    show_boundary: bool = True
+    fps: int = 30
+
+    def __post_init__(self) -> None:
+        if self.color_by not in COLOR_BY:
+            raise ValueError(
+                f"FrameStyle.color_by={self.color_by!r} is unknown; use one of {sorted(COLOR_BY)}"
+            )
+        if self.view not in VIEWS:
+            raise ValueError(f"FrameStyle.view={self.view!r} is unknown; use one of {list(VIEWS)}")
+        for name, low in (("width", MIN_WIDTH), ("height", MIN_HEIGHT), ("point_size", 0), ("fps", 1)):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < low:
+                raise ValueError(f"FrameStyle.{name}={value!r} must be an int >= {low}")
+        if self.vmax is not None:
+            if isinstance(self.vmax, bool) or not isinstance(self.vmax, (int, float)):
+                raise ValueError(f"FrameStyle.vmax={self.vmax!r} must be a float or None")
+            if not (math.isfinite(self.vmax) and self.vmax > 0):
+                raise ValueError(f"FrameStyle.vmax={self.vmax!r} must be finite and > 0")
+        if not isinstance(self.show_boundary, bool):
+            raise ValueError(f"FrameStyle.show_boundary={self.show_boundary!r} must be a bool")
+
+
+def view_basis(view: str) -> np.ndarray:
+    """Orthonormal camera basis of a named view.
+
+    Returns:
+        (3, 3) float64 array whose rows are right, up and forward (the viewing direction).
+    """
+    if view not in _VIEW_BASES:
+        raise ValueError(f"view={view!r} is unknown; use one of {list(VIEWS)}")
+    return _VIEW_BASES[view].copy()
+
+
+def default_margin(width: int, height: int) -> int:
+    """Margin [px] kept between the fitted domain box and the edge of the canvas."""
+    return max(2, round(0.04 * min(width, height)))
+
+
+def project(
+    points: np.ndarray,
+    domain_min,
+    domain_max,
+    view: str,
+    width: int,
+    height: int,
+    margin: int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Orthographic projection of world points into a width x height canvas fitted to the domain box.
+
+    The box's projected bounding rectangle is scaled uniformly (aspect ratio kept) so that it spans
+    pixel centres ``margin`` .. ``width - 1 - margin`` along its limiting axis and is centred along
+    the other. Image rows grow downwards. Points outside the box may land outside the canvas; nothing
+    is clipped here.
+
+    Args:
+        points: (N, 3) finite world positions [m].
+        domain_min, domain_max: (3,) corners of the domain box [m], min < max on every axis.
+        view: "front", "side", "top" or "iso".
+        width, height: canvas size [px].
+        margin: [px]; None uses :func:`default_margin`.
+
+    Returns:
+        uv: (N, 2) int64 pixel coordinates (column, row), rounded to the nearest pixel centre.
+        depth: (N,) float64 distance along the viewing direction [m]; larger is farther.
+
+    Example:
+        >>> uv, depth = project(np.array([[0.0, 0.0, 0.0]]), [0, 0, 0], [4, 3, 1], "front", 421, 321, 10)
+        >>> uv.tolist(), depth.tolist()
+        ([[10, 310]], [-0.0])
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {points.shape}")
+    if not np.isfinite(points).all():
+        raise ValueError("points contain NaN or inf; drop them before projecting")
+    lo, hi = _check_domain(domain_min, domain_max)
+    basis = view_basis(view)
+    margin = default_margin(width, height) if margin is None else margin
+    avail_w, avail_h = width - 1 - 2 * margin, height - 1 - 2 * margin
+    if avail_w <= 0 or avail_h <= 0:
+        raise ValueError(f"canvas {width}x{height} px leaves no room inside a margin of {margin} px")
+
+    corners = _box_corners(lo, hi) @ basis[:2].T  # (8, 2) screen coordinates [m]
+    c_lo, c_hi = corners.min(axis=0), corners.max(axis=0)
+    scale = min(avail_w / (c_hi[0] - c_lo[0]), avail_h / (c_hi[1] - c_lo[1]))  # [px/m]
+    mid = 0.5 * (c_lo + c_hi)
+
+    screen = points @ basis[:2].T
+    u = 0.5 * (width - 1) + scale * (screen[:, 0] - mid[0])
+    v = 0.5 * (height - 1) - scale * (screen[:, 1] - mid[1])
+    uv = np.rint(np.stack([u, v], axis=1)).astype(np.int64)
+    return uv, points @ basis[2]
+
+
+def scene_viewport(width: int, height: int) -> tuple[int, int, int, int]:
+    """Where the scene is drawn inside a frame, below the header line and left of the colour bar.
+
+    A rendered particle at world position p lands at ``project(p, ..., w, h)[0] + (x0, y0)``.
+
+    Returns:
+        (x0, y0, w, h) in pixels.
+    """
+    layout = _Layout.of(width, height)
+    return layout.viewport
+
+
+def render_frames(h5_path, out, style: FrameStyle = FrameStyle(), progress: bool = True,
+                  png: bool = False) -> list[Path]:
+    """Render every frame of a simulation output file.
+
+    All inputs are checked (file, frame groups, dataset shapes, output location, video encoder)
+    before the first frame is drawn.
+
+    Args:
+        h5_path: simulation output file (``OUT.h5``).
+        out: a path ending in ``.mp4`` writes one video (H.264, yuv420p: plays in browsers); a path without a
+            suffix (or an existing directory) is a directory that receives ``frame_000000.png``,
+            ``frame_000001.png``, ... numbered by frame order; any other suffix is an error (:func:`output_is_video`).
+        style: drawing options.
+        progress: show a tqdm progress bar on stderr.
+        png: write PNG frames into the directory ``out`` whatever its name (a folder named ``run.v2``).
+
+    Returns:
+        The written paths: ``[video]`` or the PNGs in frame order.
+
+    Raises:
+        FileNotFoundError, ValueError: unreadable or malformed input, unsupported options.
+        OSError: the output cannot be written.
+
+    Example:
+        >>> render_frames("OUT.h5", "frames/", FrameStyle(color_by="speed"))  # doctest: +SKIP
+    """
+    if not isinstance(style, FrameStyle):
+        raise ValueError(f"style must be a FrameStyle, got {type(style).__name__}")
+    h5_path, out = Path(h5_path), Path(out)
+    is_video = output_is_video(out, png)
+    _check_input_file(h5_path)
+    with h5py.File(h5_path, "r") as f:
+        source = _Source.inspect(f, h5_path, style)
+        _prepare_output(out, is_video, style)
+        vmax = style.vmax if style.vmax is not None else source.percentile_vmax()
+        logger.info(
+            "rendering %d frames of %s (%s, view %s, vmax %.4g %s) to %s",
+            len(source.keys), h5_path, style.color_by, style.view, vmax, COLOR_BY[style.color_by][2], out,
+        )
+        renderer = _Renderer(source, style, vmax)
+        frames = tqdm(
+            renderer.frames(), total=len(source.keys), desc="render", unit="frame", disable=not progress
+        )
+        paths = _write_video(frames, out, style) if is_video else _write_pngs(frames, out)
+        if source.dropped:
+            logger.warning("%s: skipped %d particle positions that were NaN or inf", h5_path, source.dropped)
+    return paths
+
+
+def output_is_video(out: Path, png: bool = False) -> bool:
+    """What ``-o`` asks for: True for an MP4 video (a path ending in .mp4), False for a directory of PNG frames
+    (a path without a suffix, an existing directory, or ``png``).
+
+    Raises:
+        ValueError: any other suffix (.avi, .gif, .png, ...: only MP4 video is written, and silently making a
+            directory named ``x.avi`` is not what was asked), or ``png`` with a path ending in .mp4.
+    """
+    out = Path(out)
+    suffix = out.suffix.lower()
+    if png:
+        if suffix == ".mp4":
+            raise ValueError(f"-o {out} ends in .mp4 but --png asks for a directory of PNG frames; drop --png for a "
+                             "video, or give a directory path")
+        return False
+    if suffix == ".mp4":
+        return True
+    if not suffix or out.is_dir():
+        return False
+    raise ValueError(f"-o {out}: render-frames writes an MP4 video (a path ending in .mp4) or a directory of PNG "
+                     f"frames (a path without a suffix), not {out.suffix!r}; use -o {out.with_suffix('.mp4')} for "
+                     f"a video, or add --png to write the frames into the directory {out}")
+
+
+# ---------------------------------------------------------------------------------------------------
+# Input
+
+
+class _Source:
+    """A checked, open simulation file: frame keys in order, domain box and what to read per frame."""
+
+    def __init__(self, file, path, keys, counts, value_name, domain, boundary) -> None:
+        self.file: h5py.File = file
+        self.path: Path = path
+        self.keys: tuple[str, ...] = keys
+        self.counts: tuple[int, ...] = counts
+        self.value_name: str = value_name
+        self.domain_min, self.domain_max = domain
+        self.boundary: np.ndarray | None = boundary  # (M', 3) finite, already subsampled
+        self.dropped = 0  # particles skipped so far because their position was NaN or inf
+
+    @staticmethod
+    def inspect(f: h5py.File, path: Path, style: FrameStyle) -> _Source:
+        frames = f.get("/frames")
+        if not isinstance(frames, h5py.Group):
+            raise ValueError(f"{path} has no /frames group; is it a simulation output file (OUT.h5)?")
+        bad = [k for k in frames if not k.isdigit()]
+        if bad:
+            raise ValueError(f"{path}: /frames holds non-numeric keys {bad[:5]}; expected e.g. '000010'")
+        keys = tuple(sorted(frames, key=int))
+        if not keys:
+            raise ValueError(f"{path}: /frames is empty; run the simulation long enough to write a frame")
+        value_name = COLOR_BY[style.color_by][0]
+        counts = []
+        for k in keys:
+            g = frames[k]
+            where = f"{path}:/frames/{k}"
+            if not isinstance(g, h5py.Group):
+                raise ValueError(f"{where} is not a group")
+            x = _dataset(g, "x", where)
+            val = _dataset(g, value_name, where, hint=f"or choose another --color-by than {style.color_by}")
+            if x.ndim != 2 or x.shape[1] != 3:
+                raise ValueError(f"{where}/x must have shape (N, 3), got {x.shape}")
+            n = x.shape[0]
+            want = (n, 3) if value_name == "v" else (n,)
+            if val.shape != want:
+                raise ValueError(f"{where}/{value_name} has shape {val.shape}; x has shape {x.shape}, "
+                                 f"so expected {want}")
+            for attr in ("time", "step"):
+                if attr not in g.attrs:
+                    raise ValueError(f"{where} lacks the attribute '{attr}'")
+            counts.append(n)
+
+        boundary = None
+        if style.show_boundary and "boundary" in f and "x" in f["boundary"]:
+            boundary = _read_boundary(f["boundary"]["x"], path)
+        domain = _domain_from_scene(f, path)
+        if domain is None:
+            domain = _domain_from_particles(frames, keys, boundary)
+        return _Source(f, path, keys, tuple(counts), value_name, domain, boundary)
+
+    def frame(self, i: int) -> tuple[np.ndarray, np.ndarray, float, int]:
+        """Positions (N', 3) with non-finite rows dropped, their colour values (N',), time [s], step."""
+        g = self.file["frames"][self.keys[i]]
+        x = np.asarray(g["x"][()], dtype=np.float64)
+        values = _magnitudes(g[self.value_name][()])
+        ok = np.isfinite(x).all(axis=1)
+        if not ok.all():
+            self.dropped += int((~ok).sum())
+            x, values = x[ok], values[ok]
+        return x, values, float(g.attrs["time"]), int(g.attrs["step"])
+
+    def percentile_vmax(self) -> float:
+        """99th percentile of the colour values over all frames (strided sample of at most 2M values)."""
+        stride = max(1, math.ceil(sum(self.counts) / VMAX_MAX_SAMPLES))
+        pooled = [_magnitudes(self.file["frames"][k][self.value_name][()])[::stride] for k in self.keys]
+        values = np.concatenate(pooled) if pooled else np.zeros(0)
+        values = values[np.isfinite(values)]
+        vmax = float(np.percentile(values, VMAX_PERCENTILE)) if values.size else 0.0
+        if not vmax > 0:
+            vmax = float(values.max()) if values.size else 0.0
+        if not vmax > 0:
+            logger.warning("%s: all %s values are zero; using vmax = 1", self.path, self.value_name)
+            vmax = 1.0
+        return vmax
+
+
+def _check_input_file(path: Path) -> None:
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist; pass the OUT.h5 written by the simulation")
+    if not path.is_file():
+        raise ValueError(f"{path} is not a file; pass the OUT.h5 written by the simulation")
+    if not h5py.is_hdf5(path):
+        raise ValueError(f"{path} is not an HDF5 file; pass the OUT.h5 written by the simulation")
+
+
+def _dataset(group: h5py.Group, name: str, where: str, hint: str = "") -> h5py.Dataset:
+    ds = group.get(name)
+    if not isinstance(ds, h5py.Dataset):
+        raise ValueError(f"{where} has no dataset '{name}'" + (f"; {hint}" if hint else ""))
+    if ds.dtype.kind not in "fiu":
+        raise ValueError(f"{where}/{name} has dtype {ds.dtype}; expected a float array")
+    return ds
+
+
+def _magnitudes(values: np.ndarray) -> np.ndarray:
+    """Colour value per particle: |value| for (N,), Euclidean norm for (N, 3)."""
+    values = np.asarray(values, dtype=np.float64)
+    return np.linalg.norm(values, axis=1) if values.ndim == 2 else np.abs(values)
+
+
+def _read_boundary(ds: h5py.Dataset, path: Path) -> np.ndarray:
+    """Boundary positions, a uniform random subset (fixed seed) of at most 50,000 when larger.
+
+    Random rather than strided, because a stride through a regularly sampled wall draws moire patterns.
+    The dataset is read in blocks so that a huge boundary never sits in memory whole.
+    """
+    if ds.ndim != 2 or ds.shape[1] != 3 or ds.dtype.kind not in "fiu":
+        raise ValueError(
+            f"{path}:/boundary/x must be a float array of shape (M, 3), got {ds.shape} {ds.dtype}"
+        )
+    total = ds.shape[0]
+    if total <= MAX_BOUNDARY_POINTS:
+        points = np.asarray(ds[()], dtype=np.float64).reshape(-1, 3)
+    else:
+        chosen = np.sort(np.random.default_rng(0).choice(total, MAX_BOUNDARY_POINTS, replace=False))
+        block = 1 << 20
+        parts = []
+        for start in range(0, total, block):
+            lo, hi = np.searchsorted(chosen, [start, start + block])
+            if hi > lo:
+                parts.append(np.asarray(ds[start : start + block], dtype=np.float64)[chosen[lo:hi] - start])
+        points = np.concatenate(parts)
+        logger.info("%s: drawing %d of %d boundary particles", path, len(points), total)
+    return points[np.isfinite(points).all(axis=1)]
+
+
+def _domain_from_scene(f: h5py.File, path: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """Domain box from the root ``scene`` JSON, or None (with a warning) when it is missing or unusable."""
+    raw = f.attrs.get("scene")
+    try:
+        if raw is None:
+            raise ValueError("the root attribute 'scene' is missing")
+        if isinstance(raw, bytes):
+            raw = raw.decode("utf-8")
+        domain = json.loads(str(raw))["domain"]
+        return _check_domain(domain["min"], domain["max"])
+    except (ValueError, KeyError, TypeError) as e:
+        logger.warning("%s: no usable scene domain (%s); fitting the view to the particles instead", path, e)
+        return None
+
+
+def _domain_from_particles(frames: h5py.Group, keys, boundary) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    clouds = [frames[k]["x"][()] for k in keys] + ([boundary] if boundary is not None else [])
+    for points in clouds:
+        points = np.asarray(points, dtype=np.float64)
+        points = points[np.isfinite(points).all(axis=1)]
+        if len(points):
+            lo, hi = np.minimum(lo, points.min(axis=0)), np.maximum(hi, points.max(axis=0))
+    if not np.isfinite(lo).all():
+        lo, hi = np.zeros(3), np.ones(3)
+    pad = 0.5 * max(float((hi - lo).max()), 1e-3)
+    flat = hi - lo < 1e-9
+    return np.where(flat, lo - pad, lo), np.where(flat, hi + pad, hi)
+
+
+def _check_domain(domain_min, domain_max) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.asarray(domain_min, dtype=np.float64)
+    hi = np.asarray(domain_max, dtype=np.float64)
+    if lo.shape != (3,) or hi.shape != (3,):
+        raise ValueError(f"domain min and max must have shape (3,), got {lo.shape} and {hi.shape}")
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
+        raise ValueError(f"domain needs finite min < max on every axis, got min {lo} and max {hi}")
+    return lo, hi
+
+
+def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(8, 3) corners; bit i of the corner index selects max along axis i."""
+    return np.array([[hi[a] if (c >> a) & 1 else lo[a] for a in range(3)] for c in range(8)])
+
+
+# ---------------------------------------------------------------------------------------------------
+# Output
+
+
+def _prepare_output(out: Path, is_video: bool, style: FrameStyle) -> None:
+    directory = out.parent if is_video else out
+    if is_video:
+        check_encoder(out)
+        if out.is_dir():
+            raise ValueError(f"{out} is a directory; pass a file name ending in .mp4, or a directory path "
+                             "without the .mp4 suffix for PNG frames")
+    elif out.exists() and not out.is_dir():
+        raise ValueError(f"{out} exists and is not a directory; PNG frames need a directory "
+                         "(or give a path ending in .mp4 for a video)")
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OSError(f"cannot create the output directory {directory} for {out}: {e}; "
+                      "choose a writable location with -o") from e
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise OSError(f"output directory {directory} is not writable; choose a writable location with -o")
+    if not is_video:
+        stale = sorted(directory.glob("frame_*.png"))
+        if stale:
+            logger.warning("%s already holds %d frame_*.png files; those beyond this render stay as they are",
+                           directory, len(stale))
+
+
+def _write_video(frames: Iterator[np.ndarray], out: Path, style: FrameStyle) -> list[Path]:
+    return [write_mp4(frames, out, style.fps, bgr=True)]
+
+
+def _write_pngs(frames: Iterator[np.ndarray], directory: Path) -> list[Path]:
+    paths = []
+    for i, image in enumerate(frames):
+        ok, data = cv2.imencode(".png", image)
+        if not ok:
+            raise OSError(f"OpenCV failed to encode frame {i} as PNG for {directory}")
+        path = directory / f"frame_{i:06d}.png"
+        write_bytes_atomic(path, data.tobytes())
+        paths.append(path)
+    return paths
+
+
+# ---------------------------------------------------------------------------------------------------
+# Drawing
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Pixel layout of a frame: header line on top, colour-bar panel on the right, scene elsewhere."""
+
+    width: int
+    height: int
+    font_scale: float
+    thickness: int
+    text_h: int  # cap height of a text line [px]; putText places the baseline
+    line_h: int  # text line pitch [px]
+    pad: int
+    header_h: int
+    panel_w: int
+    bar_w: int
+
+    @staticmethod
+    def of(width: int, height: int) -> _Layout:
+        size = min(width / 960.0, height / 720.0)
+        font_scale = max(0.35, 0.55 * size)
+        thickness = 1 if size < 1.5 else 2
+        (_, text_h), baseline = cv2.getTextSize("Ag", _FONT, font_scale, thickness)
+        pad = max(3, round(8 * size))
+        bar_w = max(8, round(16 * size))
+        # widest labels the panel holds, independent of the data so that the viewport is fixed
+        titles = [title for _, title, _ in COLOR_BY.values()]
+        widest = max(cv2.getTextSize(s, _FONT, font_scale, thickness)[0][0] for s in ["-8.88e+88", *titles])
+        panel_w = bar_w + widest + 3 * pad
+        line_h = text_h + baseline + pad
+        header_h = line_h + pad
+        return _Layout(width, height, font_scale, thickness, text_h, line_h, pad, header_h, panel_w, bar_w)
+
+    @property
+    def viewport(self) -> tuple[int, int, int, int]:
+        return 0, self.header_h, self.width - self.panel_w, self.height - self.header_h
+
+    def put_text(self, image: np.ndarray, text: str, x: int, y_centre: int) -> None:
+        cv2.putText(image, text, (x, y_centre + self.text_h // 2), _FONT, self.font_scale, _TEXT_COLOR,
+                    self.thickness, cv2.LINE_AA)
+
+
+class _Renderer:
+    """Draws frames of one source with one style; the static layer (box, boundary) is drawn once."""
+
+    def __init__(self, source: _Source, style: FrameStyle, vmax: float) -> None:
+        self.source, self.style, self.vmax = source, style, vmax
+        self.layout = _Layout.of(style.width, style.height)
+        x0, y0, vw, vh = self.layout.viewport
+        self.offset = np.array([x0, y0], dtype=np.int64)
+        self.viewport_size = (vw, vh)
+        self.lo, self.hi = source.domain_min, source.domain_max
+        corners = _box_corners(self.lo, self.hi)
+        self.corner_uv, self.corner_depth = self._project(corners)
+        self.depth_range = (float(self.corner_depth.min()), float(self.corner_depth.max()))
+        self.background = self._static_layer()
+
+    def _project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        uv, depth = project(points, self.lo, self.hi, self.style.view, *self.viewport_size)
+        return uv + self.offset, depth
+
+    def _box_edges(self, image: np.ndarray, front: bool) -> None:
+        # an edge is in front when its midpoint is nearer than the box centre
+        centre = float(self.corner_depth.mean())
+        for a, b in _BOX_EDGES:
+            if (0.5 * (self.corner_depth[a] + self.corner_depth[b]) < centre - 1e-12) == front:
+                cv2.line(image, tuple(map(int, self.corner_uv[a])), tuple(map(int, self.corner_uv[b])),
+                         _BOX_COLOR, 1, cv2.LINE_AA)
+
+    def _static_layer(self) -> np.ndarray:
+        image = np.empty((self.style.height, self.style.width, 3), dtype=np.uint8)
+        image[:] = _BACKGROUND
+        self._box_edges(image, front=False)
+        boundary = self.source.boundary
+        if boundary is not None and len(boundary):
+            uv, depth = self._project(boundary)
+            near, far = self.depth_range
+            t = np.clip((depth - near) / max(far - near, 1e-12), 0.0, 1.0)
+            grey = _BOUNDARY_GREY_NEAR + t * (_BOUNDARY_GREY_FAR - _BOUNDARY_GREY_NEAR)
+            grey = np.rint(grey).astype(np.uint8)
+            splat(image, uv, depth, np.repeat(grey[:, None], 3, axis=1), self.style.point_size)
+        return image
+
+    def frames(self) -> Iterator[np.ndarray]:
+        for i in range(len(self.source.keys)):
+            yield self.draw(i)
+
+    def draw(self, i: int) -> np.ndarray:
+        x, values, time, step = self.source.frame(i)
+        image = self.background.copy()
+        if len(x):
+            uv, depth = self._project(x)
+            splat(image, uv, depth, colorize(values, self.vmax), self.style.point_size)
+        self._box_edges(image, front=True)
+        self._header(image, f"t = {time:.4f} s   step {step}   {len(x):,} fluid particles   "
+                            f"frame {i + 1}/{len(self.source.keys)}")
+        self._colorbar(image)
+        return image
+
+    def _header(self, image: np.ndarray, text: str) -> None:
+        lay = self.layout
+        image[: lay.header_h] = _BACKGROUND
+        lay.put_text(image, text, lay.pad, lay.header_h // 2)
+
+    def _colorbar(self, image: np.ndarray) -> None:
+        lay = self.layout
+        _, title, unit = COLOR_BY[self.style.color_by]
+        x0 = lay.width - lay.panel_w
+        image[lay.header_h :, x0:] = _BACKGROUND
+        x = x0 + lay.pad
+        y = lay.header_h + lay.line_h // 2
+        lay.put_text(image, title, x, y)
+        lay.put_text(image, f"({unit})", x, y + lay.line_h)
+        top = lay.header_h + 2 * lay.line_h + lay.pad
+        bottom = lay.height - 1 - lay.line_h
+        if bottom - top < 8:
+            return
+        rows = np.linspace(255, 0, bottom - top + 1).round().astype(np.intp)
+        image[top : bottom + 1, x : x + lay.bar_w] = _COLORMAP_LUT[rows][:, None, :]
+        cv2.rectangle(image, (x - 1, top - 1), (x + lay.bar_w, bottom + 1), _BOX_COLOR, 1)
+        label_x = x + lay.bar_w + lay.pad
+        lay.put_text(image, f"{self.vmax:.3g}", label_x, top)
+        lay.put_text(image, f"{0.5 * self.vmax:.3g}", label_x, (top + bottom) // 2)
+        lay.put_text(image, "0", label_x, bottom)
+
+
+def colorize(values: np.ndarray, vmax: float) -> np.ndarray:
+    """TURBO colours for values on the scale [0, vmax]; above vmax (and NaN) takes the top colour.
+
+    Args:
+        values: (N,) non-negative values.
+        vmax: top of the scale, > 0.
+
+    Returns:
+        (N, 3) uint8 BGR colours.
+    """
+    scaled = np.nan_to_num(np.asarray(values, dtype=np.float64) / vmax, nan=1.0, posinf=1.0, neginf=0.0)
+    return _COLORMAP_LUT[np.rint(np.clip(scaled, 0.0, 1.0) * 255).astype(np.intp)]
+
+
+def disk_offsets(radius: int) -> np.ndarray:
+    """(K, 2) integer (dx, dy) pixel offsets of a dot of the given radius [px]: dx^2 + dy^2 <= (r + 1/2)^2."""
+    dy, dx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    inside = dx * dx + dy * dy <= (radius + 0.5) ** 2
+    return np.stack([dx[inside], dy[inside]], axis=1)
+
+
+def splat(
+    image: np.ndarray, uv: np.ndarray, depth: np.ndarray, colors: np.ndarray, radius: int
+) -> np.ndarray:
+    """Draw one disk per point into ``image`` in place; at every pixel the nearest point wins.
+
+    Equal to painting disks far to near (stable in the input order for equal depths), but vectorised:
+    points sharing a centre pixel have identical disks, so only the nearest of them is kept, after which
+    the centres are distinct and each of the K stencil offsets is one duplicate-free scatter of ranks
+    into a z-buffer. About 30 ms for 60k points of radius 2 on a 960x720 image (one CPU core).
+
+    Args:
+        image: (H, W, 3) uint8 canvas.
+        uv: (N, 2) int pixel coordinates (column, row); disks partly outside the image are clipped.
+        depth: (N,) distance along the viewing direction; larger is farther.
+        colors: (N, 3) uint8 colours.
+        radius: dot radius [px], see :func:`disk_offsets`.
+
+    Returns:
+        ``image``.
+    """
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3 or not image.flags.c_contiguous:
+        raise ValueError(f"splat needs a C-contiguous (H, W, 3) uint8 image, got {image.shape} {image.dtype}")
+    h, w = image.shape[:2]
+    n = len(uv)
+    if uv.shape != (n, 2) or depth.shape != (n,) or colors.shape != (n, 3):
+        raise ValueError(f"splat needs uv (N, 2), depth (N,), colors (N, 3); got {uv.shape}, {depth.shape}, "
+                         f"{colors.shape}")
+    if n == 0:
+        return image
+    r = radius
+    # z-buffer padded by 2r: a centre up to r outside the image still reaches it, and its whole disk
+    # stays inside the buffer, so flat offsets never wrap into the neighbouring row
+    wp, hp = w + 4 * r, h + 4 * r
+    order = np.argsort(-depth, kind="stable")  # far to near: rank grows towards the camera
+    x, y = uv[order, 0] + 2 * r, uv[order, 1] + 2 * r
+    ok = (x >= r) & (x < wp - r) & (y >= r) & (y < hp - r)
+    rank = np.flatnonzero(ok)
+    centre = y[ok] * wp + x[ok]
+    # nearest point per centre pixel: first occurrence in the near-to-far (reversed) order
+    _, first = np.unique(centre[::-1], return_index=True)
+    keep = len(centre) - 1 - first
+    centre, rank = centre[keep], rank[keep]
+
+    zbuffer = np.full(hp * wp, -1, dtype=np.int64)
+    for dx, dy in disk_offsets(r).tolist():
+        idx = centre + (dy * wp + dx)
+        zbuffer[idx] = np.maximum(zbuffer[idx], rank)
+    winner = zbuffer.reshape(hp, wp)[2 * r : 2 * r + h, 2 * r : 2 * r + w].reshape(-1)
+    hit = winner >= 0
+    image.reshape(-1, 3)[hit] = colors[order][winner[hit]]
+    return image
