@@ -26,29 +26,33 @@ import errno
 import logging
 import sys
 
-from . import (
-    active,
-    bench,
-    critical,
-    demo,
-    evaluate,
-    experiment,
-    inspect_gaussians,
-    make_ahmed,
-    make_assets,
-    render_dataset,
-    render_frames,
-    score,
-    sim,
-    simulate,
-    sweep,
-    train,
-    view,
-)
-from .help_format import HelpFormatter
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
+try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets one line too, not a traceback
+    from . import (
+        active,
+        bench,
+        critical,
+        demo,
+        evaluate,
+        experiment,
+        inspect_gaussians,
+        make_ahmed,
+        make_assets,
+        render_dataset,
+        render_frames,
+        score,
+        sim,
+        simulate,
+        sweep,
+        train,
+        view,
+    )
+except KeyboardInterrupt:
+    sys.stderr.write("ERROR fluidgs: interrupted\n")
+    raise SystemExit(EXIT_INTERRUPTED) from None
+from .help_format import HelpFormatter  # noqa: E402 (after the guarded imports above)
 
 EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT = 2, 3, 4
-EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
 # errno values that only writing causes: full disk or quota, file too large, read-only file system, name too long
 OUTPUT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.ENAMETOOLONG})
 
@@ -136,6 +140,23 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (what is already written stays written)
         logging.getLogger("fluidgs").error("interrupted")
         return EXIT_INTERRUPTED
+    except ImportError as exc:  # a Ctrl-C inside a C extension's import (open3d, torch) surfaces as an ImportError
+        if not interrupted_import(exc):
+            raise
+        logging.getLogger("fluidgs").error("interrupted")
+        return EXIT_INTERRUPTED
+
+
+def interrupted_import(exc: ImportError) -> bool:
+    """Whether an ImportError was caused by a Ctrl-C (its ``__cause__`` or ``__context__`` chain holds one)."""
+    seen: BaseException | None = exc
+    for _ in range(16):
+        seen = seen.__cause__ or seen.__context__
+        if seen is None:
+            return False
+        if isinstance(seen, KeyboardInterrupt):
+            return True
+    return False
 
 
 if __name__ == "__main__":

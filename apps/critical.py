@@ -27,7 +27,7 @@ from .simulate import write_json as write_json_atomic
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="3DGS Gaussians (.ply or .npz), scene units")
+    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
     add_camera_arguments(p)
     p.add_argument("-o", "--output", type=Path, default=Path("critical.json"),
                    help="JSON with C(T) per camera and the critical subset (written atomically)")

@@ -48,7 +48,7 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="3DGS Gaussians (.ply or .npz), scene units")
+    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
     add_camera_arguments(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="scores JSON file (written atomically)")
     p.add_argument("--result", type=Path, default=None,

@@ -120,7 +120,7 @@ def physics_config_from_args(args: argparse.Namespace, track_distinct: bool = Fa
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="3DGS Gaussians (.ply or .npz), scene units")
+    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
     p.add_argument("-o", "--output", type=Path, required=True, help="result HDF5 file (written atomically)")
     p.add_argument("--ply", type=Path, default=None,
                    help="Gaussians coloured by D_g (default: the output path with suffix _divergence.ply)")

@@ -19,7 +19,7 @@ PAPER_VELOCITIES = "3,4,5,6,7,8,9,10,20,50"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="3DGS Gaussians (.ply or .npz), scene units")
+    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
     p.add_argument("--velocities", default=PAPER_VELOCITIES, help="comma list of inflow speeds U in m/s")
     p.add_argument("--compare", type=Path, default=None,
                    help="a second Gaussian set OTHER (same frame, simulated at the first set's scale); reports "

@@ -70,10 +70,11 @@ def parse_up(spec: str | Sequence[float] | np.ndarray, option: str = "--up") -> 
     v = np.asarray(values, dtype=np.float64)
     if v.shape != (3,) or not np.isfinite(v).all():
         raise ValueError(f"{option} {spec!r} must have 3 finite components; {fix}")
-    n = float(np.linalg.norm(v))
-    if not n > 1e-12:
+    largest = float(np.abs(v).max())
+    if not largest > 0:
         raise ValueError(f"{option} {spec!r} is the zero vector, which has no direction; {fix}")
-    return v / n
+    v = v / largest  # first to [-1, 1], so that the norm neither overflows (1e200) nor underflows (1e-200)
+    return v / np.linalg.norm(v)
 
 
 def up_label(up: np.ndarray) -> str:

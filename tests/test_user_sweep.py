@@ -155,3 +155,61 @@ def test_formats_agree_on_count_and_box(tmp_path):
         step = 2.0 ** -12 if fmt == "spz" else 2.0 / 1023  # spz fixed point; 10-bit y of the packed position
         torch.testing.assert_close(back.means.min(0).values, lo, rtol=0, atol=step, msg=name)
         torch.testing.assert_close(back.means.max(0).values, hi, rtol=0, atol=step, msg=name)
+
+
+@pytest.mark.parametrize(("spec", "expected"), [("1e200,0,0", [1, 0, 0]), ("0,-1e300,1e300", [0, -0.5**0.5, 0.5**0.5]),
+                                                ("1e-200,0,0", [1, 0, 0]), ("0,-1e-300,0", [0, -1, 0])])
+def test_up_vectors_of_any_finite_size_give_their_direction(spec, expected):
+    """A huge --up used to overflow the norm and come back as the zero vector (silently no up at all)."""
+    from nbv.scene_frame import parse_up
+
+    np.testing.assert_allclose(parse_up(spec), expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("spec", ["0,0,0", "w", "1,2", "nan,1,0", "0,inf,0", "0,-0,0"])
+def test_bad_up_vectors_still_refused(spec):
+    from nbv.scene_frame import parse_up
+
+    with pytest.raises(ValueError, match="--up"):
+        parse_up(spec)
+
+
+def test_ctrl_c_inside_an_extension_import_is_one_line(monkeypatch, caplog):
+    """Ctrl-C while open3d/torch load inside a command: an ImportError caused by KeyboardInterrupt -> exit 130."""
+    from apps import cli, inspect_gaussians
+
+    def interrupted_import(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as ki:
+            raise ImportError("initialization failed") from ki
+
+    monkeypatch.setattr(inspect_gaussians, "run_command", interrupted_import)
+    assert cli.main(["inspect", "g.ply"]) == 130
+    assert "interrupted" in caplog.text
+
+    def broken_import(args):
+        raise ImportError("no module named nowhere")
+
+    monkeypatch.setattr(inspect_gaussians, "run_command", broken_import)
+    with pytest.raises(ImportError):  # a real import failure stays a traceback (a bug to report)
+        cli.main(["inspect", "g.ply"])
+
+
+def test_ctrl_c_while_the_cli_loads_is_one_line(tmp_path):
+    """Ctrl-C during `from apps.cli import main` (importing torch/Taichi, seconds): exit 130, no traceback."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys\n"
+            "class Stop:\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name == 'apps.active':\n"
+            "            raise KeyboardInterrupt\n"
+            "sys.meta_path.insert(0, Stop())\n"
+            "from apps.cli import main\n")
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 130, done.stderr
+    assert "Traceback" not in done.stderr and "interrupted" in done.stderr, done.stderr
