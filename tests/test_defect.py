@@ -5,7 +5,10 @@ hole punched in its +x face (a disc of radius 0.25, a quarter of the face remove
 probes run at coarse settings (r = 0.08 m, 75 steps of 4 ms). Eight cameras look at the cube from around
 it, camera 0 straight at the hole.
 
-What we measured (see the report): D_g at the hole rim rises (x1.8), D-bar rises (x3), but the fluid that
+What we measured with the filled solid (cut edges + fill, :mod:`nbv.solidify`): the intact cube is a filled
+body (3367 solid points), the holed one a thick shell (2591) whose opening runs from the outside into the
+cavity (no solid point on the hole's axis), and 13 fluid particles of the -x probe end inside the cavity.
+D_g at the hole rim rises (x1.12), D-bar rises (x2.09), but the fluid that
 enters through the hole raises D_g most on the *inner* side of the opposite wall, so the cameras on the
 hole's axis (front and back) gain the most and the back cameras outrank the front one. The paper's claim
 "the camera looking at the defect ranks near the top" therefore does not hold with the paper's frustum-only
@@ -81,16 +84,48 @@ def _scores(g: GaussianSet, d: np.ndarray, cams, occlusion: bool) -> torch.Tenso
     return view_scores(torch.from_numpy(d), outs, visible=vis)
 
 
+def test_the_hole_is_open_to_the_fluid(runs):
+    """The opening is in the solid (not closed at the lattice spacing) and the fluid goes through it.
+
+    Measured at this alignment and at six shifts of the cube against the lattice (0.125-0.75 spacing): the hole's
+    axis carries 7-8 solid points in the filled intact cube and none in the holed one, and 8-19 fluid particles of
+    the -x probe end inside the cavity (none for the intact cube)."""
+    spacing = 2.0 * CFG.particle_radius
+    for name, expect_open in (("res_i", False), ("res_h", True)):
+        res = runs[name]
+        solid = res.solid  # sim metres: the scene scaled by 2, axes unchanged (up +y)
+        on_axis = (np.abs(solid[:, 1:]) < 0.5 * spacing).all(axis=1) & (solid[:, 0] > 0.0)
+        inside = (np.abs(res.leaks["-x"].x_final) < 0.6).all(axis=1).sum()  # the cavity is |x|, |y|, |z| < 0.7 m
+        if expect_open:
+            assert not on_axis.any() and inside >= 5
+        else:
+            assert on_axis.sum() >= 5 and inside == 0
+
+
 def test_divergence_rises_at_the_defect(runs):
+    """The rim's mean D_g (the same Gaussians, matched by index) rises when the hole opens.
+
+    The numbers behind the threshold: runs are deterministic (two runs gave bit-identical D_g and D-bar), and a hole
+    that the solid closes gives exactly x1.000 (the same solid gives the same fluid: an 11 cm hole in the real person
+    capture at r = 0.05 m leaves its 181 solid points unchanged and its rim at x1.000). Here the rim reads x1.122
+    (0.288 -> 0.323, all of it from the -x probe: the other three do not reach the +x face in 75 steps). The size of
+    the rise is set by how the lattice falls on the cube: shifting the cube by 0.125-0.75 spacing gives x1.55-x3.56
+    (the intact rim collects 9-225 samples per Gaussian depending on how far the first fluid layer stands off the
+    solid, and none at all for a sixth shift), and eight points that the cut-edge test adds in the hole's mouth (edges
+    cut by the product of the Gaussians' peaks, 0.39, where their combined opacity stays at 0.28 < tau) take it from
+    x1.41 to x1.12 at this alignment, the lowest measured. So the test asserts the rise, x1.05, above the closed-hole
+    value 1 and below every measured value; D-bar (``test_geometry_divergence_rises``) carries the size of the effect.
+    """
     d_i, d_h = runs["res_i"].divergence, runs["res_h"].divergence
     rim, keep = runs["rim"], runs["keep"]
     assert rim.sum() >= 20
     rim_intact, rim_holed = d_i[rim].mean(), d_h[rim[keep]].mean()
     assert rim_intact > 0  # the intact front face is upstream of the -x probe: it is not a zero baseline
-    assert rim_holed > 1.4 * rim_intact
+    assert rim_holed > 1.05 * rim_intact
 
 
 def test_geometry_divergence_rises(runs):
+    # measured x2.09 here, x2.4-x5.0 at the six lattice shifts of test_divergence_rises_at_the_defect
     assert runs["res_h"].dbar > 1.5 * runs["res_i"].dbar
     # the rise is not an artefact of removing low-D Gaussians: the Gaussians both sets share read higher too
     assert runs["res_h"].divergence.mean() > 1.5 * runs["res_i"].divergence[runs["keep"]].mean()
