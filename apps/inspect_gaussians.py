@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .runtime import positive_int
 from .simulate import add_frame_arguments, check_output_file, physics_config_from_args
 
 
@@ -24,12 +25,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="fluid particle radius r in m; the solid lattice spacing is 2 r (default: 0.025, the paper's)")
     g.add_argument("--opacity-threshold", type=float, default=0.3,
                    help="tau: opacity at or above which Gaussians make solid (unitless, 0..1; default: 0.3)")
-    g.add_argument("--fill-cavities", action="store_true", help="fill enclosed empty regions of the solid")
+    g.add_argument("--no-fill", action="store_true",
+                   help="keep the solid a shell: do not fill what a closed surface encloses (default: filled)")
+    g.add_argument("--fill-cavities", action="store_true",
+                   help="accepted for old scripts and does nothing: filling is the default (see --no-fill)")
     p.add_argument("--png", type=Path, default=None, help="write the three orthographic views here (.png)")
     p.add_argument("--json", type=Path, default=None, help="write the figures here (.json)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device for the solid; cuda falls back to cpu with a logged warning (default: cpu)")
-    p.add_argument("--threads", type=int, default=None, help="CPU threads (default: all cores)")
+    p.add_argument("--threads", type=positive_int, default=None, help="CPU threads (default: all cores)")
 
 
 def run_command(args: argparse.Namespace) -> int:
