@@ -1,7 +1,7 @@
-"""Runtime helpers of the command-line tools: argparse types, and the Taichi set-up of :mod:`fluidsim.runtime`.
+"""Runtime helpers of the command-line tools: argparse types, and the Taichi set-up of :mod:`apps.taichi_runtime`.
 
-``init_taichi``, ``check_threads`` and ``release_unreachable_arrays`` are re-exported from :mod:`fluidsim.runtime`
-on first use (PEP 562 module ``__getattr__``): importing ``fluidsim`` loads Taichi, which ``fluidgs --help`` and the
+``init_taichi``, ``check_threads`` and ``release_unreachable_arrays`` are re-exported from :mod:`apps.taichi_runtime`
+on first use (PEP 562 module ``__getattr__``): importing it loads Taichi, which ``fluidgs --help`` and the
 argparse types here never need. The tools and test fixtures are the only callers of ``init_taichi``.
 """
 
@@ -9,15 +9,15 @@ from __future__ import annotations
 
 import argparse
 
-_FROM_FLUIDSIM = ("check_threads", "init_taichi", "release_unreachable_arrays")
-__all__ = [*_FROM_FLUIDSIM, "positive_int"]
+_FROM_TAICHI_RUNTIME = ("check_threads", "init_taichi", "release_unreachable_arrays")
+__all__ = [*_FROM_TAICHI_RUNTIME, "positive_int"]
 
 
 def __getattr__(name: str):
-    if name in _FROM_FLUIDSIM:
-        from fluidsim import runtime
+    if name in _FROM_TAICHI_RUNTIME:
+        from . import taichi_runtime
 
-        return getattr(runtime, name)
+        return getattr(taichi_runtime, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

@@ -1,7 +1,7 @@
 """Taichi runtime set-up: one helper that initialises Taichi for a process, offered to the applications.
 
-Importing this module (or calling nothing) never initialises Taichi: only the command-line tools in ``apps`` and
-test fixtures call :func:`init_taichi` (see the package docstring). It keeps a runtime that already has the wanted
+It lives in ``apps`` because only the command-line tools and the test fixtures may call ``ti.init`` (the library
+packages never do); importing this module initialises nothing. It keeps a runtime that already has the wanted
 settings, and works around Taichi 1.7 freeing ndarrays by address through the runtime that is current when they
 die (:func:`release_unreachable_arrays`). No paper equations here.
 """
