@@ -1,4 +1,4 @@
-"""Per-Gaussian accumulation of per-fluid-particle values through a grid (paper Eq. 2-3, Sec. 3.3).
+"""Per-Gaussian accumulation of per-fluid-particle values through cell lists (paper Eq. 2-3, Sec. 3.3).
 
 Fluid particle i contributes its divergence D_i (paper Eq. 1) to Gaussian g when |x_i - mu_g| < n r_g
 (n = 3, r_g the largest principal radius of g):
@@ -7,35 +7,49 @@ Fluid particle i contributes its divergence D_i (paper Eq. 1) to Gaussian g when
 
 and |P_g| is the number of distinct fluid particles that ever came within n r_g of g (the
 function-critical regions). Accumulation never loops over all particles x all Gaussians, and its memory is
-O(G + particles):
+O(G + particles) with a fixed bound per Gaussian (:meth:`GaussianAccumulator.estimate_bytes`):
 
-- **Levels** (:func:`build_levels`). The static Gaussians are sorted into a few classes by reach (a factor
-  ``LEVEL_RATIO`` = 2 each), adjacent classes are merged where a cost model says one grid is cheaper than two, and
-  each level is a uniform grid with a cell of R_l / d (R_l the level's largest reach, d in 1..3 chosen by the same
-  model). Each Gaussian is stored ONCE, in the cell of its centre (CSR: the Gaussians renumbered by level and linear
-  cell index, so a cell's Gaussians are contiguous in memory and a run of cells along z is one range). The cells per
-  level are capped at ``CELLS_PER_GAUSSIAN`` per Gaussian (or ``MIN_LEVEL_CELLS``), so the grids are O(G) too.
-  Gaussians that cannot reach the grid bounds (the union of the probes' domains) and zero-reach ones are dropped.
-- **Per step**, each fluid particle inside the domain visits, on every level, the cells that the sphere of radius
-  R_l around it touches: per (a, b) row of cells, the z-range of the sphere's chord (one contiguous range of
-  Gaussians), and tests |x_i - mu_g|^2 < r_g^2 in f64, as the numpy twin does.
-- **Sums.** On a CPU each thread adds into its own row of sums and counts (row = ``ti.global_thread_idx()``; no
-  atomics; rows summed on read), on a GPU atomics do. The sums are fixed-point integers (values rounded to
+- **Levels** (:func:`plan_levels`). The static Gaussians are sorted into classes by reach (a factor ``LEVEL_RATIO``
+  = 2 each), and adjacent classes are merged where a cost model says one level is cheaper than two (a particle's
+  cell lookup on a level costs ``LOOKUP_COST`` Gaussian tests). A level is a uniform grid whose cell starts at
+  ``CELL_FRACTION`` (1/2) of the level's largest reach; a Gaussian of that level is listed in every cell of it that
+  its reach sphere touches, at most (2 / fraction + 1)^3 cells whatever the other Gaussians' reaches, so one huge
+  Gaussian no longer multiplies the lists of all the others (a single grid at the small Gaussians' cell listed a
+  1.07M-Gaussian capture in 8.6e8 cells and was refused). The list entries are capped at ``ENTRIES_PER_GAUSSIAN``
+  (128) per Gaussian on average: within that budget the levels whose finer cells save the most tests per added
+  entry refine (down to 1/16 of their reach), which gives the few large Gaussians, tested by many particles, fine
+  cells; above it the largest lists coarsen. The cells of a level are capped at ``CELLS_PER_GAUSSIAN`` per Gaussian
+  (or ``MIN_LEVEL_CELLS``). Gaussians that cannot reach the grid bounds (the union of the probes' domains) and zero
+  reaches are dropped. The lists are built in two passes in which every cell gathers its own items from the
+  Gaussians whose centre cell is near (the Gaussians being sorted by it): no atomics, sequential writes, items in
+  ascending order, so the lists are the same on any thread count.
+- **Per step**, each fluid particle inside the domain (and inside the levels' grids) tests, on every level, the
+  Gaussians listed in its own cell: |x_i - mu_g|^2 < r_g^2 in f64, as the numpy twin does. A Gaussian that covers a
+  cell (every point of it within reach, with a rounding margin) is listed before the cell's split and not tested:
+  the particle adds its value once to the cell's own sum, which is spread onto the covering Gaussians on read
+  (integer sums: exact, in any order). Large Gaussians, which many particles hit, then cost a test only in the cells
+  their sphere's surface crosses (1.07M-Gaussian person capture, -x probe, step 150: 104 instead of 162 tests a
+  particle).
+  Internally the Gaussians are numbered by level and by the cell of their centre, so a cell's items sit together in
+  memory. With distinct tracking every listed Gaussian is tested (each visit must be recorded).
+- **Sums.** On a CPU each thread adds into its own row of sums and counts (row = ``ti.global_thread_idx()``; plain,
+  branch-free adds, rows summed on read), on a GPU atomics do. The sums are fixed-point integers (values rounded to
   2^-24 = 6e-8, exact sums), so they are the same bits whatever the thread count or the order of the additions.
 - **Staging.** A solver's steps are staged (positions, values and ids copied, a sequential 20 bytes per particle)
-  and accumulated ``batch_steps`` at a time: after a solver step the Gaussians' records and sums are out of the
-  caches, and one pass over eight steps' particles pays the cold misses once instead of eight times. Probes under
-  ``SERIAL_BELOW`` fluid particles are not staged (without distinct tracking): each step accumulates at once on
+  and accumulated ``batch_steps`` at a time: after a solver step the Gaussians' records, lists and sums are out of
+  the caches, and one pass over eight steps' particles pays the cold misses once instead of eight times. Without
+  distinct tracking, probes under ``SERIAL_BELOW`` fluid particles are not staged: each step accumulates at once on
   the launching thread (a small step leaves the Gaussians cached, and the staging copy would cost a launch per
   step). Every read (sums, counts, means, distinct counts) accumulates what is staged first.
 - **Distinct particles** |P_g| are exact. A pair (g, id) is recorded only on the first step of each visit: the
-  staging copy keeps each particle's previous sample (per id, O(particles)), and a hit whose previous sample was
-  within reach of g too is not recorded again (it was recorded then). The records are one bit per (Gaussian, fluid
-  id) (``atomic_or``) while that matrix fits ``distinct_budget_bytes`` (512 MiB by default: 20k Gaussians x 60k
-  particles take 150 MB), else a lock-free open-addressing hash set of g * 2^32 + id keys (ordered linear probing
-  with ``atomic_max``), 8-16 bytes per distinct pair (load <= 1/2), grown by rehashing when half full.
+  staging copy hands each particle its previous sample (kept per id, O(particles)), and a hit whose previous sample
+  was within reach of g too is not recorded again (it was recorded then); in the paper setting 1.5 % of the hits
+  start a visit. The accumulation lists those pairs in a buffer, and a second kernel records them: one bit per
+  (Gaussian, fluid id) (``atomic_or``) while that matrix fits ``distinct_budget_bytes`` (512 MiB by default: 20k
+  Gaussians x 60k particles take 150 MB), else a lock-free open-addressing hash set of g * 2^32 + id keys (ordered
+  linear probing with ``atomic_max``), at most half full: 16-32 bytes per distinct pair (a 1.07M-Gaussian capture's
+  -x probe has 5.0M pairs, 4.7 per Gaussian), doubled by rehashing before it would fill beyond half.
 
-:meth:`GaussianAccumulator.estimate_bytes` bounds the memory before anything is allocated.
 :func:`accumulate_reference` (and :func:`within_reach_reference`) are the O(N G) numpy twins.
 """
 
@@ -66,19 +80,25 @@ _ROWS_BUDGET = 256 * 2**20
 # Solver steps staged per accumulation pass, and the most bytes the staged particles may take.
 BATCH_STEPS = 8
 _STAGE_BUDGET = 64 * 2**20
-# Levels: reach classes span a factor LEVEL_RATIO (at most MAX_LEVELS classes); a level's cell is CELL_FRACTION of
-# its largest reach; the merge model weighs a particle's cell lookup on a level as LOOKUP_COST Gaussian tests. The
-# list entries are capped at ENTRIES_PER_GAUSSIAN per kept Gaussian on average (cells grow beyond), the cells of a
-# level at CELLS_PER_GAUSSIAN per Gaussian of the level (or MIN_LEVEL_CELLS).
+# Levels: reach classes span a factor LEVEL_RATIO (at most MAX_LEVELS classes); a level's cell starts at CELL_FRACTION
+# of its largest reach (refined down to MIN_CELL_FRACTION within the entry budget); the merge model weighs a
+# particle's cell lookup on a level as LOOKUP_COST Gaussian tests (measured on recorded probes: 256 merges the bundled
+# asset into 2 levels, 1.35 ms a step on one thread against 1.60 at 16 and 4 levels; the person capture and its 7 x
+# copy keep 3 and 5 levels, within the noise of 16). The list entries are capped at ENTRIES_PER_GAUSSIAN per kept
+# Gaussian on average plus _ENTRY_SLACK (16 MB for any set), the cells of a level at CELLS_PER_GAUSSIAN per
+# Gaussian of the level (or MIN_LEVEL_CELLS).
 LEVEL_RATIO = 2.0
 MAX_LEVELS = 16
 CELL_FRACTION = 0.5
 MIN_CELL_FRACTION = 1.0 / 16
-LOOKUP_COST = 16.0
+LOOKUP_COST = 256.0
 ENTRIES_PER_GAUSSIAN = 128
 CELLS_PER_GAUSSIAN = 8
 MIN_LEVEL_CELLS = 1 << 16
-_ENTRY_SLACK = 1 << 20
+_ENTRY_SLACK = 1 << 22
+_MAX_LIST_ENTRIES = 1 << 30
+# Cost of a scattered list entry (one thread, random writes) against a gathered row or test.
+_SCATTER_COST = 8.0
 # Hash set of distinct pairs: doubled before an insert would fill it beyond _HASH_LOAD; the listed first steps of
 # visits (the keys to insert) start in a buffer of _KEY_BUFFER keys, grown when a batch lists more.
 _HASH_LOAD = 0.5
@@ -218,6 +238,15 @@ def _reach_groups(centers: np.ndarray, reach: np.ndarray, lo: np.ndarray, hi: np
     return merged[::-1]
 
 
+def _tested(reach: np.ndarray, cell: float) -> float:
+    """The volume (m^3) where particles test Gaussians of these reaches with cells of edge C (per unit particle
+    density: the tests): the cells a sphere touches (the sphere dilated by a cell, C^3 + 6 C^2 r + 3 pi C r^2 +
+    4/3 pi r^3) less the cells it covers, which take no test (about the sphere eroded by half a cell diagonal)."""
+    touched = len(reach) * cell**3 + 6 * cell * cell * reach.sum() + 3 * math.pi * cell * (reach * reach).sum() \
+        + 4.0 / 3.0 * math.pi * (reach**3).sum()
+    return float(touched - 4.0 / 3.0 * math.pi * (np.maximum(reach - 0.5 * math.sqrt(3.0) * cell, 0.0) ** 3).sum())
+
+
 def _cell_boxes(centers: np.ndarray, reach: np.ndarray, origin: np.ndarray, cell: float,
                 dims: np.ndarray) -> np.ndarray:
     """[N] int64 cells in each Gaussian's clipped cell box (an upper bound of the cells it is listed in)."""
@@ -247,8 +276,8 @@ def _fit_cells(groups: list[_Group], centers: list[np.ndarray], reach: list[np.n
 
     Every level starts at ``CELL_FRACTION`` of its largest reach; while the bounds exceed the budget, the level with
     the most entries coarsens (x 1.25). Then, while the budget allows, the level whose finer cell (/ 1.25, down to
-    ``MIN_CELL_FRACTION``) saves the most tested volume (:meth:`_Group.tested`) per added entry refines: levels of
-    few large Gaussians (which many particles test) get fine cells for little memory.
+    ``MIN_CELL_FRACTION``) saves the most tested volume (:func:`_tested`) per added entry refines: levels of few large
+    Gaussians (which many particles test) get fine cells for little memory.
     """
     grids = [_level_grid(g, CELL_FRACTION * g.reach) for g in groups]
     boxes = [int(_cell_boxes(c, r, g.lo, *grid).sum()) for g, c, r, grid in zip(groups, centers, reach, grids,
@@ -266,7 +295,7 @@ def _fit_cells(groups: list[_Group], centers: list[np.ndarray], reach: list[np.n
         if grid[0] >= grids[w][0]:  # the cell cap holds it
             return None
         box = int(_cell_boxes(centers[w], reach[w], groups[w].lo, *grid).sum())
-        saved = groups[w].tested(grids[w][0]) - groups[w].tested(grid[0])
+        saved = _tested(reach[w], grids[w][0]) - _tested(reach[w], grid[0])
         return saved / max(box - boxes[w], 1), grid, box
 
     options = [finer(w) for w in range(len(groups))]
@@ -287,8 +316,8 @@ def plan_levels(centers: np.ndarray, reach: np.ndarray, bounds_min, bounds_max) 
         bounds_min, bounds_max: [3] m, the box the particles come from; Gaussians whose reach sphere cannot touch
             it, and zero reaches, are dropped.
     Returns:
-        GaussianLevels. The list entries stay below ``ENTRIES_PER_GAUSSIAN`` per kept Gaussian (plus a constant),
-        see :func:`_fit_cells`.
+        GaussianLevels. The list entries stay below ``ENTRIES_PER_GAUSSIAN`` per kept Gaussian (plus a constant, and
+        at most 2^30 in all), see :func:`_fit_cells`.
     """
     lo, hi = _as_box("plan_levels bounds", bounds_min, bounds_max)
     gap = np.maximum(np.maximum(lo - centers, centers - hi), 0.0)
@@ -301,8 +330,8 @@ def plan_levels(centers: np.ndarray, reach: np.ndarray, bounds_min, bounds_max) 
     c_kept, r_kept = centers[kept], reach[kept]
     groups = _reach_groups(c_kept, r_kept, lo, hi)
     members = [np.sort(np.concatenate(g.members)) for g in groups]
-    grids, boxes = _fit_cells(groups, [c_kept[m] for m in members], [r_kept[m] for m in members],
-                              ENTRIES_PER_GAUSSIAN * len(kept) + _ENTRY_SLACK)
+    budget = min(ENTRIES_PER_GAUSSIAN * len(kept) + _ENTRY_SLACK, _MAX_LIST_ENTRIES)  # int32 list offsets
+    grids, boxes = _fit_cells(groups, [c_kept[m] for m in members], [r_kept[m] for m in members], budget)
     orders, rows, first, centre_counts = [], [], [0], []
     offset = 0
     for g, m, (cell, dims) in zip(groups, members, grids, strict=True):
@@ -379,13 +408,16 @@ class GaussianAccumulator:
             c, r = centers[self._order], reach[self._order]
             self._gauss.from_numpy(np.concatenate([c, (r * r)[:, None]], axis=1))
         self._table = ti.ndarray(ti.f64, shape=(self.levels.num_levels + 1, kernels.TABLE_WIDTH))
-        self._items_offset = self.levels.num_cells + 1
+        self._items_offset = 2 * self.levels.num_cells + 1
         self._table.from_numpy(self._table_array())
         self._build_lists(reach[self._order])
         self.rows, self._private = accumulation_rows(kept)
         self._pool_threads = max(int(ti.lang.impl.current_cfg().cpu_max_num_threads or 0), 1)
-        # per row: fixed-point sum and count of each Gaussian, and in slot K the count of saturated values
+        # per row: fixed-point sum and count of each Gaussian, and in slot K the count of saturated values; and of each
+        # cell that Gaussians cover (spread onto them on read)
         self._acc = ti.ndarray(ti.i64, shape=(self.rows, kept + 1, 2))
+        cell_rows = (self.rows, self.levels.num_cells, 2) if self._covered_cells else (1, 1, 2)
+        self._cell_sums = ti.ndarray(ti.i64, shape=cell_rows)
         self._saturation_logged = False
         self._stage_x = self._stage_values = self._stage_ids = None
         self._stage_capacity = self._staged = self._staged_steps = 0
@@ -407,7 +439,8 @@ class GaussianAccumulator:
 
     def _build_lists(self, reach: np.ndarray) -> None:
         """The cell lists of every level (counting pass, prefix sum, fill pass, each cell gathering its own items)
-        in one ``lists`` array: the start of every cell's items (all levels' cells, then the end), then the items."""
+        in one ``lists`` array (``aggregate_kernels.TABLE_WIDTH``): the start of every cell's items (all levels'
+        cells, then the end), every cell's split (the covering Gaussians before it), then the items."""
         lv = self.levels
         cells = lv.num_cells
         centres = ti.ndarray(ti.i32, shape=cells + 1)
@@ -416,33 +449,48 @@ class GaussianAccumulator:
         if len(reach):
             ti_reach.from_numpy(reach)
         counts = ti.ndarray(ti.i32, shape=max(cells, 1))
+        covering = ti.ndarray(ti.i32, shape=max(cells, 1))
 
-        def passes(fill: bool, counts, lists) -> None:
+        def passes(fill: bool, lists) -> None:
             for level in range(lv.num_levels):
+                first, last = int(lv.first[level]), int(lv.first[level + 1])
                 cell = float(lv.table[level, 4])
                 slack = 1e-6 * cell
-                largest = float(reach[lv.first[level]: lv.first[level + 1]].max())
-                reach_cells = int(math.floor((largest + slack) / cell)) + 1
-                kernels.list_cells(level + 1, reach_cells, slack, fill, self._gauss, ti_reach, self._table, centres,
-                                   counts, lists)
+                reach_cells = int(math.floor((float(reach[first:last].max()) + slack) / cell)) + 1
+                span = 2 * reach_cells + 1
+                # every cell gathering from its neighbourhood (rows of centre cells, then Gaussians), or, for a few
+                # Gaussians in fine cells, each Gaussian scattering itself on one thread (a random write costs more)
+                gather = float(np.prod(lv.table[level, 5:8])) * span**2 + (last - first) * span**3
+                if _SCATTER_COST * (last - first) * span**3 < gather:
+                    kernels.scatter_cells(first, last, level + 1, slack, fill, self._gauss, ti_reach, self._table,
+                                          counts, covering, lists)
+                else:
+                    kernels.list_cells(level + 1, reach_cells, slack, fill, self._gauss, ti_reach, self._table,
+                                       centres, counts, covering, lists)
 
-        passes(False, counts, counts)
-        starts = np.concatenate([[0], np.cumsum(counts.to_numpy()[:cells], dtype=np.int64)])
+        passes(False, counts)
+        total_counts = counts.to_numpy()[:cells].astype(np.int64)
+        starts = np.concatenate([[0], np.cumsum(total_counts)])
+        splits = starts[:-1] + covering.to_numpy()[:cells]
         total = int(starts[-1])
         if total > lv.entries_bound:  # the bound decided the memory: it must hold
             raise RuntimeError(f"cell lists hold {total} entries, above their bound {lv.entries_bound}")
         self._lists = ti.ndarray(ti.i32, shape=self._items_offset + max(total, 1))
-        head = ti.ndarray(ti.i32, shape=cells + 1)
-        head.from_numpy(starts.astype(np.int32))
+        head = ti.ndarray(ti.i32, shape=2 * cells + 1)
+        head.from_numpy(np.concatenate([starts, splits]).astype(np.int32))
         kernels.copy_into(head, self._lists)
         del head
-        passes(True, counts, self._lists)
-        del counts
+        counts.fill(0)  # the scattering levels' cursors
+        covering.fill(0)
+        passes(True, self._lists)
+        self.covered_entries = int((splits - starts[:-1]).sum())
+        self._covered_cells = bool(self.covered_entries)
         self.levels = replace(lv, centre_starts=np.zeros(0, np.int64))  # only the build needs them
         self.list_entries = total
         log.debug("Gaussian levels: %d of %d Gaussians kept in %d levels (%s), cells %s m, %d cells, %d list entries "
-                  "(%.1f per Gaussian)", self.num_kept, self.num_gaussians, lv.num_levels, lv.counts.tolist(),
-                  [float(f"{c:.3g}") for c in lv.cell_sizes], cells, total, total / max(self.num_kept, 1))
+                  "(%.1f per Gaussian, %d covering their cell)", self.num_kept, self.num_gaussians, lv.num_levels,
+                  lv.counts.tolist(), [float(f"{c:.3g}") for c in lv.cell_sizes], cells, total,
+                  total / max(self.num_kept, 1), self.covered_entries)
 
     def _table_array(self) -> np.ndarray:
         """The ``table`` argument of the kernels (see ``aggregate_kernels.TABLE_WIDTH``)."""
@@ -456,6 +504,7 @@ class GaussianAccumulator:
             hi = np.minimum((table[:, 0:3] + table[:, 4:5] * table[:, 5:8]).max(0), self.domain_max)
         head[0, :6] = np.concatenate([lo, hi])
         head[0, kernels.ITEMS_OFFSET] = self._items_offset
+        head[0, kernels.SPLITS_OFFSET] = self.levels.num_cells + 1
         return np.concatenate([head, table])
 
     def retarget(self, domain_min, domain_max) -> bool:
@@ -494,7 +543,8 @@ class GaussianAccumulator:
         Returns:
             bytes: the Gaussian records (32 B), the permutation (8 B), the cell lists (entries at most
             ``ENTRIES_PER_GAUSSIAN`` per Gaussian, cells at most ``CELLS_PER_GAUSSIAN`` per Gaussian or
-            ``MIN_LEVEL_CELLS`` per level, 4 B each), the rows of sums (16 B per Gaussian and row), the staging, and
+            ``MIN_LEVEL_CELLS`` per level, 4 B per entry, 8 B per cell), the rows of sums (16 B per Gaussian and per
+            cell, and row), the staging, and
             the largest of the temporaries (the plan's numpy arrays, the build's per-cell arrays, the read-back of
             the sums); with distinct tracking the per-id previous samples (24 B per particle id) and the bit matrix,
             or the hash set at up to 48 B per pair while it grows (a half-full set and its double) and the buffer of
@@ -507,9 +557,9 @@ class GaussianAccumulator:
             rows = max(int(threads), 1) if 16 * max(int(threads), 1) * (g + 1) <= _ROWS_BUDGET else 1
         cells = CELLS_PER_GAUSSIAN * g + MAX_LEVELS * MIN_LEVEL_CELLS
         entries = ENTRIES_PER_GAUSSIAN * g + _ENTRY_SLACK
-        sums = 16 * rows * (g + 1)
-        persistent = 40 * g + 4 * (cells + 1 + entries) + sums
-        temporaries = max(_PLAN_BYTES_PER_GAUSSIAN * g + 8 * cells, 8 * g + 24 * cells, sums + 48 * g)
+        sums = 16 * rows * (g + 1 + cells)  # per Gaussian and per covered cell
+        persistent = 40 * g + 4 * (2 * cells + 1 + entries) + sums
+        temporaries = max(_PLAN_BYTES_PER_GAUSSIAN * g + 8 * cells, 8 * g + 40 * cells, 16 * rows * (g + 1) + 64 * g)
         per_staged = 4 * float_bytes + 4 + (24 if track_distinct else 0)
         staged = min(f * batch_steps, max(f, _STAGE_BUDGET // per_staged)) * per_staged
         distinct = 0
@@ -613,7 +663,7 @@ class GaussianAccumulator:
         serial = self._private and (n < self.serial_below or self.rows < self._pool_threads)
         geometry = (self._table, self._lists, self._gauss)
         if self._storage == "none":
-            kernels.accumulate(n, xs, values, *geometry, self._private, serial, self._acc)
+            kernels.accumulate(n, xs, values, *geometry, self._private, serial, self._acc, self._cell_sums)
             return
         if self._keys.shape[0] < _KEY_BUFFER:
             self._keys = ti.ndarray(ti.i64, shape=_KEY_BUFFER)
@@ -734,6 +784,7 @@ class GaussianAccumulator:
         """Zero the sums, counts and distinct-particle records and drop staged steps (the levels stay)."""
         self._staged = self._staged_steps = 0
         self._acc.fill(0)
+        self._cell_sums.fill(0)
         if self._bits is not None:
             self._bits.fill(0)
         if self._hashes is not None:
@@ -752,6 +803,11 @@ class GaussianAccumulator:
         """[K + 1, 2] int64: the rows summed (exact integers); warns once about saturated values."""
         self.flush()
         total = self._acc.to_numpy().sum(axis=0)
+        if self._covered_cells:
+            spread = ti.ndarray(ti.i64, shape=(self.num_kept + 1, 2))
+            spread.fill(0)
+            kernels.spread_cells(self._table, self._lists, self._cell_sums, spread)
+            total += spread.to_numpy()
         if total[-1, 0] and not self._saturation_logged:
             self._saturation_logged = True
             log.warning("%d accumulated values were NaN or beyond +-%g and were clamped (NaN: 0)", total[-1, 0],

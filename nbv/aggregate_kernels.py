@@ -4,8 +4,10 @@ staging copy, and the set of (Gaussian, particle id) pairs behind the distinct c
 The static Gaussians are sorted into a few levels by reach (see ``nbv.aggregate.plan_levels``); a level is a uniform
 grid whose cell is a fraction of the level's largest reach, and a Gaussian of that level is listed in every cell of
 it whose box comes closer than its reach to its centre (at most (2 / fraction + 1)^3 cells, whatever the other
-levels hold). The lists are built once per run (counting pass, prefix sum on the host, fill pass). A fluid particle
-tests, on every level, the Gaussians listed in its own cell: |x - mu_g|^2 < r_g^2 in f64, as the numpy twin does.
+levels hold), first the Gaussians that cover the cell, then the others. The lists are built once per run (counting
+pass, prefix sum on the host, fill pass). A fluid particle tests, on every level, the Gaussians that only touch its
+own cell, |x - mu_g|^2 < r_g^2 in f64 as the numpy twin does, and adds its value once to the cell's sum for the
+covering ones (:func:`spread_cells` hands those sums to them on read).
 """
 
 import taichi as ti
@@ -16,12 +18,16 @@ vec4d = ti.types.vector(4, ti.f64)
 # An empty slot of the hash set (keys are g * 2^32 + id >= 0).
 EMPTY_KEY = -1
 
-# Layout of the ``table`` [L + 1, TABLE_WIDTH] f64 array. Row 0: domain_min (3), domain_max (3), offset of the items
-# in ``lists``. Row 1 + l, level l: origin (3), 1 / cell, cell (m), dims (3), offset of the level's first cell in the
-# cell starts. One small array, because every kernel argument costs launch time, which on small probes is a good part
-# of the aggregation.
+# Layout of the ``table`` [L + 1, TABLE_WIDTH] f64 array. Row 0: domain_min (3), domain_max (3) (the probe's domain
+# clipped to the levels' grids), offset of the items in ``lists``, offset of the cell splits in ``lists``. Row 1 + l,
+# level l: origin (3), 1 / cell, cell (m), dims (3), offset of the level's first cell in the cell starts. One small
+# array, because every kernel argument costs launch time, which on small probes is a good part of the aggregation.
+# ``lists``: the start of every cell's items (all levels' cells, then the end), every cell's split, then the items;
+# a cell's items are the Gaussians that cover it (every point of the cell within reach) up to its split, then the
+# ones that only touch it, each part in ascending order.
 TABLE_WIDTH = 9
 ITEMS_OFFSET = 6
+SPLITS_OFFSET = 7
 
 # Fixed-point sums: a value v is added as floor(v * VALUE_SCALE + 1/2) in an i64, clamped to +-VALUE_LIMIT quanta (NaN
 # adds 0; both are counted as saturated in the extra Gaussian slot G). Integer sums are exact and do
@@ -70,6 +76,20 @@ def box_distance2(center, c, origin, cell):
 
 
 @ti.func
+def covers(center, c, origin, cell, slack, reach2):
+    """Whether every point of cell ``c``'s box, grown by ``slack``, lies within reach of ``center`` (``reach2``: the
+    squared reach the particles are tested against, with a relative margin of 1e-9): every particle that the kernels
+    assign to the cell is then a hit, with no test."""
+    d2 = ti.cast(0.0, ti.f64)
+    for a in ti.static(range(3)):
+        lo = origin[a] + cell * c[a] - slack
+        hi = lo + cell + 2.0 * slack
+        e = ti.max(ti.abs(center[a] - lo), ti.abs(hi - center[a]))
+        d2 += e * e
+    return d2 * (1.0 + 1e-9) < reach2
+
+
+@ti.func
 def level_cell(table: ti.template(), lv, x):
     """(inside, index): the cell of x in level ``lv`` (row ``lv`` of ``table``) and its index in the cell starts; a
     cell outside the level's grid is never clamped (inside = False: no Gaussian of the level reaches there)."""
@@ -95,42 +115,54 @@ def list_cells(
     table: ti.types.ndarray(dtype=ti.f64, ndim=2),
     centres: ti.types.ndarray(dtype=ti.i32, ndim=1),
     cell_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    cover_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
     lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
 ):
-    """Counting pass (``fill`` False: ``cell_counts[c]`` = the Gaussians listed in cell c) or fill pass (``fill`` True:
-    the items of cell c, from ``lists[c]`` on, the cell starts having been copied there) of level ``lv``.
+    """Counting pass (``fill`` False: ``cell_counts[c]`` = the Gaussians listed in cell c, ``cover_counts[c]`` = those
+    that cover it) or fill pass (``fill`` True: the items of cell c, the cell starts and splits having been written to
+    ``lists``) of level ``lv``.
 
     Each cell gathers its own items (no atomics, sequential writes, items in ascending order): the Gaussians whose
     centre cell lies within ``reach_cells`` cells along each axis (``centres``: the first internal Gaussian of each
     centre cell, the Gaussians being sorted by it), kept when the cell's box is closer than ``reach[g] + slack`` to
-    the centre. The slack (a tiny fraction of a cell) absorbs rounding in the particles' cell assignment. A centre
-    outside the grid was clipped into it, which only brings its cell closer to every cell of the grid.
+    the centre (:func:`covers` tells the covering ones). The slack (a tiny fraction of a cell) absorbs rounding in the
+    particles' cell assignment. A centre outside the grid was clipped into it, which only brings its cell closer to
+    every cell of the grid.
     """
     origin = ti.Vector([table[lv, 0], table[lv, 1], table[lv, 2]])
     cell = table[lv, 4]
     d0, d1, d2 = ti.cast(table[lv, 5], ti.i32), ti.cast(table[lv, 6], ti.i32), ti.cast(table[lv, 7], ti.i32)
     offset = ti.cast(table[lv, 8], ti.i32)
     items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
+    splits = ti.cast(table[0, SPLITS_OFFSET], ti.i32)
     m = reach_cells
     for t in range(d0 * d1 * d2):
         tc = ti.Vector([t // (d1 * d2), (t // d2) % d1, t % d2])
-        found = 0
-        start = 0
+        found, covering = 0, 0
+        start, middle = 0, 0
         if ti.static(fill):
             start = items + lists[offset + t]
+            middle = items + lists[splits + offset + t]
         for a in range(ti.max(tc[0] - m, 0), ti.min(tc[0] + m, d0 - 1) + 1):
             for b in range(ti.max(tc[1] - m, 0), ti.min(tc[1] + m, d1 - 1) + 1):
                 row = offset + (a * d1 + b) * d2
                 k0, k1 = ti.max(tc[2] - m, 0), ti.min(tc[2] + m, d2 - 1)
                 for g in range(centres[row + k0], centres[row + k1 + 1]):
                     p = gauss[g]
+                    centre = ti.Vector([p[0], p[1], p[2]])
                     r = reach[g] + slack
-                    if box_distance2(ti.Vector([p[0], p[1], p[2]]), tc, origin, cell) < r * r:
-                        if ti.static(fill):
-                            lists[start + found] = g
+                    if box_distance2(centre, tc, origin, cell) < r * r:
+                        if covers(centre, tc, origin, cell, slack, p[3]):
+                            if ti.static(fill):
+                                lists[start + covering] = g
+                            covering += 1
+                        else:
+                            if ti.static(fill):
+                                lists[middle + found - covering] = g
                         found += 1
         if ti.static(not fill):
             cell_counts[offset + t] = found
+            cover_counts[offset + t] = covering
 
 
 @ti.func
@@ -202,20 +234,34 @@ def visit_gaussian(g, x, q, row, pid, prev, prev_ok, gauss: ti.template(), add_v
 @ti.func
 def visit_level(lv, x, q, row, pid, prev, prev_ok, table: ti.template(), lists: ti.template(),
                 gauss: ti.template(), add_values: ti.template(), track: ti.template(), private: ti.template(),
-                acc: ti.template(), keys: ti.template(), emitted: ti.template()):
-    """The Gaussians of level ``lv`` listed in the cell of x."""
+                acc: ti.template(), cell_sums: ti.template(), keys: ti.template(), emitted: ti.template()):
+    """The Gaussians of level ``lv`` listed in the cell of x: those that only touch the cell are tested; those that
+    cover it are hits without a test, and the value goes once into the cell's own sum (``cell_sums``), spread onto
+    them on read (:func:`spread_cells`). With ``track`` every listed Gaussian is tested (each visit is recorded)."""
     inside, c = level_cell(table, lv, x)
     if inside:
         items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
-        for s in range(lists[c], lists[c + 1]):
+        begin, middle, end = lists[c], lists[ti.cast(table[0, SPLITS_OFFSET], ti.i32) + c], lists[c + 1]
+        first = middle
+        if ti.static(track):
+            first = begin
+        for s in range(first, end):
             visit_gaussian(lists[items + s], x, q, row, pid, prev, prev_ok, gauss, add_values, track, private, acc,
                            keys, emitted)
+        if ti.static(add_values and not track):
+            if middle > begin:
+                if ti.static(private):
+                    cell_sums[row, c, 0] += q
+                    cell_sums[row, c, 1] += 1
+                else:
+                    ti.atomic_add(cell_sums[0, c, 0], q)
+                    ti.atomic_add(cell_sums[0, c, 1], ti.i64(1))
 
 
 @ti.func
 def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
                    table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
-                   track: ti.template(), private: ti.template(), acc: ti.template(),
+                   track: ti.template(), private: ti.template(), acc: ti.template(), cell_sums: ti.template(),
                    keys: ti.template(), emitted: ti.template()):
     """Paper Eq. 2-3 for fluid particle i inside the domain: every level (:func:`visit_level`); a saturated value
     (:func:`fixed_point`) is counted in the extra slot G."""
@@ -237,29 +283,29 @@ def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.tem
             pid = ti.cast(ids[i], ti.i32)
         for lv in range(1, table.shape[0]):
             visit_level(lv, x, q, row, pid, prev, prev_ok, table, lists, gauss, add_values, track, private, acc,
-                        keys, emitted)
+                        cell_sums, keys, emitted)
 
 
 @ti.func
 def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
               table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
               track: ti.template(), private: ti.template(), serial: ti.template(), acc: ti.template(),
-              keys: ti.template(), emitted: ti.template()):
+              cell_sums: ti.template(), keys: ti.template(), emitted: ti.template()):
     """All particles: on the launching thread into row 0 (``serial``), in parallel with each CPU thread adding into
     its own row (``private``: row = the thread's index, so the caller gives at least as many rows as threads),
     or in parallel with atomic adds into row 0 (GPUs)."""
     if ti.static(serial):
         ti.loop_config(serialize=True)
         for i in range(n):
-            visit_particle(i, 0, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc, keys,
-                           emitted)
+            visit_particle(i, 0, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc,
+                           cell_sums, keys, emitted)
     else:
         for i in range(n):
             row = 0
             if ti.static(private):
                 row = ti.global_thread_idx()
             visit_particle(i, row, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc,
-                           keys, emitted)
+                           cell_sums, keys, emitted)
 
 
 @ti.kernel
@@ -273,20 +319,23 @@ def accumulate(
     private: ti.template(),
     serial: ti.template(),
     acc: ti.types.ndarray(dtype=ti.i64, ndim=3),
+    cell_sums: ti.types.ndarray(dtype=ti.i64, ndim=3),
 ):
     """Paper Eq. 2-3: each particle i inside the domain adds ``values[i]`` (in quanta of 1 / VALUE_SCALE) to
     ``acc[row, g, 0]`` and 1 to ``acc[row, g, 1]`` for every Gaussian g with |x_i - mu_g|^2 < r_g^2
-    (``gauss[g]`` = (mu_g, (n r_g)^2)); ``acc[row, G, 0]`` counts saturated values.
+    (``gauss[g]`` = (mu_g, (n r_g)^2)); ``acc[row, G, 0]`` counts saturated values. The domain in ``table`` is the
+    probe's domain clipped to the levels' grids (no Gaussian reaches beyond them).
 
-    ``table``: see ``TABLE_WIDTH``. ``lists``: the start of every cell's items (all levels' cells, then one end),
-    then the items (internal Gaussian ids).
+    ``table``, ``lists``: see ``TABLE_WIDTH``. A particle in a cell that Gaussians cover adds its value once to
+    ``cell_sums[row, c]`` (:func:`visit_level`).
     ``private`` (CPUs): ``acc`` has a row per thread of the pool, each thread adds into its own row without
     atomics, and the caller sums the rows; the sums are integers, so the result is bitwise the same for any
     thread count or schedule. Otherwise (GPUs) one row and atomic adds.
     ``serial``: the particles run on the launching thread (row 0), which on small probes costs less than
     waking the thread pool.
     """
-    visit_all(n, xs, values, values, xs, table, lists, gauss, True, False, private, serial, acc, acc, acc)
+    visit_all(n, xs, values, values, xs, table, lists, gauss, True, False, private, serial, acc, cell_sums, acc,
+              acc)
 
 
 @ti.kernel
@@ -317,7 +366,8 @@ def accumulate_tracked(
 
     ``serial``: as in :func:`accumulate`.
     """
-    visit_all(n, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, keys, emitted)
+    visit_all(n, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, acc, keys,
+              emitted)
 
 
 @ti.func
@@ -405,3 +455,75 @@ def copy_into(src: ti.types.ndarray(dtype=ti.i32, ndim=1), dst: ti.types.ndarray
     """``dst[:len(src)] = src``."""
     for c in range(src.shape[0]):
         dst[c] = src[c]
+
+
+@ti.kernel
+def scatter_cells(
+    first: ti.i32,
+    last: ti.i32,
+    lv: ti.i32,
+    slack: ti.f64,
+    fill: ti.template(),
+    gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
+    reach: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    table: ti.types.ndarray(dtype=ti.f64, ndim=2),
+    cell_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    cover_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
+):
+    """:func:`list_cells` for a level of few Gaussians with fine cells (where every cell gathering from its
+    neighbourhood would cost more than the Gaussians' own cells): each internal Gaussian first..last-1 of level
+    ``lv``, in order on one thread, adds itself to the cells its reach sphere touches (counting pass: ``cell_counts``
+    and ``cover_counts`` as in :func:`list_cells`; fill pass: both zeroed by the caller and used as the cursors of the
+    partial and the covering part). The items come out in ascending order, the same lists as :func:`list_cells`.
+    """
+    origin = ti.Vector([table[lv, 0], table[lv, 1], table[lv, 2]])
+    inv_cell, cell = table[lv, 3], table[lv, 4]
+    dims = ti.Vector([ti.cast(table[lv, 5], ti.i32), ti.cast(table[lv, 6], ti.i32), ti.cast(table[lv, 7], ti.i32)])
+    offset = ti.cast(table[lv, 8], ti.i32)
+    items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
+    splits = ti.cast(table[0, SPLITS_OFFSET], ti.i32)
+    ti.loop_config(serialize=True)
+    for g in range(first, last):
+        p = gauss[g]
+        c = ti.Vector([p[0], p[1], p[2]])
+        r = reach[g] + slack
+        lo = ti.max(ti.floor((c - r - origin) * inv_cell, ti.i32), 0)
+        hi = ti.min(ti.floor((c + r - origin) * inv_cell, ti.i32), dims - 1)
+        for i in range(lo[0], hi[0] + 1):
+            for j in range(lo[1], hi[1] + 1):
+                for k in range(lo[2], hi[2] + 1):
+                    cijk = ti.Vector([i, j, k])
+                    if box_distance2(c, cijk, origin, cell) < r * r:
+                        t = offset + (i * dims[1] + j) * dims[2] + k
+                        if covers(c, cijk, origin, cell, slack, p[3]):
+                            if ti.static(fill):
+                                lists[items + lists[t] + cover_counts[t]] = g
+                            else:
+                                cell_counts[t] += 1
+                            cover_counts[t] += 1
+                        else:
+                            if ti.static(fill):
+                                lists[items + lists[splits + t] + cell_counts[t]] = g
+                            cell_counts[t] += 1
+
+
+@ti.kernel
+def spread_cells(table: ti.types.ndarray(dtype=ti.f64, ndim=2), lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 cell_sums: ti.types.ndarray(dtype=ti.i64, ndim=3), out: ti.types.ndarray(dtype=ti.i64, ndim=2)):
+    """``out[g]`` += the sums and counts that particles left in the cells g covers (``cell_sums`` [rows, cells, 2],
+    the rows summed): integer adds, so the result is the same in any order."""
+    items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
+    splits = ti.cast(table[0, SPLITS_OFFSET], ti.i32)
+    for c in range(splits - 1):
+        begin, middle = lists[c], lists[splits + c]
+        if middle > begin:
+            total, count = ti.i64(0), ti.i64(0)
+            for row in range(cell_sums.shape[0]):
+                total += cell_sums[row, c, 0]
+                count += cell_sums[row, c, 1]
+            if count > 0:
+                for s in range(begin, middle):
+                    g = lists[items + s]
+                    ti.atomic_add(out[g, 0], total)
+                    ti.atomic_add(out[g, 1], count)

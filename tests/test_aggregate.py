@@ -13,6 +13,7 @@ from fluidsim import DFSPHSolver, SolverConfig
 from fluidsim.scene import lattice_in_box
 from fluidsim.sources import sphere_particles, wall_particles
 from nbv.aggregate import (
+    _ENTRY_SLACK,
     ENTRIES_PER_GAUSSIAN,
     GaussianAccumulator,
     accumulate_reference,
@@ -391,8 +392,9 @@ def near_surface_steps(rng, centers, steps: int, n: int, pool: int):
 
 def listed_reference(levels, centers, reach, lists: np.ndarray, rng, sample: int = 3000) -> None:
     """Brute force over cells of every level (all the non-empty ones up to ``sample``, and as many random ones): the
-    listed Gaussians are exactly those whose reach sphere (plus the listing slack) comes closer to the cell's box, in
-    ascending internal order."""
+    listed Gaussians are exactly those whose reach sphere (plus the listing slack) comes closer to the cell's box,
+    first those that cover the cell (every point of the box grown by the slack within reach, with a relative margin
+    of 1e-9), then the others, each part in ascending internal order."""
     order = levels.order
     c, r = centers[order], reach[order]
     cells = levels.num_cells
@@ -404,40 +406,61 @@ def listed_reference(levels, centers, reach, lists: np.ndarray, rng, sample: int
         busy = np.nonzero(sizes)[0]
         picked = np.unique(np.concatenate([rng.permutation(busy)[:sample], rng.integers(0, count, sample)]))
         ijk = np.stack([picked // (dims[1] * dims[2]), (picked // dims[2]) % dims[1], picked % dims[2]], -1)
-        lo = origin + ijk * cell
-        for t, box in zip(picked, lo, strict=True):
+        slack = 1e-6 * cell
+        for t, box in zip(picked, origin + ijk * cell, strict=True):
             gap = np.maximum(np.maximum(box - c[first:last], c[first:last] - box - cell), 0.0)
-            touch = (gap**2).sum(-1) < (r[first:last] + 1e-6 * cell) ** 2
-            items = lists[cells + 1 + lists[offset + t]: cells + 1 + lists[offset + t + 1]]
-            assert np.array_equal(items, first + np.nonzero(touch)[0])
+            touch = (gap**2).sum(-1) < (r[first:last] + slack) ** 2
+            far = np.maximum(np.abs(c[first:last] - (box - slack)), np.abs(box + cell + slack - c[first:last]))
+            cover = touch & ((far**2).sum(-1) * (1 + 1e-9) < r[first:last] ** 2)
+            begin, split, end = lists[offset + t], lists[cells + 1 + offset + t], lists[offset + t + 1]
+            items = lists[2 * cells + 1 + begin: 2 * cells + 1 + end]
+            expected = first + np.concatenate([np.nonzero(cover)[0], np.nonzero(touch & ~cover)[0]])
+            assert np.array_equal(items, expected) and split - begin == cover.sum()
 
 
-@pytest.mark.parametrize("lookup_cost, levels", [(None, 2), (0.0, 6)])
+@pytest.mark.parametrize("lookup_cost, levels", [(16.0, 2), (0.0, 6)])
 def test_levels_of_a_set_with_reaches_spanning_100x_are_exact(monkeypatch, lookup_cost, levels):
     """Several levels (reach classes of a factor 2, merged by cost; a cheap lookup keeps more of them apart); every
     Gaussian listed exactly in the cells its sphere touches (brute force over the cells), the entries within their
     bound; sums, counts and distinct counts exactly the twin's."""
     import nbv.aggregate as aggregate
 
-    if lookup_cost is not None:
-        monkeypatch.setattr(aggregate, "LOOKUP_COST", lookup_cost)
+    monkeypatch.setattr(aggregate, "LOOKUP_COST", lookup_cost)
     centers, reach = multi_level_set(3000, seed=21)
     rng = np.random.default_rng(22)
     acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=2000)
     lv = acc.levels
-    assert lv.num_levels >= levels and acc.num_kept == len(centers)
+    assert lv.num_levels >= levels and acc.num_kept == len(centers) and acc.covered_entries > 0
     assert np.array_equal(np.sort(lv.order), np.arange(len(centers)))      # each Gaussian in exactly one level
     assert (np.diff(lv.cell_sizes) <= 0).all()                              # largest reaches first
     for level in range(lv.num_levels):
         members = reach[lv.order[lv.first[level]: lv.first[level + 1]]]
         assert members.max() / members.min() > 1.2                          # a class, not a single reach
-    assert acc.list_entries <= lv.entries_bound <= ENTRIES_PER_GAUSSIAN * len(centers) + (1 << 20)
+    assert acc.list_entries <= lv.entries_bound <= ENTRIES_PER_GAUSSIAN * len(centers) + _ENTRY_SLACK
     listed_reference(lv, centers, reach, acc._lists.to_numpy(), rng)
     steps = near_surface_steps(rng, centers, 4, 1500, 2000)
+    plain = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)  # covered cells summed per cell, no test
     for pos, val, ids in steps:
         acc.add(pos, val, ids)
+        plain.add(pos, val)
     counts = check_against_twin(acc, centers, reach, steps)
+    assert np.array_equal(check_against_twin(plain, centers, reach, steps), counts)
     assert (counts > 0).mean() > 0.5
+
+
+def test_gathered_and_scattered_lists_are_the_same(monkeypatch):
+    """Each cell gathering its items, or each Gaussian scattering itself (chosen per level by cost): the same lists,
+    item for item, and the brute-force ones."""
+    import nbv.aggregate as aggregate
+
+    centers, reach = multi_level_set(2000, seed=25)
+    built = []
+    for cost in (0.0, 1e12):  # always scatter, always gather
+        monkeypatch.setattr(aggregate, "_SCATTER_COST", cost)
+        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+        built.append(acc._lists.to_numpy())
+    assert np.array_equal(built[0], built[1])
+    listed_reference(acc.levels, centers, reach, built[1], np.random.default_rng(26), sample=500)
 
 
 def test_gaussians_on_level_and_cell_boundaries_are_exact(monkeypatch):
@@ -488,10 +511,11 @@ def test_a_set_the_old_cell_lists_refused_fits_in_bounded_memory():
     reach[:40] = 2.0
     acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
     assert acc.levels.num_levels == 2
-    assert acc.list_entries <= ENTRIES_PER_GAUSSIAN * len(centers) + (1 << 20)
+    assert acc.list_entries <= ENTRIES_PER_GAUSSIAN * len(centers) + _ENTRY_SLACK
     pos, val, _ = random_step(rng, 2000, 2000)
     pos[:1000] = centers[40:1040] + rng.normal(0.0, 0.002, (1000, 3))  # within reach of the tiny ones
     acc.add(pos, val)
+    assert acc.covered_entries > 0.5 * acc.list_entries   # the big ones cover most of their cells: no test there
     counts = check_against_twin(acc, centers, reach, [(pos, val)])
     assert counts[:40].min() > 500 and (counts[40:] > 0).sum() > 500
 
@@ -516,14 +540,15 @@ from nbv.aggregate import GaussianAccumulator
 centers, reach = multi_level_set(2000, seed=51)
 steps = near_surface_steps(np.random.default_rng(52), centers, 3, 6000, 8000)
 out = []
-for budget in (512 * 2**20, 0):
-    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=8000,
+for track, budget in ((True, 512 * 2**20), (True, 0), (False, 0)):
+    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=8000,
                               distinct_budget_bytes=budget)
     acc.serial_below = 0
     for p, v, i in steps:
         acc.add(p, v, i)
     out.append({"rows": acc.rows, "sums": acc.sums.tobytes().hex(), "counts": acc.counts.tolist(),
-                "distinct": acc.distinct_counts.tolist(), "storage": acc.distinct_storage})
+                "distinct": acc.distinct_counts.tolist() if track else None, "storage": acc.distinct_storage,
+                "covered": acc.covered_entries})
 print(json.dumps(out))
 """
 
@@ -536,13 +561,13 @@ def test_results_are_the_same_bits_on_any_thread_count():
         out = subprocess.run([sys.executable, "-c", THREADS_SCRIPT, str(threads), str(ROOT)], capture_output=True,
                              text=True, cwd=ROOT, timeout=300, check=True)
         runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    assert [[r["rows"] for r in run] for run in runs] == [[1, 1], [2, 2], [3, 3]]
-    assert [r["storage"] for r in runs[0]] == ["bits", "hash"]
-    assert sum(runs[0][0]["counts"]) > 10000
+    assert [[r["rows"] for r in run] for run in runs] == [[1, 1, 1], [2, 2, 2], [3, 3, 3]]
+    assert [r["storage"] for r in runs[0]] == ["bits", "hash", "none"]
+    assert sum(runs[0][0]["counts"]) > 10000 and runs[0][2]["covered"] > 0  # the cell sums of covered cells too
     for run in runs:
         for r in run:
             assert r["sums"] == runs[0][0]["sums"] and r["counts"] == runs[0][0]["counts"]
-            assert r["distinct"] == runs[0][0]["distinct"]
+            assert r["distinct"] in (None, runs[0][0]["distinct"])
 
 
 # ---- memory ------------------------------------------------------------------------------------------------------
@@ -575,5 +600,33 @@ def test_estimate_bytes_bounds_what_is_allocated():
     # by the pairs (5.0M measured on a 1.07M-Gaussian capture's -x probe)
     plain = GaussianAccumulator.estimate_bytes(10**6, 10**5, False, threads=2)
     tracked = GaussianAccumulator.estimate_bytes(10**6, 10**5, True, distinct_pairs=5 * 10**6, threads=2)
-    assert plain < 2**30 and tracked < plain + 2**30
+    assert plain < 1.5 * 2**30 and tracked < plain + 2**30
     assert GaussianAccumulator.estimate_bytes(5 * 10**6, 3 * 10**5, True, threads=2) < 16 * 2**30
+
+
+def test_jittered_copies_make_a_denser_set_of_the_same_object():
+    """`bench score --densify K`: the original first, then K - 1 copies whose means move by about jitter sigma along
+    each Gaussian's own axes (a flat Gaussian's copies stay in its plane), everything else kept."""
+    import torch
+
+    from apps.bench_score import jittered_copies
+    from recon.gaussians import GaussianSet, quaternion_to_rotation
+
+    rng = np.random.default_rng(71)
+    n = 400
+    means = torch.tensor(rng.uniform(-1, 1, (n, 3)), dtype=torch.float32)
+    quats = torch.tensor(rng.normal(size=(n, 4)), dtype=torch.float32)
+    log_scales = torch.log(torch.tensor([[0.05, 0.02, 1e-4]], dtype=torch.float32)).repeat(n, 1)  # flat
+    base = GaussianSet(means, quats, log_scales, torch.zeros(n), torch.zeros(n, 1, 3))
+    dense = jittered_copies(base, 4, 0.5, seed=3)
+    assert dense.num == 4 * n and torch.equal(dense.means[:n], base.means)
+    assert torch.equal(dense.log_scales, base.log_scales.repeat(4, 1))
+    assert torch.equal(dense.quats, base.quats.repeat(4, 1))
+    rot = quaternion_to_rotation(base.quats.double())
+    offsets = dense.means[n:].double().reshape(3, n, 3) - base.means.double()
+    local = torch.einsum("nji,knj->kni", rot, offsets)
+    ratio = local / base.log_scales.double().exp()               # offsets in standard deviations per axis
+    assert 0.4 < float(ratio[..., :2].std()) < 0.6                # jitter 0.5 sigma along the two long axes
+    assert float(local[..., 2].abs().max()) < 1e-3                # and within 0.5 sigma (5e-5) of the plane: f32 noise
+    with pytest.raises(ValueError, match="densify"):
+        jittered_copies(base, 0, 0.5)
