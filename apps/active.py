@@ -11,109 +11,101 @@ import argparse
 import logging
 from pathlib import Path
 
-from .runtime import positive_int
-
 log = logging.getLogger("fluidgs")
 
 
+ACTIVE_FIELDS = ("method", "budget", "initial_count", "initial_ids", "initial_direction", "mode", "iterations_per_view",
+                 "total_iterations", "resolution", "seed")
+TRAIN_FIELDS = ("init_points", "sh_degree", "max_gaussians")
+PHYSICS_FIELDS = ("particle_radius", "steps", "directions")
+
+
+def overrides() -> dict[str, dict]:
+    """The command line's names and wording for the ActiveConfig, TrainConfig and PhysicsConfig fields."""
+    from fluidsim.directions import DIRECTIONS
+
+    from .options import float_list, index_list
+
+    return {
+        "method": {"help": "planner: random, fisher, variance, physics, fisher+fluid, variance+fluid, random+fluid, "
+                           "or a control of the physics pick: fisher+area (coverage, no probes), fisher+shuffled "
+                           "(D_g permuted), the same on variance and random, or a candidate of issue 19: "
+                           "fisher+fluid-occ (depth-tested S(T)), fisher+area-occ (its coverage control), "
+                           "fisher+excess (D_g minus the empty-scene D_g), fisher+perprobe (each probe normalised), "
+                           "fisher+balanced (z(coverage) + z(S / coverage)), fisher+balanced-occ (the same, "
+                           "depth-tested)"},
+        "initial_ids": {"flags": ("--initial-views",), "dest": "initial_views", "default_text": "the biased rule",
+                        "help": "explicit initial train-split indices, e.g. 0,5",
+                        "convert": lambda text: index_list(text, "--initial-views")},
+        "initial_direction": {"convert": lambda text: float_list(text, "--initial-direction", size=3),
+                              "help": "anchor direction x,y,z of the biased rule",
+                              "default_text": "a unit vector drawn from --seed"},
+        "mode": {"choices": ("continue", "reset"),
+                 "help": "continue: keep training the same Gaussians across rounds (the paper); reset: retrain from "
+                         "the initial Gaussians after each selection"},
+        "iterations_per_view": {"flags": ("--iters-per-view",), "dest": "iters_per_view"},
+        "total_iterations": {"flags": ("--iterations",), "dest": "iterations"},
+        "resolution": {"flags": ("--res",), "help": "image width in pixels (0: native)", "convert": _resolution},
+        "sh_degree": {"choices": (0, 1, 2, 3)},
+        "particle_radius": {"help": "probe particle radius r, m"},
+        "steps": {"flags": ("--probe-steps",), "dest": "probe_steps"},
+        "directions": {"help": f"probes, comma list of {','.join(DIRECTIONS)}", "default_text": "all five"},
+    }
+
+
+def _resolution(width: int) -> int | None:
+    if width < 0:
+        raise ValueError(f"--res must be a width in pixels >= 8 (or 0 for native), got {width}")
+    return width or None
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from nbv.active import PRESETS, ActiveConfig
+    from nbv.physics import PhysicsConfig
+    from recon.train import TrainConfig
+
+    from .options import add_config_options, add_runtime_arguments
+
     p.add_argument("dataset", type=Path, help="dataset folder (Blender transforms_*.json or COLMAP); its train split "
                                               "is the candidate set")
     p.add_argument("-o", "--output", type=Path, required=True,
                    help="run folder (config.json, rounds.json, checkpoint.pt, gaussians.ply); an existing run with "
                         "the same options is resumed")
-    p.add_argument("--method", default="fisher+fluid",
-                   help="planner: random, fisher, variance, physics, fisher+fluid, variance+fluid, random+fluid, "
-                        "or a control of the physics pick: fisher+area (coverage, no probes), fisher+shuffled "
-                        "(D_g permuted), the same on variance and random")
-    p.add_argument("--preset", choices=("paper", "cpu-small"), default="paper",
-                   help="paper: native resolution, 30k iterations, 100 iterations per view, r = 0.025 m, 750 steps; "
-                        "cpu-small: 64 px, 1000 iterations, 10 per view, at most 4000 Gaussians, r = 0.05 m, 150 steps")
-    p.add_argument("--budget", type=int, default=10, help="view budget B (views)")
-    p.add_argument("--initial-count", type=int, default=2, help="number of biased initial views")
-    p.add_argument("--initial-views", default=None,
-                   help="explicit initial train-split indices, e.g. 0,5 (default: the biased rule of nbv.active)")
-    p.add_argument("--initial-direction", default=None,
-                   help="anchor direction x,y,z of the biased rule (default: a unit vector drawn from --seed)")
-    p.add_argument("--mode", choices=("continue", "reset"), default="continue",
-                   help="continue: keep training the same Gaussians across rounds (the paper); reset: retrain from "
-                        "the initial Gaussians after each selection")
-    p.add_argument("--iters-per-view", type=int, default=None,
-                   help="training iterations per selected view before each selection (default: the preset's)")
-    p.add_argument("--iterations", type=int, default=None, help="total training iterations (default: the preset's)")
-    p.add_argument("--res", type=int, default=None, help="image width in pixels (default: the preset's; 0: native)")
-    p.add_argument("--seed", type=int, default=0, help="seed of training, initial views and planners")
-    p.add_argument("--init-points", type=int, default=None, help="random initial Gaussians (default: the preset's)")
-    p.add_argument("--sh-degree", type=int, choices=(0, 1, 2, 3), default=None,
-                   help="largest SH degree (default: the preset's; 3 for paper)")
-    p.add_argument("--max-gaussians", type=int, default=None,
-                   help="cap on the number of Gaussians (default: the preset's; none for paper)")
-    p.add_argument("--particle-radius", type=float, default=None,
-                   help="probe particle radius r in m (default: the preset's)")
-    p.add_argument("--probe-steps", type=int, default=None, help="time steps per probe (default: the preset's)")
-    p.add_argument("--directions", default=None, help="probes, comma list of -x,+x,-z,+z,-y (default: all five)")
+    p.add_argument("--preset", choices=tuple(PRESETS), default="paper",
+                   help="paper: the paper's settings; cpu-small: sized for a 64 px dataset on a small CPU (each "
+                        "option below shows its cpu-small value; default: paper)")
+    small = PRESETS["cpu-small"]
+    label = "--preset cpu-small"
+    over = overrides()
+    add_config_options(p, ActiveConfig, ACTIVE_FIELDS, over, presets={label: small})
+    add_config_options(p, TrainConfig, TRAIN_FIELDS, over, presets={label: small["train"]})
+    add_config_options(p, PhysicsConfig, PHYSICS_FIELDS, over, presets={label: small["physics"]})
     p.add_argument("--up", "--up-axis", dest="up", default=None, metavar="UP",
                    help="the scene's up direction for the probes: +x, -x, +y, -y, +z, -z, a vector such as 0,-1,0, or "
                         "'auto': the training cameras' mean up vector (default: the dataset's up axis)")
-    p.add_argument("--occlusion", action="store_true",
-                   help="the physics planners count only Gaussians a coarse depth test finds unhidden (not in the "
-                        "paper, whose visibility is frustum culling; default: off)")
-    p.add_argument("--backend", choices=("auto", "torch", "gsplat"), default="auto", help="renderer backend")
+    add_config_options(p, ActiveConfig, ("occlusion", "backend"),
+                       {"backend": {"choices": ("auto", "torch", "gsplat"), "help": "renderer backend"}})
     p.add_argument("--overwrite", action="store_true", help="discard an existing run in the output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="compute device; cuda falls back to cpu with a logged warning when unavailable")
-    p.add_argument("--threads", type=positive_int, default=None,
-                   help="CPU threads for torch and Taichi (default: all cores)")
+    add_runtime_arguments(p, threads_help="CPU threads for torch and Taichi")
 
 
-def parse_floats(text: str, count: int, option: str) -> tuple[float, ...]:
-    """'1,0,0' -> (1.0, 0.0, 0.0); ValueError naming the option."""
-    try:
-        vals = tuple(float(t) for t in text.split(","))
-    except ValueError:
-        raise ValueError(f"{option} must be {count} comma-separated numbers, got {text!r}") from None
-    if len(vals) != count:
-        raise ValueError(f"{option} must be {count} comma-separated numbers, got {text!r}")
-    return vals
+def option_values(args: argparse.Namespace) -> tuple[dict, dict, dict]:
+    """(ActiveConfig, TrainConfig, PhysicsConfig) values the command line gives, over the preset's."""
+    from nbv.active import PRESETS, ActiveConfig
+    from nbv.physics import PhysicsConfig, parse_directions
+    from recon.train import TrainConfig
 
+    from .options import config_values
 
-def parse_ints(text: str, option: str) -> tuple[int, ...]:
-    """'0,5' -> (0, 5); ValueError naming the option on an empty list, a non-integer, a negative or a repeat."""
-    try:
-        vals = tuple(int(t) for t in text.split(",") if t.strip())
-    except ValueError:
-        raise ValueError(f"{option} must be comma-separated integers such as 0,5, got {text!r}") from None
-    if not vals:
-        raise ValueError(f"{option} is empty; give indices such as 0,5")
-    negative = [v for v in vals if v < 0]
-    if negative:
-        raise ValueError(f"{option} {negative}: indices start at 0")
-    repeated = sorted({v for v in vals if vals.count(v) > 1})
-    if repeated:
-        raise ValueError(f"{option} {text!r} lists {repeated} more than once; list each view once")
-    return vals
-
-
-def count_candidates(dataset: Path) -> int | None:
-    """The train (candidate) views of a dataset, counted from its cameras without reading an image; None when the
-    folder cannot be read that way (the dataset loader then says what is wrong)."""
-    import json
-    import math
-
-    from recon.colmap import find_colmap_sparse, read_colmap_model
-    from recon.datasets import COLMAP_TEST_EVERY, dataset_format
-
-    root = Path(dataset)
-    root = root.parent if root.is_file() else root
-    try:
-        if dataset_format(root) == "blender":
-            frames = json.loads((root / "transforms_train.json").read_text()).get("frames")
-            return len(frames) if isinstance(frames, list) else None
-        images = len(read_colmap_model(find_colmap_sparse(root)).images)
-        return images - math.ceil(images / COLMAP_TEST_EVERY)  # images 0, 8, 16, ... are the test split
-    except (ValueError, OSError, TypeError, AttributeError):
-        return None
+    over = overrides()
+    active = config_values(ActiveConfig, args, (*ACTIVE_FIELDS, "occlusion", "backend"), over)
+    active["up"] = args.up
+    train = config_values(TrainConfig, args, TRAIN_FIELDS, over)
+    physics = {**PRESETS[args.preset]["physics"], **config_values(PhysicsConfig, args, PHYSICS_FIELDS, over)}
+    if "directions" in physics:
+        physics["directions"] = parse_directions(physics["directions"])
+    return active, train, physics
 
 
 def check_plan(args: argparse.Namespace) -> None:
@@ -124,84 +116,48 @@ def check_plan(args: argparse.Namespace) -> None:
         ValueError: an unknown --method; a --budget above the dataset's candidate views; selection rounds that
             need more training iterations than the run has (continue mode).
     """
-    from nbv.active import PRESETS
-    from nbv.planners import PLANNERS
+    from dataclasses import fields
 
-    if args.method not in PLANNERS:
-        raise ValueError(f"--method {args.method!r} is not a planner; choose one of {', '.join(sorted(PLANNERS))}")
-    candidates = count_candidates(args.dataset)
-    if candidates is not None and args.budget > candidates:
-        raise ValueError(f"--budget {args.budget} is more than the {candidates} candidate (train) views of "
+    from nbv.active import PRESETS, ActiveConfig
+    from nbv.planners import PLANNERS
+    from recon.datasets import count_train_views
+
+    defaults = {f.name: f.default for f in fields(ActiveConfig) if f.name in ACTIVE_FIELDS}
+    given = option_values(args)[0]
+    v = {**defaults, **{k: x for k, x in PRESETS[args.preset].items() if k in defaults}, **given}
+    if v["method"] not in PLANNERS:
+        raise ValueError(f"--method {v['method']!r} is not a planner; choose one of {', '.join(sorted(PLANNERS))}")
+    budget = v["budget"]
+    candidates = count_train_views(args.dataset)
+    if candidates is not None and budget > candidates:
+        raise ValueError(f"--budget {budget} is more than the {candidates} candidate (train) views of "
                          f"{args.dataset}: the budget counts the views a run ends with, the initial ones included; "
                          f"use --budget {candidates} or less, or add train views to the dataset")
-    preset = PRESETS[args.preset]
-    per_view = preset["iterations_per_view"] if args.iters_per_view is None else args.iters_per_view
-    total = preset["total_iterations"] if args.iterations is None else args.iterations
-    initial = args.initial_count if args.initial_views is None else len(parse_ints(args.initial_views,
-                                                                                   "--initial-views"))
-    needed = per_view * sum(range(initial, args.budget))
-    if args.mode == "continue" and 0 < total < needed:
-        raise ValueError(f"--budget {args.budget} means {args.budget - initial} selection rounds, trained for "
+    per_view, total = v["iterations_per_view"], v["total_iterations"]
+    initial = v["initial_count"] if v["initial_ids"] is None else len(v["initial_ids"])
+    needed = per_view * sum(range(initial, budget))
+    if v["mode"] == "continue" and 0 < total < needed:
+        raise ValueError(f"--budget {budget} means {budget - initial} selection rounds, trained for "
                          f"{needed:,} iterations in all before them (--iters-per-view {per_view} x the {initial} to "
-                         f"{args.budget - 1} views selected so far), more than the run's {total:,} iterations "
+                         f"{budget - 1} views selected so far), more than the run's {total:,} iterations "
                          f"(--iterations; preset {args.preset}); give --iterations {needed} or more, or lower "
                          "--iters-per-view or --budget")
 
 
 def config_from_args(args: argparse.Namespace):
-    """The validated ActiveConfig of the command line (preset values unless an option is given)."""
-    from nbv.active import PRESETS, ActiveConfig
-    from nbv.physics import parse_directions
+    """The validated ActiveConfig of the command line (the preset's values unless an option is given)."""
+    from nbv.active import ActiveConfig
 
-    preset = PRESETS[args.preset]
-    over: dict = {"method": args.method, "budget": args.budget, "initial_count": args.initial_count,
-                  "mode": args.mode, "seed": args.seed, "backend": args.backend, "up": args.up,
-                  "occlusion": args.occlusion}
-    if args.initial_views is not None:
-        over["initial_ids"] = parse_ints(args.initial_views, "--initial-views")
-    if args.initial_direction is not None:
-        over["initial_direction"] = parse_floats(args.initial_direction, 3, "--initial-direction")
-    if args.iters_per_view is not None:
-        over["iterations_per_view"] = args.iters_per_view
-    if args.iterations is not None:
-        over["total_iterations"] = args.iterations
-    if args.res is not None:
-        if args.res < 0:
-            raise ValueError(f"--res must be a width in pixels >= 8 (or 0 for native), got {args.res}")
-        over["resolution"] = args.res or None
-    train = {k: v for k, v in (("init_points", args.init_points), ("sh_degree", args.sh_degree),
-                               ("max_gaussians", args.max_gaussians)) if v is not None}
-    physics = dict(preset["physics"])
-    if args.particle_radius is not None:
-        physics["particle_radius"] = args.particle_radius
-    if args.probe_steps is not None:
-        physics["steps"] = args.probe_steps
-    if args.directions is not None:
-        physics["directions"] = parse_directions(args.directions)
-    return ActiveConfig.from_preset(args.preset, **over, train=train, physics=physics)
-
-
-def setup_runtime(device: str, threads: int | None, precision: str) -> str:
-    """torch threads, Taichi runtime; returns the torch device actually used."""
-    import torch
-
-    from .runtime import init_taichi
-    from .train import select_device
-
-    if threads is not None:
-        if threads < 1:
-            raise ValueError(f"--threads must be >= 1, got {threads}")
-        torch.set_num_threads(threads)
-    used = select_device(device)
-    init_taichi(used, precision, threads)
-    return used
+    active, train, physics = option_values(args)
+    return ActiveConfig.from_preset(args.preset, **active, train=train, physics=physics)
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.output import check_not_input
+    from fluidsim.files import check_not_input
     from nbv.active import RUN_FILES, ActiveRun
 
-    from .train import dataset_inputs
+    from .options import dataset_inputs
+    from .runtime import setup_runtime
 
     check_plan(args)
     config = config_from_args(args)

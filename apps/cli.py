@@ -26,6 +26,8 @@ import errno
 import logging
 import sys
 
+from fluidsim.files import OutputError
+
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
 try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets one line too, not a traceback
     from . import (
@@ -58,12 +60,9 @@ OUTPUT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS,
 
 
 def is_output_error(exc: BaseException) -> bool:
-    """Whether ``exc`` means that an output could not be written (exit 4): a ``fluidsim.output.OutputError``
-    (from the checks before the work and from every atomic writer), or an ``OSError`` of :data:`OUTPUT_ERRNOS`."""
-    output = sys.modules.get("fluidsim.output")  # an OutputError needs that module loaded: no Taichi import here
-    if output is not None and isinstance(exc, output.OutputError):
-        return True
-    return isinstance(exc, OSError) and exc.errno in OUTPUT_ERRNOS
+    """Whether ``exc`` means that an output could not be written (exit 4): an ``fluidsim.files.OutputError`` (from the
+    checks before the work and from every atomic writer), or an ``OSError`` of :data:`OUTPUT_ERRNOS`."""
+    return isinstance(exc, OutputError) or (isinstance(exc, OSError) and exc.errno in OUTPUT_ERRNOS)
 
 COMMANDS = {
     "inspect": (inspect_gaussians, "what the fluid will see: format, boxes, frame, solid count; PNG of three views"),
@@ -86,16 +85,31 @@ COMMANDS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``fluidgs`` parser. With ``command``, only that subcommand's options are built (the others are listed
+    by name and help): options come from the config dataclasses, whose modules load torch or Taichi, so
+    ``fluidgs --help`` builds none and ``fluidgs simulate ...`` only simulate's. Without it, every subcommand's
+    (the tests and the CLI reference walk them all)."""
     parser = argparse.ArgumentParser(prog="fluidgs", description="FluidGaussian: fluid probes for 3DGS geometry.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log more (default: warnings and info)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text,
                            formatter_class=HelpFormatter)
-        module.add_arguments(p)
+        if command is None or name == command:
+            module.add_arguments(p)
         p.set_defaults(_module=module)
     return parser
+
+
+def command_of(argv: list[str]) -> str | None:
+    """The subcommand named in ``argv`` (the first token that is one, after the global options), or None."""
+    for tok in argv:
+        if tok in COMMANDS:
+            return tok
+        if not tok.startswith("-"):
+            return None
+    return None
 
 
 # Options whose values may start with '-' (an up direction "-y", a crop box "-1,-1,-1,1,1,1", a vector "-0.1,1,0"):
@@ -120,7 +134,17 @@ def join_dash_values(argv: list[str], options: tuple[str, ...] = DASH_VALUE_OPTI
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(join_dash_values(list(sys.argv[1:] if argv is None else argv)))
+    argv = join_dash_values(list(sys.argv[1:] if argv is None else argv))
+    try:  # building a command's options imports its config module (torch, Taichi): Ctrl-C there is one line too
+        args = build_parser(command_of(argv) or "").parse_args(argv)
+    except KeyboardInterrupt:
+        sys.stderr.write("ERROR fluidgs: interrupted\n")
+        return EXIT_INTERRUPTED
+    except ImportError as exc:
+        if not interrupted_import(exc):
+            raise
+        sys.stderr.write("ERROR fluidgs: interrupted\n")
+        return EXIT_INTERRUPTED
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     module = args._module

@@ -13,17 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .score import (
+from .options import (
     add_camera_arguments,
-    check_cameras_see,
-    load_cameras,
-    parse_candidates,
-    print_table,
-    render_size,
-    torch_device,
+    add_physics_arguments,
+    check_output_file,
+    load_gaussians_checked,
+    physics_config_from_args,
 )
-from .simulate import add_physics_arguments, check_output_file, load_gaussians_checked, physics_config_from_args
-from .simulate import write_json as write_json_atomic
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -39,9 +35,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run_command(args: argparse.Namespace) -> int:
     import torch
 
-    from fluidsim.output import check_not_input
+    from fluidsim.files import check_not_input, write_json_atomic
     from nbv.physics import simulate_gaussians
     from nbv.scores import critical_subset, projected_view_scores, rank
+    from nbv.view_scoring import check_cameras_see, format_table, parse_candidates, render_size, torch_device
+    from recon.datasets import load_cameras
 
     from .runtime import init_taichi
 
@@ -72,7 +70,7 @@ def run_command(args: argparse.Namespace) -> int:
     subset = critical_subset(c, args.subset).tolist()
     rows = [{"rank": r + 1, "index": idx[k], "name": cams[k].name, "critical_score": float(c[k]),
              "visible": int(scored.counted[k])} for r, k in enumerate(order)]
-    print_table(rows, args.top_k, value="critical_score")
+    print(format_table(rows, args.top_k, value="critical_score"))
     print(f"critical subset ({len(subset)} views): {[idx[k] for k in subset]}")
     write_json_atomic(output, {
         "cameras": str(args.cameras), "gaussians": str(args.gaussians), "directions": list(config.directions),

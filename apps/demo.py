@@ -18,22 +18,22 @@ per probe, ``summary.json`` and an MP4 of the -x probe.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
-import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+from fluidsim.directions import DIRECTIONS
+from fluidsim.files import write_json_atomic
 
-from .runtime import positive_int
+from .options import add_config_options, add_frame_arguments, add_runtime_arguments, physics_config_from_args
 
 log = logging.getLogger("fluidgs")
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 ASSET = ASSETS / "torus.obj"
 GAUSSIANS = ASSETS / "ahmed_gaussians.ply"
 CAMERAS = ASSETS / "ahmed_cameras.json"
+MESH_RADIUS, MESH_STEPS = 0.04, 200  # the mesh demo (--solid): particle radius r in m, steps per probe
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,43 +44,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"Gaussian set (default: assets/{GAUSSIANS.name}, else Gaussians on the Ahmed body surface)")
     p.add_argument("--cameras", type=Path, default=None,
                    help=f"candidate cameras, transforms.json (default: assets/{CAMERAS.name}, else an orbit of 12)")
-    p.add_argument("--up", "--up-axis", dest="up", default="+y", metavar="UP",
-                   help="the Gaussians' up direction: +x, -x, +y, -y, +z, -z or a vector such as 0,-1,0 "
-                        "(default: +y)")
-    p.add_argument("--particle-radius", type=float, default=None,
-                   help="particle radius r in m (default: 0.05, the quick preset; 0.04 for --solid)")
-    p.add_argument("--steps", type=int, default=None,
-                   help="time steps per probe (default: 300, the quick preset; 200 for --solid), dt 0.002 s")
-    p.add_argument("--speed", type=float, default=3.0, help="inflow speed lambda in m/s")
+    from nbv.physics import QUICK, PhysicsConfig
+
+    add_frame_arguments(p, scale=False, crop=False)
+    add_config_options(p, PhysicsConfig, ("particle_radius", "steps", "speed"), {
+        "particle_radius": {"default_text": f"{QUICK['particle_radius']}, the quick preset; {MESH_RADIUS} for --solid"},
+        "steps": {"default_text": f"{QUICK['steps']}, the quick preset; {MESH_STEPS} for --solid"}})
     p.add_argument("--render-width", type=int, default=240, help="width of the scored views in pixels")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="compute device; cuda falls back to cpu with a notice")
-    p.add_argument("--threads", type=positive_int, default=None, help="CPU threads (default: all cores)")
     p.add_argument("--no-video", action="store_true", help="skip the MP4 of the -x probe")
-
-
-def ahmed_surface_gaussians(count: int = 4000, sigma: float = 0.02, seed: int = 0):
-    """Gaussians on the Ahmed body surface (metres, Y-up): ``count`` Poisson-disk samples, isotropic ``sigma`` m,
-    opacity 0.9, coloured light grey; stands in for the trained asset when it is missing."""
-    import open3d as o3d
-    import torch
-
-    from recon.ahmed import ahmed_body
-    from recon.gaussians import GaussianSet
-
-    o3d.utility.random.seed(seed)
-    pcd = ahmed_body(resolution=0.02).sample_points_poisson_disk(count)
-    pts = torch.tensor(np.asarray(pcd.points), dtype=torch.float32)
-    return GaussianSet.from_points(pts, torch.full((len(pts), 3), 0.8), scale=sigma, opacity=0.9)
+    add_runtime_arguments(p)
 
 
 def demo_cameras(gaussians, path: Path | None, width: int):
     """Candidate cameras: the bundled transforms.json, or an orbit of 12 around the Gaussians' centre."""
     import math
 
+    from nbv.view_scoring import render_size
     from recon.camera_paths import orbit
-
-    from .score import load_cameras, render_size
+    from recon.datasets import load_cameras
 
     if path is not None:
         return [render_size(c, width) for c in load_cameras(path)]
@@ -91,32 +72,30 @@ def demo_cameras(gaussians, path: Path | None, width: int):
 
 
 DEMO_FILES = ("result.h5", "gaussians_divergence.ply", "scores.json", "summary.json", "probe_-x.mp4",
-              *(f"probe_{d}.h5" for d in ("-x", "+x", "-z", "+z", "-y")))
+              *(f"probe_{d}.h5" for d in DIRECTIONS))
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.output import check_not_input
+    from fluidsim.files import check_not_input
 
     check_not_input([("-o (demo file)", Path(args.output) / name) for name in DEMO_FILES],
                     {"--solid": args.solid, "--gaussians": args.gaussians, "--cameras": args.cameras})
     if args.solid is not None:
         return run_mesh_demo(args)
-    from dataclasses import replace
+    from nbv.outputs import probe_video, result_summary, save_colored_gaussians
+    from nbv.physics import QUICK, save_result, simulate_gaussians
+    from nbv.view_scoring import check_cameras_see, format_table, score_views
+    from recon.ahmed import ahmed_surface_gaussians
 
-    from nbv.physics import PhysicsConfig, save_result, simulate_gaussians
-
+    from .options import load_gaussians_checked
     from .runtime import init_taichi
-    from .score import check_cameras_see, print_table, score_views
-    from .simulate import load_gaussians_checked, result_summary, write_colored_ply, write_json, write_probe_video
 
     t0 = time.perf_counter()
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     if not os.access(out, os.W_OK):
         raise OSError(f"output folder {out} is not writable; pass another -o")
-    cfg = PhysicsConfig.quick(speed=args.speed, up=args.up, fill_cavities=True, empty_reference=False)
-    cfg = replace(cfg, **{k: v for k, v in (("particle_radius", args.particle_radius), ("steps", args.steps))
-                          if v is not None})
+    cfg = physics_config_from_args(args, preset=QUICK, empty_reference=False)
     gpath = args.gaussians or (GAUSSIANS if GAUSSIANS.is_file() else None)
     if gpath is not None:
         gaussians, source = load_gaussians_checked(gpath), str(gpath)
@@ -132,17 +111,17 @@ def run_command(args: argparse.Namespace) -> int:
     result = simulate_gaussians(gaussians, cfg, progress=True, source=source,
                                 record=RecordConfig(("-x",), every=max(1, cfg.steps // 30)))
     save_result(out / "result.h5", result)
-    write_colored_ply(gaussians, result.divergence, out / "gaussians_divergence.ply")
+    save_colored_gaussians(gaussians, result.divergence, out / "gaussians_divergence.ply")
     rows = score_views(gaussians, cams, list(range(len(cams))), result, "max", out / "views",
                        device=args.device, visible_centres=centres)
-    print_table(rows, None)
-    write_json(out / "scores.json", {"cameras": str(cpath or "orbit of 12"), "gaussians": source, "views": rows,
+    print(format_table(rows))
+    write_json_atomic(out / "scores.json", {"cameras": str(cpath or "orbit of 12"), "gaussians": source, "views": rows,
                                      "dbar_m4_s": result.dbar, "config": cfg.to_dict()})
     if not args.no_video:
-        write_probe_video(result, "-x", out / "probe_-x.mp4")
+        probe_video(result, "-x", out / "probe_-x.mp4")
     summary = result_summary(result)
     summary.update(source=source, cameras=str(cpath or "orbit of 12"), wall_time_s=time.perf_counter() - t0)
-    write_json(out / "summary.json", summary)
+    write_json_atomic(out / "summary.json", summary)
     print(f"{result.num_gaussians} Gaussians ({source}); D-bar {result.dbar:.4g} m^4/s; best view {rows[0]['name']}")
     print(f"outputs in {out}: result.h5, gaussians_divergence.ply, scores.json, views/, summary.json"
           + ("" if args.no_video else ", probe_-x.mp4") + f" ({summary['wall_time_s']:.0f} s)")
@@ -160,43 +139,23 @@ def run_mesh_demo(args: argparse.Namespace) -> int:
     if not os.access(out, os.W_OK):
         raise OSError(f"output folder {out} is not writable; pass another -o")
     init_taichi(args.device, "f32", args.threads)
-    steps = args.steps or 200
+    steps = args.steps or MESH_STEPS
     from fluidsim import ProbeConfig, SolverConfig
-    from fluidsim.probes import build_probe_solver, probe_setup
+    from fluidsim.recording import probe_file_summary, probe_to_h5
     from fluidsim.sources import mesh_particles
 
-    from .sim import simulate_to_h5
-
-    cfg = SolverConfig(particle_radius=args.particle_radius or 0.04)
+    cfg = SolverConfig(particle_radius=args.particle_radius or MESH_RADIUS)
     solid = mesh_particles(args.solid, cfg.spacing, fill=True)
-    probe = ProbeConfig(speed=args.speed)
+    probe = ProbeConfig(**({} if args.speed is None else {"speed": args.speed}))
     summary = {"solid": str(args.solid), "solid_particles": len(solid), "particle_radius": cfg.particle_radius,
                "steps": steps, "dt": cfg.dt, "probes": {}}
     for d in probe.directions:
-        setup = probe_setup(solid, d, probe, cfg.spacing)
-        solver = build_probe_solver(solid, setup, cfg, probe)
-        scene = {"probe": d, "velocity": list(setup.velocity), "domain": {"min": list(setup.domain_min),
-                 "max": list(setup.domain_max), "walls": probe.walls}, "particle_radius": cfg.particle_radius,
-                 "dt": cfg.dt, "steps": steps}
-        path, history = simulate_to_h5(solver, scene, out / f"probe_{d}.h5", steps, 10, desc=f"probe {d}")
-        sums, counts = solver.divergence_accumulation()
-        mean_d = np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
-        summary["probes"][d] = {
-            "file": path.name, "fluid_particles": solver.fluid.capacity, "boundary_particles": solver.boundary.count,
-            "retired": int(sum(h.retired for h in history)),
-            "mean_density_iterations": float(np.mean([h.density_iterations for h in history])),
-            "mean_divergence_iterations": float(np.mean([h.divergence_iterations for h in history])),
-            "mean_particle_divergence": float(mean_d.mean()),
-            "p95_particle_divergence": float(np.percentile(mean_d, 95)),
-        }
-        print(f"probe {d}: {solver.fluid.capacity} fluid particles, mean D_i {mean_d.mean():.3f} 1/s "
-              f"(p95 {np.percentile(mean_d, 95):.3f}), {summary['probes'][d]['retired']} retired -> {path}")
-    fd, tmp = tempfile.mkstemp(dir=out, prefix=".summary.", suffix=".json")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(summary, fh, indent=2)
-    os.replace(tmp, out / "summary.json")
+        s = summary["probes"][d] = probe_file_summary(*probe_to_h5(solid, d, cfg, probe, steps, out / f"probe_{d}.h5"))
+        print(f"probe {d}: {s['fluid_particles']} fluid particles, mean D_i {s['mean_particle_divergence']:.3f} 1/s "
+              f"(p95 {s['p95_particle_divergence']:.3f}), {s['retired']} retired -> {out / s['file']}")
+    write_json_atomic(out / "summary.json", summary)
     if not args.no_video:
-        from .render_frames import FrameStyle, render_frames
+        from viz.frames import FrameStyle, render_frames
 
         render_frames(out / "probe_-x.h5", out / "probe_-x.mp4", FrameStyle(view="iso"), progress=True)
         print(f"video: {out / 'probe_-x.mp4'}")

@@ -54,7 +54,7 @@ def make_executor(kind: str, workers: int, threads: int, address: str | None, pr
 def run_command(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from fluidsim.output import check_not_input
+    from fluidsim.files import check_not_input
     from nbv.experiment import ExperimentConfig, run_experiment
 
     config = ExperimentConfig.load(args.config)

@@ -11,8 +11,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .options import (
+    add_config_options,
+    add_frame_arguments,
+    check_output_file,
+    physics_config_class,
+    physics_config_from_args,
+    probe_overrides,
+)
 from .runtime import positive_int
-from .simulate import add_frame_arguments, check_output_file, physics_config_from_args
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -20,13 +27,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="Gaussians: 3DGS .ply, SuperSplat compressed .ply, .spz, .splat or .npz (scene units)")
     g = p.add_argument_group("frame and solid")
     add_frame_arguments(g)
-    g.add_argument("--quick", action="store_true", help="the quick preset's spacing: r = 0.05 m (default: 0.025 m)")
-    g.add_argument("--particle-radius", type=float, default=None,
-                   help="fluid particle radius r in m; the solid lattice spacing is 2 r (default: 0.025, the paper's)")
-    g.add_argument("--opacity-threshold", type=float, default=0.3,
-                   help="tau: opacity at or above which Gaussians make solid (unitless, 0..1; default: 0.3)")
-    g.add_argument("--no-fill", action="store_true",
-                   help="keep the solid a shell: do not fill what a closed surface encloses (default: filled)")
+    config, quick = physics_config_class()
+    g.add_argument("--quick", action="store_true",
+                   help=f"the quick preset's spacing: r = {quick['particle_radius']} m (default: the paper's, "
+                        f"{config.particle_radius} m)")
+    over = probe_overrides()
+    add_config_options(g, config, ("particle_radius", "opacity_threshold", "fill_cavities"), over,
+                       presets={"--quick": {"particle_radius": quick["particle_radius"]}})
     g.add_argument("--fill-cavities", action="store_true",
                    help="accepted for old scripts and does nothing: filling is the default (see --no-fill)")
     p.add_argument("--png", type=Path, default=None, help="write the three orthographic views here (.png)")
@@ -37,10 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    import cv2
-
-    from nbv.active import write_atomic, write_json_atomic
     from nbv.inspection import describe, inspect_gaussians, inspection_views
+    from nbv.io import check_not_input, write_json_atomic, write_png_atomic
     from recon.formats import load_gaussians_with_format
 
     from .runtime import init_taichi
@@ -48,13 +53,8 @@ def run_command(args: argparse.Namespace) -> int:
     for path, suffix in ((args.png, ".png"), (args.json, ".json")):
         if path is not None:
             check_output_file(path, (suffix,))
-    from fluidsim.output import check_not_input
-
     check_not_input({"--png": args.png, "--json": args.json}, {"GAUSSIANS": args.gaussians})
-    # the probe options the config needs but inspect does not offer
-    args.steps, args.dt, args.speed, args.viscosity, args.directions = 1, 0.002, 3.0, 10.0, None
-    args.accumulate_every, args.max_memory_gb = 1, None
-    config = physics_config_from_args(args)
+    config = physics_config_from_args(args, steps=1)  # inspect runs no probe; the other fields keep their defaults
     if not Path(args.gaussians).exists():
         raise ValueError(f"Gaussian file {args.gaussians} does not exist")
     gaussians, fmt = load_gaussians_with_format(args.gaussians)
@@ -68,13 +68,6 @@ def run_command(args: argparse.Namespace) -> int:
         print(f"json: {args.json}")
     if args.png is not None:
         image = inspection_views(inspection)
-        write_atomic(args.png, lambda tmp: _write_png(tmp, image, cv2))
+        write_png_atomic(args.png, image)
         print(f"png: {args.png}")
     return 0
-
-
-def _write_png(path: Path, image, cv2) -> None:
-    ok, data = cv2.imencode(".png", image)
-    if not ok:
-        raise OSError(f"cannot encode the PNG for {path}")
-    Path(path).write_bytes(data.tobytes())

@@ -24,8 +24,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from .runtime import positive_int
-from .train import deterministic_torch, write_json_atomic
+from fluidsim.files import write_json_atomic
+
+from .runtime import deterministic_torch, positive_int
 
 log = logging.getLogger("fluidgs")
 

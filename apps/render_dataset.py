@@ -11,34 +11,24 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
-
-_DEFAULTS = MeshDatasetConfig()
+FIELDS = ("n_train", "n_test", "resolution", "fov_x", "box_size", "radius", "color", "ambient", "up_axis", "hemisphere",
+          "supersample", "seed")
+OVERRIDES = {"n_train": {"flags": ("--train",)}, "n_test": {"flags": ("--test",)}, "resolution": {"flags": ("--res",)},
+             "fov_x": {"flags": ("--fov",)}, "box_size": {"flags": ("--box",)},
+             "up_axis": {"flags": ("--up", "--up-axis"), "dest": "up", "metavar": "UP",
+                         "help": "the mesh's up axis, y or z (+y, +z accepted; kept up in the images; recorded in "
+                                 "dataset.json)"}}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from recon.mesh_render import MeshDatasetConfig
+
+    from .options import add_config_options
+
     p.add_argument("mesh", type=Path, help="input triangle mesh (.obj, .stl or .ply; any units, it is normalised)")
     p.add_argument("-o", "--output", type=Path, required=True,
                    help="dataset folder to create (written atomically; must be empty unless --overwrite)")
-    p.add_argument("--train", type=int, default=_DEFAULTS.n_train, help="number of train / candidate views")
-    p.add_argument("--test", type=int, default=_DEFAULTS.n_test, help="number of test views")
-    p.add_argument("--res", type=int, default=_DEFAULTS.resolution,
-                   help="image width = height, pixels (the paper used 800)")
-    p.add_argument("--fov", type=float, default=_DEFAULTS.fov_x, help="horizontal = vertical field of view, degrees")
-    p.add_argument("--box", type=float, default=_DEFAULTS.box_size,
-                   help="largest extent of the normalised object, scene units (centred at the origin)")
-    p.add_argument("--radius", type=float, default=_DEFAULTS.radius,
-                   help="camera distance from the centre, scene units")
-    p.add_argument("--color", default=_DEFAULTS.color, help="object colour, '#RRGGBB'")
-    p.add_argument("--ambient", type=float, default=_DEFAULTS.ambient, help="ambient shading term, in [0, 1]")
-    p.add_argument("--up", "--up-axis", dest="up", default=_DEFAULTS.up_axis, metavar="UP",
-                   help="the mesh's up axis, y or z (+y, +z accepted; kept up in the images; recorded in dataset.json; "
-                        f"default: {_DEFAULTS.up_axis})")
-    p.add_argument("--hemisphere", action="store_true",
-                   help="cameras on the upper hemisphere only (e.g. a car on a road) instead of the full sphere")
-    p.add_argument("--supersample", type=int, default=_DEFAULTS.supersample,
-                   help="s x s rays per pixel for anti-aliased edges and alpha (1 = one ray per pixel)")
-    p.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed of the camera positions")
+    add_config_options(p, MeshDatasetConfig, FIELDS, OVERRIDES)
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
@@ -60,7 +50,7 @@ def make_parents(out: Path) -> None:
     Raises:
         OutputError: a parent is a file, or a folder cannot be created (naming it and the fix).
     """
-    from fluidsim.output import OutputError
+    from fluidsim.files import OutputError
 
     parent = out.absolute().parent
     if parent.is_dir():
@@ -76,12 +66,13 @@ def make_parents(out: Path) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    args.up = mesh_up_axis(args.up)
-    config = MeshDatasetConfig(n_train=args.train, n_test=args.test, resolution=args.res, fov_x=args.fov,
-                               box_size=args.box, radius=args.radius, color=args.color, ambient=args.ambient,
-                               up_axis=args.up, hemisphere=args.hemisphere, seed=args.seed,
-                               supersample=args.supersample)
-    from fluidsim.output import check_not_input
+    from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
+
+    from .options import config_from_args
+
+    config = config_from_args(MeshDatasetConfig, args, FIELDS, OVERRIDES,
+                              up_axis=mesh_up_axis(args.up if args.up is not None else MeshDatasetConfig.up_axis))
+    from fluidsim.files import check_not_input
 
     check_not_input({"-o": args.output}, {"MESH": args.mesh}, replaced={"-o": args.output})
     if args.mesh.is_file():  # a missing mesh is reported by the renderer, before any folder is made

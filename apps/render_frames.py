@@ -13,12 +13,36 @@ from pathlib import Path
 
 from viz.frames import COLOR_BY, MIN_HEIGHT, MIN_WIDTH, VIEWS, FrameStyle, output_is_video, render_frames
 
+from .options import add_config_options, config_from_args
+
 __all__ = ["FrameStyle", "add_arguments", "main", "output_is_video", "render_frames", "run"]
+
+
+STYLE_FIELDS = ("color_by", "view", "width", "height", "point_size", "vmax", "show_boundary", "fps")
+
+
+def style_overrides() -> dict[str, dict]:
+    """The render-frames names, types and wording of the :class:`viz.frames.FrameStyle` fields."""
+    return {
+        "color_by": {"choices": sorted(COLOR_BY),
+                     "help": "particle colour: divergence |div v| in 1/s, or speed |v| in m/s"},
+        "view": {"choices": VIEWS, "help": "orthographic camera: front looks along -z, side along +x, top along -y, "
+                                           "iso from the (+x,+y,+z) corner"},
+        "width": {"type": _int_at_least(MIN_WIDTH), "help": "frame width in pixels; an .mp4 pads an odd width by one "
+                                                            "pixel"},
+        "height": {"type": _int_at_least(MIN_HEIGHT), "help": "frame height in pixels; an .mp4 pads an odd height by "
+                                                              "one pixel"},
+        "point_size": {"type": _int_at_least(0), "help": "dot radius in pixels, 0 = one pixel"},
+        "vmax": {"type": _positive_float, "default_text": "the 99th percentile over all frames",
+                 "help": "top of the colour scale in 1/s (divergence) or m/s (speed), fixed across frames"},
+        "show_boundary": {"flags": ("--no-boundary",), "dest": "no_boundary", "negate": True,
+                          "help": "do not draw the boundary particles /boundary/x", "default_text": "drawn in grey"},
+        "fps": {"type": _int_at_least(1), "help": "video frame rate in frames per second, .mp4 only"},
+    }
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``render-frames`` arguments to a parser; :func:`run` consumes the parsed namespace."""
-    d = FrameStyle()
     parser.add_argument("h5", type=Path, help="simulation output file (OUT.h5)")
     parser.add_argument(
         "-o", "--output", type=Path, required=True,
@@ -27,46 +51,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--png", action="store_true",
                         help="write PNG frames into the directory -o whatever its name (e.g. a folder named run.v2)")
-    parser.add_argument(
-        "--color-by", choices=sorted(COLOR_BY), default=d.color_by,
-        help="particle colour: divergence |div v| in 1/s, or speed |v| in m/s (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--view", choices=VIEWS, default=d.view,
-        help="orthographic camera: front looks along -z, side along +x, top along -y, iso from the "
-        "(+x,+y,+z) corner (default: %(default)s)",
-    )
-    parser.add_argument("--width", type=_int_at_least(MIN_WIDTH), default=d.width,
-                        help="frame width in pixels; an .mp4 pads an odd width by one pixel (default: %(default)s)")
-    parser.add_argument("--height", type=_int_at_least(MIN_HEIGHT), default=d.height,
-                        help="frame height in pixels; an .mp4 pads an odd height by one pixel "
-                        "(default: %(default)s)")
-    parser.add_argument("--point-size", type=_int_at_least(0), default=d.point_size,
-                        help="dot radius in pixels, 0 = one pixel (default: %(default)s)")
-    parser.add_argument(
-        "--vmax", type=_positive_float, default=d.vmax,
-        help="top of the colour scale in 1/s (divergence) or m/s (speed), fixed across frames "
-        "(default: the 99th percentile over all frames)",
-    )
-    parser.add_argument("--no-boundary", action="store_true",
-                        help="do not draw the boundary particles /boundary/x (default: drawn in grey)")
-    parser.add_argument("--fps", type=_int_at_least(1), default=d.fps,
-                        help="video frame rate in frames per second, .mp4 only (default: %(default)s)")
+    add_config_options(parser, FrameStyle, STYLE_FIELDS, style_overrides())
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``render-frames`` on the namespace built by :func:`add_arguments`. Returns the exit code 0."""
-    style = FrameStyle(
-        color_by=args.color_by,
-        view=args.view,
-        width=args.width,
-        height=args.height,
-        point_size=args.point_size,
-        vmax=args.vmax,
-        show_boundary=not args.no_boundary,
-        fps=args.fps,
-    )
-    from fluidsim.output import check_not_input
+    style = config_from_args(FrameStyle, args, STYLE_FIELDS, style_overrides())
+    from fluidsim.files import check_not_input
 
     check_not_input({"-o": args.output}, {"H5": args.h5})
     paths = render_frames(args.h5, args.output, style, png=args.png)

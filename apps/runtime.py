@@ -8,9 +8,12 @@ argparse types here never need. The tools and test fixtures are the only callers
 from __future__ import annotations
 
 import argparse
+import logging
+from contextlib import contextmanager
 
 _FROM_TAICHI_RUNTIME = ("check_threads", "init_taichi", "release_unreachable_arrays")
-__all__ = [*_FROM_TAICHI_RUNTIME, "positive_int"]
+__all__ = [*_FROM_TAICHI_RUNTIME, "deterministic_torch", "positive_int", "select_device", "setup_runtime"]
+log = logging.getLogger("fluidgs")
 
 
 def __getattr__(name: str):
@@ -31,3 +34,42 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
     return value
+
+
+@contextmanager
+def deterministic_torch():
+    """Run the block with ``torch.use_deterministic_algorithms(True, warn_only=True)``, then restore the setting."""
+    import torch
+
+    before = torch.are_deterministic_algorithms_enabled()
+    warn_before = torch.is_deterministic_algorithms_warn_only_enabled()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(before, warn_only=warn_before)
+
+
+def select_device(requested: str) -> str:
+    """``requested`` ("cpu" or "cuda"), or "cpu" with a logged warning when no CUDA device is usable."""
+    import torch
+
+    if requested == "cuda" and not torch.cuda.is_available():
+        log.warning("--device cuda requested but no CUDA device is usable; falling back to the CPU")
+        return "cpu"
+    return requested
+
+
+def setup_runtime(device: str, threads: int | None, precision: str) -> str:
+    """torch threads, Taichi runtime; returns the torch device actually used."""
+    import torch
+
+    from .taichi_runtime import init_taichi
+
+    if threads is not None:
+        if threads < 1:
+            raise ValueError(f"--threads must be >= 1, got {threads}")
+        torch.set_num_threads(threads)
+    used = select_device(device)
+    init_taichi(used, precision, threads)
+    return used

@@ -15,8 +15,6 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
-from tqdm import tqdm
-
 from .runtime import positive_int
 
 log = logging.getLogger("fluidgs")
@@ -36,20 +34,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=positive_int, default=None, help="CPU threads (default: all cores)")
     p.add_argument("--max-memory-gb", type=float, default=None,
                    help="refuse to start above this estimated memory in GiB (default: the available memory)")
-
-
-class Interrupted(Exception):
-    """The run was stopped by ``signum`` (SIGINT or SIGTERM) after ``step`` completed steps; its file is saved."""
-
-    def __init__(self, signum: int, step: int, path: Path):
-        self.signum, self.step, self.path = signum, step, path
-        super().__init__(f"{signal.Signals(signum).name} after step {step}; the frames so far are saved to {path} "
-                         "(status 'interrupted'); run again to overwrite it")
-
-    @property
-    def exit_code(self) -> int:
-        """128 + the signal number: 130 for SIGINT, 143 for SIGTERM (the shell's convention)."""
-        return 128 + int(self.signum)
 
 
 class StopRequest:
@@ -82,63 +66,6 @@ class StopRequest:
         self._restore()
 
 
-def simulate_to_h5(solver, scene_dict: dict, output: Path, steps: int, save_every: int, desc: str,
-                   progress: bool = True, stop: StopRequest | None = None) -> tuple[Path, list]:
-    """Step a built solver, writing frames every ``save_every`` steps; returns (path, stats history).
-
-    A diverging run still writes its file (frames so far, stats, status naming the step) and re-raises. With
-    ``stop`` (a :class:`StopRequest` entered by the caller), a signal ends the run at the next step boundary: the
-    file gets the current state as a last frame, status "interrupted", and :class:`Interrupted` is raised.
-    """
-    from fluidsim.output import SimulationWriter
-    from fluidsim.simulation import SimulationDiverged, run
-
-    writer = SimulationWriter(output, scene_dict)
-    history: list = []
-    bar = tqdm(total=steps, desc=desc, unit="step", disable=not progress, leave=False)
-
-    def on_step(s, st) -> None:
-        last = st.step + 1 == steps
-        if (save_every and (st.step + 1) % save_every == 0) or last:
-            writer.write_frame(st.step + 1, st.time, s.fluid_state())
-        if stop is not None and stop.signum is not None and not last:
-            raise Interrupted(stop.signum, st.step + 1, writer.path)
-
-    def on_progress(st) -> None:
-        history.append(st)
-        bar.update(1)
-        bar.set_postfix(density_it=st.density_iterations, divergence_it=st.divergence_iterations,
-                        vmax=f"{st.max_speed:.2f}", fluid=st.active, refresh=False)
-
-    try:
-        writer.write_boundary(solver.boundary.x.to_numpy()[: solver.boundary.count])
-        writer.write_frame(0, 0.0, solver.fluid_state())
-        history = run(solver, steps, on_step=on_step, progress=on_progress)
-    except SimulationDiverged as exc:
-        bar.close()
-        sums, counts = solver.divergence_accumulation()
-        path = writer.finish(exc.history, sums, counts, status=str(exc),
-                             removed_inside_solid=solver.removed_inside_solid)
-        log.error("%s; frames so far saved to %s", exc, path)
-        raise
-    except Interrupted as exc:
-        bar.close()
-        if writer.last_frame_step != exc.step:
-            writer.write_frame(exc.step, history[-1].time, solver.fluid_state())
-        sums, counts = solver.divergence_accumulation()
-        writer.finish(history, sums, counts, status="interrupted", removed_inside_solid=solver.removed_inside_solid,
-                      interrupted_by=signal.Signals(exc.signum).name, interrupted_after_step=exc.step)
-        raise
-    except BaseException:
-        bar.close()
-        writer.abort()
-        raise
-    bar.close()
-    sums, counts = solver.divergence_accumulation()
-    path = writer.finish(history, sums, counts, removed_inside_solid=solver.removed_inside_solid)
-    return path, history
-
-
 def scene_inputs(scene, scene_path: Path) -> dict[str, Path]:
     """The files a scene run reads: the scene JSON and each solid's points or mesh file (for the output check)."""
     inputs = {"SCENE": Path(scene_path)}
@@ -149,8 +76,9 @@ def scene_inputs(scene, scene_path: Path) -> dict[str, Path]:
 
 
 def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.files import check_not_input, check_writable
     from fluidsim.memory import check_scene_memory
-    from fluidsim.output import check_not_input, check_writable
+    from fluidsim.recording import Interrupted, simulate_to_h5
     from fluidsim.scene import load_scene
 
     from .runtime import init_taichi

@@ -13,14 +13,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .simulate import add_physics_arguments, check_output_file, load_gaussians_checked, physics_config_from_args
-
-PAPER_VELOCITIES = "3,4,5,6,7,8,9,10,20,50"
+from .options import add_physics_arguments, check_output_file, load_gaussians_checked, physics_config_from_args
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
-    p.add_argument("--velocities", default=PAPER_VELOCITIES, help="comma list of inflow speeds U in m/s")
+    from nbv.sweep import PAPER_VELOCITIES
+
+    p.add_argument("--velocities", default=",".join(f"{u:g}" for u in PAPER_VELOCITIES),
+                   help="comma list of inflow speeds U in m/s (default: the paper's, %(default)s)")
     p.add_argument("--compare", type=Path, default=None,
                    help="a second Gaussian set OTHER (same frame, simulated at the first set's scale); reports "
                         "D-bar(OTHER) - D-bar per U")
@@ -41,7 +42,7 @@ def plot_sweep(points, path: Path, title: str = "") -> Path:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.output import check_not_input, check_writable
+    from fluidsim.files import check_not_input, check_writable
     from nbv.sweep import parse_velocities, run_sweep, write_csv
 
     from .runtime import init_taichi

@@ -3,16 +3,28 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
-from .runtime import positive_int
+from fluidsim.files import write_json_atomic
+
+from .options import add_config_options, config_values, dataset_inputs, index_list
+from .runtime import deterministic_torch, positive_int, select_device
 
 log = logging.getLogger("fluidgs")
+
+
+TRAIN_FIELDS = ("background", "init", "init_points", "sh_degree", "max_gaussians", "seed")
+TRAIN_OVERRIDES = {
+    "background": {"choices": ("white", "black", "random"),
+                   "help": "training background (random: a new colour each iteration, needs alpha in the images)"},
+    "init": {"choices": ("random", "points"),
+             "help": "initial Gaussians: uniform random points in a box, or the dataset's point cloud"},
+    "sh_degree": {"choices": (0, 1, 2, 3),
+                  "help": "largest SH degree (the active degree rises by one every iters / 30 iterations)"},
+}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -23,40 +35,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="training iterations (one view each); the 30k reference schedule is compressed to it")
     p.add_argument("--res", type=int, default=64, help="image width in pixels the dataset is resized to (0: native)")
     p.add_argument("--views", type=str, default=None,
-                   help="comma-separated train-split indices to train on, e.g. 0,3,7 (None: all train views)")
-    p.add_argument("--background", choices=("white", "black", "random"), default="white",
-                   help="training background (random: a new colour each iteration, needs alpha in the images)")
-    p.add_argument("--init", choices=("random", "points"), default="random",
-                   help="initial Gaussians: uniform random points in a box, or the dataset's point cloud")
-    p.add_argument("--init-points", type=int, default=5000, help="number of random initial points (Gaussians)")
-    p.add_argument("--sh-degree", type=int, default=3, choices=(0, 1, 2, 3),
-                   help="largest SH degree (the active degree rises by one every iters / 30 iterations)")
-    p.add_argument("--max-gaussians", type=int, default=None,
-                   help="cap on the number of Gaussians during densification, count (None: no cap)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+                   help="comma-separated train-split indices to train on, e.g. 0,3,7 (default: all train views)")
+    from recon.train import TrainConfig
+
+    add_config_options(p, TrainConfig, TRAIN_FIELDS, TRAIN_OVERRIDES)
     p.add_argument("--eval-every", type=int, default=0,
                    help="evaluate PSNR/SSIM on the test split every N iterations (0: only at the end), iterations")
-    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (None: torch's choice)")
+    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="compute device; cuda falls back to cpu with a logged warning when unavailable")
-
-
-def parse_views(text: str | None, count: int) -> list[int] | None:
-    """Indices of ``--views`` ("0,3,7"), checked against ``count`` train views; None for all."""
-    if text is None:
-        return None
-    try:
-        idx = [int(t) for t in text.split(",") if t.strip()]
-    except ValueError:
-        raise ValueError(f"--views must be comma-separated integers such as 0,3,7, got {text!r}") from None
-    if not idx:
-        raise ValueError("--views is empty; give at least one train-split index, e.g. 0,1,2")
-    bad = [i for i in idx if not 0 <= i < count]
-    if bad:
-        raise ValueError(f"--views {bad} out of range: the train split has {count} views (indices 0..{count - 1})")
-    if len(set(idx)) != len(idx):
-        raise ValueError(f"--views {text!r} repeats an index; list each train view once")
-    return idx
+                   help="compute device; cuda falls back to cpu with a logged warning when unavailable (default: cpu)")
 
 
 def check_output(path: Path) -> None:
@@ -72,58 +59,11 @@ def check_output(path: Path) -> None:
         raise ValueError(f"{path}: is a folder; give a .ply file name")
 
 
-def write_json_atomic(path: Path, data: dict) -> None:
-    """Write ``data`` as indented JSON via a temporary file in the same folder and os.replace."""
-    from fluidsim.output import atomic_output
-
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2) + "\n")
-
-
-# The files of a dataset folder that loading reads (cameras, points, normalisation), at the top, in sparse/ and in
-# sparse/0/: no output may overwrite them. Images are left out: no command that reads a dataset writes images.
-DATASET_FILES = ("transforms_*.json", "dataset.json", "mesh.ply", "cameras.txt", "cameras.bin", "images.txt",
-                 "images.bin", "points3D.txt", "points3D.bin", "points3D.ply")
-
-
-def dataset_inputs(dataset: Path) -> list[tuple[str, Path]]:
-    """("DATASET file", path) for each existing :data:`DATASET_FILES` file of a dataset folder (or the
-    transforms_*.json given), for :func:`fluidsim.output.check_not_input`."""
-    root = Path(dataset)
-    if root.is_file():
-        return [("DATASET file", root)]
-    return [("DATASET file", f) for folder in (root, root / "sparse", root / "sparse" / "0") if folder.is_dir()
-            for pattern in DATASET_FILES for f in sorted(folder.glob(pattern))]
-
-
-@contextmanager
-def deterministic_torch():
-    """Run the block with ``torch.use_deterministic_algorithms(True, warn_only=True)``, then restore the setting."""
-    import torch
-
-    before = torch.are_deterministic_algorithms_enabled()
-    warn_before = torch.is_deterministic_algorithms_warn_only_enabled()
-    torch.use_deterministic_algorithms(True, warn_only=True)
-    try:
-        yield
-    finally:
-        torch.use_deterministic_algorithms(before, warn_only=warn_before)
-
-
-def select_device(requested: str) -> str:
-    import torch
-
-    if requested == "cuda" and not torch.cuda.is_available():
-        log.warning("--device cuda requested but no CUDA device is usable; falling back to the CPU")
-        return "cpu"
-    return requested
-
-
 def run_command(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from fluidsim.output import check_not_input, check_writable
+    from fluidsim.files import check_not_input, check_writable
     from recon.datasets import load_dataset
     from recon.ply import save_gaussians
     from recon.train import TrainConfig, evaluate, train, view_to
@@ -140,15 +80,16 @@ def run_command(args: argparse.Namespace) -> int:
         if args.threads < 1:
             raise ValueError(f"--threads must be >= 1, got {args.threads}")
         torch.set_num_threads(args.threads)
-    config = TrainConfig.for_iterations(args.iters, background=args.background, init=args.init,
-                                        init_points=args.init_points, sh_degree=args.sh_degree, seed=args.seed,
-                                        max_gaussians=args.max_gaussians)
+    config = TrainConfig.for_iterations(args.iters, **config_values(TrainConfig, args, TRAIN_FIELDS, TRAIN_OVERRIDES))
+    seed = config.seed
     device = select_device(args.device)
-    torch.manual_seed(args.seed)
+    torch.manual_seed(seed)
 
     start = time.perf_counter()
     dataset = load_dataset(args.dataset, resolution=args.res or None)
-    chosen = parse_views(args.views, len(dataset.train))
+    n = len(dataset.train)
+    chosen = None if args.views is None else index_list(args.views, "--views", n, what="view",
+                                                        range_hint=f"the train split has {n} views (0..{n - 1})")
     if chosen is not None:
         dataset.train = [dataset.train[i] for i in chosen]
     load_s = time.perf_counter() - start

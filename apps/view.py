@@ -15,6 +15,14 @@ from pathlib import Path
 log = logging.getLogger("fluidgs")
 
 
+FIELDS = ("probe", "port", "host")
+OVERRIDES = {"probe": {"metavar": "DIR", "default_text": "the first recorded",
+                       "help": "the probe whose fluid is replayed: -x, +x, -z, +z or -y"},
+             "port": {"help": "port; a port in use moves to the next free one, logged; 0: any free port"},
+             "host": {"help": "address to bind (127.0.0.1: this machine only; 0.0.0.0 serves every interface, to "
+                              "anyone who can reach it)"}}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("result", type=Path, help="RESULT.h5 of `fluidgs simulate` (or `fluidgs score --save-result`)")
     p.add_argument("--gaussians", type=Path, default=None,
@@ -25,20 +33,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default: none; then --cameras alone draws them uncoloured)")
     p.add_argument("--cameras", type=Path, default=None,
                    help="the candidates' transforms.json, scene units (default: the file --scores names)")
-    p.add_argument("--probe", default=None, metavar="DIR",
-                   help="the probe whose fluid is replayed: -x, +x, -z, +z or -y (default: the first recorded)")
-    p.add_argument("--port", type=int, default=8080,
-                   help="port (default: 8080; a port in use moves to the next free one, logged; 0: any free port)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address to bind (default: 127.0.0.1, this machine only; 0.0.0.0 serves every interface, "
-                        "to anyone who can reach it)")
+    from viz.viewer import ViewerOptions
+
+    from .options import add_config_options
+
+    add_config_options(p, ViewerOptions, FIELDS, OVERRIDES)
 
 
 def run_command(args: argparse.Namespace) -> int:
     from viz.viewer import ViewerOptions, open_viewer, serve
 
+    from .options import config_from_args
+
     logging.getLogger("websockets").setLevel(logging.WARNING)  # one line per connection otherwise
-    options = ViewerOptions(host=args.host, port=args.port, probe=args.probe)
+    options = config_from_args(ViewerOptions, args, FIELDS, OVERRIDES)
     viewer = open_viewer(args.result, gaussians=args.gaussians, scores=args.scores, cameras=args.cameras,
                          options=options)
     return serve(viewer, announce=lambda line: print(line, flush=True))

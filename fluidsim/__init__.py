@@ -40,15 +40,34 @@ The modules follow the algorithm: :mod:`fluidsim.grid` (cells, counting sort), :
 (the neighbour walk ``for_each_neighbor``; lists, density, factor), :mod:`fluidsim.dfsph` (both pressure
 solvers' passes), :mod:`fluidsim.viscosity` (non-pressure forces, v*), :mod:`fluidsim.estimator` (Eq. 1),
 :mod:`fluidsim.passes` (one Python wrapper per pass) and :mod:`fluidsim.solver` (the time step).
+
+Importing the package loads nothing: each public name is imported from its module on first use (PEP 562), so
+the Taichi-free modules (:mod:`fluidsim.directions`, :mod:`fluidsim.config`) can be read by ``viz`` and by the
+command-line help without starting the engine.
 """
 
-from .config import SolverConfig
-from .probes import DIRECTIONS, ProbeConfig, ProbeSetup, probe_setup, run_probes
-from .scene import Scene, SceneError, load_scene, parse_scene
-from .simulation import SimulationDiverged, build_solver, run
-from .solver import DFSPHSolver, StepStats
+import importlib
 
-__all__ = [
-    "DIRECTIONS", "DFSPHSolver", "ProbeConfig", "ProbeSetup", "Scene", "SceneError", "SimulationDiverged",
-    "SolverConfig", "StepStats", "build_solver", "load_scene", "parse_scene", "probe_setup", "run", "run_probes",
-]
+_EXPORTS = {
+    "SolverConfig": "config", "DIRECTIONS": "directions", "ProbeConfig": "probes", "ProbeSetup": "probes",
+    "probe_setup": "probes", "run_probes": "probes", "Scene": "scene", "SceneError": "scene", "load_scene": "scene",
+    "parse_scene": "scene", "SimulationDiverged": "simulation", "build_solver": "simulation", "run": "simulation",
+    "DFSPHSolver": "solver", "StepStats": "solver",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        try:  # a submodule reached as an attribute (``fluidsim.output``) after ``import fluidsim``
+            return importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError:
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

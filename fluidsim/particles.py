@@ -12,6 +12,7 @@ import numpy as np
 import taichi as ti
 
 from .grid import gather_persistent
+from .neighbors import NARROW, WIDE, pair_dtype, unpack_fluid_pairs_np, unpack_pairs_np
 
 
 def float_dtype(precision: str):
@@ -149,8 +150,6 @@ class Neighborhoods:
 
     def __init__(self, n: int, capacity: int, precision: str, support_radius: float = 1.0,
                  store_boundary: bool = True):
-        from .neighbors import NARROW, WIDE, pair_dtype
-
         self.n = max(n, 1)
         self.store_boundary = bool(store_boundary)
         self.fp = float_dtype(precision)
@@ -167,8 +166,6 @@ class Neighborhoods:
 
     @property
     def coef_scale(self) -> float:
-        from .neighbors import NARROW
-
         return self._h2 if self.format == NARROW else 1.0
 
     @property
@@ -177,15 +174,11 @@ class Neighborhoods:
 
     def widen(self) -> None:
         """Switch the fluid lists to the WIDE format (offsets beyond 16 bits)."""
-        from .neighbors import WIDE
-
         if self.format != WIDE:
             self.format = WIDE
             self._alloc_fluid()
 
     def _alloc_fluid(self) -> None:
-        from .neighbors import NARROW
-
         shape = (self.n, self.fluid_capacity)
         if self.format == NARROW:
             self.fluid_pairs = ti.ndarray(ti.i32, shape=shape)
@@ -210,8 +203,6 @@ class Neighborhoods:
         Returns:
             (count (N,), index (N, cap), c (N, cap)); slots past a particle's count are unspecified.
         """
-        from .neighbors import unpack_fluid_pairs_np, unpack_pairs_np
-
         if kind == "boundary" and not self.store_boundary:
             raise ValueError("these lists keep boundary counts only (no pass reads the pairs: the boundary viscosity "
                              "is 0 and Eq. 1 does not walk the lists); use store_boundary=True to keep them")

@@ -21,11 +21,11 @@ import numpy as np
 
 from . import sources
 from .config import SolverConfig
+from .directions import DIRECTIONS
 from .scene import lattice_in_box
 from .simulation import run
 from .solver import DFSPHSolver, StepStats
 
-DIRECTIONS = ("-x", "+x", "-z", "+z", "-y")
 _AXIS = {"x": 0, "y": 1, "z": 2}
 
 
@@ -43,7 +43,7 @@ class ProbeConfig:
             solid extent (at least 3 particle spacings).
         walls: close the domain with wall particles (as the paper does).
         wall_layers: layers of wall particles.
-        directions: which probes to run, a subset of ("-x", "+x", "-z", "+z", "-y").
+        directions: which probes to run, a subset of :data:`DIRECTIONS`.
     """
 
     speed: float = 3.0

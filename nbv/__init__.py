@@ -2,7 +2,8 @@
 
 Bridges ``recon`` (torch) and ``fluidsim`` (Taichi): Gaussians become a solid (:mod:`nbv.solidify`), the five
 fluid probes run against it (:mod:`nbv.physics`), per-particle divergence is aggregated onto Gaussians through a
-grid (:mod:`nbv.aggregate`, paper Eq. 2-3), and views are scored and ranked (:mod:`nbv.scores`, Eq. 4-5).
+grid (:mod:`nbv.aggregate`, paper Eq. 2-3), and views are scored and ranked (:mod:`nbv.scores`, Eq. 4-5;
+:func:`score_views` ranks a camera file's candidates, :mod:`nbv.view_scoring`).
 Never calls ``ti.init``: the applications and the test fixtures own the Taichi runtime.
 
 =================  ==========================================  ========================================
@@ -30,10 +31,11 @@ from .scores import (
     view_weights,
 )
 from .sweep import SweepPoint, reynolds, run_sweep, schedule
+from .view_scoring import score_views
 
 __all__ = [
     "DepthBuffer", "PhysicsConfig", "PhysicsResult", "ProbeDiverged", "SweepPoint", "critical_scores",
     "critical_subset", "geometry_divergence", "load_result", "projected_counts", "projected_view_scores", "rank",
-    "reynolds", "run_sweep", "save_result", "schedule", "simulate_gaussians", "unoccluded", "view_scores",
-    "view_weights",
+    "reynolds", "run_sweep", "save_result", "schedule", "score_views", "simulate_gaussians", "unoccluded",
+    "view_scores", "view_weights",
 ]

@@ -31,7 +31,7 @@ camera-centre distance, so that the initial views cover one side of the object o
 Planners are rebuilt for every selection with the seed ``seed * 1000 + round`` (:func:`planner_seed`), so no
 planner state crosses rounds and a resumed run makes the same choices as an uninterrupted one.
 
-Run folder (every file is written atomically: a temporary file in the same folder, then ``os.replace``)::
+Run folder (every file is written atomically, through :mod:`nbv.io`)::
 
     RUN/config.json     {"dataset": absolute path, "active": ActiveConfig.to_dict()}
     RUN/rounds.json     {"rounds": [one record per selection], "final": {...} once finished}
@@ -56,13 +56,19 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
+from tqdm import tqdm
 
+from recon.datasets import load_dataset
+from recon.frames import up_from_cameras
 from recon.gaussians import GaussianSet
+from recon.ply import save_gaussians
 from recon.train import TrainConfig, Trainer, initial_gaussians, look_at_point, scene_extent, view_to
 
-from .physics import PhysicsConfig
+from . import scores
+from .io import json_safe, write_atomic, write_json_atomic
+from .physics import PhysicsConfig, simulate_gaussians
+from .planners import PLANNERS, PlanningContext, ProbeFields, make_planner
 from .scene_frame import describe_auto_up, parse_up
 
 log = logging.getLogger(__name__)
@@ -94,7 +100,7 @@ class ActiveConfig:
     Attributes:
         method: planner name (a key of ``nbv.planners.PLANNERS``, e.g. "random", "fisher", "fisher+fluid").
         budget: view budget B, views (the paper: 10).
-        initial_count: number of biased initial views (2).
+        initial_count: number of biased initial views.
         initial_ids: explicit initial candidate indices (train split); overrides the biased rule.
         initial_direction: anchor direction (x, y, z) of the biased rule; None: a unit vector drawn from ``seed``.
         mode: "continue" or "reset" (see the module docstring).
@@ -236,41 +242,6 @@ class ActiveConfig:
         return cls(**d)
 
 
-# ---- atomic files ----------------------------------------------------------------------------------
-def write_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
-    """Call ``write(tmp)`` on a temporary file next to ``path``, then rename it over ``path``.
-
-    The temporary file is removed when ``write`` raises, so no half-written file is ever left.
-    """
-    from fluidsim.output import atomic_output  # the project's one temporary-name pattern and error wrapping
-
-    path = Path(path)
-    with atomic_output(path) as tmp:
-        write(tmp)
-    return path
-
-
-def write_json_atomic(path: str | Path, data: Any) -> Path:
-    """Indented JSON written atomically (NaN and infinities become null, so the file is strict JSON)."""
-    text = json.dumps(json_safe(data), indent=2) + "\n"
-    return write_atomic(path, lambda tmp: tmp.write_text(text))
-
-
-def json_safe(value: Any) -> Any:
-    """``value`` with non-finite floats replaced by None and tuples by lists, numpy scalars by Python numbers."""
-    if isinstance(value, dict):
-        return {str(k): json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(float(value)) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
 # ---- initial views and seeds -------------------------------------------------------------------------
 def anchor_direction(seed: int) -> torch.Tensor:
     """[3] float64 unit vector drawn from ``seed`` (normalised Gaussian sample)."""
@@ -378,8 +349,6 @@ def load_active_dataset(dataset_path: str | Path, config: ActiveConfig):
         ValueError: too few train (candidate) views for the budget, an initial id out of range, or no test views
             (evaluation needs them; a warning only).
     """
-    from recon.datasets import load_dataset
-
     ds = load_dataset(dataset_path, resolution=config.resolution)
     n = len(ds.train)
     if n < config.budget:
@@ -404,7 +373,6 @@ def dataset_up(spec: str | tuple[float, float, float] | None, dataset) -> str | 
         return "+" + dataset.up_axis
     if spec != "auto":
         return spec
-    from recon.frames import up_from_cameras
 
     up = up_from_cameras([v.camera for v in dataset.train])
     log.info("%s (training cameras)", describe_auto_up(up))
@@ -433,8 +401,6 @@ class ActiveRun:
                  on_round: Callable[[dict], None] | None = None, device: str = "cpu", overwrite: bool = False,
                  progress: bool = True, final_checkpoint_every: int = 1000,
                  on_final_checkpoint: Callable[[int], None] | None = None) -> None:
-        from .planners import PLANNERS
-
         if isinstance(final_checkpoint_every, bool) or not isinstance(final_checkpoint_every, int) \
                 or final_checkpoint_every < 1:
             raise ValueError(f"final_checkpoint_every must be an integer >= 1, got {final_checkpoint_every!r}")
@@ -472,17 +438,18 @@ class ActiveRun:
         return Trainer(self.initial, self.config.train_config(iterations), extent=self.extent,
                        data_background=self.dataset.background, backend=self.config.backend)
 
-    def _physics(self, record: dict) -> Callable[[GaussianSet], torch.Tensor]:
-        """The context's physics callable; it notes D-bar, per-probe D-bar and the time in ``record``."""
+    def _physics(self, record: dict, fields: dict | None = None) -> Callable[[GaussianSet], torch.Tensor]:
+        """The context's physics callable; it notes D-bar, per-probe D-bar and the time in ``record``, and puts
+        the run's :class:`nbv.planners.ProbeFields` in ``fields["fields"]`` (when ``fields`` is given)."""
+        store = {} if fields is None else fields
 
         def run(gaussians: GaussianSet) -> torch.Tensor:
             t0 = time.perf_counter()
             if self.physics_fn is not None:
                 d = torch.as_tensor(self.physics_fn(gaussians)).to(torch.float64).cpu()
                 record["physics"] = {"seconds": time.perf_counter() - t0, "source": "custom"}
+                store["fields"] = ProbeFields(("custom",), d.reshape(1, -1))
                 return d
-            from . import scores
-            from .physics import simulate_gaussians
 
             try:
                 res = simulate_gaussians(gaussians, self.physics_config, progress=self.progress,
@@ -494,7 +461,12 @@ class ActiveRun:
                 # anywhere, so the fused pick falls back to the visual ranking (all S(T) = 0).
                 log.warning("round %d: %s; D_g = 0 for this selection", record["round"], exc)
                 record["physics"] = {"seconds": time.perf_counter() - t0, "error": str(exc)}
-                return torch.zeros(gaussians.num, dtype=torch.float64)
+                zeros = torch.zeros(gaussians.num, dtype=torch.float64)
+                store["fields"] = ProbeFields(("none",), zeros.reshape(1, -1), zeros.reshape(1, -1))
+                return zeros
+            store["fields"] = ProbeFields(tuple(res.directions), torch.from_numpy(res.per_probe),
+                                          None if res.empty_per_probe is None
+                                          else torch.from_numpy(res.empty_per_probe))
             covs = torch.from_numpy(res.covariances)
             record["physics"] = {
                 "seconds": time.perf_counter() - t0, "dbar": res.dbar, "solid_particles": int(len(res.solid)),
@@ -504,9 +476,18 @@ class ActiveRun:
 
         return run
 
-    def _train(self, trainer: Trainer, views: list, iterations: int, label: str) -> dict:
-        from tqdm import tqdm
+    @staticmethod
+    def _probe_fields(physics: Callable[[GaussianSet], torch.Tensor], fields: dict):
+        """The context's ``probe_fields``: the per-probe D_g of ``physics``'s run (it runs the probes if needed)."""
 
+        def get(gaussians: GaussianSet):
+            if "fields" not in fields:
+                physics(gaussians)
+            return fields["fields"]
+
+        return get
+
+    def _train(self, trainer: Trainer, views: list, iterations: int, label: str) -> dict:
         if iterations <= 0:
             return {"iterations": 0, "seconds": 0.0}
         with tqdm(total=iterations, desc=label, unit="it", disable=not self.progress, leave=False) as bar:
@@ -516,8 +497,6 @@ class ActiveRun:
 
     def _train_final(self, state: RunState, trainer: Trainer, views: list) -> dict:
         """Train to ``total_iterations`` in chunks, with a checkpoint (trainer included) after each chunk."""
-        from tqdm import tqdm
-
         total = self.config.total_iterations
         start = trainer.iteration
         summary: dict[str, Any] = {"iterations": 0, "seconds": 0.0}
@@ -569,8 +548,6 @@ class ActiveRun:
     # ---- driver --------------------------------------------------------------------------------
     def run(self) -> dict:
         """Run (or resume) the loop; returns the rounds.json content."""
-        from .planners import PlanningContext, make_planner
-
         c = self.config
         t_start = time.perf_counter()
         if self.resumable:
@@ -594,10 +571,12 @@ class ActiveRun:
             training = self._train(trainer, train_views, iters, f"round {r + 1} train")
             remaining = [i for i in range(len(self.views)) if i not in set(state.selected)]
             record: dict[str, Any] = {"round": r, "n_selected": n, "training": training}
+            fields: dict = {}
+            physics = self._physics(record, fields)
             context = PlanningContext(
                 gaussians=trainer.gaussians, train_views=train_views, candidates=[self.cameras[i] for i in remaining],
                 candidate_ids=remaining, n_selected=n, budget=c.budget, background=self.background,
-                physics=self._physics(record), round=r, occlusion=c.occlusion)
+                physics=physics, round=r, occlusion=c.occlusion, probe_fields=self._probe_fields(physics, fields))
             planner = make_planner(c.method, **{**dict(c.planner), "seed": planner_seed(c.seed, r)})
             t_plan = time.perf_counter()
             sel = planner.select(context)
@@ -624,8 +603,6 @@ class ActiveRun:
         return self._finish(state, trainer, t_start)
 
     def _finish(self, state: RunState, trainer: Trainer | None, t_start: float) -> dict:
-        from recon.ply import save_gaussians
-
         c = self.config
         views = [self.views[i] for i in state.selected]
         if trainer is None or (c.mode == "reset" and state.phase != "final"):

@@ -36,8 +36,11 @@ O(G + particles) with a fixed bound per Gaussian (:meth:`GaussianAccumulator.est
   branch-free adds, rows summed on read), on a GPU atomics do. The sums are fixed-point integers (values rounded to
   2^-24 = 6e-8, exact sums), so they are the same bits whatever the thread count or the order of the additions.
 - **Staging.** A solver's steps are staged (positions, values and ids copied, a sequential 20 bytes per particle)
-  and accumulated ``batch_steps`` at a time: after a solver step the Gaussians' records, lists and sums are out of
-  the caches, and one pass over eight steps' particles pays the cold misses once instead of eight times. Without
+  and accumulated ``batch_steps`` (16) at a time: after a solver step the Gaussians' records, lists and sums are
+  out of the caches, and one pass over many steps' particles pays the cold misses once. When those records, sums and
+  lists exceed the caches (``INTERLEAVE_ABOVE_BYTES``, 32 MiB: a 152k-Gaussian capture and larger), the pass visits
+  particle k of every staged step in a row: the solver keeps its particles sorted by cell, so they sit at about the
+  same place and find the same lists in the caches (1.07M Gaussians: 0.5x the time of a flat pass). Without
   distinct tracking, probes under ``SERIAL_BELOW`` fluid particles are not staged: each step accumulates at once on
   the launching thread (a small step leaves the Gaussians cached, and the staging copy would cost a launch per
   step). Every read (sums, counts, means, distinct counts) accumulates what is staged first.
@@ -57,6 +60,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -77,8 +81,14 @@ DEFAULT_DISTINCT_BUDGET = 512 * 2**20
 SERIAL_BELOW = 4096
 # Largest size of the per-thread rows of sums and counts (16 bytes per Gaussian and row) on a CPU.
 _ROWS_BUDGET = 256 * 2**20
-# Solver steps staged per accumulation pass, and the most bytes the staged particles may take.
-BATCH_STEPS = 8
+# Solver steps staged per accumulation pass, and the most bytes the staged particles may take. Above
+# INTERLEAVE_ABOVE_BYTES of Gaussian records, sums and cell lists (beyond the caches) the staged steps are visited
+# interleaved (particle k of every step in a row, :func:`nbv.aggregate_kernels.visit_all`). Measured on recorded
+# paper-setting probes (40 steps at the impact, 2 threads, interleaved rounds against 8 flat steps): the 1.07M-Gaussian
+# capture (~400 MB) 0.50-0.56x the time with 8-16 interleaved steps, its 152k original (58 MB) 0.85x, the bundled
+# asset (16 MB, in the caches) 0.97-1.14x, so it stays flat.
+BATCH_STEPS = 16
+INTERLEAVE_ABOVE_BYTES = 32 * 2**20
 _STAGE_BUDGET = 64 * 2**20
 # Levels: reach classes span a factor LEVEL_RATIO (at most MAX_LEVELS classes); a level's cell starts at CELL_FRACTION
 # of its largest reach (refined down to MIN_CELL_FRACTION within the entry budget); the merge model weighs a
@@ -117,9 +127,12 @@ def accumulation_rows(num_gaussians: int) -> tuple[int, bool]:
     read), while the rows fit ``_ROWS_BUDGET`` bytes. Otherwise (GPUs, or too many Gaussians) one row with atomic
     adds.
     """
-    cfg = ti.lang.impl.current_cfg()
-    threads = max(int(cfg.cpu_max_num_threads or 0), 1)
-    if cfg.arch not in (ti.x64, ti.arm64) or threads * 16 * (max(num_gaussians, 1) + 1) > _ROWS_BUDGET:
+    if ti.lang.impl.get_runtime().prog is None:  # not initialised yet (a memory estimate): every core's row
+        cpu, threads = True, max(os.cpu_count() or 1, 1)
+    else:
+        cfg = ti.lang.impl.current_cfg()
+        cpu, threads = cfg.arch in (ti.x64, ti.arm64), max(int(cfg.cpu_max_num_threads or 0), 1)
+    if not cpu or threads * 16 * (max(num_gaussians, 1) + 1) > _ROWS_BUDGET:
         return 1, False
     return threads, True
 
@@ -421,6 +434,11 @@ class GaussianAccumulator:
         self._saturation_logged = False
         self._stage_x = self._stage_values = self._stage_ids = None
         self._stage_capacity = self._staged = self._staged_steps = 0
+        self._offsets = [0]  # the staged steps' offsets in the staging arrays
+        # what a step's particles read and write: Gaussian records, rows of sums, cell lists and starts
+        footprint = kept * (32 + 16 * self.rows) + 4 * self.list_entries + 8 * self.levels.num_cells
+        self._interleave = footprint > INTERLEAVE_ABOVE_BYTES
+        self._steps_arrays: dict = {}
         self._no_keys = ti.ndarray(ti.i64, shape=1)
         self._no_prev = ti.Vector.ndarray(3, ti.f64, shape=1)
         self._hash_fill = ti.ndarray(ti.i64, shape=1)  # filled slots of the hash set
@@ -523,12 +541,28 @@ class GaussianAccumulator:
         self.reset()
         return True
 
+    def drop_distinct(self) -> None:
+        """Stop counting distinct particles (free their records) and zero the sums; the levels and lists stay, so a
+        run that needs no |P_g| (the empty-scene reference) can reuse an accumulator built for one that does."""
+        if not self.track_distinct:
+            return
+        self.flush()
+        self.track_distinct = False
+        self._storage = "none"
+        self._bits = self._hashes = None
+        self._bit_width = self._id_capacity = 0
+        self._last = self._stage_prev = self._no_prev
+        self._keys = self._no_keys
+        self._stage_x = self._stage_values = self._stage_ids = None  # re-staged without the previous samples
+        self._stage_capacity = 0
+        self.reset()
+
     # -- memory ---------------------------------------------------------------------------------
     @staticmethod
     def estimate_bytes(num_gaussians: int, max_fluid: int, track_distinct: bool = False, *,
                        distinct_pairs: int | None = None, threads: int | None = None,
                        batch_steps: int = BATCH_STEPS, distinct_budget_bytes: int = DEFAULT_DISTINCT_BUDGET,
-                       float_bytes: int = 4) -> int:
+                       float_bytes: int = 4, num_levels: int | None = None) -> int:
         """An upper estimate of the bytes an accumulator takes at its peak, before anything is allocated.
 
         Args:
@@ -540,6 +574,8 @@ class GaussianAccumulator:
                 :func:`default_distinct_pairs`.
             threads: CPU threads (rows of sums); default the current Taichi runtime's (1 row on GPUs).
             batch_steps: staged steps. float_bytes: 4 (f32 solver) or 8.
+            num_levels: an upper bound of the levels (e.g. :func:`reach_classes`); default ``MAX_LEVELS`` (at most
+                one per Gaussian).
         Returns:
             bytes: the Gaussian records (32 B), the permutation (8 B), the cell lists (entries at most
             ``ENTRIES_PER_GAUSSIAN`` per Gaussian, cells at most ``CELLS_PER_GAUSSIAN`` per Gaussian or
@@ -555,7 +591,8 @@ class GaussianAccumulator:
             rows, _ = accumulation_rows(g)
         else:
             rows = max(int(threads), 1) if 16 * max(int(threads), 1) * (g + 1) <= _ROWS_BUDGET else 1
-        cells = CELLS_PER_GAUSSIAN * g + MAX_LEVELS * MIN_LEVEL_CELLS
+        levels = min(MAX_LEVELS if num_levels is None else max(int(num_levels), 1), max(g, 1))
+        cells = CELLS_PER_GAUSSIAN * g + levels * MIN_LEVEL_CELLS
         entries = ENTRIES_PER_GAUSSIAN * g + _ENTRY_SLACK
         sums = 16 * rows * (g + 1 + cells)  # per Gaussian and per covered cell
         persistent = 40 * g + 4 * (2 * cells + 1 + entries) + sums
@@ -657,21 +694,35 @@ class GaussianAccumulator:
         return self._storage
 
     # -- accumulation --------------------------------------------------------------------------
-    def _run(self, n: int, xs, values, ids, prevs) -> None:
+    def _step_array(self, offsets: list[int]):
+        """The kernels' ``steps`` argument: the offsets of the staged steps (a Taichi array per batch size)."""
+        arr = self._steps_arrays.get(len(offsets))
+        if arr is None:
+            arr = self._steps_arrays[len(offsets)] = ti.ndarray(ti.i32, shape=len(offsets))
+        arr.from_numpy(np.asarray(offsets, np.int32))
+        return arr
+
+    def _run(self, n: int, xs, values, ids, prevs, offsets: list[int] | None = None) -> None:
+        """Accumulate particles 0..n-1 of ``xs`` (``offsets``: the staged steps' B + 1 offsets, interleaved by the
+        kernels; None: one step)."""
+        offsets = [0, n] if offsets is None or not self._interleave else offsets
+        longest = int(np.diff(offsets).max())
         # CPU: small batches on the launching thread; parallel rows need a row per pool thread (fewer rows, a
         # caller's choice, also run on the launching thread)
         serial = self._private and (n < self.serial_below or self.rows < self._pool_threads)
         geometry = (self._table, self._lists, self._gauss)
+        steps = self._step_array(offsets)
         if self._storage == "none":
-            kernels.accumulate(n, xs, values, *geometry, self._private, serial, self._acc, self._cell_sums)
+            kernels.accumulate(longest, steps, xs, values, *geometry, self._private, serial, self._acc,
+                               self._cell_sums)
             return
         if self._keys.shape[0] < _KEY_BUFFER:
             self._keys = ti.ndarray(ti.i64, shape=_KEY_BUFFER)
         add_values = True
         while True:  # a full key buffer: grow it and list the batch's pairs again (without adding the values again)
             self._emitted.fill(0)
-            kernels.accumulate_tracked(n, xs, values, ids, prevs, *geometry, add_values, True, self._private, serial,
-                                       self._acc, self._keys, self._emitted)
+            kernels.accumulate_tracked(longest, steps, xs, values, ids, prevs, *geometry, add_values, True,
+                                       self._private, serial, self._acc, self._keys, self._emitted)
             add_values = False
             emitted = int(self._emitted.to_numpy()[0])
             if emitted <= self._keys.shape[0]:
@@ -722,6 +773,7 @@ class GaussianAccumulator:
                                 self._last, self._stage_prev, self.track_distinct, serial)
         self._staged += n
         self._staged_steps += 1
+        self._offsets.append(self._staged)
         if self._staged_steps >= self.batch_steps:
             self.flush()
 
@@ -738,8 +790,9 @@ class GaussianAccumulator:
     def flush(self) -> None:
         """Accumulate the staged steps now (every read does this first)."""
         if self._staged:
-            n, self._staged, self._staged_steps = self._staged, 0, 0
-            self._run(n, self._stage_x, self._stage_values, self._stage_ids, self._stage_prev)
+            n, offsets = self._staged, self._offsets
+            self._staged, self._staged_steps, self._offsets = 0, 0, [0]
+            self._run(n, self._stage_x, self._stage_values, self._stage_ids, self._stage_prev, offsets)
 
     def add(self, positions: np.ndarray, values: np.ndarray, ids: np.ndarray | None = None) -> None:
         """Numpy path: add ``values`` of particles at ``positions`` (one step; with distinct tracking, a particle
@@ -783,6 +836,7 @@ class GaussianAccumulator:
     def reset(self) -> None:
         """Zero the sums, counts and distinct-particle records and drop staged steps (the levels stay)."""
         self._staged = self._staged_steps = 0
+        self._offsets = [0]
         self._acc.fill(0)
         self._cell_sums.fill(0)
         if self._bits is not None:
@@ -844,6 +898,19 @@ class GaussianAccumulator:
         """[G] sum / count (D_g of paper Eq. 3), 0 where the count is 0."""
         counts = self.counts
         return np.where(counts > 0, self.sums / np.maximum(counts, 1), 0.0)
+
+
+def reach_classes(reach: np.ndarray) -> int:
+    """An upper bound of the levels :func:`plan_levels` makes of these reaches [G] or of any subset of them (the
+    kept Gaussians): classes span a factor ``LEVEL_RATIO`` from the largest kept reach down, so reaches spanning a
+    factor F fill at most floor(log_ratio F) + 1 of them (at most ``MAX_LEVELS``; classes only merge). It depends on
+    the reaches' ratios alone, so any common scale may be left out."""
+    r = np.asarray(reach, np.float64).reshape(-1)
+    r = r[r > 0]
+    if len(r) == 0:
+        return 1
+    span = math.log(float(r.max()) / float(r.min())) / math.log(LEVEL_RATIO)
+    return int(min(MAX_LEVELS, math.floor(span * (1 + 1e-12)) + 1))
 
 
 def default_distinct_pairs(num_gaussians: int, max_fluid: int) -> int:

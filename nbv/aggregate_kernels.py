@@ -287,30 +287,42 @@ def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.tem
 
 
 @ti.func
-def visit_all(n, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
-              table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
-              track: ti.template(), private: ti.template(), serial: ti.template(), acc: ti.template(),
-              cell_sums: ti.template(), keys: ti.template(), emitted: ti.template()):
-    """All particles: on the launching thread into row 0 (``serial``), in parallel with each CPU thread adding into
-    its own row (``private``: row = the thread's index, so the caller gives at least as many rows as threads),
-    or in parallel with atomic adds into row 0 (GPUs)."""
+def visit_all(n, steps: ti.template(), xs: ti.template(), values: ti.template(), ids: ti.template(),
+              prevs: ti.template(), table: ti.template(), lists: ti.template(), gauss: ti.template(),
+              add_values: ti.template(), track: ti.template(), private: ti.template(), serial: ti.template(),
+              acc: ti.template(), cell_sums: ti.template(), keys: ti.template(), emitted: ti.template()):
+    """All particles of the staged steps (``steps``: B + 1 offsets, step s holds particles steps[s]..steps[s+1]-1),
+    interleaved: iteration k (of n, the longest step) visits particle k of every step. The solver keeps its
+    particles sorted by cell, so particle k of consecutive steps sits at about the same place, and its cell lists,
+    Gaussians and sums are still in the caches for the next step's. On the launching thread into row 0
+    (``serial``), in parallel with each CPU thread adding into its own row (``private``: row = the thread's
+    index, so the caller gives at least as many rows as threads), or in parallel with atomic adds into row 0
+    (GPUs). The sums are integers, so the order does not change them."""
+    b = steps.shape[0] - 1
     if ti.static(serial):
         ti.loop_config(serialize=True)
-        for i in range(n):
-            visit_particle(i, 0, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc,
-                           cell_sums, keys, emitted)
+        for k in range(n):
+            for s in range(b):
+                i = steps[s] + k
+                if i < steps[s + 1]:
+                    visit_particle(i, 0, xs, values, ids, prevs, table, lists, gauss, add_values, track, private,
+                                   acc, cell_sums, keys, emitted)
     else:
-        for i in range(n):
+        for k in range(n):
             row = 0
             if ti.static(private):
                 row = ti.global_thread_idx()
-            visit_particle(i, row, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, acc,
-                           cell_sums, keys, emitted)
+            for s in range(b):
+                i = steps[s] + k
+                if i < steps[s + 1]:
+                    visit_particle(i, row, xs, values, ids, prevs, table, lists, gauss, add_values, track, private,
+                                   acc, cell_sums, keys, emitted)
 
 
 @ti.kernel
 def accumulate(
     n: ti.i32,
+    steps: ti.types.ndarray(dtype=ti.i32, ndim=1),
     xs: ti.types.ndarray(ndim=1),
     values: ti.types.ndarray(ndim=1),
     table: ti.types.ndarray(dtype=ti.f64, ndim=2),
@@ -326,6 +338,8 @@ def accumulate(
     (``gauss[g]`` = (mu_g, (n r_g)^2)); ``acc[row, G, 0]`` counts saturated values. The domain in ``table`` is the
     probe's domain clipped to the levels' grids (no Gaussian reaches beyond them).
 
+    ``n``, ``steps``: the longest staged step and the staged steps' offsets of :func:`visit_all` (one step: n
+    particles, steps = [0, n]).
     ``table``, ``lists``: see ``TABLE_WIDTH``. A particle in a cell that Gaussians cover adds its value once to
     ``cell_sums[row, c]`` (:func:`visit_level`).
     ``private`` (CPUs): ``acc`` has a row per thread of the pool, each thread adds into its own row without
@@ -334,13 +348,14 @@ def accumulate(
     ``serial``: the particles run on the launching thread (row 0), which on small probes costs less than
     waking the thread pool.
     """
-    visit_all(n, xs, values, values, xs, table, lists, gauss, True, False, private, serial, acc, cell_sums, acc,
-              acc)
+    visit_all(n, steps, xs, values, values, xs, table, lists, gauss, True, False, private, serial, acc, cell_sums,
+              acc, acc)
 
 
 @ti.kernel
 def accumulate_tracked(
     n: ti.i32,
+    steps: ti.types.ndarray(dtype=ti.i32, ndim=1),
     xs: ti.types.ndarray(ndim=1),
     values: ti.types.ndarray(ndim=1),
     ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
@@ -366,8 +381,8 @@ def accumulate_tracked(
 
     ``serial``: as in :func:`accumulate`.
     """
-    visit_all(n, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, acc, keys,
-              emitted)
+    visit_all(n, steps, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, acc,
+              keys, emitted)
 
 
 @ti.func

@@ -30,6 +30,10 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+import torch
+
+from recon.projection import project_gaussians
+from recon.render import ALPHA_MAX, build_pairs
 
 # Lattice points projected per chunk (bounds the temporary arrays to ~100 MB).
 _CHUNK = 1 << 21
@@ -46,11 +50,6 @@ def surface_depths(gaussians, cameras: Sequence, level: float = 0.5) -> list[np.
         one [H, W] float64 array per camera: the depth (scene units) of the Gaussian whose compositing brings
         1 - T to ``level`` or above, inf where the pixel never gets there.
     """
-    import torch
-
-    from recon.projection import project_gaussians
-    from recon.render import ALPHA_MAX, build_pairs
-
     if not 0.0 < level < 1.0:
         raise ValueError(f"surface_depths: level must be in (0, 1) (an accumulated opacity), got {level}")
     out = []

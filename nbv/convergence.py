@@ -28,6 +28,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
+
+from recon.render import render
+
+from .physics import load_result
+from .scores import unoccluded, view_weights
 
 TOP_K = 5
 
@@ -95,8 +101,6 @@ class ProbeSetting:
 
 def load_setting(path: str | Path, label: str | None = None) -> ProbeSetting:
     """A :class:`ProbeSetting` from a RESULT.h5 of ``fluidgs simulate`` (:func:`nbv.physics.load_result`)."""
-    from .physics import load_result
-
     res = load_result(path)
     cfg = res.config
     active = [int(s["active"].max()) for s in res.stats.values() if len(s)]
@@ -116,12 +120,6 @@ def view_weight_matrix(gaussians, cameras: Sequence, occlusion: bool = False) ->
         occlusion: count only Gaussians in front of the rendered surface (:func:`nbv.scores.unoccluded`);
             default: the paper's frustum culling.
     """
-    import torch
-
-    from recon.render import render
-
-    from .scores import unoccluded, view_weights
-
     g = gaussians.detach()
     reach = 3.0 * g.max_radii().double()
     rows = []

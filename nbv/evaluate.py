@@ -37,10 +37,18 @@ from typing import Any
 import numpy as np
 import torch
 
-from fluidsim.probes import DIRECTIONS
+from fluidsim.directions import DIRECTIONS
+from recon.datasets import load_dataset
+from recon.formats import load_gaussians
+from recon.mesh_render import load_mesh
+from recon.metrics import chamfer_distance, load_lpips, lpips, lpips_unavailable_reason, psnr, ssim
+from recon.render import render
+from recon.train import view_to
 
-from .active import ActiveConfig, dataset_up, is_empty_solid, json_safe, write_atomic, write_json_atomic
-from .physics import PhysicsConfig
+from .active import ActiveConfig, dataset_up, is_empty_solid
+from .io import json_safe, write_json_atomic, write_text_atomic
+from .physics import PhysicsConfig, simulate_gaussians
+from .scores import critical_scores, critical_subset, geometry_divergence, unoccluded
 
 log = logging.getLogger(__name__)
 
@@ -77,8 +85,8 @@ class EvalConfig:
                 raise ValueError(f"EvalConfig.{name} must be an integer >= 1, got {v!r}")
         if not 0.0 <= self.chamfer_opacity < 1.0:
             raise ValueError(f"EvalConfig.chamfer_opacity must be in [0, 1), got {self.chamfer_opacity!r}")
-        if self.critical_direction not in ("-x", "+x", "-z", "+z", "-y"):
-            raise ValueError(f"EvalConfig.critical_direction must be one of -x,+x,-z,+z,-y, "
+        if self.critical_direction not in DIRECTIONS:
+            raise ValueError(f"EvalConfig.critical_direction must be one of {','.join(DIRECTIONS)}, "
                              f"got {self.critical_direction!r}")
         if self.physics is not None and not isinstance(self.physics, PhysicsConfig):
             raise ValueError(f"EvalConfig.physics must be a PhysicsConfig or None, got {type(self.physics).__name__}")
@@ -125,7 +133,6 @@ def fixed_scale(physics: PhysicsConfig, mesh_path: Path | None) -> PhysicsConfig
     """
     if physics.scale != "auto" or mesh_path is None:
         return physics
-    from recon.mesh_render import load_mesh
 
     vertices, _ = load_mesh(mesh_path)
     extent = float(np.ptp(np.asarray(vertices, np.float64), axis=0).max())
@@ -161,9 +168,6 @@ def sample_mesh_surface(vertices: np.ndarray, triangles: np.ndarray, count: int,
 
 def chamfer_to_mesh(gaussians, mesh_path: Path, config: EvalConfig) -> dict[str, Any]:
     """Chamfer distance (scene units) between opaque Gaussian centres and points on the reference mesh."""
-    from recon.mesh_render import load_mesh
-    from recon.metrics import chamfer_distance
-
     keep = gaussians.opacities > config.chamfer_opacity
     if int(keep.sum()) == 0:
         return {"chamfer": None, "reason": f"no Gaussian has opacity > {config.chamfer_opacity}"}
@@ -177,9 +181,6 @@ def chamfer_to_mesh(gaussians, mesh_path: Path, config: EvalConfig) -> dict[str,
 @torch.no_grad()
 def render_test_views(gaussians, views, background, backend: str = "auto") -> tuple[list, list[dict]]:
     """Render every test view; returns (RenderOutputs, per-view {"name", "psnr", "ssim"})."""
-    from recon.metrics import psnr, ssim
-    from recon.render import render
-
     bg = torch.tensor([float(c) for c in background], dtype=torch.float32, device=gaussians.means.device)
     outs, rows = [], []
     for v in views:
@@ -193,8 +194,6 @@ def render_test_views(gaussians, views, background, backend: str = "auto") -> tu
 
 def lpips_scores(gaussians, views, renders) -> dict[str, Any]:
     """Mean LPIPS over the views, or {"lpips": "unavailable", "reason": ...}."""
-    from recon.metrics import load_lpips, lpips, lpips_unavailable_reason
-
     reason = lpips_unavailable_reason()
     if reason is not None:
         return {"lpips": "unavailable", "reason": reason}
@@ -206,8 +205,6 @@ def lpips_scores(gaussians, views, renders) -> dict[str, Any]:
 
 def critical_metrics(gaussians, result, renders, rows, views, config: EvalConfig) -> dict[str, Any]:
     """PSNR and D-bar on the top-k test views by C(T) (see the module docstring)."""
-    from .scores import critical_scores, critical_subset, geometry_divergence, unoccluded
-
     row = result.directions.index(config.critical_direction)
     distinct = torch.from_numpy(np.asarray(result.per_probe_distinct[row], np.float64))
     c = critical_scores(distinct, renders)
@@ -226,8 +223,6 @@ def critical_metrics(gaussians, result, renders, rows, views, config: EvalConfig
 
 def physics_metrics(result) -> dict[str, Any]:
     """D-bar, the empty-scene D-bar and the per-direction D-bars of one probe run."""
-    from .scores import geometry_divergence
-
     covs = torch.from_numpy(result.covariances)
     per_dir = {d: geometry_divergence(covs, torch.from_numpy(result.per_probe[i]))
                for i, d in enumerate(result.directions)}
@@ -256,12 +251,6 @@ def evaluate_run(run_dir: str | Path, config: EvalConfig | None = None, *, devic
     Raises:
         ValueError: the folder is not a finished run, or its dataset has no test views.
     """
-    from recon.datasets import load_dataset
-    from recon.formats import load_gaussians
-    from recon.train import view_to
-
-    from .physics import simulate_gaussians
-
     config = config or EvalConfig()
     run_dir = Path(run_dir)
     cfg_path, ply = run_dir / "config.json", run_dir / "gaussians.ply"
@@ -307,7 +296,7 @@ def evaluate_run(run_dir: str | Path, config: EvalConfig | None = None, *, devic
     out["summary"]["dbar_per_direction"] = out.get("dbar_per_direction")
     write_json_atomic(run_dir / "eval.json", out)
     text = markdown_line(out)
-    write_atomic(run_dir / "eval.md", lambda tmp: tmp.write_text(text))
+    write_text_atomic(run_dir / "eval.md", text)
     return json_safe(out)
 
 

@@ -97,7 +97,7 @@ class JobLost(RuntimeError):
 def import_ray():
     """The ``ray`` module, or ValueError telling how to install it."""
     try:
-        import ray
+        import ray  # noqa: PLC0415 - the optional 'ray' extra
     except ImportError as exc:
         raise ValueError("--executor ray needs the optional Ray package: pip install ray "
                          "(or use --executor local)") from exc

@@ -49,6 +49,7 @@ Plots (matplotlib bar charts with +-std whiskers, :func:`viz.plots.bar_chart`): 
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import json
 import logging
@@ -59,19 +60,27 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
-from .active import ActiveConfig, config_differences, json_safe, run_active, write_atomic, write_json_atomic
+from fluidsim.directions import DIRECTIONS
+from recon.datasets import dataset_format
+
+from .active import ActiveConfig, config_differences, run_active
 from .evaluate import EvalConfig, evaluate_run
+from .io import json_safe, write_json_atomic, write_text_atomic
 from .paired import paired_table
+from .planners import PLANNERS, uses_physics
 
 log = logging.getLogger(__name__)
 
 CONFIG_KEYS = ("scenes", "methods", "seeds", "preset", "output", "reference_views", "active", "eval")
-DIRECTIONS = ("-x", "+x", "-z", "+z", "-y")
 ABLATION_ORDER = ("random", "random+fluid", "random+area", "random+shuffled", "fisher", "fisher+fluid", "fisher+area",
                   "fisher+shuffled", "variance", "variance+fluid", "variance+area", "variance+shuffled")
 # what re-ranks the shortlist of a fused method <visual>+<pick> (the ablation table's "physics pick" column)
-PICKS = {"fluid": "yes", "area": "no: coverage sum w_g (D_g = 1)", "shuffled": "D_g shuffled across the Gaussians"}
+PICKS = {"fluid": "yes", "area": "no: coverage sum w_g (D_g = 1)", "shuffled": "D_g shuffled across the Gaussians",
+         "fluid-occ": "yes, depth-tested visibility", "area-occ": "no: coverage of the unhidden Gaussians",
+         "excess": "D_g minus the empty-scene D_g", "perprobe": "D_g normalised per probe",
+         "balanced": "z(coverage) + z(S / coverage)", "balanced-occ": "z(coverage) + z(S / coverage), depth-tested"}
 
 
 @dataclass(frozen=True)
@@ -165,10 +174,6 @@ def check_method(method: str) -> str:
     Raises:
         ValueError: naming the method, the registered planners and, for a near miss, the closest name.
     """
-    import difflib
-
-    from .planners import PLANNERS
-
     if not isinstance(method, str) or not method:
         raise ValueError(f"experiment config: 'methods' entries must be planner names, got {method!r}")
     base = method.partition("@")[0]
@@ -194,9 +199,10 @@ def split_method(method: str) -> tuple[str, str | None]:
     if direction not in DIRECTIONS:
         raise ValueError(f"experiment method {method!r}: unknown probe direction {direction!r}; use one of "
                          f"{', '.join(DIRECTIONS)}")
-    if not (base.endswith(("+fluid", "+shuffled")) or base == "physics"):
+    if base not in PLANNERS or not uses_physics(base):
         raise ValueError(f"experiment method {method!r}: a single-direction variant needs a method whose pick uses "
-                         "the physics (fisher+fluid, variance+fluid, random+fluid, a +shuffled control or physics; "
+                         "the physics (fisher+fluid, variance+fluid, random+fluid, a +shuffled control, "
+                         "fisher+fluid-occ, fisher+excess, fisher+perprobe, fisher+balanced(-occ) or physics; "
                          "the +area controls run no probe)")
     return base, direction
 
@@ -268,10 +274,6 @@ def run_experiment(config: ExperimentConfig, executor, progress: bool = True) ->
     Returns:
         {"rows": per-job result rows, "tables": {name: Markdown}, "files": written paths}.
     """
-    from tqdm import tqdm
-
-    from recon.datasets import dataset_format
-
     for scene in config.scenes:  # a mistyped scene fails now, not after the other scenes' jobs
         try:
             dataset_format(scene)
@@ -417,7 +419,7 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
 
 def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[str, Any]:
     """Write OUTPUT/tables/{name}.md|.csv, OUTPUT/tables.md and the plots."""
-    from viz.plots import DBAR_LABEL, bar_chart
+    from viz.plots import DBAR_LABEL, bar_chart  # noqa: PLC0415 - matplotlib (~0.6 s), only for the plots
 
     tables = build_tables(rows)
     tdir, pdir = out / "tables", out / "plots"
@@ -425,13 +427,13 @@ def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[
     pdir.mkdir(exist_ok=True)
     files = []
     for name, (md, text) in tables.items():
-        files.append(write_atomic(tdir / f"{name}.md", lambda tmp, md=md: tmp.write_text(md)))
-        files.append(write_atomic(tdir / f"{name}.csv", lambda tmp, text=text: tmp.write_text(text)))
+        files.append(write_text_atomic(tdir / f"{name}.md", md))
+        files.append(write_text_atomic(tdir / f"{name}.csv", text))
     head = (f"# Experiment\n\nscenes: {', '.join(scene_names(config.scenes))}; methods: {', '.join(config.methods)}; "
             f"seeds: {list(config.seeds)}; preset: {config.preset}. Cells: mean ± sample std over scenes x seeds "
             "(n runs).\n\n")
     combined = head + "\n".join(md for md, _ in tables.values())
-    files.append(write_atomic(out / "tables.md", lambda tmp: tmp.write_text(combined)))
+    files.append(write_text_atomic(out / "tables.md", combined))
     groups = {**_by_method(rows), **_by_method(rows, "reference")}
     labels = list(groups)
     for key, title, ylabel in (("psnr", "test PSNR", "PSNR (dB)"),

@@ -53,6 +53,7 @@ from recon.gaussians import GaussianSet
 from recon.pairs import pair_attribute_gradients
 from recon.projection import project_gaussians
 from recon.render import gaussian_colors
+from recon.render_reference import render_dense_reference
 
 log = logging.getLogger(__name__)
 
@@ -202,8 +203,6 @@ def view_fisher_reference(gaussians: GaussianSet, camera: Camera, background: to
 
     O(H W N) per pass and H W passes: tiny scenes only (tests). Same Args and Returns.
     """
-    from recon.render_reference import render_dense_reference
-
     degree = _degree(gaussians, sh_degree)
     leaves = _parameter_leaves(gaussians, degree, include_rotations)
     params = list(leaves.values())

@@ -27,7 +27,7 @@ DOMINANT_FACTOR = 4.0
 _MAX_ROUNDS = 8
 
 
-def _others_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def others_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """[N, 3] min of ``lo`` and max of ``hi`` over every box but each one's own (needs N >= 2)."""
     n = len(lo)
     rows = np.arange(n)[:, None]
@@ -59,7 +59,7 @@ def solid_capable_boxes(box_lo: np.ndarray, box_hi: np.ndarray, opacities: np.nd
         clip = idx[faint[idx]]
         if len(idx) < 2 or not len(clip):
             break
-        others_lo, others_hi = _others_box(lo[idx], hi[idx])
+        others_lo, others_hi = others_box(lo[idx], hi[idx])
         at = faint[idx]
         new_lo, new_hi = np.maximum(lo[clip], others_lo[at]), np.minimum(hi[clip], others_hi[at])
         if np.array_equal(new_lo, lo[clip]) and np.array_equal(new_hi, hi[clip]):
@@ -89,7 +89,7 @@ def dominant_gaussian(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray,
     if len(idx) < 2:
         return None
     klo, khi = lo[idx], hi[idx]
-    others_lo, others_hi = _others_box(klo, khi)
+    others_lo, others_hi = others_box(klo, khi)
     # only a Gaussian on the box's border can shrink it: the argmin / argmax of some axis
     cand = np.unique(np.concatenate([klo.argmin(0), khi.argmax(0)]))
 

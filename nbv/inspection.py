@@ -19,6 +19,7 @@ import torch
 
 from .physics import PhysicsConfig, kept_gaussians, scene_transform
 from .scene_frame import robust_box
+from .solidify import SolidifyConfig, gaussian_arrays_in_sim, gaussians_to_solid
 
 QUANTILES = (0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99)
 
@@ -58,8 +59,6 @@ def inspect_gaussians(gaussians, config: PhysicsConfig, file_format: str = "") -
     Raises:
         ValueError: an empty crop or an empty solid (the solidifier's message), before anything long.
     """
-    from .solidify import SolidifyConfig, gaussian_arrays_in_sim, gaussians_to_solid
-
     g = gaussians.detach().to("cpu").check("Gaussians")
     means = g.means.double().numpy()
     opacities = g.opacities.double().numpy()

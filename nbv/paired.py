@@ -52,7 +52,7 @@ def sign_test_p(wins: int, losses: int) -> float:
 
 def scipy_available() -> bool:
     try:
-        import scipy.stats  # noqa: F401
+        import scipy.stats  # noqa: F401, PLC0415 - scipy.stats takes ~2 s to import; only the tables need it
     except ImportError:
         return False
     return True
@@ -70,7 +70,7 @@ def wilcoxon_p(differences: Sequence[float]) -> tuple[float | None, str]:
         return None, "n/a (scipy not installed)"
     if not d:
         return None, "n/a (no non-zero difference)"
-    from scipy.stats import wilcoxon
+    from scipy.stats import wilcoxon  # noqa: PLC0415 - slow to import, as in scipy_available
 
     return float(wilcoxon(d, zero_method="wilcox", alternative="two-sided").pvalue), ""
 
@@ -148,7 +148,9 @@ def paired_values(rows: Sequence[dict], first: str, second: str, key: str) -> tu
 
 def comparisons(methods: Sequence[str]) -> list[tuple[str, str]]:
     """(first, second) method pairs to compare, among ``methods``: each ``<visual>+fluid`` against ``<visual>``,
-    ``<visual>+area`` and ``<visual>+shuffled``, and ``<visual>+area`` against ``<visual>``."""
+    ``<visual>+area`` and ``<visual>+shuffled``, and ``<visual>+area`` against ``<visual>``; then every other
+    ``<visual>+<candidate>`` (``fisher+fluid-occ``, ``fisher+excess``, ...; issue 19 item 4) against
+    ``<visual>+area``, ``<visual>+fluid`` and, except the control itself, ``<visual>+area-occ``."""
     have = set(methods)
     out = []
     for v in VISUAL_PLANNERS:
@@ -156,6 +158,14 @@ def comparisons(methods: Sequence[str]) -> list[tuple[str, str]]:
                      (f"{v}+area", v)):
             if pair[0] in have and pair[1] in have:
                 out.append(pair)
+    for v in VISUAL_PLANNERS:
+        base = {f"{v}+fluid", f"{v}+area", f"{v}+shuffled"}
+        for m in dict.fromkeys(methods):
+            if not m.startswith(f"{v}+") or m in base or "@" in m:
+                continue
+            for second in (f"{v}+area", f"{v}+fluid", f"{v}+area-occ"):
+                if second in have and second != m:
+                    out.append((m, second))
     return out
 
 

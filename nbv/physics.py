@@ -22,6 +22,7 @@ about [-1.5, 1.5]^3 domain at r = 0.025 m.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import math
@@ -34,10 +35,12 @@ from typing import Any
 import h5py
 import numpy as np
 import taichi as ti
+import torch
+from tqdm import tqdm
 
 from fluidsim import DIRECTIONS, DFSPHSolver, ProbeConfig, SimulationDiverged, SolverConfig, StepStats, run_probes
 from fluidsim.memory import available_memory_bytes
-from fluidsim.output import atomic_output, check_writable, stats_table
+from fluidsim.output import stats_table
 from fluidsim.probes import probe_setup
 from fluidsim.scene import lattice_in_box
 from fluidsim.simulation import check_time_step
@@ -45,8 +48,20 @@ from fluidsim.simulation import run as run_solver
 from fluidsim.sources import wall_particles
 
 from . import floaters, scores
+from .aggregate import GaussianAccumulator, reach_classes
+from .io import atomic_h5
 from .leaks import LeakCounter, read_probe_leaks, write_probe_leaks
-from .scene_frame import crop_box, inside_box, parse_crop, parse_up, robust_box, up_label
+from .lists import parse_list
+from .scene_frame import SceneTransform, crop_box, inside_box, parse_crop, parse_up, robust_box, up_label
+from .solidify import BYTES_PER_GAUSSIAN as BYTES_PER_GAUSSIAN_SOLIDIFY
+from .solidify import (
+    SolidifyConfig,
+    estimate_lattice_points,
+    estimate_solidify_bytes,
+    gaussian_arrays_in_sim,
+    gaussians_to_solid,
+    solid_boxes,
+)
 from .trajectory import TrajectoryRecorder, check_record_size, probe_fluid_counts, read_trajectory, write_trajectory
 
 log = logging.getLogger(__name__)
@@ -55,10 +70,17 @@ QUICK = {"particle_radius": 0.05, "steps": 300}
 # Estimator radii h_r and h_k of paper Eq. 1 in particle radii: 4 r = 0.1 m at the paper's r = 0.025 m. A fixed
 # 0.1 m would leave no neighbour inside h_r at r >= 0.05 m (spacing >= h_r), so D_i would read 0.
 ESTIMATOR_RADII = 4.0
-# Rough memory per particle of one probe (neighbour lists of 64 fluid + 64 boundary slots, solver arrays,
-# the accumulator's lists) and per static boundary particle; calibrated on `fluidgs bench sim` (460 MiB).
-BYTES_PER_FLUID = 4096
-BYTES_PER_BOUNDARY = 160
+# Memory per fluid particle of one probe (solver state, pressure-solver arrays, fluid and boundary neighbour lists)
+# and per boundary particle (walls and solid), doubled for headroom: the peak resident memory of probes around a
+# solid sphere (-x, f32, 2 threads, 20 steps, after the JIT) grew by 1,050-1,140 B per fluid particle with their
+# boundary (r = 0.04-0.02 m, 12k-106k fluid and 32k-154k boundary particles), of which about 130 B per boundary
+# particle. The per-Gaussian accumulator is estimated apart (nbv.aggregate.GaussianAccumulator.estimate_bytes).
+BYTES_PER_FLUID = 2048
+BYTES_PER_BOUNDARY = 256
+# Per Gaussian, held through the whole run besides the Gaussian set itself: simulation-frame means, covariances and
+# reach (float64, 104 B), and per probe the result rows (means, counts, distinct counts: 24 B).
+BYTES_PER_GAUSSIAN_RUN = 104
+BYTES_PER_GAUSSIAN_PROBE = 24
 BYTES_PER_LATTICE_POINT = 2
 # A probe that retires more than this fraction of its fluid (it left the walled domain) gets a warning.
 RETIRED_WARNING_FRACTION = 0.5
@@ -66,19 +88,19 @@ RETIRED_WARNING_FRACTION = 0.5
 
 @dataclass(frozen=True)
 class PhysicsConfig:
-    """How the Gaussians are probed.
+    """How the Gaussians are probed (the defaults are the paper's; :data:`QUICK` is the quick preset).
 
     Attributes:
-        particle_radius: r, m (spacing 2 r; the solid lattice uses the same spacing). Paper 0.025, quick 0.05.
-        steps: steps per probe (paper 750, quick 300).
+        particle_radius: fluid particle radius r, m; the fluid and the solid lattice are spaced 2 r.
+        steps: time steps per probe.
         dt: time step, s.
         speed: inflow speed lambda of the horizontal probes, m/s.
         viscosity: dynamic viscosity mu, Pa s.
         rest_density: rho_0, kg/m^3.
-        directions: probes to run, a subset of ("-x", "+x", "-z", "+z", "-y").
+        directions: probes to run, a subset of :data:`fluidsim.directions.DIRECTIONS`.
         accumulate_every: accumulate D_i every k-th step (k >= 1).
         n_radius: n of Eq. 2: particles within n r_g of a Gaussian count for it.
-        opacity_threshold: tau of the solidification (combined opacity >= tau is solid).
+        opacity_threshold: tau: combined opacity at or above which a lattice point is solid (unitless, 0..1).
         up: the scene's up direction, which becomes simulation +y: an axis ("+y", "-y", "+z", ...) or a 3-tuple
             (:func:`nbv.scene_frame.parse_up`). COLMAP captures are often y-down: up "-y".
         scale: metres per scene unit, or "auto" (largest extent of the robust object box -> ``target_extent``).
@@ -292,8 +314,6 @@ class ProbeDiverged(SimulationDiverged):
 def gaussians_sha256(gaussians) -> str:
     """SHA-256 (hex) of what the probes depend on: the float32 bytes of means, quats, log_scales and
     opacity_logits, in that order (colours are left out, so a re-coloured copy has the same digest)."""
-    import hashlib
-
     h = hashlib.sha256()
     for t in (gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits):
         h.update(np.ascontiguousarray(t.detach().cpu().numpy(), np.float32).tobytes())
@@ -349,8 +369,6 @@ def scene_transform(gaussians, config: PhysicsConfig):
     (:func:`nbv.scene_frame.robust_box`, in simulation axes; only the Gaussians that ``config.crop`` keeps)
     is ``target_extent`` m.
     """
-    from .scene_frame import SceneTransform
-
     rotated = SceneTransform(config.up, 1.0)
     if config.scale != "auto":
         return SceneTransform(config.up, float(config.scale))
@@ -380,11 +398,14 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
     scattered Gaussians widen the box but make no solid. Uses the per-particle byte counts ``BYTES_PER_*``
     and the solid lattice estimate of :func:`nbv.solidify.estimate_lattice_points`.
 
-    Returns:
-        dict: lattice_points, fluid_particles (largest probe), boundary_particles, bytes.
-    """
-    from .solidify import SolidifyConfig, estimate_lattice_points, gaussian_arrays_in_sim, solid_boxes
+    The bytes add the Gaussians held all run to the larger of the solidification's peak
+    (:func:`nbv.solidify.estimate_solidify_bytes`) and one probe's (its solver, and the per-Gaussian accumulator's
+    :meth:`nbv.aggregate.GaussianAccumulator.estimate_bytes`).
 
+    Returns:
+        dict: lattice_points, fluid_particles (largest probe), boundary_particles, and the bytes (floats):
+        resident_bytes, solidify_bytes, probe_bytes, accumulator_bytes and their total ``bytes``.
+    """
     transform = transform if transform is not None else scene_transform(gaussians, config)
     spacing = 2.0 * config.particle_radius
     scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold,
@@ -405,9 +426,27 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
         area = 2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2])
         walls = area * probe.wall_layers / spacing**2
         fluid, boundary = max(fluid, int(f)), max(boundary, int(walls) + solid_count)
-    total = fluid * BYTES_PER_FLUID + boundary * BYTES_PER_BOUNDARY + lattice * BYTES_PER_LATTICE_POINT
     return {"lattice_points": lattice, "fluid_particles": fluid, "boundary_particles": boundary,
-            "bytes": float(total)}
+            **_memory_parts(gaussians, config, lattice, fluid, boundary)}
+
+
+def _memory_parts(gaussians, config: PhysicsConfig, lattice: int, fluid: int, boundary: int) -> dict[str, float]:
+    """The bytes of :func:`estimate_memory`: the Gaussian set and the per-Gaussian arrays held all run
+    (``resident_bytes``), the solidification's peak (``solidify_bytes``), one probe's solver (``probe_bytes``) and
+    its accumulator (``accumulator_bytes``), and ``bytes`` = resident + the larger of the two phases."""
+    g = int(gaussians.num)
+    tensors = (gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh)
+    resident = sum(t.numel() * t.element_size() for t in tensors) \
+        + g * (BYTES_PER_GAUSSIAN_RUN + BYTES_PER_GAUSSIAN_PROBE * len(config.directions))
+    solidify = estimate_solidify_bytes(g, lattice)
+    probe = fluid * BYTES_PER_FLUID + boundary * BYTES_PER_BOUNDARY + lattice * BYTES_PER_LATTICE_POINT
+    radii = gaussians.log_scales.detach().max(dim=1).values.double().exp().cpu().numpy()  # ratios: scale-free
+    accumulator = GaussianAccumulator.estimate_bytes(g, fluid, config.track_distinct,
+                                                     float_bytes=4 if config.precision == "f32" else 8,
+                                                     num_levels=reach_classes(radii))
+    return {"resident_bytes": float(resident), "solidify_bytes": float(solidify), "probe_bytes": float(probe),
+            "accumulator_bytes": float(accumulator),
+            "bytes": float(resident + max(solidify, probe + accumulator))}
 
 
 def memory_limit_bytes(config: PhysicsConfig) -> float:
@@ -424,19 +463,20 @@ def check_memory(gaussians, config: PhysicsConfig, transform=None,
     limit = memory_limit_bytes(config)
     if est["bytes"] > limit:
         available = "allowed (--max-memory-gb)" if config.max_memory_gb is not None else "available"
+        gib = {k: est[k] / 2**30 for k in ("resident_bytes", "solidify_bytes", "probe_bytes", "accumulator_bytes")}
         raise ValueError(
             f"the probe would need about {est['bytes'] / 2**30:.4g} GiB ({est['fluid_particles']:,} fluid and "
             f"{est['boundary_particles']:,} boundary particles at r = {config.particle_radius} m, a solid lattice of "
-            f"{est['lattice_points']:,} points) but {limit / 2**30:.3g} GiB are {available}"
-            f"{_memory_fix(gaussians, config, transform, est, limit)}")
+            f"{est['lattice_points']:,} points, {gaussians.num:,} Gaussians: {gib['resident_bytes']:.3g} GiB for the "
+            f"Gaussians, then {gib['solidify_bytes']:.3g} GiB to solidify, {gib['probe_bytes']:.3g} GiB per probe and "
+            f"{gib['accumulator_bytes']:.3g} GiB for its per-Gaussian accumulator) but {limit / 2**30:.3g} GiB are "
+            f"{available}{_memory_fix(gaussians, config, transform, est, limit)}")
     return est
 
 
 def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, float], limit: float) -> str:
     """The advice of :func:`check_memory`: the Gaussian that alone widens the lattice, if one does (a larger
     radius cannot help then), else the particle radius that would fit, if the object is still resolved."""
-    from .solidify import SolidifyConfig, gaussian_arrays_in_sim, solid_boxes
-
     transform = transform if transform is not None else scene_transform(gaussians, config)
     spacing = 2.0 * config.particle_radius
     scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold, max_points=2**62)
@@ -445,8 +485,16 @@ def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, floa
     note = floaters.dominant_note(*boxes, spacing, means, covs, opacities, transform)
     if note:
         return f"{note.replace('widens it', 'widens the solid lattice')}; a larger particle radius cannot help"
-    # the fluid (most of the bytes) scales as 1 / r^3: the radius that would fit, if the object stays resolved
-    radius = config.particle_radius * (est["bytes"] / limit) ** (1.0 / 3.0)
+    # the Gaussians' own bytes do not shrink with a larger radius
+    fixed = est["resident_bytes"] + max(est["accumulator_bytes"], float(gaussians.num) * BYTES_PER_GAUSSIAN_SOLIDIFY)
+    if fixed >= limit:
+        return (f"; the {gaussians.num:,} Gaussians alone need about {fixed / 2**30:.3g} GiB (the set, the "
+                "per-Gaussian accumulator or the solidification), so a larger particle radius cannot help: crop "
+                "them to the object (--crop auto, or --crop xmin,ymin,zmin,xmax,ymax,zmax in scene units), prune "
+                "them, or allow more memory (--max-memory-gb) on a larger machine")
+    # the fluid and the lattice (the rest of the bytes) scale as 1 / r^3: the radius that would fit, if the object
+    # stays resolved
+    radius = config.particle_radius * ((est["bytes"] - fixed) / (limit - fixed)) ** (1.0 / 3.0)
     extent = float(np.max(np.subtract(*floaters.lattice_extent(*boxes)[::-1])))
     if 2.0 * radius <= extent / 4.0:
         return (f"; use a particle radius of about {radius:.3g} m or more (--particle-radius; --quick is "
@@ -458,13 +506,12 @@ def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, floa
 
 # ---- the probe runs --------------------------------------------------------------------------------
 def _progress_bar(direction: str, steps: int, enabled: bool):
-    from tqdm import tqdm
-
     return tqdm(total=steps, desc=f"probe {direction}", unit="step", disable=not enabled, leave=False)
 
 
 class _ProbeRecorder:
-    """Callbacks for ``fluidsim.run_probes``: one accumulator per probe, timings and a progress bar."""
+    """Callbacks for ``fluidsim.run_probes``: one accumulator for all the probes (retargeted), timings and a progress
+    bar."""
 
     def __init__(self, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig, progress: bool,
                  label: str = "", grid_bounds: tuple[np.ndarray, np.ndarray] | None = None, solid=None,
@@ -490,8 +537,6 @@ class _ProbeRecorder:
         self.probe_s = 0.0
 
     def start(self, direction: str, solver: DFSPHSolver) -> None:
-        from .aggregate import GaussianAccumulator
-
         t0 = time.perf_counter()
         # The lists cover the union of the probes' domains, so every probe reuses them (only the sums are zeroed).
         if self.acc is None or not self.acc.retarget(solver.domain_min, solver.domain_max):
@@ -564,7 +609,8 @@ def _run_with(recorder: _ProbeRecorder, solid: np.ndarray, config: PhysicsConfig
 
 
 def empty_scene_probes(solid: np.ndarray, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig,
-                       progress: bool = True, cache: dict | None = None) -> tuple[np.ndarray, float]:
+                       progress: bool = True, cache: dict | None = None,
+                       accumulator=None) -> tuple[np.ndarray, float]:
     """D_g^(IC) of the empty scene: each probe's slab in its walled domain with no solid, onto the same Gaussians.
 
     Args:
@@ -573,6 +619,9 @@ def empty_scene_probes(solid: np.ndarray, centers: np.ndarray, reach: np.ndarray
         config: the probe settings.
         progress: show a bar per probe.
         cache: a dict to reuse results within a process, keyed by domain, settings and Gaussians.
+        accumulator: a :class:`nbv.aggregate.GaussianAccumulator` of these Gaussians to reuse (the probe run's:
+            its lists cover the same domains; its distinct counts are dropped). None: one is built over the union of
+            the probes' domains, and every probe reuses it.
     Returns:
         ([P, G] float64 per-probe means, seconds spent).
     """
@@ -582,13 +631,17 @@ def empty_scene_probes(solid: np.ndarray, centers: np.ndarray, reach: np.ndarray
     key_cfg = json.dumps(config.to_dict(), sort_keys=True, default=str)
     key_g = hash((centers.tobytes(), reach.tobytes()))
     out = []
+    rec = _ProbeRecorder(centers, reach, replace(config, track_distinct=False), progress, label="empty ",
+                         grid_bounds=probe_domains_union(solid, config, scfg.spacing))
+    if accumulator is not None:
+        accumulator.drop_distinct()
+        rec.acc = accumulator
     for d in config.directions:
         setup = probe_setup(solid, d, probe, scfg.spacing)
         key = (setup, key_cfg, key_g)
         if cache is not None and key in cache:
             out.append(cache[key])
             continue
-        rec = _ProbeRecorder(centers, reach, replace(config, track_distinct=False), progress, label="empty ")
         fluid = lattice_in_box(setup.fluid_min, setup.fluid_max, scfg.spacing)
         vel = np.broadcast_to(np.asarray(setup.velocity), fluid.shape)
         walls = wall_particles(setup.domain_min, setup.domain_max, scfg.spacing, probe.wall_layers)
@@ -632,8 +685,6 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
             particle spacing (CFL), or a recording too large or of a probe not run, before any simulation.
         ProbeDiverged: a probe diverged; its ``result`` holds the probes completed before it.
     """
-    from .solidify import SolidifyConfig, gaussian_arrays_in_sim, gaussians_to_solid
-
     t_total = time.perf_counter()
     if record is not None:
         record.check_probes(config.directions, config.steps)
@@ -642,8 +693,6 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     transform = scene_transform(gaussians, config)
     kept = kept_gaussians(gaussians, config)
     if kept is not None:  # simulate the kept Gaussians at the resolved scale, then give every Gaussian its row
-        import torch
-
         inner = replace(config, crop=None, scale=transform.scale)
         try:
             part = simulate_gaussians(gaussians.subset(torch.from_numpy(np.nonzero(kept)[0])), inner, progress,
@@ -658,7 +707,7 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     cheap = estimate_memory(gaussians, config, transform)
     exact_check = cheap["bytes"] > memory_limit_bytes(config)
     if exact_check and (cheap["lattice_points"] > SolidifyConfig.max_points
-                        or cheap["lattice_points"] * BYTES_PER_LATTICE_POINT > memory_limit_bytes(config)):
+                        or cheap["resident_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)):
         check_memory(gaussians, config, transform)  # the solid is too costly to compute: raise with the estimate
     scfg = config.solver_config()
     t0 = time.perf_counter()
@@ -699,7 +748,8 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     if not config.empty_reference:
         return result
     try:
-        empty, empty_s = empty_scene_probes(solid.points, means, reach, config, progress, _EMPTY_CACHE)
+        empty, empty_s = empty_scene_probes(solid.points, means, reach, config, progress, _EMPTY_CACHE,
+                                            accumulator=recorder.acc)
     except SimulationDiverged as exc:
         probe = getattr(exc, "probe", "empty-scene")
         failure = {"probe": probe, "step": int(exc.step), "reason": exc.reason}
@@ -749,8 +799,6 @@ def _assemble(recorder: _ProbeRecorder, dirs: Sequence[str], base: dict[str, Any
 def expand_to_all(part: PhysicsResult, gaussians, kept: np.ndarray, config: PhysicsConfig) -> PhysicsResult:
     """A result on the kept Gaussians -> one row per Gaussian of ``gaussians`` (the dropped ones: D_g = 0, no
     samples), with ``kept`` recorded and ``config`` (the crop) restored. D-bar stays the kept Gaussians' own."""
-    from .solidify import gaussian_arrays_in_sim
-
     g = len(kept)
 
     def full(a: np.ndarray | None, axis: int = 0) -> np.ndarray | None:
@@ -774,8 +822,6 @@ def expand_to_all(part: PhysicsResult, gaussians, kept: np.ndarray, config: Phys
 
 
 def _t(a: np.ndarray):
-    import torch
-
     return torch.from_numpy(np.asarray(a, np.float64))
 
 
@@ -816,43 +862,42 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
     Returns:
         the path written.
     """
-    p = check_writable(path)
-    with atomic_output(p) as tmp:
-        with h5py.File(tmp, "w") as f:
-            g = f.create_group("gaussians")
-            g["D"], g["D_mean"], g["means"] = result.divergence, result.divergence_mean, result.means
-            g["covariances"], g["reach"] = result.covariances, result.reach
-            for i, d in enumerate(result.directions):
-                pg = f.create_group(f"probes/{d}")
-                pg["D"], pg["counts"] = result.per_probe[i], result.per_probe_counts[i]
-                if result.per_probe_distinct is not None:
-                    pg["distinct"] = result.per_probe_distinct[i]
-                if result.empty_per_probe is not None:
-                    pg["D_empty"] = result.empty_per_probe[i]
-                pg["stats"] = result.stats[d]
-                if d in result.domains:
-                    pg.attrs["domain_min"], pg.attrs["domain_max"] = result.domains[d]
-                pg.attrs["warnings"] = json.dumps(list(result.warnings.get(d, [])))
-                if d in result.leaks:
-                    write_probe_leaks(pg, result.leaks[d])
-                if d in result.trajectories:
-                    write_trajectory(pg, result.trajectories[d])
-            f.create_dataset("solid/x", data=result.solid, compression="gzip", compression_opts=1)
-            f.attrs["config"] = json.dumps(result.config.to_dict())
-            f.attrs["directions"] = json.dumps(list(result.directions))
-            for key in ("dbar", "dbar_mean", "dbar_empty", "dbar_empty_mean"):
-                v = getattr(result, key)
-                f.attrs[key] = float("nan") if v is None else float(v)
-            f.attrs["up"], f.attrs["up_label"] = np.asarray(result.transform.up), result.transform.up_label
-            f.attrs["scale"], f.attrs["scene_to_sim"] = float(result.transform.scale), result.transform.matrix
-            if result.kept is not None:
-                g["kept"] = np.asarray(result.kept, bool)
-            f.attrs["source"] = str(result.source)
-            f.attrs["timings"] = json.dumps(result.timings)
-            f.attrs["gaussians_sha256"], f.attrs["status"] = result.gaussians_sha256, result.status
-            if result.failure is not None:
-                for key in ("probe", "step", "reason"):
-                    f.attrs[f"diverged_{key}"] = result.failure[key]
+    p = Path(path)
+    with atomic_h5(p) as f:
+        g = f.create_group("gaussians")
+        g["D"], g["D_mean"], g["means"] = result.divergence, result.divergence_mean, result.means
+        g["covariances"], g["reach"] = result.covariances, result.reach
+        for i, d in enumerate(result.directions):
+            pg = f.create_group(f"probes/{d}")
+            pg["D"], pg["counts"] = result.per_probe[i], result.per_probe_counts[i]
+            if result.per_probe_distinct is not None:
+                pg["distinct"] = result.per_probe_distinct[i]
+            if result.empty_per_probe is not None:
+                pg["D_empty"] = result.empty_per_probe[i]
+            pg["stats"] = result.stats[d]
+            if d in result.domains:
+                pg.attrs["domain_min"], pg.attrs["domain_max"] = result.domains[d]
+            pg.attrs["warnings"] = json.dumps(list(result.warnings.get(d, [])))
+            if d in result.leaks:
+                write_probe_leaks(pg, result.leaks[d])
+            if d in result.trajectories:
+                write_trajectory(pg, result.trajectories[d])
+        f.create_dataset("solid/x", data=result.solid, compression="gzip", compression_opts=1)
+        f.attrs["config"] = json.dumps(result.config.to_dict())
+        f.attrs["directions"] = json.dumps(list(result.directions))
+        for key in ("dbar", "dbar_mean", "dbar_empty", "dbar_empty_mean"):
+            v = getattr(result, key)
+            f.attrs[key] = float("nan") if v is None else float(v)
+        f.attrs["up"], f.attrs["up_label"] = np.asarray(result.transform.up), result.transform.up_label
+        f.attrs["scale"], f.attrs["scene_to_sim"] = float(result.transform.scale), result.transform.matrix
+        if result.kept is not None:
+            g["kept"] = np.asarray(result.kept, bool)
+        f.attrs["source"] = str(result.source)
+        f.attrs["timings"] = json.dumps(result.timings)
+        f.attrs["gaussians_sha256"], f.attrs["status"] = result.gaussians_sha256, result.status
+        if result.failure is not None:
+            for key in ("probe", "step", "reason"):
+                f.attrs[f"diverged_{key}"] = result.failure[key]
     return p
 
 
@@ -863,8 +908,6 @@ def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
     Raises:
         ValueError: naming the file when it is not such a result.
     """
-    from .scene_frame import SceneTransform
-
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"result file {p} does not exist; run `fluidgs simulate` to create it")
@@ -944,7 +987,6 @@ def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> 
                              f"{digest[:12]}... of this file); pass the result of these Gaussians or drop --result "
                              "to simulate again")
         return
-    from .solidify import gaussian_arrays_in_sim
 
     means = np.asarray(gaussian_arrays_in_sim(gaussians, result.transform)[0], np.float64)
     stored = np.asarray(result.means, np.float64)
@@ -958,8 +1000,4 @@ def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> 
 
 def parse_directions(text: str | Sequence[str]) -> tuple[str, ...]:
     """'-x,+x' or a list -> a tuple of probe names (validated)."""
-    items = [s.strip() for s in (text.split(",") if isinstance(text, str) else text) if s.strip()]
-    bad = [d for d in items if d not in DIRECTIONS]
-    if bad or not items:
-        raise ValueError(f"--directions: unknown probes {bad or items}; use a comma list of {','.join(DIRECTIONS)}")
-    return tuple(items)
+    return parse_list(text, str, "--directions", allowed=DIRECTIONS, unique=True, what="probe")

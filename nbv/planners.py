@@ -24,6 +24,20 @@ Every planner is built from a small frozen config dataclass with an explicit see
 
   A physics pick that beats neither control adds nothing a coverage term or the magnitudes alone would not.
 
+- Candidates that try to give the physics information beyond coverage (issue 19 item 4), all on FisherRF's
+  shortlist with the same K schedule:
+
+  - ``fisher+fluid-occ`` / ``fisher+area-occ``: S(T) / the coverage with the coarse depth test
+    (:class:`nbv.scores.DepthBuffer`) whatever ``PlanningContext.occlusion`` says, so that hidden Gaussians do
+    not count; ``fisher+area-occ`` is the coverage control of ``fisher+fluid-occ``.
+  - ``fisher+excess``: S(T) of the excess divergence max_p max(D_g^(p) - E_g^(p), 0), E the empty-scene D_g of
+    the same probe at the same place (:func:`excess_divergence`; needs the empty-scene probes).
+  - ``fisher+perprobe``: S(T) of max_p D_g^(p) / mean_{g reached} D^(p), every probe normalised to its own scale
+    before the max (:func:`per_probe_normalised`), so that the strongest probe does not decide alone.
+  - ``fisher+balanced``: z(A(T)) + z(S(T) / A(T)) over the shortlist (:func:`balanced_scores`), the coverage
+    and the area-weighted mean D_g of the view with equal weight; S/A is the part of S that coverage does not
+    explain. ``fisher+balanced-occ``: the same with the depth test.
+
 S(T) needs only the screen-space radii and visibility of the Gaussians in each candidate, which are the
 projection's (``recon.render.render`` returns exactly ``project_gaussians(...).radii``), so no candidate
 is rasterised for it: :func:`physics_view_scores` takes them from the batched projection
@@ -56,6 +70,37 @@ MIN_SHORTLIST = 2  # the smallest top-K of the fused planners (paper appendix: K
 
 
 @dataclass(frozen=True)
+class ProbeFields:
+    """The per-direction divergence of one probe run on the current Gaussians.
+
+    Attributes:
+        directions: the P probes, in run order.
+        per_probe: [P, N] float64 D_g^(p), 1/s.
+        empty_per_probe: [P, N] float64 the same probes without the solid, accumulated onto the same Gaussians
+            (1/s), or None when the empty scene was not run (``PhysicsConfig.empty_reference`` False).
+    """
+
+    directions: tuple[str, ...]
+    per_probe: torch.Tensor
+    empty_per_probe: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        d = torch.as_tensor(self.per_probe, dtype=torch.float64)
+        if d.ndim != 2 or d.shape[0] != len(self.directions) or d.shape[0] < 1:
+            raise ValueError(f"ProbeFields.per_probe must be [P, N] with P = {len(self.directions)} directions, "
+                             f"got shape {tuple(d.shape)}")
+        if not torch.isfinite(d).all():
+            raise ValueError("ProbeFields.per_probe holds NaN or Inf; check the probe run")
+        object.__setattr__(self, "per_probe", d)
+        if self.empty_per_probe is not None:
+            e = torch.as_tensor(self.empty_per_probe, dtype=torch.float64)
+            if e.shape != d.shape or not torch.isfinite(e).all():
+                raise ValueError(f"ProbeFields.empty_per_probe must be finite and shaped like per_probe "
+                                 f"{tuple(d.shape)}, got {tuple(e.shape)}")
+            object.__setattr__(self, "empty_per_probe", e)
+
+
+@dataclass(frozen=True)
 class PlanningContext:
     """What a planner knows when it picks the next view.
 
@@ -72,6 +117,8 @@ class PlanningContext:
         round: the selection round (0-based), seeds the random planner.
         occlusion: S(T) counts only the Gaussians the coarse depth test (:class:`nbv.scores.DepthBuffer`) finds
             unhidden (not in the paper, whose visibility is frustum culling); the ``+area`` controls use it too.
+        probe_fields: the probes' per-direction D_g (and the empty scene's) of given Gaussians, from the same run as
+            ``physics`` (:class:`ProbeFields`), or None; needed by ``fisher+excess`` and ``fisher+perprobe``.
     """
 
     gaussians: GaussianSet
@@ -84,6 +131,7 @@ class PlanningContext:
     physics: Callable[[GaussianSet], torch.Tensor] | None = None
     round: int = 0
     occlusion: bool = False
+    probe_fields: Callable[[GaussianSet], ProbeFields] | None = None
 
     def __post_init__(self) -> None:
         if len(self.candidates) != len(self.candidate_ids):
@@ -220,6 +268,78 @@ def shuffled_divergence(divergence: torch.Tensor, seed: int, round_index: int = 
     return d[torch.from_numpy(rng.permutation(d.numel())).to(d.device)]
 
 
+def excess_divergence(fields: ProbeFields) -> torch.Tensor:
+    """The excess divergence max_p max(D_g^(p) - E_g^(p), 0) (the ``fisher+excess`` values).
+
+    E_g^(p) is what probe p gives at Gaussian g without the solid: the divergence the inflow front and the domain
+    walls make anyway. D - E keeps what the object adds; where the empty scene is the larger, nothing is added.
+
+    Args:
+        fields: a probe run with the empty scene (``empty_per_probe`` set).
+    Returns:
+        [N] float64, 1/s, >= 0.
+    Raises:
+        ValueError: the empty scene was not run.
+    """
+    if fields.empty_per_probe is None:
+        raise ValueError("fisher+excess needs the empty-scene probes: set the selection physics' empty_reference "
+                         "to true (ActiveConfig.physics, or \"physics\": {\"empty_reference\": true} in an "
+                         "experiment's \"active\" overrides)")
+    return (fields.per_probe - fields.empty_per_probe).clamp_min(0.0).amax(dim=0)
+
+
+def per_probe_normalised(per_probe: torch.Tensor) -> torch.Tensor:
+    """max_p D_g^(p) / s_p with s_p the mean of D^(p) over the Gaussians probe p reached (D > 0).
+
+    The plain D_g = max_p D_g^(p) is decided by the strongest probe: the falling -y probe's D-bar is about a tenth
+    of the horizontal ones' (docs/results.md), so it almost never sets the max. Dividing each probe by its own
+    scale first gives every direction the same say. A probe that reached no Gaussian contributes zeros.
+
+    Args:
+        per_probe: [P, N] D_g^(p), 1/s, >= 0.
+    Returns:
+        [N] float64, dimensionless (1 = a probe's mean over the Gaussians it reached).
+    """
+    d = torch.as_tensor(per_probe, dtype=torch.float64)
+    if d.ndim != 2:
+        raise ValueError(f"per_probe_normalised: per_probe must be [P, N], got shape {tuple(d.shape)}")
+    reached = d > 0
+    count = reached.sum(dim=1)
+    scale = torch.where(reached, d, torch.zeros_like(d)).sum(dim=1) / count.clamp_min(1)
+    scale = torch.where(count > 0, scale, torch.ones_like(scale))
+    return (d / scale[:, None]).amax(dim=0)
+
+
+def _standardised(x: torch.Tensor) -> torch.Tensor:
+    """(x - mean) / std over the entries (population std); zeros when the entries are all equal."""
+    std = x.std(unbiased=False) if x.numel() > 1 else torch.zeros((), dtype=x.dtype)
+    scale = float(x.abs().max()) if x.numel() else 0.0
+    if not float(std) > 1e-12 * max(scale, 1e-300):
+        return torch.zeros_like(x)
+    return (x - x.mean()) / std
+
+
+def balanced_scores(coverage: list[float], physics: list[float]) -> list[float]:
+    """z(A) + z(S / A) over a shortlist: coverage and the area-weighted mean D_g of each view, equally weighted.
+
+    S(T) = A(T) (S/A)(T), so ranking by S lets whichever factor varies more between the views decide; under
+    frustum visibility that is coverage (S/A varies by about 1 % between views, docs/results.md). Standardising
+    both factors over the shortlist gives the physics part the same weight as coverage.
+
+    Args:
+        coverage: [K] A(T) = sum_{g visible} w_g.
+        physics: [K] S(T) = sum_{g visible} w_g D_g of the same views.
+    Returns:
+        [K] floats; a view with A = 0 has S/A = 0. A factor equal on every view adds zeros.
+    """
+    if len(coverage) != len(physics):
+        raise ValueError(f"balanced_scores: {len(coverage)} coverages but {len(physics)} physics scores")
+    a = torch.tensor(coverage, dtype=torch.float64)
+    s = torch.tensor(physics, dtype=torch.float64)
+    mean_d = torch.where(a > 0, s / a.clamp_min(1e-300), torch.zeros_like(s))
+    return (_standardised(a) + _standardised(mean_d)).tolist()
+
+
 def _run_physics(context: PlanningContext, name: str) -> torch.Tensor:
     if context.physics is None:
         raise ValueError(f"planner {name!r} needs PlanningContext.physics (the probe runner giving D_g); "
@@ -339,12 +459,17 @@ class _FusedPlanner:
     """FluidGaussian: the visual planner's top-K, re-ranked by S(T) (module docstring).
 
     ``control`` says which per-Gaussian values re-rank the shortlist: "fluid" the probes' D_g, "area" ones (the
-    coverage control; the probes never run), "shuffled" the probes' D_g permuted (:func:`shuffled_divergence`).
+    coverage control; the probes never run), "shuffled" the probes' D_g permuted (:func:`shuffled_divergence`),
+    "excess" :func:`excess_divergence`, "perprobe" :func:`per_probe_normalised`. ``depth_test`` forces the coarse
+    depth test on (else ``PlanningContext.occlusion`` decides); ``combine`` is "sum" (S(T) of those values) or
+    "balanced" (:func:`balanced_scores` of the coverage and S(T)).
     """
 
     name = ""
     visual_type: type = FisherPlanner
     control = "fluid"
+    depth_test = False
+    combine = "sum"
 
     def __init__(self, config) -> None:
         self.config = config
@@ -362,6 +487,15 @@ class _FusedPlanner:
         divergence = _run_physics(context, self.name)
         if self.control == "shuffled":
             return shuffled_divergence(divergence, self.config.seed, context.round)
+        if self.control in ("excess", "perprobe"):
+            if context.probe_fields is None:
+                raise ValueError(f"planner {self.name!r} needs PlanningContext.probe_fields (the per-probe D_g of "
+                                 "the probe run); the active loop passes it, other callers must too")
+            fields = context.probe_fields(context.gaussians)
+            if fields.per_probe.shape[1] != context.gaussians.num:
+                raise ValueError(f"probe_fields returned {fields.per_probe.shape[1]} Gaussians' values for "
+                                 f"{context.gaussians.num} Gaussians; it must score the Gaussians it is given")
+            return excess_divergence(fields) if self.control == "excess" else per_probe_normalised(fields.per_probe)
         return divergence
 
     def select(self, context: PlanningContext) -> Selection:
@@ -372,8 +506,14 @@ class _FusedPlanner:
         shortlist, visual = self.visual.rank(context, min(k, count))
         mid = time.perf_counter()
         divergence = self.per_gaussian(context)
-        chosen = physics_view_scores(context.gaussians, [context.candidates[i] for i in shortlist], divergence,
-                                     occlusion=context.occlusion)
+        occlusion = context.occlusion or self.depth_test
+        cams = [context.candidates[i] for i in shortlist]
+        chosen = physics_view_scores(context.gaussians, cams, divergence, occlusion=occlusion)
+        if self.combine == "balanced":
+            coverage = physics_view_scores(context.gaussians, cams, torch.ones(context.gaussians.num,
+                                                                               dtype=torch.float64),
+                                           occlusion=occlusion)
+            chosen = balanced_scores(coverage, chosen)
         physics = _nan_scores(count)
         for i, s in zip(shortlist, chosen, strict=True):
             physics[i] = s
@@ -460,6 +600,50 @@ class RandomShuffledPlanner(RandomFluidPlanner):
     control = "shuffled"
 
 
+class FisherFluidOccPlanner(FisherFluidPlanner):
+    """Candidate: FisherRF's top-K re-ranked by S(T) with the coarse depth test (hidden Gaussians do not count)."""
+
+    name = "fisher+fluid-occ"
+    depth_test = True
+
+
+class FisherAreaOccPlanner(FisherFluidPlanner):
+    """Control of ``fisher+fluid-occ``: the coverage of the unhidden Gaussians (depth test; no probes)."""
+
+    name = "fisher+area-occ"
+    control = "area"
+    depth_test = True
+
+
+class FisherExcessPlanner(FisherFluidPlanner):
+    """Candidate: S(T) of the excess divergence over the empty scene (:func:`excess_divergence`)."""
+
+    name = "fisher+excess"
+    control = "excess"
+
+
+class FisherPerProbePlanner(FisherFluidPlanner):
+    """Candidate: S(T) of the per-probe normalised D_g (:func:`per_probe_normalised`)."""
+
+    name = "fisher+perprobe"
+    control = "perprobe"
+
+
+class FisherBalancedPlanner(FisherFluidPlanner):
+    """Candidate: z(coverage) + z(S / coverage) over FisherRF's top-K (:func:`balanced_scores`)."""
+
+    name = "fisher+balanced"
+    combine = "balanced"
+
+
+class FisherBalancedOccPlanner(FisherFluidPlanner):
+    """Candidate: ``fisher+balanced`` with the coarse depth test (the coverage and S(T) of unhidden Gaussians)."""
+
+    name = "fisher+balanced-occ"
+    combine = "balanced"
+    depth_test = True
+
+
 PLANNERS: dict[str, type] = {
     "random": RandomPlanner,
     "random+fluid": RandomFluidPlanner,
@@ -474,6 +658,12 @@ PLANNERS: dict[str, type] = {
     "variance+shuffled": VarianceShuffledPlanner,
     "random+area": RandomAreaPlanner,
     "random+shuffled": RandomShuffledPlanner,
+    "fisher+fluid-occ": FisherFluidOccPlanner,
+    "fisher+area-occ": FisherAreaOccPlanner,
+    "fisher+excess": FisherExcessPlanner,
+    "fisher+perprobe": FisherPerProbePlanner,
+    "fisher+balanced": FisherBalancedPlanner,
+    "fisher+balanced-occ": FisherBalancedOccPlanner,
 }
 
 

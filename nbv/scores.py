@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import torch
 
-from recon.projection import NEAR_PLANE, GaussianTerms, check_batch, inline_ops, view_blocks
+from recon.projection import NEAR_PLANE, GaussianTerms, check_batch, inline_ops, project_gaussians, view_blocks
 
 RADIUS_HISTOGRAM = 4096  # radii are capped here for the depth buffer's median footprint radius (pixels)
 
@@ -523,8 +523,6 @@ def coarse_unoccluded_reference(gaussians, camera, config: DepthBuffer = DepthBu
 
     Python floats throughout; use float64 Gaussians to compare verdicts exactly.
     """
-    from recon.projection import project_gaussians
-
     with torch.no_grad():
         proj = project_gaussians(gaussians.detach(), camera)
         conics = proj.conics.tolist()

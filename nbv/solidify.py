@@ -65,6 +65,7 @@ import taichi as ti
 from recon.gaussians import GaussianSet, quaternion_to_rotation
 
 from . import floaters, solid_kernels
+from .carve import carve_outside, surface_depths
 from .scene_frame import SceneTransform
 
 log = logging.getLogger(__name__)
@@ -76,8 +77,16 @@ MAX_ALPHA = 1.0 - 1e-6
 BYTES_PER_POINT = 16 + 24 + 3 + 1 + 32
 # Work items (Gaussian, lattice point) per kernel launch, so that the loop index fits in int32.
 _WORK_CHUNK = 1 << 28
-# Beyond this many work items per lattice point the Gaussians are mostly huge floaters.
-_MAX_WORK_PER_POINT = 64
+# Wall time of one work item of tests 1-2 on the project's 2-core CPU (2 threads), measured with the splat kernels:
+# 55-115 ns per (Gaussian, lattice point) pair and 85-130 ns per (Gaussian, edge) pair for 2k large Gaussians,
+# 165-250 ns for 200k small ones (their per-Gaussian set-up). The guard quotes the worst case.
+SECONDS_PER_WORK_ITEM = 2.5e-7
+# Peak bytes per Gaussian while solidifying (float64 unless noted): the simulation-frame means, covariances,
+# opacities and radii (112 B) and inverse covariances (72 B), the rotations while they are built (72 B), each
+# field's box indices and sizes (int64 first, last and sizes: 72 B; float temporaries: 48 B), the prefix sum (8 B)
+# and the kernels' copies (box corner and size int32, means, inverse covariances, opacities: 128 B). Measured on
+# the 5.35M-Gaussian set (the person capture and 34 jittered copies): see docs/performance.md.
+BYTES_PER_GAUSSIAN = 512
 
 
 @dataclass(frozen=True)
@@ -96,6 +105,12 @@ class SolidifyConfig:
             lattice points are not missed. False: only the combined opacity at the points (the solid before
             issue 15, for comparisons).
         max_points: lattice-size guard, checked on an estimate before anything is allocated.
+        max_work: time guard: the most work items of tests 1 and 2 together (a Gaussian and one lattice point or
+            edge of its sigma box; about ``SECONDS_PER_WORK_ITEM`` each on the 2-core CPU, so the default,
+            2e9, is at most about 8 min), counted before anything is allocated (:func:`estimate_work`). The
+            1.07M- and 5.35M-Gaussian sets at spacing 0.05 take 4.8e6 and 2.4e7.
+        max_bytes: memory guard, bytes: the estimated peak of the solidification (:func:`estimate_solidify_bytes`)
+            is checked against it before anything is allocated (None: not checked).
         bounds: optional ((3,), (3,)) min and max corners, simulation metres; the lattice is clipped to
             this box (to leave out floaters far from the object).
         min_points: fewer solid points than this is a degenerate solid (an error).
@@ -110,6 +125,8 @@ class SolidifyConfig:
     fill_cavities: bool = True
     thin: bool = True
     max_points: int = 20_000_000
+    max_work: int = 2_000_000_000
+    max_bytes: float | None = None
     bounds: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     min_points: int = 8
     carve_margin: float = 0.0
@@ -127,6 +144,10 @@ class SolidifyConfig:
                 raise ValueError(f"SolidifyConfig.{name} must be True or False, got {getattr(self, name)!r}")
         if int(self.max_points) < 1:
             raise ValueError(f"SolidifyConfig.max_points must be >= 1, got {self.max_points}")
+        if int(self.max_work) < 1:
+            raise ValueError(f"SolidifyConfig.max_work must be >= 1 work item, got {self.max_work}")
+        if self.max_bytes is not None and not self.max_bytes > 0:
+            raise ValueError(f"SolidifyConfig.max_bytes must be > 0 or None, got {self.max_bytes}")
         if int(self.min_points) < 1:
             raise ValueError(f"SolidifyConfig.min_points must be >= 1, got {self.min_points}")
         if not (math.isfinite(self.carve_margin) and self.carve_margin >= 0):
@@ -259,10 +280,53 @@ def _box_index_ranges(means, covs, lattice_min, dims, config) -> tuple[np.ndarra
     return first, last
 
 
+def estimate_solidify_bytes(num_gaussians: int, lattice_points: float) -> float:
+    """Peak bytes of :func:`gaussians_to_solid`: ``BYTES_PER_POINT`` per lattice point and ``BYTES_PER_GAUSSIAN``
+    per Gaussian (the Gaussian set itself, in the caller's hands, is not counted)."""
+    return float(lattice_points) * BYTES_PER_POINT + float(num_gaussians) * BYTES_PER_GAUSSIAN
+
+
+def _work_sizes(means, covs, lattice_min, dims, config: SolidifyConfig, points: bool = True,
+                edges: bool = True) -> np.ndarray:
+    """[N] float64 work items of each Gaussian: lattice points of its sigma box (test 1, with ``points``) plus the
+    edges along x, y and z that meet it (test 2, with ``edges`` and ``config.thin``), the counts of
+    :func:`_box_index_ranges` and :func:`_edge_boxes` from one pass over the Gaussians (float64 counts are exact
+    below 2^53)."""
+    half = _box_half_extents(covs, config.sigma_cutoff)
+    lo, hi, span, runs = [], [], [], []
+    for a in range(3):  # one axis at a time: contiguous columns, few temporaries
+        top = float(dims[a] - 1)
+        lo.append(np.ceil((means[:, a] - half[:, a] - lattice_min[a]) / config.spacing))
+        hi.append(np.floor((means[:, a] + half[:, a] - lattice_min[a]) / config.spacing))
+        span.append(np.maximum(np.clip(hi[a], -1.0, top) - np.clip(lo[a], 0.0, top) + 1.0, 0.0))  # points on a
+        if edges and config.thin and dims[a] >= 2:  # edges along a start at points lo - 1 .. hi, up to top - 1
+            runs.append(np.maximum(np.clip(hi[a], -1.0, top - 1.0) - np.clip(lo[a] - 1.0, 0.0, top - 1.0) + 1.0,
+                                   0.0))
+        else:
+            runs.append(None)
+    sizes = span[0] * span[1] * span[2] if points else np.zeros(len(means))
+    for a, run in enumerate(runs):
+        if run is not None:
+            sizes += run * span[(a + 1) % 3] * span[(a + 2) % 3]
+    return sizes
+
+
+def estimate_work(gaussians: GaussianSet, config: SolidifyConfig, transform: SceneTransform) -> int:
+    """Work items of tests 1 and 2 (a Gaussian and one lattice point or edge of its sigma box) that
+    :func:`gaussians_to_solid` would run, counted in numpy before anything is allocated (``config.max_work`` is
+    the guard)."""
+    gaussians.check("gaussians")
+    means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    lattice_min, dims = _lattice_geometry(means, covs, config, opacities)
+    return int(_work_sizes(means, covs, lattice_min, dims.astype(np.int64), config).sum())
+
+
 def _lattice_or_raise(means: np.ndarray, covs: np.ndarray, config: SolidifyConfig, transform: SceneTransform,
-                      opacities: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Lattice origin, point counts per axis (int64) and their product, or the size guard's ValueError (naming
-    the Gaussian that alone widens the lattice, if one does)."""
+                      opacities: np.ndarray, points: bool = True,
+                      edges: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+    """Lattice origin, point counts per axis (int64) and their product, or the ValueError of a guard: the lattice
+    size (naming the Gaussian that alone widens the lattice, if one does), the memory (``config.max_bytes``) and
+    the work of the tests to run (``points``: test 1; ``edges``: test 2; ``config.max_work``)."""
     lattice_min, dims_f = _lattice_geometry(means, covs, config, opacities)
     estimate = float(np.prod(dims_f))
     if estimate > config.max_points:
@@ -273,14 +337,40 @@ def _lattice_or_raise(means: np.ndarray, covs: np.ndarray, config: SolidifyConfi
             f"~{estimate * BYTES_PER_POINT / 2**20:.0f} MiB) > max_points = {config.max_points}{note}; otherwise use "
             f"a larger spacing (now {config.spacing} m), a smaller scene scale (now {transform.scale} m per unit), "
             f"prune large or far-away floater Gaussians, or set SolidifyConfig.bounds around the object")
-    return lattice_min, dims_f.astype(np.int64), estimate
-
-
-def _check_work(total: int, estimate: float, what: str) -> None:
-    if total > _MAX_WORK_PER_POINT * max(estimate, 1.0):
+    need = estimate_solidify_bytes(len(means), estimate)
+    if config.max_bytes is not None and need > config.max_bytes:
         raise ValueError(
-            f"the Gaussians' {what} cover {total:.3g} lattice points in all, {total / estimate:.0f} per lattice "
-            f"point: the set holds many huge Gaussians; prune floaters or set SolidifyConfig.bounds")
+            f"solidifying would need about {need / 2**30:.3g} GiB ({estimate:.3g} lattice points x {BYTES_PER_POINT} B "
+            f"and {len(means):,} Gaussians x {BYTES_PER_GAUSSIAN} B) but {config.max_bytes / 2**30:.3g} GiB are "
+            f"allowed (--max-memory-gb); crop the Gaussians to the object (--crop auto), use a larger spacing "
+            f"(--particle-radius; now {config.spacing} m apart), prune Gaussians, or allow more memory")
+    dims = dims_f.astype(np.int64)
+    sizes = _work_sizes(means, covs, lattice_min, dims, config, points, edges)
+    _check_work(sizes, estimate, config, transform, means)
+    return lattice_min, dims, estimate
+
+
+def _check_work(sizes: np.ndarray, estimate: float, config: SolidifyConfig, transform: SceneTransform,
+                means: np.ndarray) -> None:
+    """The time guard: ValueError when the work items ``sizes`` [N] add up to more than ``config.max_work``, with
+    the time it would take, the Gaussian that takes the most and the fix."""
+    total = int(sizes.sum())
+    if total <= config.max_work:
+        return
+    worst = int(np.argmax(sizes))
+    share = sizes[worst] / total
+    note = ""
+    if share > 0.1:
+        centre = ", ".join(f"{v:.4g}" for v in transform.to_scene(means[worst:worst + 1])[0])
+        note = (f"; Gaussian {worst} (centre ({centre})) alone takes {100 * share:.0f} % of it: prune it or leave "
+                f"it out with a --crop box")
+    raise ValueError(
+        f"the solid's opacity tests would take {total:.3g} work items (a Gaussian and a lattice point or edge of its "
+        f"{config.sigma_cutoff}-sigma box, {total / max(len(sizes), 1):.3g} per Gaussian over a lattice of "
+        f"{estimate:.3g} points), about {total * SECONDS_PER_WORK_ITEM / 60:.3g} min on a 2-core CPU, "
+        f"> max_work = {config.max_work:.3g}{note}; crop the Gaussians to the object (--crop auto), use a larger "
+        f"spacing (--particle-radius; now {config.spacing} m apart) or a smaller scale (--scale; now "
+        f"{transform.scale} m per unit), prune large floater Gaussians, or set SolidifyConfig.bounds or max_work")
 
 
 def _flat_work(first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -295,7 +385,6 @@ def _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, esti
     """Test 1's field: [X, Y, Z] float32 sum_g log(1 - o_g exp(-d_g^2 / 2)) (Taichi)."""
     first, last = _box_index_ranges(means, covs, lattice_min, dims, config)
     keep, offsets, total = _flat_work(first, last)
-    _check_work(total, estimate, f"{config.sigma_cutoff}-sigma boxes")
     log_t = ti.ndarray(ti.f32, shape=tuple(int(d) for d in dims))
     log_t.fill(0.0)
     if total:
@@ -327,7 +416,7 @@ def lattice_log_transmittance(gaussians: GaussianSet, config: SolidifyConfig,
     """
     gaussians.check("gaussians")
     means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
-    lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities)
+    lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities, edges=False)
     inv_covs = inverse_covariances_in_sim(gaussians, transform)
     return lattice_min, _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config)
 
@@ -359,7 +448,6 @@ def _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims,
             continue
         first, last = _edge_boxes(means, covs, lattice_min, dims, config, axis)
         keep, offsets, total = _flat_work(first, last)
-        _check_work(total, estimate, f"{config.sigma_cutoff}-sigma edge boxes")
         if not total:
             continue
         args = _ndarrays(
@@ -388,7 +476,7 @@ def lattice_edge_log_transmittance(gaussians: GaussianSet, config: SolidifyConfi
     """
     gaussians.check("gaussians")
     means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
-    lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities)
+    lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities, points=False)
     inv_covs = inverse_covariances_in_sim(gaussians, transform)
     return lattice_min, _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config)
 
@@ -670,8 +758,6 @@ def gaussians_to_solid(gaussians: GaussianSet, config: SolidifyConfig, transform
         counts["specks"] = int(specks.sum())
         occupancy |= specks
     if cameras is not None:
-        from .carve import carve_outside, surface_depths
-
         if depths is None:
             depths = surface_depths(gaussians, cameras)
         before = int(occupancy.sum())

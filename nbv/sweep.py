@@ -23,12 +23,16 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from .physics import PhysicsConfig, PhysicsResult, simulate_gaussians
+from .io import atomic_output
+from .lists import parse_list
+from .physics import PhysicsConfig, PhysicsResult, scene_transform, simulate_gaussians
 
 log = logging.getLogger(__name__)
 
 U_BASE = 3.0  # m/s, the paper's inflow speed lambda
+PAPER_VELOCITIES = (3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 20.0, 50.0)  # m/s, the speeds of the paper's sweep
 
 
 @dataclass(frozen=True)
@@ -62,13 +66,7 @@ class SweepPoint:
 
 def parse_velocities(text: str | Sequence[float]) -> tuple[float, ...]:
     """'3,4,5' or a list -> positive speeds in m/s (ValueError naming --velocities otherwise)."""
-    try:
-        items = [float(s) for s in (text.split(",") if isinstance(text, str) else text) if str(s).strip()]
-    except ValueError as exc:
-        raise ValueError(f"--velocities must be a comma list of speeds in m/s such as 3,5,10: {exc}") from exc
-    if not items or any(not np.isfinite(u) or u <= 0 for u in items):
-        raise ValueError(f"--velocities must be speeds > 0 m/s, got {items}")
-    return tuple(items)
+    return parse_list(text, float, "--velocities", positive=True, what="speed")
 
 
 def schedule(velocities: Sequence[float], dt_base: float, steps_base: int, u_base: float = U_BASE) -> list[SweepStep]:
@@ -120,10 +118,6 @@ def run_sweep(gaussians, config: PhysicsConfig, velocities: Sequence[float], oth
     Returns:
         one SweepPoint per speed.
     """
-    from tqdm import tqdm
-
-    from .physics import scene_transform
-
     plan = schedule(velocities, config.dt, config.steps, u_base=config.speed)
     if config.scale == "auto":
         config = replace(config, scale=scene_transform(gaussians, config).scale)
@@ -143,8 +137,6 @@ CSV_FIELDS = ("speed_m_s", "reynolds", "dt_s", "steps", "dbar_m4_s", "dbar_other
 
 def write_csv(path: str | Path, points: Sequence[SweepPoint]) -> Path:
     """Write the sweep as CSV atomically (columns: :data:`CSV_FIELDS`; empty cells where no OTHER)."""
-    from fluidsim.output import atomic_output
-
     p = Path(path)
     with atomic_output(p) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)

@@ -36,6 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fluidsim.memory import available_memory_bytes
+from fluidsim.probes import probe_setup
+from fluidsim.scene import lattice_in_box
 
 log = logging.getLogger(__name__)
 
@@ -149,9 +151,6 @@ def check_record_size(fluid_counts: dict[str, int], steps: int, record: RecordCo
 
 def probe_fluid_counts(solid_points: np.ndarray, directions: Sequence[str], probe, spacing: float) -> dict[str, int]:
     """F per probe: the fluid particles of each probe's slab (:func:`fluidsim.probes.probe_setup`), before running."""
-    from fluidsim.probes import probe_setup
-    from fluidsim.scene import lattice_in_box
-
     out = {}
     for d in directions:
         s = probe_setup(solid_points, d, probe, spacing)

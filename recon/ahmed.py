@@ -29,13 +29,16 @@ Example:
 from __future__ import annotations
 
 import math
-import os
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import open3d as o3d
+import torch
+
+from fluidsim.files import atomic_output
+
+from .gaussians import GaussianSet
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".gltf", ".glb")
 
@@ -313,29 +316,25 @@ def enclosed_volume(mesh: o3d.geometry.TriangleMesh) -> float:
 
 
 def save_mesh(mesh: o3d.geometry.TriangleMesh, path: str | Path) -> Path:
-    """Write ``mesh`` to ``path`` (.obj, .stl, .ply, .off, .gltf or .glb) atomically: a temporary file with the
-    same suffix in the same folder, then ``os.replace``.
+    """Write ``mesh`` to ``path`` (.obj, .stl, .ply, .off, .gltf or .glb) atomically
+    (:func:`~fluidsim.files.atomic_output`: a temporary file with the same suffix in the same folder,
+    renamed into place).
 
     Returns:
         The written path.
     Raises:
         ValueError: an unsupported suffix (nothing is written).
-        OSError: open3d could not write the file.
+        fluidsim.files.OutputError: open3d could not write the file (an OSError, exit code 4 of `fluidgs`).
     """
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise ValueError(f"{path}: unsupported mesh file type {path.suffix!r}; use one of {list(MESH_SUFFIXES)}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    # open3d picks the writer by suffix; the short pattern of fluidsim.output.temp_path (any legal output name works)
-    tmp = path.parent / f".fgs-{uuid.uuid4().hex[:8]}.tmp{path.suffix}"
-    try:
+    with atomic_output(path, path.suffix) as tmp:  # open3d picks the writer by suffix
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):  # OBJ cannot hold face normals
             written = o3d.io.write_triangle_mesh(str(tmp), mesh, write_vertex_normals=path.suffix.lower() != ".stl")
         if not written:
-            raise OSError(f"{path}: open3d could not write the mesh")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+            raise OSError("open3d could not write the mesh")
     return path
 
 
@@ -346,3 +345,13 @@ def write_ahmed(path: str | Path, slant_deg: float = 25.0, resolution: float = 0
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise ValueError(f"{path}: unsupported mesh file type {path.suffix!r}; use one of {list(MESH_SUFFIXES)}")
     return save_mesh(ahmed_body(slant_deg, resolution, stilts=stilts, up=up, scale=scale), path)
+
+
+def ahmed_surface_gaussians(count: int = 4000, sigma: float = 0.02, seed: int = 0):
+    """Gaussians on the Ahmed body surface (metres, Y-up): ``count`` Poisson-disk samples, isotropic ``sigma`` m,
+    opacity 0.9, coloured light grey; stand-ins for the trained asset (``fluidgs demo`` and ``bench score`` when
+    ``assets/ahmed_gaussians.ply`` is missing). Returns a :class:`recon.gaussians.GaussianSet`."""
+    o3d.utility.random.seed(seed)
+    pcd = ahmed_body(resolution=0.02).sample_points_poisson_disk(count)
+    pts = torch.tensor(np.asarray(pcd.points), dtype=torch.float32)
+    return GaussianSet.from_points(pts, torch.full((len(pts), 3), 0.8), scale=sigma, opacity=0.9)

@@ -550,6 +550,9 @@ def dataset_format(path) -> str:
     root = Path(path)
     if root.is_file() and root.name.startswith("transforms_") and root.suffix == ".json":
         root = root.parent
+    if root.is_file():
+        raise ValueError(f"{root}: a file, not a dataset folder; pass the folder that holds transforms_train.json "
+                         "or a COLMAP model (or its transforms_*.json file)")
     if not root.is_dir():
         raise ValueError(f"{root}: dataset folder does not exist")
     if (root / "transforms_train.json").is_file():
@@ -576,7 +579,23 @@ def load_dataset(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
         ValueError: the folder holds neither format (the message lists what was looked for).
     """
     root = Path(path)
-    if root.is_file():
+    if root.is_file() and root.name.startswith("transforms_") and root.suffix == ".json":
         root = root.parent
     loader = load_blender if dataset_format(root) == "blender" else load_colmap
     return loader(root, background=background, downscale=downscale, resolution=resolution)
+
+
+def count_train_views(path) -> int | None:
+    """The train (candidate) views of a dataset folder (or of the folder of a transforms_*.json given), counted from
+    its cameras without reading an image; None when the folder cannot be read that way (:func:`load_dataset` then
+    says what is wrong). COLMAP: every image but the test split (images 0, 8, 16, ...)."""
+    root = Path(path)
+    root = root.parent if root.is_file() else root
+    try:
+        if dataset_format(root) == "blender":
+            frames = json.loads((root / "transforms_train.json").read_text()).get("frames")
+            return len(frames) if isinstance(frames, list) else None
+        images = len(read_colmap_model(find_colmap_sparse(root)).images)
+        return images - math.ceil(images / COLMAP_TEST_EVERY)
+    except (ValueError, OSError, TypeError, AttributeError):
+        return None

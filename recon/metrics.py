@@ -180,7 +180,7 @@ def load_lpips(net: str = "alex", device: str | torch.device = "cpu") -> torch.n
     reason = lpips_unavailable_reason(net)
     if reason is not None:
         raise MetricUnavailable(f"LPIPS is unavailable: {reason}")
-    import lpips as lpips_package
+    import lpips as lpips_package  # noqa: PLC0415 - optional: LPIPS needs the lpips package
 
     return lpips_package.LPIPS(net=net, verbose=False).to(device).eval()
 

@@ -19,8 +19,8 @@ these per-pair quantities themselves, not only their sums:
   footprint rows are the pairs themselves), so one backward pass of the renderer's own compositing
   function yields every per-pair gradient at once: copy p only influences the pixel of pair p.
 
-The pair list and the compositing are those of :mod:`recon.render` (same skip and early-stop rules), so
-sums of these quantities reproduce the rendered image and opacity exactly (the tests check this).
+The pair list and the compositing are the renderer's (:mod:`recon._rasterize`: same skip and early-stop rules),
+so sums of these quantities reproduce the rendered image and opacity exactly (the tests check this).
 """
 
 from __future__ import annotations
@@ -29,10 +29,12 @@ from dataclasses import dataclass
 
 import torch
 
+from ._rasterize import Composite, build_pairs, transmittance
 from .camera import Camera
 from .gaussians import GaussianSet
 from .projection import Projection, project_gaussians
-from .render import PairList, _background_tensor, _Composite, _transmittance, build_pairs, gaussian_colors
+from .render import gaussian_colors
+from .render_types import PairList, background_tensor
 
 ATTRIBUTES = ("u", "v", "conic_a", "conic_b", "conic_c", "opacity", "red", "green", "blue")  # columns of a_g
 
@@ -103,7 +105,7 @@ def view_pairs(gaussians: GaussianSet, camera: Camera) -> ViewPairs:
     with torch.no_grad():
         g = gaussians.detach()
         _, pairs = _pairs_of(g, camera)
-        alpha, trans, live = _transmittance(pairs, camera.width * camera.height)
+        alpha, trans, live = transmittance(pairs, camera.width * camera.height)
         weights = torch.where(live, alpha * trans, torch.zeros_like(alpha))
     return ViewPairs(pixels=pairs.pixels, gaussians=pairs.gaussians, alpha=alpha, transmittance=trans, live=live,
                      weights=weights, width=camera.width, height=camera.height)
@@ -148,7 +150,7 @@ def pair_attribute_gradients(gaussians: GaussianSet, camera: Camera, background:
     if not isinstance(degree, int) or not 0 <= degree <= gaussians.sh_degree:
         raise ValueError(f"sh_degree must be an int in 0..{gaussians.sh_degree} (the stored degree), got {sh_degree!r}")
     g = gaussians.detach()
-    bg = _background_tensor(background, g.means)
+    bg = background_tensor(background, g.means)
     w, h = camera.width, camera.height
     with torch.no_grad():
         proj, pairs = _pairs_of(g, camera)
@@ -161,7 +163,7 @@ def pair_attribute_gradients(gaussians: GaussianSet, camera: Camera, background:
                         candidates=pairs.candidates)
     leaves = [t.index_select(0, gid).requires_grad_(True) for t in (proj.means2d, proj.conics, opacities, colors)]
     with torch.enable_grad():
-        image, _, _ = _Composite.apply(*leaves, proj.depths.index_select(0, gid), bg, per_pair, w * h)
+        image, _, _ = Composite.apply(*leaves, proj.depths.index_select(0, gid), bg, per_pair, w * h)
         grads = torch.autograd.grad(image.sum(), leaves)
     stacked = torch.cat([grads[0], grads[1], grads[2][:, None], grads[3]], -1)
     return PairGradients(pixels=pairs.pixels, gaussians=gid, grads=stacked, image=image.detach().reshape(h, w, 3))

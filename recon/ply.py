@@ -17,7 +17,7 @@ flattens). The SH degree is read from the number of ``f_rest`` properties: 0, 9,
 Reading accepts ``format binary_little_endian 1.0``, ``binary_big_endian 1.0`` and ``ascii 1.0``; scalar
 properties of any PLY type (char, uchar, short, ushort, int, uint, float, double, and their sized aliases),
 converted to float32; extra vertex properties are ignored, and so are elements after ``vertex``. Writing is
-always binary little-endian float32, atomically (a temporary file in the same folder, then ``os.replace``).
+always binary little-endian float32, atomically (:func:`fluidsim.files.write_bytes_atomic`).
 
 The ``.npz`` layout holds the five tensors of a GaussianSet under their field names, as float32 arrays::
 
@@ -48,13 +48,14 @@ from __future__ import annotations
 import io
 import os
 import re
-import uuid
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from fluidsim.files import write_bytes_atomic
 
 from .gaussians import GaussianSet, sh_coefficient_count
 
@@ -518,7 +519,7 @@ def __getattr__(name: str):
     resolved on first use instead of by an import at the top, which would be a cycle.
     """
     if name == "load_gaussians":
-        from .formats import load_gaussians
+        from .formats import load_gaussians  # noqa: PLC0415 - recon.formats imports this module
 
         return load_gaussians
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -551,17 +552,7 @@ def save_gaussians(gaussians: GaussianSet, path: str | Path) -> Path:
         np.savez(buffer, **{name: t.numpy() for name, t in zip(NPZ_KEYS, g.tensors(), strict=True)})
         payload = buffer.getvalue()
     path.parent.mkdir(parents=True, exist_ok=True)
-    # same folder, so os.replace is atomic; the short pattern of fluidsim.output.temp_path (recon does not import
-    # fluidsim), so that any output name the file system accepts has a temporary name it accepts too
-    tmp = path.parent / f".fgs-{uuid.uuid4().hex[:8]}.tmp"
-    try:
-        with open(tmp, "xb") as fh:
-            fh.write(payload)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return write_bytes_atomic(path, payload)
 
 
 def _ply_bytes(g: GaussianSet) -> bytes:

@@ -1,4 +1,4 @@
-"""Differentiable 3DGS rasterizer in pure torch (Kerbl et al. 2023, "3D Gaussian Splatting", Eqs. 1-3, 5).
+"""Differentiable 3DGS rendering: one function, two backends (Kerbl et al. 2023, "3D Gaussian Splatting", Eqs. 1-3, 5).
 
 A pixel's colour is front-to-back alpha compositing of the Gaussians covering it, sorted by view depth:
 
@@ -11,279 +11,36 @@ its transmittance below 1e-4 (that Gaussian is not composited). The accumulated 
 ``alpha = 1 - T_final`` and the depth map is ``sum_i alpha_i T_i z_i`` (not normalised by alpha).
 Colours come from SH (:mod:`recon.sh`), the projection from :mod:`recon.projection`.
 
-How the torch path is laid out (CPU-first; every per-pair array is a 1-D tensor, because on one CPU
-thread 1-D gathers and scatters are 10x faster than row gathers of [P, k] tensors):
+The modules of the renderer, none of which imports another for a type:
 
-1. Project (autograd, [N]-sized): means2d, conics, depths, radii, clipped footprint boxes.
-2. Build the sparse (pixel, Gaussian) pair list without gradient (:func:`build_pairs`): visible
-   Gaussians are sorted by depth, their 3-sigma boxes are expanded into rows (repeat_interleave /
-   arange arithmetic, int32), and each row into only the pixels where alpha >= 1/255: along a row
-   log alpha is a concave quadratic in dx, so those pixels form one interval, found from its roots.
-   The list comes out Gaussian-major in depth order; alpha is computed per pair from per-row
-   coefficients (one multiply-add chain and one exp), and one *stable* sort by pixel index yields
-   (pixel, depth) order. Trimming instead of generating and filtering the whole box halves the pairs
-   the CPU has to touch.
-3. Composite in a custom autograd function: log T is a segmented exclusive cumulative sum of
-   log(1 - alpha) (a global float64 cumsum minus each pixel's base), the early stop is the mask
-   T_i (1 - alpha_i) >= 1e-4, and weighted bincounts reduce weights to pixels. Its hand-written backward
-   uses the suffix sums S_i = sum_{j > i} w_j (f_j . g) + T_final (bg . g) (again a float64 cumsum),
-   dL/dalpha_i = T_i (f_i . g) - S_i / (1 - alpha_i), and reduces the conic and mean gradients per
-   footprint row through the moments sum dP, sum dP dx, sum dP dx^2 (dy is constant along a row).
-   Where alpha is clamped at 0.99 its gradient is zero (the true derivative; the reference CUDA code
-   passes the gradient straight through the clamp).
+- :mod:`recon.render_types`: :class:`RenderOutput`, :class:`PairList`, the alpha conventions and the
+  background check, shared by every backend;
+- :mod:`recon._rasterize`: the torch rasterizer, CPU-first (the sparse pair list :func:`build_pairs`, then
+  compositing with a hand-written backward; its docstring explains the layout);
+- :mod:`recon.render_gsplat`: gsplat's CUDA rasterizer behind the same function (``backend="gsplat"``);
+- this module: the input checks, the SH colours, :func:`render` and :func:`pair_statistics`.
 
 ``render_dense_reference`` in :mod:`recon.render_reference` is the slow twin (every pixel x every
-Gaussian, sequential in depth, autograd) that the tests compare against; ``backend="gsplat"``
-(:mod:`recon.render_gsplat`) runs gsplat's CUDA rasterizer behind the same function.
+Gaussian, sequential in depth, autograd) that the tests compare against. The names of
+:mod:`recon.render_types` and ``build_pairs`` stay importable from here.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import torch
 
+from ._rasterize import Composite, build_pairs, transmittance
 from .camera import Camera
 from .gaussians import GaussianSet
-from .projection import Projection, project_gaussians, view_directions
+from .projection import project_gaussians, view_directions
 from .render_gsplat import gsplat_available, render_gsplat
+from .render_types import ALPHA_MAX, ALPHA_MIN, T_MIN, PairList, RenderOutput, background_tensor
 from .sh import sh_to_color
 
-ALPHA_MAX = 0.99  # alpha clamp of the reference rasterizer
-ALPHA_MIN = 1.0 / 255.0  # pairs below this alpha are skipped
-T_MIN = 1e-4  # a pixel stops before the Gaussian that would bring its transmittance below this
+__all__ = ["ALPHA_MAX", "ALPHA_MIN", "BACKENDS", "T_MIN", "PairList", "RenderOutput", "build_pairs",
+           "gaussian_colors", "pair_statistics", "render"]
+
 BACKENDS = ("auto", "torch", "gsplat")
-
-
-@dataclass
-class RenderOutput:
-    """One rendered view.
-
-    Attributes:
-        image: [H, W, 3] colour composited over the background.
-        alpha: [H, W] accumulated opacity 1 - T_final.
-        depth: [H, W] alpha-weighted view depth sum_i w_i z_i (0 where empty; divide by alpha for the mean).
-        radii: [N] int32 screen-space radius in pixels, ceil(3 sigma_max); 0 when culled.
-        visible: [N] bool, radii > 0.
-        means2d: [N, 2] projected centres in pixels; when grad is enabled, a tensor whose ``.grad`` holds
-            the view-space positional gradient after backward (for adaptive density control).
-    """
-
-    image: torch.Tensor
-    alpha: torch.Tensor
-    depth: torch.Tensor
-    radii: torch.Tensor
-    visible: torch.Tensor
-    means2d: torch.Tensor
-
-
-@dataclass
-class PairList:
-    """The sparse (pixel, Gaussian) pairs of one view, sorted by pixel, then by depth.
-
-    Attributes:
-        pixels: [P] int32 pixel index y * W + x, ascending.
-        gaussians: [P] int32 Gaussian index of each pair.
-        rows: [P] int32 footprint row of each pair (index into ``row_gaussians`` / ``row_dy``).
-        dx: [P] pixel-centre x minus the projected mean's u, pixels.
-        alpha: [P] unclamped alpha o exp(power) where >= 1/255, else 0 (a skipped pair).
-        row_gaussians: [R] int32 Gaussian index of each footprint row.
-        row_dy: [R] pixel-centre y of the row minus the projected mean's v, pixels.
-        candidates: number of pairs in the footprint boxes before the alpha < 1/255 skip.
-    """
-
-    pixels: torch.Tensor
-    gaussians: torch.Tensor
-    rows: torch.Tensor
-    dx: torch.Tensor
-    alpha: torch.Tensor
-    row_gaussians: torch.Tensor
-    row_dy: torch.Tensor
-    candidates: int
-
-    @property
-    def num(self) -> int:
-        return int(self.pixels.numel())
-
-
-def _ranges(counts: torch.Tensor, total: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """For int32 segment lengths laid end to end: segment id [total] and offset within the segment (int32)."""
-    seg = torch.repeat_interleave(torch.arange(counts.numel(), dtype=torch.int32, device=counts.device), counts,
-                                  output_size=total)
-    starts = torch.cumsum(counts, 0, dtype=torch.int32) - counts
-    offset = torch.arange(total, dtype=torch.int32, device=counts.device) - starts.index_select(0, seg)
-    return seg, offset
-
-
-def build_pairs(proj: Projection, opacities: torch.Tensor, width: int, height: int) -> PairList:
-    """Expand the visible footprints into (pixel, Gaussian) pairs sorted by pixel, then depth.
-
-    Each footprint box is split into rows. Along a row (dy fixed) log alpha = qa dx^2 + qb dx + qc is a
-    concave quadratic, so the pixels with alpha >= 1/255 form one interval, found from its roots (in
-    float64, widened by 0.01 px); only those pixels are generated. Pairs that the widening let in with
-    alpha < 1/255 get alpha = 0, which skips them exactly as the reference does.
-
-    Args:
-        proj: the projection of the view (no gradient is taken here).
-        opacities: [N] opacities in (0, 1).
-        width, height: image size, pixels.
-    Returns:
-        :class:`PairList`.
-    """
-    with torch.no_grad():
-        means2d, conics, opacities = proj.means2d.detach(), proj.conics.detach(), opacities.detach()
-        ids = torch.nonzero(proj.radii > 0).flatten()
-        order = ids.index_select(0, torch.argsort(proj.depths.detach().index_select(0, ids), stable=True))
-        x0, y0, x1, y1 = proj.boxes.index_select(0, order).unbind(-1)
-        heights = y1 - y0 + 1
-        row_seg, row_off = _ranges(heights, int(heights.sum()))
-        row_gaussians = order.index_select(0, row_seg).to(torch.int32)
-        row_x0 = x0.index_select(0, row_seg)
-        row_y = y0.index_select(0, row_seg) + row_off
-        box_widths = (x1 - x0 + 1).index_select(0, row_seg)
-
-        u = means2d[:, 0].index_select(0, row_gaussians)
-        v = means2d[:, 1].index_select(0, row_gaussians)
-        row_dx0 = row_x0.to(u.dtype) + 0.5 - u
-        row_dy = row_y.to(v.dtype) + 0.5 - v
-        con = conics.index_select(0, row_gaussians)
-        qa = -0.5 * con[:, 0]
-        qb = -con[:, 1] * row_dy
-        qc = -0.5 * con[:, 2] * row_dy * row_dy + torch.log(opacities.index_select(0, row_gaussians))
-
-        # the interval of dx with log alpha >= log(1/255), then columns of the box inside it
-        qa64, qb64 = qa.to(torch.float64), qb.to(torch.float64)
-        disc = qb64 * qb64 - 4.0 * qa64 * (qc.to(torch.float64) - math.log(ALPHA_MIN))
-        center = -qb64 / (2.0 * qa64)
-        half = torch.sqrt(torch.clamp_min(disc, 0.0)) / (-2.0 * qa64) + 0.01
-        dx0 = row_dx0.to(torch.float64)
-        first = torch.clamp_min(torch.ceil(center - half - dx0), 0.0)
-        last = torch.minimum(torch.floor(center + half - dx0), (box_widths - 1).to(torch.float64))
-        counts = torch.where(disc >= 0.0, torch.clamp_min(last - first + 1.0, 0.0), 0.0).to(torch.int32)
-        first = first.to(torch.int32)
-
-        rows, cols = _ranges(counts, int(counts.sum()))
-        cols = cols + first.index_select(0, rows)
-        dx = row_dx0.index_select(0, rows) + cols.to(row_dx0.dtype)
-        alpha = torch.exp((qa.index_select(0, rows) * dx + qb.index_select(0, rows)) * dx + qc.index_select(0, rows))
-        alpha = torch.where(alpha >= ALPHA_MIN, alpha, torch.zeros_like(alpha))
-        pixels = (row_y * width + row_x0).index_select(0, rows) + cols
-        pixels, perm = torch.sort(pixels, stable=True)  # generation order is depth order within a pixel
-        rows = rows.index_select(0, perm)
-        return PairList(pixels=pixels, gaussians=row_gaussians.index_select(0, rows), rows=rows,
-                        dx=dx.index_select(0, perm), alpha=alpha.index_select(0, perm),
-                        row_gaussians=row_gaussians, row_dy=row_dy, candidates=int(box_widths.sum()))
-
-
-def _scatter_sum(index: torch.Tensor, values: torch.Tensor, size: int) -> torch.Tensor:
-    """out[k] = sum of values[i] with index[i] == k, [size] (weighted bincount: faster than index_add_ on CPU)."""
-    return torch.bincount(index, weights=values, minlength=size).to(values.dtype)
-
-
-def _transmittance(pairs: PairList, num_pixels: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Per pair: clamped alpha, exclusive transmittance T_i and the live mask (before the early stop).
-
-    (recon.pairs uses this too; keep the signature.)
-    """
-    alpha, trans, live, _ = _transmittance_and_ends(pairs, num_pixels)
-    return alpha, trans, live
-
-
-def _transmittance_and_ends(pairs: PairList, num_pixels: int):
-    """:func:`_transmittance` plus, per pixel, the index of its last pair (-1 when it has none)."""
-    alpha = pairs.alpha.clamp_max(ALPHA_MAX)
-    log1m = torch.log1p(-alpha.to(torch.float64))
-    csum = torch.cumsum(log1m, 0)
-    excl = csum - log1m
-    counts = torch.bincount(pairs.pixels, minlength=num_pixels)
-    ends = torch.cumsum(counts, 0) - 1
-    starts = ends + 1 - counts
-    base = excl.index_select(0, starts.clamp_max(max(pairs.num - 1, 0))) if pairs.num else excl.new_zeros(num_pixels)
-    log_t = excl - base.index_select(0, pairs.pixels)
-    live = (log_t + log1m) >= math.log(T_MIN)
-    return alpha, torch.exp(log_t).to(alpha.dtype), live, ends
-
-
-class _Composite(torch.autograd.Function):
-    """Front-to-back compositing of sorted pairs, with a hand-written backward (see the module docstring)."""
-
-    @staticmethod
-    def forward(ctx, means2d, conics, opacities, colors, depths, background, pairs: PairList, num_pixels: int):
-        alpha, trans, live, ends = _transmittance_and_ends(pairs, num_pixels)
-        weights = alpha * trans * live
-        pix, gid = pairs.pixels, pairs.gaussians
-        acc = _scatter_sum(pix, weights, num_pixels)
-        t_final = 1.0 - acc
-        channels = []
-        for k in range(3):
-            ck = colors[:, k].contiguous().index_select(0, gid)
-            channels.append(_scatter_sum(pix, weights * ck, num_pixels) + t_final * background[k])
-        image = torch.stack(channels, -1)
-        depth = _scatter_sum(pix, weights * depths.index_select(0, gid), num_pixels)
-        ctx.pairs = pairs
-        ctx.save_for_backward(conics, opacities, colors, depths, background, alpha, trans, weights, live, t_final,
-                              ends)
-        return image, acc, depth
-
-    @staticmethod
-    def backward(ctx, grad_image, grad_alpha, grad_depth):
-        conics, opacities, colors, depths, background, alpha, trans, weights, live, t_final, ends = ctx.saved_tensors
-        pairs: PairList = ctx.pairs
-        pix, gid, n = pairs.pixels, pairs.gaussians, colors.shape[0]
-        grad_image = grad_image.contiguous()
-        gd = grad_depth.index_select(0, pix)
-        dot = grad_alpha.index_select(0, pix) + depths.index_select(0, gid) * gd
-        gathered = []
-        for k in range(3):
-            gk = grad_image[:, k].contiguous().index_select(0, pix)
-            gathered.append(gk)
-            dot = dot + colors[:, k].contiguous().index_select(0, gid) * gk
-        # suffix sums S_i over the composited pairs after i in the same pixel, plus the background term
-        csum = torch.cumsum((weights * dot).to(torch.float64), 0)
-        total = csum.index_select(0, ends.clamp_min(0)) if pairs.num else csum.new_zeros(ends.numel())
-        total = total + (t_final * (grad_image @ background)).to(torch.float64)
-        suffix = total.index_select(0, pix) - csum
-        grad_pair_alpha = torch.where(live, trans * dot - (suffix / (1.0 - alpha.to(torch.float64))).to(dot.dtype),
-                                      torch.zeros_like(dot))
-        grad_colors = torch.stack([_scatter_sum(gid, weights * gk, n) for gk in gathered], -1)
-        grad_depths = _scatter_sum(gid, weights * gd, n)
-
-        # d alpha / d power = alpha below the clamp, 0 above it; moments per footprint row (dy is fixed there)
-        grad_power = torch.where(pairs.alpha < ALPHA_MAX, grad_pair_alpha * alpha, torch.zeros_like(alpha))
-        num_rows, rows, dx = pairs.row_dy.numel(), pairs.rows, pairs.dx
-        gdx = grad_power * dx
-        s0 = _scatter_sum(rows, grad_power, num_rows)
-        s1 = _scatter_sum(rows, gdx, num_rows)
-        s2 = _scatter_sum(rows, gdx * dx, num_rows)
-        rg, dy = pairs.row_gaussians, pairs.row_dy
-        ca, cb, cc = (conics[:, k].contiguous().index_select(0, rg) for k in range(3))
-        # power = -1/2 (A dx^2 + C dy^2) - B dx dy with dx = px - u, dy = py - v
-        row_grads = (ca * s1 + cb * dy * s0, cb * s1 + cc * dy * s0, -0.5 * s2, -dy * s1, -0.5 * dy * dy * s0, s0)
-        per_gaussian = [_scatter_sum(rg, g, n) for g in row_grads]
-        grad_means2d = torch.stack(per_gaussian[:2], -1)
-        grad_conics = torch.stack(per_gaussian[2:5], -1)
-        grad_opacities = per_gaussian[5] / opacities.clamp_min(torch.finfo(opacities.dtype).tiny)
-        grad_background = (grad_image * t_final[:, None]).sum(0)
-        return grad_means2d, grad_conics, grad_opacities, grad_colors, grad_depths, grad_background, None, None
-
-
-def _background_tensor(background, like: torch.Tensor) -> torch.Tensor:
-    if background is None:
-        return torch.zeros(3, dtype=like.dtype, device=like.device)
-    if isinstance(background, (int, float)):
-        return torch.full((3,), float(background), dtype=like.dtype, device=like.device)
-    if not isinstance(background, torch.Tensor):
-        raise ValueError(f"background must be a [3] tensor, a float grey level or None, "
-                         f"got {type(background).__name__}")
-    if tuple(background.shape) != (3,):
-        raise ValueError(f"background must have shape (3,), got {tuple(background.shape)}; pass one RGB colour")
-    if background.device != like.device:
-        raise ValueError(f"background is on {background.device} but the Gaussians are on {like.device}; "
-                         f"move it with .to({str(like.device)!r})")
-    if not torch.isfinite(background).all():
-        raise ValueError("background has NaN or Inf values")
-    return background.to(like.dtype)
 
 
 def _check_inputs(gaussians: GaussianSet, camera: Camera, sh_degree: int | None, backend: str) -> int:
@@ -323,7 +80,7 @@ def pair_statistics(gaussians: GaussianSet, camera: Camera) -> dict[str, int]:
     with torch.no_grad():
         proj = project_gaussians(gaussians, camera)
         pairs = build_pairs(proj, gaussians.opacities, camera.width, camera.height)
-        _, _, live = _transmittance(pairs, camera.width * camera.height)
+        _, _, live = transmittance(pairs, camera.width * camera.height)
         kept = pairs.alpha > 0
         stopped = kept & ~live
         stopped_pixels = torch.unique(pairs.pixels[stopped]).numel()
@@ -355,7 +112,7 @@ def render(gaussians: GaussianSet, camera: Camera, background: torch.Tensor | fl
         (torch.Size([32, 32, 3]), True)
     """
     degree = _check_inputs(gaussians, camera, sh_degree, backend)
-    bg = _background_tensor(background, gaussians.means)
+    bg = background_tensor(background, gaussians.means)
     if backend == "auto":
         backend = "gsplat" if gaussians.device.type == "cuda" and gsplat_available() else "torch"
     if backend == "gsplat":
@@ -369,6 +126,6 @@ def render(gaussians: GaussianSet, camera: Camera, background: torch.Tensor | fl
     colors = gaussian_colors(gaussians, camera, degree)
     w, h = camera.width, camera.height
     pairs = build_pairs(proj, opacities, w, h)
-    image, alpha, depth = _Composite.apply(means2d, proj.conics, opacities, colors, proj.depths, bg, pairs, w * h)
+    image, alpha, depth = Composite.apply(means2d, proj.conics, opacities, colors, proj.depths, bg, pairs, w * h)
     return RenderOutput(image=image.reshape(h, w, 3), alpha=alpha.reshape(h, w), depth=depth.reshape(h, w),
                         radii=proj.radii, visible=proj.radii > 0, means2d=means2d)

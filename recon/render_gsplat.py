@@ -19,6 +19,7 @@ import torch
 from .camera import Camera
 from .gaussians import GaussianSet
 from .projection import NEAR_PLANE
+from .render_types import RenderOutput
 
 
 def gsplat_available() -> bool:
@@ -35,18 +36,16 @@ def render_gsplat(gaussians: GaussianSet, camera: Camera, background: torch.Tens
         background: [3] RGB on the Gaussians' device.
         sh_degree: SH bands to use (0 .. stored degree).
     Returns:
-        :class:`recon.render.RenderOutput` (float32 maps; ``means2d`` is a leaf whose ``.grad`` is filled by
+        :class:`recon.render_types.RenderOutput` (float32 maps; ``means2d`` is a leaf whose ``.grad`` is filled by
         a hook on gsplat's screen-space means during backward).
     """
-    from .render import RenderOutput
-
     if not gsplat_available():
         raise ValueError("backend='gsplat' needs the gsplat package and a CUDA device; install gsplat "
                          "(pip install gsplat) on a CUDA machine or use backend='torch'")
     if gaussians.device.type != "cuda":
         raise ValueError(f"backend='gsplat' needs the Gaussians on a CUDA device, they are on {gaussians.device}; "
                          "move them with .to('cuda') or use backend='torch'")
-    from gsplat import rasterization
+    from gsplat import rasterization  # noqa: PLC0415 - optional: gsplat, CUDA only
 
     dev, f32 = gaussians.device, torch.float32
     k = (sh_degree + 1) ** 2

@@ -16,7 +16,8 @@ import torch
 from .camera import Camera
 from .gaussians import GaussianSet, quaternion_to_rotation
 from .projection import DILATION, EXTENT_SIGMAS, GUARD_BAND, NEAR_PLANE, Projection
-from .render import ALPHA_MAX, ALPHA_MIN, T_MIN, RenderOutput, gaussian_colors
+from .render import gaussian_colors
+from .render_types import ALPHA_MAX, ALPHA_MIN, T_MIN, RenderOutput
 
 
 def project_gaussians_reference(gaussians: GaussianSet, camera: Camera) -> Projection:

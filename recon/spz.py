@@ -227,7 +227,7 @@ def _read_ngsp(data: bytes, source: str) -> tuple[tuple[int, ...], dict[str, np.
 def _unzstd(frame: bytes, size: int, name: str, source: str) -> bytes:
     """Exactly ``size`` bytes from one zstd frame (reads at most ``size + 1``, whatever the frame claims)."""
     try:  # a dependency of the project (setup.cfg), imported here so that the other formats never need it
-        import zstandard
+        import zstandard  # noqa: PLC0415 - only version-4 files need it
     except ImportError:
         raise ValueError(f"{source}: a version-4 .spz is zstd-compressed and the 'zstandard' package is missing; "
                          f"install the project again (pip install -e .) or run 'pip install zstandard'") from None

@@ -12,6 +12,7 @@ import pytest
 from fluidsim import DFSPHSolver, SolverConfig
 from fluidsim.scene import lattice_in_box
 from fluidsim.sources import sphere_particles, wall_particles
+from nbv import aggregate
 from nbv.aggregate import (
     _ENTRY_SLACK,
     ENTRIES_PER_GAUSSIAN,
@@ -22,7 +23,9 @@ from nbv.aggregate import (
 )
 from nbv.aggregate_kernels import VALUE_LIMIT, VALUE_SCALE
 
-ROOT = Path(__file__).resolve().parent.parent
+from helpers.paths import REPO, TESTS
+
+HERE = Path(__file__).resolve().parent  # the subprocess imports this module from here
 DOMAIN_MIN = np.array([-1.2, -1.0, -1.1])
 DOMAIN_MAX = np.array([1.1, 1.2, 1.0])
 
@@ -297,8 +300,11 @@ def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, priva
         assert check_against_twin(acc, centers, reach, steps).max() > 50
 
 
-def test_staged_steps_equal_step_by_step_accumulation():
-    """Steps staged ``batch_steps`` at a time give the per-step result; a read accumulates what is staged."""
+@pytest.mark.parametrize("interleave_above", [aggregate.INTERLEAVE_ABOVE_BYTES, 0])
+def test_staged_steps_equal_step_by_step_accumulation(monkeypatch, interleave_above):
+    """Steps staged ``batch_steps`` at a time give the per-step result, visited flat or interleaved (the working
+    set of large sets); a read accumulates what is staged."""
+    monkeypatch.setattr(aggregate, "INTERLEAVE_ABOVE_BYTES", interleave_above)
     solver = tiny_probe_solver()
     rng = np.random.default_rng(5)
     centers = np.concatenate([rng.normal(0.0, 0.2, (80, 3)), [[0.5, 0.0, 0.0]]])
@@ -306,7 +312,7 @@ def test_staged_steps_equal_step_by_step_accumulation():
     args = (centers, reach, solver.domain_min, solver.domain_max)
     batched = GaussianAccumulator(*args, batch_steps=3, track_distinct=True, max_fluid=solver.fluid.capacity)
     single = GaussianAccumulator(*args, batch_steps=1, track_distinct=True, max_fluid=solver.fluid.capacity)
-    assert batched.batch_steps == 3
+    assert batched.batch_steps == 3 and batched._interleave == (interleave_above == 0)
     unstaged = GaussianAccumulator(*args, batch_steps=3, max_fluid=solver.fluid.capacity)
     batched.serial_below = 0  # stage this small probe too (probes under SERIAL_BELOW particles are not staged)
     for step in range(5):
@@ -534,8 +540,8 @@ import json, sys
 import numpy as np
 import taichi as ti
 ti.init(arch=ti.cpu, cpu_max_num_threads=int(sys.argv[1]), default_fp=ti.f32, offline_cache=True, log_level=ti.ERROR)
-sys.path.insert(0, sys.argv[2])
-from tests.test_aggregate import multi_level_set, near_surface_steps, DOMAIN_MIN, DOMAIN_MAX
+sys.path[:0] = sys.argv[2:4]  # this test module's folder, and tests/ (for helpers)
+from test_aggregate import multi_level_set, near_surface_steps, DOMAIN_MIN, DOMAIN_MAX
 from nbv.aggregate import GaussianAccumulator
 centers, reach = multi_level_set(2000, seed=51)
 steps = near_surface_steps(np.random.default_rng(52), centers, 3, 6000, 8000)
@@ -558,8 +564,8 @@ def test_results_are_the_same_bits_on_any_thread_count():
     sums, the same counts and distinct counts (bit matrix and hash set)."""
     runs = []
     for threads in (1, 2, 3):
-        out = subprocess.run([sys.executable, "-c", THREADS_SCRIPT, str(threads), str(ROOT)], capture_output=True,
-                             text=True, cwd=ROOT, timeout=300, check=True)
+        out = subprocess.run([sys.executable, "-c", THREADS_SCRIPT, str(threads), str(HERE), str(TESTS)],
+                             capture_output=True, text=True, cwd=REPO, timeout=300, check=True)
         runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
     assert [[r["rows"] for r in run] for run in runs] == [[1, 1, 1], [2, 2, 2], [3, 3, 3]]
     assert [r["storage"] for r in runs[0]] == ["bits", "hash", "none"]
@@ -609,7 +615,7 @@ def test_jittered_copies_make_a_denser_set_of_the_same_object():
     each Gaussian's own axes (a flat Gaussian's copies stay in its plane), everything else kept."""
     import torch
 
-    from apps.bench_score import jittered_copies
+    from nbv.dense_sets import jittered_copies
     from recon.gaussians import GaussianSet, quaternion_to_rotation
 
     rng = np.random.default_rng(71)

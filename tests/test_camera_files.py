@@ -1,5 +1,5 @@
 """Tests for recon.datasets.load_cameras, the one reader of Blender / NeRF cameras files (used by
-``fluidgs score`` / ``critical`` / ``demo`` through apps.score.load_cameras and by make-assets): the same
+``fluidgs score`` / ``critical`` / ``demo`` directly and by make-assets): the same
 cameras as load_blender, the --res scaling of the former score reader, the image-size fallbacks, and a
 ValueError naming the file, the frame (index and file_path) and the key for every malformed entry."""
 
@@ -133,16 +133,15 @@ def test_file_level_errors(tmp_path):
 
 def test_apps_readers_are_this_reader(tmp_path):
     from apps.make_assets import cameras_json, read_cameras_json
-    from apps.score import load_cameras as score_load_cameras
 
     cams = random_sphere(4, 6.0, 16, 16, math.radians(50), seed=3)
     path = _write(tmp_path / "ahmed_cameras.json", cameras_json(cams, math.radians(50)))
-    for read in (read_cameras_json(path), score_load_cameras(path), load_cameras(path)):
+    for read in (read_cameras_json(path), load_cameras(path)):
         assert [c.name for c in read] == [c.name for c in cams]
         for a, b in zip(read, cams, strict=True):
             torch.testing.assert_close(a.world_to_camera, b.world_to_camera, atol=1e-12, rtol=0)
             assert (a.width, a.height, a.fx, a.fy, a.cx, a.cy) == pytest.approx((b.width, b.height, b.fx, b.fy,
                                                                                  b.cx, b.cy))
-    assert [c.width for c in score_load_cameras(path, 8)] == [8] * 4
+    assert [c.width for c in load_cameras(path, 8)] == [8] * 4
     with pytest.raises(ValueError, match=r"frame 1 \(file_path './r_7'\): 'transform_matrix' is singular"):
-        score_load_cameras(_file(tmp_path, frames=_bad([[0] * 4, [0] * 4, [0, 0, 0, 4], [0, 0, 0, 1]])))
+        load_cameras(_file(tmp_path, frames=_bad([[0] * 4, [0] * 4, [0, 0, 0, 4], [0, 0, 0, 1]])))

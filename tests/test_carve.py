@@ -6,12 +6,13 @@ import math
 import numpy as np
 import pytest
 import torch
-from test_thin_shell import SPACING, flat_gaussians, sphere_shell  # the shell helpers
 
 from nbv.carve import carve_outside, seen_empty, surface_depths
 from nbv.solidify import SceneTransform, SolidifyConfig, gaussians_to_solid
 from recon.camera import Camera
 from recon.render import render
+
+from helpers.shells import SPACING, flat_gaussians, sphere_shell
 
 
 def ring_cameras(n: int, radius: float = 3.0, heights=(0.0,), size: int = 96) -> list[Camera]:

@@ -46,8 +46,9 @@ from recon.camera import Camera
 from recon.gaussians import GaussianSet
 from recon.ply import load_gaussians, save_gaussians
 
+from helpers.paths import REPO as ROOT
+
 FAST = ["--particle-radius", "0.08", "--steps", "20", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _sphere(n: int = 300) -> GaussianSet:

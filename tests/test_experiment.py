@@ -5,7 +5,6 @@ import importlib.util
 import json
 import math
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -16,7 +15,8 @@ from nbv.evaluate import EvalConfig, evaluate_run, sample_mesh_surface
 from nbv.experiment import build_tables, mean_std
 from nbv.physics import PhysicsConfig
 
-TORUS = Path(__file__).resolve().parents[1] / "assets" / "torus.obj"
+from helpers.paths import TORUS
+
 COARSE = {"particle_radius": 0.08, "steps": 20, "dt": 0.004, "directions": ["-x", "+z"]}
 TINY_ACTIVE = {"budget": 3, "iterations_per_view": 2, "total_iterations": 40, "resolution": 16, "backend": "torch",
                "train": {"init_points": 150, "sh_degree": 0, "max_gaussians": 300, "init_opacity": 0.5,

@@ -1,6 +1,6 @@
 """Shared splat formats: compressed .ply, .spz (v2-v4), .splat and the content-based dispatch (recon.formats).
 
-Round trips through encoders written from each format's definition (tests/format_encoders.py) hold within the
+Round trips through encoders written from each format's definition (tests/helpers/format_encoders.py) hold within the
 format's quantisation; single records written byte by byte decode to the values the definition gives; bad files
 raise ValueError naming the file, before any large allocation; the real capture exported both ways decodes to the
 same Gaussians.
@@ -17,12 +17,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from format_encoders import encode_compressed_ply, encode_splat, encode_spz
 
 from recon import formats, ply
 from recon.gaussians import SH_C0, GaussianSet
 from recon.sh import eval_sh
 from recon.spz import RUB_TO_RDF_SH_SIGNS
+
+from helpers.format_encoders import encode_compressed_ply, encode_splat, encode_spz
+from helpers.paths import BIKER_COMPRESSED_PLY, BIKER_SPZ, REAL_SPLATS
 
 SQRT2 = math.sqrt(2.0)
 
@@ -444,13 +446,7 @@ def test_garbage_npz_is_never_called_pickled(tmp_path):
 
 # ---- the real capture (measured data, skipped when absent) ---------------------------------------------------
 def _real_splats() -> Path | None:
-    here = Path(__file__).resolve().parent.parent
-    candidates = [os.environ.get("FLUIDGS_REAL_SPLATS"), here / "shared" / "real-splats",
-                  here.parent / "shared" / "real-splats", "/work/shared/real-splats"]
-    for c in candidates:
-        if c and (Path(c) / "biker.spz").is_file() and (Path(c) / "biker.compressed.ply").is_file():
-            return Path(c)
-    return None
+    return REAL_SPLATS if BIKER_SPZ.is_file() and BIKER_COMPRESSED_PLY.is_file() else None
 
 
 def test_real_capture_decodes_the_same_from_both_formats():

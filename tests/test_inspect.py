@@ -12,7 +12,8 @@ from apps.cli import main
 from recon.gaussians import GaussianSet
 from recon.ply import save_gaussians
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "real-splats" / "biker.compressed.ply"
+from helpers.paths import BIKER_COMPRESSED_PLY as REAL
+
 KEYS = ("format", "count", "sh_degree", "bbox_min", "bbox_max", "robust_min", "robust_max", "up",
         "scale_m_per_unit", "solid_particles")
 

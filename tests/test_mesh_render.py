@@ -30,7 +30,8 @@ from recon.mesh_render import (
     triangle_normals,
 )
 
-TORUS = "assets/torus.obj"
+from helpers.paths import TORUS
+
 SMALL = MeshDatasetConfig(n_train=6, n_test=3, resolution=56, seed=1)
 
 

@@ -14,10 +14,9 @@ import pytest
 import torch
 
 from apps import cli
-from apps.active import parse_ints
+from apps.options import index_list as parse_ints
 from apps.render_frames import output_is_video
 from apps.runtime import init_taichi
-from apps.score import parse_candidates
 from fluidsim import memory
 from fluidsim.scene import SceneError, lattice_counts, lattice_in_box, parse_scene
 from fluidsim.simulation import build_solver
@@ -32,10 +31,12 @@ from nbv.solidify import (
     estimate_lattice_points,
     gaussians_to_solid,
 )
+from nbv.view_scoring import parse_candidates
 from recon.gaussians import GaussianSet, concat
 from recon.ply import save_gaussians
 
-TORUS = os.path.join(os.path.dirname(__file__), "..", "assets", "torus.obj")
+from helpers.paths import TORUS
+
 COARSE = dict(particle_radius=0.08, steps=5, dt=0.004, empty_reference=False, directions=("-x",))
 
 
@@ -120,9 +121,12 @@ def test_scene_counts_match_what_the_solver_builds(tmp_path):
 
 
 def test_mesh_solid_estimate_is_an_upper_bound(tmp_path):
-    spacing = 0.1
+    spacing = 0.1  # the scene's particle_radius 0.05
+    empty = memory.estimate_scene_memory(parse_scene(_scene(), tmp_path))
     for fill in (False, True):
-        count, sampling = memory._mesh_counts(os.path.abspath(TORUS), spacing, fill)
+        scene = parse_scene(_scene(solids=[{"mesh": str(TORUS), "fill": fill}]), tmp_path)
+        est = memory.estimate_scene_memory(scene)
+        count, sampling = est.solid_particles - empty.solid_particles, est.sampling_bytes - empty.sampling_bytes
         actual = len(mesh_particles(TORUS, spacing, fill))
         assert actual <= count < 3 * actual and sampling > 0
 
@@ -165,9 +169,14 @@ def test_a_far_opaque_speck_is_named_with_crop():
     cfg = PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=2 * near / 2**30)
     with pytest.raises(ValueError, match="Gaussian 300 .*centre \\(60, 0, 0\\).*--crop"):
         physics.check_memory(far, cfg)
-    # without a dominant Gaussian the advice is the radius that fits
+    # without a dominant Gaussian the advice is the radius that fits (the fluid's bytes shrink with it, the
+    # Gaussians' do not), or, when the Gaussians alone do not fit, cropping them
+    parts = physics.estimate_memory(sphere, PhysicsConfig(**COARSE, scale=1.0))
     with pytest.raises(ValueError, match="particle radius of about"):
-        physics.check_memory(sphere, PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=near / 2 / 2**30))
+        physics.check_memory(sphere, PhysicsConfig(**COARSE, scale=1.0,
+                                                   max_memory_gb=(near - parts["probe_bytes"] / 2) / 2**30))
+    with pytest.raises(ValueError, match="Gaussians alone need about .*cannot help: crop them"):
+        physics.check_memory(sphere, PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=near / 4 / 2**30))
 
 
 def test_others_box_matches_brute_force():
@@ -175,7 +184,7 @@ def test_others_box_matches_brute_force():
     lo = rng.normal(size=(9, 3))
     hi = lo + rng.uniform(0.1, 2.0, (9, 3))
     lo[4, 1] = lo[:, 1].min()  # a tie on one axis
-    olo, ohi = floaters._others_box(lo, hi)
+    olo, ohi = floaters.others_box(lo, hi)
     for i in range(9):
         rest = np.delete(np.arange(9), i)
         assert np.array_equal(olo[i], lo[rest].min(0)) and np.array_equal(ohi[i], hi[rest].max(0))
@@ -335,8 +344,8 @@ def test_render_frames_refuses_avi_and_writes_pngs_with_png(tmp_path, caplog):
 def test_render_dataset_creates_the_parents(tmp_path, caplog):
     out = tmp_path / "a" / "b"
     args = ["--train", "2", "--test", "1", "--res", "16", "--supersample", "1", "--no-progress"]
-    assert cli.main(["render-dataset", TORUS, "-o", str(out), *args]) == 0
+    assert cli.main(["render-dataset", str(TORUS), "-o", str(out), *args]) == 0
     assert (out / "transforms_train.json").is_file()
     (tmp_path / "file").write_text("x")
-    assert cli.main(["render-dataset", TORUS, "-o", str(tmp_path / "file" / "c" / "d"), *args]) == cli.EXIT_OUTPUT
+    assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "file" / "c" / "d"), *args]) == cli.EXIT_OUTPUT
     assert "is a file" in _errors(caplog)

@@ -111,6 +111,8 @@ def test_bench_score_prints_share(scene, capsys):
                      "20", "--directions=-x"]) == 0
     text = capsys.readouterr().out
     assert "aggregation share of the step time" in text and "fluid particles" in text
+    assert "view ranking at r = 0.08 m x 20 steps: NOT converged (needs >= 750 steps)" in text
+    assert "one physics pick at this setting costs" in text
 
 
 def test_bad_inputs_fail_early(scene, tmp_path, caplog):

@@ -14,12 +14,12 @@ import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import h5py
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers.paths import REPO as ROOT
+
 README = ROOT / "README.md"
 DOCS = sorted((ROOT / "docs").glob("*.md"))
 PACKAGES = ("recon", "nbv", "fluidsim", "viz")

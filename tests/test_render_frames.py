@@ -436,17 +436,18 @@ def test_viz_frames_needs_neither_taichi_nor_torch():
     import subprocess
     import sys
 
-    code = ("import sys, viz.frames, viz.video, viz.plots, viz.atomic; "
+    code = ("import sys, viz.frames, viz.video, viz.plots, fluidsim.files; "
             "print(sorted(m for m in ('taichi', 'torch') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 
 
-def test_viz_temp_names_follow_fluidsim_output():
+def test_viz_and_fluidsim_write_through_the_one_atomic_module():
+    import fluidsim.files as fgsio_files
     from fluidsim import output
-    from viz import atomic
+    from viz import frames, plots, video
 
-    assert atomic.TEMP_PREFIX == output.TEMP_PREFIX
-    a, b = atomic.temp_path("/x/out.mp4", ".mp4"), output.temp_path("/x/out.mp4", ".mp4")
-    assert a.parent == b.parent and len(a.name) == len(b.name) and a.name.startswith(output.TEMP_PREFIX)
-    assert a.name.endswith(".tmp.mp4") and b.name.endswith(".tmp.mp4")
+    assert video.atomic_output is output.atomic_output is fgsio_files.atomic_output
+    assert frames.write_bytes_atomic is plots.write_bytes_atomic is fgsio_files.write_bytes_atomic
+    a = fgsio_files.temp_path("/x/out.mp4", ".mp4")
+    assert str(a.parent) == "/x" and a.name.startswith(".fgs-") and a.name.endswith(".tmp.mp4") and len(a.name) == 21

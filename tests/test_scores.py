@@ -240,7 +240,7 @@ def test_score_views_renders_only_the_top_views(tmp_path):
     """`fluidgs score` scores from the projection and renders PNGs of the best --png-top views only."""
     from types import SimpleNamespace
 
-    from apps.score import score_views
+    from nbv.view_scoring import score_views
 
     g, cams, metric = _scene(200, seed=5)
     result = SimpleNamespace(divergence=metric.numpy())

@@ -358,14 +358,14 @@ def test_train_rejects_bad_views(tiny_scene):
 
 def test_train_cli_smoke(tmp_path):
     import json
-    from pathlib import Path
 
     from apps.cli import main
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
     from recon.ply import load_gaussians
 
-    torus = Path(__file__).resolve().parents[1] / "assets" / "torus.obj"
-    data = render_mesh_dataset(torus, tmp_path / "ds", MeshDatasetConfig(n_train=4, n_test=2, resolution=16,
+    from helpers.paths import TORUS
+
+    data = render_mesh_dataset(TORUS, tmp_path / "ds", MeshDatasetConfig(n_train=4, n_test=2, resolution=16,
                                                                          supersample=1), progress=False)
     out = tmp_path / "g.ply"
     assert main(["train", str(data), "-o", str(out), "--iters", "20", "--res", "16", "--init-points", "300",

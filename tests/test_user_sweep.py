@@ -12,11 +12,13 @@ import warnings
 import numpy as np
 import pytest
 import torch
-from format_encoders import encode_compressed_ply, encode_splat, encode_spz
 
 from recon import formats
 from recon.gaussians import SH_C0, GaussianSet
 from recon.ply import ply_property_names, save_gaussians
+
+from helpers.format_encoders import encode_compressed_ply, encode_splat, encode_spz
+from helpers.paths import REPO
 
 
 def _set(n: int, degree: int, seed: int = 0) -> GaussianSet:
@@ -200,7 +202,6 @@ def test_ctrl_c_while_the_cli_loads_is_one_line(tmp_path):
     """Ctrl-C during `from apps.cli import main` (importing torch/Taichi, seconds): exit 130, no traceback."""
     import subprocess
     import sys
-    from pathlib import Path
 
     code = ("import sys\n"
             "class Stop:\n"
@@ -209,7 +210,6 @@ def test_ctrl_c_while_the_cli_loads_is_one_line(tmp_path):
             "            raise KeyboardInterrupt\n"
             "sys.meta_path.insert(0, Stop())\n"
             "from apps.cli import main\n")
-    root = Path(__file__).resolve().parents[1]
-    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert done.returncode == 130, done.stderr
     assert "Traceback" not in done.stderr and "interrupted" in done.stderr, done.stderr

@@ -37,7 +37,8 @@ from viz.colors import color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data
 from viz.splats import splat_looks
 
-ROOT = Path(__file__).resolve().parent.parent
+from helpers.paths import REPO as ROOT
+
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 EVERY = 5
 FOV = math.radians(50)

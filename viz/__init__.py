@@ -6,7 +6,7 @@ The viewer shows a RESULT.h5 of `fluidgs simulate` against the Gaussians it was 
 the solid particles, one probe's fluid replayed over time (recorded with ``--record-probe``, coloured by D_i of
 paper Eq. 1 or by speed), the candidate cameras coloured by their view score S(T) (paper Eq. 4) with their rank,
 and the probes' leak counts. It reads files only (h5py, JSON, the Gaussian formats of :mod:`recon.formats`):
-no Taichi, never a simulation.
+no Taichi, never a simulation. Every file is written atomically through :mod:`fluidsim.files`.
 
 =================  ==========================================  ========================================
 module             what                                        main entry
@@ -19,7 +19,6 @@ module             what                                        main entry
 :mod:`.frames`     OUT.h5 as orthographic depth-sorted dots    :func:`render_frames`, :class:`FrameStyle`
 :mod:`.video`      H.264 MP4 (yuv420p, faststart), atomic      :func:`write_mp4`, :func:`probe_video`
 :mod:`.plots`      sweep plot, bar charts (matplotlib, Agg)    :func:`plot_sweep`, :func:`bar_chart`
-:mod:`.atomic`     temporary name + rename (no Taichi)         :func:`atomic_output`
 =================  ==========================================  ========================================
 """
 

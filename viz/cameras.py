@@ -123,7 +123,7 @@ def candidate_views(cameras: str | Path, scene_to_sim: np.ndarray, scores: dict 
         ValueError: a malformed cameras file, or scores of other cameras (an index past the file's cameras, or a
             name that differs).
     """
-    from recon.datasets import load_cameras  # torch: imported here so that viz.cameras stays light
+    from recon.datasets import load_cameras  # noqa: PLC0415 - torch: imported here so that viz.cameras stays light
 
     cams = load_cameras(cameras)
     s, rot, t = split_similarity(scene_to_sim, where)

@@ -21,9 +21,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from fluidsim.directions import DIRECTIONS  # the names only: no Taichi (fluidsim's package init is lazy)
+
 log = logging.getLogger(__name__)
 
-DIRECTIONS = ("-x", "+x", "-z", "+z", "-y")
 # simulate's defaults: only settings that differ from them are written into a suggested command
 _DEFAULTS = {"particle_radius": 0.025, "steps": 750, "dt": 0.002, "speed": 3.0, "viscosity": 10.0,
              "accumulate_every": 1, "opacity_threshold": 0.3, "up": "+y", "scale": "auto"}

@@ -30,7 +30,7 @@ values above vmax take the top colour.
 
 Output. An ``.mp4`` is H.264 in yuv420p with the index at the front, which web browsers play
 (:func:`viz.video.write_mp4`; an odd frame size is padded by one edge pixel); otherwise a folder of PNG frames.
-Every file is written atomically (:mod:`viz.atomic`). This module never imports Taichi or torch; the command
+Every file is written atomically (:mod:`fluidsim.files`). This module never imports Taichi or torch; the command
 line is ``fluidgs render-frames`` (:mod:`apps.render_frames`).
 
 Example:
@@ -53,7 +53,8 @@ import h5py
 import numpy as np
 from tqdm import tqdm
 
-from .atomic import write_bytes_atomic
+from fluidsim.files import write_bytes_atomic
+
 from .colors import TURBO_BGR
 from .video import check_encoder, write_mp4
 

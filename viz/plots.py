@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from matplotlib.ticker import NullFormatter
 
-from .atomic import write_bytes_atomic
+from fluidsim.files import write_bytes_atomic
 
 DPI = 100
 DBAR_LABEL = "D-bar (m\N{SUPERSCRIPT FOUR}/s)"

@@ -91,8 +91,8 @@ def splat_looks(path: str | Path | None, data: ViewData) -> SplatLooks:
                     "centres and covariances at opacity %.1f, coloured by D_g only; pass --gaussians G.ply for their "
                     "own colours and opacities", data.source, DEFAULT_OPACITY)
         return SplatLooks(rgb=None, opacity=np.full(data.num_gaussians, DEFAULT_OPACITY, np.float32), source="")
-    from recon.formats import SUPPORTED, load_gaussians
-    from recon.gaussians import sh0_to_rgb
+    from recon.formats import SUPPORTED, load_gaussians  # noqa: PLC0415 - torch, only when a splat file is read
+    from recon.gaussians import sh0_to_rgb  # noqa: PLC0415 - torch, as above
 
     if not file.exists():
         raise ValueError(f"--gaussians {file} does not exist; pass the Gaussian file of {data.path} ({SUPPORTED})")

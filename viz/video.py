@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_output
+from fluidsim.files import OutputError, atomic_output
 
 logger = logging.getLogger(__name__)
 
@@ -51,7 +51,7 @@ def check_encoder(path: str | os.PathLike) -> Path:
     """The FFmpeg executable that :func:`write_mp4` runs (the one in the ``imageio-ffmpeg`` wheel, or
     ``IMAGEIO_FFMPEG_EXE``); OSError naming ``path`` when there is none, so a render fails before its first frame."""
     try:
-        import imageio_ffmpeg
+        import imageio_ffmpeg  # noqa: PLC0415 - loaded only when a video is written or read (~0.1 s)
 
         return Path(imageio_ffmpeg.get_ffmpeg_exe())
     except (ImportError, RuntimeError) as exc:
@@ -88,9 +88,10 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: float 
 
     Raises:
         ValueError: no frames, frames of the wrong shape or dtype or of changing size, bad fps or crf.
-        OSError: FFmpeg is missing or fails, or the file cannot be written (the message names ``path``).
+        fluidsim.files.OutputError: (an OSError, exit code 4) FFmpeg is missing or fails, or the file cannot be written
+            (the message names ``path``).
     """
-    import imageio_ffmpeg
+    import imageio_ffmpeg  # noqa: PLC0415 - loaded only when a video is written or read (~0.1 s)
 
     path = Path(path)
     if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and np.isfinite(fps) and fps > 0):
@@ -121,10 +122,12 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: float 
                     writer.send(np.ascontiguousarray(pad_to_even(frame)))
             finally:
                 writer.close()  # waits for FFmpeg to finish the file (or stops it after an error)
-    except (OSError, RuntimeError) as exc:
-        errno = exc.errno if isinstance(exc, OSError) else None
-        raise OSError(errno, f"cannot write the video {path}: {exc}; check that its folder is writable and has "
-                      "space, or write PNG frames instead") from exc
+    except (OSError, RuntimeError) as exc:  # FFmpeg's failures, and fluidsim.files' OutputError around an OSError
+        cause = exc.__cause__ if isinstance(exc, OutputError) and exc.__cause__ is not None else exc
+        err = OutputError(f"cannot write the video {path}: {cause}; check that its folder is writable and has "
+                          "space, or write PNG frames instead")
+        err.errno = getattr(cause, "errno", None)
+        raise err from cause
     return path
 
 
@@ -143,7 +146,7 @@ class VideoInfo:
 
 def probe_video(path: str | os.PathLike) -> VideoInfo:
     """Read the stream header and count the frames of a video file (decodes it once)."""
-    import imageio_ffmpeg
+    import imageio_ffmpeg  # noqa: PLC0415 - loaded only when a video is written or read (~0.1 s)
 
     path = Path(path)
     reader = imageio_ffmpeg.read_frames(str(path))
@@ -159,7 +162,7 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
 
 def read_mp4(path: str | os.PathLike) -> np.ndarray:
     """All frames of a video as a (K, H, W, 3) uint8 RGB array (for tests and small clips)."""
-    import imageio_ffmpeg
+    import imageio_ffmpeg  # noqa: PLC0415 - loaded only when a video is written or read (~0.1 s)
 
     reader = imageio_ffmpeg.read_frames(str(path))
     try:

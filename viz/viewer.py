@@ -18,6 +18,7 @@ import contextlib
 import io
 import ipaddress
 import logging
+import signal
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,7 +73,7 @@ class ViewerOptions:
 def import_viser():
     """viser, or a ValueError saying how to install it."""
     try:
-        import viser
+        import viser  # noqa: PLC0415 - the optional 'view' extra
     except ImportError as exc:
         raise ValueError(f"{INSTALL_HINT} ({exc})") from None
     return viser
@@ -463,8 +464,6 @@ def open_viewer(result: str | Path, gaussians: str | Path | None = None, scores:
 def serve(viewer: FluidViewer, announce=log.info) -> int:
     """Announce the URL (``announce(line)``; `fluidgs view` prints it), serve until Ctrl-C (or SIGTERM), stop
     cleanly; returns 0."""
-    import signal
-
     def on_term(signum, frame):
         raise KeyboardInterrupt
 

@@ -1,8 +1,12 @@
-"""SPlisHSPlasH peer benchmark: run the reference C++ DFSPH on the same scene as our Taichi engine.
+"""The SPlisHSPlasH peer: the reference C++ DFSPH (Bender & Koschier 2017) on the same scene as this engine.
 
-SPlisHSPlasH (PyPI ``pysplishsplash``) is a bench/test extra, never a runtime dependency, so this module
-imports only the standard library at module level.  The simulator always runs in a child process
-(``python apps/splash_peer.py --worker JOB.json``), because
+:class:`PeerScene` describes a sphere-impact scene independently of either engine. :func:`peer_solver` builds it
+for :class:`fluidsim.DFSPHSolver`; :func:`splash_scene_json` writes it in SPlisHSPlasH's scene format (with the
+meshes of :func:`icosphere` and :func:`unit_box`), and :func:`run_splash` runs SPlisHSPlasH on it and times every
+step. ``fluidgs bench sim`` (:mod:`apps.bench.sim`) prints the two engines side by side.
+
+SPlisHSPlasH (PyPI ``pysplishsplash``) is a bench/test extra, never a runtime dependency: it is imported only by
+the child process :mod:`fluidsim.peer_worker` (``python fluidsim/peer_worker.py --worker JOB.json``), because
 
 * ``import pysplishsplash`` segfaults when the wheel's bundled ``libGLdispatch`` is loaded first; the
   worker preloads the system copy (``ctypes.CDLL("libGLdispatch.so.0", RTLD_GLOBAL)``) before importing,
@@ -16,35 +20,34 @@ Install::
     apt-get install -y libgl1 libx11-6        # provides /lib/x86_64-linux-gnu/libGLdispatch.so.0
     .venv/bin/pip install pysplishsplash
 
-Run the default bench scene (sphere r=1 m hit by a 1 m slab at 3 m/s, 100 steps, 2 threads)::
-
-    .venv/bin/python -m apps.splash_peer [--steps 100] [--threads 2]
-
 Units: lengths in metres, times in seconds, velocities in m/s, densities in kg/m^3, dynamic viscosity
 in Pa*s, wall-clock timings in milliseconds.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import logging
 import math
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from .config import SolverConfig
+from .peer_worker import EXIT_NO_SPLASH
+from .scene import lattice_in_box
+from .solver import DFSPHSolver
+from .sources import sphere_particles, wall_particles
+
 log = logging.getLogger(__name__)
 
-#: Exit code the worker uses when ``import pysplishsplash`` fails (ImportError / missing libGLdispatch).
-_EXIT_NO_SPLASH = 17
-
+WORKER = Path(__file__).resolve().with_name("peer_worker.py")  # run as a script in a child process
 INSTALL_HINT = (
     "Install it with `.venv/bin/pip install pysplishsplash` (bench/test extra) and make sure the system "
     "OpenGL dispatch library exists (`apt-get install -y libgl1 libx11-6`, which provides "
@@ -100,6 +103,28 @@ class PeerScene:
     threads: int = 2
     gravity: tuple = (0.0, -9.81, 0.0)
 
+    def __post_init__(self) -> None:
+        for name in ("particle_radius", "dt", "sphere_radius", "viscosity", "rest_density",
+                     "max_density_error_percent", "max_divergence_error_percent"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"PeerScene.{name} must be a finite number > 0, got {value!r}")
+        for name in ("steps", "threads", "min_iterations"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                raise ValueError(f"PeerScene.{name} must be an integer >= 1, got {getattr(self, name)!r}")
+        if self.max_iterations < self.min_iterations:
+            raise ValueError(f"PeerScene.max_iterations ({self.max_iterations}) must be >= min_iterations "
+                             f"({self.min_iterations})")
+        boxes = (("fluid", self.fluid_min, self.fluid_max), ("domain", self.domain_min, self.domain_max))
+        for label, lo, hi in boxes:
+            if len(lo) != 3 or len(hi) != 3 or not all(a < b for a, b in zip(lo, hi, strict=True)):
+                raise ValueError(f"PeerScene.{label}_min/{label}_max must be 3 numbers each with min < max per "
+                                 f"axis, got {lo} and {hi}")
+        if not all(d0 <= f0 and f1 <= d1 for d0, f0, f1, d1 in
+                   zip(self.domain_min, self.fluid_min, self.fluid_max, self.domain_max, strict=True)):
+            raise ValueError(f"PeerScene: the fluid box {self.fluid_min}..{self.fluid_max} must lie inside the "
+                             f"domain {self.domain_min}..{self.domain_max}")
+
     @property
     def spacing(self) -> float:
         """Particle spacing 2r, m."""
@@ -117,12 +142,54 @@ class PeerScene:
         return math.prod(counts)
 
 
+@dataclass(frozen=True)
+class PeerParticles:
+    """The particles of a :class:`PeerScene` for this engine (all float64, metres or m/s).
+
+    Attributes:
+        fluid: (F, 3) the slab's cell-centred lattice. velocity: (F, 3) its initial velocity.
+        solid: (S, 3) the filled sphere on the lattice ``center + spacing Z^3``. walls: (W, 3) two wall layers.
+    """
+
+    fluid: np.ndarray
+    velocity: np.ndarray
+    solid: np.ndarray
+    walls: np.ndarray
+
+
+def peer_config(scene: PeerScene, divergence_warm_start: bool = True) -> SolverConfig:
+    """This engine's solver settings for ``scene``: the same r, dt, mu, rho0, gravity, tolerances (in %) and
+    iteration bounds as SPlisHSPlasH gets, and free slip at the walls (``boundary_viscosity = 0``, as the peer's
+    zero boundary viscosity)."""
+    return SolverConfig(particle_radius=scene.particle_radius, dt=scene.dt, viscosity=scene.viscosity,
+                        rest_density=scene.rest_density, gravity=tuple(scene.gravity),
+                        max_density_error=scene.max_density_error_percent,
+                        max_divergence_error=scene.max_divergence_error_percent,
+                        min_iterations=scene.min_iterations, max_iterations=scene.max_iterations,
+                        boundary_viscosity=0.0, divergence_warm_start=divergence_warm_start)
+
+
+def peer_particles(scene: PeerScene, spacing: float) -> PeerParticles:
+    """Sample ``scene`` at ``spacing`` (m): the fluid slab, the filled sphere and two layers of closed walls."""
+    fluid = lattice_in_box(scene.fluid_min, scene.fluid_max, spacing)
+    return PeerParticles(fluid=fluid,
+                         velocity=np.broadcast_to(np.asarray(scene.fluid_velocity, np.float64), fluid.shape),
+                         solid=sphere_particles(scene.sphere_center, scene.sphere_radius, spacing, fill=True),
+                         walls=wall_particles(scene.domain_min, scene.domain_max, spacing, 2))
+
+
+def peer_solver(scene: PeerScene, particles: PeerParticles, config: SolverConfig) -> DFSPHSolver:
+    """The solver of ``scene`` (Taichi must be initialised): the sphere and the walls are one boundary set."""
+    return DFSPHSolver(config, scene.domain_min, scene.domain_max, particles.fluid, particles.velocity,
+                       np.concatenate([particles.solid, particles.walls]))
+
+
 # ----------------------------------------------------------------------------------------------------
 # scene files (written by the parent, read by the worker)
 # ----------------------------------------------------------------------------------------------------
 
 
-def _icosphere(subdivisions: int) -> tuple[list[tuple[float, float, float]], list[tuple[int, int, int]]]:
+def icosphere(subdivisions: int) -> tuple[list[tuple[float, float, float]], list[tuple[int, int, int]]]:
     """Unit icosphere (radius 1), faces wound counter-clockwise seen from outside (outward normals)."""
     t = (1.0 + math.sqrt(5.0)) / 2.0
     verts = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
@@ -155,7 +222,7 @@ def _icosphere(subdivisions: int) -> tuple[list[tuple[float, float, float]], lis
     return verts, faces
 
 
-def _unit_box() -> tuple[list[tuple[float, float, float]], list[tuple[int, int, int]]]:
+def unit_box() -> tuple[list[tuple[float, float, float]], list[tuple[int, int, int]]]:
     """Unit cube [-0.5, 0.5]^3 as 12 triangles with outward normals."""
     verts = [(x, y, z) for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)]
     # vertex index = 4*ix + 2*iy + iz
@@ -166,14 +233,14 @@ def _unit_box() -> tuple[list[tuple[float, float, float]], list[tuple[int, int, 
     return verts, faces
 
 
-def _write_obj(path: Path, verts, faces) -> None:
+def write_obj(path: Path, verts, faces) -> None:
     """Write a triangle mesh as Wavefront OBJ (1-based indices)."""
     lines = [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in verts]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
     path.write_text("\n".join(lines) + "\n")
 
 
-def _scene_json(scene: PeerScene, sphere_obj: str, box_obj: str) -> dict:
+def splash_scene_json(scene: PeerScene, sphere_obj: str, box_obj: str) -> dict:
     """SPlisHSPlasH scene description (its JSON scene format) for ``scene``.
 
     Fluid block: SPlisHSPlasH's ``denseMode 0`` lattice puts the first particle 2r inside ``start`` and
@@ -269,7 +336,7 @@ def _scene_json(scene: PeerScene, sphere_obj: str, box_obj: str) -> dict:
 
 
 def _worker_cmd(*args: str) -> list[str]:
-    return [sys.executable, str(Path(__file__).resolve()), *args]
+    return [sys.executable, str(WORKER), *args]
 
 
 def splash_available(timeout_s: float = 120.0) -> bool:
@@ -326,10 +393,10 @@ def run_splash(scene: PeerScene, timeout_s: float = 1200) -> dict:
     """
     with tempfile.TemporaryDirectory(prefix="splash_peer_") as tmp:
         tmpdir = Path(tmp)
-        _write_obj(tmpdir / "sphere.obj", *_icosphere(5))
-        _write_obj(tmpdir / "box.obj", *_unit_box())
+        write_obj(tmpdir / "sphere.obj", *icosphere(5))
+        write_obj(tmpdir / "box.obj", *unit_box())
         scene_file = tmpdir / "scene.json"
-        scene_file.write_text(json.dumps(_scene_json(scene, "sphere.obj", "box.obj"), indent=1))
+        scene_file.write_text(json.dumps(splash_scene_json(scene, "sphere.obj", "box.obj"), indent=1))
         job = {
             "scene_file": str(scene_file),
             "output_dir": str(tmpdir / "output"),
@@ -350,7 +417,7 @@ def run_splash(scene: PeerScene, timeout_s: float = 1200) -> dict:
         except subprocess.TimeoutExpired as exc:
             raise RuntimeError(f"SPlisHSPlasH run timed out after {timeout_s} s") from exc
         result_file = tmpdir / "result.json"
-        if proc.returncode == _EXIT_NO_SPLASH:
+        if proc.returncode == EXIT_NO_SPLASH:
             raise RuntimeError(
                 f"pysplishsplash is not importable: {proc.stderr.strip()[-800:]}\n{INSTALL_HINT}"
             )
@@ -365,197 +432,3 @@ def run_splash(scene: PeerScene, timeout_s: float = 1200) -> dict:
              result["fluid_particles"], result["boundary_particles"], result["median_ms_steps_2_to_n"],
              result["steps"])
     return result
-
-
-# ----------------------------------------------------------------------------------------------------
-# child side (runs in the subprocess; the only place pysplishsplash is imported)
-# ----------------------------------------------------------------------------------------------------
-
-
-def _import_splash():
-    """Preload the system libGLdispatch, then import pysplishsplash (exit 17 if impossible)."""
-    import ctypes
-
-    try:
-        ctypes.CDLL("libGLdispatch.so.0", mode=ctypes.RTLD_GLOBAL)
-        import pysplishsplash as sph
-    except (OSError, ImportError) as exc:
-        sys.stderr.write(f"cannot import pysplishsplash: {exc}\n")
-        sys.exit(_EXIT_NO_SPLASH)
-    return sph
-
-
-def _splash_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("pysplishsplash")
-    except PackageNotFoundError:
-        return "unknown"
-
-
-def _simstep_total_ms(sph) -> float | None:
-    """Total time of SPlisHSPlasH's internal "SimStep" timer so far, ms (None if absent/unreadable).
-
-    The timer wraps ``Simulation::getTimeStep()->step()`` only (not the negligible static-boundary update);
-    it appears in ``Utilities.Timing.m_averageTimes`` after the first step.
-    """
-    try:
-        for entry in dict(sph.Utilities.Timing.m_averageTimes).values():
-            if entry.name == "SimStep":
-                return float(entry.totalTime)
-    except Exception:  # noqa: BLE001 - optional diagnostic; binding layout differs between versions
-        return None
-    return None
-
-
-def _to_builtin(obj):
-    """json.dumps fallback for numpy scalars/arrays returned by the bindings."""
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
-
-
-def _worker(job_file: str) -> int:
-    """Child process: set up the scene, step it, write the result JSON.  Returns the exit code."""
-    job = json.loads(Path(job_file).read_text())
-    steps = int(job["steps"])
-    dt = float(job["dt"])
-    expect = job["expect"]
-    sph = _import_splash()
-
-    base = sph.Exec.SimulatorBase()
-    base.init(sceneFile=job["scene_file"], useCache=False, outputDir=job["output_dir"], initialPause=False,
-              useGui=False)
-    t0 = time.perf_counter()
-    base.initSimulation()
-    sim = sph.Simulation.getCurrent()
-    tm = sph.TimeManager.getCurrent()
-    ts = sim.getTimeStep()
-    fluid = sim.getFluidModel(0)
-    visco = fluid.getViscosityBase()
-
-    # Enforce the settings through the API as well (the scene file should already have set them).
-    sim.setValueInt(sim.CFL_METHOD, sim.ENUM_CFL_NONE)
-    tm.setTimeStepSize(dt)
-    ts.setValueUInt(ts.MIN_ITERATIONS, int(expect["min_iterations"]))
-    ts.setValueUInt(ts.MAX_ITERATIONS, int(expect["max_iterations"]))
-    ts.setValueUInt(ts.MAX_ITERATIONS_V, int(expect["max_iterations"]))
-    ts.setValueFloat(ts.MAX_ERROR, float(expect["max_density_error_percent"]))
-    ts.setValueFloat(ts.MAX_ERROR_V, float(expect["max_divergence_error_percent"]))
-    ts.setValueBool(ts.USE_DIVERGENCE_SOLVER, True)
-    nu = float(expect["viscosity"]) / float(expect["rest_density"])
-    visco.setValueFloat(visco.VISCOSITY_COEFFICIENT, nu)
-
-    config = {
-        "method": ts.getMethodName() if hasattr(ts, "getMethodName") else type(ts).__name__,
-        "simulationMethod": sim.getValueInt(sim.SIMULATION_METHOD),
-        "boundaryHandlingMethod": sim.getValueInt(sim.BOUNDARY_HANDLING_METHOD),
-        "cflMethod": sim.getValueInt(sim.CFL_METHOD),
-        "dt": tm.getTimeStepSize(),
-        "gravitation": [float(g) for g in sim.getVec3ValueReal(sim.GRAVITATION)],
-        "particleRadius": sim.getValueFloat(sim.PARTICLE_RADIUS),
-        "minIterations": ts.getValueUInt(ts.MIN_ITERATIONS),
-        "maxIterations": ts.getValueUInt(ts.MAX_ITERATIONS),
-        "maxIterationsV": ts.getValueUInt(ts.MAX_ITERATIONS_V),
-        "maxError_percent": ts.getValueFloat(ts.MAX_ERROR),
-        "maxErrorV_percent": ts.getValueFloat(ts.MAX_ERROR_V),
-        "density0": fluid.getDensity0(),
-        "viscosityMethod": fluid.getValueInt(fluid.VISCOSITY_METHOD),
-        "viscosityMethodName": visco.getMethodName() if hasattr(visco, "getMethodName") else None,
-        "viscosity_kinematic": visco.getValueFloat(visco.VISCOSITY_COEFFICIENT),
-        "viscosityBoundary": visco.getValueFloat(visco.VISCOSITY_COEFFICIENT_BOUNDARY)
-        if hasattr(visco, "VISCOSITY_COEFFICIENT_BOUNDARY") else None,
-        "exporters_active": [e.name for e in [*base.getParticleExporters(), *base.getRigidBodyExporters()]
-                             if e.exporter.getActive()],
-    }
-
-    pressure_its: list[int] = []
-    divergence_its: list[int] = []
-
-    def record_iterations() -> None:
-        pressure_its.append(int(ts.getValueUInt(ts.SOLVER_ITERATIONS)))
-        divergence_its.append(int(ts.getValueUInt(ts.SOLVER_ITERATIONS_V)))
-
-    base.setTimeStepCB(record_iterations)
-    # stopAt slightly above 0 (must be set after initSimulation(), which reads the scene's "stopAt"):
-    # runSimulation() then does the deferred boundary init plus exactly one step.
-    base.setValueFloat(base.STOP_AT, 0.5 * dt)
-    ms_per_step: list[float] = []
-    init_s = time.perf_counter() - t0
-    sim_before = _simstep_total_ms(sph)
-    t1 = time.perf_counter()
-    base.runSimulation()  # deferred init (boundary sampling, neighbour search) + step 1
-    wall1_ms = (time.perf_counter() - t1) * 1e3
-    sim_after = _simstep_total_ms(sph)
-    if sim_after is not None and sim_after > (sim_before or 0.0):
-        ms_per_step.append(sim_after - (sim_before or 0.0))
-        step1_source = "SPlisHSPlasH SimStep timer"
-    else:
-        ms_per_step.append(wall1_ms)
-        step1_source = "wall time incl. deferred boundary init"
-
-    base.setValueFloat(base.STOP_AT, (steps + 10) * dt)
-    for _ in range(steps - 1):
-        t = time.perf_counter()
-        if not base.timeStepNoGUI():
-            break
-        ms_per_step.append((time.perf_counter() - t) * 1e3)
-
-    n_boundary = sum(sim.getBoundaryModel(i).numberOfParticles() for i in range(sim.numberOfBoundaryModels()))
-    n_fluid = sum(sim.getFluidModel(i).numActiveParticles() for i in range(sim.numberOfFluidModels()))
-    # Cheap end-state sanity numbers (after timing): max speed (m/s) and fluid bounding box (m).
-    speeds, lo, hi = [], [math.inf] * 3, [-math.inf] * 3
-    for i in range(fluid.numActiveParticles()):
-        v = fluid.getVelocity(i)
-        x = fluid.getPosition(i)
-        speeds.append(math.sqrt(float(v[0]) ** 2 + float(v[1]) ** 2 + float(v[2]) ** 2))
-        lo = [min(a, float(b)) for a, b in zip(lo, x, strict=True)]
-        hi = [max(a, float(b)) for a, b in zip(hi, x, strict=True)]
-    result = {
-        "fluid_particles": int(n_fluid),
-        "boundary_particles": int(n_boundary),
-        "steps": len(ms_per_step),
-        "ms_per_step": ms_per_step,
-        "median_ms_steps_2_to_n": statistics.median(ms_per_step[1:]) if len(ms_per_step) > 1 else None,
-        "pressure_iterations": pressure_its or None,
-        "divergence_iterations": divergence_its or None,
-        "threads": int(os.environ.get("OMP_NUM_THREADS", "0") or 0),
-        "version": _splash_version(),
-        "init_s": init_s,
-        "step1_wall_ms_incl_init": wall1_ms,
-        "step1_source": step1_source,
-        "sim_time_s": tm.getTime(),
-        "final_max_speed": max(speeds, default=0.0),
-        "final_mean_speed": statistics.fmean(speeds) if speeds else 0.0,
-        "final_fluid_bbox": [lo, hi],
-        "config": config,
-    }
-    Path(job["result_file"]).write_text(json.dumps(result, default=_to_builtin))
-    sys.stdout.flush()
-    # Skip SPlisHSPlasH's destructors (they print timing tables and can crash at interpreter exit).
-    os._exit(0)
-
-
-def main(argv: list[str] | None = None) -> None:
-    """CLI: run the default bench scene and print the result dict as JSON."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=PeerScene.steps, help="number of time steps")
-    parser.add_argument("--threads", type=int, default=PeerScene.threads, help="OpenMP threads")
-    parser.add_argument("--timeout", type=float, default=1200.0, help="subprocess time limit, s")
-    parser.add_argument("--worker", metavar="JOB_JSON", help=argparse.SUPPRESS)
-    parser.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    if args.probe:
-        _import_splash()
-        os._exit(0)
-    if args.worker:
-        sys.exit(_worker(args.worker))
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    scene = PeerScene(steps=args.steps, threads=args.threads)
-    result = run_splash(scene, timeout_s=args.timeout)
-    print(json.dumps(result, indent=1))
-
-
-if __name__ == "__main__":
-    main()

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .runtime import positive_int
+from ..runtime import positive_int
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -34,30 +34,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=str, default=None, help="also write the figures to this JSON file")
 
 
-def bench_scene():
-    from .splash_peer import PeerScene
-
-    return PeerScene()
-
-
 def run_ours(scene, steps: int, divergence_warm_start: bool = True) -> dict:
-    from fluidsim import DFSPHSolver, SolverConfig
-    from fluidsim.scene import lattice_in_box
-    from fluidsim.sources import sphere_particles, wall_particles
+    """Time ``steps`` steps of this engine on the peer scene (:mod:`fluidsim.peer`); figures in ms and MiB."""
+    from fluidsim.peer import peer_config, peer_particles, peer_solver
 
-    cfg = SolverConfig(particle_radius=scene.particle_radius, dt=scene.dt, viscosity=scene.viscosity,
-                       rest_density=scene.rest_density, gravity=tuple(scene.gravity),
-                       max_density_error=scene.max_density_error_percent,
-                       max_divergence_error=scene.max_divergence_error_percent,
-                       min_iterations=scene.min_iterations, max_iterations=scene.max_iterations,
-                       boundary_viscosity=0.0, divergence_warm_start=divergence_warm_start)
-    sp = cfg.spacing
-    solid = sphere_particles(scene.sphere_center, scene.sphere_radius, sp, fill=True)
-    walls = wall_particles(scene.domain_min, scene.domain_max, sp, 2)
-    fluid = lattice_in_box(scene.fluid_min, scene.fluid_max, sp)
-    vel = np.broadcast_to(np.asarray(scene.fluid_velocity, np.float64), fluid.shape)
+    cfg = peer_config(scene, divergence_warm_start)
+    particles = peer_particles(scene, cfg.spacing)
     t0 = time.perf_counter()
-    solver = DFSPHSolver(cfg, scene.domain_min, scene.domain_max, fluid, vel, np.concatenate([solid, walls]))
+    solver = peer_solver(scene, particles, cfg)
     setup_s = time.perf_counter() - t0
     times, hist = [], []
     solver.stage_times = {}
@@ -68,9 +52,9 @@ def run_ours(scene, steps: int, divergence_warm_start: bool = True) -> dict:
         hist.append(solver.step())
         times.append(time.perf_counter() - t)
     stages = {k: 1e3 * v / max(steps - 1, 1) for k, v in solver.stage_times.items()}
-    return {"fluid_particles": solver.fluid.capacity, "solid_particles": len(solid), "wall_particles": len(walls),
-            "steps": steps, "setup_s": setup_s, "first_step_ms": 1e3 * times[0],
-            "median_ms_steps_2_to_n": 1e3 * statistics.median(times[1:]),
+    return {"fluid_particles": solver.fluid.capacity, "solid_particles": len(particles.solid),
+            "wall_particles": len(particles.walls), "steps": steps, "setup_s": setup_s,
+            "first_step_ms": 1e3 * times[0], "median_ms_steps_2_to_n": 1e3 * statistics.median(times[1:]),
             "mean_ms_per_stage": stages,
             "density_iterations_mean": float(np.mean([h.density_iterations for h in hist[1:]])),
             "divergence_iterations_mean": float(np.mean([h.divergence_iterations for h in hist[1:]])),
@@ -96,9 +80,11 @@ def _more_rounds(args: argparse.Namespace, scene, ours: dict, peer: dict, run_sp
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from .runtime import init_taichi
-    from .simulate import check_output_file, write_json
-    from .splash_peer import run_splash, splash_available
+    from fluidsim.files import write_json_atomic
+    from fluidsim.peer import PeerScene, run_splash, splash_available
+
+    from ..options import check_output_file
+    from ..runtime import init_taichi
 
     if args.json:
         check_output_file(Path(args.json), (".json",))
@@ -107,10 +93,7 @@ def run_command(args: argparse.Namespace) -> int:
     if args.rounds < 1:
         raise ValueError(f"--rounds must be >= 1, got {args.rounds}")
     device = init_taichi(args.device, "f32", args.threads)
-    scene = bench_scene()
-    from dataclasses import replace
-
-    scene = replace(scene, steps=args.steps, threads=args.threads)
+    scene = PeerScene(steps=args.steps, threads=args.threads)
     ours = run_ours(scene, args.steps, divergence_warm_start=not args.no_divergence_warm_start)
     report = {"device": device, "threads": args.threads, "fluidgaussian": ours,
               "divergence_warm_start": not args.no_divergence_warm_start}
@@ -140,5 +123,5 @@ def run_command(args: argparse.Namespace) -> int:
         else:
             print("SPlisHSPlasH: pysplishsplash not installed (pip install '.[bench]'); no comparison")
     if args.json:
-        write_json(Path(args.json), report)
+        write_json_atomic(Path(args.json), report)
     return 0

@@ -9,20 +9,22 @@ uses r = 0.025 m and 750 steps (add ``--directions -x`` for one probe). Machines
 ``--densify K`` also runs a K x denser set of the same object, in the same process after the set itself: K - 1
 jittered copies of every Gaussian (its mean moved by ``--jitter`` standard deviations along its own axes, all other
 attributes kept) added to the original; the ratio of the two runs' times is printed (``--densify-only`` skips the
-original's run, so that the peak memory is the dense set's alone).
+original's run, so that the peak memory is the dense set's alone; :func:`nbv.dense_sets.jittered_copies`).
 """
 
 from __future__ import annotations
 
 import argparse
-import resource
 from pathlib import Path
 
 import numpy as np
 
-from .runtime import positive_int
+from ..runtime import positive_int
 
-ASSET = Path(__file__).resolve().parent.parent / "assets" / "ahmed_gaussians.ply"
+ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
+# docs/results.md, "Convergence of D_g and of the view ranking": with the depth test, the candidate-view ranking
+# stops changing from 750 steps at every radius tried (0.05-0.025 m); shorter runs rank the physics part differently.
+CONVERGED_STEPS = 750
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,43 +57,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="--densify: random seed of the jitter")
 
 
-def jittered_copies(gaussians, copies: int, jitter: float, seed: int = 0):
-    """A ``copies`` x denser set of the same object: the original, then ``copies`` - 1 copies whose means move by
-    ``jitter`` x N(0, 1) standard deviations along each Gaussian's principal axes (scales, rotations, opacities and
-    colours kept).
-
-    Args:
-        gaussians: a ``recon.gaussians.GaussianSet`` (N Gaussians).
-        copies: K >= 1. jitter: >= 0, in standard deviations. seed: of the jitter.
-    Returns:
-        GaussianSet of K N Gaussians; the first N are ``gaussians``.
-    """
-    import torch
-
-    from recon.gaussians import GaussianSet, concat, quaternion_to_rotation
-
-    if copies < 1 or not (jitter >= 0 and np.isfinite(jitter)):
-        raise ValueError(f"--densify must be >= 1 and --jitter a finite number >= 0, got {copies} and {jitter}")
-    gen = torch.Generator().manual_seed(seed)
-    rot = quaternion_to_rotation(gaussians.quats.double())
-    sigma = gaussians.log_scales.double().exp()
-    sets = [gaussians]
-    for _ in range(copies - 1):
-        z = torch.randn(sigma.shape, generator=gen, dtype=torch.float64) * jitter * sigma
-        means = gaussians.means + torch.einsum("nij,nj->ni", rot, z).to(gaussians.means.dtype)
-        sets.append(GaussianSet(means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh))
-    return concat(sets)
-
-
-def peak_rss_bytes() -> int:
-    """The process's peak resident memory so far, bytes (Linux reports KiB)."""
-    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
-
-
 def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
     """Run the probes on one set, print its figures and return them (timings, share, peak memory)."""
     from nbv.aggregate import GaussianAccumulator
     from nbv.physics import simulate_gaussians
+
+    from .yardsticks import peak_rss_bytes
 
     res = simulate_gaussians(gaussians, cfg, progress=True, source=source)
     t = res.timings
@@ -116,6 +87,9 @@ def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
           + ("" if paper else f" (target < 60 s for five probes): {'met' if total < 60 else 'NOT met'}"))
     if cfg.empty_reference:
         print(f"empty-scene reference: {t['empty_reference']:.1f} s more")
+    verdict = "converged" if cfg.steps >= CONVERGED_STEPS else f"NOT converged (needs >= {CONVERGED_STEPS} steps)"
+    print(f"view ranking at r = {cfg.particle_radius} m x {cfg.steps} steps: {verdict}, docs/results.md; one "
+          f"physics pick at this setting costs {total:.1f} s here")
     estimate = GaussianAccumulator.estimate_bytes(res.num_gaussians, fluid, cfg.track_distinct)
     rss = peak_rss_bytes()
     print(f"peak resident memory so far {rss / 2**30:.2f} GiB (the accumulator's estimate {estimate / 2**30:.2f} GiB)")
@@ -125,12 +99,14 @@ def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.output import check_not_input
+    from fluidsim.files import check_not_input
+    from fluidsim.files import write_json_atomic as write_json
+    from nbv.dense_sets import jittered_copies
     from nbv.physics import QUICK, PhysicsConfig, parse_directions
+    from recon.ahmed import ahmed_surface_gaussians
 
-    from .demo import ahmed_surface_gaussians
-    from .runtime import init_taichi
-    from .simulate import check_output_file, load_gaussians_checked, write_json
+    from ..options import check_output_file, load_gaussians_checked
+    from ..runtime import init_taichi
 
     if args.json is not None:
         check_output_file(args.json, (".json",))

@@ -13,18 +13,18 @@ times.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import os
 import statistics
-import tempfile
 import time
-from pathlib import Path
 
 import torch
 
-from .runtime import positive_int
+from fluidsim.files import write_json_atomic
+
+from ..runtime import positive_int
+from .yardsticks import reference_workload_ms
 
 LOG = logging.getLogger("fluidgs.bench.render")
 # (Gaussians, width, height) -> target ms for forward + backward on one thread (the issue's targets)
@@ -83,22 +83,6 @@ def bench_scene(n: int, width: int, height: int, seed: int, device: torch.device
     return gaussians, camera
 
 
-def reference_workload_ms(device: torch.device, repeats: int = 5) -> float:
-    """Median ms of ten 512 x 512 float32 matmuls (a fixed yardstick of the machine's current speed)."""
-    gen = torch.Generator().manual_seed(0)
-    a = torch.rand(512, 512, generator=gen).to(device)
-    b = torch.rand(512, 512, generator=gen).to(device)
-    times = []
-    for _ in range(repeats + 1):
-        t0 = time.perf_counter()
-        for _ in range(10):
-            a @ b
-        if device.type == "cuda":
-            torch.cuda.synchronize()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times[1:])
-
-
 def time_case(n: int, width: int, height: int, args: argparse.Namespace, device: torch.device) -> dict:
     from recon.render import pair_statistics, render
 
@@ -136,14 +120,6 @@ def time_case(n: int, width: int, height: int, args: argparse.Namespace, device:
             "target_ms": target}
 
 
-def _write_json(path: str, report: dict) -> None:
-    out = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=out.parent if str(out.parent) else ".", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(report, fh, indent=2)
-    os.replace(tmp, out)
-
-
 def run_command(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -179,7 +155,7 @@ def run_command(args: argparse.Namespace) -> int:
               f"with alpha >= 1/255 ({r['stopped_pairs']} after an early stop)")
         print(f"    forward {r['forward_ms']:.1f} ms, forward+backward {r['forward_backward_ms']:.1f} ms; {target}")
     if args.json:
-        _write_json(args.json, {"backend": args.backend, "device": str(device), "threads": args.threads,
+        write_json_atomic(args.json, {"backend": args.backend, "device": str(device), "threads": args.threads,
                                 "load_average": load, "reference_workload_ms": [ref_before, ref_after],
                                 "cases": results})
     return 0

@@ -4,17 +4,18 @@ Two parts, both printed:
 
 - **Ranking check** on the bundled asset (``assets/ahmed_gaussians.ply`` with its 40 candidate cameras, or
   ``--gaussians`` / ``--cameras``), at the width ``fluidgs score`` uses (``--render-width``): every candidate
-  is rendered in full (what scoring did before) and scored both ways. It prints the largest relative score
-  difference, the Spearman rank correlation and whether the two orders are identical. With ``--occlusion``
-  the coarse depth buffer (:class:`nbv.scores.DepthBuffer`) is compared with the render-based depth test
-  (:func:`nbv.scores.unoccluded`): the fraction of visible (view, Gaussian) pairs with the same verdict and
+  is rendered in full (what scoring did before) and scored both ways (:mod:`nbv.score_agreement`). It prints the
+  largest relative score difference, the Spearman rank correlation and whether the two orders are identical. With
+  ``--occlusion`` the coarse depth buffer (:class:`nbv.scores.DepthBuffer`) is compared with the render-based depth
+  test (:func:`nbv.scores.unoccluded`): the fraction of visible (view, Gaussian) pairs with the same verdict and
   the Spearman correlation of the two S(T). D_g comes from ``--result`` (a RESULT.h5 of these Gaussians);
   without it a seeded log-normal stand-in is used (the check is about radii and visibility, not physics).
 - **Timing** (the issue's target: 200 candidate cameras on 1M Gaussians in <= 20 s without PNGs): the asset
-  densified to ``--count`` Gaussians by jittered copies (each copy moved by N(0, r_g^2) per axis, r_g the
-  largest principal standard deviation), scored from ``--views`` cameras on a sphere of radius 6 around the
-  origin (the paper's dataset geometry, 50 degree field of view) at ``--width`` pixels. It prints the time per
-  view, the total, nanoseconds per (camera, Gaussian) pair and the peak resident memory.
+  densified to ``--count`` Gaussians by jittered copies (:func:`nbv.dense_sets.jittered_to_count`: each copy moved
+  by N(0, r_g^2) per axis, r_g the largest principal standard deviation), scored from ``--views`` cameras on a
+  sphere of radius 6 around the origin (the paper's dataset geometry, 50 degree field of view) at ``--width``
+  pixels. It prints the time per view, the total, nanoseconds per (camera, Gaussian) pair and the peak resident
+  memory.
 
 A fixed reference workload (single-thread 512 x 512 float32 matmuls, as ``bench render``) and the load
 average are printed next to the figures: machines are shared, quote ratios.
@@ -23,7 +24,6 @@ average are printed next to the figures: machines are shared, quote ratios.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import resource
@@ -32,7 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-ASSETS = Path(__file__).resolve().parent.parent / "assets"
+from fluidsim.files import write_json_atomic
+
+ASSETS = Path(__file__).resolve().parents[2] / "assets"
 TARGET_S = 20.0  # the issue's target for 200 cameras x 1M Gaussians, no PNGs, 2-core CPU
 
 
@@ -58,120 +60,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
 
 
-def reference_ms() -> float:
-    """Median time of one single-thread 512 x 512 float32 matmul, milliseconds (the machine-load yardstick)."""
-    import torch
-
-    a = torch.rand(512, 512)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        times = []
-        for _ in range(10):
-            t = time.perf_counter()
-            a @ a
-            times.append(1e3 * (time.perf_counter() - t))
-    finally:
-        torch.set_num_threads(threads)
-    return float(np.median(times))
-
-
-def stand_in_divergence(n: int, seed: int) -> np.ndarray:
-    """A seeded log-normal per-Gaussian metric (1/s) for when no RESULT.h5 is given."""
-    return np.random.default_rng(seed).lognormal(0.0, 1.0, n)
-
-
-def load_divergence(path: Path | None, gaussians, seed: int) -> tuple[np.ndarray, str]:
-    """(D_g [N], description): from RESULT.h5, else the stand-in."""
-    if path is None:
-        return stand_in_divergence(gaussians.num, seed), f"seeded log-normal stand-in (seed {seed})"
-    from nbv.physics import check_result_matches, load_result
-
-    result = load_result(path)
-    check_result_matches(result, gaussians.num, path)
-    return np.asarray(result.divergence, np.float64), f"D_g (max over probes) of {path}"
-
-
-def jittered_copies(gaussians, count: int, seed: int):
-    """``count`` Gaussians: the set repeated, each copy after the first moved by N(0, r_g^2) per axis."""
-    import torch
-
-    from recon.gaussians import GaussianSet
-
-    n = gaussians.num
-    reps = -(-count // n)
-    gen = torch.Generator().manual_seed(seed)
-    index = torch.arange(reps * n) % n
-    jitter = torch.randn(reps * n, 3, generator=gen, dtype=gaussians.dtype) * gaussians.max_radii()[index, None]
-    jitter[:n] = 0.0
-    take = slice(0, count)
-    return GaussianSet(gaussians.means[index][take] + jitter[take], gaussians.quats[index][take],
-                       gaussians.log_scales[index][take], gaussians.opacity_logits[index][take],
-                       gaussians.sh[index][take])
-
-
-def spearman(a, b) -> float:
-    from scipy.stats import spearmanr
-
-    return float(spearmanr(np.asarray(a), np.asarray(b))[0])
-
-
-def ranking_check(gaussians, cams, d: np.ndarray, occlusion: bool, device) -> dict:
-    """Score the candidates from full renders and from the projection; compare (see the module docstring)."""
-    import torch
-
-    from nbv.scores import DepthBuffer, coarse_unoccluded, projected_view_scores, rank, unoccluded, view_scores
-    from recon.render import render
-
-    metric = torch.from_numpy(d)
-    g = gaussians.detach().to(device)
-    t = time.perf_counter()
-    with torch.no_grad():
-        renders = [render(g, c, 1.0) for c in cams]
-    t_render = time.perf_counter() - t
-    full = view_scores(metric, renders)
-    t = time.perf_counter()
-    fast = projected_view_scores(metric, g, cams).scores
-    t_proj = time.perf_counter() - t
-    radii_equal = all(torch.equal(o.radii.cpu(), r) for o, r in
-                      zip(renders, _projected_radii(g, cams), strict=True))
-    out = {"views": len(cams), "render_s": t_render, "projection_s": t_proj, "radii_equal": radii_equal,
-           "max_relative_difference": float(((fast - full).abs() / full.abs().clamp_min(1e-300)).max()),
-           "spearman": spearman(fast, full), "identical_order": rank(fast).tolist() == rank(full).tolist(),
-           "order": rank(fast).tolist()}
-    if occlusion:
-        reach = 3.0 * g.max_radii().double().cpu()
-        by_render = torch.stack([unoccluded(g.means, reach, c, o) for c, o in zip(cams, renders, strict=True)])
-        coarse = coarse_unoccluded(g, cams, DepthBuffer()).cpu()
-        visible = torch.stack([o.visible.cpu() for o in renders])
-        s_render = view_scores(metric, renders, visible=by_render)
-        s_coarse = projected_view_scores(metric, g, cams, depth_buffer=DepthBuffer()).scores
-        top = set(rank(s_render)[:5].tolist())
-        out["occlusion"] = {
-            "verdict_agreement": float((coarse == by_render)[visible].double().mean()),
-            "hidden_render": float((visible & ~by_render).sum() / visible.sum()),
-            "hidden_coarse": float((visible & ~coarse).sum() / visible.sum()),
-            "spearman": spearman(s_coarse, s_render),
-            "same_best": int(rank(s_coarse)[0]) == int(rank(s_render)[0]),
-            "top5_overlap": len(top & set(rank(s_coarse)[:5].tolist()))}
-    return out
-
-
-def _projected_radii(gaussians, cams):
-    from recon.projection import project_visibility
-
-    radii, _ = project_visibility(gaussians, cams)
-    return list(radii.cpu())
-
-
 def timing(gaussians, d: np.ndarray, args: argparse.Namespace, device) -> dict:
     """Time projected_view_scores on the densified set (see the module docstring)."""
     import torch
 
+    from nbv.dense_sets import jittered_to_count
     from nbv.scores import DepthBuffer, projected_view_scores
     from recon.camera_paths import random_sphere
 
-    big = jittered_copies(gaussians, args.count, args.seed).to(device)
+    big = jittered_to_count(gaussians, args.count, args.seed).to(device)
     metric = torch.from_numpy(np.resize(d, args.count))
     cams = random_sphere(args.views, 6.0, args.width, args.width, math.radians(50.0), seed=args.seed)
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -224,8 +121,12 @@ def print_timing(t: dict) -> None:
 def run_command(args: argparse.Namespace) -> int:
     import torch
 
-    from .score import load_cameras, render_size, torch_device
-    from .simulate import check_output_file, load_gaussians_checked
+    from nbv.score_agreement import compare_with_renders, load_divergence
+    from nbv.view_scoring import render_size, torch_device
+    from recon.datasets import load_cameras
+
+    from ..options import check_output_file, load_gaussians_checked
+    from .yardsticks import reference_ms
 
     if args.json is not None:
         check_output_file(args.json, (".json",))
@@ -240,7 +141,7 @@ def run_command(args: argparse.Namespace) -> int:
     report: dict = {"gaussians_file": str(args.gaussians), "metric": source, "device": str(device)}
     if not args.no_ranking:
         cams = [render_size(c, args.render_width) for c in load_cameras(args.cameras, None)]
-        report["ranking"] = ranking_check(gaussians, cams, d, args.occlusion, device)
+        report["ranking"] = compare_with_renders(gaussians, cams, d, args.occlusion, device)
         print_ranking(report["ranking"], source)
     report["timing"] = timing(gaussians, d, args, device)
     print_timing(report["timing"])
@@ -249,7 +150,5 @@ def run_command(args: argparse.Namespace) -> int:
           f"1 thread) {ref_before:.1f} ms before, {ref_after:.1f} ms after; torch threads {torch.get_num_threads()}")
     report.update(load_average=load, reference_ms=[ref_before, ref_after])
     if args.json is not None:
-        tmp = args.json.with_name(f".{args.json.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(report, indent=2))
-        os.replace(tmp, args.json)
+        write_json_atomic(args.json, report)
     return 0

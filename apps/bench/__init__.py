@@ -1,0 +1,41 @@
+"""`fluidgs bench WHAT`: benchmarks as commands (they print figures; they are not timed tests).
+
+Each benchmark lives in its own module of this package with ``add_arguments(parser)`` and ``run_command(args)``:
+
+- ``sim`` (:mod:`apps.bench.sim`): the paper-scale DFSPH probe, side by side with SPlisHSPlasH when installed (the
+  peer harness is :mod:`fluidsim.peer`);
+- ``score`` (:mod:`apps.bench.score`): the probes on Gaussians, simulation and aggregation timed apart;
+- ``render`` (:mod:`apps.bench.render`): forward + backward time of the torch rasterizer;
+- ``views`` (:mod:`apps.bench.views`): view scores from the projection alone, and their ranking against renders.
+- ``hole`` (:mod:`apps.bench.hole`): a hole punched in a capture's surface, its solid and its rim's D_g (issue 15).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+from ..help_format import HelpFormatter
+
+# name -> (module, help). Modules are imported when the parser is built.
+BENCHMARKS = {
+    "sim": ("apps.bench.sim", "the paper-scale DFSPH probe (and SPlisHSPlasH when installed)"),
+    "score": ("apps.bench.score", "probes on Gaussians: simulation vs aggregation time, quick five-probe total"),
+    "render": ("apps.bench.render", "forward + backward time of the torch 3DGS rasterizer (5k@100x100, 20k@200x200)"),
+    "views": ("apps.bench.views", "view scores without renders: 200 cameras x 1M Gaussians; ranking vs full renders"),
+    "hole": ("apps.bench.hole", "a hole punched in a capture's surface: solid points removed, rim D_g holed / intact"),
+}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
+    for name, (module_name, help_text) in BENCHMARKS.items():
+        module = importlib.import_module(module_name)
+        q = sub.add_parser(name, help=help_text, description=(module.__doc__ or help_text).strip().splitlines()[0],
+                           formatter_class=HelpFormatter)
+        module.add_arguments(q)
+        q.set_defaults(_bench=module)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    return int(args._bench.run_command(args) or 0)

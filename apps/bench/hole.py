@@ -1,0 +1,254 @@
+"""`fluidgs bench hole`: a hole punched in a capture's surface, and what it does to the solid and to its rim's D_g.
+
+Issue 15's check of the paper's premise on real captures. The hole removes the Gaussians whose centres lie in a
+cylinder of radius ``--radius`` and half-depth ``--depth`` along the surface normal (:class:`nbv.holes.Hole`). The
+rim is the Gaussians left within ``--band`` of its edge, in the same slab. For each lattice shift in ``--shifts``
+(the whole capture moved by that fraction of the spacing along x, y and z, to see how the answer depends on where
+the lattice falls), the intact and the holed set are solidified and probed at the same scale, and it prints:
+
+- the Gaussians removed, the solid points of both sets and how many the hole removed and added;
+- the axis opacity: what a 3DGS render along the hole's axis still shows through it, combined and the largest single
+  Gaussian (:func:`nbv.holes.axis_opacity`; the solid can only open where this falls below tau);
+- per probe, the rim's mean D_g^(IC) on both sets and the ratio holed / intact, with the fraction of rim Gaussians
+  that any fluid sample reached (``*`` marks the head-on probe, whose flow runs most against the hole's normal); then
+  the max-combined ratio (D_g = max over the probes, paper Eq. 3) and D-bar.
+
+``--solid-only`` stops after the solids (seconds, no probes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..runtime import positive_int
+
+SIDES = {"+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
+
+
+def _vector(text: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(c) for c in text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z (three numbers), got {text!r}") from exc
+    if len(v) != 3 or not all(math.isfinite(c) for c in v):
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z (three finite numbers), got {text!r}")
+    return v
+
+
+def _shifts(text: str) -> tuple[float, ...]:
+    try:
+        v = tuple(float(c) for c in text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected a comma list of fractions of the spacing, got {text!r}") from exc
+    if not v or not all(math.isfinite(c) for c in v):
+        raise argparse.ArgumentTypeError(f"expected finite fractions of the spacing, got {text!r}")
+    return v
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("gaussians", type=Path, help="the capture (any supported Gaussian format)")
+    p.add_argument("--up", "--up-axis", dest="up", default="+y", metavar="UP",
+                   help="the capture's up direction (axis or X,Y,Z vector; default: %(default)s)")
+    p.add_argument("--scale", default="auto", help="metres per scene unit, or auto (2 m largest extent)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--point", type=_vector, default=None, metavar="X,Y,Z",
+                       help="a surface point on the hole's axis, simulation metres (Y-up)")
+    where.add_argument("--side", choices=sorted(SIDES), default="+x",
+                       help="find the point on this side of the object at --height (default: %(default)s)")
+    p.add_argument("--height", type=float, default=None,
+                   help="--side: simulation height y of the point, m (default: the middle of the object)")
+    p.add_argument("--lateral", type=float, default=0.0,
+                   help="--side: offset across the side, m (z for the x sides, x for the z sides; default 0)")
+    p.add_argument("--normal", type=_vector, default=None, metavar="X,Y,Z",
+                   help="the hole's axis (default: the surface normal of the centres within 8 cm, facing out)")
+    p.add_argument("--radius", type=float, default=0.055, help="hole radius, m (default: %(default)s, 11 cm wide)")
+    p.add_argument("--depth", type=float, default=0.06,
+                   help="half-depth of the hole's cylinder along the normal, m; inf cuts through the object "
+                        "(default: %(default)s)")
+    p.add_argument("--band", type=float, default=0.055, help="rim width beyond the radius, m (default: %(default)s)")
+    p.add_argument("--see-through", type=float, default=None, metavar="EPS",
+                   help="also remove every Gaussian whose peak opacity on a ray through the disc (within the slab) "
+                        "exceeds EPS, so that a render sees through the hole (default: centres only)")
+    p.add_argument("--shifts", type=_shifts, default=(0.0,), metavar="F,F,...",
+                   help="lattice shifts, fractions of the spacing along x, y and z (default: 0)")
+    p.add_argument("--paper", action="store_true", help="paper setting: r = 0.025 m, 750 steps (default: quick)")
+    p.add_argument("--particle-radius", type=float, default=None, help="particle radius r, m (overrides the preset)")
+    p.add_argument("--steps", type=positive_int, default=None, help="steps per probe (default: 300, 750 with --paper)")
+    p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes (default: all five)")
+    p.add_argument("--solid-only", action="store_true", help="compare the solids only (no probes)")
+    p.add_argument("--threads", type=positive_int, default=2, help="CPU threads (default: %(default)s)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="Taichi device (default: %(default)s)")
+    p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
+
+
+def _shifted(gaussians, transform, delta_sim: np.ndarray):
+    """The set moved by ``delta_sim`` simulation metres (its means only)."""
+    import torch
+
+    from recon.gaussians import GaussianSet
+
+    d = torch.as_tensor(transform.to_scene(delta_sim[None])[0], dtype=gaussians.means.dtype)
+    return GaussianSet(gaussians.means + d, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits,
+                       gaussians.sh)
+
+
+def head_on_probe(directions, normal) -> str:
+    """The probe whose flow runs most against the hole's outward normal (the fluid meets the hole head-on)."""
+    def flow(label: str) -> np.ndarray:
+        v = np.zeros(3)
+        v["xyz".index(label[1])] = 1.0 if label[0] == "+" else -1.0
+        return v
+
+    return min(directions, key=lambda d: float(flow(d) @ np.asarray(normal)))
+
+
+def _lattice_keys(points: np.ndarray, spacing: float) -> set[tuple[int, int, int]]:
+    return {tuple(k) for k in np.round(np.asarray(points) / spacing).astype(np.int64).tolist()}
+
+
+def locate_hole(args: argparse.Namespace, means: np.ndarray, opacities: np.ndarray):
+    """The :class:`nbv.holes.Hole` of the options, in the unshifted capture's simulation frame."""
+    from nbv.holes import Hole, surface_normal, surface_point
+
+    if args.point is not None:
+        point = np.asarray(args.point)
+        outward = point - np.median(means, axis=0)
+    else:
+        height = args.height if args.height is not None else float(np.median(means[:, 1]))
+        outward = np.asarray(SIDES[args.side])
+        point = surface_point(means, opacities, outward, height, args.lateral)
+    normal = np.asarray(args.normal) if args.normal is not None else surface_normal(means, point, outward)
+    return Hole(tuple(point), tuple(normal), radius=args.radius, depth=args.depth, band=args.band)
+
+
+def probe_figures(intact, holed, kept: np.ndarray, rim: np.ndarray, normal) -> dict:
+    """Per probe and max-combined: the rim's mean D_g on both sets, the ratio, the fraction of rim Gaussians reached.
+
+    Args:
+        intact, holed: the two ``PhysicsResult``. kept: [G'] intact index of each holed row. rim: [G] bool (intact
+            indices). normal: the hole's axis (for the head-on probe).
+    """
+    from nbv.holes import rim_ratios
+
+    ratios = rim_ratios(intact.per_probe, holed.per_probe, kept, rim)
+    rows = rim[kept]
+    probes = {d: {"intact": float(intact.per_probe[k][rim].mean()), "holed": float(holed.per_probe[k][rows].mean()),
+                  "ratio": ratios[f"probe {k}"],
+                  "reached_intact": float((intact.per_probe_counts[k][rim] > 0).mean()),
+                  "reached_holed": float((holed.per_probe_counts[k][rows] > 0).mean()),
+                  "leaked_holed": int(holed.leaks[d].final)}
+              for k, d in enumerate(intact.directions)}
+    return {"probes": probes, "head_on": head_on_probe(intact.directions, normal),
+            "max_intact": float(intact.divergence[rim].mean()), "max_holed": float(holed.divergence[rows].mean()),
+            "max_ratio": ratios["max"], "dbar_intact": float(intact.dbar), "dbar_holed": float(holed.dbar)}
+
+
+def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: bool,
+                  see_through: float | None = None) -> dict:
+    """One lattice shift: the solids of the intact and the holed set, then (unless ``solid_only``) the probes."""
+    import torch
+
+    from nbv.holes import Hole, axis_opacity, covering, open_fraction
+    from nbv.physics import simulate_gaussians
+    from nbv.solidify import SolidifyConfig, gaussian_arrays_in_sim, gaussians_to_solid, inverse_covariances_in_sim
+
+    spacing = 2.0 * cfg.particle_radius
+    delta = np.full(3, shift * spacing)
+    moved = _shifted(gaussians, transform, delta) if shift else gaussians
+    h = Hole(tuple(np.asarray(hole.point) + delta), hole.normal, hole.radius, hole.depth, hole.band)
+    means, _, opacities, _ = gaussian_arrays_in_sim(moved, transform)
+    inv = inverse_covariances_in_sim(moved, transform)
+    removed = h.removed(means)
+    if see_through is not None:
+        removed |= covering(h, means, inv, opacities, see_through)
+    kept = np.nonzero(~removed)[0]
+    holed = moved.subset(torch.from_numpy(kept))
+    tau = cfg.opacity_threshold
+    out = {"shift": shift, "gaussians_removed": int(removed.sum()), "rim_gaussians": int(h.rim(means, ~removed).sum()),
+           "axis_opacity_intact": axis_opacity(h, means, inv, opacities),
+           "axis_opacity_holed": axis_opacity(h, means[kept], inv[kept], opacities[kept]),
+           "open_fraction_holed": open_fraction(h, means[kept], inv[kept], opacities[kept], tau)}
+    t0 = time.perf_counter()
+    if solid_only:
+        scfg = SolidifyConfig(spacing=spacing, opacity_threshold=cfg.opacity_threshold)
+        solids = [gaussians_to_solid(s, scfg, transform).points for s in (moved, holed)]
+    else:
+        res = [simulate_gaussians(s, cfg, progress=False) for s in (moved, holed)]
+        solids = [r.solid for r in res]
+    a, b = (_lattice_keys(s, spacing) for s in solids)
+    out.update(solid_intact=len(a), solid_holed=len(b), solid_removed=len(a - b), solid_added=len(b - a),
+               seconds=time.perf_counter() - t0)
+    if solid_only:
+        return out
+    out.update(probe_figures(res[0], res[1], kept, h.rim(means, ~removed), h.normal))
+    return out
+
+
+def print_shift(r: dict) -> None:
+    ai, ah = r["axis_opacity_intact"], r["axis_opacity_holed"]
+    print(f"shift {r['shift']:g} spacing: {r['gaussians_removed']} Gaussians removed, rim {r['rim_gaussians']}; solid "
+          f"{r['solid_intact']} -> {r['solid_holed']} ({r['solid_removed']} removed, {r['solid_added']} added); axis "
+          f"opacity {ai[0]:.2f} -> {ah[0]:.2f} (largest single Gaussian {ai[1]:.2f} -> {ah[1]:.2f}); open to a "
+          f"render: {100 * r['open_fraction_holed'][0]:.0f} % of the disc (per Gaussian "
+          f"{100 * r['open_fraction_holed'][1]:.0f} %); {r['seconds']:.0f} s")
+    for d, p in r.get("probes", {}).items():
+        label = d + ("*" if d == r["head_on"] else "")
+        print(f"  {label:>4}: rim D_g {p['intact']:.4g} -> {p['holed']:.4g} 1/s  x{p['ratio']:.3f}  (reached "
+              f"{p['reached_intact']:.2f} -> {p['reached_holed']:.2f}, leaked {p['leaked_holed']})")
+    if "max_ratio" in r:
+        print(f"  max: rim D_g {r['max_intact']:.4g} -> {r['max_holed']:.4g} 1/s  x{r['max_ratio']:.3f}; D-bar "
+              f"{r['dbar_intact']:.4g} -> {r['dbar_holed']:.4g} (x{r['dbar_holed'] / r['dbar_intact']:.3f})")
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.files import write_json_atomic
+    from nbv.physics import QUICK, PhysicsConfig, parse_directions, scene_transform
+    from nbv.solidify import gaussian_arrays_in_sim
+
+    from ..options import check_output_file, load_gaussians_checked
+    from ..runtime import init_taichi
+
+    if args.see_through is not None and not 0.0 < args.see_through < 1.0:
+        raise ValueError(f"--see-through must be an opacity in (0, 1), got {args.see_through}")
+    for name in ("radius", "band", "depth"):
+        v = getattr(args, name)
+        if not (v > 0) or (name != "depth" and not math.isfinite(v)):
+            raise ValueError(f"--{name} must be a length > 0 m{' (inf: through)' if name == 'depth' else ''}, got {v}")
+    if args.json is not None:
+        check_output_file(args.json, (".json",))
+    gaussians = load_gaussians_checked(args.gaussians)
+    radius = args.particle_radius or (0.025 if args.paper else QUICK["particle_radius"])
+    steps = args.steps or (750 if args.paper else QUICK["steps"])
+    scale = args.scale if args.scale == "auto" else float(args.scale)
+    cfg = PhysicsConfig(particle_radius=radius, steps=steps, directions=parse_directions(args.directions),
+                        up=args.up, scale=scale, empty_reference=False)
+    init_taichi(args.device, cfg.precision, args.threads)
+    transform = scene_transform(gaussians, cfg)    # fixed here: the holed set keeps the intact set's scale
+    cfg = dataclasses.replace(cfg, scale=transform.scale)
+    means, _, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    hole = locate_hole(args, means, opacities)
+    print(f"{args.gaussians}: {gaussians.num:,} Gaussians, {transform.scale:.4g} m per unit; hole at "
+          f"{np.round(hole.point, 3).tolist()} m, normal {np.round(hole.normal, 3).tolist()}, radius {hole.radius} m, "
+          f"half-depth {hole.depth} m, rim band {hole.band} m; r = {radius} m, {steps} steps, "
+          f"probes {','.join(cfg.directions)}")
+    results = []
+    for shift in args.shifts:
+        results.append(measure_shift(gaussians, cfg, transform, hole, shift, args.solid_only, args.see_through))
+        print_shift(results[-1])
+    if len(results) > 1 and not args.solid_only:
+        ratios = np.array([r["max_ratio"] for r in results])
+        head = np.array([r["probes"][r["head_on"]]["ratio"] for r in results])
+        print(f"rim ratio over {len(results)} shifts: max-combined {ratios.min():.3f} - {ratios.max():.3f}, head-on "
+              f"probe ({results[0]['head_on']}) {head.min():.3f} - {head.max():.3f}")
+    if args.json is not None:
+        hole_doc = {"point": hole.point, "normal": hole.normal, "radius": hole.radius, "depth": hole.depth,
+                    "band": hole.band, "see_through": args.see_through}
+        write_json_atomic(args.json, {"source": str(args.gaussians), "hole": hole_doc, "particle_radius": radius,
+                                      "steps": steps, "shifts": results})
+    return 0

@@ -1,0 +1,128 @@
+"""Output checks before any work: an output the file system refuses, and an output that is one of the inputs.
+
+:func:`check_writable` creates the missing folders, checks the name lengths and tries the very temporary name of
+the atomic writers (:func:`fluidsim.files.atomic.temp_path`), so a read-only, full or unwritable folder is found
+before a simulation, not after it (:class:`~fluidsim.files.atomic.OutputError`, exit code 4).
+Then :func:`check_not_input` refuses an output that would overwrite an input, also through a symbolic or a hard
+link (``ValueError``, exit code 2).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+from .atomic import OutputError, PathLike, temp_path
+
+
+def _first_existing(p: Path) -> Path:
+    """``p`` or its nearest ancestor that exists."""
+    p = p.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _check_name_lengths(p: Path, folder: Path) -> None:
+    try:
+        name_max = os.pathconf(folder, "PC_NAME_MAX")
+        path_max = os.pathconf(folder, "PC_PATH_MAX")
+    except (OSError, ValueError):
+        name_max, path_max = 255, 4096
+    for part in p.absolute().parts[1:]:
+        if len(os.fsencode(part)) > name_max:
+            raise OutputError(f"output path {p}: the name {part[:40]}... is {len(os.fsencode(part))} bytes, longer "
+                              f"than the {name_max} bytes this file system allows; choose a shorter name")
+    if len(os.fsencode(str(p.absolute()))) >= path_max:
+        raise OutputError(f"output path {p} is longer than the {path_max} bytes this system allows; choose a "
+                          "shorter path")
+
+
+def check_writable(path: PathLike) -> Path:
+    """Fail early, before any work, when ``path`` cannot be written as an output file.
+
+    Creates the missing parent folders, checks the name lengths against the file system's limits, then
+    creates and removes a temporary file of the writers' own pattern (:func:`temp_path`) in the folder, so
+    that a read-only, full or unwritable folder is found now, not after the simulation.
+
+    Raises:
+        OutputError: naming the path and the fix (a parent is a file, the output is a folder, a name is too
+            long, the folder cannot be created or written).
+    """
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    blocker = _first_existing(parent)
+    if not blocker.is_dir():
+        raise OutputError(f"output path {p}: {blocker} is a file, not a folder; choose an output path whose "
+                          "folders are folders")
+    _check_name_lengths(p, blocker)
+    if not parent.exists():
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"cannot create the output folder {parent}: {exc}; choose a writable path") from exc
+    if p.is_dir():
+        raise OutputError(f"output path {p} is a folder; give a file name such as {p / 'out.h5'}")
+    probe = temp_path(p)
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except OSError as exc:
+        raise OutputError(f"output folder {parent} is not writable ({exc.strerror}); choose another output "
+                          "path") from exc
+    os.close(fd)
+    probe.unlink()
+    return p
+
+
+# ---- outputs must not be inputs -------------------------------------------------------------------------
+def same_file(a: PathLike, b: PathLike) -> bool:
+    """Whether two paths name the same file: the same inode on the same device (symbolic and hard links,
+    ``..`` and relative spellings included), or, for a path that does not exist yet, the same real path."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _inside(path: PathLike, folder: PathLike) -> bool:
+    real, top = os.path.realpath(path), os.path.realpath(folder)
+    return real == top or real.startswith(top.rstrip(os.sep) + os.sep)
+
+
+Labelled = Mapping[str, PathLike | None] | Iterable[tuple[str, PathLike | None]]
+
+
+def _pairs(paths: Labelled | None) -> list[tuple[str, Path]]:
+    items = (paths or {}).items() if isinstance(paths, Mapping) or paths is None else paths
+    return [(k, Path(v)) for k, v in items if v is not None]
+
+
+def check_not_input(outputs: Labelled, inputs: Labelled, replaced: Labelled | None = None) -> None:
+    """Refuse, before any work, an output that would overwrite an input.
+
+    Each argument is a mapping label -> path or (label, path) pairs (several paths may share a label); None
+    paths are skipped.
+
+    Args:
+        outputs: label (the option, e.g. "--ply") -> a path the command writes.
+        inputs: label (e.g. "GAUSSIANS") -> a file the command reads.
+        replaced: label -> an output folder the command replaces or empties as a whole (``--overwrite``): no
+            input may lie inside it.
+    Raises:
+        ValueError: naming both paths and the fix (the outputs resolve to an input: same real path, a
+            symbolic link or a hard link to it).
+    """
+    ins = _pairs(inputs)
+    for olabel, out in _pairs(outputs):
+        for ilabel, inp in ins:
+            if same_file(out, inp):
+                how = (" (a hard link to the same file)" if os.path.realpath(out) != os.path.realpath(inp) else
+                       " (through a symbolic link)" if os.path.abspath(out) != os.path.abspath(inp) else "")
+                raise ValueError(f"{olabel} {out} is the input {ilabel} {inp}{how}: writing it would destroy the "
+                                 f"input; choose another output path for {olabel}")
+    for olabel, folder in _pairs(replaced):
+        for ilabel, inp in ins:
+            if _inside(inp, folder):
+                raise ValueError(f"{olabel} {folder} would be replaced, but the input {ilabel} {inp} lies inside "
+                                 f"it; choose another output folder for {olabel} or move the input out")

@@ -1,0 +1,130 @@
+"""A built solver stepped to an OUT.h5 file (the format of :class:`fluidsim.output.SimulationWriter`): frames every
+K steps, per-step statistics and the divergence sums, written whatever ends the run.
+
+A diverging run still writes its file (frames so far, statistics, status naming the step) and re-raises. A stop
+request (an object whose ``signum`` becomes a signal number, such as the SIGINT/SIGTERM handler of ``fluidgs sim``)
+ends the run at the next step boundary: the file gets the current state as a last frame and status "interrupted",
+and :class:`Interrupted` is raised. Never prints; the progress bar is tqdm's, off with ``progress=False``.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from .config import SolverConfig
+from .output import SimulationWriter
+from .probes import ProbeConfig, build_probe_solver, probe_setup
+from .simulation import SimulationDiverged, run
+
+log = logging.getLogger(__name__)
+
+
+class Interrupted(Exception):
+    """The run was stopped by ``signum`` (SIGINT or SIGTERM) after ``step`` completed steps; its file is saved."""
+
+    def __init__(self, signum: int, step: int, path: Path):
+        self.signum, self.step, self.path = signum, step, path
+        super().__init__(f"{signal.Signals(signum).name} after step {step}; the frames so far are saved to {path} "
+                         "(status 'interrupted'); run again to overwrite it")
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal number: 130 for SIGINT, 143 for SIGTERM (the shell's convention)."""
+        return 128 + int(self.signum)
+
+
+def simulate_to_h5(solver, scene_dict: dict, output: Path, steps: int, save_every: int, desc: str,
+                   progress: bool = True, stop=None) -> tuple[Path, list]:
+    """Step a built solver, writing frames every ``save_every`` steps; returns (path, stats history).
+
+    Args:
+        solver: a built :class:`fluidsim.DFSPHSolver`.
+        scene_dict: the scene written into the file's attributes.
+        output: the .h5 path (written under a temporary name, renamed at the end).
+        steps: time steps to run; save_every: steps between frames (0: the first and last only).
+        desc: the progress bar's label; progress: show it.
+        stop: None, or an object whose ``signum`` is None until a signal asks to stop (module docstring).
+    Raises:
+        SimulationDiverged: after the file is written with the diverged status.
+        Interrupted: after the file is written with status "interrupted".
+    """
+    writer = SimulationWriter(output, scene_dict)
+    history: list = []
+    bar = tqdm(total=steps, desc=desc, unit="step", disable=not progress, leave=False)
+
+    def on_step(s, st) -> None:
+        last = st.step + 1 == steps
+        if (save_every and (st.step + 1) % save_every == 0) or last:
+            writer.write_frame(st.step + 1, st.time, s.fluid_state())
+        if stop is not None and stop.signum is not None and not last:
+            raise Interrupted(stop.signum, st.step + 1, writer.path)
+
+    def on_progress(st) -> None:
+        history.append(st)
+        bar.update(1)
+        bar.set_postfix(density_it=st.density_iterations, divergence_it=st.divergence_iterations,
+                        vmax=f"{st.max_speed:.2f}", fluid=st.active, refresh=False)
+
+    try:
+        writer.write_boundary(solver.boundary.x.to_numpy()[: solver.boundary.count])
+        writer.write_frame(0, 0.0, solver.fluid_state())
+        history = run(solver, steps, on_step=on_step, progress=on_progress)
+    except SimulationDiverged as exc:
+        bar.close()
+        sums, counts = solver.divergence_accumulation()
+        path = writer.finish(exc.history, sums, counts, status=str(exc),
+                             removed_inside_solid=solver.removed_inside_solid)
+        log.error("%s; frames so far saved to %s", exc, path)
+        raise
+    except Interrupted as exc:
+        bar.close()
+        if writer.last_frame_step != exc.step:
+            writer.write_frame(exc.step, history[-1].time, solver.fluid_state())
+        sums, counts = solver.divergence_accumulation()
+        writer.finish(history, sums, counts, status="interrupted", removed_inside_solid=solver.removed_inside_solid,
+                      interrupted_by=signal.Signals(exc.signum).name, interrupted_after_step=exc.step)
+        raise
+    except BaseException:
+        bar.close()
+        writer.abort()
+        raise
+    bar.close()
+    sums, counts = solver.divergence_accumulation()
+    path = writer.finish(history, sums, counts, removed_inside_solid=solver.removed_inside_solid)
+    return path, history
+
+
+def probe_to_h5(solid: np.ndarray, direction: str, config: SolverConfig, probe: ProbeConfig, steps: int,
+                path: str | Path, save_every: int = 10, progress: bool = True):
+    """One probe (:mod:`fluidsim.probes`) against the static ``solid`` [N, 3] (m), stepped to an OUT.h5 at ``path``
+    with its domain, inflow velocity, walls and time step in the file's scene attributes.
+
+    Returns:
+        (path, the per-step statistics, the solver after the run: its divergence sums are the file's).
+    """
+    setup = probe_setup(solid, direction, probe, config.spacing)
+    solver = build_probe_solver(solid, setup, config, probe)
+    scene = {"probe": direction, "velocity": list(setup.velocity),
+             "domain": {"min": list(setup.domain_min), "max": list(setup.domain_max), "walls": probe.walls},
+             "particle_radius": config.particle_radius, "dt": config.dt, "steps": steps}
+    out, history = simulate_to_h5(solver, scene, Path(path), steps, save_every, desc=f"probe {direction}",
+                                  progress=progress)
+    return out, history, solver
+
+
+def probe_file_summary(path: Path, history: list, solver) -> dict:
+    """A JSON-able summary of one :func:`probe_to_h5` run: particle counts, retired fluid, mean solver iterations
+    and the mean and 95th percentile of the particles' mean divergence D_i (paper Eq. 1, 1/s)."""
+    sums, counts = solver.divergence_accumulation()
+    mean_d = np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
+    return {"file": Path(path).name, "fluid_particles": solver.fluid.capacity,
+            "boundary_particles": solver.boundary.count, "retired": int(sum(h.retired for h in history)),
+            "mean_density_iterations": float(np.mean([h.density_iterations for h in history])),
+            "mean_divergence_iterations": float(np.mean([h.divergence_iterations for h in history])),
+            "mean_particle_divergence": float(mean_d.mean()),
+            "p95_particle_divergence": float(np.percentile(mean_d, 95))}

@@ -1,0 +1,246 @@
+"""A hole punched in a Gaussian set, and what it does to the solid and to D_g at its rim (issue 15's check).
+
+The paper's premise (Sec. 3.3): where the reconstruction is wrong, the probes' flow is disturbed, so D_g is high
+there and the views that see it score high. The check on a real capture punches a hole in its surface and
+compares the rim's D_g with the intact capture's.
+
+Geometry, in simulation metres (Y-up) around a surface point p with unit normal n: a centre x has the axial
+coordinate t = (x - p) . n and the radial distance r = |(x - p) - t n| from the hole's axis.
+
+- The *hole* removes the Gaussians whose centres lie in the cylinder r < R, |t| < depth (depth = inf: a tunnel
+  through the whole object).
+- The *rim* is the Gaussians left around its edge: R <= r < R + band, |t| < depth (the same slab); when more
+  than the cylinder was removed (a see-through hole), the band starts at the nearest centre left.
+- The *axis opacity* is what a 3DGS render along the axis would show through the hole: every Gaussian enters a
+  ray at its peak on the ray (as rasterisation composites it), 1 - prod_g (1 - o_g max_s exp(-d_g(p + s n)^2 / 2)),
+  s over the ray's segment.
+
+The rim ratio of a probe is the rim's mean D_g^(IC) on the holed set over the same Gaussians' mean on the intact set
+(matched by index); the max-combined ratio does the same with D_g = max over the probes (paper Eq. 3).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .solidify import MAX_ALPHA
+
+
+@dataclass(frozen=True)
+class Hole:
+    """A cylindrical hole through a surface.
+
+    Attributes:
+        point: (3,) simulation metres, a point of the surface on the hole's axis.
+        normal: (3,) unit outward normal, the hole's axis.
+        radius: R, m (an 11 cm hole has R = 0.055).
+        depth: half-length of the cylinder along the normal, m; math.inf cuts through the whole object.
+        band: width of the rim annulus beyond R, m.
+    """
+
+    point: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    radius: float = 0.055
+    depth: float = 0.06
+    band: float = 0.055
+
+    def __post_init__(self) -> None:
+        p = np.asarray(self.point, np.float64).reshape(-1)
+        n = np.asarray(self.normal, np.float64).reshape(-1)
+        if p.shape != (3,) or not np.isfinite(p).all():
+            raise ValueError(f"Hole.point must be 3 finite coordinates (sim metres), got {self.point!r}")
+        if n.shape != (3,) or not np.isfinite(n).all() or np.linalg.norm(n) < 1e-12:
+            raise ValueError(f"Hole.normal must be a finite non-zero 3-vector, got {self.normal!r}")
+        for name in ("radius", "band"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"Hole.{name} must be a finite length > 0 m, got {v!r}")
+        if not (isinstance(self.depth, (int, float)) and self.depth > 0):
+            raise ValueError(f"Hole.depth must be a length > 0 m (inf: through the object), got {self.depth!r}")
+        object.__setattr__(self, "point", tuple(p.tolist()))
+        object.__setattr__(self, "normal", tuple((n / np.linalg.norm(n)).tolist()))
+
+    def coordinates(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """[N] axial t and radial r (m) of ``points`` [N, 3] m, about the hole's axis."""
+        d = np.asarray(points, np.float64).reshape(-1, 3) - np.asarray(self.point)
+        n = np.asarray(self.normal)
+        t = d @ n
+        return t, np.linalg.norm(d - t[:, None] * n, axis=1)
+
+    def removed(self, means: np.ndarray) -> np.ndarray:
+        """[N] bool, the Gaussians whose centres (``means`` [N, 3] m) lie in the hole's cylinder."""
+        t, r = self.coordinates(means)
+        return (r < self.radius) & (np.abs(t) < self.depth)
+
+    def rim(self, means: np.ndarray, kept: np.ndarray | None = None) -> np.ndarray:
+        """[N] bool, the Gaussians around the hole's edge, in the same slab |t| < depth.
+
+        The edge is at R, or, given ``kept`` ([N] bool, the Gaussians left by the hole), at the smallest radius of a
+        kept centre in the slab when that is larger (a see-through hole removes more than the cylinder). The rim is
+        the centres within ``band`` beyond the edge (kept ones only, when ``kept`` is given).
+        """
+        t, r = self.coordinates(means)
+        slab = np.abs(t) < self.depth
+        edge = self.radius
+        if kept is not None:
+            kept = np.asarray(kept, bool)
+            left = slab & kept & (r >= self.radius)
+            edge = max(edge, float(r[left].min())) if left.any() else edge
+            slab &= kept
+        return slab & (r >= edge) & (r < edge + self.band)
+
+
+def surface_point(means: np.ndarray, opacities: np.ndarray, side: np.ndarray, height: float,
+                  lateral: float = 0.0, tube: float = 0.04, shell: float = 0.05) -> np.ndarray:
+    """The outer surface of the object on ``side`` at simulation height ``height``.
+
+    The centres (o_g >= 0.05) within ``tube`` of the horizontal line through (lateral offset, height) along ``side``
+    are taken; of those, the ones within ``shell`` of the outermost along ``side`` form the surface, and their median
+    is the point.
+
+    Args:
+        means: [N, 3] m. opacities: [N]. side: (3,) horizontal direction (its y is ignored), e.g. (1, 0, 0).
+        height: y, m. lateral: offset along the horizontal direction perpendicular to ``side``, m.
+    Returns:
+        (3,) m.
+    Raises:
+        ValueError: no centre lies in the tube.
+    """
+    u = np.asarray(side, np.float64).copy()
+    u[1] = 0.0
+    if np.linalg.norm(u) < 1e-12:
+        raise ValueError(f"the hole's side must be horizontal (x and/or z), got {tuple(side)}")
+    u /= np.linalg.norm(u)
+    w = np.cross(u, (0.0, 1.0, 0.0))
+    m = np.asarray(means, np.float64)
+    along, across = m @ u, m @ w
+    sel = (np.abs(m[:, 1] - height) < tube) & (np.abs(across - lateral) < tube) & (np.asarray(opacities) >= 0.05)
+    if not sel.any():
+        raise ValueError(f"no Gaussian centre within {tube} m of the line at height {height} m, lateral {lateral} m "
+                         f"along {u.round(3).tolist()}: choose a height inside the object (sim y "
+                         f"{m[:, 1].min():.2f} - {m[:, 1].max():.2f} m)")
+    outer = sel & (along >= along[sel].max() - shell)
+    return np.median(m[outer], axis=0)
+
+
+def surface_normal(means: np.ndarray, point: np.ndarray, outward: np.ndarray, radius: float = 0.08) -> np.ndarray:
+    """(3,) unit normal of the centres within ``radius`` of ``point`` (least principal axis), facing ``outward``.
+
+    Raises:
+        ValueError: fewer than 3 centres lie within the radius.
+    """
+    m = np.asarray(means, np.float64)
+    near = m[np.linalg.norm(m - np.asarray(point), axis=1) < radius]
+    if len(near) < 3:
+        raise ValueError(f"fewer than 3 Gaussian centres within {radius} m of {np.round(point, 3).tolist()}: "
+                         f"give the hole's normal explicitly")
+    q = near - near.mean(0)
+    _, vecs = np.linalg.eigh(q.T @ q)
+    n = vecs[:, 0]
+    return n if n @ np.asarray(outward, np.float64) >= 0 else -n
+
+
+def _plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors spanning the plane perpendicular to ``normal`` (a right-handed frame with it)."""
+    n = np.asarray(normal, np.float64)
+    a = np.cross(n, (0.0, 1.0, 0.0)) if abs(n[1]) < 0.9 else np.cross(n, (1.0, 0.0, 0.0))
+    a /= np.linalg.norm(a)
+    return a, np.cross(n, a)
+
+
+def disc_offsets(hole: Hole, step: float) -> np.ndarray:
+    """[K, 2] in-plane offsets (m) of the rays through the hole's disc: a square grid of pitch ``step``, r < R."""
+    k = np.arange(-math.floor(hole.radius / step), math.floor(hole.radius / step) + 1) * step
+    a, b = (m.ravel() for m in np.meshgrid(k, k, indexing="ij"))
+    inside = a * a + b * b < hole.radius ** 2
+    return np.stack([a[inside], b[inside]], 1)
+
+
+def ray_peaks(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray,
+              offset: tuple[float, float] = (0.0, 0.0), span: tuple[float, float] | None = None) -> np.ndarray:
+    """[N] each Gaussian's peak opacity a_g = o_g max_s exp(-d_g(x(s))^2 / 2) on a ray parallel to the hole's axis.
+
+    The ray is x(s) = p + offset + s n, s in ``span`` (default: the hole's slab, +-depth; an infinite depth gives the
+    whole line). d_g^2 is a convex quadratic in s, so the peak is exact (clamped to 1 - 1e-6 as the solid's tests).
+
+    Args:
+        hole: the hole (its axis). means: [N, 3] m. inv_covs: [N, 3, 3] 1/m^2. opacities: [N].
+        offset: the ray's offset from the axis, along the two in-plane axes of :func:`_plane_axes`, m.
+    """
+    n = np.asarray(hole.normal)
+    a, b = _plane_axes(n)
+    origin = np.asarray(hole.point) + offset[0] * a + offset[1] * b
+    lo, hi = span if span is not None else (-hole.depth, hole.depth)
+    inv = np.asarray(inv_covs, np.float64)
+    d = origin - np.asarray(means, np.float64)
+    an = inv @ n                                  # [N, 3]: A n, with n^T A n > 0
+    s = np.clip(-np.einsum("ni,ni->n", d, an) / (an @ n), lo, hi)
+    y = d + s[:, None] * n
+    return np.minimum(np.asarray(opacities, np.float64) * np.exp(-0.5 * np.einsum("ni,nij,nj->n", y, inv, y)),
+                      MAX_ALPHA)
+
+
+def axis_opacity(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray,
+                 offset: tuple[float, float] = (0.0, 0.0), span: tuple[float, float] | None = None
+                 ) -> tuple[float, float]:
+    """What a 3DGS render along a ray parallel to the hole's axis shows (:func:`ray_peaks`).
+
+    Returns:
+        (combined opacity 1 - prod_g (1 - a_g), the largest single a_g).
+    """
+    alpha = ray_peaks(hole, means, inv_covs, opacities, offset, span)
+    if not len(alpha):
+        return 0.0, 0.0
+    return float(1.0 - np.exp(np.log1p(-alpha).sum())), float(alpha.max())
+
+
+def open_fraction(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray, tau: float,
+                  step: float = 0.01, span: tuple[float, float] | None = None) -> tuple[float, float]:
+    """The fraction of the disc's rays (:func:`disc_offsets`) a render sees through: (combined opacity < tau, and
+    no single Gaussian reaching tau, the issue's per-Gaussian test)."""
+    rays = [axis_opacity(hole, means, inv_covs, opacities, tuple(o), span) for o in disc_offsets(hole, step)]
+    c, single = np.array(rays).T
+    return float((c < tau).mean()), float((single < tau).mean())
+
+
+def covering(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray, eps: float,
+             step: float = 0.005, span: tuple[float, float] | None = None) -> np.ndarray:
+    """[N] bool, the Gaussians whose peak on some ray through the disc exceeds ``eps`` (a see-through hole also
+    removes these: its footprint crosses the disc)."""
+    out = np.zeros(len(means), dtype=bool)
+    for o in disc_offsets(hole, step):
+        out |= ray_peaks(hole, means, inv_covs, opacities, tuple(o), span) > eps
+    return out
+
+
+def rim_ratios(intact: np.ndarray, holed: np.ndarray, kept: np.ndarray, rim: np.ndarray) -> dict[str, float]:
+    """The rim's mean D_g on the holed set over the intact set, per probe and max-combined.
+
+    Args:
+        intact: [P, G] D_g^(IC) of the intact set. holed: [P, G'] of the holed set (its rows the kept Gaussians).
+        kept: [G'] int, the intact index of each holed row. rim: [G] bool, the rim Gaussians (intact indices).
+    Returns:
+        ``probe k`` -> ratio for each row k, and ``max`` (D_g = max over the probes); nan where the intact rim reads 0.
+    Raises:
+        ValueError: the shapes do not match.
+    """
+    intact, holed = np.atleast_2d(intact), np.atleast_2d(holed)
+    kept, rim = np.asarray(kept, np.int64), np.asarray(rim, bool)
+    if intact.shape[0] != holed.shape[0] or holed.shape[1] != len(kept) or intact.shape[1] != len(rim):
+        raise ValueError(f"rim_ratios: intact {intact.shape}, holed {holed.shape}, kept {kept.shape} and rim "
+                         f"{rim.shape} do not match (holed rows are the kept Gaussians of the intact set)")
+    rows = rim[kept]                              # holed rows on the rim
+    if not rows.any():
+        raise ValueError("rim_ratios: no rim Gaussian is left in the holed set; widen the rim band")
+    mine = kept[rows]
+
+    def ratio(a: np.ndarray, b: np.ndarray) -> float:
+        base = float(a[mine].mean())
+        return float(b[rows].mean()) / base if base > 0 else float("nan")
+
+    out = {f"probe {k}": ratio(intact[k], holed[k]) for k in range(intact.shape[0])}
+    out["max"] = ratio(intact.max(0), holed.max(0))
+    return out

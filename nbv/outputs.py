@@ -1,0 +1,67 @@
+"""What a probe run (:class:`nbv.physics.PhysicsResult`) is written as beside RESULT.h5: a JSON-able summary, the
+Gaussians coloured by D_g (a 3DGS .ply that opens in common viewers), and an MP4 of one probe.
+
+The summary's D-bar is in m^4/s and D_g in 1/s (paper Eq. 2-3); the video re-runs one probe of the result
+against its solid (the run keeps no particle frames) and draws it coloured by |div v| (paper Eq. 1), in H.264.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from fluidsim.directions import DIRECTIONS
+from fluidsim.recording import probe_to_h5
+from recon.ply import save_gaussians
+from viz.frames import FrameStyle, render_frames
+
+from .heatmap import colored_gaussians
+
+__all__ = ["probe_video", "result_summary", "save_colored_gaussians"]
+VIDEO_STYLE = FrameStyle(view="iso", width=640, height=480)
+
+
+def result_summary(result) -> dict:
+    """A JSON-able summary of a PhysicsResult: counts, scale (m per scene unit), D-bar and its mean-combined and
+    empty-scene variants (m^4/s), per probe the mean and max D_g (1/s), the Gaussians reached, the mean solver
+    iterations, the retired particles and the leaks, the timings (s) and the config."""
+    probes = {}
+    for i, d in enumerate(result.directions):
+        st = result.stats[d]
+        probes[d] = {"mean_D": float(result.per_probe[i].mean()), "max_D": float(result.per_probe[i].max()),
+                     "touched_gaussians": int((result.per_probe_counts[i] > 0).sum()),
+                     "mean_density_iterations": float(np.mean(st["density_iterations"])) if len(st) else 0.0,
+                     "mean_divergence_iterations": float(np.mean(st["divergence_iterations"])) if len(st) else 0.0,
+                     "retired": int(np.sum(st["retired"])) if len(st) else 0}
+        if d in result.leaks:
+            lk = result.leaks[d]
+            probes[d]["leaked"] = {"final": lk.final, "max": lk.max, "max_step": lk.max_step}
+    return {"gaussians": result.num_gaussians, "solid_particles": int(len(result.solid)),
+            "scale_m_per_unit": float(result.transform.scale), "dbar_m4_s": result.dbar,
+            "dbar_mean_m4_s": result.dbar_mean, "dbar_empty_m4_s": result.dbar_empty, "probes": probes,
+            "timings_s": result.timings, "config": result.config.to_dict()}
+
+
+def save_colored_gaussians(gaussians, divergence: np.ndarray, path: str | Path) -> Path:
+    """The Gaussians coloured by D_g [N] (TURBO map, 99th percentile at the top) as a 3DGS .ply, atomically."""
+    return save_gaussians(colored_gaussians(gaussians, divergence), path)
+
+
+def probe_video(result, direction: str, out: str | Path, every: int = 10, progress: bool = True) -> Path:
+    """Re-run probe ``direction`` of ``result`` against its solid with its settings and write an H.264 MP4 of it
+    (one frame every ``every`` steps, iso view, coloured by divergence). Returns ``out``.
+
+    Raises:
+        ValueError: ``direction`` is not a probe name (naming --video, the option that asks for it).
+    """
+    if direction not in DIRECTIONS:
+        raise ValueError(f"--video: unknown probe {direction!r}; use one of {','.join(DIRECTIONS)}")
+    out = Path(out)
+    cfg = result.config
+    with tempfile.TemporaryDirectory(dir=out.parent) as tmp:
+        h5, _, _ = probe_to_h5(result.solid, direction, cfg.solver_config(), cfg.probe_config(), cfg.steps,
+                               Path(tmp) / "probe.h5", every, progress=progress)
+        render_frames(h5, out, VIDEO_STYLE, progress=progress)
+    return out

@@ -1,0 +1,103 @@
+"""How far view scores from the projection alone agree with scores from full renders (``fluidgs bench views``).
+
+S(T) (paper Eq. 4-5) needs only the screen radii R_g and the visibility of each Gaussian, which
+:func:`nbv.scores.projected_view_scores` computes without rendering. :func:`compare_with_renders` renders every
+candidate in full (what scoring did before), scores it both ways (:func:`nbv.scores.view_scores` on the renders) and
+reports the largest relative score difference, the Spearman rank correlation and whether the two orders are
+identical. With ``occlusion`` it also compares the coarse depth buffer (:class:`nbv.scores.DepthBuffer`) with the
+render-based depth test (:func:`nbv.scores.unoccluded`): the share of visible (view, Gaussian) pairs with the same
+verdict, and the Spearman correlation of the two S(T).
+
+The per-Gaussian metric D_g (1/s) comes from a RESULT.h5 of the Gaussians (:func:`load_divergence`), or from a seeded
+log-normal stand-in (:func:`stand_in_divergence`): the check is about radii and visibility, not physics.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.stats import spearmanr
+
+from recon.projection import project_visibility
+from recon.render import render
+
+from .physics import check_result_matches, load_result
+from .scores import DepthBuffer, coarse_unoccluded, projected_view_scores, rank, unoccluded, view_scores
+
+
+def stand_in_divergence(n: int, seed: int) -> np.ndarray:
+    """[n] a seeded log-normal per-Gaussian metric (1/s; mu = 0, sigma = 1) for when no RESULT.h5 is given."""
+    return np.random.default_rng(seed).lognormal(0.0, 1.0, n)
+
+
+def load_divergence(path: Path | None, gaussians, seed: int) -> tuple[np.ndarray, str]:
+    """([N] D_g in 1/s, description): the max over probes of the RESULT.h5 at ``path`` (checked to belong to
+    ``gaussians``), else :func:`stand_in_divergence`."""
+    if path is None:
+        return stand_in_divergence(gaussians.num, seed), f"seeded log-normal stand-in (seed {seed})"
+    result = load_result(path)
+    check_result_matches(result, gaussians.num, path)
+    return np.asarray(result.divergence, np.float64), f"D_g (max over probes) of {path}"
+
+
+def spearman(a, b) -> float:
+    """Spearman rank correlation of two score vectors [C] (1: the same order)."""
+    return float(spearmanr(np.asarray(a), np.asarray(b))[0])
+
+
+def _projected_radii(gaussians, cams) -> list[torch.Tensor]:
+    radii, _ = project_visibility(gaussians, cams)
+    return list(radii.cpu())
+
+
+def _occlusion_agreement(g, cams, renders, metric: torch.Tensor) -> dict:
+    """The coarse depth buffer against the render-based depth test (see the module docstring)."""
+    reach = 3.0 * g.max_radii().double().cpu()
+    by_render = torch.stack([unoccluded(g.means, reach, c, o) for c, o in zip(cams, renders, strict=True)])
+    coarse = coarse_unoccluded(g, cams, DepthBuffer()).cpu()
+    visible = torch.stack([o.visible.cpu() for o in renders])
+    s_render = view_scores(metric, renders, visible=by_render)
+    s_coarse = projected_view_scores(metric, g, cams, depth_buffer=DepthBuffer()).scores
+    top = set(rank(s_render)[:5].tolist())
+    return {"verdict_agreement": float((coarse == by_render)[visible].double().mean()),
+            "hidden_render": float((visible & ~by_render).sum() / visible.sum()),
+            "hidden_coarse": float((visible & ~coarse).sum() / visible.sum()),
+            "spearman": spearman(s_coarse, s_render),
+            "same_best": int(rank(s_coarse)[0]) == int(rank(s_render)[0]),
+            "top5_overlap": len(top & set(rank(s_coarse)[:5].tolist()))}
+
+
+def compare_with_renders(gaussians, cams, d: np.ndarray, occlusion: bool, device) -> dict:
+    """Score the candidates from full renders and from the projection, and compare.
+
+    Args:
+        gaussians: the GaussianSet (N). cams: the candidate cameras (C). d: [N] D_g, 1/s.
+        occlusion: also compare the coarse depth buffer with the render-based depth test. device: torch device.
+    Returns:
+        views, render_s and projection_s (wall seconds), radii_equal (the projection's radii equal the renderer's in
+        every view), max_relative_difference, spearman, identical_order, order (best first); with ``occlusion`` an
+        "occlusion" dict: verdict_agreement, hidden_render, hidden_coarse (shares of the visible pairs), spearman,
+        same_best, top5_overlap.
+    """
+    metric = torch.from_numpy(d)
+    g = gaussians.detach().to(device)
+    t = time.perf_counter()
+    with torch.no_grad():
+        renders = [render(g, c, 1.0) for c in cams]
+    t_render = time.perf_counter() - t
+    full = view_scores(metric, renders)
+    t = time.perf_counter()
+    fast = projected_view_scores(metric, g, cams).scores
+    t_proj = time.perf_counter() - t
+    radii_equal = all(torch.equal(o.radii.cpu(), r) for o, r in
+                      zip(renders, _projected_radii(g, cams), strict=True))
+    out = {"views": len(cams), "render_s": t_render, "projection_s": t_proj, "radii_equal": radii_equal,
+           "max_relative_difference": float(((fast - full).abs() / full.abs().clamp_min(1e-300)).max()),
+           "spearman": spearman(fast, full), "identical_order": rank(fast).tolist() == rank(full).tolist(),
+           "order": rank(fast).tolist()}
+    if occlusion:
+        out["occlusion"] = _occlusion_agreement(g, cams, renders, metric)
+    return out
