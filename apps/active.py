@@ -119,7 +119,7 @@ def check_plan(args: argparse.Namespace) -> None:
     from dataclasses import fields
 
     from nbv.active import PRESETS, ActiveConfig
-    from nbv.planners import PLANNERS
+    from nbv.plan import PLANNERS
     from recon.datasets import count_train_views
 
     defaults = {f.name: f.default for f in fields(ActiveConfig) if f.name in ACTIVE_FIELDS}

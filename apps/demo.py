@@ -106,7 +106,7 @@ def run_command(args: argparse.Namespace) -> int:
     cams = demo_cameras(gaussians, cpath, args.render_width)
     centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
     init_taichi(args.device, cfg.precision, args.threads)
-    from nbv.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view`
+    from nbv.physics.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view`
 
     result = simulate_gaussians(gaussians, cfg, progress=True, source=source,
                                 record=RecordConfig(("-x",), every=max(1, cfg.steps // 30)))

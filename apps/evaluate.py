@@ -1,5 +1,5 @@
 """`fluidgs eval RUN/`: test PSNR/SSIM/LPIPS, D-bar (five probes) and its empty-scene reference, Chamfer distance to
-the reference mesh, and PSNR / D-bar on the top-20 function-critical test views (see :mod:`nbv.evaluate`).
+the reference mesh, and PSNR / D-bar on the top-20 function-critical test views (see :mod:`nbv.study.evaluate`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ EVAL_OVERRIDES = {"critical_views": {"help": "size of the function-critical subs
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run", type=Path, help="a finished `fluidgs active` run folder (writes RUN/eval.json, eval.md)")
-    from nbv.evaluate import EvalConfig
+    from nbv.study.evaluate import EvalConfig
 
     add_config_options(p, EvalConfig, EVAL_FIELDS, EVAL_OVERRIDES)
     p.add_argument("--particle-radius", type=float, default=None,
@@ -35,8 +35,8 @@ def run_command(args: argparse.Namespace) -> int:
     import json
 
     from nbv.active import ActiveConfig
-    from nbv.evaluate import EvalConfig, evaluate_run
     from nbv.physics import parse_directions
+    from nbv.study.evaluate import EvalConfig, evaluate_run
 
     from .runtime import setup_runtime
 

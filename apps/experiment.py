@@ -1,7 +1,7 @@
 """`fluidgs experiment CONFIG.json`: methods x scenes x seeds of `active` + `eval`, and the paper's tables.
 
 Writes OUTPUT/runs/..., OUTPUT/results.json, OUTPUT/tables.md, OUTPUT/tables/*.md|.csv and OUTPUT/plots/*.png
-(see :mod:`nbv.experiment` for the config keys and the tables). Finished jobs are skipped, so re-running
+(see :mod:`nbv.study.experiment` for the config keys and the tables). Finished jobs are skipped, so re-running
 resumes. ``--executor local`` uses a process pool on this machine; ``--executor ray --address ADDR`` sends the
 jobs to an existing Ray cluster (optional dependency: pip install ray).
 """
@@ -41,8 +41,8 @@ def init_worker(threads: int, precision: str) -> None:
 
 def make_executor(kind: str, workers: int, threads: int, address: str | None, precision: str = "f32",
                   local_cpus: int | None = None):
-    """A :mod:`nbv.executors` executor whose workers run :func:`init_worker`."""
-    from nbv.executors import LocalExecutor, RayExecutor
+    """A :mod:`nbv.study.executors` executor whose workers run :func:`init_worker`."""
+    from nbv.study.executors import LocalExecutor, RayExecutor
 
     if threads < 1:
         raise ValueError(f"--threads must be >= 1 per worker, got {threads}")
@@ -55,7 +55,8 @@ def run_command(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from fluidsim.files import check_not_input
-    from nbv.experiment import ExperimentConfig, run_experiment
+    from nbv.study.experiment import run_experiment
+    from nbv.study.experiment_config import ExperimentConfig
 
     config = ExperimentConfig.load(args.config)
     if args.output is not None:

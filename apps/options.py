@@ -292,7 +292,7 @@ def physics_config_class():
 
 
 def add_frame_arguments(g, cameras: bool = False, scale: bool = True, crop: bool = True) -> None:
-    """--up (alias --up-axis), --scale and --crop: the scene -> simulation frame (:mod:`nbv.scene_frame`)."""
+    """--up (alias --up-axis), --scale and --crop: the scene -> simulation frame (:mod:`nbv.physics.scene_frame`)."""
     config, _ = physics_config_class()
     names = ("up",) + (("scale",) if scale else ()) + (("crop",) if crop else ())
     add_config_options(g, config, names, probe_overrides(cameras=cameras))
@@ -352,7 +352,7 @@ def up_from_args(args: argparse.Namespace, cameras=None):
     """``args.up`` resolved: an up spec for PhysicsConfig ('auto' -> the cameras' mean up vector, logged)."""
     import logging
 
-    from nbv.scene_frame import describe_auto_up, parse_up
+    from nbv.physics.scene_frame import describe_auto_up, parse_up
 
     up = "+y" if args.up is None else args.up
     if str(up).strip().lower() != "auto":
@@ -382,12 +382,13 @@ def add_record_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def record_config_from_args(args: argparse.Namespace, config):
-    """A :class:`nbv.trajectory.RecordConfig` from --record-probe (None without it), checked against the probes of
+    """A :class:`~nbv.physics.trajectory.RecordConfig` from
+    --record-probe (None without it), checked against the probes of
     ``config``."""
     if getattr(args, "record_probe", None) is None:
         return None
     from nbv.physics import parse_directions
-    from nbv.trajectory import RecordConfig
+    from nbv.physics.trajectory import RecordConfig
 
     try:
         dirs = parse_directions(args.record_probe)

@@ -35,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def mesh_up_axis(text: str) -> str:
     """``--up`` of render-dataset -> "y" or "z" (the renderer's lights and orbits are built for those two)."""
-    from nbv.scene_frame import parse_up, up_label
+    from nbv.physics.scene_frame import parse_up, up_label
 
     label = up_label(parse_up(text))
     if label not in ("+y", "+z"):

@@ -63,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def obtain_result(args, gaussians, config, record=None):
     """PhysicsResult from --result, or a fresh simulation (then saved to --save-result when given; ``record``: the
-    probes to record, :class:`nbv.trajectory.RecordConfig`)."""
+    probes to record, :class:`nbv.physics.trajectory.RecordConfig`)."""
     from nbv.physics import check_result_matches, load_result, save_result, simulate_gaussians
 
     from .runtime import init_taichi

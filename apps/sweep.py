@@ -18,7 +18,7 @@ from .options import add_physics_arguments, check_output_file, load_gaussians_ch
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
-    from nbv.sweep import PAPER_VELOCITIES
+    from nbv.study.sweep import PAPER_VELOCITIES
 
     p.add_argument("--velocities", default=",".join(f"{u:g}" for u in PAPER_VELOCITIES),
                    help="comma list of inflow speeds U in m/s (default: the paper's, %(default)s)")
@@ -43,7 +43,7 @@ def plot_sweep(points, path: Path, title: str = "") -> Path:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, check_writable
-    from nbv.sweep import parse_velocities, run_sweep, write_csv
+    from nbv.study.sweep import parse_velocities, run_sweep, write_csv
 
     from .runtime import init_taichi
 

@@ -1,8 +1,8 @@
 """nbv: physics-aware view selection for 3D Gaussians (FluidGaussian, Sec. 3.2-3.4).
 
-Bridges ``recon`` (torch) and ``fluidsim`` (Taichi): Gaussians become a solid (:mod:`nbv.solidify`), the five
+Bridges ``recon`` (torch) and ``fluidsim`` (Taichi): Gaussians become a solid (:mod:`nbv.physics.solidify`), the five
 fluid probes run against it (:mod:`nbv.physics`), per-particle divergence is aggregated onto Gaussians through a
-grid (:mod:`nbv.aggregate`, paper Eq. 2-3), and views are scored and ranked (:mod:`nbv.scores`, Eq. 4-5;
+grid (:mod:`nbv.physics.aggregate`, paper Eq. 2-3), and views are scored and ranked (:mod:`nbv.scores`, Eq. 4-5;
 :func:`score_views` ranks a camera file's candidates, :mod:`nbv.view_scoring`).
 Never calls ``ti.init``: the applications and the test fixtures own the Taichi runtime.
 
@@ -17,8 +17,8 @@ D-bar              (1/|G|) sum pi tr(Sigma_g)^2 D_g            :func:`geometry_d
 =================  ==========================================  ========================================
 """
 
-from .physics import PhysicsConfig, PhysicsResult, ProbeDiverged, load_result, save_result, simulate_gaussians
-from .scores import (
+from nbv.physics import PhysicsConfig, PhysicsResult, ProbeDiverged, load_result, save_result, simulate_gaussians
+from nbv.scores import (
     DepthBuffer,
     critical_scores,
     critical_subset,
@@ -30,8 +30,8 @@ from .scores import (
     view_scores,
     view_weights,
 )
-from .sweep import SweepPoint, reynolds, run_sweep, schedule
-from .view_scoring import score_views
+from nbv.study.sweep import SweepPoint, reynolds, run_sweep, schedule
+from nbv.view_scoring import score_views
 
 __all__ = [
     "DepthBuffer", "PhysicsConfig", "PhysicsResult", "ProbeDiverged", "SweepPoint", "critical_scores",

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .solidify import MAX_ALPHA
+from nbv.physics.solidify import MAX_ALPHA
 
 
 @dataclass(frozen=True)

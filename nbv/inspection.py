@@ -1,7 +1,7 @@
 """What the fluid will see: a Gaussian set's statistics, its simulation frame and its solid (no simulation).
 
-No paper equation is implemented here; the solid is the one of :mod:`nbv.solidify` (paper Sec. 3.2) at the
-probes' spacing, and the frame is :mod:`nbv.scene_frame`'s. :func:`inspect_gaussians` gathers the figures
+No paper equation is implemented here; the solid is the one of :mod:`nbv.physics.solidify` (paper Sec. 3.2) at the
+probes' spacing, and the frame is :mod:`nbv.physics.scene_frame`'s. :func:`inspect_gaussians` gathers the figures
 that ``fluidgs inspect`` prints and writes as JSON; :func:`inspection_views` draws three orthographic views
 of the Gaussian centres in simulation axes (front: x right, y up; side: z right, y up; top: x right,
 -z up), with the solid particles drawn over them, so a person sees whether the object stands upright
@@ -17,9 +17,9 @@ import cv2
 import numpy as np
 import torch
 
-from .physics import PhysicsConfig, kept_gaussians, scene_transform
-from .scene_frame import robust_box
-from .solidify import SolidifyConfig, gaussian_arrays_in_sim, gaussians_to_solid
+from nbv.physics import PhysicsConfig, kept_gaussians, scene_transform
+from nbv.physics.scene_frame import robust_box
+from nbv.physics.solidify import SolidifyConfig, gaussian_arrays_in_sim, gaussians_to_solid
 
 QUANTILES = (0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99)
 
@@ -48,7 +48,7 @@ def _quantiles(values: np.ndarray) -> dict[str, float]:
 def inspect_gaussians(gaussians, config: PhysicsConfig, file_format: str = "") -> Inspection:
     """Statistics, frame and solid of ``gaussians`` (scene units) under ``config`` (up, scale, crop, tau, r).
 
-    Needs an initialised Taichi runtime (the solid is computed by :func:`nbv.solidify.gaussians_to_solid`).
+    Needs an initialised Taichi runtime (the solid is computed by :func:`nbv.physics.solidify.gaussians_to_solid`).
 
     Args:
         gaussians: a ``recon.gaussians.GaussianSet``.

@@ -4,7 +4,7 @@
 a minimum, below a count, positive, one of the allowed names, distinct, a fixed size); every error is a ValueError
 that names the option and says what to write instead. Used by the ``fluidgs`` options (:mod:`apps.options`:
 ``--candidates``, ``--views``, ``--initial-views``, ``--initial-direction``, ``--velocities``, ``--directions``)
-and by the library's own readers (:func:`nbv.physics.parse_directions`, :func:`nbv.sweep.parse_velocities`).
+and by the library's own readers (:func:`nbv.physics.parse_directions`, :func:`nbv.study.sweep.parse_velocities`).
 Standard library only.
 """
 

@@ -14,10 +14,9 @@ import numpy as np
 
 from fluidsim.directions import DIRECTIONS
 from fluidsim.recording import probe_to_h5
+from nbv.heatmap import colored_gaussians
 from recon.ply import save_gaussians
 from viz.frames import FrameStyle, render_frames
-
-from .heatmap import colored_gaussians
 
 __all__ = ["probe_video", "result_summary", "save_colored_gaussians"]
 VIDEO_STYLE = FrameStyle(view="iso", width=640, height=480)

@@ -21,11 +21,10 @@ import numpy as np
 import torch
 from scipy.stats import spearmanr
 
+from nbv.physics import check_result_matches, load_result
+from nbv.scores import DepthBuffer, coarse_unoccluded, projected_view_scores, rank, unoccluded, view_scores
 from recon.projection import project_visibility
 from recon.render import render
-
-from .physics import check_result_matches, load_result
-from .scores import DepthBuffer, coarse_unoccluded, projected_view_scores, rank, unoccluded, view_scores
 
 
 def stand_in_divergence(n: int, seed: int) -> np.ndarray:

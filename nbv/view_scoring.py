@@ -18,13 +18,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from nbv.heatmap import color_scale, colored_gaussians
+from nbv.io import write_png_atomic
+from nbv.lists import parse_list
+from nbv.scores import DepthBuffer, projected_counts, projected_view_scores, rank
 from recon.render import render
 from viz.annotate import label, to_bgr
-
-from .heatmap import color_scale, colored_gaussians
-from .io import write_png_atomic
-from .lists import parse_list
-from .scores import DepthBuffer, projected_counts, projected_view_scores, rank
 
 log = logging.getLogger(__name__)
 

@@ -10,10 +10,10 @@ these per-pair quantities themselves, not only their sums:
 - :func:`view_pairs` returns, per pair, the pixel, the Gaussian, the (clamped) alpha, the transmittance
   T_i before the Gaussian, the live mask (pairs at or after a pixel's early stop are not composited) and
   the compositing weight w_i = alpha_i T_i [live]. The ActiveNeRF-style variance planner
-  (:mod:`nbv.variance`) uses alpha_i * T_after_i with T_after_i = T_i (1 - alpha_i).
+  (:mod:`nbv.plan.variance_model`) uses alpha_i * T_after_i with T_after_i = T_i (1 - alpha_i).
 - :func:`pair_attribute_gradients` returns, per pair p = (pixel, Gaussian g), the gradient of the pixel's
   colour summed over channels, sum_c C_{p,c}, with respect to g's 2-D attributes a_g = (means2d 2,
-  conic 3, opacity 1, colour 3). FisherRF (:mod:`nbv.fisher`) needs per-pixel Jacobians; the gradient
+  conic 3, opacity 1, colour 3). FisherRF (:mod:`nbv.plan.fisher_info`) needs per-pixel Jacobians; the gradient
   of the summed image would add the contributions of all pixels before squaring and let them cancel.
   Here every pair gets its own copy of its Gaussian's attributes (a PairList whose "Gaussians" and
   footprint rows are the pairs themselves), so one backward pass of the renderer's own compositing

@@ -247,7 +247,7 @@ def test_active_cli_smoke(tiny_dataset, tmp_path):
 
 
 def test_write_atomic_leaves_nothing_behind_on_failure(tmp_path):
-    from nbv.active import write_atomic, write_json_atomic
+    from nbv.io import write_atomic, write_json_atomic
 
     target = tmp_path / "data.json"
     write_json_atomic(target, {"a": float("nan"), "b": (1, 2)})

@@ -12,8 +12,8 @@ import pytest
 from fluidsim import DFSPHSolver, SolverConfig
 from fluidsim.scene import lattice_in_box
 from fluidsim.sources import sphere_particles, wall_particles
-from nbv import aggregate
-from nbv.aggregate import (
+from nbv.physics import aggregate
+from nbv.physics.aggregate import (
     _ENTRY_SLACK,
     ENTRIES_PER_GAUSSIAN,
     GaussianAccumulator,
@@ -21,7 +21,7 @@ from nbv.aggregate import (
     plan_levels,
     within_reach_reference,
 )
-from nbv.aggregate_kernels import VALUE_LIMIT, VALUE_SCALE
+from nbv.physics.aggregate_kernels import VALUE_LIMIT, VALUE_SCALE
 
 from helpers.paths import REPO, TESTS
 
@@ -134,7 +134,7 @@ def test_distinct_particles_that_leave_and_return_count_once(monkeypatch):
     """A visit is recorded on its first step only; a particle that leaves a Gaussian and comes back, or steps outside
     the domain in between, must not count twice, and one that is never recorded near g must count. The hash set
     starts at 16 slots, so it grows (and a full set refuses inserts and the batch is recorded again) many times."""
-    import nbv.aggregate as aggregate
+    import nbv.physics.aggregate as aggregate
 
     monkeypatch.setattr(aggregate, "_HASH_MIN_SLOTS", 16)
     centers = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.9, 0.9, 0.9]])
@@ -285,7 +285,7 @@ def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, priva
     # (1, False) is the GPU path (atomic adds), run here on the CPU; 3 rows is more rows than threads; the particles
     # run on the launching thread (serial_below above the particle count, or fewer rows than pool threads) or in
     # parallel, each thread adding into its own row
-    import nbv.aggregate as aggregate
+    import nbv.physics.aggregate as aggregate
 
     monkeypatch.setattr(aggregate, "accumulation_rows", lambda g: (rows, private))
     centers, reach = random_gaussians(120, seed=5)
@@ -345,7 +345,7 @@ def test_values_out_of_the_fixed_point_range_saturate_with_a_warning(caplog):
     pos = np.array([[0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]])
     assert VALUE_LIMIT / VALUE_SCALE == 16384.0 < 1e9
     acc.add(pos, np.array([2.5, 1e9, -3e9]))  # the two are clamped to +-16384 (and cancel); all three are counted
-    with caplog.at_level("WARNING", logger="nbv.aggregate"):
+    with caplog.at_level("WARNING", logger="nbv.physics.aggregate"):
         assert acc.counts.tolist() == [3]
         assert acc.sums.tolist() == [2.5]
     assert "2 accumulated values were NaN or beyond" in caplog.text
@@ -361,7 +361,7 @@ def test_thread_index_stays_below_the_pool_size():
     """The per-thread rows rely on Taichi's CPU thread index being below cpu_max_num_threads."""
     import taichi as ti
 
-    from nbv.aggregate import accumulation_rows
+    from nbv.physics.aggregate import accumulation_rows
 
     @ti.kernel
     def largest_thread_index(n: ti.i32) -> ti.i32:
@@ -429,7 +429,7 @@ def test_levels_of_a_set_with_reaches_spanning_100x_are_exact(monkeypatch, looku
     """Several levels (reach classes of a factor 2, merged by cost; a cheap lookup keeps more of them apart); every
     Gaussian listed exactly in the cells its sphere touches (brute force over the cells), the entries within their
     bound; sums, counts and distinct counts exactly the twin's."""
-    import nbv.aggregate as aggregate
+    import nbv.physics.aggregate as aggregate
 
     monkeypatch.setattr(aggregate, "LOOKUP_COST", lookup_cost)
     centers, reach = multi_level_set(3000, seed=21)
@@ -457,7 +457,7 @@ def test_levels_of_a_set_with_reaches_spanning_100x_are_exact(monkeypatch, looku
 def test_gathered_and_scattered_lists_are_the_same(monkeypatch):
     """Each cell gathering its items, or each Gaussian scattering itself (chosen per level by cost): the same lists,
     item for item, and the brute-force ones."""
-    import nbv.aggregate as aggregate
+    import nbv.physics.aggregate as aggregate
 
     centers, reach = multi_level_set(2000, seed=25)
     built = []
@@ -475,7 +475,7 @@ def test_gaussians_on_level_and_cell_boundaries_are_exact(monkeypatch):
 
     Anchors (two Gaussians of every reach, just outside the domain's corners) clip every level's box to the
     domain, so that the grids do not move when the other centres are moved onto their cell faces."""
-    import nbv.aggregate as aggregate
+    import nbv.physics.aggregate as aggregate
 
     monkeypatch.setattr(aggregate, "LOOKUP_COST", 0.0)  # no merges: one level per reach class
     lo, hi = np.full(3, -0.5), np.full(3, 0.5)
@@ -542,7 +542,7 @@ import taichi as ti
 ti.init(arch=ti.cpu, cpu_max_num_threads=int(sys.argv[1]), default_fp=ti.f32, offline_cache=True, log_level=ti.ERROR)
 sys.path[:0] = sys.argv[2:4]  # this test module's folder, and tests/ (for helpers)
 from test_aggregate import multi_level_set, near_surface_steps, DOMAIN_MIN, DOMAIN_MAX
-from nbv.aggregate import GaussianAccumulator
+from nbv.physics.aggregate import GaussianAccumulator
 centers, reach = multi_level_set(2000, seed=51)
 steps = near_surface_steps(np.random.default_rng(52), centers, 3, 6000, 8000)
 out = []

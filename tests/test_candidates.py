@@ -1,4 +1,4 @@
-"""The physics-pick candidates of issue 19 item 4 (nbv/planners.py): fisher+fluid-occ and its coverage control
+"""The physics-pick candidates of issue 19 item 4 (nbv/plan.py): fisher+fluid-occ and its coverage control
 fisher+area-occ (the depth test forced on), fisher+excess (D_g minus the empty-scene D_g), fisher+perprobe (each
 probe normalised before the max), fisher+balanced (z(coverage) + z(S / coverage)). Each against a numpy or
 hand-computed twin, with a scene where it picks another view than the plain S(T); the active loop hands the
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from nbv.planners import (
+from nbv.plan import (
     PLANNERS,
     PlanningContext,
     ProbeFields,
@@ -247,8 +247,8 @@ def test_active_loop_hands_the_probe_fields_to_the_planner(tmp_path):
 
 
 def test_paired_table_and_single_directions_know_the_candidates():
-    from nbv.experiment import PICKS, split_method
-    from nbv.paired import comparisons
+    from nbv.study.experiment_config import PICKS, split_method
+    from nbv.study.paired import comparisons
 
     pairs = comparisons(["fisher+area", "fisher+fluid", "fisher+area-occ", "fisher+fluid-occ", "fisher+excess"])
     assert ("fisher+fluid", "fisher+area") in pairs

@@ -1,4 +1,4 @@
-"""Space carving (nbv.carve): surface depth maps against the compositing they come from, carving against
+"""Space carving (nbv.physics.carve): surface depth maps against the compositing they come from, carving against
 analytic depth maps of a sphere, and a thin shell with a hole that filling alone cannot close."""
 
 import math
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from nbv.carve import carve_outside, seen_empty, surface_depths
-from nbv.solidify import SceneTransform, SolidifyConfig, gaussians_to_solid
+from nbv.physics.carve import carve_outside, seen_empty, surface_depths
+from nbv.physics.solidify import SceneTransform, SolidifyConfig, gaussians_to_solid
 from recon.camera import Camera
 from recon.render import render
 

@@ -1,4 +1,4 @@
-"""nbv.convergence: average ranks, Pearson and Spearman against scipy (or hand values), the view terms against
+"""nbv.study.convergence: average ranks, Pearson and Spearman against scipy (or hand values), the view terms against
 nbv.scores.view_scores, the agreement of synthetic settings whose relation is known (a rescaled D_g agrees
 perfectly, a shuffled one does not, a constant one leaves coverage alone), and loading a RESULT.h5."""
 
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from nbv.convergence import (
+from nbv.scores import view_scores
+from nbv.study.convergence import (
     ProbeSetting,
     average_ranks,
     compare_settings,
@@ -20,7 +21,6 @@ from nbv.convergence import (
     view_terms,
     view_weight_matrix,
 )
-from nbv.scores import view_scores
 from recon.camera import Camera
 from recon.gaussians import GaussianSet
 from recon.render import render

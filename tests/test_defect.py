@@ -5,7 +5,7 @@ hole punched in its +x face (a disc of radius 0.25, a quarter of the face remove
 probes run at coarse settings (r = 0.08 m, 75 steps of 4 ms). Eight cameras look at the cube from around
 it, camera 0 straight at the hole.
 
-What we measured with the filled solid (cut edges + fill, :mod:`nbv.solidify`): the intact cube is a filled
+What we measured with the filled solid (cut edges + fill, :mod:`nbv.physics.solidify`): the intact cube is a filled
 body (3367 solid points), the holed one a thick shell (2591) whose opening runs from the outside into the
 cavity (no solid point on the hole's axis), and 13 fluid particles of the -x probe end inside the cavity.
 D_g at the hole rim rises (x1.12), D-bar rises (x2.09), but the fluid that

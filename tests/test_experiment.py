@@ -1,4 +1,5 @@
-"""Evaluation of active runs (nbv.evaluate, `fluidgs eval`) and experiments (nbv.experiment, `fluidgs experiment`)."""
+"""Evaluation of active runs (nbv.study.evaluate, `fluidgs eval`) and experiments (nbv.study.experiment,
+`fluidgs experiment`)."""
 
 import csv
 import importlib.util
@@ -11,9 +12,9 @@ import numpy as np
 import pytest
 
 from nbv.active import ActiveConfig, run_active
-from nbv.evaluate import EvalConfig, evaluate_run, sample_mesh_surface
-from nbv.experiment import build_tables, mean_std
 from nbv.physics import PhysicsConfig
+from nbv.study.evaluate import EvalConfig, evaluate_run, sample_mesh_surface
+from nbv.study.tables import build_tables, mean_std
 
 from helpers.paths import TORUS
 
@@ -133,7 +134,7 @@ def test_mean_std_and_tables():
 
 
 def test_single_direction_methods_and_their_table():
-    from nbv.experiment import ExperimentConfig, method_folder, split_method
+    from nbv.study.experiment_config import ExperimentConfig, method_folder, split_method
 
     assert split_method("fisher+fluid@-x") == ("fisher+fluid", "-x") and split_method("fisher") == ("fisher", None)
     assert method_folder("fisher+fluid@-x") == "fisher_fluid_at-x"
@@ -160,7 +161,7 @@ def test_single_direction_methods_and_their_table():
     assert body[3][3] == "21.5000 ± 0.0000"
     assert "@" not in "".join(r[0] for r in csv.reader(tables["ablation_random"][1].splitlines()))
     # the evaluation of a single-direction run still measures D-bar over all five probes
-    from nbv.evaluate import EvalConfig, eval_physics_config
+    from nbv.study.evaluate import EvalConfig, eval_physics_config
 
     ev = eval_physics_config(single.physics, EvalConfig(), "z")
     assert ev.directions == ("-x", "+x", "-z", "+z", "-y") and ev.up == "+z" and ev.track_distinct
@@ -205,7 +206,7 @@ def test_experiment_local_executor_end_to_end(tiny_dataset, tmp_path):
 
 
 def test_experiment_config_errors(tmp_path):
-    from nbv.experiment import ExperimentConfig
+    from nbv.study.experiment_config import ExperimentConfig
 
     path = tmp_path / "bad.json"
     path.write_text(json.dumps({"scenes": ["a"], "methods": ["random"], "sedes": [0]}))
@@ -224,7 +225,7 @@ def _fail_on_two(job: int) -> int:
 
 
 def test_local_executor_names_the_failed_job_and_cancels_the_rest():
-    from nbv.executors import LocalExecutor
+    from nbv.study.executors import LocalExecutor
 
     seen = []
     with pytest.raises(ArithmeticError, match="job two") as info:
@@ -235,7 +236,8 @@ def test_local_executor_names_the_failed_job_and_cancels_the_rest():
 
 
 def test_experiment_checks_every_scene_before_any_job(tiny_dataset, tmp_path):
-    from nbv.experiment import ExperimentConfig, run_experiment
+    from nbv.study.experiment import run_experiment
+    from nbv.study.experiment_config import ExperimentConfig
 
     class Recorder:
         def map(self, fn, jobs):
@@ -252,7 +254,7 @@ def test_ray_executor_on_a_local_instance(tmp_path, monkeypatch):
         pytest.skip("Ray is not installed (optional extra: pip install -e .[ray])")
     import ray
 
-    from nbv.executors import RayExecutor
+    from nbv.study.executors import RayExecutor
 
     # a single-machine instance on the loopback address (tests/test_ray_cluster.py runs a two-node cluster)
     monkeypatch.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
@@ -269,7 +271,7 @@ def test_ray_executor_on_a_local_instance(tmp_path, monkeypatch):
 
 
 def test_ray_missing_is_a_clear_error(monkeypatch):
-    from nbv.executors import RayExecutor
+    from nbv.study.executors import RayExecutor
 
     monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` sees without the package
     with pytest.raises(ValueError, match="pip install ray"):

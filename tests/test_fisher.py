@@ -1,4 +1,4 @@
-"""Tests for nbv/fisher.py and recon/pairs.py: the per-pixel Fisher diagonal against brute force (one backward
+"""Tests for nbv/plan/fisher_info.py and recon/pairs.py: the per-pixel Fisher diagonal against brute force (one backward
 pass per pixel through the dense reference renderer) in float64, with and without rotations, with the early
 stop triggered; that the naive square of the summed-image gradient differs (so the twin test can fail); the
 per-pair compositing quantities against the rendered image and opacity; the score formula by hand; the lazy
@@ -9,7 +9,7 @@ import math
 import pytest
 import torch
 
-from nbv.fisher import (
+from nbv.plan.fisher_info import (
     FisherConfig,
     fisher_score,
     greedy_top_k,

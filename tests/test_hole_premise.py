@@ -17,7 +17,7 @@ import torch
 
 from nbv.holes import Hole, axis_opacity, covering, disc_offsets, open_fraction, ray_peaks, rim_ratios
 from nbv.physics import PhysicsConfig, simulate_gaussians
-from nbv.solidify import (
+from nbv.physics.solidify import (
     SceneTransform,
     SolidifyConfig,
     gaussian_arrays_in_sim,

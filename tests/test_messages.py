@@ -21,16 +21,16 @@ from fluidsim import memory
 from fluidsim.scene import SceneError, lattice_counts, lattice_in_box, parse_scene
 from fluidsim.simulation import build_solver
 from fluidsim.sources import mesh_particles, wall_particle_count, wall_particles
-from nbv import floaters, physics
-from nbv.experiment import ExperimentConfig
-from nbv.physics import PhysicsConfig
-from nbv.solidify import (
+from nbv import physics
+from nbv.physics import PhysicsConfig, floaters
+from nbv.physics.solidify import (
     SceneTransform,
     SolidifyConfig,
     combined_opacity_reference,
     estimate_lattice_points,
     gaussians_to_solid,
 )
+from nbv.study.experiment_config import ExperimentConfig
 from nbv.view_scoring import parse_candidates
 from recon.gaussians import GaussianSet, concat
 from recon.ply import save_gaussians

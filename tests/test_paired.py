@@ -1,4 +1,4 @@
-"""Paired comparisons (nbv.paired) and the experiment's paired table: the exact sign test against hand-computed
+"""Paired comparisons (nbv.study.paired) and the experiment's paired table: the exact sign test against hand-computed
 binomial tails, the Wilcoxon signed-rank p against an exhaustive enumeration of the sign flips, the wins and
 differences of matched (scene, seed) pairs, the table's verdicts, and the single-direction form of the controls."""
 
@@ -8,8 +8,17 @@ import math
 
 import pytest
 
-from nbv.experiment import build_tables, split_method
-from nbv.paired import comparisons, paired_stats, paired_table, paired_values, scipy_available, sign_test_p, wilcoxon_p
+from nbv.study.experiment_config import split_method
+from nbv.study.paired import (
+    comparisons,
+    paired_stats,
+    paired_table,
+    paired_values,
+    scipy_available,
+    sign_test_p,
+    wilcoxon_p,
+)
+from nbv.study.tables import build_tables
 
 
 def test_sign_test_known_values():
@@ -50,7 +59,7 @@ def test_wilcoxon_matches_the_exact_enumeration():
 
 
 def test_wilcoxon_without_scipy_says_so(monkeypatch):
-    import nbv.paired as paired
+    import nbv.study.paired as paired
 
     monkeypatch.setattr(paired, "scipy_available", lambda: False)
     assert paired.wilcoxon_p([1.0, 2.0]) == (None, "n/a (scipy not installed)")

@@ -8,9 +8,10 @@ import pytest
 import torch
 
 from fluidsim.probes import build_probe_solver, probe_setup
-from nbv import physics, scores, sweep
-from nbv.aggregate import accumulate_reference
+from nbv import physics, scores
 from nbv.physics import PhysicsConfig, load_result, save_result, simulate_gaussians
+from nbv.physics.aggregate import accumulate_reference
+from nbv.study import sweep
 from recon.gaussians import GaussianSet
 
 # coarse settings: a unit sphere (after auto scaling) probed with 0.16 m particle spacing
@@ -54,7 +55,7 @@ def test_config_validation_names_the_field():
 
 
 def test_auto_scale_puts_largest_extent_at_two_metres(sphere):
-    from nbv.scene_frame import robust_box
+    from nbv.physics.scene_frame import robust_box
 
     t = physics.scene_transform(sphere, PhysicsConfig())
     sim = t.to_sim(sphere.means.double().numpy())
@@ -191,7 +192,7 @@ def test_memory_check_uses_the_real_solid_when_faint_gaussians_widen_the_box(sph
     # faint Gaussians (opacity 0.05 < tau = 0.3, yet above tau / 10) far from the sphere make no solid but
     # widen the cheap estimate's box; the run must go on when the solid itself fits, and refuse when not.
     # They come in overlapping pairs (combined opacity 0.0975 < tau): a lone faint one is clipped out of the box
-    # (nbv.floaters), a pair cannot be without computing the solid
+    # (nbv.physics.floaters), a pair cannot be without computing the solid
     far = torch.tensor([[-4.0, -4.0, -4.0], [4.0, 4.0, 4.0], [4.0, -4.0, 4.0]]).repeat_interleave(2, 0)
     faint = GaussianSet.from_points(far, scale=0.05, opacity=0.05)
     from recon.gaussians import concat

@@ -1,4 +1,4 @@
-"""Tests for nbv/planners.py: the registry and config overrides; the random planner's (seed, round)
+"""Tests for nbv/plan.py: the registry and config overrides; the random planner's (seed, round)
 reproducibility; K = max(B - n, 2); the fused re-ranking with a fake physics callable (D_g set on one region):
 the pick is the visual top-K member with the largest S(T), a candidate outside the top-K is never chosen even
 when its S(T) is larger, the probes run once; the fused planners end to end with the real FisherRF and
@@ -10,8 +10,7 @@ import math
 import pytest
 import torch
 
-from nbv.fisher import FisherConfig, greedy_top_k
-from nbv.planners import (
+from nbv.plan import (
     PLANNERS,
     PhysicsPlanner,
     Planner,
@@ -23,8 +22,9 @@ from nbv.planners import (
     make_planner,
     physics_view_scores,
 )
+from nbv.plan.fisher_info import FisherConfig, greedy_top_k
+from nbv.plan.variance_model import VarianceConfig
 from nbv.scores import view_scores
-from nbv.variance import VarianceConfig
 from recon.camera import Camera
 from recon.datasets import View
 from recon.gaussians import GaussianSet, concat
@@ -272,7 +272,7 @@ def _coverage(g: GaussianSet, cams: list[Camera]) -> list[float]:
 
 
 def test_control_planners_are_registered_and_say_whether_they_simulate():
-    from nbv.planners import uses_physics
+    from nbv.plan import uses_physics
 
     for visual in ("fisher", "variance", "random"):
         area, shuffled, fluid = (make_planner(f"{visual}+{c}", seed=2) for c in ("area", "shuffled", "fluid"))
@@ -322,7 +322,7 @@ def test_area_control_differs_from_the_physics_pick_where_d_g_matters():
 
 
 def test_shuffled_divergence_is_a_seeded_permutation():
-    from nbv.planners import shuffled_divergence
+    from nbv.plan import shuffled_divergence
 
     d = torch.linspace(0.0, 3.0, 200, dtype=torch.float64) ** 2
     a = shuffled_divergence(d, 7, 2)
@@ -336,7 +336,7 @@ def test_shuffled_divergence_is_a_seeded_permutation():
 
 @pytest.mark.parametrize("visual", ["fisher", "variance", "random"])
 def test_shuffled_control_scores_the_permuted_divergence(visual):
-    from nbv.planners import shuffled_divergence
+    from nbv.plan import shuffled_divergence
 
     g, cams = _scene(), _candidates()
     picks = set()

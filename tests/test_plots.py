@@ -73,7 +73,8 @@ def test_apps_sweep_plot_takes_sweep_points(tmp_path):
 
 
 def test_experiment_bar_charts(tmp_path):
-    from nbv.experiment import ExperimentConfig, write_tables
+    from nbv.study.experiment_config import ExperimentConfig
+    from nbv.study.tables import write_tables
 
     rows = [{"kind": "method", "method": m, "scene": "torus", "seed": s, "psnr": 20.0 + s + (m == "physics"),
              "ssim": 0.8, "lpips": 0.2, "chamfer": 0.01, "dbar": 1e-3 * (1 + s), "dbar_empty": 1e-4,

@@ -102,7 +102,7 @@ def cluster():
 
 
 def test_jobs_spread_over_both_nodes_and_equal_the_local_executor(cluster):
-    from nbv.executors import LocalExecutor, RayExecutor
+    from nbv.study.executors import LocalExecutor, RayExecutor
 
     address, nodes = cluster
     jobs = [{"seed": s, "sleep": 0.4} for s in range(6)]
@@ -114,7 +114,7 @@ def test_jobs_spread_over_both_nodes_and_equal_the_local_executor(cluster):
 
 
 def test_a_killed_worker_has_its_job_run_again(cluster, tmp_path):
-    from nbv.executors import RayExecutor
+    from nbv.study.executors import RayExecutor
 
     pid_file = str(tmp_path / "victim.pid")
     jobs = [{"seed": 7, "pid_file": pid_file}, {"seed": 8, "pid_file": pid_file + ".unused", "sleep": 0.2}]
@@ -133,7 +133,7 @@ def _victim_or_value(job) -> dict:
 
 
 def test_a_job_whose_worker_dies_on_every_try_is_reported_by_name(cluster, tmp_path):
-    from nbv.executors import JobLost, RayExecutor
+    from nbv.study.executors import JobLost, RayExecutor
 
     pid_file = str(tmp_path / "victim.pid")
     job = {"seed": 7, "pid_file": pid_file, "name": "the victim"}

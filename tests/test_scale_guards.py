@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from nbv import solidify
-from nbv.scene_frame import SceneTransform
-from nbv.solidify import SolidifyConfig, estimate_lattice_points, estimate_work, gaussians_to_solid
+from nbv.physics import solidify
+from nbv.physics.scene_frame import SceneTransform
+from nbv.physics.solidify import SolidifyConfig, estimate_lattice_points, estimate_work, gaussians_to_solid
 from recon.gaussians import GaussianSet
 
 BIKER = Path("/work/shared/real-splats/biker.compressed.ply")
@@ -139,8 +139,8 @@ def _sphere_set(n: int = 300, scale: float = 0.06) -> GaussianSet:
 
 def test_the_memory_estimate_covers_the_accumulator_and_the_gaussians():
     from nbv import physics
-    from nbv.aggregate import GaussianAccumulator, reach_classes
     from nbv.physics import PhysicsConfig
+    from nbv.physics.aggregate import GaussianAccumulator, reach_classes
 
     g = _sphere_set()
     for track in (False, True):
@@ -183,8 +183,8 @@ def test_a_set_too_large_for_the_memory_stops_before_the_solid(monkeypatch):
 def test_the_empty_reference_reuses_one_accumulator(monkeypatch):
     """The empty-scene probes build no accumulator of their own when given the probe run's (which tracked |P_g|), and
     one for all probes otherwise; the means are the same bits either way."""
-    from nbv import aggregate, physics
-    from nbv.physics import PhysicsConfig, empty_scene_probes, probe_domains_union
+    from nbv import physics
+    from nbv.physics import PhysicsConfig, aggregate, empty_scene_probes, probe_domains_union
 
     g = _sphere_set()
     cfg = PhysicsConfig(particle_radius=0.08, steps=6, dt=0.004, directions=("-x", "+z"), scale=1.0)
@@ -218,8 +218,8 @@ def test_interleaved_steps_of_different_sizes_equal_the_twin(monkeypatch, track)
     steps skipped past their end): the sums, counts and distinct counts of the numpy twin, step by step."""
     import taichi as ti
 
-    from nbv import aggregate
-    from nbv.aggregate import GaussianAccumulator, accumulate_reference
+    from nbv.physics import aggregate
+    from nbv.physics.aggregate import GaussianAccumulator, accumulate_reference
 
     monkeypatch.setattr(aggregate, "INTERLEAVE_ABOVE_BYTES", 0)
     rng = np.random.default_rng(11)

@@ -1,4 +1,4 @@
-"""The scene -> simulation frame: up directions, rotations, the robust object box, crops (nbv.scene_frame)."""
+"""The scene -> simulation frame: up directions, rotations, the robust object box, crops (nbv.physics.scene_frame)."""
 
 import numpy as np
 import pytest
@@ -7,7 +7,7 @@ import torch
 from apps.cli import build_parser, join_dash_values
 from nbv import physics
 from nbv.physics import PhysicsConfig
-from nbv.scene_frame import (
+from nbv.physics.scene_frame import (
     SceneTransform,
     crop_box,
     inside_box,
@@ -183,7 +183,7 @@ def test_every_gaussian_command_takes_up():
 
 
 def test_auto_up_names_the_nearest_axis_and_its_angle():
-    from nbv.scene_frame import describe_auto_up, nearest_axis
+    from nbv.physics.scene_frame import describe_auto_up, nearest_axis
 
     u = parse_up("0.1,-1,0")
     name, angle = nearest_axis(u)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from nbv import solidify
-from nbv.solidify import (
+from nbv.physics import solidify
+from nbv.physics.solidify import (
     MAX_ALPHA,
     SceneTransform,
     SolidifyConfig,
@@ -454,8 +454,8 @@ def test_lone_thin_gaussian_between_lattice_points_is_a_speck():
     solid = gaussians_to_solid(g, SolidifyConfig(spacing=sp, min_points=1), SceneTransform())
     assert solid.counts["opacity"] == solid.counts["thin"] == 0
     assert solid.counts["specks"] == 1                            # the opaque one only (the other has o = 0.12)
-    # the faint one cannot make solid alone, so it does not size the lattice (nbv.floaters): the lattice is the opaque
-    # one's box, whose only point takes the speck (within one spacing of the centre)
+    # the faint one cannot make solid alone, so it does not size the lattice (nbv.physics.floaters): the lattice is
+    # the opaque one's box, whose only point takes the speck (within one spacing of the centre)
     assert solid.lattice_shape == (1, 1, 1) and np.allclose(solid.points, [[0.0, 0.0, 0.0]])
     off = gaussians_to_solid(g, SolidifyConfig(spacing=sp, min_points=1, thin=True, fill_cavities=False),
                              SceneTransform())

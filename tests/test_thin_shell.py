@@ -11,9 +11,9 @@ import pytest
 from fluidsim.particles import FluidParticles
 from fluidsim.probes import DIRECTIONS, ProbeConfig, probe_setup
 from fluidsim.scene import lattice_in_box
-from nbv.leaks import LeakCounter, deep_inside_reference, deep_interior
 from nbv.physics import PhysicsConfig, load_result, save_result, simulate_gaussians
-from nbv.solidify import (
+from nbv.physics.leaks import LeakCounter, deep_inside_reference, deep_interior
+from nbv.physics.solidify import (
     SceneTransform,
     SolidifyConfig,
     combined_opacity_reference,

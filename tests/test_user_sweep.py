@@ -163,14 +163,14 @@ def test_formats_agree_on_count_and_box(tmp_path):
                                                 ("1e-200,0,0", [1, 0, 0]), ("0,-1e-300,0", [0, -1, 0])])
 def test_up_vectors_of_any_finite_size_give_their_direction(spec, expected):
     """A huge --up used to overflow the norm and come back as the zero vector (silently no up at all)."""
-    from nbv.scene_frame import parse_up
+    from nbv.physics.scene_frame import parse_up
 
     np.testing.assert_allclose(parse_up(spec), expected, atol=1e-12)
 
 
 @pytest.mark.parametrize("spec", ["0,0,0", "w", "1,2", "nan,1,0", "0,inf,0", "0,-0,0"])
 def test_bad_up_vectors_still_refused(spec):
-    from nbv.scene_frame import parse_up
+    from nbv.physics.scene_frame import parse_up
 
     with pytest.raises(ValueError, match="--up"):
         parse_up(spec)

@@ -1,4 +1,4 @@
-"""Tests for nbv/variance.py: the prior/posterior formulas on a hand-built 1-pixel, 2-Gaussian case against
+"""Tests for nbv/plan/variance_model.py: the prior/posterior formulas on a hand-built 1-pixel, 2-Gaussian case against
 hand arithmetic; the vectorised score against its pixel-loop twin on a real view; the pair-weight variance
 render against rendering v as a colour; that a view seeing Gaussians with larger v scores higher; that the
 NLL fit lowers the loss and raises v where the render error is larger; and config/input validation."""
@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from nbv.variance import (
+from nbv.plan.variance_model import (
     VarianceConfig,
     fit_variances,
     nll_loss,

@@ -1,7 +1,8 @@
-"""`fluidgs view` (viz) and the probe trajectories it replays (nbv.trajectory), on a tiny sphere.
+"""`fluidgs view` (viz) and the probe trajectories it replays (nbv.physics.trajectory), on a tiny sphere.
 
 - the recorded frames are what the probe accumulated: D_g^(-x) and the sample counts recomputed from the frames
-  (brute force, nbv.aggregate.within_reach_reference) match RESULT.h5, and the last frame is the probe's end state;
+  (brute force, nbv.physics.aggregate.within_reach_reference) match RESULT.h5, and the last frame is the probe's
+  end state;
 - RESULT.h5 for the viewer: missing arrays, other Gaussians, a missing trajectory: errors naming the fix;
 - the cameras in the simulation frame, the colours (nbv.heatmap's), the viser server (colours, frames, camera
   clicks, a port in use, Ctrl-C) and a real headless Chromium screenshot of the splat and its colour bar.
@@ -28,7 +29,7 @@ import pytest
 import torch
 
 from apps import cli
-from nbv.aggregate import within_reach_reference
+from nbv.physics.aggregate import within_reach_reference
 from recon.camera import Camera
 from recon.gaussians import GaussianSet, sh0_to_rgb
 from recon.ply import load_gaussians, save_gaussians
@@ -111,7 +112,7 @@ def test_trajectory_frames_are_what_the_probe_accumulated(scene):
 
 def test_record_size_is_f_t_16_bytes(scene):
     from nbv.physics import PhysicsConfig
-    from nbv.trajectory import RecordConfig, check_record_size, probe_fluid_counts
+    from nbv.physics.trajectory import RecordConfig, check_record_size, probe_fluid_counts
 
     data = load_view_data(scene.h5)
     cfg = PhysicsConfig.from_dict(data.config)
@@ -203,7 +204,7 @@ def test_gaussians_must_be_those_of_the_result(scene, tmp_path):
 
 # ---- cameras and colours ---------------------------------------------------------------------------------------
 def test_cameras_are_moved_to_the_simulation_frame(scene):
-    from nbv.scene_frame import SceneTransform
+    from nbv.physics.scene_frame import SceneTransform
 
     scores = read_scores(scene.scores)
     cams = [Camera.look_at((2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, FOV)

@@ -1,7 +1,7 @@
 """What the viewer reads from RESULT.h5, with h5py and numpy only (no Taichi, no torch).
 
-The layout is the one :func:`nbv.physics.save_result` writes (and :mod:`nbv.trajectory` for the recorded probes);
-this module reads the part the viewer shows, and names what is missing and the command that makes it when a
+The layout is the one :func:`nbv.physics.save_result` writes (and :mod:`nbv.physics.trajectory` for the recorded
+probes); this module reads the part the viewer shows, and names what is missing and the command that makes it when a
 file comes from another version. ``nbv`` itself is not imported: it loads Taichi, which the viewer never needs.
 
 Everything is in the simulation frame: metres, Y-up. ``scene_to_sim`` (4 x 4, x_sim = M [x_scene, 1]) maps the
@@ -35,7 +35,7 @@ REQUIRED = ("gaussians/D", "gaussians/D_mean", "gaussians/means", "gaussians/cov
 
 @dataclass(frozen=True)
 class LeakSummary:
-    """One probe's leak measure (``/probes/<dir>/leaked``, :mod:`nbv.leaks`).
+    """One probe's leak measure (``/probes/<dir>/leaked``, :mod:`nbv.physics.leaks`).
 
     Attributes:
         final: fluid particles inside the filled solid at the end. max: the most after any step; max_step: when.
@@ -50,7 +50,7 @@ class LeakSummary:
 
 @dataclass(frozen=True)
 class Trajectory:
-    """One recorded probe (``/probes/<dir>/trajectory``, :mod:`nbv.trajectory`).
+    """One recorded probe (``/probes/<dir>/trajectory``, :mod:`nbv.physics.trajectory`).
 
     Attributes:
         direction: the probe.

@@ -156,7 +156,12 @@ def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: boo
 
     from nbv.holes import Hole, axis_opacity, covering, open_fraction
     from nbv.physics import simulate_gaussians
-    from nbv.solidify import SolidifyConfig, gaussian_arrays_in_sim, gaussians_to_solid, inverse_covariances_in_sim
+    from nbv.physics.solidify import (
+        SolidifyConfig,
+        gaussian_arrays_in_sim,
+        gaussians_to_solid,
+        inverse_covariances_in_sim,
+    )
 
     spacing = 2.0 * cfg.particle_radius
     delta = np.full(3, shift * spacing)
@@ -209,7 +214,7 @@ def print_shift(r: dict) -> None:
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import write_json_atomic
     from nbv.physics import QUICK, PhysicsConfig, parse_directions, scene_transform
-    from nbv.solidify import gaussian_arrays_in_sim
+    from nbv.physics.solidify import gaussian_arrays_in_sim
 
     from ..options import check_output_file, load_gaussians_checked
     from ..runtime import init_taichi

@@ -59,8 +59,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
     """Run the probes on one set, print its figures and return them (timings, share, peak memory)."""
-    from nbv.aggregate import GaussianAccumulator
     from nbv.physics import simulate_gaussians
+    from nbv.physics.aggregate import GaussianAccumulator
 
     from .yardsticks import peak_rss_bytes
 

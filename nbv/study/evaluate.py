@@ -38,17 +38,16 @@ import numpy as np
 import torch
 
 from fluidsim.directions import DIRECTIONS
+from nbv.active import ActiveConfig, dataset_up, is_empty_solid
+from nbv.io import json_safe, write_json_atomic, write_text_atomic
+from nbv.physics import PhysicsConfig, simulate_gaussians
+from nbv.scores import critical_scores, critical_subset, geometry_divergence, unoccluded
 from recon.datasets import load_dataset
 from recon.formats import load_gaussians
 from recon.mesh_render import load_mesh
 from recon.metrics import chamfer_distance, load_lpips, lpips, lpips_unavailable_reason, psnr, ssim
 from recon.render import render
 from recon.train import view_to
-
-from .active import ActiveConfig, dataset_up, is_empty_solid
-from .io import json_safe, write_json_atomic, write_text_atomic
-from .physics import PhysicsConfig, simulate_gaussians
-from .scores import critical_scores, critical_subset, geometry_divergence, unoccluded
 
 log = logging.getLogger(__name__)
 

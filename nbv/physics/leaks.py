@@ -1,6 +1,6 @@
 """The leak measure (issue 15): fluid particles that got deep inside the filled solid during a probe.
 
-The solid is the lattice occupancy of :func:`nbv.solidify.gaussians_to_solid` (filled by default). A fluid
+The solid is the lattice occupancy of :func:`nbv.physics.solidify.gaussians_to_solid` (filled by default). A fluid
 particle is *inside* when its nearest lattice point (floor((x - lattice_min) / s + 1/2) per axis) is a
 *deep-interior* point: solid, and its 6 neighbours solid too (a neighbour off the lattice counts as empty).
 A particle pressed against the surface has the outer layer of solid points, or a free point, as its
@@ -8,7 +8,7 @@ nearest point: that is contact, not a leak. A particle more than about half a sp
 of a filled body is counted. A hollow or one-point-thick shell has no deep interior, so nothing in it ever
 counts; the measure is meant for filled solids.
 
-Counting at every step is one Taichi kernel over the active fluid particles (:func:`nbv.solid_kernels.
+Counting at every step is one Taichi kernel over the active fluid particles (:func:`nbv.physics.solid_kernels.
 flag_deep_inside`) that adds into a per-step counter on the device; nothing is read back until the probe
 ends. :func:`deep_inside_reference` is its numpy twin.
 """
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from . import solid_kernels
+from nbv.physics import solid_kernels
 
 
 def deep_interior(occupancy: np.ndarray) -> np.ndarray:

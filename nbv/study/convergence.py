@@ -30,10 +30,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from nbv.physics import load_result
+from nbv.scores import unoccluded, view_weights
 from recon.render import render
-
-from .physics import load_result
-from .scores import unoccluded, view_weights
 
 TOP_K = 5
 

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .io import atomic_output
-from .lists import parse_list
-from .physics import PhysicsConfig, PhysicsResult, scene_transform, simulate_gaussians
+from nbv.io import atomic_output
+from nbv.lists import parse_list
+from nbv.physics import PhysicsConfig, PhysicsResult, scene_transform, simulate_gaussians
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ the view budget B (10) is reached:
 
 1. before selection number s (``n_selected`` views so far) the Gaussians are trained
    ``n_selected x iterations_per_view`` iterations (the paper: n_selected x 100) on the selected views;
-2. the planner (:mod:`nbv.planners`) sees the current Gaussians, the selected views and the remaining
+2. the planner (:mod:`nbv.plan`) sees the current Gaussians, the selected views and the remaining
    candidate *cameras* (never their images) and picks one; fused methods (``fisher+fluid``...) shortlist the
    visual top-K, K = max(B - n_selected, 2), run the five fluid probes once (:func:`nbv.physics.simulate_gaussians`)
    and take the candidate with the largest S(T) (Eq. 4-5); the controls ``fisher+area`` (coverage, no probes) and
@@ -49,197 +49,29 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import torch
 from tqdm import tqdm
 
+from nbv import scores
+from nbv.active.config import CHECKPOINT_VERSION, RUN_FILES, ActiveConfig
+from nbv.io import json_safe, write_atomic, write_json_atomic
+from nbv.physics import simulate_gaussians
+from nbv.physics.scene_frame import describe_auto_up
+from nbv.plan import PLANNERS, PlanningContext, ProbeFields, make_planner
 from recon.datasets import load_dataset
 from recon.frames import up_from_cameras
 from recon.gaussians import GaussianSet
 from recon.ply import save_gaussians
-from recon.train import TrainConfig, Trainer, initial_gaussians, look_at_point, scene_extent, view_to
-
-from . import scores
-from .io import json_safe, write_atomic, write_json_atomic
-from .physics import PhysicsConfig, simulate_gaussians
-from .planners import PLANNERS, PlanningContext, ProbeFields, make_planner
-from .scene_frame import describe_auto_up, parse_up
+from recon.train import Trainer, initial_gaussians, look_at_point, scene_extent, view_to
 
 log = logging.getLogger(__name__)
 
-MODES = ("continue", "reset")
-CHECKPOINT_VERSION = 1
-RUN_FILES = ("config.json", "rounds.json", "checkpoint.pt", "gaussians.ply", "eval.json", "eval.md")
-
-# Presets: defaults of ActiveConfig fields ("train" and "physics" are TrainConfig / PhysicsConfig overrides).
-# cpu-small is sized to run a full fisher+fluid loop (8 selections with 5 probes each) on a 64 px, 40-candidate
-# dataset within 15 minutes on 2 CPU cores (measured in the issue-5 report). It has no opacity resets (neither the
-# periodic one nor the white-background one at densify_from_iter, which 0 disables): compressed to 1000 iterations
-# they fall every 100 iterations, and a selection right after one sees an almost transparent reconstruction with no
-# solid for the probes.
-PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {"resolution": None, "total_iterations": 30000, "iterations_per_view": 100, "train": {},
-              "physics": {}},
-    "cpu-small": {"resolution": 64, "total_iterations": 1000, "iterations_per_view": 10,
-                  "train": {"init_points": 1000, "sh_degree": 1, "max_gaussians": 4000, "densify_from_iter": 0,
-                            "opacity_reset_interval": 1000000},
-                  "physics": {"particle_radius": 0.05, "steps": 150, "empty_reference": False}},
-}
-
-
-@dataclass(frozen=True)
-class ActiveConfig:
-    """Settings of one active-reconstruction run.
-
-    Attributes:
-        method: planner name (a key of ``nbv.planners.PLANNERS``, e.g. "random", "fisher", "fisher+fluid").
-        budget: view budget B, views (the paper: 10).
-        initial_count: number of biased initial views.
-        initial_ids: explicit initial candidate indices (train split); overrides the biased rule.
-        initial_direction: anchor direction (x, y, z) of the biased rule; None: a unit vector drawn from ``seed``.
-        mode: "continue" or "reset" (see the module docstring).
-        iterations_per_view: training iterations per selected view before each selection (paper 100).
-        total_iterations: total training iterations (paper 30000); in continue mode the schedule of the rounds is
-            part of it.
-        seed: seed of the training, the initial-view rule and the planners.
-        resolution: image width the dataset is resized to, pixels (None: native).
-        train: TrainConfig overrides as (key, value) pairs (``iterations`` and ``seed`` are set by the loop).
-        physics: probe settings of the fused planners (its up direction is replaced by ``up``'s).
-        up: the scene's up direction for the probes: None (the dataset's up axis), "auto" (the mean up vector of
-            the training cameras, as nerfstudio orients) or anything :func:`nbv.scene_frame.parse_up` takes.
-        occlusion: the physics planners' S(T) counts only the Gaussians the coarse depth test finds unhidden
-            (:class:`nbv.scores.DepthBuffer`; not in the paper, whose visibility is frustum culling).
-        planner: planner config overrides as (key, value) pairs (``seed`` is set per round).
-        backend: renderer backend ("auto", "torch", "gsplat").
-        preset: the preset the values came from (recorded only).
-    """
-
-    method: str = "fisher+fluid"
-    budget: int = 10
-    initial_count: int = 2
-    initial_ids: tuple[int, ...] | None = None
-    initial_direction: tuple[float, float, float] | None = None
-    mode: str = "continue"
-    iterations_per_view: int = 100
-    total_iterations: int = 30000
-    seed: int = 0
-    resolution: int | None = None
-    train: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
-    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
-    planner: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
-    backend: str = "auto"
-    preset: str = "paper"
-    up: str | tuple[float, float, float] | None = None
-    occlusion: bool = False
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.occlusion, bool):
-            raise ValueError(f"ActiveConfig.occlusion must be a bool, got {self.occlusion!r}")
-        if self.up is not None and self.up != "auto":
-            parse_up(self.up, "ActiveConfig.up")
-            if not isinstance(self.up, str):
-                object.__setattr__(self, "up", tuple(float(c) for c in self.up))
-        if not isinstance(self.method, str) or not self.method:
-            raise ValueError(f"ActiveConfig.method must be a planner name, got {self.method!r}")
-        for name, low in (("budget", 1), ("initial_count", 1), ("iterations_per_view", 0), ("total_iterations", 1),
-                          ("seed", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < low:
-                raise ValueError(f"ActiveConfig.{name} must be an integer >= {low}, got {v!r}")
-        if self.initial_ids is not None:
-            ids = tuple(int(i) for i in self.initial_ids)
-            if not ids or len(set(ids)) != len(ids) or min(ids) < 0:
-                raise ValueError(f"ActiveConfig.initial_ids must be distinct indices >= 0, got {self.initial_ids!r}")
-            object.__setattr__(self, "initial_ids", ids)
-            object.__setattr__(self, "initial_count", len(ids))
-        if self.initial_count > self.budget:
-            raise ValueError(f"ActiveConfig.initial_count ({self.initial_count}) must not exceed the budget "
-                             f"({self.budget})")
-        if self.initial_direction is not None:
-            d = tuple(float(v) for v in self.initial_direction)
-            if len(d) != 3 or not all(math.isfinite(v) for v in d) or math.hypot(*d) == 0:
-                raise ValueError(f"ActiveConfig.initial_direction must be a non-zero (x, y, z), "
-                                 f"got {self.initial_direction!r}")
-            object.__setattr__(self, "initial_direction", d)
-        if self.mode not in MODES:
-            raise ValueError(f"ActiveConfig.mode must be one of {MODES}, got {self.mode!r}")
-        if self.resolution is not None and (isinstance(self.resolution, bool) or not isinstance(self.resolution, int)
-                                            or self.resolution < 8):
-            raise ValueError(f"ActiveConfig.resolution must be None or a width >= 8 pixels, got {self.resolution!r}")
-        if not isinstance(self.physics, PhysicsConfig):
-            raise ValueError(f"ActiveConfig.physics must be a PhysicsConfig, got {type(self.physics).__name__}")
-        for name in ("train", "planner"):
-            raw = getattr(self, name)
-            pairs = tuple((str(k), v) for k, v in (raw.items() if isinstance(raw, dict) else raw))
-            object.__setattr__(self, name, pairs)
-        bad = sorted({k for k, _ in self.train} - {f.name for f in fields(TrainConfig)})
-        if bad:
-            raise ValueError(f"ActiveConfig.train: unknown TrainConfig keys {bad}")
-        if self.mode == "continue" and self.schedule_iterations() > self.total_iterations:
-            raise ValueError(f"ActiveConfig.total_iterations ({self.total_iterations}) is below the iterations of the "
-                             f"selection rounds ({self.schedule_iterations()} = iterations_per_view x sum of "
-                             f"n_selected); raise total_iterations or lower iterations_per_view")
-        self.train_config(self.total_iterations)  # validates the overrides now
-
-    @classmethod
-    def from_preset(cls, preset: str, **overrides: Any) -> ActiveConfig:
-        """The preset's values ("paper" or "cpu-small") with ``overrides`` (``train``/``physics`` dicts merge)."""
-        if preset not in PRESETS:
-            raise ValueError(f"unknown preset {preset!r}; use one of {sorted(PRESETS)}")
-        base = {k: v for k, v in PRESETS[preset].items() if k not in ("train", "physics")}
-        train = {**PRESETS[preset]["train"], **dict(overrides.pop("train", {}) or {})}
-        physics = overrides.pop("physics", None)
-        if not isinstance(physics, PhysicsConfig):
-            physics = PhysicsConfig.from_dict({**PRESETS[preset]["physics"], **dict(physics or {})})
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(overrides) - known)
-        if bad:
-            raise ValueError(f"unknown ActiveConfig keys {bad}; valid keys: {sorted(known)}")
-        return cls(**{**base, **overrides, "train": train, "physics": physics, "preset": preset})
-
-    def rounds(self) -> list[int]:
-        """n_selected before each selection: initial_count, ..., budget - 1."""
-        return list(range(self.initial_count, self.budget))
-
-    def schedule_iterations(self) -> int:
-        """Training iterations spent before the selections, sum of n_selected x iterations_per_view."""
-        return sum(n * self.iterations_per_view for n in self.rounds())
-
-    def train_config(self, iterations: int) -> TrainConfig:
-        """The TrainConfig of a run of ``iterations`` (the reference schedule compressed to it)."""
-        return TrainConfig.for_iterations(iterations, **{**dict(self.train), "seed": self.seed})
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able dict (:meth:`from_dict` reads it back)."""
-        d = asdict(self)
-        d["physics"] = self.physics.to_dict()
-        d["train"], d["planner"] = dict(self.train), dict(self.planner)
-        for key in ("initial_ids", "initial_direction"):
-            d[key] = None if d[key] is None else list(d[key])
-        return d
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> ActiveConfig:
-        """Inverse of :meth:`to_dict`; unknown keys are errors naming the key."""
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(data) - known)
-        if bad:
-            raise ValueError(f"unknown ActiveConfig keys {bad}; valid keys: {sorted(known)}")
-        d = dict(data)
-        if "physics" in d and not isinstance(d["physics"], PhysicsConfig):
-            d["physics"] = PhysicsConfig.from_dict(d["physics"])
-        for key in ("initial_ids", "initial_direction"):
-            if d.get(key) is not None:
-                d[key] = tuple(d[key])
-        if isinstance(d.get("up"), list):
-            d["up"] = tuple(d["up"])
-        return cls(**d)
 
 
 # ---- initial views and seeds -------------------------------------------------------------------------
@@ -248,6 +80,7 @@ def anchor_direction(seed: int) -> torch.Tensor:
     gen = torch.Generator().manual_seed(int(seed))
     v = torch.randn(3, generator=gen, dtype=torch.float64)
     return v / v.norm()
+
 
 
 def biased_initial_views(cameras: Sequence, count: int, seed: int = 0,
@@ -278,14 +111,18 @@ def biased_initial_views(cameras: Sequence, count: int, seed: int = 0,
     return [first] + [i for i in order if i != first][:count - 1]
 
 
+
 def is_empty_solid(exc: ValueError) -> bool:
-    """Whether a probe run failed because the Gaussians form no (or a degenerate) solid (nbv.solidify's message)."""
+    """Whether a probe run failed because the Gaussians form no (or a degenerate) solid (the solidify
+    message)."""
     return "the solid is " in str(exc)
+
 
 
 def planner_seed(seed: int, round_index: int) -> int:
     """The planner seed of one selection round (planners are rebuilt each round; see the module docstring)."""
     return int(seed) * 1000 + int(round_index)
+
 
 
 # ---- the loop ----------------------------------------------------------------------------------------
@@ -298,6 +135,7 @@ class RunState:
     phase: str = "rounds"  # "rounds" while selecting, "final" while training to the end, "done" once written
 
 
+
 def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
     """Dotted keys whose values differ between two nested dicts (missing keys count)."""
     out = []
@@ -308,6 +146,7 @@ def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
         elif json_safe(a) != json_safe(b):
             out.append(f"{prefix}{key}")
     return out
+
 
 
 def prepare_run_dir(run_dir: Path, run_config: dict, overwrite: bool) -> bool:
@@ -338,8 +177,10 @@ def prepare_run_dir(run_dir: Path, run_config: dict, overwrite: bool) -> bool:
     return False
 
 
+
 def _dataset_run_config(dataset_path: Path, config: ActiveConfig) -> dict:
     return {"dataset": str(Path(dataset_path).resolve()), "active": config.to_dict()}
+
 
 
 def load_active_dataset(dataset_path: str | Path, config: ActiveConfig):
@@ -360,6 +201,7 @@ def load_active_dataset(dataset_path: str | Path, config: ActiveConfig):
     return ds
 
 
+
 def dataset_up(spec: str | tuple[float, float, float] | None, dataset) -> str | tuple[float, float, float]:
     """The probes' up direction for ``dataset`` (a ``recon.datasets.Dataset``).
 
@@ -377,6 +219,7 @@ def dataset_up(spec: str | tuple[float, float, float] | None, dataset) -> str | 
     up = up_from_cameras([v.camera for v in dataset.train])
     log.info("%s (training cameras)", describe_auto_up(up))
     return tuple(float(c) for c in up)
+
 
 
 class ActiveRun:
@@ -440,7 +283,7 @@ class ActiveRun:
 
     def _physics(self, record: dict, fields: dict | None = None) -> Callable[[GaussianSet], torch.Tensor]:
         """The context's physics callable; it notes D-bar, per-probe D-bar and the time in ``record``, and puts
-        the run's :class:`nbv.planners.ProbeFields` in ``fields["fields"]`` (when ``fields`` is given)."""
+        the run's :class:`nbv.plan.ProbeFields` in ``fields["fields"]`` (when ``fields`` is given)."""
         store = {} if fields is None else fields
 
         def run(gaussians: GaussianSet) -> torch.Tensor:
@@ -619,6 +462,7 @@ class ActiveRun:
         return json.loads((self.run_dir / "rounds.json").read_text())
 
 
+
 def _state_to(state: Any, device: str) -> Any:
     """A checkpoint's nested dict with float tensors on ``device`` (RNG states stay on the CPU)."""
     if isinstance(state, dict):
@@ -628,6 +472,7 @@ def _state_to(state: Any, device: str) -> Any:
     if isinstance(state, torch.Tensor) and state.is_floating_point():
         return state.to(device)
     return state
+
 
 
 def run_active(dataset_path: str | Path, run_dir: str | Path, config: ActiveConfig, **kwargs: Any) -> dict:

@@ -67,7 +67,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import taichi as ti
 
-from . import aggregate_kernels as kernels
+from nbv.physics import aggregate_kernels as kernels
 
 if TYPE_CHECKING:
     from fluidsim import DFSPHSolver
@@ -83,7 +83,7 @@ SERIAL_BELOW = 4096
 _ROWS_BUDGET = 256 * 2**20
 # Solver steps staged per accumulation pass, and the most bytes the staged particles may take. Above
 # INTERLEAVE_ABOVE_BYTES of Gaussian records, sums and cell lists (beyond the caches) the staged steps are visited
-# interleaved (particle k of every step in a row, :func:`nbv.aggregate_kernels.visit_all`). Measured on recorded
+# interleaved (particle k of every step in a row, :func:`nbv.physics.aggregate_kernels.visit_all`). Measured on recorded
 # paper-setting probes (40 steps at the impact, 2 threads, interleaved rounds against 8 flat steps): the 1.07M-Gaussian
 # capture (~400 MB) 0.50-0.56x the time with 8-16 interleaved steps, its 152k original (58 MB) 0.85x, the bundled
 # asset (16 MB, in the caches) 0.97-1.14x, so it stays flat.

@@ -1,9 +1,9 @@
-"""Taichi kernels of :mod:`nbv.aggregate`: the per-level cell lists, the per-step accumulation (paper Eq. 2-3), the
-staging copy, and the set of (Gaussian, particle id) pairs behind the distinct counts |P_g|.
+"""Taichi kernels of :mod:`nbv.physics.aggregate`: the per-level cell lists, the per-step accumulation (paper
+Eq. 2-3), the staging copy, and the set of (Gaussian, particle id) pairs behind the distinct counts |P_g|.
 
-The static Gaussians are sorted into a few levels by reach (see ``nbv.aggregate.plan_levels``); a level is a uniform
-grid whose cell is a fraction of the level's largest reach, and a Gaussian of that level is listed in every cell of
-it whose box comes closer than its reach to its centre (at most (2 / fraction + 1)^3 cells, whatever the other
+The static Gaussians are sorted into a few levels by reach (see ``nbv.physics.aggregate.plan_levels``); a level is a
+uniform grid whose cell is a fraction of the level's largest reach, and a Gaussian of that level is listed in every
+cell of it whose box comes closer than its reach to its centre (at most (2 / fraction + 1)^3 cells, whatever the other
 levels hold), first the Gaussians that cover the cell, then the others. The lists are built once per run (counting
 pass, prefix sum on the host, fill pass). A fluid particle tests, on every level, the Gaussians that only touch its
 own cell, |x - mu_g|^2 < r_g^2 in f64 as the numpy twin does, and adds its value once to the cell's sum for the

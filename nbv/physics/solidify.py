@@ -41,11 +41,11 @@ exactly what stops it at a Gaussian. Marking every cell (cube of side s) that a 
 watertight but grows a body by the cube's support, s/2 on a flat axis-aligned face and 3s/4 on average over
 directions: +11 % volume for a 2 m sphere at s = 5 cm, +19 % for a 2 m x 0.75 m x 0.56 m box.
 
-Optional space carving (:func:`nbv.carve.carve_outside`, as the paper's Kaolin sampler): with cameras and
+Optional space carving (:func:`nbv.physics.carve.carve_outside`, as the paper's Kaolin sampler): with cameras and
 depth maps, the points some camera sees in front of the surface are outside and all others are solid, which
 also closes captures with holes.
 
-The fast paths are Taichi kernels (:mod:`nbv.solid_kernels`); :func:`combined_opacity_reference` and
+The fast paths are Taichi kernels (:mod:`nbv.physics.solid_kernels`); :func:`combined_opacity_reference` and
 :func:`edge_log_transmittance_reference` are their brute-force numpy twins. The outside region is found in
 numpy by labelling runs of free points along z and joining the runs that touch across an open edge (union
 of roots by the smaller label, then pointer jumping): a few O(points) rounds, 0.5 s for 10^7 points (3 s
@@ -62,11 +62,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import taichi as ti
 
+from nbv.physics import floaters, solid_kernels
+from nbv.physics.carve import carve_outside, surface_depths
+from nbv.physics.scene_frame import SceneTransform
 from recon.gaussians import GaussianSet, quaternion_to_rotation
-
-from . import floaters, solid_kernels
-from .carve import carve_outside, surface_depths
-from .scene_frame import SceneTransform
 
 log = logging.getLogger(__name__)
 
@@ -230,7 +229,7 @@ def _box_half_extents(covs: np.ndarray, sigma_cutoff: float) -> np.ndarray:
 
 
 def solid_boxes(means: np.ndarray, covs: np.ndarray, opacities: np.ndarray, config: SolidifyConfig):
-    """The sigma boxes reduced to where each Gaussian can take part in making solid (:mod:`nbv.floaters`: faint
+    """The sigma boxes reduced to where each Gaussian can take part in making solid (:mod:`nbv.physics.floaters`: faint
     Gaussians, o_g < tau, clipped to the others' box; o_g < tau / 10 left out): lo, hi [N, 3] m, keep [N]."""
     ext = _box_half_extents(covs, config.sigma_cutoff)
     return floaters.solid_capable_boxes(means - ext, means + ext, opacities, config.opacity_threshold)
@@ -731,9 +730,9 @@ def gaussians_to_solid(gaussians: GaussianSet, config: SolidifyConfig, transform
         config: lattice spacing (sim m), tau, sigma cut-off, filling, thin test, size guard, bounds.
         transform: scene -> simulation metres, Y-up.
         cameras: optional ``recon.camera.Camera`` list (scene frame, world-to-camera OpenCV): carve the space
-            they see empty (:func:`nbv.carve.carve_outside`).
+            they see empty (:func:`nbv.physics.carve.carve_outside`).
         depths: with ``cameras``, one [H, W] depth map per camera (scene units, inf where empty); None renders
-            them from the Gaussians (:func:`nbv.carve.surface_depths`).
+            them from the Gaussians (:func:`nbv.physics.carve.surface_depths`).
     Returns:
         Solid.
     Raises:

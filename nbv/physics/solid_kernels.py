@@ -1,5 +1,5 @@
-"""Taichi kernels of :mod:`nbv.solidify` (splatting Gaussians onto the lattice points and edges as
-log-transmittance) and of :mod:`nbv.leaks` (fluid particles deep inside the solid).
+"""Taichi kernels of :mod:`nbv.physics.solidify` (splatting Gaussians onto the lattice points and edges as
+log-transmittance) and of :mod:`nbv.physics.leaks` (fluid particles deep inside the solid).
 
 The splats' work is flattened: every (Gaussian, lattice point of its sigma box) pair is one work item, so a
 few large Gaussians do not leave all but one thread idle. A work item finds its Gaussian by binary

@@ -1,6 +1,6 @@
 """Which Gaussians can make solid, and so size the solid lattice; which one alone widens it (a floater).
 
-The solid test of :mod:`nbv.solidify` (paper Sec. 3.2) makes a lattice point x solid when the combined opacity
+The solid test of :mod:`nbv.physics.solidify` (paper Sec. 3.2) makes a lattice point x solid when the combined opacity
 1 - prod_g (1 - o_g exp(-d_g(x)^2 / 2)) reaches tau, each Gaussian counted inside its sigma box only. Two
 consequences bound where solid can be, and so the lattice (and the probes' domain) the Gaussians need:
 

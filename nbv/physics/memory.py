@@ -1,0 +1,159 @@
+"""The memory a probe run needs, estimated before anything is allocated (:func:`estimate_memory`,
+:func:`check_memory`), and the message that names the fix when it does not fit."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fluidsim.memory import available_memory_bytes
+from fluidsim.probes import probe_setup
+from nbv.physics import floaters
+from nbv.physics.aggregate import GaussianAccumulator, reach_classes
+from nbv.physics.config import QUICK, PhysicsConfig, scene_transform
+from nbv.physics.solidify import BYTES_PER_GAUSSIAN as BYTES_PER_GAUSSIAN_SOLIDIFY
+from nbv.physics.solidify import (
+    SolidifyConfig,
+    estimate_lattice_points,
+    estimate_solidify_bytes,
+    gaussian_arrays_in_sim,
+    solid_boxes,
+)
+
+# Memory per fluid particle of one probe (solver state, pressure-solver arrays, fluid and boundary neighbour lists)
+# and per boundary particle (walls and solid), doubled for headroom: the peak resident memory of probes around a
+# solid sphere (-x, f32, 2 threads, 20 steps, after the JIT) grew by 1,050-1,140 B per fluid particle with their
+# boundary (r = 0.04-0.02 m, 12k-106k fluid and 32k-154k boundary particles), of which about 130 B per boundary
+# particle. The per-Gaussian accumulator is estimated apart (nbv.physics.aggregate.GaussianAccumulator.estimate_bytes).
+BYTES_PER_FLUID = 2048
+
+BYTES_PER_BOUNDARY = 256
+
+# Per Gaussian, held through the whole run besides the Gaussian set itself: simulation-frame means, covariances and
+# reach (float64, 104 B), and per probe the result rows (means, counts, distinct counts: 24 B).
+BYTES_PER_GAUSSIAN_RUN = 104
+
+BYTES_PER_GAUSSIAN_PROBE = 24
+
+BYTES_PER_LATTICE_POINT = 2
+
+
+
+def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
+                    solid_points: np.ndarray | None = None) -> dict[str, float]:
+    """An upper estimate of the memory one probe needs, before any probe is allocated.
+
+    Without ``solid_points`` it is cheap: the box of the solid lattice stands for the solid's box (the
+    Gaussians' 3-sigma boxes where they can make solid: a Gaussian with opacity < tau clipped to the others'
+    box, those under tau / 10 left out, :mod:`nbv.physics.floaters`). With ``solid_points`` [P, 3] (sim metres, the
+    solidified Gaussians) the probes are laid out around the real solid, which is smaller when faint or
+    scattered Gaussians widen the box but make no solid. Uses the per-particle byte counts ``BYTES_PER_*``
+    and the solid lattice estimate of :func:`nbv.physics.solidify.estimate_lattice_points`.
+
+    The bytes add the Gaussians held all run to the larger of the solidification's peak
+    (:func:`nbv.physics.solidify.estimate_solidify_bytes`) and one probe's (its solver, and the per-Gaussian
+    accumulator's :meth:`nbv.physics.aggregate.GaussianAccumulator.estimate_bytes`).
+
+    Returns:
+        dict: lattice_points, fluid_particles (largest probe), boundary_particles, and the bytes (floats):
+        resident_bytes, solidify_bytes, probe_bytes, accumulator_bytes and their total ``bytes``.
+    """
+    transform = transform if transform is not None else scene_transform(gaussians, config)
+    spacing = 2.0 * config.particle_radius
+    scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold,
+                          fill_cavities=config.fill_cavities, max_points=2**62)
+    lattice = int(estimate_lattice_points(gaussians, scfg, transform))
+    if solid_points is not None and len(solid_points):
+        pts = np.asarray(solid_points, np.float64)
+        box, solid_count = np.stack([pts.min(0), pts.max(0)]), len(pts)
+    else:
+        means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+        box, solid_count = np.stack(floaters.lattice_extent(*solid_boxes(means, covs, opacities, scfg))), lattice
+    probe = config.probe_config()
+    fluid = boundary = 0
+    for d in config.directions:
+        s = probe_setup(box, d, probe, spacing)
+        f = float(np.prod(np.floor((np.subtract(s.fluid_max, s.fluid_min)) / spacing)))
+        ext = np.subtract(s.domain_max, s.domain_min)
+        area = 2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2])
+        walls = area * probe.wall_layers / spacing**2
+        fluid, boundary = max(fluid, int(f)), max(boundary, int(walls) + solid_count)
+    return {"lattice_points": lattice, "fluid_particles": fluid, "boundary_particles": boundary,
+            **_memory_parts(gaussians, config, lattice, fluid, boundary)}
+
+
+
+def _memory_parts(gaussians, config: PhysicsConfig, lattice: int, fluid: int, boundary: int) -> dict[str, float]:
+    """The bytes of :func:`estimate_memory`: the Gaussian set and the per-Gaussian arrays held all run
+    (``resident_bytes``), the solidification's peak (``solidify_bytes``), one probe's solver (``probe_bytes``) and
+    its accumulator (``accumulator_bytes``), and ``bytes`` = resident + the larger of the two phases."""
+    g = int(gaussians.num)
+    tensors = (gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh)
+    resident = sum(t.numel() * t.element_size() for t in tensors) \
+        + g * (BYTES_PER_GAUSSIAN_RUN + BYTES_PER_GAUSSIAN_PROBE * len(config.directions))
+    solidify = estimate_solidify_bytes(g, lattice)
+    probe = fluid * BYTES_PER_FLUID + boundary * BYTES_PER_BOUNDARY + lattice * BYTES_PER_LATTICE_POINT
+    radii = gaussians.log_scales.detach().max(dim=1).values.double().exp().cpu().numpy()  # ratios: scale-free
+    accumulator = GaussianAccumulator.estimate_bytes(g, fluid, config.track_distinct,
+                                                     float_bytes=4 if config.precision == "f32" else 8,
+                                                     num_levels=reach_classes(radii))
+    return {"resident_bytes": float(resident), "solidify_bytes": float(solidify), "probe_bytes": float(probe),
+            "accumulator_bytes": float(accumulator),
+            "bytes": float(resident + max(solidify, probe + accumulator))}
+
+
+
+def memory_limit_bytes(config: PhysicsConfig) -> float:
+    """The memory a probe may use: ``config.max_memory_gb``, or the memory available now."""
+    return config.max_memory_gb * 2**30 if config.max_memory_gb is not None else float(available_memory_bytes())
+
+
+
+def check_memory(gaussians, config: PhysicsConfig, transform=None,
+                 solid_points: np.ndarray | None = None) -> dict[str, float]:
+    """Raise ValueError, with the estimate and the fix, when a probe would not fit in memory.
+
+    See :func:`estimate_memory` for ``solid_points`` (the exact check once the solid is known)."""
+    est = estimate_memory(gaussians, config, transform, solid_points)
+    limit = memory_limit_bytes(config)
+    if est["bytes"] > limit:
+        available = "allowed (--max-memory-gb)" if config.max_memory_gb is not None else "available"
+        gib = {k: est[k] / 2**30 for k in ("resident_bytes", "solidify_bytes", "probe_bytes", "accumulator_bytes")}
+        raise ValueError(
+            f"the probe would need about {est['bytes'] / 2**30:.4g} GiB ({est['fluid_particles']:,} fluid and "
+            f"{est['boundary_particles']:,} boundary particles at r = {config.particle_radius} m, a solid lattice of "
+            f"{est['lattice_points']:,} points, {gaussians.num:,} Gaussians: {gib['resident_bytes']:.3g} GiB for the "
+            f"Gaussians, then {gib['solidify_bytes']:.3g} GiB to solidify, {gib['probe_bytes']:.3g} GiB per probe and "
+            f"{gib['accumulator_bytes']:.3g} GiB for its per-Gaussian accumulator) but {limit / 2**30:.3g} GiB are "
+            f"{available}{_memory_fix(gaussians, config, transform, est, limit)}")
+    return est
+
+
+
+def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, float], limit: float) -> str:
+    """The advice of :func:`check_memory`: the Gaussian that alone widens the lattice, if one does (a larger
+    radius cannot help then), else the particle radius that would fit, if the object is still resolved."""
+    transform = transform if transform is not None else scene_transform(gaussians, config)
+    spacing = 2.0 * config.particle_radius
+    scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold, max_points=2**62)
+    means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    boxes = solid_boxes(means, covs, opacities, scfg)
+    note = floaters.dominant_note(*boxes, spacing, means, covs, opacities, transform)
+    if note:
+        return f"{note.replace('widens it', 'widens the solid lattice')}; a larger particle radius cannot help"
+    # the Gaussians' own bytes do not shrink with a larger radius
+    fixed = est["resident_bytes"] + max(est["accumulator_bytes"], float(gaussians.num) * BYTES_PER_GAUSSIAN_SOLIDIFY)
+    if fixed >= limit:
+        return (f"; the {gaussians.num:,} Gaussians alone need about {fixed / 2**30:.3g} GiB (the set, the "
+                "per-Gaussian accumulator or the solidification), so a larger particle radius cannot help: crop "
+                "them to the object (--crop auto, or --crop xmin,ymin,zmin,xmax,ymax,zmax in scene units), prune "
+                "them, or allow more memory (--max-memory-gb) on a larger machine")
+    # the fluid and the lattice (the rest of the bytes) scale as 1 / r^3: the radius that would fit, if the object
+    # stays resolved
+    radius = config.particle_radius * ((est["bytes"] - fixed) / (limit - fixed)) ** (1.0 / 3.0)
+    extent = float(np.max(np.subtract(*floaters.lattice_extent(*boxes)[::-1])))
+    if 2.0 * radius <= extent / 4.0:
+        return (f"; use a particle radius of about {radius:.3g} m or more (--particle-radius; --quick is "
+                f"{QUICK['particle_radius']} m), a smaller scale (--scale), or crop the Gaussians (--crop)")
+    return (f"; a particle radius that fits ({radius:.3g} m) would leave the {extent:.3g} m solid box fewer than 4 "
+            "particles across: crop the Gaussians to the object (--crop auto, or --crop xmin,ymin,zmin,xmax,ymax,zmax "
+            "in scene units) or use a smaller scale (--scale)")

@@ -1,0 +1,305 @@
+"""The result of a probe run (:class:`PhysicsResult`) and its HDF5 file RESULT.h5 (:func:`save_result`,
+:func:`load_result`, :func:`check_result_matches`)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import torch
+
+from fluidsim import SimulationDiverged
+from nbv.io import atomic_h5
+from nbv.physics.config import PhysicsConfig
+from nbv.physics.leaks import read_probe_leaks, write_probe_leaks
+from nbv.physics.scene_frame import SceneTransform
+from nbv.physics.solidify import (
+    gaussian_arrays_in_sim,
+)
+from nbv.physics.trajectory import (
+    read_trajectory,
+    write_trajectory,
+)
+
+
+@dataclass
+class PhysicsResult:
+    """Everything one probe run on a Gaussian set produced (see :func:`save_result` for the HDF5 layout).
+
+    Attributes:
+        directions: the probes, in run order (P of them).
+        per_probe: [P, G] float64 D_g^(IC), 1/s.
+        per_probe_counts: [P, G] int64 (particle, step) samples per Gaussian.
+        per_probe_distinct: [P, G] int64 |P_g| per probe, or None when not tracked.
+        divergence: [G] D_g = max over the probes, 1/s.
+        divergence_mean: [G] mean over the probes, 1/s.
+        dbar, dbar_mean: D-bar of the max- and mean-combined D_g, m^4/s.
+        dbar_empty, dbar_empty_mean: the same for the empty scene (None when not computed).
+        empty_per_probe: [P, G] D_g^(IC) of the empty scene, or None.
+        solid: [M, 3] solid particles, sim metres.
+        transform: the scene -> simulation transform.
+        means: [G, 3] Gaussian centres, sim metres. covariances: [G, 3, 3] sim metres^2.
+        reach: [G] n r_g, sim metres.
+        stats: per direction, the structured step statistics (fluidsim.output.stats_table).
+        domains: per direction, (domain_min, domain_max) in sim metres.
+        timings: seconds: solidify, simulation (steps only), aggregation, empty_reference, total.
+        config: the PhysicsConfig. source: where the Gaussians came from.
+        kept: [G] bool, the Gaussians inside ``config.crop`` (None without a crop; the others have D_g = 0).
+        warnings: per direction, what makes that probe's D_g suspect (no fluid reached any Gaussian, most fluid
+            left the domain); empty lists when all is well.
+        gaussians_sha256: :func:`gaussians_sha256` of the Gaussians simulated ("" in files written before it).
+        status: "complete", or "diverged" (then ``directions`` are the probes completed before ``failure``).
+        failure: None, or {"probe", "step", "reason"} of the probe that diverged.
+        leaks: per direction, the probe's final fluid state and leak measure (:class:`nbv.physics.leaks.ProbeLeaks`);
+            empty in files written before it.
+        trajectories: per recorded direction, its fluid every k steps (:class:`nbv.physics.trajectory.ProbeTrajectory`;
+            only with ``record``); :func:`load_result` reads them only when asked (``trajectories=True``).
+    """
+
+    directions: tuple[str, ...]
+    per_probe: np.ndarray
+    per_probe_counts: np.ndarray
+    per_probe_distinct: np.ndarray | None
+    divergence: np.ndarray
+    divergence_mean: np.ndarray
+    dbar: float
+    dbar_mean: float
+    dbar_empty: float | None
+    dbar_empty_mean: float | None
+    empty_per_probe: np.ndarray | None
+    solid: np.ndarray
+    transform: Any
+    means: np.ndarray
+    covariances: np.ndarray
+    reach: np.ndarray
+    stats: dict[str, np.ndarray]
+    domains: dict[str, tuple[np.ndarray, np.ndarray]]
+    timings: dict[str, float]
+    config: PhysicsConfig
+    source: str = ""
+    kept: np.ndarray | None = None
+    warnings: dict[str, list[str]] = field(default_factory=dict)
+    gaussians_sha256: str = ""
+    status: str = "complete"
+    failure: dict[str, Any] | None = None
+    leaks: dict[str, Any] = field(default_factory=dict)
+    trajectories: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def num_gaussians(self) -> int:
+        return int(self.divergence.shape[0])
+
+    def distinct_counts(self) -> np.ndarray:
+        """[G] |P_g| summed over the probes (each probe has its own fluid particles); needs track_distinct."""
+        if self.per_probe_distinct is None:
+            raise ValueError("this result has no distinct particle counts; simulate with track_distinct=True")
+        return self.per_probe_distinct.sum(0)
+
+
+
+class ProbeDiverged(SimulationDiverged):
+    """A probe diverged. ``probe`` and ``step`` say where; ``result`` holds the probes completed before it
+    (``status`` "diverged", ``failure`` set), for saving: nothing computed is lost."""
+
+    def __init__(self, probe: str, step: int, reason: str, result: PhysicsResult):
+        super().__init__(step, reason)
+        self.probe, self.result = probe, result
+        done = ", ".join(result.directions) or "none"
+        self.args = (f"probe {probe} diverged at step {step}: {reason} (probes completed: {done})",)
+
+
+
+def gaussians_sha256(gaussians) -> str:
+    """SHA-256 (hex) of what the probes depend on: the float32 bytes of means, quats, log_scales and
+    opacity_logits, in that order (colours are left out, so a re-coloured copy has the same digest)."""
+    h = hashlib.sha256()
+    for t in (gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits):
+        h.update(np.ascontiguousarray(t.detach().cpu().numpy(), np.float32).tobytes())
+    return h.hexdigest()
+
+
+
+def _t(a: np.ndarray):
+    return torch.from_numpy(np.asarray(a, np.float64))
+
+
+
+# ---- HDF5 ------------------------------------------------------------------------------------------
+def save_result(path: str | Path, result: PhysicsResult) -> Path:
+    """Write a result to HDF5 atomically (a temporary file in the same folder, then rename).
+
+    Layout::
+
+        /gaussians/D            (G,) D_g, max over the probes, 1/s
+        /gaussians/D_mean       (G,) mean over the probes, 1/s
+        /gaussians/means        (G, 3) centres, sim metres
+        /gaussians/covariances  (G, 3, 3) sim metres^2
+        /gaussians/reach        (G,) n r_g, sim metres
+        /probes/<dir>/D         (G,) D_g^(IC), 1/s
+        /probes/<dir>/counts    (G,) (particle, step) samples
+        /probes/<dir>/distinct  (G,) |P_g| (only with track_distinct)
+        /probes/<dir>/D_empty   (G,) the empty-scene D_g^(IC) (only with the empty reference)
+        /probes/<dir>/stats     one row per step (fluidsim StepStats fields)
+                                attributes: domain_min, domain_max (sim metres), warnings (JSON list of text)
+        /probes/<dir>/leaked    (K,) int32 ids of the fluid particles inside the filled solid at the end (leaks.py:
+                                the nearest lattice point and its 6 neighbours are solid; contact is not a leak)
+                                attributes: final (K), max (the most inside after any step), max_step (0-based)
+        /probes/<dir>/leaked_per_step  (S,) int32 particles inside after each step
+        /probes/<dir>/x_final   (F, 3) float32 final fluid positions, sim metres, ordered by id (gzip)
+        /probes/<dir>/ids_final (F,) int32 their ids (index in the probe's initial fluid set)
+        /probes/<dir>/trajectory  only for the probes recorded (``record``): x (T, F, 3), D (T, F), speed (T, F),
+                                steps (T,) every k steps (:mod:`nbv.physics.trajectory`; NaN: retired)
+        /solid/x                (M, 3) solid particles, sim metres
+        attributes: config (PhysicsConfig JSON), directions, dbar, dbar_mean, dbar_empty, dbar_empty_mean
+                    (m^4/s; NaN when not computed), up (the scene's up vector, 3 floats), up_label ("-y", ...),
+                    scale (m per scene unit), scene_to_sim (4x4: x_sim = M [x_scene, 1]), source, timings (JSON)
+        /gaussians/kept         (G,) bool, the Gaussians inside the crop (only with a crop)
+        attributes too: gaussians_sha256 (:func:`gaussians_sha256`), status ("complete" or "diverged": then
+                    /probes holds the probes completed before it, and diverged_probe, diverged_step,
+                    diverged_reason say which probe diverged at which step and why)
+
+    Returns:
+        the path written.
+    """
+    p = Path(path)
+    with atomic_h5(p) as f:
+        g = f.create_group("gaussians")
+        g["D"], g["D_mean"], g["means"] = result.divergence, result.divergence_mean, result.means
+        g["covariances"], g["reach"] = result.covariances, result.reach
+        for i, d in enumerate(result.directions):
+            pg = f.create_group(f"probes/{d}")
+            pg["D"], pg["counts"] = result.per_probe[i], result.per_probe_counts[i]
+            if result.per_probe_distinct is not None:
+                pg["distinct"] = result.per_probe_distinct[i]
+            if result.empty_per_probe is not None:
+                pg["D_empty"] = result.empty_per_probe[i]
+            pg["stats"] = result.stats[d]
+            if d in result.domains:
+                pg.attrs["domain_min"], pg.attrs["domain_max"] = result.domains[d]
+            pg.attrs["warnings"] = json.dumps(list(result.warnings.get(d, [])))
+            if d in result.leaks:
+                write_probe_leaks(pg, result.leaks[d])
+            if d in result.trajectories:
+                write_trajectory(pg, result.trajectories[d])
+        f.create_dataset("solid/x", data=result.solid, compression="gzip", compression_opts=1)
+        f.attrs["config"] = json.dumps(result.config.to_dict())
+        f.attrs["directions"] = json.dumps(list(result.directions))
+        for key in ("dbar", "dbar_mean", "dbar_empty", "dbar_empty_mean"):
+            v = getattr(result, key)
+            f.attrs[key] = float("nan") if v is None else float(v)
+        f.attrs["up"], f.attrs["up_label"] = np.asarray(result.transform.up), result.transform.up_label
+        f.attrs["scale"], f.attrs["scene_to_sim"] = float(result.transform.scale), result.transform.matrix
+        if result.kept is not None:
+            g["kept"] = np.asarray(result.kept, bool)
+        f.attrs["source"] = str(result.source)
+        f.attrs["timings"] = json.dumps(result.timings)
+        f.attrs["gaussians_sha256"], f.attrs["status"] = result.gaussians_sha256, result.status
+        if result.failure is not None:
+            for key in ("probe", "step", "reason"):
+                f.attrs[f"diverged_{key}"] = result.failure[key]
+    return p
+
+
+
+def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
+    """Read a result written by :func:`save_result` (``trajectories``: also the recorded probe trajectories, which
+    can be large; by default ``PhysicsResult.trajectories`` is left empty).
+
+    Raises:
+        ValueError: naming the file when it is not such a result.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"result file {p} does not exist; run `fluidgs simulate` to create it")
+    try:
+        with h5py.File(p, "r") as f:
+            if "gaussians/D" not in f or "config" not in f.attrs:
+                raise ValueError(f"{p} is not a `fluidgs simulate` result (no /gaussians/D); re-run `fluidgs simulate`")
+            dirs = tuple(json.loads(f.attrs["directions"]))
+            probes = [f[f"probes/{d}"] for d in dirs]
+            g = f["gaussians/D"].shape[0]
+            per_probe = np.stack([pg["D"][()] for pg in probes]) if probes else np.zeros((0, g))
+            counts = np.stack([pg["counts"][()] for pg in probes]) if probes else np.zeros((0, g), np.int64)
+            distinct = np.stack([pg["distinct"][()] for pg in probes]) \
+                if probes and all("distinct" in pg for pg in probes) else None
+            empty = np.stack([pg["D_empty"][()] for pg in probes]) \
+                if probes and all("D_empty" in pg for pg in probes) else None
+            domains = {d: (np.asarray(pg.attrs["domain_min"]), np.asarray(pg.attrs["domain_max"]))
+                       for d, pg in zip(dirs, probes, strict=True) if "domain_min" in pg.attrs}
+            warnings = {d: list(json.loads(pg.attrs["warnings"])) if "warnings" in pg.attrs else []
+                        for d, pg in zip(dirs, probes, strict=True)}
+            failure = {"probe": str(f.attrs["diverged_probe"]), "step": int(f.attrs["diverged_step"]),
+                       "reason": str(f.attrs["diverged_reason"])} if "diverged_probe" in f.attrs else None
+
+            def opt(key: str) -> float | None:
+                v = float(f.attrs[key])
+                return None if math.isnan(v) else v
+
+            return PhysicsResult(
+                directions=dirs, per_probe=per_probe, per_probe_counts=counts, per_probe_distinct=distinct,
+                divergence=f["gaussians/D"][()], divergence_mean=f["gaussians/D_mean"][()],
+                dbar=float(f.attrs["dbar"]), dbar_mean=float(f.attrs["dbar_mean"]), dbar_empty=opt("dbar_empty"),
+                dbar_empty_mean=opt("dbar_empty_mean"), empty_per_probe=empty, solid=f["solid/x"][()],
+                transform=SceneTransform(tuple(f.attrs["up"]) if "up" in f.attrs else str(f.attrs["up_axis"]),
+                                         float(f.attrs["scale"])),
+                kept=f["gaussians/kept"][()] if "gaussians/kept" in f else None,
+                means=f["gaussians/means"][()], covariances=f["gaussians/covariances"][()],
+                reach=f["gaussians/reach"][()], stats={d: pg["stats"][()] for d, pg in zip(dirs, probes, strict=True)},
+                domains=domains, timings=json.loads(f.attrs["timings"]),
+                config=PhysicsConfig.from_dict(json.loads(f.attrs["config"])), source=str(f.attrs["source"]),
+                warnings=warnings, gaussians_sha256=str(f.attrs.get("gaussians_sha256", "")),
+                status=str(f.attrs.get("status", "complete")), failure=failure,
+                leaks={d: read_probe_leaks(pg) for d, pg in zip(dirs, probes, strict=True) if "leaked" in pg},
+                trajectories={d: read_trajectory(pg) for d, pg in zip(dirs, probes, strict=True)
+                              if trajectories and "trajectory" in pg})
+    except (OSError, KeyError) as exc:
+        raise ValueError(f"cannot read the result file {p}: {exc}; re-run `fluidgs simulate`") from exc
+
+
+
+def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> None:
+    """Raise ValueError when a stored result was not computed, completely, for ``gaussians``.
+
+    Args:
+        result: a loaded result.
+        gaussians: the ``GaussianSet`` the result is used with (an int: only the count is compared).
+        path: the result file, for the message.
+
+    The count must match and the run must be complete. Then :func:`gaussians_sha256` must match the stored
+    digest; in files written before the digest, the Gaussians' centres mapped by the stored transform must
+    match the stored centres (to 1e-5 of the object's size).
+    """
+    num = gaussians if isinstance(gaussians, int) else gaussians.num
+    if result.num_gaussians != num:
+        raise ValueError(f"{path} holds D_g for {result.num_gaussians} Gaussians but the .ply has {num}; "
+                         "pass the result of this .ply or drop --result to simulate again")
+    if result.status != "complete":
+        f = result.failure or {}
+        raise ValueError(f"{path} is the result of a run that diverged (probe {f.get('probe')} at step "
+                         f"{f.get('step')}: {f.get('reason')}); it has only the probes "
+                         f"{', '.join(result.directions) or 'none'}; re-run `fluidgs simulate` with a smaller --dt")
+    if isinstance(gaussians, int):
+        return
+    if result.gaussians_sha256:
+        digest = gaussians_sha256(gaussians)
+        if digest != result.gaussians_sha256:
+            raise ValueError(f"{path} was computed for other Gaussians (same count, {num}, but different positions, "
+                             f"shapes or opacities: content hash {result.gaussians_sha256[:12]}... vs "
+                             f"{digest[:12]}... of this file); pass the result of these Gaussians or drop --result "
+                             "to simulate again")
+        return
+
+    means = np.asarray(gaussian_arrays_in_sim(gaussians, result.transform)[0], np.float64)
+    stored = np.asarray(result.means, np.float64)
+    size = float(np.ptp(stored, axis=0).max()) if len(stored) else 0.0
+    gap = float(np.abs(means - stored).max()) if len(stored) else 0.0
+    if not gap <= 1e-5 * max(size, 1e-12):
+        raise ValueError(f"{path} was computed for other Gaussians (same count, {num}, but centres up to {gap:.3g} m "
+                         "away from the stored ones); pass the result of these Gaussians or drop --result to "
+                         "simulate again")

@@ -1,0 +1,40 @@
+"""The FisherRF planner; :mod:`nbv.plan.fisher_info` computes its scores."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from nbv.plan.base import PlanningContext, Selection, _check_candidates, _descending, _nan_scores
+from nbv.plan.fisher_info import FisherConfig, greedy_top_k
+
+log = logging.getLogger(__name__)
+
+
+
+class FisherPlanner:
+    """FisherRF: the candidate with the largest expected information gain (:mod:`nbv.plan.fisher_info`)."""
+
+    name = "fisher"
+    config_type = FisherConfig
+
+    def __init__(self, config: FisherConfig | None = None) -> None:
+        self.config = config if config is not None else FisherConfig()
+
+    def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
+        """The greedy top-k positions and every candidate's score against the selected views."""
+        g = context.gaussians.detach()
+        ranking = greedy_top_k(g, context.candidates, [v.camera for v in context.train_views],
+                               context.background.to(g.device), k, self.config)
+        if ranking.recomputed:
+            log.info("fisher: %d candidate H recomputed (cache_mb=%g)", ranking.recomputed, self.config.cache_mb)
+        return ranking.order, ranking.scores
+
+    def select(self, context: PlanningContext) -> Selection:
+        _check_candidates(context, self.name)
+        start = time.perf_counter()
+        order, scores = self.rank(context, 1)
+        shortlist = order + [i for i in _descending(scores) if i not in order]
+        return Selection(pick=order[0], shortlist=shortlist, k=None,
+                         scores={"visual": scores, "physics": _nan_scores(len(scores))},
+                         seconds={"visual": time.perf_counter() - start, "physics": 0.0})

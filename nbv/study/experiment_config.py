@@ -1,0 +1,174 @@
+"""An experiment's configuration (:class:`ExperimentConfig`: scenes x methods x seeds) and the method names."""
+
+from __future__ import annotations
+
+import difflib
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fluidsim.directions import DIRECTIONS
+from nbv.active import ActiveConfig
+from nbv.plan import PLANNERS, uses_physics
+from nbv.study.evaluate import EvalConfig
+
+CONFIG_KEYS = ("scenes", "methods", "seeds", "preset", "output", "reference_views", "active", "eval")
+
+ABLATION_ORDER = ("random", "random+fluid", "random+area", "random+shuffled", "fisher", "fisher+fluid", "fisher+area",
+                  "fisher+shuffled", "variance", "variance+fluid", "variance+area", "variance+shuffled")
+
+# what re-ranks the shortlist of a fused method <visual>+<pick> (the ablation table's "physics pick" column)
+PICKS = {"fluid": "yes", "area": "no: coverage sum w_g (D_g = 1)", "shuffled": "D_g shuffled across the Gaussians",
+         "fluid-occ": "yes, depth-tested visibility", "area-occ": "no: coverage of the unhidden Gaussians",
+         "excess": "D_g minus the empty-scene D_g", "perprobe": "D_g normalised per probe",
+         "balanced": "z(coverage) + z(S / coverage)", "balanced-occ": "z(coverage) + z(S / coverage), depth-tested"}
+
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """An experiment (see the module docstring for the JSON form).
+
+    Attributes:
+        scenes: dataset folders.
+        methods: planner names.
+        seeds: run seeds.
+        preset: ActiveConfig preset.
+        output: results folder.
+        reference_views: views of the many-view reference run (None: no reference).
+        active: ActiveConfig overrides (``train`` and ``physics`` are dicts).
+        eval: EvalConfig overrides (``physics`` a dict).
+    """
+
+    scenes: tuple[str, ...]
+    methods: tuple[str, ...]
+    seeds: tuple[int, ...] = (0,)
+    preset: str = "cpu-small"
+    output: str = "out/experiment"
+    reference_views: int | None = 20
+    active: dict = field(default_factory=dict)
+    eval: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("scenes", "methods", "seeds"):
+            v = getattr(self, name)
+            if isinstance(v, (str, bytes)) or not isinstance(v, Sequence) or len(v) == 0:
+                raise ValueError(f"experiment config: {name!r} must be a non-empty list, got {v!r}")
+            object.__setattr__(self, name, tuple(v))
+        if len(set(self.methods)) != len(self.methods) or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError("experiment config: 'methods' and 'seeds' must not repeat entries")
+        if any(isinstance(s, bool) or not isinstance(s, int) or s < 0 for s in self.seeds):
+            raise ValueError(f"experiment config: 'seeds' must be integers >= 0, got {list(self.seeds)}")
+        if self.reference_views is not None and (isinstance(self.reference_views, bool)
+                                                 or not isinstance(self.reference_views, int)
+                                                 or self.reference_views < 1):
+            raise ValueError(f"experiment config: 'reference_views' must be null or an integer >= 1 "
+                             f"(the paper: >= 20), got {self.reference_views!r}")
+        for name in ("active", "eval"):
+            if not isinstance(getattr(self, name), dict):
+                raise ValueError(f"experiment config: {name!r} must be an object of overrides")
+        for method in self.methods:  # validates the names, the overrides and the preset before any job starts
+            check_method(method)
+            self.active_config(method, self.seeds[0])
+        self.eval_config()
+
+    @classmethod
+    def load(cls, path: str | Path) -> ExperimentConfig:
+        """Read a JSON config; relative scene and output paths are taken relative to the file."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"experiment config {path} does not exist")
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"experiment config {path} is not valid JSON: {exc}") from exc
+        if not isinstance(data, dict):
+            raise ValueError(f"experiment config {path} must hold a JSON object")
+        bad = sorted(set(data) - set(CONFIG_KEYS))
+        if bad:
+            raise ValueError(f"experiment config {path}: unknown keys {bad}; valid keys: {list(CONFIG_KEYS)}")
+        for key in ("scenes", "methods"):
+            if key not in data:
+                raise ValueError(f"experiment config {path}: missing {key!r}")
+        base = path.parent
+        data["scenes"] = [str((base / s).resolve()) for s in data["scenes"]]
+        if "output" in data:
+            data["output"] = str((base / data["output"]).resolve())
+        return cls(**data)
+
+    def active_config(self, method: str, seed: int, **extra: Any) -> ActiveConfig:
+        """The ActiveConfig of one run (``M@D``: method ``M`` with the selection's probes restricted to ``D``)."""
+        base, direction = split_method(method)
+        overrides = {**self.active, **extra, "method": base, "seed": seed}
+        if direction is not None:
+            physics = overrides.get("physics") or {}
+            physics = physics.to_dict() if hasattr(physics, "to_dict") else dict(physics)
+            overrides["physics"] = {**physics, "directions": [direction]}
+        return ActiveConfig.from_preset(self.preset, **overrides)
+
+    def eval_config(self) -> EvalConfig:
+        return EvalConfig.from_dict(self.eval)
+
+
+
+def check_method(method: str) -> str:
+    """``method`` unchanged when it names a registered planner (``M`` or ``M@D``, :data:`nbv.plan.PLANNERS`).
+
+    Raises:
+        ValueError: naming the method, the registered planners and, for a near miss, the closest name.
+    """
+    if not isinstance(method, str) or not method:
+        raise ValueError(f"experiment config: 'methods' entries must be planner names, got {method!r}")
+    base = method.partition("@")[0]
+    if base not in PLANNERS:
+        close = difflib.get_close_matches(base, list(PLANNERS), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"experiment config: method {method!r} is not a planner{hint}; the methods are "
+                         f"{', '.join(sorted(PLANNERS))}, each optionally with @ and a probe direction "
+                         f"({', '.join(DIRECTIONS)})")
+    split_method(method)  # the direction, and whether the method's pick runs the probes
+    return method
+
+
+
+def split_method(method: str) -> tuple[str, str | None]:
+    """``"fisher+fluid@-x"`` -> ("fisher+fluid", "-x"); a plain method -> (method, None).
+
+    Raises:
+        ValueError: an unknown direction, or a direction on a method whose pick does not use the physics.
+    """
+    if "@" not in method:
+        return method, None
+    base, _, direction = method.partition("@")
+    if direction not in DIRECTIONS:
+        raise ValueError(f"experiment method {method!r}: unknown probe direction {direction!r}; use one of "
+                         f"{', '.join(DIRECTIONS)}")
+    if base not in PLANNERS or not uses_physics(base):
+        raise ValueError(f"experiment method {method!r}: a single-direction variant needs a method whose pick uses "
+                         "the physics (fisher+fluid, variance+fluid, random+fluid, a +shuffled control, "
+                         "fisher+fluid-occ, fisher+excess, fisher+perprobe, fisher+balanced(-occ) or physics; "
+                         "the +area controls run no probe)")
+    return base, direction
+
+
+
+def method_folder(method: str) -> str:
+    """Run folder name of a method: ``fisher+fluid`` -> ``fisher_fluid``,
+    ``fisher+fluid@-x`` -> ``fisher_fluid_at-x``, ``fisher+fluid@+x`` -> ``fisher_fluid_at+x``
+    (the direction keeps its sign, so the +x and -x folders read as such)."""
+    base, sep, direction = method.partition("@")
+    return base.replace("+", "_") + (f"_at{direction}" if sep else "")
+
+
+
+def scene_names(scenes: Sequence[str]) -> list[str]:
+    """Folder names of the scenes, made unique with an index suffix."""
+    names = [Path(s).name or "scene" for s in scenes]
+    return [n if names.count(n) == 1 else f"{n}-{i}" for i, n in enumerate(names)]
+
+
+
+def reference_label(views: int) -> str:
+    return f"reference-{views}views"
