@@ -297,7 +297,7 @@ class DepthBuffer:
     follows the splats' size rather than the image's, because a Gaussian contributes to its centre cell only.
     Measured against the render-based test on the bundled asset (share of the visible (view, Gaussian) pairs
     with the same verdict): 40 views at 64 px, cell_radii 0.25 / 0.5 / 1.0 -> 75 / 91 / 91 % (S(T) Spearman
-    0.89 / 0.98 / 0.99); 10 views at 256 px -> 69 / 89 / 92 %; the holed cube of ``tests/test_defect.py``:
+    0.89 / 0.98 / 0.99); 10 views at 256 px -> 69 / 89 / 92 %; the holed cube of ``tests/nbv/test_defect.py``:
     97-98 %, the same ranking of its 8 views. A min-depth buffer of the opaque Gaussians' centres alone
     (opacity >= 0.5) agreed on 45 % only: the asset's median opacity is 0.04, its surface is a composite.
 

@@ -12,10 +12,11 @@ from nbv.physics.aggregate import GaussianAccumulator, reach_classes
 from nbv.physics.config import QUICK, PhysicsConfig, scene_transform
 from nbv.physics.solidify import BYTES_PER_GAUSSIAN as BYTES_PER_GAUSSIAN_SOLIDIFY
 from nbv.physics.solidify import (
+    SimGaussians,
     SolidifyConfig,
+    as_sim,
     estimate_lattice_points,
     estimate_solidify_bytes,
-    gaussian_arrays_in_sim,
     solid_boxes,
 )
 
@@ -39,7 +40,7 @@ BYTES_PER_LATTICE_POINT = 2
 
 
 def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
-                    solid_points: np.ndarray | None = None) -> dict[str, float]:
+                    solid_points: np.ndarray | None = None, *, sim: SimGaussians | None = None) -> dict[str, float]:
     """An upper estimate of the memory one probe needs, before any probe is allocated.
 
     Without ``solid_points`` it is cheap: the box of the solid lattice stands for the solid's box (the
@@ -56,17 +57,22 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
     Returns:
         dict: lattice_points, fluid_particles (largest probe), boundary_particles, and the bytes (floats):
         resident_bytes, solidify_bytes, probe_bytes, accumulator_bytes and their total ``bytes``.
+
+    ``sim``: the Gaussians already in the simulation frame (:class:`~nbv.physics.solidify.SimGaussians`, with
+    ``transform``), so that they are not converted again.
     """
-    transform = transform if transform is not None else scene_transform(gaussians, config)
+    transform = sim.transform if sim is not None else (
+        transform if transform is not None else scene_transform(gaussians, config))
+    sim = as_sim(sim if sim is not None else gaussians, transform)
     spacing = 2.0 * config.particle_radius
     scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold,
                           fill_cavities=config.fill_cavities, max_points=2**62)
-    lattice = int(estimate_lattice_points(gaussians, scfg, transform))
+    lattice = int(estimate_lattice_points(sim, scfg, transform))
     if solid_points is not None and len(solid_points):
         pts = np.asarray(solid_points, np.float64)
         box, solid_count = np.stack([pts.min(0), pts.max(0)]), len(pts)
     else:
-        means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+        means, covs, opacities = sim.means, sim.covariances, sim.opacities
         box, solid_count = np.stack(floaters.lattice_extent(*solid_boxes(means, covs, opacities, scfg))), lattice
     probe = config.probe_config()
     fluid = boundary = 0
@@ -109,11 +115,11 @@ def memory_limit_bytes(config: PhysicsConfig) -> float:
 
 
 def check_memory(gaussians, config: PhysicsConfig, transform=None,
-                 solid_points: np.ndarray | None = None) -> dict[str, float]:
+                 solid_points: np.ndarray | None = None, *, sim: SimGaussians | None = None) -> dict[str, float]:
     """Raise ValueError, with the estimate and the fix, when a probe would not fit in memory.
 
-    See :func:`estimate_memory` for ``solid_points`` (the exact check once the solid is known)."""
-    est = estimate_memory(gaussians, config, transform, solid_points)
+    See :func:`estimate_memory` for ``solid_points`` (the exact check once the solid is known) and ``sim``."""
+    est = estimate_memory(gaussians, config, transform, solid_points, sim=sim)
     limit = memory_limit_bytes(config)
     if est["bytes"] > limit:
         available = "allowed (--max-memory-gb)" if config.max_memory_gb is not None else "available"
@@ -124,18 +130,20 @@ def check_memory(gaussians, config: PhysicsConfig, transform=None,
             f"{est['lattice_points']:,} points, {gaussians.num:,} Gaussians: {gib['resident_bytes']:.3g} GiB for the "
             f"Gaussians, then {gib['solidify_bytes']:.3g} GiB to solidify, {gib['probe_bytes']:.3g} GiB per probe and "
             f"{gib['accumulator_bytes']:.3g} GiB for its per-Gaussian accumulator) but {limit / 2**30:.3g} GiB are "
-            f"{available}{_memory_fix(gaussians, config, transform, est, limit)}")
+            f"{available}{_memory_fix(gaussians, config, transform, est, limit, sim)}")
     return est
 
 
 
-def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, float], limit: float) -> str:
+def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, float], limit: float,
+                sim: SimGaussians | None = None) -> str:
     """The advice of :func:`check_memory`: the Gaussian that alone widens the lattice, if one does (a larger
     radius cannot help then), else the particle radius that would fit, if the object is still resolved."""
     transform = transform if transform is not None else scene_transform(gaussians, config)
     spacing = 2.0 * config.particle_radius
     scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold, max_points=2**62)
-    means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    sim = as_sim(sim if sim is not None else gaussians, transform)
+    means, covs, opacities = sim.means, sim.covariances, sim.opacities
     boxes = solid_boxes(means, covs, opacities, scfg)
     note = floaters.dominant_note(*boxes, spacing, means, covs, opacities, transform)
     if note:

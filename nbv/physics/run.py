@@ -48,6 +48,7 @@ from nbv.physics.leaks import LeakCounter
 from nbv.physics.memory import check_memory, estimate_memory, memory_limit_bytes
 from nbv.physics.result import PhysicsResult, ProbeDiverged, _t, gaussians_sha256
 from nbv.physics.solidify import (
+    SimGaussians,
     SolidifyConfig,
     gaussian_arrays_in_sim,
     gaussians_to_solid,
@@ -290,20 +291,22 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     # The cheap bound (the Gaussians' box) decides first; when it does not fit but the lattice does, the
     # solid is computed and the probes are re-estimated around it, since scattered faint Gaussians widen
     # the box without making solid. Either way the check comes before any probe is allocated.
-    cheap = estimate_memory(gaussians, config, transform)
+    sim = SimGaussians.of(gaussians, transform)  # the one simulation-frame value of the Gaussians of this run
+    cheap = estimate_memory(gaussians, config, transform, sim=sim)
     exact_check = cheap["bytes"] > memory_limit_bytes(config)
     if exact_check and (cheap["lattice_points"] > SolidifyConfig.max_points
                         or cheap["resident_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)):
-        check_memory(gaussians, config, transform)  # the solid is too costly to compute: raise with the estimate
+        # the solid is too costly to compute: raise with the estimate
+        check_memory(gaussians, config, transform, sim=sim)
     scfg = config.solver_config()
     t0 = time.perf_counter()
-    solid = gaussians_to_solid(gaussians, SolidifyConfig(spacing=scfg.spacing,
+    solid = gaussians_to_solid(sim, SolidifyConfig(spacing=scfg.spacing,
                                                          opacity_threshold=config.opacity_threshold,
                                                          fill_cavities=config.fill_cavities), transform)
     solidify_s = time.perf_counter() - t0
     if exact_check:
-        check_memory(gaussians, config, transform, solid_points=solid.points)
-    means, covs, _, radii = gaussian_arrays_in_sim(gaussians, transform)
+        check_memory(gaussians, config, transform, solid_points=solid.points, sim=sim)
+    means, covs, radii = sim.means, sim.covariances, sim.radii
     means, covs = np.ascontiguousarray(means, np.float64), np.ascontiguousarray(covs, np.float64)
     reach = np.ascontiguousarray(config.n_radius * np.asarray(radii, np.float64))
     log.info("solid: %d particles from %d Gaussians (scale %.4g m/unit)", len(solid.points), len(means),

@@ -254,7 +254,57 @@ def _lattice_geometry(means: np.ndarray, covs: np.ndarray, config: SolidifyConfi
     return lattice_min, np.maximum(dims, 1.0)
 
 
-def estimate_lattice_points(gaussians: GaussianSet, config: SolidifyConfig, transform: SceneTransform) -> int:
+@dataclass(frozen=True)
+class SimGaussians:
+    """The Gaussians in simulation metres: computed once per run (:meth:`of`) and handed down to the memory check,
+    the solidification, the accumulator and the result, instead of being converted again by each.
+
+    Attributes:
+        gaussians: the ``recon.gaussians.GaussianSet`` they come from (scene units; checked).
+        transform: scene -> simulation.
+        means: [N, 3] m. covariances: [N, 3, 3] m^2. opacities: [N]. radii: [N] m, the largest principal
+            standard deviation r_g. All float64.
+    """
+
+    gaussians: GaussianSet
+    transform: SceneTransform
+    means: np.ndarray
+    covariances: np.ndarray
+    opacities: np.ndarray
+    radii: np.ndarray
+
+    @classmethod
+    def of(cls, gaussians: GaussianSet, transform: SceneTransform) -> SimGaussians:
+        """Check ``gaussians`` (NaN/Inf, zero quaternions) and convert them to the simulation frame once."""
+        gaussians.check("gaussians")
+        means, covs, opacities, radii = gaussian_arrays_in_sim(gaussians, transform)
+        return cls(gaussians, transform, means, covs, opacities, radii)
+
+    def __len__(self) -> int:
+        return len(self.means)
+
+    @property
+    def num(self) -> int:
+        """N, as ``GaussianSet.num``."""
+        return len(self.means)
+
+    def inverse_covariances(self) -> np.ndarray:
+        """[N, 3, 3] Sigma^-1 in simulation units (computed on demand: the run keeps only Sigma)."""
+        return inverse_covariances_in_sim(self.gaussians, self.transform)
+
+
+def as_sim(gaussians: GaussianSet | SimGaussians, transform: SceneTransform) -> SimGaussians:
+    """``gaussians`` in the simulation frame: a :class:`SimGaussians` is used as it is (it must carry
+    ``transform``), a ``GaussianSet`` is checked and converted."""
+    if isinstance(gaussians, SimGaussians):
+        if gaussians.transform != transform:
+            raise ValueError(f"the Gaussians were converted with {gaussians.transform}, not {transform}")
+        return gaussians
+    return SimGaussians.of(gaussians, transform)
+
+
+def estimate_lattice_points(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
+                            transform: SceneTransform) -> int:
     """Number of lattice points :func:`gaussians_to_solid` would allocate (cheap; nothing large is allocated).
 
     Args:
@@ -262,8 +312,8 @@ def estimate_lattice_points(gaussians: GaussianSet, config: SolidifyConfig, tran
     Returns:
         X * Y * Z.
     """
-    gaussians.check("gaussians")
-    means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    sim = as_sim(gaussians, transform)
+    means, covs, opacities = sim.means, sim.covariances, sim.opacities
     _, dims = _lattice_geometry(means, covs, config, opacities)
     return int(np.prod(dims))
 
@@ -310,12 +360,12 @@ def _work_sizes(means, covs, lattice_min, dims, config: SolidifyConfig, points: 
     return sizes
 
 
-def estimate_work(gaussians: GaussianSet, config: SolidifyConfig, transform: SceneTransform) -> int:
+def estimate_work(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig, transform: SceneTransform) -> int:
     """Work items of tests 1 and 2 (a Gaussian and one lattice point or edge of its sigma box) that
     :func:`gaussians_to_solid` would run, counted in numpy before anything is allocated (``config.max_work`` is
     the guard)."""
-    gaussians.check("gaussians")
-    means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    sim = as_sim(gaussians, transform)
+    means, covs, opacities = sim.means, sim.covariances, sim.opacities
     lattice_min, dims = _lattice_geometry(means, covs, config, opacities)
     return int(_work_sizes(means, covs, lattice_min, dims.astype(np.int64), config).sum())
 
@@ -399,7 +449,7 @@ def _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, esti
     return log_t.to_numpy()
 
 
-def lattice_log_transmittance(gaussians: GaussianSet, config: SolidifyConfig,
+def lattice_log_transmittance(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
                               transform: SceneTransform) -> tuple[np.ndarray, np.ndarray]:
     """Test 1's fast path: log-transmittance sum_g log(1 - o_g exp(-d_g^2 / 2)) at every lattice point.
 
@@ -413,10 +463,10 @@ def lattice_log_transmittance(gaussians: GaussianSet, config: SolidifyConfig,
     Raises:
         ValueError: the lattice would exceed ``config.max_points`` (with the estimate and the fix).
     """
-    gaussians.check("gaussians")
-    means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    sim = as_sim(gaussians, transform)
+    means, covs, opacities = sim.means, sim.covariances, sim.opacities
     lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities, edges=False)
-    inv_covs = inverse_covariances_in_sim(gaussians, transform)
+    inv_covs = sim.inverse_covariances()
     return lattice_min, _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config)
 
 
@@ -461,7 +511,7 @@ def _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims,
     return edges.to_numpy()
 
 
-def lattice_edge_log_transmittance(gaussians: GaussianSet, config: SolidifyConfig,
+def lattice_edge_log_transmittance(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
                                    transform: SceneTransform) -> tuple[np.ndarray, np.ndarray]:
     """Test 2's fast path: the log-transmittance of every lattice edge (each Gaussian at its peak on the edge).
 
@@ -473,14 +523,14 @@ def lattice_edge_log_transmittance(gaussians: GaussianSet, config: SolidifyConfi
         [a, i, j, k] belongs to the edge from point (i, j, k) to its neighbour along axis a (0 on the last layer,
         which starts no edge). The edge is cut where it is <= log(1 - tau) (:func:`lattice_cut_edges`).
     """
-    gaussians.check("gaussians")
-    means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    sim = as_sim(gaussians, transform)
+    means, covs, opacities = sim.means, sim.covariances, sim.opacities
     lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities, points=False)
-    inv_covs = inverse_covariances_in_sim(gaussians, transform)
+    inv_covs = sim.inverse_covariances()
     return lattice_min, _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config)
 
 
-def lattice_cut_edges(gaussians: GaussianSet, config: SolidifyConfig,
+def lattice_cut_edges(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
                       transform: SceneTransform) -> tuple[np.ndarray, np.ndarray]:
     """Test 2: lattice_min [3] m and cut [3, X, Y, Z] bool, the edges whose accumulated opacity reaches tau."""
     lattice_min, edge_log_t = lattice_edge_log_transmittance(gaussians, config, transform)
@@ -721,7 +771,7 @@ def occupancy_from_fields(log_t: np.ndarray, cuts: np.ndarray | None, tau: float
     return occupancy, counts
 
 
-def gaussians_to_solid(gaussians: GaussianSet, config: SolidifyConfig, transform: SceneTransform, *,
+def gaussians_to_solid(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig, transform: SceneTransform, *,
                        cameras=None, depths=None) -> Solid:
     """Solid lattice points of a Gaussian set (the module docstring's tests 1-3, specks, optional carving).
 
@@ -742,10 +792,10 @@ def gaussians_to_solid(gaussians: GaussianSet, config: SolidifyConfig, transform
         >>> solid = gaussians_to_solid(g, SolidifyConfig(spacing=0.05), SceneTransform("z", 1.0))
         >>> solid.points.shape  # (M, 3) metres, Y-up
     """
-    gaussians.check("gaussians")
-    means, covs, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
+    sim = as_sim(gaussians, transform)
+    means, covs, opacities = sim.means, sim.covariances, sim.opacities
     lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities)
-    inv_covs = inverse_covariances_in_sim(gaussians, transform)
+    inv_covs = sim.inverse_covariances()
     log_t = _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config)
     cuts = _below(_edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config),
                   config.opacity_threshold) if config.thin else None
@@ -758,7 +808,7 @@ def gaussians_to_solid(gaussians: GaussianSet, config: SolidifyConfig, transform
         occupancy |= specks
     if cameras is not None:
         if depths is None:
-            depths = surface_depths(gaussians, cameras)
+            depths = surface_depths(sim.gaussians, cameras)
         before = int(occupancy.sum())
         occupancy = carve_outside(occupancy, lattice_min, config.spacing, cameras, depths, transform,
                                   margin=config.carve_margin)
