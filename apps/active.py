@@ -62,7 +62,7 @@ def _resolution(width: int) -> int | None:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from nbv.active import PRESETS, ActiveConfig
     from nbv.physics import PhysicsConfig
-    from recon.train import TrainConfig
+    from recon.train_config import TrainConfig
 
     from .options import add_config_options, add_runtime_arguments
 
@@ -94,7 +94,7 @@ def option_values(args: argparse.Namespace) -> tuple[dict, dict, dict]:
     """(ActiveConfig, TrainConfig, PhysicsConfig) values the command line gives, over the preset's."""
     from nbv.active import PRESETS, ActiveConfig
     from nbv.physics import PhysicsConfig, parse_directions
-    from recon.train import TrainConfig
+    from recon.train_config import TrainConfig
 
     from .options import config_values
 

@@ -55,22 +55,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_runtime_arguments(p)
 
 
-def demo_cameras(gaussians, path: Path | None, width: int):
-    """Candidate cameras: the bundled transforms.json, or an orbit of 12 around the Gaussians' centre."""
-    import math
-
-    from nbv.view_scoring import render_size
-    from recon.camera_paths import orbit
-    from recon.datasets import load_cameras
-
-    if path is not None:
-        return [render_size(c, width) for c in load_cameras(path)]
-    means = gaussians.means.detach().double()
-    centre = ((means.min(0).values + means.max(0).values) / 2).tolist()
-    extent = float((means.max(0).values - means.min(0).values).max())
-    return orbit(12, 1.6 * extent, 20.0, width, int(width * 3 / 4), math.radians(50), target=tuple(centre))
-
-
 DEMO_FILES = ("result.h5", "gaussians_divergence.ply", "scores.json", "summary.json", "probe_-x.mp4",
               *(f"probe_{d}.h5" for d in DIRECTIONS))
 
@@ -84,8 +68,10 @@ def run_command(args: argparse.Namespace) -> int:
         return run_mesh_demo(args)
     from nbv.outputs import probe_video, result_summary, save_colored_gaussians
     from nbv.physics import QUICK, save_result, simulate_gaussians
-    from nbv.view_scoring import check_cameras_see, format_table, score_views
+    from nbv.view_scoring import check_cameras_see, format_table, render_size, score_views
     from recon.ahmed import ahmed_surface_gaussians
+    from recon.camera_paths import orbit_around
+    from recon.datasets import load_cameras
 
     from .options import load_gaussians_checked
     from .runtime import init_taichi
@@ -103,7 +89,8 @@ def run_command(args: argparse.Namespace) -> int:
         log.warning("%s is not there yet: using Gaussians sampled on the Ahmed body mesh surface", GAUSSIANS)
         gaussians, source = ahmed_surface_gaussians(), "Ahmed body surface samples (recon.ahmed)"
     cpath = args.cameras or (CAMERAS if CAMERAS.is_file() else None)
-    cams = demo_cameras(gaussians, cpath, args.render_width)
+    cams = ([render_size(c, args.render_width) for c in load_cameras(cpath)] if cpath is not None
+            else orbit_around(gaussians.means.detach().double().numpy(), 12, args.render_width))
     centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
     init_taichi(args.device, cfg.precision, args.threads)
     from nbv.physics.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view`

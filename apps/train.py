@@ -36,7 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--res", type=int, default=64, help="image width in pixels the dataset is resized to (0: native)")
     p.add_argument("--views", type=str, default=None,
                    help="comma-separated train-split indices to train on, e.g. 0,3,7 (default: all train views)")
-    from recon.train import TrainConfig
+    from recon.train_config import TrainConfig
 
     add_config_options(p, TrainConfig, TRAIN_FIELDS, TRAIN_OVERRIDES)
     p.add_argument("--eval-every", type=int, default=0,

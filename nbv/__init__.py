@@ -17,25 +17,33 @@ D-bar              (1/|G|) sum pi tr(Sigma_g)^2 D_g            :func:`geometry_d
 =================  ==========================================  ========================================
 """
 
-from nbv.physics import PhysicsConfig, PhysicsResult, ProbeDiverged, load_result, save_result, simulate_gaussians
-from nbv.scores import (
-    DepthBuffer,
-    critical_scores,
-    critical_subset,
-    geometry_divergence,
-    projected_counts,
-    projected_view_scores,
-    rank,
-    unoccluded,
-    view_scores,
-    view_weights,
-)
-from nbv.study.sweep import SweepPoint, reynolds, run_sweep, schedule
-from nbv.view_scoring import score_views
+import importlib
 
-__all__ = [
-    "DepthBuffer", "PhysicsConfig", "PhysicsResult", "ProbeDiverged", "SweepPoint", "critical_scores",
-    "critical_subset", "geometry_divergence", "load_result", "projected_counts", "projected_view_scores", "rank",
-    "reynolds", "run_sweep", "save_result", "schedule", "score_views", "simulate_gaussians", "unoccluded",
-    "view_scores", "view_weights",
-]
+_EXPORTS = {
+    **dict.fromkeys(("PhysicsConfig", "PhysicsResult", "ProbeDiverged", "load_result", "save_result",
+                     "simulate_gaussians"), "physics"),
+    **dict.fromkeys(("DepthBuffer", "critical_scores", "critical_subset", "geometry_divergence", "projected_counts",
+                     "projected_view_scores", "rank", "unoccluded", "view_scores", "view_weights"), "scores"),
+    **dict.fromkeys(("SweepPoint", "reynolds", "run_sweep", "schedule"), "study.sweep"),
+    "score_views": "view_scoring",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    """PEP 562: load a re-exported name's module on first use, so ``import nbv.lists`` loads no torch or Taichi."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        try:  # a submodule reached as an attribute (``nbv.holes``) after ``import nbv``
+            return importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

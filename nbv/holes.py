@@ -22,11 +22,21 @@ The rim ratio of a probe is the rim's mean D_g^(IC) on the holed set over the sa
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
-from nbv.physics.solidify import MAX_ALPHA
+from nbv.physics.run import simulate_gaussians
+from nbv.physics.solidify import (
+    MAX_ALPHA,
+    SolidifyConfig,
+    gaussian_arrays_in_sim,
+    gaussians_to_solid,
+    inverse_covariances_in_sim,
+)
+from recon.gaussians import GaussianSet
 
 
 @dataclass(frozen=True)
@@ -243,4 +253,92 @@ def rim_ratios(intact: np.ndarray, holed: np.ndarray, kept: np.ndarray, rim: np.
 
     out = {f"probe {k}": ratio(intact[k], holed[k]) for k in range(intact.shape[0])}
     out["max"] = ratio(intact.max(0), holed.max(0))
+    return out
+
+
+def _shifted(gaussians, transform, delta_sim: np.ndarray):
+    """The set moved by ``delta_sim`` [3] simulation metres (its means only)."""
+    d = torch.as_tensor(transform.to_scene(delta_sim[None])[0], dtype=gaussians.means.dtype)
+    return GaussianSet(gaussians.means + d, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits,
+                       gaussians.sh)
+
+
+def head_on_probe(directions, normal) -> str:
+    """The probe whose flow runs most against the hole's outward normal (the fluid meets the hole head-on)."""
+    def flow(label: str) -> np.ndarray:
+        v = np.zeros(3)
+        v["xyz".index(label[1])] = 1.0 if label[0] == "+" else -1.0
+        return v
+
+    return min(directions, key=lambda d: float(flow(d) @ np.asarray(normal)))
+
+
+def lattice_keys(points: np.ndarray, spacing: float) -> set[tuple[int, int, int]]:
+    """The lattice sites of ``points`` [N, 3] (m) on a lattice of ``spacing`` m, as integer (i, j, k) keys."""
+    return {tuple(k) for k in np.round(np.asarray(points) / spacing).astype(np.int64).tolist()}
+
+
+def probe_figures(intact, holed, kept: np.ndarray, rim: np.ndarray, normal) -> dict:
+    """Per probe and max-combined: the rim's mean D_g on both sets, the ratio, the fraction of rim Gaussians reached.
+
+    Args:
+        intact, holed: the two ``PhysicsResult``. kept: [G'] intact index of each holed row. rim: [G] bool (intact
+            indices). normal: the hole's axis (for the head-on probe).
+    """
+    ratios = rim_ratios(intact.per_probe, holed.per_probe, kept, rim)
+    rows = rim[kept]
+    probes = {d: {"intact": float(intact.per_probe[k][rim].mean()), "holed": float(holed.per_probe[k][rows].mean()),
+                  "ratio": ratios[f"probe {k}"],
+                  "reached_intact": float((intact.per_probe_counts[k][rim] > 0).mean()),
+                  "reached_holed": float((holed.per_probe_counts[k][rows] > 0).mean()),
+                  "leaked_holed": int(holed.leaks[d].final)}
+              for k, d in enumerate(intact.directions)}
+    return {"probes": probes, "head_on": head_on_probe(intact.directions, normal),
+            "max_intact": float(intact.divergence[rim].mean()), "max_holed": float(holed.divergence[rows].mean()),
+            "max_ratio": ratios["max"], "dbar_intact": float(intact.dbar), "dbar_holed": float(holed.dbar)}
+
+
+def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: bool,
+                  see_through: float | None = None) -> dict:
+    """One lattice shift: the solids of the intact and the holed set, then (unless ``solid_only``) the probes.
+
+    Args:
+        gaussians: the intact ``GaussianSet`` (scene frame). cfg: the ``PhysicsConfig`` (its ``scale`` fixed to
+            ``transform.scale``, so both sets share it). transform: the intact set's ``SceneTransform``. hole: the
+            :class:`Hole` in the unshifted simulation frame. shift: fraction of the spacing 2 r the whole capture
+            moves along x, y and z. see_through: also remove the Gaussians covering the disc above this opacity.
+
+    Returns:
+        the figures of ``fluidgs bench hole`` for this shift (counts, axis opacities, solid points, seconds, and
+        without ``solid_only`` those of :func:`probe_figures`).
+    """
+    spacing = 2.0 * cfg.particle_radius
+    delta = np.full(3, shift * spacing)
+    moved = _shifted(gaussians, transform, delta) if shift else gaussians
+    h = Hole(tuple(np.asarray(hole.point) + delta), hole.normal, hole.radius, hole.depth, hole.band)
+    means, _, opacities, _ = gaussian_arrays_in_sim(moved, transform)
+    inv = inverse_covariances_in_sim(moved, transform)
+    removed = h.removed(means)
+    if see_through is not None:
+        removed |= covering(h, means, inv, opacities, see_through)
+    kept = np.nonzero(~removed)[0]
+    holed = moved.subset(torch.from_numpy(kept))
+    tau = cfg.opacity_threshold
+    out = {"shift": shift, "gaussians_removed": int(removed.sum()), "rim_gaussians": int(h.rim(means, ~removed).sum()),
+           "axis_opacity_intact": axis_opacity(h, means, inv, opacities),
+           "axis_opacity_holed": axis_opacity(h, means[kept], inv[kept], opacities[kept]),
+           "open_fraction_holed": open_fraction(h, means[kept], inv[kept], opacities[kept], tau)}
+    t0 = time.perf_counter()
+    if solid_only:
+        scfg = SolidifyConfig(spacing=spacing, opacity_threshold=cfg.opacity_threshold)
+        solids = [gaussians_to_solid(s, scfg, transform).points for s in (moved, holed)]
+    else:
+        res = [simulate_gaussians(s, cfg, progress=False) for s in (moved, holed)]
+        solids = [r.solid for r in res]
+    a, b = (lattice_keys(s, spacing) for s in solids)
+    out.update(solid_intact=len(a), solid_holed=len(b), solid_removed=len(a - b), solid_added=len(b - a),
+               seconds=time.perf_counter() - t0)
+    if solid_only:
+        return out
+    out.update(probe_figures(res[0], res[1], kept, h.rim(means, ~removed), h.normal))
     return out

@@ -14,6 +14,8 @@ log-normal stand-in (:func:`stand_in_divergence`): the check is about radii and 
 
 from __future__ import annotations
 
+import math
+import resource
 import time
 from pathlib import Path
 
@@ -21,8 +23,10 @@ import numpy as np
 import torch
 from scipy.stats import spearmanr
 
+from nbv.dense_sets import jittered_to_count
 from nbv.physics import check_result_matches, load_result
 from nbv.scores import DepthBuffer, coarse_unoccluded, projected_view_scores, rank, unoccluded, view_scores
+from recon.camera_paths import random_sphere
 from recon.projection import project_visibility
 from recon.render import render
 
@@ -99,4 +103,35 @@ def compare_with_renders(gaussians, cams, d: np.ndarray, occlusion: bool, device
            "order": rank(fast).tolist()}
     if occlusion:
         out["occlusion"] = _occlusion_agreement(g, cams, renders, metric)
+    return out
+
+
+def time_projected_scores(gaussians, d: np.ndarray, count: int, views: int, width: int, seed: int, occlusion: bool,
+                          device) -> dict:
+    """Time :func:`nbv.scores.projected_view_scores` on ``gaussians`` densified to ``count`` (``fluidgs bench views``).
+
+    The set is densified by jittered copies (:func:`nbv.dense_sets.jittered_to_count`), its metric is ``d`` [G]
+    repeated, and it is scored from ``views`` cameras on a sphere of radius 6 around the origin (50 degree field of
+    view, ``width`` x ``width`` pixels, no PNGs).
+
+    Returns:
+        ``gaussians``, ``views``, ``width``, ``total_s`` (wall), ``cpu_s``, ``per_view_ms``, ``ns_per_pair``,
+        ``visible_fraction`` of the (camera, Gaussian) pairs, ``peak_rss_mib`` / ``rss_before_mib`` (MiB) and, with
+        ``occlusion``, ``occlusion_total_s`` (the same scoring with the coarse :class:`nbv.scores.DepthBuffer`).
+    """
+    big = jittered_to_count(gaussians, count, seed).to(device)
+    metric = torch.from_numpy(np.resize(d, count))
+    cams = random_sphere(views, 6.0, width, width, math.radians(50.0), seed=seed)
+    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    t, cpu = time.perf_counter(), time.process_time()
+    scored = projected_view_scores(metric, big, cams)
+    total, cpu = time.perf_counter() - t, time.process_time() - cpu
+    out = {"gaussians": big.num, "views": len(cams), "width": width, "total_s": total, "cpu_s": cpu,
+           "per_view_ms": 1e3 * total / len(cams), "ns_per_pair": 1e9 * total / (len(cams) * big.num),
+           "visible_fraction": float(scored.counted.sum()) / (len(cams) * big.num),
+           "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "rss_before_mib": rss_before}
+    if occlusion:
+        t = time.perf_counter()
+        projected_view_scores(metric, big, cams, depth_buffer=DepthBuffer())
+        out["occlusion_total_s"] = time.perf_counter() - t
     return out

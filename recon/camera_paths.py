@@ -104,6 +104,16 @@ def orbit(n: int, radius: float, elevation_deg: float, width: int, height: int, 
     return cameras_from_directions(dirs, radius, width, height, fov_x, up_axis, target, prefix="orbit")
 
 
+def orbit_around(points: np.ndarray, n: int, width: int, elevation_deg: float = 20.0,
+                 fov_x: float = math.radians(50.0)) -> list[Camera]:
+    """An :func:`orbit` of n cameras around ``points`` [N, 3]: aimed at their bounding box's centre, at 1.6 x its
+    largest extent (scene units), ``width`` x ``3/4 width`` pixels (the candidate views of ``fluidgs demo``)."""
+    points = np.asarray(points, dtype=np.float64)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    extent = float((hi - lo).max())
+    return orbit(n, 1.6 * extent, elevation_deg, width, int(width * 3 / 4), fov_x, target=tuple((lo + hi) / 2))
+
+
 def sphere_directions(n: int, seed: int, hemisphere: bool = False, up_axis: str = "y") -> np.ndarray:
     """[n, 3] unit vectors uniform on the sphere (or the upper hemisphere w.r.t. ``up_axis``).
 

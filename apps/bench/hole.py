@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -87,31 +86,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
 
 
-def _shifted(gaussians, transform, delta_sim: np.ndarray):
-    """The set moved by ``delta_sim`` simulation metres (its means only)."""
-    import torch
-
-    from recon.gaussians import GaussianSet
-
-    d = torch.as_tensor(transform.to_scene(delta_sim[None])[0], dtype=gaussians.means.dtype)
-    return GaussianSet(gaussians.means + d, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits,
-                       gaussians.sh)
-
-
-def head_on_probe(directions, normal) -> str:
-    """The probe whose flow runs most against the hole's outward normal (the fluid meets the hole head-on)."""
-    def flow(label: str) -> np.ndarray:
-        v = np.zeros(3)
-        v["xyz".index(label[1])] = 1.0 if label[0] == "+" else -1.0
-        return v
-
-    return min(directions, key=lambda d: float(flow(d) @ np.asarray(normal)))
-
-
-def _lattice_keys(points: np.ndarray, spacing: float) -> set[tuple[int, int, int]]:
-    return {tuple(k) for k in np.round(np.asarray(points) / spacing).astype(np.int64).tolist()}
-
-
 def locate_hole(args: argparse.Namespace, means: np.ndarray, opacities: np.ndarray):
     """The :class:`nbv.holes.Hole` of the options, in the unshifted capture's simulation frame."""
     from nbv.holes import Hole, surface_normal, surface_point
@@ -125,74 +99,6 @@ def locate_hole(args: argparse.Namespace, means: np.ndarray, opacities: np.ndarr
         point = surface_point(means, opacities, outward, height, args.lateral)
     normal = np.asarray(args.normal) if args.normal is not None else surface_normal(means, point, outward)
     return Hole(tuple(point), tuple(normal), radius=args.radius, depth=args.depth, band=args.band)
-
-
-def probe_figures(intact, holed, kept: np.ndarray, rim: np.ndarray, normal) -> dict:
-    """Per probe and max-combined: the rim's mean D_g on both sets, the ratio, the fraction of rim Gaussians reached.
-
-    Args:
-        intact, holed: the two ``PhysicsResult``. kept: [G'] intact index of each holed row. rim: [G] bool (intact
-            indices). normal: the hole's axis (for the head-on probe).
-    """
-    from nbv.holes import rim_ratios
-
-    ratios = rim_ratios(intact.per_probe, holed.per_probe, kept, rim)
-    rows = rim[kept]
-    probes = {d: {"intact": float(intact.per_probe[k][rim].mean()), "holed": float(holed.per_probe[k][rows].mean()),
-                  "ratio": ratios[f"probe {k}"],
-                  "reached_intact": float((intact.per_probe_counts[k][rim] > 0).mean()),
-                  "reached_holed": float((holed.per_probe_counts[k][rows] > 0).mean()),
-                  "leaked_holed": int(holed.leaks[d].final)}
-              for k, d in enumerate(intact.directions)}
-    return {"probes": probes, "head_on": head_on_probe(intact.directions, normal),
-            "max_intact": float(intact.divergence[rim].mean()), "max_holed": float(holed.divergence[rows].mean()),
-            "max_ratio": ratios["max"], "dbar_intact": float(intact.dbar), "dbar_holed": float(holed.dbar)}
-
-
-def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: bool,
-                  see_through: float | None = None) -> dict:
-    """One lattice shift: the solids of the intact and the holed set, then (unless ``solid_only``) the probes."""
-    import torch
-
-    from nbv.holes import Hole, axis_opacity, covering, open_fraction
-    from nbv.physics import simulate_gaussians
-    from nbv.physics.solidify import (
-        SolidifyConfig,
-        gaussian_arrays_in_sim,
-        gaussians_to_solid,
-        inverse_covariances_in_sim,
-    )
-
-    spacing = 2.0 * cfg.particle_radius
-    delta = np.full(3, shift * spacing)
-    moved = _shifted(gaussians, transform, delta) if shift else gaussians
-    h = Hole(tuple(np.asarray(hole.point) + delta), hole.normal, hole.radius, hole.depth, hole.band)
-    means, _, opacities, _ = gaussian_arrays_in_sim(moved, transform)
-    inv = inverse_covariances_in_sim(moved, transform)
-    removed = h.removed(means)
-    if see_through is not None:
-        removed |= covering(h, means, inv, opacities, see_through)
-    kept = np.nonzero(~removed)[0]
-    holed = moved.subset(torch.from_numpy(kept))
-    tau = cfg.opacity_threshold
-    out = {"shift": shift, "gaussians_removed": int(removed.sum()), "rim_gaussians": int(h.rim(means, ~removed).sum()),
-           "axis_opacity_intact": axis_opacity(h, means, inv, opacities),
-           "axis_opacity_holed": axis_opacity(h, means[kept], inv[kept], opacities[kept]),
-           "open_fraction_holed": open_fraction(h, means[kept], inv[kept], opacities[kept], tau)}
-    t0 = time.perf_counter()
-    if solid_only:
-        scfg = SolidifyConfig(spacing=spacing, opacity_threshold=cfg.opacity_threshold)
-        solids = [gaussians_to_solid(s, scfg, transform).points for s in (moved, holed)]
-    else:
-        res = [simulate_gaussians(s, cfg, progress=False) for s in (moved, holed)]
-        solids = [r.solid for r in res]
-    a, b = (_lattice_keys(s, spacing) for s in solids)
-    out.update(solid_intact=len(a), solid_holed=len(b), solid_removed=len(a - b), solid_added=len(b - a),
-               seconds=time.perf_counter() - t0)
-    if solid_only:
-        return out
-    out.update(probe_figures(res[0], res[1], kept, h.rim(means, ~removed), h.normal))
-    return out
 
 
 def print_shift(r: dict) -> None:
@@ -213,6 +119,7 @@ def print_shift(r: dict) -> None:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import write_json_atomic
+    from nbv.holes import measure_shift
     from nbv.physics import QUICK, PhysicsConfig, parse_directions, scene_transform
     from nbv.physics.solidify import gaussian_arrays_in_sim
 

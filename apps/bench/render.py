@@ -14,10 +14,7 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
-import statistics
-import time
 
 import torch
 
@@ -65,63 +62,10 @@ def parse_sizes(text: str) -> list[tuple[int, int, int]]:
     return cases
 
 
-def bench_scene(n: int, width: int, height: int, seed: int, device: torch.device):
-    """The benchmark's Gaussians (parameters requiring grad) and camera."""
-    from recon.camera import Camera
-    from recon.gaussians import GaussianSet
-
-    gen = torch.Generator().manual_seed(seed)
-    means = torch.rand(n, 3, generator=gen) * 2.0 - 1.0
-    quats = torch.randn(n, 4, generator=gen)
-    log_scales = math.log(0.02) + 0.5 * torch.randn(n, 3, generator=gen)
-    logits = 1.5 * torch.randn(n, generator=gen)
-    sh = 0.3 * torch.randn(n, 16, 3, generator=gen)
-    sh[:, 1:] *= 0.2
-    gaussians = GaussianSet(means, quats, log_scales, logits, sh).to(device)
-    gaussians = gaussians.map(lambda t: t.detach().requires_grad_(True))
-    camera = Camera.look_at((0.0, 0.0, -4.0), (0.0, 0.0, 0.0), (0.0, -1.0, 0.0), width, height, math.radians(60.0))
-    return gaussians, camera
-
-
-def time_case(n: int, width: int, height: int, args: argparse.Namespace, device: torch.device) -> dict:
-    from recon.render import pair_statistics, render
-
-    gaussians, camera = bench_scene(n, width, height, args.seed, device)
-    bg = torch.tensor([1.0, 1.0, 1.0], device=device)
-    weights = torch.rand(height, width, 3, generator=torch.Generator().manual_seed(1)).to(device)
-    stats = pair_statistics(gaussians.detach(), camera)
-
-    def sync():
-        if device.type == "cuda":
-            torch.cuda.synchronize()
-
-    fwd, total = [], []
-    for k in range(args.repeats + 1):
-        for t in gaussians.tensors():
-            t.grad = None
-        sync()
-        t0 = time.perf_counter()
-        out = render(gaussians, camera, bg, backend=args.backend)
-        sync()
-        t1 = time.perf_counter()
-        loss = (out.image * weights).sum() + 0.1 * out.depth.sum() + out.alpha.sum()
-        loss.backward()
-        sync()
-        t2 = time.perf_counter()
-        if k:  # the first pass warms caches and allocators
-            fwd.append(t1 - t0)
-            total.append(t2 - t0)
-    radii = out.radii[out.visible].float()
-    target = TARGETS_MS.get((n, width, height))
-    return {"gaussians": n, "width": width, "height": height, "pixels": width * height,
-            "visible": stats["visible"], "mean_radius_px": float(radii.mean()) if radii.numel() else 0.0,
-            "candidate_pairs": stats["candidates"], "pairs": stats["pairs"], "stopped_pairs": stats["stopped"],
-            "forward_ms": 1e3 * statistics.median(fwd), "forward_backward_ms": 1e3 * statistics.median(total),
-            "target_ms": target}
-
-
 def run_command(args: argparse.Namespace) -> int:
     from tqdm import tqdm
+
+    from recon.render_bench import time_case
 
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
@@ -137,7 +81,8 @@ def run_command(args: argparse.Namespace) -> int:
     try:
         load = os.getloadavg()
         ref_before = reference_workload_ms(device)
-        results = [time_case(n, w, h, args, device) for n, w, h in tqdm(cases, desc="bench render", unit="case")]
+        results = [time_case(n, w, h, args.seed, args.repeats, args.backend, device, TARGETS_MS.get((n, w, h)))
+                   for n, w, h in tqdm(cases, desc="bench render", unit="case")]
         ref_after = reference_workload_ms(device)
     finally:  # the command also runs in-process (tests): leave the thread setting as it was
         torch.set_num_threads(previous_threads)

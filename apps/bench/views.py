@@ -24,13 +24,8 @@ average are printed next to the figures: machines are shared, quote ratios.
 from __future__ import annotations
 
 import argparse
-import math
 import os
-import resource
-import time
 from pathlib import Path
-
-import numpy as np
 
 from fluidsim.files import write_json_atomic
 
@@ -58,32 +53,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="torch device; cuda falls back to cpu with a warning (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the jitter, the cameras and the stand-in D_g")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
-
-
-def timing(gaussians, d: np.ndarray, args: argparse.Namespace, device) -> dict:
-    """Time projected_view_scores on the densified set (see the module docstring)."""
-    import torch
-
-    from nbv.dense_sets import jittered_to_count
-    from nbv.scores import DepthBuffer, projected_view_scores
-    from recon.camera_paths import random_sphere
-
-    big = jittered_to_count(gaussians, args.count, args.seed).to(device)
-    metric = torch.from_numpy(np.resize(d, args.count))
-    cams = random_sphere(args.views, 6.0, args.width, args.width, math.radians(50.0), seed=args.seed)
-    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    t, cpu = time.perf_counter(), time.process_time()
-    scored = projected_view_scores(metric, big, cams)
-    total, cpu = time.perf_counter() - t, time.process_time() - cpu
-    out = {"gaussians": big.num, "views": len(cams), "width": args.width, "total_s": total, "cpu_s": cpu,
-           "per_view_ms": 1e3 * total / len(cams), "ns_per_pair": 1e9 * total / (len(cams) * big.num),
-           "visible_fraction": float(scored.counted.sum()) / (len(cams) * big.num),
-           "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "rss_before_mib": rss_before}
-    if args.occlusion:
-        t = time.perf_counter()
-        projected_view_scores(metric, big, cams, depth_buffer=DepthBuffer())
-        out["occlusion_total_s"] = time.perf_counter() - t
-    return out
 
 
 def print_ranking(r: dict, source: str) -> None:
@@ -121,7 +90,7 @@ def print_timing(t: dict) -> None:
 def run_command(args: argparse.Namespace) -> int:
     import torch
 
-    from nbv.score_agreement import compare_with_renders, load_divergence
+    from nbv.score_agreement import compare_with_renders, load_divergence, time_projected_scores
     from nbv.view_scoring import render_size, torch_device
     from recon.datasets import load_cameras
 
@@ -143,7 +112,8 @@ def run_command(args: argparse.Namespace) -> int:
         cams = [render_size(c, args.render_width) for c in load_cameras(args.cameras, None)]
         report["ranking"] = compare_with_renders(gaussians, cams, d, args.occlusion, device)
         print_ranking(report["ranking"], source)
-    report["timing"] = timing(gaussians, d, args, device)
+    report["timing"] = time_projected_scores(gaussians, d, args.count, args.views, args.width, args.seed,
+                                             args.occlusion, device)
     print_timing(report["timing"])
     ref_after = reference_ms()
     print(f"machine load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; reference workload (512^2 matmul, "

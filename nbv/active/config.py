@@ -6,9 +6,9 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-from nbv.physics import PhysicsConfig
+from nbv.physics.config import PhysicsConfig
 from nbv.physics.scene_frame import parse_up
-from recon.train import TrainConfig
+from recon.train_config import TrainConfig
 
 MODES = ("continue", "reset")
 

@@ -7,13 +7,17 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from fluidsim import DIRECTIONS, ProbeConfig, SolverConfig
+from fluidsim.config import SolverConfig
+from fluidsim.directions import DIRECTIONS
 from nbv.lists import parse_list
 from nbv.physics.scene_frame import SceneTransform, crop_box, inside_box, parse_crop, parse_up, robust_box, up_label
+
+if TYPE_CHECKING:
+    from fluidsim.probes import ProbeConfig
 
 log = logging.getLogger(__name__)
 
@@ -133,6 +137,8 @@ class PhysicsConfig:
 
     def probe_config(self) -> ProbeConfig:
         """The fluidsim probe parameters (slab, walls, directions)."""
+        from fluidsim.probes import ProbeConfig  # noqa: PLC0415 - loads Taichi; `fluidgs CMD --help` needs only the config
+
         return ProbeConfig(speed=self.speed, directions=self.directions)
 
     def to_dict(self) -> dict[str, Any]:

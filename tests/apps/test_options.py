@@ -1,4 +1,4 @@
-"""One source for defaults (issue 16 item 5): options generated from the config dataclasses (apps/options.py), the
+"""One source for defaults (issue 16 item 5): options generated from the config dataclasses (apps/options/), the
 one comma-list parser (nbv/lists.py) and the probe names defined once (fluidsim/directions.py)."""
 
 import argparse

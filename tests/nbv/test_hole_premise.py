@@ -15,7 +15,17 @@ import numpy as np
 import pytest
 import torch
 
-from nbv.holes import Hole, axis_opacity, covering, disc_offsets, open_fraction, ray_peaks, rim_ratios
+from nbv.holes import (
+    Hole,
+    axis_opacity,
+    covering,
+    disc_offsets,
+    head_on_probe,
+    lattice_keys,
+    open_fraction,
+    ray_peaks,
+    rim_ratios,
+)
 from nbv.physics import PhysicsConfig, simulate_gaussians
 from nbv.physics.solidify import (
     SceneTransform,
@@ -212,6 +222,17 @@ def test_rim_divergence_needs_the_hole_to_open(probes):
     res, kept, rim = probes["see_through"]
     assert len(res.solid) < 0.7 * len(intact.solid)
     assert rim_ratios(intact.per_probe, res.per_probe, kept, rim)["probe 0"] > 1.2
+
+
+def test_head_on_probe_and_lattice_keys():
+    """The head-on probe's flow is the most anti-parallel to the normal; lattice keys round to the nearest site."""
+    dirs = ("-x", "+x", "-z", "+z", "-y")
+    assert head_on_probe(dirs, (1.0, 0.0, 0.0)) == "-x"          # fluid flows along -x onto a +x-facing hole
+    assert head_on_probe(dirs, (0.0, 0.0, -1.0)) == "+z"
+    assert head_on_probe(dirs, (0.0, 1.0, 0.0)) == "-y"
+    assert head_on_probe(dirs, (0.6, 0.0, 0.8)) == "-z"
+    pts = np.array([[0.0, 0.0, 0.0], [0.049, -0.051, 0.1], [0.051, 0.0, 0.0], [0.0, 0.0, 0.004]])
+    assert lattice_keys(pts, 0.1) == {(0, 0, 0), (0, -1, 1), (1, 0, 0)}
 
 
 # ---- the benchmark command ------------------------------------------------------------------------------------

@@ -305,3 +305,19 @@ def test_bench_views_smoke(tmp_path, capsys):
     assert report["ranking"]["spearman"] == pytest.approx(1.0) and report["timing"]["gaussians"] == 1000
     assert 0.0 <= report["ranking"]["occlusion"]["verdict_agreement"] <= 1.0
     assert cli.main(["bench", "views", "--gaussians", str(ply), "--count", "0", "--no-ranking"]) == 2
+
+
+def test_time_projected_scores_figures():
+    """The timing figures are consistent: counts as asked, per-view and per-pair times derived from the total."""
+    import numpy as np
+
+    from nbv.score_agreement import time_projected_scores
+
+    g, _, _ = _scene(200, seed=3)
+    t = time_projected_scores(g, np.linspace(0.1, 1.0, 200), count=500, views=4, width=24, seed=1, occlusion=True,
+                              device=torch.device("cpu"))
+    assert (t["gaussians"], t["views"], t["width"]) == (500, 4, 24)
+    assert t["per_view_ms"] == pytest.approx(1e3 * t["total_s"] / 4)
+    assert t["ns_per_pair"] == pytest.approx(1e9 * t["total_s"] / (4 * 500))
+    assert 0.0 < t["visible_fraction"] <= 1.0 and t["peak_rss_mib"] >= t["rss_before_mib"] > 0
+    assert t["occlusion_total_s"] > 0

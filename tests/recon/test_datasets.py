@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from recon.camera import Camera
-from recon.camera_paths import orbit, random_sphere, sphere_directions, up_vector
+from recon.camera_paths import orbit, orbit_around, random_sphere, sphere_directions, up_vector
 from recon.datasets import load_blender, load_colmap, load_dataset, quaternion_wxyz_to_matrix
 from recon.gaussians import quaternion_to_rotation
 
@@ -81,6 +81,18 @@ def test_orbit_positions_and_poles():
         uv, _ = cam.project(torch.zeros(1, 3, dtype=torch.float64))
         np.testing.assert_allclose(uv[0].numpy(), [20.0, 20.0], atol=1e-9)
         np.testing.assert_allclose(cam.center.numpy(), [0, 0, 5.0 * math.copysign(1, elevation)], atol=1e-12)
+
+
+def test_orbit_around_aims_at_the_box_centre_from_its_extent():
+    """The cameras sit 1.6 x the largest extent from the bounding box's centre and see it in the image centre."""
+    points = np.array([[1.0, 2.0, 3.0], [3.0, 2.5, 4.0], [2.0, 3.0, 3.5]])   # box centre (2, 2.5, 3.5), extent 2
+    cams = orbit_around(points, 6, 40)
+    assert len(cams) == 6 and (cams[0].width, cams[0].height) == (40, 30)
+    centre = np.array([2.0, 2.5, 3.5])
+    np.testing.assert_allclose(np.linalg.norm(_centers(cams) - centre, axis=1), 3.2)
+    np.testing.assert_allclose(_centers(cams)[:, 1] - 2.5, 3.2 * math.sin(math.radians(20.0)))
+    uv, _ = cams[3].project(torch.from_numpy(centre[None]))
+    np.testing.assert_allclose(uv[0].numpy(), [20.0, 15.0], atol=1e-9)
 
 
 @pytest.mark.parametrize("kwargs, field", [

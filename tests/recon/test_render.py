@@ -264,3 +264,17 @@ def test_bench_render_smoke(capsys, tmp_path):
     assert "300 Gaussians @ 32x24" in text and "forward+backward" in text and "reference workload" in text
     assert out_json.exists()
     assert cli.main(["bench", "render", "--sizes", "300by32"]) == 2
+
+
+def test_bench_scene_and_time_case():
+    """The benchmark scene is seeded and its parameters take gradients; a case reports consistent figures."""
+    from recon.render_bench import bench_scene, time_case
+
+    g1, cam = bench_scene(200, 40, 30, seed=3, device=torch.device("cpu"))
+    g2, _ = bench_scene(200, 40, 30, seed=3, device=torch.device("cpu"))
+    assert torch.equal(g1.means, g2.means) and g1.means.requires_grad and g1.sh.shape == (200, 16, 3)
+    assert g1.means.min() >= -1.0 and g1.means.max() <= 1.0 and (cam.width, cam.height) == (40, 30)
+    r = time_case(200, 40, 30, seed=3, repeats=2, backend="torch", device=torch.device("cpu"), target_ms=5.0)
+    assert r["pixels"] == 1200 and r["target_ms"] == 5.0 and 0 < r["visible"] <= 200
+    assert 0 < r["forward_ms"] <= r["forward_backward_ms"] and r["pairs"] <= r["candidate_pairs"]
+    assert r["mean_radius_px"] > 0
