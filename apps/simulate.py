@@ -14,10 +14,7 @@ import argparse
 import logging
 from pathlib import Path
 
-# some are re-exported for score and bench score, which imported them from here; their home is apps.options (no app
-# imports another app)
-from .options import (  # noqa: F401
-    add_frame_arguments,
+from .options import (
     add_physics_arguments,
     add_record_arguments,
     check_output_file,
@@ -25,7 +22,6 @@ from .options import (  # noqa: F401
     physics_config_from_args,
     record_config_from_args,
     save_diverged,
-    up_from_args,
 )
 
 log = logging.getLogger("fluidgs")

@@ -210,7 +210,7 @@ def test_probe_records_leaks_in_the_result_file(tmp_path):
 def test_cli_fills_by_default_and_no_fill_keeps_the_shell():
     import argparse
 
-    from apps.simulate import add_physics_arguments, physics_config_from_args
+    from apps.options import add_physics_arguments, physics_config_from_args
 
     p = argparse.ArgumentParser()
     add_physics_arguments(p)

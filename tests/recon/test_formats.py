@@ -289,7 +289,7 @@ def test_folder_and_missing_file(tmp_path):
 
 
 def test_cli_loader_says_folder_and_missing(tmp_path):
-    from apps.simulate import load_gaussians_checked
+    from apps.options import load_gaussians_checked
 
     with pytest.raises(ValueError, match="is a folder"):
         load_gaussians_checked(tmp_path)
