@@ -46,7 +46,7 @@ the Taichi-free modules (:mod:`fluidsim.directions`, :mod:`fluidsim.config`) can
 command-line help without starting the engine.
 """
 
-import importlib
+from .lazy import lazy_exports
 
 _EXPORTS = {
     "SolverConfig": "config", "DIRECTIONS": "directions", "ProbeConfig": "probes", "ProbeSetup": "probes",
@@ -56,18 +56,4 @@ _EXPORTS = {
 }
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        try:  # a submodule reached as an attribute (``fluidsim.output``) after ``import fluidsim``
-            return importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError:
-            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

@@ -17,7 +17,7 @@ D-bar              (1/|G|) sum pi tr(Sigma_g)^2 D_g            :func:`geometry_d
 =================  ==========================================  ========================================
 """
 
-import importlib
+from fluidsim.lazy import lazy_exports
 
 _EXPORTS = {
     **dict.fromkeys(("PhysicsConfig", "PhysicsResult", "ProbeDiverged", "load_result", "save_result",
@@ -29,21 +29,4 @@ _EXPORTS = {
 }
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str):
-    """PEP 562: load a re-exported name's module on first use, so ``import nbv.lists`` loads no torch or Taichi."""
-    module = _EXPORTS.get(name)
-    if module is None:
-        try:  # a submodule reached as an attribute (``nbv.holes``) after ``import nbv``
-            return importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__name__}.{name}":
-                raise
-            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

@@ -18,28 +18,11 @@ Example:
     torch.Size([64, 64, 3])
 """
 
-import importlib
+from fluidsim.lazy import lazy_exports
 
 _EXPORTS = {"Camera": "camera", "load_cameras": "datasets", "load_dataset": "datasets", "detect_format": "formats",
             "load_gaussians": "formats", "GaussianSet": "gaussians", "save_gaussians": "ply",
             "RenderOutput": "render", "render": "render"}
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str):
-    """PEP 562: load a public name's module on first use, so ``recon.train_config`` alone loads no torch."""
-    module = _EXPORTS.get(name)
-    if module is None:
-        try:  # a submodule reached as an attribute (``recon.train``) after ``import recon``
-            return importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__name__}.{name}":
-                raise
-            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

@@ -1,7 +1,7 @@
 """Probe runs on 3D Gaussians and D_g (paper Sec. 3.2-3.3): config, solid, run, memory, result I/O, aggregation.
 """
 
-import importlib
+from fluidsim.lazy import lazy_exports
 
 _EXPORTS = {
     **dict.fromkeys(("ESTIMATOR_RADII", "QUICK", "PhysicsConfig", "kept_gaussians", "parse_directions",
@@ -15,21 +15,4 @@ _EXPORTS = {
 }
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str):
-    """PEP 562: load a re-exported name's module on first use (``nbv.physics.config`` alone loads no Taichi/torch)."""
-    module = _EXPORTS.get(name)
-    if module is None:
-        try:  # a submodule reached as an attribute (``nbv.physics.run``) after ``import nbv.physics``
-            return importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__name__}.{name}":
-                raise
-            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

@@ -1,0 +1,30 @@
+"""fluidsim.lazy.lazy_exports: a name loads its submodule on first use and is cached; an unknown name is an
+AttributeError; a submodule is reachable as an attribute; dir() lists the exports."""
+
+import subprocess
+import sys
+
+import pytest
+
+from fluidsim.lazy import lazy_exports
+
+from helpers.paths import REPO
+
+
+def test_names_load_on_first_use_and_are_cached():
+    namespace = {}
+    getattr_, dir_ = lazy_exports("fluidsim", {"SolverConfig": "config"}, namespace)
+    from fluidsim.config import SolverConfig
+
+    assert getattr_("SolverConfig") is SolverConfig and namespace["SolverConfig"] is SolverConfig
+    assert getattr_("directions").__name__ == "fluidsim.directions"
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        getattr_("nothing")
+    assert "SolverConfig" in dir_()
+
+
+def test_the_packages_import_without_taichi_or_torch():
+    code = ("import sys, fluidsim, recon, nbv, nbv.physics, nbv.active; "
+            "print(sorted(m for m in ('taichi', 'torch') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO).stdout
+    assert out.strip().splitlines()[-1] == "[]"
