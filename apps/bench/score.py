@@ -25,6 +25,8 @@ ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
 # docs/results.md, "Convergence of D_g and of the view ranking": with the depth test, the candidate-view ranking
 # stops changing from 750 steps at every radius tried (0.05-0.025 m); shorter runs rank the physics part differently.
 CONVERGED_STEPS = 750
+# From this many Gaussians the aggregation's share target is 15 % instead of 10 % (a 7 x densified 152k capture).
+MILLION_GAUSSIANS = 1_000_000
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -57,6 +59,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="--densify: random seed of the jitter")
 
 
+def share_target(num_gaussians: int) -> float:
+    """The aggregation's target share of the simulation time: 10 %, or 15 % from ``MILLION_GAUSSIANS`` Gaussians
+    (issue 15: each particle has about as many Gaussians within reach as the set is dense)."""
+    return 0.15 if num_gaussians >= MILLION_GAUSSIANS else 0.10
+
+
 def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
     """Run the probes on one set, print its figures and return them (timings, share, peak memory)."""
     from nbv.physics import simulate_gaussians
@@ -79,8 +87,10 @@ def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
     print(f"simulation {t['simulation']:.2f} s ({total_steps / max(t['simulation'], 1e-12):.1f} steps/s), "
           f"aggregation {t['aggregation']:.3f} s (+{t['accumulator_setup']:.3f} s grid set-up), "
           f"solidify {t['solidify']:.2f} s")
-    print(f"aggregation share of the step time: {100 * share:.1f} % (target < 10 %; < 15 % at 1M Gaussians): "
-          f"{'met' if share < 0.10 else 'NOT met'}")
+    target = share_target(res.num_gaussians)
+    print(f"aggregation share of the step time: {100 * share:.1f} % (target < {100 * target:.0f} % at "
+          f"{res.num_gaussians:,} Gaussians; < 10 % below 1M, < 15 % from 1M): "
+          f"{'met' if share < target else 'NOT met'}")
     total = t["total"] - t["empty_reference"]
     label = "paper-setting" if paper else "quick"
     print(f"{label} total for {len(cfg.directions)} probes: {total:.1f} s"
@@ -93,7 +103,8 @@ def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
     estimate = GaussianAccumulator.estimate_bytes(res.num_gaussians, fluid, cfg.track_distinct)
     rss = peak_rss_bytes()
     print(f"peak resident memory so far {rss / 2**30:.2f} GiB (the accumulator's estimate {estimate / 2**30:.2f} GiB)")
-    return {"timings": t, "aggregation_share": share, "total": total, "gaussians": res.num_gaussians,
+    return {"timings": t, "aggregation_share": share, "aggregation_share_target": target, "total": total,
+            "gaussians": res.num_gaussians,
             "solid": len(res.solid), "fluid_particles": fluid, "peak_rss_bytes": rss,
             "accumulator_estimate_bytes": estimate}
 

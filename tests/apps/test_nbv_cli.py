@@ -111,8 +111,16 @@ def test_bench_score_prints_share(scene, capsys):
                      "20", "--directions=-x"]) == 0
     text = capsys.readouterr().out
     assert "aggregation share of the step time" in text and "fluid particles" in text
+    assert "(target < 10 % at " in text  # a small set: the 10 % target, not the million-Gaussian one
     assert "view ranking at r = 0.08 m x 20 steps: NOT converged (needs >= 750 steps)" in text
     assert "one physics pick at this setting costs" in text
+
+
+def test_bench_score_share_target_by_set_size():
+    from apps.bench.score import MILLION_GAUSSIANS, share_target
+
+    assert share_target(MILLION_GAUSSIANS - 1) == 0.10
+    assert share_target(MILLION_GAUSSIANS) == share_target(5_000_000) == 0.15
 
 
 def test_bad_inputs_fail_early(scene, tmp_path, caplog):
