@@ -21,6 +21,7 @@ The rim ratio of a probe is the rim's mean D_g^(IC) on the holed set over the sa
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -31,6 +32,7 @@ import torch
 from nbv.physics.run import simulate_gaussians
 from nbv.physics.solidify import (
     MAX_ALPHA,
+    Solid,
     SolidifyConfig,
     gaussian_arrays_in_sim,
     gaussians_to_solid,
@@ -256,6 +258,27 @@ def rim_ratios(intact: np.ndarray, holed: np.ndarray, kept: np.ndarray, rim: np.
     return out
 
 
+def cut_cylinder(solid: Solid, hole: Hole) -> Solid:
+    """``solid`` without the lattice points inside the hole's cylinder (r < R, |t| < depth): an ideal hole at lattice
+    resolution, whatever the Gaussians around it (``fluidgs bench hole --ideal``, a measurement of what D_g can resolve;
+    no capture's solid is made this way).
+
+    Args:
+        solid: a :class:`nbv.physics.solidify.Solid`. hole: the :class:`Hole`, in the solid's frame (simulation metres).
+    Returns:
+        the Solid with those points removed from ``points`` and ``occupancy``; ``counts["ideal_cut"]`` = how many, and
+        ``counts["total"]`` the points left.
+    """
+    t, r = hole.coordinates(solid.points)
+    cut = (r < hole.radius) & (np.abs(t) < hole.depth)
+    occupancy = solid.occupancy.copy()
+    if cut.any():
+        ijk = np.rint((solid.points[cut] - solid.lattice_min) / solid.spacing).astype(np.int64)
+        occupancy[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = False
+    counts = {**solid.counts, "ideal_cut": int(cut.sum()), "total": int((~cut).sum())}
+    return dataclasses.replace(solid, points=solid.points[~cut], occupancy=occupancy, counts=counts)
+
+
 def _shifted(gaussians, transform, delta_sim: np.ndarray):
     """The set moved by ``delta_sim`` [3] simulation metres (its means only)."""
     d = torch.as_tensor(transform.to_scene(delta_sim[None])[0], dtype=gaussians.means.dtype)
@@ -299,7 +322,7 @@ def probe_figures(intact, holed, kept: np.ndarray, rim: np.ndarray, normal) -> d
 
 
 def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: bool,
-                  see_through: float | None = None) -> dict:
+                  see_through: float | None = None, ideal: bool = False) -> dict:
     """One lattice shift: the solids of the intact and the holed set, then (unless ``solid_only``) the probes.
 
     Args:
@@ -307,6 +330,7 @@ def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: boo
             ``transform.scale``, so both sets share it). transform: the intact set's ``SceneTransform``. hole: the
             :class:`Hole` in the unshifted simulation frame. shift: fraction of the spacing 2 r the whole capture
             moves along x, y and z. see_through: also remove the Gaussians covering the disc above this opacity.
+            ideal: also cut the cylinder's lattice points out of the holed set's solid (:func:`cut_cylinder`).
 
     Returns:
         the figures of ``fluidgs bench hole`` for this shift (counts, axis opacities, solid points, seconds, and
@@ -324,16 +348,20 @@ def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: boo
     kept = np.nonzero(~removed)[0]
     holed = moved.subset(torch.from_numpy(kept))
     tau = cfg.opacity_threshold
-    out = {"shift": shift, "gaussians_removed": int(removed.sum()), "rim_gaussians": int(h.rim(means, ~removed).sum()),
+    out = {"shift": shift, "ideal": ideal, "gaussians_removed": int(removed.sum()),
+           "rim_gaussians": int(h.rim(means, ~removed).sum()),
            "axis_opacity_intact": axis_opacity(h, means, inv, opacities),
            "axis_opacity_holed": axis_opacity(h, means[kept], inv[kept], opacities[kept]),
            "open_fraction_holed": open_fraction(h, means[kept], inv[kept], opacities[kept], tau)}
     t0 = time.perf_counter()
+    edit = (lambda solid: cut_cylinder(solid, h)) if ideal else None
     if solid_only:
         scfg = SolidifyConfig(spacing=spacing, opacity_threshold=cfg.opacity_threshold)
-        solids = [gaussians_to_solid(s, scfg, transform).points for s in (moved, holed)]
+        intact_solid, holed_solid = (gaussians_to_solid(s, scfg, transform) for s in (moved, holed))
+        solids = [intact_solid.points, (edit(holed_solid) if ideal else holed_solid).points]
     else:
-        res = [simulate_gaussians(s, cfg, progress=False) for s in (moved, holed)]
+        res = [simulate_gaussians(moved, cfg, progress=False), simulate_gaussians(holed, cfg, progress=False,
+                                                                                  solid_edit=edit)]
         solids = [r.solid for r in res]
     a, b = (lattice_keys(s, spacing) for s in solids)
     out.update(solid_intact=len(a), solid_holed=len(b), solid_removed=len(a - b), solid_added=len(b - a),

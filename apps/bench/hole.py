@@ -13,7 +13,9 @@ the lattice falls), the intact and the holed set are solidified and probed at th
   that any fluid sample reached (``*`` marks the head-on probe, whose flow runs most against the hole's normal); then
   the max-combined ratio (D_g = max over the probes, paper Eq. 3) and D-bar.
 
-``--solid-only`` stops after the solids (seconds, no probes).
+``--solid-only`` stops after the solids (seconds, no probes). ``--ideal`` also cuts every lattice point inside the
+cylinder out of the holed set's solid (:func:`nbv.holes.cut_cylinder`): what the rim's D_g shows for a hole that is
+open at lattice resolution, whatever the Gaussians around it cover.
 """
 
 from __future__ import annotations
@@ -74,6 +76,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--see-through", type=float, default=None, metavar="EPS",
                    help="also remove every Gaussian whose peak opacity on a ray through the disc (within the slab) "
                         "exceeds EPS, so that a render sees through the hole (default: centres only)")
+    p.add_argument("--ideal", action="store_true",
+                   help="also cut every lattice point inside the hole's cylinder out of the holed set's solid: an "
+                        "ideal hole at lattice resolution, to measure what the rim's D_g can resolve (default: off, "
+                        "the solid of the holed Gaussians)")
     p.add_argument("--shifts", type=_shifts, default=(0.0,), metavar="F,F,...",
                    help="lattice shifts, fractions of the spacing along x, y and z (default: 0)")
     p.add_argument("--paper", action="store_true", help="paper setting: r = 0.025 m, 750 steps (default: quick)")
@@ -103,7 +109,8 @@ def locate_hole(args: argparse.Namespace, means: np.ndarray, opacities: np.ndarr
 
 def print_shift(r: dict) -> None:
     ai, ah = r["axis_opacity_intact"], r["axis_opacity_holed"]
-    print(f"shift {r['shift']:g} spacing: {r['gaussians_removed']} Gaussians removed, rim {r['rim_gaussians']}; solid "
+    print(f"shift {r['shift']:g} spacing: {'ideal hole, ' if r.get('ideal') else ''}{r['gaussians_removed']} "
+          f"Gaussians removed, rim {r['rim_gaussians']}; solid "
           f"{r['solid_intact']} -> {r['solid_holed']} ({r['solid_removed']} removed, {r['solid_added']} added); axis "
           f"opacity {ai[0]:.2f} -> {ah[0]:.2f} (largest single Gaussian {ai[1]:.2f} -> {ah[1]:.2f}); open to a "
           f"render: {100 * r['open_fraction_holed'][0]:.0f} % of the disc (per Gaussian "
@@ -151,7 +158,8 @@ def run_command(args: argparse.Namespace) -> int:
           f"probes {','.join(cfg.directions)}")
     results = []
     for shift in args.shifts:
-        results.append(measure_shift(gaussians, cfg, transform, hole, shift, args.solid_only, args.see_through))
+        results.append(measure_shift(gaussians, cfg, transform, hole, shift, args.solid_only, args.see_through,
+                                     ideal=args.ideal))
         print_shift(results[-1])
     if len(results) > 1 and not args.solid_only:
         ratios = np.array([r["max_ratio"] for r in results])
@@ -160,7 +168,7 @@ def run_command(args: argparse.Namespace) -> int:
               f"probe ({results[0]['head_on']}) {head.min():.3f} - {head.max():.3f}")
     if args.json is not None:
         hole_doc = {"point": hole.point, "normal": hole.normal, "radius": hole.radius, "depth": hole.depth,
-                    "band": hole.band, "see_through": args.see_through}
+                    "band": hole.band, "see_through": args.see_through, "ideal": args.ideal}
         write_json_atomic(args.json, {"source": str(args.gaussians), "hole": hole_doc, "particle_radius": radius,
                                       "steps": steps, "shifts": results})
     return 0

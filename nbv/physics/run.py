@@ -253,7 +253,7 @@ _EMPTY_CACHE: dict = {}
 
 
 def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, source: str = "",
-                       record=None) -> PhysicsResult:
+                       record=None, *, solid_edit=None) -> PhysicsResult:
     """Run the probes against the solid of ``gaussians`` and aggregate D_i onto every Gaussian (Eq. 2-3).
 
     Uses the Taichi runtime already initialised by the caller (never calls ``ti.init``).
@@ -265,6 +265,9 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
         source: a label for the result (the .ply path).
         record: a :class:`nbv.physics.trajectory.RecordConfig`: keep those probes' fluid every k steps in
             ``PhysicsResult.trajectories`` (None: nothing recorded).
+        solid_edit: for measurements only: a function ``Solid -> Solid`` applied to the solid before the probes
+            (``fluidgs bench hole --ideal`` cuts an ideal hole with :func:`nbv.holes.cut_cylinder`); None: the
+            Gaussians' own solid.
     Returns:
         PhysicsResult.
     Raises:
@@ -283,7 +286,7 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
         inner = replace(config, crop=None, scale=transform.scale)
         try:
             part = simulate_gaussians(gaussians.subset(torch.from_numpy(np.nonzero(kept)[0])), inner, progress,
-                                      source, record)
+                                      source, record, solid_edit=solid_edit)
         except ProbeDiverged as exc:
             exc.result = replace(expand_to_all(exc.result, gaussians, kept, config), gaussians_sha256=digest)
             raise
@@ -303,6 +306,8 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     solid = gaussians_to_solid(sim, SolidifyConfig(spacing=scfg.spacing,
                                                          opacity_threshold=config.opacity_threshold,
                                                          fill_cavities=config.fill_cavities), transform)
+    if solid_edit is not None:
+        solid = solid_edit(solid)
     solidify_s = time.perf_counter() - t0
     if exact_check:
         check_memory(gaussians, config, transform, solid_points=solid.points, sim=sim)

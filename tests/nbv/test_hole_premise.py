@@ -9,6 +9,7 @@ same solid gives the same fluid). A see-through hole, which also removes every G
 disc, opens the solid, and the head-on probe's D_g at the rim rises.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -19,6 +20,7 @@ from nbv.holes import (
     Hole,
     axis_opacity,
     covering,
+    cut_cylinder,
     disc_offsets,
     head_on_probe,
     lattice_keys,
@@ -29,6 +31,7 @@ from nbv.holes import (
 from nbv.physics import PhysicsConfig, simulate_gaussians
 from nbv.physics.solidify import (
     SceneTransform,
+    Solid,
     SolidifyConfig,
     gaussian_arrays_in_sim,
     gaussians_to_solid,
@@ -235,6 +238,47 @@ def test_head_on_probe_and_lattice_keys():
     assert lattice_keys(pts, 0.1) == {(0, 0, 0), (0, -1, 1), (1, 0, 0)}
 
 
+def test_cut_cylinder_equals_brute_force_and_keeps_occupancy():
+    spacing, lo = 0.05, np.array([-0.3, -0.2, -0.25])
+    shape = (13, 9, 11)
+    occupancy = np.zeros(shape, bool)
+    occupancy[1:12, 1:8, 2:10] = True
+    occupancy[6, 4, 5] = False  # a pocket: never re-filled by the cut
+    ijk = np.argwhere(occupancy)
+    solid = Solid(points=lo + spacing * ijk, lattice_min=lo, lattice_shape=shape, occupancy=occupancy,
+                  spacing=spacing, counts={"opacity": len(ijk), "total": len(ijk)})
+    hole = Hole((0.05, 0.0, 0.0), (1.0, 0.3, -0.2), radius=0.11, depth=0.08)
+    cut = cut_cylinder(solid, hole)
+    n = np.asarray(hole.normal)
+    inside = set()
+    for p in solid.points:  # the cylinder's definition, one point at a time
+        d = p - np.asarray(hole.point)
+        t = float(d @ n)
+        if abs(t) < hole.depth and np.linalg.norm(d - t * n) < hole.radius:
+            inside.add(tuple(np.round(p, 9)))
+    assert len(inside) > 10
+    assert {tuple(np.round(p, 9)) for p in cut.points} == {tuple(np.round(p, 9)) for p in solid.points} - inside
+    assert np.array_equal(lo + spacing * np.argwhere(cut.occupancy), cut.points)  # occupancy follows the points
+    assert cut.counts["ideal_cut"] == len(inside) and cut.counts["total"] == len(solid.points) - len(inside)
+    assert not cut.occupancy[6, 4, 5] and solid.occupancy.sum() == len(ijk)  # the input is not modified
+
+
+def test_simulate_applies_the_solid_edit_before_the_probes():
+    gaussians = capture_like()
+    cfg = dataclasses.replace(CFG, steps=5)
+    seen = []
+
+    def edit(solid):
+        seen.append(len(solid.points))
+        return cut_cylinder(solid, HOLE)
+
+    res = simulate_gaussians(gaussians, cfg, progress=False, solid_edit=edit)
+    plain = gaussians_to_solid(gaussians, SolidifyConfig(spacing=SPACING, opacity_threshold=TAU),
+                               SceneTransform("+y", 1.0))
+    assert seen == [len(plain.points)]
+    assert lattice_keys(res.solid, SPACING) == lattice_keys(cut_cylinder(plain, HOLE).points, SPACING)
+
+
 # ---- the benchmark command ------------------------------------------------------------------------------------
 def test_bench_hole_command_prints_and_writes_the_figures(tmp_path, capsys):
     import json
@@ -256,6 +300,14 @@ def test_bench_hole_command_prints_and_writes_the_figures(tmp_path, capsys):
                      "--see-through", "0.02", "--particle-radius", "0.05", "--solid-only", "--shifts", "0,0.5"]) == 0
     text = capsys.readouterr().out
     assert text.count("open to a render: 100 % of the disc") == 2
+    # --ideal: the same covered hole, its cylinder cut out of the holed solid (the centres-only hole removed none)
+    assert cli.main(["bench", "hole", str(ply), "--scale", "1", "--point", "0.6,0,0", "--radius", "0.2", "--depth",
+                     "0.1", "--particle-radius", "0.05", "--solid-only", "--ideal", "--json", str(out)]) == 0
+    assert "ideal hole, " in capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    shift = doc["shifts"][0]
+    assert doc["hole"]["ideal"] and shift["ideal"] and shift["solid_added"] == 0
+    assert shift["solid_holed"] == shift["solid_intact"] - shift["solid_removed"] and shift["solid_removed"] >= 8
 
 
 def test_bench_hole_refuses_bad_options(tmp_path):
