@@ -21,10 +21,9 @@ The rim ratio of a probe is the rim's mean D_g^(IC) on the holed set over the sa
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -269,14 +268,13 @@ def cut_cylinder(solid: Solid, hole: Hole) -> Solid:
         the Solid with those points removed from ``points`` and ``occupancy``; ``counts["ideal_cut"]`` = how many, and
         ``counts["total"]`` the points left.
     """
-    t, r = hole.coordinates(solid.points)
-    cut = (r < hole.radius) & (np.abs(t) < hole.depth)
+    cut = hole.removed(solid.points)
     occupancy = solid.occupancy.copy()
     if cut.any():
         ijk = np.rint((solid.points[cut] - solid.lattice_min) / solid.spacing).astype(np.int64)
         occupancy[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = False
     counts = {**solid.counts, "ideal_cut": int(cut.sum()), "total": int((~cut).sum())}
-    return dataclasses.replace(solid, points=solid.points[~cut], occupancy=occupancy, counts=counts)
+    return replace(solid, points=solid.points[~cut], occupancy=occupancy, counts=counts)
 
 
 def _shifted(gaussians, transform, delta_sim: np.ndarray):
