@@ -50,7 +50,8 @@ from .lazy import lazy_exports
 
 _EXPORTS = {
     "SolverConfig": "config", "DIRECTIONS": "directions", "ProbeConfig": "probes", "ProbeSetup": "probes",
-    "probe_setup": "probes", "run_probes": "probes", "Scene": "scene", "SceneError": "scene", "load_scene": "scene",
+    "probe_setup": "probes", "probe_setups": "probes", "run_probes": "probes", "Scene": "scene", "SceneError": "scene",
+    "load_scene": "scene",
     "parse_scene": "scene", "SimulationDiverged": "simulation", "build_solver": "simulation", "run": "simulation",
     "DFSPHSolver": "solver", "StepStats": "solver",
 }

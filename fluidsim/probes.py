@@ -14,8 +14,8 @@ probe allocates memory but never recompiles.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -125,6 +125,22 @@ def probe_setup(solid_points: np.ndarray, direction: str, probe: ProbeConfig, sp
                       tuple(dmax.tolist()), tuple(fmin.tolist()), tuple(fmax.tolist()))
 
 
+def probe_setups(solid_points: np.ndarray, probe: ProbeConfig, spacing: float,
+                 directions: Sequence[str] | None = None) -> dict[str, ProbeSetup]:
+    """The setup of every probe around one solid (:func:`probe_setup` per direction), in the order run.
+
+    Args:
+        solid_points: (M, 3) m, the static solid (or any points with its bounding box).
+        probe: slab parameters.
+        spacing: particle spacing 2 r, m.
+        directions: which probes (default ``probe.directions``).
+    Returns:
+        {direction: ProbeSetup}.
+    """
+    dirs = tuple(directions) if directions is not None else probe.directions
+    return {d: probe_setup(solid_points, d, probe, spacing) for d in dirs}
+
+
 def build_probe_solver(solid_points: np.ndarray, setup: ProbeSetup, config: SolverConfig,
                        probe: ProbeConfig) -> DFSPHSolver:
     """A solver for one probe: solid plus optional walls as boundary, the slab as fluid."""
@@ -142,7 +158,8 @@ def run_probes(solid_points: np.ndarray, config: SolverConfig, probe: ProbeConfi
                on_probe_start: Callable[[str, DFSPHSolver], None] | None = None,
                on_probe_end: Callable[[str, DFSPHSolver, list[StepStats]], None] | None = None,
                progress: Callable[[str, StepStats], None] | None = None,
-               directions: Sequence[str] | None = None) -> dict[str, list[StepStats]]:
+               directions: Sequence[str] | None = None,
+               setups: Mapping[str, ProbeSetup] | None = None) -> dict[str, list[StepStats]]:
     """Run the probes one after another in the current Taichi runtime.
 
     Args:
@@ -154,14 +171,17 @@ def run_probes(solid_points: np.ndarray, config: SolverConfig, probe: ProbeConfi
         on_probe_start / on_probe_end: around each probe.
         progress(direction, stats): after every step.
         directions: override ``probe.directions``.
+        setups: the probes' setups already laid out around ``solid_points`` (:func:`probe_setups`); None: laid out
+            here.
     Returns:
         the step statistics per direction.
     """
     dirs = tuple(directions) if directions is not None else probe.directions
+    if setups is None:
+        setups = probe_setups(solid_points, probe, config.spacing, dirs)
     out: dict[str, list[StepStats]] = {}
     for d in dirs:
-        setup = probe_setup(solid_points, d, probe, config.spacing)
-        solver = build_probe_solver(solid_points, setup, config, probe)
+        solver = build_probe_solver(solid_points, setups[d], config, probe)
         if on_probe_start is not None:
             on_probe_start(d, solver)
         history = run(solver, steps,
@@ -172,7 +192,3 @@ def run_probes(solid_points: np.ndarray, config: SolverConfig, probe: ProbeConfi
             on_probe_end(d, solver, history)
     return out
 
-
-def with_speed(probe: ProbeConfig, speed: float) -> ProbeConfig:
-    """A copy of ``probe`` with another inflow speed (for velocity sweeps)."""
-    return replace(probe, speed=speed)

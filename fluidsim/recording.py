@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from .config import SolverConfig
 from .output import SimulationWriter
-from .probes import ProbeConfig, build_probe_solver, probe_setup
+from .probes import ProbeConfig, build_probe_solver, probe_setups
 from .simulation import SimulationDiverged, run
 
 log = logging.getLogger(__name__)
@@ -107,7 +107,7 @@ def probe_to_h5(solid: np.ndarray, direction: str, config: SolverConfig, probe: 
     Returns:
         (path, the per-step statistics, the solver after the run: its divergence sums are the file's).
     """
-    setup = probe_setup(solid, direction, probe, config.spacing)
+    setup = probe_setups(solid, probe, config.spacing, (direction,))[direction]
     solver = build_probe_solver(solid, setup, config, probe)
     scene = {"probe": direction, "velocity": list(setup.velocity),
              "domain": {"min": list(setup.domain_min), "max": list(setup.domain_max), "walls": probe.walls},

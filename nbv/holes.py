@@ -28,14 +28,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from nbv.physics.run import simulate_gaussians
+from nbv.physics.plan import RunFrame
+from nbv.physics.run import simulate_gaussians, simulate_solid
+from nbv.physics.scene_frame import gaussian_arrays_in_sim, inverse_covariances_in_sim
 from nbv.physics.solidify import (
     MAX_ALPHA,
     Solid,
-    SolidifyConfig,
-    gaussian_arrays_in_sim,
     gaussians_to_solid,
-    inverse_covariances_in_sim,
 )
 from recon.gaussians import GaussianSet
 
@@ -319,6 +318,15 @@ def probe_figures(intact, holed, kept: np.ndarray, rim: np.ndarray, normal) -> d
             "max_ratio": ratios["max"], "dbar_intact": float(intact.dbar), "dbar_holed": float(holed.dbar)}
 
 
+def simulate_with_hole(gaussians, cfg, hole: Hole | None = None):
+    """:func:`nbv.physics.simulate_gaussians` of ``gaussians``, with ``hole``'s lattice points cut out of their solid
+    before the probes (:func:`cut_cylinder`; None: their own solid), without progress bars."""
+    if hole is None:
+        return simulate_gaussians(gaussians, cfg, progress=False)
+    frame = RunFrame.of(gaussians, cfg)
+    return simulate_solid(frame, cut_cylinder(frame.solidify(), hole), progress=False)
+
+
 def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: bool,
                   see_through: float | None = None, ideal: bool = False) -> dict:
     """One lattice shift: the solids of the intact and the holed set, then (unless ``solid_only``) the probes.
@@ -352,14 +360,12 @@ def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: boo
            "axis_opacity_holed": axis_opacity(h, means[kept], inv[kept], opacities[kept]),
            "open_fraction_holed": open_fraction(h, means[kept], inv[kept], opacities[kept], tau)}
     t0 = time.perf_counter()
-    edit = (lambda solid: cut_cylinder(solid, h)) if ideal else None
     if solid_only:
-        scfg = SolidifyConfig(spacing=spacing, opacity_threshold=cfg.opacity_threshold)
+        scfg = cfg.solidify_config()
         intact_solid, holed_solid = (gaussians_to_solid(s, scfg, transform) for s in (moved, holed))
-        solids = [intact_solid.points, (edit(holed_solid) if ideal else holed_solid).points]
+        solids = [intact_solid.points, (cut_cylinder(holed_solid, h) if ideal else holed_solid).points]
     else:
-        res = [simulate_gaussians(moved, cfg, progress=False), simulate_gaussians(holed, cfg, progress=False,
-                                                                                  solid_edit=edit)]
+        res = [simulate_gaussians(moved, cfg, progress=False), simulate_with_hole(holed, cfg, h if ideal else None)]
         solids = [r.solid for r in res]
     a, b = (lattice_keys(s, spacing) for s in solids)
     out.update(solid_intact=len(a), solid_holed=len(b), solid_removed=len(a - b), solid_added=len(b - a),

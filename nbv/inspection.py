@@ -15,11 +15,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import torch
 
-from nbv.physics import PhysicsConfig, kept_gaussians, scene_transform
+from nbv.physics import PhysicsConfig
+from nbv.physics.plan import RunFrame
 from nbv.physics.scene_frame import robust_box
-from nbv.physics.solidify import SolidifyConfig, gaussian_arrays_in_sim, gaussians_to_solid
 
 QUANTILES = (0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99)
 
@@ -65,13 +64,11 @@ def inspect_gaussians(gaussians, config: PhysicsConfig, file_format: str = "") -
     sigmas = g.scales.double().numpy()
     lo, hi = robust_box(means, opacities, config.opacity_threshold)
     outside = ~np.all((means >= lo) & (means <= hi), axis=1)
-    kept = kept_gaussians(g, config)
-    transform = scene_transform(g, config)
-    work = g if kept is None else g.subset(torch.from_numpy(np.nonzero(kept)[0]))
+    frame = RunFrame.of(g, config)  # the probe run's frame, crop and solid
+    kept, transform = frame.kept, frame.transform
     spacing = 2.0 * config.particle_radius
-    solid = gaussians_to_solid(work, SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold,
-                                                    fill_cavities=config.fill_cavities), transform)
-    means_sim, _, _, radii = gaussian_arrays_in_sim(work, transform)
+    solid = frame.solidify()
+    means_sim, radii = frame.sim.means, frame.sim.radii
     summary = {
         "format": file_format, "count": int(g.num), "sh_degree": int(g.sh_degree),
         "bbox_min": means.min(0).tolist(), "bbox_max": means.max(0).tolist(),

@@ -128,7 +128,7 @@ def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import write_json_atomic
     from nbv.holes import measure_shift
     from nbv.physics import QUICK, PhysicsConfig, parse_directions, scene_transform
-    from nbv.physics.solidify import gaussian_arrays_in_sim
+    from nbv.physics.scene_frame import gaussian_arrays_in_sim
 
     from ..options import check_output_file, load_gaussians_checked
     from ..runtime import init_taichi

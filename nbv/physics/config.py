@@ -18,6 +18,7 @@ from nbv.physics.scene_frame import SceneTransform, crop_box, inside_box, parse_
 
 if TYPE_CHECKING:
     from fluidsim.probes import ProbeConfig
+    from nbv.physics.solidify import SolidifyConfig
 
 log = logging.getLogger(__name__)
 
@@ -141,6 +142,15 @@ class PhysicsConfig:
 
         return ProbeConfig(speed=self.speed, directions=self.directions)
 
+    def solidify_config(self, **overrides: Any) -> SolidifyConfig:
+        """How these Gaussians become solid (:class:`nbv.physics.solidify.SolidifyConfig`): the lattice at the fluid
+        spacing 2 r, tau and the filling of these probes; ``overrides`` (e.g. ``max_points`` for an estimate) replace
+        fields."""
+        from nbv.physics.solidify import SolidifyConfig  # noqa: PLC0415 - loads Taichi; --help needs only the config
+
+        return SolidifyConfig(**{"spacing": 2.0 * self.particle_radius, "opacity_threshold": self.opacity_threshold,
+                                 "fill_cavities": self.fill_cavities, **overrides})
+
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able dict (``from_dict`` reads it back)."""
         d = asdict(self)
@@ -197,19 +207,23 @@ def kept_gaussians(gaussians, config: PhysicsConfig, report: bool = True) -> np.
 
 
 
-def scene_transform(gaussians, config: PhysicsConfig):
+_CROP_NOT_GIVEN = object()
+
+
+def scene_transform(gaussians, config: PhysicsConfig, *, kept=_CROP_NOT_GIVEN):
     """The :class:`nbv.physics.scene_frame.SceneTransform` for ``config.up`` and ``config.scale`` ("auto" resolved).
 
     "auto": metres per scene unit such that the largest extent of the robust object box
     (:func:`nbv.physics.scene_frame.robust_box`, in simulation axes; only the Gaussians that ``config.crop`` keeps)
-    is ``target_extent`` m.
+    is ``target_extent`` m. ``kept``: :func:`kept_gaussians` already computed (None: no crop); default computed here.
     """
     rotated = SceneTransform(config.up, 1.0)
     if config.scale != "auto":
         return SceneTransform(config.up, float(config.scale))
     means = gaussians.means.detach().cpu().double().numpy()
     opacities = gaussians.opacities.detach().cpu().double().numpy()
-    kept = kept_gaussians(gaussians, config, report=False)
+    if kept is _CROP_NOT_GIVEN:
+        kept = kept_gaussians(gaussians, config, report=False)
     if kept is not None:
         means, opacities = means[kept], opacities[kept]
     extent = 0.0

@@ -6,15 +6,13 @@ from __future__ import annotations
 import numpy as np
 
 from fluidsim.memory import available_memory_bytes
-from fluidsim.probes import probe_setup
+from fluidsim.probes import probe_setups
 from nbv.physics import floaters
 from nbv.physics.aggregate import GaussianAccumulator, reach_classes
 from nbv.physics.config import QUICK, PhysicsConfig, scene_transform
+from nbv.physics.scene_frame import SimGaussians, as_sim
 from nbv.physics.solidify import BYTES_PER_GAUSSIAN as BYTES_PER_GAUSSIAN_SOLIDIFY
 from nbv.physics.solidify import (
-    SimGaussians,
-    SolidifyConfig,
-    as_sim,
     estimate_lattice_points,
     estimate_solidify_bytes,
     solid_boxes,
@@ -39,8 +37,8 @@ BYTES_PER_LATTICE_POINT = 2
 
 
 
-def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
-                    solid_points: np.ndarray | None = None, *, sim: SimGaussians | None = None) -> dict[str, float]:
+def estimate_memory(gaussians, config: PhysicsConfig, transform=None, solid_points: np.ndarray | None = None, *,
+                    sim: SimGaussians | None = None, setups=None) -> dict[str, float]:
     """An upper estimate of the memory one probe needs, before any probe is allocated.
 
     Without ``solid_points`` it is cheap: the box of the solid lattice stands for the solid's box (the
@@ -58,15 +56,15 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
         dict: lattice_points, fluid_particles (largest probe), boundary_particles, and the bytes (floats):
         resident_bytes, solidify_bytes, probe_bytes, accumulator_bytes and their total ``bytes``.
 
-    ``sim``: the Gaussians already in the simulation frame (:class:`~nbv.physics.solidify.SimGaussians`, with
-    ``transform``), so that they are not converted again.
+    ``sim``: the Gaussians already in the simulation frame (:class:`~nbv.physics.scene_frame.SimGaussians`, with
+    ``transform``), so that they are not converted again. ``setups``: the probes already laid out around
+    ``solid_points`` (:attr:`nbv.physics.plan.ProbePlan.setups`), so that they are not laid out again.
     """
     transform = sim.transform if sim is not None else (
         transform if transform is not None else scene_transform(gaussians, config))
     sim = as_sim(sim if sim is not None else gaussians, transform)
     spacing = 2.0 * config.particle_radius
-    scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold,
-                          fill_cavities=config.fill_cavities, max_points=2**62)
+    scfg = config.solidify_config(max_points=2**62)
     lattice = int(estimate_lattice_points(sim, scfg, transform))
     if solid_points is not None and len(solid_points):
         pts = np.asarray(solid_points, np.float64)
@@ -75,9 +73,11 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None,
         means, covs, opacities = sim.means, sim.covariances, sim.opacities
         box, solid_count = np.stack(floaters.lattice_extent(*solid_boxes(means, covs, opacities, scfg))), lattice
     probe = config.probe_config()
+    if setups is None or solid_points is None:  # the probes laid out around the solid's box give the same setups
+        setups = probe_setups(box, probe, spacing, config.directions)
     fluid = boundary = 0
     for d in config.directions:
-        s = probe_setup(box, d, probe, spacing)
+        s = setups[d]
         f = float(np.prod(np.floor((np.subtract(s.fluid_max, s.fluid_min)) / spacing)))
         ext = np.subtract(s.domain_max, s.domain_min)
         area = 2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2])
@@ -108,18 +108,41 @@ def _memory_parts(gaussians, config: PhysicsConfig, lattice: int, fluid: int, bo
 
 
 
+def check_memory_bound(frame) -> bool:
+    """The cheap memory check of a run (:class:`nbv.physics.plan.RunFrame`), before its solid exists.
+
+    The bound from the Gaussians' box decides first; when it does not fit but the lattice does, the solid is
+    computed and the probes are checked around it (:func:`check_memory` with the solid), since scattered faint
+    Gaussians widen the box without making solid.
+
+    Returns:
+        whether the exact check must follow once the solid exists.
+    Raises:
+        ValueError: the solid itself would not fit (its lattice or its computation), with the estimate and the fix.
+    """
+    config, sim = frame.config, frame.sim
+    cheap = estimate_memory(sim.gaussians, config, frame.transform, sim=sim)
+    exact = cheap["bytes"] > memory_limit_bytes(config)
+    if exact and (cheap["lattice_points"] > config.solidify_config().max_points
+                  or cheap["resident_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)):
+        check_memory(sim.gaussians, config, frame.transform, sim=sim)  # the solid is too costly: raise
+    return exact
+
+
+
 def memory_limit_bytes(config: PhysicsConfig) -> float:
     """The memory a probe may use: ``config.max_memory_gb``, or the memory available now."""
     return config.max_memory_gb * 2**30 if config.max_memory_gb is not None else float(available_memory_bytes())
 
 
 
-def check_memory(gaussians, config: PhysicsConfig, transform=None,
-                 solid_points: np.ndarray | None = None, *, sim: SimGaussians | None = None) -> dict[str, float]:
+def check_memory(gaussians, config: PhysicsConfig, transform=None, solid_points: np.ndarray | None = None, *,
+                 sim: SimGaussians | None = None, setups=None) -> dict[str, float]:
     """Raise ValueError, with the estimate and the fix, when a probe would not fit in memory.
 
-    See :func:`estimate_memory` for ``solid_points`` (the exact check once the solid is known) and ``sim``."""
-    est = estimate_memory(gaussians, config, transform, solid_points, sim=sim)
+    See :func:`estimate_memory` for ``solid_points`` (the exact check once the solid is known), ``sim`` and
+    ``setups``."""
+    est = estimate_memory(gaussians, config, transform, solid_points, sim=sim, setups=setups)
     limit = memory_limit_bytes(config)
     if est["bytes"] > limit:
         available = "allowed (--max-memory-gb)" if config.max_memory_gb is not None else "available"
@@ -141,7 +164,7 @@ def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, floa
     radius cannot help then), else the particle radius that would fit, if the object is still resolved."""
     transform = transform if transform is not None else scene_transform(gaussians, config)
     spacing = 2.0 * config.particle_radius
-    scfg = SolidifyConfig(spacing=spacing, opacity_threshold=config.opacity_threshold, max_points=2**62)
+    scfg = config.solidify_config(max_points=2**62)
     sim = as_sim(sim if sim is not None else gaussians, transform)
     means, covs, opacities = sim.means, sim.covariances, sim.opacities
     boxes = solid_boxes(means, covs, opacities, scfg)

@@ -18,10 +18,7 @@ from fluidsim import SimulationDiverged
 from nbv.io import atomic_h5
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.leaks import read_probe_leaks, write_probe_leaks
-from nbv.physics.scene_frame import SceneTransform
-from nbv.physics.solidify import (
-    gaussian_arrays_in_sim,
-)
+from nbv.physics.scene_frame import SceneTransform, gaussian_arrays_in_sim
 from nbv.physics.trajectory import (
     read_trajectory,
     write_trajectory,

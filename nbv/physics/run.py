@@ -31,33 +31,23 @@ from typing import Any
 
 import numpy as np
 import taichi as ti
-import torch
 from tqdm import tqdm
 
 from fluidsim import DFSPHSolver, SimulationDiverged, SolverConfig, StepStats, run_probes
 from fluidsim.output import stats_table
-from fluidsim.probes import probe_setup
 from fluidsim.scene import lattice_in_box
 from fluidsim.simulation import check_time_step
 from fluidsim.simulation import run as run_solver
 from fluidsim.sources import wall_particles
 from nbv import scores
 from nbv.physics.aggregate import GaussianAccumulator
-from nbv.physics.config import PhysicsConfig, kept_gaussians, scene_transform
+from nbv.physics.config import PhysicsConfig
 from nbv.physics.leaks import LeakCounter
-from nbv.physics.memory import check_memory, estimate_memory, memory_limit_bytes
-from nbv.physics.result import PhysicsResult, ProbeDiverged, _t, gaussians_sha256
-from nbv.physics.solidify import (
-    SimGaussians,
-    SolidifyConfig,
-    gaussian_arrays_in_sim,
-    gaussians_to_solid,
-)
-from nbv.physics.trajectory import (
-    TrajectoryRecorder,
-    check_record_size,
-    probe_fluid_counts,
-)
+from nbv.physics.memory import check_memory, check_memory_bound
+from nbv.physics.plan import ProbePlan, RunFrame
+from nbv.physics.result import PhysicsResult, ProbeDiverged, _t
+from nbv.physics.solidify import Solid
+from nbv.physics.trajectory import RecordConfig, TrajectoryRecorder, check_record_size
 
 log = logging.getLogger(__name__)
 
@@ -175,31 +165,24 @@ class _ProbeRecorder:
 
 
 
-def probe_domains_union(solid: np.ndarray, config: PhysicsConfig, spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """(min [3], max [3]) m: the box around the domains of all of ``config``'s probes."""
-    setups = [probe_setup(solid, d, config.probe_config(), spacing) for d in config.directions]
-    return (np.min([np.asarray(s.domain_min, np.float64) for s in setups], axis=0),
-            np.max([np.asarray(s.domain_max, np.float64) for s in setups], axis=0))
-
-
-
-def _run_with(recorder: _ProbeRecorder, solid: np.ndarray, config: PhysicsConfig, steps: int,
+def _run_with(recorder: _ProbeRecorder, solid: np.ndarray, plan: ProbePlan, config: PhysicsConfig,
               scfg: SolverConfig) -> dict[str, list[StepStats]]:
     try:
-        return run_probes(solid, scfg, config.probe_config(), steps, on_step=recorder.step,
-                          on_probe_start=recorder.start, on_probe_end=recorder.end, progress=recorder.tick)
+        return run_probes(solid, scfg, config.probe_config(), config.steps, on_step=recorder.step,
+                          on_probe_start=recorder.start, on_probe_end=recorder.end, progress=recorder.tick,
+                          setups=plan.setups)
     finally:
         recorder.close()
 
 
 
-def empty_scene_probes(solid: np.ndarray, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig,
+def empty_scene_probes(plan: ProbePlan, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig,
                        progress: bool = True, cache: dict | None = None,
                        accumulator=None) -> tuple[np.ndarray, float]:
     """D_g^(IC) of the empty scene: each probe's slab in its walled domain with no solid, onto the same Gaussians.
 
     Args:
-        solid: [M, 3] the solid the domains are fitted to (not simulated), sim metres.
+        plan: the probes laid out around the solid (which is not simulated).
         centers, reach: [G, 3], [G] sim metres.
         config: the probe settings.
         progress: show a bar per probe.
@@ -217,12 +200,12 @@ def empty_scene_probes(solid: np.ndarray, centers: np.ndarray, reach: np.ndarray
     key_g = hash((centers.tobytes(), reach.tobytes()))
     out = []
     rec = _ProbeRecorder(centers, reach, replace(config, track_distinct=False), progress, label="empty ",
-                         grid_bounds=probe_domains_union(solid, config, scfg.spacing))
+                         grid_bounds=plan.bounds)
     if accumulator is not None:
         accumulator.drop_distinct()
         rec.acc = accumulator
     for d in config.directions:
-        setup = probe_setup(solid, d, probe, scfg.spacing)
+        setup = plan.setups[d]
         key = (setup, key_cfg, key_g)
         if cache is not None and key in cache:
             out.append(cache[key])
@@ -253,7 +236,7 @@ _EMPTY_CACHE: dict = {}
 
 
 def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, source: str = "",
-                       record=None, *, solid_edit=None) -> PhysicsResult:
+                       record: RecordConfig | None = None) -> PhysicsResult:
     """Run the probes against the solid of ``gaussians`` and aggregate D_i onto every Gaussian (Eq. 2-3).
 
     Uses the Taichi runtime already initialised by the caller (never calls ``ti.init``).
@@ -265,9 +248,6 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
         source: a label for the result (the .ply path).
         record: a :class:`nbv.physics.trajectory.RecordConfig`: keep those probes' fluid every k steps in
             ``PhysicsResult.trajectories`` (None: nothing recorded).
-        solid_edit: for measurements only: a function ``Solid -> Solid`` applied to the solid before the probes
-            (``fluidgs bench hole --ideal`` cuts an ideal hole with :func:`nbv.holes.cut_cylinder`); None: the
-            Gaussians' own solid.
     Returns:
         PhysicsResult.
     Raises:
@@ -275,64 +255,72 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
             particle spacing (CFL), or a recording too large or of a probe not run, before any simulation.
         ProbeDiverged: a probe diverged; its ``result`` holds the probes completed before it.
     """
-    t_total = time.perf_counter()
+    started = time.perf_counter()
     if record is not None:
         record.check_probes(config.directions, config.steps)
-    gaussians = gaussians.detach().to("cpu").check(source or "Gaussians")
-    digest = gaussians_sha256(gaussians)
-    transform = scene_transform(gaussians, config)
-    kept = kept_gaussians(gaussians, config)
-    if kept is not None:  # simulate the kept Gaussians at the resolved scale, then give every Gaussian its row
-        inner = replace(config, crop=None, scale=transform.scale)
-        try:
-            part = simulate_gaussians(gaussians.subset(torch.from_numpy(np.nonzero(kept)[0])), inner, progress,
-                                      source, record, solid_edit=solid_edit)
-        except ProbeDiverged as exc:
-            exc.result = replace(expand_to_all(exc.result, gaussians, kept, config), gaussians_sha256=digest)
-            raise
-        return replace(expand_to_all(part, gaussians, kept, config), gaussians_sha256=digest)
-    # The cheap bound (the Gaussians' box) decides first; when it does not fit but the lattice does, the
-    # solid is computed and the probes are re-estimated around it, since scattered faint Gaussians widen
-    # the box without making solid. Either way the check comes before any probe is allocated.
-    sim = SimGaussians.of(gaussians, transform)  # the one simulation-frame value of the Gaussians of this run
-    cheap = estimate_memory(gaussians, config, transform, sim=sim)
-    exact_check = cheap["bytes"] > memory_limit_bytes(config)
-    if exact_check and (cheap["lattice_points"] > SolidifyConfig.max_points
-                        or cheap["resident_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)):
-        # the solid is too costly to compute: raise with the estimate
-        check_memory(gaussians, config, transform, sim=sim)
-    scfg = config.solver_config()
+    frame = RunFrame.of(gaussians, config, source)  # Sec. 3.2: the kept Gaussians in simulation metres, Y-up
+    exact_memory = check_memory_bound(frame)         # the Gaussians' box fits, or the solid will be checked
     t0 = time.perf_counter()
-    solid = gaussians_to_solid(sim, SolidifyConfig(spacing=scfg.spacing,
-                                                         opacity_threshold=config.opacity_threshold,
-                                                         fill_cavities=config.fill_cavities), transform)
-    if solid_edit is not None:
-        solid = solid_edit(solid)
-    solidify_s = time.perf_counter() - t0
-    if exact_check:
-        check_memory(gaussians, config, transform, solid_points=solid.points, sim=sim)
-    means, covs, radii = sim.means, sim.covariances, sim.radii
-    means, covs = np.ascontiguousarray(means, np.float64), np.ascontiguousarray(covs, np.float64)
-    reach = np.ascontiguousarray(config.n_radius * np.asarray(radii, np.float64))
-    log.info("solid: %d particles from %d Gaussians (scale %.4g m/unit)", len(solid.points), len(means),
-             transform.scale)
+    solid = frame.solidify()                         # Sec. 3.2: the static boundary (opacity >= tau, filled)
+    return simulate_solid(frame, solid, progress, source, record, exact_memory=exact_memory,
+                          solidify_s=time.perf_counter() - t0, started=started)
 
-    check_probe_time_steps(solid.points, config, scfg)
+
+
+def simulate_solid(frame: RunFrame, solid: Solid, progress: bool = True, source: str = "",
+                   record: RecordConfig | None = None, *, exact_memory: bool = True, solidify_s: float = 0.0,
+                   started: float | None = None) -> PhysicsResult:
+    """The probes of :func:`simulate_gaussians` against a given solid of ``frame``'s Gaussians (that function's
+    ``frame.solidify()``, or an edited one: ``fluidgs bench hole --ideal`` cuts a hole into it).
+
+    Args:
+        frame: the run's frame (:class:`nbv.physics.plan.RunFrame`).
+        solid: [M, 3] sim metres in ``solid.points``.
+        progress, source, record: as :func:`simulate_gaussians`.
+        exact_memory: check the memory around the solid (False: the Gaussians' box was checked and fits).
+        solidify_s, started: the solidification's seconds and the run's start (``time.perf_counter()``), for the
+            timings.
+    Returns:
+        PhysicsResult, one row per Gaussian of ``frame.gaussians``.
+    Raises:
+        ValueError, ProbeDiverged: as :func:`simulate_gaussians`.
+    """
+    started = time.perf_counter() if started is None else started
+    config, scfg = frame.config, frame.config.solver_config()
+    log.info("solid: %d particles from %d Gaussians (scale %.4g m/unit)", len(solid.points), frame.sim.num,
+             frame.transform.scale)
+    plan = ProbePlan.of(solid.points, config)  # Sec. 3.2, Fig. 3: one slab and domain per probe
+    if exact_memory:                            # the probes around the real solid
+        check_memory(frame.sim.gaussians, config, frame.transform, solid_points=solid.points, sim=frame.sim,
+                     setups=plan.setups)
+    check_probe_time_steps(plan, config, scfg)  # CFL: inflow plus free fall through each domain
     if record is not None:
-        check_record_size(probe_fluid_counts(solid.points, record.directions, config.probe_config(), scfg.spacing),
-                          config.steps, record)
-    recorder = _ProbeRecorder(means, reach, config, progress, solid=solid, record=record,
-                              grid_bounds=probe_domains_union(solid.points, config, scfg.spacing))
-    base = dict(solid=np.asarray(solid.points, np.float64), transform=transform, means=means, covariances=covs,
-                reach=reach, config=config, source=source, gaussians_sha256=digest)
+        check_record_size(plan.fluid_counts(record.directions), config.steps, record)
+    try:                                        # Eq. 1-3: D_i of every step onto the Gaussians within n r_g
+        result = _probe(frame, solid, plan, progress, source, record, solidify_s, started)
+    except ProbeDiverged as exc:
+        exc.result = frame.expand(exc.result)
+        raise
+    return frame.expand(result)                 # every Gaussian of the run gets its row
+
+
+
+def _probe(frame: RunFrame, solid: Solid, plan: ProbePlan, progress: bool, source: str,
+           record: RecordConfig | None, solidify_s: float, started: float) -> PhysicsResult:
+    """The probes and, with ``config.empty_reference``, the empty scene: the result on the simulated Gaussians."""
+    config, scfg = frame.config, frame.config.solver_config()
+    means, covs, reach = frame.means, frame.covariances, frame.reach
+    recorder = _ProbeRecorder(means, reach, config, progress, solid=solid, record=record, grid_bounds=plan.bounds)
+    base = dict(solid=np.asarray(solid.points, np.float64), transform=frame.transform, means=means, covariances=covs,
+                reach=reach, config=config, source=source, gaussians_sha256=frame.digest)
 
     def timings(empty_s: float = 0.0) -> dict[str, float]:
         return {"solidify": solidify_s, "simulation": recorder.probe_s - recorder.aggregation_s,
                 "aggregation": recorder.aggregation_s, "accumulator_setup": recorder.build_s,
-                "empty_reference": empty_s, "total": time.perf_counter() - t_total}
+                "empty_reference": empty_s, "total": time.perf_counter() - started}
 
     try:
-        _run_with(recorder, solid.points, config, config.steps, scfg)
+        _run_with(recorder, solid.points, plan, config, scfg)
     except SimulationDiverged as exc:  # keep the probes completed before it, say which one diverged where
         done = tuple(d for d in config.directions if d in recorder.histories)
         failure = {"probe": recorder.current, "step": int(exc.step), "reason": exc.reason}
@@ -342,7 +330,7 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     if not config.empty_reference:
         return result
     try:
-        empty, empty_s = empty_scene_probes(solid.points, means, reach, config, progress, _EMPTY_CACHE,
+        empty, empty_s = empty_scene_probes(plan, means, reach, config, progress, _EMPTY_CACHE,
                                             accumulator=recorder.acc)
     except SimulationDiverged as exc:
         probe = getattr(exc, "probe", "empty-scene")
@@ -354,12 +342,10 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
 
 
 
-def check_probe_time_steps(solid: np.ndarray, config: PhysicsConfig, scfg: SolverConfig) -> None:
+def check_probe_time_steps(plan: ProbePlan, config: PhysicsConfig, scfg: SolverConfig) -> None:
     """Refuse, before any probe runs, a time step too large for the particle spacing in any probe's domain
     (:func:`fluidsim.simulation.check_time_step`: inflow speed plus free fall through the domain)."""
-    probe = config.probe_config()
-    for d in config.directions:
-        s = probe_setup(solid, d, probe, scfg.spacing)
+    for d, s in plan.setups.items():
         check_time_step(scfg, float(np.linalg.norm(s.velocity)), s.domain_min, s.domain_max, config.steps,
                         where=f"probe {d} (--dt {scfg.dt:g} s, --speed {config.speed:g} m/s)")
 
@@ -390,29 +376,3 @@ def _assemble(recorder: _ProbeRecorder, dirs: Sequence[str], base: dict[str, Any
         leaks={d: recorder.leaks[d] for d in dirs if d in recorder.leaks},
         trajectories={} if recorder.trajectory is None else
         {d: recorder.trajectory.results[d] for d in dirs if d in recorder.trajectory.results}, **base, **extra)
-
-
-
-def expand_to_all(part: PhysicsResult, gaussians, kept: np.ndarray, config: PhysicsConfig) -> PhysicsResult:
-    """A result on the kept Gaussians -> one row per Gaussian of ``gaussians`` (the dropped ones: D_g = 0, no
-    samples), with ``kept`` recorded and ``config`` (the crop) restored. D-bar stays the kept Gaussians' own."""
-    g = len(kept)
-
-    def full(a: np.ndarray | None, axis: int = 0) -> np.ndarray | None:
-        if a is None:
-            return None
-        shape = list(a.shape)
-        shape[axis] = g
-        out = np.zeros(shape, a.dtype)
-        index = [slice(None)] * a.ndim
-        index[axis] = kept
-        out[tuple(index)] = a
-        return out
-
-    means, covs, _, radii = gaussian_arrays_in_sim(gaussians, part.transform)
-    return replace(
-        part, per_probe=full(part.per_probe, 1), per_probe_counts=full(part.per_probe_counts, 1),
-        per_probe_distinct=full(part.per_probe_distinct, 1), divergence=full(part.divergence),
-        divergence_mean=full(part.divergence_mean), empty_per_probe=full(part.empty_per_probe, 1),
-        means=np.ascontiguousarray(means), covariances=np.ascontiguousarray(covs),
-        reach=np.ascontiguousarray(config.n_radius * radii), config=config, kept=kept.copy())

@@ -15,6 +15,8 @@ reconstructions are usually y-down), so the up direction is a free vector here:
   floater then moves it by nothing, where the raw bounding box would grow to reach it.
 - A *crop* keeps the Gaussians whose centres lie in an axis-aligned scene box: given by its corners,
   or ``"auto"``: the robust box grown by ``margin`` times its extent on every side.
+- :class:`SimGaussians` is the Gaussians in simulation metres (means, covariances, opacities, largest radii),
+  converted once per run and handed to every step that needs them.
 
 Example:
     >>> SceneTransform("-y", 2.0).to_sim(np.array([[0.0, 1.0, 0.0]]))
@@ -27,8 +29,12 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from recon.gaussians import GaussianSet
 
 AXES = {"x": 0, "y": 1, "z": 2}
 # Opacity-weighted quantiles of the robust object box.
@@ -190,6 +196,95 @@ class SceneTransform:
         """JSON-able: up (vector and label), scale, and the 4x4 matrix."""
         return {"up": list(self.up), "up_label": self.up_label, "scale_m_per_unit": self.scale,
                 "scene_to_sim": self.matrix.tolist()}
+
+
+# ---- the Gaussians in the simulation frame --------------------------------------------------------------
+def _numpy64(t) -> np.ndarray:
+    return t.detach().to("cpu").double().numpy()
+
+
+def _rotations_in_sim(gaussians: GaussianSet, transform: SceneTransform) -> np.ndarray:
+    """[N, 3, 3] principal axes in simulation axes, computed in float64 (orthogonal to rounding)."""
+    from recon.gaussians import quaternion_to_rotation  # noqa: PLC0415 - torch; the config and --help need none
+
+    rot = quaternion_to_rotation(gaussians.quats.detach().to("cpu").double()).numpy()
+    return transform.rotation @ rot
+
+
+def gaussian_arrays_in_sim(gaussians: GaussianSet,
+                           transform: SceneTransform) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The Gaussians' geometry in simulation metres.
+
+    Args:
+        gaussians: N Gaussians in scene units.
+        transform: scene -> simulation.
+    Returns:
+        means [N, 3] m, covariances [N, 3, 3] m^2, opacities [N], largest principal radii r_g [N] m,
+        all float64.
+    """
+    means = transform.to_sim(_numpy64(gaussians.means))
+    rot = _rotations_in_sim(gaussians, transform)
+    scales = transform.scale * np.exp(_numpy64(gaussians.log_scales))
+    m = rot * scales[:, None, :]
+    covs = m @ np.swapaxes(m, -1, -2)
+    return means, covs, _numpy64(gaussians.opacities), scales.max(axis=1)
+
+
+def inverse_covariances_in_sim(gaussians: GaussianSet, transform: SceneTransform) -> np.ndarray:
+    """[N, 3, 3] Sigma^-1 = R diag(1 / s^2) R^T in simulation units (no matrix inversion: thin Gaussians stay exact)."""
+    rot = _rotations_in_sim(gaussians, transform)
+    inv_scales = 1.0 / (transform.scale * np.exp(_numpy64(gaussians.log_scales)))
+    m = rot * inv_scales[:, None, :]
+    return m @ np.swapaxes(m, -1, -2)
+
+
+@dataclass(frozen=True)
+class SimGaussians:
+    """The Gaussians in simulation metres: computed once per run (:meth:`of`) and handed down to the memory check,
+    the solidification, the accumulator and the result, instead of being converted again by each.
+
+    Attributes:
+        gaussians: the ``recon.gaussians.GaussianSet`` they come from (scene units; checked).
+        transform: scene -> simulation.
+        means: [N, 3] m. covariances: [N, 3, 3] m^2. opacities: [N]. radii: [N] m, the largest principal
+            standard deviation r_g. All float64.
+    """
+
+    gaussians: GaussianSet
+    transform: SceneTransform
+    means: np.ndarray
+    covariances: np.ndarray
+    opacities: np.ndarray
+    radii: np.ndarray
+
+    @classmethod
+    def of(cls, gaussians: GaussianSet, transform: SceneTransform) -> SimGaussians:
+        """Check ``gaussians`` (NaN/Inf, zero quaternions) and convert them to the simulation frame once."""
+        gaussians.check("gaussians")
+        means, covs, opacities, radii = gaussian_arrays_in_sim(gaussians, transform)
+        return cls(gaussians, transform, means, covs, opacities, radii)
+
+    def __len__(self) -> int:
+        return len(self.means)
+
+    @property
+    def num(self) -> int:
+        """N, as ``GaussianSet.num``."""
+        return len(self.means)
+
+    def inverse_covariances(self) -> np.ndarray:
+        """[N, 3, 3] Sigma^-1 in simulation units (computed on demand: the run keeps only Sigma)."""
+        return inverse_covariances_in_sim(self.gaussians, self.transform)
+
+
+def as_sim(gaussians: GaussianSet | SimGaussians, transform: SceneTransform) -> SimGaussians:
+    """``gaussians`` in the simulation frame: a :class:`SimGaussians` is used as it is (it must carry
+    ``transform``), a ``GaussianSet`` is checked and converted."""
+    if isinstance(gaussians, SimGaussians):
+        if gaussians.transform != transform:
+            raise ValueError(f"the Gaussians were converted with {gaussians.transform}, not {transform}")
+        return gaussians
+    return SimGaussians.of(gaussians, transform)
 
 
 def weighted_quantiles(values: np.ndarray, weights: np.ndarray, quantiles: Sequence[float]) -> np.ndarray:

@@ -64,8 +64,8 @@ import taichi as ti
 
 from nbv.physics import floaters, solid_kernels
 from nbv.physics.carve import carve_outside, surface_depths
-from nbv.physics.scene_frame import SceneTransform
-from recon.gaussians import GaussianSet, quaternion_to_rotation
+from nbv.physics.scene_frame import SceneTransform, SimGaussians, as_sim
+from recon.gaussians import GaussianSet
 
 log = logging.getLogger(__name__)
 
@@ -186,43 +186,6 @@ class Solid:
     counts: dict[str, int] = field(default_factory=dict)
 
 
-def _numpy64(t) -> np.ndarray:
-    return t.detach().to("cpu").double().numpy()
-
-
-def _rotations_in_sim(gaussians: GaussianSet, transform: SceneTransform) -> np.ndarray:
-    """[N, 3, 3] principal axes in simulation axes, computed in float64 (orthogonal to rounding)."""
-    rot = quaternion_to_rotation(gaussians.quats.detach().to("cpu").double()).numpy()
-    return transform.rotation @ rot
-
-
-def gaussian_arrays_in_sim(gaussians: GaussianSet,
-                           transform: SceneTransform) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The Gaussians' geometry in simulation metres.
-
-    Args:
-        gaussians: N Gaussians in scene units.
-        transform: scene -> simulation.
-    Returns:
-        means [N, 3] m, covariances [N, 3, 3] m^2, opacities [N], largest principal radii r_g [N] m,
-        all float64.
-    """
-    means = transform.to_sim(_numpy64(gaussians.means))
-    rot = _rotations_in_sim(gaussians, transform)
-    scales = transform.scale * np.exp(_numpy64(gaussians.log_scales))
-    m = rot * scales[:, None, :]
-    covs = m @ np.swapaxes(m, -1, -2)
-    return means, covs, _numpy64(gaussians.opacities), scales.max(axis=1)
-
-
-def inverse_covariances_in_sim(gaussians: GaussianSet, transform: SceneTransform) -> np.ndarray:
-    """[N, 3, 3] Sigma^-1 = R diag(1 / s^2) R^T in simulation units (no matrix inversion: thin Gaussians stay exact)."""
-    rot = _rotations_in_sim(gaussians, transform)
-    inv_scales = 1.0 / (transform.scale * np.exp(_numpy64(gaussians.log_scales)))
-    m = rot * inv_scales[:, None, :]
-    return m @ np.swapaxes(m, -1, -2)
-
-
 def _box_half_extents(covs: np.ndarray, sigma_cutoff: float) -> np.ndarray:
     """[N, 3] half-extents of the axis-aligned boxes of the sigma_cutoff ellipsoids, m."""
     return sigma_cutoff * np.sqrt(np.maximum(np.einsum("nkk->nk", covs), 0.0))
@@ -252,55 +215,6 @@ def _lattice_geometry(means: np.ndarray, covs: np.ndarray, config: SolidifyConfi
     lattice_min = np.floor(lo / s) * s
     dims = np.floor((hi - lattice_min) / s + 1e-9) + 1.0
     return lattice_min, np.maximum(dims, 1.0)
-
-
-@dataclass(frozen=True)
-class SimGaussians:
-    """The Gaussians in simulation metres: computed once per run (:meth:`of`) and handed down to the memory check,
-    the solidification, the accumulator and the result, instead of being converted again by each.
-
-    Attributes:
-        gaussians: the ``recon.gaussians.GaussianSet`` they come from (scene units; checked).
-        transform: scene -> simulation.
-        means: [N, 3] m. covariances: [N, 3, 3] m^2. opacities: [N]. radii: [N] m, the largest principal
-            standard deviation r_g. All float64.
-    """
-
-    gaussians: GaussianSet
-    transform: SceneTransform
-    means: np.ndarray
-    covariances: np.ndarray
-    opacities: np.ndarray
-    radii: np.ndarray
-
-    @classmethod
-    def of(cls, gaussians: GaussianSet, transform: SceneTransform) -> SimGaussians:
-        """Check ``gaussians`` (NaN/Inf, zero quaternions) and convert them to the simulation frame once."""
-        gaussians.check("gaussians")
-        means, covs, opacities, radii = gaussian_arrays_in_sim(gaussians, transform)
-        return cls(gaussians, transform, means, covs, opacities, radii)
-
-    def __len__(self) -> int:
-        return len(self.means)
-
-    @property
-    def num(self) -> int:
-        """N, as ``GaussianSet.num``."""
-        return len(self.means)
-
-    def inverse_covariances(self) -> np.ndarray:
-        """[N, 3, 3] Sigma^-1 in simulation units (computed on demand: the run keeps only Sigma)."""
-        return inverse_covariances_in_sim(self.gaussians, self.transform)
-
-
-def as_sim(gaussians: GaussianSet | SimGaussians, transform: SceneTransform) -> SimGaussians:
-    """``gaussians`` in the simulation frame: a :class:`SimGaussians` is used as it is (it must carry
-    ``transform``), a ``GaussianSet`` is checked and converted."""
-    if isinstance(gaussians, SimGaussians):
-        if gaussians.transform != transform:
-            raise ValueError(f"the Gaussians were converted with {gaussians.transform}, not {transform}")
-        return gaussians
-    return SimGaussians.of(gaussians, transform)
 
 
 def estimate_lattice_points(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,

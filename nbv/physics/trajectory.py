@@ -36,8 +36,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from fluidsim.memory import available_memory_bytes
-from fluidsim.probes import probe_setup
-from fluidsim.scene import lattice_in_box
 
 log = logging.getLogger(__name__)
 
@@ -147,15 +145,6 @@ def check_record_size(fluid_counts: dict[str, int], steps: int, record: RecordCo
     log.info("recording %s x %d frames (every %d steps): %.1f MiB in memory and in RESULT.h5", what, frames,
              record.every, total / 2**20)
     return total
-
-
-def probe_fluid_counts(solid_points: np.ndarray, directions: Sequence[str], probe, spacing: float) -> dict[str, int]:
-    """F per probe: the fluid particles of each probe's slab (:func:`fluidsim.probes.probe_setup`), before running."""
-    out = {}
-    for d in directions:
-        s = probe_setup(solid_points, d, probe, spacing)
-        out[d] = int(len(lattice_in_box(s.fluid_min, s.fluid_max, spacing)))
-    return out
 
 
 class TrajectoryRecorder:

@@ -27,15 +27,15 @@ from nbv.holes import (
     open_fraction,
     ray_peaks,
     rim_ratios,
+    simulate_with_hole,
 )
 from nbv.physics import PhysicsConfig, simulate_gaussians
+from nbv.physics.scene_frame import gaussian_arrays_in_sim, inverse_covariances_in_sim
 from nbv.physics.solidify import (
     SceneTransform,
     Solid,
     SolidifyConfig,
-    gaussian_arrays_in_sim,
     gaussians_to_solid,
-    inverse_covariances_in_sim,
 )
 from recon.gaussians import GaussianSet
 
@@ -263,20 +263,15 @@ def test_cut_cylinder_equals_brute_force_and_keeps_occupancy():
     assert not cut.occupancy[6, 4, 5] and solid.occupancy.sum() == len(ijk)  # the input is not modified
 
 
-def test_simulate_applies_the_solid_edit_before_the_probes():
+def test_simulate_with_hole_runs_the_probes_against_the_cut_solid():
     gaussians = capture_like()
     cfg = dataclasses.replace(CFG, steps=5)
-    seen = []
-
-    def edit(solid):
-        seen.append(len(solid.points))
-        return cut_cylinder(solid, HOLE)
-
-    res = simulate_gaussians(gaussians, cfg, progress=False, solid_edit=edit)
+    res = simulate_with_hole(gaussians, cfg, HOLE)
     plain = gaussians_to_solid(gaussians, SolidifyConfig(spacing=SPACING, opacity_threshold=TAU),
                                SceneTransform("+y", 1.0))
-    assert seen == [len(plain.points)]
-    assert lattice_keys(res.solid, SPACING) == lattice_keys(cut_cylinder(plain, HOLE).points, SPACING)
+    cut = lattice_keys(cut_cylinder(plain, HOLE).points, SPACING)
+    assert len(cut) < len(plain.points)
+    assert lattice_keys(res.solid, SPACING) == cut
 
 
 # ---- the benchmark command ------------------------------------------------------------------------------------

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from nbv.physics import solidify
+from nbv.physics import scene_frame, solidify
 from nbv.physics.scene_frame import SceneTransform
 from nbv.physics.solidify import SolidifyConfig, estimate_lattice_points, estimate_work, gaussians_to_solid
 from recon.gaussians import GaussianSet
@@ -48,7 +48,7 @@ def test_work_count_equals_the_kernels_boxes():
     for cfg in (SolidifyConfig(spacing=0.05), SolidifyConfig(spacing=0.03, bounds=((-0.2, -0.3, -1), (0.3, 1, 0.1))),
                 SolidifyConfig(spacing=0.04, thin=False)):
         tr = SceneTransform("z", 1.3)
-        means, covs, opacities, _ = solidify.gaussian_arrays_in_sim(g, tr)
+        means, covs, opacities, _ = scene_frame.gaussian_arrays_in_sim(g, tr)
         lattice_min, dims_f = solidify._lattice_geometry(means, covs, cfg, opacities)
         dims = dims_f.astype(np.int64)
         first, last = solidify._box_index_ranges(means, covs, lattice_min, dims, cfg)
@@ -63,7 +63,7 @@ def test_work_count_equals_the_kernels_boxes():
 
 def _passes_the_guards(g: GaussianSet, cfg: SolidifyConfig, tr: SceneTransform) -> None:
     """The old fixed guard (64 work items per lattice point) refuses g; the time and memory guards let it run."""
-    means, covs, opacities, _ = solidify.gaussian_arrays_in_sim(g, tr)
+    means, covs, opacities, _ = scene_frame.gaussian_arrays_in_sim(g, tr)
     lattice_min, dims, points = solidify._lattice_or_raise(means, covs, cfg, tr, opacities)  # raises when refused
     work = solidify._work_sizes(means, covs, lattice_min, dims, cfg).sum()
     assert 64 * points < work < cfg.max_work / 100
@@ -184,13 +184,13 @@ def test_the_empty_reference_reuses_one_accumulator(monkeypatch):
     """The empty-scene probes build no accumulator of their own when given the probe run's (which tracked |P_g|), and
     one for all probes otherwise; the means are the same bits either way."""
     from nbv import physics
-    from nbv.physics import PhysicsConfig, aggregate, empty_scene_probes, probe_domains_union
+    from nbv.physics import PhysicsConfig, ProbePlan, aggregate, empty_scene_probes
 
     g = _sphere_set()
     cfg = PhysicsConfig(particle_radius=0.08, steps=6, dt=0.004, directions=("-x", "+z"), scale=1.0)
     tr = physics.scene_transform(g, cfg)
-    solid = gaussians_to_solid(g, SolidifyConfig(spacing=0.16), tr).points
-    means, _, _, radii = solidify.gaussian_arrays_in_sim(g, tr)
+    plan = ProbePlan.of(gaussians_to_solid(g, SolidifyConfig(spacing=0.16), tr).points, cfg)
+    means, _, _, radii = scene_frame.gaussian_arrays_in_sim(g, tr)
     reach = 8.0 * np.asarray(radii, np.float64)  # reaching the slabs, 2 spacings from the solid
     built = []
     original = aggregate.GaussianAccumulator.__init__
@@ -200,12 +200,12 @@ def test_the_empty_reference_reuses_one_accumulator(monkeypatch):
         original(self, *args, **kwargs)
 
     monkeypatch.setattr(aggregate.GaussianAccumulator, "__init__", counting)
-    fresh, _ = empty_scene_probes(solid, means, reach, cfg, progress=False)
+    fresh, _ = empty_scene_probes(plan, means, reach, cfg, progress=False)
     assert built == [False]  # one for both probes
-    tracked = aggregate.GaussianAccumulator(means, reach, *probe_domains_union(solid, cfg, 0.16),
+    tracked = aggregate.GaussianAccumulator(means, reach, *plan.bounds,
                                             track_distinct=True, max_fluid=10)
     tracked.add(means[:5], np.ones(5), np.arange(5))
-    reused, _ = empty_scene_probes(solid, means, reach, cfg, progress=False, accumulator=tracked)
+    reused, _ = empty_scene_probes(plan, means, reach, cfg, progress=False, accumulator=tracked)
     assert built == [False, True]  # the tracked one, built here, and nothing more
     assert not tracked.track_distinct and tracked.distinct_storage == "none"
     np.testing.assert_array_equal(reused, fresh)

@@ -1,4 +1,4 @@
-"""The one simulation-frame value of the Gaussians (nbv.physics.solidify.SimGaussians): equal to the conversion
+"""The one simulation-frame value of the Gaussians (nbv.physics.scene_frame.SimGaussians): equal to the conversion
 it replaces, Sigma^-1 Sigma = I, reused as given, refused with another transform, and built once per run."""
 
 import math
@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from nbv.physics import PhysicsConfig, simulate_gaussians, solidify
-from nbv.physics.scene_frame import SceneTransform
-from nbv.physics.solidify import SimGaussians, as_sim, gaussian_arrays_in_sim
+from nbv.physics import PhysicsConfig, scene_frame, simulate_gaussians, solidify
+from nbv.physics.scene_frame import SceneTransform, SimGaussians, as_sim, gaussian_arrays_in_sim
 from recon.gaussians import GaussianSet
 
 
@@ -46,13 +45,13 @@ def test_solid_from_the_value_equals_the_solid_from_the_set():
 
 def test_a_run_converts_its_gaussians_once(monkeypatch):
     calls = []
-    original = solidify.gaussian_arrays_in_sim
+    original = scene_frame.gaussian_arrays_in_sim
 
     def counted(gaussians, transform):
         calls.append(gaussians.num)
         return original(gaussians, transform)
 
-    monkeypatch.setattr(solidify, "gaussian_arrays_in_sim", counted)
+    monkeypatch.setattr(scene_frame, "gaussian_arrays_in_sim", counted)
     cfg = PhysicsConfig(particle_radius=0.08, steps=5, dt=0.004, empty_reference=False, directions=("-x",))
     result = simulate_gaussians(shell(), cfg, progress=False)
     assert len(result.solid) > 0

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from nbv.physics import solidify
+from nbv.physics.scene_frame import gaussian_arrays_in_sim, inverse_covariances_in_sim
 from nbv.physics.solidify import (
     MAX_ALPHA,
     SceneTransform,
@@ -19,9 +20,7 @@ from nbv.physics.solidify import (
     edge_log_transmittance_reference,
     estimate_lattice_points,
     fill_enclosed,
-    gaussian_arrays_in_sim,
     gaussians_to_solid,
-    inverse_covariances_in_sim,
     lattice_cut_edges,
     lattice_edge_log_transmittance,
     lattice_log_transmittance,

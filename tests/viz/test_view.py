@@ -112,11 +112,12 @@ def test_trajectory_frames_are_what_the_probe_accumulated(scene):
 
 def test_record_size_is_f_t_16_bytes(scene):
     from nbv.physics import PhysicsConfig
-    from nbv.physics.trajectory import RecordConfig, check_record_size, probe_fluid_counts
+    from nbv.physics.plan import ProbePlan
+    from nbv.physics.trajectory import RecordConfig, check_record_size
 
     data = load_view_data(scene.h5)
     cfg = PhysicsConfig.from_dict(data.config)
-    counts = probe_fluid_counts(data.solid, ["-x", "+z"], cfg.probe_config(), 2 * cfg.particle_radius)
+    counts = ProbePlan.of(data.solid, cfg).fluid_counts(["-x", "+z"])
     assert counts["-x"] == load_trajectory(data, "-x").x.shape[1]  # the estimate is the probe's own count
     record = RecordConfig(("-x", "+z"), every=EVERY)
     assert check_record_size(counts, 40, record) == (counts["-x"] + counts["+z"]) * 8 * 16

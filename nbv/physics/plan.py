@@ -1,0 +1,153 @@
+"""The plan of a probe run (paper Sec. 3.2): what every step of :func:`nbv.physics.simulate_gaussians` reads, derived
+once.
+
+No paper equation is implemented here; this gathers what the steps of a probe run share, so that none of them
+derives it again (a step that recomputes what an earlier one derived is a second owner waiting to disagree):
+
+- :class:`RunFrame`, before any solid exists: the scene -> simulation transform (up and scale), the Gaussians that
+  the crop keeps, those Gaussians in simulation metres (:class:`nbv.physics.scene_frame.SimGaussians`) and their
+  reach n r_g (Eq. 2). The memory bound, the solidification, the accumulator and the result read it.
+- :class:`ProbePlan`, once the solid exists: one :class:`fluidsim.probes.ProbeSetup` per probe (slab, domain,
+  inflow; Fig. 3), laid out once. The exact memory check, the time-step check, the recording check, the
+  accumulator's bounds, the probes and the empty scene read it.
+
+Example:
+    >>> frame = RunFrame.of(gaussians, PhysicsConfig.quick())  # doctest: +SKIP
+    >>> plan = ProbePlan.of(frame.solidify().points, frame.config)  # doctest: +SKIP
+    >>> plan.setups["-x"].domain_min  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from fluidsim.probes import ProbeSetup, probe_setups
+from fluidsim.scene import lattice_in_box
+from nbv.physics.config import PhysicsConfig, kept_gaussians, scene_transform
+from nbv.physics.result import PhysicsResult, gaussians_sha256
+from nbv.physics.scene_frame import SceneTransform, SimGaussians, gaussian_arrays_in_sim
+from nbv.physics.solidify import Solid, gaussians_to_solid
+
+
+@dataclass(frozen=True)
+class RunFrame:
+    """A probe run's Gaussians in the simulation frame (built once, before the solid).
+
+    Attributes:
+        config: the probe settings.
+        gaussians: every Gaussian of the run, scene units (checked, on the CPU).
+        transform: scene -> simulation metres, Y-up (``config.scale`` "auto" resolved).
+        kept: [G] bool, the Gaussians whose centres lie in ``config.crop`` (None: no crop, all are simulated).
+        sim: the simulated Gaussians (the kept ones) in simulation metres.
+        reach: [K] float64 n r_g of the simulated Gaussians, m (Eq. 2).
+        digest: SHA-256 of every Gaussian (:func:`nbv.physics.result.gaussians_sha256`).
+    """
+
+    config: PhysicsConfig
+    gaussians: object
+    transform: SceneTransform
+    kept: np.ndarray | None
+    sim: SimGaussians
+    reach: np.ndarray
+    digest: str
+
+    @classmethod
+    def of(cls, gaussians, config: PhysicsConfig, source: str = "") -> RunFrame:
+        """Check ``gaussians`` (a ``recon.gaussians.GaussianSet``, scene units), resolve the frame and the crop, and
+        convert the kept Gaussians once.
+
+        Raises:
+            ValueError: bad Gaussians (naming ``source``), a crop that keeps none, or no extent for ``scale`` "auto".
+        """
+        gaussians = gaussians.detach().to("cpu").check(source or "Gaussians")
+        kept = kept_gaussians(gaussians, config)
+        transform = scene_transform(gaussians, config, kept=kept)
+        simulated = gaussians if kept is None else gaussians.subset(torch.from_numpy(np.nonzero(kept)[0]))
+        sim = SimGaussians.of(simulated, transform)
+        reach = np.ascontiguousarray(config.n_radius * np.asarray(sim.radii, np.float64))
+        return cls(config, gaussians, transform, kept, sim, reach, gaussians_sha256(gaussians))
+
+    @property
+    def means(self) -> np.ndarray:
+        """[K, 3] float64 centres of the simulated Gaussians, m."""
+        return np.ascontiguousarray(self.sim.means, np.float64)
+
+    @property
+    def covariances(self) -> np.ndarray:
+        """[K, 3, 3] float64 covariances of the simulated Gaussians, m^2."""
+        return np.ascontiguousarray(self.sim.covariances, np.float64)
+
+    def solidify(self) -> Solid:
+        """The solid of the simulated Gaussians (:func:`nbv.physics.solidify.gaussians_to_solid` under
+        ``config.solidify_config()``)."""
+        return gaussians_to_solid(self.sim, self.config.solidify_config(), self.transform)
+
+    def expand(self, result: PhysicsResult) -> PhysicsResult:
+        """A :class:`nbv.physics.PhysicsResult` on the simulated Gaussians -> one row per Gaussian of the run (the
+        cropped-out ones: D_g = 0, no samples; ``kept`` recorded), with the digest of every Gaussian."""
+        if self.kept is not None:
+            result = expand_to_all(result, self.gaussians, self.kept, self.config)
+        return replace(result, gaussians_sha256=self.digest)
+
+
+def expand_to_all(part: PhysicsResult, gaussians, kept: np.ndarray, config: PhysicsConfig) -> PhysicsResult:
+    """A result on the kept Gaussians -> one row per Gaussian of ``gaussians`` (the dropped ones: D_g = 0, no
+    samples), with ``kept`` recorded and ``config`` (the crop) restored. D-bar stays the kept Gaussians' own."""
+    g = len(kept)
+
+    def full(a: np.ndarray | None, axis: int = 0) -> np.ndarray | None:
+        if a is None:
+            return None
+        shape = list(a.shape)
+        shape[axis] = g
+        out = np.zeros(shape, a.dtype)
+        index = [slice(None)] * a.ndim
+        index[axis] = kept
+        out[tuple(index)] = a
+        return out
+
+    means, covs, _, radii = gaussian_arrays_in_sim(gaussians, part.transform)
+    return replace(
+        part, per_probe=full(part.per_probe, 1), per_probe_counts=full(part.per_probe_counts, 1),
+        per_probe_distinct=full(part.per_probe_distinct, 1), divergence=full(part.divergence),
+        divergence_mean=full(part.divergence_mean), empty_per_probe=full(part.empty_per_probe, 1),
+        means=np.ascontiguousarray(means), covariances=np.ascontiguousarray(covs),
+        reach=np.ascontiguousarray(config.n_radius * radii), config=config, kept=kept.copy())
+
+
+@dataclass(frozen=True)
+class ProbePlan:
+    """The probes of a run laid out around its solid, once.
+
+    Attributes:
+        setups: {direction: ProbeSetup} in the order run (``config.directions``).
+        spacing: particle spacing 2 r, m.
+    """
+
+    setups: dict[str, ProbeSetup]
+    spacing: float
+
+    @classmethod
+    def of(cls, solid_points: np.ndarray, config: PhysicsConfig) -> ProbePlan:
+        """One setup per probe of ``config`` around ``solid_points`` [M, 3] (sim metres)."""
+        spacing = 2.0 * config.particle_radius
+        return cls(probe_setups(solid_points, config.probe_config(), spacing, config.directions), spacing)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min [3], max [3]) m: the box around every probe's domain (the accumulator's lists cover it)."""
+        return probe_domains_union(self.setups)
+
+    def fluid_counts(self, directions) -> dict[str, int]:
+        """F per probe of ``directions``: the fluid particles of its slab, before running."""
+        return {d: int(len(lattice_in_box(self.setups[d].fluid_min, self.setups[d].fluid_max, self.spacing)))
+                for d in directions}
+
+
+def probe_domains_union(setups: dict[str, ProbeSetup]) -> tuple[np.ndarray, np.ndarray]:
+    """(min [3], max [3]) m: the box around the domains of ``setups``."""
+    return (np.min([np.asarray(s.domain_min, np.float64) for s in setups.values()], axis=0),
+            np.max([np.asarray(s.domain_max, np.float64) for s in setups.values()], axis=0))
