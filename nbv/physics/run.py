@@ -40,7 +40,7 @@ from fluidsim.simulation import check_time_step
 from fluidsim.simulation import run as run_solver
 from fluidsim.sources import wall_particles
 from nbv import scores
-from nbv.physics.aggregate import GaussianAccumulator
+from nbv.physics.aggregate import GaussianAccumulator, GaussianLists
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.leaks import LeakCounter
 from nbv.physics.memory import check_memory, check_memory_bound
@@ -82,13 +82,14 @@ def _progress_bar(direction: str, steps: int, enabled: bool):
 
 
 class _ProbeRecorder:
-    """Callbacks for ``fluidsim.run_probes``: one accumulator for all the probes (retargeted), timings and a progress
-    bar."""
+    """Callbacks for ``fluidsim.run_probes``: the Gaussians' cell lists built once (over the union of the probes'
+    domains), fresh sums per probe, timings and a progress bar."""
 
     def __init__(self, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig, progress: bool,
                  label: str = "", grid_bounds: tuple[np.ndarray, np.ndarray] | None = None, solid=None,
-                 record=None):
+                 record=None, lists: GaussianLists | None = None):
         self.centers, self.reach, self.config, self.progress, self.label = centers, reach, config, progress, label
+        self.lists = lists
         # fluid particles deep inside the (filled) solid lattice, counted at every step (nbv.physics.leaks)
         self.leak_counter = None if solid is None else LeakCounter(solid.occupancy, solid.lattice_min, solid.spacing)
         # the fluid of the recorded probes every k steps (nbv.physics.trajectory; None: nothing recorded)
@@ -110,11 +111,12 @@ class _ProbeRecorder:
 
     def start(self, direction: str, solver: DFSPHSolver) -> None:
         t0 = time.perf_counter()
-        # The lists cover the union of the probes' domains, so every probe reuses them (only the sums are zeroed).
-        if self.acc is None or not self.acc.retarget(solver.domain_min, solver.domain_max):
-            self.acc = GaussianAccumulator(self.centers, self.reach, solver.domain_min, solver.domain_max,
-                                           track_distinct=self.config.track_distinct,
-                                           max_fluid=solver.fluid.capacity, grid_bounds=self.grid_bounds)
+        # The lists cover the union of the probes' domains, so every probe reuses them; its sums are its own.
+        if self.lists is None:
+            self.lists = GaussianLists(self.centers, self.reach, *self.grid_bounds)
+        self.acc = None  # the last probe's sums go before this one's are allocated
+        self.acc = GaussianAccumulator(self.lists, solver.domain_min, solver.domain_max,
+                                       track_distinct=self.config.track_distinct, max_fluid=solver.fluid.capacity)
         self.build_s += time.perf_counter() - t0
         self.domains[direction] = (solver.domain_min.copy(), solver.domain_max.copy())
         self.current = direction
@@ -153,6 +155,7 @@ class _ProbeRecorder:
         self.counts[direction] = np.asarray(self.acc.counts, np.int64)
         if self.config.track_distinct:
             self.distinct[direction] = np.asarray(self.acc.distinct_counts, np.int64)
+        self.acc = None  # read: its sums go (the lists stay for the next probe)
         if self.leak_counter is not None:
             self.leaks[direction] = self.leak_counter.finish(solver)
         self.histories[direction] = history
@@ -178,7 +181,7 @@ def _run_with(recorder: _ProbeRecorder, solid: np.ndarray, plan: ProbePlan, conf
 
 def empty_scene_probes(plan: ProbePlan, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig,
                        progress: bool = True, cache: dict | None = None,
-                       accumulator=None) -> tuple[np.ndarray, float]:
+                       lists: GaussianLists | None = None) -> tuple[np.ndarray, float]:
     """D_g^(IC) of the empty scene: each probe's slab in its walled domain with no solid, onto the same Gaussians.
 
     Args:
@@ -187,9 +190,8 @@ def empty_scene_probes(plan: ProbePlan, centers: np.ndarray, reach: np.ndarray, 
         config: the probe settings.
         progress: show a bar per probe.
         cache: a dict to reuse results within a process, keyed by domain, settings and Gaussians.
-        accumulator: a :class:`nbv.physics.aggregate.GaussianAccumulator` of these Gaussians to reuse (the probe run's:
-            its lists cover the same domains; its distinct counts are dropped). None: one is built over the union of
-            the probes' domains, and every probe reuses it.
+        lists: the cell lists of these Gaussians (:class:`nbv.physics.aggregate.GaussianLists`; the probe run's,
+            which cover the same domains). None: built over the union of the probes' domains, for every probe.
     Returns:
         ([P, G] float64 per-probe means, seconds spent).
     """
@@ -200,10 +202,7 @@ def empty_scene_probes(plan: ProbePlan, centers: np.ndarray, reach: np.ndarray, 
     key_g = hash((centers.tobytes(), reach.tobytes()))
     out = []
     rec = _ProbeRecorder(centers, reach, replace(config, track_distinct=False), progress, label="empty ",
-                         grid_bounds=plan.bounds)
-    if accumulator is not None:
-        accumulator.drop_distinct()
-        rec.acc = accumulator
+                         grid_bounds=plan.bounds, lists=lists)
     for d in config.directions:
         setup = plan.setups[d]
         key = (setup, key_cfg, key_g)
@@ -331,7 +330,7 @@ def _probe(frame: RunFrame, solid: Solid, plan: ProbePlan, progress: bool, sourc
         return result
     try:
         empty, empty_s = empty_scene_probes(plan, means, reach, config, progress, _EMPTY_CACHE,
-                                            accumulator=recorder.acc)
+                                            lists=recorder.lists)
     except SimulationDiverged as exc:
         probe = getattr(exc, "probe", "empty-scene")
         failure = {"probe": probe, "step": int(exc.step), "reason": exc.reason}

@@ -12,16 +12,10 @@ import pytest
 from fluidsim import DFSPHSolver, SolverConfig
 from fluidsim.scene import lattice_in_box
 from fluidsim.sources import sphere_particles, wall_particles
-from nbv.physics import aggregate
-from nbv.physics.aggregate import (
-    _ENTRY_SLACK,
-    ENTRIES_PER_GAUSSIAN,
-    GaussianAccumulator,
-    accumulate_reference,
-    plan_levels,
-    within_reach_reference,
-)
+from nbv.physics import aggregate, aggregate_distinct, aggregate_levels
+from nbv.physics.aggregate import GaussianAccumulator, GaussianLists, accumulate_reference, within_reach_reference
 from nbv.physics.aggregate_kernels import VALUE_LIMIT, VALUE_SCALE
+from nbv.physics.aggregate_levels import _ENTRY_SLACK, ENTRIES_PER_GAUSSIAN, plan_levels
 
 from helpers.paths import REPO, TESTS
 
@@ -84,7 +78,7 @@ def check_against_twin(acc: GaussianAccumulator, centers, reach, steps, lo=DOMAI
 def test_accumulator_equals_brute_force_twin():
     centers, reach = random_gaussians(150, seed=0)
     rng = np.random.default_rng(1)
-    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+    acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
     sums, counts = np.zeros(len(centers)), np.zeros(len(centers), np.int64)
     steps = []
     for _ in range(3):
@@ -114,7 +108,7 @@ def test_distinct_counts_are_exact(budget, storage):
     """Bit matrix (large budget), bit matrix grown then moved to the hash set (1000 B), hash set from the start."""
     centers, reach = random_gaussians(100, seed=2)
     rng = np.random.default_rng(3)
-    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True,
+    acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True,
                               distinct_budget_bytes=budget)
     steps = []
     for pool in (40, 40, 300, 300):      # small ids first (the storage grows), repeated visits
@@ -134,9 +128,8 @@ def test_distinct_particles_that_leave_and_return_count_once(monkeypatch):
     """A visit is recorded on its first step only; a particle that leaves a Gaussian and comes back, or steps outside
     the domain in between, must not count twice, and one that is never recorded near g must count. The hash set
     starts at 16 slots, so it grows (and a full set refuses inserts and the batch is recorded again) many times."""
-    import nbv.physics.aggregate as aggregate
 
-    monkeypatch.setattr(aggregate, "_HASH_MIN_SLOTS", 16)
+    monkeypatch.setattr(aggregate_distinct, "_HASH_MIN_SLOTS", 16)
     centers = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.9, 0.9, 0.9]])
     reach = np.array([0.2, 0.2, 0.05])
     ids = np.arange(4)
@@ -146,7 +139,7 @@ def test_distinct_particles_that_leave_and_return_count_once(monkeypatch):
             np.array([[0.0, 0.05, 0], [0.0, 0.1, 0], [0.0, 0.0, 0.05], [0.6, 0.6, 0.6]])]
     steps = [(p, np.ones(4), ids) for p in path]
     for budget in (512 * 2**20, 0):
-        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=4,
+        acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=4,
                                   distinct_budget_bytes=budget)
         for p, v, i in steps:
             acc.add(p, v, i)
@@ -156,12 +149,12 @@ def test_distinct_particles_that_leave_and_return_count_once(monkeypatch):
     # many pairs into the 16-slot set: growth with refused inserts, pairs never lost nor doubled
     many, many_reach = random_gaussians(300, seed=11)
     rng = np.random.default_rng(12)
-    acc = GaussianAccumulator(many, many_reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True,
+    acc = GaussianAccumulator.build(many, many_reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True,
                               distinct_budget_bytes=0)
     steps = [random_step(rng, 500, 600) for _ in range(3)]
     for p, v, i in steps:
         acc.add(p, v, i)
-    assert acc.distinct_storage == "hash" and acc._hashes.shape[0] > 1024
+    assert acc.distinct_storage == "hash" and acc.distinct.pairs.hashes.shape[0] > 1024
     check_against_twin(acc, many, many_reach, steps)
 
 
@@ -182,8 +175,8 @@ def test_add_from_solver_equals_numpy_path():
     centers = np.concatenate([rng.normal(0.0, 0.2, (60, 3)), [[0.5, 0.0, 0.0]]])
     reach = 3.0 * np.exp(rng.uniform(np.log(0.01), np.log(0.08), len(centers)))
     args = (centers, reach, solver.domain_min, solver.domain_max)
-    fast = GaussianAccumulator(*args, track_distinct=True, max_fluid=solver.fluid.capacity)
-    ref = GaussianAccumulator(*args, track_distinct=True)
+    fast = GaussianAccumulator.build(*args, track_distinct=True, max_fluid=solver.fluid.capacity)
+    ref = GaussianAccumulator.build(*args, track_distinct=True)
     counts = np.zeros(len(centers), np.int64)
     steps = []
     for _ in range(12):
@@ -206,14 +199,14 @@ def test_add_from_solver_equals_numpy_path():
 def test_bad_inputs_name_the_argument():
     centers, reach = random_gaussians(5, seed=5)
     with pytest.raises(ValueError, match="reach"):
-        GaussianAccumulator(centers, reach[:3], DOMAIN_MIN, DOMAIN_MAX)
+        GaussianAccumulator.build(centers, reach[:3], DOMAIN_MIN, DOMAIN_MAX)
     with pytest.raises(ValueError, match="reach"):
-        GaussianAccumulator(centers, -reach, DOMAIN_MIN, DOMAIN_MAX)
+        GaussianAccumulator.build(centers, -reach, DOMAIN_MIN, DOMAIN_MAX)
     with pytest.raises(ValueError, match="domain_min"):
-        GaussianAccumulator(centers, reach, DOMAIN_MAX, DOMAIN_MIN)
+        GaussianAccumulator.build(centers, reach, DOMAIN_MAX, DOMAIN_MIN)
     with pytest.raises(ValueError, match="centers"):
-        GaussianAccumulator(np.zeros((0, 3)), np.zeros(0), DOMAIN_MIN, DOMAIN_MAX)
-    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True)
+        GaussianAccumulator.build(np.zeros((0, 3)), np.zeros(0), DOMAIN_MIN, DOMAIN_MAX)
+    acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True)
     with pytest.raises(ValueError, match="ids"):
         acc.add(np.zeros((2, 3)), np.zeros(2))
     with pytest.raises(ValueError, match="values"):
@@ -223,7 +216,7 @@ def test_bad_inputs_name_the_argument():
     with pytest.raises(ValueError, match="densely"):
         acc.add(np.zeros((1, 3)), np.zeros(1), np.array([2**30]))
     with pytest.raises(ValueError, match="track_distinct"):
-        _ = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX).distinct_counts
+        _ = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX).distinct_counts
 
 
 def test_degenerate_sets_match_the_twin():
@@ -233,50 +226,43 @@ def test_degenerate_sets_match_the_twin():
     cases = [(np.zeros((1, 3)), np.array([0.7])), (rng.uniform(-1, 1, (4, 3)), np.zeros(4)),
              (np.array([[5.0, 0.0, 0.0], [0.0, -4.0, 0.0]]), np.array([1.0, 3.5]))]
     for centers, reach in cases:
-        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+        acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
         acc.add(pos, val)
         check_against_twin(acc, centers, reach, [(pos, val)])
     assert acc.counts[1] > 0 and acc.counts[0] == 0       # the last case: one reaches in, one does not
     assert acc.num_kept == 1                               # and the other one is not even kept
 
 
-def test_retarget_reuses_the_lists_for_a_domain_within_the_bounds():
-    """The next probe's domain: lists kept when the levels were built for it, sums zeroed, new domain bounds
-    applied; refused when the new domain reaches beyond the bounds the levels were built for."""
+def test_probes_share_the_lists_and_get_fresh_sums():
+    """The lists are built once over a box (the union of a run's probe domains); every probe's accumulator on them,
+    for any domain within the box, equals the twin, with sums and distinct records of its own. A domain beyond the
+    box is refused."""
     rng = np.random.default_rng(5)
     centers = rng.uniform(-0.5, 0.5, (80, 3))
     reach = rng.uniform(0.05, 0.2, 80)
-    acc = GaussianAccumulator(centers, reach, [-2.0, -2.0, -2.0], [2.0, 2.0, 2.0], track_distinct=True, max_fluid=500)
+    lists = GaussianLists(centers, reach, [-2.0] * 3, [2.0] * 3)
+    built = lists.lists.to_numpy().copy()
     pos, val, ids = random_step(rng, 300, 500)
     pos *= 0.5
-    acc.add(pos, val, ids)
-    assert acc.counts.sum() > 0
-    lists = acc._lists.to_numpy().copy()
-    new_min, new_max = np.full(3, -0.72), np.full(3, 0.72)
-    assert acc.retarget(new_min, new_max)
-    assert not acc.counts.any() and not acc.sums.any() and not acc.distinct_counts.any()
-    assert np.array_equal(acc._lists.to_numpy(), lists)
-    acc.add(pos, val, ids)
-    fresh = GaussianAccumulator(centers, reach, new_min, new_max, track_distinct=True, max_fluid=500)
-    fresh.add(pos, val, ids)
-    check_against_twin(acc, centers, reach, [(pos, val, ids)], new_min, new_max)
-    check_against_twin(fresh, centers, reach, [(pos, val, ids)], new_min, new_max)
-    # a domain beyond the bounds is refused and nothing changes; any domain within them is exact
-    small = GaussianAccumulator(centers, reach, [-0.3] * 3, [0.3] * 3)
-    assert not small.retarget([-2.0] * 3, [2.0] * 3)
-    assert small.domain_max.tolist() == [0.3] * 3
-    assert acc.retarget([-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
-    acc.add(pos, val, ids)
-    check_against_twin(acc, centers, reach, [(pos, val, ids)], [-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])
-    # grid_bounds: levels built for a union of domains serve each of them exactly
-    union = GaussianAccumulator(centers, reach, [-0.3] * 3, [0.3] * 3, grid_bounds=([-2.0] * 3, [2.0] * 3))
-    union.add(pos, val)
-    check_against_twin(union, centers, reach, [(pos, val)], [-0.3] * 3, [0.3] * 3)
-    assert union.retarget([-2.0] * 3, [2.0] * 3)
-    union.add(pos, val)
-    check_against_twin(union, centers, reach, [(pos, val)], [-2.0] * 3, [2.0] * 3)
+    first = GaussianAccumulator(lists, [-2.0] * 3, [2.0] * 3, track_distinct=True, max_fluid=500)
+    first.add(pos, val, ids)
+    check_against_twin(first, centers, reach, [(pos, val, ids)], [-2.0] * 3, [2.0] * 3)
+    for lo, hi in ((np.full(3, -0.72), np.full(3, 0.72)), ([-0.1, -2.0, -2.0], [2.0, 2.0, 2.0])):
+        acc = GaussianAccumulator(lists, lo, hi, track_distinct=True, max_fluid=500)
+        assert not acc.counts.any() and not acc.sums.any() and not acc.distinct_counts.any()
+        acc.add(pos, val, ids)
+        check_against_twin(acc, centers, reach, [(pos, val, ids)], lo, hi)
+        fresh = GaussianAccumulator.build(centers, reach, lo, hi, track_distinct=True, max_fluid=500)
+        fresh.add(pos, val, ids)
+        np.testing.assert_array_equal(acc.sums, fresh.sums)
+        np.testing.assert_array_equal(acc.distinct_counts, fresh.distinct_counts)
+    assert np.array_equal(lists.lists.to_numpy(), built)  # the lists are never rebuilt nor changed
+    check_against_twin(first, centers, reach, [(pos, val, ids)], [-2.0] * 3, [2.0] * 3)  # nor the first probe's
+    small = GaussianLists(centers, reach, [-0.3] * 3, [0.3] * 3)
+    with pytest.raises(ValueError, match="beyond the bounds"):
+        GaussianAccumulator(small, [-2.0] * 3, [2.0] * 3)
     with pytest.raises(ValueError, match="domain_min"):
-        acc.retarget([0.0, 0.0, 0.0], [0.0, 1.0, 1.0])
+        GaussianAccumulator(lists, [0.0, 0.0, 0.0], [0.0, 1.0, 1.0])
 
 
 @pytest.mark.parametrize("rows, private, serial_below", [(1, False, 0), (1, True, 10**6), (3, True, 10**6),
@@ -292,7 +278,7 @@ def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, priva
     rng = np.random.default_rng(6)
     steps = [random_step(rng, 300, 700) for _ in range(3)]
     for track in (False, True):  # the plain kernel, and the one that also records particle ids
-        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=700)
+        acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=700)
         acc.serial_below = serial_below
         assert acc.rows == rows and acc._acc.shape == (rows, acc.num_kept + 1, 2)
         for pos, val, ids in steps:
@@ -310,10 +296,10 @@ def test_staged_steps_equal_step_by_step_accumulation(monkeypatch, interleave_ab
     centers = np.concatenate([rng.normal(0.0, 0.2, (80, 3)), [[0.5, 0.0, 0.0]]])
     reach = 3.0 * np.exp(rng.uniform(np.log(0.01), np.log(0.08), len(centers)))
     args = (centers, reach, solver.domain_min, solver.domain_max)
-    batched = GaussianAccumulator(*args, batch_steps=3, track_distinct=True, max_fluid=solver.fluid.capacity)
-    single = GaussianAccumulator(*args, batch_steps=1, track_distinct=True, max_fluid=solver.fluid.capacity)
+    batched = GaussianAccumulator.build(*args, batch_steps=3, track_distinct=True, max_fluid=solver.fluid.capacity)
+    single = GaussianAccumulator.build(*args, batch_steps=1, track_distinct=True, max_fluid=solver.fluid.capacity)
     assert batched.batch_steps == 3 and batched._interleave == (interleave_above == 0)
-    unstaged = GaussianAccumulator(*args, batch_steps=3, max_fluid=solver.fluid.capacity)
+    unstaged = GaussianAccumulator.build(*args, batch_steps=3, max_fluid=solver.fluid.capacity)
     batched.serial_below = 0  # stage this small probe too (probes under SERIAL_BELOW particles are not staged)
     for step in range(5):
         solver.step()
@@ -335,12 +321,12 @@ def test_staged_steps_equal_step_by_step_accumulation(monkeypatch, interleave_ab
     batched.reset()  # drops staged steps too
     assert batched._staged == 0 and batched.counts.sum() == 0
     with pytest.raises(ValueError, match="batch_steps"):
-        GaussianAccumulator(*args, batch_steps=0)
+        GaussianAccumulator.build(*args, batch_steps=0)
 
 
 def test_values_out_of_the_fixed_point_range_saturate_with_a_warning(caplog):
     centers, reach = np.zeros((1, 3)), np.array([0.5])
-    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+    acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
     assert acc.rows >= 1 and acc._acc.dtype == ti_i64()
     pos = np.array([[0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]])
     assert VALUE_LIMIT / VALUE_SCALE == 16384.0 < 1e9
@@ -429,12 +415,11 @@ def test_levels_of_a_set_with_reaches_spanning_100x_are_exact(monkeypatch, looku
     """Several levels (reach classes of a factor 2, merged by cost; a cheap lookup keeps more of them apart); every
     Gaussian listed exactly in the cells its sphere touches (brute force over the cells), the entries within their
     bound; sums, counts and distinct counts exactly the twin's."""
-    import nbv.physics.aggregate as aggregate
 
-    monkeypatch.setattr(aggregate, "LOOKUP_COST", lookup_cost)
+    monkeypatch.setattr(aggregate_levels, "LOOKUP_COST", lookup_cost)
     centers, reach = multi_level_set(3000, seed=21)
     rng = np.random.default_rng(22)
-    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=2000)
+    acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=2000)
     lv = acc.levels
     assert lv.num_levels >= levels and acc.num_kept == len(centers) and acc.covered_entries > 0
     assert np.array_equal(np.sort(lv.order), np.arange(len(centers)))      # each Gaussian in exactly one level
@@ -443,9 +428,9 @@ def test_levels_of_a_set_with_reaches_spanning_100x_are_exact(monkeypatch, looku
         members = reach[lv.order[lv.first[level]: lv.first[level + 1]]]
         assert members.max() / members.min() > 1.2                          # a class, not a single reach
     assert acc.list_entries <= lv.entries_bound <= ENTRIES_PER_GAUSSIAN * len(centers) + _ENTRY_SLACK
-    listed_reference(lv, centers, reach, acc._lists.to_numpy(), rng)
+    listed_reference(lv, centers, reach, acc.lists.lists.to_numpy(), rng)
     steps = near_surface_steps(rng, centers, 4, 1500, 2000)
-    plain = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)  # covered cells summed per cell, no test
+    plain = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX)  # covered cells summed per cell, no test
     for pos, val, ids in steps:
         acc.add(pos, val, ids)
         plain.add(pos, val)
@@ -457,14 +442,13 @@ def test_levels_of_a_set_with_reaches_spanning_100x_are_exact(monkeypatch, looku
 def test_gathered_and_scattered_lists_are_the_same(monkeypatch):
     """Each cell gathering its items, or each Gaussian scattering itself (chosen per level by cost): the same lists,
     item for item, and the brute-force ones."""
-    import nbv.physics.aggregate as aggregate
 
     centers, reach = multi_level_set(2000, seed=25)
     built = []
     for cost in (0.0, 1e12):  # always scatter, always gather
-        monkeypatch.setattr(aggregate, "_SCATTER_COST", cost)
-        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
-        built.append(acc._lists.to_numpy())
+        monkeypatch.setattr(aggregate_levels, "_SCATTER_COST", cost)
+        acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+        built.append(acc.lists.lists.to_numpy())
     assert np.array_equal(built[0], built[1])
     listed_reference(acc.levels, centers, reach, built[1], np.random.default_rng(26), sample=500)
 
@@ -475,9 +459,8 @@ def test_gaussians_on_level_and_cell_boundaries_are_exact(monkeypatch):
 
     Anchors (two Gaussians of every reach, just outside the domain's corners) clip every level's box to the
     domain, so that the grids do not move when the other centres are moved onto their cell faces."""
-    import nbv.physics.aggregate as aggregate
 
-    monkeypatch.setattr(aggregate, "LOOKUP_COST", 0.0)  # no merges: one level per reach class
+    monkeypatch.setattr(aggregate_levels, "LOOKUP_COST", 0.0)  # no merges: one level per reach class
     lo, hi = np.full(3, -0.5), np.full(3, 0.5)
     bounds = 0.4 / 2.0 ** np.arange(5)
     reach = np.concatenate([bounds, np.nextafter(bounds, 0), np.nextafter(bounds, 1)])
@@ -485,7 +468,7 @@ def test_gaussians_on_level_and_cell_boundaries_are_exact(monkeypatch):
     reach = np.concatenate([reach, reach, reach])
     rng = np.random.default_rng(31)
     free = rng.uniform(-0.45, 0.45, (len(reach) // 3, 3))
-    first = GaussianAccumulator(np.concatenate([free, anchors]), reach, lo, hi)
+    first = GaussianAccumulator.build(np.concatenate([free, anchors]), reach, lo, hi)
     lv = first.levels
     assert lv.num_levels >= 4 and (lv.table[:, 0:3] == lo).all()
     level_of = np.empty(len(reach), int)
@@ -494,7 +477,7 @@ def test_gaussians_on_level_and_cell_boundaries_are_exact(monkeypatch):
     cell = lv.table[level_of[: len(free)], 4][:, None]
     free = lo + np.round((free - lo) / cell) * cell          # onto the faces of their level's cells
     centers = np.concatenate([free, anchors])
-    acc = GaussianAccumulator(centers, reach, lo, hi)
+    acc = GaussianAccumulator.build(centers, reach, lo, hi)
     assert np.array_equal(acc.levels.table, lv.table)        # the same grids
     pts = [free + s * reach[: len(free), None] * e for e in np.eye(3) for s in (1.0, -1.0)]  # at the reach
     for f in (1 - 1e-15, 1 + 1e-15, 1 - 1e-12, 0.5):
@@ -515,7 +498,7 @@ def test_a_set_the_old_cell_lists_refused_fits_in_bounded_memory():
     centers = rng.uniform(-1.0, 1.0, (5000, 3))
     reach = np.full(5000, 0.004)
     reach[:40] = 2.0
-    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
+    acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
     assert acc.levels.num_levels == 2
     assert acc.list_entries <= ENTRIES_PER_GAUSSIAN * len(centers) + _ENTRY_SLACK
     pos, val, _ = random_step(rng, 2000, 2000)
@@ -547,7 +530,7 @@ centers, reach = multi_level_set(2000, seed=51)
 steps = near_surface_steps(np.random.default_rng(52), centers, 3, 6000, 8000)
 out = []
 for track, budget in ((True, 512 * 2**20), (True, 0), (False, 0)):
-    acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=8000,
+    acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=8000,
                               distinct_budget_bytes=budget)
     acc.serial_below = 0
     for p, v, i in steps:
@@ -582,7 +565,8 @@ def allocated_bytes(acc: GaussianAccumulator) -> int:
     import taichi as ti
 
     total = 0
-    for value in vars(acc).values():
+    parts = [acc, acc.lists] + ([] if acc.distinct is None else [acc.distinct, acc.distinct.pairs])
+    for value in (v for part in parts if part is not None for v in vars(part).values()):
         if isinstance(value, ti.lang._ndarray.Ndarray):
             itemsize = 8 if value.dtype in (ti.f64, ti.i64) else 4
             lanes = int(np.prod(getattr(value, "element_shape", ()) or (1,)))
@@ -594,7 +578,7 @@ def test_estimate_bytes_bounds_what_is_allocated():
     centers, reach = multi_level_set(20000, seed=61)
     rng = np.random.default_rng(62)
     for track, budget in ((False, 512 * 2**20), (True, 512 * 2**20), (True, 0)):
-        acc = GaussianAccumulator(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=3000,
+        acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=3000,
                                   distinct_budget_bytes=budget)
         for p, v, i in near_surface_steps(rng, centers, 3, 3000, 3000):
             acc.add(p, v, i)

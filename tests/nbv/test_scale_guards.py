@@ -180,11 +180,11 @@ def test_a_set_too_large_for_the_memory_stops_before_the_solid(monkeypatch):
                                             max_memory_gb=limit / 2**30), progress=False)
 
 
-def test_the_empty_reference_reuses_one_accumulator(monkeypatch):
-    """The empty-scene probes build no accumulator of their own when given the probe run's (which tracked |P_g|), and
-    one for all probes otherwise; the means are the same bits either way."""
+def test_the_empty_reference_reuses_the_lists(monkeypatch):
+    """The empty-scene probes build no lists of their own when given the probe run's, and one set for all probes
+    otherwise; each probe's sums are fresh, and the means are the same bits either way."""
     from nbv import physics
-    from nbv.physics import PhysicsConfig, ProbePlan, aggregate, empty_scene_probes
+    from nbv.physics import PhysicsConfig, ProbePlan, aggregate, empty_scene_probes, run
 
     g = _sphere_set()
     cfg = PhysicsConfig(particle_radius=0.08, steps=6, dt=0.004, directions=("-x", "+z"), scale=1.0)
@@ -192,22 +192,25 @@ def test_the_empty_reference_reuses_one_accumulator(monkeypatch):
     plan = ProbePlan.of(gaussians_to_solid(g, SolidifyConfig(spacing=0.16), tr).points, cfg)
     means, _, _, radii = scene_frame.gaussian_arrays_in_sim(g, tr)
     reach = 8.0 * np.asarray(radii, np.float64)  # reaching the slabs, 2 spacings from the solid
-    built = []
-    original = aggregate.GaussianAccumulator.__init__
+    built, sums = [], []
 
-    def counting(self, *args, **kwargs):
-        built.append(kwargs.get("track_distinct", False))
-        original(self, *args, **kwargs)
+    class CountedLists(aggregate.GaussianLists):
+        def __init__(self, *args, **kwargs):
+            built.append(args[0].shape)
+            super().__init__(*args, **kwargs)
 
-    monkeypatch.setattr(aggregate.GaussianAccumulator, "__init__", counting)
+    class CountedSums(aggregate.GaussianAccumulator):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            sums.append(self)
+
+    monkeypatch.setattr(run, "GaussianLists", CountedLists)
+    monkeypatch.setattr(run, "GaussianAccumulator", CountedSums)
     fresh, _ = empty_scene_probes(plan, means, reach, cfg, progress=False)
-    assert built == [False]  # one for both probes
-    tracked = aggregate.GaussianAccumulator(means, reach, *plan.bounds,
-                                            track_distinct=True, max_fluid=10)
-    tracked.add(means[:5], np.ones(5), np.arange(5))
-    reused, _ = empty_scene_probes(plan, means, reach, cfg, progress=False, accumulator=tracked)
-    assert built == [False, True]  # the tracked one, built here, and nothing more
-    assert not tracked.track_distinct and tracked.distinct_storage == "none"
+    assert len(built) == 1 and len(sums) == 2 and sums[0]._acc is not sums[1]._acc  # one set of lists, two sums
+    lists = aggregate.GaussianLists(means, reach, *plan.bounds)
+    reused, _ = empty_scene_probes(plan, means, reach, cfg, progress=False, lists=lists)
+    assert len(built) == 1 and len(sums) == 4 and all(s.lists is lists for s in sums[2:])
     np.testing.assert_array_equal(reused, fresh)
     assert (fresh != 0).any()
 
@@ -226,7 +229,7 @@ def test_interleaved_steps_of_different_sizes_equal_the_twin(monkeypatch, track)
     centers = rng.uniform(-0.5, 0.5, (400, 3))
     reach = np.exp(rng.uniform(np.log(0.02), np.log(0.4), 400))
     lo, hi = np.full(3, -0.6), np.full(3, 0.6)
-    acc = GaussianAccumulator(centers, reach, lo, hi, batch_steps=4, track_distinct=track, max_fluid=64)
+    acc = GaussianAccumulator.build(centers, reach, lo, hi, batch_steps=4, track_distinct=track, max_fluid=64)
     assert acc._interleave
     sums, counts = np.zeros(400), np.zeros(400, np.int64)
     seen = [set() for _ in range(400)]
