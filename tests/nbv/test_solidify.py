@@ -10,21 +10,19 @@ import pytest
 import torch
 
 from nbv.physics import solidify
+from nbv.physics.fill import connected_components, fill_enclosed, outside_region
 from nbv.physics.scene_frame import gaussian_arrays_in_sim, inverse_covariances_in_sim
 from nbv.physics.solidify import (
     MAX_ALPHA,
     SceneTransform,
     SolidifyConfig,
     combined_opacity_reference,
-    connected_components,
     edge_log_transmittance_reference,
     estimate_lattice_points,
-    fill_enclosed,
     gaussians_to_solid,
     lattice_cut_edges,
     lattice_edge_log_transmittance,
     lattice_log_transmittance,
-    outside_region,
 )
 from recon.gaussians import GaussianSet
 

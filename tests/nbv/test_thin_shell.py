@@ -12,13 +12,13 @@ from fluidsim.particles import FluidParticles
 from fluidsim.probes import DIRECTIONS, ProbeConfig, probe_setup
 from fluidsim.scene import lattice_in_box
 from nbv.physics import PhysicsConfig, load_result, save_result, simulate_gaussians
+from nbv.physics.fill import fill_enclosed
 from nbv.physics.leaks import LeakCounter, deep_inside_reference, deep_interior
 from nbv.physics.scene_frame import gaussian_arrays_in_sim
 from nbv.physics.solidify import (
     SceneTransform,
     SolidifyConfig,
     combined_opacity_reference,
-    fill_enclosed,
     gaussians_to_solid,
 )
 from recon.gaussians import GaussianSet
