@@ -34,8 +34,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     over = probe_overrides()
     add_config_options(g, config, ("particle_radius", "opacity_threshold", "fill_cavities"), over,
                        presets={"--quick": {"particle_radius": quick["particle_radius"]}})
-    g.add_argument("--fill-cavities", action="store_true",
-                   help="accepted for old scripts and does nothing: filling is the default (see --no-fill)")
     p.add_argument("--png", type=Path, default=None, help="write the three orthographic views here (.png)")
     p.add_argument("--json", type=Path, default=None, help="write the figures here (.json)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",

@@ -30,7 +30,7 @@ def lazy_exports(package: str, exports: Mapping[str, str],
     def __getattr__(name: str) -> Any:
         module = exports.get(name)
         if module is None:
-            try:  # a submodule reached as an attribute (``nbv.holes``) after ``import nbv``
+            try:  # a submodule reached as an attribute (``nbv.heatmap``) after ``import nbv``
                 return importlib.import_module(f"{package}.{name}")
             except ModuleNotFoundError as exc:
                 if exc.name != f"{package}.{name}":

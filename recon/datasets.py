@@ -53,27 +53,12 @@ import numpy as np
 import torch
 
 from .camera import Camera
-from .colmap import (  # noqa: F401 - re-exported: these readers lived here before recon.colmap
-    BINARY_FILES,
-    SUPPORTED_MODELS,
-    TEXT_FILES,
-    find_colmap_sparse,
-    quaternion_wxyz_to_matrix,
-    read_colmap_cameras,
-    read_colmap_cameras_binary,
-    read_colmap_images,
-    read_colmap_images_binary,
-    read_colmap_model,
-    read_colmap_points,
-    read_colmap_points_binary,
-)
+from .colmap import BINARY_FILES, TEXT_FILES, find_colmap_sparse, read_colmap_model
 
 logger = logging.getLogger(__name__)
 
 SPLITS = ("train", "val", "test")
 COLMAP_TEST_EVERY = 8
-COLMAP_FILES = TEXT_FILES  # the text model's file names (kept for callers of the text-only loader)
-COLMAP_MODELS = SUPPORTED_MODELS  # COLMAP camera model -> number of parameters, for the models read
 
 
 @dataclass
@@ -333,7 +318,7 @@ def _blender_intrinsics(json_path: Path, meta: dict, frame: dict, index: int) ->
     return keys
 
 
-def _blender_camera(json_path: Path, keys: dict, w2c: np.ndarray, where: str, name: str,
+def _blender_camera(keys: dict, w2c: np.ndarray, where: str, name: str,
                     image_width: int, image_height: int) -> Camera:
     """The camera of checked intrinsic ``keys``; the image size fills in a missing ``w`` / ``h``."""
     width = keys["w"] if keys["w"] is not None else image_width
@@ -416,7 +401,7 @@ def load_cameras(path, res: int | None = None) -> list[Camera]:
         w2c = _blender_pose(json_path, frame, i)
         width, height = _frame_size(json_path, frame, keys, i, res)
         name = Path(str(frame["file_path"])).stem if "file_path" in frame else f"view_{i:03d}"
-        cam = _blender_camera(json_path, keys, w2c, _frame_where(json_path, frame, i), name, width, height)
+        cam = _blender_camera(keys, w2c, _frame_where(json_path, frame, i), name, width, height)
         cams.append(cam if res is None or cam.width == res else cam.scaled(res / cam.width))
     return cams
 
@@ -432,7 +417,7 @@ def _load_blender_split(json_path: Path, background, downscale: float, resolutio
     views = []
     for i, path, keys, w2c in checked:
         def make_camera(w, h, i=i, path=path, keys=keys, w2c=w2c):
-            return _blender_camera(json_path, keys, w2c, f"{json_path}: frame {i}", path.stem, w, h)
+            return _blender_camera(keys, w2c, f"{json_path}: frame {i}", path.stem, w, h)
         views.append(_make_view(make_camera, path, background, downscale, resolution, cache))
     return views
 

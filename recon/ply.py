@@ -33,8 +33,7 @@ and an ``.npz`` is read member by member without ever unpickling.
 
 This is the low-level module: :func:`load_standard_ply` and :func:`load_npz` read one layout each. The loader
 to call is :func:`recon.formats.load_gaussians`, which recognises a file by its content (also the compressed
-.ply, .spz and .splat formats of :mod:`recon.compressed_ply`, :mod:`recon.spz` and :mod:`recon.dotsplat`);
-``recon.ply.load_gaussians`` is the same function under its old name.
+.ply, .spz and .splat formats of :mod:`recon.compressed_ply`, :mod:`recon.spz` and :mod:`recon.dotsplat`).
 
 Example:
     >>> g = GaussianSet.from_points(torch.rand(10, 3), sh_degree=3)
@@ -510,19 +509,6 @@ def _read_npy_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: st
     if len(data) != declared:
         raise ValueError(f"{source}: not a readable .npz archive (array {name!r} is truncated); {fix}")
     return np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
-
-
-def __getattr__(name: str):
-    """``recon.ply.load_gaussians``: the format-detecting loader of :mod:`recon.formats`, under its old name.
-
-    :mod:`recon.formats` sits above this module (it imports the standard reader from here), so the old name is
-    resolved on first use instead of by an import at the top, which would be a cycle.
-    """
-    if name == "load_gaussians":
-        from .formats import load_gaussians  # noqa: PLC0415 - recon.formats imports this module
-
-        return load_gaussians
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def save_gaussians(gaussians: GaussianSet, path: str | Path) -> Path:

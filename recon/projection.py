@@ -133,12 +133,6 @@ class ViewConstants:
         return cls(k[:9], k[9:12], *k[12:24], GUARD_BAND * 0.5 * w / f, GUARD_BAND * 0.5 * h / g, float(near))
 
 
-def camera_tensors(camera: Camera, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """World-to-camera rotation [3, 3] and translation [3] on the device and in the dtype of ``like``."""
-    w2c = camera.world_to_camera.to(device=like.device, dtype=like.dtype)
-    return w2c[:3, :3], w2c[:3, 3]
-
-
 def covariance_terms(gaussians: GaussianSet) -> tuple[torch.Tensor, ...]:
     """The upper triangle (S00, S01, S02, S11, S12, S22) of Sigma = R S S^T R^T, six [N] tensors (with grad).
 

@@ -138,7 +138,7 @@ def random_box_gaussians(count: int, box: Sequence[float], sh_degree: int, gener
 # ---- the trainer -------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
-class StepStats:
+class TrainStepStats:
     """One iteration: its number, loss, PSNR (dB) of the render against its target, and the Gaussian count."""
 
     iteration: int
@@ -302,7 +302,7 @@ class Trainer:
         if self.iteration % c.sh_increase_interval == 0:
             self.active_sh_degree = min(self.active_sh_degree + 1, c.sh_degree)
 
-    def train_step(self, view) -> StepStats:
+    def train_step(self, view) -> TrainStepStats:
         """One iteration on ``view`` (a :class:`recon.datasets.View` with image, optional alpha and camera)."""
         c = self.config
         self.iteration += 1
@@ -332,7 +332,7 @@ class Trainer:
             if not densified:
                 self.adam.step(skip=("opacity_logits",) if reset else ())
             self.adam.zero_grad()
-        return StepStats(it, float(loss.detach()), step_psnr, self.adam.params["means"].shape[0])
+        return TrainStepStats(it, float(loss.detach()), step_psnr, self.adam.params["means"].shape[0])
 
     def _densify(self, it: int) -> None:
         c = self.config
@@ -363,14 +363,14 @@ class Trainer:
             self._queue_size = count
         return self._view_queue.pop()
 
-    def train(self, views: Sequence, iterations: int, callback: Callable[[StepStats], None] | None = None,
+    def train(self, views: Sequence, iterations: int, callback: Callable[[TrainStepStats], None] | None = None,
               evaluate_every: int = 0, eval_views: Sequence = ()) -> TrainLog:
         """Run ``iterations`` training iterations over ``views``.
 
         Args:
             views: training views (image [H, W, 3], alpha [H, W] or None, camera).
             iterations: iterations to run (continuing from :attr:`iteration`).
-            callback: called with the :class:`StepStats` of every iteration (e.g. a progress bar).
+            callback: called with the :class:`TrainStepStats` of every iteration (e.g. a progress bar).
             evaluate_every: evaluate on ``eval_views`` every this many iterations (0: never).
             eval_views: held-out views for the periodic evaluation.
         Returns:
@@ -447,7 +447,7 @@ def initial_gaussians(config: TrainConfig, cameras: Sequence[Camera], points: to
     return random_box_gaussians(count, box, config.sh_degree, gen, config.init_opacity)
 
 
-def train(data, config: TrainConfig, *, callback: Callable[[StepStats], None] | None = None,
+def train(data, config: TrainConfig, *, callback: Callable[[TrainStepStats], None] | None = None,
           eval_views: Sequence = (), evaluate_every: int = 0, backend: str = "auto",
           device: str | torch.device = "cpu", initial: GaussianSet | None = None) -> tuple[GaussianSet, TrainLog]:
     """Train Gaussians on a dataset or a list of views.
@@ -456,7 +456,7 @@ def train(data, config: TrainConfig, *, callback: Callable[[StepStats], None] | 
         data: a :class:`recon.datasets.Dataset` (its train split, background and point cloud are used) or
             a sequence of views composited on white.
         config: hyper-parameters (``config.iterations`` iterations are run).
-        callback: per-iteration :class:`StepStats` hook.
+        callback: per-iteration :class:`TrainStepStats` hook.
         eval_views, evaluate_every: periodic held-out evaluation.
         backend: renderer backend.
         device: torch device of the Gaussians and images.

@@ -1,9 +1,9 @@
 """Colour maps and colour bars of the viewer.
 
-The convention is that of :mod:`nbv.heatmap` (the PNGs and the coloured .ply of `simulate` and `score`): a value v
-maps to OpenCV's TURBO colour at v / v_max, v_max the 99th percentile of the values, so that a few extreme
-Gaussians do not wash out the rest. It is restated here because importing ``nbv`` loads Taichi, which the viewer
-never needs; a test keeps the two equal.
+The one owner of the colour map and its scale, also for :mod:`nbv.heatmap` (the PNGs and the coloured .ply of
+`simulate` and `score`): a value v maps to OpenCV's TURBO colour at v / v_max, v_max the 99th percentile of the
+values, so that a few extreme Gaussians do not wash out the rest. It lives here, free of Taichi and torch, because
+the viewer needs neither.
 """
 
 from __future__ import annotations

@@ -3,11 +3,11 @@
 Each benchmark lives in its own module of this package with ``add_arguments(parser)`` and ``run_command(args)``:
 
 - ``sim`` (:mod:`apps.bench.sim`): the paper-scale DFSPH probe, side by side with SPlisHSPlasH when installed (the
-  peer harness is :mod:`fluidsim.peer`);
+  peer harness is :mod:`nbv.bench.splash`);
 - ``score`` (:mod:`apps.bench.score`): the probes on Gaussians, simulation and aggregation timed apart;
 - ``render`` (:mod:`apps.bench.render`): forward + backward time of the torch rasterizer;
 - ``views`` (:mod:`apps.bench.views`): view scores from the projection alone, and their ranking against renders.
-- ``hole`` (:mod:`apps.bench.hole`): a hole punched in a capture's surface, its solid and its rim's D_g (issue 15).
+- ``hole`` (:mod:`apps.bench.hole`): a hole punched in a capture's surface, its solid and its rim's D_g.
 """
 
 from __future__ import annotations

@@ -1,21 +1,21 @@
 """`fluidgs bench hole`: a hole punched in a capture's surface, and what it does to the solid and to its rim's D_g.
 
-Issue 15's check of the paper's premise on real captures. The hole removes the Gaussians whose centres lie in a
-cylinder of radius ``--radius`` and half-depth ``--depth`` along the surface normal (:class:`nbv.holes.Hole`). The
+The check of the paper's premise (Sec. 3.3) on real captures. The hole removes the Gaussians whose centres lie in a
+cylinder of radius ``--radius`` and half-depth ``--depth`` along the surface normal (:class:`nbv.bench.holes.Hole`). The
 rim is the Gaussians left within ``--band`` of its edge, in the same slab. For each lattice shift in ``--shifts``
 (the whole capture moved by that fraction of the spacing along x, y and z, to see how the answer depends on where
 the lattice falls), the intact and the holed set are solidified and probed at the same scale, and it prints:
 
 - the Gaussians removed, the solid points of both sets and how many the hole removed and added;
 - the axis opacity: what a 3DGS render along the hole's axis still shows through it, combined and the largest single
-  Gaussian (:func:`nbv.holes.axis_opacity`; the solid can only open where this falls below tau);
+  Gaussian (:func:`nbv.bench.holes.axis_opacity`; the solid can only open where this falls below tau);
 - per probe, the rim's mean D_g^(IC) on both sets and the ratio holed / intact, with the fraction of rim Gaussians
   that any fluid sample reached (``*`` marks the head-on probe, whose flow runs most against the hole's normal); then
   the max-combined ratio (D_g = max over the probes, paper Eq. 3) and D-bar.
 
 ``--solid-only`` stops after the solids (seconds, no probes). ``--ideal`` also cuts every lattice point inside the
-cylinder out of the holed set's solid (:func:`nbv.holes.cut_cylinder`): what the rim's D_g shows for a hole that is
-open at lattice resolution, whatever the Gaussians around it cover.
+cylinder out of the holed set's solid (:func:`nbv.bench.holes.cut_cylinder`): what the rim's D_g shows for a hole
+that is open at lattice resolution, whatever the Gaussians around it cover.
 """
 
 from __future__ import annotations
@@ -93,8 +93,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def locate_hole(args: argparse.Namespace, means: np.ndarray, opacities: np.ndarray):
-    """The :class:`nbv.holes.Hole` of the options, in the unshifted capture's simulation frame."""
-    from nbv.holes import Hole, surface_normal, surface_point
+    """The :class:`nbv.bench.holes.Hole` of the options, in the unshifted capture's simulation frame."""
+    from nbv.bench.holes import Hole, surface_normal, surface_point
 
     if args.point is not None:
         point = np.asarray(args.point)
@@ -126,7 +126,7 @@ def print_shift(r: dict) -> None:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import write_json_atomic
-    from nbv.holes import measure_shift
+    from nbv.bench.holes import measure_shift
     from nbv.physics import QUICK, PhysicsConfig, parse_directions, scene_transform
     from nbv.physics.scene_frame import gaussian_arrays_in_sim
 

@@ -9,7 +9,7 @@ uses r = 0.025 m and 750 steps (add ``--directions -x`` for one probe). Machines
 ``--densify K`` also runs a K x denser set of the same object, in the same process after the set itself: K - 1
 jittered copies of every Gaussian (its mean moved by ``--jitter`` standard deviations along its own axes, all other
 attributes kept) added to the original; the ratio of the two runs' times is printed (``--densify-only`` skips the
-original's run, so that the peak memory is the dense set's alone; :func:`nbv.dense_sets.jittered_copies`).
+original's run, so that the peak memory is the dense set's alone; :func:`nbv.bench.dense_sets.jittered_copies`).
 """
 
 from __future__ import annotations
@@ -40,8 +40,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes")
     p.add_argument("--empty-reference", action="store_true", help="also time the empty-scene reference runs")
     p.add_argument("--no-fill", action="store_true", help="keep the solid hollow (filling is the default)")
-    p.add_argument("--fill-cavities", action="store_true",
-                   help="accepted for old scripts and does nothing: filling is now the default (see --no-fill)")
     p.add_argument("--threads", type=positive_int, default=2, help="CPU threads")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device; cuda falls back to cpu with a logged warning")
@@ -61,7 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def share_target(num_gaussians: int) -> float:
     """The aggregation's target share of the simulation time: 10 %, or 15 % from ``MILLION_GAUSSIANS`` Gaussians
-    (issue 15: each particle has about as many Gaussians within reach as the set is dense)."""
+    (from 1M Gaussians each particle has about as many Gaussians within reach as the set is dense)."""
     return 0.15 if num_gaussians >= MILLION_GAUSSIANS else 0.10
 
 
@@ -112,7 +110,7 @@ def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
     from fluidsim.files import write_json_atomic as write_json
-    from nbv.dense_sets import jittered_copies
+    from nbv.bench.dense_sets import jittered_copies
     from nbv.physics import QUICK, PhysicsConfig, parse_directions
     from recon.ahmed import ahmed_surface_gaussians
 

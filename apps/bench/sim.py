@@ -35,8 +35,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_ours(scene, steps: int, divergence_warm_start: bool = True) -> dict:
-    """Time ``steps`` steps of this engine on the peer scene (:mod:`fluidsim.peer`); figures in ms and MiB."""
-    from fluidsim.peer import peer_config, peer_particles, peer_solver
+    """Time ``steps`` steps of this engine on the peer scene (:mod:`nbv.bench.splash`); figures in ms and MiB."""
+    from nbv.bench.splash import peer_config, peer_particles, peer_solver
 
     cfg = peer_config(scene, divergence_warm_start)
     particles = peer_particles(scene, cfg.spacing)
@@ -81,7 +81,7 @@ def _more_rounds(args: argparse.Namespace, scene, ours: dict, peer: dict, run_sp
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import write_json_atomic
-    from fluidsim.peer import PeerScene, run_splash, splash_available
+    from nbv.bench.splash import PeerScene, run_splash, splash_available
 
     from ..options import check_output_file
     from ..runtime import init_taichi

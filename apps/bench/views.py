@@ -4,14 +4,14 @@ Two parts, both printed:
 
 - **Ranking check** on the bundled asset (``assets/ahmed_gaussians.ply`` with its 40 candidate cameras, or
   ``--gaussians`` / ``--cameras``), at the width ``fluidgs score`` uses (``--render-width``): every candidate
-  is rendered in full (what scoring did before) and scored both ways (:mod:`nbv.score_agreement`). It prints the
+  is rendered in full (what scoring did before) and scored both ways (:mod:`nbv.bench.score_agreement`). It prints the
   largest relative score difference, the Spearman rank correlation and whether the two orders are identical. With
   ``--occlusion`` the coarse depth buffer (:class:`nbv.scores.DepthBuffer`) is compared with the render-based depth
   test (:func:`nbv.scores.unoccluded`): the fraction of visible (view, Gaussian) pairs with the same verdict and
   the Spearman correlation of the two S(T). D_g comes from ``--result`` (a RESULT.h5 of these Gaussians);
   without it a seeded log-normal stand-in is used (the check is about radii and visibility, not physics).
 - **Timing** (the issue's target: 200 candidate cameras on 1M Gaussians in <= 20 s without PNGs): the asset
-  densified to ``--count`` Gaussians by jittered copies (:func:`nbv.dense_sets.jittered_to_count`: each copy moved
+  densified to ``--count`` Gaussians by jittered copies (:func:`nbv.bench.dense_sets.jittered_to_count`: each copy moved
   by N(0, r_g^2) per axis, r_g the largest principal standard deviation), scored from ``--views`` cameras on a
   sphere of radius 6 around the origin (the paper's dataset geometry, 50 degree field of view) at ``--width``
   pixels. It prints the time per view, the total, nanoseconds per (camera, Gaussian) pair and the peak resident
@@ -90,7 +90,7 @@ def print_timing(t: dict) -> None:
 def run_command(args: argparse.Namespace) -> int:
     import torch
 
-    from nbv.score_agreement import compare_with_renders, load_divergence, time_projected_scores
+    from nbv.bench.score_agreement import compare_with_renders, load_divergence, time_projected_scores
     from nbv.view_scoring import render_size, torch_device
     from recon.datasets import load_cameras
 

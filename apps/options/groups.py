@@ -77,8 +77,6 @@ def add_physics_arguments(p: argparse.ArgumentParser, track_distinct: bool = Fal
                         "given explicitly; default: the paper's)")
     add_config_options(g, config, PROBE_FIELDS, over, presets={"--quick": quick})
     add_config_options(g, config, FRAME_FIELDS + SOLID_FIELDS, over)
-    g.add_argument("--fill-cavities", action="store_true",
-                   help="accepted for old scripts and does nothing: filling is now the default (see --no-fill)")
     add_config_options(g, config, RUN_FIELDS if empty_reference else RUN_FIELDS[1:], over)
     add_runtime_arguments(p)
 

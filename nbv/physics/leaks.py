@@ -1,4 +1,4 @@
-"""The leak measure (issue 15): fluid particles that got deep inside the filled solid during a probe.
+"""The leak measure: fluid particles that got deep inside the filled solid during a probe.
 
 The solid is the lattice occupancy of :func:`nbv.physics.solidify.gaussians_to_solid` (filled by default). A fluid
 particle is *inside* when its nearest lattice point (floor((x - lattice_min) / s + 1/2) per axis) is a

@@ -29,7 +29,7 @@ from fluidsim.scene import lattice_in_box
 from nbv.physics.config import PhysicsConfig, kept_gaussians, scene_transform
 from nbv.physics.result import PhysicsResult, gaussians_sha256
 from nbv.physics.scene_frame import SceneTransform, SimGaussians, gaussian_arrays_in_sim
-from nbv.physics.solidify import Solid, gaussians_to_solid
+from nbv.physics.solidify import SolidLattice, gaussians_to_solid
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ class RunFrame:
         """[K, 3, 3] float64 covariances of the simulated Gaussians, m^2."""
         return np.ascontiguousarray(self.sim.covariances, np.float64)
 
-    def solidify(self) -> Solid:
+    def solidify(self) -> SolidLattice:
         """The solid of the simulated Gaussians (:func:`nbv.physics.solidify.gaussians_to_solid` under
         ``config.solidify_config()``)."""
         return gaussians_to_solid(self.sim, self.config.solidify_config(), self.transform)

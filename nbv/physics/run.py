@@ -46,7 +46,7 @@ from nbv.physics.leaks import LeakCounter
 from nbv.physics.memory import check_memory, check_memory_bound
 from nbv.physics.plan import ProbePlan, RunFrame
 from nbv.physics.result import PhysicsResult, ProbeDiverged, _t
-from nbv.physics.solidify import Solid
+from nbv.physics.solidify import SolidLattice
 from nbv.physics.trajectory import RecordConfig, TrajectoryRecorder, check_record_size
 
 log = logging.getLogger(__name__)
@@ -266,7 +266,7 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
 
 
 
-def simulate_solid(frame: RunFrame, solid: Solid, progress: bool = True, source: str = "",
+def simulate_solid(frame: RunFrame, solid: SolidLattice, progress: bool = True, source: str = "",
                    record: RecordConfig | None = None, *, exact_memory: bool = True, solidify_s: float = 0.0,
                    started: float | None = None) -> PhysicsResult:
     """The probes of :func:`simulate_gaussians` against a given solid of ``frame``'s Gaussians (that function's
@@ -304,7 +304,7 @@ def simulate_solid(frame: RunFrame, solid: Solid, progress: bool = True, source:
 
 
 
-def _probe(frame: RunFrame, solid: Solid, plan: ProbePlan, progress: bool, source: str,
+def _probe(frame: RunFrame, solid: SolidLattice, plan: ProbePlan, progress: bool, source: str,
            record: RecordConfig | None, solidify_s: float, started: float) -> PhysicsResult:
     """The probes and, with ``config.empty_reference``, the empty scene: the result on the simulated Gaussians."""
     config, scfg = frame.config, frame.config.solver_config()

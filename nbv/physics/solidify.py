@@ -102,8 +102,8 @@ class SolidifyConfig:
         fill_cavities: fill what the Gaussians enclose (default; a closed shell becomes a filled body). False
             keeps the shell: test 1 plus one point per cut edge.
         thin: test the lattice edges against each Gaussian's tau-ellipsoid (test 2), so thin Gaussians between
-            lattice points are not missed. False: only the combined opacity at the points (the solid before
-            issue 15, for comparisons).
+            lattice points are not missed. False: only the combined opacity at the points (the earlier solid,
+            for comparisons).
         max_points: lattice-size guard, checked on an estimate before anything is allocated.
         max_work: time guard: the most work items of tests 1 and 2 together (a Gaussian and one lattice point or
             edge of its sigma box; about ``SECONDS_PER_WORK_ITEM`` each on the 2-core CPU, so the default,
@@ -166,7 +166,7 @@ class SolidifyConfig:
 
 
 @dataclass(frozen=True)
-class Solid:
+class SolidLattice:
     """Solid lattice points.
 
     Attributes:
@@ -345,7 +345,7 @@ def _flat_work(first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndar
     return keep, offsets, int(offsets[-1])
 
 
-def _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config) -> np.ndarray:
+def _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config) -> np.ndarray:
     """Test 1's field: [X, Y, Z] float32 sum_g log(1 - o_g exp(-d_g^2 / 2)) (Taichi)."""
     first, last = _box_index_ranges(means, covs, lattice_min, dims, config)
     keep, offsets, total = _flat_work(first, last)
@@ -380,9 +380,9 @@ def lattice_log_transmittance(gaussians: GaussianSet | SimGaussians, config: Sol
     """
     sim = as_sim(gaussians, transform)
     means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities, edges=False)
+    lattice_min, dims, _ = _lattice_or_raise(means, covs, config, transform, opacities, edges=False)
     inv_covs = sim.inverse_covariances()
-    return lattice_min, _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config)
+    return lattice_min, _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
 
 
 def _edge_boxes(means, covs, lattice_min, dims, config: SolidifyConfig, axis: int) -> tuple[np.ndarray, np.ndarray]:
@@ -403,7 +403,7 @@ def _edge_boxes(means, covs, lattice_min, dims, config: SolidifyConfig, axis: in
     return first, last
 
 
-def _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config) -> np.ndarray:
+def _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config) -> np.ndarray:
     """Test 2's field: [3, X, Y, Z] float32 sum_g log(1 - o_g max_{x in e} exp(-d_g(x)^2 / 2)) per edge (Taichi)."""
     edges = ti.ndarray(ti.f32, shape=(3, *(int(d) for d in dims)))
     edges.fill(0.0)
@@ -440,9 +440,9 @@ def lattice_edge_log_transmittance(gaussians: GaussianSet | SimGaussians, config
     """
     sim = as_sim(gaussians, transform)
     means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities, points=False)
+    lattice_min, dims, _ = _lattice_or_raise(means, covs, config, transform, opacities, points=False)
     inv_covs = sim.inverse_covariances()
-    return lattice_min, _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config)
+    return lattice_min, _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
 
 
 def lattice_cut_edges(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
@@ -492,7 +492,7 @@ def edge_log_transmittance_reference(lattice_min: np.ndarray, shape: tuple[int, 
 
 
 def gaussians_to_solid(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig, transform: SceneTransform, *,
-                       cameras=None, depths=None) -> Solid:
+                       cameras=None, depths=None) -> SolidLattice:
     """Solid lattice points of a Gaussian set (the module docstring's tests 1-3, specks, optional carving).
 
     Args:
@@ -504,7 +504,7 @@ def gaussians_to_solid(gaussians: GaussianSet | SimGaussians, config: SolidifyCo
         depths: with ``cameras``, one [H, W] depth map per camera (scene units, inf where empty); None renders
             them from the Gaussians (:func:`nbv.physics.carve.surface_depths`).
     Returns:
-        Solid.
+        SolidLattice.
     Raises:
         ValueError: the lattice would exceed ``config.max_points`` (with the estimate and the fix), or the
             solid is empty or degenerate (suggesting a lower tau, a smaller spacing or another scale).
@@ -514,10 +514,10 @@ def gaussians_to_solid(gaussians: GaussianSet | SimGaussians, config: SolidifyCo
     """
     sim = as_sim(gaussians, transform)
     means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice_min, dims, estimate = _lattice_or_raise(means, covs, config, transform, opacities)
+    lattice_min, dims, _ = _lattice_or_raise(means, covs, config, transform, opacities)
     inv_covs = sim.inverse_covariances()
-    log_t = _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config)
-    cuts = below(_edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, estimate, config),
+    log_t = _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
+    cuts = below(_edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config),
                   config.opacity_threshold) if config.thin else None
     occupancy, counts = occupancy_from_fields(log_t, cuts, config.opacity_threshold, config.fill_cavities)
     del log_t, cuts
@@ -544,8 +544,8 @@ def gaussians_to_solid(gaussians: GaussianSet | SimGaussians, config: SolidifyCo
     points = lattice_min + config.spacing * np.argwhere(occupancy).astype(np.float64)
     log.info("solid: %d of %d lattice points (%s at %.4g m): %s", count, occupancy.size, list(occupancy.shape),
              config.spacing, counts)
-    return Solid(points=points, lattice_min=lattice_min, lattice_shape=tuple(int(d) for d in occupancy.shape),
-                 occupancy=occupancy, spacing=float(config.spacing), counts=counts)
+    return SolidLattice(points=points, lattice_min=lattice_min, lattice_shape=tuple(int(d) for d in occupancy.shape),
+                        occupancy=occupancy, spacing=float(config.spacing), counts=counts)
 
 
 def _ndarrays(**arrays) -> dict:

@@ -43,8 +43,9 @@ from nbv.physics import (
     simulate_gaussians,
 )
 from recon.camera import Camera
+from recon.formats import load_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import load_gaussians, save_gaussians
+from recon.ply import save_gaussians
 
 from helpers.paths import REPO as ROOT
 

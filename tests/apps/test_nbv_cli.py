@@ -11,8 +11,9 @@ import torch
 from apps import cli
 from nbv.physics import load_result
 from recon.camera import Camera
+from recon.formats import load_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import load_gaussians, save_gaussians
+from recon.ply import save_gaussians
 
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 

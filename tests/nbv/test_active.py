@@ -10,7 +10,7 @@ import torch
 from nbv.active import ActiveConfig, biased_initial_views, config_differences, run_active
 from nbv.physics import PhysicsConfig
 from recon.camera import Camera
-from recon.ply import load_gaussians
+from recon.formats import load_gaussians
 
 from helpers.paths import TORUS
 from helpers.training import TINY_TRAIN

@@ -599,7 +599,7 @@ def test_jittered_copies_make_a_denser_set_of_the_same_object():
     each Gaussian's own axes (a flat Gaussian's copies stay in its plane), everything else kept."""
     import torch
 
-    from nbv.dense_sets import jittered_copies
+    from nbv.bench.dense_sets import jittered_copies
     from recon.gaussians import GaussianSet, quaternion_to_rotation
 
     rng = np.random.default_rng(71)

@@ -61,7 +61,7 @@ def test_sample_mesh_surface_is_on_the_surface_and_area_weighted():
 
 def test_eval_json_keys_and_finite_metrics(finished_run):
     from recon.datasets import load_dataset
-    from recon.ply import load_gaussians
+    from recon.formats import load_gaussians
     from recon.train import evaluate
 
     out = evaluate_run(finished_run, EvalConfig(physics=PhysicsConfig.from_dict(COARSE), critical_views=2),

@@ -1,4 +1,4 @@
-"""Issue 15's hole check (:mod:`nbv.holes`): the hole's geometry against hand computations and brute force, and the
+"""The hole check (:mod:`nbv.bench.holes`): the hole's geometry against hand computations and brute force, and the
 mechanism measured on the real person capture, shown on a synthetic capture-like set.
 
 The capture-like set is a hollow sphere of thin surface Gaussians (normal sigma 10x below the spacing) with, 5 cm
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from nbv.holes import (
+from nbv.bench.holes import (
     Hole,
     axis_opacity,
     covering,
@@ -33,8 +33,8 @@ from nbv.physics import PhysicsConfig, simulate_gaussians
 from nbv.physics.scene_frame import gaussian_arrays_in_sim, inverse_covariances_in_sim
 from nbv.physics.solidify import (
     SceneTransform,
-    Solid,
     SolidifyConfig,
+    SolidLattice,
     gaussians_to_solid,
 )
 from recon.gaussians import GaussianSet
@@ -245,7 +245,7 @@ def test_cut_cylinder_equals_brute_force_and_keeps_occupancy():
     occupancy[1:12, 1:8, 2:10] = True
     occupancy[6, 4, 5] = False  # a pocket: never re-filled by the cut
     ijk = np.argwhere(occupancy)
-    solid = Solid(points=lo + spacing * ijk, lattice_min=lo, lattice_shape=shape, occupancy=occupancy,
+    solid = SolidLattice(points=lo + spacing * ijk, lattice_min=lo, lattice_shape=shape, occupancy=occupancy,
                   spacing=spacing, counts={"opacity": len(ijk), "total": len(ijk)})
     hole = Hole((0.05, 0.0, 0.0), (1.0, 0.3, -0.2), radius=0.11, depth=0.08)
     cut = cut_cylinder(solid, hole)

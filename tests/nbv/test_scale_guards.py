@@ -79,7 +79,7 @@ def test_a_million_gaussian_surface_passes_the_guards():
 @pytest.mark.skipif(not BIKER.is_file(), reason="the real capture is not on this machine")
 def test_the_densified_real_capture_passes_the_guards():
     """The issue's 1M target: the person capture and 6 jittered copies (1.07M Gaussians) at the paper spacing."""
-    from nbv.dense_sets import jittered_copies
+    from nbv.bench.dense_sets import jittered_copies
     from nbv.physics import PhysicsConfig, scene_transform
     from recon.formats import load_gaussians
 

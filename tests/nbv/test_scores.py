@@ -311,7 +311,7 @@ def test_time_projected_scores_figures():
     """The timing figures are consistent: counts as asked, per-view and per-pair times derived from the total."""
     import numpy as np
 
-    from nbv.score_agreement import time_projected_scores
+    from nbv.bench.score_agreement import time_projected_scores
 
     g, _, _ = _scene(200, seed=3)
     t = time_projected_scores(g, np.linspace(0.1, 1.0, 200), count=500, views=4, width=24, seed=1, occlusion=True,

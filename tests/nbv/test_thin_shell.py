@@ -215,6 +215,5 @@ def test_cli_fills_by_default_and_no_fill_keeps_the_shell():
     p = argparse.ArgumentParser()
     add_physics_arguments(p)
     assert physics_config_from_args(p.parse_args([])).fill_cavities is True
-    assert physics_config_from_args(p.parse_args(["--fill-cavities"])).fill_cavities is True   # the old flag: no-op
     assert physics_config_from_args(p.parse_args(["--no-fill"])).fill_cavities is False
     assert PhysicsConfig().fill_cavities is True

@@ -1,6 +1,6 @@
 """The library side of `fluidgs score` and `bench views`: nbv.view_scoring (metric choice, checks, camera width,
-ranked rows), nbv.score_agreement (projection scores against full renders), nbv.dense_sets.jittered_to_count and
-viz.annotate (the labelled PNG panels)."""
+ranked rows), nbv.bench.score_agreement (projection scores against full renders),
+nbv.bench.dense_sets.jittered_to_count and viz.annotate (the labelled PNG panels)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import pytest
 import torch
 
 from nbv import scores
-from nbv.dense_sets import jittered_to_count
-from nbv.score_agreement import compare_with_renders, load_divergence, spearman, stand_in_divergence
+from nbv.bench.dense_sets import jittered_to_count
+from nbv.bench.score_agreement import compare_with_renders, load_divergence, spearman, stand_in_divergence
 from nbv.view_scoring import (
     check_cameras_see,
     check_some_divergence,

@@ -14,7 +14,8 @@ import torch
 
 from recon.camera import Camera
 from recon.camera_paths import orbit, orbit_around, random_sphere, sphere_directions, up_vector
-from recon.datasets import load_blender, load_colmap, load_dataset, quaternion_wxyz_to_matrix
+from recon.colmap import quaternion_wxyz_to_matrix
+from recon.datasets import load_blender, load_colmap, load_dataset
 from recon.gaussians import quaternion_to_rotation
 
 FOV = math.radians(45.0)

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from recon.formats import load_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import load_gaussians, ply_property_names, save_gaussians
+from recon.ply import ply_property_names, save_gaussians
 
 
 def _random_set(n: int, degree: int, seed: int = 0) -> GaussianSet:

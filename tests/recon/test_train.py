@@ -360,8 +360,8 @@ def test_train_cli_smoke(tmp_path):
     import json
 
     from apps.cli import main
+    from recon.formats import load_gaussians
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
-    from recon.ply import load_gaussians
 
     from helpers.paths import TORUS
 
@@ -386,7 +386,7 @@ def test_make_assets_smoke(tmp_path):
 
     from apps.cli import main
     from apps.make_assets import read_cameras_json
-    from recon.ply import load_gaussians
+    from recon.formats import load_gaussians
 
     out = tmp_path / "assets"
     assert main(["make-assets", "-o", str(out), "--res", "16", "--candidates", "3", "--test", "1", "--train-views",

@@ -31,8 +31,9 @@ import torch
 from apps import cli
 from nbv.physics.aggregate import within_reach_reference
 from recon.camera import Camera
+from recon.formats import load_gaussians
 from recon.gaussians import GaussianSet, sh0_to_rgb
-from recon.ply import load_gaussians, save_gaussians
+from recon.ply import save_gaussians
 from viz.cameras import candidate_views, read_scores, rotation_to_wxyz
 from viz.colors import color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data

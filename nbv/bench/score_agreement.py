@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.stats import spearmanr
 
-from nbv.dense_sets import jittered_to_count
+from nbv.bench.dense_sets import jittered_to_count
 from nbv.physics import check_result_matches, load_result
 from nbv.scores import DepthBuffer, coarse_unoccluded, projected_view_scores, rank, unoccluded, view_scores
+from nbv.study.convergence import spearman
 from recon.camera_paths import random_sphere
 from recon.projection import project_visibility
 from recon.render import render
@@ -44,11 +44,6 @@ def load_divergence(path: Path | None, gaussians, seed: int) -> tuple[np.ndarray
     result = load_result(path)
     check_result_matches(result, gaussians.num, path)
     return np.asarray(result.divergence, np.float64), f"D_g (max over probes) of {path}"
-
-
-def spearman(a, b) -> float:
-    """Spearman rank correlation of two score vectors [C] (1: the same order)."""
-    return float(spearmanr(np.asarray(a), np.asarray(b))[0])
 
 
 def _projected_radii(gaussians, cams) -> list[torch.Tensor]:
@@ -110,7 +105,7 @@ def time_projected_scores(gaussians, d: np.ndarray, count: int, views: int, widt
                           device) -> dict:
     """Time :func:`nbv.scores.projected_view_scores` on ``gaussians`` densified to ``count`` (``fluidgs bench views``).
 
-    The set is densified by jittered copies (:func:`nbv.dense_sets.jittered_to_count`), its metric is ``d`` [G]
+    The set is densified by jittered copies (:func:`nbv.bench.dense_sets.jittered_to_count`), its metric is ``d`` [G]
     repeated, and it is scored from ``views`` cameras on a sphere of radius 6 around the origin (50 degree field of
     view, ``width`` x ``width`` pixels, no PNGs).
 

@@ -1,10 +1,10 @@
-"""The child process of the SPlisHSPlasH peer (:mod:`fluidsim.peer`): the only place ``pysplishsplash`` is imported.
+"""The child process of the SPlisHSPlasH peer (:mod:`nbv.bench.splash`): the only place ``pysplishsplash`` is imported.
 
-Run as a script by :func:`fluidsim.peer.run_splash` and :func:`fluidsim.peer.splash_available`, never imported by
+Run as a script by :func:`nbv.bench.splash.run_splash` and :func:`nbv.bench.splash.splash_available`, never imported by
 the engine::
 
-    python fluidsim/peer_worker.py --worker JOB.json   # set up the scene, time every step, write the result JSON
-    python fluidsim/peer_worker.py --probe             # exit 0 when pysplishsplash imports, 17 when it cannot
+    python nbv/bench/splash_worker.py --worker JOB.json   # set up the scene, time every step, write the result JSON
+    python nbv/bench/splash_worker.py --probe             # exit 0 when pysplishsplash imports, 17 when it cannot
 
 It imports only the standard library at module level (running it as a script must not load Taichi), preloads the
 system ``libGLdispatch`` before ``import pysplishsplash`` (the copy bundled in the wheel segfaults) and leaves with
@@ -157,7 +157,7 @@ def _end_state(sph) -> dict:
 
 
 def _worker(job_file: str) -> int:
-    """Child process: set up the scene, step it, write the result JSON (keys: :func:`fluidsim.peer.run_splash`)."""
+    """Child process: set up the scene, step it, write the result JSON (keys: :func:`nbv.bench.splash.run_splash`)."""
     job = json.loads(Path(job_file).read_text())
     steps = int(job["steps"])
     dt = float(job["dt"])
@@ -220,7 +220,7 @@ def main(argv: list[str] | None = None) -> None:
     """``--worker JOB.json`` or ``--probe`` (see the module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     group = parser.add_mutually_exclusive_group(required=True)
-    group.add_argument("--worker", metavar="JOB_JSON", help="run the job file written by fluidsim.peer.run_splash")
+    group.add_argument("--worker", metavar="JOB_JSON", help="run the job file written by nbv.bench.splash.run_splash")
     group.add_argument("--probe", action="store_true", help="exit 0 when pysplishsplash imports, 17 otherwise")
     args = parser.parse_args(argv)
     if args.probe:

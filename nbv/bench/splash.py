@@ -6,7 +6,7 @@ meshes of :func:`icosphere` and :func:`unit_box`), and :func:`run_splash` runs S
 step. ``fluidgs bench sim`` (:mod:`apps.bench.sim`) prints the two engines side by side.
 
 SPlisHSPlasH (PyPI ``pysplishsplash``) is a bench/test extra, never a runtime dependency: it is imported only by
-the child process :mod:`fluidsim.peer_worker` (``python fluidsim/peer_worker.py --worker JOB.json``), because
+the child process :mod:`nbv.bench.splash_worker` (``python nbv/bench/splash_worker.py --worker JOB.json``), because
 
 * ``import pysplishsplash`` segfaults when the wheel's bundled ``libGLdispatch`` is loaded first; the
   worker preloads the system copy (``ctypes.CDLL("libGLdispatch.so.0", RTLD_GLOBAL)``) before importing,
@@ -39,15 +39,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import SolverConfig
-from .peer_worker import EXIT_NO_SPLASH
-from .scene import lattice_in_box
-from .solver import DFSPHSolver
-from .sources import sphere_particles, wall_particles
+from fluidsim.config import SolverConfig
+from fluidsim.scene import lattice_in_box
+from fluidsim.solver import DFSPHSolver
+from fluidsim.sources import sphere_particles, wall_particles
+
+from .splash_worker import EXIT_NO_SPLASH
 
 log = logging.getLogger(__name__)
 
-WORKER = Path(__file__).resolve().with_name("peer_worker.py")  # run as a script in a child process
+WORKER = Path(__file__).resolve().with_name("splash_worker.py")  # run as a script in a child process
 INSTALL_HINT = (
     "Install it with `.venv/bin/pip install pysplishsplash` (bench/test extra) and make sure the system "
     "OpenGL dispatch library exists (`apt-get install -y libgl1 libx11-6`, which provides "

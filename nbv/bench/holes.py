@@ -1,4 +1,4 @@
-"""A hole punched in a Gaussian set, and what it does to the solid and to D_g at its rim (issue 15's check).
+"""A hole punched in a Gaussian set, and what it does to the solid and to D_g at its rim.
 
 The paper's premise (Sec. 3.3): where the reconstruction is wrong, the probes' flow is disturbed, so D_g is high
 there and the views that see it score high. The check on a real capture punches a hole in its surface and
@@ -33,7 +33,7 @@ from nbv.physics.run import simulate_gaussians, simulate_solid
 from nbv.physics.scene_frame import gaussian_arrays_in_sim, inverse_covariances_in_sim
 from nbv.physics.solidify import (
     MAX_ALPHA,
-    Solid,
+    SolidLattice,
     gaussians_to_solid,
 )
 from recon.gaussians import GaussianSet
@@ -256,16 +256,17 @@ def rim_ratios(intact: np.ndarray, holed: np.ndarray, kept: np.ndarray, rim: np.
     return out
 
 
-def cut_cylinder(solid: Solid, hole: Hole) -> Solid:
+def cut_cylinder(solid: SolidLattice, hole: Hole) -> SolidLattice:
     """``solid`` without the lattice points inside the hole's cylinder (r < R, |t| < depth): an ideal hole at lattice
     resolution, whatever the Gaussians around it (``fluidgs bench hole --ideal``, a measurement of what D_g can resolve;
     no capture's solid is made this way).
 
     Args:
-        solid: a :class:`nbv.physics.solidify.Solid`. hole: the :class:`Hole`, in the solid's frame (simulation metres).
+        solid: a :class:`nbv.physics.solidify.SolidLattice`. hole: the :class:`Hole`, in the solid's frame
+            (simulation metres).
     Returns:
-        the Solid with those points removed from ``points`` and ``occupancy``; ``counts["ideal_cut"]`` = how many, and
-        ``counts["total"]`` the points left.
+        the lattice with those points removed from ``points`` and ``occupancy``; ``counts["ideal_cut"]`` = how many,
+        and ``counts["total"]`` the points left.
     """
     cut = hole.removed(solid.points)
     occupancy = solid.occupancy.copy()

@@ -1,4 +1,4 @@
-"""fluidsim.peer: the SPlisHSPlasH peer scene, its meshes and scene file, this engine's side of it, and the child
+"""nbv.bench.splash: the SPlisHSPlasH peer scene, its meshes and scene file, this engine's side of it, and the child
 process (run for real when pysplishsplash is installed, else skipped; its error paths always)."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from fluidsim import peer
-from fluidsim.peer import PeerScene, icosphere, peer_config, peer_particles, peer_solver, splash_scene_json, unit_box
 from fluidsim.scene import lattice_counts
 from fluidsim.sources import sphere_particles
+from nbv.bench import splash as peer
+from nbv.bench.splash import PeerScene, icosphere, peer_config, peer_particles, peer_solver, splash_scene_json, unit_box
 
 SMALL = PeerScene(particle_radius=0.1, steps=3, sphere_radius=0.5, fluid_min=(0.8, -0.6, -0.6),
                   fluid_max=(1.4, 0.6, 0.6), domain_min=(-1.2, -1.0, -1.0), domain_max=(2.0, 1.0, 1.0), threads=1)

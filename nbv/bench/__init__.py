@@ -1,0 +1,17 @@
+"""Measurement support of ``fluidgs bench`` and of the studies: code that measures the method, never part of it.
+
+No paper equation is implemented here. The commands are in :mod:`apps.bench`; what they need beyond the method lives
+here, one module per benchmark:
+
+=========================  =====================================================  ===============================
+module                     what                                                   used by
+=========================  =====================================================  ===============================
+:mod:`.splash`             the SPlisHSPlasH peer scene and its child process      ``bench sim``
+:mod:`.splash_worker`      the child process (the only importer of pysplishsplash)  :mod:`.splash`
+:mod:`.holes`              a hole punched in a capture; the solid and rim's D_g    ``bench hole``
+:mod:`.score_agreement`    projection scores against full renders                 ``bench views``
+:mod:`.dense_sets`         denser copies of a Gaussian set (jittered)             ``bench score``, ``bench views``
+=========================  =====================================================  ===============================
+
+Importing the package loads nothing; each module is imported on its own.
+"""
