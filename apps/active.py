@@ -23,17 +23,12 @@ PHYSICS_FIELDS = ("particle_radius", "steps", "directions")
 def overrides() -> dict[str, dict]:
     """The command line's names and wording for the ActiveConfig, TrainConfig and PhysicsConfig fields."""
     from fluidsim.directions import DIRECTIONS
+    from nbv.plan.rules import describe_planners
 
     from .options import float_list, index_list
 
     return {
-        "method": {"help": "planner: random, fisher, variance, physics, fisher+fluid, variance+fluid, random+fluid, "
-                           "or a control of the physics pick: fisher+area (coverage, no probes), fisher+shuffled "
-                           "(D_g permuted), the same on variance and random, or a candidate of issue 19: "
-                           "fisher+fluid-occ (depth-tested S(T)), fisher+area-occ (its coverage control), "
-                           "fisher+excess (D_g minus the empty-scene D_g), fisher+perprobe (each probe normalised), "
-                           "fisher+balanced (z(coverage) + z(S / coverage)), fisher+balanced-occ (the same, "
-                           "depth-tested)"},
+        "method": {"help": f"planner: {describe_planners()}"},
         "initial_ids": {"flags": ("--initial-views",), "dest": "initial_views", "default_text": "the biased rule",
                         "help": "explicit initial train-split indices, e.g. 0,5",
                         "convert": lambda text: index_list(text, "--initial-views")},

@@ -1,5 +1,9 @@
 """Next-best-view planners: one Protocol, one registry (paper Sec. 3.1 and 3.4, Appendix "view selection").
 
+The fused planners are data: one :class:`~nbv.plan.rules.FusedRule` per name in :data:`nbv.plan.rules.FUSED_RULES`,
+run by one class, :class:`~nbv.plan.fused.FusedPlanner`. Importing the package loads nothing (PEP 562), so the
+command-line help reads the names without torch.
+
 Every planner is built from a small frozen config dataclass with an explicit seed and answers
 ``select(context) -> Selection`` for one round of active reconstruction:
 
@@ -24,7 +28,7 @@ Every planner is built from a small frozen config dataclass with an explicit see
 
   A physics pick that beats neither control adds nothing a coverage term or the magnitudes alone would not.
 
-- Candidates that try to give the physics information beyond coverage (issue 19 item 4), all on FisherRF's
+- Candidates that try to give the physics information beyond coverage (docs/results.md), all on FisherRF's
   shortlist with the same K schedule:
 
   - ``fisher+fluid-occ`` / ``fisher+area-occ``: S(T) / the coverage with the coarse depth test
@@ -45,40 +49,17 @@ is rasterised for it: :func:`physics_view_scores` takes them from the batched pr
 """
 
 
-from .base import MIN_SHORTLIST, Planner, PlanningContext, ProbeFields, Selection, fused_k
-from .fisher import FisherPlanner
-from .fused import (
-    FisherAreaOccPlanner,
-    FisherAreaPlanner,
-    FisherBalancedOccPlanner,
-    FisherBalancedPlanner,
-    FisherExcessPlanner,
-    FisherFluidOccPlanner,
-    FisherFluidPlanner,
-    FisherPerProbePlanner,
-    FisherShuffledPlanner,
-    RandomAreaPlanner,
-    RandomFluidPlanner,
-    RandomShuffledPlanner,
-    VarianceAreaPlanner,
-    VarianceFluidPlanner,
-    VarianceShuffledPlanner,
-    balanced_scores,
-    excess_divergence,
-    per_probe_normalised,
-)
-from .physics import PhysicsPlanner, PhysicsPlannerConfig, physics_view_scores, shuffled_divergence
-from .random import RandomConfig, RandomPlanner
-from .registry import PLANNERS, make_planner, uses_physics
-from .variance import VariancePlanner
+from fluidsim.lazy import lazy_exports
 
-__all__ = [
-    "FisherAreaOccPlanner", "FisherAreaPlanner", "FisherBalancedOccPlanner", "FisherBalancedPlanner",
-    "FisherExcessPlanner", "FisherFluidOccPlanner", "FisherFluidPlanner", "FisherPerProbePlanner",
-    "FisherPlanner", "FisherShuffledPlanner", "MIN_SHORTLIST", "PLANNERS", "PhysicsPlanner",
-    "PhysicsPlannerConfig", "Planner", "PlanningContext", "ProbeFields", "RandomAreaPlanner", "RandomConfig",
-    "RandomFluidPlanner", "RandomPlanner", "RandomShuffledPlanner", "Selection", "VarianceAreaPlanner",
-    "VarianceFluidPlanner", "VariancePlanner", "VarianceShuffledPlanner", "balanced_scores",
-    "excess_divergence", "fused_k", "make_planner", "per_probe_normalised", "physics_view_scores",
-    "shuffled_divergence", "uses_physics",
-]
+_EXPORTS = {
+    **dict.fromkeys(("MIN_SHORTLIST", "Planner", "PlanningContext", "ProbeFields", "Selection", "fused_k"), "base"),
+    "FisherPlanner": "fisher", "VariancePlanner": "variance", "RandomConfig": "random", "RandomPlanner": "random",
+    **dict.fromkeys(("FusedPlanner", "balanced_scores", "excess_divergence", "per_probe_normalised"), "fused"),
+    **dict.fromkeys(("PhysicsPlanner", "PhysicsPlannerConfig", "physics_view_scores", "shuffled_divergence"),
+                    "physics"),
+    **dict.fromkeys(("PLANNERS", "config_type", "make_planner", "uses_physics"), "registry"),
+    **dict.fromkeys(("FUSED", "FUSED_RULES", "FusedRule", "PLANNER_NAMES", "describe_planners"), "rules"),
+}
+__all__ = sorted(_EXPORTS)
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

@@ -132,17 +132,19 @@ def fused_k(budget: int, n_selected: int) -> int:
 
 
 
-def _nan_scores(count: int) -> list[float]:
+def nan_scores(count: int) -> list[float]:
+    """``count`` NaN scores: the scores of a planner that scores no view (random)."""
     return [math.nan] * count
 
 
 
-def _check_candidates(context: PlanningContext, name: str) -> None:
+def check_candidates(context: PlanningContext, name: str) -> None:
+    """Raise ValueError naming planner ``name`` when ``context`` has no candidate view left."""
     if len(context.candidates) == 0:
         raise ValueError(f"planner {name!r}: no candidate views are left; stop before the candidate pool is empty")
 
 
 
-def _descending(scores: list[float]) -> list[int]:
+def descending(scores: list[float]) -> list[int]:
     """Positions sorted by score, best first (ties keep the lower position first)."""
     return sorted(range(len(scores)), key=lambda i: (-scores[i], i))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import time
 
-from nbv.plan.base import PlanningContext, Selection, _check_candidates, _descending, _nan_scores
+from nbv.plan.base import PlanningContext, Selection, check_candidates, descending, nan_scores
 from nbv.plan.fisher_info import FisherConfig, greedy_top_k
 
 log = logging.getLogger(__name__)
@@ -31,10 +31,10 @@ class FisherPlanner:
         return ranking.order, ranking.scores
 
     def select(self, context: PlanningContext) -> Selection:
-        _check_candidates(context, self.name)
+        check_candidates(context, self.name)
         start = time.perf_counter()
         order, scores = self.rank(context, 1)
-        shortlist = order + [i for i in _descending(scores) if i not in order]
+        shortlist = order + [i for i in descending(scores) if i not in order]
         return Selection(pick=order[0], shortlist=shortlist, k=None,
-                         scores={"visual": scores, "physics": _nan_scores(len(scores))},
+                         scores={"visual": scores, "physics": nan_scores(len(scores))},
                          seconds={"visual": time.perf_counter() - start, "physics": 0.0})

@@ -1,6 +1,7 @@
 """The fused planners: a visual shortlist re-ranked by the physics score S(T), its controls and candidates.
 
-See :mod:`nbv.plan` for what each name does (paper Sec. 3.1 and 3.4, Appendix "view selection").
+One class, :class:`FusedPlanner`, runs every rule of the table :data:`nbv.plan.rules.FUSED_RULES`; see :mod:`nbv.plan`
+for what each rule does (paper Sec. 3.1 and 3.4, Appendix "view selection").
 """
 from __future__ import annotations
 
@@ -9,15 +10,17 @@ import time
 
 import torch
 
-from nbv.plan.base import PlanningContext, ProbeFields, Selection, _check_candidates, _nan_scores, fused_k
+from nbv.plan.base import PlanningContext, ProbeFields, Selection, check_candidates, fused_k, nan_scores
 from nbv.plan.fisher import FisherPlanner
-from nbv.plan.fisher_info import FisherConfig
-from nbv.plan.physics import _run_physics, physics_view_scores, shuffled_divergence
-from nbv.plan.random import RandomConfig, RandomPlanner
+from nbv.plan.physics import physics_view_scores, run_physics, shuffled_divergence
+from nbv.plan.random import RandomPlanner
+from nbv.plan.rules import FUSED, FusedRule
 from nbv.plan.variance import VariancePlanner
-from nbv.plan.variance_model import VarianceConfig
 
 log = logging.getLogger(__name__)
+
+# The visual planner of each fused rule's ``visual`` name.
+VISUAL_TYPES = {"fisher": FisherPlanner, "variance": VariancePlanner, "random": RandomPlanner}
 
 
 def excess_divergence(fields: ProbeFields) -> torch.Tensor:
@@ -96,36 +99,51 @@ def balanced_scores(coverage: list[float], physics: list[float]) -> list[float]:
 
 
 
-class _FusedPlanner:
-    """FluidGaussian: the visual planner's top-K, re-ranked by S(T) (module docstring).
+class FusedPlanner:
+    """A visual planner's top-K, re-ranked by a physics rule (FluidGaussian and its controls and candidates).
 
-    ``control`` says which per-Gaussian values re-rank the shortlist: "fluid" the probes' D_g, "area" ones (the
-    coverage control; the probes never run), "shuffled" the probes' D_g permuted (:func:`shuffled_divergence`),
-    "excess" :func:`excess_divergence`, "perprobe" :func:`per_probe_normalised`. ``depth_test`` forces the coarse
-    depth test on (else ``PlanningContext.occlusion`` decides); ``combine`` is "sum" (S(T) of those values) or
-    "balanced" (:func:`balanced_scores` of the coverage and S(T)).
+    The rule (:class:`nbv.plan.rules.FusedRule`) says which per-Gaussian values re-rank the shortlist ("fluid" the
+    probes' D_g, "area" ones, "shuffled" :func:`shuffled_divergence`, "excess" :func:`excess_divergence`, "perprobe"
+    :func:`per_probe_normalised`), whether the coarse depth test is forced on, and how the scores are combined
+    ("sum": S(T); "balanced": :func:`balanced_scores`).
+
+    Args:
+        rule: a :class:`~nbv.plan.rules.FusedRule` or a registered fused name (``"fisher+fluid"``).
+        config: the visual planner's config (default: its defaults).
     """
 
-    name = ""
-    visual_type: type = FisherPlanner
-    control = "fluid"
-    depth_test = False
-    combine = "sum"
+    def __init__(self, rule: FusedRule | str, config=None) -> None:
+        self.rule = FUSED[rule] if isinstance(rule, str) else rule
+        visual = VISUAL_TYPES[self.rule.visual]
+        self.config = config if config is not None else visual.config_type()
+        self.visual = visual(self.config)
 
-    def __init__(self, config) -> None:
-        self.config = config
-        self.visual = self.visual_type(config)
+    @property
+    def name(self) -> str:
+        return self.rule.name
+
+    @property
+    def control(self) -> str:
+        return self.rule.control
+
+    @property
+    def depth_test(self) -> bool:
+        return self.rule.depth_test
+
+    @property
+    def combine(self) -> str:
+        return self.rule.combine
 
     @property
     def uses_physics(self) -> bool:
-        """Whether the pick runs the probes (False for the coverage control)."""
-        return self.control != "area"
+        """Whether the pick runs the probes (False for the coverage controls)."""
+        return self.rule.uses_physics
 
     def per_gaussian(self, context: PlanningContext) -> torch.Tensor:
         """[N] the values S(T) sums with the view weights: D_g (1/s), ones, or D_g permuted."""
         if self.control == "area":
             return torch.ones(context.gaussians.num, dtype=torch.float64)
-        divergence = _run_physics(context, self.name)
+        divergence = run_physics(context, self.name)
         if self.control == "shuffled":
             return shuffled_divergence(divergence, self.config.seed, context.round)
         if self.control in ("excess", "perprobe"):
@@ -140,7 +158,7 @@ class _FusedPlanner:
         return divergence
 
     def select(self, context: PlanningContext) -> Selection:
-        _check_candidates(context, self.name)
+        check_candidates(context, self.name)
         count = len(context.candidates)
         k = fused_k(context.budget, context.n_selected)
         start = time.perf_counter()
@@ -155,7 +173,7 @@ class _FusedPlanner:
                                                                                dtype=torch.float64),
                                            occlusion=occlusion)
             chosen = balanced_scores(coverage, chosen)
-        physics = _nan_scores(count)
+        physics = nan_scores(count)
         for i, s in zip(shortlist, chosen, strict=True):
             physics[i] = s
         best = max(range(len(shortlist)), key=lambda j: (chosen[j], -j))
@@ -164,137 +182,3 @@ class _FusedPlanner:
         return Selection(pick=shortlist[best], shortlist=list(shortlist), k=k,
                          scores={"visual": list(visual), "physics": physics},
                          seconds={"visual": mid - start, "physics": time.perf_counter() - mid})
-
-
-
-class FisherFluidPlanner(_FusedPlanner):
-    """FisherRF + FluidGaussian (config: :class:`nbv.plan.fisher_info.FisherConfig`)."""
-
-    name = "fisher+fluid"
-    config_type = FisherConfig
-    visual_type = FisherPlanner
-
-    def __init__(self, config: FisherConfig | None = None) -> None:
-        super().__init__(config if config is not None else FisherConfig())
-
-
-
-class VarianceFluidPlanner(_FusedPlanner):
-    """ActiveNeRF + FluidGaussian (config: :class:`nbv.plan.variance_model.VarianceConfig`)."""
-
-    name = "variance+fluid"
-    config_type = VarianceConfig
-    visual_type = VariancePlanner
-
-    def __init__(self, config: VarianceConfig | None = None) -> None:
-        super().__init__(config if config is not None else VarianceConfig())
-
-
-
-class RandomFluidPlanner(_FusedPlanner):
-    """The random-selection ablation: K random candidates, re-ranked by S(T) (config: :class:`RandomConfig`)."""
-
-    name = "random+fluid"
-    config_type = RandomConfig
-    visual_type = RandomPlanner
-
-    def __init__(self, config: RandomConfig | None = None) -> None:
-        super().__init__(config if config is not None else RandomConfig())
-
-
-
-class FisherAreaPlanner(FisherFluidPlanner):
-    """Control: FisherRF's top-K re-ranked by the coverage sum_g w_g (S(T) with D_g = 1; no probes)."""
-
-    name = "fisher+area"
-    control = "area"
-
-
-
-class FisherShuffledPlanner(FisherFluidPlanner):
-    """Control: FisherRF's top-K re-ranked by S(T) with the probes' D_g permuted across the Gaussians."""
-
-    name = "fisher+shuffled"
-    control = "shuffled"
-
-
-
-class VarianceAreaPlanner(VarianceFluidPlanner):
-    """Control: the variance planner's top-K re-ranked by the coverage sum_g w_g (no probes)."""
-
-    name = "variance+area"
-    control = "area"
-
-
-
-class VarianceShuffledPlanner(VarianceFluidPlanner):
-    """Control: the variance planner's top-K re-ranked by S(T) with D_g permuted across the Gaussians."""
-
-    name = "variance+shuffled"
-    control = "shuffled"
-
-
-
-class RandomAreaPlanner(RandomFluidPlanner):
-    """Control: K random candidates re-ranked by the coverage sum_g w_g (no probes)."""
-
-    name = "random+area"
-    control = "area"
-
-
-
-class RandomShuffledPlanner(RandomFluidPlanner):
-    """Control: K random candidates re-ranked by S(T) with D_g permuted across the Gaussians."""
-
-    name = "random+shuffled"
-    control = "shuffled"
-
-
-
-class FisherFluidOccPlanner(FisherFluidPlanner):
-    """Candidate: FisherRF's top-K re-ranked by S(T) with the coarse depth test (hidden Gaussians do not count)."""
-
-    name = "fisher+fluid-occ"
-    depth_test = True
-
-
-
-class FisherAreaOccPlanner(FisherFluidPlanner):
-    """Control of ``fisher+fluid-occ``: the coverage of the unhidden Gaussians (depth test; no probes)."""
-
-    name = "fisher+area-occ"
-    control = "area"
-    depth_test = True
-
-
-
-class FisherExcessPlanner(FisherFluidPlanner):
-    """Candidate: S(T) of the excess divergence over the empty scene (:func:`excess_divergence`)."""
-
-    name = "fisher+excess"
-    control = "excess"
-
-
-
-class FisherPerProbePlanner(FisherFluidPlanner):
-    """Candidate: S(T) of the per-probe normalised D_g (:func:`per_probe_normalised`)."""
-
-    name = "fisher+perprobe"
-    control = "perprobe"
-
-
-
-class FisherBalancedPlanner(FisherFluidPlanner):
-    """Candidate: z(coverage) + z(S / coverage) over FisherRF's top-K (:func:`balanced_scores`)."""
-
-    name = "fisher+balanced"
-    combine = "balanced"
-
-
-
-class FisherBalancedOccPlanner(FisherFluidPlanner):
-    """Candidate: ``fisher+balanced`` with the coarse depth test (the coverage and S(T) of unhidden Gaussians)."""
-
-    name = "fisher+balanced-occ"
-    combine = "balanced"
-    depth_test = True

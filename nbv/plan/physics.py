@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from nbv.plan.base import PlanningContext, Selection, _check_candidates, _descending, _nan_scores
+from nbv.plan.base import PlanningContext, Selection, check_candidates, descending, nan_scores
 from nbv.scores import DepthBuffer, projected_view_scores
 from recon.camera import Camera
 from recon.gaussians import GaussianSet
@@ -78,7 +78,8 @@ def shuffled_divergence(divergence: torch.Tensor, seed: int, round_index: int = 
 
 
 
-def _run_physics(context: PlanningContext, name: str) -> torch.Tensor:
+def run_physics(context: PlanningContext, name: str) -> torch.Tensor:
+    """[N] D_g of the current Gaussians from ``context.physics`` (the probe runner), for planner ``name``."""
     if context.physics is None:
         raise ValueError(f"planner {name!r} needs PlanningContext.physics (the probe runner giving D_g); "
                          "pass one, or use a visual-only planner")
@@ -96,12 +97,12 @@ class PhysicsPlanner:
         self.config = config
 
     def select(self, context: PlanningContext) -> Selection:
-        _check_candidates(context, self.name)
+        check_candidates(context, self.name)
         start = time.perf_counter()
-        divergence = _run_physics(context, self.name)
+        divergence = run_physics(context, self.name)
         scores = physics_view_scores(context.gaussians, context.candidates, divergence, self.config.weighted,
                                      context.occlusion)
-        order = _descending(scores)
+        order = descending(scores)
         return Selection(pick=order[0], shortlist=order, k=None,
-                         scores={"visual": _nan_scores(len(scores)), "physics": scores},
+                         scores={"visual": nan_scores(len(scores)), "physics": scores},
                          seconds={"visual": 0.0, "physics": time.perf_counter() - start})

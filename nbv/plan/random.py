@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nbv.plan.base import PlanningContext, Selection, _check_candidates, _nan_scores
+from nbv.plan.base import PlanningContext, Selection, check_candidates, nan_scores
 
 
 @dataclass(frozen=True)
@@ -39,14 +39,14 @@ class RandomPlanner:
         """k distinct positions drawn uniformly at random (from (seed, round)) and NaN scores."""
         rng = np.random.default_rng([self.config.seed, context.round, k])
         count = len(context.candidates)
-        return [int(i) for i in rng.permutation(count)[:k]], _nan_scores(count)
+        return [int(i) for i in rng.permutation(count)[:k]], nan_scores(count)
 
     def select(self, context: PlanningContext) -> Selection:
-        _check_candidates(context, self.name)
+        check_candidates(context, self.name)
         start = time.perf_counter()
         rng = np.random.default_rng([self.config.seed, context.round])
         pick = int(rng.integers(len(context.candidates)))
         count = len(context.candidates)
         return Selection(pick=pick, shortlist=list(range(count)), k=None,
-                         scores={"visual": _nan_scores(count), "physics": _nan_scores(count)},
+                         scores={"visual": nan_scores(count), "physics": nan_scores(count)},
                          seconds={"visual": time.perf_counter() - start, "physics": 0.0})

@@ -1,4 +1,8 @@
-"""The planner registry: the method names of every command, and the factory that builds a planner by name."""
+"""The planner registry: the method names of every command, and the factory that builds a planner by name.
+
+The names are those of :data:`nbv.plan.rules.PLANNER_NAMES`: the planners that score views on their own, and the
+fused rules of :data:`nbv.plan.rules.FUSED_RULES`, all run by :class:`nbv.plan.fused.FusedPlanner`.
+"""
 
 from __future__ import annotations
 
@@ -6,59 +10,35 @@ from dataclasses import fields
 
 from nbv.plan.base import Planner
 from nbv.plan.fisher import FisherPlanner
-from nbv.plan.fused import (
-    FisherAreaOccPlanner,
-    FisherAreaPlanner,
-    FisherBalancedOccPlanner,
-    FisherBalancedPlanner,
-    FisherExcessPlanner,
-    FisherFluidOccPlanner,
-    FisherFluidPlanner,
-    FisherPerProbePlanner,
-    FisherShuffledPlanner,
-    RandomAreaPlanner,
-    RandomFluidPlanner,
-    RandomShuffledPlanner,
-    VarianceAreaPlanner,
-    VarianceFluidPlanner,
-    VarianceShuffledPlanner,
-    _FusedPlanner,
-)
+from nbv.plan.fused import VISUAL_TYPES, FusedPlanner
 from nbv.plan.physics import PhysicsPlanner
 from nbv.plan.random import RandomPlanner
+from nbv.plan.rules import FUSED, PLANNER_NAMES, FusedRule
 from nbv.plan.variance import VariancePlanner
 
-PLANNERS: dict[str, type] = {
-    "random": RandomPlanner,
-    "random+fluid": RandomFluidPlanner,
-    "fisher": FisherPlanner,
-    "variance": VariancePlanner,
-    "physics": PhysicsPlanner,
-    "fisher+fluid": FisherFluidPlanner,
-    "variance+fluid": VarianceFluidPlanner,
-    "fisher+area": FisherAreaPlanner,
-    "fisher+shuffled": FisherShuffledPlanner,
-    "variance+area": VarianceAreaPlanner,
-    "variance+shuffled": VarianceShuffledPlanner,
-    "random+area": RandomAreaPlanner,
-    "random+shuffled": RandomShuffledPlanner,
-    "fisher+fluid-occ": FisherFluidOccPlanner,
-    "fisher+area-occ": FisherAreaOccPlanner,
-    "fisher+excess": FisherExcessPlanner,
-    "fisher+perprobe": FisherPerProbePlanner,
-    "fisher+balanced": FisherBalancedPlanner,
-    "fisher+balanced-occ": FisherBalancedOccPlanner,
-}
+# name -> the planner class, or the fused rule that FusedPlanner runs
+PLANNERS: dict[str, type | FusedRule] = {"random": RandomPlanner, "fisher": FisherPlanner,
+                                         "variance": VariancePlanner, "physics": PhysicsPlanner, **FUSED}
+if tuple(PLANNERS) != PLANNER_NAMES:
+    raise RuntimeError(f"nbv.plan.registry lists {tuple(PLANNERS)}, nbv.plan.rules {PLANNER_NAMES}")
 
+
+def _entry(name: str) -> type | FusedRule:
+    if name not in PLANNERS:
+        raise ValueError(f"unknown planner {name!r}; choose one of {sorted(PLANNERS)}")
+    return PLANNERS[name]
+
+
+def config_type(name: str) -> type:
+    """The config dataclass of the registered planner ``name`` (a fused planner takes its visual planner's)."""
+    entry = _entry(name)
+    return VISUAL_TYPES[entry.visual].config_type if isinstance(entry, FusedRule) else entry.config_type
 
 
 def uses_physics(name: str) -> bool:
     """Whether the registered planner ``name`` runs the probes for its pick (physics, +fluid, +shuffled)."""
-    if name not in PLANNERS:
-        raise ValueError(f"unknown planner {name!r}; choose one of {sorted(PLANNERS)}")
-    cls = PLANNERS[name]
-    return cls is PhysicsPlanner or (issubclass(cls, _FusedPlanner) and cls.control != "area")
-
+    entry = _entry(name)
+    return entry.uses_physics if isinstance(entry, FusedRule) else entry is PhysicsPlanner
 
 
 def make_planner(name: str, **overrides) -> Planner:
@@ -75,12 +55,10 @@ def make_planner(name: str, **overrides) -> Planner:
         >>> make_planner("fisher+fluid", seed=1).name
         'fisher+fluid'
     """
-    if name not in PLANNERS:
-        raise ValueError(f"unknown planner {name!r}; choose one of {sorted(PLANNERS)}")
-    cls = PLANNERS[name]
-    known = {f.name for f in fields(cls.config_type)}
+    entry, cfg_type = _entry(name), config_type(name)
+    known = {f.name for f in fields(cfg_type)}
     unknown = sorted(set(overrides) - known)
     if unknown:
-        raise ValueError(f"planner {name!r}: unknown config fields {unknown}; "
-                         f"{cls.config_type.__name__} has {sorted(known)}")
-    return cls(cls.config_type(**overrides))
+        raise ValueError(f"planner {name!r}: unknown config fields {unknown}; {cfg_type.__name__} has {sorted(known)}")
+    config = cfg_type(**overrides)
+    return FusedPlanner(entry, config) if isinstance(entry, FusedRule) else entry(config)

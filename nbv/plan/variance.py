@@ -6,7 +6,7 @@ import time
 
 import torch
 
-from nbv.plan.base import PlanningContext, Selection, _check_candidates, _descending, _nan_scores
+from nbv.plan.base import PlanningContext, Selection, check_candidates, descending, nan_scores
 from nbv.plan.variance_model import VarianceConfig, fit_variances, variance_scores
 
 
@@ -32,12 +32,12 @@ class VariancePlanner:
         fit = fit_variances(g, context.train_views, context.background.to(g.device), self.config, warm)
         self.log_variances = fit.log_variances
         scores = variance_scores(g, context.candidates, fit.variances, self.config.prior_floor)
-        return _descending(scores)[:k], scores
+        return descending(scores)[:k], scores
 
     def select(self, context: PlanningContext) -> Selection:
-        _check_candidates(context, self.name)
+        check_candidates(context, self.name)
         start = time.perf_counter()
         _, scores = self.rank(context, len(context.candidates))
-        return Selection(pick=_descending(scores)[0], shortlist=_descending(scores), k=None,
-                         scores={"visual": scores, "physics": _nan_scores(len(scores))},
+        return Selection(pick=descending(scores)[0], shortlist=descending(scores), k=None,
+                         scores={"visual": scores, "physics": nan_scores(len(scores))},
                          seconds={"visual": time.perf_counter() - start, "physics": 0.0})

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from nbv.plan import (
+    FUSED_RULES,
     PLANNERS,
     PlanningContext,
     ProbeFields,
@@ -24,8 +25,9 @@ from nbv.plan import (
 from recon.camera import Camera
 from recon.gaussians import GaussianSet
 
-CANDIDATES = ("fisher+fluid-occ", "fisher+area-occ", "fisher+excess", "fisher+perprobe", "fisher+balanced",
-              "fisher+balanced-occ")
+# the candidates beyond coverage: the fused rules on FisherRF other than FluidGaussian and its two controls
+CANDIDATES = tuple(r.name for r in FUSED_RULES if r.visual == "fisher"
+                   and (r.depth_test or r.control in ("excess", "perprobe") or r.combine == "balanced"))
 
 
 class StubVisual:

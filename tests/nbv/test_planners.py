@@ -95,14 +95,26 @@ def _check_selection(sel: Selection, count: int) -> None:
 
 
 def test_registry_names_and_make_planner():
-    assert set(PLANNERS) == {"random", "fisher", "variance", "physics", "fisher+fluid", "variance+fluid",
-                             "random+fluid", "fisher+area", "fisher+shuffled", "variance+area", "variance+shuffled",
-                             "random+area", "random+shuffled", "fisher+fluid-occ", "fisher+area-occ",
-                             "fisher+excess", "fisher+perprobe", "fisher+balanced", "fisher+balanced-occ"}
+    from nbv.plan import FUSED_RULES, PLANNER_NAMES, FusedRule, describe_planners, uses_physics
+
+    assert tuple(PLANNERS) == PLANNER_NAMES and len(set(PLANNER_NAMES)) == len(PLANNER_NAMES)
+    assert {"random", "fisher", "variance", "physics", "fisher+fluid", "variance+fluid", "random+fluid"} <= set(
+        PLANNERS)
     for name in PLANNERS:
         planner = make_planner(name, seed=3)
         assert isinstance(planner, Planner)
         assert planner.name == name and planner.config.seed == 3
+        assert f"{name}" in describe_planners()  # the help names every planner
+    for rule in FUSED_RULES:  # each rule's name is <visual>+..., and the planner runs that rule on that visual planner
+        planner = make_planner(rule.name)
+        assert rule.name.startswith(rule.visual + "+") and planner.rule is rule
+        assert type(planner.visual).__name__ == {"fisher": "FisherPlanner", "variance": "VariancePlanner",
+                                                 "random": "RandomPlanner"}[rule.visual]
+        assert uses_physics(rule.name) == (rule.control != "area") == planner.uses_physics
+    with pytest.raises(ValueError, match="control must be one of"):
+        FusedRule("fisher+x", "fisher", control="x")
+    with pytest.raises(ValueError, match="visual must be one of"):
+        FusedRule("physics+x", "physics")
     assert make_planner("fisher+fluid", regularization=1e-3).config.regularization == 1e-3
     assert make_planner("variance+fluid", iterations=5).config.iterations == 5
     with pytest.raises(ValueError, match="unknown planner"):

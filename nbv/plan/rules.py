@@ -1,0 +1,88 @@
+"""The planners' names, and the fused planners declared as data (paper Sec. 3.1 and 3.4, Appendix "view selection").
+
+A fused planner is a visual planner's top-K shortlist re-ranked by a physics rule: one :class:`FusedRule` each, in one
+table (:data:`FUSED_RULES`), as gsplat declares its densification strategies and nerfstudio its method configs.
+Each name is written once, here; the registry (:mod:`nbv.plan.registry`), the command-line help
+(:func:`describe_planners`) and the tests read the table. This module needs no torch, so ``--help`` stays fast.
+
+Example:
+    >>> FUSED["fisher+area"].control
+    'area'
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# The planners that score views on their own (nbv.plan.random, fisher, variance, physics).
+BASE_PLANNERS = ("random", "fisher", "variance", "physics")
+# The planners that propose a fused planner's shortlist.
+VISUAL_PLANNERS = ("fisher", "variance", "random")
+# Which per-Gaussian values re-rank the shortlist (nbv.plan.fused.FusedPlanner.per_gaussian).
+CONTROLS = ("fluid", "area", "shuffled", "excess", "perprobe")
+# How the shortlist's scores are formed: S(T) of those values, or z(coverage) + z(S / coverage).
+COMBINES = ("sum", "balanced")
+
+
+@dataclass(frozen=True)
+class FusedRule:
+    """One fused planner.
+
+    Attributes:
+        name: the planner's registered name, ``<visual>+<rule>``.
+        visual: the visual planner of the shortlist (:data:`VISUAL_PLANNERS`); the fused planner takes its config.
+        control: the per-Gaussian values S(T) sums: "fluid" the probes' D_g, "area" ones (the coverage control; no
+            probe runs), "shuffled" D_g permuted across the Gaussians, "excess" D_g minus the empty-scene D_g,
+            "perprobe" each probe normalised to its own scale before the max.
+        depth_test: always apply the coarse depth test (else ``PlanningContext.occlusion`` decides).
+        combine: "sum" (S(T)) or "balanced" (z(coverage) + z(S / coverage)).
+        summary: one line for the command-line help.
+    """
+
+    name: str
+    visual: str
+    control: str = "fluid"
+    depth_test: bool = False
+    combine: str = "sum"
+    summary: str = ""
+
+    def __post_init__(self) -> None:
+        if self.visual not in VISUAL_PLANNERS:
+            raise ValueError(f"FusedRule {self.name!r}: visual must be one of {VISUAL_PLANNERS}, got {self.visual!r}")
+        if self.control not in CONTROLS:
+            raise ValueError(f"FusedRule {self.name!r}: control must be one of {CONTROLS}, got {self.control!r}")
+        if self.combine not in COMBINES:
+            raise ValueError(f"FusedRule {self.name!r}: combine must be one of {COMBINES}, got {self.combine!r}")
+
+    @property
+    def uses_physics(self) -> bool:
+        """Whether the pick runs the probes (False for the coverage controls)."""
+        return self.control != "area"
+
+
+FUSED_RULES = (
+    FusedRule("fisher+fluid", "fisher", summary="FluidGaussian: FisherRF's top-K re-ranked by S(T)"),
+    FusedRule("variance+fluid", "variance", summary="the same on the variance planner"),
+    FusedRule("random+fluid", "random", summary="K random candidates re-ranked by S(T), the paper's ablation"),
+    FusedRule("fisher+area", "fisher", "area", summary="control: the coverage, no probes"),
+    FusedRule("fisher+shuffled", "fisher", "shuffled", summary="control: D_g permuted"),
+    FusedRule("variance+area", "variance", "area", summary="control: the coverage, no probes"),
+    FusedRule("variance+shuffled", "variance", "shuffled", summary="control: D_g permuted"),
+    FusedRule("random+area", "random", "area", summary="control: the coverage, no probes"),
+    FusedRule("random+shuffled", "random", "shuffled", summary="control: D_g permuted"),
+    FusedRule("fisher+fluid-occ", "fisher", depth_test=True, summary="candidate: depth-tested S(T)"),
+    FusedRule("fisher+area-occ", "fisher", "area", depth_test=True, summary="its coverage control"),
+    FusedRule("fisher+excess", "fisher", "excess", summary="candidate: D_g minus the empty-scene D_g"),
+    FusedRule("fisher+perprobe", "fisher", "perprobe", summary="candidate: each probe normalised"),
+    FusedRule("fisher+balanced", "fisher", combine="balanced", summary="candidate: z(coverage) + z(S / coverage)"),
+    FusedRule("fisher+balanced-occ", "fisher", depth_test=True, combine="balanced", summary="the same, depth-tested"),
+)
+FUSED = {r.name: r for r in FUSED_RULES}
+# Every registered planner name.
+PLANNER_NAMES = BASE_PLANNERS + tuple(FUSED)
+
+
+def describe_planners() -> str:
+    """The names of every planner for the command-line help, the fused ones with their summaries."""
+    fused = "; ".join(f"{r.name} ({r.summary})" for r in FUSED_RULES)
+    return f"{', '.join(BASE_PLANNERS)}, or a fused planner: {fused}"
