@@ -101,8 +101,8 @@ def detect_format(path: str | Path) -> str:
         return "spz"
     if suffix == ".splat":
         return "splat"  # no magic: load_splat checks the size
-    if suffix == ".ksplat" and ksplat.is_ksplat(head):
-        return "ksplat"
+    if suffix == ".ksplat":
+        return "ksplat"  # no magic: load_ksplat checks the version and the mode
     if suffix == ".json" and head.lstrip()[:1] == b"{":
         return "sog"  # a SOG meta.json: load_sog says so when it is not one
     if suffix in (".pt", ".pth", ".ckpt") and head[:1] == b"\x80":
@@ -110,7 +110,6 @@ def detect_format(path: str | Path) -> str:
     if not head:
         raise ValueError(f"{path}: the file is empty; {SUPPORTED}")
     expected = {".ply": "not a PLY file (the first line is not 'ply')",
-                ".ksplat": "not a .ksplat file (its header is not version 0.x with compression mode 0-2)",
                 ".npz": "not a readable .npz archive (no zip signature)",
                 ".spz": "not an .spz file (neither gzip-wrapped nor starting with 'NGSP')"}
     what = expected.get(suffix, f"unrecognised Gaussian file format (suffix {path.suffix!r})")

@@ -47,12 +47,6 @@ DECODED_BYTES_PER_SPLAT = 4 * (3 + 4 + 3 + 1 + 16 * 3)
 FIX = "re-export it (gaussforge, splat-transform or the GaussianSplats3D converter write .ksplat)"
 
 
-def is_ksplat(head: bytes) -> bool:
-    """Whether the first bytes look like a .ksplat main header (major 0, minor 1-255, compression mode 0-2); the
-    suffix is needed too, since the header has no magic."""
-    return len(head) >= 22 and head[0] == 0 and head[1] >= 1 and struct.unpack_from("<H", head, 20)[0] <= 2
-
-
 def sh_component_order(degree: int) -> np.ndarray:
     """[3 (K-1)] the channel-major ``f_rest`` index of each stored SH value of a record of SH degree ``degree``."""
     order = []

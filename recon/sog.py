@@ -280,7 +280,7 @@ def _sh_rest(files, meta: dict, version: int, n: int, source: str) -> np.ndarray
         return None
     centroid_name, label_name = _files(meta, "shN", 2, source)
     labels_px, _ = _image(files, label_name, source, n, "shN_labels")
-    labels = labels_px[:n, 0].astype(np.int64) + 256 * labels_px[:n, 1]
+    labels = labels_px[:n, 0].astype(np.int64) + 256 * labels_px[:n, 1].astype(np.int64)
     from PIL import Image  # noqa: PLC0415
 
     data = files.read(centroid_name, source, memory_budget_bytes())
