@@ -253,7 +253,7 @@ _EMPTY_CACHE: dict = {}
 
 
 def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, source: str = "",
-                       record=None, *, solid_edit=None) -> PhysicsResult:
+                       record=None, *, solid_edit=None, source_frame: str = "") -> PhysicsResult:
     """Run the probes against the solid of ``gaussians`` and aggregate D_i onto every Gaussian (Eq. 2-3).
 
     Uses the Taichi runtime already initialised by the caller (never calls ``ti.init``).
@@ -263,6 +263,8 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
         config: probe settings.
         progress: a tqdm bar per probe (steps, solver iterations, max speed).
         source: a label for the result (the .ply path).
+        source_frame: the JSON record of the frame the file was read in (``recon.formats.SourceFrame.to_json``),
+            stored in RESULT.h5.
         record: a :class:`nbv.physics.trajectory.RecordConfig`: keep those probes' fluid every k steps in
             ``PhysicsResult.trajectories`` (None: nothing recorded).
         solid_edit: for measurements only: a function ``Solid -> Solid`` applied to the solid before the probes
@@ -288,9 +290,11 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
             part = simulate_gaussians(gaussians.subset(torch.from_numpy(np.nonzero(kept)[0])), inner, progress,
                                       source, record, solid_edit=solid_edit)
         except ProbeDiverged as exc:
-            exc.result = replace(expand_to_all(exc.result, gaussians, kept, config), gaussians_sha256=digest)
+            exc.result = replace(expand_to_all(exc.result, gaussians, kept, config), gaussians_sha256=digest,
+                                 source_frame=source_frame)
             raise
-        return replace(expand_to_all(part, gaussians, kept, config), gaussians_sha256=digest)
+        return replace(expand_to_all(part, gaussians, kept, config), gaussians_sha256=digest,
+                       source_frame=source_frame)
     # The cheap bound (the Gaussians' box) decides first; when it does not fit but the lattice does, the
     # solid is computed and the probes are re-estimated around it, since scattered faint Gaussians widen
     # the box without making solid. Either way the check comes before any probe is allocated.
@@ -324,7 +328,8 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     recorder = _ProbeRecorder(means, reach, config, progress, solid=solid, record=record,
                               grid_bounds=probe_domains_union(solid.points, config, scfg.spacing))
     base = dict(solid=np.asarray(solid.points, np.float64), transform=transform, means=means, covariances=covs,
-                reach=reach, config=config, source=source, gaussians_sha256=digest)
+                reach=reach, config=config, source=source, gaussians_sha256=digest,
+                source_frame=source_frame)
 
     def timings(empty_s: float = 0.0) -> dict[str, float]:
         return {"solidify": solidify_s, "simulation": recorder.probe_s - recorder.aggregation_s,
