@@ -15,6 +15,7 @@ import numpy as np
 
 from .options import (
     add_camera_arguments,
+    add_gaussian_file_arguments,
     add_physics_arguments,
     check_output_file,
     load_gaussians_checked,
@@ -23,7 +24,9 @@ from .options import (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
+    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
+                   "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units")
+    add_gaussian_file_arguments(p)
     add_camera_arguments(p)
     p.add_argument("-o", "--output", type=Path, default=Path("critical.json"),
                    help="JSON with C(T) per camera and the critical subset (written atomically)")
@@ -51,12 +54,13 @@ def run_command(args: argparse.Namespace) -> int:
     check_not_input({"-o": output}, {"GAUSSIANS": args.gaussians, "--cameras": args.cameras})
     if args.subset < 1:
         raise ValueError(f"--subset must be >= 1 view, got {args.subset}")
-    gaussians = load_gaussians_checked(args.gaussians)
+    gaussians = load_gaussians_checked(args.gaussians, args)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     check_cameras_see(gaussians, cams, [c.name for c in cams])
     init_taichi(args.device, config.precision, args.threads)
-    result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians))
+    result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians),
+                                source_frame=getattr(args, "source_frame", ""))
     distinct = result.distinct_counts()
     if not distinct.any():
         raise ValueError(f"{args.gaussians}: no probe fluid particle came within reach of any of the {len(distinct)} "

@@ -14,6 +14,7 @@ from pathlib import Path
 from .options import (
     add_config_options,
     add_frame_arguments,
+    add_gaussian_file_arguments,
     check_output_file,
     physics_config_class,
     physics_config_from_args,
@@ -24,7 +25,9 @@ from .runtime import positive_int
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("gaussians", type=Path,
-                   help="Gaussians: 3DGS .ply, SuperSplat compressed .ply, .spz, .splat or .npz (scene units)")
+                   help="Gaussians: 3DGS .ply, SuperSplat compressed .ply, .spz, .splat, .npz, .sog (or a meta.json "
+                        "folder), .ksplat, or a gsplat or nerfstudio checkpoint (scene units)")
+    add_gaussian_file_arguments(p)
     g = p.add_argument_group("frame and solid")
     add_frame_arguments(g)
     config, quick = physics_config_class()
@@ -44,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run_command(args: argparse.Namespace) -> int:
     from nbv.inspection import describe, inspect_gaussians, inspection_views
     from nbv.io import check_not_input, write_json_atomic, write_png_atomic
-    from recon.formats import load_gaussians_with_format
+    from recon.formats import LoadOptions, load_gaussians_framed
 
     from .runtime import init_taichi
 
@@ -55,7 +58,9 @@ def run_command(args: argparse.Namespace) -> int:
     config = physics_config_from_args(args, steps=1)  # inspect runs no probe; the other fields keep their defaults
     if not Path(args.gaussians).exists():
         raise ValueError(f"Gaussian file {args.gaussians} does not exist")
-    gaussians, fmt = load_gaussians_with_format(args.gaussians)
+    gaussians, fmt, frame = load_gaussians_framed(
+        args.gaussians, LoadOptions(args.spz_frame, args.colmap, args.dataparser_transforms))
+    print(f"frame: {frame.description}")
     init_taichi(args.device, config.precision, args.threads)
     inspection = inspect_gaussians(gaussians, config, fmt)
     summary = {"file": str(args.gaussians), **inspection.summary}

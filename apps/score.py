@@ -22,6 +22,7 @@ from fluidsim.files import write_json_atomic
 
 from .options import (
     add_camera_arguments,
+    add_gaussian_file_arguments,
     add_physics_arguments,
     add_record_arguments,
     check_output_file,
@@ -37,7 +38,9 @@ PNG_TOP = 5  # views rendered to PNG by default (the scores themselves need no r
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
+    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
+                   "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units")
+    add_gaussian_file_arguments(p)
     add_camera_arguments(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="scores JSON file (written atomically)")
     p.add_argument("--result", type=Path, default=None,
@@ -76,7 +79,8 @@ def obtain_result(args, gaussians, config, record=None):
                 log.warning("%s, probe %s: %s", args.result, d, note)
         return result
     init_taichi(args.device, config.precision, args.threads)
-    result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians), record=record)
+    result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians),
+                                source_frame=getattr(args, "source_frame", ""), record=record)
     if args.save_result is not None:
         save_result(args.save_result, result)
     return result
@@ -115,7 +119,7 @@ def run_command(args: argparse.Namespace) -> int:
     if record is not None and (args.result is not None or args.save_result is None):
         raise ValueError("--record-probe records into the RESULT.h5 of a fresh simulation: pass --save-result "
                          "RESULT.h5" + (" and drop --result" if args.result is not None else ""))
-    gaussians = load_gaussians_checked(args.gaussians)
+    gaussians = load_gaussians_checked(args.gaussians, args)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     visible_centres = check_cameras_see(gaussians, cams, [c.name for c in cams])

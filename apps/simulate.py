@@ -15,6 +15,7 @@ import logging
 from pathlib import Path
 
 from .options import (
+    add_gaussian_file_arguments,
     add_physics_arguments,
     add_record_arguments,
     check_output_file,
@@ -28,7 +29,9 @@ log = logging.getLogger("fluidgs")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
+    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
+                   "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units")
+    add_gaussian_file_arguments(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="result HDF5 file (written atomically)")
     p.add_argument("--ply", type=Path, default=None,
                    help="Gaussians coloured by D_g (default: the output path with suffix _divergence.ply)")
@@ -65,10 +68,11 @@ def run_command(args: argparse.Namespace) -> int:
             raise ValueError(f"--video-every must be >= 1 step, got {args.video_every}")
         check_writable(video)
     record = record_config_from_args(args, config)
-    gaussians = load_gaussians_checked(args.gaussians)
+    gaussians = load_gaussians_checked(args.gaussians, args)
     init_taichi(args.device, config.precision, args.threads)
     try:
-        result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians), record=record)
+        result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians),
+                                source_frame=getattr(args, "source_frame", ""), record=record)
     except ProbeDiverged as exc:
         return save_diverged(exc, output)
     save_result(output, result)

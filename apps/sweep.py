@@ -13,11 +13,19 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .options import add_physics_arguments, check_output_file, load_gaussians_checked, physics_config_from_args
+from .options import (
+    add_gaussian_file_arguments,
+    add_physics_arguments,
+    check_output_file,
+    load_gaussians_checked,
+    physics_config_from_args,
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
+    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
+                   "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units")
+    add_gaussian_file_arguments(p)
     from nbv.study.sweep import PAPER_VELOCITIES
 
     p.add_argument("--velocities", default=",".join(f"{u:g}" for u in PAPER_VELOCITIES),
@@ -53,7 +61,7 @@ def run_command(args: argparse.Namespace) -> int:
     check_not_input({"-o": output, "plot": output.with_suffix(".png")},
                     {"GAUSSIANS": args.gaussians, "--compare": args.compare})
     check_writable(output.with_suffix(".png"))
-    gaussians = load_gaussians_checked(args.gaussians)
+    gaussians = load_gaussians_checked(args.gaussians, args)
     other = load_gaussians_checked(args.compare) if args.compare is not None else None
     init_taichi(args.device, config.precision, args.threads)
     points = run_sweep(gaussians, config, velocities, other=other, progress=True)

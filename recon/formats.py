@@ -6,12 +6,21 @@
 - ``spz``: Niantic .spz, versions 2-4 (:mod:`recon.spz`): the gzip magic ``1f 8b`` or ``NGSP``;
 - ``splat``: antimatter15 .splat (:mod:`recon.dotsplat`): no header, so the ``.splat`` suffix (its reader checks
   that the size is a whole number of 32-byte records);
-- ``npz``: the arrays of a GaussianSet or a gsplat checkpoint (:mod:`recon.ply`): the zip magic ``PK``.
+- ``npz``: the arrays of a GaussianSet or a gsplat checkpoint's arrays (:mod:`recon.ply`): the zip magic ``PK``;
+- ``sog``: PlayCanvas SOG versions 1-2 (:mod:`recon.sog`): a zip holding ``meta.json`` (a ``.sog`` bundle), a
+  ``meta.json`` file or a folder holding one;
+- ``ksplat``: mkkellogg GaussianSplats3D .ksplat, compression modes 0-2 (:mod:`recon.ksplat`): no magic, so the
+  ``.ksplat`` suffix and a header of version 0.x;
+- ``checkpoint``: a gsplat ``ckpt_*.pt`` or nerfstudio splatfacto ``step-*.ckpt`` (:mod:`recon.checkpoints`): a
+  ``torch.save`` zip (a ``data.pkl`` member), read with ``weights_only=True``; the trainer's normalisation is
+  undone when its transform is known (:class:`LoadOptions`).
 
 The content decides, not the suffix (a compressed .ply is a .ply too); the suffix only names the format of a file
 whose content is recognised as none of them, for a sharper message. Every reader returns the 3DGS .ply frame
-(an .spz, stored right-up-back, is turned to it) and compares the sizes a header declares with the file size
-before allocating anything. Writing stays the standard .ply or .npz (:func:`recon.ply.save_gaussians`).
+(an .spz, stored right-up-back, is turned to it unless ``LoadOptions.spz_frame`` is "ply") and compares the sizes a
+header declares with the file size and the memory budget (:mod:`recon.inflate`) before allocating anything.
+:func:`load_gaussians_framed` also says which frame it assumed (:class:`SourceFrame`), for the log and
+RESULT.h5. Writing stays the standard .ply or .npz (:func:`recon.ply.save_gaussians`).
 
 Example:
     >>> g, fmt = load_gaussians_with_format("biker.spz")  # doctest: +SKIP
@@ -21,11 +30,16 @@ Example:
 
 from __future__ import annotations
 
+import json
 import logging
+import zipfile
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
-from . import compressed_ply, dotsplat, ply, spz
+import numpy as np
+
+from . import compressed_ply, dotsplat, ksplat, ply, sog, spz
 from .gaussians import GaussianSet
 
 log = logging.getLogger(__name__)
@@ -35,7 +49,10 @@ FORMATS: dict[str, str] = {
     "compressed_ply": "SuperSplat/PlayCanvas compressed .ply",
     "spz": "Niantic .spz (versions 2, 3, 4)",
     "splat": "antimatter15 .splat",
-    "npz": ".npz (GaussianSet arrays or a gsplat checkpoint)",
+    "npz": ".npz (GaussianSet arrays or a gsplat checkpoint's arrays)",
+    "sog": "PlayCanvas SOG (versions 1, 2: .sog bundle or meta.json folder)",
+    "ksplat": "mkkellogg .ksplat (compression modes 0, 1, 2)",
+    "checkpoint": "gsplat ckpt_*.pt or nerfstudio splatfacto step-*.ckpt",
 }
 SUPPORTED = "supported formats: " + "; ".join(FORMATS.values())
 READERS: dict[str, Callable[[Path], GaussianSet]] = {
@@ -44,8 +61,11 @@ READERS: dict[str, Callable[[Path], GaussianSet]] = {
     "spz": spz.load_spz,
     "splat": dotsplat.load_splat,
     "npz": ply.load_npz,
+    "sog": sog.load_sog,
+    "ksplat": ksplat.load_ksplat,
 }
-SUFFIXES = (".ply", ".spz", ".splat", ".npz")
+SUFFIXES = (".ply", ".spz", ".splat", ".npz", ".sog", ".ksplat", ".pt", ".ckpt")
+MAX_ZIP_NAMES = 100_000
 ZIP_MAGICS = (b"PK\x03\x04", b"PK\x05\x06")
 
 
@@ -55,7 +75,7 @@ def detect_format(path: str | Path) -> str:
     Args:
         path: the file.
     Returns:
-        "ply", "compressed_ply", "spz", "splat" or "npz".
+        a key of :data:`FORMATS`.
     Raises:
         FileNotFoundError: nothing exists at ``path``.
         ValueError: ``path`` is a folder, an empty file, a malformed PLY header, or a format none of the readers
@@ -63,22 +83,30 @@ def detect_format(path: str | Path) -> str:
     """
     path = Path(path)
     if path.is_dir():
+        if sog.is_sog_folder(path):
+            return "sog"
         raise ValueError(_folder_message(path))
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such Gaussian file")
     with open(path, "rb") as fh:
-        head = fh.read(8)
+        head = fh.read(64)
         if head[:3] == b"ply" and head[3:4] in (b"\n", b"\r"):
             fh.seek(0)
             layout = ply.parse_ply_header(fh, str(path))
             return "compressed_ply" if compressed_ply.is_compressed_layout(layout) else "ply"
+    suffix = path.suffix.lower()
     if head[:4] in ZIP_MAGICS:
-        return "npz"
+        return _zip_format(path)
     if head[:2] == spz.GZIP_MAGIC or head[:4] == spz.NGSP_MAGIC:
         return "spz"
-    suffix = path.suffix.lower()
     if suffix == ".splat":
         return "splat"  # no magic: load_splat checks the size
+    if suffix == ".ksplat":
+        return "ksplat"  # no magic: load_ksplat checks the version and the mode
+    if suffix == ".json" and head.lstrip()[:1] == b"{":
+        return "sog"  # a SOG meta.json: load_sog says so when it is not one
+    if suffix in (".pt", ".pth", ".ckpt") and head[:1] == b"\x80":
+        return "checkpoint"  # a legacy (non-zip) torch.save file
     if not head:
         raise ValueError(f"{path}: the file is empty; {SUPPORTED}")
     expected = {".ply": "not a PLY file (the first line is not 'ply')",
@@ -91,6 +119,93 @@ def detect_format(path: str | Path) -> str:
     raise ValueError(f"{path}: {what}; it starts with {head!r}{hint}; {SUPPORTED}")
 
 
+def _zip_format(path: Path) -> str:
+    """"sog", "checkpoint" or "npz" for a zip archive, from its member names."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = archive.namelist()[:MAX_ZIP_NAMES]
+    except (zipfile.BadZipFile, OSError, EOFError):
+        return "npz"  # load_npz names the problem
+    if sog.is_sog_bundle(names):
+        return "sog"
+    from .checkpoints import is_torch_checkpoint  # noqa: PLC0415 - keeps torch.load paths out of the other formats
+
+    return "checkpoint" if is_torch_checkpoint(names) else "npz"
+
+
+@dataclass(frozen=True)
+class LoadOptions:
+    """What the content of a file cannot say (the command line's ``--spz-frame``, ``--colmap`` and
+    ``--dataparser-transforms``).
+
+    Attributes:
+        spz_frame: "rub" (Niantic's definition: turned half a turn about x) or "ply" (splat-transform's: kept).
+        colmap: the COLMAP model a gsplat checkpoint was trained on (its normalisation is recomputed and undone).
+        dataparser_transforms: nerfstudio's dataparser_transforms.json (default: found beside config.yml).
+    """
+
+    spz_frame: str = "rub"
+    colmap: Path | None = None
+    dataparser_transforms: Path | None = None
+
+
+@dataclass(frozen=True)
+class SourceFrame:
+    """The frame a loaded file was assumed to be in, and the transform applied to its values.
+
+    Attributes:
+        format: the :func:`detect_format` name.
+        description: one line for the log (which frame, which convention, how to choose the other).
+        to_loaded: 4x4 matrix from the file's values to the returned ones (x_loaded = M [x_file, 1]).
+        metric: False when the sizes are a trainer's normalised units (nothing could restore the frame).
+    """
+
+    format: str
+    description: str
+    to_loaded: np.ndarray
+    metric: bool = True
+
+    def to_json(self) -> str:
+        """The record stored in RESULT.h5 (``source_frame``)."""
+        return json.dumps({"format": self.format, "description": self.description,
+                           "to_loaded": np.asarray(self.to_loaded, float).tolist(), "metric": self.metric})
+
+
+def load_gaussians_framed(path: str | Path, options: LoadOptions | None = None
+                          ) -> tuple[GaussianSet, str, SourceFrame]:
+    """Read a Gaussian file of any supported format, and say which frame it was assumed to be in.
+
+    Returns:
+        (the float32 GaussianSet on the CPU, the format name, its :class:`SourceFrame`).
+    Raises:
+        FileNotFoundError, ValueError: as :func:`load_gaussians_with_format`.
+    """
+    options = options or LoadOptions()
+    fmt = detect_format(path)
+    path = Path(path)
+    identity = np.eye(4)
+    if fmt == "spz":
+        gaussians = spz.load_spz(path, options.spz_frame)
+        turned = options.spz_frame == "rub"
+        other = "ply" if turned else "rub"
+        frame = SourceFrame(fmt, f"{path}: .spz read as {spz.SPZ_FRAMES[options.spz_frame]}; if it looks upside "
+                                 f"down, pass --spz-frame {other} (see docs/formats.md)",
+                            np.diag([1.0, -1.0, -1.0, 1.0]) if turned else identity)
+    elif fmt == "checkpoint":
+        from .checkpoints import load_checkpoint, restore_metric_frame  # noqa: PLC0415 - torch.load only here
+
+        model = load_checkpoint(path)
+        gaussians, undo, note = restore_metric_frame(model, options.colmap, options.dataparser_transforms)
+        frame = SourceFrame(fmt, f"{path}: {model.trainer} checkpoint; {note}" if undo is not None else note,
+                            identity if undo is None else undo, metric=undo is not None)
+    else:
+        gaussians = READERS[fmt](path)
+        frame = SourceFrame(fmt, f"{path}: {FORMATS[fmt]} read in the file's own frame (the 3DGS .ply frame)",
+                            identity)
+    log.debug("%s: %d Gaussians read as %s", path, gaussians.num, FORMATS[fmt])
+    return gaussians, fmt, frame
+
+
 def load_gaussians_with_format(path: str | Path) -> tuple[GaussianSet, str]:
     """Read a Gaussian file of any supported format; also return the format name (for ``fluidgs inspect``).
 
@@ -100,9 +215,7 @@ def load_gaussians_with_format(path: str | Path) -> tuple[GaussianSet, str]:
         FileNotFoundError: nothing exists at ``path``.
         ValueError: a folder, an unsupported format, or any problem with the content; the message names the file.
     """
-    fmt = detect_format(path)
-    gaussians = READERS[fmt](Path(path))
-    log.debug("%s: %d Gaussians read as %s", path, gaussians.num, FORMATS[fmt])
+    gaussians, fmt, _ = load_gaussians_framed(path)
     return gaussians, fmt
 
 

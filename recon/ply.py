@@ -48,6 +48,7 @@ import io
 import os
 import re
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,6 +58,7 @@ import torch
 from fluidsim.files import write_bytes_atomic
 
 from .gaussians import GaussianSet, sh_coefficient_count
+from .inflate import CHUNK_BYTES, check_budget
 
 PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -474,7 +476,12 @@ def _read_npz_arrays(path: Path, source: str) -> dict[str, np.ndarray]:
         if sum(i.compress_size for i in infos) > path.stat().st_size:
             raise ValueError(f"{source}: not a readable .npz archive (its directory lists more data than the file "
                              f"holds: truncated or corrupt); {fix}")
+        check_budget(source, f"the {len(infos)} arrays of the .npz", sum(i.file_size for i in infos))
         for info in infos:
+            if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+                raise ValueError(f"{source}: not a readable .npz archive (member {info.filename!r} uses zip "
+                                 f"compression method {info.compress_type}; numpy writes only stored or deflated "
+                                 f"members); {fix}")
             if not info.filename.endswith(".npy"):
                 raise ValueError(f"{source}: not a readable .npz archive (member {info.filename!r} is not a .npy "
                                  f"array); {fix}")
@@ -503,8 +510,15 @@ def _read_npy_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: st
             if declared > available:
                 raise ValueError(f"the header declares {shape} {dtype} ({declared} bytes) but only {available} "
                                  f"bytes follow: truncated or corrupt")
-            data = fp.read(declared)
-    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+            parts, got = [], 0
+            while got < declared:  # bounded chunks: a member never yields more than its header declared
+                part = fp.read(min(CHUNK_BYTES, declared - got))
+                if not part:
+                    break
+                parts.append(part)
+                got += len(part)
+            data = b"".join(parts)
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, zlib.error) as exc:
         raise ValueError(f"{source}: not a readable .npz archive (array {name!r}: {exc}); {fix}") from None
     if len(data) != declared:
         raise ValueError(f"{source}: not a readable .npz archive (array {name!r} is truncated); {fix}")

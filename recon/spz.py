@@ -32,11 +32,12 @@ quaternion's ``w`` and ``x`` and negates ``y`` and ``z``, and flips the sign of 
 odd in (y, z) (:data:`RUB_TO_RDF_SH_SIGNS`). :func:`load_spz` returns the RDF frame, as the reference
 ``spz_to_ply`` does, so a capture read from .spz lands where the same capture's .ply does (checked on a real
 capture exported both ways: the same 152,746 Gaussians, positions within the two formats' quantisation).
+splat-transform (and so SuperSplat) reads and writes .spz in the .ply frame without that turn, so files of both
+kinds exist and nothing in the header tells them apart: ``frame="ply"`` reads the second kind as stored.
 """
 
 from __future__ import annotations
 
-import io
 import logging
 import struct
 import zlib
@@ -45,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from .gaussians import GaussianSet
+from .inflate import check_budget, inflate_zstd
 from .ply import check_declared_size, gaussians_from_arrays, opacity_logits_from_unit
 
 log = logging.getLogger(__name__)
@@ -62,6 +64,8 @@ MAX_FRACTIONAL_BITS = 24
 MAX_DEFLATE_RATIO = 1100  # deflate expands at most ~1032:1
 MAX_ZSTD_RATIO = 1024  # the reference loader's bound on numPoints for a version-4 file of a given size
 MAX_LEGACY_EXTENSION_BYTES = 1 << 20
+# float32 arrays of the decoded set per point (means, quats, log-scales, opacity, SH up to degree 3)
+DECODED_BYTES_PER_POINT = 4 * (3 + 4 + 3 + 1 + 16 * 3)
 ATTRIBUTES = ("positions", "alphas", "colors", "scales", "rotations", "sh")
 # sign of each real SH basis function (3DGS order, degrees 1-3) under (x, y, z) -> (x, -y, -z)
 RUB_TO_RDF_SH_SIGNS = np.array([-1, -1, 1,  # y, z, x
@@ -69,11 +73,18 @@ RUB_TO_RDF_SH_SIGNS = np.array([-1, -1, 1,  # y, z, x
                                 -1, 1, -1, -1, 1, -1, 1], np.float32)  # y(3x^2-y^2), xyz, y(.), z(.), x(.), z(.), x(.)
 
 
-def load_spz(path: str | Path) -> GaussianSet:
+SPZ_FRAMES = {"rub": "right-up-back as Niantic's specification defines it, turned half a turn about x to the .ply "
+                      "frame (Niantic's spz_to_ply does the same)",
+              "ply": "the .ply frame, kept as stored (splat-transform and SuperSplat write and read .spz so)"}
+
+
+def load_spz(path: str | Path, frame: str = "rub") -> GaussianSet:
     """Read an ``.spz`` file (any of the containers in the module docstring) in the 3DGS .ply (RDF) frame.
 
     Args:
         path: the file.
+        frame: what the file stores (:data:`SPZ_FRAMES`): "rub" (Niantic's definition, the default: turned half a
+            turn about x) or "ply" (splat-transform's convention: kept). Nothing in the header tells them apart.
     Returns:
         A float32 GaussianSet on the CPU: means [N, 3] (scene units), (w, x, y, z) quats [N, 4], log-scales
         [N, 3], opacity logits [N] and SH [N, K, 3], K = 1, 4, 9 or 16.
@@ -82,6 +93,8 @@ def load_spz(path: str | Path) -> GaussianSet:
             file cannot hold, truncated data, or decoded values that fail the set's check.
     """
     source = str(path)
+    if frame not in SPZ_FRAMES:
+        raise ValueError(f"the .spz frame must be one of {sorted(SPZ_FRAMES)}, got {frame!r}")
     data = Path(path).read_bytes()
     if data[:2] == GZIP_MAGIC:
         header, arrays = _read_legacy(_gunzip_legacy(data, source), source)
@@ -93,7 +106,7 @@ def load_spz(path: str | Path) -> GaussianSet:
             header, arrays = _read_legacy(data, source)
     else:
         raise ValueError(f"{source}: not an .spz file (it starts with neither the gzip magic 1f 8b nor 'NGSP')")
-    return _decode(arrays, header, source)
+    return _decode(arrays, header, source, turn=frame == "rub")
 
 
 def _check_header(version: int, num_points: int, sh_degree: int, fractional_bits: int, source: str) -> None:
@@ -142,6 +155,7 @@ def _gunzip_legacy(data: bytes, source: str) -> bytes:
         _check_header(version, n, degree, bits, source)
         payload = sum(_attribute_sizes(n, version, degree).values())
         _check_fits(source, n, payload, len(data), MAX_DEFLATE_RATIO)
+        check_budget(source, f"{n} points of SH degree {degree}", payload + n * DECODED_BYTES_PER_POINT)
         limit = payload + (MAX_LEGACY_EXTENSION_BYTES if flags & FLAG_EXTENSIONS else 0)
         body = stream.decompress(stream.unconsumed_tail, limit + 1)
     except zlib.error as exc:
@@ -201,6 +215,7 @@ def _read_ngsp(data: bytes, source: str) -> tuple[tuple[int, ...], dict[str, np.
     _check_header(version, n, degree, bits, source)
     _check_fits(source, n, 9 * n, len(data), MAX_ZSTD_RATIO)
     sizes = {k: v for k, v in _attribute_sizes(n, version, degree).items() if v > 0}
+    check_budget(source, f"{n} points of SH degree {degree}", sum(sizes.values()) + n * DECODED_BYTES_PER_POINT)
     if num_streams != len(sizes) or toc < NGSP_HEADER.size:
         raise ValueError(f"{source}: corrupt .spz header: {num_streams} streams at offset {toc}; expected "
                          f"{len(sizes)} streams ({', '.join(sizes)}) after the 32-byte header")
@@ -226,27 +241,7 @@ def _read_ngsp(data: bytes, source: str) -> tuple[tuple[int, ...], dict[str, np.
 
 def _unzstd(frame: bytes, size: int, name: str, source: str) -> bytes:
     """Exactly ``size`` bytes from one zstd frame (reads at most ``size + 1``, whatever the frame claims)."""
-    try:  # a dependency of the project (setup.cfg), imported here so that the other formats never need it
-        import zstandard  # noqa: PLC0415 - only version-4 files need it
-    except ImportError:
-        raise ValueError(f"{source}: a version-4 .spz is zstd-compressed and the 'zstandard' package is missing; "
-                         f"install the project again (pip install -e .) or run 'pip install zstandard'") from None
-    try:
-        with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(frame)) as reader:
-            parts, got = [], 0
-            while got <= size:
-                part = reader.read(size + 1 - got)
-                if not part:
-                    break
-                parts.append(part)
-                got += len(part)
-        out = b"".join(parts)
-    except zstandard.ZstdError as exc:
-        raise ValueError(f"{source}: corrupt zstd stream for {name} ({exc}); re-download the .spz") from None
-    if len(out) != size:
-        raise ValueError(f"{source}: corrupt .spz: the {name} stream decompresses to {len(out)} bytes, expected "
-                         f"{size}")
-    return out
+    return inflate_zstd(frame, size, source, f"the .spz {name} stream")
 
 
 def _split(raw: bytes, offset: int, sizes: dict[str, int]) -> dict[str, np.ndarray]:
@@ -257,8 +252,8 @@ def _split(raw: bytes, offset: int, sizes: dict[str, int]) -> dict[str, np.ndarr
     return arrays
 
 
-def _decode(arrays: dict[str, np.ndarray], header: tuple[int, ...], source: str) -> GaussianSet:
-    """The GaussianSet (RDF frame) of decoded attribute arrays."""
+def _decode(arrays: dict[str, np.ndarray], header: tuple[int, ...], source: str, turn: bool = True) -> GaussianSet:
+    """The GaussianSet of decoded attribute arrays (``turn``: RUB -> RDF, a half turn about x)."""
     version, n, degree, bits = header
     b = arrays["positions"].reshape(n, 3, 3).astype(np.int32)
     fixed = b[..., 0] | (b[..., 1] << 8) | (b[..., 2] << 16)
@@ -273,10 +268,11 @@ def _decode(arrays: dict[str, np.ndarray], header: tuple[int, ...], source: str)
         log.warning("%s: SH degree 4 cut to degree 3 (a GaussianSet holds degrees 0-3)", source)
         rest = rest[:, :15]
     sh = np.concatenate([dc[:, None, :], rest], 1)
-    # RUB -> RDF: a half turn about x
-    means[:, 1:] *= -1
-    quats = np.stack([xyzw[:, 3], xyzw[:, 0], -xyzw[:, 1], -xyzw[:, 2]], 1)
-    sh[:, 1:] *= RUB_TO_RDF_SH_SIGNS[: sh.shape[1] - 1, None]
+    quats = np.stack([xyzw[:, 3], xyzw[:, 0], xyzw[:, 1], xyzw[:, 2]], 1)
+    if turn:  # RUB -> RDF: a half turn about x
+        means[:, 1:] *= -1
+        quats[:, 2:] *= -1
+        sh[:, 1:] *= RUB_TO_RDF_SH_SIGNS[: sh.shape[1] - 1, None]
     return gaussians_from_arrays(source, means, quats, log_scales, logits, sh)
 
 

@@ -41,6 +41,7 @@ from .fields import (
 from .groups import (
     add_camera_arguments,
     add_frame_arguments,
+    add_gaussian_file_arguments,
     add_physics_arguments,
     add_record_arguments,
     add_runtime_arguments,
@@ -60,6 +61,7 @@ __all__ = [
     "add_camera_arguments", "add_config_options", "add_frame_arguments", "add_physics_arguments",
     "add_record_arguments", "add_runtime_arguments", "check_output_file", "config_from_args", "config_values",
     "dataset_inputs", "field_docs", "float_list", "help_and_default", "index_list", "load_gaussians_checked",
+    "add_gaussian_file_arguments",
     "option_dest", "parse_list", "physics_config_from_args", "probe_overrides", "record_config_from_args",
     "save_diverged", "up_from_args"
 ]

@@ -180,14 +180,40 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
 
 
 # ---- inputs and outputs named on the command line --------------------------------------------------------------
-def load_gaussians_checked(path):
+def add_gaussian_file_arguments(p: argparse.ArgumentParser) -> None:
+    """--spz-frame, --colmap and --dataparser-transforms: what a Gaussian file's content cannot say
+    (:class:`recon.formats.LoadOptions`)."""
+    g = p.add_argument_group("Gaussian file")
+    g.add_argument("--spz-frame", choices=("rub", "ply"), default="rub",
+                   help="what an .spz stores: 'rub', Niantic's right-up-back, turned half a turn about x to the .ply "
+                        "frame, or 'ply', the .ply frame as splat-transform and SuperSplat write it (default: rub)")
+    g.add_argument("--colmap", type=Path, default=None, metavar="DIR",
+                   help="for a gsplat checkpoint: the COLMAP model it was trained on (sparse/0 or its parent); its "
+                        "normalisation is recomputed and undone, so sizes are in scene units (default: none, the "
+                        "trainer's normalised units, with a warning)")
+    g.add_argument("--dataparser-transforms", type=Path, default=None, metavar="FILE",
+                   help="for a nerfstudio checkpoint: its dataparser_transforms.json, undone so sizes are in scene "
+                        "units (default: the one beside the run's config.yml)")
+
+
+def load_gaussians_checked(path, args=None):
     """Load a Gaussian set of any supported format (recon.formats); ValueError naming the file when it is missing,
-    a folder or unreadable."""
-    from recon.formats import SUPPORTED, load_gaussians
+    a folder or unreadable. With the parsed ``args`` of :func:`add_gaussian_file_arguments`, their options apply,
+    the assumed frame is logged and ``args.source_frame`` receives its record (for RESULT.h5)."""
+    import logging
+
+    from recon.formats import SUPPORTED, LoadOptions, load_gaussians_framed
 
     if not Path(path).exists():  # a folder exists: recon.formats says it is a folder
         raise ValueError(f"Gaussian file {path} does not exist; pass a Gaussian file ({SUPPORTED})")
-    return load_gaussians(path).check(str(path))
+    options = LoadOptions(spz_frame=getattr(args, "spz_frame", None) or "rub", colmap=getattr(args, "colmap", None),
+                          dataparser_transforms=getattr(args, "dataparser_transforms", None))
+    gaussians, fmt, frame = load_gaussians_framed(path, options)
+    if fmt in ("spz", "checkpoint") and frame.metric:
+        logging.getLogger(__name__).info("%s", frame.description)
+    if args is not None:
+        args.source_frame = frame.to_json()
+    return gaussians.check(str(path))
 
 
 def check_output_file(path, suffixes: tuple[str, ...]):

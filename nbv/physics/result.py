@@ -47,6 +47,8 @@ class PhysicsResult:
         domains: per direction, (domain_min, domain_max) in sim metres.
         timings: seconds: solidify, simulation (steps only), aggregation, empty_reference, total.
         config: the PhysicsConfig. source: where the Gaussians came from.
+        source_frame: JSON record of the frame the Gaussian file was read in and the transform applied to its
+            values (:class:`recon.formats.SourceFrame`; "" when not recorded).
         kept: [G] bool, the Gaussians inside ``config.crop`` (None without a crop; the others have D_g = 0).
         warnings: per direction, what makes that probe's D_g suspect (no fluid reached any Gaussian, most fluid
             left the domain); empty lists when all is well.
@@ -80,6 +82,7 @@ class PhysicsResult:
     timings: dict[str, float]
     config: PhysicsConfig
     source: str = ""
+    source_frame: str = ""
     kept: np.ndarray | None = None
     warnings: dict[str, list[str]] = field(default_factory=dict)
     gaussians_sha256: str = ""
@@ -195,6 +198,7 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         if result.kept is not None:
             g["kept"] = np.asarray(result.kept, bool)
         f.attrs["source"] = str(result.source)
+        f.attrs["source_frame"] = str(result.source_frame)
         f.attrs["timings"] = json.dumps(result.timings)
         f.attrs["gaussians_sha256"], f.attrs["status"] = result.gaussians_sha256, result.status
         if result.failure is not None:
@@ -250,6 +254,7 @@ def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
                 reach=f["gaussians/reach"][()], stats={d: pg["stats"][()] for d, pg in zip(dirs, probes, strict=True)},
                 domains=domains, timings=json.loads(f.attrs["timings"]),
                 config=PhysicsConfig.from_dict(json.loads(f.attrs["config"])), source=str(f.attrs["source"]),
+                source_frame=str(f.attrs.get("source_frame", "")),
                 warnings=warnings, gaussians_sha256=str(f.attrs.get("gaussians_sha256", "")),
                 status=str(f.attrs.get("status", "complete")), failure=failure,
                 leaks={d: read_probe_leaks(pg) for d, pg in zip(dirs, probes, strict=True) if "leaked" in pg},

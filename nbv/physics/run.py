@@ -235,7 +235,7 @@ _EMPTY_CACHE: dict = {}
 
 
 def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, source: str = "",
-                       record: RecordConfig | None = None) -> PhysicsResult:
+                       record: RecordConfig | None = None, *, source_frame: str = "") -> PhysicsResult:
     """Run the probes against the solid of ``gaussians`` and aggregate D_i onto every Gaussian (Eq. 2-3).
 
     Uses the Taichi runtime already initialised by the caller (never calls ``ti.init``).
@@ -245,6 +245,8 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
         config: probe settings.
         progress: a tqdm bar per probe (steps, solver iterations, max speed).
         source: a label for the result (the .ply path).
+        source_frame: the JSON record of the frame the file was read in (``recon.formats.SourceFrame.to_json``),
+            stored in RESULT.h5.
         record: a :class:`nbv.physics.trajectory.RecordConfig`: keep those probes' fluid every k steps in
             ``PhysicsResult.trajectories`` (None: nothing recorded).
     Returns:
@@ -261,8 +263,13 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     exact_memory = check_memory_bound(frame)         # the Gaussians' box fits, or the solid will be checked
     t0 = time.perf_counter()
     solid = frame.solidify()                         # Sec. 3.2: the static boundary (opacity >= tau, filled)
-    return simulate_solid(frame, solid, progress, source, record, exact_memory=exact_memory,
-                          solidify_s=time.perf_counter() - t0, started=started)
+    try:
+        result = simulate_solid(frame, solid, progress, source, record, exact_memory=exact_memory,
+                                solidify_s=time.perf_counter() - t0, started=started)
+    except ProbeDiverged as exc:
+        exc.result = replace(exc.result, source_frame=source_frame)
+        raise
+    return replace(result, source_frame=source_frame)
 
 
 

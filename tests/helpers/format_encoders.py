@@ -1,15 +1,18 @@
 """Writers of the shared splat formats, for the reader tests only (fluidgs itself writes standard .ply / .npz).
 
 Each encoder follows the format's public definition (the writers of SuperSplat/splat-transform, the Niantic spz
-library and antimatter15's viewer), vectorised with numpy: the tests decode what these write and compare with
-the quantisation steps of each format.
+library, antimatter15's viewer, the SOG specification and GaussianSplats3D's SplatBuffer), vectorised with
+numpy: the tests decode what these write and compare with the quantisation steps of each format.
 """
 
 from __future__ import annotations
 
 import gzip
+import io
+import json
 import math
 import struct
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -178,4 +181,176 @@ def encode_splat(g: GaussianSet, path: Path) -> Path:
     records["c"][:, 3] = _to_uint8(_sigmoid(a["logits"]) * 255.0)
     records["r"] = _to_uint8(_unit_quats(a["quats"]) * 128.0 + 128.0)
     path.write_bytes(records.tobytes())
+    return path
+
+
+# ---- PlayCanvas SOG -----------------------------------------------------------------------------------------
+def _webp(pixels: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(pixels, np.uint8), "RGBA").save(buffer, "WEBP", lossless=True, exact=True)
+    return buffer.getvalue()
+
+
+def _image_of(rows: np.ndarray, width: int) -> np.ndarray:
+    """[N, 4] pixel rows laid out row-major in an image ``width`` wide (trailing pixels zero)."""
+    height = math.ceil(len(rows) / width)
+    out = np.zeros((height * width, 4), np.uint8)
+    out[: len(rows)] = rows
+    return out.reshape(height, width, 4)
+
+
+def sog_quats(quats_wxyz: np.ndarray) -> np.ndarray:
+    """[N, 4] RGBA bytes: the three smaller components (w, x, y, z order) and 252 + the largest's index."""
+    q = _unit_quats(quats_wxyz.astype(np.float64))
+    largest = np.abs(q).argmax(1)
+    q = np.where(q[np.arange(len(q)), largest][:, None] < 0, -q, q)
+    others = np.array([[j for j in range(4) if j != i] for i in range(4)])[largest]
+    small = q[np.arange(len(q))[:, None], others]
+    codes = np.clip(np.round((small * math.sqrt(2.0) * 0.5 + 0.5) * 255.0), 0, 255)
+    return np.concatenate([codes, 252 + largest[:, None]], 1).astype(np.uint8)
+
+
+def _codebook_codes(values: np.ndarray) -> tuple[list[float], np.ndarray]:
+    lo, hi = float(values.min()), float(values.max())
+    book = np.linspace(lo, hi, 256)
+    codes = np.clip(np.round((values - lo) / max(hi - lo, 1e-12) * 255.0), 0, 255).astype(np.uint8)
+    return book.tolist(), codes
+
+
+def encode_sog(g: GaussianSet, path: Path, version: int = 2, bundle: bool = True, width: int = 64) -> Path:
+    """Write ``g`` as SOG (version 1 or 2): a zip bundle at ``path``, or a folder ``path`` holding meta.json and
+    the images. Every Gaussian gets its own SH palette entry (N <= 65536)."""
+    a = _arrays(g)
+    n, k = a["sh"].shape[:2]
+    logs = np.sign(a["means"]) * np.log1p(np.abs(a["means"]))
+    mins, maxs = logs.min(0), logs.max(0)
+    q16 = np.round((logs - mins) / np.where(maxs > mins, maxs - mins, 1.0) * 65535.0).astype(np.uint32)
+    alpha = np.full((n, 1), 255, np.uint8)
+    files = {"means_l.webp": np.concatenate([(q16 & 0xFF).astype(np.uint8), alpha], 1),
+             "means_u.webp": np.concatenate([(q16 >> 8).astype(np.uint8), alpha], 1),
+             "quats.webp": sog_quats(a["quats"])}
+    meta = {"means": {"mins": mins.tolist(), "maxs": maxs.tolist(), "files": ["means_l.webp", "means_u.webp"]},
+            "quats": {"files": ["quats.webp"]}}
+    opacity = _to_uint8(_sigmoid(a["logits"]) * 255.0)[:, None]
+    if version == 2:
+        book, codes = _codebook_codes(a["log_scales"])
+        files["scales.webp"] = np.concatenate([codes, alpha], 1)
+        meta["scales"] = {"codebook": book, "files": ["scales.webp"]}
+        book, codes = _codebook_codes(a["sh"][:, 0])
+        files["sh0.webp"] = np.concatenate([codes, opacity], 1)
+        meta["sh0"] = {"codebook": book, "files": ["sh0.webp"]}
+        meta = {"version": 2, "count": n, "antialias": False, **meta}
+    else:
+        lo, hi = a["log_scales"].min(0), a["log_scales"].max(0)
+        files["scales.webp"] = np.concatenate([_to_uint8((a["log_scales"] - lo) / (hi - lo) * 255.0), alpha], 1)
+        meta["scales"] = {"mins": lo.tolist(), "maxs": hi.tolist(), "files": ["scales.webp"]}
+        colour = np.concatenate([a["sh"][:, 0], a["logits"][:, None]], 1)
+        lo, hi = colour.min(0), colour.max(0)
+        files["sh0.webp"] = _to_uint8((colour - lo) / (hi - lo) * 255.0)
+        meta["sh0"] = {"mins": lo.tolist(), "maxs": hi.tolist(), "files": ["sh0.webp"]}
+        meta["means"]["shape"] = [n, 3]
+    images = {name: _image_of(rows, width) for name, rows in files.items()}
+    if k > 1:
+        coeffs = k - 1
+        rest = a["sh"][:, 1:]  # [N, C, 3]
+        if version == 2:
+            book, codes = _codebook_codes(rest)
+            meta["shN"] = {"count": n, "bands": int(round(math.sqrt(k))) - 1, "codebook": book,
+                           "files": ["shN_centroids.webp", "shN_labels.webp"]}
+        else:
+            lo, hi = float(rest.min()), float(rest.max())
+            codes = _to_uint8((rest - lo) / (hi - lo) * 255.0)
+            meta["shN"] = {"mins": lo, "maxs": hi, "files": ["shN_centroids.webp", "shN_labels.webp"]}
+        rows = math.ceil(n / 64)
+        centroids = np.zeros((rows * 64, coeffs, 4), np.uint8)
+        centroids[:n, :, :3] = codes
+        centroids[:, :, 3] = 255
+        images["shN_centroids.webp"] = centroids.reshape(rows, 64 * coeffs, 4)
+        labels = np.arange(n)
+        label_rows = np.stack([labels & 0xFF, labels >> 8, np.zeros(n), np.full(n, 255)], 1).astype(np.uint8)
+        images["shN_labels.webp"] = _image_of(label_rows, width)
+    payload = {name: _webp(img) for name, img in images.items()}
+    payload["meta.json"] = json.dumps(meta).encode()
+    if bundle:
+        with zipfile.ZipFile(path, "w") as zf:
+            for name, data in payload.items():
+                zf.writestr(name, data)
+    else:
+        path.mkdir(parents=True, exist_ok=True)
+        for name, data in payload.items():
+            (path / name).write_bytes(data)
+    return path
+
+
+# ---- mkkellogg .ksplat ----------------------------------------------------------------------------------------
+KSPLAT_SH_RANGE = (-1.5, 1.5)
+
+
+def _ksplat_sh_values(rest: np.ndarray, degree: int) -> np.ndarray:
+    """[N, 3 (K-1)] SH values in the .ksplat record order (band, then channel, then coefficient)."""
+    n = rest.shape[0]
+    channel_major = rest.transpose(0, 2, 1).reshape(n, -1)  # f_rest order
+    from recon.ksplat import sh_component_order
+
+    return np.ascontiguousarray(channel_major[:, sh_component_order(degree)])
+
+
+def encode_ksplat(g: GaussianSet, path: Path, mode: int = 0, sections: int = 1, bucket_capacity: int = 64) -> Path:
+    """Write ``g`` as a .ksplat of compression ``mode`` split into ``sections`` sections; modes 1 and 2 put the
+    records of each section into buckets of ``bucket_capacity`` (the last one partial)."""
+    a = _arrays(g)
+    n, k = a["sh"].shape[:2]
+    degree = int(round(math.sqrt(k))) - 1
+    header = bytearray(4096)
+    header[0], header[1] = 0, 1
+    struct.pack_into("<II", header, 4, sections, sections)
+    struct.pack_into("<II", header, 12, n, n)
+    struct.pack_into("<H", header, 20, mode)
+    struct.pack_into("<ff", header, 36, *KSPLAT_SH_RANGE)
+    bounds = np.linspace(0, n, sections + 1).astype(int)
+    section_headers, bodies = [], []
+    f_type = "<f4" if mode == 0 else "<f2"
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        m = hi - lo
+        idx = np.arange(lo, hi)
+        full, rem = divmod(m, bucket_capacity)
+        partial = [rem] if rem else []
+        buckets = full + len(partial)
+        bucket_of = np.arange(m) // bucket_capacity
+        centres = np.array([a["means"][idx[bucket_of == b]].mean(0) for b in range(buckets)]) if mode else \
+            np.zeros((0, 3))
+        block = 2.0 * float(np.abs(a["means"][idx] - centres[bucket_of]).max()) * 1.01 + 1e-6 if mode else 1.0
+        quant = 32767
+        parts = []
+        if mode == 0:
+            parts.append(a["means"][idx].astype("<f4").view(np.uint8).reshape(m, -1))
+        else:
+            raw = np.round((a["means"][idx] - centres[bucket_of]) / (block / 2.0 / quant) + quant)
+            parts.append(np.clip(raw, 0, 65535).astype("<u2").view(np.uint8).reshape(m, -1))
+        parts.append(np.exp(a["log_scales"][idx]).astype(f_type).view(np.uint8).reshape(m, -1))
+        parts.append(a["quats"][idx].astype(f_type).view(np.uint8).reshape(m, -1))
+        rgba = np.concatenate([_to_uint8((0.5 + SH_C0 * a["sh"][idx, 0]) * 255.0),
+                               _to_uint8(_sigmoid(a["logits"][idx]) * 255.0)[:, None]], 1)
+        parts.append(rgba)
+        if degree:
+            values = _ksplat_sh_values(a["sh"][idx, 1:], degree)
+            if mode == 2:
+                lo_sh, hi_sh = KSPLAT_SH_RANGE
+                parts.append(_to_uint8((values - lo_sh) / (hi_sh - lo_sh) * 255.0))
+            else:
+                parts.append(values.astype(f_type).view(np.uint8).reshape(m, -1))
+        records = np.concatenate(parts, 1)
+        sh_header = bytearray(1024)
+        struct.pack_into("<IIII", sh_header, 0, m, m, bucket_capacity if mode else 0, buckets if mode else 0)
+        struct.pack_into("<f", sh_header, 16, block)
+        struct.pack_into("<H", sh_header, 20, 12 if mode else 0)
+        struct.pack_into("<I", sh_header, 24, quant if mode else 0)
+        struct.pack_into("<II", sh_header, 32, full if mode else 0, len(partial) if mode else 0)
+        struct.pack_into("<H", sh_header, 40, degree)
+        section_headers.append(bytes(sh_header))
+        bucket_bytes = (np.array(partial, "<u4").tobytes() + centres.astype("<f4").tobytes()) if mode else b""
+        bodies.append(bucket_bytes + records.tobytes())
+    path.write_bytes(bytes(header) + b"".join(section_headers) + b"".join(bodies))
     return path

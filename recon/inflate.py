@@ -1,0 +1,159 @@
+"""Bounded decompression for the Gaussian-file readers: a small crafted file never allocates gigabytes.
+
+Every reader of a compressed format (.npz members, gzip and zstd .spz, the WebP images of SOG, zip bundles)
+follows two rules:
+
+1. **Check the declared sizes first.** The bytes a header declares (counts x record size) are compared with the
+   memory budget (:func:`memory_budget_bytes`) before anything is inflated or allocated
+   (:func:`check_budget`); a header that claims more is refused with a message naming the file.
+2. **Inflate in bounded chunks.** Decompressors are asked for at most the declared size plus one byte
+   (:func:`inflate_zlib`, :func:`inflate_zstd`, :func:`read_zip_member`), so a stream that expands beyond
+   what its header declared is caught without ever holding the excess.
+
+No paper equation: this is input hygiene.
+
+Example:
+    >>> inflate_zlib(zlib.compress(b"abc"), 3, "x.bin", "payload")
+    b'abc'
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import resource
+import zipfile
+import zlib
+
+BUDGET_ENV = "FLUIDGS_MAX_DECODE_GB"
+BUDGET_FRACTION = 0.5  # of the memory available now: the decoded arrays are converted once more afterwards
+CHUNK_BYTES = 1 << 24
+
+
+def available_memory_bytes() -> int:
+    """The memory this process may still allocate, bytes: ``MemAvailable`` of /proc/meminfo (else the physical
+    memory), lowered to what an address-space limit (``ulimit -v``) leaves above the process's current size."""
+    available = None
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    available = int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    if available is None:
+        available = int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit != resource.RLIM_INFINITY:
+        available = min(available, max(0, limit - _virtual_size_bytes()))
+    return available
+
+
+def _virtual_size_bytes() -> int:
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+def memory_budget_bytes() -> int:
+    """The most bytes one Gaussian file may decode to: ``FLUIDGS_MAX_DECODE_GB`` GiB when set, else half of the
+    memory available now."""
+    text = os.environ.get(BUDGET_ENV)
+    if text:
+        try:
+            return int(float(text) * 2**30)
+        except ValueError:
+            raise ValueError(f"{BUDGET_ENV}={text!r} is not a number of GiB") from None
+    return int(available_memory_bytes() * BUDGET_FRACTION)
+
+
+def check_budget(source: str, what: str, declared: int) -> None:
+    """Raise ``ValueError`` naming ``source`` when ``declared`` bytes (``what``) exceed the memory budget."""
+    budget = memory_budget_bytes()
+    if declared > budget:
+        raise ValueError(f"{source}: {what} would decode to {declared / 2**30:.2f} GiB, more than the memory budget "
+                         f"of {budget / 2**30:.2f} GiB (half the memory available now; {BUDGET_ENV} sets it): a "
+                         f"corrupt or hostile file, or a capture too large for this machine")
+
+
+def inflate_zlib(data: bytes, size: int, source: str, what: str, wbits: int = zlib.MAX_WBITS) -> bytes:
+    """Exactly ``size`` bytes from one zlib/gzip/raw-deflate stream, inflated in chunks of at most
+    :data:`CHUNK_BYTES`; never more than ``size + 1`` bytes are produced.
+
+    Raises:
+        ValueError: a corrupt stream, or one that holds fewer or more than ``size`` bytes.
+    """
+    stream = zlib.decompressobj(wbits)
+    parts, got, tail = [], 0, data
+    try:
+        while got <= size:
+            part = stream.decompress(tail, min(CHUNK_BYTES, size + 1 - got))
+            tail = stream.unconsumed_tail
+            if not part:
+                break
+            parts.append(part)
+            got += len(part)
+        if got < size and not stream.eof:
+            parts.append(stream.flush())
+            got += len(parts[-1])
+    except zlib.error as exc:
+        raise ValueError(f"{source}: corrupt compressed {what} ({exc}); re-download or re-export the file") from None
+    if got != size:
+        more = "more" if got > size else f"only {got}"
+        raise ValueError(f"{source}: corrupt {what}: it decompresses to {more} bytes, its header declares {size}")
+    return b"".join(parts)
+
+
+def inflate_zstd(frame: bytes, size: int, source: str, what: str) -> bytes:
+    """Exactly ``size`` bytes from one zstd frame, read through a stream reader in bounded chunks (never more
+    than ``size + 1`` bytes, whatever the frame claims)."""
+    try:  # a dependency of the project (setup.cfg), imported here so that the other formats never need it
+        import zstandard  # noqa: PLC0415 - only zstd-compressed files need it
+    except ImportError:
+        raise ValueError(f"{source}: the file is zstd-compressed and the 'zstandard' package is missing; install "
+                         f"the project again (pip install -e .) or run 'pip install zstandard'") from None
+    parts, got = [], 0
+    try:
+        with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(frame)) as reader:
+            while got <= size:
+                part = reader.read(min(CHUNK_BYTES, size + 1 - got))
+                if not part:
+                    break
+                parts.append(part)
+                got += len(part)
+    except zstandard.ZstdError as exc:
+        raise ValueError(f"{source}: corrupt zstd stream for {what} ({exc}); re-download the file") from None
+    if got != size:
+        raise ValueError(f"{source}: corrupt {what}: the zstd stream decompresses to "
+                         f"{'more than' if got > size else 'only'} {got} bytes, expected {size}")
+    return b"".join(parts)
+
+
+def read_zip_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: str, limit: int) -> bytes:
+    """The bytes of one zip member, read in bounded chunks; refused when its directory entry or its content
+    exceeds ``limit`` bytes (checked against :func:`memory_budget_bytes` too)."""
+    if info.file_size > limit:
+        raise ValueError(f"{source}: member {info.filename!r} declares {info.file_size} bytes, more than the "
+                         f"{limit} bytes it may hold (corrupt or hostile archive)")
+    check_budget(source, f"member {info.filename!r}", info.file_size)
+    parts, got = [], 0
+    try:
+        with archive.open(info) as fp:
+            while got <= info.file_size:
+                part = fp.read(min(CHUNK_BYTES, info.file_size + 1 - got))
+                if not part:
+                    break
+                parts.append(part)
+                got += len(part)
+    except (zipfile.BadZipFile, OSError, EOFError, zlib.error, NotImplementedError) as exc:
+        raise ValueError(f"{source}: member {info.filename!r} cannot be read ({exc}); re-download or re-export "
+                         f"the file") from None
+    if got != info.file_size:
+        raise ValueError(f"{source}: member {info.filename!r} holds {got} bytes, its directory says "
+                         f"{info.file_size} (corrupt archive)")
+    return b"".join(parts)
