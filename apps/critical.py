@@ -1,4 +1,4 @@
-"""`fluidgs critical GAUSSIANS.ply --cameras transforms.json`: function-critical views (paper Sec. 3.4).
+"""`fluidgs critical GAUSSIANS.ply --cameras CAMERAS`: function-critical views (paper Sec. 3.4).
 
 One probe (-x by default) runs with distinct-particle tracking: |P_g| is the number of distinct fluid particles
 that came within n r_g of Gaussian g. Each camera gets C(T) = sum_g w_g |P_g| (w_g of Eq. 5); the top
@@ -16,9 +16,13 @@ import numpy as np
 from .options import (
     add_camera_arguments,
     add_physics_arguments,
+    camera_file_from_args,
     check_output_file,
     load_gaussians_checked,
+    orbit_cameras_logged,
+    orbit_from_args,
     physics_config_from_args,
+    warn_frame,
 )
 
 
@@ -39,19 +43,21 @@ def run_command(args: argparse.Namespace) -> int:
     from nbv.physics import simulate_gaussians
     from nbv.scores import critical_subset, projected_view_scores, rank
     from nbv.view_scoring import check_cameras_see, format_table, parse_candidates, render_size, torch_device
-    from recon.datasets import load_cameras
 
     from .runtime import init_taichi
 
+    orbit = orbit_from_args(args, args.render_width)
+    file_cams = None if orbit is not None else camera_file_from_args(args)
     # C(T) needs no empty-scene reference
-    all_cams = load_cameras(args.cameras, args.res)
-    config = replace(physics_config_from_args(args, track_distinct=True, default_directions=("-x",), cameras=all_cams),
+    config = replace(physics_config_from_args(args, track_distinct=True, default_directions=("-x",), cameras=file_cams),
                      empty_reference=False)
     output = check_output_file(args.output, (".json",))
-    check_not_input({"-o": output}, {"GAUSSIANS": args.gaussians, "--cameras": args.cameras})
+    check_not_input({"-o": output}, {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras})
     if args.subset < 1:
         raise ValueError(f"--subset must be >= 1 view, got {args.subset}")
     gaussians = load_gaussians_checked(args.gaussians)
+    warn_frame(config, file_cams, up_given=args.up is not None)
+    all_cams = file_cams if orbit is None else orbit_cameras_logged(gaussians, config, orbit)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     check_cameras_see(gaussians, cams, [c.name for c in cams])

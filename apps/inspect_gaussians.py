@@ -18,6 +18,7 @@ from .options import (
     physics_config_class,
     physics_config_from_args,
     probe_overrides,
+    warn_frame,
 )
 from .runtime import positive_int
 
@@ -58,6 +59,7 @@ def run_command(args: argparse.Namespace) -> int:
     if not Path(args.gaussians).exists():
         raise ValueError(f"Gaussian file {args.gaussians} does not exist")
     gaussians, fmt = load_gaussians_with_format(args.gaussians)
+    warn_frame(config, up_given=args.up is not None)
     init_taichi(args.device, config.precision, args.threads)
     inspection = inspect_gaussians(gaussians, config, fmt)
     summary = {"file": str(args.gaussians), **inspection.summary}
