@@ -1,6 +1,6 @@
 """`fluidgs cameras GAUSSIANS --orbit N --up -y -o cams.json`: candidate cameras for a capture that has none.
 
-The cameras of ``--cameras orbit:N`` (:mod:`nbv.candidates`): N cameras on rings around the robust object box
+The cameras of ``--cameras orbit:N`` (:mod:`nbv.orbit`): N cameras on rings around the robust object box
 (after ``--crop``), looking at its centre with ``--up`` up in the image, standing back until the box's bounding
 sphere fills the narrower field of view. Written as a transforms.json (OpenGL camera-to-world, docs/formats.md),
 or with ``--format`` as graphdeco's cameras.json or a COLMAP text model (a folder), all in the Gaussians' frame.
@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, write_json_atomic, write_text_atomic
-    from nbv.candidates import object_sphere
+    from nbv.orbit import object_sphere
     from nbv.physics.scene_frame import parse_up, up_label
     from recon.camera_files import colmap_text, graphdeco_json, transforms_json
     from recon.camera_paths import framing_distance

@@ -73,7 +73,7 @@ DEMO_FILES = ("result.h5", "gaussians_divergence.ply", "scores.json", "summary.j
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
-    from nbv.candidates import orbit_count
+    from nbv.orbit import orbit_count
 
     orbit_spec = args.cameras is not None and orbit_count(args.cameras) is not None
     check_not_input([("-o (demo file)", Path(args.output) / name) for name in DEMO_FILES],

@@ -6,7 +6,7 @@ Prints a ranked table and writes scores.json (per candidate: index, name, score,
 the settings) and, per view, a PNG with the render beside a D_g heat-map of the same view (the Gaussians
 re-coloured by D_g on the TURBO map, rendered with the same camera), rank and score written on it.
 
-Cameras: ``orbit:N`` (N cameras on rings around the robust object box, :mod:`nbv.candidates`; written beside the
+Cameras: ``orbit:N`` (N cameras on rings around the robust object box, :mod:`nbv.orbit`; written beside the
 scores as ``<stem>_cameras.json``), or any camera file of :func:`recon.camera_files.load_camera_file`: a Blender /
 NeRF / nerfstudio ``transforms.json`` (the image size from ``w``/``h`` keys, else the frame's image file, else
 ``--res``), a COLMAP model folder, or graphdeco's ``cameras.json``. The cameras' frame must be the Gaussians' frame

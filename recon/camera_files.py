@@ -55,8 +55,8 @@ ACCEPTED = ("a Blender / NeRF / nerfstudio transforms.json (a 'frames' list of O
             "or a folder holding sparse/0 or sparse), or graphdeco's cameras.json (a list of {id, img_name, width, "
             "height, position, rotation, fx, fy})")
 GRAPHDECO_KEYS = ("width", "height", "position", "rotation", "fx", "fy")
-# The folders searched for a COLMAP model, relative to the folder given.
-COLMAP_PLACES = (("sparse", "0"), ("sparse",), ())
+# The folders searched for a COLMAP model, relative to the folder given (the model, sparse/, the dataset root).
+COLMAP_PLACES = ((), ("0",), ("sparse", "0"), ("sparse",))
 
 
 @dataclass(frozen=True)
@@ -119,7 +119,7 @@ def find_camera_file(path) -> CameraSource:
               if (p / name).is_file()]
     if not found:
         raise ValueError(f"{p}: a folder with no camera file: no COLMAP model ({', '.join(BINARY_FILES[:2])} or "
-                         f"{', '.join(TEXT_FILES[:2])}) in it, in sparse/0 or in sparse, and no cameras.json or "
+                         f"{', '.join(TEXT_FILES[:2])}) in it, in 0/, sparse/0 or sparse, and no cameras.json or "
                          f"transforms.json; pass {ACCEPTED}")
     if len(found) > 1:
         logger.info("%s holds %s: reading %s (pass the other's path to read it instead)", p,

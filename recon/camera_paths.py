@@ -13,7 +13,7 @@ hemisphere folds them with the absolute value of the up coordinate, which keeps 
 
 Rings around an object (:func:`orbit_rings`, the candidate cameras of a capture that comes without any): the
 object is a sphere of radius r about a centre c (the caller's object box, e.g. the robust box of
-:mod:`nbv.candidates`). Each ring has one elevation e above the plane through c normal to ``up``; its cameras sit
+:mod:`nbv.orbit`). Each ring has one elevation e above the plane through c normal to ``up``; its cameras sit
 at azimuths 2 pi (j + o) / m (j = 0..m-1, o = 1/2 on every second ring, so the rings interleave), measured from
 ``front`` towards ``up x front`` (counter-clockwise seen from above), at the distance
 d = r / sin(min(fov_x, fov_y) / 2): the whole sphere, hence the whole object, lies inside the view cone of the

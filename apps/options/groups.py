@@ -119,7 +119,7 @@ def up_from_args(args: argparse.Namespace, cameras=None):
     """``args.up`` resolved: an up spec for PhysicsConfig ('auto' -> the cameras' mean up vector, logged)."""
     import logging
 
-    from nbv.candidates import orbit_count
+    from nbv.orbit import orbit_count
     from nbv.physics.scene_frame import describe_auto_up, parse_up
 
     up = "+y" if args.up is None else args.up
@@ -179,7 +179,7 @@ CAMERAS_HELP = ("candidate cameras, in the Gaussians' frame: orbit:N (N cameras 
 
 
 def add_orbit_arguments(p) -> None:
-    """--elevations and --orbit-fov: the rings of ``--cameras orbit:N`` (:class:`nbv.candidates.Orbit`)."""
+    """--elevations and --orbit-fov: the rings of ``--cameras orbit:N`` (:class:`nbv.orbit.Orbit`)."""
     from recon.camera_paths import ORBIT_ELEVATIONS_DEG, ORBIT_FOV_X_DEG
 
     default = ",".join(f"{e:g}" for e in ORBIT_ELEVATIONS_DEG)
@@ -206,9 +206,9 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def orbit_from_args(args: argparse.Namespace, width: int):
-    """The :class:`nbv.candidates.Orbit` of ``--cameras orbit:N`` (None for a camera file), checked before any
+    """The :class:`nbv.orbit.Orbit` of ``--cameras orbit:N`` (None for a camera file), checked before any
     work; --elevations / --orbit-fov without an orbit are errors (they would be ignored)."""
-    from nbv.candidates import Orbit, orbit_count
+    from nbv.orbit import Orbit, orbit_count
 
     from .fields import float_list
 
@@ -235,10 +235,10 @@ def camera_file_from_args(args: argparse.Namespace):
 
 
 def orbit_cameras_logged(gaussians, config, orbit):
-    """:func:`nbv.candidates.orbit_cameras`, with one log line saying what was built."""
+    """:func:`nbv.orbit.orbit_cameras`, with one log line saying what was built."""
     import logging
 
-    from nbv.candidates import orbit_cameras
+    from nbv.orbit import orbit_cameras
     from nbv.physics.scene_frame import parse_up, up_label
 
     cams = orbit_cameras(gaussians, config, orbit)
@@ -261,7 +261,7 @@ def check_up_against_cameras(up, cameras, what: str = "the cameras") -> str | No
     """A warning when the up direction ``up`` (anything :func:`nbv.physics.scene_frame.parse_up` takes) is more
     than :data:`UP_DISAGREES_DEG` from ``cameras``' mean up vector; None when they agree (or the cameras have no
     consistent up)."""
-    from nbv.candidates import angle_to_camera_up
+    from nbv.orbit import angle_to_camera_up
     from nbv.physics.scene_frame import nearest_axis, parse_up, up_label
 
     u = parse_up(up)

@@ -1,9 +1,10 @@
-"""Candidate cameras of a capture: a camera file, or rings around the object when the capture comes without any.
+"""Orbit cameras: candidate views on rings around the object, for a capture that comes without cameras.
 
 No paper equation is implemented here. The paper scores views that a dataset provides; a capture downloaded or
 exported on its own has none, so ``--cameras orbit:N`` builds N cameras on rings around the robust object box
 (:func:`nbv.physics.config.object_box`: the box the auto scale fits, after the crop), looking at its centre with the
-capture's up (``--up``) up in the image and framing the box's bounding sphere (:func:`recon.camera_paths.orbit_rings`).
+capture's up (``--up``) up in the image and framing the box's bounding sphere grown by :data:`FRAME_MARGIN`
+(:func:`recon.camera_paths.orbit_rings`).
 Azimuth 0 is the simulation frame's +z (the side the +z probe flows from), turned back into the scene frame.
 
 The cameras' frame is the Gaussians' own (scene units); written out they are an OpenGL camera-to-world
@@ -29,6 +30,9 @@ from recon.camera_paths import ORBIT_ASPECT, ORBIT_ELEVATIONS_DEG, ORBIT_FOV_X_D
 from recon.frames import camera_up_vectors
 
 log = logging.getLogger(__name__)
+# The framed sphere's radius over the robust box's half diagonal: the Gaussians reach past their centres, and the
+# robust box leaves out 0.5 % of them per side.
+FRAME_MARGIN = 1.15
 _ORBIT = re.compile(r"^orbit:(.*)$", re.IGNORECASE)
 
 
@@ -88,13 +92,14 @@ def orbit_count(spec) -> int | None:
 
 def object_sphere(gaussians, config, spec: str = "orbit") -> tuple[np.ndarray, float]:
     """(centre [3] in the scene frame, radius in scene units) of the sphere around the robust object box of
-    ``gaussians`` under ``config`` (its up, crop and opacity threshold): the box's centre and half its diagonal.
+    ``gaussians`` under ``config`` (its up, crop and opacity threshold): the box's centre and half its diagonal
+    times :data:`FRAME_MARGIN`.
 
     Raises:
         ValueError: the crop keeps no Gaussian, or the box has no extent (both name the option and the fix).
     """
     box = object_box(gaussians, config)
-    radius = 0.0 if box is None else 0.5 * float(np.linalg.norm(box[1] - box[0]))
+    radius = 0.0 if box is None else FRAME_MARGIN * 0.5 * float(np.linalg.norm(box[1] - box[0]))
     if not radius > 0:
         kept = "the Gaussians" if config.crop is None else f"the Gaussians inside --crop {config.crop}"
         raise ValueError(f"--cameras {spec}: {kept} have no extent to orbit around (fewer than two, or all at one "
