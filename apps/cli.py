@@ -33,6 +33,7 @@ try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets o
     from . import (
         active,
         bench,
+        cameras,
         critical,
         demo,
         evaluate,
@@ -76,6 +77,7 @@ COMMANDS = {
     "simulate": (simulate, "five probes against a Gaussian set: per-Gaussian D_g, D-bar -> RESULT.h5, coloured .ply"),
     "score": (score, "rank candidate cameras by the view score S(T) of D_g (paper Eq. 4-5); JSON, table, PNGs"),
     "sweep": (sweep, "D-bar against inflow speed U and Reynolds number (CFL-constant dt): CSV and PNG plot"),
+    "cameras": (cameras, "candidate cameras for a capture without any: rings around the object -> transforms.json"),
     "critical": (critical, "function-critical views: C(T) from distinct particle counts, top-20 subset"),
     "ahmed": (make_ahmed, "write the procedural Ahmed body (Ahmed et al. 1984, slant 0-40 deg) as .obj/.stl/.ply"),
     "active": (active, "active reconstruction: biased initial views, one planner pick per round up to the budget"),
@@ -112,20 +114,45 @@ def command_of(argv: list[str]) -> str | None:
     return None
 
 
-# Options whose values may start with '-' (an up direction "-y", a crop box "-1,-1,-1,1,1,1", a vector "-0.1,1,0"):
-# argparse would read such a value as an option, so "--up -y" is rewritten to "--up=-y" before parsing.
-DASH_VALUE_OPTIONS = ("--up", "--up-axis", "--crop", "--initial-direction", "--record-probe", "--probe")
+def value_options(parser: argparse.ArgumentParser) -> tuple[frozenset[str], frozenset[str]]:
+    """(the option strings that take one value, every option string) of ``parser`` and of all its subparsers, read
+    from the argparse actions (the options themselves are the one list)."""
+    takes, every = set(), set()
+    stack = [parser]
+    while stack:
+        p = stack.pop()
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                stack.extend(action.choices.values())
+                continue
+            every.update(action.option_strings)
+            if action.option_strings and action.nargs in (None, "?"):
+                takes.update(action.option_strings)
+    return frozenset(takes), frozenset(every)
 
 
-def join_dash_values(argv: list[str], options: tuple[str, ...] = DASH_VALUE_OPTIONS) -> list[str]:
-    """``[..., "--up", "-y", ...]`` -> ``[..., "--up=-y", ...]`` for ``options`` (other tokens unchanged)."""
+def join_dash_values(argv: list[str], parser: argparse.ArgumentParser | None = None) -> list[str]:
+    """One rule for values that start with '-' (a probe "-x", a probe list "-x,+x", an up "-y", a box
+    "-1,-1,-1,1,1,1", a vector "-0.1,1,0"): argparse would read such a value as an option, so ``--opt -x`` becomes
+    ``--opt=-x`` for every option of ``parser`` that takes one value, unless the next token is itself an option of
+    the parser (``--cameras -o out.json`` still says that --cameras lacks its value) or starts with ``--``. Tokens
+    after a bare ``--`` are left alone.
+
+    Args:
+        argv: the command line without the program name.
+        parser: the parser the line is for (default: :func:`build_parser` of the command ``argv`` names).
+    """
+    takes, every = value_options(parser if parser is not None else build_parser(command_of(argv) or ""))
     out: list[str] = []
     i = 0
     while i < len(argv):
         tok = argv[i]
-        if tok in options and i + 1 < len(argv) and argv[i + 1].startswith("-") and argv[i + 1] != "--" \
-                and not argv[i + 1].startswith("--"):
-            out.append(f"{tok}={argv[i + 1]}")
+        if tok == "--":
+            return out + argv[i:]
+        nxt = argv[i + 1] if i + 1 < len(argv) else None
+        if tok in takes and nxt is not None and nxt.startswith("-") and len(nxt) > 1 and not nxt.startswith("--") \
+                and nxt not in every and nxt[:2] not in every:
+            out.append(f"{tok}={nxt}")
             i += 2
             continue
         out.append(tok)
@@ -134,9 +161,10 @@ def join_dash_values(argv: list[str], options: tuple[str, ...] = DASH_VALUE_OPTI
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = join_dash_values(list(sys.argv[1:] if argv is None else argv))
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:  # building a command's options imports its config module (torch, Taichi): Ctrl-C there is one line too
-        args = build_parser(command_of(argv) or "").parse_args(argv)
+        parser = build_parser(command_of(argv) or "")
+        args = parser.parse_args(join_dash_values(argv, parser))
     except KeyboardInterrupt:
         sys.stderr.write("ERROR fluidgs: interrupted\n")
         return EXIT_INTERRUPTED

@@ -1,4 +1,4 @@
-"""`fluidgs critical GAUSSIANS.ply --cameras transforms.json`: function-critical views (paper Sec. 3.4).
+"""`fluidgs critical GAUSSIANS.ply --cameras CAMERAS`: function-critical views (paper Sec. 3.4).
 
 One probe (-x by default) runs with distinct-particle tracking: |P_g| is the number of distinct fluid particles
 that came within n r_g of Gaussian g. Each camera gets C(T) = sum_g w_g |P_g| (w_g of Eq. 5); the top
@@ -17,9 +17,13 @@ from .options import (
     add_camera_arguments,
     add_gaussian_file_arguments,
     add_physics_arguments,
+    camera_file_from_args,
     check_output_file,
     load_gaussians_checked,
+    orbit_cameras_logged,
+    orbit_from_args,
     physics_config_from_args,
+    warn_frame,
 )
 
 
@@ -42,19 +46,28 @@ def run_command(args: argparse.Namespace) -> int:
     from nbv.physics import simulate_gaussians
     from nbv.scores import critical_subset, projected_view_scores, rank
     from nbv.view_scoring import check_cameras_see, format_table, parse_candidates, render_size, torch_device
-    from recon.datasets import load_cameras
 
     from .runtime import init_taichi
 
+    orbit = orbit_from_args(args, args.render_width)
+    file_cams = None if orbit is not None else camera_file_from_args(args)
     # C(T) needs no empty-scene reference
-    all_cams = load_cameras(args.cameras, args.res)
-    config = replace(physics_config_from_args(args, track_distinct=True, default_directions=("-x",), cameras=all_cams),
+    config = replace(physics_config_from_args(args, track_distinct=True, default_directions=("-x",), cameras=file_cams),
                      empty_reference=False)
     output = check_output_file(args.output, (".json",))
-    check_not_input({"-o": output}, {"GAUSSIANS": args.gaussians, "--cameras": args.cameras})
+    orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
+    check_not_input({"-o": output, "-o (orbit cameras)": orbit_file},
+                    {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras})
     if args.subset < 1:
         raise ValueError(f"--subset must be >= 1 view, got {args.subset}")
     gaussians = load_gaussians_checked(args.gaussians, args)
+    warn_frame(config, file_cams, up_given=args.up is not None)
+    all_cams = file_cams if orbit is None else orbit_cameras_logged(gaussians, config, orbit)
+    if orbit_file is not None:
+        from recon.camera_files import transforms_json
+
+        write_json_atomic(orbit_file, transforms_json(all_cams, f"fluidgs critical --cameras {args.cameras}: "
+                                                                f"{orbit.describe()}"))
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     check_cameras_see(gaussians, cams, [c.name for c in cams])
@@ -77,9 +90,10 @@ def run_command(args: argparse.Namespace) -> int:
     print(format_table(rows, args.top_k, value="critical_score"))
     print(f"critical subset ({len(subset)} views): {[idx[k] for k in subset]}")
     write_json_atomic(output, {
-        "cameras": str(args.cameras), "gaussians": str(args.gaussians), "directions": list(config.directions),
+        "cameras": str(orbit_file or args.cameras), "gaussians": str(args.gaussians),
+        "directions": list(config.directions),
         "distinct_particles": {"total_over_gaussians": int(distinct.sum()),
                                "gaussians_reached": int((distinct > 0).sum()), "max": int(np.max(distinct))},
         "views": rows, "critical_subset": [idx[k] for k in subset], "config": config.to_dict()})
-    print(f"critical views: {output}")
+    print(f"critical views: {output}" + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file else ""))
     return 0

@@ -6,8 +6,10 @@ through the five probes of the paper at the quick preset (r = 0.05 m, 300 steps 
 
 - ``result.h5`` (per-probe and combined D_g, D-bar; :func:`nbv.physics.save_result`),
 - ``gaussians_divergence.ply``: the Gaussians coloured by D_g (opens in 3DGS viewers),
-- ``scores.json`` and ``views/``: the candidate cameras (``assets/ahmed_cameras.json``, else an orbit of
-  12) ranked by S(T) (paper Eq. 4-5), one PNG per view (render | D_g heat-map),
+- ``scores.json`` and ``views/``: the candidate cameras ranked by S(T) (paper Eq. 4-5), one PNG per view
+  (render | D_g heat-map). The cameras: ``--cameras`` (``orbit:N`` or a camera file); without it
+  ``assets/ahmed_cameras.json`` for the bundled Gaussians, and for any other Gaussians (``--gaussians``, or the
+  surface samples) ``orbit:12`` around their robust object box, said so in the log and written to ``cameras.json``,
 - ``probe_-x.mp4``: the -x probe, coloured by divergence,
 - ``summary.json``: D-bar, per-probe figures, timings.
 
@@ -26,7 +28,14 @@ from pathlib import Path
 from fluidsim.directions import DIRECTIONS
 from fluidsim.files import write_json_atomic
 
-from .options import add_config_options, add_frame_arguments, add_runtime_arguments, physics_config_from_args
+from .options import (
+    CAMERAS_HELP,
+    add_config_options,
+    add_frame_arguments,
+    add_orbit_arguments,
+    add_runtime_arguments,
+    physics_config_from_args,
+)
 
 log = logging.getLogger("fluidgs")
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
@@ -34,6 +43,7 @@ ASSET = ASSETS / "torus.obj"
 GAUSSIANS = ASSETS / "ahmed_gaussians.ply"
 CAMERAS = ASSETS / "ahmed_cameras.json"
 MESH_RADIUS, MESH_STEPS = 0.04, 200  # the mesh demo (--solid): particle radius r in m, steps per probe
+DEMO_ORBIT = 12  # cameras of the orbit scored on Gaussians other than the bundled ones
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,8 +52,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"run the mesh demo on this solid mesh instead (.obj/.stl/.ply; e.g. assets/{ASSET.name})")
     p.add_argument("--gaussians", type=Path, default=None,
                    help=f"Gaussian set (default: assets/{GAUSSIANS.name}, else Gaussians on the Ahmed body surface)")
-    p.add_argument("--cameras", type=Path, default=None,
-                   help=f"candidate cameras, transforms.json (default: assets/{CAMERAS.name}, else an orbit of 12)")
+    p.add_argument("--cameras", default=None, metavar="CAMERAS",
+                   help=f"{CAMERAS_HELP} (default: assets/{CAMERAS.name} for the bundled Gaussians, else "
+                        f"orbit:{DEMO_ORBIT})")
+    add_orbit_arguments(p)
     from nbv.physics import QUICK, PhysicsConfig
 
     add_frame_arguments(p, scale=False, crop=False)
@@ -55,25 +67,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_runtime_arguments(p)
 
 
-DEMO_FILES = ("result.h5", "gaussians_divergence.ply", "scores.json", "summary.json", "probe_-x.mp4",
+DEMO_FILES = ("result.h5", "gaussians_divergence.ply", "scores.json", "summary.json", "probe_-x.mp4", "cameras.json",
               *(f"probe_{d}.h5" for d in DIRECTIONS))
 
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
+    from nbv.orbit import orbit_count
 
+    orbit_spec = args.cameras is not None and orbit_count(args.cameras) is not None
     check_not_input([("-o (demo file)", Path(args.output) / name) for name in DEMO_FILES],
-                    {"--solid": args.solid, "--gaussians": args.gaussians, "--cameras": args.cameras})
+                    {"--solid": args.solid, "--gaussians": args.gaussians,
+                     "--cameras": None if orbit_spec else args.cameras})
     if args.solid is not None:
         return run_mesh_demo(args)
     from nbv.outputs import probe_video, result_summary, save_colored_gaussians
     from nbv.physics import QUICK, save_result, simulate_gaussians
     from nbv.view_scoring import check_cameras_see, format_table, render_size, score_views
     from recon.ahmed import ahmed_surface_gaussians
-    from recon.camera_paths import orbit_around
-    from recon.datasets import load_cameras
+    from recon.camera_files import transforms_json
 
-    from .options import load_gaussians_checked
+    from .options import (
+        camera_file_from_args,
+        load_gaussians_checked,
+        orbit_cameras_logged,
+        orbit_from_args,
+        warn_frame,
+    )
     from .runtime import init_taichi
 
     t0 = time.perf_counter()
@@ -81,16 +101,29 @@ def run_command(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if not os.access(out, os.W_OK):
         raise OSError(f"output folder {out} is not writable; pass another -o")
-    cfg = physics_config_from_args(args, preset=QUICK, empty_reference=False)
     gpath = args.gaussians or (GAUSSIANS if GAUSSIANS.is_file() else None)
+    bundled = gpath is not None and Path(gpath).resolve() == GAUSSIANS.resolve()
+    if args.cameras is None:  # the bundled cameras belong to the bundled Gaussians only
+        spec = str(CAMERAS) if bundled and CAMERAS.is_file() else f"orbit:{DEMO_ORBIT}"
+        args = argparse.Namespace(**{**vars(args), "cameras": spec})
+        if not bundled:
+            log.info("no --cameras: scoring orbit:%d, an orbit around %s (pass --cameras for your own)", DEMO_ORBIT,
+                     gpath or "the Ahmed body samples")
+    orbit = orbit_from_args(args, args.render_width)
+    file_cams = None if orbit is not None else camera_file_from_args(args)
+    cfg = physics_config_from_args(args, preset=QUICK, empty_reference=False, cameras=file_cams)
     if gpath is not None:
         gaussians, source = load_gaussians_checked(gpath), str(gpath)
     else:
         log.warning("%s is not there yet: using Gaussians sampled on the Ahmed body mesh surface", GAUSSIANS)
         gaussians, source = ahmed_surface_gaussians(), "Ahmed body surface samples (recon.ahmed)"
-    cpath = args.cameras or (CAMERAS if CAMERAS.is_file() else None)
-    cams = ([render_size(c, args.render_width) for c in load_cameras(cpath)] if cpath is not None
-            else orbit_around(gaussians.means.detach().double().numpy(), 12, args.render_width))
+    warn_frame(cfg, file_cams, up_given=args.up is not None or bundled)
+    cams = ([render_size(c, args.render_width) for c in file_cams] if orbit is None
+            else orbit_cameras_logged(gaussians, cfg, orbit))
+    cpath = None if orbit is None else Path(args.output) / "cameras.json"
+    if cpath is not None:
+        write_json_atomic(cpath, transforms_json(cams, f"fluidgs demo --cameras {args.cameras}: {orbit.describe()}"))
+    cameras_label = str(args.cameras) if orbit is None else f"{args.cameras} ({cpath})"
     centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
     init_taichi(args.device, cfg.precision, args.threads)
     from nbv.physics.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view`
@@ -102,18 +135,18 @@ def run_command(args: argparse.Namespace) -> int:
     rows = score_views(gaussians, cams, list(range(len(cams))), result, "max", out / "views",
                        device=args.device, visible_centres=centres)
     print(format_table(rows))
-    write_json_atomic(out / "scores.json", {"cameras": str(cpath or "orbit of 12"), "gaussians": source, "views": rows,
+    write_json_atomic(out / "scores.json", {"cameras": str(cpath or args.cameras), "gaussians": source, "views": rows,
                                      "dbar_m4_s": result.dbar, "config": cfg.to_dict()})
     if not args.no_video:
         probe_video(result, "-x", out / "probe_-x.mp4")
     summary = result_summary(result)
-    summary.update(source=source, cameras=str(cpath or "orbit of 12"), wall_time_s=time.perf_counter() - t0)
+    summary.update(source=source, cameras=cameras_label, wall_time_s=time.perf_counter() - t0)
     write_json_atomic(out / "summary.json", summary)
     print(f"{result.num_gaussians} Gaussians ({source}); D-bar {result.dbar:.4g} m^4/s; best view {rows[0]['name']}")
     print(f"outputs in {out}: result.h5, gaussians_divergence.ply, scores.json, views/, summary.json"
           + ("" if args.no_video else ", probe_-x.mp4") + f" ({summary['wall_time_s']:.0f} s)")
     print(f"see them in a browser: fluidgs view {out / 'result.h5'}" + (f" --gaussians {gpath}" if gpath else "")
-          + (f" --scores {out / 'scores.json'}" if cpath else ""))
+          + f" --scores {out / 'scores.json'}")
     return 0
 
 

@@ -19,6 +19,7 @@ from .options import (
     physics_config_class,
     physics_config_from_args,
     probe_overrides,
+    warn_frame,
 )
 from .runtime import positive_int
 
@@ -61,6 +62,7 @@ def run_command(args: argparse.Namespace) -> int:
     gaussians, fmt, frame = load_gaussians_framed(
         args.gaussians, LoadOptions(args.spz_frame, args.colmap, args.dataparser_transforms))
     print(f"frame: {frame.description}")
+    warn_frame(config, up_given=args.up is not None)
     init_taichi(args.device, config.precision, args.threads)
     inspection = inspect_gaussians(gaussians, config, fmt)
     summary = {"file": str(args.gaussians), **inspection.summary}

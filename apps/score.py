@@ -1,4 +1,4 @@
-"""`fluidgs score GAUSSIANS.ply --cameras transforms.json -o scores.json`: rank candidate views by S(T) (Eq. 4-5).
+"""`fluidgs score GAUSSIANS.ply --cameras CAMERAS -o scores.json`: rank candidate views by S(T) (Eq. 4-5).
 
 S(T) = sum over the Gaussians visible in view T of w_g D_g, with w_g = clamp(pi R_g^2 / (H W), 0, 1) from the
 renderer's screen-space radii R_g. D_g comes from RESULT.h5 (``--result``) or from a fresh probe run.
@@ -6,9 +6,11 @@ Prints a ranked table and writes scores.json (per candidate: index, name, score,
 the settings) and, per view, a PNG with the render beside a D_g heat-map of the same view (the Gaussians
 re-coloured by D_g on the TURBO map, rendered with the same camera), rank and score written on it.
 
-Cameras: a Blender / NeRF-synthetic ``transforms.json`` (``camera_angle_x`` or ``fl_x``, frames with
-``transform_matrix``); the image size from ``w``/``h`` keys, else the frame's image file, else ``--res``.
-The cameras' frame must be the Gaussians' frame (scene units).
+Cameras: ``orbit:N`` (N cameras on rings around the robust object box, :mod:`nbv.orbit`; written beside the
+scores as ``<stem>_cameras.json``), or any camera file of :func:`recon.camera_files.load_camera_file`: a Blender /
+NeRF / nerfstudio ``transforms.json`` (the image size from ``w``/``h`` keys, else the frame's image file, else
+``--res``), a COLMAP model folder, or graphdeco's ``cameras.json``. The cameras' frame must be the Gaussians' frame
+(scene units).
 """
 
 from __future__ import annotations
@@ -25,11 +27,16 @@ from .options import (
     add_gaussian_file_arguments,
     add_physics_arguments,
     add_record_arguments,
+    camera_file_from_args,
     check_output_file,
     load_gaussians_checked,
+    orbit_cameras_logged,
+    orbit_from_args,
     physics_config_from_args,
     record_config_from_args,
+    result_overridden_options,
     save_diverged,
+    warn_frame,
 )
 
 log = logging.getLogger("fluidgs")
@@ -97,18 +104,22 @@ def run_command(args: argparse.Namespace) -> int:
         render_size,
         score_views,
     )
-    from recon.datasets import load_cameras
+    from recon.camera_files import transforms_json
 
-    all_cams = load_cameras(args.cameras, args.res)
-    config = physics_config_from_args(args, cameras=all_cams)
+    orbit = orbit_from_args(args, args.render_width)
+    file_cams = None if orbit is not None else camera_file_from_args(args)
+    config = physics_config_from_args(args, cameras=file_cams)
     output = check_output_file(args.output, (".json",))
     if args.top_k is not None and args.top_k < 1:
         raise ValueError(f"--top-k must be >= 1, got {args.top_k}")
     if args.png_top < 1:
         raise ValueError(f"--png-top must be >= 1 view, got {args.png_top}; use --no-png for no PNGs")
     png_dir = None if args.no_png else (args.png_dir or output.with_name(output.stem + "_views"))
-    check_not_input({"-o": output, "--save-result": args.save_result, "--png-dir": png_dir},
-                    {"GAUSSIANS": args.gaussians, "--cameras": args.cameras, "--result": args.result})
+    orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
+    check_not_input({"-o": output, "--save-result": args.save_result, "--png-dir": png_dir,
+                     "-o (orbit cameras)": orbit_file},
+                    {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras,
+                     "--result": args.result})
     if png_dir is not None:
         check_output_file(png_dir / "view.png", (".png",))
     if args.save_result is not None:
@@ -120,22 +131,37 @@ def run_command(args: argparse.Namespace) -> int:
         raise ValueError("--record-probe records into the RESULT.h5 of a fresh simulation: pass --save-result "
                          "RESULT.h5" + (" and drop --result" if args.result is not None else ""))
     gaussians = load_gaussians_checked(args.gaussians, args)
+    result = None
+    if args.result is not None:  # the result fixes the frame (up, crop) that the cameras and the scores use
+        ignored = result_overridden_options(args) + ([f"--save-result {args.save_result}"] if args.save_result else [])
+        if ignored:
+            log.warning("--result %s fixes the probes and the frame: ignored %s", args.result, ", ".join(ignored))
+        result = obtain_result(args, gaussians, config)
+        config = result.config
+    warn_frame(config, file_cams, up_given=args.up is not None or args.result is not None)
+    all_cams = file_cams if orbit is None else orbit_cameras_logged(gaussians, config, orbit)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     visible_centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
-    try:
-        result = obtain_result(args, gaussians, config, record)
-    except ProbeDiverged as exc:
-        return save_diverged(exc, args.save_result)
+    if orbit_file is not None:
+        write_json_atomic(orbit_file, transforms_json(all_cams, f"fluidgs score --cameras {args.cameras}: "
+                                                                f"{orbit.describe()}"))
+    if result is None:
+        try:
+            result = obtain_result(args, gaussians, config, record)
+        except ProbeDiverged as exc:
+            return save_diverged(exc, args.save_result)
     check_some_divergence(result, args.metric, args.result or args.gaussians)
     rows = score_views(gaussians, cams, idx, result, args.metric, png_dir, weighted=not args.unweighted,
                        occlusion=args.occlusion, device=args.device, visible_centres=visible_centres,
                        png_top=None if args.png_all else args.png_top)
     print(format_table(rows, args.top_k))
-    write_json_atomic(output, {"cameras": str(args.cameras), "gaussians": str(args.gaussians), "metric": args.metric,
+    cameras = str(orbit_file if orbit_file is not None else args.cameras)
+    write_json_atomic(output, {"cameras": cameras, "gaussians": str(args.gaussians), "metric": args.metric,
                         "weighted": not args.unweighted, "occlusion": args.occlusion, "dbar_m4_s": result.dbar,
                         "dbar_empty_m4_s": result.dbar_empty, "views": rows, "config": result.config.to_dict()})
-    print(f"scores: {output}" + (f"\nviews: {png_dir}" if png_dir is not None else ""))
+    print(f"scores: {output}" + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file is not None else "")
+          + (f"\nviews: {png_dir}" if png_dir is not None else ""))
     h5 = args.result or args.save_result
     if h5 is not None:
         print(f"see them in a browser: fluidgs view {h5} --gaussians {args.gaussians} --scores {output}")

@@ -23,6 +23,7 @@ from .options import (
     physics_config_from_args,
     record_config_from_args,
     save_diverged,
+    warn_frame,
 )
 
 log = logging.getLogger("fluidgs")
@@ -69,6 +70,7 @@ def run_command(args: argparse.Namespace) -> int:
         check_writable(video)
     record = record_config_from_args(args, config)
     gaussians = load_gaussians_checked(args.gaussians, args)
+    warn_frame(config, up_given=args.up is not None)
     init_taichi(args.device, config.precision, args.threads)
     try:
         result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians),

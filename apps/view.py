@@ -32,7 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="scores.json of `fluidgs score`: the candidate cameras coloured by S(T), with their rank "
                         "(default: none; then --cameras alone draws them uncoloured)")
     p.add_argument("--cameras", type=Path, default=None,
-                   help="the candidates' transforms.json, scene units (default: the file --scores names)")
+                   help="the candidates' cameras file (transforms.json, COLMAP model, graphdeco cameras.json), "
+                        "scene units (default: the file --scores names)")
     from viz.viewer import ViewerOptions
 
     from .options import add_config_options

@@ -1,4 +1,4 @@
-"""Camera generators: orbits and random poses on a sphere or an upper hemisphere, all looking at a target.
+"""Camera generators: orbits, rings around an object and random poses on a sphere, all looking at a target.
 
 No paper equation is implemented here. The paper's DrivAerNet++ datasets (appendix, "Rendering") place
 the cameras on a sphere of radius 6 around an object fitted to a bounding box of 4, in random order;
@@ -10,6 +10,14 @@ the scene's up direction: every camera looks at the target with the up axis poin
 has no defined image-up; :meth:`Camera.look_at` then picks a fixed perpendicular, so the pose is still
 deterministic. Directions uniform on the sphere are normalised standard Gaussian vectors; the upper
 hemisphere folds them with the absolute value of the up coordinate, which keeps them uniform there.
+
+Rings around an object (:func:`orbit_rings`, the candidate cameras of a capture that comes without any): the
+object is a sphere of radius r about a centre c (the caller's object box, e.g. the robust box of
+:mod:`nbv.orbit`). Each ring has one elevation e above the plane through c normal to ``up``; its cameras sit
+at azimuths 2 pi (j + o) / m (j = 0..m-1, o = 1/2 on every second ring, so the rings interleave), measured from
+``front`` towards ``up x front`` (counter-clockwise seen from above), at the distance
+d = r / sin(min(fov_x, fov_y) / 2): the whole sphere, hence the whole object, lies inside the view cone of the
+narrower field of view and touches it. Every camera looks at c with ``up`` up in the image.
 
 Example:
     >>> cams = random_sphere(8, radius=6.0, width=64, height=64, fov_x=0.8, seed=0, hemisphere=True)
@@ -112,6 +120,75 @@ def orbit_around(points: np.ndarray, n: int, width: int, elevation_deg: float = 
     lo, hi = points.min(axis=0), points.max(axis=0)
     extent = float((hi - lo).max())
     return orbit(n, 1.6 * extent, elevation_deg, width, int(width * 3 / 4), fov_x, target=tuple((lo + hi) / 2))
+
+
+# Defaults of the rings of candidate cameras around a capture: the horizontal field of view, the elevations of the
+# rings above the horizon and the image aspect (height / width).
+ORBIT_FOV_X_DEG = 50.0
+ORBIT_ELEVATIONS_DEG = (15.0, 45.0)
+ORBIT_ASPECT = 0.75
+
+
+def framing_distance(radius: float, fov_x: float, width: int, height: int) -> float:
+    """The distance at which a sphere of ``radius`` just fits the narrower field of view of a pinhole camera of
+    ``width`` x ``height`` pixels with horizontal field of view ``fov_x`` (radians): r / sin(min(fov_x, fov_y) / 2),
+    with tan(fov_y / 2) = (height / width) tan(fov_x / 2) (square pixels)."""
+    if not (math.isfinite(radius) and radius > 0):
+        raise ValueError(f"radius must be finite and > 0, got {radius}")
+    if not 0 < fov_x < math.pi:
+        raise ValueError(f"fov_x must be in (0, pi) radians, got {fov_x}")
+    fov_y = 2.0 * math.atan(height / width * math.tan(0.5 * fov_x))
+    return radius / math.sin(0.5 * min(fov_x, fov_y))
+
+
+def ring_counts(n: int, rings: int) -> list[int]:
+    """Cameras per ring: n split over ``rings`` as evenly as possible, the first rings taking one more."""
+    if int(n) != n or n < 1:
+        raise ValueError(f"n (number of cameras) must be a positive integer, got {n}")
+    return [n // rings + (1 if k < n % rings else 0) for k in range(rings)]
+
+
+def orbit_rings(n: int, centre, radius: float, up, front, elevations_deg, width: int, height: int, fov_x: float,
+                prefix: str = "orbit") -> list[Camera]:
+    """n cameras on rings around a sphere (the object), each looking at its centre with ``up`` up in the image.
+
+    Args:
+        n: number of cameras, split over the rings by :func:`ring_counts`.
+        centre: [3] the object's centre (the target), scene units.
+        radius: the object's bounding-sphere radius, scene units; the cameras sit at :func:`framing_distance`.
+        up: [3] the scene's up direction (any length > 0).
+        front: [3] azimuth 0 (its part normal to ``up`` is used; it must not be parallel to ``up``).
+        elevations_deg: one elevation per ring, degrees in (-90, 90), above the plane normal to ``up``.
+        width, height: image size, pixels. fov_x: horizontal field of view, radians.
+        prefix: camera names are ``f"{prefix}_{i:03d}"``, ring by ring, azimuth increasing.
+    Returns:
+        list of n :class:`Camera`.
+    """
+    centre = _check_common(n, radius, width, height, fov_x, centre)
+    elevations = [float(e) for e in elevations_deg]
+    if not elevations or not all(-90.0 < e < 90.0 for e in elevations):
+        raise ValueError(f"elevations must be one or more angles in (-90, 90) degrees, got {elevations}; a camera "
+                         "on the up axis has no upright image")
+    up = np.asarray(up, dtype=np.float64).reshape(3)
+    if not (np.isfinite(up).all() and np.linalg.norm(up) > 0):
+        raise ValueError(f"up must be a finite non-zero 3-vector, got {up.tolist()}")
+    up = up / np.linalg.norm(up)
+    front = np.asarray(front, dtype=np.float64).reshape(3)
+    front = front - (front @ up) * up
+    if not np.linalg.norm(front) > 1e-9:
+        raise ValueError("front must not be parallel to up")
+    front = front / np.linalg.norm(front)
+    side = np.cross(up, front)
+    distance = framing_distance(radius, fov_x, width, height)
+    cams: list[Camera] = []
+    for k, (elevation, count) in enumerate(zip(elevations, ring_counts(n, len(elevations)), strict=True)):
+        el = math.radians(elevation)
+        for j in range(count):
+            az = 2.0 * math.pi * (j + 0.5 * (k % 2)) / count
+            d = math.cos(el) * (math.cos(az) * front + math.sin(az) * side) + math.sin(el) * up
+            cams.append(Camera.look_at(centre + distance * d, centre, up, width, height, fov_x,
+                                       name=f"{prefix}_{len(cams):03d}"))
+    return cams
 
 
 def sphere_directions(n: int, seed: int, hemisphere: bool = False, up_axis: str = "y") -> np.ndarray:

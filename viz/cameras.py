@@ -104,7 +104,7 @@ def cameras_path_of(scores: dict, scores_path: Path) -> Path | None:
     if not isinstance(name, str) or not name:
         return None
     for candidate in (Path(name), scores_path.parent / Path(name).name):
-        if candidate.is_file():
+        if candidate.exists():  # a file, or a COLMAP model folder
             return candidate
     return None
 
@@ -114,7 +114,8 @@ def candidate_views(cameras: str | Path, scene_to_sim: np.ndarray, scores: dict 
     """The cameras of ``cameras`` (transforms.json) in the simulation frame, with scores and ranks.
 
     Args:
-        cameras: a Blender / NeRF transforms.json, scene units (the Gaussians' frame).
+        cameras: a camera file of :func:`recon.camera_files.load_camera_file` (transforms.json, COLMAP model,
+            graphdeco cameras.json), scene units (the Gaussians' frame).
         scene_to_sim: [4, 4] RESULT.h5's transform. where: RESULT.h5's name, for messages.
         scores: the parsed scores.json (:func:`read_scores`), or None.
     Returns:
@@ -123,9 +124,9 @@ def candidate_views(cameras: str | Path, scene_to_sim: np.ndarray, scores: dict 
         ValueError: a malformed cameras file, or scores of other cameras (an index past the file's cameras, or a
             name that differs).
     """
-    from recon.datasets import load_cameras  # noqa: PLC0415 - torch: imported here so that viz.cameras stays light
+    from recon.camera_files import load_camera_file  # noqa: PLC0415 - torch: imported here so viz.cameras stays light
 
-    cams = load_cameras(cameras)
+    cams = load_camera_file(cameras)
     s, rot, t = split_similarity(scene_to_sim, where)
     by_index: dict[int, dict] = {}
     if scores is not None:

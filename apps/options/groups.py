@@ -117,12 +117,17 @@ def up_from_args(args: argparse.Namespace, cameras=None):
     """``args.up`` resolved: an up spec for PhysicsConfig ('auto' -> the cameras' mean up vector, logged)."""
     import logging
 
+    from nbv.orbit import orbit_count
     from nbv.physics.scene_frame import describe_auto_up, parse_up
 
     up = "+y" if args.up is None else args.up
     if str(up).strip().lower() != "auto":
         parse_up(up)  # the error names --up
         return up
+    if orbit_count(getattr(args, "cameras", None) or "") is not None:
+        raise ValueError("--up auto takes the up direction from a camera file, and --cameras orbit:N builds its "
+                         "cameras around --up; give the up direction (--up -y for a y-down COLMAP capture, --up +z "
+                         "for a z-up scene)")
     if not cameras:
         raise ValueError("--up auto takes the up direction from cameras, and this command has none; give the up "
                          "direction (--up -y for a y-down COLMAP capture, --up +z for a z-up scene)")
@@ -166,10 +171,29 @@ def record_config_from_args(args: argparse.Namespace, config):
     return record
 
 
+CAMERAS_HELP = ("candidate cameras, in the Gaussians' frame: orbit:N (N cameras on rings around the robust object "
+                "box, looking at its centre with --up up; see --elevations), a transforms.json (Blender / NeRF / "
+                "nerfstudio), a COLMAP model folder (sparse/0, or a folder holding it) or graphdeco's cameras.json")
+
+
+def add_orbit_arguments(p) -> None:
+    """--elevations and --orbit-fov: the rings of ``--cameras orbit:N`` (:class:`nbv.orbit.Orbit`)."""
+    from recon.camera_paths import ORBIT_ELEVATIONS_DEG, ORBIT_FOV_X_DEG
+
+    default = ",".join(f"{e:g}" for e in ORBIT_ELEVATIONS_DEG)
+    p.add_argument("--elevations", default=None, metavar="DEGREES",
+                   help="orbit:N only: comma list of ring elevations above the horizon, degrees in (-90, 90); the N "
+                        f"cameras are split over the rings (default: {default})")
+    p.add_argument("--orbit-fov", type=float, default=None, metavar="DEGREES",
+                   help="orbit:N only: horizontal field of view in degrees; the cameras stand back until the object's "
+                        f"bounding sphere fills the narrower field of view (default: {ORBIT_FOV_X_DEG:g})")
+
+
 def add_camera_arguments(p: argparse.ArgumentParser) -> None:
-    """--cameras, --res, --render-width and --candidates: the candidate views of score and critical."""
-    p.add_argument("--cameras", type=Path, required=True,
-                   help="Blender/NeRF transforms.json with the candidate cameras, in the Gaussians' frame")
+    """--cameras, --elevations, --orbit-fov, --res, --render-width and --candidates: the candidate views of score
+    and critical."""
+    p.add_argument("--cameras", required=True, metavar="CAMERAS", help=f"{CAMERAS_HELP} (required)")
+    add_orbit_arguments(p)
     p.add_argument("--res", type=int, default=None,
                    help="image width in pixels when the cameras file gives no w/h and no images (height from the "
                         "aspect of w/h when known, else square)")
@@ -179,6 +203,107 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--candidates", default=None, help="comma list of camera indices to score (default: all)")
 
 
+def orbit_from_args(args: argparse.Namespace, width: int):
+    """The :class:`nbv.orbit.Orbit` of ``--cameras orbit:N`` (None for a camera file), checked before any
+    work; --elevations / --orbit-fov without an orbit are errors (they would be ignored)."""
+    from nbv.orbit import Orbit, orbit_count
+
+    from .fields import float_list
+
+    count = orbit_count(args.cameras) if args.cameras is not None else None
+    if count is None:
+        given = [o for o, v in (("--elevations", args.elevations), ("--orbit-fov", args.orbit_fov)) if v is not None]
+        if given:
+            raise ValueError(f"{' and '.join(given)} shape the cameras of --cameras orbit:N, and --cameras is "
+                             f"{args.cameras or 'not given'}; drop {' and '.join(given)} or pass --cameras orbit:N")
+        return None
+    values = {"width": width}
+    if args.elevations is not None:
+        values["elevations_deg"] = float_list(args.elevations, "--elevations")
+    if args.orbit_fov is not None:
+        values["fov_x_deg"] = args.orbit_fov
+    return Orbit(count, **values)
+
+
+def camera_file_from_args(args: argparse.Namespace):
+    """The cameras of the camera file named by --cameras (any :mod:`recon.camera_files` kind), scaled to --res."""
+    from recon.camera_files import load_camera_file
+
+    return load_camera_file(args.cameras, getattr(args, "res", None))
+
+
+def orbit_cameras_logged(gaussians, config, orbit):
+    """:func:`nbv.orbit.orbit_cameras`, with one log line saying what was built."""
+    import logging
+
+    from nbv.orbit import orbit_cameras
+    from nbv.physics.scene_frame import parse_up, up_label
+
+    cams = orbit_cameras(gaussians, config, orbit)
+    logging.getLogger("fluidgs").info("cameras: %s around the robust object box, up %s (`fluidgs cameras` writes "
+                                      "them as a transforms.json)", orbit.describe(), up_label(parse_up(config.up)))
+    return cams
+
+
+# ---- frame hints ---------------------------------------------------------------------------------------------
+UP_DISAGREES_DEG = 60.0  # warn when --up is further than this from the cameras' mean up
+
+
+def frame_hint() -> str:
+    """The one line said when --up is not given: the up assumed, and the usual fix for COLMAP captures."""
+    return ("frame: no --up given, so the file's +y axis is taken as up (the top probe falls along -y); COLMAP "
+            "captures are usually y-down: pass --up -y for them (`fluidgs inspect --png` shows which way is up)")
+
+
+def check_up_against_cameras(up, cameras, what: str = "the cameras") -> str | None:
+    """A warning when the up direction ``up`` (anything :func:`nbv.physics.scene_frame.parse_up` takes) is more
+    than :data:`UP_DISAGREES_DEG` from ``cameras``' mean up vector; None when they agree (or the cameras have no
+    consistent up)."""
+    from nbv.orbit import angle_to_camera_up
+    from nbv.physics.scene_frame import nearest_axis, parse_up, up_label
+
+    u = parse_up(up)
+    found = angle_to_camera_up(u, cameras)
+    if found is None or found[0] <= UP_DISAGREES_DEG:
+        return None
+    angle, mean = found
+    axis, off = nearest_axis(mean)
+    return (f"the up direction {up_label(u)} is {angle:.0f} deg from {what}' mean up ({up_label(mean)}, {off:.0f} deg "
+            f"from {axis}): the capture would be simulated {'upside down' if angle > 120 else 'on its side'}; pass "
+            f"--up {axis} (or --up auto to take the cameras' mean up)")
+
+
+def warn_frame(config, cameras=None, up_given: bool = True, what: str = "the cameras") -> None:
+    """Log the frame hint when the up direction was not given (``up_given`` False), and the camera-up warning when
+    ``cameras`` disagree with ``config.up``."""
+    import logging
+
+    log = logging.getLogger("fluidgs")
+    if not up_given:
+        log.info("%s", frame_hint())
+    if cameras:
+        warning = check_up_against_cameras(config.up, cameras, what)
+        if warning:
+            log.warning("%s", warning)
+
+
+# ---- --result: the options it fixes -----------------------------------------------------------------------------
+def result_overridden_options(args: argparse.Namespace) -> list[str]:
+    """The probe, frame and solid options given on the command line (``"--up -y"``, ``"--quick"``): a RESULT.h5
+    fixes all of them, so with ``--result`` they are ignored."""
+    over = probe_overrides()
+    given = ["--quick"] if getattr(args, "quick", False) else []
+    for name in PROBE_FIELDS + FRAME_FIELDS + SOLID_FIELDS + RUN_FIELDS:
+        o = over.get(name, {})
+        dest = o.get("dest", name)
+        value = getattr(args, dest, None)
+        if value is None or value is False:
+            continue
+        flag = o.get("flags", ("--" + name.replace("_", "-"),))[0]
+        given.append(flag if value is True else f"{flag} {value}")
+    if getattr(args, "fill_cavities", False):
+        given.append("--fill-cavities")
+    return given
 # ---- inputs and outputs named on the command line --------------------------------------------------------------
 def add_gaussian_file_arguments(p: argparse.ArgumentParser) -> None:
     """--spz-frame, --colmap and --dataparser-transforms: what a Gaussian file's content cannot say

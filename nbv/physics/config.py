@@ -217,23 +217,34 @@ def scene_transform(gaussians, config: PhysicsConfig, *, kept=_CROP_NOT_GIVEN):
     (:func:`nbv.physics.scene_frame.robust_box`, in simulation axes; only the Gaussians that ``config.crop`` keeps)
     is ``target_extent`` m. ``kept``: :func:`kept_gaussians` already computed (None: no crop); default computed here.
     """
-    rotated = SceneTransform(config.up, 1.0)
     if config.scale != "auto":
         return SceneTransform(config.up, float(config.scale))
+    box = object_box(gaussians, config, kept=kept)
+    extent = 0.0 if box is None else float((box[1] - box[0]).max())
+    if not extent > 0:
+        raise ValueError("cannot pick scale='auto': the Gaussians have no spatial extent; "
+                         "pass a number (metres per scene unit) as the scale")
+    return SceneTransform(config.up, config.target_extent / extent)
+
+
+def object_box(gaussians, config: PhysicsConfig, *, kept=_CROP_NOT_GIVEN) -> tuple[np.ndarray, np.ndarray] | None:
+    """The robust object box (:func:`nbv.physics.scene_frame.robust_box`) of the Gaussians that ``config.crop``
+    keeps, in the simulation axes at scene units (``SceneTransform(config.up, 1)``): (lo [3], hi [3]), or None when
+    fewer than two Gaussians are kept. The auto scale and the orbit cameras both frame this box. ``kept``: as
+    :func:`scene_transform`.
+
+    Raises:
+        ValueError: the crop keeps no Gaussian (:func:`kept_gaussians`).
+    """
     means = gaussians.means.detach().cpu().double().numpy()
     opacities = gaussians.opacities.detach().cpu().double().numpy()
     if kept is _CROP_NOT_GIVEN:
         kept = kept_gaussians(gaussians, config, report=False)
     if kept is not None:
         means, opacities = means[kept], opacities[kept]
-    extent = 0.0
-    if len(means) >= 2:
-        lo, hi = robust_box(rotated.to_sim(means), opacities, config.opacity_threshold)
-        extent = float((hi - lo).max())
-    if not extent > 0:
-        raise ValueError("cannot pick scale='auto': the Gaussians have no spatial extent; "
-                         "pass a number (metres per scene unit) as the scale")
-    return SceneTransform(config.up, config.target_extent / extent)
+    if len(means) < 2:
+        return None
+    return robust_box(SceneTransform(config.up, 1.0).to_sim(means), opacities, config.opacity_threshold)
 
 
 

@@ -1,0 +1,92 @@
+"""`fluidgs cameras GAUSSIANS --orbit N --up -y -o cams.json`: candidate cameras for a capture that has none.
+
+The cameras of ``--cameras orbit:N`` (:mod:`nbv.orbit`): N cameras on rings around the robust object box
+(after ``--crop``), looking at its centre with ``--up`` up in the image, standing back until the box's bounding
+sphere fills the narrower field of view. Written as a transforms.json (OpenGL camera-to-world, docs/formats.md),
+or with ``--format`` as graphdeco's cameras.json or a COLMAP text model (a folder), all in the Gaussians' frame.
+Any of them is a valid ``--cameras`` for score and critical, and a file to edit by hand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from .options import (
+    add_config_options,
+    add_frame_arguments,
+    add_orbit_arguments,
+    check_output_file,
+    load_gaussians_checked,
+    physics_config_class,
+    physics_config_from_args,
+    probe_overrides,
+    warn_frame,
+)
+
+FORMATS = ("transforms", "graphdeco", "colmap")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
+    p.add_argument("--orbit", type=int, required=True, metavar="N",
+                   help="number of cameras (>= 1), split over the rings")
+    p.add_argument("-o", "--output", type=Path, required=True,
+                   help="the cameras file: a .json (transforms, graphdeco), or a folder (colmap); written atomically")
+    p.add_argument("--format", choices=FORMATS, default="transforms",
+                   help="transforms: a Blender / NeRF / nerfstudio transforms.json; graphdeco: a cameras.json as the "
+                        "3DGS trainer writes; colmap: cameras.txt, images.txt and an empty points3D.txt in a folder")
+    p.add_argument("--width", type=int, default=320, help="image width in pixels; the height is 3/4 of it")
+    g = p.add_argument_group("frame")
+    add_frame_arguments(g, scale=False)
+    config, _ = physics_config_class()
+    add_config_options(g, config, ("opacity_threshold",), probe_overrides())
+    add_orbit_arguments(p)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.files import check_not_input, write_json_atomic, write_text_atomic
+    from nbv.orbit import object_sphere
+    from nbv.physics.scene_frame import parse_up, up_label
+    from recon.camera_files import colmap_text, graphdeco_json, transforms_json
+    from recon.camera_paths import framing_distance
+
+    from .options import orbit_cameras_logged, orbit_from_args
+
+    if args.width < 1:
+        raise ValueError(f"--width must be a positive number of pixels, got {args.width}")
+    orbit = orbit_from_args(argparse.Namespace(**{**vars(args), "cameras": f"orbit:{args.orbit}"}), args.width)
+    config = physics_config_from_args(args, steps=1)
+    out = Path(args.output)
+    if args.format == "colmap":
+        if out.suffix:
+            raise ValueError(f"-o {out}: --format colmap writes a folder (cameras.txt, images.txt, points3D.txt); "
+                             "pass a folder name such as sparse/0")
+        files = {name: out / name for name in ("cameras.txt", "images.txt", "points3D.txt")}
+        for f in files.values():
+            check_output_file(f, (".txt",))
+    else:
+        check_output_file(out, (".json",))
+        files = {out.name: out}
+    check_not_input({"-o": list(files.values())[0]}, {"GAUSSIANS": args.gaussians})
+    gaussians = load_gaussians_checked(args.gaussians)
+    warn_frame(config, up_given=args.up is not None)
+    cams = orbit_cameras_logged(gaussians, config, orbit)
+    note = (f"fluidgs cameras {args.gaussians} --orbit {args.orbit} --up {up_label(parse_up(config.up))}: "
+            f"{orbit.describe()}")
+    if args.format == "transforms":
+        write_json_atomic(out, transforms_json(cams, note))
+    elif args.format == "graphdeco":
+        write_json_atomic(out, graphdeco_json(cams))
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        cameras_txt, images_txt = colmap_text(cams)
+        write_text_atomic(files["cameras.txt"], cameras_txt)
+        write_text_atomic(files["images.txt"], images_txt)
+        write_text_atomic(files["points3D.txt"], "# 3D point list: none (cameras only)\n")
+    centre, radius = object_sphere(gaussians, config, f"orbit:{args.orbit}")
+    distance = framing_distance(radius, math.radians(orbit.fov_x_deg), orbit.width, orbit.height)
+    print(f"{len(cams)} cameras ({orbit.describe()}) looking at ({', '.join(f'{c:.4g}' for c in centre)}), "
+          f"{distance:.4g} scene units away (object sphere radius {radius:.4g}) -> {out} ({args.format})")
+    return 0
