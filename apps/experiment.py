@@ -33,7 +33,6 @@ def init_worker(threads: int, precision: str) -> None:
     import torch
 
     from .runtime import init_taichi
-
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(threads)
     init_taichi("cpu", precision, threads)
@@ -51,11 +50,26 @@ def make_executor(kind: str, workers: int, threads: int, address: str | None, pr
     return RayExecutor(address, init_worker, (threads, precision), num_cpus=threads, local_cpus=local_cpus)
 
 
+def job_exit_code(cause: BaseException | None) -> int:
+    """`fluidgs`'s exit code for a job that raised ``cause``: 4 an output, 2 bad input, 3 a divergence, else 1."""
+    from fluidsim.simulation import SimulationDiverged
+
+    from .cli import EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, is_output_error
+
+    if cause is not None and is_output_error(cause):
+        return EXIT_OUTPUT
+    if isinstance(cause, SimulationDiverged):
+        return EXIT_DIVERGED
+    if isinstance(cause, (ValueError, OSError)):
+        return EXIT_BAD_INPUT
+    return 1
+
+
 def run_command(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from fluidsim.files import check_not_input
-    from nbv.study.experiment import run_experiment
+    from nbv.study.experiment import JobFailed, run_experiment
     from nbv.study.experiment_config import ExperimentConfig
 
     config = ExperimentConfig.load(args.config)
@@ -65,7 +79,11 @@ def run_command(args: argparse.Namespace) -> int:
                                                                                "tables.md")], {"CONFIG": args.config})
     precision = config.active_config(config.methods[0], config.seeds[0]).physics.precision
     executor = make_executor(args.executor, args.workers, args.threads, args.address, precision)
-    out = run_experiment(config, executor, progress=not args.no_progress)
+    try:
+        out = run_experiment(config, executor, progress=not args.no_progress)
+    except JobFailed as exc:  # one line naming the job and its error, with the exit code of that error
+        logging.getLogger("fluidgs").error("%s", exc)
+        return job_exit_code(exc.__cause__)
     print(out["tables"]["visual"])
     print(out["tables"]["physics"])
     print(f"wrote {Path(config.output) / 'tables.md'} and {len(out['files'])} table / plot files")
