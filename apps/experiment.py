@@ -12,7 +12,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from .runtime import positive_int
+from .runtime import thread_count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local: a process pool here; ray: tasks on a Ray cluster")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
-    p.add_argument("--threads", type=positive_int, default=1, help="torch and Taichi CPU threads per worker")
+    p.add_argument("--threads", type=thread_count, default=1, help="torch and Taichi CPU threads per worker")
     p.add_argument("--address", default=None,
                    help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
                         "(default: start a local Ray instance)")
@@ -33,6 +33,9 @@ def init_worker(threads: int, precision: str) -> None:
     import torch
 
     from .runtime import init_taichi
+    from .signals import worker_signals
+
+    worker_signals()  # Ctrl-C is the parent's to handle; its SIGTERM ends this worker without leftovers
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(threads)
     init_taichi("cpu", precision, threads)

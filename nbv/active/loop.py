@@ -60,6 +60,7 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
+from fluidsim.files import remove_stale_temps
 from nbv import scores
 from nbv.active.config import CHECKPOINT_VERSION, RUN_FILES, ActiveConfig
 from nbv.io import json_safe, write_atomic, write_json_atomic
@@ -395,6 +396,10 @@ class ActiveRun:
         """Run (or resume) the loop; returns the rounds.json content."""
         c = self.config
         t_start = time.perf_counter()
+        stale = remove_stale_temps(self.run_dir)  # left by a run killed at once (SIGKILL): this run owns the folder
+        if stale:
+            log.info("%s: removed %d temporary file(s) of an earlier run killed while writing", self.run_dir,
+                     len(stale))
         if self.resumable:
             state, trainer = self._load()
             log.info("%s: resuming after %d of %d selections", self.run_dir, len(state.rounds), len(c.rounds()))

@@ -54,6 +54,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from fluidsim.files import remove_stale_temps
 from nbv.active import ActiveConfig, config_differences, run_active
 from nbv.io import json_safe, write_json_atomic
 from nbv.study.evaluate import EvalConfig, evaluate_run
@@ -168,6 +169,7 @@ def run_experiment(config: ExperimentConfig, executor, progress: bool = True) ->
     out = Path(config.output)
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "experiment.json", {"config": {k: getattr(config, k) for k in CONFIG_KEYS}})
+    remove_stale_temps(out)
     with tqdm(total=len(jobs), desc="jobs", unit="job", disable=not progress) as bar:
         results = executor.map(run_job, jobs)
         try:

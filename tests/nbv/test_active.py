@@ -312,3 +312,17 @@ def test_planted_checkpoint_is_refused_and_not_executed(tiny_dataset, straight_r
     torch.save({"version": 1}, run / "checkpoint.pt")
     with pytest.raises(ValueError, match=r"checkpoint\.pt is not a checkpoint of `fluidgs active`"):
         run_active(tiny_dataset, run, cfg, progress=False)
+
+
+def test_a_resume_removes_temporary_files_left_by_sigkill(tiny_dataset, straight_run, tmp_path):
+    """A run killed at once (SIGKILL) mid-write leaves a .fgs-*.tmp in its folder: the next run there removes it
+    (the run owns its folder), and keeps every other file."""
+    import shutil
+
+    cfg, straight_dir, straight = straight_run
+    run = tmp_path / "run"
+    shutil.copytree(straight_dir, run)
+    (run / ".fgs-0badc0de.tmp").write_bytes(b"half a checkpoint")
+    (run / "notes.tmp").write_text("the user's")
+    assert run_active(tiny_dataset, run, cfg, progress=False) == straight
+    assert not (run / ".fgs-0badc0de.tmp").exists() and (run / "notes.tmp").exists()
