@@ -87,6 +87,8 @@ def run_command(args: argparse.Namespace) -> int:
 
     scene = load_scene(args.scene)  # validated before any kernel runs
     if args.steps is not None:
+        if args.steps < 1:  # the option, not the scene key it overrides
+            raise ValueError(f"--steps must be an integer >= 1 time step, got {args.steps}")
         scene = scene.with_steps(args.steps)
     if args.save_every < 0:
         raise ValueError(f"--save-every must be >= 0, got {args.save_every}")

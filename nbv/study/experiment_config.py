@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from fluidsim.directions import DIRECTIONS
+from fluidsim.files import check_input_file
 from nbv.active import ActiveConfig
 from nbv.active.config import MAX_SEED, MAX_VIEWS
 from nbv.plan import PLANNERS, uses_physics
@@ -91,12 +92,14 @@ class ExperimentConfig:
     def load(cls, path: str | Path) -> ExperimentConfig:
         """Read a JSON config; relative scene and output paths are taken relative to the file."""
         path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"experiment config {path} does not exist")
+        check_input_file(path, "experiment config")
         try:
             data = json.loads(path.read_text())
         except json.JSONDecodeError as exc:
             raise ValueError(f"experiment config {path} is not valid JSON: {exc}") from exc
+        except RecursionError:
+            raise ValueError(f"experiment config {path} nests its JSON too deeply (thousands of levels); an "
+                             "experiment config is an object of a few levels") from None
         if not isinstance(data, dict):
             raise ValueError(f"experiment config {path} must hold a JSON object")
         bad = sorted(set(data) - set(CONFIG_KEYS))
