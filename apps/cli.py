@@ -14,8 +14,9 @@ code  meaning
       with --save-result)
 4     an output cannot be written: full disk (ENOSPC) or quota, read-only file system (EROFS), no permission,
       a name too long (ENAMETOOLONG), a parent that is a file, a folder where a file is wanted
-130   interrupted by Ctrl-C (SIGINT); `sim` first saves its frames so far (status "interrupted")
-143   `sim` stopped by SIGTERM (kill, timeout, a batch scheduler) after saving its frames so far
+130   interrupted by Ctrl-C (SIGINT); `sim` first saves its frames so far (status "interrupted"); every command
+      removes its unfinished temporary files and stops its worker processes (apps.signals)
+143   stopped by SIGTERM (kill, timeout, a batch scheduler), with the same clean-up as 130
 ====  ==========================================================================================================
 """
 
@@ -26,7 +27,9 @@ import errno
 import logging
 import sys
 
-from fluidsim.files import OutputError
+from fluidsim.files import OutputError, remove_unfinished
+
+from .signals import Stopped, first_signal, signal_name, stop_signals
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
 try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets one line too, not a traceback
@@ -175,10 +178,24 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
+    code = EXIT_INTERRUPTED
+    try:
+        with stop_signals():
+            code = run_module(args)
+    finally:  # whatever ended the command: no temporary file, and no empty new folder of a failed run, stays
+        remove_unfinished(created_folders=code != 0)
+    return code
+
+
+def run_module(args: argparse.Namespace) -> int:
+    """Run the parsed command; returns its exit code (one logged line for every expected failure)."""
     module = args._module
     runner = getattr(module, "run_command", None) or module.run
     try:
         return int(runner(args) or 0)
+    except Stopped as exc:  # SIGINT or SIGTERM (apps.signals): one line, what is already written stays written
+        logging.getLogger("fluidgs").error("interrupted by %s", signal_name(exc.signum))
+        return exc.exit_code
     except (ValueError, OSError, FileNotFoundError) as exc:
         logging.getLogger("fluidgs").error("%s", exc)
         return EXIT_OUTPUT if is_output_error(exc) else EXIT_BAD_INPUT
@@ -190,6 +207,10 @@ def main(argv: list[str] | None = None) -> int:
         logging.getLogger("fluidgs").error("%s", exc)
         return EXIT_DIVERGED
     except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (what is already written stays written)
+        first = first_signal()  # an extension (Ray) may turn the handler's Stopped into a plain KeyboardInterrupt
+        if first is not None:
+            logging.getLogger("fluidgs").error("interrupted by %s", signal_name(first))
+            return 128 + first
         logging.getLogger("fluidgs").error("interrupted")
         return EXIT_INTERRUPTED
     except ImportError as exc:  # a Ctrl-C inside a C extension's import (open3d, torch) surfaces as an ImportError

@@ -12,7 +12,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from .runtime import positive_int
+from .runtime import thread_count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local: a process pool here; ray: tasks on a Ray cluster")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
-    p.add_argument("--threads", type=positive_int, default=1, help="torch and Taichi CPU threads per worker")
+    p.add_argument("--threads", type=thread_count, default=1, help="torch and Taichi CPU threads per worker")
     p.add_argument("--address", default=None,
                    help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
                         "(default: start a local Ray instance)")
@@ -33,7 +33,9 @@ def init_worker(threads: int, precision: str) -> None:
     import torch
 
     from .runtime import init_taichi
+    from .signals import worker_signals
 
+    worker_signals()  # Ctrl-C is the parent's to handle; its SIGTERM ends this worker without leftovers
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(threads)
     init_taichi("cpu", precision, threads)
@@ -51,11 +53,26 @@ def make_executor(kind: str, workers: int, threads: int, address: str | None, pr
     return RayExecutor(address, init_worker, (threads, precision), num_cpus=threads, local_cpus=local_cpus)
 
 
+def job_exit_code(cause: BaseException | None) -> int:
+    """`fluidgs`'s exit code for a job that raised ``cause``: 4 an output, 2 bad input, 3 a divergence, else 1."""
+    from fluidsim.simulation import SimulationDiverged
+
+    from .cli import EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, is_output_error
+
+    if cause is not None and is_output_error(cause):
+        return EXIT_OUTPUT
+    if isinstance(cause, SimulationDiverged):
+        return EXIT_DIVERGED
+    if isinstance(cause, (ValueError, OSError)):
+        return EXIT_BAD_INPUT
+    return 1
+
+
 def run_command(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from fluidsim.files import check_not_input
-    from nbv.study.experiment import run_experiment
+    from nbv.study.experiment import JobFailed, run_experiment
     from nbv.study.experiment_config import ExperimentConfig
 
     config = ExperimentConfig.load(args.config)
@@ -65,7 +82,11 @@ def run_command(args: argparse.Namespace) -> int:
                                                                                "tables.md")], {"CONFIG": args.config})
     precision = config.active_config(config.methods[0], config.seeds[0]).physics.precision
     executor = make_executor(args.executor, args.workers, args.threads, args.address, precision)
-    out = run_experiment(config, executor, progress=not args.no_progress)
+    try:
+        out = run_experiment(config, executor, progress=not args.no_progress)
+    except JobFailed as exc:  # one line naming the job and its error, with the exit code of that error
+        logging.getLogger("fluidgs").error("%s", exc)
+        return job_exit_code(exc.__cause__)
     print(out["tables"]["visual"])
     print(out["tables"]["physics"])
     print(f"wrote {Path(config.output) / 'tables.md'} and {len(out['files'])} table / plot files")

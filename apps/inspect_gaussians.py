@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fluidsim.files import check_input_file
+
 from .options import (
     add_config_options,
     add_frame_arguments,
@@ -21,7 +23,7 @@ from .options import (
     probe_overrides,
     warn_frame,
 )
-from .runtime import positive_int
+from .runtime import thread_count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=Path, default=None, help="write the figures here (.json)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device for the solid; cuda falls back to cpu with a logged warning (default: cpu)")
-    p.add_argument("--threads", type=positive_int, default=None, help="CPU threads (default: all cores)")
+    p.add_argument("--threads", type=thread_count, default=None, help="CPU threads (default: all cores)")
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -57,8 +59,7 @@ def run_command(args: argparse.Namespace) -> int:
             check_output_file(path, (suffix,))
     check_not_input({"--png": args.png, "--json": args.json}, {"GAUSSIANS": args.gaussians})
     config = physics_config_from_args(args, steps=1)  # inspect runs no probe; the other fields keep their defaults
-    if not Path(args.gaussians).exists():
-        raise ValueError(f"Gaussian file {args.gaussians} does not exist")
+    check_input_file(args.gaussians, "Gaussian file", folder_ok=True)
     gaussians, fmt, frame = load_gaussians_framed(
         args.gaussians, LoadOptions(args.spz_frame, args.colmap, args.dataparser_transforms))
     print(f"frame: {frame.description}")

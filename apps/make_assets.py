@@ -26,7 +26,7 @@ from pathlib import Path
 
 from fluidsim.files import write_json_atomic
 
-from .runtime import deterministic_torch, positive_int
+from .runtime import deterministic_torch, thread_count
 
 log = logging.getLogger("fluidgs")
 
@@ -46,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-gaussians", type=int, default=20000,
                    help="cap on the Gaussian count (20000 x 68 bytes keeps the .ply under 1.4 MB)")
     p.add_argument("--sh-degree", type=int, default=0, choices=(0, 1), help="SH degree of the asset (size!)")
-    p.add_argument("--threads", type=positive_int, default=1,
+    p.add_argument("--threads", type=thread_count, default=1,
                    help="torch CPU threads (the result is bit-reproducible for a fixed thread count)")
 
 

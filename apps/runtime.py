@@ -12,7 +12,8 @@ import logging
 from contextlib import contextmanager
 
 _FROM_TAICHI_RUNTIME = ("check_threads", "init_taichi", "release_unreachable_arrays")
-__all__ = [*_FROM_TAICHI_RUNTIME, "deterministic_torch", "positive_int", "select_device", "setup_runtime"]
+__all__ = [*_FROM_TAICHI_RUNTIME, "deterministic_torch", "positive_int", "select_device", "setup_runtime",
+           "thread_count"]
 log = logging.getLogger("fluidgs")
 
 
@@ -33,6 +34,18 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
+    return value
+
+
+def thread_count(text: str) -> int:
+    """argparse type of ``--threads``: an integer from 1 to ``apps.taichi_runtime.MAX_THREADS`` (1024); anything else
+    is a usage error (exit 2) at once."""
+    from .taichi_runtime import MAX_THREADS
+
+    value = positive_int(text)
+    if value > MAX_THREADS:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_THREADS} CPU threads, got {value} (leave it out for "
+                                         "all cores)")
     return value
 
 

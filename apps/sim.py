@@ -15,10 +15,10 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
-from .runtime import positive_int
+from .runtime import thread_count
+from .signals import STOP_SIGNALS, Stopped, note_signal
 
 log = logging.getLogger("fluidgs")
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -31,23 +31,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="compute device (default: cpu); cuda falls back to cpu with a notice")
     p.add_argument("--precision", choices=("f32", "f64"), default=None,
                    help="float precision of the particle arrays (default: the scene's solver.precision, f32)")
-    p.add_argument("--threads", type=positive_int, default=None, help="CPU threads (default: all cores)")
+    p.add_argument("--threads", type=thread_count, default=None, help="CPU threads (default: all cores)")
     p.add_argument("--max-memory-gb", type=float, default=None,
                    help="refuse to start above this estimated memory in GiB (default: the available memory)")
 
 
 class StopRequest:
     """While entered (main thread only), SIGINT and SIGTERM set ``signum`` instead of stopping the process, so
-    the step loop can stop at a step boundary with a readable file. A second signal raises KeyboardInterrupt."""
+    the step loop can stop at a step boundary with a readable file. A second signal raises
+    :class:`apps.signals.Stopped` with the first signal (exit 130 or 143); the unfinished file is then removed."""
 
     def __init__(self) -> None:
         self.signum: int | None = None
         self._old: dict[int, object] = {}
 
     def _handle(self, signum: int, frame) -> None:
-        if self.signum is not None:  # asked twice: stop now
+        note_signal(signum)
+        if self.signum is not None:  # asked twice: stop now, with the first signal's exit code
             self._restore()
-            raise KeyboardInterrupt
+            raise Stopped(self.signum)
         self.signum = signum
         log.warning("%s received: stopping after this step and saving the frames so far (send it again to stop "
                     "at once without saving)", signal.Signals(signum).name)
@@ -85,6 +87,8 @@ def run_command(args: argparse.Namespace) -> int:
 
     scene = load_scene(args.scene)  # validated before any kernel runs
     if args.steps is not None:
+        if args.steps < 1:  # the option, not the scene key it overrides
+            raise ValueError(f"--steps must be an integer >= 1 time step, got {args.steps}")
         scene = scene.with_steps(args.steps)
     if args.save_every < 0:
         raise ValueError(f"--save-every must be >= 0, got {args.save_every}")
@@ -109,6 +113,9 @@ def run_command(args: argparse.Namespace) -> int:
     except Interrupted as exc:
         log.error("stopped by %s", exc)
         return exc.exit_code
+    if stop.signum is not None:  # the signal came during the last step or the final write: the file is complete
+        log.error("stopped by %s after the last step; %s is complete", signal.Signals(stop.signum).name, path)
+        return 128 + stop.signum
     last = history[-1]
     print(f"wrote {path}: {len(history)} steps, t = {last.time:.3f} s, {last.active} fluid particles active, "
           f"{sum(s.retired for s in history)} retired, {solver.removed_inside_solid} removed inside solids")

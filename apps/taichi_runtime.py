@@ -16,11 +16,13 @@ import os
 log = logging.getLogger(__name__)
 
 DEVICES = ("cpu", "cuda")
+MAX_THREADS = 1024  # above any machine's cores; Taichi allocates per thread, so 100000 ran out of memory silently
 PRECISIONS = ("f32", "f64")
 
 
 def check_threads(threads: int | None, option: str = "--threads") -> int | None:
-    """``threads`` unchanged when None (all cores) or an integer >= 1; else ValueError naming ``option``.
+    """``threads`` unchanged when None (all cores) or an integer from 1 to :data:`MAX_THREADS`; else ValueError
+    naming ``option``. More threads than cores is allowed, with a logged notice.
 
     Taichi takes any integer: 0 silently meant all cores and -1 failed inside its C++ runtime with
     ``vector::_M_default_append``."""
@@ -29,6 +31,13 @@ def check_threads(threads: int | None, option: str = "--threads") -> int | None:
     if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
         raise ValueError(f"{option} must be an integer >= 1 (CPU threads; leave it out for all cores), "
                          f"got {threads!r}")
+    if threads > MAX_THREADS:
+        raise ValueError(f"{option} must be at most {MAX_THREADS} CPU threads, got {threads}; this machine has "
+                         f"{os.cpu_count()} cores (leave {option} out for all of them)")
+    cores = os.cpu_count() or 1
+    if threads > cores:
+        log.warning("%s %d is more than this machine's %d cores: the threads share them, which is slower, not "
+                    "faster; leave %s out for all cores", option, threads, cores, option)
     return int(threads)
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from fluidsim.files import write_json_atomic
 
 from .options import add_config_options, config_values, dataset_inputs, index_list
-from .runtime import deterministic_torch, positive_int, select_device
+from .runtime import deterministic_torch, select_device, thread_count
 
 log = logging.getLogger("fluidgs")
 
@@ -41,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_config_options(p, TrainConfig, TRAIN_FIELDS, TRAIN_OVERRIDES)
     p.add_argument("--eval-every", type=int, default=0,
                    help="evaluate PSNR/SSIM on the test split every N iterations (0: only at the end), iterations")
-    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--threads", type=thread_count, default=None, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device; cuda falls back to cpu with a logged warning when unavailable (default: cpu)")
 

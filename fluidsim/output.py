@@ -53,6 +53,23 @@ def stats_table(history: list[StepStats]) -> np.ndarray:
     return np.array([astuple(s) for s in history], dtype=dtype)
 
 
+def is_complete_file(path: PathLike) -> bool:
+    """Whether ``path`` is an OUT.h5 of a run that completed (status "complete"); False for anything else."""
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("status") == "complete"
+    except (OSError, ValueError, RuntimeError):
+        return False
+
+
+def unfinished_path(path: PathLike, status: str) -> Path:
+    """Where an unfinished run's file goes when ``path`` holds a complete one: ``OUT.interrupted.h5`` for status
+    "interrupted", ``OUT.diverged.h5`` for a fault."""
+    p = Path(path)
+    tag = "interrupted" if status == "interrupted" else "diverged"
+    return p.with_name(f"{p.stem}.{tag}{p.suffix}")
+
+
 class SimulationWriter:
     """Writes frames as they come and the run summary at the end; the file appears only when closed.
 
@@ -97,22 +114,33 @@ class SimulationWriter:
                status: str = "complete", **attrs) -> Path:
         """Write the summary, close and move the file into place; returns the final path.
 
-        ``status``: "complete", the fault of a diverged run, or "interrupted" (by SIGINT or SIGTERM)."""
+        ``status``: "complete", the fault of a diverged run, or "interrupted" (by SIGINT or SIGTERM). An unfinished
+        run never replaces a complete file of an earlier run at ``path``: it is written beside it
+        (:func:`unfinished_path`, ``OUT.interrupted.h5``), and that is the path returned."""
+        if status != "complete" and is_complete_file(self.path):
+            self._pending.path = unfinished_path(self.path, status)
         try:
-            with output_errors(self.path):
+            with output_errors(self._pending.path):
                 self.file.create_dataset("stats", data=stats_table(history))
                 self.file.create_dataset("divergence_sum", data=divergence_sum)
                 self.file.create_dataset("divergence_count", data=divergence_count)
                 self.file.attrs["status"] = status
                 for k, v in attrs.items():
                     self.file.attrs[k] = v
-                self.file.close()
+            try:
+                self.file.close()  # the last buffers reach the disk here: a full disk fails now
+            except (OSError, RuntimeError) as exc:
+                err = OutputError(f"cannot write {self._pending.path}: closing it failed ({exc}); free disk space or "
+                                  "choose a writable output path")
+                err.errno = getattr(exc, "errno", None)
+                raise err from exc
+            finally:
                 self._closed = True
             self._pending.commit()
         except BaseException:
             self.abort()
             raise
-        return self.path
+        return self._pending.path
 
     def abort(self) -> None:
         """Drop the temporary file (used when the run failed before anything worth keeping)."""

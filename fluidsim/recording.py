@@ -27,10 +27,12 @@ log = logging.getLogger(__name__)
 class Interrupted(Exception):
     """The run was stopped by ``signum`` (SIGINT or SIGTERM) after ``step`` completed steps; its file is saved."""
 
-    def __init__(self, signum: int, step: int, path: Path):
+    def __init__(self, signum: int, step: int, path: Path, kept: Path | None = None):
         self.signum, self.step, self.path = signum, step, path
+        tail = (f"; the complete {kept} of an earlier run is kept" if kept is not None else
+                "; run again to overwrite it")
         super().__init__(f"{signal.Signals(signum).name} after step {step}; the frames so far are saved to {path} "
-                         "(status 'interrupted'); run again to overwrite it")
+                         f"(status 'interrupted'){tail}")
 
     @property
     def exit_code(self) -> int:
@@ -86,8 +88,11 @@ def simulate_to_h5(solver, scene_dict: dict, output: Path, steps: int, save_ever
         if writer.last_frame_step != exc.step:
             writer.write_frame(exc.step, history[-1].time, solver.fluid_state())
         sums, counts = solver.divergence_accumulation()
-        writer.finish(history, sums, counts, status="interrupted", removed_inside_solid=solver.removed_inside_solid,
-                      interrupted_by=signal.Signals(exc.signum).name, interrupted_after_step=exc.step)
+        path = writer.finish(history, sums, counts, status="interrupted",
+                             removed_inside_solid=solver.removed_inside_solid,
+                             interrupted_by=signal.Signals(exc.signum).name, interrupted_after_step=exc.step)
+        if path != exc.path:
+            raise Interrupted(exc.signum, exc.step, path, kept=exc.path) from None
         raise
     except BaseException:
         bar.close()

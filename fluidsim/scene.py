@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from fluidsim.files import input_problem
+
 from .config import SolverConfig
 
 TOP_KEYS = {"particle_radius", "rest_density", "viscosity", "gravity", "dt", "steps", "domain",
@@ -218,12 +220,16 @@ def load_scene(path: str | Path) -> Scene:
         SceneError: the file is missing, not JSON, or has a bad key (named in the message).
     """
     p = Path(path)
-    if not p.is_file():
-        raise SceneError(f"scene file {p} not found")
+    problem = input_problem(p)
+    if problem is not None:
+        raise SceneError(f"scene file {p} {problem}")
     try:
         data = json.loads(p.read_text())
     except json.JSONDecodeError as exc:
         raise SceneError(f"scene file {p} is not valid JSON: {exc}") from exc
+    except RecursionError:
+        raise SceneError(f"scene file {p} nests its JSON too deeply to be a scene (thousands of levels); a scene "
+                         "is an object of a few levels (format in README.md)") from None
     try:
         return parse_scene(data, p.parent)
     except SceneError as exc:

@@ -205,6 +205,8 @@ def _read_dataset_json(root: Path) -> tuple[Path | None, str | None]:
         meta = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc}); fix or delete the file") from exc
+    except RecursionError:
+        raise ValueError(f"{path}: its JSON nests too deeply (thousands of levels); fix or delete the file") from None
     mesh_path = meta.get("mesh_path")
     if mesh_path is not None:
         mesh_path = root / mesh_path
@@ -341,11 +343,15 @@ def _blender_camera(keys: dict, w2c: np.ndarray, where: str, name: str,
 def _read_transforms(json_path: Path) -> tuple[dict, list[dict]]:
     """(the file's top-level dict, its frames) of a transforms json, checked to be a dict with a list of dicts."""
     if not json_path.is_file():
-        raise ValueError(f"{json_path}: no such file; pass a Blender / NeRF transforms.json")
+        kind = "is not a regular file" if json_path.exists() else "no such file"
+        raise ValueError(f"{json_path}: {kind}; pass a Blender / NeRF transforms.json")
     try:
         meta = json.loads(json_path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{json_path}: not valid JSON ({exc}); pass a Blender / NeRF transforms.json") from exc
+    except RecursionError:
+        raise ValueError(f"{json_path}: its JSON nests too deeply (thousands of levels); pass a Blender / NeRF "
+                         "transforms.json") from None
     frames = meta.get("frames") if isinstance(meta, dict) else None
     if not isinstance(frames, list):
         raise ValueError(f"{json_path}: missing 'frames' list; a transforms.json holds frames with 'file_path' and "

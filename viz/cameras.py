@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fluidsim.files import check_input_file
+
 
 @dataclass(frozen=True)
 class CandidateView:
@@ -82,14 +84,16 @@ def split_similarity(matrix: np.ndarray, where: str) -> tuple[float, np.ndarray,
 def read_scores(path: str | Path) -> dict:
     """scores.json of `fluidgs score` (or the demo): ValueError naming the file when it is not one."""
     p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"--scores {p} does not exist; write it with `fluidgs score GAUSSIANS.ply --cameras "
-                         f"transforms.json --result RESULT.h5 -o {p}`")
+    check_input_file(p, "--scores", "write it with `fluidgs score GAUSSIANS.ply --cameras transforms.json --result "
+                     f"RESULT.h5 -o {p}`")
     try:
         data = json.loads(p.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"--scores {p} is not readable JSON ({exc}); pass the scores.json of `fluidgs score`") \
             from None
+    except RecursionError:
+        raise ValueError(f"--scores {p} nests its JSON too deeply (thousands of levels); pass the scores.json of "
+                         "`fluidgs score`") from None
     views = data.get("views") if isinstance(data, dict) else None
     if not isinstance(views, list) or not all(isinstance(v, dict) and {"index", "score", "rank"} <= set(v)
                                               for v in views):

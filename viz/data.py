@@ -22,6 +22,7 @@ import h5py
 import numpy as np
 
 from fluidsim.directions import DIRECTIONS  # the names only: no Taichi (fluidsim's package init is lazy)
+from fluidsim.files import check_input_file
 
 log = logging.getLogger(__name__)
 
@@ -193,8 +194,7 @@ def load_view_data(path: str | Path) -> ViewData:
             the viewer needs (the message names it and the command that writes it).
     """
     p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"RESULT.h5 {p} does not exist; write it with `fluidgs simulate GAUSSIANS.ply -o {p}`")
+    check_input_file(p, "RESULT.h5", f"write it with `fluidgs simulate GAUSSIANS.ply -o {p}`")
     try:
         f = h5py.File(p, "r")
     except OSError as exc:

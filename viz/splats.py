@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fluidsim.files import check_input_file
+
 from .data import ViewData
 
 log = logging.getLogger(__name__)
@@ -94,8 +96,7 @@ def splat_looks(path: str | Path | None, data: ViewData) -> SplatLooks:
     from recon.formats import SUPPORTED, load_gaussians  # noqa: PLC0415 - torch, only when a splat file is read
     from recon.gaussians import sh0_to_rgb  # noqa: PLC0415 - torch, as above
 
-    if not file.exists():
-        raise ValueError(f"--gaussians {file} does not exist; pass the Gaussian file of {data.path} ({SUPPORTED})")
+    check_input_file(file, "--gaussians", f"pass the Gaussian file of {data.path} ({SUPPORTED})", folder_ok=True)
     g = load_gaussians(file)
     check_gaussians_match(g.means.detach().cpu().numpy(), data, str(file))
     rgb = sh0_to_rgb(g.sh[:, 0].detach().cpu()).clamp(0.0, 1.0).numpy().astype(np.float32)

@@ -15,15 +15,19 @@ Example:
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import ipaddress
 import logging
 import signal
+import socket
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+
+from fluidsim.files import check_input_file
 
 from .cameras import CandidateView, cameras_path_of, candidate_views, read_scores
 from .colors import color_scale, colorbar_image, score_colors, turbo
@@ -79,6 +83,48 @@ def import_viser():
     return viser
 
 
+PORT_TRIES = 64  # a port in use moves up to this many ports on
+
+
+def check_address(host: str, port: int) -> int:
+    """The port to serve on: ``port`` when it is free on ``host``, else the next free one of :data:`PORT_TRIES`
+    (logged), or 0 for 0 (any free port). Tried with a plain socket before the server starts, so that a bad address
+    or a full range is a clear error at once (viser would wait forever or print a traceback).
+
+    Raises:
+        ValueError: ``host`` does not resolve or is not an address of this machine; no port is free; a port below
+            1024 needs privileges.
+    """
+    try:
+        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        raise ValueError(f"--host {host}: not a name or address this machine can resolve ({exc}); use 127.0.0.1, "
+                         "0.0.0.0 or an address of this machine") from None
+    family, _, _, _, addr = infos[0]
+    last = 65535 if port == 0 else min(port + PORT_TRIES - 1, 65535)
+    for candidate in range(port, last + 1):
+        with socket.socket(family, socket.SOCK_STREAM) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a server binds
+            try:
+                sock.bind((addr[0], candidate, *addr[2:]))
+            except OSError as exc:
+                if exc.errno == errno.EADDRINUSE:
+                    continue
+                if exc.errno == errno.EADDRNOTAVAIL:
+                    raise ValueError(f"--host {host} is not an address of this machine; use 127.0.0.1 (this machine "
+                                     "only), 0.0.0.0 (every interface) or one of its own addresses") from None
+                if exc.errno == errno.EACCES:
+                    raise ValueError(f"--port {candidate} needs administrator privileges (ports below 1024); choose "
+                                     "a port from 1024 up, or 0 for any free port") from None
+                raise ValueError(f"--host {host} --port {candidate}: cannot serve there ({exc.strerror}); choose "
+                                 "another --host or --port") from None
+        if candidate != port and port != 0:
+            log.warning("port %d is in use; serving on port %d instead", port, candidate)
+        return 0 if port == 0 else candidate
+    raise ValueError(f"--port {port} is in use, and so is every port up to {last}; choose another --port (0: any "
+                     "free port)")
+
+
 def _is_loopback(host: str) -> bool:
     if host == "localhost":
         return True
@@ -116,7 +162,7 @@ class FluidViewer:
             self.server = viser.ViserServer(host=self.options.host, port=self.options.port,
                                             label="FluidGaussian", verbose=False)
         self.port = int(self.server.get_port())
-        if self.options.port and self.port != self.options.port:
+        if self.options.port and self.port != self.options.port:  # taken between check_address and now
             log.warning("port %d is in use; serving on port %d instead", self.options.port, self.port)
         self.server.gui.configure_theme(show_share_button=False, control_width="medium")
         self.server.scene.set_up_direction("+y")
@@ -442,7 +488,13 @@ def open_viewer(result: str | Path, gaussians: str | Path | None = None, scores:
     """
     options = options or ViewerOptions()
     import_viser()
+    options = replace(options, port=check_address(options.host, options.port))  # before reading anything
     data = load_view_data(result)
+    bad = int(np.count_nonzero(~np.isfinite(data.divergence)))
+    if bad:
+        log.warning("%s: %d of %d Gaussians have a non-finite D_g (NaN or infinite: a diverged or corrupted "
+                    "result); they are drawn as D_g = 0 (dark blue). Re-run `fluidgs simulate` for a sound result",
+                    data.path, bad, len(data.divergence))
     if options.probe is not None and options.probe not in data.directions:
         raise ValueError(f"--probe {options.probe}: {data.path} has the probes {', '.join(data.directions)}")
     looks = splat_looks(gaussians, data)
@@ -452,8 +504,8 @@ def open_viewer(result: str | Path, gaussians: str | Path | None = None, scores:
         if cameras is None:
             raise ValueError(f"--scores {scores} names the cameras {score_data.get('cameras')!r}, which are not "
                              "there; pass --cameras transforms.json")
-    if cameras is not None and not Path(cameras).is_file():
-        raise ValueError(f"--cameras {cameras} does not exist; pass the transforms.json of the candidate cameras")
+    if cameras is not None:
+        check_input_file(cameras, "--cameras", "pass the transforms.json of the candidate cameras")
     views = candidate_views(cameras, data.scene_to_sim, score_data, str(data.path)) if cameras is not None else []
     if not _is_loopback(options.host):
         log.warning("serving on %s: anyone who can reach this machine on port %d can open the viewer",

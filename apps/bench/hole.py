@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..runtime import positive_int
+from ..runtime import positive_int, thread_count
 
 SIDES = {"+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
 
@@ -87,7 +87,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=positive_int, default=None, help="steps per probe (default: 300, 750 with --paper)")
     p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes (default: all five)")
     p.add_argument("--solid-only", action="store_true", help="compare the solids only (no probes)")
-    p.add_argument("--threads", type=positive_int, default=2, help="CPU threads (default: %(default)s)")
+    p.add_argument("--threads", type=thread_count, default=2, help="CPU threads (default: %(default)s)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="Taichi device (default: %(default)s)")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
 

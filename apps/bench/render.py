@@ -20,7 +20,7 @@ import torch
 
 from fluidsim.files import write_json_atomic
 
-from ..runtime import positive_int
+from ..runtime import thread_count
 from .yardsticks import reference_workload_ms
 
 LOG = logging.getLogger("fluidgs.bench.render")
@@ -29,7 +29,7 @@ TARGETS_MS = {(5000, 100, 100): 40.0, (20000, 200, 200): 450.0}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--threads", type=positive_int, default=1,
+    p.add_argument("--threads", type=thread_count, default=1,
                    help="torch CPU threads; the issue's targets are for 1 (default: %(default)s)")
     p.add_argument("--repeats", type=int, default=10,
                    help="timed forward+backward passes per case, after one warm-up pass (default: %(default)s)")

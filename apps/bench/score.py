@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..runtime import positive_int
+from ..runtime import positive_int, thread_count
 
 ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
 # docs/results.md, "Convergence of D_g and of the view ranking": with the depth test, the candidate-view ranking
@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes")
     p.add_argument("--empty-reference", action="store_true", help="also time the empty-scene reference runs")
     p.add_argument("--no-fill", action="store_true", help="keep the solid hollow (filling is the default)")
-    p.add_argument("--threads", type=positive_int, default=2, help="CPU threads")
+    p.add_argument("--threads", type=thread_count, default=2, help="CPU threads")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="compute device; cuda falls back to cpu with a logged warning")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..runtime import positive_int
+from ..runtime import thread_count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=100, help="time steps to time (default: 100)")
-    p.add_argument("--threads", type=positive_int, default=2, help="CPU threads for both engines (default: 2)")
+    p.add_argument("--threads", type=thread_count, default=2, help="CPU threads for both engines (default: 2)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="compute device (default: cpu)")
     p.add_argument("--no-peer", action="store_true",
                    help="skip the SPlisHSPlasH comparison even when pysplishsplash is installed")

@@ -8,6 +8,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from fluidsim.files import check_input_file
+
 from .fields import add_config_options, config_values
 
 # ---- the probe options of simulate, score, sweep, critical, inspect and bench score (nbv.physics.PhysicsConfig) ----
@@ -83,12 +85,12 @@ def add_physics_arguments(p: argparse.ArgumentParser, track_distinct: bool = Fal
 
 def add_runtime_arguments(p, threads_help: str = "CPU threads", device_help: str = "compute device") -> None:
     """--device (cpu or cuda; cuda falls back to cpu with a logged warning) and --threads (>= 1)."""
-    from ..runtime import positive_int
+    from ..runtime import thread_count
 
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help=f"{device_help}; cuda falls back to cpu with a logged warning when unavailable "
                         "(default: cpu)")
-    p.add_argument("--threads", type=positive_int, default=None, help=f"{threads_help} (default: all cores)")
+    p.add_argument("--threads", type=thread_count, default=None, help=f"{threads_help} (default: all cores)")
 
 
 def physics_config_from_args(args: argparse.Namespace, track_distinct: bool = False, default_directions=None,
@@ -329,8 +331,8 @@ def load_gaussians_checked(path, args=None):
 
     from recon.formats import SUPPORTED, LoadOptions, load_gaussians_framed
 
-    if not Path(path).exists():  # a folder exists: recon.formats says it is a folder
-        raise ValueError(f"Gaussian file {path} does not exist; pass a Gaussian file ({SUPPORTED})")
+    # a folder passes: recon.formats says it is a folder
+    check_input_file(path, "Gaussian file", f"pass a Gaussian file ({SUPPORTED})", folder_ok=True)
     options = LoadOptions(spz_frame=getattr(args, "spz_frame", None) or "rub", colmap=getattr(args, "colmap", None),
                           dataparser_transforms=getattr(args, "dataparser_transforms", None))
     gaussians, fmt, frame = load_gaussians_framed(path, options)

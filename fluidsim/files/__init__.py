@@ -18,29 +18,39 @@ name                           what
 :func:`atomic_folder`          a whole folder under a temporary name, swapped in at the end
 :func:`check_writable`         before any work: folders, name lengths, the temporary name tried in the folder
 :func:`check_not_input`        before any work: no output is an input (links included)
+:func:`check_input_file`       before reading: an input is a regular file (a FIFO, /dev/zero, a link loop named)
 :class:`OutputError`           an output cannot be written (exit code 4 of `fluidgs`)
+:func:`remove_unfinished`      at a signal or an error: this process's temporary files and empty new folders go
+:func:`remove_stale_temps`     a run folder's ``.fgs-*.tmp`` left by a process killed at once (SIGKILL)
 =============================  ===============================================================================
 
 Temporary files are named ``.fgs-<8 hex>.tmp<suffix>`` in the output's folder (:func:`temp_path`).
 """
 
 from .atomic import (
+    TEMP_NAME,
     TEMP_PREFIX,
     OutputError,
     PendingFile,
     atomic_folder,
     atomic_output,
     json_safe,
+    note_created_folder,
     output_errors,
+    remove_stale_temps,
+    remove_unfinished,
     temp_path,
+    track_temp,
+    untrack_temp,
     write_bytes_atomic,
     write_json_atomic,
     write_text_atomic,
 )
-from .checks import check_not_input, check_writable, same_file
+from .checks import check_input_file, check_not_input, check_writable, input_problem, same_file
 
 __all__ = [
-    "TEMP_PREFIX", "OutputError", "PendingFile", "atomic_folder", "atomic_output", "check_not_input",
-    "check_writable", "json_safe", "output_errors", "same_file", "temp_path", "write_bytes_atomic",
-    "write_json_atomic", "write_text_atomic",
+    "TEMP_NAME", "TEMP_PREFIX", "OutputError", "PendingFile", "atomic_folder", "atomic_output", "check_input_file",
+    "check_not_input", "check_writable", "input_problem", "json_safe", "note_created_folder", "output_errors",
+    "remove_stale_temps", "remove_unfinished", "same_file", "temp_path", "track_temp", "untrack_temp",
+    "write_bytes_atomic", "write_json_atomic", "write_text_atomic",
 ]

@@ -22,6 +22,7 @@ import json
 import math
 import numbers
 import os
+import re
 import shutil
 import uuid
 from collections.abc import Iterator
@@ -31,6 +32,13 @@ from typing import Any
 
 PathLike = str | os.PathLike
 TEMP_PREFIX = ".fgs-"
+TEMP_NAME = re.compile(r"^\.fgs-[0-9a-f]{8}\.tmp")  # what temp_path makes (a suffix may follow)
+
+# Temporary files and folders of this process that are not yet renamed into place or removed, and the output folders
+# it created: what a signal handler removes before the process exits (remove_unfinished), so that neither a
+# `.fgs-*.tmp` nor an empty folder outlives an interrupted or refused run.
+_LIVE: set[Path] = set()
+_CREATED: list[Path] = []
 
 
 class OutputError(OSError):
@@ -76,16 +84,19 @@ class PendingFile:
     def __init__(self, path: PathLike, suffix: str = ""):
         self.path = Path(path)
         self.tmp = temp_path(self.path, suffix)
+        _LIVE.add(self.tmp.absolute())
 
     def commit(self) -> Path:
         """Rename the finished temporary file onto ``path`` (an ``OSError`` becomes an :class:`OutputError`)."""
         with output_errors(self.path):
             os.replace(self.tmp, self.path)
+        _LIVE.discard(self.tmp.absolute())
         return self.path
 
     def discard(self) -> None:
         """Remove the temporary file, if any."""
         self.tmp.unlink(missing_ok=True)
+        _LIVE.discard(self.tmp.absolute())
 
 
 @contextmanager
@@ -149,6 +160,7 @@ def atomic_folder(path: PathLike) -> Iterator[Path]:
     """
     path = Path(path).absolute()
     tmp = temp_path(path)
+    _LIVE.add(tmp)
     with output_errors(path):
         tmp.mkdir()
     try:
@@ -157,9 +169,82 @@ def atomic_folder(path: PathLike) -> Iterator[Path]:
             if path.exists():
                 old = temp_path(path, ".old")
                 os.replace(path, old)
+                _LIVE.add(old)
                 os.replace(tmp, path)
                 shutil.rmtree(old, ignore_errors=True)
+                _LIVE.discard(old)
             else:
                 os.replace(tmp, path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+        _LIVE.discard(tmp)
+
+
+def track_temp(path: PathLike) -> Path:
+    """Note ``path`` as a temporary file or folder of this process (:func:`remove_unfinished` removes it)."""
+    p = Path(path).absolute()
+    _LIVE.add(p)
+    return p
+
+
+def untrack_temp(path: PathLike) -> None:
+    """Forget ``path`` (renamed into place or removed)."""
+    _LIVE.discard(Path(path).absolute())
+
+
+def note_created_folder(path: PathLike) -> None:
+    """Note an output folder this process created (:func:`remove_unfinished` removes it when it stayed empty)."""
+    _CREATED.append(Path(path).absolute())
+
+
+def remove_unfinished(created_folders: bool = True) -> list[Path]:
+    """Remove this process's temporary files and folders that were never renamed into place and, with
+    ``created_folders``, the output folders it created that are still empty (deepest first); returns what was
+    removed. The list of created folders starts again empty either way. Called when a command ends (with
+    ``created_folders`` when it failed or was stopped), so that it leaves nothing behind."""
+    removed = []
+    for p in sorted(_LIVE, key=lambda q: len(q.parts), reverse=True):
+        try:
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+            removed.append(p)
+        except FileNotFoundError:
+            pass
+        except OSError:
+            continue
+        _LIVE.discard(p)
+    if created_folders:
+        for folder in sorted(set(_CREATED), key=lambda q: len(q.parts), reverse=True):
+            try:
+                folder.rmdir()  # only an empty folder goes
+                removed.append(folder)
+            except OSError:
+                pass
+    _CREATED.clear()
+    return removed
+
+
+def remove_stale_temps(folder: PathLike) -> list[Path]:
+    """Remove the ``.fgs-*.tmp`` files and folders (:func:`temp_path`'s pattern) that another process left in
+    ``folder`` (not below it) when it was killed at once (SIGKILL, a power cut). Only for a folder that one run owns
+    (an active run's folder): in a shared folder such a name may be another live process's file. Returns them."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        p = Path(entry.path).absolute()
+        if not TEMP_NAME.match(entry.name) or p in _LIVE:
+            continue
+        try:
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+            removed.append(p)
+        except OSError:
+            pass
+    return removed

@@ -9,11 +9,13 @@ link (``ValueError``, exit code 2).
 
 from __future__ import annotations
 
+import errno
 import os
+import stat
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-from .atomic import OutputError, PathLike, temp_path
+from .atomic import OutputError, PathLike, note_created_folder, temp_path, track_temp, untrack_temp
 
 
 def _first_existing(p: Path) -> Path:
@@ -58,21 +60,62 @@ def check_writable(path: PathLike) -> Path:
                           "folders are folders")
     _check_name_lengths(p, blocker)
     if not parent.exists():
+        missing = [parent, *[q for q in parent.parents if not q.exists()]]
         try:
             parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise OutputError(f"cannot create the output folder {parent}: {exc}; choose a writable path") from exc
+        for folder in missing:
+            note_created_folder(folder)
     if p.is_dir():
         raise OutputError(f"output path {p} is a folder; give a file name such as {p / 'out.h5'}")
-    probe = temp_path(p)
+    probe = track_temp(temp_path(p))
     try:
         fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     except OSError as exc:
+        untrack_temp(probe)
         raise OutputError(f"output folder {parent} is not writable ({exc.strerror}); choose another output "
                           "path") from exc
     os.close(fd)
     probe.unlink()
+    untrack_temp(probe)
     return p
+
+
+# ---- inputs must be readable files ------------------------------------------------------------------------------
+def input_problem(path: PathLike, folder_ok: bool = False) -> str | None:
+    """What makes ``path`` unfit as an input file, in words ("does not exist", "is a FIFO (named pipe) ...", "is a
+    symbolic link loop ..."), or None for a regular file (and, with ``folder_ok``, a folder). Decided from the file's
+    type alone, before anything is opened: a FIFO would block the reader and /dev/zero never ends."""
+    p = Path(path)
+    try:
+        mode = os.stat(p).st_mode
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "is a symbolic link loop (the link leads back to itself)"
+        if exc.errno == errno.ENOENT and os.path.lexists(p):
+            return f"is a broken symbolic link (to {os.readlink(p)}, which does not exist)"
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            return "does not exist"
+        if exc.errno == errno.ENAMETOOLONG:
+            return "is a name longer than this system allows"
+        return f"cannot be read ({exc.strerror})"
+    if stat.S_ISREG(mode) or (folder_ok and stat.S_ISDIR(mode)):
+        return None
+    kinds = ((stat.S_ISDIR, "is a folder, not a file"),
+             (stat.S_ISFIFO, "is a FIFO (named pipe), not a file: reading it would wait for a writer"),
+             (stat.S_ISCHR, "is a character device (such as /dev/zero), not a file"),
+             (stat.S_ISBLK, "is a block device, not a file"), (stat.S_ISSOCK, "is a socket, not a file"))
+    return next((text for test, text in kinds if test(mode)), "is not a regular file")
+
+
+def check_input_file(path: PathLike, label: str, fix: str = "", folder_ok: bool = False) -> Path:
+    """``Path(path)`` when it is a regular file (or a folder, with ``folder_ok``); else ValueError
+    "``label`` ``path`` <what it is>; ``fix``" (:func:`input_problem`), before anything reads it."""
+    problem = input_problem(path, folder_ok)
+    if problem is not None:
+        raise ValueError(f"{label} {path} {problem}" + (f"; {fix}" if fix else ""))
+    return Path(path)
 
 
 # ---- outputs must not be inputs -------------------------------------------------------------------------

@@ -14,6 +14,11 @@ MODES = ("continue", "reset")
 
 CHECKPOINT_VERSION = 1
 
+# Upper bounds of the counts that allocate (a list of rounds, a tuple of initial ids, one job per seed): far above
+# any dataset or study, low enough that a mistyped number is refused at once instead of filling the memory.
+MAX_VIEWS = 100_000
+MAX_SEED = 2**32 - 1
+
 RUN_FILES = ("config.json", "rounds.json", "checkpoint.pt", "gaussians.ply", "eval.json", "eval.md")
 
 # Presets: defaults of ActiveConfig fields ("train" and "physics" are TrainConfig / PhysicsConfig overrides).
@@ -92,7 +97,13 @@ class ActiveConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:
                 raise ValueError(f"ActiveConfig.{name} must be an integer >= {low}, got {v!r}")
+        for name, high in (("budget", MAX_VIEWS), ("initial_count", MAX_VIEWS), ("seed", MAX_SEED)):
+            if getattr(self, name) > high:
+                raise ValueError(f"ActiveConfig.{name} must be at most {high:,}, got {getattr(self, name):,}; "
+                                 "a view count is at most the dataset's candidate views")
         if self.initial_ids is not None:
+            if isinstance(self.initial_ids, (str, bytes)) or len(self.initial_ids) > MAX_VIEWS:
+                raise ValueError(f"ActiveConfig.initial_ids must be a list of at most {MAX_VIEWS:,} view indices")
             ids = tuple(int(i) for i in self.initial_ids)
             if not ids or len(set(ids)) != len(ids) or min(ids) < 0:
                 raise ValueError(f"ActiveConfig.initial_ids must be distinct indices >= 0, got {self.initial_ids!r}")
@@ -149,7 +160,8 @@ class ActiveConfig:
 
     def schedule_iterations(self) -> int:
         """Training iterations spent before the selections, sum of n_selected x iterations_per_view."""
-        return sum(n * self.iterations_per_view for n in self.rounds())
+        first, last = self.initial_count, self.budget - 1  # closed form of the sum over rounds()
+        return self.iterations_per_view * max(last - first + 1, 0) * (first + last) // 2
 
     def train_config(self, iterations: int) -> TrainConfig:
         """The TrainConfig of a run of ``iterations`` (the reference schedule compressed to it)."""

@@ -49,6 +49,8 @@ from __future__ import annotations
 
 import json
 import logging
+import pickle
+import re
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -58,6 +60,7 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
+from fluidsim.files import remove_stale_temps
 from nbv import scores
 from nbv.active.config import CHECKPOINT_VERSION, RUN_FILES, ActiveConfig
 from nbv.io import json_safe, write_atomic, write_json_atomic
@@ -372,7 +375,7 @@ class ActiveRun:
         write_json_atomic(self.run_dir / "rounds.json", data)
 
     def _load(self) -> tuple[RunState, Trainer | None]:
-        ckpt = torch.load(self.run_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
+        ckpt = load_checkpoint(self.run_dir / "checkpoint.pt")
         if ckpt.get("version") != CHECKPOINT_VERSION:
             raise ValueError(f"{self.run_dir / 'checkpoint.pt'} has checkpoint version {ckpt.get('version')}, "
                              f"expected {CHECKPOINT_VERSION}; pass --overwrite to start again")
@@ -393,6 +396,10 @@ class ActiveRun:
         """Run (or resume) the loop; returns the rounds.json content."""
         c = self.config
         t_start = time.perf_counter()
+        stale = remove_stale_temps(self.run_dir)  # left by a run killed at once (SIGKILL): this run owns the folder
+        if stale:
+            log.info("%s: removed %d temporary file(s) of an earlier run killed while writing", self.run_dir,
+                     len(stale))
         if self.resumable:
             state, trainer = self._load()
             log.info("%s: resuming after %d of %d selections", self.run_dir, len(state.rounds), len(c.rounds()))
@@ -461,6 +468,37 @@ class ActiveRun:
         self._save_checkpoint(state, None)
         return json.loads((self.run_dir / "rounds.json").read_text())
 
+
+
+CHECKPOINT_KEYS = frozenset({"version", "config", "selected", "rounds", "phase", "trainer", "torch_rng"})
+
+
+def load_checkpoint(path: str | Path) -> dict:
+    """A run folder's ``checkpoint.pt``, read with ``torch.load(weights_only=True)``: tensors and plain types
+    (dict, list, tuple, str, numbers, None) only, so a planted file cannot run code while it loads.
+
+    Raises:
+        ValueError: naming the file and the fix, when it is not a checkpoint of this version made of tensors and
+            plain types (a pickle that asks for any other object is refused before anything of it runs).
+    """
+    path = Path(path)
+    fix = "delete it, or pass --overwrite to start the run again"
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        found = re.search(r"(?:unsupported GLOBAL|Unsupported global:?) ?(?:GLOBAL )?([\w.]+)", str(exc))
+        if found:
+            raise ValueError(f"{path} is refused: loading it would call {found.group(1)}, and a checkpoint holds "
+                             f"tensors and plain types only (a planted file could run code); {fix}") from None
+        raise ValueError(f"{path} is not a readable checkpoint (not a torch.save file of tensors and plain "
+                         f"types); {fix}") from None
+    except (RuntimeError, EOFError, OSError, AttributeError, ValueError) as exc:
+        raise ValueError(f"{path} is not a readable checkpoint ({type(exc).__name__}: {str(exc)[:200]}); "
+                         f"{fix}") from None
+    if not isinstance(ckpt, dict) or not CHECKPOINT_KEYS <= set(ckpt):
+        keys = sorted(ckpt) if isinstance(ckpt, dict) else type(ckpt).__name__
+        raise ValueError(f"{path} is not a checkpoint of `fluidgs active` (holds {keys}); {fix}")
+    return ckpt
 
 
 def _state_to(state: Any, device: str) -> Any:

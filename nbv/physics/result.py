@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from fluidsim import SimulationDiverged
+from fluidsim.files import check_input_file
 from nbv.io import atomic_h5
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.leaks import read_probe_leaks, write_probe_leaks
@@ -216,8 +217,7 @@ def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
         ValueError: naming the file when it is not such a result.
     """
     p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"result file {p} does not exist; run `fluidgs simulate` to create it")
+    check_input_file(p, "result file", "run `fluidgs simulate` to create it")
     try:
         with h5py.File(p, "r") as f:
             if "gaussians/D" not in f or "config" not in f.attrs:

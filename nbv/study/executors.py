@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
@@ -60,15 +62,36 @@ class LocalExecutor:
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=min(self.workers, len(jobs)), mp_context=ctx,
                                  initializer=self.initializer, initargs=self.initargs) as pool:
-            futures = {pool.submit(fn, job): job for job in jobs}
-            for fut in as_completed(futures):
-                try:
-                    result = fut.result()
-                except Exception as exc:
-                    pool.shutdown(wait=False, cancel_futures=True)
-                    exc.job = futures[fut]
-                    raise
-                yield futures[fut], result
+            try:
+                futures = {pool.submit(fn, job): job for job in jobs}
+                for fut in as_completed(futures):
+                    try:
+                        result = fut.result()
+                    except Exception as exc:
+                        pool.shutdown(wait=False, cancel_futures=True)
+                        exc.job = futures[fut]
+                        raise
+                    yield futures[fut], result
+            except (KeyboardInterrupt, SystemExit, GeneratorExit):
+                terminate_workers(pool)  # a signal or an abandoned map: no worker may outlive it
+                raise
+
+
+def terminate_workers(pool: ProcessPoolExecutor, grace_s: float = 10.0) -> None:
+    """Stop every worker process of ``pool`` now: SIGTERM (a worker set up by ``apps.signals.worker_signals`` removes
+    its unfinished files and exits), SIGKILL for one still alive after ``grace_s`` seconds; the queued jobs are
+    cancelled. The pool's own threads then end, and with the last worker the resource tracker."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())  # the standard library keeps them here
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        if proc.is_alive():
+            proc.terminate()
+    for proc in processes:
+        proc.join(grace_s)
+        if proc.is_alive():
+            log.warning("worker %d did not stop on SIGTERM within %.0f s; killing it", proc.pid, grace_s)
+            proc.kill()
+            proc.join(grace_s)
 
 
 def _ray_task(fn: Callable[[Any], Any], job: Any, initializer: Callable[..., None], initargs: tuple) -> Any:
@@ -136,6 +159,7 @@ class RayExecutor:
                                        or local_cpus < 1):
             raise ValueError(f"local_cpus must be None or an integer >= 1, got {local_cpus!r}")
         self.local_cpus = local_cpus
+        self.started = False
 
     def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
         """Submit every job as a Ray task; yields (job, result) in completion order.
@@ -151,12 +175,33 @@ class RayExecutor:
             kwargs: dict[str, Any] = {"include_dashboard": False}
             if self.address is None and self.local_cpus is not None:
                 kwargs["num_cpus"] = self.local_cpus
-            # "local": a new instance, never the last one started on this machine (ray.init's default)
+            # "local": a new instance, never the last one started on this machine (ray.init's default). Ray installs
+            # its own SIGTERM handler in the driver; the caller's handlers are put back, so that a signal ends the
+            # tasks through the clean-up below instead of aborting the driver.
+            handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)} \
+                if threading.current_thread() is threading.main_thread() else {}
             ray.init(address=self.address or "local", **kwargs)
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+            self.started = self.address is None
             log.info("connected to Ray at %s", self.address or "a new local instance")
         task = ray.remote(num_cpus=self.num_cpus, max_retries=self.max_retries, retry_exceptions=False,
                           scheduling_strategy="SPREAD" if self.spread else "DEFAULT")(_ray_task)
         pending = {task.remote(fn, job, self.initializer, self.initargs): job for job in jobs}
+        try:
+            yield from self._collect(pending)
+        except (KeyboardInterrupt, SystemExit, GeneratorExit):
+            for ref in pending:  # a signal or an abandoned map: the tasks stop, and a local instance goes
+                try:
+                    ray.cancel(ref, force=True)
+                except Exception as exc:  # noqa: BLE001 - a task that already ended cannot be cancelled
+                    log.debug("ray.cancel: %s", exc)
+            if self.started:
+                ray.shutdown()
+            raise
+
+    def _collect(self, pending: dict) -> Iterator[tuple[Any, Any]]:
+        ray = self.ray
         lost = tuple(getattr(ray.exceptions, name) for name in _LOST if hasattr(ray.exceptions, name))
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)

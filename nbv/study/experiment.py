@@ -54,14 +54,21 @@ from typing import Any
 
 from tqdm import tqdm
 
+from fluidsim.files import remove_stale_temps
 from nbv.active import ActiveConfig, config_differences, run_active
 from nbv.io import json_safe, write_json_atomic
 from nbv.study.evaluate import EvalConfig, evaluate_run
 from nbv.study.experiment_config import CONFIG_KEYS, ExperimentConfig, method_folder, reference_label, scene_names
 from nbv.study.tables import write_tables
-from recon.datasets import dataset_format
+from recon.datasets import count_train_views, dataset_format
 
 log = logging.getLogger(__name__)
+
+
+
+class JobFailed(RuntimeError):
+    """An experiment job raised: the message names the job, its error and how to resume; ``__cause__`` is the job's
+    own exception (`fluidgs experiment` exits with that cause's code, in one line)."""
 
 
 
@@ -110,39 +117,67 @@ def run_job(job: dict) -> dict:
 
 
 
+def check_scenes(config: ExperimentConfig) -> None:
+    """Every scene is a dataset with enough candidate views for the config's counts, checked before the first job
+    (a mistyped scene or a too large ``reference_views`` fails now, not after the other scenes' jobs).
+
+    Raises:
+        ValueError: naming the scene or the config key and the fix.
+    """
+    for scene in config.scenes:
+        try:
+            dataset_format(scene)
+        except ValueError as exc:
+            raise ValueError(f"experiment config 'scenes': {exc}") from exc
+    for scene in config.scenes:
+        views = count_train_views(scene)
+        if views is not None:
+            config.check_scene_views(scene, views)
+
+
+
+def collect_rows(results, jobs: list[dict], out: Path, bar) -> list[dict]:
+    """The result rows of ``results`` (the executor's (job, row) pairs) as they come; a failed job raises
+    :class:`JobFailed` naming it."""
+    rows = []
+    while True:
+        try:
+            job, row = next(results)
+        except StopIteration:
+            return rows
+        except Exception as exc:
+            failed = getattr(exc, "job", None)
+            where = f"{failed['scene']} {failed['method']} seed {failed['seed']} ({failed['run_dir']})" if failed \
+                else "a job"
+            raise JobFailed(f"experiment job {where} failed: {type(exc).__name__}: {exc}. Finished jobs are kept "
+                            f"under {out}; fix the cause and run the same command again to resume") from exc
+        rows.append(row)
+        bar.update(1)
+        log.info("done: %s %s seed %d (PSNR %s, D-bar %s)", job["scene"], job["method"], job["seed"],
+                 row.get("psnr"), row.get("dbar"))
+
+
+
 def run_experiment(config: ExperimentConfig, executor, progress: bool = True) -> dict[str, Any]:
     """Run every job through ``executor`` (``nbv.study.executors``), then write results.json, the tables and plots.
 
     Returns:
         {"rows": per-job result rows, "tables": {name: Markdown}, "files": written paths}.
     """
-    for scene in config.scenes:  # a mistyped scene fails now, not after the other scenes' jobs
-        try:
-            dataset_format(scene)
-        except ValueError as exc:
-            raise ValueError(f"experiment config 'scenes': {exc}") from exc
+    check_scenes(config)
+    jobs = plan_jobs(config)  # every job's ActiveConfig is validated here, before the output folder exists
     out = Path(config.output)
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "experiment.json", {"config": {k: getattr(config, k) for k in CONFIG_KEYS}})
-    jobs = plan_jobs(config)
-    rows = []
+    remove_stale_temps(out)
     with tqdm(total=len(jobs), desc="jobs", unit="job", disable=not progress) as bar:
         results = executor.map(run_job, jobs)
-        while True:
-            try:
-                job, row = next(results)
-            except StopIteration:
-                break
-            except Exception as exc:
-                failed = getattr(exc, "job", None)
-                where = f"{failed['scene']} {failed['method']} seed {failed['seed']} ({failed['run_dir']})" if failed \
-                    else "a job"
-                raise RuntimeError(f"experiment job {where} failed: {exc}. Finished jobs are kept under {out}; "
-                                   f"fix the cause and run the same command again to resume") from exc
-            rows.append(row)
-            bar.update(1)
-            log.info("done: %s %s seed %d (PSNR %s, D-bar %s)", job["scene"], job["method"], job["seed"],
-                     row.get("psnr"), row.get("dbar"))
+        try:
+            rows = collect_rows(results, jobs, out, bar)
+        finally:  # a signal here too stops the executor's workers (the generator's clean-up)
+            close = getattr(results, "close", None)
+            if close is not None:
+                close()
     order = {(j["scene"], j["method"], j["seed"]): i for i, j in enumerate(jobs)}
     rows.sort(key=lambda r: order[(r["scene"], r["method"], r["seed"])])
     write_json_atomic(out / "results.json", {"rows": rows})

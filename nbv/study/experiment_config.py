@@ -10,9 +10,15 @@ from pathlib import Path
 from typing import Any
 
 from fluidsim.directions import DIRECTIONS
+from fluidsim.files import check_input_file
 from nbv.active import ActiveConfig
+from nbv.active.config import MAX_SEED, MAX_VIEWS
 from nbv.plan import PLANNERS, uses_physics
 from nbv.study.evaluate import EvalConfig
+
+# At most this many (scene, method, seed) jobs: a study of the paper's size has about a hundred; a larger list is a
+# mistake that would otherwise plan for minutes before the first job.
+MAX_JOBS = 10_000
 
 CONFIG_KEYS = ("scenes", "methods", "seeds", "preset", "output", "reference_views", "active", "eval")
 
@@ -57,15 +63,23 @@ class ExperimentConfig:
             if isinstance(v, (str, bytes)) or not isinstance(v, Sequence) or len(v) == 0:
                 raise ValueError(f"experiment config: {name!r} must be a non-empty list, got {v!r}")
             object.__setattr__(self, name, tuple(v))
+        jobs = len(self.scenes) * len(self.methods) * len(self.seeds)
+        if jobs > MAX_JOBS:
+            raise ValueError(f"experiment config: {len(self.scenes)} scenes x {len(self.methods)} methods x "
+                             f"{len(self.seeds)} seeds make {jobs:,} jobs, more than the {MAX_JOBS:,} an experiment "
+                             "may plan; list fewer seeds, methods or scenes (or split the study into several configs)")
         if len(set(self.methods)) != len(self.methods) or len(set(self.seeds)) != len(self.seeds):
             raise ValueError("experiment config: 'methods' and 'seeds' must not repeat entries")
-        if any(isinstance(s, bool) or not isinstance(s, int) or s < 0 for s in self.seeds):
-            raise ValueError(f"experiment config: 'seeds' must be integers >= 0, got {list(self.seeds)}")
+        bad_seeds = [s for s in self.seeds if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s <= MAX_SEED]
+        if bad_seeds:
+            raise ValueError(f"experiment config: 'seeds' must be integers from 0 to {MAX_SEED}, got "
+                             f"{bad_seeds[:5]!r}{' ...' if len(bad_seeds) > 5 else ''}")
         if self.reference_views is not None and (isinstance(self.reference_views, bool)
                                                  or not isinstance(self.reference_views, int)
-                                                 or self.reference_views < 1):
-            raise ValueError(f"experiment config: 'reference_views' must be null or an integer >= 1 "
-                             f"(the paper: >= 20), got {self.reference_views!r}")
+                                                 or not 1 <= self.reference_views <= MAX_VIEWS):
+            raise ValueError(f"experiment config: 'reference_views' must be null or an integer from 1 to "
+                             f"{MAX_VIEWS:,} (the paper: >= 20; at most the scenes' candidate views), got "
+                             f"{self.reference_views!r}")
         for name in ("active", "eval"):
             if not isinstance(getattr(self, name), dict):
                 raise ValueError(f"experiment config: {name!r} must be an object of overrides")
@@ -78,12 +92,14 @@ class ExperimentConfig:
     def load(cls, path: str | Path) -> ExperimentConfig:
         """Read a JSON config; relative scene and output paths are taken relative to the file."""
         path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"experiment config {path} does not exist")
+        check_input_file(path, "experiment config")
         try:
             data = json.loads(path.read_text())
         except json.JSONDecodeError as exc:
             raise ValueError(f"experiment config {path} is not valid JSON: {exc}") from exc
+        except RecursionError:
+            raise ValueError(f"experiment config {path} nests its JSON too deeply (thousands of levels); an "
+                             "experiment config is an object of a few levels") from None
         if not isinstance(data, dict):
             raise ValueError(f"experiment config {path} must hold a JSON object")
         bad = sorted(set(data) - set(CONFIG_KEYS))
@@ -107,6 +123,22 @@ class ExperimentConfig:
             physics = physics.to_dict() if hasattr(physics, "to_dict") else dict(physics)
             overrides["physics"] = {**physics, "directions": [direction]}
         return ActiveConfig.from_preset(self.preset, **overrides)
+
+    def check_scene_views(self, scene: str, views: int) -> None:
+        """Refuse, before any job, a view count of this config that exceeds the ``views`` candidate (train) views
+        of ``scene``: the budget, the initial ids and ``reference_views``.
+
+        Raises:
+            ValueError: naming the config key, the scene and its view count.
+        """
+        active = self.active_config(self.methods[0], self.seeds[0])
+        counts = [("active.budget", active.budget), ("reference_views", self.reference_views)]
+        if active.initial_ids is not None:
+            counts.append(("active.initial_ids (largest index + 1)", max(active.initial_ids) + 1))
+        for key, n in counts:
+            if n is not None and n > views:
+                raise ValueError(f"experiment config {key!r} is {n:,}, but the scene {scene} has only {views} "
+                                 f"candidate (train) views; lower {key.split(' ')[0]!r} to at most {views}")
 
     def eval_config(self) -> EvalConfig:
         return EvalConfig.from_dict(self.eval)

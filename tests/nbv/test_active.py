@@ -276,3 +276,53 @@ def test_coverage_control_runs_in_the_loop_without_probes(tiny_dataset, tmp_path
         coverage = rec["scores"]["physics"]
         assert all(coverage[str(i)] > 0 for i in rec["shortlist"])
         assert rec["pick"] == max(rec["shortlist"], key=lambda i: coverage[str(i)])
+
+
+class _Payload:
+    """A pickle that runs a shell command while it loads (what a hostile checkpoint.pt would hold)."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        import os
+
+        return (os.system, (f"touch {self.marker}",))
+
+
+def test_planted_checkpoint_is_refused_and_not_executed(tiny_dataset, straight_run, tmp_path):
+    """A checkpoint.pt carrying an os.system payload is refused with a message naming the file and the fix, and
+    the payload never runs (torch.load with weights_only=True); a real checkpoint still resumes."""
+    import shutil
+
+    from nbv.active.loop import load_checkpoint
+
+    cfg, straight_dir, _ = straight_run
+    run = tmp_path / "run"
+    shutil.copytree(straight_dir, run)
+    assert load_checkpoint(run / "checkpoint.pt")["phase"] == "done"  # plain types and tensors only
+    marker = tmp_path / "pwned"
+    torch.save({"version": 1, "evil": _Payload(marker)}, run / "checkpoint.pt")
+    with pytest.raises(ValueError, match=r"checkpoint\.pt is refused.*--overwrite"):
+        run_active(tiny_dataset, run, cfg, progress=False)
+    assert not marker.exists()
+    (run / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match=r"checkpoint\.pt is not a readable checkpoint"):
+        run_active(tiny_dataset, run, cfg, progress=False)
+    torch.save({"version": 1}, run / "checkpoint.pt")
+    with pytest.raises(ValueError, match=r"checkpoint\.pt is not a checkpoint of `fluidgs active`"):
+        run_active(tiny_dataset, run, cfg, progress=False)
+
+
+def test_a_resume_removes_temporary_files_left_by_sigkill(tiny_dataset, straight_run, tmp_path):
+    """A run killed at once (SIGKILL) mid-write leaves a .fgs-*.tmp in its folder: the next run there removes it
+    (the run owns its folder), and keeps every other file."""
+    import shutil
+
+    cfg, straight_dir, straight = straight_run
+    run = tmp_path / "run"
+    shutil.copytree(straight_dir, run)
+    (run / ".fgs-0badc0de.tmp").write_bytes(b"half a checkpoint")
+    (run / "notes.tmp").write_text("the user's")
+    assert run_active(tiny_dataset, run, cfg, progress=False) == straight
+    assert not (run / ".fgs-0badc0de.tmp").exists() and (run / "notes.tmp").exists()

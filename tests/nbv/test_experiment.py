@@ -276,3 +276,34 @@ def test_ray_missing_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` sees without the package
     with pytest.raises(ValueError, match="pip install ray"):
         RayExecutor()
+
+
+def test_experiment_counts_that_allocate_are_refused_quickly(tiny_dataset, tmp_path):
+    """A config number that would allocate without bound is refused at once, before any job and before the output
+    folder exists: a billion reference views (it built tuple(range(n))), a budget of a billion, a million seeds
+    (90 s of silent planning), a reference run with more views than the scene has."""
+    import time
+
+    from apps.cli import main
+    from nbv.study.experiment import run_experiment
+    from nbv.study.experiment_config import ExperimentConfig
+
+    cases = [({"reference_views": 1_000_000_000}, "'reference_views' must be null or an integer from 1 to 100,000"),
+             ({"active": {"budget": 1_000_000_000}}, "budget must be at most 100,000"),
+             ({"seeds": list(range(1_000_000))}, "1,000,000 jobs, more than the 10,000"),
+             ({"seeds": [2**70]}, "'seeds' must be integers from 0 to"),
+             ({"reference_views": 9, "active": TINY_ACTIVE},
+              "'reference_views' is 9, but the scene .* has only 8 candidate"),
+             ({"active": {**TINY_ACTIVE, "budget": 12, "total_iterations": 500}},
+              "'active.budget' is 12, but the scene .* has only 8")]
+    for i, (extra, message) in enumerate(cases):
+        config = {"scenes": [str(tiny_dataset)], "methods": ["random"], "preset": "cpu-small",
+                  "output": f"out{i}", **extra}
+        path = tmp_path / f"exp{i}.json"
+        path.write_text(json.dumps(config))
+        t0 = time.perf_counter()
+        with pytest.raises(ValueError, match=message):
+            run_experiment(ExperimentConfig.load(path), None, progress=False)
+        assert time.perf_counter() - t0 < 10, extra
+        assert not (tmp_path / f"out{i}").exists()  # a refused run leaves no empty folder
+    assert main(["experiment", str(tmp_path / "exp0.json"), "--no-progress"]) == 2

@@ -549,3 +549,42 @@ def test_browser_shows_the_splat_and_its_colour_bar(scene, viewer_of, tmp_path):
             cv2.imwrite(str(out), last[..., ::-1])
         pytest.fail(f"the splat or its colour bar is not drawn; the last screenshot is {out}")
     assert len(bars) == 1  # the D_g bar; the fluid's is hidden without a trajectory
+
+
+def test_an_address_of_another_machine_is_refused_at_once(scene, caplog):
+    """--host 192.0.2.1 (TEST-NET-1, never this machine's) hung forever: now exit 2 at once, naming the option."""
+    pytest.importorskip("viser")
+    t0 = time.monotonic()
+    assert cli.main(["view", str(scene.h5), "--host", "192.0.2.1", "--port", "0"]) == 2
+    assert time.monotonic() - t0 < 10
+    assert "--host 192.0.2.1 is not an address of this machine" in caplog.text
+    assert cli.main(["view", str(scene.h5), "--host", "no-such-host.invalid", "--port", "0"]) == 2
+    assert "--host no-such-host.invalid: not a name or address" in caplog.text
+
+
+def test_a_taken_last_port_is_a_clear_error(scene, caplog, capsys):
+    """--port 65535 in use has no next port to move to: exit 2 naming --port (it printed a traceback, then hung)."""
+    pytest.importorskip("viser")
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", 65535))
+        except OSError:
+            pytest.skip("port 65535 is taken here already")
+        s.listen()
+        t0 = time.monotonic()
+        assert cli.main(["view", str(scene.h5), "--port", "65535"]) == 2
+        assert time.monotonic() - t0 < 10
+    assert "--port 65535 is in use" in caplog.text and "Traceback" not in capsys.readouterr().err
+
+
+def test_a_result_with_nan_d_g_is_served_with_a_warning(scene, viewer_of, tmp_path, caplog):
+    import shutil
+
+    bad = tmp_path / "nan.h5"
+    shutil.copy(scene.h5, bad)
+    with h5py.File(bad, "r+") as f:
+        d = f["gaussians/D"][()]
+        d[:7] = np.nan
+        f["gaussians/D"][...] = d
+    viewer_of(bad, gaussians=scene.ply)
+    assert "7 of 300 Gaussians have a non-finite D_g" in caplog.text

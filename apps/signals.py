@@ -1,0 +1,111 @@
+"""One policy for SIGINT and SIGTERM in every `fluidgs` command: what a signal stops, and what it leaves behind.
+
+- The first SIGINT (Ctrl-C) or SIGTERM (``kill``, ``timeout``, a batch scheduler) raises :class:`Stopped` in the main
+  thread, a ``KeyboardInterrupt`` that remembers the signal: every ``finally`` block of the command runs (temporary
+  files are dropped, worker processes terminated), and `fluidgs` exits 128 + the signal number (130 for SIGINT, 143
+  for SIGTERM) with one line, no traceback. `fluidgs sim` first saves its frames so far (:class:`apps.sim.StopRequest`).
+- A second signal while that clean-up runs is noted and ignored, so that it cannot interrupt the clean-up halfway and
+  leave a half-written file; the exit code stays that of the first signal.
+- A third signal removes this process's unfinished temporary files (:func:`fluidsim.files.remove_unfinished`) and
+  exits at once, for a clean-up that hangs.
+
+Whatever ends a command, `fluidgs` then removes the temporary files of this process that were never renamed into place
+and the output folders it created that stayed empty. Worker processes (:func:`worker_signals`) leave SIGINT to their
+parent and, on SIGTERM (their parent terminating them), remove their unfinished files and exit at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+log = logging.getLogger("fluidgs")
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Stopped(KeyboardInterrupt):
+    """The command was stopped by ``signum`` (SIGINT or SIGTERM); :attr:`exit_code` is 128 + ``signum``."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = int(signum)
+        super().__init__(signal.Signals(self.signum).name)
+
+    @property
+    def exit_code(self) -> int:
+        """130 for SIGINT, 143 for SIGTERM (the shell's convention)."""
+        return 128 + self.signum
+
+
+def signal_name(signum: int) -> str:
+    """"SIGINT", "SIGTERM", ... for a signal number."""
+    return signal.Signals(signum).name
+
+
+class _State:
+    first: int | None = None  # the first stop signal received
+    count = 0
+
+
+def first_signal() -> int | None:
+    """The first stop signal this process received (None: none yet)."""
+    return _State.first
+
+
+def note_signal(signum: int) -> int:
+    """Record a stop signal; returns how many have arrived (1 for the first)."""
+    _State.count += 1
+    if _State.first is None:
+        _State.first = int(signum)
+    return _State.count
+
+
+def _exit_now() -> None:
+    from fluidsim.files import remove_unfinished
+
+    remove_unfinished(created_folders=False)
+    os._exit(128 + (_State.first or signal.SIGINT))
+
+
+def handle(signum: int, frame) -> None:
+    """The handler of :func:`stop_signals` (see the module docstring)."""
+    count = note_signal(signum)
+    name = signal.Signals(signum).name
+    if count == 1:
+        raise Stopped(signum)
+    if count == 2:
+        log.warning("%s received again: already stopping and removing unfinished files (a third signal exits at "
+                    "once)", name)
+        return
+    _exit_now()
+
+
+@contextmanager
+def stop_signals() -> Iterator[None]:
+    """While entered (in the main thread; elsewhere it does nothing), SIGINT and SIGTERM follow :func:`handle`."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _State.first, _State.count = None, 0
+    old = {sig: signal.signal(sig, handle) for sig in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
+
+
+def worker_signals() -> None:
+    """In a worker process: ignore SIGINT (a Ctrl-C reaches the whole process group; the parent decides and
+    terminates its workers), and on SIGTERM remove this process's unfinished files and exit at once (143)."""
+
+    def on_term(signum: int, frame) -> None:
+        note_signal(signum)
+        _exit_now()
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, on_term)
