@@ -44,7 +44,9 @@ from .groups import (
     add_physics_arguments,
     add_record_arguments,
     add_runtime_arguments,
+    add_visibility_arguments,
     check_output_file,
+    check_visibility_arguments,
     dataset_inputs,
     load_gaussians_checked,
     physics_config_class,
@@ -58,7 +60,8 @@ from .groups import (
 __all__ = [
     "physics_config_class",
     "add_camera_arguments", "add_config_options", "add_frame_arguments", "add_physics_arguments",
-    "add_record_arguments", "add_runtime_arguments", "check_output_file", "config_from_args", "config_values",
+    "add_record_arguments", "add_runtime_arguments", "add_visibility_arguments", "check_output_file",
+    "check_visibility_arguments", "config_from_args", "config_values",
     "dataset_inputs", "field_docs", "float_list", "help_and_default", "index_list", "load_gaussians_checked",
     "option_dest", "parse_list", "physics_config_from_args", "probe_overrides", "record_config_from_args",
     "save_diverged", "up_from_args"
