@@ -239,10 +239,11 @@ def add_visibility_arguments(p) -> None:
     p.add_argument("--frustum-only", action="store_true",
                    help="count every Gaussian inside the view's frustum, hidden or not: the paper's visibility, for "
                         "replication (default: off, the depth test counts only the Gaussians not hidden behind "
-                        "others: a coarse depth buffer of the projected centres)")
+                        "others: a coarse depth buffer of the projected centres; the active loop's paper preset "
+                        "keeps the frustum)")
     p.add_argument("--occlusion", action="store_true",
-                   help="the depth test, which is now the default; accepted for old scripts (default: on unless "
-                        "--frustum-only)")
+                   help="count only the Gaussians the depth test finds unhidden; accepted for old scripts, as it is "
+                        "what happens without --frustum-only (default: on unless --frustum-only)")
 
 
 def check_visibility_arguments(args: argparse.Namespace) -> None:
