@@ -134,3 +134,16 @@ def test_uncertainty_png_marks_what_lies_above_the_range():
     assert (marked == 255).any()
     with pytest.raises(ValueError, match="differ"):
         over_range_marks(np.zeros((16, 16, 3), np.uint8), np.ones((8, 8), bool))
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["score", "g.ply", "--cameras", "c.json", "-o", "s.json", "--uncertainty-images", "--no-png"], "--no-png"),
+    (["score", "g.ply", "--cameras", "c.json", "-o", "s.json", "--frustum-only", "--occlusion"], "--frustum-only"),
+    (["critical", "g.ply", "--cameras", "c.json", "--frustum-only", "--occlusion"], "--frustum-only"),
+])
+def test_contradictory_options_exit_2_before_any_file_is_read(argv, option, tmp_path, monkeypatch, caplog):
+    from apps.cli import main
+
+    monkeypatch.chdir(tmp_path)  # none of the named files exists: the check comes first
+    assert main(argv) == 2
+    assert option in caplog.text and "drop" in caplog.text and "does not exist" not in caplog.text
