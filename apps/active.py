@@ -59,7 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from nbv.physics import PhysicsConfig
     from recon.train_config import TrainConfig
 
-    from .options import add_config_options, add_runtime_arguments
+    from .options import add_config_options, add_runtime_arguments, add_visibility_arguments
 
     p.add_argument("dataset", type=Path, help="dataset folder (Blender transforms_*.json or COLMAP); its train split "
                                               "is the candidate set")
@@ -78,8 +78,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--up", "--up-axis", dest="up", default=None, metavar="UP",
                    help="the scene's up direction for the probes: +x, -x, +y, -y, +z, -z, a vector such as 0,-1,0, or "
                         "'auto': the training cameras' mean up vector (default: the dataset's up axis)")
-    add_config_options(p, ActiveConfig, ("occlusion", "backend"),
+    add_config_options(p, ActiveConfig, ("backend",),
                        {"backend": {"choices": ("auto", "torch", "gsplat"), "help": "renderer backend"}})
+    add_visibility_arguments(p)
     p.add_argument("--overwrite", action="store_true", help="discard an existing run in the output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
     add_runtime_arguments(p, threads_help="CPU threads for torch and Taichi")
@@ -91,10 +92,13 @@ def option_values(args: argparse.Namespace) -> tuple[dict, dict, dict]:
     from nbv.physics import PhysicsConfig, parse_directions
     from recon.train_config import TrainConfig
 
-    from .options import config_values
+    from .options import check_visibility_arguments, config_values
 
     over = overrides()
-    active = config_values(ActiveConfig, args, (*ACTIVE_FIELDS, "occlusion", "backend"), over)
+    check_visibility_arguments(args)
+    active = config_values(ActiveConfig, args, (*ACTIVE_FIELDS, "backend"), over)
+    if args.frustum_only or args.occlusion:  # else the preset decides (paper: frustum; cpu-small: the depth test)
+        active["occlusion"] = not args.frustum_only
     active["up"] = args.up
     train = config_values(TrainConfig, args, TRAIN_FIELDS, over)
     physics = {**PRESETS[args.preset]["physics"], **config_values(PhysicsConfig, args, PHYSICS_FIELDS, over)}

@@ -1,14 +1,17 @@
 """`fluidgs critical GAUSSIANS.ply --cameras CAMERAS`: function-critical views (paper Sec. 3.4).
 
 One probe (-x by default) runs with distinct-particle tracking: |P_g| is the number of distinct fluid particles
-that came within n r_g of Gaussian g. Each camera gets C(T) = sum_g w_g |P_g| (w_g of Eq. 5); the top
-``--subset`` views (20 by default) form the critical subset. Prints the ranking, writes JSON.
+that came within n r_g of Gaussian g. Each camera gets C(T) = sum_g w_g |P_g| (w_g of Eq. 5) over the Gaussians it
+counts (the depth test by default; ``--frustum-only``: the paper's frustum culling); the top ``--subset`` views (20
+by default) form the critical subset. Prints what the probe reached (D-bar / D-bar_empty first, the share of the
+Gaussians reached, the leaks), the ranking with its parts (the coverage A(T) and C(T) / A(T)) and one line on how far
+coverage decides it (:mod:`nbv.coverage`); writes JSON.
 """
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -17,8 +20,10 @@ from .options import (
     add_camera_arguments,
     add_gaussian_file_arguments,
     add_physics_arguments,
+    add_visibility_arguments,
     camera_file_from_args,
     check_output_file,
+    check_visibility_arguments,
     load_gaussians_checked,
     orbit_cameras_logged,
     orbit_from_args,
@@ -36,30 +41,44 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="JSON with C(T) per camera and the critical subset (written atomically)")
     p.add_argument("--subset", type=int, default=20, help="size of the critical subset (views)")
     p.add_argument("--top-k", type=int, default=None, help="print only the best K views (default: all)")
+    add_visibility_arguments(p)
     add_physics_arguments(p, track_distinct=True, cameras=True)
+
+
+log = logging.getLogger("fluidgs")
 
 
 def run_command(args: argparse.Namespace) -> int:
     import torch
 
     from fluidsim.files import check_not_input, write_json_atomic
+    from nbv.coverage import agreement_lines
     from nbv.physics import simulate_gaussians
-    from nbv.scores import critical_subset, projected_view_scores, rank
-    from nbv.view_scoring import check_cameras_see, format_table, parse_candidates, render_size, torch_device
+    from nbv.scores import DepthBuffer, critical_subset, projected_view_scores
+    from nbv.view_scoring import (
+        check_cameras_see,
+        format_table,
+        parse_candidates,
+        probe_lines,
+        ranked_rows,
+        reach_warning,
+        render_size,
+        rows_agreement,
+        torch_device,
+    )
 
     from .runtime import init_taichi
 
+    check_visibility_arguments(args)
+    if args.subset < 1:
+        raise ValueError(f"--subset must be >= 1 view, got {args.subset}")
     orbit = orbit_from_args(args, args.render_width)
     file_cams = None if orbit is not None else camera_file_from_args(args)
-    # C(T) needs no empty-scene reference
-    config = replace(physics_config_from_args(args, track_distinct=True, default_directions=("-x",), cameras=file_cams),
-                     empty_reference=False)
+    config = physics_config_from_args(args, track_distinct=True, default_directions=("-x",), cameras=file_cams)
     output = check_output_file(args.output, (".json",))
     orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
     check_not_input({"-o": output, "-o (orbit cameras)": orbit_file},
                     {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras})
-    if args.subset < 1:
-        raise ValueError(f"--subset must be >= 1 view, got {args.subset}")
     gaussians = load_gaussians_checked(args.gaussians, args)
     warn_frame(config, file_cams, up_given=args.up is not None)
     all_cams = file_cams if orbit is None else orbit_cameras_logged(gaussians, config, orbit)
@@ -80,20 +99,27 @@ def run_command(args: argparse.Namespace) -> int:
                          "Gaussians, so every view would score C(T) = 0; re-run with a smaller --dt, or check "
                          "--scale and --up")
     # C(T) = sum_g w_g |P_g| needs only the projection's radii and visibility (no render)
+    occlusion = not args.frustum_only
     scored = projected_view_scores(torch.from_numpy(distinct).to(torch.float64),
-                                   gaussians.to(torch_device(args.device)), cams)
-    c = scored.scores
-    order = rank(c).tolist()
-    subset = critical_subset(c, args.subset).tolist()
-    rows = [{"rank": r + 1, "index": idx[k], "name": cams[k].name, "critical_score": float(c[k]),
-             "visible": int(scored.counted[k])} for r, k in enumerate(order)]
+                                   gaussians.to(torch_device(args.device)), cams,
+                                   depth_buffer=DepthBuffer() if occlusion else None)
+    subset = critical_subset(scored.scores, args.subset).tolist()
+    rows = ranked_rows(scored, cams, idx, value="critical_score")
+    agreement = rows_agreement(rows, "critical_score")
+    print("\n".join(probe_lines(result)))
+    warning = reach_warning(distinct, scored.seen, config, "fluid particle", "C")
+    if warning is not None:
+        log.warning("%s", warning)
     print(format_table(rows, args.top_k, value="critical_score"))
+    print("\n".join(agreement_lines(agreement, "fluid-particle count", "C")))
     print(f"critical subset ({len(subset)} views): {[idx[k] for k in subset]}")
     write_json_atomic(output, {
         "cameras": str(orbit_file or args.cameras), "gaussians": str(args.gaussians),
         "directions": list(config.directions),
+        "occlusion": occlusion, "dbar_m4_s": result.dbar, "dbar_empty_m4_s": result.dbar_empty,
         "distinct_particles": {"total_over_gaussians": int(distinct.sum()),
                                "gaussians_reached": int((distinct > 0).sum()), "max": int(np.max(distinct))},
-        "views": rows, "critical_subset": [idx[k] for k in subset], "config": config.to_dict()})
+        "agreement": agreement, "views": rows, "critical_subset": [idx[k] for k in subset],
+        "config": config.to_dict()})
     print(f"critical views: {output}" + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file else ""))
     return 0

@@ -2,9 +2,15 @@
 
 S(T) = sum over the Gaussians visible in view T of w_g D_g, with w_g = clamp(pi R_g^2 / (H W), 0, 1) from the
 renderer's screen-space radii R_g. D_g comes from RESULT.h5 (``--result``) or from a fresh probe run.
-Prints a ranked table and writes scores.json (per candidate: index, name, score, rank, visible count; and
-the settings) and, per view, a PNG with the render beside a D_g heat-map of the same view (the Gaussians
-re-coloured by D_g on the TURBO map, rendered with the same camera), rank and score written on it.
+Visibility: the coarse depth test by default (a Gaussian hidden behind the others does not count); ``--frustum-only``
+is the paper's frustum culling.
+
+Prints what each probe reached, a ranked table with the parts of S(T) = A(T) P(T) (the coverage A(T) = sum of w_g
+over the same counted Gaussians, and the physics part P(T) = S / A) and one line on how far coverage decides the
+ranking (:mod:`nbv.coverage`); writes scores.json (per candidate: index, name, score, coverage, physics_mean, their
+ranks, visible count; the top-level ``agreement``; and the settings) and, per view, a PNG with the render beside a
+D_g heat-map of the same view (the Gaussians re-coloured by D_g on the TURBO map, rendered with the same camera, "+"
+where clipped), rank and parts written on it; with ``--uncertainty-images`` also the per-pixel composited D_g.
 
 Cameras: ``orbit:N`` (N cameras on rings around the robust object box, :mod:`nbv.orbit`; written beside the
 scores as ``<stem>_cameras.json``), or any camera file of :func:`recon.camera_files.load_camera_file`: a Blender /
@@ -27,8 +33,10 @@ from .options import (
     add_gaussian_file_arguments,
     add_physics_arguments,
     add_record_arguments,
+    add_visibility_arguments,
     camera_file_from_args,
     check_output_file,
+    check_visibility_arguments,
     load_gaussians_checked,
     orbit_cameras_logged,
     orbit_from_args,
@@ -57,16 +65,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--metric", choices=METRICS, default="max",
                    help="per-Gaussian metric: D_g max over probes, mean over probes, or one probe's D_g (1/s)")
     p.add_argument("--unweighted", action="store_true", help="sum D_g over visible Gaussians without Eq. 5 weights")
-    p.add_argument("--occlusion", action="store_true",
-                   help="count only Gaussians not hidden behind the others (a coarse depth buffer of the projected "
-                        "centres, composited front to back in cells of about one footprint radius; not in the "
-                        "paper, whose visibility is frustum culling)")
+    add_visibility_arguments(p)
     p.add_argument("--png-dir", type=Path, default=None,
                    help="folder for the per-view PNGs (default: next to the output, <stem>_views)")
     p.add_argument("--no-png", action="store_true", help="skip the per-view PNGs")
     p.add_argument("--png-top", type=int, default=PNG_TOP,
                    help="render PNGs of the best N views only (scores need no render; default: %(default)s)")
     p.add_argument("--png-all", action="store_true", help="render a PNG of every candidate view")
+    p.add_argument("--uncertainty-images", action="store_true",
+                   help="also write, per PNG view, its physics-uncertainty image: D_g alpha-composited per pixel "
+                        "(1/s), as <view>_uncertainty.npy (float32) and a colour .png with its scale bar ('+': above "
+                        "the range) (default: off)")
     add_record_arguments(p)
     add_physics_arguments(p, cameras=True)
 
@@ -93,27 +102,46 @@ def obtain_result(args, gaussians, config, record=None):
     return result
 
 
+def check_arguments(args: argparse.Namespace) -> None:
+    """The option combinations that cannot work, refused before any file is read or any probe runs."""
+    check_visibility_arguments(args)
+    if args.uncertainty_images and args.no_png:
+        raise ValueError("--uncertainty-images writes its images beside the view PNGs and --no-png turns those off; "
+                         "drop --no-png (--png-top N or --png-all choose the views)")
+    if args.top_k is not None and args.top_k < 1:
+        raise ValueError(f"--top-k must be >= 1, got {args.top_k}")
+    if args.png_top < 1:
+        raise ValueError(f"--png-top must be >= 1 view, got {args.png_top}; use --no-png for no PNGs")
+
+
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
+    from nbv.coverage import agreement_lines
     from nbv.physics import ProbeDiverged
+    from nbv.scores import rank
     from nbv.view_scoring import (
         check_cameras_see,
         check_some_divergence,
         format_table,
         parse_candidates,
+        probe_lines,
+        project_scores,
+        ranked_rows,
+        reach_warning,
         render_size,
-        score_views,
+        rows_agreement,
+        torch_device,
+        write_uncertainty_images,
+        write_view_pngs,
     )
     from recon.camera_files import transforms_json
 
+    check_arguments(args)
+    occlusion = not args.frustum_only
     orbit = orbit_from_args(args, args.render_width)
     file_cams = None if orbit is not None else camera_file_from_args(args)
     config = physics_config_from_args(args, cameras=file_cams)
     output = check_output_file(args.output, (".json",))
-    if args.top_k is not None and args.top_k < 1:
-        raise ValueError(f"--top-k must be >= 1, got {args.top_k}")
-    if args.png_top < 1:
-        raise ValueError(f"--png-top must be >= 1 view, got {args.png_top}; use --no-png for no PNGs")
     png_dir = None if args.no_png else (args.png_dir or output.with_name(output.stem + "_views"))
     orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
     check_not_input({"-o": output, "--save-result": args.save_result, "--png-dir": png_dir,
@@ -151,15 +179,33 @@ def run_command(args: argparse.Namespace) -> int:
             result = obtain_result(args, gaussians, config, record)
         except ProbeDiverged as exc:
             return save_diverged(exc, args.save_result)
-    check_some_divergence(result, args.metric, args.result or args.gaussians)
-    rows = score_views(gaussians, cams, idx, result, args.metric, png_dir, weighted=not args.unweighted,
-                       occlusion=args.occlusion, device=args.device, visible_centres=visible_centres,
-                       png_top=None if args.png_all else args.png_top)
+    values = check_some_divergence(result, args.metric, args.result or args.gaussians)
+    scored = project_scores(gaussians, cams, values, weighted=not args.unweighted, occlusion=occlusion,
+                            device=args.device)
+    rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
+    agreement = rows_agreement(rows)
+    print("\n".join(probe_lines(result)))
+    warning = reach_warning(values, scored.seen, result.config)
+    if warning is not None:
+        log.warning("%s", warning)
     print(format_table(rows, args.top_k))
+    print("\n".join(agreement_lines(agreement)))
+    images = {}
+    if png_dir is not None:
+        order = rank(scored.scores).tolist()
+        shown = order if args.png_all else order[:args.png_top]
+        device = torch_device(args.device)
+        write_view_pngs(gaussians, cams, shown, rows, values, args.metric, png_dir, device, True)
+        if args.uncertainty_images:
+            images = write_uncertainty_images(gaussians, cams, shown, rows, values, args.metric, png_dir, device)
+    for row in rows:
+        if row["index"] in images:
+            row["uncertainty_image"] = {k: str(png_dir / v) for k, v in images[row["index"]].items()}
     cameras = str(orbit_file if orbit_file is not None else args.cameras)
     write_json_atomic(output, {"cameras": cameras, "gaussians": str(args.gaussians), "metric": args.metric,
-                        "weighted": not args.unweighted, "occlusion": args.occlusion, "dbar_m4_s": result.dbar,
-                        "dbar_empty_m4_s": result.dbar_empty, "views": rows, "config": result.config.to_dict()})
+                        "weighted": not args.unweighted, "occlusion": occlusion, "dbar_m4_s": result.dbar,
+                        "dbar_empty_m4_s": result.dbar_empty, "agreement": agreement, "views": rows,
+                        "config": result.config.to_dict()})
     print(f"scores: {output}" + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file is not None else "")
           + (f"\nviews: {png_dir}" if png_dir is not None else ""))
     h5 = args.result or args.save_result

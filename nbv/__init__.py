@@ -14,6 +14,7 @@ n, r_g             reach factor (3), largest principal radius  ``PhysicsConfig.n
 w_g, S(T)          view weight (Eq. 5), view score (Eq. 4)     :func:`view_weights`, :func:`view_scores`
 D-bar              (1/|G|) sum pi tr(Sigma_g)^2 D_g            :func:`geometry_divergence`, ``.dbar``
 |P_g|, C(T)        distinct particles near g, critical score   ``distinct_counts``, :func:`critical_scores`
+A(T), S/A          coverage sum w_g; physics part S(T) / A(T)  ``ProjectedScores.coverage``, ``.physics_mean``
 =================  ==========================================  ========================================
 """
 
@@ -25,6 +26,7 @@ _EXPORTS = {
     **dict.fromkeys(("DepthBuffer", "critical_scores", "critical_subset", "geometry_divergence", "projected_counts",
                      "projected_view_scores", "rank", "unoccluded", "view_scores", "view_weights"), "scores"),
     **dict.fromkeys(("SweepPoint", "reynolds", "run_sweep", "schedule"), "study.sweep"),
+    **dict.fromkeys(("coverage_line", "ranking_agreement", "view_parts"), "coverage"),
     "score_views": "view_scoring",
 }
 __all__ = sorted(_EXPORTS)

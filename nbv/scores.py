@@ -336,10 +336,21 @@ class ProjectedScores:
     Attributes:
         scores: [C] float64 S(T) per camera.
         counted: [C] int64 Gaussians that counted in each view (visible, and unoccluded with the depth test).
+        coverage: [C] float64 A(T) = sum of w_g over the same counted Gaussians: S(T) with M_g = 1 (the count
+            ``counted`` when unweighted).
+        seen: [N] bool, the Gaussians counted in at least one of the views (on the CPU).
     """
 
     scores: torch.Tensor
     counted: torch.Tensor
+    coverage: torch.Tensor
+    seen: torch.Tensor
+
+    @property
+    def physics_mean(self) -> torch.Tensor:
+        """[C] float64 P(T) = S(T) / A(T), the area-weighted mean M_g a view sees (NaN where A(T) = 0)."""
+        return torch.where(self.coverage > 0, self.scores / self.coverage.clamp_min(torch.finfo(torch.float64).tiny),
+                           torch.full_like(self.scores, math.nan))
 
 
 def _median_radius(radii: torch.Tensor) -> int:
@@ -433,8 +444,9 @@ def _check_metric(per_gaussian, gaussians) -> torch.Tensor:
     return m.to(device=gaussians.device, dtype=torch.float64)
 
 
-def _view_sum(radii: torch.Tensor, m: torch.Tensor, height: int, width: int, weighted: bool) -> tuple[float, int]:
-    """(sum_g w_g M_g or sum over the visible of M_g, visible count) of float radii [n] and metric [n].
+def _view_sum(radii: torch.Tensor, m: torch.Tensor, height: int, width: int,
+              weighted: bool) -> tuple[float, float, int]:
+    """(sum_g w_g M_g, sum_g w_g, counted) of float radii [n] and metric [n] (unweighted: w_g = 1 where counted).
 
     w_g = min(pi R^2 / (H W), 1) = (pi / (H W)) min(R, sqrt(H W / pi))^2, so the sum is one float64 dot
     product (R^2 is exact in float64); it equals the sum of :func:`view_weights` to float64 rounding.
@@ -442,8 +454,10 @@ def _view_sum(radii: torch.Tensor, m: torch.Tensor, height: int, width: int, wei
     counted = int(torch.count_nonzero(radii))
     if weighted:
         r = radii.to(torch.float64).clamp_max(math.sqrt(height * width / math.pi))
-        return math.pi / (height * width) * float(torch.dot(r * r, m)), counted
-    return float(torch.dot(radii.clamp(0.0, 1.0).to(torch.float64), m)), counted
+        w = r * r
+        scale = math.pi / (height * width)
+        return scale * float(torch.dot(w, m)), scale * float(w.sum()), counted
+    return float(torch.dot(radii.clamp(0.0, 1.0).to(torch.float64), m)), float(counted), counted
 
 
 def _unoccluded_view(terms, cam, k: int, block: int, occlusion, config: DepthBuffer) -> tuple[torch.Tensor, ...]:
@@ -474,7 +488,8 @@ def projected_view_scores(per_gaussian: torch.Tensor, gaussians, cameras: Sequen
             the paper's visibility).
         block: Gaussians per block (default: the projection's for the device).
     Returns:
-        :class:`ProjectedScores` (scores [C] float64 and counted [C] int64, on the CPU).
+        :class:`ProjectedScores` (scores [C] float64, counted [C] int64, coverage [C] float64 and seen [N] bool,
+        on the CPU).
 
     Example:
         >>> from recon.camera import Camera
@@ -492,17 +507,24 @@ def projected_view_scores(per_gaussian: torch.Tensor, gaussians, cameras: Sequen
 
 
 def _score_views(m, terms, cameras, size: int, weighted: bool, occlusion, depth_buffer) -> ProjectedScores:
-    scores, counted = [], []
+    scores, cover, counted = [], [], []
+    seen = torch.zeros(m.shape[0], dtype=torch.bool, device=m.device)
     for k, cam in enumerate(cameras):
+        sums = []
         if depth_buffer is None:
-            sums = [_view_sum(b.radii, m[b.gaussians], cam.height, cam.width, weighted)
-                    for b in view_blocks(terms, cam, k, size)]
+            for b in view_blocks(terms, cam, k, size):
+                sums.append(_view_sum(b.radii, m[b.gaussians], cam.height, cam.width, weighted))
+                seen[b.gaussians] |= b.radii > 0
         else:
             radii, keep = _unoccluded_view(terms, cam, k, size, occlusion, depth_buffer)
-            sums = [_view_sum(radii * keep, m, cam.height, cam.width, weighted)]
-        scores.append(sum(s for s, _ in sums))
-        counted.append(sum(c for _, c in sums))
-    return ProjectedScores(torch.tensor(scores, dtype=torch.float64), torch.tensor(counted, dtype=torch.int64))
+            counted_radii = radii * keep
+            sums.append(_view_sum(counted_radii, m, cam.height, cam.width, weighted))
+            seen |= counted_radii > 0
+        scores.append(sum(s for s, _, _ in sums))
+        cover.append(sum(a for _, a, _ in sums))
+        counted.append(sum(c for _, _, c in sums))
+    return ProjectedScores(torch.tensor(scores, dtype=torch.float64), torch.tensor(counted, dtype=torch.int64),
+                           torch.tensor(cover, dtype=torch.float64), seen.cpu())
 
 
 def coarse_unoccluded(gaussians, cameras: Sequence, config: DepthBuffer = DepthBuffer(), *,

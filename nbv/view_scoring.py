@@ -14,14 +14,16 @@ import logging
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 from tqdm import tqdm
 
-from nbv.heatmap import color_scale, colored_gaussians
-from nbv.io import write_png_atomic
+from nbv.coverage import format_number, ranking_agreement, view_parts
+from nbv.heatmap import color_scale, colored_gaussians, over_range_marks, uncertainty_image, uncertainty_png
+from nbv.io import write_atomic, write_png_atomic
 from nbv.lists import parse_list
-from nbv.scores import DepthBuffer, projected_counts, projected_view_scores, rank
+from nbv.scores import DepthBuffer, geometry_divergence, projected_counts, projected_view_scores, rank
 from recon.render import render
 from viz.annotate import label, to_bgr
 
@@ -92,8 +94,44 @@ def check_some_divergence(result, metric: str, where) -> np.ndarray:
                      "--dt, or check --scale and --up")
 
 
+def project_scores(gaussians, cams, values, *, weighted: bool = True, occlusion: bool = True,
+                   device: str = "cpu"):
+    """S(T), the coverage A(T) and the counted Gaussians of every camera from the projection alone
+    (:func:`nbv.scores.projected_view_scores`; ``occlusion``: the coarse depth test, else frustum culling)."""
+    dev = torch.device(torch_device(device))
+    start = time.perf_counter()
+    scored = projected_view_scores(torch.from_numpy(np.asarray(values, np.float64)), gaussians.detach().to(dev), cams,
+                                   weighted=weighted, depth_buffer=DepthBuffer() if occlusion else None)
+    log.info("scored %d views of %d Gaussians from the projection in %.2f s", len(cams), gaussians.num,
+             time.perf_counter() - start)
+    return scored
+
+
+def ranked_rows(scored, cams, idx: list[int], value: str = "score", visible_centres=None) -> list[dict]:
+    """Rows of a :class:`nbv.scores.ProjectedScores`, best first: rank, index, name, ``value`` (S(T)), coverage
+    A(T), physics_mean S/A, coverage_rank, physics_rank, visible (the Gaussians counted; and visible_centres when
+    given)."""
+    s = scored.scores
+    parts = view_parts(s.numpy(), scored.coverage.numpy())
+    rows = []
+    for k in rank(s).tolist():
+        row = {"rank": parts[k]["rank"], "index": idx[k], "name": cams[k].name, value: float(s[k]),
+               "coverage": parts[k]["coverage"], "physics_mean": parts[k]["physics_mean"],
+               "coverage_rank": parts[k]["coverage_rank"], "physics_rank": parts[k]["physics_rank"],
+               "visible": int(scored.counted[k])}
+        if visible_centres is not None:
+            row["visible_centres"] = int(visible_centres[k])
+        rows.append(row)
+    return rows
+
+
+def rows_agreement(rows: list[dict], value: str = "score") -> dict:
+    """:func:`nbv.coverage.ranking_agreement` of ranked rows (their ``value`` against their coverage)."""
+    return ranking_agreement([r[value] for r in rows], [r["coverage"] for r in rows])
+
+
 def score_views(gaussians, cams, idx: list[int], result, metric: str = "max", png_dir: Path | None = None, *,
-                weighted: bool = True, occlusion: bool = False, device: str = "cpu",
+                weighted: bool = True, occlusion: bool = True, device: str = "cpu",
                 visible_centres=None, progress: bool = True, png_top: int | None = 5) -> list[dict]:
     """Score the candidates from the projection alone, rank them and render PNGs of the best ones.
 
@@ -101,45 +139,41 @@ def score_views(gaussians, cams, idx: list[int], result, metric: str = "max", pn
         gaussians: the GaussianSet (scene units). cams: the candidate cameras; idx: their indices in the file.
         result: a PhysicsResult of these Gaussians. metric: see :func:`metric_values`.
         png_dir: folder for ``rank<r>_<index>_<name>.png`` (render | D_g heat-map), or None.
-        weighted: Eq. 5 weights. occlusion: the coarse depth test (:class:`nbv.scores.DepthBuffer`).
+        weighted: Eq. 5 weights. occlusion: the coarse depth test (:class:`nbv.scores.DepthBuffer`; the default);
+            False: the paper's frustum culling.
         device: torch device. visible_centres: [C] projected-centre counts for the rows.
         png_top: PNGs for the best ``png_top`` views only (None: every view).
     Returns:
-        rows (best first): rank, index, name, score, visible (the Gaussians counted; and visible_centres when
-        given).
+        rows (best first), see :func:`ranked_rows`: rank, index, name, score, coverage, physics_mean, their ranks,
+        visible.
 
     Example:
         >>> rows = score_views(gaussians, cams, list(range(len(cams))), result)  # doctest: +SKIP
+        >>> print(coverage_line(rows_agreement(rows)))  # doctest: +SKIP
     """
     values = metric_values(result, metric)
-    dev = torch.device(torch_device(device))
-    start = time.perf_counter()
-    scored = projected_view_scores(torch.from_numpy(np.asarray(values)), gaussians.detach().to(dev), cams,
-                                   weighted=weighted, depth_buffer=DepthBuffer() if occlusion else None)
-    log.info("scored %d views of %d Gaussians from the projection in %.2f s", len(cams), gaussians.num,
-             time.perf_counter() - start)
-    s = scored.scores
-    order = rank(s).tolist()
-    ranks = {i: r + 1 for r, i in enumerate(order)}
-    rows = []
-    for k in order:
-        row = {"rank": ranks[k], "index": idx[k], "name": cams[k].name, "score": float(s[k]),
-               "visible": int(scored.counted[k])}
-        if visible_centres is not None:
-            row["visible_centres"] = int(visible_centres[k])
-        rows.append(row)
+    scored = project_scores(gaussians, cams, values, weighted=weighted, occlusion=occlusion, device=device)
+    rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
     if png_dir is not None:
+        order = rank(scored.scores).tolist()
         shown = order if png_top is None else order[:png_top]
-        write_view_pngs(gaussians, cams, shown, rows, values, metric, png_dir, str(dev), progress)
+        write_view_pngs(gaussians, cams, shown, rows, values, metric, png_dir, torch_device(device), progress)
     return rows
 
 
 def format_table(rows: list[dict], top_k: int | None = None, value: str = "score") -> str:
-    """The ranked rows as a text table (rank, index, name, ``value``, visible), the best ``top_k`` only when given."""
+    """The ranked rows as a text table: rank, index, name, ``value`` (S), the coverage A and the physics part S/A
+    with their ranks, and the Gaussians counted; the best ``top_k`` only when given. The numbers carry
+    :data:`nbv.coverage.SCORE_DIGITS` significant digits."""
     shown = rows if top_k is None else rows[:top_k]
-    lines = [f"{'rank':>4}  {'index':>5}  {'name':<24} {value:>14}  {'visible':>8}"]
-    lines += [f"{r['rank']:>4}  {r['index']:>5}  {r['name'][:24]:<24} {r[value]:>14.6g}  {r['visible']:>8}"
-              for r in shown]
+    head = {"score": "S", "critical_score": "C"}.get(value, value)
+    lines = [f"{'rank':>4}  {'index':>5}  {'name':<24} {head:>9}  {'A':>9} {'A#':>4}  {head + '/A':>9} "
+             f"{head + '/A#':>5}  {'visible':>8}"]
+    for r in shown:
+        lines.append(f"{r['rank']:>4}  {r['index']:>5}  {r['name'][:24]:<24} {format_number(r[value]):>9}  "
+                     f"{format_number(r.get('coverage')):>9} {r.get('coverage_rank') or '-':>4}  "
+                     f"{format_number(r.get('physics_mean')):>9} {r.get('physics_rank') or '-':>5}  "
+                     f"{r['visible']:>8}")
     return "\n".join(lines)
 
 
@@ -161,14 +195,110 @@ def _bgr(image: torch.Tensor) -> np.ndarray:
 
 def write_view_pngs(gaussians, cams, shown: list[int], rows: list[dict], values, metric: str, png_dir: Path,
                     device: str, progress: bool) -> None:
-    """Render the views ``shown`` (positions in ``cams``, best first) and write render | D_g heat-map PNGs."""
+    """Render the views ``shown`` (positions in ``cams``, best first) and write render | D_g heat-map PNGs.
+
+    The heat-map colours each Gaussian up to the 99th percentile v_max of the values; where the Gaussians above it
+    make up most of a pixel (their composited share > 1/2), the panel is marked "+": its colour is clipped there."""
     vmax = color_scale(values)
     heat = colored_gaussians(gaussians, values, vmax=vmax)
+    over = (np.asarray(values, np.float64) > vmax).astype(np.float64)
     png_dir.mkdir(parents=True, exist_ok=True)
     renders = render_candidates(gaussians, [cams[k] for k in shown], heat, device, progress)
     for r, (k, (out, himg)) in enumerate(zip(shown, renders, strict=True)):
         row = rows[r]
-        left = label(_bgr(out.image), [f"#{row['rank']} {cams[k].name}", f"S = {row['score']:.4g}"])
-        right = label(_bgr(himg), [f"D_g ({metric}), 0..{vmax:.3g} 1/s"])
+        left = label(_bgr(out.image), [f"#{row['rank']} {cams[k].name}", f"S = {format_number(row['score'])}",
+                                       f"A = {format_number(row.get('coverage'))}, "
+                                       f"S/A = {format_number(row.get('physics_mean'))}"])
+        heat_bgr = _bgr(himg)
+        if over.any():
+            share, _ = uncertainty_image(gaussians, cams[k], over, device)
+            mask = cv2.resize((share > 0.5).astype(np.uint8), (heat_bgr.shape[1], heat_bgr.shape[0]),
+                              interpolation=cv2.INTER_NEAREST).astype(bool)
+            heat_bgr = over_range_marks(heat_bgr, mask)
+        right = label(heat_bgr, [f"D_g ({metric}), 0..{vmax:.3g}+ 1/s (+: above)"])
         path = png_dir / f"rank{row['rank']:03d}_{row['index']:03d}_{cams[k].name}.png"
         write_png_atomic(path, np.hstack([left, right]))
+
+
+def uncertainty_scale(images: list[np.ndarray], percentile: float = 99.0) -> float:
+    """One colour range for a set of uncertainty images: the ``percentile`` of their covered pixels (> 0)."""
+    covered = np.concatenate([np.asarray(i, np.float64).reshape(-1) for i in images]) if images else np.zeros(0)
+    return color_scale(covered[covered > 0], percentile)
+
+
+def write_uncertainty_images(gaussians, cams, shown: list[int], rows: list[dict], values, metric: str,
+                             png_dir: Path, device: str) -> dict[int, dict]:
+    """Per view ``shown`` (positions in ``cams``, best first): its physics-uncertainty image
+    (:func:`nbv.heatmap.uncertainty_image` of the per-Gaussian metric), as float32 ``.npy`` (1/s per pixel) and a
+    colour PNG with its scale bar (one range for all views: the 99th percentile of their covered pixels; "+" above).
+
+    Returns:
+        {view index in the cameras file: {"npy": file name, "png": file name}} (names relative to ``png_dir``).
+    """
+    png_dir.mkdir(parents=True, exist_ok=True)
+    images = [uncertainty_image(gaussians, cams[k], values, device)[0] for k in shown]
+    vmax = uncertainty_scale(images)
+    written = {}
+    for r, (k, img) in enumerate(zip(shown, images, strict=True)):
+        row = rows[r]
+        stem = f"rank{row['rank']:03d}_{row['index']:03d}_{cams[k].name}_uncertainty"
+        write_atomic(png_dir / f"{stem}.npy", lambda tmp, img=img: np.save(tmp, img), suffix=".npy")
+        picture = label(uncertainty_png(img, vmax, "1/s"),
+                        [f"#{row['rank']} {cams[k].name}: composited D_g ({metric})", f"0..{vmax:.3g}+ 1/s"])
+        write_png_atomic(png_dir / f"{stem}.png", picture)
+        written[row["index"]] = {"npy": f"{stem}.npy", "png": f"{stem}.png"}
+    return written
+
+
+REACHED_WARNING = 0.5  # warn when fewer than this share of the counted Gaussians got any D_g
+
+
+def _ratio(value: float | None, reference: float | None) -> str:
+    if value is None or reference is None or not reference > 0:
+        return "n/a (no empty-scene run)"
+    return f"x{value / reference:.2g}"
+
+
+def probe_lines(result) -> list[str]:
+    """Per probe of a PhysicsResult, what the fluid reached: D-bar / D-bar_empty of that probe (first), the share
+    of the (kept) Gaussians it reached, and its leak counts; then the combined D-bar / D-bar_empty and D-bar."""
+    covs = torch.from_numpy(np.asarray(result.covariances))
+    kept = np.ones(result.num_gaussians, bool) if result.kept is None else np.asarray(result.kept, bool)
+    lines = []
+    for i, d in enumerate(result.directions):
+        dbar = geometry_divergence(covs, torch.from_numpy(result.per_probe[i]))
+        empty = (None if result.empty_per_probe is None
+                 else geometry_divergence(covs, torch.from_numpy(result.empty_per_probe[i])))
+        reached = int((np.asarray(result.per_probe_counts[i])[kept] > 0).sum())
+        leak = result.leaks.get(d)
+        if leak is None:
+            leaks = ""
+        elif leak.max == 0:
+            leaks = "; no fluid leaked into the solid"
+        else:
+            leaks = f"; leaked into the solid: {leak.final} at the end, at most {leak.max} (step {leak.max_step})"
+        share = reached / max(int(kept.sum()), 1)
+        lines.append(f"  probe {d:>3}: D-bar/D-bar_empty {_ratio(dbar, empty)}, reached {share:.0%} of the Gaussians "
+                     f"({reached:,} of {int(kept.sum()):,}){leaks}")
+    empty = "n/a" if result.dbar_empty is None else f"{result.dbar_empty:.2g}"
+    lines.append(f"D-bar/D-bar_empty {_ratio(result.dbar, result.dbar_empty)} (D-bar {result.dbar:.2g} m^4/s, "
+                 f"empty scene {empty})")
+    return lines
+
+
+def reach_warning(values, seen, config, what: str = "D_g", symbol: str = "S") -> str | None:
+    """A warning when fewer than half of the Gaussians the views count (``seen`` [N] bool) got any D_g (``values``
+    [N] > 0; ``what`` names the metric, ``symbol`` the score), naming the settings that reach more; None
+    otherwise."""
+    seen = np.asarray(seen, bool)
+    counted = int(seen.sum())
+    if counted == 0:
+        return None
+    got = int((np.asarray(values)[seen] > 0).sum())
+    if got >= REACHED_WARNING * counted:
+        return None
+    return (f"only {got / counted:.0%} of the {counted:,} Gaussians the views count got any {what} ({got:,}); "
+            f"{symbol}(T) rests "
+            f"on the few the fluid reached. Reach more with finer particles (--particle-radius, now "
+            f"{config.particle_radius:g} m; each halving gives 8x the particles) or a longer run (--steps, now "
+            f"{config.steps})")

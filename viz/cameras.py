@@ -28,6 +28,8 @@ class CandidateView:
         position: [3] centre, sim metres. rotation: [3, 3] camera-to-world (OpenCV axes). wxyz: [4] the same.
         fov_y: vertical field of view, rad. aspect: width / height.
         score: S(T) from scores.json, or None. rank: 1 = best, or None.
+        coverage: A(T) from scores.json, or None. physics_mean: S(T) / A(T), or None.
+        uncertainty_png: the view's physics-uncertainty picture (``score --uncertainty-images``), or None.
     """
 
     index: int
@@ -39,6 +41,9 @@ class CandidateView:
     aspect: float
     score: float | None = None
     rank: int | None = None
+    coverage: float | None = None
+    physics_mean: float | None = None
+    uncertainty_png: Path | None = None
 
     @property
     def forward(self) -> np.ndarray:
@@ -113,6 +118,18 @@ def cameras_path_of(scores: dict, scores_path: Path) -> Path | None:
     return None
 
 
+def _optional_float(row: dict | None, key: str) -> float | None:
+    value = None if row is None else row.get(key)
+    return None if value is None else float(value)
+
+
+def _uncertainty_png(row: dict | None) -> Path | None:
+    """The uncertainty picture a scores.json row names, when that file exists."""
+    image = None if row is None else row.get("uncertainty_image")
+    path = Path(image["png"]) if isinstance(image, dict) and isinstance(image.get("png"), str) else None
+    return path if path is not None and path.is_file() else None
+
+
 def candidate_views(cameras: str | Path, scene_to_sim: np.ndarray, scores: dict | None = None,
                     where: str = "RESULT.h5") -> list[CandidateView]:
     """The cameras of ``cameras`` (transforms.json) in the simulation frame, with scores and ranks.
@@ -151,5 +168,8 @@ def candidate_views(cameras: str | Path, scene_to_sim: np.ndarray, scores: dict 
         out.append(CandidateView(index=i, name=cam.name, position=s * (rot @ c2w[:3, 3]) + t, rotation=r,
                                  wxyz=rotation_to_wxyz(r), fov_y=float(cam.fov_y), aspect=cam.width / cam.height,
                                  score=None if v is None else float(v["score"]),
-                                 rank=None if v is None else int(v["rank"])))
+                                 rank=None if v is None else int(v["rank"]),
+                                 coverage=_optional_float(v, "coverage"),
+                                 physics_mean=_optional_float(v, "physics_mean"),
+                                 uncertainty_png=_uncertainty_png(v)))
     return out

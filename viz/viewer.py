@@ -49,6 +49,11 @@ SCALE_SAMPLES = 2_000_000
 INSTALL_HINT = "`fluidgs view` needs viser: pip install -e .[view] (or pip install 'viser>=1.0')"
 
 
+def _two_digits(value: float) -> str:
+    """``value`` rounded to two significant digits, as ``fluidgs score`` prints it (360, 4.9)."""
+    return f"{float(f'{value:.2g}'):g}"
+
+
 @dataclass(frozen=True)
 class ViewerOptions:
     """Where to serve and what to show first.
@@ -154,6 +159,7 @@ class FluidViewer:
         self._trajectory: Trajectory | None = None
         self._frame = 0
         self._playing = False
+        self._uncertainty = None  # the GUI image of a view's composited D_g (scores.json with uncertainty images)
         self._fluid_vmax = {"divergence": 1.0, "speed": 1.0}
         self._fluid_bar_of: tuple[str, str] | None = None
         self._shown_probe: str | None = None
@@ -415,6 +421,9 @@ class FluidViewer:
             if ranked:
                 gui.add_image(colorbar_image(float(values.max()), "view score S(T) of the frustums",
                                              vmin=float(values.min())), format="png")
+            if any(v.uncertainty_png is not None for v in self.views):
+                self._uncertainty = gui.add_image(np.full((8, 8, 3), 255, np.uint8), format="png",
+                                                  label="composited D_g of the view", visible=False)
         by_label = {self._view_label(v): v for v in self.views}
 
         def show_cameras(_) -> None:
@@ -432,7 +441,12 @@ class FluidViewer:
 
     @staticmethod
     def _view_label(v: CandidateView) -> str:
-        return f"#{v.rank} {v.name} (S = {v.score:.4g})" if v.rank is not None else f"{v.index}: {v.name}"
+        """'#rank name (S = .., A = .., S/A = ..)': the score and its parts, to two significant digits."""
+        if v.rank is None:
+            return f"{v.index}: {v.name}"
+        parts = "".join(f", {k} = {_two_digits(x)}" for k, x in (("A", v.coverage), ("S/A", v.physics_mean))
+                        if x is not None)
+        return f"#{v.rank} {v.name} (S = {_two_digits(v.score)}{parts})"
 
     def go_to(self, client, view: CandidateView) -> None:
         """Move ``client``'s viewport to ``view``: its centre, direction and vertical field of view."""
@@ -443,7 +457,25 @@ class FluidViewer:
             client.camera.position = view.position
             client.camera.look_at = view.position + view.forward * distance
         log.info("view moved to camera %d %s%s", view.index, view.name,
-                 "" if view.rank is None else f" (rank {view.rank}, S = {view.score:.4g})")
+                 "" if view.rank is None else f" (rank {view.rank}, S = {_two_digits(view.score)})")
+        self._show_uncertainty(view)
+
+    def _show_uncertainty(self, view: CandidateView) -> None:
+        """Show the view's physics-uncertainty picture (composited D_g, with its scale bar) in the Cameras panel."""
+        handle = self._uncertainty
+        if handle is None:
+            return
+        if view.uncertainty_png is None:
+            handle.visible = False
+            return
+        import cv2  # noqa: PLC0415 - only when a picture is shown
+
+        picture = cv2.imread(str(view.uncertainty_png), cv2.IMREAD_COLOR)
+        if picture is None:
+            handle.visible = False
+            return
+        handle.image = picture[:, :, ::-1].copy()
+        handle.visible = True
 
     def _set_initial_camera(self) -> None:
         """A view from a little above, downstream of the replayed probe and to its side (the fluid comes towards the

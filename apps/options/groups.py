@@ -382,3 +382,24 @@ def save_diverged(exc, path: Path | None) -> int:
     save_result(path, exc.result)
     log.error("%s; the completed probes are saved to %s (status 'diverged'); reduce --dt or --speed", exc, path)
     return 3
+
+
+# ---- visibility of the Gaussians in a candidate view (score, critical, active) -----------------------------------
+def add_visibility_arguments(p) -> None:
+    """--frustum-only (the paper's visibility) and --occlusion (the depth test, now the default; kept for scripts)."""
+    p.add_argument("--frustum-only", action="store_true",
+                   help="count every Gaussian inside the view's frustum, hidden or not: the paper's visibility, for "
+                        "replication (default: off, the depth test counts only the Gaussians not hidden behind "
+                        "others: a coarse depth buffer of the projected centres; the active loop's paper preset "
+                        "keeps the frustum)")
+    p.add_argument("--occlusion", action="store_true",
+                   help="count only the Gaussians the depth test finds unhidden; accepted for old scripts, as it is "
+                        "what happens without --frustum-only (default: on unless --frustum-only)")
+
+
+def check_visibility_arguments(args: argparse.Namespace) -> None:
+    """ValueError (exit 2) for --frustum-only with --occlusion, which ask for two visibilities."""
+    if getattr(args, "frustum_only", False) and getattr(args, "occlusion", False):
+        raise ValueError("--frustum-only (the paper's visibility) and --occlusion (the depth test) ask for two "
+                         "visibilities; drop --occlusion for the paper's, or --frustum-only for the depth test (the "
+                         "default)")

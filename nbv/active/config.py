@@ -28,8 +28,8 @@ RUN_FILES = ("config.json", "rounds.json", "checkpoint.pt", "gaussians.ply", "ev
 # they fall every 100 iterations, and a selection right after one sees an almost transparent reconstruction with no
 # solid for the probes.
 PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {"resolution": None, "total_iterations": 30000, "iterations_per_view": 100, "train": {},
-              "physics": {}},
+    "paper": {"resolution": None, "total_iterations": 30000, "iterations_per_view": 100, "occlusion": False,
+              "train": {}, "physics": {}},
     "cpu-small": {"resolution": 64, "total_iterations": 1000, "iterations_per_view": 10,
                   "train": {"init_points": 1000, "sh_degree": 1, "max_gaussians": 4000, "densify_from_iter": 0,
                             "opacity_reset_interval": 1000000},
@@ -58,8 +58,8 @@ class ActiveConfig:
         physics: probe settings of the fused planners (its up direction is replaced by ``up``'s).
         up: the scene's up direction for the probes: None (the dataset's up axis), "auto" (the mean up vector of
             the training cameras, as nerfstudio orients) or anything :func:`nbv.physics.scene_frame.parse_up` takes.
-        occlusion: the physics planners' S(T) counts only the Gaussians the coarse depth test finds unhidden
-            (:class:`nbv.scores.DepthBuffer`; not in the paper, whose visibility is frustum culling).
+        occlusion: S(T) and the coverage count only the Gaussians the coarse depth test finds unhidden
+            (:class:`nbv.scores.DepthBuffer`; the default); False: the paper's frustum culling (the ``paper`` preset).
         planner: planner config overrides as (key, value) pairs (``seed`` is set per round).
         backend: renderer backend ("auto", "torch", "gsplat").
         preset: the preset the values came from (recorded only).
@@ -81,7 +81,7 @@ class ActiveConfig:
     backend: str = "auto"
     preset: str = "paper"
     up: str | tuple[float, float, float] | None = None
-    occlusion: bool = False
+    occlusion: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.occlusion, bool):

@@ -63,6 +63,7 @@ from tqdm import tqdm
 from fluidsim.files import remove_stale_temps
 from nbv import scores
 from nbv.active.config import CHECKPOINT_VERSION, RUN_FILES, ActiveConfig
+from nbv.coverage import coverage_line, ranking_agreement, view_parts
 from nbv.io import json_safe, write_atomic, write_json_atomic
 from nbv.physics import simulate_gaussians
 from nbv.physics.scene_frame import describe_auto_up
@@ -129,6 +130,41 @@ def planner_seed(seed: int, round_index: int) -> int:
 
 
 # ---- the loop ----------------------------------------------------------------------------------------
+
+def pick_parts(context: PlanningContext, pick: int, fields: ProbeFields | None) -> dict:
+    """Coverage beside a pick: every candidate's coverage A(T) = sum of w_g over the Gaussians it counts (with the
+    round's visibility), and, when the round ran probes, its physics part S / A with D_g the max over the probes
+    and the agreement of the S and A rankings (:func:`nbv.coverage.ranking_agreement`).
+
+    Returns:
+        {"occlusion", "coverage": {candidate id: A}, "pick_coverage_rank"; with probes also "physics_mean":
+        {id: S / A or None}, "pick_physics_rank" and "agreement"}.
+    """
+    ids = [str(i) for i in context.candidate_ids]
+    g = context.gaussians.detach()
+    buffer = scores.DepthBuffer() if context.occlusion else None
+    ones = torch.ones(g.num, dtype=torch.float64)
+    d = ones if fields is None else torch.as_tensor(fields.per_probe, dtype=torch.float64).amax(0).cpu()
+    scored = scores.projected_view_scores(d, g, list(context.candidates), depth_buffer=buffer)
+    parts = view_parts(scored.scores.numpy(), scored.coverage.numpy())
+    out: dict[str, Any] = {"occlusion": bool(context.occlusion),
+                           "coverage": {i: p["coverage"] for i, p in zip(ids, parts, strict=True)},
+                           "pick_coverage_rank": parts[pick]["coverage_rank"]}
+    if fields is not None:
+        out["physics_mean"] = {i: p["physics_mean"] for i, p in zip(ids, parts, strict=True)}
+        out["pick_physics_rank"] = parts[pick]["physics_rank"]
+        out["agreement"] = ranking_agreement(scored.scores.numpy(), scored.coverage.numpy())
+    return out
+
+
+def parts_summary(parts: dict) -> str:
+    """One log phrase on a pick's parts: its coverage rank, and with probes its physics rank and the coverage line."""
+    n = len(parts["coverage"])
+    text = f"coverage rank {parts['pick_coverage_rank']} of {n}"
+    if "agreement" in parts:
+        text += f", physics-part rank {parts['pick_physics_rank']}; {coverage_line(parts['agreement'])}"
+    return text
+
 @dataclass
 class RunState:
     """Progress of a run (what checkpoint.pt holds besides the trainer)."""
@@ -439,15 +475,18 @@ class ActiveRun:
                 "scores": {name: {str(remaining[p]): float(v) for p, v in enumerate(vals)}
                            for name, vals in sel.scores.items()},
                 "pick": pick, "pick_name": self.views[pick].name, "planner_seconds": dict(sel.seconds),
-                "selection_seconds": time.perf_counter() - t_plan, "round_seconds": time.perf_counter() - t0})
+                "selection_seconds": time.perf_counter() - t_plan})
+            record["parts"] = pick_parts(context, sel.pick, fields.get("fields"))
+            record["round_seconds"] = time.perf_counter() - t0
             state.selected.append(pick)
             state.rounds.append(record)
             # rounds.json first: a crash between the two files leaves a checkpoint that is one round behind, and
             # _load trims rounds.json to the checkpoint.
             self._write_rounds(state)
             self._save_checkpoint(state, trainer if c.mode == "continue" else None)
-            log.info("round %d/%d: picked %s (%d) from %d candidates in %.1f s", r + 1, len(c.rounds()),
-                     self.views[pick].name, pick, len(remaining), record["round_seconds"])
+            log.info("round %d/%d: picked %s (%d) from %d candidates in %.1f s; %s", r + 1, len(c.rounds()),
+                     self.views[pick].name, pick, len(remaining), record["round_seconds"],
+                     parts_summary(record["parts"]))
             if self.on_round is not None:
                 self.on_round(record)
         return self._finish(state, trainer, t_start)

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-QUICK = {"particle_radius": 0.05, "steps": 300}
+QUICK = {"particle_radius": 0.035, "steps": 750}
 
 # Estimator radii h_r and h_k of paper Eq. 1 in particle radii: 4 r = 0.1 m at the paper's r = 0.025 m. A fixed
 # 0.1 m would leave no neighbour inside h_r at r >= 0.05 m (spacing >= h_r), so D_i would read 0.

@@ -245,13 +245,13 @@ def test_score_views_renders_only_the_top_views(tmp_path):
     g, cams, metric = _scene(200, seed=5)
     result = SimpleNamespace(divergence=metric.numpy())
     idx = [10 + k for k in range(len(cams))]
-    rows = score_views(g, cams, idx, result, "max", tmp_path / "top", progress=False, png_top=2)
+    rows = score_views(g, cams, idx, result, "max", tmp_path / "top", progress=False, png_top=2, occlusion=False)
     expected = scores.projected_view_scores(metric, g, cams)
     assert [r["score"] for r in rows] == sorted(expected.scores.tolist(), reverse=True)
     assert [r["visible"] for r in rows] == [int(expected.counted[k]) for k in scores.rank(expected.scores)]
     names = sorted(p.name for p in (tmp_path / "top").glob("*.png"))
     assert names == sorted(f"rank{r['rank']:03d}_{r['index']:03d}_{r['name']}.png" for r in rows[:2])
-    score_views(g, cams, idx, result, "max", tmp_path / "all", progress=False, png_top=None)
+    score_views(g, cams, idx, result, "max", tmp_path / "all", progress=False, png_top=None, occlusion=False)
     assert len(list((tmp_path / "all").glob("*.png"))) == len(cams)
     occluded = score_views(g, cams, idx, result, "max", None, occlusion=True)
     assert all(o["visible"] <= r["visible"] for o in occluded for r in rows if r["index"] == o["index"])

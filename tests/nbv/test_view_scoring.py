@@ -81,12 +81,16 @@ def test_score_rows_are_the_projected_scores_best_first():
     g, cams = _scene()
     metric = np.random.default_rng(3).uniform(0, 5, g.num)
     rows = score_views(g, cams, [7, 8, 9, 10], _result(np.stack([metric, metric / 2])), "-x", None,
-                       visible_centres=[1, 2, 3, 4], progress=False)
-    expected = scores.projected_view_scores(torch.from_numpy(metric), g, cams)
+                       visible_centres=[1, 2, 3, 4], progress=False)  # the depth test is the default
+    expected = scores.projected_view_scores(torch.from_numpy(metric), g, cams, depth_buffer=scores.DepthBuffer())
     order = scores.rank(expected.scores).tolist()
     assert [r["index"] for r in rows] == [7 + k for k in order] and [r["rank"] for r in rows] == [1, 2, 3, 4]
     assert [r["score"] for r in rows] == pytest.approx(expected.scores[order].tolist(), rel=1e-12)
     assert [r["visible_centres"] for r in rows] == [1 + k for k in order]
+    frustum = score_views(g, cams, [7, 8, 9, 10], _result(np.stack([metric, metric / 2])), "-x", None,
+                          occlusion=False, progress=False)
+    paper = scores.projected_view_scores(torch.from_numpy(metric), g, cams)
+    assert sorted(r["score"] for r in frustum) == pytest.approx(sorted(paper.scores.tolist()), rel=1e-12)
 
 
 def test_projection_scores_agree_with_full_renders():
@@ -140,12 +144,15 @@ def test_to_bgr_and_label():
     assert (canvas[50:, :] == 100).all()  # only the corner is written
 
 
-def test_format_table_lists_the_best_rows():
-    rows = [{"rank": 1, "index": 7, "name": "a_very_long_camera_name_cut_at_24", "score": 0.000123456, "visible": 12},
+def test_format_table_lists_the_best_rows_with_their_parts():
+    rows = [{"rank": 1, "index": 7, "name": "a_very_long_camera_name_cut_at_24", "score": 0.000123456, "visible": 12,
+             "coverage": 0.5, "coverage_rank": 2, "physics_mean": 0.000246912, "physics_rank": 1},
             {"rank": 2, "index": 3, "name": "b", "score": 5.0, "visible": 0}]
     lines = format_table(rows).splitlines()
-    assert lines[0].split() == ["rank", "index", "name", "score", "visible"] and len(lines) == 3
-    assert lines[1].split() == ["1", "7", "a_very_long_camera_name_", "0.000123456", "12"]
+    assert lines[0].split() == ["rank", "index", "name", "S", "A", "A#", "S/A", "S/A#", "visible"]
+    assert len(lines) == 3
+    assert lines[1].split() == ["1", "7", "a_very_long_camera_name_", "0.00012", "0.5", "2", "0.00025", "1", "12"]
+    assert lines[2].split() == ["2", "3", "b", "5", "-", "-", "-", "-", "0"]  # rows without parts
     assert format_table(rows, top_k=1).count("\n") == 1
     rows[0]["critical_score"] = 2.5
     assert format_table(rows[:1], value="critical_score").splitlines()[1].split()[3] == "2.5"

@@ -588,3 +588,17 @@ def test_a_result_with_nan_d_g_is_served_with_a_warning(scene, viewer_of, tmp_pa
         f["gaussians/D"][...] = d
     viewer_of(bad, gaussians=scene.ply)
     assert "7 of 300 Gaussians have a non-finite D_g" in caplog.text
+
+
+def test_view_label_shows_the_score_and_its_parts(tmp_path):
+    from viz.cameras import CandidateView, _uncertainty_png
+    from viz.viewer import FluidViewer
+
+    eye = np.eye(3)
+    v = CandidateView(3, "c3", np.zeros(3), eye, np.array([1.0, 0, 0, 0]), 0.8, 1.3, score=364.8, rank=1,
+                      coverage=74.97, physics_mean=4.866)
+    assert FluidViewer._view_label(v) == "#1 c3 (S = 360, A = 75, S/A = 4.9)"
+    png = tmp_path / "u.png"
+    assert _uncertainty_png({"uncertainty_image": {"png": str(png)}}) is None  # named but missing
+    png.write_bytes(b"x")
+    assert _uncertainty_png({"uncertainty_image": {"png": str(png)}}) == png and _uncertainty_png(None) is None
