@@ -37,6 +37,7 @@ try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets o
         demo,
         evaluate,
         experiment,
+        export,
         inspect_gaussians,
         make_ahmed,
         make_assets,
@@ -81,6 +82,7 @@ COMMANDS = {
     "active": (active, "active reconstruction: biased initial views, one planner pick per round up to the budget"),
     "eval": (evaluate, "evaluate an active run: test PSNR/SSIM/LPIPS, D-bar, Chamfer, critical-view PSNR and D-bar"),
     "experiment": (experiment, "methods x scenes x seeds of active + eval; paper-shaped tables and plots"),
+    "export": (export, "particle frames as VTK (.vtu per frame, .pvd series) for ParaView; the solid as mesh + voxels"),
     "view": (view, "see RESULT.h5 in a browser: splat coloured by D_g, solid, probe fluid over time, ranked cameras"),
 }
 

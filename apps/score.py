@@ -20,6 +20,7 @@ from pathlib import Path
 from fluidsim.directions import DIRECTIONS
 from fluidsim.files import write_json_atomic
 
+from .export import add_solid_export_arguments, solid_export_outputs, write_solid_export
 from .options import (
     add_camera_arguments,
     add_physics_arguments,
@@ -58,6 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="render PNGs of the best N views only (scores need no render; default: %(default)s)")
     p.add_argument("--png-all", action="store_true", help="render a PNG of every candidate view")
     add_record_arguments(p)
+    add_solid_export_arguments(p)
     add_physics_arguments(p, cameras=True)
 
 
@@ -103,7 +105,8 @@ def run_command(args: argparse.Namespace) -> int:
     if args.png_top < 1:
         raise ValueError(f"--png-top must be >= 1 view, got {args.png_top}; use --no-png for no PNGs")
     png_dir = None if args.no_png else (args.png_dir or output.with_name(output.stem + "_views"))
-    check_not_input({"-o": output, "--save-result": args.save_result, "--png-dir": png_dir},
+    check_not_input({"-o": output, "--save-result": args.save_result, "--png-dir": png_dir,
+                     **solid_export_outputs(args.export_solid)},
                     {"GAUSSIANS": args.gaussians, "--cameras": args.cameras, "--result": args.result})
     if png_dir is not None:
         check_output_file(png_dir / "view.png", (".png",))
@@ -132,6 +135,7 @@ def run_command(args: argparse.Namespace) -> int:
                         "weighted": not args.unweighted, "occlusion": args.occlusion, "dbar_m4_s": result.dbar,
                         "dbar_empty_m4_s": result.dbar_empty, "views": rows, "config": result.config.to_dict()})
     print(f"scores: {output}" + (f"\nviews: {png_dir}" if png_dir is not None else ""))
+    write_solid_export(args.export_solid, result, args.export_frame)
     h5 = args.result or args.save_result
     if h5 is not None:
         print(f"see them in a browser: fluidgs view {h5} --gaussians {args.gaussians} --scores {output}")

@@ -14,6 +14,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from .export import add_solid_export_arguments, solid_export_outputs, write_solid_export
 from .options import (
     add_physics_arguments,
     add_record_arguments,
@@ -36,6 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also draw this probe (e.g. -x) as an MP4 next to the output (re-runs that probe)")
     p.add_argument("--video-every", type=int, default=10, help="steps between video frames")
     add_record_arguments(p)
+    add_solid_export_arguments(p)
     add_physics_arguments(p)
 
 
@@ -45,7 +47,7 @@ def default_ply_path(output: Path) -> Path:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, check_writable
-    from nbv.outputs import probe_video, result_summary, save_colored_gaussians
+    from nbv.outputs import divergence_columns, probe_video, result_summary, save_colored_gaussians
     from nbv.physics import ProbeDiverged, save_result, simulate_gaussians
 
     from .runtime import init_taichi
@@ -54,7 +56,8 @@ def run_command(args: argparse.Namespace) -> int:
     output = check_output_file(args.output, (".h5", ".hdf5"))
     ply = args.ply or default_ply_path(output)
     video = output.with_name(f"{output.stem}_probe{args.video}.mp4") if args.video is not None else None
-    check_not_input({"-o": output, "--ply": ply, "--video": video}, {"GAUSSIANS": args.gaussians})
+    check_not_input({"-o": output, "--ply": ply, "--video": video, **solid_export_outputs(args.export_solid)},
+                    {"GAUSSIANS": args.gaussians})
     check_output_file(ply, (".ply",))
     if args.video is not None:
         from nbv.physics import parse_directions
@@ -72,7 +75,7 @@ def run_command(args: argparse.Namespace) -> int:
     except ProbeDiverged as exc:
         return save_diverged(exc, output)
     save_result(output, result)
-    save_colored_gaussians(gaussians, result.divergence, ply)
+    save_colored_gaussians(gaussians, result.divergence, ply, divergence_columns(result))
     s = result_summary(result)
     print(f"{result.num_gaussians} Gaussians, {len(result.solid)} solid particles, scale {result.transform.scale:.4g} "
           "m/unit")
@@ -88,7 +91,9 @@ def run_command(args: argparse.Namespace) -> int:
     t = result.timings
     print(f"time: simulation {t['simulation']:.1f} s, aggregation {t['aggregation']:.2f} s, "
           f"empty reference {t['empty_reference']:.1f} s, total {t['total']:.1f} s")
-    print(f"result: {output}\ncoloured Gaussians: {ply}")
+    print(f"result: {output}\ncoloured Gaussians: {ply} (D_g as the vertex properties "
+          f"{', '.join(divergence_columns(result))})")
+    write_solid_export(args.export_solid, result, args.export_frame)
     if video is not None:
         probe_video(result, args.video, video, args.video_every)
         print(f"video: {video}")

@@ -1,5 +1,6 @@
 """What a probe run (:class:`nbv.physics.PhysicsResult`) is written as beside RESULT.h5: a JSON-able summary, the
-Gaussians coloured by D_g (a 3DGS .ply that opens in common viewers), and an MP4 of one probe.
+Gaussians coloured by D_g (a 3DGS .ply that opens in common viewers, with D_g as extra vertex properties), and an
+MP4 of one probe.
 
 The summary's D-bar is in m^4/s and D_g in 1/s (paper Eq. 2-3); the video re-runs one probe of the result
 against its solid (the run keeps no particle frames) and draws it coloured by |div v| (paper Eq. 1), in H.264.
@@ -18,7 +19,7 @@ from nbv.heatmap import colored_gaussians
 from recon.ply import save_gaussians
 from viz.frames import FrameStyle, render_frames
 
-__all__ = ["probe_video", "result_summary", "save_colored_gaussians"]
+__all__ = ["divergence_columns", "probe_video", "result_summary", "save_colored_gaussians"]
 VIDEO_STYLE = FrameStyle(view="iso", width=640, height=480)
 
 
@@ -43,9 +44,26 @@ def result_summary(result) -> dict:
             "timings_s": result.timings, "config": result.config.to_dict()}
 
 
-def save_colored_gaussians(gaussians, divergence: np.ndarray, path: str | Path) -> Path:
-    """The Gaussians coloured by D_g [N] (TURBO map, 99th percentile at the top) as a 3DGS .ply, atomically."""
-    return save_gaussians(colored_gaussians(gaussians, divergence), path)
+def column_name(direction: str) -> str:
+    """The .ply property name of one probe's D_g: ``D_neg_x`` for -x, ``D_pos_z`` for +z (PLY readers split
+    names on spaces only, but many tools take ``-`` and ``+`` for operators)."""
+    return f"D_{'neg' if direction[0] == '-' else 'pos'}_{direction[1:]}"
+
+
+def divergence_columns(result) -> dict[str, np.ndarray]:
+    """Per-Gaussian D_g of a PhysicsResult as .ply vertex properties (1/s): ``D_max`` (the max over the probes, the
+    D_g of the paper), ``D_mean`` and one ``D_neg_x`` ... ``D_pos_z`` per probe, in run order."""
+    columns = {"D_max": result.divergence, "D_mean": result.divergence_mean}
+    for i, d in enumerate(result.directions):
+        columns[column_name(d)] = result.per_probe[i]
+    return columns
+
+
+def save_colored_gaussians(gaussians, divergence: np.ndarray, path: str | Path,
+                           columns: dict[str, np.ndarray] | None = None) -> Path:
+    """The Gaussians coloured by D_g [N] (TURBO map, 99th percentile at the top) as a 3DGS .ply, atomically, with
+    ``columns`` (:func:`divergence_columns`) as extra float vertex properties after the standard ones."""
+    return save_gaussians(colored_gaussians(gaussians, divergence), path, extra=columns)
 
 
 def probe_video(result, direction: str, out: str | Path, every: int = 10, progress: bool = True) -> Path:
