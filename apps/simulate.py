@@ -24,6 +24,7 @@ from .options import (
     record_config_from_args,
     save_diverged,
 )
+from .render_frames import add_style_arguments, style_values
 
 log = logging.getLogger("fluidgs")
 
@@ -34,10 +35,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ply", type=Path, default=None,
                    help="Gaussians coloured by D_g (default: the output path with suffix _divergence.ply)")
     p.add_argument("--video", default=None, metavar="PROBE",
-                   help="also draw this probe (e.g. -x) as an MP4 next to the output (re-runs that probe)")
-    p.add_argument("--video-every", type=int, default=10, help="steps between video frames")
+                   help="also draw this probe (e.g. -x) as an MP4 next to the output (re-runs that probe, every step; "
+                        "the drawing options below apply)")
+    p.add_argument("--video-every", type=int, default=5, help="steps between video frames (default: 5)")
     add_record_arguments(p)
     add_solid_export_arguments(p)
+    add_style_arguments(p, " by --video (as render-frames; here the defaults are --view iso, --width 640, "
+                           "--height 480, and --fps makes the clip last about 8 s)")
     add_physics_arguments(p)
 
 
@@ -68,6 +72,10 @@ def run_command(args: argparse.Namespace) -> int:
             raise ValueError(f"--video-every must be >= 1 step, got {args.video_every}")
         check_writable(video)
     record = record_config_from_args(args, config)
+    style_options = style_values(args)
+    if style_options and args.video is None:
+        raise ValueError(f"the drawing options ({', '.join(sorted(style_options))}) apply to --video; add --video -x "
+                         "(or another probe), or drop them")
     gaussians = load_gaussians_checked(args.gaussians)
     init_taichi(args.device, config.precision, args.threads)
     try:
@@ -95,7 +103,12 @@ def run_command(args: argparse.Namespace) -> int:
           f"{', '.join(divergence_columns(result))})")
     write_solid_export(args.export_solid, result, args.export_frame)
     if video is not None:
-        probe_video(result, args.video, video, args.video_every)
+        from dataclasses import replace
+
+        from nbv.outputs import VIDEO_STYLE
+
+        style = replace(VIDEO_STYLE, **style_options)
+        probe_video(result, args.video, video, args.video_every, style=style, fps=style_options.get("fps"))
         print(f"video: {video}")
     print(f"see it in a browser: fluidgs view {output} --gaussians {args.gaussians}")
     return 0

@@ -89,6 +89,8 @@ def test_bad_exports_exit_2_before_any_work(run, tmp_path, caplog):
     assert cli.main(["simulate", str(ply), "-o", str(tmp_path / "r.h5"), "--export-solid",
                      str(tmp_path / "solid.fbx"), *FAST]) == 2
     assert "--export-solid" in caplog.text and ".glb" in caplog.text
+    assert cli.main(["simulate", str(ply), "-o", str(tmp_path / "r.h5"), "--walls", "faint", *FAST]) == 2
+    assert "apply to --video" in caplog.text
     assert cli.main(["export", str(root / "solid.voxels.h5"), "--vtk", str(tmp_path / "v")]) == 2
     assert "--vtk" in caplog.text and "neither /frames" in caplog.text
     with h5py.File(tmp_path / "plain.h5", "w") as f:  # a RESULT.h5 without recorded probes

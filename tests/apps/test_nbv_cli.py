@@ -13,6 +13,7 @@ from nbv.physics import load_result
 from recon.camera import Camera
 from recon.gaussians import GaussianSet
 from recon.ply import load_gaussians, save_gaussians
+from viz.video import probe_video
 
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 
@@ -41,7 +42,8 @@ def scene(tmp_path_factory):
                            math.radians(50), name=f"cam{k}") for k, a in enumerate(np.arange(6) * math.pi / 3)]
     cameras = _write_cameras(root / "transforms.json", cams)
     h5 = root / "result.h5"
-    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", "--video=-x", *FAST]) == 0
+    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", "--video=-x", "--walls", "faint",
+                     "--width", "320", "--height", "240", *FAST]) == 0
     return dict(root=root, ply=ply, cameras=cameras, h5=h5)
 
 
@@ -55,7 +57,8 @@ def test_simulate_outputs(scene):
     # colours follow D_g: the Gaussian with the largest D_g is not coloured like one with D_g = 0
     hi, lo = int(np.argmax(res.divergence)), int(np.argmin(res.divergence))
     assert (colored.sh[hi, 0] - colored.sh[lo, 0]).abs().max() > 0.5
-    assert (scene["root"] / "result_probe-x.mp4").stat().st_size > 0
+    info = probe_video(scene["root"] / "result_probe-x.mp4")  # --video takes render-frames' drawing options
+    assert (info.width, info.height) == (320, 240) and info.frames >= 2
 
 
 def test_score_ranks_views(scene, tmp_path):
