@@ -3,6 +3,7 @@
 import csv
 import json
 import math
+import time
 
 import numpy as np
 import pytest
@@ -89,17 +90,31 @@ def test_score_simulates_without_result(scene, tmp_path):
     assert load_result(tmp_path / "r.h5").directions == ("-x",)
 
 
-def test_critical_subset(scene, tmp_path):
+def test_critical_subset(scene, tmp_path, caplog):
     out = tmp_path / "critical.json"
     assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(out),
-                     "--subset", "4", *FAST]) == 0
+                     "--subset", "4", "--save-result", str(tmp_path / "c.h5"), *FAST]) == 0
     data = json.loads(out.read_text())
     assert data["directions"] == ["-x"] and data["distinct_particles"]["gaussians_reached"] > 0
     assert data["critical_subset"] == [v["index"] for v in data["views"][:4]]
     assert data["views"][0]["critical_score"] >= data["views"][-1]["critical_score"]
+    # 4 of 6 candidates is half or more: a warning, logged and stored
+    assert "4 of the 6 candidate views" in caplog.text and "4 of the 6" in data["subset_warning"]
+    # --result reuses the saved run: the same C(T), and 2 of 6 warns of nothing
+    again = tmp_path / "again.json"
+    caplog.clear()
+    assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(again),
+                     "--subset", "2", "--result", str(tmp_path / "c.h5")]) == 0
+    second = json.loads(again.read_text())
+    assert [v["critical_score"] for v in second["views"]] == [v["critical_score"] for v in data["views"]]
+    assert second["subset_warning"] is None and "candidate views" not in caplog.text
+    # a RESULT.h5 without distinct counts (simulate's) is exit 2, naming the fix
+    assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(again),
+                     "--result", str(scene["h5"])]) == 2
+    assert "--save-result" in caplog.text
 
 
-def test_sweep_csv_and_plot(scene, tmp_path):
+def test_sweep_csv_and_plot(scene, tmp_path, capsys, caplog):
     out = tmp_path / "sweep.csv"
     assert cli.main(["sweep", str(scene["ply"]), "--velocities", "3,6", "--directions=-x", "-o", str(out),
                      "--compare", str(scene["ply"]), *[a for a in FAST if a != "--no-empty-reference"]]) == 0
@@ -107,6 +122,15 @@ def test_sweep_csv_and_plot(scene, tmp_path):
     assert [r["steps"] for r in rows] == ["40", "80"]
     assert float(rows[0]["gap_m4_s"]) == pytest.approx(0.0, abs=1e-12)  # OTHER = the same set
     assert out.with_suffix(".png").stat().st_size > 0
+    # the empty scene's column, and L = the object's extent along the flow, stored and printed
+    assert all(float(r["dbar_empty_m4_s"]) >= 0 for r in rows) and rows[0]["re_length_from"] == "object"
+    text = capsys.readouterr().out
+    # the upfront estimate: -x and its empty scene and OTHER: 3 x 40 probe-steps at 3 m/s, 3 x 80 at 6 m/s
+    assert "360 probe-steps" in text and text.index("estimate:") < text.index("took ", text.index("estimate:"))
+    assert f"L = {float(rows[0]['re_length_m']):.4g} m (the object's extent along the flow)" in text
+    t0 = time.perf_counter()
+    assert cli.main(["sweep", str(scene["ply"]), "--re-length", "0", "-o", str(tmp_path / "x.csv"), *FAST]) == 2
+    assert "--re-length" in caplog.text and time.perf_counter() - t0 < 20
 
 
 def test_bench_score_prints_share(scene, capsys):
