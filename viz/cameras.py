@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +26,8 @@ class CandidateView:
         position: [3] centre, sim metres. rotation: [3, 3] camera-to-world (OpenCV axes). wxyz: [4] the same.
         fov_y: vertical field of view, rad. aspect: width / height.
         score: S(T) from scores.json, or None. rank: 1 = best, or None.
+        extra: further numbers scores.json gives the view (``coverage``, ``physics_mean``), by name.
+        png: the view's picture written by `fluidgs score` (render | D_g heat-map), or None.
     """
 
     index: int
@@ -37,6 +39,8 @@ class CandidateView:
     aspect: float
     score: float | None = None
     rank: int | None = None
+    extra: dict[str, float] = field(default_factory=dict)
+    png: Path | None = None
 
     @property
     def forward(self) -> np.ndarray:
@@ -98,6 +102,11 @@ def read_scores(path: str | Path) -> dict:
     return data
 
 
+# the per-view numbers of scores.json shown beside S(T) when present: the share of the object the view covers
+# and S per unit of that area (written by `fluidgs score` when it measures coverage)
+EXTRA_COLUMNS = ("coverage", "physics_mean")
+
+
 def cameras_path_of(scores: dict, scores_path: Path) -> Path | None:
     """The cameras file a scores.json names (as written, else beside the JSON), or None when neither exists."""
     name = scores.get("cameras")
@@ -146,5 +155,17 @@ def candidate_views(cameras: str | Path, scene_to_sim: np.ndarray, scores: dict 
         out.append(CandidateView(index=i, name=cam.name, position=s * (rot @ c2w[:3, 3]) + t, rotation=r,
                                  wxyz=rotation_to_wxyz(r), fov_y=float(cam.fov_y), aspect=cam.width / cam.height,
                                  score=None if v is None else float(v["score"]),
-                                 rank=None if v is None else int(v["rank"])))
+                                 rank=None if v is None else int(v["rank"]),
+                                 extra={} if v is None else {k: float(v[k]) for k in EXTRA_COLUMNS
+                                                             if isinstance(v.get(k), (int, float))}))
     return out
+
+
+def view_png(scores_path: str | Path, view: CandidateView) -> Path | None:
+    """The picture `fluidgs score` wrote of ``view`` in its default folder ``<scores stem>_views`` (named
+    ``rank<r>_<index>_<name>.png``), or None."""
+    if view.rank is None:
+        return None
+    p = Path(scores_path)
+    png = p.with_name(p.stem + "_views") / f"rank{view.rank:03d}_{view.index:03d}_{view.name}.png"
+    return png if png.is_file() else None

@@ -20,6 +20,7 @@ import sys
 import tempfile
 import time
 import urllib.request
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -31,12 +32,15 @@ import torch
 from apps import cli
 from nbv.physics.aggregate import within_reach_reference
 from recon.camera import Camera
+from recon.datasets import load_cameras
 from recon.gaussians import GaussianSet, sh0_to_rgb
 from recon.ply import load_gaussians, save_gaussians
 from viz.cameras import candidate_views, read_scores, rotation_to_wxyz
 from viz.colors import color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data
 from viz.splats import splat_looks
+from viz.thumbnails import project_to_view
+from viz.viewer import FluidViewer
 
 from helpers.paths import REPO as ROOT
 
@@ -338,6 +342,51 @@ def test_viewer_colours_frames_and_cameras(scene, viewer_of):
     np.testing.assert_allclose(look / np.linalg.norm(look), best.forward, atol=1e-9)
 
 
+def test_side_panel_lists_the_top_views_with_their_numbers_and_pictures(scene, viewer_of, tmp_path):
+    # scores.json with the per-view coverage and S/A that `score` may add
+    data = json.loads(scene.scores.read_text())
+    for k, row in enumerate(data["views"]):
+        row["coverage"], row["physics_mean"] = 0.5 + 0.05 * k, 1e-3 * (k + 1)
+    scores = tmp_path / "scores.json"
+    scores.write_text(json.dumps({**data, "cameras": str(scene.cameras)}))
+    v = viewer_of(gaussians=scene.ply, scores=scores, probe="-x")
+    ranked = sorted(data["views"], key=lambda r: r["rank"])
+    assert [b.label for b in v._view_buttons] == [f"#{r['rank']} {r['name']}" for r in ranked]
+    for image, row in zip(v._view_images, ranked, strict=True):
+        assert image.label == f"S = {row['score']:.4g}, coverage {row['coverage']:.3g}, S/A {row['physics_mean']:.3g}"
+    # no PNGs were written (--no-png): each thumbnail is the centres seen through that camera, not blank
+    for image in v._view_images:
+        assert image.image.shape == (167, 200, 3) and (np.abs(image.image.astype(int) - 238).max(-1) > 30).sum() > 50
+    # a click on an entry moves the view there
+    client = _FakeClient()
+    best = v.ranked_views()[0]
+    v._clicked(SimpleNamespace(client=client), best)
+    np.testing.assert_allclose(client.camera.position, best.position)
+    # the replay opens at mid-run; each probe's reach and the empty-scene reference are listed
+    assert v._frame == load_trajectory(v.data, "-x").num_frames // 2
+    table = v.probe_markdown()
+    with h5py.File(scene.h5) as f:
+        for d in ("-x", "+z"):
+            assert f"| {d} | {int((f[f'probes/{d}/counts'][()] > 0).sum()):,} (" in table
+    assert "the empty scene was not run" in table  # FAST runs no empty scene
+    # without the coverage columns the caption is S(T) alone
+    assert FluidViewer.view_caption(replace(best, extra={})) == f"S = {best.score:.4g}"
+
+
+def test_thumbnail_projection_is_the_cameras(scene):
+    data = load_view_data(scene.h5)
+    views = candidate_views(scene.cameras, data.scene_to_sim, None, "r.h5")
+    cams = load_cameras(scene.cameras)
+    scene_pts = np.random.default_rng(0).normal(scale=0.4, size=(200, 3))
+    sim_pts = scene_pts @ data.scene_to_sim[:3, :3].T + data.scene_to_sim[:3, 3]
+    for view, cam in zip(views, cams, strict=True):
+        uv, depth = project_to_view(view, sim_pts, cam.height)
+        ref, z = cam.project(torch.tensor(scene_pts))
+        front = z.numpy() > 0
+        assert ((depth > 0) == front).all()
+        np.testing.assert_array_equal(uv[front], np.floor(ref.numpy()[front]).astype(np.int64))
+
+
 def test_gaussians_outside_the_crop_are_hidden_until_asked_for(scene, viewer_of, tmp_path):
     cropped = tmp_path / "cropped.h5"
     shutil.copy(scene.h5, cropped)
@@ -547,3 +596,28 @@ def test_browser_shows_the_splat_and_its_colour_bar(scene, viewer_of, tmp_path):
             cv2.imwrite(str(out), last[..., ::-1])
         pytest.fail(f"the splat or its colour bar is not drawn; the last screenshot is {out}")
     assert len(bars) == 1  # the D_g bar; the fluid's is hidden without a trajectory
+
+
+PANEL_READY = ("(() => { const t = document.body.innerText; const thumbs = [...document.images].filter(i => "
+               "i.naturalWidth === 200 && i.complete); return t.includes('Top views') && t.includes('#1 ') && "
+               "t.includes('S = ') && thumbs.length >= 3; })()")
+
+
+def test_browser_shows_the_list_of_views(scene, viewer_of, tmp_path):
+    """The side panel in a real browser: the 'Top views' folder with the ranked entries, their S(T) and their
+    thumbnails loaded (the screenshot is kept in the test's folder)."""
+    if _browser() is None:
+        pytest.skip("no Chromium on this machine (install Debian's: apt-get install chromium; .ci/run does as root)")
+    pytest.importorskip("websockets.sync.client")
+    import cv2
+
+    v = viewer_of(gaussians=scene.ply, scores=scene.scores, probe="-x")
+    shots = browser_screenshots(v.url, size=(1280, 1400), timeout=90.0, dismiss=True, ready=PANEL_READY)
+    try:
+        img, _ = next(shots)  # the first screenshot comes only once PANEL_READY holds
+    except BrowserUnavailable as exc:
+        pytest.skip(f"no working browser: {exc}")
+    finally:
+        shots.close()
+    cv2.imwrite(str(tmp_path / "panel.png"), img[..., ::-1])
+    assert img.shape[:2] == (1400, 1280)
