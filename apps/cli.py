@@ -15,7 +15,8 @@ code  meaning
 4     an output cannot be written: full disk (ENOSPC) or quota, read-only file system (EROFS), no permission,
       a name too long (ENAMETOOLONG), a parent that is a file, a folder where a file is wanted
 130   interrupted by Ctrl-C (SIGINT); `sim` first saves its frames so far (status "interrupted")
-143   `sim` stopped by SIGTERM (kill, timeout, a batch scheduler) after saving its frames so far
+143   `sim` stopped by SIGTERM (kill, timeout, a batch scheduler) after saving its frames so far; any command whose
+      Taichi start-up did not end within FLUIDGS_TAICHI_START_TIMEOUT (120 s), after one line saying so
 ====  ==========================================================================================================
 """
 
