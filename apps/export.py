@@ -133,5 +133,9 @@ def run_command(args: argparse.Namespace) -> int:
     if solid is not None:
         from nbv.export.solid import export_solid
 
-        print_solid_export(export_solid(args.solid, *solid, frame=args.export_frame))
+        try:
+            info = export_solid(args.solid, *solid, frame=args.export_frame)
+        except ValueError as exc:
+            raise ValueError(f"--solid {args.solid}: {exc}") from None
+        print_solid_export(info)
     return 0

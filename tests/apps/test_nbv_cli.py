@@ -5,6 +5,7 @@ import json
 import math
 import time
 
+import h5py
 import numpy as np
 import pytest
 import torch
@@ -76,7 +77,10 @@ def test_score_ranks_views(scene, tmp_path):
     # a subset keeps the camera indices of the file, and the same scores
     out2 = tmp_path / "subset.json"
     assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "--result", str(scene["h5"]),
-                     "-o", str(out2), "--candidates", "1,4", "--no-png"]) == 0
+                     "-o", str(out2), "--candidates", "1,4", "--no-png", "--export-solid",
+                     str(tmp_path / "solid.h5")]) == 0
+    with h5py.File(tmp_path / "solid.h5") as f:  # --export-solid writes the solid stored in RESULT.h5
+        assert int(f["occupancy"][()].sum()) == len(load_result(scene["h5"]).solid)
     sub = {v["index"]: v["score"] for v in json.loads(out2.read_text())["views"]}
     full = {v["index"]: v["score"] for v in views}
     assert set(sub) == {1, 4} and all(sub[k] == pytest.approx(full[k]) for k in sub)

@@ -35,11 +35,11 @@ from recon.camera import Camera
 from recon.datasets import load_cameras
 from recon.gaussians import GaussianSet, sh0_to_rgb
 from recon.ply import load_gaussians, save_gaussians
-from viz.cameras import candidate_views, read_scores, rotation_to_wxyz
+from viz.cameras import candidate_views, read_scores, rotation_to_wxyz, view_png
 from viz.colors import color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data
 from viz.splats import splat_looks
-from viz.thumbnails import project_to_view
+from viz.thumbnails import project_to_view, view_thumbnail
 from viz.viewer import FluidViewer
 
 from helpers.paths import REPO as ROOT
@@ -371,6 +371,24 @@ def test_side_panel_lists_the_top_views_with_their_numbers_and_pictures(scene, v
     assert "the empty scene was not run" in table  # FAST runs no empty scene
     # without the coverage columns the caption is S(T) alone
     assert FluidViewer.view_caption(replace(best, extra={})) == f"S = {best.score:.4g}"
+
+
+def test_thumbnail_is_the_score_png_when_there_is_one(scene, tmp_path):
+    import cv2
+
+    data = load_view_data(scene.h5)
+    view = replace(candidate_views(scene.cameras, data.scene_to_sim, None, "r.h5")[2], rank=3)
+    scores = tmp_path / "scores.json"
+    assert view_png(scores, view) is None
+    folder = tmp_path / "scores_views"
+    folder.mkdir()
+    picture = np.zeros((100, 300, 3), np.uint8)
+    picture[:] = (0, 0, 255)  # BGR red
+    cv2.imwrite(str(folder / f"rank003_{view.index:03d}_{view.name}.png"), picture)
+    found = view_png(scores, view)
+    assert found == folder / f"rank003_{view.index:03d}_{view.name}.png"
+    thumb = view_thumbnail(replace(view, png=found), data.means, np.zeros((data.num_gaussians, 3)))
+    assert thumb.shape == (67, 200, 3) and (thumb[..., 0] > 250).all() and (thumb[..., 2] < 5).all()  # RGB red
 
 
 def test_thumbnail_projection_is_the_cameras(scene):
