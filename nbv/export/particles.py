@@ -109,7 +109,7 @@ def split_boundary(boundary: np.ndarray, scene: dict) -> tuple[np.ndarray, np.nd
     return b[inside], b[~inside]
 
 
-def _out_frames(f: h5py.File, path: Path, missing: set[str]) -> Iterator[ParticleFrame]:
+def _out_frames(f: h5py.File, missing: set[str]) -> Iterator[ParticleFrame]:
     group = f["frames"]
     for key in sorted(group, key=int):
         g = group[key]
@@ -215,7 +215,7 @@ def export_vtk(source: str | Path, folder: str | Path, probes: tuple[str, ...] |
     with h5py.File(source, "r") as f:
         if kind == "out":
             solid, walls = split_boundary(f["boundary/x"][()] if "boundary/x" in f else np.zeros((0, 3)), _scene(f))
-            series = [Series("fluid", len(f["frames"]), _out_frames(f, source, missing))]
+            series = [Series("fluid", len(f["frames"]), _out_frames(f, missing))]
         else:
             cfg = json.loads(f.attrs["config"]) if "config" in f.attrs else {}
             dt = float(cfg.get("dt", 0.0))
