@@ -50,7 +50,8 @@ def plot_sweep(points, path: Path, title: str = "") -> Path:
 
 def print_estimate(plan, work, seconds, calibration) -> None:
     """The upfront estimate: probe-steps and minutes per speed, and the total."""
-    print(f"calibration: {calibration.steps} steps of one probe took {calibration.step_s:.3g} s per probe-step, "
+    empty = "" if calibration.empty_step_s is None else f" ({calibration.empty_step_s:.3g} s in the empty scene)"
+    print(f"calibration: {calibration.steps} steps of one probe took {calibration.step_s:.3g} s per probe-step{empty}, "
           f"plus {calibration.run_s:.1f} s per simulation (the solid, the setup)")
     print(f"{'U m/s':>7} {'dt s':>10} {'steps':>7} {'probe-steps':>12} {'est. min':>9}")
     for st, n, sec in zip(plan, work, seconds, strict=True):

@@ -19,10 +19,11 @@ config's empty-scene reference on, each speed also gives D-bar of the empty scen
 
 Cost. The steps per probe grow with U (12,500 at 50 m/s against 750 at 3 m/s), so the sweep's work is counted in
 probe-steps: steps(U) x probes x (2 with the empty scene) (+ steps(U) x probes for OTHER). :func:`calibrate` times
-one probe's whole base run on this machine (at most ``CALIBRATION_MAX_STEPS`` steps, the solid built as the sweep
-builds it), so that the costlier steps after the fluid meets the object are in the average, and :func:`estimate`
-turns the probe-steps into minutes, before the first speed runs. Measured: the quick Ahmed asset at 3, 5 and
-10 m/s on the 2-core VM, estimated 40 s from a 40-step calibration against 52 s taken.
+one probe's whole base run on this machine, and its empty scene (at most ``CALIBRATION_MAX_STEPS`` steps, the
+solid built as the sweep builds it), so that the costlier steps after the fluid meets the object are in the
+average, and :func:`estimate` turns the probe-steps into minutes, each probe weighted by its fluid particles,
+before the first speed runs. Measured on the 2-core VM with the quick Ahmed asset, five probes at 3 and 6 m/s
+and the empty scene: 69 s estimated, 83 s taken.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import csv
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,7 @@ from tqdm import tqdm
 from nbv.io import atomic_output
 from nbv.lists import parse_list
 from nbv.physics import PhysicsConfig, PhysicsResult, scene_transform, simulate_gaussians
+from nbv.physics.trajectory import probe_fluid_counts
 
 log = logging.getLogger(__name__)
 
@@ -158,12 +160,21 @@ def reynolds_length(result: PhysicsResult, spec: str | float) -> tuple[float, st
 
 @dataclass(frozen=True)
 class Calibration:
-    """What one probe-step costs on this machine: ``step_s`` s per probe-step (steps and aggregation), and
-    ``run_s`` s per simulation besides its steps (the solid, the accumulator, the setup)."""
+    """What one probe-step costs on this machine: ``step_s`` s per probe-step against the solid (steps and
+    aggregation), ``empty_step_s`` s per probe-step of the empty scene (None when it was not run: then as
+    ``step_s``), and ``run_s`` s per simulation besides its steps (the solid, the accumulator, the setup), all
+    of the probe timed; ``weights``: per probe, its fluid particles over the timed probe's (a step costs about in
+    proportion to them; empty: every probe costs as the timed one)."""
 
     step_s: float
     run_s: float
     steps: int
+    empty_step_s: float | None = None
+    weights: dict[str, float] = field(default_factory=dict)
+
+    def probes_weight(self, directions: Sequence[str]) -> float:
+        """Sum over ``directions`` of their weights: the probes of one speed, in units of the timed probe."""
+        return float(sum(self.weights.get(d, 1.0) for d in directions))
 
 
 def probe_steps(plan: Sequence[SweepStep], config: PhysicsConfig, other: bool = False) -> list[int]:
@@ -178,19 +189,32 @@ def calibrate(gaussians, config: PhysicsConfig, steps: int = CALIBRATION_MAX_STE
     speed)."""
     first = "-x" if "-x" in config.directions else config.directions[0]
     n = max(1, min(int(steps), config.steps))
-    cfg = replace(config, directions=(first,), steps=n, empty_reference=False)
+    cfg = replace(config, directions=(first,), steps=n)
     simulate_gaussians(gaussians, replace(cfg, steps=min(2, n)), progress=False)
     res = simulate_gaussians(gaussians, cfg, progress=False)
     t = res.timings
     stepping = t["simulation"] + t["aggregation"]
-    return Calibration(step_s=stepping / n, run_s=max(t["total"] - stepping, 0.0), steps=n)
+    empty = t.get("empty_reference", 0.0) if config.empty_reference else 0.0
+    counts = probe_fluid_counts(res.solid, config.directions, config.probe_config(), config.solver_config().spacing)
+    weights = {d: counts[d] / max(counts[first], 1) for d in config.directions}
+    return Calibration(step_s=stepping / n, run_s=max(t["total"] - stepping - empty, 0.0), steps=n,
+                       empty_step_s=empty / n if config.empty_reference else None, weights=weights)
 
 
 def estimate(plan: Sequence[SweepStep], config: PhysicsConfig, calibration: Calibration,
              other: bool = False) -> list[float]:
-    """Seconds per speed: its probe-steps x ``calibration.step_s`` plus ``run_s`` per simulation it runs."""
+    """Seconds per speed: its probe-steps against a solid x ``calibration.step_s``, those of the empty scene x
+    ``empty_step_s``, each probe weighted by its fluid particles (``calibration.weights``), plus ``run_s`` per
+    simulation it runs."""
     runs = 1 + (1 if other else 0)
-    return [n * calibration.step_s + runs * calibration.run_s for n in probe_steps(plan, config, other)]
+    probes = calibration.probes_weight(config.directions)
+    empty_s = calibration.step_s if calibration.empty_step_s is None else calibration.empty_step_s
+    out = []
+    for st in plan:
+        solid_steps = st.steps * probes * runs
+        empty_steps = st.steps * probes if config.empty_reference else 0
+        out.append(solid_steps * calibration.step_s + empty_steps * empty_s + runs * calibration.run_s)
+    return out
 
 
 def pinned(gaussians, config: PhysicsConfig) -> PhysicsConfig:

@@ -155,6 +155,14 @@ def test_sweep_counts_probe_steps_and_parses_the_re_length():
                                                                                         12500 * 10]
     cal = sweep.Calibration(step_s=0.1, run_s=5.0, steps=40)
     assert sweep.estimate(plan, cfg, cal) == pytest.approx([755.0, 1505.0, 12505.0])
+    # the empty scene at its own rate: 5 probes x steps x (0.1 + 0.02) s
+    cal = sweep.Calibration(step_s=0.1, run_s=5.0, steps=40, empty_step_s=0.02)
+    assert sweep.estimate(plan, cfg, cal) == pytest.approx([455.0, 905.0, 7505.0])
+    assert sweep.estimate(plan, replace(cfg, empty_reference=False), cal, other=True) == pytest.approx(
+        [760.0, 1510.0, 12510.0])
+    # probes weighted by their fluid particles against the timed one: 5 probes of weight 0.5 cost 2.5 timed ones
+    cal = sweep.Calibration(step_s=0.1, run_s=5.0, steps=40, weights=dict.fromkeys(cfg.directions, 0.5))
+    assert sweep.estimate(plan, cfg, cal) == pytest.approx([380.0, 755.0, 6255.0])
     assert sweep.parse_re_length("Object") == "object" and sweep.parse_re_length("0.8") == 0.8
     for bad in ("0", "-1", "nan", "inf", "car"):
         with pytest.raises(ValueError, match="--re-length"):
