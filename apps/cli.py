@@ -16,7 +16,8 @@ code  meaning
       a name too long (ENAMETOOLONG), a parent that is a file, a folder where a file is wanted
 130   interrupted by Ctrl-C (SIGINT); `sim` first saves its frames so far (status "interrupted"); every command
       removes its unfinished temporary files and stops its worker processes (apps.signals)
-143   stopped by SIGTERM (kill, timeout, a batch scheduler), with the same clean-up as 130
+143   stopped by SIGTERM (kill, timeout, a batch scheduler), with the same clean-up as 130; also any command whose
+      Taichi start-up did not end within FLUIDGS_TAICHI_START_TIMEOUT (120 s), after one line saying so
 ====  ==========================================================================================================
 """
 
@@ -41,6 +42,7 @@ try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets o
         demo,
         evaluate,
         experiment,
+        export,
         inspect_gaussians,
         make_ahmed,
         make_assets,
@@ -86,6 +88,7 @@ COMMANDS = {
     "active": (active, "active reconstruction: biased initial views, one planner pick per round up to the budget"),
     "eval": (evaluate, "evaluate an active run: test PSNR/SSIM/LPIPS, D-bar, Chamfer, critical-view PSNR and D-bar"),
     "experiment": (experiment, "methods x scenes x seeds of active + eval; paper-shaped tables and plots"),
+    "export": (export, "particle frames as VTK (.vtu per frame, .pvd series) for ParaView; the solid as mesh + voxels"),
     "view": (view, "see RESULT.h5 in a browser: splat coloured by D_g, solid, probe fluid over time, ranked cameras"),
 }
 

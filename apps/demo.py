@@ -81,7 +81,7 @@ def run_command(args: argparse.Namespace) -> int:
                      "--cameras": None if orbit_spec else args.cameras})
     if args.solid is not None:
         return run_mesh_demo(args)
-    from nbv.outputs import probe_video, result_summary, save_colored_gaussians
+    from nbv.outputs import divergence_columns, probe_video, result_summary, save_colored_gaussians
     from nbv.physics import QUICK, save_result, simulate_gaussians
     from nbv.view_scoring import check_cameras_see, format_table, render_size, score_views
     from recon.ahmed import ahmed_surface_gaussians
@@ -131,7 +131,7 @@ def run_command(args: argparse.Namespace) -> int:
     result = simulate_gaussians(gaussians, cfg, progress=True, source=source,
                                 record=RecordConfig(("-x",), every=max(1, cfg.steps // 30)))
     save_result(out / "result.h5", result)
-    save_colored_gaussians(gaussians, result.divergence, out / "gaussians_divergence.ply")
+    save_colored_gaussians(gaussians, result.divergence, out / "gaussians_divergence.ply", divergence_columns(result))
     rows = score_views(gaussians, cams, list(range(len(cams))), result, "max", out / "views",
                        device=args.device, visible_centres=centres)
     print(format_table(rows))

@@ -11,14 +11,24 @@ import logging
 import math
 from pathlib import Path
 
-from viz.frames import COLOR_BY, MIN_HEIGHT, MIN_WIDTH, VIEWS, FrameStyle, output_is_video, render_frames
+from viz.frames import (
+    COLOR_BY,
+    FRAMES,
+    MIN_HEIGHT,
+    MIN_WIDTH,
+    VIEWS,
+    WALLS,
+    FrameStyle,
+    output_is_video,
+    render_frames,
+)
 
-from .options import add_config_options, config_from_args
+from .options import add_config_options, config_from_args, config_values
 
 __all__ = ["FrameStyle", "add_arguments", "main", "output_is_video", "render_frames", "run"]
 
 
-STYLE_FIELDS = ("color_by", "view", "width", "height", "point_size", "vmax", "show_boundary", "fps")
+STYLE_FIELDS = ("color_by", "view", "frame", "walls", "width", "height", "point_size", "vmax", "show_boundary", "fps")
 
 
 def style_overrides() -> dict[str, dict]:
@@ -35,10 +45,27 @@ def style_overrides() -> dict[str, dict]:
         "point_size": {"type": _int_at_least(0), "help": "dot radius in pixels, 0 = one pixel"},
         "vmax": {"type": _positive_float, "default_text": "the 99th percentile over all frames",
                  "help": "top of the colour scale in 1/s (divergence) or m/s (speed), fixed across frames"},
+        "frame": {"choices": FRAMES, "help": "what the camera frames: object (the solid's box grown by 35 %% of its "
+                                             "size per side) or domain (the whole box, its edges drawn)"},
+        "walls": {"choices": WALLS, "help": "the wall particles: hidden, faint (dark grey) or shown (grey), always "
+                                            "behind the solid and the fluid"},
         "show_boundary": {"flags": ("--no-boundary",), "dest": "no_boundary", "negate": True,
-                          "help": "do not draw the boundary particles /boundary/x", "default_text": "drawn in grey"},
+                          "help": "draw neither the solid nor the walls of /boundary/x",
+                          "default_text": "the solid in ivory, the walls as --walls says"},
         "fps": {"type": _int_at_least(1), "help": "video frame rate in frames per second, .mp4 only"},
     }
+
+
+def add_style_arguments(parser, defaults: str = "") -> None:
+    """The drawing options of :class:`viz.frames.FrameStyle` (``--color-by``, ``--view``, ``--walls``, ...), shared
+    by ``render-frames`` and ``simulate --video``; ``defaults`` is appended to the group's description."""
+    group = parser.add_argument_group("drawing", "how the frames are drawn" + defaults)
+    add_config_options(group, FrameStyle, STYLE_FIELDS, style_overrides())
+
+
+def style_values(args: argparse.Namespace) -> dict:
+    """The drawing options given on the command line, as FrameStyle fields (the others are left out)."""
+    return config_values(FrameStyle, args, STYLE_FIELDS, style_overrides())
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

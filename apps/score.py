@@ -28,6 +28,7 @@ from pathlib import Path
 from fluidsim.directions import DIRECTIONS
 from fluidsim.files import write_json_atomic
 
+from .export import add_solid_export_arguments, solid_export_outputs, write_solid_export
 from .options import (
     add_camera_arguments,
     add_gaussian_file_arguments,
@@ -77,6 +78,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(1/s), as <view>_uncertainty.npy (float32) and a colour .png with its scale bar ('+': above "
                         "the range) (default: off)")
     add_record_arguments(p)
+    add_solid_export_arguments(p)
     add_physics_arguments(p, cameras=True)
 
 
@@ -145,7 +147,7 @@ def run_command(args: argparse.Namespace) -> int:
     png_dir = None if args.no_png else (args.png_dir or output.with_name(output.stem + "_views"))
     orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
     check_not_input({"-o": output, "--save-result": args.save_result, "--png-dir": png_dir,
-                     "-o (orbit cameras)": orbit_file},
+                     "-o (orbit cameras)": orbit_file, **solid_export_outputs(args.export_solid)},
                     {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras,
                      "--result": args.result})
     if png_dir is not None:
@@ -208,6 +210,7 @@ def run_command(args: argparse.Namespace) -> int:
                         "config": result.config.to_dict()})
     print(f"scores: {output}" + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file is not None else "")
           + (f"\nviews: {png_dir}" if png_dir is not None else ""))
+    write_solid_export(args.export_solid, result, args.export_frame)
     h5 = args.result or args.save_result
     if h5 is not None:
         print(f"see them in a browser: fluidgs view {h5} --gaussians {args.gaussians} --scores {output}")

@@ -14,6 +14,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from .export import add_solid_export_arguments, solid_export_outputs, write_solid_export
 from .options import (
     add_gaussian_file_arguments,
     add_physics_arguments,
@@ -25,6 +26,7 @@ from .options import (
     save_diverged,
     warn_frame,
 )
+from .render_frames import add_style_arguments, style_values
 
 log = logging.getLogger("fluidgs")
 
@@ -37,9 +39,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ply", type=Path, default=None,
                    help="Gaussians coloured by D_g (default: the output path with suffix _divergence.ply)")
     p.add_argument("--video", default=None, metavar="PROBE",
-                   help="also draw this probe (e.g. -x) as an MP4 next to the output (re-runs that probe)")
-    p.add_argument("--video-every", type=int, default=10, help="steps between video frames")
+                   help="also draw this probe (e.g. -x) as an MP4 next to the output (re-runs that probe, every step; "
+                        "the drawing options below apply)")
+    p.add_argument("--video-every", type=int, default=5, help="steps between video frames (default: 5)")
     add_record_arguments(p)
+    add_solid_export_arguments(p)
+    add_style_arguments(p, " by --video (as render-frames; here the defaults are --view iso, --width 640, "
+                           "--height 480, and --fps makes the clip last about 8 s)")
     add_physics_arguments(p)
 
 
@@ -49,7 +55,7 @@ def default_ply_path(output: Path) -> Path:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, check_writable
-    from nbv.outputs import probe_video, result_summary, save_colored_gaussians
+    from nbv.outputs import divergence_columns, probe_video, result_summary, save_colored_gaussians
     from nbv.physics import ProbeDiverged, save_result, simulate_gaussians
 
     from .runtime import init_taichi
@@ -58,7 +64,8 @@ def run_command(args: argparse.Namespace) -> int:
     output = check_output_file(args.output, (".h5", ".hdf5"))
     ply = args.ply or default_ply_path(output)
     video = output.with_name(f"{output.stem}_probe{args.video}.mp4") if args.video is not None else None
-    check_not_input({"-o": output, "--ply": ply, "--video": video}, {"GAUSSIANS": args.gaussians})
+    check_not_input({"-o": output, "--ply": ply, "--video": video, **solid_export_outputs(args.export_solid)},
+                    {"GAUSSIANS": args.gaussians})
     check_output_file(ply, (".ply",))
     if args.video is not None:
         from nbv.physics import parse_directions
@@ -69,6 +76,10 @@ def run_command(args: argparse.Namespace) -> int:
             raise ValueError(f"--video-every must be >= 1 step, got {args.video_every}")
         check_writable(video)
     record = record_config_from_args(args, config)
+    style_options = style_values(args)
+    if style_options and args.video is None:
+        raise ValueError(f"the drawing options ({', '.join(sorted(style_options))}) apply to --video; add --video -x "
+                         "(or another probe), or drop them")
     gaussians = load_gaussians_checked(args.gaussians, args)
     warn_frame(config, up_given=args.up is not None)
     init_taichi(args.device, config.precision, args.threads)
@@ -78,7 +89,7 @@ def run_command(args: argparse.Namespace) -> int:
     except ProbeDiverged as exc:
         return save_diverged(exc, output)
     save_result(output, result)
-    save_colored_gaussians(gaussians, result.divergence, ply)
+    save_colored_gaussians(gaussians, result.divergence, ply, divergence_columns(result))
     s = result_summary(result)
     print(f"{result.num_gaussians} Gaussians, {len(result.solid)} solid particles, scale {result.transform.scale:.4g} "
           "m/unit")
@@ -94,9 +105,16 @@ def run_command(args: argparse.Namespace) -> int:
     t = result.timings
     print(f"time: simulation {t['simulation']:.1f} s, aggregation {t['aggregation']:.2f} s, "
           f"empty reference {t['empty_reference']:.1f} s, total {t['total']:.1f} s")
-    print(f"result: {output}\ncoloured Gaussians: {ply}")
+    print(f"result: {output}\ncoloured Gaussians: {ply} (D_g as the vertex properties "
+          f"{', '.join(divergence_columns(result))})")
+    write_solid_export(args.export_solid, result, args.export_frame)
     if video is not None:
-        probe_video(result, args.video, video, args.video_every)
+        from dataclasses import replace
+
+        from nbv.outputs import VIDEO_STYLE
+
+        style = replace(VIDEO_STYLE, **style_options)
+        probe_video(result, args.video, video, args.video_every, style=style, fps=style_options.get("fps"))
         print(f"video: {video}")
     print(f"see it in a browser: fluidgs view {output} --gaussians {args.gaussians}")
     return 0

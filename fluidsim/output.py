@@ -11,6 +11,7 @@ Layout::
     /frames/<k>/x, /frames/<k>/v      (K, 3) fluid positions (m) and velocities (m/s), by particle id
     /frames/<k>/divergence            (K,) D_i of that step (paper Eq. 1), 1/s
     /frames/<k>/ids                   (K,) initial fluid indices of the active particles
+    /frames/<k>/density               (K,) rho_i / rho_0 of that step
                                       attributes: time (s), step
     /stats                            one row per step (see fluidsim.solver.StepStats)
     /divergence_sum, /divergence_count (N,) per initial fluid particle, over the whole run
@@ -104,7 +105,7 @@ class SimulationWriter:
         """One frame after ``step`` completed steps at simulated ``time`` (s); ``state`` from the solver."""
         with output_errors(self.path):
             g = self.frames.create_group(f"{step:06d}")
-            for key in ("x", "v", "divergence", "ids"):
+            for key in ("x", "v", "divergence", "ids", "density"):
                 g.create_dataset(key, data=state[key], compression="gzip", compression_opts=1)
             g.attrs["time"] = time
             g.attrs["step"] = step

@@ -1,13 +1,17 @@
 """What a probe run (:class:`nbv.physics.PhysicsResult`) is written as beside RESULT.h5: a JSON-able summary, the
-Gaussians coloured by D_g (a 3DGS .ply that opens in common viewers), and an MP4 of one probe.
+Gaussians coloured by D_g (a 3DGS .ply that opens in common viewers, with D_g as extra vertex properties), and an
+MP4 of one probe.
 
 The summary's D-bar is in m^4/s and D_g in 1/s (paper Eq. 2-3); the video re-runs one probe of the result
-against its solid (the run keeps no particle frames) and draws it coloured by |div v| (paper Eq. 1), in H.264.
+against its solid (the run keeps no particle frames), every step from the first to the last, and draws it
+coloured by |div v| (paper Eq. 1), in H.264: the solid in ivory, the walls hidden, the camera on the object
+(:mod:`viz.frames`), at a frame rate that makes the clip last about ``VIDEO_SECONDS``.
 """
 
 from __future__ import annotations
 
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,8 +22,15 @@ from nbv.heatmap import colored_gaussians
 from recon.ply import save_gaussians
 from viz.frames import FrameStyle, render_frames
 
-__all__ = ["probe_video", "result_summary", "save_colored_gaussians"]
+__all__ = ["divergence_columns", "probe_video", "result_summary", "save_colored_gaussians"]
 VIDEO_STYLE = FrameStyle(view="iso", width=640, height=480)
+VIDEO_SECONDS = 8.0
+VIDEO_FPS = (8, 30)  # the automatic frame rate stays within these
+
+
+def video_fps(frames: int, seconds: float = VIDEO_SECONDS) -> int:
+    """Frames per second that play ``frames`` in about ``seconds``, within VIDEO_FPS."""
+    return int(min(max(round(frames / seconds), VIDEO_FPS[0]), VIDEO_FPS[1]))
 
 
 def result_summary(result) -> dict:
@@ -43,14 +54,34 @@ def result_summary(result) -> dict:
             "timings_s": result.timings, "config": result.config.to_dict()}
 
 
-def save_colored_gaussians(gaussians, divergence: np.ndarray, path: str | Path) -> Path:
-    """The Gaussians coloured by D_g [N] (TURBO map, 99th percentile at the top) as a 3DGS .ply, atomically."""
-    return save_gaussians(colored_gaussians(gaussians, divergence), path)
+def column_name(direction: str) -> str:
+    """The .ply property name of one probe's D_g: ``D_neg_x`` for -x, ``D_pos_z`` for +z (PLY readers split
+    names on spaces only, but many tools take ``-`` and ``+`` for operators)."""
+    return f"D_{'neg' if direction[0] == '-' else 'pos'}_{direction[1:]}"
 
 
-def probe_video(result, direction: str, out: str | Path, every: int = 10, progress: bool = True) -> Path:
-    """Re-run probe ``direction`` of ``result`` against its solid with its settings and write an H.264 MP4 of it
-    (one frame every ``every`` steps, iso view, coloured by divergence). Returns ``out``.
+def divergence_columns(result) -> dict[str, np.ndarray]:
+    """Per-Gaussian D_g of a PhysicsResult as .ply vertex properties (1/s): ``D_max`` (the max over the probes, the
+    D_g of the paper), ``D_mean`` and one ``D_neg_x`` ... ``D_pos_z`` per probe, in run order."""
+    columns = {"D_max": result.divergence, "D_mean": result.divergence_mean}
+    for i, d in enumerate(result.directions):
+        columns[column_name(d)] = result.per_probe[i]
+    return columns
+
+
+def save_colored_gaussians(gaussians, divergence: np.ndarray, path: str | Path,
+                           columns: dict[str, np.ndarray] | None = None) -> Path:
+    """The Gaussians coloured by D_g [N] (TURBO map, 99th percentile at the top) as a 3DGS .ply, atomically, with
+    ``columns`` (:func:`divergence_columns`) as extra float vertex properties after the standard ones."""
+    return save_gaussians(colored_gaussians(gaussians, divergence), path, extra=columns)
+
+
+def probe_video(result, direction: str, out: str | Path, every: int = 5, progress: bool = True,
+                style: FrameStyle = VIDEO_STYLE, fps: int | None = None) -> Path:
+    """Re-run probe ``direction`` of ``result`` against its solid with its settings and write an H.264 MP4 of it:
+    every step from 0 to the last, one frame every ``every`` steps, drawn with ``style`` (default: iso view,
+    640 x 480, coloured by divergence, the solid in ivory, the walls hidden, the camera on the object) at ``fps``
+    frames per second (None: :func:`video_fps`, about 8 s). Returns ``out``.
 
     Raises:
         ValueError: ``direction`` is not a probe name (naming --video, the option that asks for it).
@@ -62,5 +93,6 @@ def probe_video(result, direction: str, out: str | Path, every: int = 10, progre
     with tempfile.TemporaryDirectory(dir=out.parent) as tmp:
         h5, _, _ = probe_to_h5(result.solid, direction, cfg.solver_config(), cfg.probe_config(), cfg.steps,
                                Path(tmp) / "probe.h5", every, progress=progress)
-        render_frames(h5, out, VIDEO_STYLE, progress=progress)
+        frames = cfg.steps // every + 1 + (cfg.steps % every > 0)
+        render_frames(h5, out, replace(style, fps=fps or video_fps(frames)), progress=progress)
     return out

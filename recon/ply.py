@@ -525,7 +525,7 @@ def _read_npy_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: st
     return np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
 
 
-def save_gaussians(gaussians: GaussianSet, path: str | Path) -> Path:
+def save_gaussians(gaussians: GaussianSet, path: str | Path, extra: dict[str, np.ndarray] | None = None) -> Path:
     """Write ``gaussians`` as a 3DGS ``.ply`` (binary little-endian float32) or an ``.npz``, atomically.
 
     The set is checked first (:meth:`GaussianSet.check`), so a file this function writes always loads again.
@@ -534,6 +534,9 @@ def save_gaussians(gaussians: GaussianSet, path: str | Path) -> Path:
     Args:
         gaussians: the set (any device or dtype; gradients are ignored).
         path: destination; the suffix ``.ply`` or ``.npz`` picks the layout.
+        extra: .ply only: further float32 vertex properties after the standard ones, ``{name: [N] values}``, in
+            order (names of letters, digits and ``_``, none a standard name); 3DGS viewers and converters such as
+            SuperSplat and splat-transform keep them as extra columns, and our reader ignores them.
     Returns:
         The written path.
     Raises:
@@ -545,8 +548,11 @@ def save_gaussians(gaussians: GaussianSet, path: str | Path) -> Path:
         raise ValueError(f"{path}: unsupported Gaussian file type {path.suffix!r}; use .ply or .npz")
     g = gaussians.detach().to(device="cpu", dtype=torch.float32)
     g.check(str(path))
+    columns = _extra_columns(extra or {}, g, path)
+    if columns and suffix != ".ply":
+        raise ValueError(f"{path}: extra vertex properties need a .ply, not {path.suffix!r}")
     if suffix == ".ply":
-        payload = _ply_bytes(g)
+        payload = _ply_bytes(g, columns)
     else:
         buffer = io.BytesIO()
         np.savez(buffer, **{name: t.numpy() for name, t in zip(NPZ_KEYS, g.tensors(), strict=True)})
@@ -555,12 +561,30 @@ def save_gaussians(gaussians: GaussianSet, path: str | Path) -> Path:
     return write_bytes_atomic(path, payload)
 
 
-def _ply_bytes(g: GaussianSet) -> bytes:
-    names = ply_property_names(g.sh_degree)
+def _extra_columns(extra: dict[str, np.ndarray], g: GaussianSet, path: Path) -> dict[str, np.ndarray]:
+    """The extra vertex properties checked: names, shapes [N], finite values."""
+    standard = set(ply_property_names(g.sh_degree))
+    out = {}
+    for name, values in extra.items():
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name) or name in standard:
+            raise ValueError(f"{path}: extra vertex property name {name!r} must be letters, digits and _ and not a "
+                             "standard 3DGS property")
+        v = np.asarray(values, dtype=np.float32).reshape(-1)
+        if v.shape != (g.num,):
+            raise ValueError(f"{path}: extra vertex property {name!r} has {v.size} values for {g.num} Gaussians")
+        if not np.isfinite(v).all():
+            raise ValueError(f"{path}: extra vertex property {name!r} holds NaN or inf")
+        out[name] = v
+    return out
+
+
+def _ply_bytes(g: GaussianSet, extra: dict[str, np.ndarray] | None = None) -> bytes:
+    extra = extra or {}
+    names = ply_property_names(g.sh_degree) + list(extra)
     n, k = g.num, g.sh.shape[1]
     rest = g.sh[:, 1:].transpose(1, 2).reshape(n, 3 * (k - 1))  # [N, K-1, 3] -> channel-major [N, 3(K-1)]
     table = torch.cat([g.means, torch.zeros(n, 3), g.sh[:, 0], rest, g.opacity_logits[:, None], g.log_scales,
-                       g.quats], 1).numpy()
+                       g.quats, *(torch.from_numpy(v)[:, None] for v in extra.values())], 1).numpy()
     header = "".join(["ply\n", "format binary_little_endian 1.0\n", f"element vertex {n}\n",
                       *(f"property float {p}\n" for p in names), "end_header\n"])
     return header.encode("ascii") + np.ascontiguousarray(table, dtype="<f4").tobytes()

@@ -30,6 +30,7 @@ class CandidateView:
         score: S(T) from scores.json, or None. rank: 1 = best, or None.
         coverage: A(T) from scores.json, or None. physics_mean: S(T) / A(T), or None.
         uncertainty_png: the view's physics-uncertainty picture (``score --uncertainty-images``), or None.
+        png: the view's picture written by `fluidgs score` (render | D_g heat-map), or None.
     """
 
     index: int
@@ -44,6 +45,7 @@ class CandidateView:
     coverage: float | None = None
     physics_mean: float | None = None
     uncertainty_png: Path | None = None
+    png: Path | None = None
 
     @property
     def forward(self) -> np.ndarray:
@@ -173,3 +175,13 @@ def candidate_views(cameras: str | Path, scene_to_sim: np.ndarray, scores: dict 
                                  physics_mean=_optional_float(v, "physics_mean"),
                                  uncertainty_png=_uncertainty_png(v)))
     return out
+
+
+def view_png(scores_path: str | Path, view: CandidateView) -> Path | None:
+    """The picture `fluidgs score` wrote of ``view`` in its default folder ``<scores stem>_views`` (named
+    ``rank<r>_<index>_<name>.png``), or None."""
+    if view.rank is None:
+        return None
+    p = Path(scores_path)
+    png = p.with_name(p.stem + "_views") / f"rank{view.rank:03d}_{view.index:03d}_{view.name}.png"
+    return png if png.is_file() else None

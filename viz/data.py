@@ -15,7 +15,7 @@ import json
 import logging
 import math
 import shlex
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
@@ -95,6 +95,9 @@ class ViewData:
         solid: [M, 3] solid particles, sim metres. particle_radius: r, m. dt: s. steps: per probe.
         scene_to_sim: [4, 4]. dbar: D-bar, m^4/s. config: the PhysicsConfig as a dict.
         leaks: per direction with a leak measure. recorded: the directions with a trajectory.
+        reached: per direction, the Gaussians its fluid reached (a sample within n r_g), of num_gaussians.
+        dbar_empty: D-bar of the empty scene (no solid), m^4/s; NaN when it was not run.
+        empty_per_probe: per direction, [G] the empty scene's D_g^(IC), 1/s (only with the empty reference).
     """
 
     path: Path
@@ -115,6 +118,9 @@ class ViewData:
     config: dict
     leaks: dict[str, LeakSummary]
     recorded: tuple[str, ...]
+    reached: dict[str, int] = field(default_factory=dict)
+    dbar_empty: float = math.nan
+    empty_per_probe: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def num_gaussians(self) -> int:
@@ -228,7 +234,10 @@ def load_view_data(path: str | Path) -> ViewData:
             steps=int(config.get("steps", 0)), scene_to_sim=_scene_to_sim(f, p),
             dbar=float(f.attrs.get("dbar", math.nan)), config=config,
             leaks={d: lk for d, pg in probes.items() if (lk := _leaks(pg)) is not None},
-            recorded=tuple(d for d, pg in probes.items() if "trajectory" in pg))
+            recorded=tuple(d for d, pg in probes.items() if "trajectory" in pg),
+            reached={d: int((pg["counts"][()] > 0).sum()) for d, pg in probes.items() if "counts" in pg},
+            dbar_empty=float(f.attrs.get("dbar_empty", math.nan)),
+            empty_per_probe={d: pg["D_empty"][()] for d, pg in probes.items() if "D_empty" in pg})
 
 
 def no_trajectory_message(data: ViewData, probe: str) -> str:

@@ -5,9 +5,11 @@ No paper equations are implemented here; this is a viewer for the file the fluid
 - ``/frames/<k>/x`` (N_k, 3) particle positions [m, Y-up], ``/frames/<k>/v`` (N_k, 3) velocities [m/s],
   ``/frames/<k>/divergence`` (N_k,) per-particle |div v| [1/s]; each frame group carries the
   attributes ``time`` [s] and ``step``. Keys ``<k>`` are decimal strings, sorted numerically.
-- optional ``/boundary/x`` (M, 3) static solid particles (subsampled to at most 50,000 for drawing).
-- root attribute ``scene``: the scene JSON; its ``domain.min`` / ``domain.max`` give the box the
-  orthographic camera is fitted to. Without a usable domain the camera is fitted to the particles.
+- optional ``/boundary/x`` (M, 3) static boundary particles: the solid (inside the domain box) and the walls
+  (outside it, :func:`fluidsim.sources.wall_particles`); at most 400,000 solid and 50,000 wall particles are
+  drawn (a uniform random subset beyond that, logged).
+- root attribute ``scene``: the scene JSON; its ``domain.min`` / ``domain.max`` give the domain box. Without a
+  usable domain every boundary particle counts as solid and the box is fitted to the particles.
 
 Drawing model. Each view is an orthographic camera given by an orthonormal basis (right, up, forward):
 screen coordinates are (p . right, p . up) and the depth is p . forward, larger meaning farther.
@@ -21,12 +23,16 @@ top    -y               +x       -z          camera above; +z points down the im
 iso    -(1,1,1)/sqrt3   (1,0,-1) (-1,2,-1)   camera at the (+x,+y,+z) corner, normalised
 ====== ================ ======== =========== ==========================================
 
-The domain box is fitted into the scene viewport (the frame minus a header line and a colour-bar
-panel, see :func:`scene_viewport`) keeping the aspect ratio. Dots are splatted with a z-buffer: the
-nearest particle wins each pixel (painter's order, far to near). Boundary particles are drawn in grey
-(lighter is nearer) behind all fluid particles, so a solid wall in front of the camera never hides the
-fluid. Fluid is coloured with the TURBO colormap on a fixed scale [0, vmax] shared by all frames;
-values above vmax take the top colour.
+The camera box is fitted into the scene viewport (the frame minus a header line and a colour-bar
+panel, see :func:`scene_viewport`) keeping the aspect ratio: with ``frame="object"`` (the default) the solid's
+bounding box grown by ``OBJECT_MARGIN`` of its largest extent on every side, so that the object fills the
+picture; with ``frame="domain"`` (or without a solid) the domain box, whose edges are then drawn. Dots are
+splatted with a z-buffer: the nearest particle wins each pixel. The solid and the fluid share one z-buffer, so
+the object hides the fluid behind it and fluid in front of it shows. The solid is drawn in its own colour,
+ivory (``SOLID_BGR``, darker with depth across the object), which no colour of the TURBO map comes near. The
+walls are hidden by default (``walls="hidden"``); ``"faint"`` draws them in a dark grey just above the
+background and ``"shown"`` in the grey of old, both behind everything. Fluid is coloured with the TURBO
+colormap on a fixed scale [0, vmax] shared by all frames; values above vmax take the top colour.
 
 Output. An ``.mp4`` is H.264 in yuv420p with the index at the front, which web browsers play
 (:func:`viz.video.write_mp4`; an odd frame size is padded by one edge pixel); otherwise a folder of PNG frames.
@@ -51,6 +57,7 @@ from pathlib import Path
 import cv2
 import h5py
 import numpy as np
+from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from fluidsim.files import write_bytes_atomic
@@ -66,7 +73,12 @@ COLOR_BY = {
     "divergence": ("divergence", "|div v|", "1/s"),
     "speed": ("v", "speed |v|", "m/s"),
 }
-MAX_BOUNDARY_POINTS = 50_000
+MAX_BOUNDARY_POINTS = 50_000  # walls drawn at most
+MAX_SOLID_POINTS = 400_000
+WALLS = ("hidden", "faint", "shown")
+FRAMES = ("object", "domain")
+OBJECT_MARGIN = 0.35  # the object's box grows by this fraction of its largest extent on every side
+MAX_SOLID_RADIUS = 24  # px
 VMAX_PERCENTILE = 99.0
 VMAX_MAX_SAMPLES = 2_000_000  # values pooled over all frames to estimate the percentile
 MIN_WIDTH, MIN_HEIGHT = 160, 120
@@ -91,6 +103,9 @@ _BACKGROUND = (28, 28, 28)  # BGR
 _BOX_COLOR = (200, 200, 200)
 _TEXT_COLOR = (240, 240, 240)
 _BOUNDARY_GREY_NEAR, _BOUNDARY_GREY_FAR = 170, 80
+_FAINT_GREY_NEAR, _FAINT_GREY_FAR = 58, 42  # faint walls: just above the background
+SOLID_BGR = np.array([200, 228, 240], dtype=np.float64)  # ivory; the far side of the object is drawn at 45 %
+_SOLID_FAR = 0.45
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 _COLORMAP_LUT = TURBO_BGR  # (256, 3) uint8 BGR
 
@@ -105,8 +120,10 @@ class FrameStyle:
         width, height: frame size [px], at least 160 x 120; an .mp4 pads an odd size by one edge pixel.
         point_size: dot radius [px]; 0 draws single pixels.
         vmax: top of the colour scale [1/s or m/s]; None takes the 99th percentile over all frames.
-        show_boundary: draw ``/boundary/x`` in grey when the file has it.
+        show_boundary: draw ``/boundary/x`` (the solid, and the walls as ``walls`` says) when the file has it.
         fps: frames per second of the .mp4 video (ignored for PNG output).
+        walls: "hidden", "faint" (dark grey, behind everything) or "shown" (grey).
+        frame: "object" (the camera frames the solid, grown by 35 % of its size per side) or "domain" (the box).
     """
 
     color_by: str = "divergence"
@@ -117,6 +134,8 @@ class FrameStyle:
     vmax: float | None = None
     show_boundary: bool = True
     fps: int = 30
+    walls: str = "hidden"
+    frame: str = "object"
 
     def __post_init__(self) -> None:
         if self.color_by not in COLOR_BY:
@@ -125,6 +144,10 @@ class FrameStyle:
             )
         if self.view not in VIEWS:
             raise ValueError(f"FrameStyle.view={self.view!r} is unknown; use one of {list(VIEWS)}")
+        if self.walls not in WALLS:
+            raise ValueError(f"FrameStyle.walls={self.walls!r} is unknown; use one of {list(WALLS)}")
+        if self.frame not in FRAMES:
+            raise ValueError(f"FrameStyle.frame={self.frame!r} is unknown; use one of {list(FRAMES)}")
         for name, low in (("width", MIN_WIDTH), ("height", MIN_HEIGHT), ("point_size", 0), ("fps", 1)):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
@@ -302,14 +325,15 @@ def output_is_video(out: Path, png: bool = False) -> bool:
 class _Source:
     """A checked, open simulation file: frame keys in order, domain box and what to read per frame."""
 
-    def __init__(self, file, path, keys, counts, value_name, domain, boundary) -> None:
+    def __init__(self, file, path, keys, counts, value_name, domain, boundary, walls=None) -> None:
         self.file: h5py.File = file
         self.path: Path = path
         self.keys: tuple[str, ...] = keys
         self.counts: tuple[int, ...] = counts
         self.value_name: str = value_name
         self.domain_min, self.domain_max = domain
-        self.boundary: np.ndarray | None = boundary  # (M', 3) finite, already subsampled
+        self.boundary: np.ndarray | None = boundary  # (M', 3) finite solid particles, already subsampled
+        self.walls: np.ndarray | None = walls  # (W', 3) finite wall particles, already subsampled
         self.dropped = 0  # particles skipped so far because their position was NaN or inf
 
     @staticmethod
@@ -344,13 +368,13 @@ class _Source:
                     raise ValueError(f"{where} lacks the attribute '{attr}'")
             counts.append(n)
 
-        boundary = None
-        if style.show_boundary and "boundary" in f and "x" in f["boundary"]:
-            boundary = _read_boundary(f["boundary"]["x"], path)
+        boundary = walls = None
         domain = _domain_from_scene(f, path)
+        if style.show_boundary and "boundary" in f and "x" in f["boundary"]:
+            boundary, walls = _read_boundary(f["boundary"]["x"], path, domain)
         if domain is None:
             domain = _domain_from_particles(frames, keys, boundary)
-        return _Source(f, path, keys, tuple(counts), value_name, domain, boundary)
+        return _Source(f, path, keys, tuple(counts), value_name, domain, boundary, walls)
 
     def frame(self, i: int) -> tuple[np.ndarray, np.ndarray, float, int]:
         """Positions (N', 3) with non-finite rows dropped, their colour values (N',), time [s], step."""
@@ -362,6 +386,22 @@ class _Source:
             self.dropped += int((~ok).sum())
             x, values = x[ok], values[ok]
         return x, values, float(g.attrs["time"]), int(g.attrs["step"])
+
+    def spacing(self, solid: np.ndarray) -> float | None:
+        """The particle spacing [m]: 2 x the scene's ``particle_radius``, else the median nearest-neighbour distance
+        of (at most 5,000 of) the solid particles, else None."""
+        raw = self.file.attrs.get("scene")
+        try:
+            radius = json.loads(raw.decode() if isinstance(raw, bytes) else str(raw)).get("particle_radius")
+            if radius is not None and float(radius) > 0:
+                return 2.0 * float(radius)
+        except (ValueError, TypeError, AttributeError):
+            pass
+        if len(solid) < 2:
+            return None
+        sample = solid[:: max(1, len(solid) // 5000)]
+        dist, _ = cKDTree(solid).query(sample, k=2)
+        return float(np.median(dist[:, 1])) or None
 
     def percentile_vmax(self) -> float:
         """99th percentile of the colour values over all frames (strided sample of at most 2M values)."""
@@ -402,8 +442,9 @@ def _magnitudes(values: np.ndarray) -> np.ndarray:
     return np.linalg.norm(values, axis=1) if values.ndim == 2 else np.abs(values)
 
 
-def _read_boundary(ds: h5py.Dataset, path: Path) -> np.ndarray:
-    """Boundary positions, a uniform random subset (fixed seed) of at most 50,000 when larger.
+def _read_boundary(ds: h5py.Dataset, path: Path, domain) -> tuple[np.ndarray, np.ndarray]:
+    """(solid, walls): the boundary particles inside and outside the domain box (all solid without a domain), each
+    a uniform random subset (fixed seed) of at most MAX_SOLID_POINTS / MAX_BOUNDARY_POINTS when larger.
 
     Random rather than strided, because a stride through a regularly sampled wall draws moire patterns.
     The dataset is read in blocks so that a huge boundary never sits in memory whole.
@@ -412,20 +453,25 @@ def _read_boundary(ds: h5py.Dataset, path: Path) -> np.ndarray:
         raise ValueError(
             f"{path}:/boundary/x must be a float array of shape (M, 3), got {ds.shape} {ds.dtype}"
         )
-    total = ds.shape[0]
-    if total <= MAX_BOUNDARY_POINTS:
-        points = np.asarray(ds[()], dtype=np.float64).reshape(-1, 3)
-    else:
-        chosen = np.sort(np.random.default_rng(0).choice(total, MAX_BOUNDARY_POINTS, replace=False))
-        block = 1 << 20
-        parts = []
-        for start in range(0, total, block):
-            lo, hi = np.searchsorted(chosen, [start, start + block])
-            if hi > lo:
-                parts.append(np.asarray(ds[start : start + block], dtype=np.float64)[chosen[lo:hi] - start])
-        points = np.concatenate(parts)
-        logger.info("%s: drawing %d of %d boundary particles", path, len(points), total)
-    return points[np.isfinite(points).all(axis=1)]
+    block = 1 << 20
+    solid, walls = [], []
+    for start in range(0, ds.shape[0], block):
+        points = np.asarray(ds[start : start + block], dtype=np.float64).reshape(-1, 3)
+        points = points[np.isfinite(points).all(axis=1)]
+        inside = np.ones(len(points), bool) if domain is None else \
+            ((points >= domain[0]) & (points <= domain[1])).all(axis=1)
+        solid.append(points[inside])
+        walls.append(points[~inside])
+    return (_subset(np.concatenate(solid or [np.zeros((0, 3))]), MAX_SOLID_POINTS, path, "solid"),
+            _subset(np.concatenate(walls or [np.zeros((0, 3))]), MAX_BOUNDARY_POINTS, path, "wall"))
+
+
+def _subset(points: np.ndarray, limit: int, path: Path, what: str) -> np.ndarray:
+    if len(points) <= limit:
+        return points
+    chosen = np.sort(np.random.default_rng(0).choice(len(points), limit, replace=False))
+    logger.info("%s: drawing %d of %d %s particles", path, limit, len(points), what)
+    return points[chosen]
 
 
 def _domain_from_scene(f: h5py.File, path: Path) -> tuple[np.ndarray, np.ndarray] | None:
@@ -570,17 +616,29 @@ class _Renderer:
         x0, y0, vw, vh = self.layout.viewport
         self.offset = np.array([x0, y0], dtype=np.int64)
         self.viewport_size = (vw, vh)
-        self.lo, self.hi = source.domain_min, source.domain_max
-        corners = _box_corners(self.lo, self.hi)
+        solid = source.boundary if source.boundary is not None else np.zeros((0, 3))
+        self.lo, self.hi = camera_box(solid, source.domain_min, source.domain_max, style.frame)
+        self.draw_box = style.frame == "domain" or not len(solid)
+        corners = _box_corners(source.domain_min, source.domain_max)
         self.corner_uv, self.corner_depth = self._project(corners)
         self.depth_range = (float(self.corner_depth.min()), float(self.corner_depth.max()))
+        self.solid_uv, self.solid_depth = self._project(solid)
+        self.solid_radius = solid_radius(source.spacing(solid), self._pixels_per_metre(), style.point_size)
+        self.solid_zbuffer = np.full((style.height, style.width), np.inf)
         self.background = self._static_layer()
 
     def _project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         uv, depth = project(points, self.lo, self.hi, self.style.view, *self.viewport_size)
         return uv + self.offset, depth
 
+    def _pixels_per_metre(self) -> float:
+        right = view_basis(self.style.view)[0]
+        uv, _ = self._project(np.stack([np.zeros(3), right]))
+        return float(np.linalg.norm(uv[1] - uv[0]))
+
     def _box_edges(self, image: np.ndarray, front: bool) -> None:
+        if not self.draw_box:
+            return
         # an edge is in front when its midpoint is nearer than the box centre
         centre = float(self.corner_depth.mean())
         for a, b in _BOX_EDGES:
@@ -592,14 +650,18 @@ class _Renderer:
         image = np.empty((self.style.height, self.style.width, 3), dtype=np.uint8)
         image[:] = _BACKGROUND
         self._box_edges(image, front=False)
-        boundary = self.source.boundary
-        if boundary is not None and len(boundary):
-            uv, depth = self._project(boundary)
+        walls = self.source.walls
+        if walls is not None and len(walls) and self.style.walls != "hidden":
+            uv, depth = self._project(walls)
             near, far = self.depth_range
             t = np.clip((depth - near) / max(far - near, 1e-12), 0.0, 1.0)
-            grey = _BOUNDARY_GREY_NEAR + t * (_BOUNDARY_GREY_FAR - _BOUNDARY_GREY_NEAR)
-            grey = np.rint(grey).astype(np.uint8)
+            g_near, g_far = (_FAINT_GREY_NEAR, _FAINT_GREY_FAR) if self.style.walls == "faint" else \
+                (_BOUNDARY_GREY_NEAR, _BOUNDARY_GREY_FAR)
+            grey = np.rint(g_near + t * (g_far - g_near)).astype(np.uint8)
             splat(image, uv, depth, np.repeat(grey[:, None], 3, axis=1), self.style.point_size)
+        if len(self.solid_uv):
+            splat(image, self.solid_uv, self.solid_depth, solid_colors(self.solid_depth), self.solid_radius)
+            self.solid_zbuffer = depth_buffer(self.solid_uv, self.solid_depth, self.solid_radius, image.shape[:2])
         return image
 
     def frames(self) -> Iterator[np.ndarray]:
@@ -611,7 +673,12 @@ class _Renderer:
         image = self.background.copy()
         if len(x):
             uv, depth = self._project(x)
-            splat(image, uv, depth, colorize(values, self.vmax), self.style.point_size)
+            # the object hides the fluid behind it: a particle whose centre pixel lies behind the solid is not drawn
+            h, w = self.solid_zbuffer.shape
+            on = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+            seen = ~on
+            seen[on] = depth[on] <= self.solid_zbuffer[uv[on, 1], uv[on, 0]]
+            splat(image, uv[seen], depth[seen], colorize(values[seen], self.vmax), self.style.point_size)
         self._box_edges(image, front=True)
         self._header(image, f"t = {time:.4f} s   step {step}   {len(x):,} fluid particles   "
                             f"frame {i + 1}/{len(self.source.keys)}")
@@ -643,6 +710,58 @@ class _Renderer:
         lay.put_text(image, f"{self.vmax:.3g}", label_x, top)
         lay.put_text(image, f"{0.5 * self.vmax:.3g}", label_x, (top + bottom) // 2)
         lay.put_text(image, "0", label_x, bottom)
+
+
+def camera_box(solid: np.ndarray, domain_min, domain_max, frame: str = "object") -> tuple[np.ndarray, np.ndarray]:
+    """The box the camera is fitted to: with ``frame="object"`` and a solid, the solid's bounding box grown by
+    ``OBJECT_MARGIN`` of its largest extent on every side; otherwise the domain box.
+
+    Args:
+        solid: (M, 3) solid particles [m] (may be empty). domain_min, domain_max: (3,) the domain box [m].
+        frame: "object" or "domain".
+    Returns:
+        (lo, hi), each (3,) float64 [m].
+    """
+    lo, hi = _check_domain(domain_min, domain_max)
+    solid = np.asarray(solid, dtype=np.float64).reshape(-1, 3)
+    if frame == "domain" or not len(solid):
+        return lo, hi
+    s_lo, s_hi = solid.min(axis=0), solid.max(axis=0)
+    grow = OBJECT_MARGIN * max(float((s_hi - s_lo).max()), 1e-6)
+    return s_lo - grow, s_hi + grow
+
+
+def solid_radius(spacing: float | None, pixels_per_metre: float, point_size: int) -> int:
+    """Dot radius [px] of the solid particles: large enough that the dots of a lattice of ``spacing`` [m] close up
+    into a surface (r + 1/2 >= the half-diagonal of a lattice cell on screen), never below ``point_size``, at most
+    ``MAX_SOLID_RADIUS``; ``point_size`` when the spacing is unknown."""
+    if spacing is None or not spacing > 0:
+        return point_size
+    d = spacing * pixels_per_metre
+    return int(min(max(point_size, math.ceil(d / _SQRT2 - 0.5)), MAX_SOLID_RADIUS))
+
+
+def depth_buffer(uv: np.ndarray, depth: np.ndarray, radius: int, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) float64: the smallest depth of the disks (:func:`disk_offsets`) covering each pixel; inf elsewhere."""
+    h, w = shape
+    zbuf = np.full(h * w, np.inf)
+    for dx, dy in disk_offsets(radius).tolist():
+        u, v = uv[:, 0] + dx, uv[:, 1] + dy
+        ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        np.minimum.at(zbuf, v[ok] * w + u[ok], depth[ok])
+    return zbuf.reshape(h, w)
+
+
+def solid_colors(depth: np.ndarray) -> np.ndarray:
+    """(M, 3) uint8 BGR colours of the solid: ivory ``SOLID_BGR`` at its nearest point, ``_SOLID_FAR`` of it at its
+    farthest, linear in depth between, so that the object's shape reads in the picture."""
+    depth = np.asarray(depth, dtype=np.float64)
+    if not len(depth):
+        return np.zeros((0, 3), np.uint8)
+    near, far = float(depth.min()), float(depth.max())
+    t = (depth - near) / max(far - near, 1e-12)
+    shade = 1.0 - (1.0 - _SOLID_FAR) * t
+    return np.rint(SOLID_BGR[None, :] * shade[:, None]).astype(np.uint8)
 
 
 def colorize(values: np.ndarray, vmax: float) -> np.ndarray:

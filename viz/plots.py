@@ -61,7 +61,8 @@ def _floats(values, name: str, n: int, what: str, allow_none: bool = False) -> n
 
 
 def plot_sweep(path: str | os.PathLike, speeds: Sequence[float], dbar: Sequence[float], *,
-               dbar_other: Sequence[float] | None = None, reynolds: Sequence[float] | None = None,
+               dbar_other: Sequence[float] | None = None, dbar_empty: Sequence[float] | None = None,
+               reynolds: Sequence[float] | None = None,
                dts: Sequence[float] | None = None, steps: Sequence[int] | None = None, title: str = "",
                width: int = 900, height: int = 620) -> Path:
     """D-bar against the inflow speed on a log-x axis, with a table of Re, Delta t and steps; a PNG.
@@ -71,6 +72,7 @@ def plot_sweep(path: str | os.PathLike, speeds: Sequence[float], dbar: Sequence[
         speeds: [S] inflow speeds U, m/s, > 0.
         dbar: [S] D-bar of the Gaussian set, m^4/s.
         dbar_other: [S] D-bar of the second set ("OTHER"), m^4/s; adds a series and a "gap" row (OTHER - D-bar).
+        dbar_empty: [S] D-bar of the empty scene (no solid), m^4/s; adds a series.
         reynolds, dts, steps: [S] Re = rho U L / mu, the time step (s) and the step count per speed (table rows).
         title: figure title (default "geometry divergence vs inflow speed").
         width, height: PNG size in pixels.
@@ -95,6 +97,8 @@ def plot_sweep(path: str | os.PathLike, speeds: Sequence[float], dbar: Sequence[
     if dbar_other is not None:
         rows.append(("gap (m\N{SUPERSCRIPT FOUR}/s)", [f"{v:.3g}" for v in series[1][1] - series[0][1]]))
 
+    if dbar_empty is not None:
+        series.append(("D-bar empty scene", _floats(dbar_empty, "dbar_empty", len(us), what)))
     fig = _figure(width, height, what)
     table_h = min(0.45, 24.0 * len(rows) / height)  # figure fraction: 24 px per table row
     ax = fig.add_axes((0.11, table_h + 0.16, 0.86, 0.76 - table_h))

@@ -1,5 +1,7 @@
 """The browser viewer (viser): the Gaussians as splats coloured by their own colours or by D_g, the solid, one probe's
-fluid replayed over time, the candidate cameras ranked by S(T), and the leak counts.
+fluid replayed over time (opening at mid-run), each probe's reach and the empty-scene reference, the candidate
+cameras ranked by S(T), a list of the top views (rank, S(T), coverage and S/A when scores.json has them, a
+thumbnail; a click moves the view there), and the leak counts.
 
 Everything is drawn in the simulation frame (metres, Y-up). viser sends a splat's covariance as float16: below
 6e-5 m^2 (sigma 8 mm) its values are subnormal, in steps of 6e-8 m^2, which still leaves a Gaussian of sigma 1 mm
@@ -29,10 +31,11 @@ import numpy as np
 
 from fluidsim.files import check_input_file
 
-from .cameras import CandidateView, cameras_path_of, candidate_views, read_scores
+from .cameras import CandidateView, cameras_path_of, candidate_views, read_scores, view_png
 from .colors import color_scale, colorbar_image, score_colors, turbo
 from .data import Trajectory, ViewData, load_trajectory, load_view_data, no_trajectory_message
 from .splats import SplatLooks, splat_looks
+from .thumbnails import view_thumbnail
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +49,7 @@ LEAK_RGB = (255, 0, 255)
 BACKGROUND = "white"
 # values sampled to pick a trajectory's colour scale (the 99th percentile over all its frames)
 SCALE_SAMPLES = 2_000_000
+TOP_VIEWS = 10  # views in the list of the side panel
 INSTALL_HINT = "`fluidgs view` needs viser: pip install -e .[view] (or pip install 'viser>=1.0')"
 
 
@@ -174,9 +178,11 @@ class FluidViewer:
         self.server.scene.set_up_direction("+y")
         self._centre, self._extent = self._object_box()
         self._add_splats()
+        self._add_probes()
         self._add_solid()
         self._add_fluid()
         self._add_cameras()
+        self._add_view_list()
         self._set_initial_camera()
         self._player = threading.Thread(target=self._play_loop, name="fluidgs-view-player", daemon=True)
         self._player.start()
@@ -213,8 +219,9 @@ class FluidViewer:
     def _add_splats(self) -> None:
         gui = self.server.gui
         d = self.data
+        empty = "not run" if not np.isfinite(d.dbar_empty) else f"{d.dbar_empty:.4g} m^4/s"
         gui.add_markdown(f"**{d.path.name}**: {d.num_gaussians:,} Gaussians, probes {', '.join(d.directions)}; "
-                         f"D-bar {d.dbar:.4g} m^4/s")
+                         f"D-bar {d.dbar:.4g} m^4/s (empty scene: {empty})")
         with gui.add_folder("Gaussians"):
             self._color_mode = gui.add_dropdown("colour", self._color_modes(), initial_value="D_g max",
                                                 hint="their own colours (SH DC) or D_g, max or mean over the probes "
@@ -260,6 +267,29 @@ class FluidViewer:
             self._colorbar.visible = vmax is not None
             if self._color_mode.value != mode:
                 self._color_mode.value = mode
+
+    # ---- probes: reach and the empty-scene reference ----------------------------------------------
+    def probe_markdown(self) -> str:
+        """Per probe: the Gaussians its fluid reached, the mean D_g, and the empty scene's mean D_g (the reference:
+        what the same probe reads with no solid)."""
+        d = self.data
+        rows = []
+        for p in d.directions:
+            reached = d.reached.get(p)
+            share = "n/a" if reached is None else f"{reached:,} ({100.0 * reached / max(d.num_gaussians, 1):.0f} %)"
+            empty = d.empty_per_probe.get(p)
+            rows.append(f"| {p} | {share} | {float(np.mean(d.per_probe[p])):.3g} | "
+                        f"{'n/a' if empty is None else f'{float(np.mean(empty)):.3g}'} |")
+        ratio = f" (x{d.dbar / d.dbar_empty:.3g})" if np.isfinite(d.dbar_empty) and d.dbar_empty > 0 else ""
+        empty = ("the empty scene was not run (re-run simulate without --no-empty-reference)"
+                 if not np.isfinite(d.dbar_empty) else f"empty scene D-bar {d.dbar_empty:.4g} m^4/s{ratio}")
+        return "\n".join([f"D-bar {d.dbar:.4g} m^4/s; {empty}", "",
+                          "| probe | Gaussians reached | mean D_g, 1/s | empty scene, 1/s |", "|---|---|---|---|",
+                          *rows])
+
+    def _add_probes(self) -> None:
+        with self.server.gui.add_folder("Probes: reach and the empty scene", expand_by_default=False):
+            self._probe_table = self.server.gui.add_markdown(self.probe_markdown())
 
     # ---- solid and leaks -------------------------------------------------------------------------
     def _add_solid(self) -> None:
@@ -344,7 +374,8 @@ class FluidViewer:
                 self._probe.value = probe
             self._update_leaks()
             self._frame, self._fluid_bar_of = -1, None
-            self.show_frame(0 if self._trajectory is None else self._trajectory.num_frames - 1)
+            # mid-run: the fluid around the object (the last frame shows it pooled on the floor)
+            self.show_frame(0 if self._trajectory is None else self._trajectory.num_frames // 2)
 
     def _update_leaks(self) -> None:
         lk = self.data.leaks.get(self._probe.value)
@@ -438,6 +469,45 @@ class FluidViewer:
 
         show.on_update(show_cameras)
         goto.on_update(go_to_chosen)
+
+    def ranked_views(self) -> list[CandidateView]:
+        """The scored views, best first, at most TOP_VIEWS."""
+        return sorted((v for v in self.views if v.rank is not None), key=lambda v: v.rank)[:TOP_VIEWS]
+
+    @staticmethod
+    def view_caption(v: CandidateView) -> str:
+        """``S = ...`` and, when scores.json has them, the coverage ``A`` and ``S/A`` (physics_mean), to two
+        significant digits as ``fluidgs score`` prints them."""
+        parts = [f"S = {_two_digits(v.score)}"]
+        if v.coverage is not None:
+            parts.append(f"A = {_two_digits(v.coverage)}")
+        if v.physics_mean is not None:
+            parts.append(f"S/A = {_two_digits(v.physics_mean)}")
+        return ", ".join(parts)
+
+    def _add_view_list(self) -> None:
+        """The side panel's list of the top views: per view a button (rank and name; a click moves the viewport
+        there), its numbers and a thumbnail."""
+        ranked = self.ranked_views()
+        self._view_buttons: list = []
+        self._view_images: list = []
+        if not ranked:
+            return
+        gui = self.server.gui
+        rgb, _ = self.splat_colors("D_g max")
+        with gui.add_folder(f"Top views ({len(ranked)} of {len(self.views)})"):
+            gui.add_markdown("ranked by S(T); a click moves the view there")
+            for v in ranked:
+                button = gui.add_button(f"#{v.rank} {v.name}", hint=f"camera {v.index}: {self.view_caption(v)}")
+                button.on_click(lambda event, v=v: self._clicked(event, v))
+                image = gui.add_image(view_thumbnail(v, self.data.means, rgb), label=self.view_caption(v),
+                                      format="jpeg", jpeg_quality=85)
+                self._view_buttons.append(button)
+                self._view_images.append(image)
+
+    def _clicked(self, event, view: CandidateView) -> None:
+        if event.client is not None:  # a click from a browser (not from the server's own code)
+            self.go_to(event.client, view)
 
     @staticmethod
     def _view_label(v: CandidateView) -> str:
@@ -539,6 +609,8 @@ def open_viewer(result: str | Path, gaussians: str | Path | None = None, scores:
     if cameras is not None:
         check_input_file(cameras, "--cameras", "pass the transforms.json of the candidate cameras")
     views = candidate_views(cameras, data.scene_to_sim, score_data, str(data.path)) if cameras is not None else []
+    if scores is not None:
+        views = [replace(v, png=view_png(scores, v)) for v in views]
     if not _is_loopback(options.host):
         log.warning("serving on %s: anyone who can reach this machine on port %d can open the viewer",
                     options.host, options.port)

@@ -148,7 +148,7 @@ def add_record_arguments(p: argparse.ArgumentParser) -> None:
                         "to replay them in `fluidgs view`: a probe (-x) or a comma list (default: none; the file stays "
                         "small)")
     g.add_argument("--record-every", type=int, default=10, metavar="K",
-                   help="steps between recorded frames (default: 10); each frame costs 16 bytes per fluid particle")
+                   help="steps between recorded frames (default: 10); each frame costs 24 bytes per fluid particle")
     g.add_argument("--record-max-gb", type=float, default=2.0,
                    help="refuse, before simulating, a recording larger than this in GiB (default: 2)")
 

@@ -5,10 +5,10 @@ No paper equation is implemented here: this records what the probes of :mod:`nbv
 
 A frame is taken after every k-th step (after steps k, 2k, ..., so T = steps // k frames). Each frame holds
 every fluid particle of the probe, indexed by its id (its index in the probe's initial fluid set); a particle
-that has left the walled domain (retired) reads NaN from then on. Sizes per (frame, particle): 16 bytes
-(positions 3 x float32, D_i float16, speed float16), so a probe of F particles costs F T 16 bytes in memory
-while it runs and about as much in RESULT.h5 (gzip level 1 with the shuffle filter). Recording is off unless
-asked for (``--record-probe``), so RESULT.h5 stays small by default; the size is checked against
+that has left the walled domain (retired) reads NaN from then on. Sizes per (frame, particle): 24 bytes
+(positions 3 x float32; D_i, speed, velocity 3 x and density float16), so a probe of F particles costs F T 24
+bytes in memory while it runs and about as much in RESULT.h5 (gzip level 1 with the shuffle filter). Recording is
+off unless asked for (``--record-probe``), so RESULT.h5 stays small by default; the size is checked against
 ``RecordConfig.max_bytes`` and the available memory before any probe runs.
 
 HDF5 layout, under ``/probes/<dir>/trajectory`` (written by :func:`nbv.physics.save_result`)::
@@ -16,6 +16,8 @@ HDF5 layout, under ``/probes/<dir>/trajectory`` (written by :func:`nbv.physics.s
     x       (T, F, 3) float32  positions, sim metres (NaN: retired)
     D       (T, F) float16     D_i, 1/s (NaN: retired)
     speed   (T, F) float16     |v_i|, m/s (NaN: retired)
+    v       (T, F, 3) float16  velocity, m/s (NaN: retired; absent in files written before it)
+    density (T, F) float16     rho_i / rho_0 (NaN: retired; absent in files written before it)
     steps   (T,) int32         steps completed at each frame (k, 2k, ...); time = steps * dt
     attributes: every (k), fluid_particles (F)
 
@@ -39,8 +41,8 @@ from fluidsim.memory import available_memory_bytes
 
 log = logging.getLogger(__name__)
 
-# bytes per recorded (frame, particle): x as 3 float32, D_i and speed as float16
-BYTES_PER_SAMPLE = 16
+# bytes per recorded (frame, particle): x as 3 float32; D_i, speed, v (3) and density as float16
+BYTES_PER_SAMPLE = 24
 DEFAULT_MAX_BYTES = 2.0 * 2**30
 GROUP = "trajectory"
 
@@ -95,6 +97,8 @@ class ProbeTrajectory:
         divergence: [T, F] float16 D_i, 1/s (NaN: retired).
         speed: [T, F] float16 |v_i|, m/s (NaN: retired).
         every: k, steps between frames.
+        velocity: [T, F, 3] float16 v_i, m/s (NaN: retired), or None in files written before it.
+        density: [T, F] float16 rho_i / rho_0 (NaN: retired), or None in files written before it.
     """
 
     steps: np.ndarray
@@ -102,6 +106,8 @@ class ProbeTrajectory:
     divergence: np.ndarray
     speed: np.ndarray
     every: int
+    velocity: np.ndarray | None = None
+    density: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
@@ -113,11 +119,12 @@ class ProbeTrajectory:
 
     @property
     def nbytes(self) -> int:
-        return int(self.x.nbytes + self.divergence.nbytes + self.speed.nbytes)
+        return int(sum(a.nbytes for a in (self.x, self.divergence, self.speed, self.velocity, self.density)
+                       if a is not None))
 
 
 def trajectory_bytes(fluid_particles: int, frames: int) -> int:
-    """F T 16 bytes: what recording ``frames`` frames of ``fluid_particles`` particles takes."""
+    """F T 24 bytes: what recording ``frames`` frames of ``fluid_particles`` particles takes."""
     return int(fluid_particles) * int(frames) * BYTES_PER_SAMPLE
 
 
@@ -166,14 +173,15 @@ class TrajectoryRecorder:
         self._direction = direction
         self._buffers = (np.full((frames, fluid, 3), np.nan, np.float32), np.full((frames, fluid), np.nan, np.float16),
                          np.full((frames, fluid), np.nan, np.float16),
-                         np.arange(1, frames + 1, dtype=np.int32) * self.record.every)
+                         np.arange(1, frames + 1, dtype=np.int32) * self.record.every,
+                         np.full((frames, fluid, 3), np.nan, np.float16), np.full((frames, fluid), np.nan, np.float16))
 
     def step(self, direction: str, solver, step: int) -> None:
         """After step ``step`` (0-based): take a frame when ``step + 1`` is a multiple of k."""
         if direction != self._direction or self._buffers is None or (step + 1) % self.record.every:
             return
         frame = (step + 1) // self.record.every - 1
-        x, divergence, speed, _ = self._buffers
+        x, divergence, speed, _, velocity, density = self._buffers
         if frame >= len(x):
             return
         f = solver.fluid
@@ -182,15 +190,18 @@ class TrajectoryRecorder:
         ids = f.numpy("ids").astype(np.int64)
         x[frame, ids] = f.numpy("x")
         divergence[frame, ids] = f.numpy("divergence")
-        speed[frame, ids] = np.linalg.norm(f.numpy("v").astype(np.float64), axis=1)
+        v = f.numpy("v")
+        speed[frame, ids] = np.linalg.norm(v.astype(np.float64), axis=1)
+        velocity[frame, ids] = v
+        density[frame, ids] = f.numpy("density")
 
     def end(self, direction: str) -> None:
         """Keep the frames of ``direction`` in ``results``."""
         if direction != self._direction or self._buffers is None:
             return
-        x, divergence, speed, steps = self._buffers
+        x, divergence, speed, steps, velocity, density = self._buffers
         self.results[direction] = ProbeTrajectory(steps=steps, x=x, divergence=divergence, speed=speed,
-                                                  every=self.record.every)
+                                                  every=self.record.every, velocity=velocity, density=density)
         self._direction, self._buffers = None, None
 
 
@@ -202,6 +213,10 @@ def write_trajectory(group, trajectory: ProbeTrajectory) -> None:
     g.create_dataset("x", data=trajectory.x, chunks=(1, max(f, 1), 3) if t and f else None, **opts)
     g.create_dataset("D", data=trajectory.divergence, chunks=(1, max(f, 1)) if t and f else None, **opts)
     g.create_dataset("speed", data=trajectory.speed, chunks=(1, max(f, 1)) if t and f else None, **opts)
+    if trajectory.velocity is not None:
+        g.create_dataset("v", data=trajectory.velocity, chunks=(1, max(f, 1), 3) if t and f else None, **opts)
+    if trajectory.density is not None:
+        g.create_dataset("density", data=trajectory.density, chunks=(1, max(f, 1)) if t and f else None, **opts)
     g.create_dataset("steps", data=np.asarray(trajectory.steps, np.int32))
     g.attrs["every"], g.attrs["fluid_particles"] = int(trajectory.every), int(f)
 
@@ -210,4 +225,5 @@ def read_trajectory(group) -> ProbeTrajectory:
     """Inverse of :func:`write_trajectory` (``group`` is ``/probes/<dir>``; it must hold a trajectory)."""
     g = group[GROUP]
     return ProbeTrajectory(steps=g["steps"][()], x=g["x"][()], divergence=g["D"][()], speed=g["speed"][()],
-                           every=int(g.attrs["every"]))
+                           every=int(g.attrs["every"]), velocity=g["v"][()] if "v" in g else None,
+                           density=g["density"][()] if "density" in g else None)

@@ -6,20 +6,33 @@ For each inflow speed U the probes run with a CFL-constant time step over the sa
   Delta t_base = the config's dt),
   so U Delta t / (2 r), the Courant number, stays that of the base setting;
 - steps(U) = round(T / Delta t(U)) with T = steps_base * Delta t_base;
-- Re = rho U L / mu with rho the rest density (kg/m^3), mu the dynamic viscosity (Pa s) and L the largest
-  extent of the probe domain (m; the -x probe's domain, or the first probe's).
+- Re = rho U L / mu with rho the rest density (kg/m^3), mu the dynamic viscosity (Pa s) and L a length (m):
+  by default the object's extent along the flow (``re_length="object"``: the solid's extent along the axis of
+  the -x probe, or of the first probe, plus one lattice spacing, since each solid point stands for a cell), or
+  the largest extent of that probe's domain (``"domain"``, what the paper's L = "the domain size" reads as), or a
+  given length in metres.
 
 With a second Gaussian set ("OTHER") the gap Delta = D-bar(OTHER) - D-bar is reported per U. Both sets use
 the same scene -> metre scale (with ``scale="auto"`` it is resolved on the first set), because D-bar grows
-with the fourth power of the scale and a set with a missing part would otherwise be scaled differently.
+with the fourth power of the scale and a set with a missing part would otherwise be scaled differently. With the
+config's empty-scene reference on, each speed also gives D-bar of the empty scene (the paper's reference point).
+
+Cost. The steps per probe grow with U (12,500 at 50 m/s against 750 at 3 m/s), so the sweep's work is counted in
+probe-steps: steps(U) x probes x (2 with the empty scene) (+ steps(U) x probes for OTHER). :func:`calibrate` times
+one probe's whole base run on this machine, and its empty scene (at most ``CALIBRATION_MAX_STEPS`` steps, the
+solid built as the sweep builds it), so that the costlier steps after the fluid meets the object are in the
+average, and :func:`estimate` turns the probe-steps into minutes, each probe weighted by its fluid particles,
+before the first speed runs. Measured on the 2-core VM with the quick Ahmed asset, five probes at 3 and 6 m/s
+and the empty scene: 69 s estimated, 83 s taken.
 """
 
 from __future__ import annotations
 
 import csv
 import logging
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,10 +41,14 @@ from tqdm import tqdm
 from nbv.io import atomic_output
 from nbv.lists import parse_list
 from nbv.physics import PhysicsConfig, PhysicsResult, scene_transform, simulate_gaussians
+from nbv.physics.trajectory import probe_fluid_counts
 
 log = logging.getLogger(__name__)
 
 U_BASE = 3.0  # m/s, the paper's inflow speed lambda
+RE_LENGTHS = ("object", "domain")
+CALIBRATION_MAX_STEPS = 750
+_AXES = {"x": 0, "y": 1, "z": 2}
 PAPER_VELOCITIES = (3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 20.0, 50.0)  # m/s, the speeds of the paper's sweep
 
 
@@ -50,7 +67,8 @@ class SweepStep:
 
 @dataclass(frozen=True)
 class SweepPoint:
-    """A sweep result row: U m/s, Re, Delta t s, steps, D-bar m^4/s, D-bar of OTHER and the gap (or None)."""
+    """A sweep result row: U m/s, Re, Delta t s, steps, D-bar m^4/s, D-bar of OTHER and the gap (or None), the
+    length L of Re (m) and where it came from ("object", "domain", "given"), D-bar of the empty scene (or None)."""
 
     speed: float
     reynolds: float
@@ -58,6 +76,9 @@ class SweepPoint:
     steps: int
     dbar: float
     dbar_other: float | None = None
+    re_length: float = float("nan")
+    re_length_from: str = ""
+    dbar_empty: float | None = None
 
     @property
     def gap(self) -> float | None:
@@ -97,52 +118,164 @@ def reynolds(speed: float, length: float, density: float, viscosity: float) -> f
     return float("inf") if viscosity == 0 else density * speed * length / viscosity
 
 
+def parse_re_length(text: str | float) -> str | float:
+    """``--re-length``: "object", "domain" or a length in metres (> 0); ValueError naming the option otherwise."""
+    if isinstance(text, str) and text.strip().lower() in RE_LENGTHS:
+        return text.strip().lower()
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise ValueError(f"--re-length {text!r}: use object, domain or a length in metres > 0") from None
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"--re-length {text!r}: a length must be finite and > 0 m; or use object or domain")
+    return value
+
+
+def _flow_probe(result: PhysicsResult) -> str:
+    return "-x" if "-x" in result.domains else result.directions[0]
+
+
 def domain_length(result: PhysicsResult) -> float:
     """L: the largest extent of the -x probe's domain (else the first probe's), m."""
-    d = "-x" if "-x" in result.domains else result.directions[0]
-    lo, hi = result.domains[d]
+    lo, hi = result.domains[_flow_probe(result)]
     return float(np.max(np.asarray(hi) - np.asarray(lo)))
 
 
+def object_length(result: PhysicsResult) -> float:
+    """L: the solid's extent along the flow of the -x probe (else the first probe), plus one lattice spacing
+    (each solid point stands for a cell of that side), m."""
+    axis = _AXES[_flow_probe(result)[1]]
+    x = np.asarray(result.solid, np.float64)[:, axis]
+    return float(x.max() - x.min() + 2.0 * result.config.particle_radius)
+
+
+def reynolds_length(result: PhysicsResult, spec: str | float) -> tuple[float, str]:
+    """(L in m, "object" | "domain" | "given") for ``spec`` (:func:`parse_re_length`)."""
+    if spec == "object":
+        return object_length(result), "object"
+    if spec == "domain":
+        return domain_length(result), "domain"
+    return float(spec), "given"
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """What one probe-step costs on this machine: ``step_s`` s per probe-step against the solid (steps and
+    aggregation), ``empty_step_s`` s per probe-step of the empty scene (None when it was not run: then as
+    ``step_s``), and ``run_s`` s per simulation besides its steps (the solid, the accumulator, the setup), all
+    of the probe timed; ``weights``: per probe, its fluid particles over the timed probe's (a step costs about in
+    proportion to them; empty: every probe costs as the timed one)."""
+
+    step_s: float
+    run_s: float
+    steps: int
+    empty_step_s: float | None = None
+    weights: dict[str, float] = field(default_factory=dict)
+
+    def probes_weight(self, directions: Sequence[str]) -> float:
+        """Sum over ``directions`` of their weights: the probes of one speed, in units of the timed probe."""
+        return float(sum(self.weights.get(d, 1.0) for d in directions))
+
+
+def probe_steps(plan: Sequence[SweepStep], config: PhysicsConfig, other: bool = False) -> list[int]:
+    """Probe-steps per speed: steps x probes x (2 with the empty scene) (+ steps x probes for OTHER)."""
+    per_step = len(config.directions) * ((2 if config.empty_reference else 1) + (1 if other else 0))
+    return [st.steps * per_step for st in plan]
+
+
+def calibrate(gaussians, config: PhysicsConfig, steps: int = CALIBRATION_MAX_STEPS) -> Calibration:
+    """Time the first probe at the base setting over its base run, at most ``steps`` steps (the solid built as the
+    sweep builds it), after a 2-step run that compiles the kernels (compiling is paid once per sweep, not per
+    speed)."""
+    first = "-x" if "-x" in config.directions else config.directions[0]
+    n = max(1, min(int(steps), config.steps))
+    cfg = replace(config, directions=(first,), steps=n)
+    simulate_gaussians(gaussians, replace(cfg, steps=min(2, n)), progress=False)
+    res = simulate_gaussians(gaussians, cfg, progress=False)
+    t = res.timings
+    stepping = t["simulation"] + t["aggregation"]
+    empty = t.get("empty_reference", 0.0) if config.empty_reference else 0.0
+    counts = probe_fluid_counts(res.solid, config.directions, config.probe_config(), config.solver_config().spacing)
+    weights = {d: counts[d] / max(counts[first], 1) for d in config.directions}
+    return Calibration(step_s=stepping / n, run_s=max(t["total"] - stepping - empty, 0.0), steps=n,
+                       empty_step_s=empty / n if config.empty_reference else None, weights=weights)
+
+
+def estimate(plan: Sequence[SweepStep], config: PhysicsConfig, calibration: Calibration,
+             other: bool = False) -> list[float]:
+    """Seconds per speed: its probe-steps against a solid x ``calibration.step_s``, those of the empty scene x
+    ``empty_step_s``, each probe weighted by its fluid particles (``calibration.weights``), plus ``run_s`` per
+    simulation it runs."""
+    runs = 1 + (1 if other else 0)
+    probes = calibration.probes_weight(config.directions)
+    empty_s = calibration.step_s if calibration.empty_step_s is None else calibration.empty_step_s
+    out = []
+    for st in plan:
+        solid_steps = st.steps * probes * runs
+        empty_steps = st.steps * probes if config.empty_reference else 0
+        out.append(solid_steps * calibration.step_s + empty_steps * empty_s + runs * calibration.run_s)
+    return out
+
+
+def pinned(gaussians, config: PhysicsConfig) -> PhysicsConfig:
+    """``config`` with an "auto" scale resolved on ``gaussians`` (so OTHER and every speed share it)."""
+    if config.scale == "auto":
+        return replace(config, scale=scene_transform(gaussians, config).scale)
+    return config
+
+
 def run_sweep(gaussians, config: PhysicsConfig, velocities: Sequence[float], other=None,
-              progress: bool = True) -> list[SweepPoint]:
-    """D-bar (and D-bar of ``other`` and the gap) at each speed, CFL-constant Delta t, same duration.
+              progress: bool = True, re_length: str | float = "object") -> list[SweepPoint]:
+    """D-bar (and D-bar of the empty scene, of ``other`` and the gap) at each speed, CFL-constant Delta t, same
+    duration.
 
     Args:
         gaussians: GaussianSet (scene units). other: an optional second GaussianSet, simulated at the
-            scale resolved on ``gaussians``.
-        config: the base settings (its dt and steps are the base at U_base = ``config.speed``); the
-            empty-scene reference is not run.
+            scale resolved on ``gaussians`` (without the empty scene, which is the same for both).
+        config: the base settings (its dt and steps are the base at U_base = ``config.speed``); with
+            ``config.empty_reference`` each speed also runs the empty scene.
         velocities: speeds, m/s.
-        progress: a bar over the speeds (and the per-probe bars).
+        progress: a bar over the probe-steps (:func:`probe_steps`; updated as each speed ends) and the
+            per-probe bars.
+        re_length: L of Re (:func:`parse_re_length`).
     Returns:
         one SweepPoint per speed.
     """
     plan = schedule(velocities, config.dt, config.steps, u_base=config.speed)
-    if config.scale == "auto":
-        config = replace(config, scale=scene_transform(gaussians, config).scale)
+    config = pinned(gaussians, config)
+    work = probe_steps(plan, config, other is not None)
     points = []
-    for st in tqdm(plan, desc="sweep", unit="speed", disable=not progress):
-        cfg = replace(config, speed=st.speed, dt=st.dt, steps=st.steps, empty_reference=False)
-        res = simulate_gaussians(gaussians, cfg, progress=progress)
-        other_dbar = simulate_gaussians(other, cfg, progress=progress).dbar if other is not None else None
-        re = reynolds(st.speed, domain_length(res), config.rest_density, config.viscosity)
-        points.append(SweepPoint(st.speed, re, st.dt, st.steps, res.dbar, other_dbar))
-        log.info("U = %g m/s: Re = %.4g, dt = %.3g s, %d steps, D-bar = %.4g", st.speed, re, st.dt, st.steps, res.dbar)
+    with tqdm(total=sum(work), desc="sweep", unit="probe-step", unit_scale=True, disable=not progress) as bar:
+        for st, n in zip(plan, work, strict=True):
+            cfg = replace(config, speed=st.speed, dt=st.dt, steps=st.steps)
+            res = simulate_gaussians(gaussians, cfg, progress=progress)
+            other_dbar = simulate_gaussians(other, replace(cfg, empty_reference=False), progress=progress).dbar \
+                if other is not None else None
+            length, source = reynolds_length(res, re_length)
+            re = reynolds(st.speed, length, config.rest_density, config.viscosity)
+            points.append(SweepPoint(st.speed, re, st.dt, st.steps, res.dbar, other_dbar, length, source,
+                                     res.dbar_empty))
+            bar.update(n)
+            log.info("U = %g m/s: Re = %.4g (L = %.4g m, %s), dt = %.3g s, %d steps, D-bar = %.4g", st.speed, re,
+                     length, source, st.dt, st.steps, res.dbar)
     return points
 
 
-CSV_FIELDS = ("speed_m_s", "reynolds", "dt_s", "steps", "dbar_m4_s", "dbar_other_m4_s", "gap_m4_s")
+CSV_FIELDS = ("speed_m_s", "reynolds", "re_length_m", "re_length_from", "dt_s", "steps", "dbar_m4_s",
+              "dbar_empty_m4_s", "dbar_other_m4_s", "gap_m4_s")
 
 
 def write_csv(path: str | Path, points: Sequence[SweepPoint]) -> Path:
-    """Write the sweep as CSV atomically (columns: :data:`CSV_FIELDS`; empty cells where no OTHER)."""
+    """Write the sweep as CSV atomically (columns: :data:`CSV_FIELDS`; empty cells where no OTHER or no empty
+    scene)."""
     p = Path(path)
     with atomic_output(p) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(CSV_FIELDS)
         for pt in points:
-            w.writerow([f"{pt.speed:g}", f"{pt.reynolds:.6g}", f"{pt.dt:.6g}", pt.steps, f"{pt.dbar:.6g}",
+            w.writerow([f"{pt.speed:g}", f"{pt.reynolds:.6g}", f"{pt.re_length:.6g}", pt.re_length_from,
+                        f"{pt.dt:.6g}", pt.steps, f"{pt.dbar:.6g}",
+                        "" if pt.dbar_empty is None else f"{pt.dbar_empty:.6g}",
                         "" if pt.dbar_other is None else f"{pt.dbar_other:.6g}",
                         "" if pt.gap is None else f"{pt.gap:.6g}"])
     return p

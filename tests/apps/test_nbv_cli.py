@@ -3,7 +3,9 @@
 import csv
 import json
 import math
+import time
 
+import h5py
 import numpy as np
 import pytest
 import torch
@@ -14,6 +16,7 @@ from recon.camera import Camera
 from recon.formats import load_gaussians
 from recon.gaussians import GaussianSet
 from recon.ply import save_gaussians
+from viz.video import probe_video
 
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 
@@ -42,7 +45,8 @@ def scene(tmp_path_factory):
                            math.radians(50), name=f"cam{k}") for k, a in enumerate(np.arange(6) * math.pi / 3)]
     cameras = _write_cameras(root / "transforms.json", cams)
     h5 = root / "result.h5"
-    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", "--video=-x", *FAST]) == 0
+    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", "--video=-x", "--walls", "faint",
+                     "--width", "320", "--height", "240", *FAST]) == 0
     return dict(root=root, ply=ply, cameras=cameras, h5=h5)
 
 
@@ -56,7 +60,8 @@ def test_simulate_outputs(scene):
     # colours follow D_g: the Gaussian with the largest D_g is not coloured like one with D_g = 0
     hi, lo = int(np.argmax(res.divergence)), int(np.argmin(res.divergence))
     assert (colored.sh[hi, 0] - colored.sh[lo, 0]).abs().max() > 0.5
-    assert (scene["root"] / "result_probe-x.mp4").stat().st_size > 0
+    info = probe_video(scene["root"] / "result_probe-x.mp4")  # --video takes render-frames' drawing options
+    assert (info.width, info.height) == (320, 240) and info.frames >= 2
 
 
 def test_score_ranks_views(scene, tmp_path):
@@ -73,7 +78,10 @@ def test_score_ranks_views(scene, tmp_path):
     # a subset keeps the camera indices of the file, and the same scores
     out2 = tmp_path / "subset.json"
     assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "--result", str(scene["h5"]),
-                     "-o", str(out2), "--candidates", "1,4", "--no-png"]) == 0
+                     "-o", str(out2), "--candidates", "1,4", "--no-png", "--export-solid",
+                     str(tmp_path / "solid.h5")]) == 0
+    with h5py.File(tmp_path / "solid.h5") as f:  # --export-solid writes the solid stored in RESULT.h5
+        assert int(f["occupancy"][()].sum()) == len(load_result(scene["h5"]).solid)
     sub = {v["index"]: v["score"] for v in json.loads(out2.read_text())["views"]}
     full = {v["index"]: v["score"] for v in views}
     assert set(sub) == {1, 4} and all(sub[k] == pytest.approx(full[k]) for k in sub)
@@ -87,17 +95,31 @@ def test_score_simulates_without_result(scene, tmp_path):
     assert load_result(tmp_path / "r.h5").directions == ("-x",)
 
 
-def test_critical_subset(scene, tmp_path):
+def test_critical_subset(scene, tmp_path, caplog):
     out = tmp_path / "critical.json"
     assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(out),
-                     "--subset", "4", *FAST]) == 0
+                     "--subset", "4", "--save-result", str(tmp_path / "c.h5"), *FAST]) == 0
     data = json.loads(out.read_text())
     assert data["directions"] == ["-x"] and data["distinct_particles"]["gaussians_reached"] > 0
     assert data["critical_subset"] == [v["index"] for v in data["views"][:4]]
     assert data["views"][0]["critical_score"] >= data["views"][-1]["critical_score"]
+    # 4 of 6 candidates is half or more: a warning, logged and stored
+    assert "4 of the 6 candidate views" in caplog.text and "4 of the 6" in data["subset_warning"]
+    # --result reuses the saved run: the same C(T), and 2 of 6 warns of nothing
+    again = tmp_path / "again.json"
+    caplog.clear()
+    assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(again),
+                     "--subset", "2", "--result", str(tmp_path / "c.h5")]) == 0
+    second = json.loads(again.read_text())
+    assert [v["critical_score"] for v in second["views"]] == [v["critical_score"] for v in data["views"]]
+    assert second["subset_warning"] is None and "candidate views" not in caplog.text
+    # a RESULT.h5 without distinct counts (simulate's) is exit 2, naming the fix
+    assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(again),
+                     "--result", str(scene["h5"])]) == 2
+    assert "--save-result" in caplog.text
 
 
-def test_sweep_csv_and_plot(scene, tmp_path):
+def test_sweep_csv_and_plot(scene, tmp_path, capsys, caplog):
     out = tmp_path / "sweep.csv"
     assert cli.main(["sweep", str(scene["ply"]), "--velocities", "3,6", "--directions=-x", "-o", str(out),
                      "--compare", str(scene["ply"]), *[a for a in FAST if a != "--no-empty-reference"]]) == 0
@@ -105,6 +127,15 @@ def test_sweep_csv_and_plot(scene, tmp_path):
     assert [r["steps"] for r in rows] == ["40", "80"]
     assert float(rows[0]["gap_m4_s"]) == pytest.approx(0.0, abs=1e-12)  # OTHER = the same set
     assert out.with_suffix(".png").stat().st_size > 0
+    # the empty scene's column, and L = the object's extent along the flow, stored and printed
+    assert all(float(r["dbar_empty_m4_s"]) >= 0 for r in rows) and rows[0]["re_length_from"] == "object"
+    text = capsys.readouterr().out
+    # the upfront estimate: -x and its empty scene and OTHER: 3 x 40 probe-steps at 3 m/s, 3 x 80 at 6 m/s
+    assert "360 probe-steps" in text and text.index("estimate:") < text.index("took ", text.index("estimate:"))
+    assert f"L = {float(rows[0]['re_length_m']):.4g} m (the object's extent along the flow)" in text
+    t0 = time.perf_counter()
+    assert cli.main(["sweep", str(scene["ply"]), "--re-length", "0", "-o", str(tmp_path / "x.csv"), *FAST]) == 2
+    assert "--re-length" in caplog.text and time.perf_counter() - t0 < 20
 
 
 def test_bench_score_prints_share(scene, capsys):

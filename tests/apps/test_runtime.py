@@ -59,3 +59,45 @@ def test_reinit_with_old_arrays_in_a_cycle_keeps_new_arrays_alive(taichi_setting
         if enabled:
             gc.enable()
         init_taichi(arch, "f32", threads=threads, debug=debug)           # back to the session's settings
+
+
+HANG = ("import time\nfrom apps.taichi_runtime import startup_watchdog\nwith startup_watchdog(1.0):\n"
+        "    time.sleep(60)\nprint('not reached')\n")
+
+
+def test_startup_watchdog_says_so_and_stops_a_hang():
+    """A start-up that hangs (here a sleep) is stopped after the timeout with one line that says how to retry."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from helpers.paths import REPO
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", HANG], capture_output=True, text=True, timeout=60, env=env)
+    took = time.perf_counter() - t0
+    assert proc.returncode == -signal.SIGTERM and took < 30, (proc.returncode, took)
+    assert "not reached" not in proc.stdout
+    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("ERROR fluidgs:")]
+    assert len(lines) == 1 and "has not started within 1 s" in lines[0] and "run it again" in lines[0]
+
+
+def test_startup_watchdog_is_quiet_when_the_start_ends_and_reads_its_limit(monkeypatch, capfd):
+    import pytest
+
+    from apps.taichi_runtime import STARTUP_TIMEOUT_S, TIMEOUT_ENV, startup_timeout, startup_watchdog
+
+    with startup_watchdog(30.0):
+        pass
+    assert "ERROR" not in capfd.readouterr().err
+    monkeypatch.delenv(TIMEOUT_ENV, raising=False)
+    assert startup_timeout() == STARTUP_TIMEOUT_S
+    monkeypatch.setenv(TIMEOUT_ENV, "0")
+    assert startup_timeout() == 0.0
+    for bad in ("-1", "soon", "nan"):
+        monkeypatch.setenv(TIMEOUT_ENV, bad)
+        with pytest.raises(ValueError, match=TIMEOUT_ENV):
+            startup_timeout()

@@ -1,6 +1,7 @@
 """Probe runs on Gaussians (paper Eq. 2-3): orchestration vs a brute-force twin, D-bar, HDF5, guards, sweep."""
 
 import math
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -146,6 +147,28 @@ def test_memory_estimate_grows_with_resolution(sphere):
     assert fine["bytes"] > 4 * coarse["bytes"]
 
 
+def test_sweep_counts_probe_steps_and_parses_the_re_length():
+    plan = sweep.schedule([3, 6, 50], dt_base=0.002, steps_base=750)
+    cfg = PhysicsConfig()  # five probes and the empty scene
+    assert sweep.probe_steps(plan, cfg) == [750 * 10, 1500 * 10, 12500 * 10]
+    assert sweep.probe_steps(plan, replace(cfg, empty_reference=False), other=True) == [750 * 10, 1500 * 10,
+                                                                                        12500 * 10]
+    cal = sweep.Calibration(step_s=0.1, run_s=5.0, steps=40)
+    assert sweep.estimate(plan, cfg, cal) == pytest.approx([755.0, 1505.0, 12505.0])
+    # the empty scene at its own rate: 5 probes x steps x (0.1 + 0.02) s
+    cal = sweep.Calibration(step_s=0.1, run_s=5.0, steps=40, empty_step_s=0.02)
+    assert sweep.estimate(plan, cfg, cal) == pytest.approx([455.0, 905.0, 7505.0])
+    assert sweep.estimate(plan, replace(cfg, empty_reference=False), cal, other=True) == pytest.approx(
+        [760.0, 1510.0, 12510.0])
+    # probes weighted by their fluid particles against the timed one: 5 probes of weight 0.5 cost 2.5 timed ones
+    cal = sweep.Calibration(step_s=0.1, run_s=5.0, steps=40, weights=dict.fromkeys(cfg.directions, 0.5))
+    assert sweep.estimate(plan, cfg, cal) == pytest.approx([380.0, 755.0, 6255.0])
+    assert sweep.parse_re_length("Object") == "object" and sweep.parse_re_length("0.8") == 0.8
+    for bad in ("0", "-1", "nan", "inf", "car"):
+        with pytest.raises(ValueError, match="--re-length"):
+            sweep.parse_re_length(bad)
+
+
 def test_sweep_schedule_is_cfl_constant():
     plan = sweep.schedule([3, 6, 50], dt_base=0.002, steps_base=750)
     assert [p.steps for p in plan] == [750, 1500, 12500]
@@ -164,6 +187,9 @@ def test_sweep_runs_and_writes_csv(sphere, tmp_path):
     assert [p.steps for p in pts] == [40, 80]
     assert all(p.dbar > 0 and p.gap is not None for p in pts)
     assert pts[1].reynolds == pytest.approx(2 * pts[0].reynolds)
+    # L is the object's extent along the flow (-x: along x): the sphere's solid is about 2 m across at "auto"
+    assert pts[0].re_length_from == "object" and 1.5 < pts[0].re_length < 2.6
+    assert pts[0].reynolds == pytest.approx(cfg.rest_density * 3.0 * pts[0].re_length / cfg.viscosity)
     text = (sweep.write_csv(tmp_path / "s.csv", pts)).read_text().splitlines()
     assert text[0].split(",") == list(sweep.CSV_FIELDS) and len(text) == 3
 
@@ -174,10 +200,10 @@ def test_sweep_pins_one_scale_and_uses_the_config_speed_as_base(sphere, monkeypa
 
     def fake(gaussians, config, progress=True):
         seen.append((len(gaussians.means), config.scale, config.speed, config.dt, config.steps))
-        return SimpleNamespace(dbar=1.0)
+        return SimpleNamespace(dbar=1.0, dbar_empty=None)
 
     monkeypatch.setattr(sweep, "simulate_gaussians", fake)
-    monkeypatch.setattr(sweep, "domain_length", lambda res: 3.0)
+    monkeypatch.setattr(sweep, "reynolds_length", lambda res, spec: (3.0, "given"))
     shrunk = sphere_gaussians(200, radius=0.25)  # a smaller OTHER would get a 2x larger "auto" scale
     cfg = PhysicsConfig(**COARSE, directions=("-x",), speed=6.0)
     sweep.run_sweep(sphere, cfg, [6.0, 12.0], other=shrunk, progress=False)

@@ -68,7 +68,7 @@ def test_apps_sweep_plot_takes_sweep_points(tmp_path):
     from apps.sweep import plot_sweep as app_plot
 
     points = [SimpleNamespace(speed=u, dbar=1e-4 * u, dbar_other=None, reynolds=1e5 * u, dt=1e-3 / u, steps=40 * u,
-                              gap=None) for u in (3, 6)]
+                              gap=None, dbar_empty=1e-5 * u) for u in (3, 6)]
     _check_png(app_plot(points, tmp_path / "sweep.png", title="D-bar vs U: x.ply"), 900, 620)
 
 

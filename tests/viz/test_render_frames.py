@@ -5,6 +5,7 @@ errors raised before any output."""
 import argparse
 import json
 import logging
+from dataclasses import replace
 
 import cv2
 import h5py
@@ -251,26 +252,93 @@ def test_color_by_speed_and_fixed_vmax(tmp_path):
     np.testing.assert_array_equal(image[v, u], rf._COLORMAP_LUT[255])
 
 
-def test_boundary_is_grey_and_can_be_hidden(tmp_path):
-    wall = np.array([[1.6, 0.3, 0.2]])  # alone on the right, below the hot particles
-    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",), boundary=wall)
-    u, v = _pixel(wall[0])
-    shown = cv2.imread(str(render_frames(h5, tmp_path / "a", FrameStyle(width=W, height=H), False)[0]))
-    b, g, r = (int(c) for c in shown[v, u])
-    assert b == g == r and b >= rf._BOUNDARY_GREY_FAR
-    hidden_style = FrameStyle(width=W, height=H, show_boundary=False)
-    hidden = cv2.imread(str(render_frames(h5, tmp_path / "b", hidden_style, False)[0]))
+def test_solid_is_ivory_walls_hidden_by_default_and_all_can_be_hidden(tmp_path):
+    solid = np.array([[1.6, 0.3, 0.2]])  # inside the domain: solid, alone on the right, below the hot particles
+    wall = np.array([[1.5, 0.5, DOMAIN_MAX[2] + 0.05]])  # outside the box, in front of it: a wall particle
+    h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",), boundary=np.concatenate([solid, wall]))
+    (u, v), (wu, wv) = _pixel(solid[0]), _pixel(wall[0])
+    style = FrameStyle(width=W, height=H, frame="domain")
+    shown = cv2.imread(str(render_frames(h5, tmp_path / "a", style, False)[0]))
+    np.testing.assert_array_equal(shown[v, u], rf.SOLID_BGR.astype(np.uint8))  # the nearest (only) solid point
+    assert tuple(shown[wv, wu]) == rf._BACKGROUND  # walls hidden by default
+    for walls, grey in (("faint", rf._FAINT_GREY_NEAR), ("shown", rf._BOUNDARY_GREY_NEAR)):
+        image = cv2.imread(str(render_frames(h5, tmp_path / walls, replace(style, walls=walls), False)[0]))
+        b, g, r = (int(c) for c in image[wv, wu])
+        assert b == g == r and abs(b - grey) <= 20, (walls, b)
+    hidden = cv2.imread(str(render_frames(h5, tmp_path / "b", replace(style, show_boundary=False), False)[0]))
     assert tuple(hidden[v, u]) == rf._BACKGROUND
 
 
-def test_boundary_is_subsampled(tmp_path, monkeypatch):
+def test_boundary_is_split_by_the_domain_and_subsampled(tmp_path, monkeypatch):
     monkeypatch.setattr(rf, "MAX_BOUNDARY_POINTS", 100)
+    monkeypatch.setattr(rf, "MAX_SOLID_POINTS", 50)
     with h5py.File(tmp_path / "b.h5", "w") as f:
-        f["x"] = np.random.default_rng(0).random((1000, 3))
-        points = rf._read_boundary(f["x"], tmp_path / "b.h5")
-        assert points.shape == (100, 3)
-        assert len(np.unique(points, axis=0)) == 100
-        assert np.isin(points[:, 0], f["x"][:, 0]).all()
+        f["x"] = np.random.default_rng(0).random((1000, 3)) * 2 - 0.5  # [-0.5, 1.5)^3
+        domain = (np.zeros(3), np.ones(3))
+        solid, walls = rf._read_boundary(f["x"], tmp_path / "b.h5", domain)
+        assert solid.shape == (50, 3) and walls.shape == (100, 3)
+        assert ((solid >= 0) & (solid <= 1)).all() and (((walls < 0) | (walls > 1)).any(axis=1)).all()
+        assert len(np.unique(walls, axis=0)) == 100 and np.isin(walls[:, 0], f["x"][:, 0]).all()
+        everything, none = rf._read_boundary(f["x"], tmp_path / "b.h5", None)  # no domain: all of it is solid
+        assert len(everything) == 50 and len(none) == 0
+
+
+def _sphere_scene(path):
+    """A probe-like OUT.h5: a solid ball of lattice points in the middle of a large box, walls around it, fluid
+    around and in front of the ball (a slab in front along +z, the camera's side in the front view)."""
+    s = 0.05
+    g = np.mgrid[-6:7, -6:7, -6:7].reshape(3, -1).T
+    ball = g[(g ** 2).sum(1) <= 36] * s + 1.5
+    walls = np.array([[x, y, z] for x in (-0.1, 3.1) for y in np.linspace(0, 3, 30) for z in np.linspace(0, 3, 30)])
+    rng = np.random.default_rng(2)
+    fluid = rng.random((4000, 3)) * [3, 3, 0.3] + [0, 0, 2.2]  # a slab between the ball and the camera, partly
+    fluid = fluid[(fluid[:, 0] < 1.3) | (fluid[:, 1] < 1.3)]  # a corner cut out, so the ball shows there
+    behind = rng.random((3000, 3)) * [3, 3, 0.3] + [0, 0, 0.2]  # a slab behind the ball: hidden by it
+    x = np.concatenate([fluid, behind]).astype(np.float32)
+    with h5py.File(path, "w") as f:
+        f.attrs["scene"] = json.dumps({"domain": {"min": [0, 0, 0], "max": [3, 3, 3], "walls": True}})
+        f["boundary/x"] = np.concatenate([ball, walls]).astype(np.float32)
+        grp = f.create_group("frames/000000")
+        grp["x"], grp["v"] = x, np.zeros_like(x)
+        grp["divergence"] = rng.random(len(x)).astype(np.float32)
+        grp.attrs["time"], grp.attrs["step"] = 0.0, 0
+    return path, ball
+
+
+def test_a_frame_shows_the_solid_distinct_from_the_fluid_and_framed(tmp_path):
+    path, ball = _sphere_scene(tmp_path / "OUT.h5")
+    image = cv2.imread(str(render_frames(path, tmp_path / "f", FrameStyle(width=W, height=H), False)[0]))
+    x0, y0, vw, vh = scene_viewport(W, H)
+    scene = image[y0:y0 + vh, x0:x0 + vw].reshape(-1, 3).astype(np.int64)
+    # a pixel is the solid's when its colour is a shade of ivory: proportional to SOLID_BGR within rounding
+    scale = scene @ rf.SOLID_BGR / (rf.SOLID_BGR @ rf.SOLID_BGR)
+    ivory = (np.abs(scene - scale[:, None] * rf.SOLID_BGR).max(axis=1) <= 2) & (scale >= rf._SOLID_FAR - 0.02)
+    # visible: the ball's unhidden quarter covers many pixels
+    assert ivory.sum() > 300
+    # distinct: every shade of the solid is far from every colour the fluid can take (the TURBO map)
+    shades = rf.solid_colors(np.linspace(0, 1, 50)).astype(np.int64)
+    gap = np.linalg.norm(shades[:, None, :] - rf._COLORMAP_LUT[None].astype(np.int64), axis=2).min()
+    assert gap > 60
+    # no fluid pixel is ivory: the fluid pixels are the other non-background ones, all TURBO colours
+    fluid = ~ivory & (np.abs(scene - np.array(rf._BACKGROUND)).max(axis=1) > 0)
+    assert fluid.sum() > 300
+    lut_gap = np.linalg.norm(scene[fluid][:, None, :] - rf._COLORMAP_LUT[None].astype(np.int64), axis=2).min(axis=1)
+    assert np.median(lut_gap) < 5
+    # framed: the ball (1.2 m of a 3 m box) spans more than half the viewport's height; the walls are hidden
+    rows = np.nonzero(ivory.reshape(vh, vw).any(axis=1))[0]
+    assert rows.max() - rows.min() > 0.25 * vh  # its visible quarter alone
+    lo, hi = rf.camera_box(ball, [0, 0, 0], [3, 3, 3])
+    np.testing.assert_allclose(hi - lo, 0.6 * (1 + 2 * rf.OBJECT_MARGIN))
+    # the slab behind the ball is hidden where the ball is: the centre of the cut-out corner is ivory
+    u, v = _pixel_in(ball.mean(axis=0) + [-0.15, -0.15, 0.3], lo, hi)
+    np.testing.assert_array_less(np.abs(image[v, u].astype(int) - rf.SOLID_BGR * (image[v, u] @ rf.SOLID_BGR)
+                                        / (rf.SOLID_BGR @ rf.SOLID_BGR)), 3)
+
+
+def _pixel_in(point, lo, hi, view="front"):
+    x0, y0, w, h = scene_viewport(W, H)
+    uv, _ = project(np.asarray(point)[None], lo, hi, view, w, h)
+    return int(uv[0, 0] + x0), int(uv[0, 1] + y0)
 
 
 def test_missing_scene_falls_back_to_particle_bounds(tmp_path, caplog):
@@ -405,7 +473,7 @@ def test_cli_arguments_and_run(tmp_path, capsys):
     cli.add_arguments(parser)
     help_text = " ".join(parser.format_help().split())
     for option in ["--color-by", "--view", "--width", "--height", "--point-size", "--vmax", "--no-boundary",
-                   "--fps"]:
+                   "--fps", "--walls", "--frame"]:
         assert option in help_text
     for phrase in ["in pixels", "(default: 960)", "(default: 720)", "1/s", "m/s", "99th percentile",
                    "frames per second, .mp4 only (default: 30)"]:

@@ -20,6 +20,7 @@ import sys
 import tempfile
 import time
 import urllib.request
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -31,13 +32,16 @@ import torch
 from apps import cli
 from nbv.physics.aggregate import within_reach_reference
 from recon.camera import Camera
+from recon.datasets import load_cameras
 from recon.formats import load_gaussians
 from recon.gaussians import GaussianSet, sh0_to_rgb
 from recon.ply import save_gaussians
-from viz.cameras import candidate_views, read_scores, rotation_to_wxyz
+from viz.cameras import candidate_views, read_scores, rotation_to_wxyz, view_png
 from viz.colors import color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data
 from viz.splats import splat_looks
+from viz.thumbnails import project_to_view, view_thumbnail
+from viz.viewer import FluidViewer
 
 from helpers.paths import REPO as ROOT
 
@@ -45,6 +49,11 @@ FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-emp
 EVERY = 5
 FOV = math.radians(50)
 
+
+
+def _two(value: float) -> str:
+    """Two significant digits, as `fluidgs score` and the viewer print them."""
+    return f"{float(f'{value:.2g}'):g}"
 
 def _sphere(n: int = 300) -> GaussianSet:
     i = np.arange(n) + 0.5
@@ -121,9 +130,9 @@ def test_record_size_is_f_t_16_bytes(scene):
     counts = ProbePlan.of(data.solid, cfg).fluid_counts(["-x", "+z"])
     assert counts["-x"] == load_trajectory(data, "-x").x.shape[1]  # the estimate is the probe's own count
     record = RecordConfig(("-x", "+z"), every=EVERY)
-    assert check_record_size(counts, 40, record) == (counts["-x"] + counts["+z"]) * 8 * 16
+    assert check_record_size(counts, 40, record) == (counts["-x"] + counts["+z"]) * 8 * 24
     with pytest.raises(ValueError, match="--record-every 1[0-9] or record fewer"):
-        check_record_size(counts, 40, RecordConfig(("-x", "+z"), every=EVERY, max_bytes=counts["-x"] * 8 * 16))
+        check_record_size(counts, 40, RecordConfig(("-x", "+z"), every=EVERY, max_bytes=counts["-x"] * 8 * 24))
     for bad in (dict(every=0), dict(every=1.5), dict(max_bytes=-1.0)):
         with pytest.raises(ValueError, match="--record"):
             RecordConfig(("-x",), **bad)
@@ -133,7 +142,7 @@ def test_recording_is_checked_before_simulating(scene, tmp_path, caplog):
     base = ["simulate", str(scene.ply), "-o", str(tmp_path / "r.h5"), *FAST, "--directions=-x"]
     t0 = time.perf_counter()
     assert cli.main([*base, "--record-probe", "-x", "--record-max-gb", "1e-7"]) == 2
-    assert "--record-every" in caplog.text and "MiB" in caplog.text and "16 bytes" in caplog.text
+    assert "--record-every" in caplog.text and "MiB" in caplog.text and "24 bytes" in caplog.text
     assert cli.main([*base, "--record-probe", "+z"]) == 2
     assert "not among the probes run" in caplog.text
     assert cli.main([*base, "--record-probe", "-x", "--record-every", "41"]) == 2
@@ -148,8 +157,8 @@ def test_result_without_recording_stays_small(scene):
     with h5py.File(scene.h5) as f:
         assert "trajectory" in f["probes/-x"] and "trajectory" not in f["probes/+z"]
         frames, fluid = f["probes/-x/trajectory/x"].shape[:2]
-    # what the recording added: about F T 16 bytes (gzip takes some off)
-    assert frames * fluid * 16 < 2e6
+    # what the recording added: about F T 24 bytes (gzip takes some off)
+    assert frames * fluid * 24 < 3e6
 
 
 # ---- RESULT.h5 for the viewer ----------------------------------------------------------------------------------
@@ -338,6 +347,70 @@ def test_viewer_colours_frames_and_cameras(scene, viewer_of):
     assert math.isclose(client.camera.fov, best.fov_y)
     look = client.camera.look_at - best.position
     np.testing.assert_allclose(look / np.linalg.norm(look), best.forward, atol=1e-9)
+
+
+def test_side_panel_lists_the_top_views_with_their_numbers_and_pictures(scene, viewer_of, tmp_path):
+    # scores.json with the per-view coverage and S/A that `score` may add
+    data = json.loads(scene.scores.read_text())
+    for k, row in enumerate(data["views"]):
+        row["coverage"], row["physics_mean"] = 0.5 + 0.05 * k, 1e-3 * (k + 1)
+    scores = tmp_path / "scores.json"
+    scores.write_text(json.dumps({**data, "cameras": str(scene.cameras)}))
+    v = viewer_of(gaussians=scene.ply, scores=scores, probe="-x")
+    ranked = sorted(data["views"], key=lambda r: r["rank"])
+    assert [b.label for b in v._view_buttons] == [f"#{r['rank']} {r['name']}" for r in ranked]
+    for image, row in zip(v._view_images, ranked, strict=True):
+        s, a, m = (_two(row[k]) for k in ("score", "coverage", "physics_mean"))
+        assert image.label == f"S = {s}, A = {a}, S/A = {m}"
+    # no PNGs were written (--no-png): each thumbnail is the centres seen through that camera, not blank
+    for image in v._view_images:
+        assert image.image.shape == (167, 200, 3) and (np.abs(image.image.astype(int) - 238).max(-1) > 30).sum() > 50
+    # a click on an entry moves the view there
+    client = _FakeClient()
+    best = v.ranked_views()[0]
+    v._clicked(SimpleNamespace(client=client), best)
+    np.testing.assert_allclose(client.camera.position, best.position)
+    # the replay opens at mid-run; each probe's reach and the empty-scene reference are listed
+    assert v._frame == load_trajectory(v.data, "-x").num_frames // 2
+    table = v.probe_markdown()
+    with h5py.File(scene.h5) as f:
+        for d in ("-x", "+z"):
+            assert f"| {d} | {int((f[f'probes/{d}/counts'][()] > 0).sum()):,} (" in table
+    assert "the empty scene was not run" in table  # FAST runs no empty scene
+    # without the coverage columns the caption is S(T) alone
+    assert FluidViewer.view_caption(replace(best, coverage=None, physics_mean=None)) == f"S = {_two(best.score)}"
+
+
+def test_thumbnail_is_the_score_png_when_there_is_one(scene, tmp_path):
+    import cv2
+
+    data = load_view_data(scene.h5)
+    view = replace(candidate_views(scene.cameras, data.scene_to_sim, None, "r.h5")[2], rank=3)
+    scores = tmp_path / "scores.json"
+    assert view_png(scores, view) is None
+    folder = tmp_path / "scores_views"
+    folder.mkdir()
+    picture = np.zeros((100, 300, 3), np.uint8)
+    picture[:] = (0, 0, 255)  # BGR red
+    cv2.imwrite(str(folder / f"rank003_{view.index:03d}_{view.name}.png"), picture)
+    found = view_png(scores, view)
+    assert found == folder / f"rank003_{view.index:03d}_{view.name}.png"
+    thumb = view_thumbnail(replace(view, png=found), data.means, np.zeros((data.num_gaussians, 3)))
+    assert thumb.shape == (67, 200, 3) and (thumb[..., 0] > 250).all() and (thumb[..., 2] < 5).all()  # RGB red
+
+
+def test_thumbnail_projection_is_the_cameras(scene):
+    data = load_view_data(scene.h5)
+    views = candidate_views(scene.cameras, data.scene_to_sim, None, "r.h5")
+    cams = load_cameras(scene.cameras)
+    scene_pts = np.random.default_rng(0).normal(scale=0.4, size=(200, 3))
+    sim_pts = scene_pts @ data.scene_to_sim[:3, :3].T + data.scene_to_sim[:3, 3]
+    for view, cam in zip(views, cams, strict=True):
+        uv, depth = project_to_view(view, sim_pts, cam.height)
+        ref, z = cam.project(torch.tensor(scene_pts))
+        front = z.numpy() > 0
+        assert ((depth > 0) == front).all()
+        np.testing.assert_array_equal(uv[front], np.floor(ref.numpy()[front]).astype(np.int64))
 
 
 def test_gaussians_outside_the_crop_are_hidden_until_asked_for(scene, viewer_of, tmp_path):
@@ -602,3 +675,28 @@ def test_view_label_shows_the_score_and_its_parts(tmp_path):
     assert _uncertainty_png({"uncertainty_image": {"png": str(png)}}) is None  # named but missing
     png.write_bytes(b"x")
     assert _uncertainty_png({"uncertainty_image": {"png": str(png)}}) == png and _uncertainty_png(None) is None
+
+
+PANEL_READY = ("(() => { const t = document.body.innerText; const thumbs = [...document.images].filter(i => "
+               "i.naturalWidth === 200 && i.complete); return t.includes('Top views') && t.includes('#1 ') && "
+               "t.includes('S = ') && thumbs.length >= 3; })()")
+
+
+def test_browser_shows_the_list_of_views(scene, viewer_of, tmp_path):
+    """The side panel in a real browser: the 'Top views' folder with the ranked entries, their S(T) and their
+    thumbnails loaded (the screenshot is kept in the test's folder)."""
+    if _browser() is None:
+        pytest.skip("no Chromium on this machine (install Debian's: apt-get install chromium; .ci/run does as root)")
+    pytest.importorskip("websockets.sync.client")
+    import cv2
+
+    v = viewer_of(gaussians=scene.ply, scores=scene.scores, probe="-x")
+    shots = browser_screenshots(v.url, size=(1280, 1400), timeout=90.0, dismiss=True, ready=PANEL_READY)
+    try:
+        img, _ = next(shots)  # the first screenshot comes only once PANEL_READY holds
+    except BrowserUnavailable as exc:
+        pytest.skip(f"no working browser: {exc}")
+    finally:
+        shots.close()
+    cv2.imwrite(str(tmp_path / "panel.png"), img[..., ::-1])
+    assert img.shape[:2] == (1400, 1280)

@@ -1,0 +1,141 @@
+"""`fluidgs export FILE.h5 --vtk DIR`: a simulation's particles and solid in the formats other tools open.
+
+``--vtk DIR`` writes one VTK point cloud (.vtu) per saved frame of an OUT.h5 (``fluidgs sim``), or per recorded
+frame of a RESULT.h5 (``fluidgs simulate --record-probe``), with velocity, D_i and density as point data, the
+solid (and the walls), and a ParaView ``.pvd`` series (:mod:`nbv.export.particles`). ``--solid PATH`` writes the
+filled solid of a RESULT.h5 (or the solid of an OUT.h5) as a closed mesh and a voxel grid
+(:mod:`nbv.export.solid`), as ``simulate --export-solid`` does. Nothing is simulated.
+
+This module also holds the ``--export-solid`` options that ``simulate`` and ``score`` share.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+FRAME_HELP = ("frame of the solid mesh: sim (simulation metres, Y-up, as RESULT.h5 and glTF) or scene (the "
+              "Gaussians' own frame and units, to overlay the splat); the voxel grid is always in sim metres")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("h5", type=Path, help="an OUT.h5 of `fluidgs sim` or a RESULT.h5 of `fluidgs simulate`")
+    p.add_argument("--vtk", type=Path, default=None, metavar="DIR",
+                   help="write the particle frames as VTK (.vtu per frame, .pvd series, solid.vtu) into this folder, "
+                        "replaced as a whole (default: none)")
+    p.add_argument("--probe", default=None, metavar="DIRS",
+                   help="RESULT.h5: comma list of the recorded probes to write (default: every recorded probe)")
+    p.add_argument("--solid", type=Path, default=None, metavar="PATH",
+                   help="write the solid as a mesh (.ply, .obj, .glb, .stl; the voxel grid beside it as "
+                        ".voxels.h5) or as a voxel grid only (.h5) (default: none)")
+    p.add_argument("--export-frame", choices=("sim", "scene"), default="sim", help=f"{FRAME_HELP} (default: sim)")
+
+
+def add_solid_export_arguments(p: argparse.ArgumentParser) -> None:
+    """``--export-solid PATH`` and ``--export-frame`` of simulate and score."""
+    g = p.add_argument_group("solid export")
+    g.add_argument("--export-solid", type=Path, default=None, metavar="PATH",
+                   help="also write the filled solid the probes used: a mesh by marching cubes (.ply, .obj, .glb or "
+                        ".stl; the voxel grid beside it as <stem>.voxels.h5) or a voxel grid only (.h5): origin, "
+                        "spacing (m), occupancy (default: none)")
+    g.add_argument("--export-frame", choices=("sim", "scene"), default="sim", help=f"{FRAME_HELP} (default: sim)")
+
+
+def solid_export_outputs(path: Path | None) -> dict[str, Path]:
+    """The files ``--export-solid path`` writes, labelled for :func:`fluidsim.files.check_not_input`, after checking
+    the suffix (a ValueError names the option and the suffixes) and that each can be written."""
+    if path is None:
+        return {}
+    from fluidsim.files import check_writable
+    from nbv.export.solid import check_export_path, export_paths
+
+    mesh, grid = export_paths(check_export_path(path))
+    out = {"--export-solid": mesh, "--export-solid voxels": grid} if mesh is not None else {"--export-solid": grid}
+    for p in out.values():
+        check_writable(p)
+    return out
+
+
+def write_solid_export(path: Path | None, result, frame: str = "sim") -> None:
+    """Write the solid of a PhysicsResult to ``path`` (nothing when None) and print what was written."""
+    if path is None:
+        return
+    from nbv.export.solid import export_solid
+
+    info = export_solid(path, result.solid, 2.0 * result.config.particle_radius, result.transform.matrix, frame)
+    print_solid_export(info)
+
+
+def print_solid_export(info: dict) -> None:
+    mesh = "" if info["mesh"] is None else (
+        f"mesh {info['mesh']} ({'watertight' if info['watertight'] else 'NOT watertight'}, "
+        f"{info['mesh_volume_m3']:.4g} m^3), ")
+    print(f"solid: {mesh}voxels {info['voxels']} ({info['cells']} cells, {info['volume_m3']:.4g} m^3)")
+
+
+def _solid_of_file(path: Path) -> tuple:
+    """(points m, spacing m, scene_to_sim) of the solid in a RESULT.h5 or an OUT.h5."""
+    import h5py
+    import numpy as np
+
+    from nbv.export.particles import split_boundary
+
+    with h5py.File(path, "r") as f:
+        if "solid/x" in f:
+            cfg = json.loads(f.attrs["config"])
+            m = np.asarray(f.attrs["scene_to_sim"], np.float64) if "scene_to_sim" in f.attrs else np.eye(4)
+            return np.asarray(f["solid/x"][()], np.float64), 2.0 * float(cfg["particle_radius"]), m
+        if "boundary/x" in f:
+            scene = json.loads(f.attrs.get("scene", "{}"))
+            solid, _ = split_boundary(f["boundary/x"][()], scene)
+            if "particle_radius" not in scene or not len(solid):
+                raise ValueError(f"--solid: {path} names no particle_radius or has no solid inside its domain")
+            return np.asarray(solid, np.float64), 2.0 * float(scene["particle_radius"]), np.eye(4)
+    raise ValueError(f"--solid: {path} has neither /solid/x (RESULT.h5) nor /boundary/x (OUT.h5)")
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.files import check_not_input, check_writable
+    from nbv.export.particles import check_recorded, check_vtk_source, export_vtk
+
+    if args.vtk is None and args.solid is None:
+        raise ValueError("export: nothing to write; pass --vtk DIR (particle frames) and/or --solid PATH (the solid)")
+    if not args.h5.is_file():
+        raise FileNotFoundError(f"{args.h5} does not exist or is not a file; pass an OUT.h5 or a RESULT.h5")
+    outputs = {"--vtk": args.vtk, **solid_export_outputs(args.solid)}
+    if args.solid is not None:
+        outputs["--solid"] = outputs.pop("--export-solid")
+    check_not_input(outputs, {"H5": args.h5})
+    probes = None
+    if args.probe is not None:
+        from fluidsim.directions import DIRECTIONS
+
+        probes = tuple(d.strip() for d in args.probe.split(",") if d.strip())
+        bad = [d for d in probes if d not in DIRECTIONS]
+        if bad or not probes:
+            raise ValueError(f"--probe {args.probe!r}: use a comma list of {','.join(DIRECTIONS)}")
+    if args.vtk is not None:
+        kind = check_vtk_source(args.h5)
+        if args.vtk.exists() and not args.vtk.is_dir():
+            raise ValueError(f"--vtk {args.vtk} exists and is not a folder; name a folder")
+        if probes is not None and kind != "result":
+            raise ValueError("--probe applies to a RESULT.h5 with recorded probes; drop it for an OUT.h5")
+        if probes is not None:
+            check_recorded(args.h5, probes)
+        check_writable(args.vtk)  # the folder is written under a temporary name beside it
+    solid = _solid_of_file(args.h5) if args.solid is not None else None
+    if args.vtk is not None:
+        info = export_vtk(args.h5, args.vtk, probes, progress=True)
+        for name, n in info["series"].items():
+            print(f"{name}: {n} frames -> {args.vtk / (name + '.pvd')}")
+        print(f"vtk: {info['files']} files in {args.vtk} (open the .pvd in ParaView; solid.vtu is the solid)")
+    if solid is not None:
+        from nbv.export.solid import export_solid
+
+        try:
+            info = export_solid(args.solid, *solid, frame=args.export_frame)
+        except ValueError as exc:
+            raise ValueError(f"--solid {args.solid}: {exc}") from None
+        print_solid_export(info)
+    return 0
