@@ -24,6 +24,7 @@ from nbv.plan.fused import (
     VarianceShuffledPlanner,
     _FusedPlanner,
 )
+from nbv.plan.fvs import FVSPlanner
 from nbv.plan.physics import PhysicsPlanner
 from nbv.plan.random import RandomPlanner
 from nbv.plan.variance import VariancePlanner
@@ -48,6 +49,7 @@ PLANNERS: dict[str, type] = {
     "fisher+perprobe": FisherPerProbePlanner,
     "fisher+balanced": FisherBalancedPlanner,
     "fisher+balanced-occ": FisherBalancedOccPlanner,
+    "fvs": FVSPlanner,
 }
 
 

@@ -98,7 +98,7 @@ def test_registry_names_and_make_planner():
     assert set(PLANNERS) == {"random", "fisher", "variance", "physics", "fisher+fluid", "variance+fluid",
                              "random+fluid", "fisher+area", "fisher+shuffled", "variance+area", "variance+shuffled",
                              "random+area", "random+shuffled", "fisher+fluid-occ", "fisher+area-occ",
-                             "fisher+excess", "fisher+perprobe", "fisher+balanced", "fisher+balanced-occ"}
+                             "fisher+excess", "fisher+perprobe", "fisher+balanced", "fisher+balanced-occ", "fvs"}
     for name in PLANNERS:
         planner = make_planner(name, seed=3)
         assert isinstance(planner, Planner)
