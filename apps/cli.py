@@ -51,6 +51,7 @@ try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets o
         score,
         sim,
         simulate,
+        study,
         sweep,
         train,
         view,
@@ -89,6 +90,7 @@ COMMANDS = {
     "eval": (evaluate, "evaluate an active run: test PSNR/SSIM/LPIPS, D-bar, Chamfer, critical-view PSNR and D-bar"),
     "experiment": (experiment, "methods x scenes x seeds of active + eval; paper-shaped tables and plots"),
     "export": (export, "particle frames as VTK (.vtu per frame, .pvd series) for ParaView; the solid as mesh + voxels"),
+    "study": (study, "measurement studies: oracle (every rule's scores against the candidates' real PSNR gain)"),
     "view": (view, "see RESULT.h5 in a browser: splat coloured by D_g, solid, probe fluid over time, ranked cameras"),
 }
 

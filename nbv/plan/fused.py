@@ -12,6 +12,7 @@ import torch
 
 from nbv.plan.base import PlanningContext, ProbeFields, Selection, check_candidates, fused_k, nan_scores
 from nbv.plan.fisher import FisherPlanner
+from nbv.plan.fvs import FVSPlanner
 from nbv.plan.physics import physics_view_scores, run_physics, shuffled_divergence
 from nbv.plan.random import RandomPlanner
 from nbv.plan.rules import FUSED, FusedRule
@@ -20,7 +21,7 @@ from nbv.plan.variance import VariancePlanner
 log = logging.getLogger(__name__)
 
 # The visual planner of each fused rule's ``visual`` name.
-VISUAL_TYPES = {"fisher": FisherPlanner, "variance": VariancePlanner, "random": RandomPlanner}
+VISUAL_TYPES = {"fisher": FisherPlanner, "variance": VariancePlanner, "random": RandomPlanner, "fvs": FVSPlanner}
 
 
 def excess_divergence(fields: ProbeFields) -> torch.Tensor:

@@ -11,6 +11,7 @@ from dataclasses import fields
 from nbv.plan.base import Planner
 from nbv.plan.fisher import FisherPlanner
 from nbv.plan.fused import VISUAL_TYPES, FusedPlanner
+from nbv.plan.fvs import FVSPlanner
 from nbv.plan.physics import PhysicsPlanner
 from nbv.plan.random import RandomPlanner
 from nbv.plan.rules import FUSED, PLANNER_NAMES, FusedRule
@@ -18,7 +19,8 @@ from nbv.plan.variance import VariancePlanner
 
 # name -> the planner class, or the fused rule that FusedPlanner runs
 PLANNERS: dict[str, type | FusedRule] = {"random": RandomPlanner, "fisher": FisherPlanner,
-                                         "variance": VariancePlanner, "physics": PhysicsPlanner, **FUSED}
+                                         "variance": VariancePlanner, "physics": PhysicsPlanner, "fvs": FVSPlanner,
+                                         **FUSED}
 if tuple(PLANNERS) != PLANNER_NAMES:
     raise RuntimeError(f"nbv.plan.registry lists {tuple(PLANNERS)}, nbv.plan.rules {PLANNER_NAMES}")
 

@@ -14,10 +14,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-# The planners that score views on their own (nbv.plan.random, fisher, variance, physics).
-BASE_PLANNERS = ("random", "fisher", "variance", "physics")
+# The planners that score views on their own (nbv.plan.random, fisher, variance, physics, fvs).
+BASE_PLANNERS = ("random", "fisher", "variance", "physics", "fvs")
 # The planners that propose a fused planner's shortlist.
-VISUAL_PLANNERS = ("fisher", "variance", "random")
+VISUAL_PLANNERS = ("fisher", "variance", "random", "fvs")
 # Which per-Gaussian values re-rank the shortlist (nbv.plan.fused.FusedPlanner.per_gaussian).
 CONTROLS = ("fluid", "area", "shuffled", "excess", "perprobe")
 # How the shortlist's scores are formed: S(T) of those values, or z(coverage) + z(S / coverage).
@@ -64,6 +64,7 @@ FUSED_RULES = (
     FusedRule("fisher+fluid", "fisher", summary="FluidGaussian: FisherRF's top-K re-ranked by S(T)"),
     FusedRule("variance+fluid", "variance", summary="the same on the variance planner"),
     FusedRule("random+fluid", "random", summary="K random candidates re-ranked by S(T), the paper's ablation"),
+    FusedRule("fvs+fluid", "fvs", summary="the K candidates farthest from the views taken, re-ranked by S(T)"),
     FusedRule("fisher+area", "fisher", "area", summary="control: the coverage, no probes"),
     FusedRule("fisher+shuffled", "fisher", "shuffled", summary="control: D_g permuted"),
     FusedRule("variance+area", "variance", "area", summary="control: the coverage, no probes"),

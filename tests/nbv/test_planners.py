@@ -98,7 +98,8 @@ def test_registry_names_and_make_planner():
     from nbv.plan import FUSED_RULES, PLANNER_NAMES, FusedRule, describe_planners, uses_physics
 
     assert tuple(PLANNERS) == PLANNER_NAMES and len(set(PLANNER_NAMES)) == len(PLANNER_NAMES)
-    assert {"random", "fisher", "variance", "physics", "fisher+fluid", "variance+fluid", "random+fluid"} <= set(
+    assert {"random", "fisher", "variance", "physics", "fisher+fluid", "variance+fluid", "random+fluid", "fvs",
+            "fvs+fluid"} <= set(
         PLANNERS)
     for name in PLANNERS:
         planner = make_planner(name, seed=3)

@@ -1,0 +1,620 @@
+"""The oracle: what every view-scoring rule is worth against the view that actually helps.
+
+A *state* of the active loop (:mod:`nbv.active`) is the set of views selected so far and the model trained on them:
+the biased initial views plus the picks of a planner (FisherRF by default), trained exactly as the loop trains before
+its selection round with that many views. At a state the study
+
+1. trains a copy of the model once per remaining candidate, for M iterations (``horizon``) with that candidate added
+   to the selected views, and once without. Every copy starts from the same trainer state (parameters, Adam moments,
+   iteration, RNG), so they share the seed and the schedule. The candidate's **oracle gain** is the difference in
+   mean test PSNR (dB) with and without it; the SSIM gain is recorded too;
+2. scores every remaining candidate with every rule of :data:`nbv.study.oracle_config.RULES` (the physics rules once
+   per probe setting);
+3. with a mesh, computes the per-Gaussian calibration (:mod:`nbv.study.calibration`).
+
+Each state is written to ``OUTPUT/states/<scene>/seed<k>/state<n>.json`` (atomically), so an interrupted study
+resumes: a state whose file holds the same config is not recomputed, and its selected views spare the planner's picks
+of the larger states.
+
+The summary (``OUTPUT/oracle.json`` and ``OUTPUT/oracle.md``), per rule:
+
+- the mean Spearman between its scores and the oracle gains over the states, with a 95 % bootstrap interval that
+  resamples the (scene, seed) pairs (the states of one run are not independent);
+- the regret of its pick inside FisherRF's greedy top-K (K = max(B - n, 2), or ``top_k``): the best gain of the
+  shortlist minus the gain of the rule's pick there (dB);
+- for a physics rule, the paired difference of its Spearman against its coverage control, with the same interval and
+  the sign-test and Wilcoxon p-values over the states (:mod:`nbv.study.paired`).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import logging
+import math
+import time
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from nbv.active import ActiveConfig, dataset_up, is_empty_solid
+from nbv.active.loop import biased_initial_views, load_active_dataset, planner_seed
+from nbv.io import json_safe, write_json_atomic, write_text_atomic
+from nbv.physics import PhysicsConfig, simulate_gaussians
+from nbv.plan import PlanningContext, ProbeFields, fused_k, make_planner, uses_physics
+from nbv.plan.fisher import FisherPlanner
+from nbv.plan.fisher_info import FisherConfig, view_fisher
+from nbv.plan.fused import balanced_scores, excess_divergence, per_probe_normalised
+from nbv.plan.fvs import farthest_view_distances
+from nbv.plan.physics import physics_view_scores, shuffled_divergence
+from nbv.plan.variance import VariancePlanner
+from nbv.plan.variance_model import VarianceConfig
+from nbv.study import calibration as cal
+from nbv.study.convergence import spearman
+from nbv.study.oracle_config import RULES, OracleConfig, rule_of
+from nbv.study.paired import format_p, paired_stats
+from recon.datasets import load_dataset
+from recon.gaussians import GaussianSet
+from recon.mesh_render import load_mesh
+from recon.train import Trainer, evaluate, initial_gaussians, scene_extent, view_to
+
+log = logging.getLogger(__name__)
+
+CALIBRATION_SAMPLES = 2000  # mesh samples of the missing geometry
+MISSING_OPACITY = 0.05  # Gaussians below it cover nothing (the authors' solid threshold)
+
+
+# ---- planning ----------------------------------------------------------------------------------------
+def scene_names(scenes: Sequence[str]) -> list[str]:
+    """Folder names, made unique with a counter where two scenes share one."""
+    names, seen = [], defaultdict(int)
+    for s in scenes:
+        base = Path(s).name or "scene"
+        seen[base] += 1
+        names.append(base if seen[base] == 1 else f"{base}-{seen[base]}")
+    return names
+
+
+def state_path(output: str | Path, scene: str, seed: int, n: int) -> Path:
+    return Path(output) / "states" / scene / f"seed{seed}" / f"state{n}.json"
+
+
+def check_scenes(config: OracleConfig) -> dict[str, dict]:
+    """Load every scene once (before any training) and check it against the config.
+
+    Returns:
+        scene path -> {"candidates": train views, "test": test views, "mesh": mesh path or None}.
+    Raises:
+        ValueError: a scene that does not load, has no test views, or too few candidates for the largest state,
+            naming the config key and the fix.
+    """
+    out = {}
+    for scene in config.scenes:
+        acfg = config.active_config(config.seeds[0])
+        try:
+            ds = load_dataset(scene, resolution=acfg.resolution)
+        except ValueError as exc:
+            raise ValueError(f"oracle config 'scenes': {exc}") from exc
+        if not ds.test:
+            raise ValueError(f"oracle config 'scenes': {scene} has no test views; the oracle gain is a test PSNR, so "
+                             "render the dataset with test views (fluidgs render-dataset --test N) or drop the scene")
+        largest = max(config.states)
+        if largest >= len(ds.train):
+            raise ValueError(f"oracle config 'states': a state of {largest} views leaves no candidate of the "
+                             f"{len(ds.train)} in {scene}; use states below {len(ds.train)}")
+        if acfg.budget > len(ds.train):
+            raise ValueError(f"oracle config 'active': budget {acfg.budget} exceeds the {len(ds.train)} candidates of "
+                             f"{scene}; lower active.budget")
+        out[scene] = {"candidates": len(ds.train), "test": len(ds.test),
+                      "mesh": None if ds.mesh_path is None else str(ds.mesh_path)}
+    return out
+
+
+STUDY_ONLY_KEYS = ("scenes", "seeds", "states", "output", "bootstrap")  # keys that do not change a state's content
+
+
+def state_key(config: OracleConfig) -> dict:
+    """What a state file must match to be reused: the config without the keys that only choose or summarise states
+    (so adding a seed or a state to a finished study reuses its states)."""
+    return {k: v for k, v in json_safe(config.to_dict()).items() if k not in STUDY_ONLY_KEYS}
+
+
+def plan_jobs(config: OracleConfig) -> list[dict]:
+    """One picklable job per (scene, seed, state)."""
+    jobs = []
+    cfg = json_safe(config.to_dict())
+    for scene, name in zip(config.scenes, scene_names(config.scenes), strict=True):
+        for seed in config.seeds:
+            for n in sorted(config.states):
+                jobs.append({"scene": name, "dataset": scene, "seed": seed, "n": n, "config": cfg,
+                             "path": str(state_path(config.output, name, seed, n))})
+    return jobs
+
+
+def _stored(path: Path, config: dict) -> dict | None:
+    """The state file at ``path`` when it holds a finished state of ``config`` (:func:`state_key`)."""
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError:
+        return None
+    key = {k: v for k, v in config.items() if k not in STUDY_ONLY_KEYS}
+    return data if data.get("config") == key else None
+
+
+# ---- probes and rules --------------------------------------------------------------------------------
+def probe_run(gaussians: GaussianSet, physics: PhysicsConfig, source: str = "") -> tuple[torch.Tensor, ProbeFields]:
+    """D_g [N] (float64, 1/s) and the per-probe fields of one probe run; zeros when the Gaussians form no solid
+    (as the active loop does for a barely trained reconstruction)."""
+    try:
+        res = simulate_gaussians(gaussians, physics, progress=False, source=source)
+    except ValueError as exc:
+        if not is_empty_solid(exc):
+            raise
+        log.warning("%s: %s; D_g = 0", source, exc)
+        zeros = torch.zeros(gaussians.num, dtype=torch.float64)
+        return zeros, ProbeFields(("none",), zeros.reshape(1, -1), zeros.reshape(1, -1))
+    fields = ProbeFields(tuple(res.directions), torch.from_numpy(res.per_probe),
+                         None if res.empty_per_probe is None else torch.from_numpy(res.empty_per_probe))
+    return torch.from_numpy(res.divergence).to(torch.float64), fields
+
+
+def rule_values(values: str, divergence: torch.Tensor, fields: ProbeFields, seed: int,
+                round_index: int) -> torch.Tensor:
+    """The per-Gaussian values v_g of a physics rule (``RULES[...].values``)."""
+    if values == "divergence":
+        return divergence
+    if values == "shuffled":
+        return shuffled_divergence(divergence, seed, round_index)
+    if values == "excess":
+        return excess_divergence(fields)
+    if values == "perprobe":
+        return per_probe_normalised(fields.per_probe)
+    raise ValueError(f"rule_values: {values!r} is not a physics value")
+
+
+def score_rules(config: OracleConfig, context: PlanningContext, physics: dict[str, PhysicsConfig],
+                seed: int, shortlist_k: int) -> tuple[dict[str, list[float]], list[int], dict[str, Any]]:
+    """Every rule's score of every candidate of ``context``.
+
+    Args:
+        config: the study (its rules and probe settings).
+        context: the state (Gaussians, selected views, all remaining candidates).
+        physics: probe setting name -> PhysicsConfig (up direction resolved).
+        seed: the planner seed of this round.
+        shortlist_k: K of FisherRF's greedy shortlist.
+    Returns:
+        (rule label -> [C] scores, FisherRF's greedy shortlist (positions), extras: the per-setting D_g and fields,
+        the Fisher train diagonal, seconds per rule family).
+    """
+    g, cams = context.gaussians, context.candidates
+    count = len(cams)
+    scores: dict[str, list[float]] = {}
+    seconds: dict[str, float] = {}
+    wanted = set(config.scored_rules())
+    t0 = time.perf_counter()
+    shortlist, fisher = FisherPlanner(FisherConfig(seed=seed)).rank(context, min(shortlist_k, count))
+    scores["fisher"] = list(fisher)
+    seconds["fisher"] = time.perf_counter() - t0
+    if "variance" in wanted:
+        t0 = time.perf_counter()
+        scores["variance"] = list(VariancePlanner(VarianceConfig(seed=seed)).rank(context, count)[1])
+        seconds["variance"] = time.perf_counter() - t0
+    if "fvs" in wanted:
+        scores["fvs"] = farthest_view_distances(cams, [v.camera for v in context.train_views])
+    if "random" in wanted:
+        scores["random"] = np.random.default_rng([seed, 7]).random(count).tolist()
+    t0 = time.perf_counter()
+    ones = torch.ones(g.num, dtype=torch.float64)
+    coverage = {occ: physics_view_scores(g, cams, ones, occlusion=occ) for occ in (False, True)}
+    for name in ("coverage", "coverage-occ"):
+        if name in wanted:
+            scores[name] = coverage[RULES[name].depth_test]
+    seconds["coverage"] = time.perf_counter() - t0
+    fields_out = {}
+    for setting, pcfg in physics.items():
+        labels = [label for label in config.physics_rules() if label.endswith(f":{setting}")]
+        if not labels:
+            continue
+        t0 = time.perf_counter()
+        divergence, fields = probe_run(g, pcfg, source=f"probe setting {setting}")
+        t1 = time.perf_counter()
+        fields_out[setting] = (divergence, fields)
+        cache: dict[tuple[str, bool], list[float]] = {}
+        for label in labels:
+            rule = rule_of(label)
+            key = (rule.values, rule.depth_test)
+            if key not in cache:
+                v = rule_values(rule.values, divergence, fields, seed, context.round)
+                cache[key] = physics_view_scores(g, cams, v, occlusion=rule.depth_test)
+            s, a = cache[key], coverage[rule.depth_test]
+            if rule.combine == "balanced":
+                s = balanced_scores(a, s)
+            elif rule.combine == "ratio":
+                s = [si / ai if ai > 0 else 0.0 for si, ai in zip(s, a, strict=True)]
+            scores[label] = list(s)
+        seconds[f"probes:{setting}"] = t1 - t0
+        seconds[f"scores:{setting}"] = time.perf_counter() - t1
+    return scores, list(shortlist), {"fields": fields_out, "seconds": seconds}
+
+
+# ---- the oracle --------------------------------------------------------------------------------------
+def oracle_gains(new_trainer: Callable[[], Trainer], state: dict, train_views: list, candidate_views: list,
+                 test_views: list, background: Sequence[float], horizon: int,
+                 progress: Callable[[], None] | None = None) -> dict[str, Any]:
+    """Train one copy per candidate (and one without) for ``horizon`` iterations from ``state``; their test metrics.
+
+    Args:
+        new_trainer: builds a Trainer of the run's config (its state is replaced by ``state``).
+        state: :meth:`recon.train.Trainer.state_dict` of the state's model.
+        train_views: the selected views. candidate_views: the C remaining views (their images are used here only).
+        test_views: held-out views. background: the dataset background.
+        horizon: M iterations per copy.
+        progress: called after each copy.
+    Returns:
+        {"psnr_base", "ssim_base", "psnr": [C], "ssim": [C], "gain_psnr": [C] dB, "gain_ssim": [C]}.
+    """
+    def run(views: list) -> dict:
+        trainer = new_trainer()
+        trainer.load_state_dict(copy.deepcopy(state))
+        trainer.train(views, horizon)
+        metrics = evaluate(trainer.gaussians, test_views, background, backend=trainer.backend)
+        if progress is not None:
+            progress()
+        return metrics
+
+    base = run(list(train_views))
+    psnrs, ssims = [], []
+    for view in candidate_views:
+        m = run(list(train_views) + [view])
+        psnrs.append(m["psnr"])
+        ssims.append(m["ssim"])
+    return {"psnr_base": base["psnr"], "ssim_base": base["ssim"], "psnr": psnrs, "ssim": ssims,
+            "gain_psnr": [p - base["psnr"] for p in psnrs], "gain_ssim": [s - base["ssim"] for s in ssims]}
+
+
+def fisher_diagonal(gaussians: GaussianSet, cameras: list, background: torch.Tensor) -> torch.Tensor:
+    """[N] the Fisher information of each Gaussian over the selected views (the trace of its diagonal block)."""
+    h = torch.zeros(gaussians.num, dtype=torch.float64)
+    for cam in cameras:
+        h += view_fisher(gaussians, cam, background).to(torch.float64).sum(dim=1).cpu()
+    return h
+
+
+def calibrate(gaussians: GaussianSet, mesh_path: str, train_cameras: list, candidate_cameras: list,
+              background: torch.Tensor, signals_physics: dict[str, torch.Tensor], scores: dict[str, list[float]],
+              gains: list[float], seed: int) -> dict[str, Any]:
+    """The per-Gaussian calibration of one state (module :mod:`nbv.study.calibration`).
+
+    Every signal is oriented as an uncertainty (larger = more likely wrong): D_g and its variants as they are,
+    1 - opacity, the largest scale, and minus the Fisher information. Reported per signal: the Spearman of the
+    oriented signal with the Gaussian's distance to the mesh (positive: it points at wrong geometry) and the AUSE.
+    """
+    vertices, triangles = load_mesh(mesh_path)
+    g = gaussians.detach().to("cpu")
+    dist = cal.surface_distance(g.means.double().numpy(), vertices, triangles)
+    signals = {"opacity": 1.0 - g.opacities.double(), "largest scale": g.max_radii().double(),
+               "fisher diagonal": -fisher_diagonal(g, train_cameras, background)}
+    signals.update(signals_physics)
+    out: dict[str, Any] = {"gaussians": g.num, "mean_distance": float(dist.mean()),
+                           "median_distance": float(np.median(dist)), "signals": {}}
+    for name, u in signals.items():
+        u = u.numpy() if isinstance(u, torch.Tensor) else np.asarray(u)
+        out["signals"][name] = {"spearman": spearman(u, dist), "ause": cal.ause(u, dist),
+                                "reached": float((u > 0).mean()) if name.startswith("D_g") else None}
+    samples = cal.sample_surface(vertices, triangles, CALIBRATION_SAMPLES, seed)
+    missing = cal.missing_samples(samples, g, 2.0, MISSING_OPACITY)
+    seen = cal.visible_samples(samples, candidate_cameras, vertices, triangles)
+    per_view = (seen & missing[None]).sum(axis=1).astype(float)
+    out["missing"] = {"samples": CALIBRATION_SAMPLES, "missing": int(missing.sum()), "per_view": per_view.tolist()}
+    out["rules_vs_missing"] = {label: spearman(s, per_view) for label, s in scores.items()}
+    out["gain_vs_missing"] = spearman(gains, per_view)
+    return out
+
+
+# ---- one state ---------------------------------------------------------------------------------------
+def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
+    """Reach one state, measure its oracle gains, score the rules, calibrate; write and return the state record.
+
+    Needs an initialised Taichi runtime when a rule or the reaching planner runs the probes.
+    """
+    path = Path(job["path"])
+    stored = _stored(path, job["config"])
+    if stored is not None:
+        log.info("%s: already measured", path)
+        return stored
+    config = OracleConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in job["config"].items()})
+    seed, target = int(job["seed"]), int(job["n"])
+    acfg: ActiveConfig = config.active_config(seed)
+    ds = load_active_dataset(job["dataset"], acfg)
+    up = dataset_up(acfg.up, ds)
+    views = [view_to(v, "cpu") for v in ds.train]
+    tests = [view_to(v, "cpu") for v in ds.test]
+    cameras = [v.camera for v in views]
+    background = torch.tensor(ds.background, dtype=torch.float32)
+    extent = scene_extent(cameras)
+    initial = initial_gaussians(acfg.train_config(acfg.total_iterations), cameras, ds.points, ds.point_colors)
+
+    def new_trainer(iterations: int = acfg.total_iterations) -> Trainer:
+        return Trainer(initial, acfg.train_config(iterations), extent=extent, data_background=ds.background,
+                       backend=acfg.backend)
+
+    selected = list(acfg.initial_ids) if acfg.initial_ids is not None else \
+        biased_initial_views(cameras, acfg.initial_count, acfg.seed, acfg.initial_direction)
+    known = _known_picks(job, config)
+    loop_physics = PhysicsConfig.from_dict({**acfg.physics.to_dict(), "up": up})
+    t_start = time.perf_counter()
+    trainer = new_trainer() if acfg.mode == "continue" else None
+    round_index = 0
+    for round_index, n in enumerate(acfg.rounds()):
+        if acfg.mode == "reset":
+            trainer = new_trainer(max(n * acfg.iterations_per_view, 1))
+        iters = n * acfg.iterations_per_view
+        if iters:
+            trainer.train([views[i] for i in selected], iters)
+        if n == target:
+            break
+        if len(known) > n:
+            selected.append(known[n])
+            continue
+        remaining = [i for i in range(len(views)) if i not in set(selected)]
+        ps = planner_seed(seed, round_index)
+        context = PlanningContext(
+            gaussians=trainer.gaussians, train_views=[views[i] for i in selected],
+            candidates=[cameras[i] for i in remaining], candidate_ids=remaining, n_selected=n, budget=acfg.budget,
+            background=background, round=round_index, occlusion=acfg.occlusion,
+            physics=(lambda gs: probe_run(gs, loop_physics, "reaching planner")[0])
+            if uses_physics(config.planner) else None,
+            probe_fields=(lambda gs: probe_run(gs, loop_physics, "reaching planner")[1])
+            if uses_physics(config.planner) else None)
+        pick = make_planner(config.planner, **{**dict(acfg.planner), "seed": ps}).select(context).pick
+        selected.append(remaining[pick])
+    t_reach = time.perf_counter() - t_start
+
+    remaining = [i for i in range(len(views)) if i not in set(selected)]
+    ps = planner_seed(seed, round_index)
+    g = trainer.gaussians
+    context = PlanningContext(gaussians=g, train_views=[views[i] for i in selected],
+                              candidates=[cameras[i] for i in remaining], candidate_ids=remaining,
+                              n_selected=target, budget=acfg.budget, background=background, round=round_index,
+                              occlusion=acfg.occlusion)
+    k = config.top_k if config.top_k is not None else fused_k(acfg.budget, target)
+    physics = {name: PhysicsConfig.from_dict({**config.probe_config(name).to_dict(), "up": up})
+               for name in config.probes}
+    t0 = time.perf_counter()
+    scores, shortlist, extra = score_rules(config, context, physics, ps, k)
+    t_rules = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    oracle = oracle_gains(new_trainer, trainer.state_dict(), [views[i] for i in selected],
+                          [views[i] for i in remaining], tests, ds.background, config.horizon, progress)
+    t_oracle = time.perf_counter() - t0
+    record: dict[str, Any] = {
+        "config": state_key(config), "scene": job["scene"], "dataset": job["dataset"], "seed": seed,
+        "n_selected": target,
+        "selected": selected, "candidates": remaining, "candidate_names": [views[i].name for i in remaining],
+        "num_gaussians": g.num, "shortlist": shortlist, "k": k, "oracle": oracle, "scores": scores}
+    if config.calibration and ds.mesh_path is not None:
+        t0 = time.perf_counter()
+        signals = {}
+        for setting, (divergence, fields) in extra["fields"].items():
+            signals[f"D_g:{setting}"] = divergence
+            signals[f"perprobe:{setting}"] = per_probe_normalised(fields.per_probe)
+            if fields.empty_per_probe is not None:
+                signals[f"excess:{setting}"] = excess_divergence(fields)
+        record["calibration"] = calibrate(g, str(ds.mesh_path), [cameras[i] for i in selected],
+                                          [cameras[i] for i in remaining], background, signals, scores,
+                                          oracle["gain_psnr"], seed)
+        extra["seconds"]["calibration"] = time.perf_counter() - t0
+    record["seconds"] = {"reach": t_reach, "rules": t_rules, "oracle": t_oracle, **extra["seconds"]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(path, json_safe(record))
+    return record
+
+
+def _known_picks(job: dict, config: OracleConfig) -> list[int]:
+    """The longest selected-view list of a finished state of the same (scene, seed) at or below this one."""
+    best: list[int] = []
+    for n in config.states:
+        if n <= int(job["n"]):
+            stored = _stored(state_path(config.output, job["scene"], job["seed"], n), job["config"])
+            if stored is not None and len(stored["selected"]) > len(best):
+                best = list(stored["selected"])
+    return best
+
+
+# ---- statistics --------------------------------------------------------------------------------------
+def bootstrap_interval(groups: Sequence[Sequence[float]], resamples: int, seed: int = 0,
+                       level: float = 0.95) -> tuple[float, float, float]:
+    """(mean, low, high): the mean of all values and its percentile bootstrap interval over the groups.
+
+    Each resample draws the groups (here the (scene, seed) pairs) with replacement and takes the mean of all their
+    values, so values within a group move together. NaN values are dropped first.
+    """
+    clean = [[float(x) for x in g if x is not None and math.isfinite(float(x))] for g in groups]
+    clean = [g for g in clean if g]
+    if not clean:
+        return math.nan, math.nan, math.nan
+    flat = [x for g in clean for x in g]
+    mean = float(np.mean(flat))
+    if len(clean) == 1:
+        return mean, math.nan, math.nan
+    rng = np.random.default_rng(seed)
+    sums = np.array([sum(g) for g in clean])
+    counts = np.array([len(g) for g in clean])
+    picks = rng.integers(len(clean), size=(resamples, len(clean)))
+    means = sums[picks].sum(axis=1) / counts[picks].sum(axis=1)
+    lo, hi = np.quantile(means, [(1 - level) / 2, 1 - (1 - level) / 2])
+    return mean, float(lo), float(hi)
+
+
+def regret(scores: Sequence[float], gains: Sequence[float], shortlist: Sequence[int]) -> float:
+    """Best gain in the shortlist minus the gain of the rule's pick there (ties: the shortlist's order)."""
+    if not shortlist:
+        return math.nan
+    pick = max(range(len(shortlist)), key=lambda j: (float(scores[shortlist[j]]), -j))
+    return max(float(gains[i]) for i in shortlist) - float(gains[shortlist[pick]])
+
+
+def summarise(config: OracleConfig, states: list[dict]) -> dict[str, Any]:
+    """Per rule: mean Spearman with the oracle gain (PSNR, SSIM) and regret with intervals; physics rules against
+    their coverage controls; the calibration means."""
+    labels = config.scored_rules()
+    groups: dict[tuple[str, int], list[dict]] = defaultdict(list)
+    for st in states:
+        groups[(st["scene"], st["seed"])].append(st)
+    keys = sorted(groups)
+    b = config.bootstrap
+
+    def per_state(fn) -> list[list[float]]:
+        return [[fn(st) for st in groups[key]] for key in keys]
+
+    rows = {}
+    for label in labels:
+        rho = per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_psnr"]))
+        rho_ssim = per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_ssim"]))
+        reg = per_state(lambda st, label=label: regret(st["scores"][label], st["oracle"]["gain_psnr"],
+                                                       st["shortlist"]))
+        rows[label] = {"spearman": bootstrap_interval(rho, b), "spearman_ssim": bootstrap_interval(rho_ssim, b),
+                       "regret": bootstrap_interval(reg, b), "states": sum(len(g) for g in rho),
+                       "per_state": [x for g in rho for x in g]}
+    paired = {}
+    for label in config.physics_rules():
+        control = rule_of(label).control
+        diff = [[a - c for a, c in zip(ga, gc, strict=True)] for ga, gc in
+                zip(per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_psnr"])),
+                    per_state(lambda st, control=control: spearman(st["scores"][control], st["oracle"]["gain_psnr"])),
+                    strict=True)]
+        flat = [x for g in diff for x in g if math.isfinite(x)]
+        st = paired_stats(flat, [0.0] * len(flat), True) if flat else None
+        paired[label] = {"control": control, "difference": bootstrap_interval(diff, b),
+                         "better": None if st is None else st.wins, "worse": None if st is None else st.losses,
+                         "sign_p": None if st is None else st.sign_p,
+                         "wilcoxon_p": None if st is None else st.wilcoxon_p,
+                         "wilcoxon_note": "" if st is None else st.wilcoxon_note}
+    calib = _summarise_calibration(groups, keys, b)
+    gains = [st["oracle"]["gain_psnr"] for st in states]
+    return {"states": len(states), "pairs": [list(k) for k in keys], "rules": rows, "paired": paired,
+            "calibration": calib,
+            "oracle": {"mean_gain_psnr": float(np.mean([np.mean(g) for g in gains])) if gains else math.nan,
+                       "mean_best_gain_psnr": float(np.mean([max(g) for g in gains])) if gains else math.nan,
+                       "mean_base_psnr": float(np.mean([st["oracle"]["psnr_base"] for st in states]))
+                       if states else math.nan}}
+
+
+def _summarise_calibration(groups: dict, keys: list, resamples: int) -> dict[str, Any]:
+    with_cal = [k for k in keys if any("calibration" in st for st in groups[k])]
+    if not with_cal:
+        return {}
+    names = list(dict.fromkeys(n for k in with_cal for st in groups[k] if "calibration" in st
+                               for n in st["calibration"]["signals"]))
+    signals = {}
+    for name in names:
+        def vals(field: str, name=name) -> list[list[float]]:
+            return [[st["calibration"]["signals"][name][field] for st in groups[k]
+                     if "calibration" in st and name in st["calibration"]["signals"]] for k in with_cal]
+        signals[name] = {"spearman": bootstrap_interval(vals("spearman"), resamples),
+                         "ause": bootstrap_interval(vals("ause"), resamples)}
+    rules = list(dict.fromkeys(r for k in with_cal for st in groups[k] if "calibration" in st
+                               for r in st["calibration"]["rules_vs_missing"]))
+    missing = {r: bootstrap_interval([[st["calibration"]["rules_vs_missing"][r] for st in groups[k]
+                                       if "calibration" in st] for k in with_cal], resamples) for r in rules}
+    gain = bootstrap_interval([[st["calibration"]["gain_vs_missing"] for st in groups[k] if "calibration" in st]
+                               for k in with_cal], resamples)
+    share = bootstrap_interval([[st["calibration"]["missing"]["missing"] / st["calibration"]["missing"]["samples"]
+                                 for st in groups[k] if "calibration" in st] for k in with_cal], resamples)
+    return {"signals": signals, "rules_vs_missing": missing, "gain_vs_missing": gain, "missing_share": share}
+
+
+# ---- tables ------------------------------------------------------------------------------------------
+def _ci(t: Sequence[float], fmt: str = "+.2f") -> str:
+    mean, lo, hi = t
+    if not math.isfinite(mean):
+        return "n/a"
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return f"{mean:{fmt}} (one pair: no interval)"
+    return f"{mean:{fmt}} ({lo:{fmt}}..{hi:{fmt}})"
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    """Markdown tables of :func:`summarise`."""
+    o = summary["oracle"]
+    lines = [f"States: {summary['states']} over {len(summary['pairs'])} (scene, seed) pairs. Intervals: 95 % "
+             "bootstrap over the (scene, seed) pairs.", "",
+             f"Mean base test PSNR {o['mean_base_psnr']:.2f} dB; mean oracle gain {o['mean_gain_psnr']:+.3f} dB, "
+             f"best candidate's {o['mean_best_gain_psnr']:+.3f} dB.", "",
+             "| rule | Spearman with the PSNR gain | Spearman with the SSIM gain | regret in FisherRF's top-K (dB) | "
+             "states |", "| --- | --- | --- | --- | --- |"]
+    order = sorted(summary["rules"], key=lambda r: -(summary["rules"][r]["spearman"][0]
+                                                      if math.isfinite(summary["rules"][r]["spearman"][0]) else -9))
+    for label in order:
+        row = summary["rules"][label]
+        lines.append(f"| {label} | {_ci(row['spearman'])} | {_ci(row['spearman_ssim'])} | "
+                     f"{_ci(row['regret'], '.3f')} | {row['states']} |")
+    if summary["paired"]:
+        lines += ["", "| physics rule | against | Δ Spearman | better / worse states | sign-test p | Wilcoxon p |",
+                  "| --- | --- | --- | --- | --- | --- |"]
+        for label, row in summary["paired"].items():
+            lines.append(f"| {label} | {row['control']} | {_ci(row['difference'])} | {row['better']} / {row['worse']} "
+                         f"| {format_p(row['sign_p'])} | {format_p(row['wilcoxon_p'], row['wilcoxon_note'])} |")
+    cal_ = summary.get("calibration") or {}
+    if cal_:
+        lines += ["", "Per-Gaussian calibration against the distance to the mesh (signals oriented as uncertainty; "
+                  "Spearman > 0 and a small AUSE are good):", "", "| signal | Spearman with the distance | AUSE |",
+                  "| --- | --- | --- |"]
+        for name, row in cal_["signals"].items():
+            lines.append(f"| {name} | {_ci(row['spearman'])} | {_ci(row['ause'], '.3f')} |")
+        lines += ["", f"Missing geometry (mesh samples outside every Gaussian's 2-sigma ellipsoid): "
+                  f"{_ci(cal_['missing_share'], '.2f')} of the samples. Spearman of each rule's scores with the "
+                  f"missing samples a view sees (the oracle gain's: {_ci(cal_['gain_vs_missing'])}):", "",
+                  "| rule | Spearman with the missing samples seen |", "| --- | --- |"]
+        for name, t in cal_["rules_vs_missing"].items():
+            lines.append(f"| {name} | {_ci(t)} |")
+    return "\n".join(lines) + "\n"
+
+
+# ---- the study ---------------------------------------------------------------------------------------
+def _state_task(job: dict) -> dict:
+    rec = run_state(job)
+    return {"scene": rec["scene"], "seed": rec["seed"], "n": rec["n_selected"], "seconds": rec["seconds"]}
+
+
+def run_oracle(config: OracleConfig, executor, progress: bool = True) -> dict[str, Any]:
+    """Check the scenes, run every missing state through ``executor`` (:mod:`nbv.study.executors`), summarise.
+
+    Returns:
+        {"summary": :func:`summarise`, "markdown": the tables, "files": written paths}.
+    """
+    scenes = check_scenes(config)
+    out = Path(config.output)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "oracle-config.json", {"config": json_safe(config.to_dict()), "scenes": scenes})
+    jobs = plan_jobs(config)
+    todo = [j for j in jobs if _stored(Path(j["path"]), j["config"]) is None]
+    with tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="states", unit="state",
+              disable=not progress) as bar:
+        results = executor.map(_state_task, todo)
+        while True:
+            try:
+                job, row = next(results)
+            except StopIteration:
+                break
+            except Exception as exc:
+                failed = getattr(exc, "job", None)
+                where = f"{failed['scene']} seed {failed['seed']} state {failed['n']}" if failed else "a state"
+                raise RuntimeError(f"oracle {where} failed: {exc}. Finished states are kept under {out / 'states'}; "
+                                   "fix the cause and run the same command again to resume") from exc
+            bar.update(1)
+            log.info("done: %s seed %d state %d (%.0f s oracle)", job["scene"], job["seed"], job["n"],
+                     row["seconds"]["oracle"])
+    states = [json.loads(Path(j["path"]).read_text()) for j in jobs]
+    summary = summarise(config, states)
+    markdown = format_summary(summary)
+    write_json_atomic(out / "oracle.json", json_safe(summary))
+    write_text_atomic(out / "oracle.md", markdown)
+    return {"summary": summary, "markdown": markdown, "files": [str(out / "oracle.json"), str(out / "oracle.md")]}

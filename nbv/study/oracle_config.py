@@ -1,0 +1,266 @@
+"""The oracle study's configuration (:class:`OracleConfig`) and its rules as data (:data:`RULES`).
+
+Config (JSON; scene and output paths relative to the file)::
+
+    {
+      "scenes": ["data/torus", "data/ahmed"],     # datasets with test views (render-dataset folders keep the mesh)
+      "seeds": [0, 1],                            # run seeds: initial views, training, planner
+      "states": [2, 4],                           # views selected at each measured state
+      "planner": "fisher",                        # the planner whose picks reach the states
+      "rules": ["fisher", "coverage", "fluid-occ", ...],   # default: every rule of RULES
+      "probes": {"s150": {"steps": 150}, "s750": {"steps": 750}},   # probe settings (PhysicsConfig overrides)
+      "horizon": 100,                             # M: iterations each copy trains with its candidate added
+      "top_k": null,                              # FisherRF shortlist of the regret (null: the loop's K)
+      "preset": "cpu-small",                      # ActiveConfig preset of the states
+      "active": {"iterations_per_view": 100},     # ActiveConfig overrides
+      "calibration": true,                        # per-Gaussian calibration against the dataset's mesh
+      "bootstrap": 2000,                          # bootstrap resamples of the intervals
+      "output": "out/oracle"
+    }
+
+A rule scores every remaining candidate. The physics rules run once per probe setting and are reported as
+``RULE:SETTING`` (``fluid-occ:s750``); each has a coverage control with the same visibility (``coverage`` or
+``coverage-occ``), computed whether listed or not.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from nbv.active import ActiveConfig
+from nbv.physics import PhysicsConfig
+from nbv.plan import PLANNERS
+
+CONFIG_KEYS = ("scenes", "seeds", "states", "planner", "rules", "probes", "horizon", "top_k", "preset", "active",
+               "calibration", "bootstrap", "output")
+
+VALUES = ("fisher", "variance", "fvs", "random", "ones", "divergence", "shuffled", "excess", "perprobe")
+PHYSICS_VALUES = ("divergence", "shuffled", "excess", "perprobe")
+COMBINES = ("sum", "balanced", "ratio")
+
+
+@dataclass(frozen=True)
+class Rule:
+    """One way to score a candidate view.
+
+    Attributes:
+        name: the rule's name in configs and tables.
+        values: what it scores: a visual planner's per-candidate score ("fisher", "variance"), the farthest-view
+            distance ("fvs"), uniform noise ("random"), or S(T) = sum_g w_g(T) v_g of per-Gaussian values v_g:
+            "ones" (the coverage A(T)), "divergence" (D_g), "shuffled" (D_g permuted), "excess" (over the empty
+            scene), "perprobe" (each probe normalised before the max).
+        depth_test: S(T) counts only the Gaussians the coarse depth test finds unhidden.
+        combine: "sum" (S(T)), "balanced" (z(A) + z(S/A) over the candidates) or "ratio" (the physics part
+            P(T) = S/A).
+        description: one line for the tables.
+    """
+
+    name: str
+    values: str
+    depth_test: bool = False
+    combine: str = "sum"
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if self.values not in VALUES or self.combine not in COMBINES:
+            raise ValueError(f"Rule {self.name!r}: values must be one of {VALUES} and combine one of {COMBINES}")
+
+    @property
+    def physics(self) -> bool:
+        """Whether the rule needs the probes."""
+        return self.values in PHYSICS_VALUES
+
+    @property
+    def control(self) -> str | None:
+        """The coverage rule with the same visibility (physics rules only)."""
+        if not self.physics:
+            return None
+        return "coverage-occ" if self.depth_test else "coverage"
+
+
+def _physics_rules() -> list[Rule]:
+    out = []
+    for values, label in (("divergence", "S(T) of D_g"), ("shuffled", "S(T) of D_g permuted across the Gaussians"),
+                          ("excess", "S(T) of the excess over the empty scene"),
+                          ("perprobe", "S(T) of D_g with every probe normalised")):
+        base = {"divergence": "fluid"}.get(values, values)
+        for occ in (False, True):
+            suffix, vis = ("-occ", "depth-tested") if occ else ("", "frustum")
+            out.append(Rule(base + suffix, values, occ, "sum", f"{label}, {vis}"))
+    for occ in (False, True):
+        suffix, vis = ("-occ", "depth-tested") if occ else ("", "frustum")
+        out.append(Rule("balanced" + suffix, "divergence", occ, "balanced", f"z(A) + z(S/A), {vis}"))
+        out.append(Rule("ratio" + suffix, "divergence", occ, "ratio", f"the physics part P(T) = S/A, {vis}"))
+    return out
+
+
+RULES: dict[str, Rule] = {r.name: r for r in [
+    Rule("fisher", "fisher", description="FisherRF: sum H_c / (H_train + lambda)"),
+    Rule("variance", "variance", description="ActiveNeRF variance reduction"),
+    Rule("fvs", "fvs", description="farthest view sampling: distance to the nearest selected camera"),
+    Rule("random", "random", description="uniform noise (a rule that knows nothing)"),
+    Rule("coverage", "ones", False, description="coverage A(T) = sum w_g, frustum"),
+    Rule("coverage-occ", "ones", True, description="coverage A(T) of the unhidden Gaussians"),
+    *_physics_rules()]}
+
+
+def rule_of(label: str) -> Rule:
+    """The rule of a reported label (``fluid-occ:s750`` -> ``RULES["fluid-occ"]``)."""
+    return RULES[label.partition(":")[0]]
+
+
+def _is_int(v: Any, low: int) -> bool:
+    return not isinstance(v, bool) and isinstance(v, int) and v >= low
+
+
+@dataclass(frozen=True)
+class OracleConfig:
+    """An oracle study (see the module docstring for the JSON form).
+
+    Attributes:
+        scenes: dataset folders (each needs test views).
+        seeds: run seeds.
+        states: numbers of selected views at which the oracle is measured (each >= the initial views and below
+            the number of candidates).
+        planner: the registered planner whose picks reach the states.
+        rules: names of :data:`RULES`.
+        probes: probe setting name -> PhysicsConfig overrides on the preset's selection physics.
+        horizon: M, training iterations of each oracle copy (>= 1).
+        top_k: size of FisherRF's shortlist for the regret (None: the loop's K = max(B - n, 2)).
+        preset: ActiveConfig preset.
+        active: ActiveConfig overrides.
+        calibration: compute the per-Gaussian calibration against the dataset's mesh (where it has one).
+        bootstrap: bootstrap resamples of the intervals (>= 100).
+        output: results folder.
+    """
+
+    scenes: tuple[str, ...]
+    seeds: tuple[int, ...] = (0,)
+    states: tuple[int, ...] = (2,)
+    planner: str = "fisher"
+    rules: tuple[str, ...] = tuple(RULES)
+    probes: dict = field(default_factory=lambda: {"default": {}})
+    horizon: int = 100
+    top_k: int | None = None
+    preset: str = "cpu-small"
+    active: dict = field(default_factory=dict)
+    calibration: bool = True
+    bootstrap: int = 2000
+    output: str = "out/oracle"
+
+    def __post_init__(self) -> None:
+        for name in ("scenes", "seeds", "states", "rules"):
+            v = getattr(self, name)
+            if isinstance(v, (str, bytes)) or not isinstance(v, Sequence) or len(v) == 0:
+                raise ValueError(f"oracle config: {name!r} must be a non-empty list, got {v!r}")
+            if len(set(v)) != len(v):
+                raise ValueError(f"oracle config: {name!r} must not repeat entries, got {list(v)}")
+            object.__setattr__(self, name, tuple(v))
+        if not all(_is_int(s, 0) for s in self.seeds):
+            raise ValueError(f"oracle config: 'seeds' must be integers >= 0, got {list(self.seeds)}")
+        for rule in self.rules:
+            if rule not in RULES:
+                close = difflib.get_close_matches(str(rule), list(RULES), n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise ValueError(f"oracle config: 'rules' has the unknown rule {rule!r}{hint}; the rules are "
+                                 f"{', '.join(RULES)}")
+        if self.planner not in PLANNERS:
+            raise ValueError(f"oracle config: 'planner' {self.planner!r} is not a planner; choose one of "
+                             f"{', '.join(sorted(PLANNERS))}")
+        if not _is_int(self.horizon, 1):
+            raise ValueError(f"oracle config: 'horizon' (M, iterations per oracle copy) must be an integer >= 1, "
+                             f"got {self.horizon!r}; the study's default is 100")
+        if self.top_k is not None and not _is_int(self.top_k, 1):
+            raise ValueError(f"oracle config: 'top_k' must be null (the loop's K) or an integer >= 1, "
+                             f"got {self.top_k!r}")
+        if not _is_int(self.bootstrap, 100):
+            raise ValueError(f"oracle config: 'bootstrap' must be an integer >= 100, got {self.bootstrap!r}")
+        if not isinstance(self.calibration, bool):
+            raise ValueError(f"oracle config: 'calibration' must be true or false, got {self.calibration!r}")
+        if not isinstance(self.active, dict):
+            raise ValueError("oracle config: 'active' must be an object of ActiveConfig overrides")
+        if not isinstance(self.probes, dict) or not self.probes:
+            raise ValueError("oracle config: 'probes' must be a non-empty object: setting name -> PhysicsConfig "
+                             "overrides, e.g. {\"s750\": {\"steps\": 750}}")
+        for name, over in self.probes.items():
+            if not isinstance(name, str) or not name or ":" in name or not isinstance(over, dict):
+                raise ValueError(f"oracle config: 'probes' entry {name!r} must be a name without ':' mapped to an "
+                                 "object of PhysicsConfig overrides")
+        base = self.active_config(self.seeds[0])  # validates the preset and the overrides
+        for name in self.probes:
+            self.probe_config(name)
+        low = base.initial_count
+        for n in self.states:
+            if not _is_int(n, low):
+                raise ValueError(f"oracle config: 'states' entry {n!r} must be an integer >= the {low} initial "
+                                 "views; lower it or set active.initial_count")
+
+    @classmethod
+    def load(cls, path: str | Path) -> OracleConfig:
+        """Read a JSON config; relative scene and output paths are taken relative to the file."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"oracle config {path} does not exist")
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"oracle config {path} is not valid JSON: {exc}") from exc
+        if not isinstance(data, dict):
+            raise ValueError(f"oracle config {path} must hold a JSON object")
+        bad = sorted(set(data) - set(CONFIG_KEYS))
+        if bad:
+            raise ValueError(f"oracle config {path}: unknown keys {bad}; valid keys: {list(CONFIG_KEYS)}")
+        if "scenes" not in data:
+            raise ValueError(f"oracle config {path}: missing 'scenes' (the dataset folders)")
+        base = path.parent
+        if isinstance(data["scenes"], list):
+            data["scenes"] = [str((base / s).resolve()) for s in data["scenes"]]
+        if "output" in data:
+            data["output"] = str((base / data["output"]).resolve())
+        return cls(**data)
+
+    def active_config(self, seed: int) -> ActiveConfig:
+        """The ActiveConfig that reaches the states: the planner, the preset and the overrides, this seed.
+
+        Its budget is at least the largest state + 1, so that every state is a selection round of the loop.
+        """
+        over = {**self.active, "method": self.planner, "seed": seed}
+        cfg = ActiveConfig.from_preset(self.preset, **over)
+        need = max(self.states) + 1
+        if cfg.budget < need:
+            cfg = ActiveConfig.from_preset(self.preset, **{**over, "budget": need})
+        return cfg
+
+    def probe_config(self, name: str) -> PhysicsConfig:
+        """The PhysicsConfig of probe setting ``name``: the selection physics with the setting's overrides (and the
+        empty scene when an ``excess`` rule is asked for)."""
+        base = self.active_config(self.seeds[0]).physics.to_dict()
+        over = dict(self.probes[name])
+        if any(RULES[r].values == "excess" for r in self.rules):
+            over["empty_reference"] = True
+        try:
+            return PhysicsConfig.from_dict({**base, **over})
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"oracle config: 'probes' setting {name!r}: {exc}") from exc
+
+    def physics_rules(self) -> list[str]:
+        """The reported labels of the physics rules, ``RULE:SETTING``, and their coverage controls."""
+        return [f"{r}:{p}" for r in self.rules if RULES[r].physics for p in self.probes]
+
+    def scored_rules(self) -> list[str]:
+        """Every rule computed at a state: the listed ones, the physics ones per probe setting, their controls."""
+        names = [r for r in self.rules if not RULES[r].physics]
+        for r in self.rules:
+            control = RULES[r].control
+            if control is not None and control not in names:
+                names.append(control)
+        return names + self.physics_rules()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in
+                ((k, getattr(self, k)) for k in CONFIG_KEYS)}

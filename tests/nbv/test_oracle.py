@@ -1,0 +1,281 @@
+"""The oracle study (:mod:`nbv.study.oracle`), its calibration (:mod:`nbv.study.calibration`) and the farthest-view
+planner (:mod:`nbv.plan.fvs`)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from nbv.plan import PLANNERS, PlanningContext, make_planner
+from nbv.plan.fvs import farthest_view_distances, farthest_view_order
+from nbv.study import calibration as cal
+from nbv.study.convergence import spearman
+from nbv.study.oracle import bootstrap_interval, check_scenes, regret, run_oracle, summarise
+from nbv.study.oracle_config import RULES, OracleConfig
+from recon.camera import Camera
+from recon.gaussians import GaussianSet
+
+from helpers.paths import TORUS
+from helpers.training import TINY_TRAIN
+
+
+def ring(count: int, radius: float = 3.0) -> list[Camera]:
+    angles = np.arange(count) * 2 * math.pi / count
+    return [Camera.look_at((radius * math.cos(a), 0.0, radius * math.sin(a)), (0, 0, 0), (0, 1, 0), 16, 16,
+                           math.radians(50), name=f"c{k}") for k, a in enumerate(angles)]
+
+
+# ---- farthest view sampling ----------------------------------------------------------------------------
+def test_fvs_distances_and_greedy_order_on_a_ring():
+    cams = ring(8)
+    # selected: camera 0; the farthest is the opposite one (4), then the two at 90 degrees (2 and 6)
+    d = farthest_view_distances(cams[1:], [cams[0]])
+    chord = [2 * 3.0 * math.sin(math.pi * k / 8) for k in range(1, 8)]
+    assert np.allclose(d, chord)
+    order = farthest_view_order(cams[1:], [cams[0]], 3)
+    assert [cams[1:][i].name for i in order] == ["c4", "c2", "c6"]
+    assert farthest_view_distances(cams, []) == [math.inf] * 8
+
+
+def test_fvs_planner_is_registered_and_picks_the_farthest():
+    assert "fvs" in PLANNERS and "fvs" in RULES
+    g = GaussianSet.from_points(torch.zeros(4, 3), scale=0.1)
+    cams = ring(6)
+    from recon.datasets import View
+
+    ctx = PlanningContext(gaussians=g, train_views=[View(cams[0], None, None, "c0")], candidates=cams[1:],
+                          candidate_ids=list(range(1, 6)), n_selected=1, budget=4, background=torch.ones(3))
+    sel = make_planner("fvs", seed=2).select(ctx)
+    assert cams[1:][sel.pick].name == "c3" and sel.shortlist[0] == sel.pick and len(sel.shortlist) == 5
+
+
+# ---- calibration kernels ---------------------------------------------------------------------------------
+def box_mesh(half: float = 0.5):
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh.create_box(2 * half, 2 * half, 2 * half)
+    m.translate((-half, -half, -half))
+    return np.asarray(m.vertices), np.asarray(m.triangles)
+
+
+def test_surface_distance_matches_brute_force_and_the_box_formula():
+    import open3d as o3d
+
+    rng = np.random.default_rng(0)
+    sphere = o3d.geometry.TriangleMesh.create_sphere(0.7, resolution=8)
+    v, t = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    p = rng.uniform(-1.2, 1.2, (200, 3))
+    fast, slow = cal.surface_distance(p, v, t), cal.surface_distance_reference(p, v, t)
+    assert np.allclose(fast, slow, atol=2e-6)  # open3d works in float32
+    bv, bt = box_mesh()
+    q = rng.uniform(-1.0, 1.0, (300, 3))
+    outside = np.linalg.norm(np.maximum(np.abs(q) - 0.5, 0.0), axis=1)
+    inside = np.minimum(0.5 - np.abs(q), 1.0).min(axis=1)
+    exact = np.where((np.abs(q) <= 0.5).all(axis=1), inside, outside)
+    assert np.allclose(cal.surface_distance_reference(q, bv, bt), exact, atol=1e-12)
+    assert np.allclose(cal.surface_distance(q, bv, bt), exact, atol=2e-6)
+
+
+def test_surface_samples_lie_on_the_surface_uniformly():
+    bv, bt = box_mesh()
+    s = cal.sample_surface(bv, bt, 6000, seed=1)
+    assert np.allclose(np.abs(s).max(axis=1), 0.5)
+    per_face = [(np.isclose(s[:, a], sign * 0.5)).sum() for a in range(3) for sign in (-1, 1)]
+    assert min(per_face) > 850 and max(per_face) < 1150  # 1000 per face expected (6 equal faces)
+
+
+def test_ause_is_zero_for_a_perfect_ranking_and_largest_for_the_inverted_one():
+    rng = np.random.default_rng(3)
+    e = rng.random(500)
+    assert cal.ause(e, e) == pytest.approx(0.0, abs=1e-12)
+    assert cal.ause(2 * e + 1, e) == pytest.approx(0.0, abs=1e-12)  # only the order counts
+    inverted, noise = cal.ause(-e, e), cal.ause(rng.random(500), e)
+    assert inverted > noise > 0
+    assert cal.ause(np.zeros(500), e) == pytest.approx(inverted, rel=1e-12)  # ties: the worst order
+    curve = cal.sparsification_curve(e, e, 10)
+    assert curve[0] == pytest.approx(e.mean()) and (np.diff(curve) <= 1e-12).all()
+
+
+def test_missing_samples_use_the_2_sigma_ellipsoid():
+    g = GaussianSet(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64),
+                    torch.log(torch.tensor([[0.1, 0.2, 0.05]], dtype=torch.float64)),
+                    torch.tensor([2.0], dtype=torch.float64), torch.zeros(1, 1, 3, dtype=torch.float64))
+    pts = np.array([[0.19, 0, 0], [0.21, 0, 0], [0, 0.39, 0], [0, 0.41, 0], [0, 0, 0.09], [0, 0, 0.11]])
+    assert cal.missing_samples(pts, g).tolist() == [False, True, False, True, False, True]
+    assert cal.missing_samples(pts, g, min_opacity=0.95).all()  # sigmoid(2) = 0.88 covers nothing above 0.95
+
+
+def test_visible_samples_hide_the_far_side_of_a_box():
+    bv, bt = box_mesh()
+    cam = Camera.look_at((3.0, 0.0, 0.0), (0, 0, 0), (0, 1, 0), 32, 32, math.radians(50))
+    pts = np.array([[0.5, 0.1, 0.1], [-0.5, 0.1, 0.1], [0.1, 0.5, 0.1], [0.5, 5.0, 0.0]])
+    # front face seen; back face hidden; the top face is edge-on from this camera (hidden behind the front edge);
+    # a point outside the image is not seen
+    vis = cal.visible_samples(pts, [cam], bv, bt)[0].tolist()
+    assert vis[0] and not vis[1] and not vis[3]
+
+
+# ---- statistics --------------------------------------------------------------------------------------
+def test_bootstrap_interval_resamples_whole_groups():
+    mean, lo, hi = bootstrap_interval([[1.0, 1.0], [3.0]], 500)
+    assert mean == pytest.approx(5 / 3) and 1.0 <= lo <= mean <= hi <= 3.0
+    assert bootstrap_interval([[2.0, 2.0], [2.0]], 500) == (2.0, 2.0, 2.0)
+    m, lo, hi = bootstrap_interval([[1.0, 2.0]], 500)
+    assert m == 1.5 and math.isnan(lo) and math.isnan(hi)  # one (scene, seed) pair: no interval
+    assert math.isnan(bootstrap_interval([[math.nan]], 500)[0])
+
+
+def test_regret_inside_the_shortlist():
+    gains = [0.1, 0.5, 0.3, 0.9]
+    assert regret([0, 5, 2, 9], gains, [0, 1, 2]) == pytest.approx(0.0)  # the outside 0.9 does not count
+    assert regret([3, 1, 2, 0], gains, [0, 1, 2]) == pytest.approx(0.5 - 0.1)
+
+
+# ---- config and bad input ----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    """The torus at 24 px: 6 candidate views, 3 test views (and its mesh)."""
+    from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
+
+    out = tmp_path_factory.mktemp("oracle") / "torus"
+    render_mesh_dataset(TORUS, out, MeshDatasetConfig(n_train=6, n_test=3, resolution=24, supersample=1),
+                        progress=False)
+    return out
+
+
+def tiny(tmp_path, dataset, **over) -> dict:
+    base = {"scenes": [str(dataset)], "seeds": [0], "states": [2], "horizon": 3, "output": str(tmp_path / "out"),
+            "rules": ["fisher", "fvs", "random", "coverage", "coverage-occ", "fluid-occ", "ratio-occ"],
+            "active": {"resolution": 16, "iterations_per_view": 3, "total_iterations": 60, "budget": 4,
+                       "train": TINY_TRAIN, "backend": "torch"},
+            "probes": {"coarse": {"particle_radius": 0.08, "steps": 20, "dt": 0.004, "directions": ["-x"]}},
+            "bootstrap": 200}
+    return {**base, **over}
+
+
+@pytest.mark.parametrize(("over", "key"), [({"rules": ["fisher", "fluid-occc"]}, "rules"), ({"horizon": 0}, "horizon"),
+                                           ({"states": [1]}, "states"), ({"planner": "fisherrf"}, "planner"),
+                                           ({"probes": {"a": {"steps": -1}}}, "probes")])
+def test_bad_config_names_the_key(tmp_path, over, key):
+    with pytest.raises(ValueError, match=f"'{key}'"):
+        OracleConfig(**tiny(tmp_path, "x", **over))
+
+
+def test_states_beyond_the_pool_and_scenes_without_test_views_are_refused(tmp_path, tiny_dataset):
+    with pytest.raises(ValueError, match="'states'.*leaves no candidate"):
+        check_scenes(OracleConfig(**tiny(tmp_path, tiny_dataset, states=[6])))
+    no_test = tmp_path / "notest"
+    no_test.mkdir()
+    for name in ("transforms_train.json", "dataset.json", "mesh.ply"):
+        (no_test / name).write_bytes((tiny_dataset / name).read_bytes())
+    (no_test / "train").symlink_to(tiny_dataset / "train")
+    meta = json.loads((tiny_dataset / "transforms_test.json").read_text())
+    (no_test / "transforms_test.json").write_text(json.dumps({**meta, "frames": []}))
+    with pytest.raises(ValueError, match="'scenes'.*no test views"):
+        check_scenes(OracleConfig(**tiny(tmp_path, no_test)))
+
+
+def test_cli_exits_2_before_any_training(tmp_path, tiny_dataset):
+    from apps.cli import main
+
+    cfg = tmp_path / "oracle.json"
+    cfg.write_text(json.dumps(tiny(tmp_path, tiny_dataset, horizon=0)))
+    assert main(["study", "oracle", str(cfg), "--no-progress"]) == 2
+    cfg.write_text(json.dumps(tiny(tmp_path, tiny_dataset, states=[6])))
+    assert main(["study", "oracle", str(cfg), "--no-progress"]) == 2
+    assert not (tmp_path / "out" / "states").exists()
+
+
+# ---- the study end to end -------------------------------------------------------------------------------
+class InProcess:
+    """A serial executor in this process (the test session's Taichi runtime)."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def map(self, fn, jobs):
+        for job in jobs:
+            self.calls += 1
+            yield job, fn(job)
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory, tiny_dataset):
+    tmp = tmp_path_factory.mktemp("oracle-run")
+    config = OracleConfig(**tiny(tmp, tiny_dataset, seeds=[0, 1], states=[2, 3]))
+    ex = InProcess()
+    out = run_oracle(config, ex, progress=False)
+    return config, out, ex
+
+
+def test_every_state_is_written_and_the_rules_score_every_candidate(study):
+    config, out, ex = study
+    assert ex.calls == 4
+    states = sorted((Path(config.output) / "states").rglob("state*.json"))
+    assert len(states) == 4
+    for path in states:
+        st = json.loads(path.read_text())
+        c = len(st["candidates"])
+        assert c == 6 - st["n_selected"] and len(st["selected"]) == st["n_selected"]
+        assert set(st["selected"]).isdisjoint(st["candidates"])
+        assert set(st["scores"]) == set(config.scored_rules())
+        assert all(len(v) == c for v in st["scores"].values())
+        o = st["oracle"]
+        assert np.allclose(o["gain_psnr"], np.array(o["psnr"]) - o["psnr_base"])
+        assert "calibration" in st and len(st["calibration"]["missing"]["per_view"]) == c
+    # a larger state of the same (scene, seed) continues the smaller one's selection
+    by = {(json.loads(p.read_text())["seed"], json.loads(p.read_text())["n_selected"]): json.loads(p.read_text())
+          for p in states}
+    for seed in (0, 1):
+        assert by[(seed, 3)]["selected"][:2] == by[(seed, 2)]["selected"]
+
+
+def test_summary_spearman_agrees_with_an_independent_computation(study):
+    from scipy.stats import spearmanr
+
+    config, out, _ = study
+    states = [json.loads(p.read_text()) for p in sorted(Path(config.output).rglob("state*.json"))]
+    for label in ("fisher", "coverage-occ", "fluid-occ:coarse"):
+        rhos = [spearmanr(st["scores"][label], st["oracle"]["gain_psnr"])[0] for st in states]
+        rhos = [r for r in rhos if np.isfinite(r)]
+        assert out["summary"]["rules"][label]["spearman"][0] == pytest.approx(np.mean(rhos), abs=1e-9)
+    again = summarise(config, states)
+    assert again["rules"]["fisher"]["spearman"] == pytest.approx(out["summary"]["rules"]["fisher"]["spearman"],
+                                                                 nan_ok=True)
+    assert "fluid-occ:coarse" in out["summary"]["paired"] and "| fisher |" in out["markdown"]
+
+
+def test_a_finished_study_resumes_without_training(study):
+    config, out, _ = study
+    ex = InProcess()
+    again = run_oracle(config, ex, progress=False)
+    assert ex.calls == 0 and again["markdown"] == out["markdown"]
+
+
+def test_the_oracle_copies_share_the_schedule(tiny_dataset):
+    """Two oracle runs of one state give identical gains (same trainer state, seed and schedule)."""
+    from nbv.study.oracle import oracle_gains
+    from recon.datasets import load_dataset
+    from recon.train import Trainer, initial_gaussians, scene_extent
+    from recon.train_config import TrainConfig
+
+    ds = load_dataset(tiny_dataset, resolution=16)
+    cams = [v.camera for v in ds.train]
+    cfg = TrainConfig.for_iterations(40, **TINY_TRAIN)
+    init = initial_gaussians(cfg, cams)
+
+    def new_trainer():
+        return Trainer(init, cfg, extent=scene_extent(cams), data_background=ds.background, backend="torch")
+
+    t = new_trainer()
+    t.train(ds.train[:2], 6)
+    state = t.state_dict()
+    a = oracle_gains(new_trainer, state, ds.train[:2], ds.train[2:4], ds.test, ds.background, 3)
+    b = oracle_gains(new_trainer, state, ds.train[:2], ds.train[2:4], ds.test, ds.background, 3)
+    assert a == b
+    assert spearman(a["gain_psnr"], a["gain_psnr"]) == pytest.approx(1.0)
