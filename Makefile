@@ -32,6 +32,7 @@ bench: venv
 
 lint: venv
 	$(VENV)/bin/ruff check fluidsim recon nbv apps viz tests
+	$(VENV)/bin/ruff format --check fluidsim recon nbv apps viz tests
 
 clean:
 	rm -rf out .pytest_cache

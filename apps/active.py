@@ -14,8 +14,18 @@ from pathlib import Path
 log = logging.getLogger("fluidgs")
 
 
-ACTIVE_FIELDS = ("method", "budget", "initial_count", "initial_ids", "initial_direction", "mode", "iterations_per_view",
-                 "total_iterations", "resolution", "seed")
+ACTIVE_FIELDS = (
+    "method",
+    "budget",
+    "initial_count",
+    "initial_ids",
+    "initial_direction",
+    "mode",
+    "iterations_per_view",
+    "total_iterations",
+    "resolution",
+    "seed",
+)
 TRAIN_FIELDS = ("init_points", "sh_degree", "max_gaussians")
 PHYSICS_FIELDS = ("particle_radius", "steps", "directions")
 
@@ -29,15 +39,23 @@ def overrides() -> dict[str, dict]:
 
     return {
         "method": {"help": f"planner: {describe_planners()}"},
-        "initial_ids": {"flags": ("--initial-views",), "dest": "initial_views", "default_text": "the biased rule",
-                        "help": "explicit initial train-split indices, e.g. 0,5",
-                        "convert": lambda text: index_list(text, "--initial-views")},
-        "initial_direction": {"convert": lambda text: float_list(text, "--initial-direction", size=3),
-                              "help": "anchor direction x,y,z of the biased rule",
-                              "default_text": "a unit vector drawn from --seed"},
-        "mode": {"choices": ("continue", "reset"),
-                 "help": "continue: keep training the same Gaussians across rounds (the paper); reset: retrain from "
-                         "the initial Gaussians after each selection"},
+        "initial_ids": {
+            "flags": ("--initial-views",),
+            "dest": "initial_views",
+            "default_text": "the biased rule",
+            "help": "explicit initial train-split indices, e.g. 0,5",
+            "convert": lambda text: index_list(text, "--initial-views"),
+        },
+        "initial_direction": {
+            "convert": lambda text: float_list(text, "--initial-direction", size=3),
+            "help": "anchor direction x,y,z of the biased rule",
+            "default_text": "a unit vector drawn from --seed",
+        },
+        "mode": {
+            "choices": ("continue", "reset"),
+            "help": "continue: keep training the same Gaussians across rounds (the paper); reset: retrain from "
+            "the initial Gaussians after each selection",
+        },
         "iterations_per_view": {"flags": ("--iters-per-view",), "dest": "iters_per_view"},
         "total_iterations": {"flags": ("--iterations",), "dest": "iterations"},
         "resolution": {"flags": ("--res",), "help": "image width in pixels (0: native)", "convert": _resolution},
@@ -61,25 +79,44 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     from .options import add_config_options, add_runtime_arguments, add_visibility_arguments
 
-    p.add_argument("dataset", type=Path, help="dataset folder (Blender transforms_*.json or COLMAP); its train split "
-                                              "is the candidate set")
-    p.add_argument("-o", "--output", type=Path, required=True,
-                   help="run folder (config.json, rounds.json, checkpoint.pt, gaussians.ply); an existing run with "
-                        "the same options is resumed")
-    p.add_argument("--preset", choices=tuple(PRESETS), default="paper",
-                   help="paper: the paper's settings; cpu-small: sized for a 64 px dataset on a small CPU (each "
-                        "option below shows its cpu-small value; default: paper)")
+    p.add_argument(
+        "dataset",
+        type=Path,
+        help="dataset folder (Blender transforms_*.json or COLMAP); its train split is the candidate set",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="run folder (config.json, rounds.json, checkpoint.pt, gaussians.ply); an existing run with "
+        "the same options is resumed",
+    )
+    p.add_argument(
+        "--preset",
+        choices=tuple(PRESETS),
+        default="paper",
+        help="paper: the paper's settings; cpu-small: sized for a 64 px dataset on a small CPU (each "
+        "option below shows its cpu-small value; default: paper)",
+    )
     small = PRESETS["cpu-small"]
     label = "--preset cpu-small"
     over = overrides()
     add_config_options(p, ActiveConfig, ACTIVE_FIELDS, over, presets={label: small})
     add_config_options(p, TrainConfig, TRAIN_FIELDS, over, presets={label: small["train"]})
     add_config_options(p, PhysicsConfig, PHYSICS_FIELDS, over, presets={label: small["physics"]})
-    p.add_argument("--up", "--up-axis", dest="up", default=None, metavar="UP",
-                   help="the scene's up direction for the probes: +x, -x, +y, -y, +z, -z, a vector such as 0,-1,0, or "
-                        "'auto': the training cameras' mean up vector (default: the dataset's up axis)")
-    add_config_options(p, ActiveConfig, ("backend",),
-                       {"backend": {"choices": ("auto", "torch", "gsplat"), "help": "renderer backend"}})
+    p.add_argument(
+        "--up",
+        "--up-axis",
+        dest="up",
+        default=None,
+        metavar="UP",
+        help="the scene's up direction for the probes: +x, -x, +y, -y, +z, -z, a vector such as 0,-1,0, or "
+        "'auto': the training cameras' mean up vector (default: the dataset's up axis)",
+    )
+    add_config_options(
+        p, ActiveConfig, ("backend",), {"backend": {"choices": ("auto", "torch", "gsplat"), "help": "renderer backend"}}
+    )
     add_visibility_arguments(p)
     p.add_argument("--overwrite", action="store_true", help="discard an existing run in the output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
@@ -129,18 +166,22 @@ def check_plan(args: argparse.Namespace) -> None:
     budget = v["budget"]
     candidates = count_train_views(args.dataset)
     if candidates is not None and budget > candidates:
-        raise ValueError(f"--budget {budget} is more than the {candidates} candidate (train) views of "
-                         f"{args.dataset}: the budget counts the views a run ends with, the initial ones included; "
-                         f"use --budget {candidates} or less, or add train views to the dataset")
+        raise ValueError(
+            f"--budget {budget} is more than the {candidates} candidate (train) views of "
+            f"{args.dataset}: the budget counts the views a run ends with, the initial ones included; "
+            f"use --budget {candidates} or less, or add train views to the dataset"
+        )
     per_view, total = v["iterations_per_view"], v["total_iterations"]
     initial = v["initial_count"] if v["initial_ids"] is None else len(v["initial_ids"])
     needed = per_view * sum(range(initial, budget))
     if v["mode"] == "continue" and 0 < total < needed:
-        raise ValueError(f"--budget {budget} means {budget - initial} selection rounds, trained for "
-                         f"{needed:,} iterations in all before them (--iters-per-view {per_view} x the {initial} to "
-                         f"{budget - 1} views selected so far), more than the run's {total:,} iterations "
-                         f"(--iterations; preset {args.preset}); give --iterations {needed} or more, or lower "
-                         "--iters-per-view or --budget")
+        raise ValueError(
+            f"--budget {budget} means {budget - initial} selection rounds, trained for "
+            f"{needed:,} iterations in all before them (--iters-per-view {per_view} x the {initial} to "
+            f"{budget - 1} views selected so far), more than the run's {total:,} iterations "
+            f"(--iterations; preset {args.preset}); give --iterations {needed} or more, or lower "
+            "--iters-per-view or --budget"
+        )
 
 
 def config_from_args(args: argparse.Namespace):
@@ -162,11 +203,14 @@ def run_command(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     check_not_input([("-o (run file)", args.output / name) for name in RUN_FILES], dataset_inputs(args.dataset))
     device = setup_runtime(args.device, args.threads, config.physics.precision)
-    run = ActiveRun(args.dataset, args.output, config, device=device, overwrite=args.overwrite,
-                    progress=not args.no_progress)
+    run = ActiveRun(
+        args.dataset, args.output, config, device=device, overwrite=args.overwrite, progress=not args.no_progress
+    )
     rounds = run.run()
     final = rounds.get("final", {})
     print(f"selected views: {rounds['selected']} ({', '.join(rounds['selected_names'])})")
-    print(f"wrote {args.output / 'gaussians.ply'} ({final.get('num_gaussians')} Gaussians, "
-          f"{final.get('iterations')} iterations) and {args.output / 'rounds.json'}")
+    print(
+        f"wrote {args.output / 'gaussians.ply'} ({final.get('num_gaussians')} Gaussians, "
+        f"{final.get('iterations')} iterations) and {args.output / 'rounds.json'}"
+    )
     return 0

@@ -30,13 +30,23 @@ FORMATS = ("transforms", "graphdeco", "colmap")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
-    p.add_argument("--orbit", type=int, required=True, metavar="N",
-                   help="number of cameras (>= 1), split over the rings")
-    p.add_argument("-o", "--output", type=Path, required=True,
-                   help="the cameras file: a .json (transforms, graphdeco), or a folder (colmap); written atomically")
-    p.add_argument("--format", choices=FORMATS, default="transforms",
-                   help="transforms: a Blender / NeRF / nerfstudio transforms.json; graphdeco: a cameras.json as the "
-                        "3DGS trainer writes; colmap: cameras.txt, images.txt and an empty points3D.txt in a folder")
+    p.add_argument(
+        "--orbit", type=int, required=True, metavar="N", help="number of cameras (>= 1), split over the rings"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="the cameras file: a .json (transforms, graphdeco), or a folder (colmap); written atomically",
+    )
+    p.add_argument(
+        "--format",
+        choices=FORMATS,
+        default="transforms",
+        help="transforms: a Blender / NeRF / nerfstudio transforms.json; graphdeco: a cameras.json as the "
+        "3DGS trainer writes; colmap: cameras.txt, images.txt and an empty points3D.txt in a folder",
+    )
     p.add_argument("--width", type=int, default=320, help="image width in pixels; the height is 3/4 of it")
     g = p.add_argument_group("frame")
     add_frame_arguments(g, scale=False)
@@ -61,8 +71,10 @@ def run_command(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if args.format == "colmap":
         if out.suffix:
-            raise ValueError(f"-o {out}: --format colmap writes a folder (cameras.txt, images.txt, points3D.txt); "
-                             "pass a folder name such as sparse/0")
+            raise ValueError(
+                f"-o {out}: --format colmap writes a folder (cameras.txt, images.txt, points3D.txt); "
+                "pass a folder name such as sparse/0"
+            )
         files = {name: out / name for name in ("cameras.txt", "images.txt", "points3D.txt")}
         for f in files.values():
             check_output_file(f, (".txt",))
@@ -73,8 +85,10 @@ def run_command(args: argparse.Namespace) -> int:
     gaussians = load_gaussians_checked(args.gaussians)
     warn_frame(config, up_given=args.up is not None)
     cams = orbit_cameras_logged(gaussians, config, orbit)
-    note = (f"fluidgs cameras {args.gaussians} --orbit {args.orbit} --up {up_label(parse_up(config.up))}: "
-            f"{orbit.describe()}")
+    note = (
+        f"fluidgs cameras {args.gaussians} --orbit {args.orbit} --up {up_label(parse_up(config.up))}: "
+        f"{orbit.describe()}"
+    )
     if args.format == "transforms":
         write_json_atomic(out, transforms_json(cams, note))
     elif args.format == "graphdeco":
@@ -87,6 +101,8 @@ def run_command(args: argparse.Namespace) -> int:
         write_text_atomic(files["points3D.txt"], "# 3D point list: none (cameras only)\n")
     centre, radius = object_sphere(gaussians, config, f"orbit:{args.orbit}")
     distance = framing_distance(radius, math.radians(orbit.fov_x_deg), orbit.width, orbit.height)
-    print(f"{len(cams)} cameras ({orbit.describe()}) looking at ({', '.join(f'{c:.4g}' for c in centre)}), "
-          f"{distance:.4g} scene units away (object sphere radius {radius:.4g}) -> {out} ({args.format})")
+    print(
+        f"{len(cams)} cameras ({orbit.describe()}) looking at ({', '.join(f'{c:.4g}' for c in centre)}), "
+        f"{distance:.4g} scene units away (object sphere radius {radius:.4g}) -> {out} ({args.format})"
+    )
     return 0

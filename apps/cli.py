@@ -71,6 +71,7 @@ def is_output_error(exc: BaseException) -> bool:
     checks before the work and from every atomic writer), or an ``OSError`` of :data:`OUTPUT_ERRNOS`."""
     return isinstance(exc, OutputError) or (isinstance(exc, OSError) and exc.errno in OUTPUT_ERRNOS)
 
+
 COMMANDS = {
     "inspect": (inspect_gaussians, "what the fluid will see: format, boxes, frame, solid count; PNG of three views"),
     "sim": (sim, "run a scene JSON and write OUT.h5 (frames, per-step stats, divergence)"),
@@ -104,8 +105,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log more (default: warnings and info)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text,
-                           formatter_class=HelpFormatter)
+        p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=HelpFormatter)
         if command is None or name == command:
             module.add_arguments(p)
         p.set_defaults(_module=module)
@@ -158,8 +158,15 @@ def join_dash_values(argv: list[str], parser: argparse.ArgumentParser | None = N
         if tok == "--":
             return out + argv[i:]
         nxt = argv[i + 1] if i + 1 < len(argv) else None
-        if tok in takes and nxt is not None and nxt.startswith("-") and len(nxt) > 1 and not nxt.startswith("--") \
-                and nxt not in every and nxt[:2] not in every:
+        if (
+            tok in takes
+            and nxt is not None
+            and nxt.startswith("-")
+            and len(nxt) > 1
+            and not nxt.startswith("--")
+            and nxt not in every
+            and nxt[:2] not in every
+        ):
             out.append(f"{tok}={nxt}")
             i += 2
             continue
@@ -181,8 +188,9 @@ def main(argv: list[str] | None = None) -> int:
             raise
         sys.stderr.write("ERROR fluidgs: interrupted\n")
         return EXIT_INTERRUPTED
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
+    )
     code = EXIT_INTERRUPTED
     try:
         with stop_signals():

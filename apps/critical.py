@@ -38,20 +38,34 @@ log = logging.getLogger("fluidgs")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
-                   "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units")
+    p.add_argument(
+        "gaussians",
+        type=Path,
+        help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
+        "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units",
+    )
     add_gaussian_file_arguments(p)
     add_camera_arguments(p)
-    p.add_argument("-o", "--output", type=Path, default=Path("critical.json"),
-                   help="JSON with C(T) per camera and the critical subset (written atomically)")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=Path("critical.json"),
+        help="JSON with C(T) per camera and the critical subset (written atomically)",
+    )
     p.add_argument("--subset", type=int, default=20, help="size of the critical subset (views)")
     p.add_argument("--top-k", type=int, default=None, help="print only the best K views (default: all)")
     add_visibility_arguments(p)
-    p.add_argument("--result", type=Path, default=None,
-                   help="RESULT.h5 with distinct-particle counts for these Gaussians, from critical --save-result "
-                        "(default: simulate now)")
-    p.add_argument("--save-result", type=Path, default=None, help="when simulating, also write RESULT.h5 here "
-                                                                  "(default: none)")
+    p.add_argument(
+        "--result",
+        type=Path,
+        default=None,
+        help="RESULT.h5 with distinct-particle counts for these Gaussians, from critical --save-result "
+        "(default: simulate now)",
+    )
+    p.add_argument(
+        "--save-result", type=Path, default=None, help="when simulating, also write RESULT.h5 here (default: none)"
+    )
     add_physics_arguments(p, track_distinct=True, cameras=True)
 
 
@@ -62,8 +76,10 @@ def subset_warning(subset: int, candidates: int) -> str | None:
     """The warning for a critical subset of ``subset`` views out of ``candidates``: None below half of them."""
     if 2 * subset < candidates:
         return None
-    return (f"the critical subset holds {subset} of the {candidates} candidate views (half or more), so it selects "
-            f"little; pass a smaller --subset (e.g. {max(1, candidates // 4)}) or more candidates")
+    return (
+        f"the critical subset holds {subset} of the {candidates} candidate views (half or more), so it selects "
+        f"little; pass a smaller --subset (e.g. {max(1, candidates // 4)}) or more candidates"
+    )
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -95,9 +111,10 @@ def run_command(args: argparse.Namespace) -> int:
     config = physics_config_from_args(args, track_distinct=True, default_directions=("-x",), cameras=file_cams)
     output = check_output_file(args.output, (".json",))
     orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
-    check_not_input({"-o": output, "-o (orbit cameras)": orbit_file, "--save-result": args.save_result},
-                    {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras,
-                     "--result": args.result})
+    check_not_input(
+        {"-o": output, "-o (orbit cameras)": orbit_file, "--save-result": args.save_result},
+        {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras, "--result": args.result},
+    )
     if args.save_result is not None:
         if args.result is not None:
             raise ValueError("--save-result writes the RESULT.h5 of a fresh simulation; drop it with --result")
@@ -108,35 +125,44 @@ def run_command(args: argparse.Namespace) -> int:
         result = load_result(args.result)
         check_result_matches(result, gaussians, args.result)
         if result.per_probe_distinct is None:
-            raise ValueError(f"--result {args.result} has no distinct-particle counts |P_g| (a simulate or score "
-                             "result); write one with `fluidgs critical ... --save-result RESULT.h5`, or drop --result")
+            raise ValueError(
+                f"--result {args.result} has no distinct-particle counts |P_g| (a simulate or score "
+                "result); write one with `fluidgs critical ... --save-result RESULT.h5`, or drop --result"
+            )
         config = result.config
     warn_frame(config, file_cams, up_given=args.up is not None or args.result is not None)
     all_cams = file_cams if orbit is None else orbit_cameras_logged(gaussians, config, orbit)
     if orbit_file is not None:
         from recon.camera_files import transforms_json
 
-        write_json_atomic(orbit_file, transforms_json(all_cams, f"fluidgs critical --cameras {args.cameras}: "
-                                                                f"{orbit.describe()}"))
+        write_json_atomic(
+            orbit_file, transforms_json(all_cams, f"fluidgs critical --cameras {args.cameras}: {orbit.describe()}")
+        )
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     check_cameras_see(gaussians, cams, [c.name for c in cams])
     if result is None:
         init_taichi(args.device, config.precision, args.threads)
-        result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians),
-                                    source_frame=getattr(args, "source_frame", ""))
+        result = simulate_gaussians(
+            gaussians, config, progress=True, source=str(args.gaussians), source_frame=getattr(args, "source_frame", "")
+        )
         if args.save_result is not None:
             save_result(args.save_result, result)
     distinct = result.distinct_counts()
     if not distinct.any():
-        raise ValueError(f"{args.gaussians}: no probe fluid particle came within reach of any of the {len(distinct)} "
-                         "Gaussians, so every view would score C(T) = 0; re-run with a smaller --dt, or check "
-                         "--scale and --up")
+        raise ValueError(
+            f"{args.gaussians}: no probe fluid particle came within reach of any of the {len(distinct)} "
+            "Gaussians, so every view would score C(T) = 0; re-run with a smaller --dt, or check "
+            "--scale and --up"
+        )
     # C(T) = sum_g w_g |P_g| needs only the projection's radii and visibility (no render)
     occlusion = not args.frustum_only
-    scored = projected_view_scores(torch.from_numpy(distinct).to(torch.float64),
-                                   gaussians.to(torch_device(args.device)), cams,
-                                   depth_buffer=DepthBuffer() if occlusion else None)
+    scored = projected_view_scores(
+        torch.from_numpy(distinct).to(torch.float64),
+        gaussians.to(torch_device(args.device)),
+        cams,
+        depth_buffer=DepthBuffer() if occlusion else None,
+    )
     subset = critical_subset(scored.scores, args.subset).tolist()
     rows = ranked_rows(scored, cams, idx, value="critical_score")
     agreement = rows_agreement(rows, "critical_score")
@@ -150,14 +176,27 @@ def run_command(args: argparse.Namespace) -> int:
     too_many = subset_warning(len(subset), len(idx))
     if too_many is not None:
         log.warning("%s", too_many)
-    write_json_atomic(output, {
-        "cameras": str(orbit_file or args.cameras), "gaussians": str(args.gaussians),
-        "directions": list(result.directions),
-        "occlusion": occlusion, "dbar_m4_s": result.dbar, "dbar_empty_m4_s": result.dbar_empty,
-        "distinct_particles": {"total_over_gaussians": int(distinct.sum()),
-                               "gaussians_reached": int((distinct > 0).sum()), "max": int(np.max(distinct))},
-        "agreement": agreement, "views": rows, "critical_subset": [idx[k] for k in subset],
-        "subset_warning": too_many, "result": None if args.result is None else str(args.result),
-        "config": result.config.to_dict()})
+    write_json_atomic(
+        output,
+        {
+            "cameras": str(orbit_file or args.cameras),
+            "gaussians": str(args.gaussians),
+            "directions": list(result.directions),
+            "occlusion": occlusion,
+            "dbar_m4_s": result.dbar,
+            "dbar_empty_m4_s": result.dbar_empty,
+            "distinct_particles": {
+                "total_over_gaussians": int(distinct.sum()),
+                "gaussians_reached": int((distinct > 0).sum()),
+                "max": int(np.max(distinct)),
+            },
+            "agreement": agreement,
+            "views": rows,
+            "critical_subset": [idx[k] for k in subset],
+            "subset_warning": too_many,
+            "result": None if args.result is None else str(args.result),
+            "config": result.config.to_dict(),
+        },
+    )
     print(f"critical views: {output}" + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file else ""))
     return 0

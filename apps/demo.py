@@ -48,27 +48,53 @@ DEMO_ORBIT = 12  # cameras of the orbit scored on Gaussians other than the bundl
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", type=Path, default=Path("out/demo"), help="output folder")
-    p.add_argument("--solid", type=Path, default=None,
-                   help=f"run the mesh demo on this solid mesh instead (.obj/.stl/.ply; e.g. assets/{ASSET.name})")
-    p.add_argument("--gaussians", type=Path, default=None,
-                   help=f"Gaussian set (default: assets/{GAUSSIANS.name}, else Gaussians on the Ahmed body surface)")
-    p.add_argument("--cameras", default=None, metavar="CAMERAS",
-                   help=f"{CAMERAS_HELP} (default: assets/{CAMERAS.name} for the bundled Gaussians, else "
-                        f"orbit:{DEMO_ORBIT})")
+    p.add_argument(
+        "--solid",
+        type=Path,
+        default=None,
+        help=f"run the mesh demo on this solid mesh instead (.obj/.stl/.ply; e.g. assets/{ASSET.name})",
+    )
+    p.add_argument(
+        "--gaussians",
+        type=Path,
+        default=None,
+        help=f"Gaussian set (default: assets/{GAUSSIANS.name}, else Gaussians on the Ahmed body surface)",
+    )
+    p.add_argument(
+        "--cameras",
+        default=None,
+        metavar="CAMERAS",
+        help=f"{CAMERAS_HELP} (default: assets/{CAMERAS.name} for the bundled Gaussians, else orbit:{DEMO_ORBIT})",
+    )
     add_orbit_arguments(p)
     from nbv.physics import QUICK, PhysicsConfig
 
     add_frame_arguments(p, scale=False, crop=False)
-    add_config_options(p, PhysicsConfig, ("particle_radius", "steps", "speed"), {
-        "particle_radius": {"default_text": f"{QUICK['particle_radius']}, the quick preset; {MESH_RADIUS} for --solid"},
-        "steps": {"default_text": f"{QUICK['steps']}, the quick preset; {MESH_STEPS} for --solid"}})
+    add_config_options(
+        p,
+        PhysicsConfig,
+        ("particle_radius", "steps", "speed"),
+        {
+            "particle_radius": {
+                "default_text": f"{QUICK['particle_radius']}, the quick preset; {MESH_RADIUS} for --solid"
+            },
+            "steps": {"default_text": f"{QUICK['steps']}, the quick preset; {MESH_STEPS} for --solid"},
+        },
+    )
     p.add_argument("--render-width", type=int, default=240, help="width of the scored views in pixels")
     p.add_argument("--no-video", action="store_true", help="skip the MP4 of the -x probe")
     add_runtime_arguments(p)
 
 
-DEMO_FILES = ("result.h5", "gaussians_divergence.ply", "scores.json", "summary.json", "probe_-x.mp4", "cameras.json",
-              *(f"probe_{d}.h5" for d in DIRECTIONS))
+DEMO_FILES = (
+    "result.h5",
+    "gaussians_divergence.ply",
+    "scores.json",
+    "summary.json",
+    "probe_-x.mp4",
+    "cameras.json",
+    *(f"probe_{d}.h5" for d in DIRECTIONS),
+)
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -76,9 +102,10 @@ def run_command(args: argparse.Namespace) -> int:
     from nbv.orbit import orbit_count
 
     orbit_spec = args.cameras is not None and orbit_count(args.cameras) is not None
-    check_not_input([("-o (demo file)", Path(args.output) / name) for name in DEMO_FILES],
-                    {"--solid": args.solid, "--gaussians": args.gaussians,
-                     "--cameras": None if orbit_spec else args.cameras})
+    check_not_input(
+        [("-o (demo file)", Path(args.output) / name) for name in DEMO_FILES],
+        {"--solid": args.solid, "--gaussians": args.gaussians, "--cameras": None if orbit_spec else args.cameras},
+    )
     if args.solid is not None:
         return run_mesh_demo(args)
     from nbv.outputs import divergence_columns, probe_video, result_summary, save_colored_gaussians
@@ -107,8 +134,11 @@ def run_command(args: argparse.Namespace) -> int:
         spec = str(CAMERAS) if bundled and CAMERAS.is_file() else f"orbit:{DEMO_ORBIT}"
         args = argparse.Namespace(**{**vars(args), "cameras": spec})
         if not bundled:
-            log.info("no --cameras: scoring orbit:%d, an orbit around %s (pass --cameras for your own)", DEMO_ORBIT,
-                     gpath or "the Ahmed body samples")
+            log.info(
+                "no --cameras: scoring orbit:%d, an orbit around %s (pass --cameras for your own)",
+                DEMO_ORBIT,
+                gpath or "the Ahmed body samples",
+            )
     orbit = orbit_from_args(args, args.render_width)
     file_cams = None if orbit is not None else camera_file_from_args(args)
     cfg = physics_config_from_args(args, preset=QUICK, empty_reference=False, cameras=file_cams)
@@ -118,8 +148,11 @@ def run_command(args: argparse.Namespace) -> int:
         log.warning("%s is not there yet: using Gaussians sampled on the Ahmed body mesh surface", GAUSSIANS)
         gaussians, source = ahmed_surface_gaussians(), "Ahmed body surface samples (recon.ahmed)"
     warn_frame(cfg, file_cams, up_given=args.up is not None or bundled)
-    cams = ([render_size(c, args.render_width) for c in file_cams] if orbit is None
-            else orbit_cameras_logged(gaussians, cfg, orbit))
+    cams = (
+        [render_size(c, args.render_width) for c in file_cams]
+        if orbit is None
+        else orbit_cameras_logged(gaussians, cfg, orbit)
+    )
     cpath = None if orbit is None else Path(args.output) / "cameras.json"
     if cpath is not None:
         write_json_atomic(cpath, transforms_json(cams, f"fluidgs demo --cameras {args.cameras}: {orbit.describe()}"))
@@ -128,25 +161,48 @@ def run_command(args: argparse.Namespace) -> int:
     init_taichi(args.device, cfg.precision, args.threads)
     from nbv.physics.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view`
 
-    result = simulate_gaussians(gaussians, cfg, progress=True, source=source,
-                                record=RecordConfig(("-x",), every=max(1, cfg.steps // 30)))
+    result = simulate_gaussians(
+        gaussians, cfg, progress=True, source=source, record=RecordConfig(("-x",), every=max(1, cfg.steps // 30))
+    )
     save_result(out / "result.h5", result)
     save_colored_gaussians(gaussians, result.divergence, out / "gaussians_divergence.ply", divergence_columns(result))
-    rows = score_views(gaussians, cams, list(range(len(cams))), result, "max", out / "views",
-                       device=args.device, visible_centres=centres)
+    rows = score_views(
+        gaussians,
+        cams,
+        list(range(len(cams))),
+        result,
+        "max",
+        out / "views",
+        device=args.device,
+        visible_centres=centres,
+    )
     print(format_table(rows))
-    write_json_atomic(out / "scores.json", {"cameras": str(cpath or args.cameras), "gaussians": source, "views": rows,
-                                     "dbar_m4_s": result.dbar, "config": cfg.to_dict()})
+    write_json_atomic(
+        out / "scores.json",
+        {
+            "cameras": str(cpath or args.cameras),
+            "gaussians": source,
+            "views": rows,
+            "dbar_m4_s": result.dbar,
+            "config": cfg.to_dict(),
+        },
+    )
     if not args.no_video:
         probe_video(result, "-x", out / "probe_-x.mp4")
     summary = result_summary(result)
     summary.update(source=source, cameras=cameras_label, wall_time_s=time.perf_counter() - t0)
     write_json_atomic(out / "summary.json", summary)
     print(f"{result.num_gaussians} Gaussians ({source}); D-bar {result.dbar:.4g} m^4/s; best view {rows[0]['name']}")
-    print(f"outputs in {out}: result.h5, gaussians_divergence.ply, scores.json, views/, summary.json"
-          + ("" if args.no_video else ", probe_-x.mp4") + f" ({summary['wall_time_s']:.0f} s)")
-    print(f"see them in a browser: fluidgs view {out / 'result.h5'}" + (f" --gaussians {gpath}" if gpath else "")
-          + f" --scores {out / 'scores.json'}")
+    print(
+        f"outputs in {out}: result.h5, gaussians_divergence.ply, scores.json, views/, summary.json"
+        + ("" if args.no_video else ", probe_-x.mp4")
+        + f" ({summary['wall_time_s']:.0f} s)"
+    )
+    print(
+        f"see them in a browser: fluidgs view {out / 'result.h5'}"
+        + (f" --gaussians {gpath}" if gpath else "")
+        + f" --scores {out / 'scores.json'}"
+    )
     return 0
 
 
@@ -167,12 +223,20 @@ def run_mesh_demo(args: argparse.Namespace) -> int:
     cfg = SolverConfig(particle_radius=args.particle_radius or MESH_RADIUS)
     solid = mesh_particles(args.solid, cfg.spacing, fill=True)
     probe = ProbeConfig(**({} if args.speed is None else {"speed": args.speed}))
-    summary = {"solid": str(args.solid), "solid_particles": len(solid), "particle_radius": cfg.particle_radius,
-               "steps": steps, "dt": cfg.dt, "probes": {}}
+    summary = {
+        "solid": str(args.solid),
+        "solid_particles": len(solid),
+        "particle_radius": cfg.particle_radius,
+        "steps": steps,
+        "dt": cfg.dt,
+        "probes": {},
+    }
     for d in probe.directions:
         s = summary["probes"][d] = probe_file_summary(*probe_to_h5(solid, d, cfg, probe, steps, out / f"probe_{d}.h5"))
-        print(f"probe {d}: {s['fluid_particles']} fluid particles, mean D_i {s['mean_particle_divergence']:.3f} 1/s "
-              f"(p95 {s['p95_particle_divergence']:.3f}), {s['retired']} retired -> {out / s['file']}")
+        print(
+            f"probe {d}: {s['fluid_particles']} fluid particles, mean D_i {s['mean_particle_divergence']:.3f} 1/s "
+            f"(p95 {s['p95_particle_divergence']:.3f}), {s['retired']} retired -> {out / s['file']}"
+        )
     write_json_atomic(out / "summary.json", summary)
     if not args.no_video:
         from viz.frames import FrameStyle, render_frames

@@ -11,10 +11,17 @@ from pathlib import Path
 from .options import add_config_options, add_runtime_arguments, config_from_args
 
 EVAL_FIELDS = ("critical_views", "chamfer_samples", "chamfer_opacity", "lpips")
-EVAL_OVERRIDES = {"critical_views": {"help": "size of the function-critical subset, views"},
-                  "chamfer_opacity": {"help": "Gaussians above this opacity (0..1) enter the Chamfer distance"},
-                  "lpips": {"flags": ("--no-lpips",), "dest": "no_lpips", "negate": True, "default_text": "computed",
-                            "help": "skip LPIPS even when it is available"}}
+EVAL_OVERRIDES = {
+    "critical_views": {"help": "size of the function-critical subset, views"},
+    "chamfer_opacity": {"help": "Gaussians above this opacity (0..1) enter the Chamfer distance"},
+    "lpips": {
+        "flags": ("--no-lpips",),
+        "dest": "no_lpips",
+        "negate": True,
+        "default_text": "computed",
+        "help": "skip LPIPS even when it is available",
+    },
+}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -22,11 +29,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from nbv.study.evaluate import EvalConfig
 
     add_config_options(p, EvalConfig, EVAL_FIELDS, EVAL_OVERRIDES)
-    p.add_argument("--particle-radius", type=float, default=None,
-                   help="probe particle radius r in m (default: the run's physics config)")
+    p.add_argument(
+        "--particle-radius",
+        type=float,
+        default=None,
+        help="probe particle radius r in m (default: the run's physics config)",
+    )
     p.add_argument("--probe-steps", type=int, default=None, help="time steps per probe (default: the run's)")
-    p.add_argument("--directions", default=None,
-                   help="probes, comma list of -x,+x,-z,+z,-y (default: the run's; -x is added for C(T))")
+    p.add_argument(
+        "--directions",
+        default=None,
+        help="probes, comma list of -x,+x,-z,+z,-y (default: the run's; -x is added for C(T))",
+    )
     p.add_argument("--no-progress", action="store_true", help="hide the probe progress bars")
     add_runtime_arguments(p, threads_help="CPU threads for torch and Taichi")
 
@@ -42,8 +56,10 @@ def run_command(args: argparse.Namespace) -> int:
 
     cfg_path = args.run / "config.json"
     if not cfg_path.is_file() or not (args.run / "gaussians.ply").is_file():
-        raise ValueError(f"{args.run} is not a finished active run (needs config.json and gaussians.ply); "
-                         "run `fluidgs active DATASET -o RUN` first")
+        raise ValueError(
+            f"{args.run} is not a finished active run (needs config.json and gaussians.ply); "
+            "run `fluidgs active DATASET -o RUN` first"
+        )
     from fluidsim.files import check_writable
 
     check_writable(args.run / "eval.json")  # fail before the probes run, not after

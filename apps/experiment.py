@@ -17,13 +17,20 @@ from .runtime import thread_count
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", type=Path, help="experiment JSON (scenes, methods, seeds, preset, output, ...)")
-    p.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="local: a process pool here; ray: tasks on a Ray cluster")
+    p.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help="local: a process pool here; ray: tasks on a Ray cluster",
+    )
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--threads", type=thread_count, default=1, help="torch and Taichi CPU threads per worker")
-    p.add_argument("--address", default=None,
-                   help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
-                        "(default: start a local Ray instance)")
+    p.add_argument(
+        "--address",
+        default=None,
+        help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
+        "(default: start a local Ray instance)",
+    )
     p.add_argument("--output", type=Path, default=None, help="results folder (default: the config's 'output')")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
@@ -41,8 +48,9 @@ def init_worker(threads: int, precision: str) -> None:
     init_taichi("cpu", precision, threads)
 
 
-def make_executor(kind: str, workers: int, threads: int, address: str | None, precision: str = "f32",
-                  local_cpus: int | None = None):
+def make_executor(
+    kind: str, workers: int, threads: int, address: str | None, precision: str = "f32", local_cpus: int | None = None
+):
     """A :mod:`nbv.study.executors` executor whose workers run :func:`init_worker`."""
     from nbv.study.executors import LocalExecutor, RayExecutor
 
@@ -78,8 +86,10 @@ def run_command(args: argparse.Namespace) -> int:
     config = ExperimentConfig.load(args.config)
     if args.output is not None:
         config = replace(config, output=str(args.output))
-    check_not_input([("output file", Path(config.output) / name) for name in ("experiment.json", "results.json",
-                                                                               "tables.md")], {"CONFIG": args.config})
+    check_not_input(
+        [("output file", Path(config.output) / name) for name in ("experiment.json", "results.json", "tables.md")],
+        {"CONFIG": args.config},
+    )
     precision = config.active_config(config.methods[0], config.seeds[0]).physics.precision
     executor = make_executor(args.executor, args.workers, args.threads, args.address, precision)
     try:

@@ -15,30 +15,51 @@ import argparse
 import json
 from pathlib import Path
 
-FRAME_HELP = ("frame of the solid mesh: sim (simulation metres, Y-up, as RESULT.h5 and glTF) or scene (the "
-              "Gaussians' own frame and units, to overlay the splat); the voxel grid is always in sim metres")
+FRAME_HELP = (
+    "frame of the solid mesh: sim (simulation metres, Y-up, as RESULT.h5 and glTF) or scene (the "
+    "Gaussians' own frame and units, to overlay the splat); the voxel grid is always in sim metres"
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("h5", type=Path, help="an OUT.h5 of `fluidgs sim` or a RESULT.h5 of `fluidgs simulate`")
-    p.add_argument("--vtk", type=Path, default=None, metavar="DIR",
-                   help="write the particle frames as VTK (.vtu per frame, .pvd series, solid.vtu) into this folder, "
-                        "replaced as a whole (default: none)")
-    p.add_argument("--probe", default=None, metavar="DIRS",
-                   help="RESULT.h5: comma list of the recorded probes to write (default: every recorded probe)")
-    p.add_argument("--solid", type=Path, default=None, metavar="PATH",
-                   help="write the solid as a mesh (.ply, .obj, .glb, .stl; the voxel grid beside it as "
-                        ".voxels.h5) or as a voxel grid only (.h5) (default: none)")
+    p.add_argument(
+        "--vtk",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write the particle frames as VTK (.vtu per frame, .pvd series, solid.vtu) into this folder, "
+        "replaced as a whole (default: none)",
+    )
+    p.add_argument(
+        "--probe",
+        default=None,
+        metavar="DIRS",
+        help="RESULT.h5: comma list of the recorded probes to write (default: every recorded probe)",
+    )
+    p.add_argument(
+        "--solid",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="write the solid as a mesh (.ply, .obj, .glb, .stl; the voxel grid beside it as "
+        ".voxels.h5) or as a voxel grid only (.h5) (default: none)",
+    )
     p.add_argument("--export-frame", choices=("sim", "scene"), default="sim", help=f"{FRAME_HELP} (default: sim)")
 
 
 def add_solid_export_arguments(p: argparse.ArgumentParser) -> None:
     """``--export-solid PATH`` and ``--export-frame`` of simulate and score."""
     g = p.add_argument_group("solid export")
-    g.add_argument("--export-solid", type=Path, default=None, metavar="PATH",
-                   help="also write the filled solid the probes used: a mesh by marching cubes (.ply, .obj, .glb or "
-                        ".stl; the voxel grid beside it as <stem>.voxels.h5) or a voxel grid only (.h5): origin, "
-                        "spacing (m), occupancy (default: none)")
+    g.add_argument(
+        "--export-solid",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="also write the filled solid the probes used: a mesh by marching cubes (.ply, .obj, .glb or "
+        ".stl; the voxel grid beside it as <stem>.voxels.h5) or a voxel grid only (.h5): origin, "
+        "spacing (m), occupancy (default: none)",
+    )
     g.add_argument("--export-frame", choices=("sim", "scene"), default="sim", help=f"{FRAME_HELP} (default: sim)")
 
 
@@ -68,9 +89,14 @@ def write_solid_export(path: Path | None, result, frame: str = "sim") -> None:
 
 
 def print_solid_export(info: dict) -> None:
-    mesh = "" if info["mesh"] is None else (
-        f"mesh {info['mesh']} ({'watertight' if info['watertight'] else 'NOT watertight'}, "
-        f"{info['mesh_volume_m3']:.4g} m^3), ")
+    mesh = (
+        ""
+        if info["mesh"] is None
+        else (
+            f"mesh {info['mesh']} ({'watertight' if info['watertight'] else 'NOT watertight'}, "
+            f"{info['mesh_volume_m3']:.4g} m^3), "
+        )
+    )
     print(f"solid: {mesh}voxels {info['voxels']} ({info['cells']} cells, {info['volume_m3']:.4g} m^3)")
 
 

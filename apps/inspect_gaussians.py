@@ -27,23 +27,38 @@ from .runtime import thread_count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path,
-                   help="Gaussians: 3DGS .ply, SuperSplat compressed .ply, .spz, .splat, .npz, .sog (or a meta.json "
-                        "folder), .ksplat, or a gsplat or nerfstudio checkpoint (scene units)")
+    p.add_argument(
+        "gaussians",
+        type=Path,
+        help="Gaussians: 3DGS .ply, SuperSplat compressed .ply, .spz, .splat, .npz, .sog (or a meta.json "
+        "folder), .ksplat, or a gsplat or nerfstudio checkpoint (scene units)",
+    )
     add_gaussian_file_arguments(p)
     g = p.add_argument_group("frame and solid")
     add_frame_arguments(g)
     config, quick = physics_config_class()
-    g.add_argument("--quick", action="store_true",
-                   help=f"the quick preset's spacing: r = {quick['particle_radius']} m (default: the paper's, "
-                        f"{config.particle_radius} m)")
+    g.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"the quick preset's spacing: r = {quick['particle_radius']} m (default: the paper's, "
+        f"{config.particle_radius} m)",
+    )
     over = probe_overrides()
-    add_config_options(g, config, ("particle_radius", "opacity_threshold", "fill_cavities"), over,
-                       presets={"--quick": {"particle_radius": quick["particle_radius"]}})
+    add_config_options(
+        g,
+        config,
+        ("particle_radius", "opacity_threshold", "fill_cavities"),
+        over,
+        presets={"--quick": {"particle_radius": quick["particle_radius"]}},
+    )
     p.add_argument("--png", type=Path, default=None, help="write the three orthographic views here (.png)")
     p.add_argument("--json", type=Path, default=None, help="write the figures here (.json)")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="compute device for the solid; cuda falls back to cpu with a logged warning (default: cpu)")
+    p.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="compute device for the solid; cuda falls back to cpu with a logged warning (default: cpu)",
+    )
     p.add_argument("--threads", type=thread_count, default=None, help="CPU threads (default: all cores)")
 
 
@@ -61,7 +76,8 @@ def run_command(args: argparse.Namespace) -> int:
     config = physics_config_from_args(args, steps=1)  # inspect runs no probe; the other fields keep their defaults
     check_input_file(args.gaussians, "Gaussian file", folder_ok=True)
     gaussians, fmt, frame = load_gaussians_framed(
-        args.gaussians, LoadOptions(args.spz_frame, args.colmap, args.dataparser_transforms))
+        args.gaussians, LoadOptions(args.spz_frame, args.colmap, args.dataparser_transforms)
+    )
     print(f"frame: {frame.description}")
     warn_frame(config, up_given=args.up is not None)
     init_taichi(args.device, config.precision, args.threads)

@@ -13,24 +13,38 @@ from pathlib import Path
 log = logging.getLogger("fluidgs")
 
 
-OVERRIDES = {"slant_deg": {"flags": ("--slant",)},
-             "stilts": {"flags": ("--no-stilts",), "dest": "no_stilts", "negate": True, "default_text": "with stilts",
-                        "help": "leave out the four stilts (the body stays 50 mm up)"}}
+OVERRIDES = {
+    "slant_deg": {"flags": ("--slant",)},
+    "stilts": {
+        "flags": ("--no-stilts",),
+        "dest": "no_stilts",
+        "negate": True,
+        "default_text": "with stilts",
+        "help": "leave out the four stilts (the body stays 50 mm up)",
+    },
+}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-o", "--output", type=Path, required=True,
-                   help="output mesh: .obj, .stl, .ply, .off, .gltf or .glb (written atomically)")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="output mesh: .obj, .stl, .ply, .off, .gltf or .glb (written atomically)",
+    )
     from recon.ahmed import AhmedBody
 
     from .options import add_config_options
 
     add_config_options(p, AhmedBody, ("slant_deg", "stilts"), OVERRIDES)
     p.add_argument("--up", choices=("y", "z"), default="y", help="up axis of the written mesh")
-    p.add_argument("--scale", type=float, default=1.0,
-                   help="unitless factor on all coordinates (1 = metres, 1000 = millimetres)")
-    add_config_options(p, AhmedBody, ("resolution",), {"resolution": {"help": "target mesh edge length, m, before "
-                                                                              "--scale"}})
+    p.add_argument(
+        "--scale", type=float, default=1.0, help="unitless factor on all coordinates (1 = metres, 1000 = millimetres)"
+    )
+    add_config_options(
+        p, AhmedBody, ("resolution",), {"resolution": {"help": "target mesh edge length, m, before --scale"}}
+    )
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -39,14 +53,19 @@ def run_command(args: argparse.Namespace) -> int:
     from .options import config_values
 
     if args.output.suffix.lower() not in MESH_SUFFIXES:  # refuse before building anything
-        raise ValueError(f"{args.output}: unsupported mesh file type {args.output.suffix!r}; "
-                         f"use one of {list(MESH_SUFFIXES)}")
-    body = {**{f: getattr(AhmedBody, f) for f in ("slant_deg", "stilts", "resolution")},
-            **config_values(AhmedBody, args, ("slant_deg", "stilts", "resolution"), OVERRIDES)}
+        raise ValueError(
+            f"{args.output}: unsupported mesh file type {args.output.suffix!r}; use one of {list(MESH_SUFFIXES)}"
+        )
+    body = {
+        **{f: getattr(AhmedBody, f) for f in ("slant_deg", "stilts", "resolution")},
+        **config_values(AhmedBody, args, ("slant_deg", "stilts", "resolution"), OVERRIDES),
+    }
     mesh = ahmed_body(body["slant_deg"], body["resolution"], stilts=body["stilts"], up=args.up, scale=args.scale)
     path = save_mesh(mesh, args.output)
     extent = mesh.get_axis_aligned_bounding_box().get_extent()
-    print(f"Ahmed body, slant {body['slant_deg']:g} deg, {len(mesh.vertices)} vertices, {len(mesh.triangles)} "
-          f"triangles, extent {extent[0]:.4g} x {extent[1]:.4g} x {extent[2]:.4g}, "
-          f"volume {enclosed_volume(mesh):.5g} -> {path}")
+    print(
+        f"Ahmed body, slant {body['slant_deg']:g} deg, {len(mesh.vertices)} vertices, {len(mesh.triangles)} "
+        f"triangles, extent {extent[0]:.4g} x {extent[1]:.4g} x {extent[2]:.4g}, "
+        f"volume {enclosed_volume(mesh):.5g} -> {path}"
+    )
     return 0

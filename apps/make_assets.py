@@ -43,20 +43,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--test", type=int, default=10, help="held-out views for the reported PSNR/SSIM")
     p.add_argument("--train-views", type=int, default=10, help="the first N candidates are the training views")
     p.add_argument("--iters", type=int, default=3000, help="training iterations")
-    p.add_argument("--max-gaussians", type=int, default=20000,
-                   help="cap on the Gaussian count (20000 x 68 bytes keeps the .ply under 1.4 MB)")
+    p.add_argument(
+        "--max-gaussians",
+        type=int,
+        default=20000,
+        help="cap on the Gaussian count (20000 x 68 bytes keeps the .ply under 1.4 MB)",
+    )
     p.add_argument("--sh-degree", type=int, default=0, choices=(0, 1), help="SH degree of the asset (size!)")
-    p.add_argument("--threads", type=thread_count, default=1,
-                   help="torch CPU threads (the result is bit-reproducible for a fixed thread count)")
+    p.add_argument(
+        "--threads",
+        type=thread_count,
+        default=1,
+        help="torch CPU threads (the result is bit-reproducible for a fixed thread count)",
+    )
 
 
 def cameras_json(cameras, fov_x: float) -> dict:
     """Blender ``transforms`` dict of ``cameras`` with explicit intrinsics (all cameras share one size)."""
     c0 = cameras[0]
-    return {"camera_angle_x": fov_x, "w": c0.width, "h": c0.height, "fl_x": c0.fx, "fl_y": c0.fy, "cx": c0.cx,
-            "cy": c0.cy,
-            "frames": [{"file_path": f"./train/{c.name}", "name": c.name,
-                        "transform_matrix": c.opengl_c2w().tolist()} for c in cameras]}
+    return {
+        "camera_angle_x": fov_x,
+        "w": c0.width,
+        "h": c0.height,
+        "fl_x": c0.fx,
+        "fl_y": c0.fy,
+        "cx": c0.cx,
+        "cy": c0.cy,
+        "frames": [
+            {"file_path": f"./train/{c.name}", "name": c.name, "transform_matrix": c.opengl_c2w().tolist()}
+            for c in cameras
+        ],
+    }
 
 
 def read_cameras_json(path: Path) -> list:
@@ -88,8 +105,9 @@ def run_command(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed)
     start = time.perf_counter()
     mesh_cfg = MeshDatasetConfig(n_train=args.candidates, n_test=args.test, resolution=args.res, seed=args.seed)
-    config = TrainConfig.for_iterations(args.iters, sh_degree=args.sh_degree, seed=args.seed,
-                                        max_gaussians=args.max_gaussians)
+    config = TrainConfig.for_iterations(
+        args.iters, sh_degree=args.sh_degree, seed=args.seed, max_gaussians=args.max_gaussians
+    )
     with tempfile.TemporaryDirectory(prefix="fluidgs-assets-") as tmp:
         mesh_path = Path(tmp) / "ahmed.obj"
         write_ahmed(mesh_path)
@@ -97,19 +115,26 @@ def run_command(args: argparse.Namespace) -> int:
         normalisation = json.loads((data_dir / "dataset.json").read_text())
         dataset = load_dataset(data_dir)
         candidates = [v.camera for v in dataset.train]
-        dataset.train = dataset.train[:args.train_views]
+        dataset.train = dataset.train[: args.train_views]
         render_s = time.perf_counter() - start
-        log.info("rendered %d candidate and %d test views at %d px in %.1f s", len(candidates), len(dataset.test),
-                 args.res, render_s)
+        log.info(
+            "rendered %d candidate and %d test views at %d px in %.1f s",
+            len(candidates),
+            len(dataset.test),
+            args.res,
+            render_s,
+        )
 
         from tqdm import tqdm
 
         with tqdm(total=config.iterations, desc="make-assets train", unit="it") as bar:
+
             def on_step(st) -> None:
                 bar.update(1)
                 if st.iteration % 10 == 0:
-                    bar.set_postfix(loss=f"{st.loss:.4f}", psnr=f"{st.psnr:.2f}", gaussians=st.num_gaussians,
-                                    refresh=False)
+                    bar.set_postfix(
+                        loss=f"{st.loss:.4f}", psnr=f"{st.psnr:.2f}", gaussians=st.num_gaussians, refresh=False
+                    )
 
             with deterministic_torch():
                 gaussians, train_log = train(dataset, config, callback=on_step)
@@ -118,22 +143,33 @@ def run_command(args: argparse.Namespace) -> int:
     write_json_atomic(out / CAMERAS_FILE, cameras_json(candidates, math.radians(mesh_cfg.fov_x)))
     report = {
         "command": f"fluidgs make-assets -o {out} --seed {args.seed} --res {args.res} --candidates {args.candidates} "
-                   f"--test {args.test} --train-views {args.train_views} --iters {args.iters} "
-                   f"--max-gaussians {args.max_gaussians} --sh-degree {args.sh_degree} --threads {args.threads}",
+        f"--test {args.test} --train-views {args.train_views} --iters {args.iters} "
+        f"--max-gaussians {args.max_gaussians} --sh-degree {args.sh_degree} --threads {args.threads}",
         "seed": args.seed,
         "mesh": "recon.ahmed.write_ahmed(): Ahmed body, 25 deg slant, stilts, metres, Y up",
         "normalisation": {k: normalisation[k] for k in ("normalization", "scale", "offset", "up_axis")},
         "dataset": {k: v for k, v in normalisation["config"].items()},
-        "candidate_cameras": CAMERAS_FILE, "train_view_indices": list(range(args.train_views)),
-        "num_gaussians": gaussians.num, "sh_degree": gaussians.sh_degree,
+        "candidate_cameras": CAMERAS_FILE,
+        "train_view_indices": list(range(args.train_views)),
+        "num_gaussians": gaussians.num,
+        "sh_degree": gaussians.sh_degree,
         "train_config": config.to_dict(),
-        "test_psnr_db": metrics["psnr"], "test_ssim": metrics["ssim"], "test_views": len(metrics["per_view"]),
-        "timings_s": {"render_dataset": render_s, "train": train_log.wall_time_s,
-                      "total": time.perf_counter() - start},
-        "threads": args.threads, "torch": torch.__version__,
+        "test_psnr_db": metrics["psnr"],
+        "test_ssim": metrics["ssim"],
+        "test_views": len(metrics["per_view"]),
+        "timings_s": {"render_dataset": render_s, "train": train_log.wall_time_s, "total": time.perf_counter() - start},
+        "threads": args.threads,
+        "torch": torch.__version__,
     }
     write_json_atomic(out / REPORT_FILE, report)
     sizes = {p.name: p.stat().st_size for p in (ply_path, out / CAMERAS_FILE, out / REPORT_FILE)}
-    log.info("wrote %s: %d Gaussians, test PSNR %.2f dB, SSIM %.4f; sizes %s bytes; %.0f s in all", out,
-             gaussians.num, metrics["psnr"], metrics["ssim"], sizes, report["timings_s"]["total"])
+    log.info(
+        "wrote %s: %d Gaussians, test PSNR %.2f dB, SSIM %.4f; sizes %s bytes; %.0f s in all",
+        out,
+        gaussians.num,
+        metrics["psnr"],
+        metrics["ssim"],
+        sizes,
+        report["timings_s"]["total"],
+    )
     return 0

@@ -11,13 +11,33 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-FIELDS = ("n_train", "n_test", "resolution", "fov_x", "box_size", "radius", "color", "ambient", "up_axis", "hemisphere",
-          "supersample", "seed")
-OVERRIDES = {"n_train": {"flags": ("--train",)}, "n_test": {"flags": ("--test",)}, "resolution": {"flags": ("--res",)},
-             "fov_x": {"flags": ("--fov",)}, "box_size": {"flags": ("--box",)},
-             "up_axis": {"flags": ("--up", "--up-axis"), "dest": "up", "metavar": "UP",
-                         "help": "the mesh's up axis, y or z (+y, +z accepted; kept up in the images; recorded in "
-                                 "dataset.json)"}}
+FIELDS = (
+    "n_train",
+    "n_test",
+    "resolution",
+    "fov_x",
+    "box_size",
+    "radius",
+    "color",
+    "ambient",
+    "up_axis",
+    "hemisphere",
+    "supersample",
+    "seed",
+)
+OVERRIDES = {
+    "n_train": {"flags": ("--train",)},
+    "n_test": {"flags": ("--test",)},
+    "resolution": {"flags": ("--res",)},
+    "fov_x": {"flags": ("--fov",)},
+    "box_size": {"flags": ("--box",)},
+    "up_axis": {
+        "flags": ("--up", "--up-axis"),
+        "dest": "up",
+        "metavar": "UP",
+        "help": "the mesh's up axis, y or z (+y, +z accepted; kept up in the images; recorded in dataset.json)",
+    },
+}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -26,8 +46,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from .options import add_config_options
 
     p.add_argument("mesh", type=Path, help="input triangle mesh (.obj, .stl or .ply; any units, it is normalised)")
-    p.add_argument("-o", "--output", type=Path, required=True,
-                   help="dataset folder to create (written atomically; must be empty unless --overwrite)")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="dataset folder to create (written atomically; must be empty unless --overwrite)",
+    )
     add_config_options(p, MeshDatasetConfig, FIELDS, OVERRIDES)
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -39,8 +64,10 @@ def mesh_up_axis(text: str) -> str:
 
     label = up_label(parse_up(text))
     if label not in ("+y", "+z"):
-        raise ValueError(f"--up {text!r}: render-dataset renders y-up or z-up meshes (--up y or --up z); rotate the "
-                         "mesh first, or render it and pass --up to the commands that read the Gaussians")
+        raise ValueError(
+            f"--up {text!r}: render-dataset renders y-up or z-up meshes (--up y or --up z); rotate the "
+            "mesh first, or render it and pass --up to the commands that read the Gaussians"
+        )
     return label[1]
 
 
@@ -58,11 +85,13 @@ def make_parents(out: Path) -> None:
     try:
         parent.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError) as exc:
-        raise OutputError(f"-o {out}: a parent of the output is a file, not a folder ({exc.filename}); choose "
-                          "another -o") from exc
+        raise OutputError(
+            f"-o {out}: a parent of the output is a file, not a folder ({exc.filename}); choose another -o"
+        ) from exc
     except OSError as exc:
-        raise OutputError(f"cannot create the folder {parent} for -o {out}: {exc.strerror}; choose a writable "
-                          "path") from exc
+        raise OutputError(
+            f"cannot create the folder {parent} for -o {out}: {exc.strerror}; choose a writable path"
+        ) from exc
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -70,14 +99,18 @@ def run_command(args: argparse.Namespace) -> int:
 
     from .options import config_from_args
 
-    config = config_from_args(MeshDatasetConfig, args, FIELDS, OVERRIDES,
-                              up_axis=mesh_up_axis(args.up if args.up is not None else MeshDatasetConfig.up_axis))
+    config = config_from_args(
+        MeshDatasetConfig,
+        args,
+        FIELDS,
+        OVERRIDES,
+        up_axis=mesh_up_axis(args.up if args.up is not None else MeshDatasetConfig.up_axis),
+    )
     from fluidsim.files import check_not_input
 
     check_not_input({"-o": args.output}, {"MESH": args.mesh}, replaced={"-o": args.output})
     if args.mesh.is_file():  # a missing mesh is reported by the renderer, before any folder is made
         make_parents(args.output)
-    out = render_mesh_dataset(args.mesh, args.output, config, overwrite=args.overwrite,
-                              progress=not args.no_progress)
+    out = render_mesh_dataset(args.mesh, args.output, config, overwrite=args.overwrite, progress=not args.no_progress)
     print(f"wrote {out} ({config.n_train} train, {config.n_test} test views at {config.resolution} px)")
     return 0

@@ -34,24 +34,46 @@ STYLE_FIELDS = ("color_by", "view", "frame", "walls", "width", "height", "point_
 def style_overrides() -> dict[str, dict]:
     """The render-frames names, types and wording of the :class:`viz.frames.FrameStyle` fields."""
     return {
-        "color_by": {"choices": sorted(COLOR_BY),
-                     "help": "particle colour: divergence |div v| in 1/s, or speed |v| in m/s"},
-        "view": {"choices": VIEWS, "help": "orthographic camera: front looks along -z, side along +x, top along -y, "
-                                           "iso from the (+x,+y,+z) corner"},
-        "width": {"type": _int_at_least(MIN_WIDTH), "help": "frame width in pixels; an .mp4 pads an odd width by one "
-                                                            "pixel"},
-        "height": {"type": _int_at_least(MIN_HEIGHT), "help": "frame height in pixels; an .mp4 pads an odd height by "
-                                                              "one pixel"},
+        "color_by": {
+            "choices": sorted(COLOR_BY),
+            "help": "particle colour: divergence |div v| in 1/s, or speed |v| in m/s",
+        },
+        "view": {
+            "choices": VIEWS,
+            "help": "orthographic camera: front looks along -z, side along +x, top along -y, "
+            "iso from the (+x,+y,+z) corner",
+        },
+        "width": {
+            "type": _int_at_least(MIN_WIDTH),
+            "help": "frame width in pixels; an .mp4 pads an odd width by one pixel",
+        },
+        "height": {
+            "type": _int_at_least(MIN_HEIGHT),
+            "help": "frame height in pixels; an .mp4 pads an odd height by one pixel",
+        },
         "point_size": {"type": _int_at_least(0), "help": "dot radius in pixels, 0 = one pixel"},
-        "vmax": {"type": _positive_float, "default_text": "the 99th percentile over all frames",
-                 "help": "top of the colour scale in 1/s (divergence) or m/s (speed), fixed across frames"},
-        "frame": {"choices": FRAMES, "help": "what the camera frames: object (the solid's box grown by 35 %% of its "
-                                             "size per side) or domain (the whole box, its edges drawn)"},
-        "walls": {"choices": WALLS, "help": "the wall particles: hidden, faint (dark grey) or shown (grey), always "
-                                            "behind the solid and the fluid"},
-        "show_boundary": {"flags": ("--no-boundary",), "dest": "no_boundary", "negate": True,
-                          "help": "draw neither the solid nor the walls of /boundary/x",
-                          "default_text": "the solid in ivory, the walls as --walls says"},
+        "vmax": {
+            "type": _positive_float,
+            "default_text": "the 99th percentile over all frames",
+            "help": "top of the colour scale in 1/s (divergence) or m/s (speed), fixed across frames",
+        },
+        "frame": {
+            "choices": FRAMES,
+            "help": "what the camera frames: object (the solid's box grown by 35 %% of its "
+            "size per side) or domain (the whole box, its edges drawn)",
+        },
+        "walls": {
+            "choices": WALLS,
+            "help": "the wall particles: hidden, faint (dark grey) or shown (grey), always "
+            "behind the solid and the fluid",
+        },
+        "show_boundary": {
+            "flags": ("--no-boundary",),
+            "dest": "no_boundary",
+            "negate": True,
+            "help": "draw neither the solid nor the walls of /boundary/x",
+            "default_text": "the solid in ivory, the walls as --walls says",
+        },
         "fps": {"type": _int_at_least(1), "help": "video frame rate in frames per second, .mp4 only"},
     }
 
@@ -72,12 +94,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``render-frames`` arguments to a parser; :func:`run` consumes the parsed namespace."""
     parser.add_argument("h5", type=Path, help="simulation output file (OUT.h5)")
     parser.add_argument(
-        "-o", "--output", type=Path, required=True,
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
         help="a path ending in .mp4 writes one H.264 video (plays in browsers); a path without a suffix is a "
         "directory of frame_NNNNNN.png (other suffixes are an error)",
     )
-    parser.add_argument("--png", action="store_true",
-                        help="write PNG frames into the directory -o whatever its name (e.g. a folder named run.v2)")
+    parser.add_argument(
+        "--png",
+        action="store_true",
+        help="write PNG frames into the directory -o whatever its name (e.g. a folder named run.v2)",
+    )
     add_config_options(parser, FrameStyle, STYLE_FIELDS, style_overrides())
 
 

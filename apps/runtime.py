@@ -12,8 +12,14 @@ import logging
 from contextlib import contextmanager
 
 _FROM_TAICHI_RUNTIME = ("check_threads", "init_taichi", "release_unreachable_arrays")
-__all__ = [*_FROM_TAICHI_RUNTIME, "deterministic_torch", "positive_int", "select_device", "setup_runtime",
-           "thread_count"]
+__all__ = [
+    *_FROM_TAICHI_RUNTIME,
+    "deterministic_torch",
+    "positive_int",
+    "select_device",
+    "setup_runtime",
+    "thread_count",
+]
 log = logging.getLogger("fluidgs")
 
 
@@ -44,8 +50,9 @@ def thread_count(text: str) -> int:
 
     value = positive_int(text)
     if value > MAX_THREADS:
-        raise argparse.ArgumentTypeError(f"must be at most {MAX_THREADS} CPU threads, got {value} (leave it out for "
-                                         "all cores)")
+        raise argparse.ArgumentTypeError(
+            f"must be at most {MAX_THREADS} CPU threads, got {value} (leave it out for all cores)"
+        )
     return value
 
 

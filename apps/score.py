@@ -54,29 +54,52 @@ PNG_TOP = 5  # views rendered to PNG by default (the scores themselves need no r
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
-                   "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units")
+    p.add_argument(
+        "gaussians",
+        type=Path,
+        help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
+        "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units",
+    )
     add_gaussian_file_arguments(p)
     add_camera_arguments(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="scores JSON file (written atomically)")
-    p.add_argument("--result", type=Path, default=None,
-                   help="RESULT.h5 of `fluidgs simulate` for these Gaussians (default: simulate now)")
+    p.add_argument(
+        "--result",
+        type=Path,
+        default=None,
+        help="RESULT.h5 of `fluidgs simulate` for these Gaussians (default: simulate now)",
+    )
     p.add_argument("--save-result", type=Path, default=None, help="when simulating, also write RESULT.h5 here")
     p.add_argument("--top-k", type=int, default=None, help="print only the best K views (default: all)")
-    p.add_argument("--metric", choices=METRICS, default="max",
-                   help="per-Gaussian metric: D_g max over probes, mean over probes, or one probe's D_g (1/s)")
+    p.add_argument(
+        "--metric",
+        choices=METRICS,
+        default="max",
+        help="per-Gaussian metric: D_g max over probes, mean over probes, or one probe's D_g (1/s)",
+    )
     p.add_argument("--unweighted", action="store_true", help="sum D_g over visible Gaussians without Eq. 5 weights")
     add_visibility_arguments(p)
-    p.add_argument("--png-dir", type=Path, default=None,
-                   help="folder for the per-view PNGs (default: next to the output, <stem>_views)")
+    p.add_argument(
+        "--png-dir",
+        type=Path,
+        default=None,
+        help="folder for the per-view PNGs (default: next to the output, <stem>_views)",
+    )
     p.add_argument("--no-png", action="store_true", help="skip the per-view PNGs")
-    p.add_argument("--png-top", type=int, default=PNG_TOP,
-                   help="render PNGs of the best N views only (scores need no render; default: %(default)s)")
+    p.add_argument(
+        "--png-top",
+        type=int,
+        default=PNG_TOP,
+        help="render PNGs of the best N views only (scores need no render; default: %(default)s)",
+    )
     p.add_argument("--png-all", action="store_true", help="render a PNG of every candidate view")
-    p.add_argument("--uncertainty-images", action="store_true",
-                   help="also write, per PNG view, its physics-uncertainty image: D_g alpha-composited per pixel "
-                        "(1/s), as <view>_uncertainty.npy (float32) and a colour .png with its scale bar ('+': above "
-                        "the range) (default: off)")
+    p.add_argument(
+        "--uncertainty-images",
+        action="store_true",
+        help="also write, per PNG view, its physics-uncertainty image: D_g alpha-composited per pixel "
+        "(1/s), as <view>_uncertainty.npy (float32) and a colour .png with its scale bar ('+': above "
+        "the range) (default: off)",
+    )
     add_record_arguments(p)
     add_solid_export_arguments(p)
     add_physics_arguments(p, cameras=True)
@@ -97,8 +120,14 @@ def obtain_result(args, gaussians, config, record=None):
                 log.warning("%s, probe %s: %s", args.result, d, note)
         return result
     init_taichi(args.device, config.precision, args.threads)
-    result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians),
-                                source_frame=getattr(args, "source_frame", ""), record=record)
+    result = simulate_gaussians(
+        gaussians,
+        config,
+        progress=True,
+        source=str(args.gaussians),
+        source_frame=getattr(args, "source_frame", ""),
+        record=record,
+    )
     if args.save_result is not None:
         save_result(args.save_result, result)
     return result
@@ -108,8 +137,10 @@ def check_arguments(args: argparse.Namespace) -> None:
     """The option combinations that cannot work, refused before any file is read or any probe runs."""
     check_visibility_arguments(args)
     if args.uncertainty_images and args.no_png:
-        raise ValueError("--uncertainty-images writes its images beside the view PNGs and --no-png turns those off; "
-                         "drop --no-png (--png-top N or --png-all choose the views)")
+        raise ValueError(
+            "--uncertainty-images writes its images beside the view PNGs and --no-png turns those off; "
+            "drop --no-png (--png-top N or --png-all choose the views)"
+        )
     if args.top_k is not None and args.top_k < 1:
         raise ValueError(f"--top-k must be >= 1, got {args.top_k}")
     if args.png_top < 1:
@@ -146,10 +177,16 @@ def run_command(args: argparse.Namespace) -> int:
     output = check_output_file(args.output, (".json",))
     png_dir = None if args.no_png else (args.png_dir or output.with_name(output.stem + "_views"))
     orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
-    check_not_input({"-o": output, "--save-result": args.save_result, "--png-dir": png_dir,
-                     "-o (orbit cameras)": orbit_file, **solid_export_outputs(args.export_solid)},
-                    {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras,
-                     "--result": args.result})
+    check_not_input(
+        {
+            "-o": output,
+            "--save-result": args.save_result,
+            "--png-dir": png_dir,
+            "-o (orbit cameras)": orbit_file,
+            **solid_export_outputs(args.export_solid),
+        },
+        {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras, "--result": args.result},
+    )
     if png_dir is not None:
         check_output_file(png_dir / "view.png", (".png",))
     if args.save_result is not None:
@@ -158,8 +195,10 @@ def run_command(args: argparse.Namespace) -> int:
         raise ValueError(f"--metric {args.metric} needs that probe in --directions ({','.join(config.directions)})")
     record = record_config_from_args(args, config)
     if record is not None and (args.result is not None or args.save_result is None):
-        raise ValueError("--record-probe records into the RESULT.h5 of a fresh simulation: pass --save-result "
-                         "RESULT.h5" + (" and drop --result" if args.result is not None else ""))
+        raise ValueError(
+            "--record-probe records into the RESULT.h5 of a fresh simulation: pass --save-result "
+            "RESULT.h5" + (" and drop --result" if args.result is not None else "")
+        )
     gaussians = load_gaussians_checked(args.gaussians, args)
     result = None
     if args.result is not None:  # the result fixes the frame (up, crop) that the cameras and the scores use
@@ -174,16 +213,18 @@ def run_command(args: argparse.Namespace) -> int:
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     visible_centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
     if orbit_file is not None:
-        write_json_atomic(orbit_file, transforms_json(all_cams, f"fluidgs score --cameras {args.cameras}: "
-                                                                f"{orbit.describe()}"))
+        write_json_atomic(
+            orbit_file, transforms_json(all_cams, f"fluidgs score --cameras {args.cameras}: {orbit.describe()}")
+        )
     if result is None:
         try:
             result = obtain_result(args, gaussians, config, record)
         except ProbeDiverged as exc:
             return save_diverged(exc, args.save_result)
     values = check_some_divergence(result, args.metric, args.result or args.gaussians)
-    scored = project_scores(gaussians, cams, values, weighted=not args.unweighted, occlusion=occlusion,
-                            device=args.device)
+    scored = project_scores(
+        gaussians, cams, values, weighted=not args.unweighted, occlusion=occlusion, device=args.device
+    )
     rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
     agreement = rows_agreement(rows)
     print("\n".join(probe_lines(result)))
@@ -195,7 +236,7 @@ def run_command(args: argparse.Namespace) -> int:
     images = {}
     if png_dir is not None:
         order = rank(scored.scores).tolist()
-        shown = order if args.png_all else order[:args.png_top]
+        shown = order if args.png_all else order[: args.png_top]
         device = torch_device(args.device)
         write_view_pngs(gaussians, cams, shown, rows, values, args.metric, png_dir, device, True)
         if args.uncertainty_images:
@@ -204,12 +245,26 @@ def run_command(args: argparse.Namespace) -> int:
         if row["index"] in images:
             row["uncertainty_image"] = {k: str(png_dir / v) for k, v in images[row["index"]].items()}
     cameras = str(orbit_file if orbit_file is not None else args.cameras)
-    write_json_atomic(output, {"cameras": cameras, "gaussians": str(args.gaussians), "metric": args.metric,
-                        "weighted": not args.unweighted, "occlusion": occlusion, "dbar_m4_s": result.dbar,
-                        "dbar_empty_m4_s": result.dbar_empty, "agreement": agreement, "views": rows,
-                        "config": result.config.to_dict()})
-    print(f"scores: {output}" + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file is not None else "")
-          + (f"\nviews: {png_dir}" if png_dir is not None else ""))
+    write_json_atomic(
+        output,
+        {
+            "cameras": cameras,
+            "gaussians": str(args.gaussians),
+            "metric": args.metric,
+            "weighted": not args.unweighted,
+            "occlusion": occlusion,
+            "dbar_m4_s": result.dbar,
+            "dbar_empty_m4_s": result.dbar_empty,
+            "agreement": agreement,
+            "views": rows,
+            "config": result.config.to_dict(),
+        },
+    )
+    print(
+        f"scores: {output}"
+        + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file is not None else "")
+        + (f"\nviews: {png_dir}" if png_dir is not None else "")
+    )
     write_solid_export(args.export_solid, result, args.export_frame)
     h5 = args.result or args.save_result
     if h5 is not None:

@@ -41,7 +41,7 @@ class Stopped(KeyboardInterrupt):
 
 
 def signal_name(signum: int) -> str:
-    """"SIGINT", "SIGTERM", ... for a signal number."""
+    """ "SIGINT", "SIGTERM", ... for a signal number."""
     return signal.Signals(signum).name
 
 
@@ -77,8 +77,9 @@ def handle(signum: int, frame) -> None:
     if count == 1:
         raise Stopped(signum)
     if count == 2:
-        log.warning("%s received again: already stopping and removing unfinished files (a third signal exits at "
-                    "once)", name)
+        log.warning(
+            "%s received again: already stopping and removing unfinished files (a third signal exits at once)", name
+        )
         return
     _exit_now()
 

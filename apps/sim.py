@@ -25,15 +25,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", type=Path, help="scene JSON file (format in README.md)")
     p.add_argument("-o", "--output", type=Path, required=True, help="output HDF5 file (written atomically)")
     p.add_argument("--steps", type=int, default=None, help="number of time steps (default: the scene's 'steps')")
-    p.add_argument("--save-every", type=int, default=10,
-                   help="write a frame every K steps (default: 10; 0 = first and last only)")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="compute device (default: cpu); cuda falls back to cpu with a notice")
-    p.add_argument("--precision", choices=("f32", "f64"), default=None,
-                   help="float precision of the particle arrays (default: the scene's solver.precision, f32)")
+    p.add_argument(
+        "--save-every", type=int, default=10, help="write a frame every K steps (default: 10; 0 = first and last only)"
+    )
+    p.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="compute device (default: cpu); cuda falls back to cpu with a notice",
+    )
+    p.add_argument(
+        "--precision",
+        choices=("f32", "f64"),
+        default=None,
+        help="float precision of the particle arrays (default: the scene's solver.precision, f32)",
+    )
     p.add_argument("--threads", type=thread_count, default=None, help="CPU threads (default: all cores)")
-    p.add_argument("--max-memory-gb", type=float, default=None,
-                   help="refuse to start above this estimated memory in GiB (default: the available memory)")
+    p.add_argument(
+        "--max-memory-gb",
+        type=float,
+        default=None,
+        help="refuse to start above this estimated memory in GiB (default: the available memory)",
+    )
 
 
 class StopRequest:
@@ -51,8 +64,11 @@ class StopRequest:
             self._restore()
             raise Stopped(self.signum)
         self.signum = signum
-        log.warning("%s received: stopping after this step and saving the frames so far (send it again to stop "
-                    "at once without saving)", signal.Signals(signum).name)
+        log.warning(
+            "%s received: stopping after this step and saving the frames so far (send it again to stop "
+            "at once without saving)",
+            signal.Signals(signum).name,
+        )
 
     def _restore(self) -> None:
         for sig, old in self._old.items():
@@ -102,12 +118,17 @@ def run_command(args: argparse.Namespace) -> int:
 
     solver = build_solver(scene)
     check_solver_time_step(solver, scene.steps, where=f"scene {args.scene}")
-    log.info("%d fluid particles (%d removed inside solids), %d boundary particles", solver.fluid.capacity,
-             solver.removed_inside_solid, solver.boundary.count)
+    log.info(
+        "%d fluid particles (%d removed inside solids), %d boundary particles",
+        solver.fluid.capacity,
+        solver.removed_inside_solid,
+        solver.boundary.count,
+    )
     try:
         with StopRequest() as stop:
-            path, history = simulate_to_h5(solver, scene.to_dict(), args.output, scene.steps, args.save_every,
-                                           desc=args.scene.name, stop=stop)
+            path, history = simulate_to_h5(
+                solver, scene.to_dict(), args.output, scene.steps, args.save_every, desc=args.scene.name, stop=stop
+            )
     except SimulationDiverged:
         return 3
     except Interrupted as exc:
@@ -117,6 +138,8 @@ def run_command(args: argparse.Namespace) -> int:
         log.error("stopped by %s after the last step; %s is complete", signal.Signals(stop.signum).name, path)
         return 128 + stop.signum
     last = history[-1]
-    print(f"wrote {path}: {len(history)} steps, t = {last.time:.3f} s, {last.active} fluid particles active, "
-          f"{sum(s.retired for s in history)} retired, {solver.removed_inside_solid} removed inside solids")
+    print(
+        f"wrote {path}: {len(history)} steps, t = {last.time:.3f} s, {last.active} fluid particles active, "
+        f"{sum(s.retired for s in history)} retired, {solver.removed_inside_solid} removed inside solids"
+    )
     return 0

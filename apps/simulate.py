@@ -32,20 +32,35 @@ log = logging.getLogger("fluidgs")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
-                   "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units")
+    p.add_argument(
+        "gaussians",
+        type=Path,
+        help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
+        "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units",
+    )
     add_gaussian_file_arguments(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="result HDF5 file (written atomically)")
-    p.add_argument("--ply", type=Path, default=None,
-                   help="Gaussians coloured by D_g (default: the output path with suffix _divergence.ply)")
-    p.add_argument("--video", default=None, metavar="PROBE",
-                   help="also draw this probe (e.g. -x) as an MP4 next to the output (re-runs that probe, every step; "
-                        "the drawing options below apply)")
+    p.add_argument(
+        "--ply",
+        type=Path,
+        default=None,
+        help="Gaussians coloured by D_g (default: the output path with suffix _divergence.ply)",
+    )
+    p.add_argument(
+        "--video",
+        default=None,
+        metavar="PROBE",
+        help="also draw this probe (e.g. -x) as an MP4 next to the output (re-runs that probe, every step; "
+        "the drawing options below apply)",
+    )
     p.add_argument("--video-every", type=int, default=5, help="steps between video frames (default: 5)")
     add_record_arguments(p)
     add_solid_export_arguments(p)
-    add_style_arguments(p, " by --video (as render-frames; here the defaults are --view iso, --width 640, "
-                           "--height 480, and --fps makes the clip last about 8 s)")
+    add_style_arguments(
+        p,
+        " by --video (as render-frames; here the defaults are --view iso, --width 640, "
+        "--height 480, and --fps makes the clip last about 8 s)",
+    )
     add_physics_arguments(p)
 
 
@@ -64,8 +79,10 @@ def run_command(args: argparse.Namespace) -> int:
     output = check_output_file(args.output, (".h5", ".hdf5"))
     ply = args.ply or default_ply_path(output)
     video = output.with_name(f"{output.stem}_probe{args.video}.mp4") if args.video is not None else None
-    check_not_input({"-o": output, "--ply": ply, "--video": video, **solid_export_outputs(args.export_solid)},
-                    {"GAUSSIANS": args.gaussians})
+    check_not_input(
+        {"-o": output, "--ply": ply, "--video": video, **solid_export_outputs(args.export_solid)},
+        {"GAUSSIANS": args.gaussians},
+    )
     check_output_file(ply, (".ply",))
     if args.video is not None:
         from nbv.physics import parse_directions
@@ -78,35 +95,55 @@ def run_command(args: argparse.Namespace) -> int:
     record = record_config_from_args(args, config)
     style_options = style_values(args)
     if style_options and args.video is None:
-        raise ValueError(f"the drawing options ({', '.join(sorted(style_options))}) apply to --video; add --video -x "
-                         "(or another probe), or drop them")
+        raise ValueError(
+            f"the drawing options ({', '.join(sorted(style_options))}) apply to --video; add --video -x "
+            "(or another probe), or drop them"
+        )
     gaussians = load_gaussians_checked(args.gaussians, args)
     warn_frame(config, up_given=args.up is not None)
     init_taichi(args.device, config.precision, args.threads)
     try:
-        result = simulate_gaussians(gaussians, config, progress=True, source=str(args.gaussians),
-                                source_frame=getattr(args, "source_frame", ""), record=record)
+        result = simulate_gaussians(
+            gaussians,
+            config,
+            progress=True,
+            source=str(args.gaussians),
+            source_frame=getattr(args, "source_frame", ""),
+            record=record,
+        )
     except ProbeDiverged as exc:
         return save_diverged(exc, output)
     save_result(output, result)
     save_colored_gaussians(gaussians, result.divergence, ply, divergence_columns(result))
     s = result_summary(result)
-    print(f"{result.num_gaussians} Gaussians, {len(result.solid)} solid particles, scale {result.transform.scale:.4g} "
-          "m/unit")
+    print(
+        f"{result.num_gaussians} Gaussians, {len(result.solid)} solid particles, scale {result.transform.scale:.4g} "
+        "m/unit"
+    )
     for d, pr in s["probes"].items():
-        print(f"  probe {d:>3}: mean D_g {pr['mean_D']:.4g} 1/s, max {pr['max_D']:.4g} 1/s, "
-              f"{pr['touched_gaussians']} Gaussians reached, {pr['retired']} retired"
-              + (f", leaked into the solid: {pr['leaked']['final']} at the end, at most {pr['leaked']['max']} "
-                 f"(step {pr['leaked']['max_step']})" if "leaked" in pr else ""))
+        print(
+            f"  probe {d:>3}: mean D_g {pr['mean_D']:.4g} 1/s, max {pr['max_D']:.4g} 1/s, "
+            f"{pr['touched_gaussians']} Gaussians reached, {pr['retired']} retired"
+            + (
+                f", leaked into the solid: {pr['leaked']['final']} at the end, at most {pr['leaked']['max']} "
+                f"(step {pr['leaked']['max_step']})"
+                if "leaked" in pr
+                else ""
+            )
+        )
         for w in result.warnings.get(d, []):
             print(f"    WARNING: {w}")
     empty = "n/a" if result.dbar_empty is None else f"{result.dbar_empty:.4g}"
     print(f"D-bar {result.dbar:.4g} m^4/s (mean-combined {result.dbar_mean:.4g}; empty scene {empty})")
     t = result.timings
-    print(f"time: simulation {t['simulation']:.1f} s, aggregation {t['aggregation']:.2f} s, "
-          f"empty reference {t['empty_reference']:.1f} s, total {t['total']:.1f} s")
-    print(f"result: {output}\ncoloured Gaussians: {ply} (D_g as the vertex properties "
-          f"{', '.join(divergence_columns(result))})")
+    print(
+        f"time: simulation {t['simulation']:.1f} s, aggregation {t['aggregation']:.2f} s, "
+        f"empty reference {t['empty_reference']:.1f} s, total {t['total']:.1f} s"
+    )
+    print(
+        f"result: {output}\ncoloured Gaussians: {ply} (D_g as the vertex properties "
+        f"{', '.join(divergence_columns(result))})"
+    )
     write_solid_export(args.export_solid, result, args.export_frame)
     if video is not None:
         from dataclasses import replace

@@ -17,16 +17,26 @@ from .runtime import positive_int
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
-    q = sub.add_parser("oracle", help="oracle gains of the candidates against every rule's scores (and calibration)",
-                       description="oracle gains of the candidates against every rule's scores (and calibration)")
+    q = sub.add_parser(
+        "oracle",
+        help="oracle gains of the candidates against every rule's scores (and calibration)",
+        description="oracle gains of the candidates against every rule's scores (and calibration)",
+    )
     q.add_argument("config", type=Path, help="oracle study JSON (scenes, seeds, states, rules, probes, horizon, ...)")
-    q.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="local: a process pool here; ray: tasks on a Ray cluster")
+    q.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help="local: a process pool here; ray: tasks on a Ray cluster",
+    )
     q.add_argument("--workers", type=positive_int, default=1, help="local worker processes")
     q.add_argument("--threads", type=positive_int, default=1, help="torch and Taichi CPU threads per worker")
-    q.add_argument("--address", default=None,
-                   help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
-                        "(default: start a local Ray instance)")
+    q.add_argument(
+        "--address",
+        default=None,
+        help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
+        "(default: start a local Ray instance)",
+    )
     q.add_argument("--output", type=Path, default=None, help="results folder (default: the config's 'output')")
     q.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
@@ -43,8 +53,9 @@ def run_command(args: argparse.Namespace) -> int:
     config = OracleConfig.load(args.config)
     if args.output is not None:
         config = replace(config, output=str(args.output))
-    check_not_input([("output file", Path(config.output) / name) for name in ("oracle.json", "oracle.md")],
-                    {"CONFIG": args.config})
+    check_not_input(
+        [("output file", Path(config.output) / name) for name in ("oracle.json", "oracle.md")], {"CONFIG": args.config}
+    )
     precision = config.probe_config(next(iter(config.probes))).precision
     executor = make_executor(args.executor, args.workers, args.threads, args.address, precision)
     out = run_oracle(config, executor, progress=not args.no_progress)

@@ -26,21 +26,41 @@ from .options import (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
-                   "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units")
+    p.add_argument(
+        "gaussians",
+        type=Path,
+        help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
+        "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units",
+    )
     add_gaussian_file_arguments(p)
     from nbv.study.sweep import PAPER_VELOCITIES
 
-    p.add_argument("--velocities", default=",".join(f"{u:g}" for u in PAPER_VELOCITIES),
-                   help="comma list of inflow speeds U in m/s (default: the paper's, %(default)s)")
-    p.add_argument("--compare", type=Path, default=None,
-                   help="a second Gaussian set OTHER (same frame, simulated at the first set's scale); reports "
-                        "D-bar(OTHER) - D-bar per U")
-    p.add_argument("-o", "--output", type=Path, default=Path("sweep.csv"),
-                   help="CSV file (written atomically); the plot goes next to it as .png")
-    p.add_argument("--re-length", default="object", metavar="L",
-                   help="L of Re = rho U L / mu: object (the solid's extent along the flow of the -x probe), domain "
-                        "(the largest extent of that probe's domain) or a length in m (default: object)")
+    p.add_argument(
+        "--velocities",
+        default=",".join(f"{u:g}" for u in PAPER_VELOCITIES),
+        help="comma list of inflow speeds U in m/s (default: the paper's, %(default)s)",
+    )
+    p.add_argument(
+        "--compare",
+        type=Path,
+        default=None,
+        help="a second Gaussian set OTHER (same frame, simulated at the first set's scale); reports "
+        "D-bar(OTHER) - D-bar per U",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=Path("sweep.csv"),
+        help="CSV file (written atomically); the plot goes next to it as .png",
+    )
+    p.add_argument(
+        "--re-length",
+        default="object",
+        metavar="L",
+        help="L of Re = rho U L / mu: object (the solid's extent along the flow of the -x probe), domain "
+        "(the largest extent of that probe's domain) or a length in m (default: object)",
+    )
     add_physics_arguments(p)
 
 
@@ -51,21 +71,34 @@ def plot_sweep(points, path: Path, title: str = "") -> Path:
 
     other = [p.dbar_other for p in points] if all(p.dbar_other is not None for p in points) else None
     empty = [p.dbar_empty for p in points] if all(p.dbar_empty is not None for p in points) else None
-    return draw(path, [p.speed for p in points], [p.dbar for p in points], dbar_other=other, dbar_empty=empty,
-                reynolds=[p.reynolds for p in points], dts=[p.dt for p in points], steps=[p.steps for p in points],
-                title=title)
+    return draw(
+        path,
+        [p.speed for p in points],
+        [p.dbar for p in points],
+        dbar_other=other,
+        dbar_empty=empty,
+        reynolds=[p.reynolds for p in points],
+        dts=[p.dt for p in points],
+        steps=[p.steps for p in points],
+        title=title,
+    )
 
 
 def print_estimate(plan, work, seconds, calibration) -> None:
     """The upfront estimate: probe-steps and minutes per speed, and the total."""
     empty = "" if calibration.empty_step_s is None else f" ({calibration.empty_step_s:.3g} s in the empty scene)"
-    print(f"calibration: {calibration.steps} steps of one probe took {calibration.step_s:.3g} s per probe-step{empty}, "
-          f"plus {calibration.run_s:.1f} s per simulation (the solid, the setup)")
+    print(
+        f"calibration: {calibration.steps} steps of one probe took {calibration.step_s:.3g} s per probe-step{empty}, "
+        f"plus {calibration.run_s:.1f} s per simulation (the solid, the setup)"
+    )
     print(f"{'U m/s':>7} {'dt s':>10} {'steps':>7} {'probe-steps':>12} {'est. min':>9}")
     for st, n, sec in zip(plan, work, seconds, strict=True):
         print(f"{st.speed:>7g} {st.dt:>10.3g} {st.steps:>7} {n:>12,} {sec / 60:>9.1f}")
-    print(f"estimate: {sum(work):,} probe-steps, about {sum(seconds) / 60:.1f} min ({sum(seconds):.0f} s) on this "
-          "machine", flush=True)
+    print(
+        f"estimate: {sum(work):,} probe-steps, about {sum(seconds) / 60:.1f} min ({sum(seconds):.0f} s) on this "
+        "machine",
+        flush=True,
+    )
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -90,8 +123,9 @@ def run_command(args: argparse.Namespace) -> int:
     velocities = parse_velocities(args.velocities)
     re_length = parse_re_length(args.re_length)
     output = check_output_file(args.output, (".csv",))
-    check_not_input({"-o": output, "plot": output.with_suffix(".png")},
-                    {"GAUSSIANS": args.gaussians, "--compare": args.compare})
+    check_not_input(
+        {"-o": output, "plot": output.with_suffix(".png")}, {"GAUSSIANS": args.gaussians, "--compare": args.compare}
+    )
     check_writable(output.with_suffix(".png"))
     gaussians = load_gaussians_checked(args.gaussians, args)
     other = load_gaussians_checked(args.compare) if args.compare is not None else None
@@ -107,20 +141,29 @@ def run_command(args: argparse.Namespace) -> int:
     took = time.perf_counter() - t0
     write_csv(output, points)
     plot = plot_sweep(points, output.with_suffix(".png"), title=f"D-bar vs U: {args.gaussians.name}")
-    print(f"Re = rho U L / mu with L = {points[0].re_length:.4g} m ({_length_words(points[0].re_length_from)}), "
-          f"rho = {config.rest_density:g} kg/m^3, mu = {config.viscosity:g} Pa s")
-    print(f"{'U m/s':>7} {'Re':>10} {'dt s':>10} {'steps':>6} {'D-bar':>12} {'D-bar empty':>12}"
-          + ("  D-bar OTHER         gap" if other is not None else ""))
+    print(
+        f"Re = rho U L / mu with L = {points[0].re_length:.4g} m ({_length_words(points[0].re_length_from)}), "
+        f"rho = {config.rest_density:g} kg/m^3, mu = {config.viscosity:g} Pa s"
+    )
+    print(
+        f"{'U m/s':>7} {'Re':>10} {'dt s':>10} {'steps':>6} {'D-bar':>12} {'D-bar empty':>12}"
+        + ("  D-bar OTHER         gap" if other is not None else "")
+    )
     for p in points:
         extra = f" {p.dbar_other:>12.4g} {p.gap:>11.4g}" if p.dbar_other is not None else ""
         empty = "n/a" if p.dbar_empty is None else f"{p.dbar_empty:.4g}"
         print(f"{p.speed:>7g} {p.reynolds:>10.4g} {p.dt:>10.3g} {p.steps:>6} {p.dbar:>12.4g} {empty:>12}{extra}")
-    print(f"took {took:.0f} s = {took / 60:.1f} min (estimated {sum(seconds):.0f} s = {sum(seconds) / 60:.1f} min, "
-          f"x{took / max(sum(seconds), 1e-9):.2f})")
+    print(
+        f"took {took:.0f} s = {took / 60:.1f} min (estimated {sum(seconds):.0f} s = {sum(seconds) / 60:.1f} min, "
+        f"x{took / max(sum(seconds), 1e-9):.2f})"
+    )
     print(f"csv: {output}\nplot: {plot}")
     return 0
 
 
 def _length_words(source: str) -> str:
-    return {"object": "the object's extent along the flow", "domain": "the probe domain's largest extent",
-            "given": "given by --re-length"}[source]
+    return {
+        "object": "the object's extent along the flow",
+        "domain": "the probe domain's largest extent",
+        "given": "given by --re-length",
+    }[source]

@@ -73,11 +73,14 @@ def startup_watchdog(timeout: float | None = None, what: str = "Taichi") -> Iter
     if timeout <= 0:
         yield
         return
-    message = (f"ERROR fluidgs: {what} has not started within {timeout:g} s (its thread pool can deadlock under heavy "
-               "load); the command is stopped: run it again, on a less loaded machine if it recurs "
-               f"({TIMEOUT_ENV} sets the limit in seconds, 0 turns the watch off)")
-    watchdog = subprocess.Popen([sys.executable, "-c", _WATCHDOG, str(os.getpid()), repr(timeout), message],
-                                stdin=subprocess.PIPE)
+    message = (
+        f"ERROR fluidgs: {what} has not started within {timeout:g} s (its thread pool can deadlock under heavy "
+        "load); the command is stopped: run it again, on a less loaded machine if it recurs "
+        f"({TIMEOUT_ENV} sets the limit in seconds, 0 turns the watch off)"
+    )
+    watchdog = subprocess.Popen(
+        [sys.executable, "-c", _WATCHDOG, str(os.getpid()), repr(timeout), message], stdin=subprocess.PIPE
+    )
     try:
         yield
     finally:
@@ -98,15 +101,22 @@ def check_threads(threads: int | None, option: str = "--threads") -> int | None:
     if threads is None:
         return None
     if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
-        raise ValueError(f"{option} must be an integer >= 1 (CPU threads; leave it out for all cores), "
-                         f"got {threads!r}")
+        raise ValueError(f"{option} must be an integer >= 1 (CPU threads; leave it out for all cores), got {threads!r}")
     if threads > MAX_THREADS:
-        raise ValueError(f"{option} must be at most {MAX_THREADS} CPU threads, got {threads}; this machine has "
-                         f"{os.cpu_count()} cores (leave {option} out for all of them)")
+        raise ValueError(
+            f"{option} must be at most {MAX_THREADS} CPU threads, got {threads}; this machine has "
+            f"{os.cpu_count()} cores (leave {option} out for all of them)"
+        )
     cores = os.cpu_count() or 1
     if threads > cores:
-        log.warning("%s %d is more than this machine's %d cores: the threads share them, which is slower, not "
-                    "faster; leave %s out for all cores", option, threads, cores, option)
+        log.warning(
+            "%s %d is more than this machine's %d cores: the threads share them, which is slower, not "
+            "faster; leave %s out for all cores",
+            option,
+            threads,
+            cores,
+            option,
+        )
     return int(threads)
 
 
@@ -155,6 +165,7 @@ def init_taichi(device: str = "cpu", precision: str = "f32", threads: int | None
 
 def _first_kernel(ti) -> None:
     """One small parallel kernel, so that the thread pool starts inside the watchdog."""
+
     def fill(a):
         for i in a:
             a[i] = i
@@ -186,8 +197,12 @@ def _running_with(ti, device: str, fp, threads: int | None, debug: bool) -> bool
         return False
     cfg = ti.lang.impl.current_cfg()
     arch_ok = cfg.arch == ti.cuda if device == "cuda" else cfg.arch in (ti.x64, ti.arm64)
-    return (arch_ok and runtime.default_fp == fp and bool(cfg.debug) == bool(debug)
-            and cfg.cpu_max_num_threads == int(threads or os.cpu_count() or 1))
+    return (
+        arch_ok
+        and runtime.default_fp == fp
+        and bool(cfg.debug) == bool(debug)
+        and cfg.cpu_max_num_threads == int(threads or os.cpu_count() or 1)
+    )
 
 
 def release_unreachable_arrays() -> None:

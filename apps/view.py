@@ -16,24 +16,43 @@ log = logging.getLogger("fluidgs")
 
 
 FIELDS = ("probe", "port", "host")
-OVERRIDES = {"probe": {"metavar": "DIR", "default_text": "the first recorded",
-                       "help": "the probe whose fluid is replayed: -x, +x, -z, +z or -y"},
-             "port": {"help": "port; a port in use moves to the next free one, logged; 0: any free port"},
-             "host": {"help": "address to bind (127.0.0.1: this machine only; 0.0.0.0 serves every interface, to "
-                              "anyone who can reach it)"}}
+OVERRIDES = {
+    "probe": {
+        "metavar": "DIR",
+        "default_text": "the first recorded",
+        "help": "the probe whose fluid is replayed: -x, +x, -z, +z or -y",
+    },
+    "port": {"help": "port; a port in use moves to the next free one, logged; 0: any free port"},
+    "host": {
+        "help": "address to bind (127.0.0.1: this machine only; 0.0.0.0 serves every interface, to "
+        "anyone who can reach it)"
+    },
+}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("result", type=Path, help="RESULT.h5 of `fluidgs simulate` (or `fluidgs score --save-result`)")
-    p.add_argument("--gaussians", type=Path, default=None,
-                   help="the Gaussian file RESULT.h5 was computed from, for their own colours and opacities "
-                        "(default: the source recorded in RESULT.h5, when it exists)")
-    p.add_argument("--scores", type=Path, default=None,
-                   help="scores.json of `fluidgs score`: the candidate cameras coloured by S(T), with their rank "
-                        "(default: none; then --cameras alone draws them uncoloured)")
-    p.add_argument("--cameras", type=Path, default=None,
-                   help="the candidates' cameras file (transforms.json, COLMAP model, graphdeco cameras.json), "
-                        "scene units (default: the file --scores names)")
+    p.add_argument(
+        "--gaussians",
+        type=Path,
+        default=None,
+        help="the Gaussian file RESULT.h5 was computed from, for their own colours and opacities "
+        "(default: the source recorded in RESULT.h5, when it exists)",
+    )
+    p.add_argument(
+        "--scores",
+        type=Path,
+        default=None,
+        help="scores.json of `fluidgs score`: the candidate cameras coloured by S(T), with their rank "
+        "(default: none; then --cameras alone draws them uncoloured)",
+    )
+    p.add_argument(
+        "--cameras",
+        type=Path,
+        default=None,
+        help="the candidates' cameras file (transforms.json, COLMAP model, graphdeco cameras.json), "
+        "scene units (default: the file --scores names)",
+    )
     from viz.viewer import ViewerOptions
 
     from .options import add_config_options
@@ -48,6 +67,7 @@ def run_command(args: argparse.Namespace) -> int:
 
     logging.getLogger("websockets").setLevel(logging.WARNING)  # one line per connection otherwise
     options = config_from_args(ViewerOptions, args, FIELDS, OVERRIDES)
-    viewer = open_viewer(args.result, gaussians=args.gaussians, scores=args.scores, cameras=args.cameras,
-                         options=options)
+    viewer = open_viewer(
+        args.result, gaussians=args.gaussians, scores=args.scores, cameras=args.cameras, options=options
+    )
     return serve(viewer, announce=lambda line: print(line, flush=True))

@@ -49,11 +49,22 @@ command-line help without starting the engine.
 from .lazy import lazy_exports
 
 _EXPORTS = {
-    "SolverConfig": "config", "DIRECTIONS": "directions", "ProbeConfig": "probes", "ProbeSetup": "probes",
-    "probe_setup": "probes", "probe_setups": "probes", "run_probes": "probes", "Scene": "scene", "SceneError": "scene",
+    "SolverConfig": "config",
+    "DIRECTIONS": "directions",
+    "ProbeConfig": "probes",
+    "ProbeSetup": "probes",
+    "probe_setup": "probes",
+    "probe_setups": "probes",
+    "run_probes": "probes",
+    "Scene": "scene",
+    "SceneError": "scene",
     "load_scene": "scene",
-    "parse_scene": "scene", "SimulationDiverged": "simulation", "build_solver": "simulation", "run": "simulation",
-    "DFSPHSolver": "solver", "StepStats": "solver",
+    "parse_scene": "scene",
+    "SimulationDiverged": "simulation",
+    "build_solver": "simulation",
+    "run": "simulation",
+    "DFSPHSolver": "solver",
+    "StepStats": "solver",
 }
 __all__ = sorted(_EXPORTS)
 

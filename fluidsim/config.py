@@ -136,8 +136,7 @@ class SolverConfig:
         _int_at_least("max_iterations", self.max_iterations, 1)
         for name in ("min_iterations", "min_divergence_iterations"):
             if getattr(self, name) > self.max_iterations:
-                raise ValueError(
-                    f"{name} ({getattr(self, name)}) must be <= max_iterations ({self.max_iterations})")
+                raise ValueError(f"{name} ({getattr(self, name)}) must be <= max_iterations ({self.max_iterations})")
         for name in ("divergence_solver", "warm_start", "divergence_warm_start"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
@@ -149,8 +148,10 @@ class SolverConfig:
         if self.max_neighbors is not None:
             _int_at_least("max_neighbors", self.max_neighbors, 8)
         if not 0.0 <= _finite("retire_margin", self.retire_margin) <= RETIRE_MARGIN_MAX:
-            raise ValueError(f"retire_margin must be in [0, {RETIRE_MARGIN_MAX}] particle spacings (the simulation "
-                             f"grid reaches {RETIRE_MARGIN_MAX} spacings past the domain), got {self.retire_margin}")
+            raise ValueError(
+                f"retire_margin must be in [0, {RETIRE_MARGIN_MAX}] particle spacings (the simulation "
+                f"grid reaches {RETIRE_MARGIN_MAX} spacings past the domain), got {self.retire_margin}"
+            )
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
 

@@ -50,8 +50,16 @@ def with_stiffness(x, k):
 
 
 @ti.func
-def velocity_divergence(i, x: ti.template(), v: ti.template(), fluid_count: ti.template(),
-                        fluid_pairs: ti.template(), grad_sum: ti.template(), fmt: ti.template(), inv_scale):
+def velocity_divergence(
+    i,
+    x: ti.template(),
+    v: ti.template(),
+    fluid_count: ti.template(),
+    fluid_pairs: ti.template(),
+    grad_sum: ti.template(),
+    fmt: ti.template(),
+    inv_scale,
+):
     """s_i = sum_j (v_i - v_j) . V_j grad W_ij + v_i . sum_b V_b grad W_ib (1/s); boundary is at rest.
 
     Evaluated as v_i . G_i - sum_j c_ij v_j . (x_i - x_j) with the stored G_i = sum_j g_ij + sum_b g_ib,
@@ -66,8 +74,17 @@ def velocity_divergence(i, x: ti.template(), v: ti.template(), fluid_count: ti.t
 
 
 @ti.func
-def density_warm_record(i, dt, warm, gravity, x: ti.template(), density: ti.template(), source: ti.template(),
-                        boundary_grad_sum: ti.template(), kappa: ti.template()):
+def density_warm_record(
+    i,
+    dt,
+    warm,
+    gravity,
+    x: ti.template(),
+    density: ti.template(),
+    source: ti.template(),
+    boundary_grad_sum: ti.template(),
+    kappa: ti.template(),
+):
     """The record (x_i, w_i) of the constant-density solver's warm start: w_i = kappa_i where the particle is
     compressing after the divergence solve, rho_i + dt (s_i + dt g . sum_b g_ib) > 1 (s_i the last divergence
     source measured, clamped at 0), else 0 (and 0 everywhere without ``warm``)."""
@@ -121,8 +138,9 @@ def divergence_solve_error(
         total += q
         over += o
         position_stiffness[i] = with_stiffness(x[i], s * factor[i] / dt)
-        density_record[i] = density_warm_record(i, dt, warm_density, gravity, x, density, source,
-                                                boundary_grad_sum, kappa_density)
+        density_record[i] = density_warm_record(
+            i, dt, warm_density, gravity, x, density, source, boundary_grad_sum, kappa_density
+        )
     return quanta_average(total, over, n, inv_quantum)
 
 
@@ -213,8 +231,15 @@ def density_warm_stiffness(
 
 
 @ti.func
-def velocity_update(i, fluid_count: ti.template(), fluid_pairs: ti.template(), fmt: ti.template(), inv_scale,
-                    grad_sum: ti.template(), position_stiffness: ti.template()):
+def velocity_update(
+    i,
+    fluid_count: ti.template(),
+    fluid_pairs: ti.template(),
+    fmt: ti.template(),
+    inv_scale,
+    grad_sum: ti.template(),
+    position_stiffness: ti.template(),
+):
     """(dv, k_i) with dv = sum_j (k_i + k_j) g_ij + k_i sum_b g_ib = k_i G_i + sum_j k_j c_ij (x_i - x_j) (G_i the
     stored sum_j g_ij + sum_b g_ib); (x_j, k_j) come as one 16-byte record (``position_stiffness``, written by
     the error passes): one gather per pair instead of two, a third less time per pass on the bench scene."""

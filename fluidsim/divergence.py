@@ -6,5 +6,9 @@ from .estimator import divergence_estimate_from_grid as estimate_divergence_from
 from .estimator import divergence_estimate_from_lists as estimate_divergence_from_lists
 from .estimator import divergence_estimate_np as divergence_np
 
-__all__ = ["divergence_np", "estimate_divergence_from_gradients", "estimate_divergence_from_grid",
-           "estimate_divergence_from_lists"]
+__all__ = [
+    "divergence_np",
+    "estimate_divergence_from_gradients",
+    "estimate_divergence_from_grid",
+    "estimate_divergence_from_lists",
+]

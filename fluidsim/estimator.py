@@ -159,14 +159,29 @@ def divergence_estimate_from_grid(
         xi = x[i]
         vi = v[i]
         total = 0.0 * vi[0]
-        for_each_neighbor(xi, origin, inv_cell, dims, reach, reach_z, ((x, fluid_starts), (bx, boundary_starts)),
-                          _estimate_pair, ti.static(_Estimate(i, vi, hr2, h_k, fluid_volume, v, density, bvolume,
-                                                              total)))
+        for_each_neighbor(
+            xi,
+            origin,
+            inv_cell,
+            dims,
+            reach,
+            reach_z,
+            ((x, fluid_starts), (bx, boundary_starts)),
+            _estimate_pair,
+            ti.static(_Estimate(i, vi, hr2, h_k, fluid_volume, v, density, bvolume, total)),
+        )
         record_estimate(i, ti.abs(total), divergence, divergence_sum, divergence_count)
 
 
-def divergence_estimate_np(x: np.ndarray, v: np.ndarray, volumes: np.ndarray, boundary_x: np.ndarray,
-                           boundary_volumes: np.ndarray, h_r: float, h_k: float) -> np.ndarray:
+def divergence_estimate_np(
+    x: np.ndarray,
+    v: np.ndarray,
+    volumes: np.ndarray,
+    boundary_x: np.ndarray,
+    boundary_volumes: np.ndarray,
+    h_r: float,
+    h_k: float,
+) -> np.ndarray:
     """O(N^2) numpy twin of paper Eq. 1.
 
     Args:

@@ -134,8 +134,20 @@ def cell_linear(c, dims) -> ti.i32:
 
 
 @ti.func
-def _assign(xs: ti.template(), n, origin, inv_cell, dims, box_min, box_max, cell_ids: ti.template(),
-            ranks: ti.template(), counts: ti.template(), clear: ti.template(), ranked: ti.template() = True):
+def _assign(
+    xs: ti.template(),
+    n,
+    origin,
+    inv_cell,
+    dims,
+    box_min,
+    box_max,
+    cell_ids: ti.template(),
+    ranks: ti.template(),
+    counts: ti.template(),
+    clear: ti.template(),
+    ranked: ti.template() = True,
+):
     """Cell of each particle and, with ``ranked``, its (atomic) rank within the cell."""
     num_cells = dims[0] * dims[1] * dims[2]
     if ti.static(clear):  # else the counts are zero already (the previous sort's scan consumed them)
@@ -229,8 +241,17 @@ def sort_by_cell(
 
 
 @ti.func
-def _sort(n, capacity, num_buckets, cell_ids: ti.template(), ranks: ti.template(), counts: ti.template(),
-          starts: ti.template(), block_sums: ti.template(), order: ti.template()):
+def _sort(
+    n,
+    capacity,
+    num_buckets,
+    cell_ids: ti.template(),
+    ranks: ti.template(),
+    counts: ti.template(),
+    starts: ti.template(),
+    block_sums: ti.template(),
+    order: ti.template(),
+):
     exclusive_scan(counts, starts, num_buckets, block_sums)
     for i in range(capacity):  # slots of particles retired earlier keep the identity
         if i < n:
@@ -256,8 +277,16 @@ def _sort(n, capacity, num_buckets, cell_ids: ti.template(), ranks: ti.template(
 
 
 @ti.func
-def _sort_serial(n, capacity, num_buckets, cell_ids: ti.template(), ranks: ti.template(), counts: ti.template(),
-                 starts: ti.template(), order: ti.template()):
+def _sort_serial(
+    n,
+    capacity,
+    num_buckets,
+    cell_ids: ti.template(),
+    ranks: ti.template(),
+    counts: ti.template(),
+    starts: ti.template(),
+    order: ti.template(),
+):
     """The CPU sort after the parallel cell assignment, on the launching thread (no thread-pool wake-up):
     stable ranks in particle order, the exclusive prefix sum (leaving the counts zero) and the scatter."""
     ti.loop_config(serialize=True)
@@ -321,22 +350,36 @@ def serial_sort() -> bool:
 
 
 @ti.kernel
-def gather_rows(src: ti.types.ndarray(ndim=1), dst: ti.types.ndarray(ndim=1),
-                order: ti.types.ndarray(dtype=ti.i32, ndim=1), n: ti.i32):
+def gather_rows(
+    src: ti.types.ndarray(ndim=1),
+    dst: ti.types.ndarray(ndim=1),
+    order: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    n: ti.i32,
+):
     """Permutation: ``dst[k] = src[order[k]]`` for k < n."""
     for k in range(n):
         dst[k] = src[order[k]]
 
 
 @ti.kernel
-def gather_persistent(order: ti.types.ndarray(dtype=ti.i32, ndim=1), n: ti.i32,
-                      x: ti.types.ndarray(ndim=1), x_out: ti.types.ndarray(ndim=1),
-                      v: ti.types.ndarray(ndim=1), v_out: ti.types.ndarray(ndim=1),
-                      ids: ti.types.ndarray(ndim=1), ids_out: ti.types.ndarray(ndim=1),
-                      kappa_density: ti.types.ndarray(ndim=1), kappa_density_out: ti.types.ndarray(ndim=1),
-                      kappa_divergence: ti.types.ndarray(ndim=1), kappa_divergence_out: ti.types.ndarray(ndim=1),
-                      divergence_sum: ti.types.ndarray(ndim=1), divergence_sum_out: ti.types.ndarray(ndim=1),
-                      divergence_count: ti.types.ndarray(ndim=1), divergence_count_out: ti.types.ndarray(ndim=1)):
+def gather_persistent(
+    order: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    n: ti.i32,
+    x: ti.types.ndarray(ndim=1),
+    x_out: ti.types.ndarray(ndim=1),
+    v: ti.types.ndarray(ndim=1),
+    v_out: ti.types.ndarray(ndim=1),
+    ids: ti.types.ndarray(ndim=1),
+    ids_out: ti.types.ndarray(ndim=1),
+    kappa_density: ti.types.ndarray(ndim=1),
+    kappa_density_out: ti.types.ndarray(ndim=1),
+    kappa_divergence: ti.types.ndarray(ndim=1),
+    kappa_divergence_out: ti.types.ndarray(ndim=1),
+    divergence_sum: ti.types.ndarray(ndim=1),
+    divergence_sum_out: ti.types.ndarray(ndim=1),
+    divergence_count: ti.types.ndarray(ndim=1),
+    divergence_count_out: ti.types.ndarray(ndim=1),
+):
     """The permutation of :meth:`fluidsim.particles.FluidParticles.permute` on its seven persistent arrays at
     once: ``a_out[k] = a[order[k]]`` for k < n (:func:`gather_rows` for seven arrays in one launch)."""
     for k in range(n):
@@ -350,8 +393,9 @@ def gather_persistent(order: ti.types.ndarray(dtype=ti.i32, ndim=1), n: ti.i32,
         divergence_count_out[k] = divergence_count[o]
 
 
-def brute_force_neighbors_np(queries: np.ndarray, points: np.ndarray, radius: float,
-                             exclude_self: bool) -> list[np.ndarray]:
+def brute_force_neighbors_np(
+    queries: np.ndarray, points: np.ndarray, radius: float, exclude_self: bool
+) -> list[np.ndarray]:
     """O(N M) reference neighbour search: for each query, the sorted indices of points within ``radius``.
 
     Args:

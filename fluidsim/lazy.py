@@ -15,8 +15,9 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 
-def lazy_exports(package: str, exports: Mapping[str, str],
-                 namespace: dict[str, Any]) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
+def lazy_exports(
+    package: str, exports: Mapping[str, str], namespace: dict[str, Any]
+) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
     """The module-level ``__getattr__`` and ``__dir__`` of ``package``.
 
     Args:
@@ -27,6 +28,7 @@ def lazy_exports(package: str, exports: Mapping[str, str],
         (__getattr__, __dir__). A name that is not exported is tried as a submodule (``package.name``), else it
         raises AttributeError; an import error inside an existing submodule propagates unchanged.
     """
+
     def __getattr__(name: str) -> Any:
         module = exports.get(name)
         if module is None:

@@ -62,9 +62,12 @@ class SceneMemory:
 
     def parts(self) -> dict[str, float]:
         """Bytes per item: fluid, walls, solids (with their sampling) and grid."""
-        return {"fluid": self.fluid_particles * BYTES_PER_FLUID, "walls": self.wall_particles * BYTES_PER_BOUNDARY,
-                "solids": self.solid_particles * BYTES_PER_BOUNDARY + self.sampling_bytes,
-                "grid": self.grid_cells * BYTES_PER_CELL}
+        return {
+            "fluid": self.fluid_particles * BYTES_PER_FLUID,
+            "walls": self.wall_particles * BYTES_PER_BOUNDARY,
+            "solids": self.solid_particles * BYTES_PER_BOUNDARY + self.sampling_bytes,
+            "grid": self.grid_cells * BYTES_PER_CELL,
+        }
 
 
 def available_memory_bytes() -> int:
@@ -145,8 +148,11 @@ def estimate_scene_memory(scene: Scene) -> SceneMemory:
     """
     spacing = scene.config.spacing
     fluid = sum(float(np.prod(lattice_counts(b.min, b.max, spacing))) for b in scene.fluid_blocks)
-    walls = float(wall_particle_count(scene.domain.min, scene.domain.max, spacing, scene.domain.wall_layers)) \
-        if scene.domain.walls else 0.0
+    walls = (
+        float(wall_particle_count(scene.domain.min, scene.domain.max, spacing, scene.domain.wall_layers))
+        if scene.domain.walls
+        else 0.0
+    )
     solids = sampling = 0.0
     for solid in scene.solids:
         if solid.points is not None:
@@ -155,9 +161,15 @@ def estimate_scene_memory(scene: Scene) -> SceneMemory:
             count, extra = _mesh_counts(Path(scene.base_dir) / solid.mesh, spacing, solid.fill)
             solids, sampling = solids + count, sampling + extra
     cells = grid_cell_count(scene)
-    total = (fluid * BYTES_PER_FLUID + (walls + solids) * BYTES_PER_BOUNDARY + cells * BYTES_PER_CELL + sampling)
-    return SceneMemory(fluid_particles=fluid, wall_particles=walls, solid_particles=solids, grid_cells=cells,
-                       sampling_bytes=sampling, bytes=float(total))
+    total = fluid * BYTES_PER_FLUID + (walls + solids) * BYTES_PER_BOUNDARY + cells * BYTES_PER_CELL + sampling
+    return SceneMemory(
+        fluid_particles=fluid,
+        wall_particles=walls,
+        solid_particles=solids,
+        grid_cells=cells,
+        sampling_bytes=sampling,
+        bytes=float(total),
+    )
 
 
 def _advice(scene: Scene, est: SceneMemory, limit: float) -> str:
@@ -172,14 +184,20 @@ def _advice(scene: Scene, est: SceneMemory, limit: float) -> str:
     larger_r = r * (est.bytes / limit) ** (1.0 / 3.0)
     radius = f"a particle_radius of about {larger_r:.3g} m or more (now {r:g} m)"
     if worst in ("walls", "grid"):
-        return (f"most of it is the {size} m domain ({est.wall_particles:.3g} wall particles, "
-                f"{est.grid_cells:.3g} grid cells): shrink 'domain' to the region the fluid reaches, set "
-                f"'domain.walls' to false if the fluid may leave, or use {radius}")
+        return (
+            f"most of it is the {size} m domain ({est.wall_particles:.3g} wall particles, "
+            f"{est.grid_cells:.3g} grid cells): shrink 'domain' to the region the fluid reaches, set "
+            f"'domain.walls' to false if the fluid may leave, or use {radius}"
+        )
     if worst == "fluid":
-        return (f"most of it is the fluid ({est.fluid_particles:.3g} particles): make 'fluid_blocks' smaller or use "
-                f"{radius}")
-    return (f"most of it is the solids ({est.solid_particles:.3g} particles): use coarser solid point files, "
-            f"smaller meshes, 'fill': false, or {radius}")
+        return (
+            f"most of it is the fluid ({est.fluid_particles:.3g} particles): make 'fluid_blocks' smaller or use "
+            f"{radius}"
+        )
+    return (
+        f"most of it is the solids ({est.solid_particles:.3g} particles): use coarser solid point files, "
+        f"smaller meshes, 'fill': false, or {radius}"
+    )
 
 
 def check_scene_memory(scene: Scene, max_memory_gb: float | None = None, where: str = "the scene") -> SceneMemory:
@@ -199,12 +217,16 @@ def check_scene_memory(scene: Scene, max_memory_gb: float | None = None, where: 
     est = estimate_scene_memory(scene)
     limit = max_memory_gb * 2**30 if max_memory_gb is not None else float(available_memory_bytes())
     if est.bytes > limit:
-        allowed = (f"the limit is {_gib(limit)} (--max-memory-gb)" if max_memory_gb is not None else
-                   f"only {_gib(limit)} are available (--max-memory-gb sets the limit)")
+        allowed = (
+            f"the limit is {_gib(limit)} (--max-memory-gb)"
+            if max_memory_gb is not None
+            else f"only {_gib(limit)} are available (--max-memory-gb sets the limit)"
+        )
         raise SceneError(
             f"{where} would need about {_gib(est.bytes)} ({est.fluid_particles:.3g} fluid, "
             f"{est.wall_particles + est.solid_particles:.3g} boundary particles, {est.grid_cells:.3g} grid cells at "
-            f"particle_radius {scene.config.particle_radius:g} m) but {allowed}; {_advice(scene, est, limit)}")
+            f"particle_radius {scene.config.particle_radius:g} m) but {allowed}; {_advice(scene, est, limit)}"
+        )
     return est
 
 

@@ -153,8 +153,17 @@ def lattice_neighbor_count(spacing: float, h: float) -> int:
 
 
 @ti.func
-def for_each_neighbor(xi, origin, inv_cell, dims, reach: ti.template(), reach_z, sets: ti.template(),
-                      visit: ti.template(), ctx: ti.template()):
+def for_each_neighbor(
+    xi,
+    origin,
+    inv_cell,
+    dims,
+    reach: ti.template(),
+    reach_z,
+    sets: ti.template(),
+    visit: ti.template(),
+    ctx: ti.template(),
+):
     """The neighbour walk on the uniform grid: every candidate of each point set in the cells around ``xi``.
 
     The cells along z for fixed (x, y) are contiguous in the sorted order, so the walk visits the
@@ -220,8 +229,9 @@ def compute_boundary_volumes(
     zr = z_reach(inv_cell)
     for b in range(m):
         total = 0.0
-        for_each_neighbor(bx[b], origin, inv_cell, dims, 1, zr, ((bx, starts),), _add_weight,
-                          ti.static(_VolumeSum(h, total)))
+        for_each_neighbor(
+            bx[b], origin, inv_cell, dims, 1, zr, ((bx, starts),), _add_weight, ti.static(_VolumeSum(h, total))
+        )
         volume[b] = 1.0 / total
 
 
@@ -366,11 +376,46 @@ def build_neighborhoods(
         sq_sum = 0.0
         nf = 0
         nb = 0
-        for_each_neighbor(xi, origin, inv_cell, dims, 1, zr, ((x, fluid_starts), (bx, boundary_starts)),
-                          _gather_pair, ti.static(_Gather(
-                              i, vi, h2, scale, kernel_table, fluid_volume, v, warm, kappa, fluid_pairs, cap_f, fmt,
-                              coef_scale, too_far, bvolume, boundary_pairs, cap_b, store_boundary,
-                              rho, grad_sum, sq_sum, div, push_v, nf, grad_sum_b, nb)))
+        for_each_neighbor(
+            xi,
+            origin,
+            inv_cell,
+            dims,
+            1,
+            zr,
+            ((x, fluid_starts), (bx, boundary_starts)),
+            _gather_pair,
+            ti.static(
+                _Gather(
+                    i,
+                    vi,
+                    h2,
+                    scale,
+                    kernel_table,
+                    fluid_volume,
+                    v,
+                    warm,
+                    kappa,
+                    fluid_pairs,
+                    cap_f,
+                    fmt,
+                    coef_scale,
+                    too_far,
+                    bvolume,
+                    boundary_pairs,
+                    cap_b,
+                    store_boundary,
+                    rho,
+                    grad_sum,
+                    sq_sum,
+                    div,
+                    push_v,
+                    nf,
+                    grad_sum_b,
+                    nb,
+                )
+            ),
+        )
         density[i] = rho
         boundary_grad_sum[i] = grad_sum_b
         div += vi.dot(grad_sum_b)
@@ -416,8 +461,9 @@ def flag_near_boundary(
     zr = z_reach(inv_cell)
     for i in range(n):
         hit = 0
-        for_each_neighbor(x[i], origin, inv_cell, dims, 1, zr, ((bx, boundary_starts),), _flag_near,
-                          ti.static(_Near(r2max, hit)))
+        for_each_neighbor(
+            x[i], origin, inv_cell, dims, 1, zr, ((bx, boundary_starts),), _flag_near, ti.static(_Near(r2max, hit))
+        )
         flags[i] = hit
 
 

@@ -43,14 +43,27 @@ from fluidsim.files.atomic import PathLike
 
 from .solver import STATS_FIELDS, StepStats
 
-__all__ = ["TEMP_PREFIX", "OutputError", "SimulationWriter", "atomic_output", "check_not_input", "check_writable",
-           "output_errors", "same_file", "stats_table", "temp_path"]
+__all__ = [
+    "TEMP_PREFIX",
+    "OutputError",
+    "SimulationWriter",
+    "atomic_output",
+    "check_not_input",
+    "check_writable",
+    "output_errors",
+    "same_file",
+    "stats_table",
+    "temp_path",
+]
 
 
 def stats_table(history: list[StepStats]) -> np.ndarray:
     """Step statistics as a structured array (one row per step)."""
-    dtype = [(name, np.int64 if isinstance(getattr(history[0], name), int) else np.float64)
-             for name in STATS_FIELDS] if history else [(name, np.float64) for name in STATS_FIELDS]
+    dtype = (
+        [(name, np.int64 if isinstance(getattr(history[0], name), int) else np.float64) for name in STATS_FIELDS]
+        if history
+        else [(name, np.float64) for name in STATS_FIELDS]
+    )
     return np.array([astuple(s) for s in history], dtype=dtype)
 
 
@@ -98,8 +111,9 @@ class SimulationWriter:
 
     def write_boundary(self, points: np.ndarray) -> None:
         with output_errors(self.path):
-            self.file.create_dataset("boundary/x", data=np.asarray(points, np.float32), compression="gzip",
-                                     compression_opts=1)
+            self.file.create_dataset(
+                "boundary/x", data=np.asarray(points, np.float32), compression="gzip", compression_opts=1
+            )
 
     def write_frame(self, step: int, time: float, state: dict[str, np.ndarray]) -> None:
         """One frame after ``step`` completed steps at simulated ``time`` (s); ``state`` from the solver."""
@@ -111,8 +125,14 @@ class SimulationWriter:
             g.attrs["step"] = step
         self.last_frame_step = step
 
-    def finish(self, history: list[StepStats], divergence_sum: np.ndarray, divergence_count: np.ndarray,
-               status: str = "complete", **attrs) -> Path:
+    def finish(
+        self,
+        history: list[StepStats],
+        divergence_sum: np.ndarray,
+        divergence_count: np.ndarray,
+        status: str = "complete",
+        **attrs,
+    ) -> Path:
         """Write the summary, close and move the file into place; returns the final path.
 
         ``status``: "complete", the fault of a diverged run, or "interrupted" (by SIGINT or SIGTERM). An unfinished
@@ -131,8 +151,10 @@ class SimulationWriter:
             try:
                 self.file.close()  # the last buffers reach the disk here: a full disk fails now
             except (OSError, RuntimeError) as exc:
-                err = OutputError(f"cannot write {self._pending.path}: closing it failed ({exc}); free disk space or "
-                                  "choose a writable output path")
+                err = OutputError(
+                    f"cannot write {self._pending.path}: closing it failed ({exc}); free disk space or "
+                    "choose a writable output path"
+                )
                 err.errno = getattr(exc, "errno", None)
                 raise err from exc
             finally:

@@ -148,8 +148,7 @@ class Neighborhoods:
     against 40 for at most 38 neighbours: a fifth of the step on the bench scene).
     """
 
-    def __init__(self, n: int, capacity: int, precision: str, support_radius: float = 1.0,
-                 store_boundary: bool = True):
+    def __init__(self, n: int, capacity: int, precision: str, support_radius: float = 1.0, store_boundary: bool = True):
         self.n = max(n, 1)
         self.store_boundary = bool(store_boundary)
         self.fp = float_dtype(precision)
@@ -204,8 +203,10 @@ class Neighborhoods:
             (count (N,), index (N, cap), c (N, cap)); slots past a particle's count are unspecified.
         """
         if kind == "boundary" and not self.store_boundary:
-            raise ValueError("these lists keep boundary counts only (no pass reads the pairs: the boundary viscosity "
-                             "is 0 and Eq. 1 does not walk the lists); use store_boundary=True to keep them")
+            raise ValueError(
+                "these lists keep boundary counts only (no pass reads the pairs: the boundary viscosity "
+                "is 0 and Eq. 1 does not walk the lists); use store_boundary=True to keep them"
+            )
         count = getattr(self, f"{kind}_count").to_numpy()
         if kind == "fluid":
             index, coef = unpack_fluid_pairs_np(self.fluid_pairs.to_numpy(), self.format, self.inv_scale)

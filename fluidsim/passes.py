@@ -52,20 +52,23 @@ class FluidGrid:
 def boundary_volumes(boundary: BoundaryParticles, g: FluidGrid, h: float) -> None:
     """Akinci volumes V_b = 1 / sum_k W(x_b - x_k, h) into ``boundary.volume``
     (:func:`fluidsim.neighbors.compute_boundary_volumes`)."""
-    neighbors.compute_boundary_volumes(boundary.x, boundary.cell_starts, boundary.count, g.origin, g.inv_cell,
-                                       g.dims, h, boundary.volume)
+    neighbors.compute_boundary_volumes(
+        boundary.x, boundary.cell_starts, boundary.count, g.origin, g.inv_cell, g.dims, h, boundary.volume
+    )
 
 
-def near_boundary(points: np.ndarray, boundary: BoundaryParticles, g: FluidGrid, radius: float,
-                  precision: str) -> np.ndarray:
+def near_boundary(
+    points: np.ndarray, boundary: BoundaryParticles, g: FluidGrid, radius: float, precision: str
+) -> np.ndarray:
     """(K,) bool: which of the (K, 3) ``points`` (m) lie closer than ``radius`` (m, <= the x-y cell size) to a
     boundary particle (:func:`fluidsim.neighbors.flag_near_boundary`)."""
     fp = float_dtype(precision)
     tmp = ti.Vector.ndarray(3, fp, shape=len(points))
     tmp.from_numpy(points.astype(np.float64 if fp == ti.f64 else np.float32))
     flags = ti.ndarray(ti.i32, shape=len(points))
-    neighbors.flag_near_boundary(len(points), tmp, boundary.x, boundary.cell_starts, g.origin, g.inv_cell, g.dims,
-                                 radius, flags)
+    neighbors.flag_near_boundary(
+        len(points), tmp, boundary.x, boundary.cell_starts, g.origin, g.inv_cell, g.dims, radius, flags
+    )
     return flags.to_numpy() != 0
 
 
@@ -74,26 +77,76 @@ def sort_fluid(fluid: FluidParticles, g: FluidGrid, retire_min, retire_max) -> i
     """Counting sort of the active fluid by cell (``g.starts`` then indexes it) and the permutation of every
     persistent array; fluid outside [retire_min, retire_max] (vec3 f64, m) is retired to the tail.
     Returns the number of particles retired."""
-    kept = grid.counting_sort(fluid.x, fluid.active, fluid.capacity, g.origin, g.inv_cell, g.dims, retire_min,
-                              retire_max, fluid.cell_ids, fluid.ranks, g.counts, g.starts, g.block_sums, fluid.order,
-                              g.serial)
+    kept = grid.counting_sort(
+        fluid.x,
+        fluid.active,
+        fluid.capacity,
+        g.origin,
+        g.inv_cell,
+        g.dims,
+        retire_min,
+        retire_max,
+        fluid.cell_ids,
+        fluid.ranks,
+        g.counts,
+        g.starts,
+        g.block_sums,
+        fluid.order,
+        g.serial,
+    )
     fluid.permute()
     retired = fluid.active - int(kept)
     fluid.active = int(kept)
     return retired
 
 
-def neighborhood_pass(fluid: FluidParticles, boundary: BoundaryParticles, lists: Neighborhoods, g: FluidGrid,
-                      kernel_table, h: float, fluid_volume: float, dt: float, warm: bool) -> tuple[int, int, int]:
+def neighborhood_pass(
+    fluid: FluidParticles,
+    boundary: BoundaryParticles,
+    lists: Neighborhoods,
+    g: FluidGrid,
+    kernel_table,
+    h: float,
+    fluid_volume: float,
+    dt: float,
+    warm: bool,
+) -> tuple[int, int, int]:
     """N_i, rho_i (E1), alpha_i (E2), G_i and the divergence solver's cold source s_i (E3), or with ``warm`` its
     warm start (W1) (:func:`fluidsim.neighbors.build_neighborhoods`). Returns (max fluid, max boundary
     neighbour count, 1 if a NARROW list met an offset beyond 16 bits)."""
     counts = neighbors.build_neighborhoods(
-        fluid.active, fluid.x, g.starts, boundary.x, boundary.volume, boundary.cell_starts, g.origin, g.inv_cell,
-        g.dims, h, fluid_volume, lists.fluid_count, lists.fluid_pairs, lists.boundary_count, lists.boundary_pairs,
-        lists.boundary_grad_sum, lists.grad_sum, fluid.density, fluid.factor, fluid.v, fluid.source, kernel_table,
-        int(warm), fluid.kappa_divergence, fluid.push_divergence, lists.format, lists.coef_scale,
-        dfsph.DIVERGENCE_WARM_SCALE, dt, fluid.stiffness_sum, lists.store_boundary)
+        fluid.active,
+        fluid.x,
+        g.starts,
+        boundary.x,
+        boundary.volume,
+        boundary.cell_starts,
+        g.origin,
+        g.inv_cell,
+        g.dims,
+        h,
+        fluid_volume,
+        lists.fluid_count,
+        lists.fluid_pairs,
+        lists.boundary_count,
+        lists.boundary_pairs,
+        lists.boundary_grad_sum,
+        lists.grad_sum,
+        fluid.density,
+        fluid.factor,
+        fluid.v,
+        fluid.source,
+        kernel_table,
+        int(warm),
+        fluid.kappa_divergence,
+        fluid.push_divergence,
+        lists.format,
+        lists.coef_scale,
+        dfsph.DIVERGENCE_WARM_SCALE,
+        dt,
+        fluid.stiffness_sum,
+        lists.store_boundary,
+    )
     return int(counts[0]), int(counts[1]), int(counts[2])
 
 
@@ -105,85 +158,243 @@ def undo_divergence_warm_start(fluid: FluidParticles) -> None:
 def divergence_solve_cold_start(fluid: FluidParticles, dt: float, inv_quantum: float) -> float:
     """The divergence solver's first k_i (E4) from the neighbourhood pass's s_i; returns the average s_i, 1/s
     (:func:`fluidsim.dfsph.divergence_solve_cold_start`)."""
-    return dfsph.divergence_solve_cold_start(fluid.active, dt, fluid.source, fluid.factor, fluid.x,
-                                             fluid.position_stiffness, fluid.stiffness_sum, inv_quantum)
+    return dfsph.divergence_solve_cold_start(
+        fluid.active,
+        dt,
+        fluid.source,
+        fluid.factor,
+        fluid.x,
+        fluid.position_stiffness,
+        fluid.stiffness_sum,
+        inv_quantum,
+    )
 
 
-def divergence_solve_error(fluid: FluidParticles, lists: Neighborhoods, dt: float, inv_quantum: float,
-                           warm_density: bool, gravity) -> float:
+def divergence_solve_error(
+    fluid: FluidParticles, lists: Neighborhoods, dt: float, inv_quantum: float, warm_density: bool, gravity
+) -> float:
     """Divergence solver error pass: s_i (E3) and k_i (E4), and the density solver's warm-start records (W2);
     returns the average s_i, 1/s (:func:`fluidsim.dfsph.divergence_solve_error`)."""
     return dfsph.divergence_solve_error(
-        fluid.active, dt, fluid.x, fluid.v, lists.fluid_count, lists.fluid_pairs, lists.format, lists.inv_scale,
-        lists.boundary_count, lists.grad_sum, fluid.factor, fluid.source, fluid.position_stiffness, inv_quantum,
-        int(warm_density), gravity, fluid.density, lists.boundary_grad_sum, fluid.kappa_density,
-        fluid.density_record)
+        fluid.active,
+        dt,
+        fluid.x,
+        fluid.v,
+        lists.fluid_count,
+        lists.fluid_pairs,
+        lists.format,
+        lists.inv_scale,
+        lists.boundary_count,
+        lists.grad_sum,
+        fluid.factor,
+        fluid.source,
+        fluid.position_stiffness,
+        inv_quantum,
+        int(warm_density),
+        gravity,
+        fluid.density,
+        lists.boundary_grad_sum,
+        fluid.kappa_density,
+        fluid.density_record,
+    )
 
 
 def density_solve_error(fluid: FluidParticles, lists: Neighborhoods, dt: float, inv_quantum: float) -> float:
     """Density solver error pass: rho*_i (E6) and k_i (E4); returns the average max(rho*_i - 1, 0)
     (:func:`fluidsim.dfsph.density_solve_error`)."""
     return dfsph.density_solve_error(
-        fluid.active, dt, fluid.x, fluid.v, lists.fluid_count, lists.fluid_pairs, lists.format, lists.inv_scale,
-        lists.grad_sum, fluid.density, fluid.factor, fluid.source, fluid.position_stiffness, inv_quantum)
+        fluid.active,
+        dt,
+        fluid.x,
+        fluid.v,
+        lists.fluid_count,
+        lists.fluid_pairs,
+        lists.format,
+        lists.inv_scale,
+        lists.grad_sum,
+        fluid.density,
+        fluid.factor,
+        fluid.source,
+        fluid.position_stiffness,
+        inv_quantum,
+    )
 
 
 def velocity_update(fluid: FluidParticles, lists: Neighborhoods, dt: float) -> None:
     """v_i -= dt (k_i G_i + sum_j k_j g_ij) (E5), summing k_i (:func:`fluidsim.dfsph.apply_stiffness`)."""
-    dfsph.apply_stiffness(fluid.active, dt, fluid.v, lists.fluid_count, lists.fluid_pairs, lists.format,
-                          lists.inv_scale, lists.grad_sum, fluid.position_stiffness, fluid.stiffness_sum)
+    dfsph.apply_stiffness(
+        fluid.active,
+        dt,
+        fluid.v,
+        lists.fluid_count,
+        lists.fluid_pairs,
+        lists.format,
+        lists.inv_scale,
+        lists.grad_sum,
+        fluid.position_stiffness,
+        fluid.stiffness_sum,
+    )
 
 
-def finish_solve(fluid: FluidParticles, lists: Neighborhoods, dt: float, store_scale: float, kappa,
-                 advect: bool) -> tuple[float, int]:
+def finish_solve(
+    fluid: FluidParticles, lists: Neighborhoods, dt: float, store_scale: float, kappa, advect: bool
+) -> tuple[float, int]:
     """A solve's last velocity update (E5), its warm-start memory kappa = (sum k_i) ``store_scale`` (W3) and, with
     ``advect``, x_i += dt v_i (E9) (:func:`fluidsim.dfsph.finish_solve`). Returns (max speed m/s, non-finite
     velocities) with ``advect``, else (0, 0)."""
-    out = dfsph.finish_solve(fluid.active, dt, fluid.v, lists.fluid_count, lists.fluid_pairs, lists.format,
-                             lists.inv_scale, lists.grad_sum, fluid.position_stiffness, fluid.stiffness_sum,
-                             store_scale, kappa, int(advect), fluid.x)
+    out = dfsph.finish_solve(
+        fluid.active,
+        dt,
+        fluid.v,
+        lists.fluid_count,
+        lists.fluid_pairs,
+        lists.format,
+        lists.inv_scale,
+        lists.grad_sum,
+        fluid.position_stiffness,
+        fluid.stiffness_sum,
+        store_scale,
+        kappa,
+        int(advect),
+        fluid.x,
+    )
     return float(out[0]), int(out[1])
 
 
 def density_warm_records(fluid: FluidParticles, lists: Neighborhoods, dt: float, warm: bool, gravity) -> None:
     """The density solver's warm-start records (x_i, w_i) (W2) as a pass of their own, for a step whose divergence
     solve ran no error pass (:func:`fluidsim.dfsph.density_warm_stiffness`)."""
-    dfsph.density_warm_stiffness(fluid.active, dt, int(warm), gravity, fluid.x, fluid.density, fluid.source,
-                                 lists.boundary_grad_sum, fluid.kappa_density, fluid.density_record)
+    dfsph.density_warm_stiffness(
+        fluid.active,
+        dt,
+        int(warm),
+        gravity,
+        fluid.x,
+        fluid.density,
+        fluid.source,
+        lists.boundary_grad_sum,
+        fluid.kappa_density,
+        fluid.density_record,
+    )
 
 
-def predict_velocities(fluid: FluidParticles, boundary: BoundaryParticles, lists: Neighborhoods, dt: float,
-                       gravity, mu: float, mu_boundary: float, rest_density: float, h: float, warm: bool,
-                       estimate: bool) -> None:
+def predict_velocities(
+    fluid: FluidParticles,
+    boundary: BoundaryParticles,
+    lists: Neighborhoods,
+    dt: float,
+    gravity,
+    mu: float,
+    mu_boundary: float,
+    rest_density: float,
+    h: float,
+    warm: bool,
+    estimate: bool,
+) -> None:
     """a_i (E7), v*_i = v_i + dt a_i (E8) with the density warm start (W2) and, with ``estimate``, paper Eq. 1, in
     one sweep (:func:`fluidsim.viscosity.predict_velocities`) into the spare velocity buffer, which then
     becomes ``fluid.v``."""
     viscosity.predict_velocities(
-        fluid.active, fluid.capacity, dt, gravity, mu, mu_boundary, rest_density, h, fluid.x, fluid.v,
-        fluid.density, fluid.density_record, boundary.x, lists.fluid_count, lists.fluid_pairs, lists.format,
-        lists.inv_scale, lists.boundary_count, lists.boundary_pairs, lists.boundary_grad_sum, lists.grad_sum,
-        int(estimate), fluid.divergence, fluid.divergence_sum, fluid.divergence_count, int(warm), fluid.stiffness_sum,
-        fluid.velocity_scratch())
+        fluid.active,
+        fluid.capacity,
+        dt,
+        gravity,
+        mu,
+        mu_boundary,
+        rest_density,
+        h,
+        fluid.x,
+        fluid.v,
+        fluid.density,
+        fluid.density_record,
+        boundary.x,
+        lists.fluid_count,
+        lists.fluid_pairs,
+        lists.format,
+        lists.inv_scale,
+        lists.boundary_count,
+        lists.boundary_pairs,
+        lists.boundary_grad_sum,
+        lists.grad_sum,
+        int(estimate),
+        fluid.divergence,
+        fluid.divergence_sum,
+        fluid.divergence_count,
+        int(warm),
+        fluid.stiffness_sum,
+        fluid.velocity_scratch(),
+    )
     fluid.swap_velocity()
 
 
-def divergence_estimate(fluid: FluidParticles, boundary: BoundaryParticles, lists: Neighborhoods, g: FluidGrid,
-                        h: float, h_r: float, h_k: float, fluid_volume: float) -> None:
+def divergence_estimate(
+    fluid: FluidParticles,
+    boundary: BoundaryParticles,
+    lists: Neighborhoods,
+    g: FluidGrid,
+    h: float,
+    h_r: float,
+    h_k: float,
+    fluid_volume: float,
+) -> None:
     """Paper Eq. 1 as a pass of its own (:mod:`fluidsim.estimator`), by the path its radii allow: the stored
     gradients (h_k = h <= h_r), the lists filtered to h_r (h_r <= h), or the grid walked to h_r."""
     if math.isclose(h_k, h, rel_tol=1e-9) and h_r >= h:
         estimator.divergence_estimate_from_gradients(
-            fluid.active, fluid.x, fluid.v, fluid.density, lists.fluid_count, lists.fluid_pairs, lists.format,
-            lists.inv_scale, lists.boundary_grad_sum, fluid.divergence, fluid.divergence_sum, fluid.divergence_count)
+            fluid.active,
+            fluid.x,
+            fluid.v,
+            fluid.density,
+            lists.fluid_count,
+            lists.fluid_pairs,
+            lists.format,
+            lists.inv_scale,
+            lists.boundary_grad_sum,
+            fluid.divergence,
+            fluid.divergence_sum,
+            fluid.divergence_count,
+        )
     elif h_r <= h:
         estimator.divergence_estimate_from_lists(
-            fluid.active, h_r, h_k, fluid_volume, fluid.x, fluid.v, fluid.density, boundary.x, boundary.volume,
-            lists.fluid_count, lists.fluid_pairs, lists.format, lists.boundary_count, lists.boundary_pairs,
-            fluid.divergence, fluid.divergence_sum, fluid.divergence_count)
+            fluid.active,
+            h_r,
+            h_k,
+            fluid_volume,
+            fluid.x,
+            fluid.v,
+            fluid.density,
+            boundary.x,
+            boundary.volume,
+            lists.fluid_count,
+            lists.fluid_pairs,
+            lists.format,
+            lists.boundary_count,
+            lists.boundary_pairs,
+            fluid.divergence,
+            fluid.divergence_sum,
+            fluid.divergence_count,
+        )
     else:
         reach = int(math.ceil(h_r / g.spec.cell_size))
         reach_z = int(math.ceil(h_r / g.spec.cell_sizes[2]))
         estimator.divergence_estimate_from_grid(
-            fluid.active, h_r, h_k, fluid_volume, reach, reach_z, g.origin, g.inv_cell, g.dims, fluid.x, fluid.v,
-            fluid.density, g.starts, boundary.x, boundary.volume, boundary.cell_starts, fluid.divergence,
-            fluid.divergence_sum, fluid.divergence_count)
+            fluid.active,
+            h_r,
+            h_k,
+            fluid_volume,
+            reach,
+            reach_z,
+            g.origin,
+            g.inv_cell,
+            g.dims,
+            fluid.x,
+            fluid.v,
+            fluid.density,
+            g.starts,
+            boundary.x,
+            boundary.volume,
+            boundary.cell_starts,
+            fluid.divergence,
+            fluid.divergence_sum,
+            fluid.divergence_count,
+        )

@@ -121,12 +121,19 @@ def probe_setup(solid_points: np.ndarray, direction: str, probe: ProbeConfig, sp
     dmin = np.minimum(lo, fmin) - padding
     dmax = np.maximum(hi, fmax) + padding
     speed = 0.0 if direction == "-y" else probe.speed
-    return ProbeSetup(direction, tuple(float(c) for c in flow * speed), tuple(dmin.tolist()),
-                      tuple(dmax.tolist()), tuple(fmin.tolist()), tuple(fmax.tolist()))
+    return ProbeSetup(
+        direction,
+        tuple(float(c) for c in flow * speed),
+        tuple(dmin.tolist()),
+        tuple(dmax.tolist()),
+        tuple(fmin.tolist()),
+        tuple(fmax.tolist()),
+    )
 
 
-def probe_setups(solid_points: np.ndarray, probe: ProbeConfig, spacing: float,
-                 directions: Sequence[str] | None = None) -> dict[str, ProbeSetup]:
+def probe_setups(
+    solid_points: np.ndarray, probe: ProbeConfig, spacing: float, directions: Sequence[str] | None = None
+) -> dict[str, ProbeSetup]:
     """The setup of every probe around one solid (:func:`probe_setup` per direction), in the order run.
 
     Args:
@@ -141,8 +148,9 @@ def probe_setups(solid_points: np.ndarray, probe: ProbeConfig, spacing: float,
     return {d: probe_setup(solid_points, d, probe, spacing) for d in dirs}
 
 
-def build_probe_solver(solid_points: np.ndarray, setup: ProbeSetup, config: SolverConfig,
-                       probe: ProbeConfig) -> DFSPHSolver:
+def build_probe_solver(
+    solid_points: np.ndarray, setup: ProbeSetup, config: SolverConfig, probe: ProbeConfig
+) -> DFSPHSolver:
     """A solver for one probe: solid plus optional walls as boundary, the slab as fluid."""
     spacing = config.spacing
     boundary = [np.asarray(solid_points, np.float64).reshape(-1, 3)]
@@ -153,13 +161,18 @@ def build_probe_solver(solid_points: np.ndarray, setup: ProbeSetup, config: Solv
     return DFSPHSolver(config, setup.domain_min, setup.domain_max, fluid, vel, np.concatenate(boundary))
 
 
-def run_probes(solid_points: np.ndarray, config: SolverConfig, probe: ProbeConfig, steps: int,
-               on_step: Callable[[str, DFSPHSolver, StepStats], None] | None = None,
-               on_probe_start: Callable[[str, DFSPHSolver], None] | None = None,
-               on_probe_end: Callable[[str, DFSPHSolver, list[StepStats]], None] | None = None,
-               progress: Callable[[str, StepStats], None] | None = None,
-               directions: Sequence[str] | None = None,
-               setups: Mapping[str, ProbeSetup] | None = None) -> dict[str, list[StepStats]]:
+def run_probes(
+    solid_points: np.ndarray,
+    config: SolverConfig,
+    probe: ProbeConfig,
+    steps: int,
+    on_step: Callable[[str, DFSPHSolver, StepStats], None] | None = None,
+    on_probe_start: Callable[[str, DFSPHSolver], None] | None = None,
+    on_probe_end: Callable[[str, DFSPHSolver, list[StepStats]], None] | None = None,
+    progress: Callable[[str, StepStats], None] | None = None,
+    directions: Sequence[str] | None = None,
+    setups: Mapping[str, ProbeSetup] | None = None,
+) -> dict[str, list[StepStats]]:
     """Run the probes one after another in the current Taichi runtime.
 
     Args:
@@ -184,11 +197,13 @@ def run_probes(solid_points: np.ndarray, config: SolverConfig, probe: ProbeConfi
         solver = build_probe_solver(solid_points, setups[d], config, probe)
         if on_probe_start is not None:
             on_probe_start(d, solver)
-        history = run(solver, steps,
-                      on_step=None if on_step is None else (lambda s, st, d=d: on_step(d, s, st)),
-                      progress=None if progress is None else (lambda st, d=d: progress(d, st)))
+        history = run(
+            solver,
+            steps,
+            on_step=None if on_step is None else (lambda s, st, d=d: on_step(d, s, st)),
+            progress=None if progress is None else (lambda st, d=d: progress(d, st)),
+        )
         out[d] = history
         if on_probe_end is not None:
             on_probe_end(d, solver, history)
     return out
-

@@ -29,10 +29,11 @@ class Interrupted(Exception):
 
     def __init__(self, signum: int, step: int, path: Path, kept: Path | None = None):
         self.signum, self.step, self.path = signum, step, path
-        tail = (f"; the complete {kept} of an earlier run is kept" if kept is not None else
-                "; run again to overwrite it")
-        super().__init__(f"{signal.Signals(signum).name} after step {step}; the frames so far are saved to {path} "
-                         f"(status 'interrupted'){tail}")
+        tail = f"; the complete {kept} of an earlier run is kept" if kept is not None else "; run again to overwrite it"
+        super().__init__(
+            f"{signal.Signals(signum).name} after step {step}; the frames so far are saved to {path} "
+            f"(status 'interrupted'){tail}"
+        )
 
     @property
     def exit_code(self) -> int:
@@ -40,8 +41,9 @@ class Interrupted(Exception):
         return 128 + int(self.signum)
 
 
-def simulate_to_h5(solver, scene_dict: dict, output: Path, steps: int, save_every: int, desc: str,
-                   progress: bool = True, stop=None) -> tuple[Path, list]:
+def simulate_to_h5(
+    solver, scene_dict: dict, output: Path, steps: int, save_every: int, desc: str, progress: bool = True, stop=None
+) -> tuple[Path, list]:
     """Step a built solver, writing frames every ``save_every`` steps; returns (path, stats history).
 
     Args:
@@ -69,8 +71,13 @@ def simulate_to_h5(solver, scene_dict: dict, output: Path, steps: int, save_ever
     def on_progress(st) -> None:
         history.append(st)
         bar.update(1)
-        bar.set_postfix(density_it=st.density_iterations, divergence_it=st.divergence_iterations,
-                        vmax=f"{st.max_speed:.2f}", fluid=st.active, refresh=False)
+        bar.set_postfix(
+            density_it=st.density_iterations,
+            divergence_it=st.divergence_iterations,
+            vmax=f"{st.max_speed:.2f}",
+            fluid=st.active,
+            refresh=False,
+        )
 
     try:
         writer.write_boundary(solver.boundary.x.to_numpy()[: solver.boundary.count])
@@ -79,8 +86,9 @@ def simulate_to_h5(solver, scene_dict: dict, output: Path, steps: int, save_ever
     except SimulationDiverged as exc:
         bar.close()
         sums, counts = solver.divergence_accumulation()
-        path = writer.finish(exc.history, sums, counts, status=str(exc),
-                             removed_inside_solid=solver.removed_inside_solid)
+        path = writer.finish(
+            exc.history, sums, counts, status=str(exc), removed_inside_solid=solver.removed_inside_solid
+        )
         log.error("%s; frames so far saved to %s", exc, path)
         raise
     except Interrupted as exc:
@@ -88,9 +96,15 @@ def simulate_to_h5(solver, scene_dict: dict, output: Path, steps: int, save_ever
         if writer.last_frame_step != exc.step:
             writer.write_frame(exc.step, history[-1].time, solver.fluid_state())
         sums, counts = solver.divergence_accumulation()
-        path = writer.finish(history, sums, counts, status="interrupted",
-                             removed_inside_solid=solver.removed_inside_solid,
-                             interrupted_by=signal.Signals(exc.signum).name, interrupted_after_step=exc.step)
+        path = writer.finish(
+            history,
+            sums,
+            counts,
+            status="interrupted",
+            removed_inside_solid=solver.removed_inside_solid,
+            interrupted_by=signal.Signals(exc.signum).name,
+            interrupted_after_step=exc.step,
+        )
         if path != exc.path:
             raise Interrupted(exc.signum, exc.step, path, kept=exc.path) from None
         raise
@@ -104,8 +118,16 @@ def simulate_to_h5(solver, scene_dict: dict, output: Path, steps: int, save_ever
     return path, history
 
 
-def probe_to_h5(solid: np.ndarray, direction: str, config: SolverConfig, probe: ProbeConfig, steps: int,
-                path: str | Path, save_every: int = 10, progress: bool = True):
+def probe_to_h5(
+    solid: np.ndarray,
+    direction: str,
+    config: SolverConfig,
+    probe: ProbeConfig,
+    steps: int,
+    path: str | Path,
+    save_every: int = 10,
+    progress: bool = True,
+):
     """One probe (:mod:`fluidsim.probes`) against the static ``solid`` [N, 3] (m), stepped to an OUT.h5 at ``path``
     with its domain, inflow velocity, walls and time step in the file's scene attributes.
 
@@ -114,11 +136,17 @@ def probe_to_h5(solid: np.ndarray, direction: str, config: SolverConfig, probe: 
     """
     setup = probe_setups(solid, probe, config.spacing, (direction,))[direction]
     solver = build_probe_solver(solid, setup, config, probe)
-    scene = {"probe": direction, "velocity": list(setup.velocity),
-             "domain": {"min": list(setup.domain_min), "max": list(setup.domain_max), "walls": probe.walls},
-             "particle_radius": config.particle_radius, "dt": config.dt, "steps": steps}
-    out, history = simulate_to_h5(solver, scene, Path(path), steps, save_every, desc=f"probe {direction}",
-                                  progress=progress)
+    scene = {
+        "probe": direction,
+        "velocity": list(setup.velocity),
+        "domain": {"min": list(setup.domain_min), "max": list(setup.domain_max), "walls": probe.walls},
+        "particle_radius": config.particle_radius,
+        "dt": config.dt,
+        "steps": steps,
+    }
+    out, history = simulate_to_h5(
+        solver, scene, Path(path), steps, save_every, desc=f"probe {direction}", progress=progress
+    )
     return out, history, solver
 
 
@@ -127,9 +155,13 @@ def probe_file_summary(path: Path, history: list, solver) -> dict:
     and the mean and 95th percentile of the particles' mean divergence D_i (paper Eq. 1, 1/s)."""
     sums, counts = solver.divergence_accumulation()
     mean_d = np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
-    return {"file": Path(path).name, "fluid_particles": solver.fluid.capacity,
-            "boundary_particles": solver.boundary.count, "retired": int(sum(h.retired for h in history)),
-            "mean_density_iterations": float(np.mean([h.density_iterations for h in history])),
-            "mean_divergence_iterations": float(np.mean([h.divergence_iterations for h in history])),
-            "mean_particle_divergence": float(mean_d.mean()),
-            "p95_particle_divergence": float(np.percentile(mean_d, 95))}
+    return {
+        "file": Path(path).name,
+        "fluid_particles": solver.fluid.capacity,
+        "boundary_particles": solver.boundary.count,
+        "retired": int(sum(h.retired for h in history)),
+        "mean_density_iterations": float(np.mean([h.density_iterations for h in history])),
+        "mean_divergence_iterations": float(np.mean([h.divergence_iterations for h in history])),
+        "mean_particle_divergence": float(mean_d.mean()),
+        "p95_particle_divergence": float(np.percentile(mean_d, 95)),
+    }

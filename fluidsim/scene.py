@@ -32,8 +32,18 @@ from fluidsim.files import input_problem
 
 from .config import SolverConfig
 
-TOP_KEYS = {"particle_radius", "rest_density", "viscosity", "gravity", "dt", "steps", "domain",
-            "fluid_blocks", "solids", "solver"}
+TOP_KEYS = {
+    "particle_radius",
+    "rest_density",
+    "viscosity",
+    "gravity",
+    "dt",
+    "steps",
+    "domain",
+    "fluid_blocks",
+    "solids",
+    "solver",
+}
 REQUIRED_TOP = TOP_KEYS - {"solver", "solids", "gravity"}
 SOLVER_KEYS = set(SolverConfig.field_names()) - {"particle_radius", "rest_density", "viscosity", "gravity", "dt"}
 
@@ -86,14 +96,21 @@ class Scene:
         cfg = asdict(self.config)
         top = {k: cfg.pop(k) for k in ("particle_radius", "rest_density", "viscosity", "gravity", "dt")}
         top["gravity"] = list(top["gravity"])
-        return {**top, "steps": self.steps,
-                "domain": {"min": list(self.domain.min), "max": list(self.domain.max),
-                           "walls": self.domain.walls, "wall_layers": self.domain.wall_layers},
-                "fluid_blocks": [{"min": list(b.min), "max": list(b.max), "velocity": list(b.velocity)}
-                                 for b in self.fluid_blocks],
-                "solids": [({"points": s.points} if s.points else {"mesh": s.mesh, "fill": s.fill})
-                           for s in self.solids],
-                "solver": cfg}
+        return {
+            **top,
+            "steps": self.steps,
+            "domain": {
+                "min": list(self.domain.min),
+                "max": list(self.domain.max),
+                "walls": self.domain.walls,
+                "wall_layers": self.domain.wall_layers,
+            },
+            "fluid_blocks": [
+                {"min": list(b.min), "max": list(b.max), "velocity": list(b.velocity)} for b in self.fluid_blocks
+            ],
+            "solids": [({"points": s.points} if s.points else {"mesh": s.mesh, "fill": s.fill}) for s in self.solids],
+            "solver": cfg,
+        }
 
     def with_steps(self, steps: int) -> Scene:
         return replace(self, steps=_int(steps, "steps", 1))
@@ -143,9 +160,11 @@ def _check_block_holds_fluid(key: str, lo: tuple, hi: tuple, spacing: float) -> 
         return
     axis = int(np.argmin(counts))
     size = hi[axis] - lo[axis]
-    raise SceneError(f"scene key '{key}' box {list(lo)}..{list(hi)} is {size:.4g} m along {'xyz'[axis]}, less than "
-                     f"the particle spacing {spacing:.4g} m (2 x particle_radius), so it holds no fluid particle; "
-                     f"make it at least {spacing:.4g} m on every axis or use a smaller particle_radius")
+    raise SceneError(
+        f"scene key '{key}' box {list(lo)}..{list(hi)} is {size:.4g} m along {'xyz'[axis]}, less than "
+        f"the particle spacing {spacing:.4g} m (2 x particle_radius), so it holds no fluid particle; "
+        f"make it at least {spacing:.4g} m on every axis or use a smaller particle_radius"
+    )
 
 
 def parse_scene(data: dict, base_dir: str | Path = ".") -> Scene:
@@ -163,7 +182,8 @@ def parse_scene(data: dict, base_dir: str | Path = ".") -> Scene:
             viscosity=_num(data["viscosity"], "viscosity"),
             gravity=_vec(data.get("gravity", [0.0, -9.81, 0.0]), "gravity"),
             dt=_num(data["dt"], "dt"),
-            **{k: tuple(v) if isinstance(v, list) else v for k, v in solver.items()})
+            **{k: tuple(v) if isinstance(v, list) else v for k, v in solver.items()},
+        )
     except SceneError:
         raise
     except (ValueError, TypeError) as exc:
@@ -185,8 +205,9 @@ def parse_scene(data: dict, base_dir: str | Path = ".") -> Scene:
         lo, hi = _box(b, key)
         vel = _vec(b.get("velocity", [0.0, 0.0, 0.0]), f"{key}.velocity")
         if any(l < a or h > c for l, h, a, c in zip(lo, hi, dmin, dmax, strict=True)):
-            raise SceneError(f"scene key '{key}' box {list(lo)}..{list(hi)} must lie inside the domain "
-                             f"{list(dmin)}..{list(dmax)}")
+            raise SceneError(
+                f"scene key '{key}' box {list(lo)}..{list(hi)} must lie inside the domain {list(dmin)}..{list(dmax)}"
+            )
         _check_block_holds_fluid(key, lo, hi, config.spacing)
         blocks.append(FluidBlock(lo, hi, vel))
     solids_raw = data.get("solids", [])
@@ -228,8 +249,10 @@ def load_scene(path: str | Path) -> Scene:
     except json.JSONDecodeError as exc:
         raise SceneError(f"scene file {p} is not valid JSON: {exc}") from exc
     except RecursionError:
-        raise SceneError(f"scene file {p} nests its JSON too deeply to be a scene (thousands of levels); a scene "
-                         "is an object of a few levels (format in README.md)") from None
+        raise SceneError(
+            f"scene file {p} nests its JSON too deeply to be a scene (thousands of levels); a scene "
+            "is an object of a few levels (format in README.md)"
+        ) from None
     try:
         return parse_scene(data, p.parent)
     except SceneError as exc:

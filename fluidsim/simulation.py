@@ -89,12 +89,16 @@ def build_solver(scene: Scene) -> DFSPHSolver:
         log.warning("removed %d fluid particles that started inside a solid", removed)
     if solver.fluid.capacity == 0:
         if removed == 0:
-            raise ValueError(f"no fluid particle: the fluid blocks hold no lattice point (each must be at least the "
-                             f"particle spacing, {scene.config.spacing:.4g} m, on every axis)")
+            raise ValueError(
+                f"no fluid particle: the fluid blocks hold no lattice point (each must be at least the "
+                f"particle spacing, {scene.config.spacing:.4g} m, on every axis)"
+            )
         walls = " or the domain walls" if scene.domain.walls else ""
-        raise ValueError(f"no fluid particle left: all {removed} fluid particles of the blocks start inside a solid "
-                         f"or closer than 0.9 particle spacings to a particle of a solid{walls}; move the blocks "
-                         "away from them")
+        raise ValueError(
+            f"no fluid particle left: all {removed} fluid particles of the blocks start inside a solid "
+            f"or closer than 0.9 particle spacings to a particle of a solid{walls}; move the blocks "
+            "away from them"
+        )
     return solver
 
 
@@ -137,8 +141,9 @@ def run_cfl(config: SolverConfig, initial_speed: float, domain_min, domain_max, 
     return max(first, later), v
 
 
-def check_time_step(config: SolverConfig, initial_speed: float, domain_min, domain_max, steps: int,
-                    where: str = "the run") -> float:
+def check_time_step(
+    config: SolverConfig, initial_speed: float, domain_min, domain_max, steps: int, where: str = "the run"
+) -> float:
     """Refuse, before the first step, a time step at which fluid could jump more than ``config.max_cfl``
     particle spacings per step (it would skip its neighbours, pass through walls and solids and leave the
     domain: a run that "completes" with no fluid left). Returns the run's CFL number (:func:`run_cfl`).
@@ -151,15 +156,18 @@ def check_time_step(config: SolverConfig, initial_speed: float, domain_min, doma
         return cfl
     sp = config.spacing
     if config.time_step == "fixed":
-        fix = (f"use dt <= {config.max_cfl * sp / v:.3g} s (and more steps for the same duration), a larger "
-               "particle radius, or time_step 'cfl'")
+        fix = (
+            f"use dt <= {config.max_cfl * sp / v:.3g} s (and more steps for the same duration), a larger "
+            "particle radius, or time_step 'cfl'"
+        )
     else:
         fix = "lower cfl_factor, dt_min or the initial dt"
     raise ValueError(
         f"{where}: time step too large for the particle spacing: CFL number {cfl:.3g} > max_cfl {config.max_cfl:g} "
         f"(a fluid particle at the speed bound {v:.3g} m/s, the fastest initial speed {initial_speed:.3g} m/s plus "
         f"free fall through the domain, would move {cfl:.3g} spacings of {sp:g} m in one step of "
-        f"{config.dt:g} s, past its neighbours and through walls and solids, out of the domain); {fix}")
+        f"{config.dt:g} s, past its neighbours and through walls and solids, out of the domain); {fix}"
+    )
 
 
 def check_solver_time_step(solver: DFSPHSolver, steps: int, where: str = "the run") -> float:
@@ -179,22 +187,32 @@ class FaultMonitor:
     def check(self, stats: StepStats) -> None:
         cfg = self.config
         if stats.nonfinite:
-            raise SimulationDiverged(stats.step, f"{stats.nonfinite} fluid velocities are NaN or Inf; "
-                                                 "reduce dt or use time_step 'cfl'")
+            raise SimulationDiverged(
+                stats.step, f"{stats.nonfinite} fluid velocities are NaN or Inf; reduce dt or use time_step 'cfl'"
+            )
         if stats.max_speed > cfg.max_speed:
-            raise SimulationDiverged(stats.step, f"fluid speed {stats.max_speed:.3g} m/s exceeds max_speed "
-                                                 f"{cfg.max_speed:g} m/s; reduce dt or use time_step 'cfl'")
-        capped = (stats.density_iterations >= cfg.max_iterations
-                  or stats.divergence_iterations >= cfg.max_iterations)
+            raise SimulationDiverged(
+                stats.step,
+                f"fluid speed {stats.max_speed:.3g} m/s exceeds max_speed "
+                f"{cfg.max_speed:g} m/s; reduce dt or use time_step 'cfl'",
+            )
+        capped = stats.density_iterations >= cfg.max_iterations or stats.divergence_iterations >= cfg.max_iterations
         self._capped = self._capped + 1 if capped else 0
         if self._capped >= cfg.max_capped_steps:
-            raise SimulationDiverged(stats.step, f"the pressure solver hit max_iterations={cfg.max_iterations} "
-                                                 f"for {self._capped} steps in a row; reduce dt or raise "
-                                                 "the tolerances")
+            raise SimulationDiverged(
+                stats.step,
+                f"the pressure solver hit max_iterations={cfg.max_iterations} "
+                f"for {self._capped} steps in a row; reduce dt or raise "
+                "the tolerances",
+            )
 
 
-def run(solver: DFSPHSolver, steps: int, on_step: Callable[[DFSPHSolver, StepStats], None] | None = None,
-        progress: Callable[[StepStats], None] | None = None) -> list[StepStats]:
+def run(
+    solver: DFSPHSolver,
+    steps: int,
+    on_step: Callable[[DFSPHSolver, StepStats], None] | None = None,
+    progress: Callable[[StepStats], None] | None = None,
+) -> list[StepStats]:
     """Step ``solver`` ``steps`` times, checking each step for faults.
 
     Args:

@@ -146,8 +146,10 @@ class WarmStart:
     @classmethod
     def of(cls, config: SolverConfig) -> WarmStart:
         """The warm starts a configuration asks for."""
-        return cls(divergence=bool(config.warm_start and config.divergence_warm_start and config.divergence_solver),
-                   density=bool(config.warm_start))
+        return cls(
+            divergence=bool(config.warm_start and config.divergence_warm_start and config.divergence_solver),
+            density=bool(config.warm_start),
+        )
 
 
 class NeighborCounts(NamedTuple):
@@ -216,13 +218,21 @@ class DFSPHSolver:
     each one; ``warm`` (a :class:`WarmStart`) says which solver warm-starts.
     """
 
-    def __init__(self, config: SolverConfig, domain_min, domain_max, fluid_positions: np.ndarray,
-                 fluid_velocities: np.ndarray, boundary_points: np.ndarray):
+    def __init__(
+        self,
+        config: SolverConfig,
+        domain_min,
+        domain_max,
+        fluid_positions: np.ndarray,
+        fluid_velocities: np.ndarray,
+        boundary_points: np.ndarray,
+    ):
         runtime_fp = ti.lang.impl.get_runtime().default_fp
         if runtime_fp != float_dtype(config.precision):
             raise ValueError(
                 f"precision {config.precision!r} differs from the Taichi runtime's default_fp {runtime_fp}; "
-                f"initialise Taichi with default_fp={'ti.f64' if config.precision == 'f64' else 'ti.f32'}")
+                f"initialise Taichi with default_fp={'ti.f64' if config.precision == 'f64' else 'ti.f32'}"
+            )
         self.config = config
         self.warm = WarmStart.of(config)
         self.domain_min = np.asarray(domain_min, dtype=np.float64)
@@ -230,8 +240,9 @@ class DFSPHSolver:
         h = config.support_radius
         self.h = h
         # Walls sit up to a few spacings outside the domain; one more h keeps their neighbours inside.
-        self.grid = grid_for_box(self.domain_min, self.domain_max, h, pad=RETIRE_MARGIN_MAX * config.spacing + h,
-                                 z_split=Z_SPLIT)
+        self.grid = grid_for_box(
+            self.domain_min, self.domain_max, h, pad=RETIRE_MARGIN_MAX * config.spacing + h, z_split=Z_SPLIT
+        )
         self.cells = passes.FluidGrid(self.grid)
         margin = config.retire_margin * config.spacing
         self._retire_min = ti.Vector(list(self.domain_min - margin), ti.f64)
@@ -258,8 +269,9 @@ class DFSPHSolver:
         capacity = config.max_neighbors
         if capacity is None:
             capacity = neighbors.list_capacity(neighbors.lattice_neighbor_count(config.spacing, h))
-        self.neighborhoods = Neighborhoods(self.fluid.capacity, capacity, config.precision, h,
-                                           store_boundary=self._reads_boundary_lists())
+        self.neighborhoods = Neighborhoods(
+            self.fluid.capacity, capacity, config.precision, h, store_boundary=self._reads_boundary_lists()
+        )
         self._list_capacity: tuple[int, int] | None = None  # a smaller capacity for the next neighbourhood pass
         self.time = 0.0
         self.step_index = 0
@@ -273,23 +285,37 @@ class DFSPHSolver:
         """Advance one time step (Algorithm 1; equations as numbered in the module docstring)."""
         stage = self._stage
         fused = self.estimate_in_non_pressure_pass
-        dt = self.time_step()                                            # adapt dt (E10)
-        retired = stage("sort", self.sort)                               # find N_i: sort by cell
-        counts = stage("neighbors", self.find_neighborhoods, dt)         # N_i, rho (E1), alpha (E2); s (E3) or (W1)
-        div = stage("divergence_solve", self.divergence_solve, dt)       # correctDivergenceError: (E3)-(E5), (W3)
+        dt = self.time_step()  # adapt dt (E10)
+        retired = stage("sort", self.sort)  # find N_i: sort by cell
+        counts = stage("neighbors", self.find_neighborhoods, dt)  # N_i, rho (E1), alpha (E2); s (E3) or (W1)
+        div = stage("divergence_solve", self.divergence_solve, dt)  # correctDivergenceError: (E3)-(E5), (W3)
         if not fused:
-            stage("divergence_estimate", self.divergence_estimate)       # D_i, paper Eq. 1 (its own radii)
-        stage("non_pressure", self.non_pressure_forces, dt, fused,       # a (E7), v* (E8), warm start (W2),
-              div.error_passes > 0)                                      # [D_i, Eq. 1]; (W2) records written?
-        dens = stage("density_solve", self.density_solve, dt)            # correctDensityError: (E6), (E4), (E5),
-        self._max_speed = dens.max_speed                                 # (W3); x += dt v (E9)
+            stage("divergence_estimate", self.divergence_estimate)  # D_i, paper Eq. 1 (its own radii)
+        stage(
+            "non_pressure",
+            self.non_pressure_forces,
+            dt,
+            fused,  # a (E7), v* (E8), warm start (W2),
+            div.error_passes > 0,
+        )  # [D_i, Eq. 1]; (W2) records written?
+        dens = stage("density_solve", self.density_solve, dt)  # correctDensityError: (E6), (E4), (E5),
+        self._max_speed = dens.max_speed  # (W3); x += dt v (E9)
         self.time += dt
         stats = StepStats(
-            step=self.step_index, time=self.time, dt=dt,
-            density_iterations=dens.iterations, density_error=100.0 * dens.error,
-            divergence_iterations=div.iterations, divergence_error=100.0 * div.error * dt,
-            max_speed=dens.max_speed, nonfinite=dens.nonfinite, retired=retired, active=self.fluid.active,
-            max_fluid_neighbors=counts.fluid, max_boundary_neighbors=counts.boundary)
+            step=self.step_index,
+            time=self.time,
+            dt=dt,
+            density_iterations=dens.iterations,
+            density_error=100.0 * dens.error,
+            divergence_iterations=div.iterations,
+            divergence_error=100.0 * div.error * dt,
+            max_speed=dens.max_speed,
+            nonfinite=dens.nonfinite,
+            retired=retired,
+            active=self.fluid.active,
+            max_fluid_neighbors=counts.fluid,
+            max_boundary_neighbors=counts.boundary,
+        )
         self.step_index += 1
         return stats
 
@@ -328,8 +354,9 @@ class DFSPHSolver:
     def _reads_boundary_lists(self) -> bool:
         """Whether a pass reads the boundary pairs: the fluid-boundary viscosity, or Eq. 1 walking the lists."""
         cfg = self.config
-        return cfg.wall_viscosity != 0.0 or (not self.estimate_in_non_pressure_pass
-                                              and cfg.estimator_radius <= cfg.support_radius)
+        return cfg.wall_viscosity != 0.0 or (
+            not self.estimate_in_non_pressure_pass and cfg.estimator_radius <= cfg.support_radius
+        )
 
     def find_neighborhoods(self, dt: float | None = None) -> NeighborCounts:
         """Neighbour lists, rho_i (E1), alpha_i (E2) and the divergence solver's cold source (E3) or warm start (W1),
@@ -342,8 +369,9 @@ class DFSPHSolver:
             nb.resize(*self._list_capacity)
             self._list_capacity = None
         while True:
-            max_f, max_b, too_far = passes.neighborhood_pass(f, self.boundary, nb, self.cells, self._kernel_table,
-                                                             self.h, self.fluid_volume, dt, warm)
+            max_f, max_b, too_far = passes.neighborhood_pass(
+                f, self.boundary, nb, self.cells, self._kernel_table, self.h, self.fluid_volume, dt, warm
+            )
             need_b = max_b if nb.store_boundary else 0
             if not too_far and max_f <= nb.fluid_capacity and need_b <= nb.boundary_capacity:
                 self._plan_list_capacity(max_f, need_b)
@@ -351,8 +379,11 @@ class DFSPHSolver:
             if warm:  # the pass applied the divergence warm start; the next run applies it again
                 passes.undo_divergence_warm_start(f)
             if too_far:
-                log.info("a neighbour's index is over %d from its particle's: the fluid lists switch to the wide "
-                         "format (8 bytes per pair) for the rest of the run", neighbors.NARROW_MAX_OFFSET)
+                log.info(
+                    "a neighbour's index is over %d from its particle's: the fluid lists switch to the wide "
+                    "format (8 bytes per pair) for the rest of the run",
+                    neighbors.NARROW_MAX_OFFSET,
+                )
                 nb.widen()
                 continue
             grow_f = max(nb.fluid_capacity, neighbors.list_capacity(max_f))
@@ -373,8 +404,17 @@ class DFSPHSolver:
             log.debug("neighbour lists shrink to %d fluid / %d boundary slots", cap_f, cap_b)
             self._list_capacity = (cap_f, cap_b)
 
-    def _solve(self, error, known: float | None, kappa, dt: float, tolerance: float, store_scale: float,
-               min_iterations: int, advect: bool = False) -> SolveResult:
+    def _solve(
+        self,
+        error,
+        known: float | None,
+        kappa,
+        dt: float,
+        tolerance: float,
+        store_scale: float,
+        min_iterations: int,
+        advect: bool = False,
+    ) -> SolveResult:
         """The iteration shared by both DFSPH solvers (SPlisHSPlasH's loop).
 
         Each iteration measures the error (setting the stiffness k_i of a Jacobi update, (E4)) and applies the
@@ -428,8 +468,16 @@ class DFSPHSolver:
             return SolveResult(0, 0.0)
         tol = self.config.max_density_error * 0.01
         inv_quantum = inverse_quantum(tol)
-        return self._solve(lambda: passes.density_solve_error(f, nb, dt, inv_quantum), None, f.kappa_density, dt,
-                           tol, dt * dt, self.config.min_iterations, advect=True)
+        return self._solve(
+            lambda: passes.density_solve_error(f, nb, dt, inv_quantum),
+            None,
+            f.kappa_density,
+            dt,
+            tol,
+            dt * dt,
+            self.config.min_iterations,
+            advect=True,
+        )
 
     def divergence_estimate(self) -> None:
         """Paper Eq. 1 as a pass of its own (:func:`fluidsim.passes.divergence_estimate`; the step fuses the
@@ -437,8 +485,16 @@ class DFSPHSolver:
         cfg, f = self.config, self.fluid
         if f.active == 0:
             return
-        passes.divergence_estimate(f, self.boundary, self.neighborhoods, self.cells, self.h,
-                                   cfg.estimator_radius, cfg.estimator_kernel_radius, self.fluid_volume)
+        passes.divergence_estimate(
+            f,
+            self.boundary,
+            self.neighborhoods,
+            self.cells,
+            self.h,
+            cfg.estimator_radius,
+            cfg.estimator_kernel_radius,
+            self.fluid_volume,
+        )
 
     def non_pressure_forces(self, dt: float, estimate: bool = False, records_written: bool = False) -> None:
         """Gravity and viscosity (E7), v*_i = v_i + dt a_i (E8), with the density solver's warm start (W2) (and, with
@@ -457,8 +513,19 @@ class DFSPHSolver:
         warm = self.warm.density
         if not records_written:
             passes.density_warm_records(f, nb, dt, warm, self.gravity)
-        passes.predict_velocities(f, self.boundary, nb, dt, self.gravity, cfg.viscosity, cfg.wall_viscosity,
-                                  cfg.rest_density, self.h, warm, estimate)
+        passes.predict_velocities(
+            f,
+            self.boundary,
+            nb,
+            dt,
+            self.gravity,
+            cfg.viscosity,
+            cfg.wall_viscosity,
+            cfg.rest_density,
+            self.h,
+            warm,
+            estimate,
+        )
 
     # -- read-back -----------------------------------------------------------------------------
     def fluid_state(self) -> dict[str, np.ndarray]:
@@ -471,8 +538,13 @@ class DFSPHSolver:
         f = self.fluid
         ids = f.numpy("ids")
         order = np.argsort(ids, kind="stable")
-        return {"ids": ids[order], "x": f.numpy("x")[order], "v": f.numpy("v")[order],
-                "divergence": f.numpy("divergence")[order], "density": f.numpy("density")[order]}
+        return {
+            "ids": ids[order],
+            "x": f.numpy("x")[order],
+            "v": f.numpy("v")[order],
+            "divergence": f.numpy("divergence")[order],
+            "density": f.numpy("density")[order],
+        }
 
     def divergence_accumulation(self) -> tuple[np.ndarray, np.ndarray]:
         """Run sums and counts of D_i per initial fluid particle (retired particles included).

@@ -59,9 +59,7 @@ def _check_spacing(spacing) -> float:
         raise ValueError(f"spacing must be a positive float in metres, got {spacing!r}")
     spacing = float(spacing)
     if not math.isfinite(spacing) or spacing <= 0.0:
-        raise ValueError(
-            f"spacing must be a finite positive float in metres (2 * particle_radius), got {spacing}"
-        )
+        raise ValueError(f"spacing must be a finite positive float in metres (2 * particle_radius), got {spacing}")
     return spacing
 
 
@@ -293,8 +291,7 @@ def load_mesh(path) -> o3d.geometry.TriangleMesh:
         mesh = o3d.io.read_triangle_mesh(str(path))
     if len(mesh.triangles) == 0:
         raise ValueError(
-            f"{path}: mesh has no triangles ({len(mesh.vertices)} vertices); "
-            "for a point cloud use load_points instead"
+            f"{path}: mesh has no triangles ({len(mesh.vertices)} vertices); for a point cloud use load_points instead"
         )
     if not np.all(np.isfinite(np.asarray(mesh.vertices))):
         raise ValueError(f"{path}: mesh has NaN or Inf vertex coordinates; fix the file")
@@ -312,9 +309,7 @@ def _as_mesh(path_or_mesh) -> o3d.geometry.TriangleMesh:
         return mesh
     if isinstance(path_or_mesh, (str, Path)):
         return load_mesh(path_or_mesh)
-    raise ValueError(
-        f"expected a mesh file path or an open3d.geometry.TriangleMesh, got {type(path_or_mesh).__name__}"
-    )
+    raise ValueError(f"expected a mesh file path or an open3d.geometry.TriangleMesh, got {type(path_or_mesh).__name__}")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -118,9 +118,19 @@ def predict_velocities(
         v_out[i] = v[i]
 
 
-def non_pressure_np(x: np.ndarray, v: np.ndarray, density: np.ndarray, fluid_volume: float,
-                    boundary_x: np.ndarray, boundary_volumes: np.ndarray, h: float, mu: float, mu_boundary: float,
-                    rest_density: float, gravity) -> np.ndarray:
+def non_pressure_np(
+    x: np.ndarray,
+    v: np.ndarray,
+    density: np.ndarray,
+    fluid_volume: float,
+    boundary_x: np.ndarray,
+    boundary_volumes: np.ndarray,
+    h: float,
+    mu: float,
+    mu_boundary: float,
+    rest_density: float,
+    gravity,
+) -> np.ndarray:
     """O(N^2) numpy twin of the acceleration a_i of :func:`predict_velocities`.
 
     Args:
@@ -155,5 +165,6 @@ def non_pressure_np(x: np.ndarray, v: np.ndarray, density: np.ndarray, fluid_vol
             wb = (rb[nb] @ v[i]) / (np.sum(rb[nb] ** 2, axis=1) + eps)
             lap_b = (wb[:, None] * gb).sum(0)
         out[i] = np.asarray(gravity, np.float64) + LAPLACIAN_FACTOR * (mu * lap + mu_boundary * lap_b) / (
-            rest_density * density[i])
+            rest_density * density[i]
+        )
     return out

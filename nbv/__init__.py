@@ -21,10 +21,25 @@ A(T), S/A          coverage sum w_g; physics part S(T) / A(T)  ``ProjectedScores
 from fluidsim.lazy import lazy_exports
 
 _EXPORTS = {
-    **dict.fromkeys(("PhysicsConfig", "PhysicsResult", "ProbeDiverged", "load_result", "save_result",
-                     "simulate_gaussians"), "physics"),
-    **dict.fromkeys(("DepthBuffer", "critical_scores", "critical_subset", "geometry_divergence", "projected_counts",
-                     "projected_view_scores", "rank", "unoccluded", "view_scores", "view_weights"), "scores"),
+    **dict.fromkeys(
+        ("PhysicsConfig", "PhysicsResult", "ProbeDiverged", "load_result", "save_result", "simulate_gaussians"),
+        "physics",
+    ),
+    **dict.fromkeys(
+        (
+            "DepthBuffer",
+            "critical_scores",
+            "critical_subset",
+            "geometry_divergence",
+            "projected_counts",
+            "projected_view_scores",
+            "rank",
+            "unoccluded",
+            "view_scores",
+            "view_weights",
+        ),
+        "scores",
+    ),
     **dict.fromkeys(("SweepPoint", "reynolds", "run_sweep", "schedule"), "study.sweep"),
     **dict.fromkeys(("coverage_line", "ranking_agreement", "view_parts"), "coverage"),
     "score_views": "view_scoring",

@@ -55,9 +55,16 @@ def view_parts(scores, coverage) -> list[dict]:
     with np.errstate(invalid="ignore", divide="ignore"):
         p = np.where(a > 0, s / np.where(a > 0, a, 1.0), np.nan)
     rs, ra, rp = _ranks(s), _ranks(a), _ranks(p)
-    return [{"rank": rs[k], "coverage": float(a[k]), "coverage_rank": ra[k],
-             "physics_mean": float(p[k]) if math.isfinite(p[k]) else None, "physics_rank": rp[k]}
-            for k in range(s.size)]
+    return [
+        {
+            "rank": rs[k],
+            "coverage": float(a[k]),
+            "coverage_rank": ra[k],
+            "physics_mean": float(p[k]) if math.isfinite(p[k]) else None,
+            "physics_rank": rp[k],
+        }
+        for k in range(s.size)
+    ]
 
 
 def _spread(values: np.ndarray) -> float | None:
@@ -94,12 +101,17 @@ def ranking_agreement(scores, coverage, top: int = TOP_K) -> dict:
     finite = np.isfinite(p)
     rho_p = spearman(p[finite], a[finite]) if finite.sum() >= 3 else math.nan
     overlap = len(by_s & by_a)
-    return {"views": int(s.size), "top": k,
-            "spearman_score_coverage": None if math.isnan(rho) else round(rho, 4),
-            "spearman_physics_coverage": None if math.isnan(rho_p) else round(rho_p, 4),
-            "top5_overlap_with_coverage": overlap, "top5_changed_by_physics": k - overlap,
-            "coverage_decides": bool(not math.isnan(rho) and rho >= COVERAGE_DECIDES),
-            "coverage_spread": _spread(a), "physics_mean_spread": _spread(p)}
+    return {
+        "views": int(s.size),
+        "top": k,
+        "spearman_score_coverage": None if math.isnan(rho) else round(rho, 4),
+        "spearman_physics_coverage": None if math.isnan(rho_p) else round(rho_p, 4),
+        "top5_overlap_with_coverage": overlap,
+        "top5_changed_by_physics": k - overlap,
+        "coverage_decides": bool(not math.isnan(rho) and rho >= COVERAGE_DECIDES),
+        "coverage_spread": _spread(a),
+        "physics_mean_spread": _spread(p),
+    }
 
 
 def coverage_line(agreement: dict, physics: str = "physics", symbol: str = "S") -> str:
@@ -107,16 +119,22 @@ def coverage_line(agreement: dict, physics: str = "physics", symbol: str = "S") 
     (``symbol``: the score's name, S or C)."""
     rho, k, views = agreement["spearman_score_coverage"], agreement["top"], agreement["views"]
     if rho is None:
-        return (f"coverage vs {physics}: cannot say which decides the ranking ({views} views; the Spearman "
-                "correlation needs 3 or more views with differing scores)")
+        return (
+            f"coverage vs {physics}: cannot say which decides the ranking ({views} views; the Spearman "
+            "correlation needs 3 or more views with differing scores)"
+        )
     spread = agreement["physics_mean_spread"]
     varies = "" if spread is None else f"; the {physics} part {symbol}/A varies {spread:.0%} between views"
     if agreement["coverage_decides"]:
-        return (f"coverage decides the ranking at this setting: {symbol}(T) follows the coverage A(T) "
-                f"(Spearman {rho:.2f} over {views} views; {agreement['top5_overlap_with_coverage']} of the top {k} "
-                f"are coverage's top {k}){varies}")
-    return (f"the {physics} changed {agreement['top5_changed_by_physics']} of the top {k} views against coverage "
-            f"alone ({symbol}(T) against the coverage A(T): Spearman {rho:.2f} over {views} views){varies}")
+        return (
+            f"coverage decides the ranking at this setting: {symbol}(T) follows the coverage A(T) "
+            f"(Spearman {rho:.2f} over {views} views; {agreement['top5_overlap_with_coverage']} of the top {k} "
+            f"are coverage's top {k}){varies}"
+        )
+    return (
+        f"the {physics} changed {agreement['top5_changed_by_physics']} of the top {k} views against coverage "
+        f"alone ({symbol}(T) against the coverage A(T): Spearman {rho:.2f} over {views} views){varies}"
+    )
 
 
 def agreement_lines(agreement: dict, physics: str = "physics", symbol: str = "S") -> list[str]:

@@ -41,8 +41,9 @@ def colormap(values: np.ndarray, vmax: float | None = None, percentile: float = 
     return turbo(v, color_scale(v, percentile) if vmax is None else float(vmax))
 
 
-def colored_gaussians(gaussians: GaussianSet, values, vmax: float | None = None,
-                      percentile: float = PERCENTILE) -> GaussianSet:
+def colored_gaussians(
+    gaussians: GaussianSet, values, vmax: float | None = None, percentile: float = PERCENTILE
+) -> GaussianSet:
     """The same Gaussians with SH degree 0 and colours from :func:`colormap` of ``values`` [N]."""
     vals = values.detach().cpu().numpy() if isinstance(values, torch.Tensor) else np.asarray(values)
     if vals.reshape(-1).shape[0] != gaussians.num:

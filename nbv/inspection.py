@@ -70,22 +70,30 @@ def inspect_gaussians(gaussians, config: PhysicsConfig, file_format: str = "") -
     solid = frame.solidify()
     means_sim, radii = frame.sim.means, frame.sim.radii
     summary = {
-        "format": file_format, "count": int(g.num), "sh_degree": int(g.sh_degree),
-        "bbox_min": means.min(0).tolist(), "bbox_max": means.max(0).tolist(),
-        "robust_min": lo.tolist(), "robust_max": hi.tolist(),
+        "format": file_format,
+        "count": int(g.num),
+        "sh_degree": int(g.sh_degree),
+        "bbox_min": means.min(0).tolist(),
+        "bbox_max": means.max(0).tolist(),
+        "robust_min": lo.tolist(),
+        "robust_max": hi.tolist(),
         "outside_robust_box_share": float(outside.mean()),
         "opacity_quantiles": _quantiles(opacities),
         "opacity_at_or_above_tau_share": float((opacities >= config.opacity_threshold).mean()),
         "largest_sigma_quantiles": _quantiles(sigmas.max(1)),
         "smallest_sigma_quantiles": _quantiles(sigmas.min(1)),
-        "up": list(transform.up), "up_label": transform.up_label,
-        "scale_m_per_unit": float(transform.scale), "scene_to_sim": transform.matrix.tolist(),
+        "up": list(transform.up),
+        "up_label": transform.up_label,
+        "scale_m_per_unit": float(transform.scale),
+        "scene_to_sim": transform.matrix.tolist(),
         "crop": None if config.crop is None else (config.crop if isinstance(config.crop, str) else list(config.crop)),
         "kept": int(g.num if kept is None else kept.sum()),
-        "particle_radius_m": float(config.particle_radius), "spacing_m": spacing,
+        "particle_radius_m": float(config.particle_radius),
+        "spacing_m": spacing,
         "opacity_threshold": float(config.opacity_threshold),
         "solid_particles": int(len(solid.points)),
-        "solid_min_m": solid.points.min(0).tolist(), "solid_max_m": solid.points.max(0).tolist(),
+        "solid_min_m": solid.points.min(0).tolist(),
+        "solid_max_m": solid.points.max(0).tolist(),
         "object_extent_m": (np.ptp(means_sim, axis=0)).tolist(),
         "largest_sigma_m_median": float(np.median(radii)),
     }
@@ -94,9 +102,11 @@ def inspect_gaussians(gaussians, config: PhysicsConfig, file_format: str = "") -
 
 # ---- the picture -----------------------------------------------------------------------------------
 # (horizontal axis, sign), (vertical axis, sign), title: vertical +1 means "up on the page"
-VIEWS = (((0, 1.0), (1, 1.0), "front (x right, y up)"),
-         ((2, -1.0), (1, 1.0), "side (-z right, y up)"),
-         ((0, 1.0), (2, -1.0), "top (x right, -z up)"))
+VIEWS = (
+    ((0, 1.0), (1, 1.0), "front (x right, y up)"),
+    ((2, -1.0), (1, 1.0), "side (-z right, y up)"),
+    ((0, 1.0), (2, -1.0), "top (x right, -z up)"),
+)
 _POINTS_DRAWN = 200_000
 
 
@@ -126,26 +136,39 @@ def inspection_views(inspection: Inspection, panel: int = 420, seed: int = 0) ->
         def to_px(p: np.ndarray, ha=ha, hs=hs, va=va, vs=vs, x0=x0) -> np.ndarray:
             u = hs * (p[:, ha] - center[ha]) / half
             v = vs * (p[:, va] - center[va]) / half
-            return np.stack([x0 + (0.5 + 0.5 * u) * (panel - 1),
-                             margin + (0.5 - 0.5 * v) * (panel - 1)], 1).round().astype(np.int64)
+            return (
+                np.stack([x0 + (0.5 + 0.5 * u) * (panel - 1), margin + (0.5 - 0.5 * v) * (panel - 1)], 1)
+                .round()
+                .astype(np.int64)
+            )
 
-        canvas = image[:, x0:x0 + panel]
-        canvas[margin:margin + panel] = 248
+        canvas = image[:, x0 : x0 + panel]
+        canvas[margin : margin + panel] = 248
         _scatter(image, to_px(means), (150, 150, 150), alpha=0.25, radius=1)
         if len(solid):
             dot = max(1, int(0.35 * spacing_px))
             _scatter(image, to_px(solid), (40, 40, 220), alpha=0.45, radius=dot)
         cv2.putText(image, title, (x0 + 8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
         cv2.rectangle(image, (x0, margin), (x0 + panel - 1, margin + panel - 1), (200, 200, 200), 1)
-    foot = (f"{s['count']:,} Gaussians ({s['format'] or 'Gaussians'}), up {s['up_label']}, "
-            f"{s['scale_m_per_unit']:.4g} m/unit; {s['solid_particles']:,} solid particles (red) at "
-            f"{s['spacing_m']:.3g} m; grey: centres")
+    foot = (
+        f"{s['count']:,} Gaussians ({s['format'] or 'Gaussians'}), up {s['up_label']}, "
+        f"{s['scale_m_per_unit']:.4g} m/unit; {s['solid_particles']:,} solid particles (red) at "
+        f"{s['spacing_m']:.3g} m; grey: centres"
+    )
     cv2.putText(image, foot, (8, panel + 2 * margin - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     bar = max(1, int(round((panel - 1) * 0.5 / half)))  # 1 m in pixels
     x1 = 3 * panel - 12
     cv2.line(image, (x1 - bar, panel + 2 * margin - 14), (x1, panel + 2 * margin - 14), (0, 0, 0), 2)
-    cv2.putText(image, "1 m", (x1 - bar - 34, panel + 2 * margin - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
-                cv2.LINE_AA)
+    cv2.putText(
+        image,
+        "1 m",
+        (x1 - bar - 34, panel + 2 * margin - 10),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.45,
+        (0, 0, 0),
+        1,
+        cv2.LINE_AA,
+    )
     return image
 
 
@@ -165,6 +188,7 @@ def _scatter(image: np.ndarray, px: np.ndarray, color: tuple[int, int, int], alp
 
 def describe(summary: dict) -> list[str]:
     """The lines ``fluidgs inspect`` prints."""
+
     def vec(v) -> str:
         return "(" + ", ".join(f"{c:.4g}" for c in v) + ")"
 
@@ -172,7 +196,8 @@ def describe(summary: dict) -> list[str]:
     sq = summary["largest_sigma_quantiles"]
     nq = summary["smallest_sigma_quantiles"]
     lines = [
-        f"format: {summary['format']}", f"Gaussians: {summary['count']:,}, SH degree {summary['sh_degree']}",
+        f"format: {summary['format']}",
+        f"Gaussians: {summary['count']:,}, SH degree {summary['sh_degree']}",
         f"bounding box (scene units): {vec(summary['bbox_min'])} - {vec(summary['bbox_max'])}",
         f"robust box (opacity-weighted 0.5-99.5 %, opacity >= tau): {vec(summary['robust_min'])} - "
         f"{vec(summary['robust_max'])}",
@@ -187,10 +212,12 @@ def describe(summary: dict) -> list[str]:
     if summary["crop"] is not None:
         lines.append(f"crop {summary['crop']}: kept {summary['kept']:,} of {summary['count']:,} Gaussians")
     ext = summary["object_extent_m"]
-    lines += [f"object extent (sim m, x/y/z): {ext[0]:.3g} / {ext[1]:.3g} / {ext[2]:.3g}",
-              f"solid: {summary['solid_particles']:,} particles at spacing {summary['spacing_m']:.3g} m "
-              f"(r = {summary['particle_radius_m']:.3g} m), {vec(summary['solid_min_m'])} - "
-              f"{vec(summary['solid_max_m'])} m"]
+    lines += [
+        f"object extent (sim m, x/y/z): {ext[0]:.3g} / {ext[1]:.3g} / {ext[2]:.3g}",
+        f"solid: {summary['solid_particles']:,} particles at spacing {summary['spacing_m']:.3g} m "
+        f"(r = {summary['particle_radius_m']:.3g} m), {vec(summary['solid_min_m'])} - "
+        f"{vec(summary['solid_max_m'])} m",
+    ]
     if not math.isfinite(summary["largest_sigma_m_median"]):
         lines.append("warning: non-finite Gaussian scales")
     return lines

@@ -36,8 +36,19 @@ from fluidsim.files import (
     write_text_atomic,
 )
 
-__all__ = ["OutputError", "atomic_h5", "atomic_output", "check_not_input", "check_writable", "json_safe",
-           "write_atomic", "write_bytes_atomic", "write_json_atomic", "write_png_atomic", "write_text_atomic"]
+__all__ = [
+    "OutputError",
+    "atomic_h5",
+    "atomic_output",
+    "check_not_input",
+    "check_writable",
+    "json_safe",
+    "write_atomic",
+    "write_bytes_atomic",
+    "write_json_atomic",
+    "write_png_atomic",
+    "write_text_atomic",
+]
 
 
 def write_atomic(path: str | Path, write: Callable[[Path], None], suffix: str = "") -> Path:
@@ -79,6 +90,8 @@ def write_png_atomic(path: str | Path, image: np.ndarray) -> Path:
     if ok:
         ok, data = cv2.imencode(".png", image)
     if not ok:
-        raise ValueError(f"{path}: OpenCV cannot encode an image of shape {image.shape} and dtype {image.dtype} as "
-                         "PNG; pass (H, W), (H, W, 3) or (H, W, 4) uint8 or uint16")
+        raise ValueError(
+            f"{path}: OpenCV cannot encode an image of shape {image.shape} and dtype {image.dtype} as "
+            "PNG; pass (H, W), (H, W, 3) or (H, W, 4) uint8 or uint16"
+        )
     return write_bytes_atomic(path, data.tobytes())

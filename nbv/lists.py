@@ -19,10 +19,21 @@ __all__ = ["parse_list"]
 _EXAMPLES = {int: "0,3,5", float: "3,5,10"}
 
 
-def parse_list(text: str | Sequence[Any] | None, item: Callable[[str], Any] = str, option: str = "the list", *,
-               minimum: float | None = None, below: int | None = None, positive: bool = False,
-               allowed: Sequence[str] | None = None, unique: bool = False, size: int | None = None,
-               what: str | None = None, empty_hint: str = "", range_hint: str = "") -> tuple:
+def parse_list(
+    text: str | Sequence[Any] | None,
+    item: Callable[[str], Any] = str,
+    option: str = "the list",
+    *,
+    minimum: float | None = None,
+    below: int | None = None,
+    positive: bool = False,
+    allowed: Sequence[str] | None = None,
+    unique: bool = False,
+    size: int | None = None,
+    what: str | None = None,
+    empty_hint: str = "",
+    range_hint: str = "",
+) -> tuple:
     """Parse a comma list (empty entries are skipped, so ``"0,3,"`` is ``(0, 3)``).
 
     Args:
@@ -54,11 +65,13 @@ def parse_list(text: str | Sequence[Any] | None, item: Callable[[str], Any] = st
     if item is float and not all(math.isfinite(v) for v in values):
         raise ValueError(f"{option} must be finite numbers, got {text!r}")
     if not values:
-        raise ValueError(f"{option} {text!r} lists no {noun}; give {example}" + (f", {empty_hint}" if empty_hint
-                                                                                 else ""))
+        raise ValueError(
+            f"{option} {text!r} lists no {noun}; give {example}" + (f", {empty_hint}" if empty_hint else "")
+        )
     if size is not None and len(values) != size:
-        raise ValueError(f"{option} must be {size} comma-separated {'numbers' if item is float else noun + 's'}, "
-                         f"got {text!r}")
+        raise ValueError(
+            f"{option} must be {size} comma-separated {'numbers' if item is float else noun + 's'}, got {text!r}"
+        )
     if allowed is not None:
         bad = [v for v in values if v not in allowed]
         if bad:

@@ -54,11 +54,15 @@ class Orbit:
 
     def __post_init__(self) -> None:
         if isinstance(self.count, bool) or int(self.count) != self.count or self.count < 1:
-            raise ValueError(f"--cameras orbit:{self.count}: an orbit needs at least 1 camera; pass orbit:N with "
-                             "N >= 1, e.g. --cameras orbit:24")
+            raise ValueError(
+                f"--cameras orbit:{self.count}: an orbit needs at least 1 camera; pass orbit:N with "
+                "N >= 1, e.g. --cameras orbit:24"
+            )
         if not self.elevations_deg or not all(-90.0 < e < 90.0 for e in self.elevations_deg):
-            raise ValueError(f"--elevations {','.join(f'{e:g}' for e in self.elevations_deg)}: each ring's elevation "
-                             "must be in (-90, 90) degrees, e.g. --elevations 15,45")
+            raise ValueError(
+                f"--elevations {','.join(f'{e:g}' for e in self.elevations_deg)}: each ring's elevation "
+                "must be in (-90, 90) degrees, e.g. --elevations 15,45"
+            )
         if not 0.0 < self.fov_x_deg < 180.0:
             raise ValueError(f"--orbit-fov {self.fov_x_deg:g} must be in (0, 180) degrees, e.g. 50")
         if int(self.width) != self.width or self.width < 1:
@@ -70,8 +74,10 @@ class Orbit:
 
     def describe(self) -> str:
         """One line: count, rings, field of view and size."""
-        return (f"an orbit of {self.count} cameras on rings at {', '.join(f'{e:g}' for e in self.elevations_deg)} "
-                f"deg elevation, {self.fov_x_deg:g} deg horizontal field of view, {self.width}x{self.height} px")
+        return (
+            f"an orbit of {self.count} cameras on rings at {', '.join(f'{e:g}' for e in self.elevations_deg)} "
+            f"deg elevation, {self.fov_x_deg:g} deg horizontal field of view, {self.width}x{self.height} px"
+        )
 
 
 def orbit_count(spec) -> int | None:
@@ -86,8 +92,9 @@ def orbit_count(spec) -> int | None:
     try:
         return int(m.group(1))
     except ValueError:
-        raise ValueError(f"--cameras {spec}: orbit:N takes a whole number of cameras, e.g. --cameras orbit:24") \
-            from None
+        raise ValueError(
+            f"--cameras {spec}: orbit:N takes a whole number of cameras, e.g. --cameras orbit:24"
+        ) from None
 
 
 def object_sphere(gaussians, config, spec: str = "orbit") -> tuple[np.ndarray, float]:
@@ -102,8 +109,10 @@ def object_sphere(gaussians, config, spec: str = "orbit") -> tuple[np.ndarray, f
     radius = 0.0 if box is None else FRAME_MARGIN * 0.5 * float(np.linalg.norm(box[1] - box[0]))
     if not radius > 0:
         kept = "the Gaussians" if config.crop is None else f"the Gaussians inside --crop {config.crop}"
-        raise ValueError(f"--cameras {spec}: {kept} have no extent to orbit around (fewer than two, or all at one "
-                         "point); widen --crop, or pass a camera file")
+        raise ValueError(
+            f"--cameras {spec}: {kept} have no extent to orbit around (fewer than two, or all at one "
+            "point); widen --crop, or pass a camera file"
+        )
     to_scene = SceneTransform(config.up, 1.0).rotation.T  # simulation axes -> scene axes
     return to_scene @ (0.5 * (box[0] + box[1])), radius
 
@@ -118,8 +127,17 @@ def orbit_cameras(gaussians, config, orbit: Orbit) -> list:
     centre, radius = object_sphere(gaussians, config, f"orbit:{orbit.count}")
     frame = SceneTransform(config.up, 1.0)
     front = frame.rotation.T @ np.array([0.0, 0.0, 1.0])
-    return orbit_rings(orbit.count, centre, radius, np.asarray(frame.up), front, orbit.elevations_deg, orbit.width,
-                       orbit.height, math.radians(orbit.fov_x_deg))
+    return orbit_rings(
+        orbit.count,
+        centre,
+        radius,
+        np.asarray(frame.up),
+        front,
+        orbit.elevations_deg,
+        orbit.width,
+        orbit.height,
+        math.radians(orbit.fov_x_deg),
+    )
 
 
 def angle_to_camera_up(up: Sequence[float], cameras) -> tuple[float, np.ndarray] | None:

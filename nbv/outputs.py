@@ -40,18 +40,28 @@ def result_summary(result) -> dict:
     probes = {}
     for i, d in enumerate(result.directions):
         st = result.stats[d]
-        probes[d] = {"mean_D": float(result.per_probe[i].mean()), "max_D": float(result.per_probe[i].max()),
-                     "touched_gaussians": int((result.per_probe_counts[i] > 0).sum()),
-                     "mean_density_iterations": float(np.mean(st["density_iterations"])) if len(st) else 0.0,
-                     "mean_divergence_iterations": float(np.mean(st["divergence_iterations"])) if len(st) else 0.0,
-                     "retired": int(np.sum(st["retired"])) if len(st) else 0}
+        probes[d] = {
+            "mean_D": float(result.per_probe[i].mean()),
+            "max_D": float(result.per_probe[i].max()),
+            "touched_gaussians": int((result.per_probe_counts[i] > 0).sum()),
+            "mean_density_iterations": float(np.mean(st["density_iterations"])) if len(st) else 0.0,
+            "mean_divergence_iterations": float(np.mean(st["divergence_iterations"])) if len(st) else 0.0,
+            "retired": int(np.sum(st["retired"])) if len(st) else 0,
+        }
         if d in result.leaks:
             lk = result.leaks[d]
             probes[d]["leaked"] = {"final": lk.final, "max": lk.max, "max_step": lk.max_step}
-    return {"gaussians": result.num_gaussians, "solid_particles": int(len(result.solid)),
-            "scale_m_per_unit": float(result.transform.scale), "dbar_m4_s": result.dbar,
-            "dbar_mean_m4_s": result.dbar_mean, "dbar_empty_m4_s": result.dbar_empty, "probes": probes,
-            "timings_s": result.timings, "config": result.config.to_dict()}
+    return {
+        "gaussians": result.num_gaussians,
+        "solid_particles": int(len(result.solid)),
+        "scale_m_per_unit": float(result.transform.scale),
+        "dbar_m4_s": result.dbar,
+        "dbar_mean_m4_s": result.dbar_mean,
+        "dbar_empty_m4_s": result.dbar_empty,
+        "probes": probes,
+        "timings_s": result.timings,
+        "config": result.config.to_dict(),
+    }
 
 
 def column_name(direction: str) -> str:
@@ -69,15 +79,23 @@ def divergence_columns(result) -> dict[str, np.ndarray]:
     return columns
 
 
-def save_colored_gaussians(gaussians, divergence: np.ndarray, path: str | Path,
-                           columns: dict[str, np.ndarray] | None = None) -> Path:
+def save_colored_gaussians(
+    gaussians, divergence: np.ndarray, path: str | Path, columns: dict[str, np.ndarray] | None = None
+) -> Path:
     """The Gaussians coloured by D_g [N] (TURBO map, 99th percentile at the top) as a 3DGS .ply, atomically, with
     ``columns`` (:func:`divergence_columns`) as extra float vertex properties after the standard ones."""
     return save_gaussians(colored_gaussians(gaussians, divergence), path, extra=columns)
 
 
-def probe_video(result, direction: str, out: str | Path, every: int = 5, progress: bool = True,
-                style: FrameStyle = VIDEO_STYLE, fps: int | None = None) -> Path:
+def probe_video(
+    result,
+    direction: str,
+    out: str | Path,
+    every: int = 5,
+    progress: bool = True,
+    style: FrameStyle = VIDEO_STYLE,
+    fps: int | None = None,
+) -> Path:
     """Re-run probe ``direction`` of ``result`` against its solid with its settings and write an H.264 MP4 of it:
     every step from 0 to the last, one frame every ``every`` steps, drawn with ``style`` (default: iso view,
     640 x 480, coloured by divergence, the solid in ivory, the walls hidden, the camera on the object) at ``fps``
@@ -91,8 +109,16 @@ def probe_video(result, direction: str, out: str | Path, every: int = 5, progres
     out = Path(out)
     cfg = result.config
     with tempfile.TemporaryDirectory(dir=out.parent) as tmp:
-        h5, _, _ = probe_to_h5(result.solid, direction, cfg.solver_config(), cfg.probe_config(), cfg.steps,
-                               Path(tmp) / "probe.h5", every, progress=progress)
+        h5, _, _ = probe_to_h5(
+            result.solid,
+            direction,
+            cfg.solver_config(),
+            cfg.probe_config(),
+            cfg.steps,
+            Path(tmp) / "probe.h5",
+            every,
+            progress=progress,
+        )
         frames = cfg.steps // every + 1 + (cfg.steps % every > 0)
         render_frames(h5, out, replace(style, fps=fps or video_fps(frames)), progress=progress)
     return out

@@ -56,8 +56,9 @@ def _image_sizes(image_size, count: int) -> list[tuple[int, int]] | None:
         return [(int(image_size[0]), int(image_size[1]))] * count
     sizes = [tuple(int(v) for v in hw) for hw in image_size]
     if len(sizes) != count or any(len(hw) != 2 for hw in sizes):
-        raise ValueError(f"view_scores: image_size must be one (height, width) or {count} of them, one per view; "
-                         f"got {len(sizes)}")
+        raise ValueError(
+            f"view_scores: image_size must be one (height, width) or {count} of them, one per view; got {len(sizes)}"
+        )
     return sizes  # type: ignore[return-value]
 
 
@@ -68,8 +69,10 @@ def _stack_tensor_views(views, image_size) -> tuple[torch.Tensor | None, torch.T
         radii = radii.reshape(1, -1) if radii.dim() == 1 else radii
         vis = vis.reshape(1, -1).bool() if vis.dim() == 1 else vis.bool()
         if tuple(radii.shape) != tuple(vis.shape):
-            raise ValueError(f"view_scores: radii {tuple(radii.shape)} and visible {tuple(vis.shape)} must have one "
-                             "shape [C, N] (as recon.projection.project_visibility returns them)")
+            raise ValueError(
+                f"view_scores: radii {tuple(radii.shape)} and visible {tuple(vis.shape)} must have one "
+                "shape [C, N] (as recon.projection.project_visibility returns them)"
+            )
     else:
         radii = views if views.dim() == 2 else views.reshape(1, -1)
         if radii.dtype == torch.bool:
@@ -82,12 +85,15 @@ def _stack_tensor_views(views, image_size) -> tuple[torch.Tensor | None, torch.T
 
 def _stack_views(views, image_size) -> tuple[torch.Tensor | None, torch.Tensor, list[tuple[int, int]] | None]:
     """(radii [C, N] or None, visible [C, N] bool, per-view (H, W) or None) from renders or tensors."""
-    if isinstance(views, torch.Tensor) or (isinstance(views, tuple) and len(views) == 2
-                                           and all(isinstance(t, torch.Tensor) for t in views)):
+    if isinstance(views, torch.Tensor) or (
+        isinstance(views, tuple) and len(views) == 2 and all(isinstance(t, torch.Tensor) for t in views)
+    ):
         return _stack_tensor_views(views, image_size)
     if not isinstance(views, Sequence) or len(views) == 0:
-        raise ValueError("view_scores: pass a non-empty list of RenderOutput, a [C, N] radii/visibility tensor or "
-                         "the (radii, visible) pair of recon.projection.project_visibility")
+        raise ValueError(
+            "view_scores: pass a non-empty list of RenderOutput, a [C, N] radii/visibility tensor or "
+            "the (radii, visible) pair of recon.projection.project_visibility"
+        )
     fallback = _image_sizes(image_size, len(views))
     radii, visible, sizes = [], [], []
     for i, v in enumerate(views):
@@ -105,8 +111,9 @@ def _stack_views(views, image_size) -> tuple[torch.Tensor | None, torch.Tensor, 
     return torch.stack(radii), vis_t, sizes  # type: ignore[arg-type]
 
 
-def view_scores(per_gaussian: torch.Tensor, views, *, image_size=None, weighted: bool = True,
-                visible: torch.Tensor | None = None) -> torch.Tensor:
+def view_scores(
+    per_gaussian: torch.Tensor, views, *, image_size=None, weighted: bool = True, visible: torch.Tensor | None = None
+) -> torch.Tensor:
     """View scores S(T) = sum_{g visible in T} w_g(T) M_g (paper Eq. 4) for every candidate view.
 
     Args:
@@ -135,8 +142,10 @@ def view_scores(per_gaussian: torch.Tensor, views, *, image_size=None, weighted:
         vis = vis & visible.bool().to(vis.device)
     visible = vis.cpu()
     if visible.shape[1] != m.shape[0]:
-        raise ValueError(f"view_scores: {m.shape[0]} per-Gaussian values but the views have {visible.shape[1]} "
-                         "Gaussians; score the same Gaussian set that was rendered")
+        raise ValueError(
+            f"view_scores: {m.shape[0]} per-Gaussian values but the views have {visible.shape[1]} "
+            "Gaussians; score the same Gaussian set that was rendered"
+        )
     if not weighted or radii is None:
         return (visible.to(torch.float64) * m).sum(-1)
     weights = torch.stack([view_weights(r.cpu(), h, w) for r, (h, w) in zip(radii, sizes, strict=True)])
@@ -186,8 +195,10 @@ def geometry_divergence(covariances: torch.Tensor, divergence: torch.Tensor) -> 
     cov = torch.as_tensor(covariances).to(torch.float64)
     d = torch.as_tensor(divergence).to(torch.float64).reshape(-1)
     if cov.shape[0] != d.shape[0] or tuple(cov.shape[1:]) != (3, 3):
-        raise ValueError(f"geometry_divergence: covariances {tuple(cov.shape)} and divergence {tuple(d.shape)} "
-                         "must be [N, 3, 3] and [N]")
+        raise ValueError(
+            f"geometry_divergence: covariances {tuple(cov.shape)} and divergence {tuple(d.shape)} "
+            "must be [N, 3, 3] and [N]"
+        )
     if d.numel() == 0:
         return 0.0
     s = cov.diagonal(dim1=-2, dim2=-1).sum(-1)
@@ -268,7 +279,7 @@ def unoccluded_reference(means, reach, camera, render_out, min_alpha: float = 0.
     depth, alpha = render_out.depth.double(), render_out.alpha.double()
     h, w = depth.shape
     for g in range(len(means)):
-        uv, z = camera.project(torch.as_tensor(means[g:g + 1]).double())
+        uv, z = camera.project(torch.as_tensor(means[g : g + 1]).double())
         x = min(max(int(math.floor(float(uv[0, 0]))), 0), w - 1)
         y = min(max(int(math.floor(float(uv[0, 1]))), 0), h - 1)
         a = float(alpha[y, x])
@@ -315,8 +326,10 @@ class DepthBuffer:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(float(self.cell_radii)) and self.cell_radii > 0):
-            raise ValueError(f"DepthBuffer.cell_radii must be finite and > 0 (cell side in median footprint radii), "
-                             f"got {self.cell_radii!r}")
+            raise ValueError(
+                f"DepthBuffer.cell_radii must be finite and > 0 (cell side in median footprint radii), "
+                f"got {self.cell_radii!r}"
+            )
         if isinstance(self.depth_bins, bool) or not isinstance(self.depth_bins, int) or self.depth_bins < 1:
             raise ValueError(f"DepthBuffer.depth_bins must be a positive int, got {self.depth_bins!r}")
         if not 0.0 < float(self.min_alpha) <= 1.0:
@@ -349,8 +362,11 @@ class ProjectedScores:
     @property
     def physics_mean(self) -> torch.Tensor:
         """[C] float64 P(T) = S(T) / A(T), the area-weighted mean M_g a view sees (NaN where A(T) = 0)."""
-        return torch.where(self.coverage > 0, self.scores / self.coverage.clamp_min(torch.finfo(torch.float64).tiny),
-                           torch.full_like(self.scores, math.nan))
+        return torch.where(
+            self.coverage > 0,
+            self.scores / self.coverage.clamp_min(torch.finfo(torch.float64).tiny),
+            torch.full_like(self.scores, math.nan),
+        )
 
 
 def _median_radius(radii: torch.Tensor) -> int:
@@ -394,9 +410,18 @@ def _composite_cells(index, bins, alpha, depths, cells: int, depth_bins: int):
     return accumulated, mean / accumulated.clamp_min(torch.finfo(mass.dtype).tiny)
 
 
-def depth_test(u: torch.Tensor, v: torch.Tensor, depths: torch.Tensor, radii: torch.Tensor, dets: torch.Tensor,
-               opacities: torch.Tensor, tolerance: torch.Tensor, width: int, height: int,
-               config: DepthBuffer) -> torch.Tensor:
+def depth_test(
+    u: torch.Tensor,
+    v: torch.Tensor,
+    depths: torch.Tensor,
+    radii: torch.Tensor,
+    dets: torch.Tensor,
+    opacities: torch.Tensor,
+    tolerance: torch.Tensor,
+    width: int,
+    height: int,
+    config: DepthBuffer,
+) -> torch.Tensor:
     """The coarse depth test of one view (see :class:`DepthBuffer`).
 
     Args:
@@ -414,13 +439,14 @@ def depth_test(u: torch.Tensor, v: torch.Tensor, depths: torch.Tensor, radii: to
     cell = config.cell_pixels(float(median))
     index, cells = _cell_index(u, v, width, height, cell)
     shown = radii.clamp(0.0, 1.0)  # 1 for the visible, 0 for the culled (radii are integers)
-    alpha = (opacities * (dets.sqrt() * (2.0 * math.pi / cell ** 2)).clamp_max(1.0)).clamp_max(0.99) * shown
+    alpha = (opacities * (dets.sqrt() * (2.0 * math.pi / cell**2)).clamp_max(1.0)).clamp_max(0.99) * shown
     far_away = (1.0 - shown) * 1e30  # keeps the culled out of the depth range without inf * 0
     near, far = float((depths + far_away).min()), float((depths - far_away).max())
     bins = ((depths - near) * (config.depth_bins / max(far - near, 1e-12))).floor().clamp(0, config.depth_bins - 1)
     accumulated, surface = _composite_cells(index, bins.to(torch.int64), alpha, depths, cells, config.depth_bins)
-    hidden = (accumulated.index_select(0, index) >= config.min_alpha) & \
-        (depths > surface.index_select(0, index) + tolerance)
+    hidden = (accumulated.index_select(0, index) >= config.min_alpha) & (
+        depths > surface.index_select(0, index) + tolerance
+    )
     return visible & ~hidden
 
 
@@ -437,15 +463,18 @@ def _occlusion_inputs(gaussians, config: DepthBuffer | None):
 def _check_metric(per_gaussian, gaussians) -> torch.Tensor:
     m = torch.as_tensor(per_gaussian).detach().reshape(-1)
     if m.numel() != gaussians.num:
-        raise ValueError(f"projected_view_scores: {m.numel()} per-Gaussian values for {gaussians.num} Gaussians; "
-                         "score the Gaussian set the metric was computed on")
+        raise ValueError(
+            f"projected_view_scores: {m.numel()} per-Gaussian values for {gaussians.num} Gaussians; "
+            "score the Gaussian set the metric was computed on"
+        )
     if not torch.isfinite(m).all():
         raise ValueError("projected_view_scores: the per-Gaussian metric has NaN or Inf values")
     return m.to(device=gaussians.device, dtype=torch.float64)
 
 
-def _view_sum(radii: torch.Tensor, m: torch.Tensor, height: int, width: int,
-              weighted: bool) -> tuple[float, float, int]:
+def _view_sum(
+    radii: torch.Tensor, m: torch.Tensor, height: int, width: int, weighted: bool
+) -> tuple[float, float, int]:
     """(sum_g w_g M_g, sum_g w_g, counted) of float radii [n] and metric [n] (unweighted: w_g = 1 where counted).
 
     w_g = min(pi R^2 / (H W), 1) = (pi / (H W)) min(R, sqrt(H W / pi))^2, so the sum is one float64 dot
@@ -466,13 +495,28 @@ def _unoccluded_view(terms, cam, k: int, block: int, occlusion, config: DepthBuf
     radii = torch.cat([b.radii for b in blocks])
     opacities, tolerance = occlusion
     with inline_ops(radii.device):
-        keep = depth_test(*(torch.cat([getattr(b, f) for b in blocks]) for f in ("u", "v", "depths")), radii,
-                          torch.cat([b.dets for b in blocks]), opacities, tolerance, cam.width, cam.height, config)
+        keep = depth_test(
+            *(torch.cat([getattr(b, f) for b in blocks]) for f in ("u", "v", "depths")),
+            radii,
+            torch.cat([b.dets for b in blocks]),
+            opacities,
+            tolerance,
+            cam.width,
+            cam.height,
+            config,
+        )
     return radii, keep
 
 
-def projected_view_scores(per_gaussian: torch.Tensor, gaussians, cameras: Sequence, *, weighted: bool = True,
-                          depth_buffer: DepthBuffer | None = None, block: int | None = None) -> ProjectedScores:
+def projected_view_scores(
+    per_gaussian: torch.Tensor,
+    gaussians,
+    cameras: Sequence,
+    *,
+    weighted: bool = True,
+    depth_buffer: DepthBuffer | None = None,
+    block: int | None = None,
+) -> ProjectedScores:
     """S(T) = sum_{g visible in T} w_g(T) M_g (Eq. 4-5) of every camera from the projection alone, no render.
 
     The radii and visibility are :func:`recon.projection.iter_visibility`'s, equal to the renderer's, so the
@@ -523,12 +567,17 @@ def _score_views(m, terms, cameras, size: int, weighted: bool, occlusion, depth_
         scores.append(sum(s for s, _, _ in sums))
         cover.append(sum(a for _, a, _ in sums))
         counted.append(sum(c for _, _, c in sums))
-    return ProjectedScores(torch.tensor(scores, dtype=torch.float64), torch.tensor(counted, dtype=torch.int64),
-                           torch.tensor(cover, dtype=torch.float64), seen.cpu())
+    return ProjectedScores(
+        torch.tensor(scores, dtype=torch.float64),
+        torch.tensor(counted, dtype=torch.int64),
+        torch.tensor(cover, dtype=torch.float64),
+        seen.cpu(),
+    )
 
 
-def coarse_unoccluded(gaussians, cameras: Sequence, config: DepthBuffer = DepthBuffer(), *,
-                      block: int | None = None) -> torch.Tensor:
+def coarse_unoccluded(
+    gaussians, cameras: Sequence, config: DepthBuffer = DepthBuffer(), *, block: int | None = None
+) -> torch.Tensor:
     """[C, N] bool: the Gaussians that the coarse depth test of :class:`DepthBuffer` counts in each camera.
 
     (For comparisons and tests; :func:`projected_view_scores` runs the same test view by view without
@@ -566,9 +615,10 @@ def coarse_unoccluded_reference(gaussians, camera, config: DepthBuffer = DepthBu
     for g in visible:
         a, b, c = conics[g]
         det = 1.0 / (a * c - b * b)  # det Sigma' = 1 / det(conic)
-        alpha = min(0.99, opacities[g] * min(1.0, 2.0 * math.pi * math.sqrt(det) / cell ** 2))
-        k = min(max(math.floor((depths[g] - near) * (config.depth_bins / max(far - near, 1e-12))), 0),
-                config.depth_bins - 1)
+        alpha = min(0.99, opacities[g] * min(1.0, 2.0 * math.pi * math.sqrt(det) / cell**2))
+        k = min(
+            max(math.floor((depths[g] - near) * (config.depth_bins / max(far - near, 1e-12))), 0), config.depth_bins - 1
+        )
         slot = slices.setdefault(cell_of(g), {}).setdefault(k, [1.0, 0.0, 0.0])
         slot[0] *= 1.0 - alpha
         slot[1] += alpha

@@ -44,9 +44,19 @@ def parse_candidates(text: str | None, count: int) -> list[int]:
     or a repeated entry."""
     if text is None:
         return list(range(count))
-    return list(parse_list(text, int, "--candidates", minimum=0, below=count, unique=True, what="camera",
-                           empty_hint=f"or leave the option out to score all {count} cameras",
-                           range_hint=f"the cameras file has {count} cameras (0..{count - 1})"))
+    return list(
+        parse_list(
+            text,
+            int,
+            "--candidates",
+            minimum=0,
+            below=count,
+            unique=True,
+            what="camera",
+            empty_hint=f"or leave the option out to score all {count} cameras",
+            range_hint=f"the cameras file has {count} cameras (0..{count - 1})",
+        )
+    )
 
 
 def render_size(cam, max_width: int):
@@ -61,9 +71,11 @@ def check_cameras_see(gaussians, cameras, names: list[str]) -> np.ndarray:
     simulating), a logged warning for each camera that sees none."""
     counts = projected_counts(gaussians.means, cameras).numpy()
     if counts.max(initial=0) == 0:
-        raise ValueError(f"none of the {len(cameras)} candidate cameras sees any Gaussian (all centres are behind "
-                         "them or outside the image); check that the cameras and the Gaussians share one frame "
-                         "and scale")
+        raise ValueError(
+            f"none of the {len(cameras)} candidate cameras sees any Gaussian (all centres are behind "
+            "them or outside the image); check that the cameras and the Gaussians share one frame "
+            "and scale"
+        )
     for n, c in zip(names, counts, strict=True):
         if c == 0:
             log.warning("camera %s sees no Gaussian; its score is 0", n)
@@ -89,21 +101,31 @@ def check_some_divergence(result, metric: str, where) -> np.ndarray:
     if np.any(values > 0):
         return values
     notes = "; ".join(f"probe {d}: {w}" for d, ws in result.warnings.items() for w in ws)
-    raise ValueError(f"{where}: D_g ({metric}) is 0 for every one of the {len(values)} Gaussians, so every view "
-                     f"would score 0{' (' + notes + ')' if notes else ''}; re-run `fluidgs simulate` with a smaller "
-                     "--dt, or check --scale and --up")
+    raise ValueError(
+        f"{where}: D_g ({metric}) is 0 for every one of the {len(values)} Gaussians, so every view "
+        f"would score 0{' (' + notes + ')' if notes else ''}; re-run `fluidgs simulate` with a smaller "
+        "--dt, or check --scale and --up"
+    )
 
 
-def project_scores(gaussians, cams, values, *, weighted: bool = True, occlusion: bool = True,
-                   device: str = "cpu"):
+def project_scores(gaussians, cams, values, *, weighted: bool = True, occlusion: bool = True, device: str = "cpu"):
     """S(T), the coverage A(T) and the counted Gaussians of every camera from the projection alone
     (:func:`nbv.scores.projected_view_scores`; ``occlusion``: the coarse depth test, else frustum culling)."""
     dev = torch.device(torch_device(device))
     start = time.perf_counter()
-    scored = projected_view_scores(torch.from_numpy(np.asarray(values, np.float64)), gaussians.detach().to(dev), cams,
-                                   weighted=weighted, depth_buffer=DepthBuffer() if occlusion else None)
-    log.info("scored %d views of %d Gaussians from the projection in %.2f s", len(cams), gaussians.num,
-             time.perf_counter() - start)
+    scored = projected_view_scores(
+        torch.from_numpy(np.asarray(values, np.float64)),
+        gaussians.detach().to(dev),
+        cams,
+        weighted=weighted,
+        depth_buffer=DepthBuffer() if occlusion else None,
+    )
+    log.info(
+        "scored %d views of %d Gaussians from the projection in %.2f s",
+        len(cams),
+        gaussians.num,
+        time.perf_counter() - start,
+    )
     return scored
 
 
@@ -115,10 +137,17 @@ def ranked_rows(scored, cams, idx: list[int], value: str = "score", visible_cent
     parts = view_parts(s.numpy(), scored.coverage.numpy())
     rows = []
     for k in rank(s).tolist():
-        row = {"rank": parts[k]["rank"], "index": idx[k], "name": cams[k].name, value: float(s[k]),
-               "coverage": parts[k]["coverage"], "physics_mean": parts[k]["physics_mean"],
-               "coverage_rank": parts[k]["coverage_rank"], "physics_rank": parts[k]["physics_rank"],
-               "visible": int(scored.counted[k])}
+        row = {
+            "rank": parts[k]["rank"],
+            "index": idx[k],
+            "name": cams[k].name,
+            value: float(s[k]),
+            "coverage": parts[k]["coverage"],
+            "physics_mean": parts[k]["physics_mean"],
+            "coverage_rank": parts[k]["coverage_rank"],
+            "physics_rank": parts[k]["physics_rank"],
+            "visible": int(scored.counted[k]),
+        }
         if visible_centres is not None:
             row["visible_centres"] = int(visible_centres[k])
         rows.append(row)
@@ -130,9 +159,21 @@ def rows_agreement(rows: list[dict], value: str = "score") -> dict:
     return ranking_agreement([r[value] for r in rows], [r["coverage"] for r in rows])
 
 
-def score_views(gaussians, cams, idx: list[int], result, metric: str = "max", png_dir: Path | None = None, *,
-                weighted: bool = True, occlusion: bool = True, device: str = "cpu",
-                visible_centres=None, progress: bool = True, png_top: int | None = 5) -> list[dict]:
+def score_views(
+    gaussians,
+    cams,
+    idx: list[int],
+    result,
+    metric: str = "max",
+    png_dir: Path | None = None,
+    *,
+    weighted: bool = True,
+    occlusion: bool = True,
+    device: str = "cpu",
+    visible_centres=None,
+    progress: bool = True,
+    png_top: int | None = 5,
+) -> list[dict]:
     """Score the candidates from the projection alone, rank them and render PNGs of the best ones.
 
     Args:
@@ -167,13 +208,17 @@ def format_table(rows: list[dict], top_k: int | None = None, value: str = "score
     :data:`nbv.coverage.SCORE_DIGITS` significant digits."""
     shown = rows if top_k is None else rows[:top_k]
     head = {"score": "S", "critical_score": "C"}.get(value, value)
-    lines = [f"{'rank':>4}  {'index':>5}  {'name':<24} {head:>9}  {'A':>9} {'A#':>4}  {head + '/A':>9} "
-             f"{head + '/A#':>5}  {'visible':>8}"]
+    lines = [
+        f"{'rank':>4}  {'index':>5}  {'name':<24} {head:>9}  {'A':>9} {'A#':>4}  {head + '/A':>9} "
+        f"{head + '/A#':>5}  {'visible':>8}"
+    ]
     for r in shown:
-        lines.append(f"{r['rank']:>4}  {r['index']:>5}  {r['name'][:24]:<24} {format_number(r[value]):>9}  "
-                     f"{format_number(r.get('coverage')):>9} {r.get('coverage_rank') or '-':>4}  "
-                     f"{format_number(r.get('physics_mean')):>9} {r.get('physics_rank') or '-':>5}  "
-                     f"{r['visible']:>8}")
+        lines.append(
+            f"{r['rank']:>4}  {r['index']:>5}  {r['name'][:24]:<24} {format_number(r[value]):>9}  "
+            f"{format_number(r.get('coverage')):>9} {r.get('coverage_rank') or '-':>4}  "
+            f"{format_number(r.get('physics_mean')):>9} {r.get('physics_rank') or '-':>5}  "
+            f"{r['visible']:>8}"
+        )
     return "\n".join(lines)
 
 
@@ -193,8 +238,9 @@ def _bgr(image: torch.Tensor) -> np.ndarray:
     return to_bgr(image.detach().cpu().numpy())
 
 
-def write_view_pngs(gaussians, cams, shown: list[int], rows: list[dict], values, metric: str, png_dir: Path,
-                    device: str, progress: bool) -> None:
+def write_view_pngs(
+    gaussians, cams, shown: list[int], rows: list[dict], values, metric: str, png_dir: Path, device: str, progress: bool
+) -> None:
     """Render the views ``shown`` (positions in ``cams``, best first) and write render | D_g heat-map PNGs.
 
     The heat-map colours each Gaussian up to the 99th percentile v_max of the values; where the Gaussians above it
@@ -206,14 +252,20 @@ def write_view_pngs(gaussians, cams, shown: list[int], rows: list[dict], values,
     renders = render_candidates(gaussians, [cams[k] for k in shown], heat, device, progress)
     for r, (k, (out, himg)) in enumerate(zip(shown, renders, strict=True)):
         row = rows[r]
-        left = label(_bgr(out.image), [f"#{row['rank']} {cams[k].name}", f"S = {format_number(row['score'])}",
-                                       f"A = {format_number(row.get('coverage'))}, "
-                                       f"S/A = {format_number(row.get('physics_mean'))}"])
+        left = label(
+            _bgr(out.image),
+            [
+                f"#{row['rank']} {cams[k].name}",
+                f"S = {format_number(row['score'])}",
+                f"A = {format_number(row.get('coverage'))}, S/A = {format_number(row.get('physics_mean'))}",
+            ],
+        )
         heat_bgr = _bgr(himg)
         if over.any():
             share, _ = uncertainty_image(gaussians, cams[k], over, device)
-            mask = cv2.resize((share > 0.5).astype(np.uint8), (heat_bgr.shape[1], heat_bgr.shape[0]),
-                              interpolation=cv2.INTER_NEAREST).astype(bool)
+            mask = cv2.resize(
+                (share > 0.5).astype(np.uint8), (heat_bgr.shape[1], heat_bgr.shape[0]), interpolation=cv2.INTER_NEAREST
+            ).astype(bool)
             heat_bgr = over_range_marks(heat_bgr, mask)
         right = label(heat_bgr, [f"D_g ({metric}), 0..{vmax:.3g}+ 1/s (+: above)"])
         path = png_dir / f"rank{row['rank']:03d}_{row['index']:03d}_{cams[k].name}.png"
@@ -226,8 +278,9 @@ def uncertainty_scale(images: list[np.ndarray], percentile: float = 99.0) -> flo
     return color_scale(covered[covered > 0], percentile)
 
 
-def write_uncertainty_images(gaussians, cams, shown: list[int], rows: list[dict], values, metric: str,
-                             png_dir: Path, device: str) -> dict[int, dict]:
+def write_uncertainty_images(
+    gaussians, cams, shown: list[int], rows: list[dict], values, metric: str, png_dir: Path, device: str
+) -> dict[int, dict]:
     """Per view ``shown`` (positions in ``cams``, best first): its physics-uncertainty image
     (:func:`nbv.heatmap.uncertainty_image` of the per-Gaussian metric), as float32 ``.npy`` (1/s per pixel) and a
     colour PNG with its scale bar (one range for all views: the 99th percentile of their covered pixels; "+" above).
@@ -243,8 +296,10 @@ def write_uncertainty_images(gaussians, cams, shown: list[int], rows: list[dict]
         row = rows[r]
         stem = f"rank{row['rank']:03d}_{row['index']:03d}_{cams[k].name}_uncertainty"
         write_atomic(png_dir / f"{stem}.npy", lambda tmp, img=img: np.save(tmp, img), suffix=".npy")
-        picture = label(uncertainty_png(img, vmax, "1/s"),
-                        [f"#{row['rank']} {cams[k].name}: composited D_g ({metric})", f"0..{vmax:.3g}+ 1/s"])
+        picture = label(
+            uncertainty_png(img, vmax, "1/s"),
+            [f"#{row['rank']} {cams[k].name}: composited D_g ({metric})", f"0..{vmax:.3g}+ 1/s"],
+        )
         write_png_atomic(png_dir / f"{stem}.png", picture)
         written[row["index"]] = {"npy": f"{stem}.npy", "png": f"{stem}.png"}
     return written
@@ -267,8 +322,11 @@ def probe_lines(result) -> list[str]:
     lines = []
     for i, d in enumerate(result.directions):
         dbar = geometry_divergence(covs, torch.from_numpy(result.per_probe[i]))
-        empty = (None if result.empty_per_probe is None
-                 else geometry_divergence(covs, torch.from_numpy(result.empty_per_probe[i])))
+        empty = (
+            None
+            if result.empty_per_probe is None
+            else geometry_divergence(covs, torch.from_numpy(result.empty_per_probe[i]))
+        )
         reached = int((np.asarray(result.per_probe_counts[i])[kept] > 0).sum())
         leak = result.leaks.get(d)
         if leak is None:
@@ -278,11 +336,15 @@ def probe_lines(result) -> list[str]:
         else:
             leaks = f"; leaked into the solid: {leak.final} at the end, at most {leak.max} (step {leak.max_step})"
         share = reached / max(int(kept.sum()), 1)
-        lines.append(f"  probe {d:>3}: D-bar/D-bar_empty {_ratio(dbar, empty)}, reached {share:.0%} of the Gaussians "
-                     f"({reached:,} of {int(kept.sum()):,}){leaks}")
+        lines.append(
+            f"  probe {d:>3}: D-bar/D-bar_empty {_ratio(dbar, empty)}, reached {share:.0%} of the Gaussians "
+            f"({reached:,} of {int(kept.sum()):,}){leaks}"
+        )
     empty = "n/a" if result.dbar_empty is None else f"{result.dbar_empty:.2g}"
-    lines.append(f"D-bar/D-bar_empty {_ratio(result.dbar, result.dbar_empty)} (D-bar {result.dbar:.2g} m^4/s, "
-                 f"empty scene {empty})")
+    lines.append(
+        f"D-bar/D-bar_empty {_ratio(result.dbar, result.dbar_empty)} (D-bar {result.dbar:.2g} m^4/s, "
+        f"empty scene {empty})"
+    )
     return lines
 
 
@@ -297,8 +359,10 @@ def reach_warning(values, seen, config, what: str = "D_g", symbol: str = "S") ->
     got = int((np.asarray(values)[seen] > 0).sum())
     if got >= REACHED_WARNING * counted:
         return None
-    return (f"only {got / counted:.0%} of the {counted:,} Gaussians the views count got any {what} ({got:,}); "
-            f"{symbol}(T) rests "
-            f"on the few the fluid reached. Reach more with finer particles (--particle-radius, now "
-            f"{config.particle_radius:g} m; each halving gives 8x the particles) or a longer run (--steps, now "
-            f"{config.steps})")
+    return (
+        f"only {got / counted:.0%} of the {counted:,} Gaussians the views count got any {what} ({got:,}); "
+        f"{symbol}(T) rests "
+        f"on the few the fluid reached. Reach more with finer particles (--particle-radius, now "
+        f"{config.particle_radius:g} m; each halving gives 8x the particles) or a longer run (--steps, now "
+        f"{config.steps})"
+    )

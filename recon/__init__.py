@@ -20,9 +20,17 @@ Example:
 
 from fluidsim.lazy import lazy_exports
 
-_EXPORTS = {"Camera": "camera", "load_cameras": "datasets", "load_dataset": "datasets", "detect_format": "formats",
-            "load_gaussians": "formats", "GaussianSet": "gaussians", "save_gaussians": "ply",
-            "RenderOutput": "render", "render": "render"}
+_EXPORTS = {
+    "Camera": "camera",
+    "load_cameras": "datasets",
+    "load_dataset": "datasets",
+    "detect_format": "formats",
+    "load_gaussians": "formats",
+    "GaussianSet": "gaussians",
+    "save_gaussians": "ply",
+    "RenderOutput": "render",
+    "render": "render",
+}
 __all__ = sorted(_EXPORTS)
 
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

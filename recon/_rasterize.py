@@ -34,8 +34,9 @@ from .render_types import ALPHA_MAX, ALPHA_MIN, T_MIN, PairList
 
 def _ranges(counts: torch.Tensor, total: int) -> tuple[torch.Tensor, torch.Tensor]:
     """For int32 segment lengths laid end to end: segment id [total] and offset within the segment (int32)."""
-    seg = torch.repeat_interleave(torch.arange(counts.numel(), dtype=torch.int32, device=counts.device), counts,
-                                  output_size=total)
+    seg = torch.repeat_interleave(
+        torch.arange(counts.numel(), dtype=torch.int32, device=counts.device), counts, output_size=total
+    )
     starts = torch.cumsum(counts, 0, dtype=torch.int32) - counts
     offset = torch.arange(total, dtype=torch.int32, device=counts.device) - starts.index_select(0, seg)
     return seg, offset
@@ -96,9 +97,16 @@ def build_pairs(proj: Projection, opacities: torch.Tensor, width: int, height: i
         pixels = (row_y * width + row_x0).index_select(0, rows) + cols
         pixels, perm = torch.sort(pixels, stable=True)  # generation order is depth order within a pixel
         rows = rows.index_select(0, perm)
-        return PairList(pixels=pixels, gaussians=row_gaussians.index_select(0, rows), rows=rows,
-                        dx=dx.index_select(0, perm), alpha=alpha.index_select(0, perm),
-                        row_gaussians=row_gaussians, row_dy=row_dy, candidates=int(box_widths.sum()))
+        return PairList(
+            pixels=pixels,
+            gaussians=row_gaussians.index_select(0, rows),
+            rows=rows,
+            dx=dx.index_select(0, perm),
+            alpha=alpha.index_select(0, perm),
+            row_gaussians=row_gaussians,
+            row_dy=row_dy,
+            candidates=int(box_widths.sum()),
+        )
 
 
 def _scatter_sum(index: torch.Tensor, values: torch.Tensor, size: int) -> torch.Tensor:
@@ -156,8 +164,7 @@ class Composite(torch.autograd.Function):
         image = torch.stack(channels, -1)
         depth = _scatter_sum(pix, weights * depths.index_select(0, gid), num_pixels)
         ctx.pairs = pairs
-        ctx.save_for_backward(conics, opacities, colors, depths, background, alpha, trans, weights, live, t_final,
-                              ends)
+        ctx.save_for_backward(conics, opacities, colors, depths, background, alpha, trans, weights, live, t_final, ends)
         return image, acc, depth
 
     @staticmethod
@@ -178,8 +185,9 @@ class Composite(torch.autograd.Function):
         total = csum.index_select(0, ends.clamp_min(0)) if pairs.num else csum.new_zeros(ends.numel())
         total = total + (t_final * (grad_image @ background)).to(torch.float64)
         suffix = total.index_select(0, pix) - csum
-        grad_pair_alpha = torch.where(live, trans * dot - (suffix / (1.0 - alpha.to(torch.float64))).to(dot.dtype),
-                                      torch.zeros_like(dot))
+        grad_pair_alpha = torch.where(
+            live, trans * dot - (suffix / (1.0 - alpha.to(torch.float64))).to(dot.dtype), torch.zeros_like(dot)
+        )
         grad_colors = torch.stack([_scatter_sum(gid, weights * gk, n) for gk in gathered], -1)
         grad_depths = _scatter_sum(gid, weights * gd, n)
 

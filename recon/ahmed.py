@@ -76,8 +76,19 @@ class AhmedBody:
     stilt_half_track: float = 0.1635
 
     def __post_init__(self) -> None:
-        for name in ("resolution", "length", "width", "height", "front_radius", "slant_length", "clearance",
-                     "stilt_diameter", "stilt_from_nose", "stilt_from_base", "stilt_half_track"):
+        for name in (
+            "resolution",
+            "length",
+            "width",
+            "height",
+            "front_radius",
+            "slant_length",
+            "clearance",
+            "stilt_diameter",
+            "stilt_from_nose",
+            "stilt_from_base",
+            "stilt_half_track",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ValueError(f"AhmedBody.{name} must be a finite number > 0, got {value!r}")
@@ -89,18 +100,26 @@ class AhmedBody:
         if self.slant_run + r >= self.length:
             raise ValueError(f"AhmedBody.slant_length {self.slant_length} leaves no straight roof before the nose")
         if self.slant_drop >= self.height:
-            raise ValueError(f"AhmedBody.slant_length {self.slant_length} at {self.slant_deg} deg cuts through "
-                             f"the whole height {self.height}")
+            raise ValueError(
+                f"AhmedBody.slant_length {self.slant_length} at {self.slant_deg} deg cuts through "
+                f"the whole height {self.height}"
+            )
         if self.resolution > min(self.width, self.height) / 4:
-            raise ValueError(f"AhmedBody.resolution {self.resolution} m is coarser than a quarter of the body; "
-                             f"use at most {min(self.width, self.height) / 4:.3f}")
+            raise ValueError(
+                f"AhmedBody.resolution {self.resolution} m is coarser than a quarter of the body; "
+                f"use at most {min(self.width, self.height) / 4:.3f}"
+            )
         if self.stilts:
             margin = self.stilt_diameter
             xs = [self.length - self.stilt_from_nose, self.stilt_from_base]
-            if not all(self.slant_run + margin < x < self.length - r - margin for x in xs) \
-                    or not 0 < self.stilt_half_track < self.width / 2 - margin:
-                raise ValueError("AhmedBody stilt positions must lie under the flat underside, clear of the nose "
-                                 "and the slant (stilt_from_nose, stilt_from_base, stilt_half_track)")
+            if (
+                not all(self.slant_run + margin < x < self.length - r - margin for x in xs)
+                or not 0 < self.stilt_half_track < self.width / 2 - margin
+            ):
+                raise ValueError(
+                    "AhmedBody stilt positions must lie under the flat underside, clear of the nose "
+                    "and the slant (stilt_from_nose, stilt_from_base, stilt_half_track)"
+                )
 
     @property
     def slant_run(self) -> float:
@@ -124,8 +143,10 @@ class AhmedBody:
         tip = np.clip(self.length - x, 0.0, r)  # distance behind the nose tip, within the rounding
         bulge = np.sqrt(tip * (2 * r - tip))  # r where the nose rounding starts, exactly 0 at the tip
         y_lo = r - bulge
-        y_hi = np.minimum(self.height - r + bulge,
-                          self.height - np.clip(self.slant_run - x, 0.0, None) * math.tan(math.radians(self.slant_deg)))
+        y_hi = np.minimum(
+            self.height - r + bulge,
+            self.height - np.clip(self.slant_run - x, 0.0, None) * math.tan(math.radians(self.slant_deg)),
+        )
         z_half = self.width / 2 - r + bulge
         return y_lo, y_hi, z_half
 
@@ -172,6 +193,7 @@ def _orient(vertices: np.ndarray, tris: np.ndarray, outward: np.ndarray) -> np.n
 
 def _zip_loops(outer: np.ndarray, inner: np.ndarray, points: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """Triangulate the planar ring between two closed loops around ``centre`` (x, z), merging them by angle."""
+
     def by_angle(ids):
         ang = np.arctan2(points[ids, 2] - centre[1], points[ids, 0] - centre[0]) % (2 * math.pi)
         order = np.argsort(ang)
@@ -217,8 +239,12 @@ def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
     loop_s = np.r_[np.zeros(kz + 1), s[1:-1], np.ones(kz + 1), s[-2:0:-1]]  # (y - y_lo) / (y_hi - y_lo)
     n_loop = len(loop_t)
     mb = _MeshBuilder()
-    secs = np.stack([np.stack([np.full(n_loop, x), lo + loop_s * (hi - lo), loop_t * zh], 1)
-                     for x, lo, hi, zh in zip(stations, y_lo, y_hi, z_half, strict=True)])
+    secs = np.stack(
+        [
+            np.stack([np.full(n_loop, x), lo + loop_s * (hi - lo), loop_t * zh], 1)
+            for x, lo, hi, zh in zip(stations, y_lo, y_hi, z_half, strict=True)
+        ]
+    )
     ids = mb.add_vertices(secs).reshape(len(stations), n_loop)
     # ---- lateral surface: quads between consecutive sections, minus the stilt openings in the underside --------
     keep = np.ones((len(stations) - 1, n_loop), dtype=bool)
@@ -230,8 +256,12 @@ def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
             j0 = int(np.searchsorted(z_grid, zc - hole, side="right")) - 1
             j1 = int(np.searchsorted(z_grid, zc + hole, side="left"))
             keep[i0:i1, j0:j1] = False
-            ring = [ids[i0, j] for j in range(j0, j1)] + [ids[i, j1] for i in range(i0, i1)] \
-                + [ids[i1, j] for j in range(j1, j0, -1)] + [ids[i, j0] for i in range(i1, i0, -1)]
+            ring = (
+                [ids[i0, j] for j in range(j0, j1)]
+                + [ids[i, j1] for i in range(i0, i1)]
+                + [ids[i1, j] for j in range(j1, j0, -1)]
+                + [ids[i, j0] for i in range(i1, i0, -1)]
+            )
             openings.append((xc, zc, np.array(ring)))
     i, p = np.nonzero(keep)
     q = (p + 1) % n_loop
@@ -242,9 +272,9 @@ def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
     for k, x in ((0, stations[0]), (len(stations) - 1, stations[-1])):
         grid = np.empty((ky + 1, kz + 1), dtype=np.int64)
         grid[0, :] = ids[k, : kz + 1]
-        grid[1:ky, kz] = ids[k, kz + 1: kz + ky]
-        grid[ky, :] = ids[k, kz + ky: 2 * kz + ky + 1][::-1]
-        grid[1:ky, 0] = ids[k, 2 * kz + ky + 1:][::-1]
+        grid[1:ky, kz] = ids[k, kz + 1 : kz + ky]
+        grid[ky, :] = ids[k, kz + ky : 2 * kz + ky + 1][::-1]
+        grid[1:ky, 0] = ids[k, 2 * kz + ky + 1 :][::-1]
         yy, zz = np.meshgrid(y_lo[k] + s[1:-1] * (y_hi[k] - y_lo[k]), t[1:-1] * z_half[k], indexing="ij")
         grid[1:ky, 1:kz] = mb.add_vertices(np.stack([np.full(yy.shape, x), yy, zz], -1)).reshape(ky - 1, kz - 1)
         g00, g01, g11, g10 = grid[:-1, :-1], grid[:-1, 1:], grid[1:, 1:], grid[1:, :-1]
@@ -278,8 +308,9 @@ def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
     return verts, tris
 
 
-def ahmed_body(slant_deg: float = 25.0, resolution: float = 0.01, *, stilts: bool = True, up: str = "y",
-               scale: float = 1.0) -> o3d.geometry.TriangleMesh:
+def ahmed_body(
+    slant_deg: float = 25.0, resolution: float = 0.01, *, stilts: bool = True, up: str = "y", scale: float = 1.0
+) -> o3d.geometry.TriangleMesh:
     """The Ahmed body as a watertight open3d triangle mesh (frame and dimensions in the module docstring).
 
     Args:
@@ -298,8 +329,9 @@ def ahmed_body(slant_deg: float = 25.0, resolution: float = 0.01, *, stilts: boo
     verts, tris = ahmed_mesh_arrays(AhmedBody(slant_deg=slant_deg, stilts=stilts, resolution=resolution))
     if up == "z":
         verts = np.stack([verts[:, 0], -verts[:, 2], verts[:, 1]], 1)
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts * scale),
-                                     o3d.utility.Vector3iVector(tris.astype(np.int32)))
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(verts * scale), o3d.utility.Vector3iVector(tris.astype(np.int32))
+    )
     mesh.compute_triangle_normals()
     mesh.compute_vertex_normals()
     return mesh
@@ -338,8 +370,15 @@ def save_mesh(mesh: o3d.geometry.TriangleMesh, path: str | Path) -> Path:
     return path
 
 
-def write_ahmed(path: str | Path, slant_deg: float = 25.0, resolution: float = 0.01, *, stilts: bool = True,
-                up: str = "y", scale: float = 1.0) -> Path:
+def write_ahmed(
+    path: str | Path,
+    slant_deg: float = 25.0,
+    resolution: float = 0.01,
+    *,
+    stilts: bool = True,
+    up: str = "y",
+    scale: float = 1.0,
+) -> Path:
     """Write :func:`ahmed_body` (same arguments) to ``path`` with :func:`save_mesh`; returns the path."""
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:

@@ -48,13 +48,15 @@ class Camera:
         for key in ("fx", "fy", "cx", "cy"):
             val = float(getattr(self, key))
             if not math.isfinite(val) or (key in ("fx", "fy") and val <= 0):
-                raise ValueError(f"Camera {self.name!r}: {key} must be finite{' and > 0' if key[0] == 'f' else ''}, "
-                                 f"got {val}")
+                raise ValueError(
+                    f"Camera {self.name!r}: {key} must be finite{' and > 0' if key[0] == 'f' else ''}, got {val}"
+                )
             object.__setattr__(self, key, val)
         m = torch.as_tensor(self.world_to_camera, dtype=torch.float64).detach().cpu()
         if tuple(m.shape) != (4, 4) or not torch.isfinite(m).all():
-            raise ValueError(f"Camera {self.name!r}: world_to_camera must be a finite (4, 4) matrix, "
-                             f"got shape {tuple(m.shape)}")
+            raise ValueError(
+                f"Camera {self.name!r}: world_to_camera must be a finite (4, 4) matrix, got shape {tuple(m.shape)}"
+            )
         rot = m[:3, :3]
         if not torch.allclose(rot @ rot.T, torch.eye(3, dtype=torch.float64), atol=1e-4):
             raise ValueError(f"Camera {self.name!r}: the rotation part of world_to_camera is not orthonormal")
@@ -64,9 +66,16 @@ class Camera:
     @classmethod
     def from_opengl_c2w(cls, c2w, width: int, height: int, fov_x: float, name: str = "") -> Camera:
         """A camera from a Blender/NeRF camera-to-world matrix (OpenGL axes) and horizontal FOV (radians)."""
-        c2w = torch.as_tensor(c2w, dtype=torch.float64).reshape(4, 4) if torch.as_tensor(c2w).numel() == 16 else \
-            torch.cat([torch.as_tensor(c2w, dtype=torch.float64).reshape(3, 4),
-                       torch.tensor([[0, 0, 0, 1.0]], dtype=torch.float64)])
+        c2w = (
+            torch.as_tensor(c2w, dtype=torch.float64).reshape(4, 4)
+            if torch.as_tensor(c2w).numel() == 16
+            else torch.cat(
+                [
+                    torch.as_tensor(c2w, dtype=torch.float64).reshape(3, 4),
+                    torch.tensor([[0, 0, 0, 1.0]], dtype=torch.float64),
+                ]
+            )
+        )
         if not 0 < fov_x < math.pi:
             raise ValueError(f"camera_angle_x must be in (0, pi) radians, got {fov_x}")
         focal = 0.5 * width / math.tan(0.5 * fov_x)
@@ -83,8 +92,11 @@ class Camera:
         forward = forward / forward.norm()
         right = torch.linalg.cross(forward, up)
         if right.norm() < 1e-9:  # looking along up: pick any perpendicular
-            alt = torch.tensor([1.0, 0, 0], dtype=torch.float64) if abs(forward[0]) < 0.9 else \
-                torch.tensor([0, 1.0, 0], dtype=torch.float64)
+            alt = (
+                torch.tensor([1.0, 0, 0], dtype=torch.float64)
+                if abs(forward[0]) < 0.9
+                else torch.tensor([0, 1.0, 0], dtype=torch.float64)
+            )
             right = torch.linalg.cross(forward, alt)
         right = right / right.norm()
         down = torch.linalg.cross(forward, right)

@@ -50,10 +50,12 @@ from .datasets import load_cameras
 
 logger = logging.getLogger(__name__)
 
-ACCEPTED = ("a Blender / NeRF / nerfstudio transforms.json (a 'frames' list of OpenGL camera-to-world "
-            "'transform_matrix'), a COLMAP model folder (cameras.bin + images.bin or cameras.txt + images.txt, "
-            "or a folder holding sparse/0 or sparse), or graphdeco's cameras.json (a list of {id, img_name, width, "
-            "height, position, rotation, fx, fy})")
+ACCEPTED = (
+    "a Blender / NeRF / nerfstudio transforms.json (a 'frames' list of OpenGL camera-to-world "
+    "'transform_matrix'), a COLMAP model folder (cameras.bin + images.bin or cameras.txt + images.txt, "
+    "or a folder holding sparse/0 or sparse), or graphdeco's cameras.json (a list of {id, img_name, width, "
+    "height, position, rotation, fx, fy})"
+)
 GRAPHDECO_KEYS = ("width", "height", "position", "rotation", "fx", "fy")
 # The folders searched for a COLMAP model, relative to the folder given (the model, sparse/, the dataset root).
 COLMAP_PLACES = ((), ("0",), ("sparse", "0"), ("sparse",))
@@ -78,18 +80,27 @@ def colmap_camera_files(folder: Path) -> tuple[Path, Path] | None:
 
 
 def _json_kind(path: Path) -> str:
-    """"transforms" or "graphdeco" from a json file's content; ValueError listing what is accepted."""
+    """ "transforms" or "graphdeco" from a json file's content; ValueError listing what is accepted."""
     try:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON ({exc}); pass {ACCEPTED}") from exc
     if isinstance(data, dict) and "frames" in data:
         return "transforms"
-    if isinstance(data, list) and data and all(isinstance(e, dict) for e in data) \
-            and {"position", "rotation"} <= set(data[0]):
+    if (
+        isinstance(data, list)
+        and data
+        and all(isinstance(e, dict) for e in data)
+        and {"position", "rotation"} <= set(data[0])
+    ):
         return "graphdeco"
-    what = ("an empty list" if data == [] else f"a JSON {type(data).__name__}" if not isinstance(data, dict)
-            else f"an object with keys {sorted(data)[:8]} and no 'frames' list")
+    what = (
+        "an empty list"
+        if data == []
+        else f"a JSON {type(data).__name__}"
+        if not isinstance(data, dict)
+        else f"an object with keys {sorted(data)[:8]} and no 'frames' list"
+    )
     raise ValueError(f"{path}: not a camera file: it holds {what}; pass {ACCEPTED}")
 
 
@@ -112,18 +123,29 @@ def find_camera_file(path) -> CameraSource:
         raise ValueError(f"{p}: no such file or folder; pass {ACCEPTED}")
     if not p.is_dir():
         raise ValueError(f"{p}: neither a file nor a folder; pass {ACCEPTED}")
-    found = [CameraSource("colmap", p.joinpath(*place)) for place in COLMAP_PLACES
-             if colmap_camera_files(p.joinpath(*place)) is not None][:1]
-    found += [CameraSource(kind, p / name) for name, kind in (("cameras.json", "graphdeco"),
-                                                              ("transforms.json", "transforms"))
-              if (p / name).is_file()]
+    found = [
+        CameraSource("colmap", p.joinpath(*place))
+        for place in COLMAP_PLACES
+        if colmap_camera_files(p.joinpath(*place)) is not None
+    ][:1]
+    found += [
+        CameraSource(kind, p / name)
+        for name, kind in (("cameras.json", "graphdeco"), ("transforms.json", "transforms"))
+        if (p / name).is_file()
+    ]
     if not found:
-        raise ValueError(f"{p}: a folder with no camera file: no COLMAP model ({', '.join(BINARY_FILES[:2])} or "
-                         f"{', '.join(TEXT_FILES[:2])}) in it, in 0/, sparse/0 or sparse, and no cameras.json or "
-                         f"transforms.json; pass {ACCEPTED}")
+        raise ValueError(
+            f"{p}: a folder with no camera file: no COLMAP model ({', '.join(BINARY_FILES[:2])} or "
+            f"{', '.join(TEXT_FILES[:2])}) in it, in 0/, sparse/0 or sparse, and no cameras.json or "
+            f"transforms.json; pass {ACCEPTED}"
+        )
     if len(found) > 1:
-        logger.info("%s holds %s: reading %s (pass the other's path to read it instead)", p,
-                    " and ".join(f"{s.kind} ({s.path})" for s in found), found[0].path)
+        logger.info(
+            "%s holds %s: reading %s (pass the other's path to read it instead)",
+            p,
+            " and ".join(f"{s.kind} ({s.path})" for s in found),
+            found[0].path,
+        )
     return found[0]
 
 
@@ -150,8 +172,9 @@ def read_colmap_cameras_only(folder) -> list[Camera]:
     out = []
     for image_id, w2c, cam_id, name in sorted(images, key=lambda e: e[3]):
         if cam_id not in intrinsics:
-            raise ValueError(f"{images_file}: image {image_id} ({name}) uses camera {cam_id}, which is not in "
-                             f"{cams_file.name}")
+            raise ValueError(
+                f"{images_file}: image {image_id} ({name}) uses camera {cam_id}, which is not in {cams_file.name}"
+            )
         width, height, fx, fy, cx, cy = intrinsics[cam_id]
         try:
             out.append(Camera(width, height, fx, fy, cx, cy, torch.from_numpy(w2c), name=Path(name).stem))
@@ -185,8 +208,10 @@ def read_graphdeco_cameras(path) -> list[Camera]:
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}: a key is not numeric ({exc})") from exc
         if centre.shape != (3,) or rot.shape != (3, 3):
-            raise ValueError(f"{where}: 'position' must be 3 numbers and 'rotation' 3 rows of 3, got shapes "
-                             f"{centre.shape} and {rot.shape}")
+            raise ValueError(
+                f"{where}: 'position' must be 3 numbers and 'rotation' 3 rows of 3, got shapes "
+                f"{centre.shape} and {rot.shape}"
+            )
         if not (np.isfinite(centre).all() and np.isfinite(rot).all()):
             raise ValueError(f"{where}: 'position' or 'rotation' holds NaN or infinite entries")
         if abs(float(np.linalg.det(rot)) - 1.0) > 1e-3:
@@ -234,9 +259,19 @@ def transforms_json(cameras, note: str = "") -> dict:
     cams = list(cameras)
     if not cams:
         raise ValueError("transforms_json: no cameras")
-    frames = [{"file_path": f"./{c.name or f'view_{i:03d}'}", "w": c.width, "h": c.height, "fl_x": c.fx,
-               "fl_y": c.fy, "cx": c.cx, "cy": c.cy, "transform_matrix": c.opengl_c2w().tolist()}
-              for i, c in enumerate(cams)]
+    frames = [
+        {
+            "file_path": f"./{c.name or f'view_{i:03d}'}",
+            "w": c.width,
+            "h": c.height,
+            "fl_x": c.fx,
+            "fl_y": c.fy,
+            "cx": c.cx,
+            "cy": c.cy,
+            "transform_matrix": c.opengl_c2w().tolist(),
+        }
+        for i, c in enumerate(cams)
+    ]
     out = {"camera_angle_x": cams[0].fov_x, "frames": frames}
     return {"note": note, **out} if note else out
 
@@ -246,8 +281,18 @@ def graphdeco_json(cameras) -> list[dict]:
     out = []
     for i, c in enumerate(cameras):
         c2w = c.camera_to_world
-        out.append({"id": i, "img_name": c.name or f"view_{i:03d}", "width": c.width, "height": c.height,
-                    "position": c2w[:3, 3].tolist(), "rotation": c2w[:3, :3].tolist(), "fy": c.fy, "fx": c.fx})
+        out.append(
+            {
+                "id": i,
+                "img_name": c.name or f"view_{i:03d}",
+                "width": c.width,
+                "height": c.height,
+                "position": c2w[:3, 3].tolist(),
+                "rotation": c2w[:3, :3].tolist(),
+                "fy": c.fy,
+                "fx": c.fx,
+            }
+        )
     return out
 
 
@@ -276,8 +321,10 @@ def rotation_to_quaternion_wxyz(rot: np.ndarray) -> np.ndarray:
 def colmap_text(cameras) -> tuple[str, str]:
     """(cameras.txt, images.txt) of a COLMAP text model of ``cameras``: one PINHOLE camera per image, named
     ``NAME.png``, with no 2-D points (write an empty ``points3D.txt`` beside them for tools that want one)."""
-    cams_lines, image_lines = ["# Camera list: CAMERA_ID MODEL WIDTH HEIGHT fx fy cx cy"], [
-        "# Image list: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, then a line of 2-D points (none here)"]
+    cams_lines, image_lines = (
+        ["# Camera list: CAMERA_ID MODEL WIDTH HEIGHT fx fy cx cy"],
+        ["# Image list: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, then a line of 2-D points (none here)"],
+    )
     for i, c in enumerate(cameras, start=1):
         cams_lines.append(f"{i} PINHOLE {c.width} {c.height} {c.fx!r} {c.fy!r} {c.cx!r} {c.cy!r}")
         w2c = c.world_to_camera.numpy()

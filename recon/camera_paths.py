@@ -61,8 +61,16 @@ def _check_common(n: int, radius: float, width: int, height: int, fov_x: float, 
     return target
 
 
-def cameras_from_directions(directions: np.ndarray, radius: float, width: int, height: int, fov_x: float,
-                            up_axis: str = "y", target=(0.0, 0.0, 0.0), prefix: str = "cam") -> list[Camera]:
+def cameras_from_directions(
+    directions: np.ndarray,
+    radius: float,
+    width: int,
+    height: int,
+    fov_x: float,
+    up_axis: str = "y",
+    target=(0.0, 0.0, 0.0),
+    prefix: str = "cam",
+) -> list[Camera]:
     """Cameras at ``target + radius * directions[i]`` looking at ``target``.
 
     Args:
@@ -80,12 +88,22 @@ def cameras_from_directions(directions: np.ndarray, radius: float, width: int, h
     directions = np.asarray(directions, dtype=np.float64)
     if directions.ndim != 2 or directions.shape[1] != 3:
         raise ValueError(f"directions must have shape [n, 3], got {tuple(directions.shape)}")
-    return [Camera.look_at(target + radius * d, target, up, width, height, fov_x, name=f"{prefix}_{i:03d}")
-            for i, d in enumerate(directions)]
+    return [
+        Camera.look_at(target + radius * d, target, up, width, height, fov_x, name=f"{prefix}_{i:03d}")
+        for i, d in enumerate(directions)
+    ]
 
 
-def orbit(n: int, radius: float, elevation_deg: float, width: int, height: int, fov_x: float,
-          up_axis: str = "y", target=(0.0, 0.0, 0.0)) -> list[Camera]:
+def orbit(
+    n: int,
+    radius: float,
+    elevation_deg: float,
+    width: int,
+    height: int,
+    fov_x: float,
+    up_axis: str = "y",
+    target=(0.0, 0.0, 0.0),
+) -> list[Camera]:
     """n cameras evenly spaced in azimuth on a circle of constant elevation around the up axis.
 
     Args:
@@ -112,8 +130,9 @@ def orbit(n: int, radius: float, elevation_deg: float, width: int, height: int, 
     return cameras_from_directions(dirs, radius, width, height, fov_x, up_axis, target, prefix="orbit")
 
 
-def orbit_around(points: np.ndarray, n: int, width: int, elevation_deg: float = 20.0,
-                 fov_x: float = math.radians(50.0)) -> list[Camera]:
+def orbit_around(
+    points: np.ndarray, n: int, width: int, elevation_deg: float = 20.0, fov_x: float = math.radians(50.0)
+) -> list[Camera]:
     """An :func:`orbit` of n cameras around ``points`` [N, 3]: aimed at their bounding box's centre, at 1.6 x its
     largest extent (scene units), ``width`` x ``3/4 width`` pixels (the candidate views of ``fluidgs demo``)."""
     points = np.asarray(points, dtype=np.float64)
@@ -148,8 +167,18 @@ def ring_counts(n: int, rings: int) -> list[int]:
     return [n // rings + (1 if k < n % rings else 0) for k in range(rings)]
 
 
-def orbit_rings(n: int, centre, radius: float, up, front, elevations_deg, width: int, height: int, fov_x: float,
-                prefix: str = "orbit") -> list[Camera]:
+def orbit_rings(
+    n: int,
+    centre,
+    radius: float,
+    up,
+    front,
+    elevations_deg,
+    width: int,
+    height: int,
+    fov_x: float,
+    prefix: str = "orbit",
+) -> list[Camera]:
     """n cameras on rings around a sphere (the object), each looking at its centre with ``up`` up in the image.
 
     Args:
@@ -167,8 +196,10 @@ def orbit_rings(n: int, centre, radius: float, up, front, elevations_deg, width:
     centre = _check_common(n, radius, width, height, fov_x, centre)
     elevations = [float(e) for e in elevations_deg]
     if not elevations or not all(-90.0 < e < 90.0 for e in elevations):
-        raise ValueError(f"elevations must be one or more angles in (-90, 90) degrees, got {elevations}; a camera "
-                         "on the up axis has no upright image")
+        raise ValueError(
+            f"elevations must be one or more angles in (-90, 90) degrees, got {elevations}; a camera "
+            "on the up axis has no upright image"
+        )
     up = np.asarray(up, dtype=np.float64).reshape(3)
     if not (np.isfinite(up).all() and np.linalg.norm(up) > 0):
         raise ValueError(f"up must be a finite non-zero 3-vector, got {up.tolist()}")
@@ -186,8 +217,11 @@ def orbit_rings(n: int, centre, radius: float, up, front, elevations_deg, width:
         for j in range(count):
             az = 2.0 * math.pi * (j + 0.5 * (k % 2)) / count
             d = math.cos(el) * (math.cos(az) * front + math.sin(az) * side) + math.sin(el) * up
-            cams.append(Camera.look_at(centre + distance * d, centre, up, width, height, fov_x,
-                                       name=f"{prefix}_{len(cams):03d}"))
+            cams.append(
+                Camera.look_at(
+                    centre + distance * d, centre, up, width, height, fov_x, name=f"{prefix}_{len(cams):03d}"
+                )
+            )
     return cams
 
 
@@ -215,8 +249,17 @@ def sphere_directions(n: int, seed: int, hemisphere: bool = False, up_axis: str 
     return dirs
 
 
-def random_sphere(n: int, radius: float, width: int, height: int, fov_x: float, seed: int,
-                  hemisphere: bool = False, up_axis: str = "y", target=(0.0, 0.0, 0.0)) -> list[Camera]:
+def random_sphere(
+    n: int,
+    radius: float,
+    width: int,
+    height: int,
+    fov_x: float,
+    seed: int,
+    hemisphere: bool = False,
+    up_axis: str = "y",
+    target=(0.0, 0.0, 0.0),
+) -> list[Camera]:
     """n cameras at random positions on a sphere (or upper hemisphere) around ``target``, looking at it.
 
     Args:

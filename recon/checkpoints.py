@@ -53,9 +53,11 @@ GSPLAT_RANK = re.compile(r"^(?P<stem>.*_)rank(?P<rank>\d+)$")
 GSPLAT_KEYS = ("means", "quats", "scales", "opacities")
 NERFSTUDIO_KEYS = ("means", "quats", "scales", "opacities", "features_dc")
 CHECKPOINT_SUFFIXES = (".pt", ".pth", ".ckpt")
-NO_GAUSSIANS_FIX = ("pass the checkpoint that holds the trained Gaussians (gsplat: results/<run>/ckpts/ckpt_<step>_"
-                    "rank0.pt; nerfstudio: outputs/<run>/splatfacto/<time>/nerfstudio_models/step-<step>.ckpt), or "
-                    "export a .ply with the trainer")
+NO_GAUSSIANS_FIX = (
+    "pass the checkpoint that holds the trained Gaussians (gsplat: results/<run>/ckpts/ckpt_<step>_"
+    "rank0.pt; nerfstudio: outputs/<run>/splatfacto/<time>/nerfstudio_models/step-<step>.ckpt), or "
+    "export a .ply with the trainer"
+)
 
 
 @dataclass(frozen=True)
@@ -96,8 +98,10 @@ def load_checkpoint(path: str | Path) -> TrainedModel:
     if isinstance(state, dict) and isinstance(state.get("pipeline"), dict):
         return TrainedModel(_nerfstudio_set(state["pipeline"], path), "nerfstudio", (path,))
     keys = sorted(state)[:8] if isinstance(state, dict) else type(state).__name__
-    raise ValueError(f"{path}: a checkpoint without Gaussians: neither gsplat's 'splats' nor nerfstudio's 'pipeline' "
-                     f"is in it (it holds {keys}); {NO_GAUSSIANS_FIX}")
+    raise ValueError(
+        f"{path}: a checkpoint without Gaussians: neither gsplat's 'splats' nor nerfstudio's 'pipeline' "
+        f"is in it (it holds {keys}); {NO_GAUSSIANS_FIX}"
+    )
 
 
 def _torch_load(path: Path):
@@ -110,8 +114,10 @@ def _torch_load(path: Path):
         return torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError, AttributeError, TypeError) as exc:
         first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
-        raise ValueError(f"{path}: not a checkpoint that loads safely with torch.load(weights_only=True) ({first}); "
-                         f"checkpoints that need arbitrary code are refused; {NO_GAUSSIANS_FIX}") from None
+        raise ValueError(
+            f"{path}: not a checkpoint that loads safely with torch.load(weights_only=True) ({first}); "
+            f"checkpoints that need arbitrary code are refused; {NO_GAUSSIANS_FIX}"
+        ) from None
 
 
 def _gsplat_ranks(path: Path) -> list[Path]:
@@ -141,8 +147,10 @@ def _gsplat_set(state, path: Path) -> GaussianSet:
         raise ValueError(f"{source}: this gsplat rank has no 'splats'; {NO_GAUSSIANS_FIX}")
     missing = [k for k in GSPLAT_KEYS if k not in splats]
     if missing:
-        raise ValueError(f"{source}: a checkpoint without Gaussians: its 'splats' lack {missing} (it holds "
-                         f"{sorted(splats)}); {NO_GAUSSIANS_FIX}")
+        raise ValueError(
+            f"{source}: a checkpoint without Gaussians: its 'splats' lack {missing} (it holds "
+            f"{sorted(splats)}); {NO_GAUSSIANS_FIX}"
+        )
     a = {k: _array(splats[k], f"splats[{k!r}]", source) for k in GSPLAT_KEYS}
     if "sh0" in splats:
         sh = _array(splats["sh0"], "splats['sh0']", source)
@@ -151,11 +159,13 @@ def _gsplat_set(state, path: Path) -> GaussianSet:
     elif "colors" in splats:
         rgb = 1.0 / (1.0 + np.exp(-_array(splats["colors"], "splats['colors']", source)))
         sh = ((rgb - 0.5) / SH_C0)[:, None, :]
-        log.warning("%s: trained with the appearance model: its per-view features are dropped and the base colours "
-                    "kept", source)
+        log.warning(
+            "%s: trained with the appearance model: its per-view features are dropped and the base colours kept", source
+        )
     else:
-        raise ValueError(f"{source}: its 'splats' have neither 'sh0' nor 'colors' (it holds {sorted(splats)}); "
-                         f"{NO_GAUSSIANS_FIX}")
+        raise ValueError(
+            f"{source}: its 'splats' have neither 'sh0' nor 'colors' (it holds {sorted(splats)}); {NO_GAUSSIANS_FIX}"
+        )
     return gaussians_from_arrays(source, a["means"], a["quats"], a["scales"], a["opacities"].reshape(-1), sh)
 
 
@@ -163,19 +173,24 @@ def _nerfstudio_set(pipeline: dict, path: Path) -> GaussianSet:
     source = str(path)
     state = {".".join(p for p in k.split(".") if p != "module"): v for k, v in pipeline.items()}
     for prefix in ("_model.gauss_params.", "_model."):
-        found = {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
+        found = {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
         if all(k in found for k in NERFSTUDIO_KEYS):
             break
     else:
         model_keys = sorted(k for k in state if k.startswith("_model."))[:8]
-        raise ValueError(f"{source}: a checkpoint without Gaussians: its pipeline has no splatfacto Gaussians "
-                         f"('_model.gauss_params.means' and the like; model keys: {model_keys or 'none'}); "
-                         f"{NO_GAUSSIANS_FIX}")
+        raise ValueError(
+            f"{source}: a checkpoint without Gaussians: its pipeline has no splatfacto Gaussians "
+            f"('_model.gauss_params.means' and the like; model keys: {model_keys or 'none'}); "
+            f"{NO_GAUSSIANS_FIX}"
+        )
     a = {k: _array(found[k], f"pipeline['{prefix}{k}']", source) for k in NERFSTUDIO_KEYS}
     n = a["means"].shape[0]
     dc = a["features_dc"].reshape(n, 3)
-    rest = (_array(found["features_rest"], f"pipeline['{prefix}features_rest']", source)
-            if "features_rest" in found else np.zeros((n, 0, 3), np.float32))
+    rest = (
+        _array(found["features_rest"], f"pipeline['{prefix}features_rest']", source)
+        if "features_rest" in found
+        else np.zeros((n, 0, 3), np.float32)
+    )
     if rest.shape[1] == 0:  # SH degree 0: features_dc is the logit of the colour
         dc = (1.0 / (1.0 + np.exp(-dc)) - 0.5) / SH_C0
     sh = np.concatenate([dc[:, None, :], rest], 1)
@@ -207,8 +222,10 @@ def nerfstudio_normalization(path: Path) -> np.ndarray:
         transform = np.asarray(doc["transform"], np.float64)
         scale = float(doc["scale"])
     except (OSError, ValueError, KeyError, TypeError, RecursionError) as exc:
-        raise ValueError(f"{path}: not a nerfstudio dataparser_transforms.json with 'transform' (3x4) and 'scale' "
-                         f"({exc}); pass the one written beside the run's config.yml") from None
+        raise ValueError(
+            f"{path}: not a nerfstudio dataparser_transforms.json with 'transform' (3x4) and 'scale' "
+            f"({exc}); pass the one written beside the run's config.yml"
+        ) from None
     if transform.shape != (3, 4) or not np.isfinite(transform).all() or not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"{path}: 'transform' must be a finite 3x4 matrix and 'scale' a positive number")
     matrix = np.eye(4)
@@ -285,18 +302,23 @@ def colmap_normalization(folder: Path) -> np.ndarray:
 
     sparse = find_colmap_sparse(Path(folder))
     if sparse is None:
-        raise ValueError(f"--colmap {folder}: no COLMAP model (cameras, images and points3D .bin or .txt) in it, in "
-                         f"sparse/0 or in sparse; pass the model gsplat was trained on")
+        raise ValueError(
+            f"--colmap {folder}: no COLMAP model (cameras, images and points3D .bin or .txt) in it, in "
+            f"sparse/0 or in sparse; pass the model gsplat was trained on"
+        )
     model = read_colmap_model(sparse)
     if not model.images or len(model.points) < 4:
-        raise ValueError(f"--colmap {sparse}: {len(model.images)} images and {len(model.points)} points; gsplat's "
-                         f"normalisation needs the cameras and the points of the model it was trained on")
+        raise ValueError(
+            f"--colmap {sparse}: {len(model.images)} images and {len(model.points)} points; gsplat's "
+            f"normalisation needs the cameras and the points of the model it was trained on"
+        )
     camtoworlds = np.linalg.inv(np.stack([w2c for _, w2c, _, _ in model.images]))
     return gsplat_normalization(camtoworlds, model.points)
 
 
-def restore_metric_frame(model: TrainedModel, colmap: Path | None = None,
-                         dataparser_transforms: Path | None = None) -> tuple[GaussianSet, np.ndarray | None, str]:
+def restore_metric_frame(
+    model: TrainedModel, colmap: Path | None = None, dataparser_transforms: Path | None = None
+) -> tuple[GaussianSet, np.ndarray | None, str]:
     """Undo the trainer's normalisation when its transform is known.
 
     Returns:
@@ -309,16 +331,20 @@ def restore_metric_frame(model: TrainedModel, colmap: Path | None = None,
         found = dataparser_transforms or find_dataparser_transforms(path)
         if found is not None:
             undo = invert_similarity(nerfstudio_normalization(found))
-            return (transform_gaussians(model.gaussians, undo), undo,
-                    f"nerfstudio's normalisation undone with {found}")
+            return (transform_gaussians(model.gaussians, undo), undo, f"nerfstudio's normalisation undone with {found}")
         fix = "pass --dataparser-transforms PATH (written beside the run's config.yml)"
     else:
         if colmap is not None:
             undo = invert_similarity(colmap_normalization(colmap))
-            return (transform_gaussians(model.gaussians, undo), undo,
-                    f"gsplat's COLMAP normalisation recomputed from {colmap} and undone")
+            return (
+                transform_gaussians(model.gaussians, undo),
+                undo,
+                f"gsplat's COLMAP normalisation recomputed from {colmap} and undone",
+            )
         fix = "pass --colmap DIR, the COLMAP model gsplat was trained on (sparse/0 or its parent)"
-    note = (f"{path}: the {model.trainer} checkpoint is in the trainer's normalised frame: sizes are in its normalised "
-            f"units, not the capture's, so the fluid sees the object at the wrong size; {fix}")
+    note = (
+        f"{path}: the {model.trainer} checkpoint is in the trainer's normalised frame: sizes are in its normalised "
+        f"units, not the capture's, so the fluid sees the object at the wrong size; {fix}"
+    )
     log.warning("%s", note)
     return model.gaussians, None, note

@@ -82,8 +82,9 @@ CAMERA_MODELS = (
 MODELS_BY_ID = {m.model_id: m for m in CAMERA_MODELS}
 MODELS_BY_NAME = {m.name: m for m in CAMERA_MODELS}
 # The models read as pinhole cameras -> their parameter count; the single-focal ones list f, cx, cy first.
-SUPPORTED_MODELS = {name: MODELS_BY_NAME[name].num_params
-                    for name in ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")}
+SUPPORTED_MODELS = {
+    name: MODELS_BY_NAME[name].num_params for name in ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+}
 _SINGLE_FOCAL = ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL")
 
 Intrinsics = tuple[int, int, float, float, float, float]  # width, height, fx, fy, cx, cy (pixels)
@@ -122,11 +123,13 @@ class ColmapModel:
 def quaternion_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:
     """[3, 3] rotation of a (w, x, y, z) quaternion (normalised first)."""
     w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _pinhole(where: str, cam_id: int, model: str, width: int, height: int, params: list[float]) -> Intrinsics:
@@ -135,8 +138,10 @@ def _pinhole(where: str, cam_id: int, model: str, width: int, height: int, param
     ``where`` names the file (and line) in the error messages.
     """
     if model not in SUPPORTED_MODELS:
-        raise ValueError(f"{where}: camera {cam_id} has model {model}; supported: {', '.join(SUPPORTED_MODELS)} "
-                         "(undistort the images first: `colmap image_undistorter` writes PINHOLE cameras)")
+        raise ValueError(
+            f"{where}: camera {cam_id} has model {model}; supported: {', '.join(SUPPORTED_MODELS)} "
+            "(undistort the images first: `colmap image_undistorter` writes PINHOLE cameras)"
+        )
     if len(params) != SUPPORTED_MODELS[model]:
         raise ValueError(f"{where}: model {model} takes {SUPPORTED_MODELS[model]} parameters, got {len(params)}")
     if not np.isfinite(params).all():
@@ -151,8 +156,13 @@ def _pinhole(where: str, cam_id: int, model: str, width: int, height: int, param
         fx, fy, cx, cy = params[:4]
         distortion = params[4:]
     if any(d != 0.0 for d in distortion):
-        logger.warning("%s: camera %d (%s) has distortion %s, which is ignored; undistort the images for "
-                       "exact projections", where, cam_id, model, distortion)
+        logger.warning(
+            "%s: camera %d (%s) has distortion %s, which is ignored; undistort the images for exact projections",
+            where,
+            cam_id,
+            model,
+            distortion,
+        )
     return width, height, fx, fy, cx, cy
 
 
@@ -171,8 +181,11 @@ def _pose(where: str, image_id: int, q: np.ndarray, t: np.ndarray) -> np.ndarray
 
 def _data_lines(path: Path) -> list[tuple[int, str]]:
     """(line number, text) of the lines of a COLMAP text file, comments dropped, blank lines kept."""
-    return [(i + 1, line.strip()) for i, line in enumerate(path.read_text().splitlines())
-            if not line.lstrip().startswith("#")]
+    return [
+        (i + 1, line.strip())
+        for i, line in enumerate(path.read_text().splitlines())
+        if not line.lstrip().startswith("#")
+    ]
 
 
 def read_colmap_cameras(path: Path) -> dict[int, Intrinsics]:
@@ -187,8 +200,9 @@ def read_colmap_cameras(path: Path) -> dict[int, Intrinsics]:
             cam_id, model, width, height = int(tok[0]), tok[1], int(tok[2]), int(tok[3])
             params = [float(t) for t in tok[4:]]
         except (IndexError, ValueError) as exc:
-            raise ValueError(f"{path}:{lineno}: expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...', "
-                             f"got {line!r}") from exc
+            raise ValueError(
+                f"{path}:{lineno}: expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...', got {line!r}"
+            ) from exc
         cams[cam_id] = _pinhole(f"{path}:{lineno}", cam_id, model, width, height, params)
     return cams
 
@@ -218,8 +232,9 @@ def read_colmap_images(path: Path) -> list[ImageRecord]:
             if not name or len(q) != 4 or len(t) != 3:
                 raise IndexError
         except (IndexError, ValueError) as exc:
-            raise ValueError(f"{path}:{lineno}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME', "
-                             f"got {line!r}") from exc
+            raise ValueError(
+                f"{path}:{lineno}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME', got {line!r}"
+            ) from exc
         out.append((image_id, _pose(f"{path}:{lineno}", image_id, q, t), cam_id, name))
         i += 2  # the POINTS2D line follows (it may be empty)
     return out
@@ -239,10 +254,10 @@ def read_colmap_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
             if len(xyz[-1]) != 3 or len(rgb[-1]) != 3:
                 raise IndexError
         except (IndexError, ValueError) as exc:
-            raise ValueError(f"{path}:{lineno}: expected 'POINT3D_ID X Y Z R G B ERROR TRACK...', "
-                             f"got {line!r}") from exc
-    return (np.asarray(xyz, dtype=np.float32).reshape(-1, 3),
-            np.asarray(rgb, dtype=np.float32).reshape(-1, 3) / 255.0)
+            raise ValueError(
+                f"{path}:{lineno}: expected 'POINT3D_ID X Y Z R G B ERROR TRACK...', got {line!r}"
+            ) from exc
+    return (np.asarray(xyz, dtype=np.float32).reshape(-1, 3), np.asarray(rgb, dtype=np.float32).reshape(-1, 3) / 255.0)
 
 
 # ---- binary ----------------------------------------------------------------------------------------
@@ -268,20 +283,24 @@ class _Bytes:
         return ValueError(
             f"{self.path}: truncated: declares {declared} {self.what} but ends at byte {len(self.data)} inside "
             f"{self.what[:-1]} {record + 1} (which needs bytes {self.offset} to {end}); the file is incomplete "
-            f"or corrupt: copy it again or {_REEXPORT}")
+            f"or corrupt: copy it again or {_REEXPORT}"
+        )
 
     def count(self, min_record_bytes: int) -> int:
         """The leading uint64 record count, checked against the bytes that follow it."""
         if len(self.data) < _COUNT.size:
-            raise ValueError(f"{self.path}: {len(self.data)} bytes, too short for the uint64 {self.what} count; "
-                             f"the file is empty or not a COLMAP binary model: {_REEXPORT}")
+            raise ValueError(
+                f"{self.path}: {len(self.data)} bytes, too short for the uint64 {self.what} count; "
+                f"the file is empty or not a COLMAP binary model: {_REEXPORT}"
+            )
         (n,) = _COUNT.unpack_from(self.data, 0)
         self.offset = _COUNT.size
         left = len(self.data) - self.offset
         if n * min_record_bytes > left:
             raise ValueError(
                 f"{self.path}: truncated or corrupt: declares {n} {self.what} (at least {n * min_record_bytes} "
-                f"bytes) but only {left} bytes follow the count; copy the file again or {_REEXPORT}")
+                f"bytes) but only {left} bytes follow the count; copy the file again or {_REEXPORT}"
+            )
         return n
 
     def unpack(self, fmt: struct.Struct, declared: int, record: int) -> tuple:
@@ -300,20 +319,23 @@ class _Bytes:
         end = self.data.find(b"\0", self.offset)
         if end < 0:
             raise self.truncated(declared, record, len(self.data) + 1)
-        raw = self.data[self.offset:end]
+        raw = self.data[self.offset : end]
         self.offset = end + 1
         try:
             return raw.decode("utf-8")
         except UnicodeDecodeError as exc:
-            raise ValueError(f"{self.path}: image {record + 1}'s name {raw[:40]!r} is not UTF-8; the file is "
-                             f"corrupt: {_REEXPORT}") from exc
+            raise ValueError(
+                f"{self.path}: image {record + 1}'s name {raw[:40]!r} is not UTF-8; the file is corrupt: {_REEXPORT}"
+            ) from exc
 
     def finish(self, declared: int) -> None:
         extra = len(self.data) - self.offset
         if extra:
-            raise ValueError(f"{self.path}: {extra} bytes after the last of its {declared} {self.what} "
-                             f"(byte {self.offset}); the file is corrupt or not a COLMAP {self.path.name}: "
-                             f"{_REEXPORT}")
+            raise ValueError(
+                f"{self.path}: {extra} bytes after the last of its {declared} {self.what} "
+                f"(byte {self.offset}); the file is corrupt or not a COLMAP {self.path.name}: "
+                f"{_REEXPORT}"
+            )
 
 
 def read_colmap_cameras_binary(path: Path) -> dict[int, Intrinsics]:
@@ -326,9 +348,11 @@ def read_colmap_cameras_binary(path: Path) -> dict[int, Intrinsics]:
         cam_id, model_id, width, height = buf.unpack(_CAMERA_HEAD, n, i)
         model = MODELS_BY_ID.get(model_id)
         if model is None:
-            raise ValueError(f"{path}: camera {cam_id} (record {i + 1} of {n}, byte {buf.offset - _CAMERA_HEAD.size}) "
-                             f"has unknown model id {model_id} (COLMAP's are 0-{len(CAMERA_MODELS) - 1}); "
-                             f"the file is corrupt: {_REEXPORT}")
+            raise ValueError(
+                f"{path}: camera {cam_id} (record {i + 1} of {n}, byte {buf.offset - _CAMERA_HEAD.size}) "
+                f"has unknown model id {model_id} (COLMAP's are 0-{len(CAMERA_MODELS) - 1}); "
+                f"the file is corrupt: {_REEXPORT}"
+            )
         params = list(buf.unpack(struct.Struct(f"<{model.num_params}d"), n, i))
         cams[cam_id] = _pinhole(str(path), cam_id, model.name, width, height, params)
     buf.finish(n)
@@ -348,8 +372,9 @@ def read_colmap_images_binary(path: Path) -> list[ImageRecord]:
         buf.skip(num_points2d * _POINT2D_BYTES, n, i)
         if not name:
             raise ValueError(f"{path}: image {image_id} (record {i + 1} of {n}) has an empty name; {_REEXPORT}")
-        out.append((image_id, _pose(str(path), image_id, np.array([qw, qx, qy, qz]), np.array([tx, ty, tz])),
-                    cam_id, name))
+        out.append(
+            (image_id, _pose(str(path), image_id, np.array([qw, qx, qy, qz]), np.array([tx, ty, tz])), cam_id, name)
+        )
     buf.finish(n)
     return out
 
@@ -431,9 +456,11 @@ def read_colmap_model(folder: Path) -> ColmapModel:
             xyz, rgb = read_colmap_points_binary(folder / BINARY_FILES[2])
         except ValueError as exc:
             if all((folder / f).is_file() for f in TEXT_FILES):
-                raise ValueError(f"{exc} ({folder} also holds a text model, which is read when the .bin files "
-                                 "are moved away)") from exc
+                raise ValueError(
+                    f"{exc} ({folder} also holds a text model, which is read when the .bin files are moved away)"
+                ) from exc
             raise
-    logger.debug("read COLMAP %s model %s: %d cameras, %d images, %d points", kind, folder, len(cams),
-                 len(images), len(xyz))
+    logger.debug(
+        "read COLMAP %s model %s: %d cameras, %d images, %d points", kind, folder, len(cams), len(images), len(xyz)
+    )
     return ColmapModel(folder=folder, kind=kind, cameras=cams, images=images, points=xyz, point_colors=rgb)

@@ -37,8 +37,20 @@ from .gaussians import SH_C0, GaussianSet
 from .ply import PlyLayout, gaussians_from_arrays, opacity_logits_from_unit, parse_ply_header, read_binary_elements
 
 CHUNK_SIZE = 256
-CHUNK_BOUNDS = ("min_x", "min_y", "min_z", "max_x", "max_y", "max_z",
-                "min_scale_x", "min_scale_y", "min_scale_z", "max_scale_x", "max_scale_y", "max_scale_z")
+CHUNK_BOUNDS = (
+    "min_x",
+    "min_y",
+    "min_z",
+    "max_x",
+    "max_y",
+    "max_z",
+    "min_scale_x",
+    "min_scale_y",
+    "min_scale_z",
+    "max_scale_x",
+    "max_scale_y",
+    "max_scale_z",
+)
 CHUNK_COLORS = ("min_r", "min_g", "min_b", "max_r", "max_g", "max_b")
 PACKED = ("packed_position", "packed_rotation", "packed_scale", "packed_color")
 SH_REST_COUNTS = {9: 1, 24: 2, 45: 3}  # f_rest columns -> SH degree
@@ -85,15 +97,17 @@ def load_compressed_ply(path: str | Path) -> GaussianSet:
     sh[:, 0] = dc
     if sh_count:
         sh[:, 1:] = _decode_sh(rows["sh"], sh_count)
-    return gaussians_from_arrays(source, means, decode_rotation(vertex["packed_rotation"]), log_scales,
-                                 opacity_logits_from_unit(opacity), sh)
+    return gaussians_from_arrays(
+        source, means, decode_rotation(vertex["packed_rotation"]), log_scales, opacity_logits_from_unit(opacity), sh
+    )
 
 
 def _check_layout(layout: PlyLayout, source: str) -> int:
     """Validate the header; return the number of SH rest columns (0 when there is no ``sh`` element)."""
     if not is_compressed_layout(layout):
-        raise ValueError(f"{source}: not a compressed .ply: it needs a 'chunk' element and vertex properties "
-                         f"{list(PACKED)}")
+        raise ValueError(
+            f"{source}: not a compressed .ply: it needs a 'chunk' element and vertex properties {list(PACKED)}"
+        )
     chunk, vertex = layout.element("chunk"), layout.element("vertex")
     chunk_types = dict(chunk.properties)
     missing = [p for p in CHUNK_BOUNDS if p not in chunk_types]
@@ -104,21 +118,31 @@ def _check_layout(layout: PlyLayout, source: str) -> int:
     wrong = [p for p, t in chunk.properties if p in CHUNK_BOUNDS + CHUNK_COLORS and t not in ("f4", "f8")]
     wrong += [p for p, t in vertex.properties if p in PACKED and t != "u4"]
     if wrong:
-        raise ValueError(f"{source}: compressed .ply properties {wrong} have the wrong type (chunk bounds are float, "
-                         f"packed_* are uint)")
+        raise ValueError(
+            f"{source}: compressed .ply properties {wrong} have the wrong type (chunk bounds are float, "
+            f"packed_* are uint)"
+        )
     expected_chunks = math.ceil(vertex.count / CHUNK_SIZE)
     if chunk.count != expected_chunks:
-        raise ValueError(f"{source}: the compressed .ply has {chunk.count} chunks for {vertex.count} splats; "
-                         f"expected ceil({vertex.count} / {CHUNK_SIZE}) = {expected_chunks} (corrupt header)")
+        raise ValueError(
+            f"{source}: the compressed .ply has {chunk.count} chunks for {vertex.count} splats; "
+            f"expected ceil({vertex.count} / {CHUNK_SIZE}) = {expected_chunks} (corrupt header)"
+        )
     sh = layout.element("sh")
     if sh is None:
         return 0
     names = [p for p, _ in sh.properties]
-    if (len(names) not in SH_REST_COUNTS or names != [f"f_rest_{i}" for i in range(len(names))]
-            or any(t != "u1" for _, t in sh.properties) or sh.count != vertex.count):
-        raise ValueError(f"{source}: SH data does not match the header: the 'sh' element has {sh.count} rows of "
-                         f"{len(names)} properties; expected {vertex.count} rows (one per splat) of uchar "
-                         f"f_rest_0..f_rest_{{8, 23 or 44}}; re-export the file")
+    if (
+        len(names) not in SH_REST_COUNTS
+        or names != [f"f_rest_{i}" for i in range(len(names))]
+        or any(t != "u1" for _, t in sh.properties)
+        or sh.count != vertex.count
+    ):
+        raise ValueError(
+            f"{source}: SH data does not match the header: the 'sh' element has {sh.count} rows of "
+            f"{len(names)} properties; expected {vertex.count} rows (one per splat) of uchar "
+            f"f_rest_0..f_rest_{{8, 23 or 44}}; re-export the file"
+        )
     return len(names)
 
 

@@ -164,8 +164,14 @@ def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     raise ValueError(f"{path}: {channels} channels; expected grey, RGB or RGBA")
 
 
-def _make_view(make_camera, path: Path, background: tuple[float, float, float], downscale: float,
-               resolution: int | None, cache: dict) -> View:
+def _make_view(
+    make_camera,
+    path: Path,
+    background: tuple[float, float, float],
+    downscale: float,
+    resolution: int | None,
+    cache: dict,
+) -> View:
     """Load, composite and resize one image and build its camera with ``make_camera(width, height)``.
 
     ``cache`` shares pixel tensors between splits that name the same file (a val split copying test).
@@ -180,8 +186,10 @@ def _make_view(make_camera, path: Path, background: tuple[float, float, float], 
     h, w = rgb.shape[:2]
     camera = make_camera(w, h)
     if (w, h) != (camera.width, camera.height):
-        raise ValueError(f"{path}: image is {w}x{h} pixels but its camera says {camera.width}x{camera.height}; "
-                         "fix the w/h keys or the image")
+        raise ValueError(
+            f"{path}: image is {w}x{h} pixels but its camera says {camera.width}x{camera.height}; "
+            "fix the w/h keys or the image"
+        )
     factor = _scale_factor(w, downscale, resolution)
     if factor != 1.0:
         camera = camera.scaled(factor)
@@ -190,8 +198,10 @@ def _make_view(make_camera, path: Path, background: tuple[float, float, float], 
         if size != (w, h):
             rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
             alpha = None if alpha is None else cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
-        resized[size] = (torch.from_numpy(np.ascontiguousarray(rgb, dtype=np.float32)),
-                         None if alpha is None else torch.from_numpy(np.ascontiguousarray(alpha, dtype=np.float32)))
+        resized[size] = (
+            torch.from_numpy(np.ascontiguousarray(rgb, dtype=np.float32)),
+            None if alpha is None else torch.from_numpy(np.ascontiguousarray(alpha, dtype=np.float32)),
+        )
     image, alpha_t = resized[size]
     return View(camera=camera, image=image, alpha=alpha_t, name=path.stem)
 
@@ -244,8 +254,9 @@ def _frame_image_path(json_path: Path, frame: dict, index: int) -> Path:
     for cand in candidates:
         if cand.is_file():
             return cand
-    raise ValueError(f"{_frame_where(json_path, frame, index)}: no image file at "
-                     f"{' or '.join(str(c) for c in candidates)}")
+    raise ValueError(
+        f"{_frame_where(json_path, frame, index)}: no image file at {' or '.join(str(c) for c in candidates)}"
+    )
 
 
 def _blender_pose(json_path: Path, frame: dict, index: int) -> np.ndarray:
@@ -261,8 +272,9 @@ def _blender_pose(json_path: Path, frame: dict, index: int) -> np.ndarray:
     try:
         c2w = np.asarray(frame["transform_matrix"], dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: 'transform_matrix' is not a numeric matrix ({exc}); it must be 4 rows of "
-                         "4 numbers") from exc
+        raise ValueError(
+            f"{where}: 'transform_matrix' is not a numeric matrix ({exc}); it must be 4 rows of 4 numbers"
+        ) from exc
     if c2w.shape not in ((4, 4), (3, 4)):
         raise ValueError(f"{where}: 'transform_matrix' must be a 4x4 (or 3x4) matrix, got shape {c2w.shape}")
     if not np.isfinite(c2w).all():
@@ -274,13 +286,17 @@ def _blender_pose(json_path: Path, frame: dict, index: int) -> np.ndarray:
     rot = c2w[:3, :3]
     det = float(np.linalg.det(rot))
     if abs(det) < 1e-9:
-        raise ValueError(f"{where}: 'transform_matrix' is singular (its 3x3 rotation part has determinant "
-                         f"{det:.3g}); it must be a rotation and a translation")
+        raise ValueError(
+            f"{where}: 'transform_matrix' is singular (its 3x3 rotation part has determinant "
+            f"{det:.3g}); it must be a rotation and a translation"
+        )
     err = float(np.abs(rot @ rot.T - np.eye(3)).max())
     if err > 1e-4 or det < 0:
         what = "a reflection (determinant -1)" if err <= 1e-4 else f"not orthonormal (max |R R^T - I| = {err:.3g})"
-        raise ValueError(f"{where}: 'transform_matrix' 3x3 part is {what}; it must be a rotation (no scale, "
-                         "shear or mirror) and a translation")
+        raise ValueError(
+            f"{where}: 'transform_matrix' 3x3 part is {what}; it must be a rotation (no scale, "
+            "shear or mirror) and a translation"
+        )
     return np.linalg.inv(c2w @ _GL_TO_CV)
 
 
@@ -297,8 +313,10 @@ def _intrinsic_value(where: str, key: str, raw, top_level: bool):
         raise ValueError(f"{where}: key '{key}'{origin} must be finite, got {raw!r}")
     if key in ("w", "h"):
         if val != int(val) or val < 1:
-            raise ValueError(f"{where}: key '{key}'{origin} must be a positive integer image size in pixels, got "
-                             f"{raw!r}; fix it, or remove 'w' and 'h' to take the size from the image")
+            raise ValueError(
+                f"{where}: key '{key}'{origin} must be a positive integer image size in pixels, got "
+                f"{raw!r}; fix it, or remove 'w' and 'h' to take the size from the image"
+            )
         return int(val)
     if key in ("fl_x", "fl_y") and val <= 0:
         raise ValueError(f"{where}: key '{key}'{origin} (focal length, pixels) must be > 0, got {raw!r}")
@@ -315,13 +333,14 @@ def _blender_intrinsics(json_path: Path, meta: dict, frame: dict, index: int) ->
         raw = frame[key] if key in frame else meta.get(key)
         keys[key] = None if raw is None else _intrinsic_value(where, key, raw, key not in frame)
     if keys["fl_x"] is None and keys["camera_angle_x"] is None:
-        raise ValueError(f"{json_path}: missing 'camera_angle_x' (horizontal field of view, radians) "
-                         f"or 'fl_x' (focal length, pixels) for frame {index}; add one of them")
+        raise ValueError(
+            f"{json_path}: missing 'camera_angle_x' (horizontal field of view, radians) "
+            f"or 'fl_x' (focal length, pixels) for frame {index}; add one of them"
+        )
     return keys
 
 
-def _blender_camera(keys: dict, w2c: np.ndarray, where: str, name: str,
-                    image_width: int, image_height: int) -> Camera:
+def _blender_camera(keys: dict, w2c: np.ndarray, where: str, name: str, image_width: int, image_height: int) -> Camera:
     """The camera of checked intrinsic ``keys``; the image size fills in a missing ``w`` / ``h``."""
     width = keys["w"] if keys["w"] is not None else image_width
     height = keys["h"] if keys["h"] is not None else image_height
@@ -350,12 +369,15 @@ def _read_transforms(json_path: Path) -> tuple[dict, list[dict]]:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{json_path}: not valid JSON ({exc}); pass a Blender / NeRF transforms.json") from exc
     except RecursionError:
-        raise ValueError(f"{json_path}: its JSON nests too deeply (thousands of levels); pass a Blender / NeRF "
-                         "transforms.json") from None
+        raise ValueError(
+            f"{json_path}: its JSON nests too deeply (thousands of levels); pass a Blender / NeRF transforms.json"
+        ) from None
     frames = meta.get("frames") if isinstance(meta, dict) else None
     if not isinstance(frames, list):
-        raise ValueError(f"{json_path}: missing 'frames' list; a transforms.json holds frames with 'file_path' and "
-                         "'transform_matrix'")
+        raise ValueError(
+            f"{json_path}: missing 'frames' list; a transforms.json holds frames with 'file_path' and "
+            "'transform_matrix'"
+        )
     for i, frame in enumerate(frames):
         if not isinstance(frame, dict):
             raise ValueError(f"{json_path}: frame {i} is not an object")
@@ -372,8 +394,10 @@ def _frame_size(json_path: Path, frame: dict, keys: dict, index: int, res: int |
             if img is not None:
                 return img.shape[1], img.shape[0]
     if res is None:
-        raise ValueError(f"{_frame_where(json_path, frame, index)} has no 'w'/'h' keys and no readable image; add "
-                         "'w' and 'h' (pixels) or give a width (res; the --res option)")
+        raise ValueError(
+            f"{_frame_where(json_path, frame, index)} has no 'w'/'h' keys and no readable image; add "
+            "'w' and 'h' (pixels) or give a width (res; the --res option)"
+        )
     width = keys["w"] if keys["w"] is not None else res
     return width, keys["h"] if keys["h"] is not None else width
 
@@ -399,8 +423,9 @@ def load_cameras(path, res: int | None = None) -> list[Camera]:
         raise ValueError(f"res (--res) must be a positive integer image width in pixels, got {res!r}")
     meta, frames = _read_transforms(json_path)
     if not frames:
-        raise ValueError(f"{json_path}: 'frames' is empty; a cameras file needs at least one frame with "
-                         "'transform_matrix'")
+        raise ValueError(
+            f"{json_path}: 'frames' is empty; a cameras file needs at least one frame with 'transform_matrix'"
+        )
     cams = []
     for i, frame in enumerate(frames):
         keys = _blender_intrinsics(json_path, meta, frame, i)
@@ -412,24 +437,32 @@ def load_cameras(path, res: int | None = None) -> list[Camera]:
     return cams
 
 
-def _load_blender_split(json_path: Path, background, downscale: float, resolution: int | None,
-                        cache: dict) -> list[View]:
+def _load_blender_split(
+    json_path: Path, background, downscale: float, resolution: int | None, cache: dict
+) -> list[View]:
     meta, frames = _read_transforms(json_path)
     # Validate every frame (keys, paths, matrices) before reading any pixel data.
     checked = []
     for i, frame in enumerate(frames):
-        checked.append((i, _frame_image_path(json_path, frame, i), _blender_intrinsics(json_path, meta, frame, i),
-                        _blender_pose(json_path, frame, i)))
+        checked.append(
+            (
+                i,
+                _frame_image_path(json_path, frame, i),
+                _blender_intrinsics(json_path, meta, frame, i),
+                _blender_pose(json_path, frame, i),
+            )
+        )
     views = []
     for i, path, keys, w2c in checked:
+
         def make_camera(w, h, i=i, path=path, keys=keys, w2c=w2c):
             return _blender_camera(keys, w2c, f"{json_path}: frame {i}", path.stem, w, h)
+
         views.append(_make_view(make_camera, path, background, downscale, resolution, cache))
     return views
 
 
-def load_blender(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
-                 resolution: int | None = None) -> Dataset:
+def load_blender(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, resolution: int | None = None) -> Dataset:
     """Load a NeRF-synthetic / Blender dataset folder (``transforms_{train,val,test}.json``).
 
     Args:
@@ -451,10 +484,24 @@ def load_blender(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
     for split in SPLITS:
         json_path = root / f"transforms_{split}.json"
         splits[split] = _load_blender_split(json_path, bg, downscale, resolution, cache) if json_path.is_file() else []
-    logger.info("loaded Blender dataset %s: %d train, %d val, %d test views", root, len(splits["train"]),
-                len(splits["val"]), len(splits["test"]))
-    return Dataset(train=splits["train"], val=splits["val"], test=splits["test"], background=bg, points=None,
-                   point_colors=None, mesh_path=mesh_path, up_axis=up_axis or "z", root=root)
+    logger.info(
+        "loaded Blender dataset %s: %d train, %d val, %d test views",
+        root,
+        len(splits["train"]),
+        len(splits["val"]),
+        len(splits["test"]),
+    )
+    return Dataset(
+        train=splits["train"],
+        val=splits["val"],
+        test=splits["test"],
+        background=bg,
+        points=None,
+        point_colors=None,
+        mesh_path=mesh_path,
+        up_axis=up_axis or "z",
+        root=root,
+    )
 
 
 # ---- COLMAP ---------------------------------------------------------------------------------------
@@ -468,8 +515,9 @@ def _colmap_images_dir(sparse: Path) -> Path:
     raise ValueError(f"{sparse}: no images folder; looked for {', '.join(str(c) for c in candidates)}")
 
 
-_NO_COLMAP = (f"no COLMAP model ({', '.join(BINARY_FILES)} or {', '.join(TEXT_FILES)}) in sparse/0, sparse or "
-              "the folder itself")
+_NO_COLMAP = (
+    f"no COLMAP model ({', '.join(BINARY_FILES)} or {', '.join(TEXT_FILES)}) in sparse/0, sparse or the folder itself"
+)
 
 
 def _colmap_entries(model, images_dir: Path) -> list[tuple[Camera, Path]]:
@@ -478,8 +526,9 @@ def _colmap_entries(model, images_dir: Path) -> list[tuple[Camera, Path]]:
     entries = []
     for image_id, w2c, cam_id, name in sorted(model.images, key=lambda e: e[3]):
         if cam_id not in model.cameras:
-            raise ValueError(f"{images_file}: image {image_id} ({name}) uses camera {cam_id}, which is "
-                             f"not in {cams_file.name}")
+            raise ValueError(
+                f"{images_file}: image {image_id} ({name}) uses camera {cam_id}, which is not in {cams_file.name}"
+            )
         image_path = images_dir / name
         if not image_path.is_file():
             raise ValueError(f"{images_file}: image {image_id}: no file {image_path}")
@@ -487,14 +536,14 @@ def _colmap_entries(model, images_dir: Path) -> list[tuple[Camera, Path]]:
         try:
             cam = Camera(width, height, fx, fy, cx, cy, torch.from_numpy(w2c), name=Path(name).stem)
         except ValueError as exc:
-            raise ValueError(f"{cams_file} / {images_file.name}: image {image_id} ({name}), camera {cam_id}: "
-                             f"{exc}") from exc
+            raise ValueError(
+                f"{cams_file} / {images_file.name}: image {image_id} ({name}), camera {cam_id}: {exc}"
+            ) from exc
         entries.append((cam, image_path))
     return entries
 
 
-def load_colmap(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
-                resolution: int | None = None) -> Dataset:
+def load_colmap(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, resolution: int | None = None) -> Dataset:
     """Load a COLMAP model (binary, else text) and its images.
 
     Args:
@@ -520,11 +569,25 @@ def load_colmap(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
         view = _make_view(lambda w, h, cam=cam: cam, image_path, bg, downscale, resolution, cache)
         (test if index % COLMAP_TEST_EVERY == 0 else train).append(view)
     mesh_path, up_axis = _read_dataset_json(root)
-    logger.info("loaded COLMAP %s dataset %s: %d train, %d test views, %d points", model.kind, root, len(train),
-                len(test), len(model.points))
-    return Dataset(train=train, val=[], test=test, background=bg, points=torch.from_numpy(model.points),
-                   point_colors=torch.from_numpy(model.point_colors), mesh_path=mesh_path, up_axis=up_axis or "y",
-                   root=root)
+    logger.info(
+        "loaded COLMAP %s dataset %s: %d train, %d test views, %d points",
+        model.kind,
+        root,
+        len(train),
+        len(test),
+        len(model.points),
+    )
+    return Dataset(
+        train=train,
+        val=[],
+        test=test,
+        background=bg,
+        points=torch.from_numpy(model.points),
+        point_colors=torch.from_numpy(model.point_colors),
+        mesh_path=mesh_path,
+        up_axis=up_axis or "y",
+        root=root,
+    )
 
 
 # ---- auto-detection ------------------------------------------------------------------------------
@@ -542,21 +605,24 @@ def dataset_format(path) -> str:
     if root.is_file() and root.name.startswith("transforms_") and root.suffix == ".json":
         root = root.parent
     if root.is_file():
-        raise ValueError(f"{root}: a file, not a dataset folder; pass the folder that holds transforms_train.json "
-                         "or a COLMAP model (or its transforms_*.json file)")
+        raise ValueError(
+            f"{root}: a file, not a dataset folder; pass the folder that holds transforms_train.json "
+            "or a COLMAP model (or its transforms_*.json file)"
+        )
     if not root.is_dir():
         raise ValueError(f"{root}: dataset folder does not exist")
     if (root / "transforms_train.json").is_file():
         return "blender"
     if find_colmap_sparse(root) is not None:
         return "colmap"
-    raise ValueError(f"{root}: not a dataset; looked for transforms_train.json (Blender / NeRF-synthetic) and a "
-                     f"COLMAP model ({', '.join(BINARY_FILES)} or {', '.join(TEXT_FILES)}) in sparse/0, sparse or "
-                     "the folder")
+    raise ValueError(
+        f"{root}: not a dataset; looked for transforms_train.json (Blender / NeRF-synthetic) and a "
+        f"COLMAP model ({', '.join(BINARY_FILES)} or {', '.join(TEXT_FILES)}) in sparse/0, sparse or "
+        "the folder"
+    )
 
 
-def load_dataset(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0,
-                 resolution: int | None = None) -> Dataset:
+def load_dataset(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, resolution: int | None = None) -> Dataset:
     """Load a Blender/NeRF-synthetic or COLMAP (binary or text) dataset, detected from the folder's contents.
 
     Args:

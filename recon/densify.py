@@ -53,8 +53,11 @@ class DensityStats:
 
     @classmethod
     def zeros(cls, n: int, device=None, dtype: torch.dtype = torch.float32) -> DensityStats:
-        return cls(torch.zeros(n, dtype=dtype, device=device), torch.zeros(n, dtype=dtype, device=device),
-                   torch.zeros(n, dtype=dtype, device=device))
+        return cls(
+            torch.zeros(n, dtype=dtype, device=device),
+            torch.zeros(n, dtype=dtype, device=device),
+            torch.zeros(n, dtype=dtype, device=device),
+        )
 
     @torch.no_grad()
     def update(self, ndc_grad: torch.Tensor, radii: torch.Tensor, visible: torch.Tensor) -> None:
@@ -107,8 +110,9 @@ def _limit(candidates: torch.Tensor, grads: torch.Tensor, budget: int | None) ->
     return limited
 
 
-def split_samples(gaussians: GaussianSet, mask: torch.Tensor, generator: torch.Generator | None,
-                  n_children: int = 2) -> GaussianSet:
+def split_samples(
+    gaussians: GaussianSet, mask: torch.Tensor, generator: torch.Generator | None, n_children: int = 2
+) -> GaussianSet:
     """The children of the Gaussians selected by ``mask``: means from N(mu, Sigma), scales / (0.8 n).
 
     Children are tiled as in the reference trainer: all first children, then all second children.
@@ -128,15 +132,30 @@ def split_samples(gaussians: GaussianSet, mask: torch.Tensor, generator: torch.G
     rots = parents.rotations().repeat(n_children, 1, 1)
     means = (rots @ samples[..., None])[..., 0] + parents.means.repeat(n_children, 1)
     log_scales = torch.log(stds / (0.8 * n_children))
-    return GaussianSet(means, parents.quats.repeat(n_children, 1), log_scales,
-                       parents.opacity_logits.repeat(n_children), parents.sh.repeat(n_children, 1, 1))
+    return GaussianSet(
+        means,
+        parents.quats.repeat(n_children, 1),
+        log_scales,
+        parents.opacity_logits.repeat(n_children),
+        parents.sh.repeat(n_children, 1, 1),
+    )
 
 
 @torch.no_grad()
-def densify_and_prune(gaussians: GaussianSet, stats: DensityStats, *, grad_threshold: float, percent_dense: float,
-                      extent: float, min_opacity: float, max_screen_size: float | None,
-                      big_world_fraction: float | None, generator: torch.Generator | None,
-                      max_gaussians: int | None = None, densify: bool = True) -> DensifyResult:
+def densify_and_prune(
+    gaussians: GaussianSet,
+    stats: DensityStats,
+    *,
+    grad_threshold: float,
+    percent_dense: float,
+    extent: float,
+    min_opacity: float,
+    max_screen_size: float | None,
+    big_world_fraction: float | None,
+    generator: torch.Generator | None,
+    max_gaussians: int | None = None,
+    densify: bool = True,
+) -> DensifyResult:
     """One step of adaptive density control: clone, split, then prune (reference order).
 
     Args:
@@ -175,8 +194,13 @@ def densify_and_prune(gaussians: GaussianSet, stats: DensityStats, *, grad_thres
     children = split_samples(gaussians, split, generator)
     all_set = concat([gaussians, clones, children])
     origin = torch.cat([torch.arange(n, device=device), torch.full((clones.num + children.num,), -1, device=device)])
-    radii = torch.cat([stats.max_radii2d.to(device), stats.max_radii2d.to(device)[clone],
-                       stats.max_radii2d.to(device)[split].repeat(2)])
+    radii = torch.cat(
+        [
+            stats.max_radii2d.to(device),
+            stats.max_radii2d.to(device)[clone],
+            stats.max_radii2d.to(device)[split].repeat(2),
+        ]
+    )
     # Split parents are replaced by their children; then the opacity and size rules apply to everyone.
     remove = torch.cat([split, torch.zeros(clones.num + children.num, dtype=torch.bool, device=device)])
     prune = all_set.opacities < min_opacity
@@ -185,8 +209,14 @@ def densify_and_prune(gaussians: GaussianSet, stats: DensityStats, *, grad_thres
         if big_world_fraction is not None:
             prune |= all_set.scales.max(dim=-1).values > big_world_fraction * extent
     keep = ~(remove | prune)
-    return DensifyResult(all_set.subset(keep), origin[keep], int(clone.sum()), int(split.sum()),
-                         int((prune & ~remove).sum()), radii[keep])
+    return DensifyResult(
+        all_set.subset(keep),
+        origin[keep],
+        int(clone.sum()),
+        int(split.sum()),
+        int((prune & ~remove).sum()),
+        radii[keep],
+    )
 
 
 @torch.no_grad()

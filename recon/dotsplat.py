@@ -43,15 +43,19 @@ def load_splat(path: str | Path) -> GaussianSet:
     if size == 0:
         raise ValueError(f"{source}: the .splat file is empty (0 Gaussians)")
     if size % RECORD_BYTES:
-        raise ValueError(f"{source}: truncated .splat: {size} bytes is not a whole number of {RECORD_BYTES}-byte "
-                         f"records ({size % RECORD_BYTES} bytes left over); re-export or re-download the file")
+        raise ValueError(
+            f"{source}: truncated .splat: {size} bytes is not a whole number of {RECORD_BYTES}-byte "
+            f"records ({size % RECORD_BYTES} bytes left over); re-export or re-download the file"
+        )
     records = np.fromfile(path, dtype=RECORD, count=size // RECORD_BYTES)
     scale = records["scale"]
     bad = ~(np.isfinite(scale) & (scale > 0)).all(1)
     if bad.any():
         rows = np.flatnonzero(bad)
-        raise ValueError(f"{source}: {len(rows)} Gaussians have a zero, negative or non-finite scale (first rows "
-                         f"{rows[:5].tolist()}); a .splat stores positive standard deviations")
+        raise ValueError(
+            f"{source}: {len(rows)} Gaussians have a zero, negative or non-finite scale (first rows "
+            f"{rows[:5].tolist()}); a .splat stores positive standard deviations"
+        )
     rgba = records["rgba"].astype(np.float32) / 255.0
     dc = (rgba[:, :3] - 0.5) / np.float32(SH_C0)
     quats = (records["rotation"].astype(np.float32) - 128.0) / 128.0

@@ -109,18 +109,24 @@ def detect_format(path: str | Path) -> str:
         return "checkpoint"  # a legacy (non-zip) torch.save file
     if not head:
         raise ValueError(f"{path}: the file is empty; {SUPPORTED}")
-    expected = {".ply": "not a PLY file (the first line is not 'ply')",
-                ".npz": "not a readable .npz archive (no zip signature)",
-                ".spz": "not an .spz file (neither gzip-wrapped nor starting with 'NGSP')"}
+    expected = {
+        ".ply": "not a PLY file (the first line is not 'ply')",
+        ".npz": "not a readable .npz archive (no zip signature)",
+        ".spz": "not an .spz file (neither gzip-wrapped nor starting with 'NGSP')",
+    }
     what = expected.get(suffix, f"unrecognised Gaussian file format (suffix {path.suffix!r})")
     size = path.stat().st_size
-    hint = (f" (its {size} bytes are a whole number of 32-byte records: if it is an antimatter15 .splat, which has "
-            f"no header, rename it to {path.stem}.splat)" if size % dotsplat.RECORD_BYTES == 0 else "")
+    hint = (
+        f" (its {size} bytes are a whole number of 32-byte records: if it is an antimatter15 .splat, which has "
+        f"no header, rename it to {path.stem}.splat)"
+        if size % dotsplat.RECORD_BYTES == 0
+        else ""
+    )
     raise ValueError(f"{path}: {what}; it starts with {head!r}{hint}; {SUPPORTED}")
 
 
 def _zip_format(path: Path) -> str:
-    """"sog", "checkpoint" or "npz" for a zip archive, from its member names."""
+    """ "sog", "checkpoint" or "npz" for a zip archive, from its member names."""
     try:
         with zipfile.ZipFile(path) as archive:
             names = archive.namelist()[:MAX_ZIP_NAMES]
@@ -167,12 +173,17 @@ class SourceFrame:
 
     def to_json(self) -> str:
         """The record stored in RESULT.h5 (``source_frame``)."""
-        return json.dumps({"format": self.format, "description": self.description,
-                           "to_loaded": np.asarray(self.to_loaded, float).tolist(), "metric": self.metric})
+        return json.dumps(
+            {
+                "format": self.format,
+                "description": self.description,
+                "to_loaded": np.asarray(self.to_loaded, float).tolist(),
+                "metric": self.metric,
+            }
+        )
 
 
-def load_gaussians_framed(path: str | Path, options: LoadOptions | None = None
-                          ) -> tuple[GaussianSet, str, SourceFrame]:
+def load_gaussians_framed(path: str | Path, options: LoadOptions | None = None) -> tuple[GaussianSet, str, SourceFrame]:
     """Read a Gaussian file of any supported format, and say which frame it was assumed to be in.
 
     Returns:
@@ -188,20 +199,26 @@ def load_gaussians_framed(path: str | Path, options: LoadOptions | None = None
         gaussians = spz.load_spz(path, options.spz_frame)
         turned = options.spz_frame == "rub"
         other = "ply" if turned else "rub"
-        frame = SourceFrame(fmt, f"{path}: .spz read as {spz.SPZ_FRAMES[options.spz_frame]}; if it looks upside "
-                                 f"down, pass --spz-frame {other} (see docs/formats.md)",
-                            np.diag([1.0, -1.0, -1.0, 1.0]) if turned else identity)
+        frame = SourceFrame(
+            fmt,
+            f"{path}: .spz read as {spz.SPZ_FRAMES[options.spz_frame]}; if it looks upside "
+            f"down, pass --spz-frame {other} (see docs/formats.md)",
+            np.diag([1.0, -1.0, -1.0, 1.0]) if turned else identity,
+        )
     elif fmt == "checkpoint":
         from .checkpoints import load_checkpoint, restore_metric_frame  # noqa: PLC0415 - torch.load only here
 
         model = load_checkpoint(path)
         gaussians, undo, note = restore_metric_frame(model, options.colmap, options.dataparser_transforms)
-        frame = SourceFrame(fmt, f"{path}: {model.trainer} checkpoint; {note}" if undo is not None else note,
-                            identity if undo is None else undo, metric=undo is not None)
+        frame = SourceFrame(
+            fmt,
+            f"{path}: {model.trainer} checkpoint; {note}" if undo is not None else note,
+            identity if undo is None else undo,
+            metric=undo is not None,
+        )
     else:
         gaussians = READERS[fmt](path)
-        frame = SourceFrame(fmt, f"{path}: {FORMATS[fmt]} read in the file's own frame (the 3DGS .ply frame)",
-                            identity)
+        frame = SourceFrame(fmt, f"{path}: {FORMATS[fmt]} read in the file's own frame (the 3DGS .ply frame)", identity)
     log.debug("%s: %d Gaussians read as %s", path, gaussians.num, FORMATS[fmt])
     return gaussians, fmt, frame
 
@@ -226,6 +243,9 @@ def load_gaussians(path: str | Path) -> GaussianSet:
 
 def _folder_message(path: Path) -> str:
     candidates = sorted(p.name for p in path.iterdir() if p.is_file() and p.suffix.lower() in SUFFIXES)[:5]
-    hint = (f"it holds {', '.join(candidates)}" if candidates
-            else "a 3DGS output folder keeps it in point_cloud/iteration_*/point_cloud.ply")
+    hint = (
+        f"it holds {', '.join(candidates)}"
+        if candidates
+        else "a 3DGS output folder keeps it in point_cloud/iteration_*/point_cloud.ply"
+    )
     return f"{path}: is a folder, not a Gaussian file; pass the file itself ({hint}); {SUPPORTED}"

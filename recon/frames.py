@@ -56,7 +56,9 @@ def up_from_cameras(cameras, min_agreement: float = 0.25) -> np.ndarray:
     mean = ups.mean(axis=0)
     norm = float(np.linalg.norm(mean))
     if norm < min_agreement:
-        raise ValueError(f"the {len(ups)} cameras have no consistent up direction: their up vectors average to "
-                         f"length {norm:.3f} (< {min_agreement}; 1 = all agree); pass the up axis explicitly "
-                         "(--up y, --up z, ...) instead of --up auto")
+        raise ValueError(
+            f"the {len(ups)} cameras have no consistent up direction: their up vectors average to "
+            f"length {norm:.3f} (< {min_agreement}; 1 = all agree); pass the up axis explicitly "
+            "(--up y, --up z, ...) instead of --up auto"
+        )
     return mean / norm

@@ -51,11 +51,20 @@ def quaternion_to_rotation(quats: torch.Tensor) -> torch.Tensor:
     """
     q = quats / quats.norm(dim=-1, keepdim=True)
     w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(*q.shape[:-1], 3, 3)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        -1,
+    ).reshape(*q.shape[:-1], 3, 3)
 
 
 @dataclass
@@ -89,8 +98,12 @@ class GaussianSet:
             if not isinstance(t, torch.Tensor) or tuple(t.shape) != shape:
                 got = tuple(t.shape) if isinstance(t, torch.Tensor) else type(t).__name__
                 raise ValueError(f"GaussianSet.{name} must have shape {shape} (N = {n}), got {got}")
-        if not isinstance(self.sh, torch.Tensor) or self.sh.dim() != 3 or self.sh.shape[0] != n \
-                or self.sh.shape[2] != 3:
+        if (
+            not isinstance(self.sh, torch.Tensor)
+            or self.sh.dim() != 3
+            or self.sh.shape[0] != n
+            or self.sh.shape[2] != 3
+        ):
             got = tuple(self.sh.shape) if isinstance(self.sh, torch.Tensor) else type(self.sh).__name__
             raise ValueError(f"GaussianSet.sh must have shape ({n}, K, 3), got {got}")
         try:
@@ -103,8 +116,14 @@ class GaussianSet:
 
     # ---- construction -------------------------------------------------------------------------
     @classmethod
-    def from_points(cls, points: torch.Tensor, colors: torch.Tensor | None = None, scale: float | torch.Tensor = 0.01,
-                    opacity: float = 0.1, sh_degree: int = 0) -> GaussianSet:
+    def from_points(
+        cls,
+        points: torch.Tensor,
+        colors: torch.Tensor | None = None,
+        scale: float | torch.Tensor = 0.01,
+        opacity: float = 0.1,
+        sh_degree: int = 0,
+    ) -> GaussianSet:
         """Isotropic Gaussians at ``points`` [N, 3] with ``colors`` [N, 3] in [0, 1] (grey when None).
 
         ``scale`` is the standard deviation (a float or an [N] tensor), ``opacity`` in (0, 1).
@@ -114,22 +133,32 @@ class GaussianSet:
             raise ValueError(f"points must have shape (N, 3), got {tuple(points.shape)}")
         if not 0.0 < opacity < 1.0:
             raise ValueError(f"opacity must be in (0, 1), got {opacity}")
-        n, dtype, device = points.shape[0], points.dtype if points.is_floating_point() else torch.float32, \
-            points.device
+        n, dtype, device = points.shape[0], points.dtype if points.is_floating_point() else torch.float32, points.device
         points = points.to(dtype)
-        scale_t = torch.as_tensor(scale, dtype=dtype, device=device).expand(n) if not isinstance(scale, torch.Tensor) \
+        scale_t = (
+            torch.as_tensor(scale, dtype=dtype, device=device).expand(n)
+            if not isinstance(scale, torch.Tensor)
             else scale.to(dtype=dtype, device=device).reshape(n)
+        )
         if (scale_t <= 0).any() or not torch.isfinite(scale_t).all():
             raise ValueError("scale must be finite and > 0")
         quats = torch.zeros(n, 4, dtype=dtype, device=device)
         quats[:, 0] = 1.0
         sh = torch.zeros(n, sh_coefficient_count(sh_degree), 3, dtype=dtype, device=device)
-        rgb = torch.full((n, 3), 0.5, dtype=dtype, device=device) if colors is None else \
-            torch.as_tensor(colors, dtype=dtype, device=device).reshape(n, 3)
+        rgb = (
+            torch.full((n, 3), 0.5, dtype=dtype, device=device)
+            if colors is None
+            else torch.as_tensor(colors, dtype=dtype, device=device).reshape(n, 3)
+        )
         sh[:, 0] = rgb_to_sh0(rgb)
         logit = math.log(opacity / (1.0 - opacity))
-        return cls(points.clone(), quats, torch.log(scale_t)[:, None].repeat(1, 3).contiguous(),
-                   torch.full((n,), logit, dtype=dtype, device=device), sh)
+        return cls(
+            points.clone(),
+            quats,
+            torch.log(scale_t)[:, None].repeat(1, 3).contiguous(),
+            torch.full((n,), logit, dtype=dtype, device=device),
+            sh,
+        )
 
     # ---- derived quantities -------------------------------------------------------------------
     @property
@@ -216,13 +245,17 @@ class GaussianSet:
             bad = ~torch.isfinite(t)
             if bad.any():
                 rows = torch.nonzero(bad.reshape(self.num, -1).any(-1)).flatten()
-                raise ValueError(f"{source}: {len(rows)} Gaussians have NaN or Inf in {f.name} "
-                                 f"(first rows {rows[:5].tolist()}); remove or repair them")
+                raise ValueError(
+                    f"{source}: {len(rows)} Gaussians have NaN or Inf in {f.name} "
+                    f"(first rows {rows[:5].tolist()}); remove or repair them"
+                )
         zero = self.quats.norm(dim=-1) == 0
         if zero.any():
             rows = torch.nonzero(zero).flatten()
-            raise ValueError(f"{source}: {len(rows)} Gaussians have a zero rotation quaternion "
-                             f"(first rows {rows[:5].tolist()}); set them to (1, 0, 0, 0)")
+            raise ValueError(
+                f"{source}: {len(rows)} Gaussians have a zero rotation quaternion "
+                f"(first rows {rows[:5].tolist()}); set them to (1, 0, 0, 0)"
+            )
         return self
 
 

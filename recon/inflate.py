@@ -76,9 +76,11 @@ def check_budget(source: str, what: str, declared: int) -> None:
     """Raise ``ValueError`` naming ``source`` when ``declared`` bytes (``what``) exceed the memory budget."""
     budget = memory_budget_bytes()
     if declared > budget:
-        raise ValueError(f"{source}: {what} would decode to {declared / 2**30:.2f} GiB, more than the memory budget "
-                         f"of {budget / 2**30:.2f} GiB (half the memory available now; {BUDGET_ENV} sets it): a "
-                         f"corrupt or hostile file, or a capture too large for this machine")
+        raise ValueError(
+            f"{source}: {what} would decode to {declared / 2**30:.2f} GiB, more than the memory budget "
+            f"of {budget / 2**30:.2f} GiB (half the memory available now; {BUDGET_ENV} sets it): a "
+            f"corrupt or hostile file, or a capture too large for this machine"
+        )
 
 
 def inflate_zlib(data: bytes, size: int, source: str, what: str, wbits: int = zlib.MAX_WBITS) -> bytes:
@@ -115,8 +117,10 @@ def inflate_zstd(frame: bytes, size: int, source: str, what: str) -> bytes:
     try:  # a dependency of the project (setup.cfg), imported here so that the other formats never need it
         import zstandard  # noqa: PLC0415 - only zstd-compressed files need it
     except ImportError:
-        raise ValueError(f"{source}: the file is zstd-compressed and the 'zstandard' package is missing; install "
-                         f"the project again (pip install -e .) or run 'pip install zstandard'") from None
+        raise ValueError(
+            f"{source}: the file is zstd-compressed and the 'zstandard' package is missing; install "
+            f"the project again (pip install -e .) or run 'pip install zstandard'"
+        ) from None
     parts, got = [], 0
     try:
         with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(frame)) as reader:
@@ -129,8 +133,10 @@ def inflate_zstd(frame: bytes, size: int, source: str, what: str) -> bytes:
     except zstandard.ZstdError as exc:
         raise ValueError(f"{source}: corrupt zstd stream for {what} ({exc}); re-download the file") from None
     if got != size:
-        raise ValueError(f"{source}: corrupt {what}: the zstd stream decompresses to "
-                         f"{'more than' if got > size else 'only'} {got} bytes, expected {size}")
+        raise ValueError(
+            f"{source}: corrupt {what}: the zstd stream decompresses to "
+            f"{'more than' if got > size else 'only'} {got} bytes, expected {size}"
+        )
     return b"".join(parts)
 
 
@@ -138,8 +144,10 @@ def read_zip_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: str
     """The bytes of one zip member, read in bounded chunks; refused when its directory entry or its content
     exceeds ``limit`` bytes (checked against :func:`memory_budget_bytes` too)."""
     if info.file_size > limit:
-        raise ValueError(f"{source}: member {info.filename!r} declares {info.file_size} bytes, more than the "
-                         f"{limit} bytes it may hold (corrupt or hostile archive)")
+        raise ValueError(
+            f"{source}: member {info.filename!r} declares {info.file_size} bytes, more than the "
+            f"{limit} bytes it may hold (corrupt or hostile archive)"
+        )
     check_budget(source, f"member {info.filename!r}", info.file_size)
     parts, got = [], 0
     try:
@@ -151,9 +159,12 @@ def read_zip_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: str
                 parts.append(part)
                 got += len(part)
     except (zipfile.BadZipFile, OSError, EOFError, zlib.error, NotImplementedError) as exc:
-        raise ValueError(f"{source}: member {info.filename!r} cannot be read ({exc}); re-download or re-export "
-                         f"the file") from None
+        raise ValueError(
+            f"{source}: member {info.filename!r} cannot be read ({exc}); re-download or re-export the file"
+        ) from None
     if got != info.file_size:
-        raise ValueError(f"{source}: member {info.filename!r} holds {got} bytes, its directory says "
-                         f"{info.file_size} (corrupt archive)")
+        raise ValueError(
+            f"{source}: member {info.filename!r} holds {got} bytes, its directory says "
+            f"{info.file_size} (corrupt archive)"
+        )
     return b"".join(parts)

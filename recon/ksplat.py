@@ -38,9 +38,11 @@ from .ply import gaussians_from_arrays, opacity_logits_from_unit
 
 MAIN_HEADER_BYTES = 4096
 SECTION_HEADER_BYTES = 1024
-MODES = {0: {"center": 12, "scale": 12, "rotation": 16, "sh": 4, "range": 1},
-         1: {"center": 6, "scale": 6, "rotation": 8, "sh": 2, "range": 32767},
-         2: {"center": 6, "scale": 6, "rotation": 8, "sh": 1, "range": 32767}}
+MODES = {
+    0: {"center": 12, "scale": 12, "rotation": 16, "sh": 4, "range": 1},
+    1: {"center": 6, "scale": 6, "rotation": 8, "sh": 2, "range": 32767},
+    2: {"center": 6, "scale": 6, "rotation": 8, "sh": 1, "range": 32767},
+}
 SH_COMPONENTS = {0: 0, 1: 9, 2: 24, 3: 45}
 DEFAULT_SH_RANGE = (-1.5, 1.5)
 DECODED_BYTES_PER_SPLAT = 4 * (3 + 4 + 3 + 1 + 16 * 3)
@@ -71,14 +73,15 @@ def load_ksplat(path: str | Path) -> GaussianSet:
     source = str(path)
     data = Path(path).read_bytes()
     if len(data) < MAIN_HEADER_BYTES:
-        raise ValueError(f"{source}: truncated .ksplat: {len(data)} bytes, less than its {MAIN_HEADER_BYTES}-byte "
-                         f"header; {FIX}")
+        raise ValueError(
+            f"{source}: truncated .ksplat: {len(data)} bytes, less than its {MAIN_HEADER_BYTES}-byte header; {FIX}"
+        )
     major, minor = data[0], data[1]
     if major != 0 or minor < 1:
         raise ValueError(f"{source}: .ksplat version {major}.{minor} is not supported (0.1 and later 0.x are); {FIX}")
-    max_sections, = struct.unpack_from("<I", data, 4)
-    n, = struct.unpack_from("<I", data, 16)
-    mode, = struct.unpack_from("<H", data, 20)
+    (max_sections,) = struct.unpack_from("<I", data, 4)
+    (n,) = struct.unpack_from("<I", data, 16)
+    (mode,) = struct.unpack_from("<H", data, 20)
     if mode not in MODES:
         raise ValueError(f"{source}: .ksplat compression mode {mode} is unknown (modes 0, 1 and 2 are defined); {FIX}")
     if n == 0:
@@ -87,18 +90,23 @@ def load_ksplat(path: str | Path) -> GaussianSet:
     sh_lo, sh_hi = (sh_lo or DEFAULT_SH_RANGE[0]), (sh_hi or DEFAULT_SH_RANGE[1])
     headers_end = MAIN_HEADER_BYTES + max_sections * SECTION_HEADER_BYTES
     if headers_end > len(data):
-        raise ValueError(f"{source}: truncated .ksplat: {max_sections} section headers need {headers_end} bytes, the "
-                         f"file has {len(data)}; {FIX}")
+        raise ValueError(
+            f"{source}: truncated .ksplat: {max_sections} section headers need {headers_end} bytes, the "
+            f"file has {len(data)}; {FIX}"
+        )
     check_budget(source, f"{n} .ksplat splats", n * DECODED_BYTES_PER_SPLAT)
     sections = [_section_header(data, i) for i in range(max_sections)]
     degrees = [s["degree"] for s in sections if s["count"]]
     for i, s in enumerate(sections):
         if s["degree"] not in SH_COMPONENTS:
-            raise ValueError(f"{source}: .ksplat section {i} declares SH degree {s['degree']} (0-3 are possible); "
-                             f"{FIX}")
+            raise ValueError(
+                f"{source}: .ksplat section {i} declares SH degree {s['degree']} (0-3 are possible); {FIX}"
+            )
     if sum(s["count"] for s in sections) != n:
-        raise ValueError(f"{source}: corrupt .ksplat: its sections hold {sum(s['count'] for s in sections)} splats, "
-                         f"the header declares {n}; {FIX}")
+        raise ValueError(
+            f"{source}: corrupt .ksplat: its sections hold {sum(s['count'] for s in sections)} splats, "
+            f"the header declares {n}; {FIX}"
+        )
     degree = max(degrees, default=0)
     parts, offset = [], headers_end
     for i, s in enumerate(sections):
@@ -112,31 +120,44 @@ def load_ksplat(path: str | Path) -> GaussianSet:
 def _section_header(data: bytes, index: int) -> dict[str, float]:
     at = MAIN_HEADER_BYTES + index * SECTION_HEADER_BYTES
     count, capacity_max, bucket_capacity, bucket_count = struct.unpack_from("<IIII", data, at)
-    block, = struct.unpack_from("<f", data, at + 16)
-    bucket_bytes, = struct.unpack_from("<H", data, at + 20)
-    quant, = struct.unpack_from("<I", data, at + 24)
+    (block,) = struct.unpack_from("<f", data, at + 16)
+    (bucket_bytes,) = struct.unpack_from("<H", data, at + 20)
+    (quant,) = struct.unpack_from("<I", data, at + 24)
     full, partial = struct.unpack_from("<II", data, at + 32)
-    degree, = struct.unpack_from("<H", data, at + 40)
-    return {"count": count, "max": capacity_max, "capacity": bucket_capacity, "buckets": bucket_count,
-            "block": block, "bucket_bytes": bucket_bytes, "quant": quant, "full": full, "partial": partial,
-            "degree": degree}
+    (degree,) = struct.unpack_from("<H", data, at + 40)
+    return {
+        "count": count,
+        "max": capacity_max,
+        "capacity": bucket_capacity,
+        "buckets": bucket_count,
+        "block": block,
+        "bucket_bytes": bucket_bytes,
+        "quant": quant,
+        "full": full,
+        "partial": partial,
+        "degree": degree,
+    }
 
 
-def _read_section(data: bytes, offset: int, index: int, s: dict, mode: int, sh_range: tuple[float, float],
-                  degree: int, source: str):
+def _read_section(
+    data: bytes, offset: int, index: int, s: dict, mode: int, sh_range: tuple[float, float], degree: int, source: str
+):
     """The decoded arrays of one section and the offset after it."""
     m = MODES[mode]
     components = SH_COMPONENTS[s["degree"]]
     record = m["center"] + m["scale"] + m["rotation"] + 4 + components * m["sh"]
     if s["count"] > s["max"]:
-        raise ValueError(f"{source}: corrupt .ksplat section {index}: {s['count']} splats, more than its capacity "
-                         f"{s['max']}; {FIX}")
+        raise ValueError(
+            f"{source}: corrupt .ksplat section {index}: {s['count']} splats, more than its capacity {s['max']}; {FIX}"
+        )
     bucket_meta = 4 * s["partial"]
     bucket_storage = s["bucket_bytes"] * s["buckets"] + bucket_meta
     end = offset + bucket_storage + record * s["max"]
     if end > len(data):
-        raise ValueError(f"{source}: truncated .ksplat: section {index} ({s['max']} records of {record} bytes and "
-                         f"{bucket_storage} bytes of buckets) ends at byte {end}, the file has {len(data)}; {FIX}")
+        raise ValueError(
+            f"{source}: truncated .ksplat: section {index} ({s['max']} records of {record} bytes and "
+            f"{bucket_storage} bytes of buckets) ends at byte {end}, the file has {len(data)}; {FIX}"
+        )
     n = s["count"]
     if n == 0:
         return None, end
@@ -145,7 +166,7 @@ def _read_section(data: bytes, offset: int, index: int, s: dict, mode: int, sh_r
     width = 4 if mode == 0 else 2
 
     def floats(start: int, count: int) -> np.ndarray:
-        return np.ascontiguousarray(rows[:, start:start + count * width]).view(float_type).astype(np.float32)
+        return np.ascontiguousarray(rows[:, start : start + count * width]).view(float_type).astype(np.float32)
 
     if mode == 0:
         means = floats(0, 3)
@@ -154,48 +175,54 @@ def _read_section(data: bytes, offset: int, index: int, s: dict, mode: int, sh_r
     scales = floats(m["center"], 3)
     quats = floats(m["center"] + m["scale"], 4)
     colour_at = m["center"] + m["scale"] + m["rotation"]
-    rgba = rows[:, colour_at:colour_at + 4].astype(np.float32) / 255.0
+    rgba = rows[:, colour_at : colour_at + 4].astype(np.float32) / 255.0
     bad = ~(np.isfinite(scales) & (scales > 0)).all(1)
     if bad.any():
         rows_bad = np.flatnonzero(bad)
-        raise ValueError(f"{source}: {len(rows_bad)} .ksplat splats of section {index} have a zero, negative or "
-                         f"non-finite scale (first {rows_bad[:5].tolist()}); a .ksplat stores positive standard "
-                         f"deviations; {FIX}")
+        raise ValueError(
+            f"{source}: {len(rows_bad)} .ksplat splats of section {index} have a zero, negative or "
+            f"non-finite scale (first {rows_bad[:5].tolist()}); a .ksplat stores positive standard "
+            f"deviations; {FIX}"
+        )
     dc = (rgba[:, :3] - 0.5) / np.float32(SH_C0)
     sh = np.zeros((n, (degree + 1) ** 2, 3), np.float32)
     sh[:, 0] = dc
     if components:
         at = colour_at + 4
         if mode == 2:
-            raw = rows[:, at:at + components].astype(np.float32)
+            raw = rows[:, at : at + components].astype(np.float32)
             values = sh_range[0] + raw / 255.0 * (sh_range[1] - sh_range[0])
         else:
             values = floats(at, components)
         flat = np.zeros((n, components), np.float32)
         flat[:, sh_component_order(s["degree"])] = values
         k = components // 3
-        sh[:, 1:k + 1] = flat.reshape(n, 3, k).transpose(0, 2, 1)  # channel-major f_rest -> [N, K-1, 3]
+        sh[:, 1 : k + 1] = flat.reshape(n, 3, k).transpose(0, 2, 1)  # channel-major f_rest -> [N, K-1, 3]
     logits = opacity_logits_from_unit(rgba[:, 3])
     return (means, quats, np.log(scales), logits, sh), end
 
 
-def _bucketed_means(data: bytes, offset: int, rows: np.ndarray, s: dict, m: dict, index: int,
-                    source: str) -> np.ndarray:
+def _bucketed_means(
+    data: bytes, offset: int, rows: np.ndarray, s: dict, m: dict, index: int, source: str
+) -> np.ndarray:
     """Centres of a mode-1/2 section: u16 offsets from the centre of each record's bucket."""
     n = rows.shape[0]
     quant = s["quant"] or m["range"]
     partial_sizes = np.frombuffer(data, "<u4", count=s["partial"], offset=offset).astype(np.int64)
     centres = np.frombuffer(data, "<f4", count=3 * s["buckets"], offset=offset + 4 * s["partial"]).reshape(-1, 3)
     if s["bucket_bytes"] != 12:
-        raise ValueError(f"{source}: .ksplat section {index} stores buckets of {s['bucket_bytes']} bytes; 12 (three "
-                         f"f32) are defined; {FIX}")
+        raise ValueError(
+            f"{source}: .ksplat section {index} stores buckets of {s['bucket_bytes']} bytes; 12 (three "
+            f"f32) are defined; {FIX}"
+        )
     full_splats = s["full"] * s["capacity"]
     ends = full_splats + np.cumsum(partial_sizes)
     if s["full"] + s["partial"] > s["buckets"] or (n > full_splats and (len(ends) == 0 or ends[-1] < n)):
-        raise ValueError(f"{source}: corrupt .ksplat section {index}: its {s['full']} full and {s['partial']} partial "
-                         f"buckets do not cover its {n} splats ({s['buckets']} buckets stored); {FIX}")
+        raise ValueError(
+            f"{source}: corrupt .ksplat section {index}: its {s['full']} full and {s['partial']} partial "
+            f"buckets do not cover its {n} splats ({s['buckets']} buckets stored); {FIX}"
+        )
     i = np.arange(n)
-    bucket = np.where(i < full_splats, i // max(s["capacity"], 1),
-                      s["full"] + np.searchsorted(ends, i, side="right"))
+    bucket = np.where(i < full_splats, i // max(s["capacity"], 1), s["full"] + np.searchsorted(ends, i, side="right"))
     raw = np.ascontiguousarray(rows[:, :6]).view("<u2").astype(np.float32)
     return (raw - quant) * np.float32(s["block"] / 2.0 / quant) + centres[bucket]

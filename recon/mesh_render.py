@@ -118,8 +118,10 @@ class MeshDatasetConfig:
             if not (math.isfinite(val) and val > 0):
                 raise ValueError(f"MeshDatasetConfig.{key} must be finite and > 0, got {val}")
         if self.radius <= 0.5 * self.box_size:
-            raise ValueError(f"MeshDatasetConfig.radius ({self.radius}) must exceed half the box_size "
-                             f"({self.box_size}) so the cameras are outside the object")
+            raise ValueError(
+                f"MeshDatasetConfig.radius ({self.radius}) must exceed half the box_size "
+                f"({self.box_size}) so the cameras are outside the object"
+            )
         if not 0.0 <= self.ambient <= 1.0:
             raise ValueError(f"MeshDatasetConfig.ambient must be in [0, 1], got {self.ambient}")
         if self.up_axis not in UP_AXES:
@@ -139,7 +141,7 @@ def parse_color(color: str) -> np.ndarray:
     if len(text) != 7 or text[0] != "#":
         raise ValueError(f"color must be '#RRGGBB' (e.g. '#909090'), got {color!r}")
     try:
-        return np.array([int(text[i:i + 2], 16) for i in (1, 3, 5)], dtype=np.float64) / 255.0
+        return np.array([int(text[i : i + 2], 16) for i in (1, 3, 5)], dtype=np.float64) / 255.0
     except ValueError as exc:
         raise ValueError(f"color must be '#RRGGBB' with hexadecimal digits, got {color!r}") from exc
 
@@ -180,8 +182,9 @@ def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     triangles = np.asarray(mesh.triangles, dtype=np.int64)
     if len(triangles) == 0 or len(vertices) == 0:
-        raise ValueError(f"{path}: no triangles read (an unreadable file or a point cloud); render-dataset needs "
-                         "a surface mesh")
+        raise ValueError(
+            f"{path}: no triangles read (an unreadable file or a point cloud); render-dataset needs a surface mesh"
+        )
     if not np.isfinite(vertices).all():
         raise ValueError(f"{path}: the mesh has non-finite vertex coordinates")
     if np.ptp(vertices[np.unique(triangles)], axis=0).max() <= 0:
@@ -189,8 +192,9 @@ def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     return vertices, triangles
 
 
-def normalize_vertices(vertices: np.ndarray, triangles: np.ndarray, box_size: float
-                       ) -> tuple[np.ndarray, float, np.ndarray]:
+def normalize_vertices(
+    vertices: np.ndarray, triangles: np.ndarray, box_size: float
+) -> tuple[np.ndarray, float, np.ndarray]:
     """Centre the bounding box of the used vertices at the origin and scale its largest extent to box_size.
 
     Returns:
@@ -236,8 +240,10 @@ class MeshRaycaster:
 
         self._o3d = o3d
         self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-                                 o3d.core.Tensor(np.ascontiguousarray(triangles, dtype=np.uint32)))
+        self.scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(triangles, dtype=np.uint32)),
+        )
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Hit distance and triangle of each ray.
@@ -259,8 +265,9 @@ class MeshRaycaster:
         return t.reshape(shape), ids.reshape(shape)
 
 
-def cast_rays_reference(vertices: np.ndarray, triangles: np.ndarray, origins: np.ndarray,
-                        directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def cast_rays_reference(
+    vertices: np.ndarray, triangles: np.ndarray, origins: np.ndarray, directions: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Slow twin of :meth:`MeshRaycaster.cast`: brute-force Moller-Trumbore over all rays x triangles.
 
     Same arguments and returns; meant for small meshes and images (memory O(rays x triangles)).
@@ -292,14 +299,14 @@ def cast_rays_reference(vertices: np.ndarray, triangles: np.ndarray, origins: np
 
 def triangle_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """[T, 3] unit normals (zero for degenerate triangles)."""
-    n = np.cross(vertices[triangles[:, 1]] - vertices[triangles[:, 0]],
-                 vertices[triangles[:, 2]] - vertices[triangles[:, 0]])
+    n = np.cross(
+        vertices[triangles[:, 1]] - vertices[triangles[:, 0]], vertices[triangles[:, 2]] - vertices[triangles[:, 0]]
+    )
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
-def shade(normals: np.ndarray, directions: np.ndarray, albedo: np.ndarray, ambient: float,
-          up_axis: str) -> np.ndarray:
+def shade(normals: np.ndarray, directions: np.ndarray, albedo: np.ndarray, ambient: float, up_axis: str) -> np.ndarray:
     """Lambert + ambient colour of surface points seen along ``directions``.
 
     Args:
@@ -316,8 +323,7 @@ def shade(normals: np.ndarray, directions: np.ndarray, albedo: np.ndarray, ambie
     return np.clip(albedo[None, :] * (ambient + (1.0 - ambient) * diffuse[:, None]), 0.0, 1.0)
 
 
-def render_view(caster: MeshRaycaster, normals: np.ndarray, camera: Camera, config: MeshDatasetConfig
-                ) -> np.ndarray:
+def render_view(caster: MeshRaycaster, normals: np.ndarray, camera: Camera, config: MeshDatasetConfig) -> np.ndarray:
     """RGBA image [H, W, 4] uint8 (RGB order, straight alpha) of the mesh seen by ``camera``."""
     s = config.supersample
     origins, dirs = camera_rays(camera, s)
@@ -338,8 +344,10 @@ def render_view(caster: MeshRaycaster, normals: np.ndarray, camera: Camera, conf
 
 
 def _transforms(cameras: list[Camera], split: str, fov_x: float) -> dict:
-    frames = [{"file_path": f"./{split}/r_{i:03d}", "transform_matrix": cam.opengl_c2w().tolist()}
-              for i, cam in enumerate(cameras)]
+    frames = [
+        {"file_path": f"./{split}/r_{i:03d}", "transform_matrix": cam.opengl_c2w().tolist()}
+        for i, cam in enumerate(cameras)
+    ]
     return {"camera_angle_x": fov_x, "frames": frames}
 
 
@@ -359,8 +367,9 @@ def _check_output(out_dir: Path, overwrite: bool) -> None:
         raise ValueError(f"{parent}: parent folder of the output is not writable")
 
 
-def render_mesh_dataset(mesh_path, out_dir, config: MeshDatasetConfig | None = None, *, overwrite: bool = False,
-                        progress: bool = True) -> Path:
+def render_mesh_dataset(
+    mesh_path, out_dir, config: MeshDatasetConfig | None = None, *, overwrite: bool = False, progress: bool = True
+) -> Path:
     """Render a mesh into a Blender-format dataset (layout in the module docstring).
 
     Args:
@@ -379,15 +388,31 @@ def render_mesh_dataset(mesh_path, out_dir, config: MeshDatasetConfig | None = N
     vertices, scale, offset = normalize_vertices(vertices, triangles, config.box_size)
     bounding_radius = float(np.linalg.norm(vertices[np.unique(triangles)], axis=1).max())
     if bounding_radius >= config.radius:
-        raise ValueError(f"{mesh_path}: the normalised object reaches {bounding_radius:.3f} from its centre, "
-                         f"beyond the camera radius {config.radius}; increase --radius or decrease --box")
+        raise ValueError(
+            f"{mesh_path}: the normalised object reaches {bounding_radius:.3f} from its centre, "
+            f"beyond the camera radius {config.radius}; increase --radius or decrease --box"
+        )
     if bounding_radius > config.radius * math.sin(0.5 * config.fov_x_rad):
-        logger.warning("%s: the normalised object's bounding sphere (radius %.2f) does not fit a %.0f-degree view "
-                       "at distance %.1f; some silhouettes may be cut by the image border (increase --fov or "
-                       "--radius)", mesh_path, bounding_radius, config.fov_x, config.radius)
-    cameras = random_sphere(config.n_train + config.n_test, config.radius, config.resolution, config.resolution,
-                            config.fov_x_rad, config.seed, hemisphere=config.hemisphere, up_axis=config.up_axis)
-    splits = {"train": cameras[:config.n_train], "test": cameras[config.n_train:]}
+        logger.warning(
+            "%s: the normalised object's bounding sphere (radius %.2f) does not fit a %.0f-degree view "
+            "at distance %.1f; some silhouettes may be cut by the image border (increase --fov or "
+            "--radius)",
+            mesh_path,
+            bounding_radius,
+            config.fov_x,
+            config.radius,
+        )
+    cameras = random_sphere(
+        config.n_train + config.n_test,
+        config.radius,
+        config.resolution,
+        config.resolution,
+        config.fov_x_rad,
+        config.seed,
+        hemisphere=config.hemisphere,
+        up_axis=config.up_axis,
+    )
+    splits = {"train": cameras[: config.n_train], "test": cameras[config.n_train :]}
     caster = MeshRaycaster(vertices, triangles)
     normals = triangle_normals(vertices, triangles)
 
@@ -407,22 +432,36 @@ def render_mesh_dataset(mesh_path, out_dir, config: MeshDatasetConfig | None = N
         _write_json(tmp / "transforms_val.json", _transforms(splits["test"], "test", config.fov_x_rad))
         _write_mesh(tmp / "mesh.ply", vertices, triangles)
         key, fill = light_directions(config.up_axis)
-        _write_json(tmp / "dataset.json", {
-            "source_mesh": str(mesh_path.absolute()),
-            "mesh_path": "mesh.ply",
-            "normalization": "mesh.ply vertices = scale * source vertices + offset",
-            "scale": scale,
-            "offset": offset.tolist(),
-            "bounding_radius": bounding_radius,
-            "up_axis": config.up_axis,
-            "seed": config.seed,
-            "config": asdict(config),
-            "lights": {"key": key.tolist(), "key_weight": KEY_WEIGHT, "fill": fill.tolist(),
-                       "fill_weight": FILL_WEIGHT, "ambient": config.ambient},
-            "splits": {"train": len(splits["train"]), "test": len(splits["test"]), "val": "copy of test"},
-        })
-    logger.info("wrote %s: %d train and %d test views at %d px, mesh scale %.4g", out_dir, len(splits["train"]),
-                len(splits["test"]), config.resolution, scale)
+        _write_json(
+            tmp / "dataset.json",
+            {
+                "source_mesh": str(mesh_path.absolute()),
+                "mesh_path": "mesh.ply",
+                "normalization": "mesh.ply vertices = scale * source vertices + offset",
+                "scale": scale,
+                "offset": offset.tolist(),
+                "bounding_radius": bounding_radius,
+                "up_axis": config.up_axis,
+                "seed": config.seed,
+                "config": asdict(config),
+                "lights": {
+                    "key": key.tolist(),
+                    "key_weight": KEY_WEIGHT,
+                    "fill": fill.tolist(),
+                    "fill_weight": FILL_WEIGHT,
+                    "ambient": config.ambient,
+                },
+                "splits": {"train": len(splits["train"]), "test": len(splits["test"]), "val": "copy of test"},
+            },
+        )
+    logger.info(
+        "wrote %s: %d train and %d test views at %d px, mesh scale %.4g",
+        out_dir,
+        len(splits["train"]),
+        len(splits["test"]),
+        config.resolution,
+        scale,
+    )
     return out_dir
 
 
@@ -432,4 +471,3 @@ def _write_mesh(path: Path, vertices: np.ndarray, triangles: np.ndarray) -> None
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
     if not o3d.io.write_triangle_mesh(str(path), mesh):
         raise OSError(f"{path}: open3d could not write the mesh")
-

@@ -52,8 +52,7 @@ def _image_pair(img: torch.Tensor, ref: torch.Tensor) -> tuple[torch.Tensor, tor
         if not isinstance(t, torch.Tensor):
             raise ValueError(f"{name} must be a torch.Tensor, got {type(t).__name__}")
         if t.dim() not in (3, 4) or not t.is_floating_point():
-            raise ValueError(f"{name} must be a float tensor [H, W, C] or [B, H, W, C], got {tuple(t.shape)} "
-                             f"{t.dtype}")
+            raise ValueError(f"{name} must be a float tensor [H, W, C] or [B, H, W, C], got {tuple(t.shape)} {t.dtype}")
     if img.shape != ref.shape:
         raise ValueError(f"img and ref must have the same shape, got {tuple(img.shape)} and {tuple(ref.shape)}")
     if img.device != ref.device:
@@ -81,24 +80,32 @@ def psnr(img: torch.Tensor, ref: torch.Tensor, max_val: float = 1.0) -> torch.Te
         raise ValueError(f"max_val must be > 0, got {max_val}")
     x, y, batched = _image_pair(img, ref)
     mse = (x - y).square().mean(dim=(1, 2, 3))
-    out = 10.0 * torch.log10(max_val ** 2 / mse)
+    out = 10.0 * torch.log10(max_val**2 / mse)
     return out if batched else out[0]
 
 
-def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=torch.float32,
-                    device=None) -> torch.Tensor:
+def gaussian_window(
+    size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=torch.float32, device=None
+) -> torch.Tensor:
     """The normalised 1-D Gaussian window [size] centred on tap size // 2 (the 2-D window is its outer product)."""
     if size < 1 or size % 2 == 0:
         raise ValueError(f"window size must be a positive odd number, got {size}")
     if not sigma > 0:
         raise ValueError(f"sigma must be > 0, got {sigma}")
     x = torch.arange(size, dtype=torch.float64) - size // 2
-    w = torch.exp(-x.square() / (2.0 * sigma ** 2))
+    w = torch.exp(-x.square() / (2.0 * sigma**2))
     return (w / w.sum()).to(dtype=dtype, device=device)
 
 
-def ssim(img: torch.Tensor, ref: torch.Tensor, *, window_size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA,
-         data_range: float = 1.0, padding: str = "same") -> torch.Tensor:
+def ssim(
+    img: torch.Tensor,
+    ref: torch.Tensor,
+    *,
+    window_size: int = SSIM_WINDOW,
+    sigma: float = SSIM_SIGMA,
+    data_range: float = 1.0,
+    padding: str = "same",
+) -> torch.Tensor:
     """Structural similarity (Wang et al. 2004) as computed by the reference 3DGS code; differentiable.
 
     Args:
@@ -120,16 +127,16 @@ def ssim(img: torch.Tensor, ref: torch.Tensor, *, window_size: int = SSIM_WINDOW
     x, y, batched = _image_pair(img, ref)
     b, c, h, w = x.shape
     if padding == "valid" and (h < window_size or w < window_size):
-        raise ValueError(f"padding='valid' needs images of at least {window_size} x {window_size} pixels, "
-                         f"got {h} x {w}; use padding='same'")
+        raise ValueError(
+            f"padding='valid' needs images of at least {window_size} x {window_size} pixels, "
+            f"got {h} x {w}; use padding='same'"
+        )
     win = gaussian_window(window_size, sigma, x.dtype, x.device)
     pad = window_size // 2 if padding == "same" else 0
     stats = torch.cat([x, y, x * x, y * y, x * y], 1)  # [B, 5C, H, W], blurred in one grouped convolution
     groups = stats.shape[1]
-    stats = F.conv2d(stats, win.reshape(1, 1, 1, -1).expand(groups, 1, 1, window_size), padding=(0, pad),
-                     groups=groups)
-    stats = F.conv2d(stats, win.reshape(1, 1, -1, 1).expand(groups, 1, window_size, 1), padding=(pad, 0),
-                     groups=groups)
+    stats = F.conv2d(stats, win.reshape(1, 1, 1, -1).expand(groups, 1, 1, window_size), padding=(0, pad), groups=groups)
+    stats = F.conv2d(stats, win.reshape(1, 1, -1, 1).expand(groups, 1, window_size, 1), padding=(pad, 0), groups=groups)
     mu_x, mu_y, e_xx, e_yy, e_xy = stats.split(c, 1)
     var_x = e_xx - mu_x * mu_x
     var_y = e_yy - mu_y * mu_y
@@ -161,8 +168,10 @@ def lpips_unavailable_reason(net: str = "alex") -> str | None:
         return f"the LPIPS linear weights are missing ({linear[0] if linear else 'lpips/weights/v0.1'})"
     backbone = Path(torch.hub.get_dir()) / "checkpoints" / LPIPS_BACKBONES[net]
     if not backbone.is_file():
-        return (f"the torchvision backbone weights {backbone} are missing; copy them there from a machine "
-                f"with internet access (this code never downloads)")
+        return (
+            f"the torchvision backbone weights {backbone} are missing; copy them there from a machine "
+            f"with internet access (this code never downloads)"
+        )
     return None
 
 
@@ -239,8 +248,8 @@ def nearest_distances_reference(query, points, chunk: int = 4096) -> np.ndarray:
     best = torch.full((q.shape[0],), float("inf"), dtype=torch.float64)
     for i in range(0, q.shape[0], chunk):
         for j in range(0, p.shape[0], chunk):
-            d = torch.cdist(q[i:i + chunk], p[j:j + chunk]).min(dim=1).values
-            best[i:i + chunk] = torch.minimum(best[i:i + chunk], d)
+            d = torch.cdist(q[i : i + chunk], p[j : j + chunk]).min(dim=1).values
+            best[i : i + chunk] = torch.minimum(best[i : i + chunk], d)
     return best.numpy()
 
 

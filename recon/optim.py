@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import torch
 
 
-def expon_lr(step: int, lr_init: float, lr_final: float, max_steps: int, delay_steps: int = 0,
-             delay_mult: float = 1.0) -> float:
+def expon_lr(
+    step: int, lr_init: float, lr_final: float, max_steps: int, delay_steps: int = 0, delay_mult: float = 1.0
+) -> float:
     """The 3DGS exponential (log-linear) learning-rate schedule with an optional sine warm-up delay.
 
     lr(t) = delay(t) * exp((1 - s) log lr_init + s log lr_final), s = clip(t / max_steps, 0, 1), with
@@ -70,8 +71,13 @@ class GroupedAdam:
         >>> (adam.params["x"] ** 2 - 1).sum().backward(); adam.step(); adam.zero_grad()
     """
 
-    def __init__(self, params: dict[str, torch.Tensor], lrs: dict[str, float],
-                 betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-15) -> None:
+    def __init__(
+        self,
+        params: dict[str, torch.Tensor],
+        lrs: dict[str, float],
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-15,
+    ) -> None:
         if set(params) != set(lrs):
             raise ValueError(f"GroupedAdam: learning rates given for {sorted(lrs)} but parameters are {sorted(params)}")
         if not (0.0 <= betas[0] < 1.0 and 0.0 <= betas[1] < 1.0) or not eps >= 0.0:
@@ -96,8 +102,8 @@ class GroupedAdam:
             st.step += 1
             st.exp_avg.lerp_(p.grad, 1.0 - b1)
             st.exp_avg_sq.mul_(b2).addcmul_(p.grad, p.grad, value=1.0 - b2)
-            step_size = self.lrs[name] / (1.0 - b1 ** st.step)
-            denom = (st.exp_avg_sq.sqrt() / math.sqrt(1.0 - b2 ** st.step)).add_(self.eps)
+            step_size = self.lrs[name] / (1.0 - b1**st.step)
+            denom = (st.exp_avg_sq.sqrt() / math.sqrt(1.0 - b2**st.step)).add_(self.eps)
             p.addcdiv_(st.exp_avg, denom, value=-step_size)
 
     def zero_grad(self) -> None:
@@ -122,8 +128,10 @@ class GroupedAdam:
         for name, value in new_params.items():
             old = self.params[name]
             if value.shape[0] != origin.shape[0] or value.shape[1:] != old.shape[1:]:
-                raise ValueError(f"remap: {name} has shape {tuple(value.shape)}, expected "
-                                 f"({origin.shape[0]}, *{tuple(old.shape[1:])})")
+                raise ValueError(
+                    f"remap: {name} has shape {tuple(value.shape)}, expected "
+                    f"({origin.shape[0]}, *{tuple(old.shape[1:])})"
+                )
             st = self.state[name]
             for key in ("exp_avg", "exp_avg_sq"):
                 moment = getattr(st, key)
@@ -143,10 +151,16 @@ class GroupedAdam:
 
     def state_dict(self) -> dict:
         """Parameters, learning rates and moments (detached tensors) for a checkpoint."""
-        return {"params": {k: v.detach().clone() for k, v in self.params.items()}, "lrs": dict(self.lrs),
-                "betas": self.betas, "eps": self.eps,
-                "state": {k: {"step": s.step, "exp_avg": s.exp_avg.clone(), "exp_avg_sq": s.exp_avg_sq.clone()}
-                          for k, s in self.state.items()}}
+        return {
+            "params": {k: v.detach().clone() for k, v in self.params.items()},
+            "lrs": dict(self.lrs),
+            "betas": self.betas,
+            "eps": self.eps,
+            "state": {
+                k: {"step": s.step, "exp_avg": s.exp_avg.clone(), "exp_avg_sq": s.exp_avg_sq.clone()}
+                for k, s in self.state.items()
+            },
+        }
 
     def load_state_dict(self, state: dict) -> None:
         """Restore what :meth:`state_dict` returned."""
@@ -154,5 +168,7 @@ class GroupedAdam:
             raise ValueError("GroupedAdam.load_state_dict: params, lrs and state name different parameter sets")
         self.betas, self.eps, self.lrs = tuple(state["betas"]), float(state["eps"]), dict(state["lrs"])
         self.params = {k: v.detach().clone().requires_grad_(True) for k, v in state["params"].items()}
-        self.state = {k: ParamState(int(s["step"]), s["exp_avg"].clone(), s["exp_avg_sq"].clone())
-                      for k, s in state["state"].items()}
+        self.state = {
+            k: ParamState(int(s["step"]), s["exp_avg"].clone(), s["exp_avg_sq"].clone())
+            for k, s in state["state"].items()
+        }

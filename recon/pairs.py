@@ -107,8 +107,16 @@ def view_pairs(gaussians: GaussianSet, camera: Camera) -> ViewPairs:
         _, pairs = _pairs_of(g, camera)
         alpha, trans, live = transmittance(pairs, camera.width * camera.height)
         weights = torch.where(live, alpha * trans, torch.zeros_like(alpha))
-    return ViewPairs(pixels=pairs.pixels, gaussians=pairs.gaussians, alpha=alpha, transmittance=trans, live=live,
-                     weights=weights, width=camera.width, height=camera.height)
+    return ViewPairs(
+        pixels=pairs.pixels,
+        gaussians=pairs.gaussians,
+        alpha=alpha,
+        transmittance=trans,
+        live=live,
+        weights=weights,
+        width=camera.width,
+        height=camera.height,
+    )
 
 
 @dataclass
@@ -129,8 +137,13 @@ class PairGradients:
     image: torch.Tensor
 
 
-def pair_attribute_gradients(gaussians: GaussianSet, camera: Camera, background: torch.Tensor | float | None = None,
-                             *, sh_degree: int | None = None) -> PairGradients:
+def pair_attribute_gradients(
+    gaussians: GaussianSet,
+    camera: Camera,
+    background: torch.Tensor | float | None = None,
+    *,
+    sh_degree: int | None = None,
+) -> PairGradients:
     """Per-(pixel, Gaussian) gradients of the channel-summed pixel colour w.r.t. the 2-D attributes.
 
     One forward and one backward pass of the renderer's compositing over per-pair copies of the
@@ -158,9 +171,16 @@ def pair_attribute_gradients(gaussians: GaussianSet, camera: Camera, background:
         opacities = g.opacities
     gid = pairs.gaussians
     own = torch.arange(pairs.num, dtype=torch.int32, device=gid.device)
-    per_pair = PairList(pixels=pairs.pixels, gaussians=own, rows=own, dx=pairs.dx, alpha=pairs.alpha,
-                        row_gaussians=own, row_dy=pairs.row_dy.index_select(0, pairs.rows),
-                        candidates=pairs.candidates)
+    per_pair = PairList(
+        pixels=pairs.pixels,
+        gaussians=own,
+        rows=own,
+        dx=pairs.dx,
+        alpha=pairs.alpha,
+        row_gaussians=own,
+        row_dy=pairs.row_dy.index_select(0, pairs.rows),
+        candidates=pairs.candidates,
+    )
     leaves = [t.index_select(0, gid).requires_grad_(True) for t in (proj.means2d, proj.conics, opacities, colors)]
     with torch.enable_grad():
         image, _, _ = Composite.apply(*leaves, proj.depths.index_select(0, gid), bg, per_pair, w * h)

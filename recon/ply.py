@@ -61,14 +61,40 @@ from .gaussians import GaussianSet, sh_coefficient_count
 from .inflate import CHUNK_BYTES, check_budget
 
 PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
-    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
-    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
 }
 PLY_FORMATS = {"binary_little_endian": "<", "binary_big_endian": ">", "ascii": None}
-REQUIRED_PROPERTIES = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
-                       "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
+REQUIRED_PROPERTIES = (
+    "x",
+    "y",
+    "z",
+    "f_dc_0",
+    "f_dc_1",
+    "f_dc_2",
+    "opacity",
+    "scale_0",
+    "scale_1",
+    "scale_2",
+    "rot_0",
+    "rot_1",
+    "rot_2",
+    "rot_3",
+)
 F_REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}  # number of f_rest properties -> SH degree
 NPZ_KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
 GSPLAT_KEYS = ("means", "quats", "scales", "opacities", "sh0", "shN")
@@ -79,9 +105,11 @@ MAX_HEADER_LINE_BYTES = 4096
 def ply_property_names(sh_degree: int) -> list[str]:
     """The vertex property names of a 3DGS ``.ply`` of SH degree ``sh_degree``, in the reference order."""
     rest = 3 * (sh_coefficient_count(sh_degree) - 1)
-    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-            + [f"f_rest_{i}" for i in range(rest)]
-            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+    return (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(rest)]
+        + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    )
 
 
 @dataclass(frozen=True)
@@ -167,8 +195,10 @@ def parse_ply_header(fh, source: str) -> PlyLayout:
             break
         if key == "format":
             if len(words) != 3 or words[1] not in PLY_FORMATS or words[2] != "1.0":
-                raise ValueError(f"{source}: unsupported PLY format line {' '.join(words)!r}; expected "
-                                 f"'format ascii|binary_little_endian|binary_big_endian 1.0'")
+                raise ValueError(
+                    f"{source}: unsupported PLY format line {' '.join(words)!r}; expected "
+                    f"'format ascii|binary_little_endian|binary_big_endian 1.0'"
+                )
             fmt = words[1]
         elif key == "element":
             if len(words) != 3 or not words[2].isdigit():
@@ -210,8 +240,9 @@ def read_ply_header(fh, source: str) -> PlyHeader:
         if element.name == "vertex":
             lists = [p for p, t in element.properties if t == "list"]
             if lists:
-                raise ValueError(f"{source}: the vertex element has list properties {lists}; a 3DGS file has "
-                                 f"scalar properties only")
+                raise ValueError(
+                    f"{source}: the vertex element has list properties {lists}; a 3DGS file has scalar properties only"
+                )
             return PlyHeader(layout.fmt, element.count, element.properties, offset)
         offset = _skip_element(fh, element, layout.fmt, offset, source)
     raise ValueError(f"{source}: the PLY file has no 'vertex' element, so it holds no Gaussians")
@@ -228,12 +259,18 @@ def _skip_element(fh, element: PlyElement, fmt: str, offset: int, source: str) -
     row = element.row_bytes()
     if PLY_FORMATS[fmt] is not None:
         if row is None:
-            raise ValueError(f"{source}: element {element.name!r} ({element.count} rows) comes before 'vertex' and "
-                             f"has list properties, so the vertex data cannot be located; re-export the file with "
-                             f"the vertex element first")
+            raise ValueError(
+                f"{source}: element {element.name!r} ({element.count} rows) comes before 'vertex' and "
+                f"has list properties, so the vertex data cannot be located; re-export the file with "
+                f"the vertex element first"
+            )
         size = element.count * row
-        check_declared_size(source, f"{element.count} {element.name!r} rows before the vertices", size,
-                            os.fstat(fh.fileno()).st_size - offset)
+        check_declared_size(
+            source,
+            f"{element.count} {element.name!r} rows before the vertices",
+            size,
+            os.fstat(fh.fileno()).st_size - offset,
+        )
         fh.seek(offset + size)
         return offset + size
     for _ in range(element.count):
@@ -252,8 +289,10 @@ def check_declared_size(source: str, what: str, declared: int, available: int) -
         available: bytes actually present after the header.
     """
     if declared > available:
-        raise ValueError(f"{source}: truncated or corrupt file: the header declares {what} ({declared} bytes) but "
-                         f"only {available} bytes follow; re-export or re-download the file")
+        raise ValueError(
+            f"{source}: truncated or corrupt file: the header declares {what} ({declared} bytes) but "
+            f"only {available} bytes follow; re-export or re-download the file"
+        )
 
 
 def read_binary_elements(path: str | Path, names: tuple[str, ...]) -> tuple[PlyLayout, dict[str, np.ndarray]]:
@@ -326,8 +365,10 @@ def read_ply_vertices(path: str | Path) -> dict[str, np.ndarray]:
         check_declared_size(source, f"{n} vertices of {dtype.itemsize} bytes", n * dtype.itemsize, available)
         data = np.fromfile(fh, dtype=dtype, count=n) if n > 0 else np.zeros(0, dtype)
     if data.shape[0] != n:
-        raise ValueError(f"{source}: truncated PLY data: the header declares {n} vertices of {dtype.itemsize} bytes "
-                         f"but only {data.shape[0]} are present")
+        raise ValueError(
+            f"{source}: truncated PLY data: the header declares {n} vertices of {dtype.itemsize} bytes "
+            f"but only {data.shape[0]} are present"
+        )
     return {p: data[p].astype(np.float32) for p in names}
 
 
@@ -335,8 +376,10 @@ def _read_ascii_vertices(fh, header: PlyHeader, source: str) -> dict[str, np.nda
     n, m = header.vertex_count, len(header.properties)
     tokens = fh.read().split()
     if len(tokens) < n * m:
-        raise ValueError(f"{source}: truncated PLY data: the header declares {n} vertices of {m} values "
-                         f"but only {len(tokens)} values are present")
+        raise ValueError(
+            f"{source}: truncated PLY data: the header declares {n} vertices of {m} values "
+            f"but only {len(tokens)} values are present"
+        )
     try:
         table = np.array(tokens[: n * m], dtype=np.float64).reshape(n, m)
     except ValueError as exc:
@@ -352,13 +395,16 @@ def gaussians_from_ply_columns(columns: dict[str, np.ndarray], source: str) -> G
     """
     missing = [p for p in REQUIRED_PROPERTIES if p not in columns]
     if missing:
-        raise ValueError(f"{source}: not a 3DGS Gaussian file: vertex properties {missing} are missing "
-                         f"(a plain point cloud .ply has only x, y, z and colours); export the trained Gaussians "
-                         f"with the 3DGS layout")
+        raise ValueError(
+            f"{source}: not a 3DGS Gaussian file: vertex properties {missing} are missing "
+            f"(a plain point cloud .ply has only x, y, z and colours); export the trained Gaussians "
+            f"with the 3DGS layout"
+        )
     rest_names = sorted((p for p in columns if re.fullmatch(r"f_rest_\d+", p)), key=lambda p: int(p[7:]))
     if len(rest_names) not in F_REST_COUNTS:
-        raise ValueError(f"{source}: {len(rest_names)} f_rest properties; a 3DGS file has 0, 9, 24 or 45 "
-                         f"(SH degree 0, 1, 2 or 3)")
+        raise ValueError(
+            f"{source}: {len(rest_names)} f_rest properties; a 3DGS file has 0, 9, 24 or 45 (SH degree 0, 1, 2 or 3)"
+        )
     expected = [f"f_rest_{i}" for i in range(len(rest_names))]
     if rest_names != expected:
         raise ValueError(f"{source}: f_rest properties are not numbered f_rest_0..f_rest_{len(rest_names) - 1}")
@@ -382,8 +428,14 @@ def gaussians_from_ply_columns(columns: dict[str, np.ndarray], source: str) -> G
     return gaussians.check(source)
 
 
-def gaussians_from_arrays(source: str, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
-                          opacity_logits: np.ndarray, sh: np.ndarray) -> GaussianSet:
+def gaussians_from_arrays(
+    source: str,
+    means: np.ndarray,
+    quats: np.ndarray,
+    log_scales: np.ndarray,
+    opacity_logits: np.ndarray,
+    sh: np.ndarray,
+) -> GaussianSet:
     """A checked float32 :class:`GaussianSet` from decoded numpy arrays (the shared last step of every reader).
 
     Args:
@@ -393,8 +445,12 @@ def gaussians_from_arrays(source: str, means: np.ndarray, quats: np.ndarray, log
         ValueError: wrong shapes, an empty set, NaN or Inf, or a zero quaternion (the message names ``source``).
     """
     try:
-        gaussians = GaussianSet(*(torch.from_numpy(np.require(a, np.float32, ('C_CONTIGUOUS', 'WRITEABLE')))
-                                  for a in (means, quats, log_scales, opacity_logits, sh)))
+        gaussians = GaussianSet(
+            *(
+                torch.from_numpy(np.require(a, np.float32, ("C_CONTIGUOUS", "WRITEABLE")))
+                for a in (means, quats, log_scales, opacity_logits, sh)
+            )
+        )
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
     return gaussians.check(source)
@@ -446,14 +502,22 @@ def load_npz(path: str | Path) -> GaussianSet:
     elif all(k in arrays for k in GSPLAT_KEYS):
         sh0, shn = arrays["sh0"], arrays["shN"]
         if sh0.ndim != 3 or shn.ndim != 3:
-            raise ValueError(f"{source}: sh0 and shN must be [N, 1, 3] and [N, K-1, 3], got "
-                             f"{sh0.shape} and {shn.shape}")
-        tensors = {"means": arrays["means"], "quats": arrays["quats"], "log_scales": arrays["scales"],
-                   "opacity_logits": arrays["opacities"], "sh": np.concatenate([sh0, shn], 1)}
+            raise ValueError(
+                f"{source}: sh0 and shN must be [N, 1, 3] and [N, K-1, 3], got {sh0.shape} and {shn.shape}"
+            )
+        tensors = {
+            "means": arrays["means"],
+            "quats": arrays["quats"],
+            "log_scales": arrays["scales"],
+            "opacity_logits": arrays["opacities"],
+            "sh": np.concatenate([sh0, shn], 1),
+        }
     else:
         missing = [k for k in NPZ_KEYS if k not in arrays]
-        raise ValueError(f"{source}: the .npz lacks the Gaussian arrays {missing} (it has {sorted(arrays)}); "
-                         f"save it with save_gaussians or use the keys {list(NPZ_KEYS)}")
+        raise ValueError(
+            f"{source}: the .npz lacks the Gaussian arrays {missing} (it has {sorted(arrays)}); "
+            f"save it with save_gaussians or use the keys {list(NPZ_KEYS)}"
+        )
     for key, value in tensors.items():
         if not np.issubdtype(value.dtype, np.number) or np.issubdtype(value.dtype, np.complexfloating):
             raise ValueError(f"{source}: array {key!r} has non-numeric dtype {value.dtype}")
@@ -474,20 +538,27 @@ def _read_npz_arrays(path: Path, source: str) -> dict[str, np.ndarray]:
     with archive:
         infos = archive.infolist()
         if sum(i.compress_size for i in infos) > path.stat().st_size:
-            raise ValueError(f"{source}: not a readable .npz archive (its directory lists more data than the file "
-                             f"holds: truncated or corrupt); {fix}")
+            raise ValueError(
+                f"{source}: not a readable .npz archive (its directory lists more data than the file "
+                f"holds: truncated or corrupt); {fix}"
+            )
         check_budget(source, f"the {len(infos)} arrays of the .npz", sum(i.file_size for i in infos))
         for info in infos:
             if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
-                raise ValueError(f"{source}: not a readable .npz archive (member {info.filename!r} uses zip "
-                                 f"compression method {info.compress_type}; numpy writes only stored or deflated "
-                                 f"members); {fix}")
+                raise ValueError(
+                    f"{source}: not a readable .npz archive (member {info.filename!r} uses zip "
+                    f"compression method {info.compress_type}; numpy writes only stored or deflated "
+                    f"members); {fix}"
+                )
             if not info.filename.endswith(".npy"):
-                raise ValueError(f"{source}: not a readable .npz archive (member {info.filename!r} is not a .npy "
-                                 f"array); {fix}")
+                raise ValueError(
+                    f"{source}: not a readable .npz archive (member {info.filename!r} is not a .npy array); {fix}"
+                )
             if info.file_size > max(info.compress_size, 1) * NPZ_MAX_DEFLATE_RATIO:
-                raise ValueError(f"{source}: not a readable .npz archive (member {info.filename!r} claims "
-                                 f"{info.file_size} bytes from {info.compress_size}: corrupt); {fix}")
+                raise ValueError(
+                    f"{source}: not a readable .npz archive (member {info.filename!r} claims "
+                    f"{info.file_size} bytes from {info.compress_size}: corrupt); {fix}"
+                )
             arrays[info.filename[:-4]] = _read_npy_member(archive, info, source, fix)
     return arrays
 
@@ -508,8 +579,10 @@ def _read_npy_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: st
             declared = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
             available = info.file_size - fp.tell()
             if declared > available:
-                raise ValueError(f"the header declares {shape} {dtype} ({declared} bytes) but only {available} "
-                                 f"bytes follow: truncated or corrupt")
+                raise ValueError(
+                    f"the header declares {shape} {dtype} ({declared} bytes) but only {available} "
+                    f"bytes follow: truncated or corrupt"
+                )
             parts, got = [], 0
             while got < declared:  # bounded chunks: a member never yields more than its header declared
                 part = fp.read(min(CHUNK_BYTES, declared - got))
@@ -567,8 +640,10 @@ def _extra_columns(extra: dict[str, np.ndarray], g: GaussianSet, path: Path) -> 
     out = {}
     for name, values in extra.items():
         if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name) or name in standard:
-            raise ValueError(f"{path}: extra vertex property name {name!r} must be letters, digits and _ and not a "
-                             "standard 3DGS property")
+            raise ValueError(
+                f"{path}: extra vertex property name {name!r} must be letters, digits and _ and not a "
+                "standard 3DGS property"
+            )
         v = np.asarray(values, dtype=np.float32).reshape(-1)
         if v.shape != (g.num,):
             raise ValueError(f"{path}: extra vertex property {name!r} has {v.size} values for {g.num} Gaussians")
@@ -583,8 +658,26 @@ def _ply_bytes(g: GaussianSet, extra: dict[str, np.ndarray] | None = None) -> by
     names = ply_property_names(g.sh_degree) + list(extra)
     n, k = g.num, g.sh.shape[1]
     rest = g.sh[:, 1:].transpose(1, 2).reshape(n, 3 * (k - 1))  # [N, K-1, 3] -> channel-major [N, 3(K-1)]
-    table = torch.cat([g.means, torch.zeros(n, 3), g.sh[:, 0], rest, g.opacity_logits[:, None], g.log_scales,
-                       g.quats, *(torch.from_numpy(v)[:, None] for v in extra.values())], 1).numpy()
-    header = "".join(["ply\n", "format binary_little_endian 1.0\n", f"element vertex {n}\n",
-                      *(f"property float {p}\n" for p in names), "end_header\n"])
+    table = torch.cat(
+        [
+            g.means,
+            torch.zeros(n, 3),
+            g.sh[:, 0],
+            rest,
+            g.opacity_logits[:, None],
+            g.log_scales,
+            g.quats,
+            *(torch.from_numpy(v)[:, None] for v in extra.values()),
+        ],
+        1,
+    ).numpy()
+    header = "".join(
+        [
+            "ply\n",
+            "format binary_little_endian 1.0\n",
+            f"element vertex {n}\n",
+            *(f"property float {p}\n" for p in names),
+            "end_header\n",
+        ]
+    )
     return header.encode("ascii") + np.ascontiguousarray(table, dtype="<f4").tobytes()

@@ -127,8 +127,11 @@ class ViewConstants:
         near = torch.tensor(near_plane, dtype=like.dtype)
         near_up = torch.nextafter(near, torch.tensor(float("inf"), dtype=like.dtype))
         w, h = camera.width, camera.height
-        values = [float(v) for v in w2c[:3, :3].reshape(-1)] + [float(v) for v in w2c[:3, 3]] + [
-            f, g, camera.cx, camera.cy, f * f, f * g, g * g, float(near_up), w / 2, h / 2, (w - 1) / 2, (h - 1) / 2]
+        values = (
+            [float(v) for v in w2c[:3, :3].reshape(-1)]
+            + [float(v) for v in w2c[:3, 3]]
+            + [f, g, camera.cx, camera.cy, f * f, f * g, g * g, float(near_up), w / 2, h / 2, (w - 1) / 2, (h - 1) / 2]
+        )
         k = torch.tensor(values, dtype=torch.float64).to(device=like.device, dtype=like.dtype).unbind(0)
         return cls(k[:9], k[9:12], *k[12:24], GUARD_BAND * 0.5 * w / f, GUARD_BAND * 0.5 * h / g, float(near))
 
@@ -167,10 +170,8 @@ def _screen_terms(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewConstants):
     sx, sy = xz.clamp(-cam.lim_x, cam.lim_x), yz.clamp(-cam.lim_y, cam.lim_y)
     e00, e01, e02 = r00 - sx * r20, r01 - sx * r21, r02 - sx * r22
     e10, e11, e12 = r10 - sy * r20, r11 - sy * r21, r12 - sy * r22
-    p0, p1, p2 = s00 * e00 + s01 * e01 + s02 * e02, s01 * e00 + s11 * e01 + s12 * e02, \
-        s02 * e00 + s12 * e01 + s22 * e02
-    q0, q1, q2 = s00 * e10 + s01 * e11 + s02 * e12, s01 * e10 + s11 * e11 + s12 * e12, \
-        s02 * e10 + s12 * e11 + s22 * e12
+    p0, p1, p2 = s00 * e00 + s01 * e01 + s02 * e02, s01 * e00 + s11 * e01 + s12 * e02, s02 * e00 + s12 * e01 + s22 * e02
+    q0, q1, q2 = s00 * e10 + s01 * e11 + s02 * e12, s01 * e10 + s11 * e11 + s12 * e12, s02 * e10 + s12 * e11 + s22 * e12
     inv_z2 = inv_z * inv_z
     a = (e00 * p0 + e01 * p1 + e02 * p2) * (inv_z2 * cam.fxx) + DILATION
     b = (e10 * p0 + e11 * p1 + e12 * p2) * (inv_z2 * cam.fxy)
@@ -189,9 +190,10 @@ def _footprint_radii(u, v, tz, a, c, det, cam: ViewConstants) -> torch.Tensor:
     mid = (a + c) * 0.5
     lam_max = torch.sqrt((mid * mid - det).clamp_min(0.0)) + mid
     radii = torch.ceil(torch.sqrt(lam_max) * EXTENT_SIGMAS).clamp_max(MAX_RADIUS)
-    margin = torch.minimum(torch.minimum(_axis_margin(u, radii, cam.mid_x, cam.half_x),
-                                         _axis_margin(v, radii, cam.mid_y, cam.half_y)),
-                           torch.minimum(radii - 1.0, tz - cam.near_up))
+    margin = torch.minimum(
+        torch.minimum(_axis_margin(u, radii, cam.mid_x, cam.half_x), _axis_margin(v, radii, cam.mid_y, cam.half_y)),
+        torch.minimum(radii - 1.0, tz - cam.near_up),
+    )
     # sign(margin) + 1 is 0 exactly when some margin is < 0; NaN anywhere (non-finite input) culls too
     return (radii * (torch.sign(margin) + 1.0).clamp_max(1.0)).nan_to_num(0.0)
 
@@ -218,8 +220,9 @@ def _axis_margin(center: torch.Tensor, radii: torch.Tensor, mid: torch.Tensor, h
     return (radii + half) - (center - mid).abs()
 
 
-def footprint_boxes(means2d: torch.Tensor, radii: torch.Tensor, width: int,
-                    height: int) -> tuple[torch.Tensor, torch.Tensor]:
+def footprint_boxes(
+    means2d: torch.Tensor, radii: torch.Tensor, width: int, height: int
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Pixel boxes covered by the footprints, clipped to the image, and whether they hold any pixel.
 
     A pixel (i, j) is covered when its centre (i + 0.5, j + 0.5) lies in [u - r, u + r] x [v - r, v + r].
@@ -236,8 +239,9 @@ def footprint_boxes(means2d: torch.Tensor, radii: torch.Tensor, width: int,
     x0, x1 = _axis_range(uv[:, 0], r)
     y0, y1 = _axis_range(uv[:, 1], r)
     nonempty = (x1 >= 0) & (x0 <= x1) & (x0 <= width - 1) & (y1 >= 0) & (y0 <= y1) & (y0 <= height - 1)
-    boxes = torch.stack([x0.clamp(0.0, width - 1), y0.clamp(0.0, height - 1), x1.clamp(0.0, width - 1),
-                         y1.clamp(0.0, height - 1)], -1).to(torch.int32)
+    boxes = torch.stack(
+        [x0.clamp(0.0, width - 1), y0.clamp(0.0, height - 1), x1.clamp(0.0, width - 1), y1.clamp(0.0, height - 1)], -1
+    ).to(torch.int32)
     return boxes, nonempty
 
 
@@ -369,8 +373,9 @@ def inline_ops(device: torch.device):
         torch.set_num_threads(threads)
 
 
-def view_blocks(terms: GaussianTerms, camera: Camera, index: int, block: int,
-                near_plane: float = NEAR_PLANE) -> Iterator[VisibilityBlock]:
+def view_blocks(
+    terms: GaussianTerms, camera: Camera, index: int, block: int, near_plane: float = NEAR_PLANE
+) -> Iterator[VisibilityBlock]:
     """The blocks of one camera (see :func:`iter_visibility`); each block is computed under :func:`inline_ops`."""
     cam = ViewConstants.of(camera, near_plane, terms.xyz)
     with torch.no_grad():
@@ -383,8 +388,9 @@ def view_blocks(terms: GaussianTerms, camera: Camera, index: int, block: int,
             yield VisibilityBlock(index, cols, radii, u, v, tz, det)
 
 
-def iter_visibility(gaussians: GaussianSet, cameras: Sequence[Camera], *, near_plane: float = NEAR_PLANE,
-                    block: int | None = None) -> Iterator[VisibilityBlock]:
+def iter_visibility(
+    gaussians: GaussianSet, cameras: Sequence[Camera], *, near_plane: float = NEAR_PLANE, block: int | None = None
+) -> Iterator[VisibilityBlock]:
     """Screen radii and visibility of every (camera, Gaussian) pair, block by block, without rasterising.
 
     Camera by camera, Gaussians in blocks of ``block``: the working memory is O(block + N) whatever C is.
@@ -403,8 +409,9 @@ def iter_visibility(gaussians: GaussianSet, cameras: Sequence[Camera], *, near_p
         yield from view_blocks(terms, cam, k, size, near_plane)
 
 
-def project_visibility(gaussians: GaussianSet, cameras: Sequence[Camera], *, near_plane: float = NEAR_PLANE,
-                       block: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+def project_visibility(
+    gaussians: GaussianSet, cameras: Sequence[Camera], *, near_plane: float = NEAR_PLANE, block: int | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Screen radii and visibility of N Gaussians in C cameras, equal to the renderer's, without rasterising.
 
     The result holds C x N entries (5 bytes each: 1 GB for 200 cameras x 1M Gaussians); to reduce over
@@ -433,8 +440,9 @@ def project_visibility(gaussians: GaussianSet, cameras: Sequence[Camera], *, nea
     return radii, radii > 0
 
 
-def project_visibility_reference(gaussians: GaussianSet, cameras: Sequence[Camera],
-                                 near_plane: float = NEAR_PLANE) -> tuple[torch.Tensor, torch.Tensor]:
+def project_visibility_reference(
+    gaussians: GaussianSet, cameras: Sequence[Camera], near_plane: float = NEAR_PLANE
+) -> tuple[torch.Tensor, torch.Tensor]:
     """One :func:`project_gaussians` per camera: the twin of :func:`project_visibility`, for tests."""
     with torch.no_grad():
         radii = torch.stack([project_gaussians(gaussians.detach(), cam, near_plane).radii for cam in cameras])

@@ -37,8 +37,18 @@ from .render_gsplat import gsplat_available, render_gsplat
 from .render_types import ALPHA_MAX, ALPHA_MIN, T_MIN, PairList, RenderOutput, background_tensor
 from .sh import sh_to_color
 
-__all__ = ["ALPHA_MAX", "ALPHA_MIN", "BACKENDS", "T_MIN", "PairList", "RenderOutput", "build_pairs",
-           "gaussian_colors", "pair_statistics", "render"]
+__all__ = [
+    "ALPHA_MAX",
+    "ALPHA_MIN",
+    "BACKENDS",
+    "T_MIN",
+    "PairList",
+    "RenderOutput",
+    "build_pairs",
+    "gaussian_colors",
+    "pair_statistics",
+    "render",
+]
 
 BACKENDS = ("auto", "torch", "gsplat")
 
@@ -85,13 +95,24 @@ def pair_statistics(gaussians: GaussianSet, camera: Camera) -> dict[str, int]:
         stopped = kept & ~live
         stopped_pixels = torch.unique(pairs.pixels[stopped]).numel()
         num_kept = int(kept.sum())
-    return {"visible": int((proj.radii > 0).sum()), "candidates": pairs.candidates,
-            "skipped_alpha": pairs.candidates - num_kept, "pairs": num_kept, "stopped": int(stopped.sum()),
-            "stopped_pixels": int(stopped_pixels)}
+    return {
+        "visible": int((proj.radii > 0).sum()),
+        "candidates": pairs.candidates,
+        "skipped_alpha": pairs.candidates - num_kept,
+        "pairs": num_kept,
+        "stopped": int(stopped.sum()),
+        "stopped_pixels": int(stopped_pixels),
+    }
 
 
-def render(gaussians: GaussianSet, camera: Camera, background: torch.Tensor | float | None = None, *,
-           sh_degree: int | None = None, backend: str = "auto") -> RenderOutput:
+def render(
+    gaussians: GaussianSet,
+    camera: Camera,
+    background: torch.Tensor | float | None = None,
+    *,
+    sh_degree: int | None = None,
+    backend: str = "auto",
+) -> RenderOutput:
     """Rasterize Gaussians into one view (differentiable w.r.t. every Gaussian parameter).
 
     Args:
@@ -127,5 +148,11 @@ def render(gaussians: GaussianSet, camera: Camera, background: torch.Tensor | fl
     w, h = camera.width, camera.height
     pairs = build_pairs(proj, opacities, w, h)
     image, alpha, depth = Composite.apply(means2d, proj.conics, opacities, colors, proj.depths, bg, pairs, w * h)
-    return RenderOutput(image=image.reshape(h, w, 3), alpha=alpha.reshape(h, w), depth=depth.reshape(h, w),
-                        radii=proj.radii, visible=proj.radii > 0, means2d=means2d)
+    return RenderOutput(
+        image=image.reshape(h, w, 3),
+        alpha=alpha.reshape(h, w),
+        depth=depth.reshape(h, w),
+        radii=proj.radii,
+        visible=proj.radii > 0,
+        means2d=means2d,
+    )

@@ -32,8 +32,16 @@ def bench_scene(n: int, width: int, height: int, seed: int, device: torch.device
     return gaussians, camera
 
 
-def time_case(n: int, width: int, height: int, seed: int, repeats: int, backend: str, device: torch.device,
-              target_ms: float | None = None) -> dict:
+def time_case(
+    n: int,
+    width: int,
+    height: int,
+    seed: int,
+    repeats: int,
+    backend: str,
+    device: torch.device,
+    target_ms: float | None = None,
+) -> dict:
     """Forward and forward + backward time of :func:`recon.render.render` on :func:`bench_scene`, median of ``repeats``.
 
     The loss is a weighted sum of the image, alpha and depth maps; one extra first pass warms caches and allocators.
@@ -68,8 +76,17 @@ def time_case(n: int, width: int, height: int, seed: int, repeats: int, backend:
             fwd.append(t1 - t0)
             total.append(t2 - t0)
     radii = out.radii[out.visible].float()
-    return {"gaussians": n, "width": width, "height": height, "pixels": width * height,
-            "visible": stats["visible"], "mean_radius_px": float(radii.mean()) if radii.numel() else 0.0,
-            "candidate_pairs": stats["candidates"], "pairs": stats["pairs"], "stopped_pairs": stats["stopped"],
-            "forward_ms": 1e3 * statistics.median(fwd), "forward_backward_ms": 1e3 * statistics.median(total),
-            "target_ms": target_ms}
+    return {
+        "gaussians": n,
+        "width": width,
+        "height": height,
+        "pixels": width * height,
+        "visible": stats["visible"],
+        "mean_radius_px": float(radii.mean()) if radii.numel() else 0.0,
+        "candidate_pairs": stats["candidates"],
+        "pairs": stats["pairs"],
+        "stopped_pairs": stats["stopped"],
+        "forward_ms": 1e3 * statistics.median(fwd),
+        "forward_backward_ms": 1e3 * statistics.median(total),
+        "target_ms": target_ms,
+    }

@@ -40,11 +40,15 @@ def render_gsplat(gaussians: GaussianSet, camera: Camera, background: torch.Tens
         a hook on gsplat's screen-space means during backward).
     """
     if not gsplat_available():
-        raise ValueError("backend='gsplat' needs the gsplat package and a CUDA device; install gsplat "
-                         "(pip install gsplat) on a CUDA machine or use backend='torch'")
+        raise ValueError(
+            "backend='gsplat' needs the gsplat package and a CUDA device; install gsplat "
+            "(pip install gsplat) on a CUDA machine or use backend='torch'"
+        )
     if gaussians.device.type != "cuda":
-        raise ValueError(f"backend='gsplat' needs the Gaussians on a CUDA device, they are on {gaussians.device}; "
-                         "move them with .to('cuda') or use backend='torch'")
+        raise ValueError(
+            f"backend='gsplat' needs the Gaussians on a CUDA device, they are on {gaussians.device}; "
+            "move them with .to('cuda') or use backend='torch'"
+        )
     from gsplat import rasterization  # noqa: PLC0415 - optional: gsplat, CUDA only
 
     dev, f32 = gaussians.device, torch.float32
@@ -52,10 +56,23 @@ def render_gsplat(gaussians: GaussianSet, camera: Camera, background: torch.Tens
     viewmats = camera.world_to_camera.to(device=dev, dtype=f32)[None]
     ks = camera.intrinsics().to(device=dev, dtype=f32)[None]
     colors, alphas, meta = rasterization(
-        gaussians.means.to(f32), gaussians.quats.to(f32), gaussians.scales.to(f32), gaussians.opacities.to(f32),
-        gaussians.sh[:, :k].to(f32), viewmats, ks, camera.width, camera.height, near_plane=NEAR_PLANE, eps2d=0.3,
-        sh_degree=sh_degree, packed=False, backgrounds=background.to(f32)[None], render_mode="RGB+D",
-        rasterize_mode="classic")
+        gaussians.means.to(f32),
+        gaussians.quats.to(f32),
+        gaussians.scales.to(f32),
+        gaussians.opacities.to(f32),
+        gaussians.sh[:, :k].to(f32),
+        viewmats,
+        ks,
+        camera.width,
+        camera.height,
+        near_plane=NEAR_PLANE,
+        eps2d=0.3,
+        sh_degree=sh_degree,
+        packed=False,
+        backgrounds=background.to(f32)[None],
+        render_mode="RGB+D",
+        rasterize_mode="classic",
+    )
     radii = meta["radii"][0]
     if radii.dim() == 2:
         radii = radii.max(-1).values
@@ -69,5 +86,11 @@ def render_gsplat(gaussians: GaussianSet, camera: Camera, background: torch.Tens
             means2d.grad = grad[0].detach().clone() if means2d.grad is None else means2d.grad + grad[0]
 
         screen_means.register_hook(_store)
-    return RenderOutput(image=colors[0, ..., :3], alpha=alphas[0, ..., 0], depth=colors[0, ..., 3], radii=radii,
-                        visible=radii > 0, means2d=means2d)
+    return RenderOutput(
+        image=colors[0, ..., :3],
+        alpha=alphas[0, ..., 0],
+        depth=colors[0, ..., 3],
+        radii=radii,
+        visible=radii > 0,
+        means2d=means2d,
+    )

@@ -37,9 +37,13 @@ def project_gaussians_reference(gaussians: GaussianSet, camera: Camera) -> Proje
         v = camera.fy * t[1] / z + camera.cy
         tx = torch.clamp(t[0] / z, -lim_x, lim_x) * z
         ty = torch.clamp(t[1] / z, -lim_y, lim_y) * z
-        jac = torch.stack([torch.stack([camera.fx / z, torch.zeros_like(z), -camera.fx * tx / (z * z)]),
-                           torch.stack([torch.zeros_like(z), camera.fy / z, -camera.fy * ty / (z * z)])])
-        rot_g = quaternion_to_rotation(gaussians.quats[i:i + 1])[0]
+        jac = torch.stack(
+            [
+                torch.stack([camera.fx / z, torch.zeros_like(z), -camera.fx * tx / (z * z)]),
+                torch.stack([torch.zeros_like(z), camera.fy / z, -camera.fy * ty / (z * z)]),
+            ]
+        )
+        rot_g = quaternion_to_rotation(gaussians.quats[i : i + 1])[0]
         scale = torch.diag(torch.exp(gaussians.log_scales[i]))
         sigma = rot_g @ scale @ scale @ rot_g.T
         cov2d = jac @ rot_w @ sigma @ rot_w.T @ jac.T + DILATION * torch.eye(2, dtype=z.dtype, device=z.device)
@@ -62,15 +66,25 @@ def project_gaussians_reference(gaussians: GaussianSet, camera: Camera) -> Proje
     dev, dt = gaussians.device, gaussians.dtype
     if gaussians.num == 0:
         ints = torch.zeros(0, dtype=torch.int32, device=dev)
-        return Projection(torch.zeros(0, 2, dtype=dt, device=dev), torch.zeros(0, 3, dtype=dt, device=dev),
-                          torch.zeros(0, dtype=dt, device=dev), ints, ints.reshape(0, 4))
-    return Projection(torch.stack(means2d), torch.stack(conics), torch.stack(depths),
-                      torch.tensor(radii, dtype=torch.int32, device=dev),
-                      torch.tensor(boxes, dtype=torch.int32, device=dev))
+        return Projection(
+            torch.zeros(0, 2, dtype=dt, device=dev),
+            torch.zeros(0, 3, dtype=dt, device=dev),
+            torch.zeros(0, dtype=dt, device=dev),
+            ints,
+            ints.reshape(0, 4),
+        )
+    return Projection(
+        torch.stack(means2d),
+        torch.stack(conics),
+        torch.stack(depths),
+        torch.tensor(radii, dtype=torch.int32, device=dev),
+        torch.tensor(boxes, dtype=torch.int32, device=dev),
+    )
 
 
-def render_dense_reference(gaussians: GaussianSet, camera: Camera, background: torch.Tensor | float | None = None,
-                           sh_degree: int | None = None) -> RenderOutput:
+def render_dense_reference(
+    gaussians: GaussianSet, camera: Camera, background: torch.Tensor | float | None = None, sh_degree: int | None = None
+) -> RenderOutput:
     """Dense twin of :func:`recon.render.render` (torch backend): all pixels x all Gaussians, sequential in depth.
 
     Args and Returns as :func:`recon.render.render`; ``means2d`` retains its gradient.
@@ -87,8 +101,9 @@ def render_dense_reference(gaussians: GaussianSet, camera: Camera, background: t
     colors = gaussian_colors(gaussians, camera, degree)
     opacities = gaussians.opacities
     w, h = camera.width, camera.height
-    ys, xs = torch.meshgrid(torch.arange(h, dtype=dt, device=dev) + 0.5, torch.arange(w, dtype=dt, device=dev) + 0.5,
-                            indexing="ij")
+    ys, xs = torch.meshgrid(
+        torch.arange(h, dtype=dt, device=dev) + 0.5, torch.arange(w, dtype=dt, device=dev) + 0.5, indexing="ij"
+    )
     px, py = xs.reshape(-1), ys.reshape(-1)
     trans = torch.ones(h * w, dtype=dt, device=dev)
     done = torch.zeros(h * w, dtype=torch.bool, device=dev)
@@ -112,5 +127,11 @@ def render_dense_reference(gaussians: GaussianSet, camera: Camera, background: t
         depth = depth + weight * proj.depths[i]
         trans = torch.where(use, test_t, trans)
     image = image + trans[:, None] * bg
-    return RenderOutput(image=image.reshape(h, w, 3), alpha=(1.0 - trans).reshape(h, w), depth=depth.reshape(h, w),
-                        radii=proj.radii, visible=proj.radii > 0, means2d=means2d)
+    return RenderOutput(
+        image=image.reshape(h, w, 3),
+        alpha=(1.0 - trans).reshape(h, w),
+        depth=depth.reshape(h, w),
+        radii=proj.radii,
+        visible=proj.radii > 0,
+        means2d=means2d,
+    )

@@ -86,13 +86,16 @@ def background_tensor(background, like: torch.Tensor) -> torch.Tensor:
     if isinstance(background, (int, float)):
         return torch.full((3,), float(background), dtype=like.dtype, device=like.device)
     if not isinstance(background, torch.Tensor):
-        raise ValueError(f"background must be a [3] tensor, a float grey level or None, "
-                         f"got {type(background).__name__}")
+        raise ValueError(
+            f"background must be a [3] tensor, a float grey level or None, got {type(background).__name__}"
+        )
     if tuple(background.shape) != (3,):
         raise ValueError(f"background must have shape (3,), got {tuple(background.shape)}; pass one RGB colour")
     if background.device != like.device:
-        raise ValueError(f"background is on {background.device} but the Gaussians are on {like.device}; "
-                         f"move it with .to({str(like.device)!r})")
+        raise ValueError(
+            f"background is on {background.device} but the Gaussians are on {like.device}; "
+            f"move it with .to({str(like.device)!r})"
+        )
     if not torch.isfinite(background).all():
         raise ValueError("background has NaN or Inf values")
     return background.to(like.dtype)

@@ -18,8 +18,15 @@ from .gaussians import SH_C0, sh_degree_of
 
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
-         1.445305721320277, -0.5900435899266435)
+SH_C3 = (
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
+)
 
 
 def sh_basis(dirs: torch.Tensor, degree: int) -> torch.Tensor:
@@ -37,12 +44,23 @@ def sh_basis(dirs: torch.Tensor, degree: int) -> torch.Tensor:
         basis += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
     if degree >= 2:
         xx, yy, zz = x * x, y * y, z * z
-        basis += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2.0 * zz - xx - yy), SH_C2[3] * x * z,
-                  SH_C2[4] * (xx - yy)]
+        basis += [
+            SH_C2[0] * x * y,
+            SH_C2[1] * y * z,
+            SH_C2[2] * (2.0 * zz - xx - yy),
+            SH_C2[3] * x * z,
+            SH_C2[4] * (xx - yy),
+        ]
     if degree >= 3:
-        basis += [SH_C3[0] * y * (3.0 * xx - yy), SH_C3[1] * x * y * z, SH_C3[2] * y * (4.0 * zz - xx - yy),
-                  SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy), SH_C3[4] * x * (4.0 * zz - xx - yy),
-                  SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3.0 * yy)]
+        basis += [
+            SH_C3[0] * y * (3.0 * xx - yy),
+            SH_C3[1] * x * y * z,
+            SH_C3[2] * y * (4.0 * zz - xx - yy),
+            SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy),
+            SH_C3[4] * x * (4.0 * zz - xx - yy),
+            SH_C3[5] * z * (xx - yy),
+            SH_C3[6] * x * (xx - 3.0 * yy),
+        ]
     return torch.stack(basis, -1)
 
 
@@ -62,8 +80,9 @@ def eval_sh(sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
     if sh.dim() != 3 or sh.shape[2] != 3:
         raise ValueError(f"sh must have shape (N, K, 3), got {tuple(sh.shape)}")
     if dirs.shape != (sh.shape[0], 3):
-        raise ValueError(f"dirs must have shape ({sh.shape[0]}, 3) to match sh {tuple(sh.shape)}, "
-                         f"got {tuple(dirs.shape)}")
+        raise ValueError(
+            f"dirs must have shape ({sh.shape[0]}, 3) to match sh {tuple(sh.shape)}, got {tuple(dirs.shape)}"
+        )
     degree = sh_degree_of(sh.shape[1])
     basis = sh_basis(dirs, degree)
     return (basis[:, :, None] * sh).sum(1)  # broadcasting beats a batched matmul for tiny K

@@ -38,8 +38,7 @@ def split_similarity(matrix: np.ndarray, what: str = "transform") -> tuple[float
     a = m[:3, :3]
     s = float(np.cbrt(np.linalg.det(a)))
     if not s > 0:
-        raise ValueError(f"{what} is not a similarity (its 3x3 part has determinant {s ** 3:.3g}: mirrored or "
-                         f"singular)")
+        raise ValueError(f"{what} is not a similarity (its 3x3 part has determinant {s**3:.3g}: mirrored or singular)")
     r = a / s
     if not np.allclose(r @ r.T, np.eye(3), atol=1e-5):
         raise ValueError(f"{what} is not a similarity (its 3x3 part is not a rotation times one scale)")
@@ -81,8 +80,15 @@ def quaternion_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """The Hamilton product a b of (w, x, y, z) quaternions (broadcast over leading dimensions)."""
     aw, ax, ay, az = a.unbind(-1)
     bw, bx, by, bz = b.unbind(-1)
-    return torch.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
+    return torch.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )
 
 
 def sh_rotation(r: np.ndarray, degree: int) -> torch.Tensor:
@@ -114,6 +120,11 @@ def transform_gaussians(gaussians: GaussianSet, matrix: np.ndarray) -> GaussianS
     quats = quaternion_multiply(q_r.expand_as(g64.quats), g64.quats)
     m = sh_rotation(r, g64.sh_degree)
     sh = torch.einsum("jk,nkc->njc", m, g64.sh)
-    out = GaussianSet(means=means, quats=quats, log_scales=g64.log_scales + float(np.log(s)),
-                      opacity_logits=g64.opacity_logits.clone(), sh=sh)
+    out = GaussianSet(
+        means=means,
+        quats=quats,
+        log_scales=g64.log_scales + float(np.log(s)),
+        opacity_logits=g64.opacity_logits.clone(),
+        sh=sh,
+    )
     return out.to(device=device, dtype=dtype)

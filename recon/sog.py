@@ -133,8 +133,10 @@ class _ZipFiles:
 
 def _missing(source: str, name: str, files) -> ValueError:
     held = ", ".join(files.names()[:12]) or "nothing"
-    return ValueError(f"{source}: the SOG image {name!r} named in meta.json is missing from {files.where()} (it holds "
-                      f"{held}); copy every file that meta.json names next to it, or {FIX}")
+    return ValueError(
+        f"{source}: the SOG image {name!r} named in meta.json is missing from {files.where()} (it holds "
+        f"{held}); copy every file that meta.json names next to it, or {FIX}"
+    )
 
 
 def _meta(files, source: str) -> dict:
@@ -143,10 +145,12 @@ def _meta(files, source: str) -> dict:
         meta = json.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise ValueError(f"{source}: the SOG meta.json is not valid JSON ({exc}); {FIX}") from None
-    if not isinstance(meta, dict) or not all(isinstance(meta.get(k), dict) for k in ("means", "quats", "scales",
-                                                                                        "sh0")):
-        raise ValueError(f"{source}: not a SOG meta.json (it lacks the 'means', 'quats', 'scales' and 'sh0' "
-                         f"entries); {FIX}")
+    if not isinstance(meta, dict) or not all(
+        isinstance(meta.get(k), dict) for k in ("means", "quats", "scales", "sh0")
+    ):
+        raise ValueError(
+            f"{source}: not a SOG meta.json (it lacks the 'means', 'quats', 'scales' and 'sh0' entries); {FIX}"
+        )
     return meta
 
 
@@ -154,8 +158,11 @@ def _field(meta: dict, path: str, source: str, length: int | None = None) -> lis
     value = meta
     for key in path.split("."):
         value = value.get(key) if isinstance(value, dict) else None
-    ok = (isinstance(value, list) and (length is None or len(value) == length)
-          and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value))
+    ok = (
+        isinstance(value, list)
+        and (length is None or len(value) == length)
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+    )
     if length is None and isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
         ok = True
     if not ok:
@@ -183,9 +190,11 @@ def _image(files, name: str, source: str, need: int, what: str) -> tuple[np.ndar
     except Exception as exc:  # noqa: BLE001 - Pillow raises many types for a bad image
         raise ValueError(f"{source}: the SOG image {name!r} cannot be read ({exc}); {FIX}") from None
     if width * height < need:
-        raise ValueError(f"{source}: the SOG {what} image {name!r} is {width} x {height} = {width * height} pixels, "
-                         f"fewer than the {need} Gaussians meta.json declares (a count larger than the images "
-                         f"hold); {FIX}")
+        raise ValueError(
+            f"{source}: the SOG {what} image {name!r} is {width} x {height} = {width * height} pixels, "
+            f"fewer than the {need} Gaussians meta.json declares (a count larger than the images "
+            f"hold); {FIX}"
+        )
     check_budget(source, f"the SOG image {name!r} ({width} x {height})", 4 * width * height)
     try:
         pixels = np.asarray(image.convert("RGBA"), dtype=np.uint8)
@@ -199,8 +208,10 @@ def _version(meta: dict, source: str) -> int:
     if version is None:
         return 1
     if version not in SUPPORTED_VERSIONS or isinstance(version, bool):
-        raise ValueError(f"{source}: SOG version {version!r} is not supported (versions 1 and 2 are); re-export it "
-                         f"as version 2 (splat-transform writes it for viewers that predate version 3)")
+        raise ValueError(
+            f"{source}: SOG version {version!r} is not supported (versions 1 and 2 are); re-export it "
+            f"as version 2 (splat-transform writes it for viewers that predate version 3)"
+        )
     return int(version)
 
 
@@ -252,8 +263,10 @@ def decode_quats(pixels: np.ndarray, source: str = "SOG") -> np.ndarray:
     bad = (tags < 0) | (tags > 3)
     if bad.any():
         rows = np.flatnonzero(bad)
-        raise ValueError(f"{source}: {len(rows)} SOG rotations have a reserved mode byte (alpha not in 252-255; "
-                         f"first Gaussians {rows[:5].tolist()}): a corrupt or lossily compressed quats image; {FIX}")
+        raise ValueError(
+            f"{source}: {len(rows)} SOG rotations have a reserved mode byte (alpha not in 252-255; "
+            f"first Gaussians {rows[:5].tolist()}): a corrupt or lossily compressed quats image; {FIX}"
+        )
     small = (pixels[:, :3].astype(np.float32) / 255.0 * 2.0 - 1.0) / np.float32(math.sqrt(2.0))
     others = np.array([[j for j in range(4) if j != i] for i in range(4)])[tags]
     quats = np.zeros((len(pixels), 4), np.float32)
@@ -298,18 +311,24 @@ def _sh_rest(files, meta: dict, version: int, n: int, source: str) -> np.ndarray
     else:
         bands = V1_BANDS_BY_WIDTH.get(width)
         if bands is None:
-            raise ValueError(f"{source}: the SOG SH centroid image {centroid_name!r} is {width} pixels wide; version 1 "
-                             f"expects 192, 512 or 960 (1-3 bands); {FIX}")
+            raise ValueError(
+                f"{source}: the SOG SH centroid image {centroid_name!r} is {width} pixels wide; version 1 "
+                f"expects 192, 512 or 960 (1-3 bands); {FIX}"
+            )
         palette = 64 * height
     coeffs = SH_COEFFS[bands]
     if width != 64 * coeffs or 64 * height < palette:
-        raise ValueError(f"{source}: the SOG SH centroid image {centroid_name!r} is {width} x {height} pixels; "
-                         f"{palette} palette entries of {bands} band(s) need {64 * coeffs} x {math.ceil(palette / 64)}"
-                         f"; {FIX}")
+        raise ValueError(
+            f"{source}: the SOG SH centroid image {centroid_name!r} is {width} x {height} pixels; "
+            f"{palette} palette entries of {bands} band(s) need {64 * coeffs} x {math.ceil(palette / 64)}"
+            f"; {FIX}"
+        )
     if (labels >= palette).any():
         rows = np.flatnonzero(labels >= palette)
-        raise ValueError(f"{source}: {len(rows)} SOG SH labels point past the {palette}-entry palette (first "
-                         f"Gaussians {rows[:5].tolist()}); {FIX}")
+        raise ValueError(
+            f"{source}: {len(rows)} SOG SH labels point past the {palette}-entry palette (first "
+            f"Gaussians {rows[:5].tolist()}); {FIX}"
+        )
     centroids, _ = _image(files, centroid_name, source, 0, "shN_centroids")
     pixel = (labels // 64)[:, None] * width + (labels % 64)[:, None] * coeffs + np.arange(coeffs)[None, :]
     codes = centroids[pixel][..., :3]  # [N, C, 3]

@@ -68,14 +68,33 @@ MAX_LEGACY_EXTENSION_BYTES = 1 << 20
 DECODED_BYTES_PER_POINT = 4 * (3 + 4 + 3 + 1 + 16 * 3)
 ATTRIBUTES = ("positions", "alphas", "colors", "scales", "rotations", "sh")
 # sign of each real SH basis function (3DGS order, degrees 1-3) under (x, y, z) -> (x, -y, -z)
-RUB_TO_RDF_SH_SIGNS = np.array([-1, -1, 1,  # y, z, x
-                                -1, 1, 1, -1, 1,  # xy, yz, 3z^2-1, xz, x^2-y^2
-                                -1, 1, -1, -1, 1, -1, 1], np.float32)  # y(3x^2-y^2), xyz, y(.), z(.), x(.), z(.), x(.)
+RUB_TO_RDF_SH_SIGNS = np.array(
+    [
+        -1,
+        -1,
+        1,  # y, z, x
+        -1,
+        1,
+        1,
+        -1,
+        1,  # xy, yz, 3z^2-1, xz, x^2-y^2
+        -1,
+        1,
+        -1,
+        -1,
+        1,
+        -1,
+        1,
+    ],
+    np.float32,
+)  # y(3x^2-y^2), xyz, y(.), z(.), x(.), z(.), x(.)
 
 
-SPZ_FRAMES = {"rub": "right-up-back as Niantic's specification defines it, turned half a turn about x to the .ply "
-                      "frame (Niantic's spz_to_ply does the same)",
-              "ply": "the .ply frame, kept as stored (splat-transform and SuperSplat write and read .spz so)"}
+SPZ_FRAMES = {
+    "rub": "right-up-back as Niantic's specification defines it, turned half a turn about x to the .ply "
+    "frame (Niantic's spz_to_ply does the same)",
+    "ply": "the .ply frame, kept as stored (splat-transform and SuperSplat write and read .spz so)",
+}
 
 
 def load_spz(path: str | Path, frame: str = "rub") -> GaussianSet:
@@ -111,37 +130,50 @@ def load_spz(path: str | Path, frame: str = "rub") -> GaussianSet:
 
 def _check_header(version: int, num_points: int, sh_degree: int, fractional_bits: int, source: str) -> None:
     if version not in SUPPORTED_VERSIONS:
-        raise ValueError(f"{source}: .spz version {version} is not supported (versions {SUPPORTED_VERSIONS} are); "
-                         f"re-save it with a current spz library")
+        raise ValueError(
+            f"{source}: .spz version {version} is not supported (versions {SUPPORTED_VERSIONS} are); "
+            f"re-save it with a current spz library"
+        )
     if sh_degree not in SH_DIMS:
         raise ValueError(f"{source}: .spz SH degree {sh_degree} is not 0-4 (corrupt header)")
     if fractional_bits > MAX_FRACTIONAL_BITS:
-        raise ValueError(f"{source}: .spz fractionalBits {fractional_bits} exceeds {MAX_FRACTIONAL_BITS} "
-                         f"(corrupt header)")
+        raise ValueError(
+            f"{source}: .spz fractionalBits {fractional_bits} exceeds {MAX_FRACTIONAL_BITS} (corrupt header)"
+        )
     if num_points == 0:
         raise ValueError(f"{source}: the .spz holds 0 Gaussians")
 
 
 def _attribute_sizes(n: int, version: int, sh_degree: int) -> dict[str, int]:
     """Bytes of each attribute array for ``n`` points."""
-    return {"positions": 9 * n, "alphas": n, "colors": 3 * n, "scales": 3 * n,
-            "rotations": (4 if version >= 3 else 3) * n, "sh": 3 * SH_DIMS[sh_degree] * n}
+    return {
+        "positions": 9 * n,
+        "alphas": n,
+        "colors": 3 * n,
+        "scales": 3 * n,
+        "rotations": (4 if version >= 3 else 3) * n,
+        "sh": 3 * SH_DIMS[sh_degree] * n,
+    }
 
 
 def _check_sh_matches(source: str, n: int, version: int, degree: int, data_bytes: int) -> None:
     """Raise ``ValueError`` when ``data_bytes`` of arrays fit another SH degree than the header's ``degree``."""
     fits = [d for d in SH_DIMS if d != degree and sum(_attribute_sizes(n, version, d).values()) == data_bytes]
     if fits:
-        raise ValueError(f"{source}: SH data does not match the header: it declares SH degree {degree} for {n} "
-                         f"points, but the {data_bytes} bytes of arrays are those of SH degree {fits[0]}; "
-                         f"re-export the .spz (or set the header's SH degree byte to {fits[0]})")
+        raise ValueError(
+            f"{source}: SH data does not match the header: it declares SH degree {degree} for {n} "
+            f"points, but the {data_bytes} bytes of arrays are those of SH degree {fits[0]}; "
+            f"re-export the .spz (or set the header's SH degree byte to {fits[0]})"
+        )
 
 
 def _check_fits(source: str, n: int, payload: int, file_bytes: int, ratio: int) -> None:
     """Reject a header whose ``n`` points could not come out of ``file_bytes`` compressed bytes (before inflating)."""
     if payload > file_bytes * ratio:
-        raise ValueError(f"{source}: corrupt or truncated .spz: the header declares {n} points ({payload} bytes), "
-                         f"more than a {file_bytes}-byte file can hold even at a {ratio}:1 compression ratio")
+        raise ValueError(
+            f"{source}: corrupt or truncated .spz: the header declares {n} points ({payload} bytes), "
+            f"more than a {file_bytes}-byte file can hold even at a {ratio}:1 compression ratio"
+        )
 
 
 def _gunzip_legacy(data: bytes, source: str) -> bytes:
@@ -170,8 +202,11 @@ def _gunzip_legacy(data: bytes, source: str) -> bytes:
             _check_sh_matches(source, n, version, degree, len(body) + len(rest))
         raise ValueError(f"{source}: the gzip stream holds more data than the .spz header declares (corrupt)")
     if not stream.eof:
-        where = (f"{len(body)} of {payload} bytes after the header" if len(body) < payload
-                 else "the gzip trailer with its checksum is missing")
+        where = (
+            f"{len(body)} of {payload} bytes after the header"
+            if len(body) < payload
+            else "the gzip trailer with its checksum is missing"
+        )
         raise ValueError(f"{source}: truncated .spz: the gzip stream ends early ({where}); re-download the file")
     if stream.unused_data:
         raise ValueError(f"{source}: {len(stream.unused_data)} stray bytes after the gzip stream (corrupt .spz)")
@@ -217,23 +252,28 @@ def _read_ngsp(data: bytes, source: str) -> tuple[tuple[int, ...], dict[str, np.
     sizes = {k: v for k, v in _attribute_sizes(n, version, degree).items() if v > 0}
     check_budget(source, f"{n} points of SH degree {degree}", sum(sizes.values()) + n * DECODED_BYTES_PER_POINT)
     if num_streams != len(sizes) or toc < NGSP_HEADER.size:
-        raise ValueError(f"{source}: corrupt .spz header: {num_streams} streams at offset {toc}; expected "
-                         f"{len(sizes)} streams ({', '.join(sizes)}) after the 32-byte header")
+        raise ValueError(
+            f"{source}: corrupt .spz header: {num_streams} streams at offset {toc}; expected "
+            f"{len(sizes)} streams ({', '.join(sizes)}) after the 32-byte header"
+        )
     streams_at = toc + num_streams * TOC_ENTRY.size
     check_declared_size(source, f"a table of {num_streams} streams", streams_at, len(data))
     entries = [TOC_ENTRY.unpack_from(data, toc + i * TOC_ENTRY.size) for i in range(num_streams)]
     for (name, size), (_, raw_size) in zip(sizes.items(), entries, strict=True):
         if raw_size != size:
-            raise ValueError(f"{source}: corrupt .spz: the {name} stream holds {raw_size} bytes; {n} points need "
-                             f"{size}")
+            raise ValueError(
+                f"{source}: corrupt .spz: the {name} stream holds {raw_size} bytes; {n} points need {size}"
+            )
     total = streams_at + sum(c for c, _ in entries)
     if total != len(data):
         what = "truncated .spz" if total > len(data) else "corrupt .spz"
-        raise ValueError(f"{source}: {what}: the stream table adds up to {total} bytes, the file has {len(data)}; "
-                         f"re-download or re-export the file")
+        raise ValueError(
+            f"{source}: {what}: the stream table adds up to {total} bytes, the file has {len(data)}; "
+            f"re-download or re-export the file"
+        )
     arrays, offset = {}, streams_at
     for (name, size), (compressed, _) in zip(sizes.items(), entries, strict=True):
-        arrays[name] = np.frombuffer(_unzstd(data[offset:offset + compressed], size, name, source), np.uint8)
+        arrays[name] = np.frombuffer(_unzstd(data[offset : offset + compressed], size, name, source), np.uint8)
         offset += compressed
     arrays.setdefault("sh", np.zeros(0, np.uint8))
     return (version, n, degree, bits), arrays
@@ -261,8 +301,11 @@ def _decode(arrays: dict[str, np.ndarray], header: tuple[int, ...], source: str,
     logits = opacity_logits_from_unit(arrays["alphas"].astype(np.float32) / 255.0)
     dc = (arrays["colors"].reshape(n, 3).astype(np.float32) / 255.0 - 0.5) / np.float32(COLOR_SCALE)
     log_scales = arrays["scales"].reshape(n, 3).astype(np.float32) / 16.0 - 10.0
-    xyzw = (decode_smallest_three(arrays["rotations"].view("<u4")) if version >= 3
-            else decode_first_three(arrays["rotations"].reshape(n, 3)))
+    xyzw = (
+        decode_smallest_three(arrays["rotations"].view("<u4"))
+        if version >= 3
+        else decode_first_three(arrays["rotations"].reshape(n, 3))
+    )
     rest = (arrays["sh"].reshape(n, SH_DIMS[degree], 3).astype(np.float32) - 128.0) / 128.0
     if degree == 4:
         log.warning("%s: SH degree 4 cut to degree 3 (a GaussianSet holds degrees 0-3)", source)

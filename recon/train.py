@@ -46,6 +46,7 @@ log = logging.getLogger(__name__)
 
 # ---- scene geometry and initialisation ---------------------------------------------------------------
 
+
 def scene_extent(cameras: Sequence[Camera]) -> float:
     """1.1 x the radius of the camera centres' bounding sphere about their mean (3DGS ``getNerfppNorm``).
 
@@ -93,11 +94,11 @@ def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 1024) -> tor
         raise ValueError(f"knn_mean_sq_dist needs more than k = {k} points, got {n}")
     out = torch.empty(n, dtype=points.dtype, device=points.device)
     for start in range(0, n, chunk):
-        block = points[start:start + chunk]
+        block = points[start : start + chunk]
         d2 = torch.cdist(block, points).square()
         rows = torch.arange(block.shape[0], device=points.device)
         d2[rows, rows + start] = float("inf")
-        out[start:start + chunk] = d2.topk(k, dim=1, largest=False).values.mean(1)
+        out[start : start + chunk] = d2.topk(k, dim=1, largest=False).values.mean(1)
     return out
 
 
@@ -126,8 +127,9 @@ def init_gaussians(points: torch.Tensor, colors: torch.Tensor, sh_degree: int, o
     return g.with_sh_degree(sh_degree)
 
 
-def random_box_gaussians(count: int, box: Sequence[float], sh_degree: int, generator: torch.Generator,
-                         opacity: float = 0.1) -> GaussianSet:
+def random_box_gaussians(
+    count: int, box: Sequence[float], sh_degree: int, generator: torch.Generator, opacity: float = 0.1
+) -> GaussianSet:
     """``count`` Gaussians at uniform points of ``box`` (xmin, ymin, zmin, xmax, ymax, zmax), random colours."""
     lo, hi = torch.tensor(box[:3]), torch.tensor(box[3:])
     points = lo + (hi - lo) * torch.rand(count, 3, generator=generator)
@@ -136,6 +138,7 @@ def random_box_gaussians(count: int, box: Sequence[float], sh_degree: int, gener
 
 
 # ---- the trainer -------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class TrainStepStats:
@@ -167,13 +170,20 @@ class TrainLog:
 
 
 def _gaussians_to_params(g: GaussianSet) -> dict[str, torch.Tensor]:
-    return {"means": g.means, "quats": g.quats, "log_scales": g.log_scales, "opacity_logits": g.opacity_logits,
-            "sh_dc": g.sh[:, :1], "sh_rest": g.sh[:, 1:]}
+    return {
+        "means": g.means,
+        "quats": g.quats,
+        "log_scales": g.log_scales,
+        "opacity_logits": g.opacity_logits,
+        "sh_dc": g.sh[:, :1],
+        "sh_rest": g.sh[:, 1:],
+    }
 
 
 def _params_to_gaussians(p: dict[str, torch.Tensor]) -> GaussianSet:
-    return GaussianSet(p["means"], p["quats"], p["log_scales"], p["opacity_logits"],
-                       torch.cat([p["sh_dc"], p["sh_rest"]], 1))
+    return GaussianSet(
+        p["means"], p["quats"], p["log_scales"], p["opacity_logits"], torch.cat([p["sh_dc"], p["sh_rest"]], 1)
+    )
 
 
 def background_color(mode: str, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -187,8 +197,9 @@ def background_color(mode: str, generator: torch.Generator | None = None) -> tor
     raise ValueError(f"background must be one of {BACKGROUNDS}, got {mode!r}")
 
 
-def composite_target(image: torch.Tensor, alpha: torch.Tensor | None, data_background: torch.Tensor,
-                     background: torch.Tensor) -> torch.Tensor:
+def composite_target(
+    image: torch.Tensor, alpha: torch.Tensor | None, data_background: torch.Tensor, background: torch.Tensor
+) -> torch.Tensor:
     """Re-composite a dataset image onto another background.
 
     image = rgb alpha + data_background (1 - alpha), so the same pixel over ``background`` is
@@ -204,8 +215,10 @@ def composite_target(image: torch.Tensor, alpha: torch.Tensor | None, data_backg
     if torch.equal(background.to(image), data_background.to(image)):
         return image
     if alpha is None:
-        raise ValueError("the training background differs from the dataset's background and the images have no "
-                         "alpha channel; train with --background matching the dataset (e.g. white)")
+        raise ValueError(
+            "the training background differs from the dataset's background and the images have no "
+            "alpha channel; train with --background matching the dataset (e.g. white)"
+        )
     return image + (background.to(image) - data_background.to(image)) * (1.0 - alpha.to(image))[..., None]
 
 
@@ -219,11 +232,14 @@ def check_views(views: Sequence, background: str, data_background: Sequence[floa
         want = (v.camera.height, v.camera.width, 3)
         if tuple(v.image.shape) != want:
             raise ValueError(f"view {v.name!r}: image shape {tuple(v.image.shape)} does not match its camera {want}")
-        needs_alpha = background == "random" or \
-            tuple(background_color(background).tolist()) != tuple(float(c) for c in data_background)
+        needs_alpha = background == "random" or tuple(background_color(background).tolist()) != tuple(
+            float(c) for c in data_background
+        )
         if needs_alpha and v.alpha is None:
-            raise ValueError(f"view {v.name!r} has no alpha channel, so it cannot be re-composited on a {background} "
-                             f"background; use --background matching the dataset background {tuple(data_background)}")
+            raise ValueError(
+                f"view {v.name!r} has no alpha channel, so it cannot be re-composited on a {background} "
+                f"background; use --background matching the dataset background {tuple(data_background)}"
+            )
 
 
 class Trainer:
@@ -242,8 +258,15 @@ class Trainer:
         >>> trained = trainer.gaussians
     """
 
-    def __init__(self, gaussians: GaussianSet, config: TrainConfig, *, extent: float,
-                 data_background: Sequence[float] = (1.0, 1.0, 1.0), backend: str = "auto") -> None:
+    def __init__(
+        self,
+        gaussians: GaussianSet,
+        config: TrainConfig,
+        *,
+        extent: float,
+        data_background: Sequence[float] = (1.0, 1.0, 1.0),
+        backend: str = "auto",
+    ) -> None:
         if not extent > 0 or not math.isfinite(extent):
             raise ValueError(f"Trainer: extent must be finite and > 0, got {extent}")
         gaussians.check("Trainer initial Gaussians")
@@ -256,9 +279,18 @@ class Trainer:
         self.generator = torch.Generator().manual_seed(config.seed)
         g = gaussians.with_sh_degree(config.sh_degree).detach()
         c = config
-        self.adam = GroupedAdam(_gaussians_to_params(g), {
-            "means": c.position_lr_init * self.extent, "quats": c.rotation_lr, "log_scales": c.scaling_lr,
-            "opacity_logits": c.opacity_lr, "sh_dc": c.feature_lr, "sh_rest": c.feature_lr / 20.0}, eps=c.adam_eps)
+        self.adam = GroupedAdam(
+            _gaussians_to_params(g),
+            {
+                "means": c.position_lr_init * self.extent,
+                "quats": c.rotation_lr,
+                "log_scales": c.scaling_lr,
+                "opacity_logits": c.opacity_lr,
+                "sh_dc": c.feature_lr,
+                "sh_rest": c.feature_lr / 20.0,
+            },
+            eps=c.adam_eps,
+        )
         self.stats = DensityStats.zeros(g.num, device=g.device)
         self._view_queue: list[int] = []
         self._queue_size = 0
@@ -272,12 +304,18 @@ class Trainer:
 
     def state_dict(self) -> dict:
         """Everything needed to resume: optimiser (parameters and moments), iteration, statistics, RNG."""
-        return {"config": self.config.to_dict(), "extent": self.extent, "iteration": self.iteration,
-                "active_sh_degree": self.active_sh_degree, "adam": self.adam.state_dict(),
-                "stats": {k: getattr(self.stats, k).clone() for k in ("grad_accum", "denom", "max_radii2d")},
-                "generator": self.generator.get_state(), "view_queue": list(self._view_queue),
-                "view_queue_size": self._queue_size,
-                "data_background": self.data_background.clone()}
+        return {
+            "config": self.config.to_dict(),
+            "extent": self.extent,
+            "iteration": self.iteration,
+            "active_sh_degree": self.active_sh_degree,
+            "adam": self.adam.state_dict(),
+            "stats": {k: getattr(self.stats, k).clone() for k in ("grad_accum", "denom", "max_radii2d")},
+            "generator": self.generator.get_state(),
+            "view_queue": list(self._view_queue),
+            "view_queue_size": self._queue_size,
+            "data_background": self.data_background.clone(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         """Restore a :meth:`state_dict` (the config is taken from the checkpoint)."""
@@ -297,8 +335,13 @@ class Trainer:
     def _update_schedule(self) -> None:
         c = self.config
         self.adam.lrs["means"] = self.extent * expon_lr(
-            self.iteration, c.position_lr_init, c.position_lr_final, c.position_lr_max_steps,
-            c.position_lr_delay_steps, c.position_lr_delay_mult)
+            self.iteration,
+            c.position_lr_init,
+            c.position_lr_final,
+            c.position_lr_max_steps,
+            c.position_lr_delay_steps,
+            c.position_lr_delay_mult,
+        )
         if self.iteration % c.sh_increase_interval == 0:
             self.active_sh_degree = min(self.active_sh_degree + 1, c.sh_degree)
 
@@ -310,8 +353,13 @@ class Trainer:
         self._update_schedule()
         bg = background_color(c.background, self.generator)
         target = composite_target(view.image, view.alpha, self.data_background, bg).to(self.adam.params["means"])
-        out = render(_params_to_gaussians(self.adam.params), view.camera, bg.to(target),
-                     sh_degree=self.active_sh_degree, backend=self.backend)
+        out = render(
+            _params_to_gaussians(self.adam.params),
+            view.camera,
+            bg.to(target),
+            sh_degree=self.active_sh_degree,
+            backend=self.backend,
+        )
         loss = photometric_loss(out.image, target, c.lambda_dssim)
         loss.backward()
         with torch.no_grad():
@@ -338,17 +386,33 @@ class Trainer:
         c = self.config
         g = _params_to_gaussians(self.adam.params).detach()
         res = densify_and_prune(
-            g, self.stats, grad_threshold=c.densify_grad_threshold, percent_dense=c.percent_dense, extent=self.extent,
-            min_opacity=c.min_opacity, max_screen_size=c.max_screen_size if it > c.opacity_reset_interval else None,
-            big_world_fraction=c.big_world_fraction, generator=self.generator, max_gaussians=c.max_gaussians)
+            g,
+            self.stats,
+            grad_threshold=c.densify_grad_threshold,
+            percent_dense=c.percent_dense,
+            extent=self.extent,
+            min_opacity=c.min_opacity,
+            max_screen_size=c.max_screen_size if it > c.opacity_reset_interval else None,
+            big_world_fraction=c.big_world_fraction,
+            generator=self.generator,
+            max_gaussians=c.max_gaussians,
+        )
         if res.gaussians.num == 0:
             log.warning("iteration %d: density control would remove every Gaussian; keeping the set unchanged", it)
             self.stats = DensityStats.zeros(g.num, device=g.device)
             return
         self.adam.remap(_gaussians_to_params(res.gaussians), res.origin)
         self.stats = DensityStats.zeros(res.gaussians.num, device=g.device)
-        self.log_event({"iteration": it, "kind": "densify", "cloned": res.cloned, "split": res.split,
-                        "pruned": res.pruned, "num_gaussians": res.gaussians.num})
+        self.log_event(
+            {
+                "iteration": it,
+                "kind": "densify",
+                "cloned": res.cloned,
+                "split": res.split,
+                "pruned": res.pruned,
+                "num_gaussians": res.gaussians.num,
+            }
+        )
 
     def log_event(self, event: dict) -> None:
         """Record a density-control event (the running :meth:`train` call collects it)."""
@@ -363,8 +427,14 @@ class Trainer:
             self._queue_size = count
         return self._view_queue.pop()
 
-    def train(self, views: Sequence, iterations: int, callback: Callable[[TrainStepStats], None] | None = None,
-              evaluate_every: int = 0, eval_views: Sequence = ()) -> TrainLog:
+    def train(
+        self,
+        views: Sequence,
+        iterations: int,
+        callback: Callable[[TrainStepStats], None] | None = None,
+        evaluate_every: int = 0,
+        eval_views: Sequence = (),
+    ) -> TrainLog:
         """Run ``iterations`` training iterations over ``views``.
 
         Args:
@@ -391,8 +461,9 @@ class Trainer:
                 callback(st)
             if evaluate_every and eval_views and st.iteration % evaluate_every == 0:
                 metrics = evaluate(self.gaussians, eval_views, self.data_background.tolist(), backend=self.backend)
-                train_log.evaluations.append({"iteration": st.iteration, "psnr": metrics["psnr"],
-                                              "ssim": metrics["ssim"]})
+                train_log.evaluations.append(
+                    {"iteration": st.iteration, "psnr": metrics["psnr"], "ssim": metrics["ssim"]}
+                )
         train_log.wall_time_s = time.perf_counter() - start
         train_log.events = self._events
         self._events = []
@@ -400,8 +471,9 @@ class Trainer:
 
 
 @torch.no_grad()
-def evaluate(gaussians: GaussianSet, views: Sequence, background: Sequence[float] = (1.0, 1.0, 1.0),
-             backend: str = "auto") -> dict:
+def evaluate(
+    gaussians: GaussianSet, views: Sequence, background: Sequence[float] = (1.0, 1.0, 1.0), backend: str = "auto"
+) -> dict:
     """Mean PSNR (dB) and SSIM of renders over ``background`` against held-out views composited on it.
 
     Args:
@@ -422,12 +494,19 @@ def evaluate(gaussians: GaussianSet, views: Sequence, background: Sequence[float
         image = render(gaussians, v.camera, bg.to(gaussians.means), backend=backend).image.clamp(0, 1)
         ref = v.image.to(image)
         rows.append({"name": v.name, "psnr": float(psnr(image, ref)), "ssim": float(ssim(image, ref))})
-    return {"psnr": sum(r["psnr"] for r in rows) / len(rows), "ssim": sum(r["ssim"] for r in rows) / len(rows),
-            "per_view": rows}
+    return {
+        "psnr": sum(r["psnr"] for r in rows) / len(rows),
+        "ssim": sum(r["ssim"] for r in rows) / len(rows),
+        "per_view": rows,
+    }
 
 
-def initial_gaussians(config: TrainConfig, cameras: Sequence[Camera], points: torch.Tensor | None = None,
-                      point_colors: torch.Tensor | None = None) -> GaussianSet:
+def initial_gaussians(
+    config: TrainConfig,
+    cameras: Sequence[Camera],
+    points: torch.Tensor | None = None,
+    point_colors: torch.Tensor | None = None,
+) -> GaussianSet:
     """The starting Gaussians of ``config.init``: random points in the box, or the given point cloud.
 
     Args:
@@ -437,8 +516,9 @@ def initial_gaussians(config: TrainConfig, cameras: Sequence[Camera], points: to
     """
     if config.init == "points":
         if points is None or points.shape[0] < 4:
-            raise ValueError("init 'points' needs a point cloud of at least 4 points (the dataset has none); "
-                             "use --init random")
+            raise ValueError(
+                "init 'points' needs a point cloud of at least 4 points (the dataset has none); use --init random"
+            )
         colors = point_colors if point_colors is not None else torch.full_like(points, 0.5)
         return init_gaussians(points, colors, config.sh_degree, config.init_opacity)
     box = config.init_box if config.init_box is not None else default_init_box(cameras)
@@ -447,9 +527,17 @@ def initial_gaussians(config: TrainConfig, cameras: Sequence[Camera], points: to
     return random_box_gaussians(count, box, config.sh_degree, gen, config.init_opacity)
 
 
-def train(data, config: TrainConfig, *, callback: Callable[[TrainStepStats], None] | None = None,
-          eval_views: Sequence = (), evaluate_every: int = 0, backend: str = "auto",
-          device: str | torch.device = "cpu", initial: GaussianSet | None = None) -> tuple[GaussianSet, TrainLog]:
+def train(
+    data,
+    config: TrainConfig,
+    *,
+    callback: Callable[[TrainStepStats], None] | None = None,
+    eval_views: Sequence = (),
+    evaluate_every: int = 0,
+    backend: str = "auto",
+    device: str | torch.device = "cpu",
+    initial: GaussianSet | None = None,
+) -> tuple[GaussianSet, TrainLog]:
     """Train Gaussians on a dataset or a list of views.
 
     Args:
@@ -481,5 +569,8 @@ def train(data, config: TrainConfig, *, callback: Callable[[TrainStepStats], Non
 
 def view_to(view, device):
     """A shallow copy of ``view`` with its image and alpha on ``device``."""
-    return replace(view, image=None if view.image is None else view.image.to(device),
-                   alpha=None if view.alpha is None else view.alpha.to(device))
+    return replace(
+        view,
+        image=None if view.image is None else view.image.to(device),
+        alpha=None if view.alpha is None else view.alpha.to(device),
+    )

@@ -12,8 +12,14 @@ BACKGROUNDS = ("white", "black", "random")
 INITS = ("random", "points")
 REFERENCE_ITERATIONS = 30000
 # Iteration-valued fields that TrainConfig.for_iterations scales by n / 30000.
-SCHEDULE_FIELDS = ("position_lr_max_steps", "densification_interval", "opacity_reset_interval", "densify_from_iter",
-                   "densify_until_iter", "sh_increase_interval")
+SCHEDULE_FIELDS = (
+    "position_lr_max_steps",
+    "densification_interval",
+    "opacity_reset_interval",
+    "densify_from_iter",
+    "densify_until_iter",
+    "sh_increase_interval",
+)
 # A density step averages the gradient over the views seen since the last one: keep at least this many.
 MIN_DENSIFICATION_INTERVAL = 10
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
@@ -88,8 +94,14 @@ class TrainConfig:
     adam_eps: float = 1e-15
 
     def __post_init__(self) -> None:
-        positive_ints = ("iterations", "position_lr_max_steps", "densification_interval", "opacity_reset_interval",
-                         "sh_increase_interval", "init_points")
+        positive_ints = (
+            "iterations",
+            "position_lr_max_steps",
+            "densification_interval",
+            "opacity_reset_interval",
+            "sh_increase_interval",
+            "init_points",
+        )
         for name in positive_ints:
             val = getattr(self, name)
             if isinstance(val, bool) or not isinstance(val, int) or val < 1:
@@ -98,8 +110,18 @@ class TrainConfig:
             val = getattr(self, name)
             if isinstance(val, bool) or not isinstance(val, int) or val < 0:
                 raise ValueError(f"TrainConfig.{name} must be an integer >= 0, got {val!r}")
-        for name in ("position_lr_init", "position_lr_final", "feature_lr", "opacity_lr", "scaling_lr", "rotation_lr",
-                     "percent_dense", "densify_grad_threshold", "max_screen_size", "big_world_fraction"):
+        for name in (
+            "position_lr_init",
+            "position_lr_final",
+            "feature_lr",
+            "opacity_lr",
+            "scaling_lr",
+            "rotation_lr",
+            "percent_dense",
+            "densify_grad_threshold",
+            "max_screen_size",
+            "big_world_fraction",
+        ):
             val = getattr(self, name)
             if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val) or val <= 0:
                 raise ValueError(f"TrainConfig.{name} must be a finite number > 0, got {val!r}")
@@ -125,8 +147,10 @@ class TrainConfig:
             box = tuple(float(v) for v in self.init_box)
             ordered = len(box) == 6 and all(box[i] < box[i + 3] for i in range(3))
             if not ordered or not all(math.isfinite(v) for v in box):
-                raise ValueError(f"TrainConfig.init_box must be (xmin, ymin, zmin, xmax, ymax, zmax) with min < max, "
-                                 f"got {self.init_box!r}")
+                raise ValueError(
+                    f"TrainConfig.init_box must be (xmin, ymin, zmin, xmax, ymax, zmax) with min < max, "
+                    f"got {self.init_box!r}"
+                )
             object.__setattr__(self, "init_box", box)
 
     @classmethod

@@ -49,8 +49,10 @@ class TaichiSettings:
         arch, naming the variable and its choices."""
         arch = os.environ.get(ARCH_ENV, "cpu").strip().lower() or "cpu"
         if arch not in ARCHS:
-            raise pytest.UsageError(f"{ARCH_ENV}={os.environ[ARCH_ENV]!r}: use one of {', '.join(ARCHS)} "
-                                    f"(the Taichi arch of the test runtime; unset means cpu)")
+            raise pytest.UsageError(
+                f"{ARCH_ENV}={os.environ[ARCH_ENV]!r}: use one of {', '.join(ARCHS)} "
+                f"(the Taichi arch of the test runtime; unset means cpu)"
+            )
         return cls(arch=arch, debug=os.environ.get(DEBUG_ENV, "1") != "0")
 
     def holds(self) -> bool:
@@ -60,21 +62,33 @@ class TaichiSettings:
             return False
         cfg = ti.lang.impl.current_cfg()
         arch_ok = cfg.arch == ti.cuda if self.arch == "cuda" else cfg.arch in (ti.x64, ti.arm64)
-        return (arch_ok and runtime.default_fp == ti.f32 and bool(cfg.debug) == self.debug
-                and cfg.cpu_max_num_threads == self.threads)
+        return (
+            arch_ok
+            and runtime.default_fp == ti.f32
+            and bool(cfg.debug) == self.debug
+            and cfg.cpu_max_num_threads == self.threads
+        )
 
     def init(self) -> None:
         """``ti.init`` with these settings; stops the session (exit 4) when CUDA is asked for and Taichi fell back
         to the CPU. Garbage is collected first, so that arrays of the old runtime held only by reference cycles
         are freed by that runtime (Taichi frees ndarrays by address through the current runtime)."""
         gc.collect()
-        ti.init(arch=ARCHS[self.arch], cpu_max_num_threads=self.threads, debug=self.debug, default_fp=ti.f32,
-                offline_cache=True, log_level=ti.WARN)
+        ti.init(
+            arch=ARCHS[self.arch],
+            cpu_max_num_threads=self.threads,
+            debug=self.debug,
+            default_fp=ti.f32,
+            offline_cache=True,
+            log_level=ti.WARN,
+        )
         used = ti.lang.impl.current_cfg().arch
         if self.arch == "cuda" and used != ti.cuda:
-            pytest.exit(f"{ARCH_ENV}=cuda, but Taichi found no usable CUDA device (it started on {used.name}); "
-                        f"run on a machine with an NVIDIA GPU and driver, or unset {ARCH_ENV} for the CPU",
-                        returncode=pytest.ExitCode.USAGE_ERROR)
+            pytest.exit(
+                f"{ARCH_ENV}=cuda, but Taichi found no usable CUDA device (it started on {used.name}); "
+                f"run on a machine with an NVIDIA GPU and driver, or unset {ARCH_ENV} for the CPU",
+                returncode=pytest.ExitCode.USAGE_ERROR,
+            )
 
 
 def pytest_configure(config: pytest.Config) -> None:

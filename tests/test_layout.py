@@ -20,8 +20,13 @@ def _test_modules() -> list[Path]:
 
 
 def test_no_test_module_finds_the_repository_from_its_own_place():
-    offenders = [f"{p.relative_to(REPO)}:{text.count(chr(10), 0, m.start()) + 1}" for p in _test_modules()
-                 if p not in ALLOWED_PATH_FILES for text in [p.read_text()] for m in PATH_FROM_OWN_PLACE.finditer(text)]
+    offenders = [
+        f"{p.relative_to(REPO)}:{text.count(chr(10), 0, m.start()) + 1}"
+        for p in _test_modules()
+        if p not in ALLOWED_PATH_FILES
+        for text in [p.read_text()]
+        for m in PATH_FROM_OWN_PLACE.finditer(text)
+    ]
     assert not offenders, f"use helpers.paths (REPO, ASSETS, TORUS, REAL_SPLATS) instead: {offenders}"
 
 
@@ -29,10 +34,18 @@ def test_test_modules_do_not_import_each_other():
     offenders = []
     for p in _test_modules():
         for node in ast.walk(ast.parse(p.read_text())):
-            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
-                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
-            offenders += [f"{p.relative_to(REPO)}: {n}" for n in names
-                          if n.split(".")[0] in ("tests", "conftest", "format_encoders") or n.startswith("test_")]
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else []
+            )
+            offenders += [
+                f"{p.relative_to(REPO)}: {n}"
+                for n in names
+                if n.split(".")[0] in ("tests", "conftest", "format_encoders") or n.startswith("test_")
+            ]
     assert not offenders, f"move shared code into tests/helpers/ and import it from there: {offenders}"
 
 

@@ -70,8 +70,9 @@ def test_readme_example_runs(tmp_path):
     script = tmp_path / "example.py"
     script.write_text(PRELUDE + code)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
-    proc = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
-                          timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
+    )
     assert proc.returncode == 0, f"the README example failed:\n{proc.stdout}\n{proc.stderr[-4000:]}"
     out = proc.stdout
     dbar = re.search(r"D-bar = (\S+) m\^4/s over (\d+) Gaussians, (\d+) solid particles", out)
@@ -117,8 +118,9 @@ def test_docs_names_resolve(doc):
 
 def heading_anchors(text: str) -> set[str]:
     """GitHub's anchors of the Markdown headings of ``text`` (lower case, punctuation dropped, spaces -> '-')."""
-    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-")
-            for h in re.findall(r"^#+ (.+)$", text, flags=re.M)}
+    return {
+        re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in re.findall(r"^#+ (.+)$", text, flags=re.M)
+    }
 
 
 def test_docs_links_exist():
@@ -164,5 +166,7 @@ def test_cli_reference_names_every_command_and_option():
             flags = [s for s in action.option_strings if s.startswith("--") and s != "--help"]
             if flags and not any(f"`{flag}`" in text for flag in flags):
                 missing.append(f"docs/cli.md: {command} {flags[0]}")
-    assert not missing, ("the CLI reference is out of date (add these to their command's table in docs/cli.md, "
-                         f"as `fluidgs CMD --help` words them): {missing}")
+    assert not missing, (
+        "the CLI reference is out of date (add these to their command's table in docs/cli.md, "
+        f"as `fluidgs CMD --help` words them): {missing}"
+    )

@@ -91,21 +91,28 @@ def split_similarity(matrix: np.ndarray, where: str) -> tuple[float, np.ndarray,
 def read_scores(path: str | Path) -> dict:
     """scores.json of `fluidgs score` (or the demo): ValueError naming the file when it is not one."""
     p = Path(path)
-    check_input_file(p, "--scores", "write it with `fluidgs score GAUSSIANS.ply --cameras transforms.json --result "
-                     f"RESULT.h5 -o {p}`")
+    check_input_file(
+        p,
+        "--scores",
+        f"write it with `fluidgs score GAUSSIANS.ply --cameras transforms.json --result RESULT.h5 -o {p}`",
+    )
     try:
         data = json.loads(p.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"--scores {p} is not readable JSON ({exc}); pass the scores.json of `fluidgs score`") \
-            from None
+        raise ValueError(
+            f"--scores {p} is not readable JSON ({exc}); pass the scores.json of `fluidgs score`"
+        ) from None
     except RecursionError:
-        raise ValueError(f"--scores {p} nests its JSON too deeply (thousands of levels); pass the scores.json of "
-                         "`fluidgs score`") from None
+        raise ValueError(
+            f"--scores {p} nests its JSON too deeply (thousands of levels); pass the scores.json of `fluidgs score`"
+        ) from None
     views = data.get("views") if isinstance(data, dict) else None
-    if not isinstance(views, list) or not all(isinstance(v, dict) and {"index", "score", "rank"} <= set(v)
-                                              for v in views):
-        raise ValueError(f"--scores {p} has no list 'views' of {{index, name, score, rank}}; pass the scores.json of "
-                         "`fluidgs score`")
+    if not isinstance(views, list) or not all(
+        isinstance(v, dict) and {"index", "score", "rank"} <= set(v) for v in views
+    ):
+        raise ValueError(
+            f"--scores {p} has no list 'views' of {{index, name, score, rank}}; pass the scores.json of `fluidgs score`"
+        )
     return data
 
 
@@ -132,8 +139,9 @@ def _uncertainty_png(row: dict | None) -> Path | None:
     return path if path is not None and path.is_file() else None
 
 
-def candidate_views(cameras: str | Path, scene_to_sim: np.ndarray, scores: dict | None = None,
-                    where: str = "RESULT.h5") -> list[CandidateView]:
+def candidate_views(
+    cameras: str | Path, scene_to_sim: np.ndarray, scores: dict | None = None, where: str = "RESULT.h5"
+) -> list[CandidateView]:
     """The cameras of ``cameras`` (transforms.json) in the simulation frame, with scores and ranks.
 
     Args:
@@ -156,24 +164,37 @@ def candidate_views(cameras: str | Path, scene_to_sim: np.ndarray, scores: dict 
         for v in scores["views"]:
             i = int(v["index"])
             if not 0 <= i < len(cams):
-                raise ValueError(f"--scores ranks camera {i} but {cameras} has {len(cams)} cameras; pass the cameras "
-                                 "file the scores were computed for (--cameras)")
+                raise ValueError(
+                    f"--scores ranks camera {i} but {cameras} has {len(cams)} cameras; pass the cameras "
+                    "file the scores were computed for (--cameras)"
+                )
             if "name" in v and str(v["name"]) != cams[i].name:
-                raise ValueError(f"--scores names camera {i} {v['name']!r} but {cameras} calls it {cams[i].name!r}; "
-                                 "pass the cameras file the scores were computed for (--cameras)")
+                raise ValueError(
+                    f"--scores names camera {i} {v['name']!r} but {cameras} calls it {cams[i].name!r}; "
+                    "pass the cameras file the scores were computed for (--cameras)"
+                )
             by_index[i] = v
     out = []
     for i, cam in enumerate(cams):
         c2w = cam.camera_to_world.numpy()
         r = rot @ c2w[:3, :3]
         v = by_index.get(i)
-        out.append(CandidateView(index=i, name=cam.name, position=s * (rot @ c2w[:3, 3]) + t, rotation=r,
-                                 wxyz=rotation_to_wxyz(r), fov_y=float(cam.fov_y), aspect=cam.width / cam.height,
-                                 score=None if v is None else float(v["score"]),
-                                 rank=None if v is None else int(v["rank"]),
-                                 coverage=_optional_float(v, "coverage"),
-                                 physics_mean=_optional_float(v, "physics_mean"),
-                                 uncertainty_png=_uncertainty_png(v)))
+        out.append(
+            CandidateView(
+                index=i,
+                name=cam.name,
+                position=s * (rot @ c2w[:3, 3]) + t,
+                rotation=r,
+                wxyz=rotation_to_wxyz(r),
+                fov_y=float(cam.fov_y),
+                aspect=cam.width / cam.height,
+                score=None if v is None else float(v["score"]),
+                rank=None if v is None else int(v["rank"]),
+                coverage=_optional_float(v, "coverage"),
+                physics_mean=_optional_float(v, "physics_mean"),
+                uncertainty_png=_uncertainty_png(v),
+            )
+        )
     return out
 
 

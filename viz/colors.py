@@ -60,7 +60,7 @@ def colorbar_image(vmax: float, label: str, width: int = 300, height: int = 56, 
     img = np.full((height, width, 3), 255, np.uint8)
     margin, bar_h = 10, height // 3
     ramp = turbo(np.linspace(0.0, 1.0, width - 2 * margin), 1.0)
-    img[2:2 + bar_h, margin:width - margin] = np.round(ramp * 255).astype(np.uint8)[None]
+    img[2 : 2 + bar_h, margin : width - margin] = np.round(ramp * 255).astype(np.uint8)[None]
     font, scale, black = cv2.FONT_HERSHEY_SIMPLEX, 0.38, (0, 0, 0)
     y_tick = 2 + bar_h
     for frac in (0.0, 0.5, 1.0):

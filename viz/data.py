@@ -27,8 +27,17 @@ from fluidsim.files import check_input_file
 log = logging.getLogger(__name__)
 
 # simulate's defaults: only settings that differ from them are written into a suggested command
-_DEFAULTS = {"particle_radius": 0.025, "steps": 750, "dt": 0.002, "speed": 3.0, "viscosity": 10.0,
-             "accumulate_every": 1, "opacity_threshold": 0.3, "up": "+y", "scale": "auto"}
+_DEFAULTS = {
+    "particle_radius": 0.025,
+    "steps": 750,
+    "dt": 0.002,
+    "speed": 3.0,
+    "viscosity": 10.0,
+    "accumulate_every": 1,
+    "opacity_threshold": 0.3,
+    "up": "+y",
+    "scale": "auto",
+}
 # frames a suggested --record-every aims at (750 steps -> every 10)
 TARGET_FRAMES = 75
 REQUIRED = ("gaussians/D", "gaussians/D_mean", "gaussians/means", "gaussians/covariances", "solid/x")
@@ -75,8 +84,9 @@ class Trajectory:
     def frame(self, index: int, values: str = "divergence") -> tuple[np.ndarray, np.ndarray]:
         """The active particles of frame ``index``: ([K, 3] float32 positions, [K] float32 D_i or speed)."""
         if not 0 <= index < self.num_frames:
-            raise ValueError(f"frame {index} out of range: the trajectory of probe {self.direction} has "
-                             f"{self.num_frames} frames")
+            raise ValueError(
+                f"frame {index} out of range: the trajectory of probe {self.direction} has {self.num_frames} frames"
+            )
         x = self.x[index]
         v = np.asarray(getattr(self, values)[index], np.float32)
         active = np.isfinite(x).all(axis=1)
@@ -150,8 +160,11 @@ class ViewData:
         dirs = tuple(cfg.get("directions", DIRECTIONS))
         if dirs != DIRECTIONS:
             args.append(f"--directions={','.join(dirs)}")
-        args += [flag for key, flag in (("fill_cavities", "--no-fill"), ("empty_reference", "--no-empty-reference"))
-                 if cfg.get(key, True) is False]
+        args += [
+            flag
+            for key, flag in (("fill_cavities", "--no-fill"), ("empty_reference", "--no-empty-reference"))
+            if cfg.get(key, True) is False
+        ]
         if cfg.get("crop") is not None:
             crop = cfg["crop"]
             args.append(f"--crop={crop if isinstance(crop, str) else ','.join(f'{c:g}' for c in crop)}")
@@ -168,8 +181,10 @@ def _scene_to_sim(f: h5py.File, path: Path) -> np.ndarray:
             raise ValueError(f"{path}: the attribute scene_to_sim must be a finite 4x4 matrix, got shape {m.shape}")
         return m
     if "scale" not in f.attrs or "up_axis" not in f.attrs:
-        raise ValueError(f"{path} has neither the scene_to_sim attribute nor up_axis and scale, so its Gaussians and "
-                         "cameras cannot be placed; re-run `fluidgs simulate`")
+        raise ValueError(
+            f"{path} has neither the scene_to_sim attribute nor up_axis and scale, so its Gaussians and "
+            "cameras cannot be placed; re-run `fluidgs simulate`"
+        )
     up = str(f.attrs["up_axis"]).strip().lower().lstrip("+")
     rotations = {"y": np.eye(3), "z": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])}  # z-up: (x, y, z) -> (x, z, -y)
     if up not in rotations:
@@ -188,8 +203,12 @@ def _leaks(group: h5py.Group) -> LeakSummary | None:
     if "x_final" in group and "ids_final" in group and len(ids):
         pos = np.searchsorted(group["ids_final"][()], ids)  # ids_final is sorted; leaked ids are among them
         x = np.asarray(group["x_final"][()], np.float32)[pos]
-    return LeakSummary(final=int(ds.attrs.get("final", len(ids))), max=int(ds.attrs.get("max", len(ids))),
-                       max_step=int(ds.attrs.get("max_step", -1)), x_leaked=x)
+    return LeakSummary(
+        final=int(ds.attrs.get("final", len(ids))),
+        max=int(ds.attrs.get("max", len(ids))),
+        max_step=int(ds.attrs.get("max_step", -1)),
+        x_leaked=x,
+    )
 
 
 def load_view_data(path: str | Path) -> ViewData:
@@ -212,8 +231,9 @@ def load_view_data(path: str | Path) -> ViewData:
             raise ValueError(f"{p} is not a `fluidgs simulate` result (no /gaussians/D or no config); {redo}")
         missing = [k for k in REQUIRED if k not in f]
         if missing:
-            raise ValueError(f"{p} lacks {', '.join('/' + k for k in missing)} (written by another version of "
-                             f"fluidgs); {redo}")
+            raise ValueError(
+                f"{p} lacks {', '.join('/' + k for k in missing)} (written by another version of fluidgs); {redo}"
+            )
         directions = tuple(json.loads(f.attrs["directions"]))
         missing = [f"/probes/{d}/D" for d in directions if f"probes/{d}/D" not in f]
         if missing:
@@ -222,29 +242,43 @@ def load_view_data(path: str | Path) -> ViewData:
         g = f["gaussians/D"].shape[0]
         means, covs = f["gaussians/means"][()], f["gaussians/covariances"][()]
         if means.shape != (g, 3) or covs.shape != (g, 3, 3):
-            raise ValueError(f"{p}: /gaussians/means {means.shape} and /gaussians/covariances {covs.shape} do not "
-                             f"match the {g} Gaussians of /gaussians/D; {redo}")
+            raise ValueError(
+                f"{p}: /gaussians/means {means.shape} and /gaussians/covariances {covs.shape} do not "
+                f"match the {g} Gaussians of /gaussians/D; {redo}"
+            )
         probes = {d: f[f"probes/{d}"] for d in directions}
         return ViewData(
-            path=p, source=source, directions=directions, per_probe={d: pg["D"][()] for d, pg in probes.items()},
-            divergence=f["gaussians/D"][()], divergence_mean=f["gaussians/D_mean"][()], means=means,
-            covariances=covs, kept=f["gaussians/kept"][()].astype(bool) if "gaussians/kept" in f else None,
+            path=p,
+            source=source,
+            directions=directions,
+            per_probe={d: pg["D"][()] for d, pg in probes.items()},
+            divergence=f["gaussians/D"][()],
+            divergence_mean=f["gaussians/D_mean"][()],
+            means=means,
+            covariances=covs,
+            kept=f["gaussians/kept"][()].astype(bool) if "gaussians/kept" in f else None,
             solid=np.asarray(f["solid/x"][()], np.float64).reshape(-1, 3),
-            particle_radius=float(config.get("particle_radius", 0.025)), dt=float(config.get("dt", 0.002)),
-            steps=int(config.get("steps", 0)), scene_to_sim=_scene_to_sim(f, p),
-            dbar=float(f.attrs.get("dbar", math.nan)), config=config,
+            particle_radius=float(config.get("particle_radius", 0.025)),
+            dt=float(config.get("dt", 0.002)),
+            steps=int(config.get("steps", 0)),
+            scene_to_sim=_scene_to_sim(f, p),
+            dbar=float(f.attrs.get("dbar", math.nan)),
+            config=config,
             leaks={d: lk for d, pg in probes.items() if (lk := _leaks(pg)) is not None},
             recorded=tuple(d for d, pg in probes.items() if "trajectory" in pg),
             reached={d: int((pg["counts"][()] > 0).sum()) for d, pg in probes.items() if "counts" in pg},
             dbar_empty=float(f.attrs.get("dbar_empty", math.nan)),
-            empty_per_probe={d: pg["D_empty"][()] for d, pg in probes.items() if "D_empty" in pg})
+            empty_per_probe={d: pg["D_empty"][()] for d, pg in probes.items() if "D_empty" in pg},
+        )
 
 
 def no_trajectory_message(data: ViewData, probe: str) -> str:
     """What to run when ``probe`` has no recorded trajectory."""
     others = f" (recorded: {', '.join(data.recorded)})" if data.recorded else ""
-    return (f"{data.path.name} has no trajectory for probe {probe}{others}; re-run `{data.simulate_command(probe)}` "
-            "to replay its fluid")
+    return (
+        f"{data.path.name} has no trajectory for probe {probe}{others}; re-run `{data.simulate_command(probe)}` "
+        "to replay its fluid"
+    )
 
 
 def load_trajectory(data: ViewData, probe: str) -> Trajectory:
@@ -261,11 +295,15 @@ def load_trajectory(data: ViewData, probe: str) -> Trajectory:
         g = f[f"probes/{probe}/trajectory"]
         missing = [k for k in ("x", "D", "speed", "steps") if k not in g]
         if missing:
-            raise ValueError(f"{data.path}: /probes/{probe}/trajectory lacks {', '.join(missing)}; "
-                             f"re-run `{data.simulate_command(probe)}`")
+            raise ValueError(
+                f"{data.path}: /probes/{probe}/trajectory lacks {', '.join(missing)}; "
+                f"re-run `{data.simulate_command(probe)}`"
+            )
         x, d, s, steps = g["x"][()], g["D"][()], g["speed"][()], np.asarray(g["steps"][()], np.int64)
     t = len(steps)
     if x.ndim != 3 or x.shape[0] != t or x.shape[2] != 3 or d.shape != x.shape[:2] or s.shape != x.shape[:2]:
-        raise ValueError(f"{data.path}: /probes/{probe}/trajectory has inconsistent shapes (x {x.shape}, D {d.shape}, "
-                         f"speed {s.shape}, steps {steps.shape}); re-run `{data.simulate_command(probe)}`")
+        raise ValueError(
+            f"{data.path}: /probes/{probe}/trajectory has inconsistent shapes (x {x.shape}, D {d.shape}, "
+            f"speed {s.shape}, steps {steps.shape}); re-run `{data.simulate_command(probe)}`"
+        )
     return Trajectory(direction=probe, steps=steps, x=np.asarray(x, np.float32), divergence=d, speed=s, dt=data.dt)

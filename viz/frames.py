@@ -139,9 +139,7 @@ class FrameStyle:
 
     def __post_init__(self) -> None:
         if self.color_by not in COLOR_BY:
-            raise ValueError(
-                f"FrameStyle.color_by={self.color_by!r} is unknown; use one of {sorted(COLOR_BY)}"
-            )
+            raise ValueError(f"FrameStyle.color_by={self.color_by!r} is unknown; use one of {sorted(COLOR_BY)}")
         if self.view not in VIEWS:
             raise ValueError(f"FrameStyle.view={self.view!r} is unknown; use one of {list(VIEWS)}")
         if self.walls not in WALLS:
@@ -245,8 +243,9 @@ def scene_viewport(width: int, height: int) -> tuple[int, int, int, int]:
     return layout.viewport
 
 
-def render_frames(h5_path, out, style: FrameStyle = FrameStyle(), progress: bool = True,
-                  png: bool = False) -> list[Path]:
+def render_frames(
+    h5_path, out, style: FrameStyle = FrameStyle(), progress: bool = True, png: bool = False
+) -> list[Path]:
     """Render every frame of a simulation output file.
 
     All inputs are checked (file, frame groups, dataset shapes, output location, video encoder)
@@ -282,12 +281,16 @@ def render_frames(h5_path, out, style: FrameStyle = FrameStyle(), progress: bool
         vmax = style.vmax if style.vmax is not None else source.percentile_vmax()
         logger.info(
             "rendering %d frames of %s (%s, view %s, vmax %.4g %s) to %s",
-            len(source.keys), h5_path, style.color_by, style.view, vmax, COLOR_BY[style.color_by][2], out,
+            len(source.keys),
+            h5_path,
+            style.color_by,
+            style.view,
+            vmax,
+            COLOR_BY[style.color_by][2],
+            out,
         )
         renderer = _Renderer(source, style, vmax)
-        frames = tqdm(
-            renderer.frames(), total=len(source.keys), desc="render", unit="frame", disable=not progress
-        )
+        frames = tqdm(renderer.frames(), total=len(source.keys), desc="render", unit="frame", disable=not progress)
         paths = _write_video(frames, out, style) if is_video else _write_pngs(frames, out)
         if source.dropped:
             logger.warning("%s: skipped %d particle positions that were NaN or inf", h5_path, source.dropped)
@@ -306,16 +309,20 @@ def output_is_video(out: Path, png: bool = False) -> bool:
     suffix = out.suffix.lower()
     if png:
         if suffix == ".mp4":
-            raise ValueError(f"-o {out} ends in .mp4 but --png asks for a directory of PNG frames; drop --png for a "
-                             "video, or give a directory path")
+            raise ValueError(
+                f"-o {out} ends in .mp4 but --png asks for a directory of PNG frames; drop --png for a "
+                "video, or give a directory path"
+            )
         return False
     if suffix == ".mp4":
         return True
     if not suffix or out.is_dir():
         return False
-    raise ValueError(f"-o {out}: render-frames writes an MP4 video (a path ending in .mp4) or a directory of PNG "
-                     f"frames (a path without a suffix), not {out.suffix!r}; use -o {out.with_suffix('.mp4')} for "
-                     f"a video, or add --png to write the frames into the directory {out}")
+    raise ValueError(
+        f"-o {out}: render-frames writes an MP4 video (a path ending in .mp4) or a directory of PNG "
+        f"frames (a path without a suffix), not {out.suffix!r}; use -o {out.with_suffix('.mp4')} for "
+        f"a video, or add --png to write the frames into the directory {out}"
+    )
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -361,8 +368,9 @@ class _Source:
             n = x.shape[0]
             want = (n, 3) if value_name == "v" else (n,)
             if val.shape != want:
-                raise ValueError(f"{where}/{value_name} has shape {val.shape}; x has shape {x.shape}, "
-                                 f"so expected {want}")
+                raise ValueError(
+                    f"{where}/{value_name} has shape {val.shape}; x has shape {x.shape}, so expected {want}"
+                )
             for attr in ("time", "step"):
                 if attr not in g.attrs:
                     raise ValueError(f"{where} lacks the attribute '{attr}'")
@@ -450,20 +458,23 @@ def _read_boundary(ds: h5py.Dataset, path: Path, domain) -> tuple[np.ndarray, np
     The dataset is read in blocks so that a huge boundary never sits in memory whole.
     """
     if ds.ndim != 2 or ds.shape[1] != 3 or ds.dtype.kind not in "fiu":
-        raise ValueError(
-            f"{path}:/boundary/x must be a float array of shape (M, 3), got {ds.shape} {ds.dtype}"
-        )
+        raise ValueError(f"{path}:/boundary/x must be a float array of shape (M, 3), got {ds.shape} {ds.dtype}")
     block = 1 << 20
     solid, walls = [], []
     for start in range(0, ds.shape[0], block):
         points = np.asarray(ds[start : start + block], dtype=np.float64).reshape(-1, 3)
         points = points[np.isfinite(points).all(axis=1)]
-        inside = np.ones(len(points), bool) if domain is None else \
-            ((points >= domain[0]) & (points <= domain[1])).all(axis=1)
+        inside = (
+            np.ones(len(points), bool)
+            if domain is None
+            else ((points >= domain[0]) & (points <= domain[1])).all(axis=1)
+        )
         solid.append(points[inside])
         walls.append(points[~inside])
-    return (_subset(np.concatenate(solid or [np.zeros((0, 3))]), MAX_SOLID_POINTS, path, "solid"),
-            _subset(np.concatenate(walls or [np.zeros((0, 3))]), MAX_BOUNDARY_POINTS, path, "wall"))
+    return (
+        _subset(np.concatenate(solid or [np.zeros((0, 3))]), MAX_SOLID_POINTS, path, "solid"),
+        _subset(np.concatenate(walls or [np.zeros((0, 3))]), MAX_BOUNDARY_POINTS, path, "wall"),
+    )
 
 
 def _subset(points: np.ndarray, limit: int, path: Path, what: str) -> np.ndarray:
@@ -528,23 +539,31 @@ def _prepare_output(out: Path, is_video: bool, style: FrameStyle) -> None:
     if is_video:
         check_encoder(out)
         if out.is_dir():
-            raise ValueError(f"{out} is a directory; pass a file name ending in .mp4, or a directory path "
-                             "without the .mp4 suffix for PNG frames")
+            raise ValueError(
+                f"{out} is a directory; pass a file name ending in .mp4, or a directory path "
+                "without the .mp4 suffix for PNG frames"
+            )
     elif out.exists() and not out.is_dir():
-        raise ValueError(f"{out} exists and is not a directory; PNG frames need a directory "
-                         "(or give a path ending in .mp4 for a video)")
+        raise ValueError(
+            f"{out} exists and is not a directory; PNG frames need a directory "
+            "(or give a path ending in .mp4 for a video)"
+        )
     try:
         directory.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise OSError(f"cannot create the output directory {directory} for {out}: {e}; "
-                      "choose a writable location with -o") from e
+        raise OSError(
+            f"cannot create the output directory {directory} for {out}: {e}; choose a writable location with -o"
+        ) from e
     if not os.access(directory, os.W_OK | os.X_OK):
         raise OSError(f"output directory {directory} is not writable; choose a writable location with -o")
     if not is_video:
         stale = sorted(directory.glob("frame_*.png"))
         if stale:
-            logger.warning("%s already holds %d frame_*.png files; those beyond this render stay as they are",
-                           directory, len(stale))
+            logger.warning(
+                "%s already holds %d frame_*.png files; those beyond this render stay as they are",
+                directory,
+                len(stale),
+            )
 
 
 def _write_video(frames: Iterator[np.ndarray], out: Path, style: FrameStyle) -> list[Path]:
@@ -603,8 +622,16 @@ class _Layout:
         return 0, self.header_h, self.width - self.panel_w, self.height - self.header_h
 
     def put_text(self, image: np.ndarray, text: str, x: int, y_centre: int) -> None:
-        cv2.putText(image, text, (x, y_centre + self.text_h // 2), _FONT, self.font_scale, _TEXT_COLOR,
-                    self.thickness, cv2.LINE_AA)
+        cv2.putText(
+            image,
+            text,
+            (x, y_centre + self.text_h // 2),
+            _FONT,
+            self.font_scale,
+            _TEXT_COLOR,
+            self.thickness,
+            cv2.LINE_AA,
+        )
 
 
 class _Renderer:
@@ -643,8 +670,14 @@ class _Renderer:
         centre = float(self.corner_depth.mean())
         for a, b in _BOX_EDGES:
             if (0.5 * (self.corner_depth[a] + self.corner_depth[b]) < centre - 1e-12) == front:
-                cv2.line(image, tuple(map(int, self.corner_uv[a])), tuple(map(int, self.corner_uv[b])),
-                         _BOX_COLOR, 1, cv2.LINE_AA)
+                cv2.line(
+                    image,
+                    tuple(map(int, self.corner_uv[a])),
+                    tuple(map(int, self.corner_uv[b])),
+                    _BOX_COLOR,
+                    1,
+                    cv2.LINE_AA,
+                )
 
     def _static_layer(self) -> np.ndarray:
         image = np.empty((self.style.height, self.style.width, 3), dtype=np.uint8)
@@ -655,8 +688,11 @@ class _Renderer:
             uv, depth = self._project(walls)
             near, far = self.depth_range
             t = np.clip((depth - near) / max(far - near, 1e-12), 0.0, 1.0)
-            g_near, g_far = (_FAINT_GREY_NEAR, _FAINT_GREY_FAR) if self.style.walls == "faint" else \
-                (_BOUNDARY_GREY_NEAR, _BOUNDARY_GREY_FAR)
+            g_near, g_far = (
+                (_FAINT_GREY_NEAR, _FAINT_GREY_FAR)
+                if self.style.walls == "faint"
+                else (_BOUNDARY_GREY_NEAR, _BOUNDARY_GREY_FAR)
+            )
             grey = np.rint(g_near + t * (g_far - g_near)).astype(np.uint8)
             splat(image, uv, depth, np.repeat(grey[:, None], 3, axis=1), self.style.point_size)
         if len(self.solid_uv):
@@ -680,8 +716,10 @@ class _Renderer:
             seen[on] = depth[on] <= self.solid_zbuffer[uv[on, 1], uv[on, 0]]
             splat(image, uv[seen], depth[seen], colorize(values[seen], self.vmax), self.style.point_size)
         self._box_edges(image, front=True)
-        self._header(image, f"t = {time:.4f} s   step {step}   {len(x):,} fluid particles   "
-                            f"frame {i + 1}/{len(self.source.keys)}")
+        self._header(
+            image,
+            f"t = {time:.4f} s   step {step}   {len(x):,} fluid particles   frame {i + 1}/{len(self.source.keys)}",
+        )
         self._colorbar(image)
         return image
 
@@ -785,9 +823,7 @@ def disk_offsets(radius: int) -> np.ndarray:
     return np.stack([dx[inside], dy[inside]], axis=1)
 
 
-def splat(
-    image: np.ndarray, uv: np.ndarray, depth: np.ndarray, colors: np.ndarray, radius: int
-) -> np.ndarray:
+def splat(image: np.ndarray, uv: np.ndarray, depth: np.ndarray, colors: np.ndarray, radius: int) -> np.ndarray:
     """Draw one disk per point into ``image`` in place; at every pixel the nearest point wins.
 
     Equal to painting disks far to near (stable in the input order for equal depths), but vectorised:
@@ -810,8 +846,9 @@ def splat(
     h, w = image.shape[:2]
     n = len(uv)
     if uv.shape != (n, 2) or depth.shape != (n,) or colors.shape != (n, 3):
-        raise ValueError(f"splat needs uv (N, 2), depth (N,), colors (N, 3); got {uv.shape}, {depth.shape}, "
-                         f"{colors.shape}")
+        raise ValueError(
+            f"splat needs uv (N, 2), depth (N,), colors (N, 3); got {uv.shape}, {depth.shape}, {colors.shape}"
+        )
     if n == 0:
         return image
     r = radius

@@ -60,11 +60,20 @@ def _floats(values, name: str, n: int, what: str, allow_none: bool = False) -> n
     return arr
 
 
-def plot_sweep(path: str | os.PathLike, speeds: Sequence[float], dbar: Sequence[float], *,
-               dbar_other: Sequence[float] | None = None, dbar_empty: Sequence[float] | None = None,
-               reynolds: Sequence[float] | None = None,
-               dts: Sequence[float] | None = None, steps: Sequence[int] | None = None, title: str = "",
-               width: int = 900, height: int = 620) -> Path:
+def plot_sweep(
+    path: str | os.PathLike,
+    speeds: Sequence[float],
+    dbar: Sequence[float],
+    *,
+    dbar_other: Sequence[float] | None = None,
+    dbar_empty: Sequence[float] | None = None,
+    reynolds: Sequence[float] | None = None,
+    dts: Sequence[float] | None = None,
+    steps: Sequence[int] | None = None,
+    title: str = "",
+    width: int = 900,
+    height: int = 620,
+) -> Path:
     """D-bar against the inflow speed on a log-x axis, with a table of Re, Delta t and steps; a PNG.
 
     Args:
@@ -88,8 +97,11 @@ def plot_sweep(path: str | os.PathLike, speeds: Sequence[float], dbar: Sequence[
     if dbar_other is not None:
         series.append(("D-bar OTHER", _floats(dbar_other, "dbar_other", len(us), what)))
     rows = [("U (m/s)", [f"{u:g}" for u in us])]
-    for label, values, fmt in (("Re", reynolds, "{:.3g}"), ("\N{GREEK CAPITAL LETTER DELTA}t (s)", dts, "{:.2e}"),
-                               ("steps", steps, "{:d}")):
+    for label, values, fmt in (
+        ("Re", reynolds, "{:.3g}"),
+        ("\N{GREEK CAPITAL LETTER DELTA}t (s)", dts, "{:.2e}"),
+        ("steps", steps, "{:d}"),
+    ):
         if values is not None:
             _floats(values, label, len(us), what)
             rows.append((label, [fmt.format(int(v) if fmt == "{:d}" else float(v)) for v in values]))
@@ -115,16 +127,29 @@ def plot_sweep(path: str | os.PathLike, speeds: Sequence[float], dbar: Sequence[
     ax.legend(loc="upper left")
     table_ax = fig.add_axes((0.11, 0.02, 0.86, table_h))
     table_ax.set_axis_off()
-    table = table_ax.table(cellText=[cells for _, cells in rows], rowLabels=[name for name, _ in rows],
-                           cellLoc="center", bbox=(0.0, 0.0, 1.0, 1.0))
+    table = table_ax.table(
+        cellText=[cells for _, cells in rows],
+        rowLabels=[name for name, _ in rows],
+        cellLoc="center",
+        bbox=(0.0, 0.0, 1.0, 1.0),
+    )
     table.auto_set_font_size(False)
     table.set_fontsize(8)
     return _save(fig, path)
 
 
-def bar_chart(path: str | os.PathLike, labels: Sequence[str], means: Sequence[float | None],
-              stds: Sequence[float | None], *, title: str, ylabel: str, xlabel: str = "method",
-              width: int = 720, height: int = 420) -> Path:
+def bar_chart(
+    path: str | os.PathLike,
+    labels: Sequence[str],
+    means: Sequence[float | None],
+    stds: Sequence[float | None],
+    *,
+    title: str,
+    ylabel: str,
+    xlabel: str = "method",
+    width: int = 720,
+    height: int = 420,
+) -> Path:
     """One bar per label: the mean, with a +-1 sample-std whisker; a missing mean is marked "n/a"; a PNG.
 
     Args:
@@ -150,19 +175,41 @@ def bar_chart(path: str | os.PathLike, labels: Sequence[str], means: Sequence[fl
     ax.bar(x[have], m[have], width=0.6, color=[c for c, h in zip(colors, have, strict=True) if h])
     handles = [Patch(facecolor="#bbbbbb", label="mean over runs")]
     if (s[have] > 0).any():
-        handles.append(ax.errorbar(x[have], m[have], yerr=s[have], fmt="none", ecolor="black", capsize=4,
-                                   linewidth=1, label="\N{PLUS-MINUS SIGN} 1 sample std"))
+        handles.append(
+            ax.errorbar(
+                x[have],
+                m[have],
+                yerr=s[have],
+                fmt="none",
+                ecolor="black",
+                capsize=4,
+                linewidth=1,
+                label="\N{PLUS-MINUS SIGN} 1 sample std",
+            )
+        )
     ax.axhline(0.0, color="black", linewidth=0.8)
     top = float(np.nanmax(np.where(have, m + s, np.nan))) if have.any() else 1.0
     for i in range(n):
         if have[i]:
-            ax.annotate(f"{m[i]:.3g}", (x[i], m[i] + s[i]), textcoords="offset points", xytext=(0, 3),
-                        ha="center", fontsize=8)
+            ax.annotate(
+                f"{m[i]:.3g}", (x[i], m[i] + s[i]), textcoords="offset points", xytext=(0, 3), ha="center", fontsize=8
+            )
         else:
-            ax.text(x[i], 0.02 * (top if math.isfinite(top) and top > 0 else 1.0), "n/a", ha="center",
-                    va="bottom", fontsize=9)
-    ax.set_xticks(x, [lab if len(lab) <= 18 else lab[:17] + "\N{HORIZONTAL ELLIPSIS}" for lab in labels],
-                  rotation=30, ha="right", fontsize=8)
+            ax.text(
+                x[i],
+                0.02 * (top if math.isfinite(top) and top > 0 else 1.0),
+                "n/a",
+                ha="center",
+                va="bottom",
+                fontsize=9,
+            )
+    ax.set_xticks(
+        x,
+        [lab if len(lab) <= 18 else lab[:17] + "\N{HORIZONTAL ELLIPSIS}" for lab in labels],
+        rotation=30,
+        ha="right",
+        fontsize=8,
+    )
     ax.set_xlim(-0.6, max(n, 1) - 0.4)
     ax.margins(y=0.1)  # room above the tallest bar for its value (bars stick to 0 below)
     ax.set_xlabel(xlabel)
@@ -170,6 +217,13 @@ def bar_chart(path: str | os.PathLike, labels: Sequence[str], means: Sequence[fl
     ax.set_title(title, loc="left")
     ax.grid(True, axis="y", color="#dddddd", linewidth=0.8)
     ax.set_axisbelow(True)
-    ax.legend(handles=handles, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=len(handles), fontsize=8,
-              frameon=False, borderaxespad=0.2)
+    ax.legend(
+        handles=handles,
+        loc="lower right",
+        bbox_to_anchor=(1.0, 1.0),
+        ncols=len(handles),
+        fontsize=8,
+        frameon=False,
+        borderaxespad=0.2,
+    )
     return _save(fig, path)

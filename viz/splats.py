@@ -49,20 +49,25 @@ def check_gaussians_match(means_scene: np.ndarray, data: ViewData, where: str) -
     :data:`MEANS_RELATIVE_TOLERANCE` of the object's size.
     """
     m = np.asarray(means_scene, np.float64).reshape(-1, 3)
-    redo = f"pass the Gaussian file RESULT.h5 was computed from (its source: {data.source or 'not recorded'}), or " \
-           f"re-run `fluidgs simulate {where} -o {data.path}`"
+    redo = (
+        f"pass the Gaussian file RESULT.h5 was computed from (its source: {data.source or 'not recorded'}), or "
+        f"re-run `fluidgs simulate {where} -o {data.path}`"
+    )
     if len(m) != data.num_gaussians:
-        raise ValueError(f"--gaussians {where} has {len(m):,} Gaussians but {data.path} holds D_g for "
-                         f"{data.num_gaussians:,}; {redo}")
+        raise ValueError(
+            f"--gaussians {where} has {len(m):,} Gaussians but {data.path} holds D_g for {data.num_gaussians:,}; {redo}"
+        )
     sim = m @ data.scene_to_sim[:3, :3].T + data.scene_to_sim[:3, 3]
     stored = np.asarray(data.means, np.float64)
     size = float(np.ptp(stored, axis=0).max()) if len(stored) else 0.0
     gap = float(np.abs(sim - stored).max()) if len(stored) else 0.0
     if not gap <= MEANS_RELATIVE_TOLERANCE * max(size, 1e-12):
         worst = int(np.abs(sim - stored).max(axis=1).argmax())
-        raise ValueError(f"--gaussians {where}: the same count ({len(m):,}) but other centres than {data.path}: "
-                         f"Gaussian {worst} lies {gap:.3g} m from the stored one after the stored scene_to_sim "
-                         f"transform; {redo}")
+        raise ValueError(
+            f"--gaussians {where}: the same count ({len(m):,}) but other centres than {data.path}: "
+            f"Gaussian {worst} lies {gap:.3g} m from the stored one after the stored scene_to_sim "
+            f"transform; {redo}"
+        )
 
 
 def resolve_gaussians(path: str | Path | None, data: ViewData) -> Path | None:
@@ -89,9 +94,13 @@ def splat_looks(path: str | Path | None, data: ViewData) -> SplatLooks:
     """
     file = resolve_gaussians(path, data)
     if file is None:
-        log.warning("no --gaussians (and RESULT.h5's source %r is not there): the splats are drawn from RESULT.h5's "
-                    "centres and covariances at opacity %.1f, coloured by D_g only; pass --gaussians G.ply for their "
-                    "own colours and opacities", data.source, DEFAULT_OPACITY)
+        log.warning(
+            "no --gaussians (and RESULT.h5's source %r is not there): the splats are drawn from RESULT.h5's "
+            "centres and covariances at opacity %.1f, coloured by D_g only; pass --gaussians G.ply for their "
+            "own colours and opacities",
+            data.source,
+            DEFAULT_OPACITY,
+        )
         return SplatLooks(rgb=None, opacity=np.full(data.num_gaussians, DEFAULT_OPACITY, np.float32), source="")
     from recon.formats import SUPPORTED, load_gaussians  # noqa: PLC0415 - torch, only when a splat file is read
     from recon.gaussians import sh0_to_rgb  # noqa: PLC0415 - torch, as above

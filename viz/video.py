@@ -55,8 +55,10 @@ def check_encoder(path: str | os.PathLike) -> Path:
 
         return Path(imageio_ffmpeg.get_ffmpeg_exe())
     except (ImportError, RuntimeError) as exc:
-        raise OSError(f"cannot write the video {path}: no FFmpeg ({exc}); install imageio-ffmpeg "
-                      "(pip install imageio-ffmpeg), or write PNG frames instead") from exc
+        raise OSError(
+            f"cannot write the video {path}: no FFmpeg ({exc}); install imageio-ffmpeg "
+            "(pip install imageio-ffmpeg), or write PNG frames instead"
+        ) from exc
 
 
 def _check_frame(frame, i: int, size: tuple[int, int] | None, path: Path) -> np.ndarray:
@@ -64,13 +66,16 @@ def _check_frame(frame, i: int, size: tuple[int, int] | None, path: Path) -> np.
     if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
         raise ValueError(f"{path}: video frame {i} must be an (H, W, 3) uint8 array, got {frame.shape} {frame.dtype}")
     if size is not None and frame.shape[:2] != size:
-        raise ValueError(f"{path}: video frame {i} is {frame.shape[1]}x{frame.shape[0]} px but frame 0 is "
-                         f"{size[1]}x{size[0]} px; every frame needs the same size")
+        raise ValueError(
+            f"{path}: video frame {i} is {frame.shape[1]}x{frame.shape[0]} px but frame 0 is "
+            f"{size[1]}x{size[0]} px; every frame needs the same size"
+        )
     return frame
 
 
-def write_mp4(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: float = 30, *, bgr: bool = False,
-              crf: int = DEFAULT_CRF) -> Path:
+def write_mp4(
+    frames: Iterable[np.ndarray], path: str | os.PathLike, fps: float = 30, *, bgr: bool = False, crf: int = DEFAULT_CRF
+) -> Path:
     """Encode frames as a browser-playable H.264 MP4 (yuv420p, faststart), written atomically.
 
     Args:
@@ -106,13 +111,26 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: float 
     size = first.shape[:2]
     out_h, out_w = even_size(*size)
     if (out_h, out_w) != size:
-        logger.info("%s: padding %dx%d px frames to %dx%d px (H.264 with 4:2:0 chroma needs an even size)",
-                    path, size[1], size[0], out_w, out_h)
+        logger.info(
+            "%s: padding %dx%d px frames to %dx%d px (H.264 with 4:2:0 chroma needs an even size)",
+            path,
+            size[1],
+            size[0],
+            out_w,
+            out_h,
+        )
     try:
         with atomic_output(path, ".mp4") as tmp:  # FFmpeg picks the container from the extension
             writer = imageio_ffmpeg.write_frames(
-                str(tmp), (out_w, out_h), pix_fmt_in="bgr24" if bgr else "rgb24", pix_fmt_out=PIXEL_FORMAT,
-                fps=fps, codec=CODEC, quality=None, macro_block_size=1, ffmpeg_log_level="error",
+                str(tmp),
+                (out_w, out_h),
+                pix_fmt_in="bgr24" if bgr else "rgb24",
+                pix_fmt_out=PIXEL_FORMAT,
+                fps=fps,
+                codec=CODEC,
+                quality=None,
+                macro_block_size=1,
+                ffmpeg_log_level="error",
                 output_params=["-crf", str(crf), "-movflags", "+faststart"],
             )
             writer.send(None)  # starts FFmpeg
@@ -124,8 +142,10 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: float 
                 writer.close()  # waits for FFmpeg to finish the file (or stops it after an error)
     except (OSError, RuntimeError) as exc:  # FFmpeg's failures, and fluidsim.files' OutputError around an OSError
         cause = exc.__cause__ if isinstance(exc, OutputError) and exc.__cause__ is not None else exc
-        err = OutputError(f"cannot write the video {path}: {cause}; check that its folder is writable and has "
-                          "space, or write PNG frames instead")
+        err = OutputError(
+            f"cannot write the video {path}: {cause}; check that its folder is writable and has "
+            "space, or write PNG frames instead"
+        )
         err.errno = getattr(cause, "errno", None)
         raise err from cause
     return path

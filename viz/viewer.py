@@ -43,8 +43,13 @@ OWN_COLORS = "own colours"
 FLUID_VALUES = {"D_i, 1/s": "divergence", "speed, m/s": "speed"}
 SOLID_RGB = (150, 150, 150)
 # the direction each probe's fluid flows (fluidsim.probes.flow_vector, restated: fluidsim loads Taichi)
-PROBE_FLOWS = {"-x": (-1.0, 0.0, 0.0), "+x": (1.0, 0.0, 0.0), "-z": (0.0, 0.0, -1.0), "+z": (0.0, 0.0, 1.0),
-               "-y": (0.0, -1.0, 0.0)}
+PROBE_FLOWS = {
+    "-x": (-1.0, 0.0, 0.0),
+    "+x": (1.0, 0.0, 0.0),
+    "-z": (0.0, 0.0, -1.0),
+    "+z": (0.0, 0.0, 1.0),
+    "-y": (0.0, -1.0, 0.0),
+}
 LEAK_RGB = (255, 0, 255)
 BACKGROUND = "white"
 # values sampled to pick a trajectory's colour scale (the 99th percentile over all its frames)
@@ -107,8 +112,10 @@ def check_address(host: str, port: int) -> int:
     try:
         infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
     except (socket.gaierror, UnicodeError) as exc:
-        raise ValueError(f"--host {host}: not a name or address this machine can resolve ({exc}); use 127.0.0.1, "
-                         "0.0.0.0 or an address of this machine") from None
+        raise ValueError(
+            f"--host {host}: not a name or address this machine can resolve ({exc}); use 127.0.0.1, "
+            "0.0.0.0 or an address of this machine"
+        ) from None
     family, _, _, _, addr = infos[0]
     last = 65535 if port == 0 else min(port + PORT_TRIES - 1, 65535)
     for candidate in range(port, last + 1):
@@ -120,18 +127,25 @@ def check_address(host: str, port: int) -> int:
                 if exc.errno == errno.EADDRINUSE:
                     continue
                 if exc.errno == errno.EADDRNOTAVAIL:
-                    raise ValueError(f"--host {host} is not an address of this machine; use 127.0.0.1 (this machine "
-                                     "only), 0.0.0.0 (every interface) or one of its own addresses") from None
+                    raise ValueError(
+                        f"--host {host} is not an address of this machine; use 127.0.0.1 (this machine "
+                        "only), 0.0.0.0 (every interface) or one of its own addresses"
+                    ) from None
                 if exc.errno == errno.EACCES:
-                    raise ValueError(f"--port {candidate} needs administrator privileges (ports below 1024); choose "
-                                     "a port from 1024 up, or 0 for any free port") from None
-                raise ValueError(f"--host {host} --port {candidate}: cannot serve there ({exc.strerror}); choose "
-                                 "another --host or --port") from None
+                    raise ValueError(
+                        f"--port {candidate} needs administrator privileges (ports below 1024); choose "
+                        "a port from 1024 up, or 0 for any free port"
+                    ) from None
+                raise ValueError(
+                    f"--host {host} --port {candidate}: cannot serve there ({exc.strerror}); choose "
+                    "another --host or --port"
+                ) from None
         if candidate != port and port != 0:
             log.warning("port %d is in use; serving on port %d instead", port, candidate)
         return 0 if port == 0 else candidate
-    raise ValueError(f"--port {port} is in use, and so is every port up to {last}; choose another --port (0: any "
-                     "free port)")
+    raise ValueError(
+        f"--port {port} is in use, and so is every port up to {last}; choose another --port (0: any free port)"
+    )
 
 
 def _is_loopback(host: str) -> bool:
@@ -153,8 +167,9 @@ class FluidViewer:
         options: host, port, first probe.
     """
 
-    def __init__(self, data: ViewData, looks: SplatLooks, views: list[CandidateView],
-                 options: ViewerOptions | None = None):
+    def __init__(
+        self, data: ViewData, looks: SplatLooks, views: list[CandidateView], options: ViewerOptions | None = None
+    ):
         viser = import_viser()
         self.data, self.looks, self.views = data, looks, views
         self.options = options or ViewerOptions()
@@ -169,8 +184,9 @@ class FluidViewer:
         self._shown_probe: str | None = None
         self._frustums: list = []
         with contextlib.redirect_stdout(io.StringIO()):  # viser prints a banner; `fluidgs view` prints one line
-            self.server = viser.ViserServer(host=self.options.host, port=self.options.port,
-                                            label="FluidGaussian", verbose=False)
+            self.server = viser.ViserServer(
+                host=self.options.host, port=self.options.port, label="FluidGaussian", verbose=False
+            )
         self.port = int(self.server.get_port())
         if self.options.port and self.port != self.options.port:  # taken between check_address and now
             log.warning("port %d is in use; serving on port %d instead", self.options.port, self.port)
@@ -220,21 +236,33 @@ class FluidViewer:
         gui = self.server.gui
         d = self.data
         empty = "not run" if not np.isfinite(d.dbar_empty) else f"{d.dbar_empty:.4g} m^4/s"
-        gui.add_markdown(f"**{d.path.name}**: {d.num_gaussians:,} Gaussians, probes {', '.join(d.directions)}; "
-                         f"D-bar {d.dbar:.4g} m^4/s (empty scene: {empty})")
+        gui.add_markdown(
+            f"**{d.path.name}**: {d.num_gaussians:,} Gaussians, probes {', '.join(d.directions)}; "
+            f"D-bar {d.dbar:.4g} m^4/s (empty scene: {empty})"
+        )
         with gui.add_folder("Gaussians"):
-            self._color_mode = gui.add_dropdown("colour", self._color_modes(), initial_value="D_g max",
-                                                hint="their own colours (SH DC) or D_g, max or mean over the probes "
-                                                     "or one probe's, on the TURBO map")
+            self._color_mode = gui.add_dropdown(
+                "colour",
+                self._color_modes(),
+                initial_value="D_g max",
+                hint="their own colours (SH DC) or D_g, max or mean over the probes or one probe's, on the TURBO map",
+            )
             self._colorbar = gui.add_image(colorbar_image(1.0, "D_g (max), 1/s"), format="png")
             self._show_splats = gui.add_checkbox("show Gaussians", True)
-            self._show_cropped = gui.add_checkbox("show Gaussians outside the crop", False,
-                                                  visible=d.kept is not None,
-                                                  hint="they were not simulated: their D_g is 0")
+            self._show_cropped = gui.add_checkbox(
+                "show Gaussians outside the crop",
+                False,
+                visible=d.kept is not None,
+                hint="they were not simulated: their D_g is 0",
+            )
         keep, (rgb, _) = self._splat_subset(), self.splat_colors("D_g max")  # set_color_mode then sends nothing new
         self._splats = self.server.scene.add_gaussian_splats(
-            "/gaussians", centers=d.means[keep], covariances=d.covariances[keep], rgbs=rgb[keep],
-            opacities=self.looks.opacity[keep].reshape(-1, 1))
+            "/gaussians",
+            centers=d.means[keep],
+            covariances=d.covariances[keep],
+            rgbs=rgb[keep],
+            opacities=self.looks.opacity[keep].reshape(-1, 1),
+        )
         self._color_mode.on_update(lambda _: self.set_color_mode(self._color_mode.value))
         self._show_cropped.on_update(lambda _: self.set_color_mode(self._color_mode.value))
         self._show_splats.on_update(lambda _: setattr(self._splats, "visible", self._show_splats.value))
@@ -259,9 +287,12 @@ class FluidViewer:
         keep = self._splat_subset()
         d = self.data
         with self._lock, self.server.atomic():
-            self._splats.set_gaussians(centers=d.means[keep],
-                                       covariances=d.covariances[keep], rgbs=rgb[keep],
-                                       opacities=self.looks.opacity[keep].reshape(-1, 1))
+            self._splats.set_gaussians(
+                centers=d.means[keep],
+                covariances=d.covariances[keep],
+                rgbs=rgb[keep],
+                opacities=self.looks.opacity[keep].reshape(-1, 1),
+            )
             if vmax is not None:
                 self._colorbar.image = colorbar_image(vmax, f"{mode}, 1/s")
             self._colorbar.visible = vmax is not None
@@ -278,14 +309,25 @@ class FluidViewer:
             reached = d.reached.get(p)
             share = "n/a" if reached is None else f"{reached:,} ({100.0 * reached / max(d.num_gaussians, 1):.0f} %)"
             empty = d.empty_per_probe.get(p)
-            rows.append(f"| {p} | {share} | {float(np.mean(d.per_probe[p])):.3g} | "
-                        f"{'n/a' if empty is None else f'{float(np.mean(empty)):.3g}'} |")
+            rows.append(
+                f"| {p} | {share} | {float(np.mean(d.per_probe[p])):.3g} | "
+                f"{'n/a' if empty is None else f'{float(np.mean(empty)):.3g}'} |"
+            )
         ratio = f" (x{d.dbar / d.dbar_empty:.3g})" if np.isfinite(d.dbar_empty) and d.dbar_empty > 0 else ""
-        empty = ("the empty scene was not run (re-run simulate without --no-empty-reference)"
-                 if not np.isfinite(d.dbar_empty) else f"empty scene D-bar {d.dbar_empty:.4g} m^4/s{ratio}")
-        return "\n".join([f"D-bar {d.dbar:.4g} m^4/s; {empty}", "",
-                          "| probe | Gaussians reached | mean D_g, 1/s | empty scene, 1/s |", "|---|---|---|---|",
-                          *rows])
+        empty = (
+            "the empty scene was not run (re-run simulate without --no-empty-reference)"
+            if not np.isfinite(d.dbar_empty)
+            else f"empty scene D-bar {d.dbar_empty:.4g} m^4/s{ratio}"
+        )
+        return "\n".join(
+            [
+                f"D-bar {d.dbar:.4g} m^4/s; {empty}",
+                "",
+                "| probe | Gaussians reached | mean D_g, 1/s | empty scene, 1/s |",
+                "|---|---|---|---|",
+                *rows,
+            ]
+        )
 
     def _add_probes(self) -> None:
         with self.server.gui.add_folder("Probes: reach and the empty scene", expand_by_default=False):
@@ -296,20 +338,29 @@ class FluidViewer:
         gui, d = self.server.gui, self.data
         r = d.particle_radius
         with gui.add_folder("Solid"):
-            show = gui.add_checkbox(f"solid particles ({len(d.solid):,})", False,
-                                    hint="the boundary particles the probes flowed against (sim metres)")
-        self._solid = self.server.scene.add_point_cloud("/solid", points=d.solid.astype(np.float32),
-                                                        colors=SOLID_RGB, point_size=r, point_shape="circle",
-                                                        visible=False)
+            show = gui.add_checkbox(
+                f"solid particles ({len(d.solid):,})",
+                False,
+                hint="the boundary particles the probes flowed against (sim metres)",
+            )
+        self._solid = self.server.scene.add_point_cloud(
+            "/solid",
+            points=d.solid.astype(np.float32),
+            colors=SOLID_RGB,
+            point_size=r,
+            point_shape="circle",
+            visible=False,
+        )
         show.on_update(lambda _: setattr(self._solid, "visible", show.value))
 
     def _leak_markdown(self) -> str:
         if not self.data.leaks:
             return "leaks: not recorded in this file (re-run `fluidgs simulate` to count them)"
-        rows = [f"| {d} | {lk.final:,} | {lk.max:,}" + (f" (step {lk.max_step + 1})" if lk.max else "") + " |"
-                for d, lk in self.data.leaks.items()]
-        return "\n".join(["fluid inside the filled solid", "", "| probe | at the end | most |", "|---|---|---|",
-                          *rows])
+        rows = [
+            f"| {d} | {lk.final:,} | {lk.max:,}" + (f" (step {lk.max_step + 1})" if lk.max else "") + " |"
+            for d, lk in self.data.leaks.items()
+        ]
+        return "\n".join(["fluid inside the filled solid", "", "| probe | at the end | most |", "|---|---|---|", *rows])
 
     # ---- fluid -----------------------------------------------------------------------------------
     def _first_probe(self) -> str:
@@ -329,15 +380,26 @@ class FluidViewer:
             self._play = gui.add_button("Play", hint="play / pause the replay")
             self._slider = gui.add_slider("frame", 0, 1, 1, 0)
             self._fluid_bar = gui.add_image(colorbar_image(1.0, "D_i, 1/s"), format="png")
-            self._show_leaks = gui.add_checkbox("leaked particles (end)", True,
-                                                hint="fluid particles inside the filled solid at the probe's end")
+            self._show_leaks = gui.add_checkbox(
+                "leaked particles (end)", True, hint="fluid particles inside the filled solid at the probe's end"
+            )
             gui.add_markdown(self._leak_markdown())
-        self._fluid = self.server.scene.add_point_cloud("/fluid", points=np.zeros((1, 3), np.float32),
-                                                        colors=(0, 0, 255), point_size=0.8 * d.particle_radius,
-                                                        point_shape="circle", visible=False)
-        self._leaked = self.server.scene.add_point_cloud("/leaked", points=np.zeros((1, 3), np.float32),
-                                                         colors=LEAK_RGB, point_size=1.5 * d.particle_radius,
-                                                         point_shape="circle", visible=False)
+        self._fluid = self.server.scene.add_point_cloud(
+            "/fluid",
+            points=np.zeros((1, 3), np.float32),
+            colors=(0, 0, 255),
+            point_size=0.8 * d.particle_radius,
+            point_shape="circle",
+            visible=False,
+        )
+        self._leaked = self.server.scene.add_point_cloud(
+            "/leaked",
+            points=np.zeros((1, 3), np.float32),
+            colors=LEAK_RGB,
+            point_size=1.5 * d.particle_radius,
+            point_shape="circle",
+            visible=False,
+        )
         self._probe.on_update(lambda _: self.set_probe(self._probe.value))
         self._fluid_by.on_update(lambda _: self.show_frame(self._frame))
         self._slider.on_update(lambda _: self.show_frame(int(self._slider.value)))
@@ -409,11 +471,14 @@ class FluidViewer:
                 self._slider.value = index
             bar = (t.direction, key)
             if self._fluid_bar_of != bar:  # the scale changes with the probe and the quantity only
-                self._fluid_bar.image = colorbar_image(self._fluid_vmax[key], f"probe {t.direction}: "
-                                                       f"{self._fluid_by.value}")
+                self._fluid_bar.image = colorbar_image(
+                    self._fluid_vmax[key], f"probe {t.direction}: {self._fluid_by.value}"
+                )
                 self._fluid_bar_of = bar
-            self._fluid_note.content = (f"probe {t.direction}: t = {t.steps[index] * t.dt:.3f} s (step "
-                                        f"{t.steps[index]} of {self.data.steps}), {len(x):,} particles")
+            self._fluid_note.content = (
+                f"probe {t.direction}: t = {t.steps[index] * t.dt:.3f} s (step "
+                f"{t.steps[index]} of {self.data.steps}), {len(x):,} particles"
+            )
 
     def set_playing(self, playing: bool) -> None:
         """Start or pause the replay."""
@@ -436,9 +501,16 @@ class FluidViewer:
         color_of = {v.index: tuple(int(c) for c in col) for v, col in zip(scored, colors, strict=True)}
         size = 0.05 * self._extent
         for v in self.views:
-            frustum = scene.add_camera_frustum(f"/cameras/{v.index:03d}", fov=v.fov_y, aspect=v.aspect, scale=size,
-                                               thickness=0.06 * size, color=color_of.get(v.index, (60, 60, 60)),
-                                               wxyz=v.wxyz, position=v.position)
+            frustum = scene.add_camera_frustum(
+                f"/cameras/{v.index:03d}",
+                fov=v.fov_y,
+                aspect=v.aspect,
+                scale=size,
+                thickness=0.06 * size,
+                color=color_of.get(v.index, (60, 60, 60)),
+                wxyz=v.wxyz,
+                position=v.position,
+            )
             frustum.on_click(lambda event, v=v: self.go_to(event.client, v))
             self._frustums.append(frustum)
             if v.rank is not None:
@@ -447,14 +519,21 @@ class FluidViewer:
         with gui.add_folder("Cameras"):
             show = gui.add_checkbox(f"cameras ({len(self.views)})", True)
             options = ["-", *(self._view_label(v) for v in (ranked or self.views))]
-            goto = gui.add_dropdown("go to view", options, initial_value="-",
-                                    hint="move the viewport to a candidate camera (or click its frustum)")
+            goto = gui.add_dropdown(
+                "go to view",
+                options,
+                initial_value="-",
+                hint="move the viewport to a candidate camera (or click its frustum)",
+            )
             if ranked:
-                gui.add_image(colorbar_image(float(values.max()), "view score S(T) of the frustums",
-                                             vmin=float(values.min())), format="png")
+                gui.add_image(
+                    colorbar_image(float(values.max()), "view score S(T) of the frustums", vmin=float(values.min())),
+                    format="png",
+                )
             if any(v.uncertainty_png is not None for v in self.views):
-                self._uncertainty = gui.add_image(np.full((8, 8, 3), 255, np.uint8), format="png",
-                                                  label="composited D_g of the view", visible=False)
+                self._uncertainty = gui.add_image(
+                    np.full((8, 8, 3), 255, np.uint8), format="png", label="composited D_g of the view", visible=False
+                )
         by_label = {self._view_label(v): v for v in self.views}
 
         def show_cameras(_) -> None:
@@ -500,8 +579,9 @@ class FluidViewer:
             for v in ranked:
                 button = gui.add_button(f"#{v.rank} {v.name}", hint=f"camera {v.index}: {self.view_caption(v)}")
                 button.on_click(lambda event, v=v: self._clicked(event, v))
-                image = gui.add_image(view_thumbnail(v, self.data.means, rgb), label=self.view_caption(v),
-                                      format="jpeg", jpeg_quality=85)
+                image = gui.add_image(
+                    view_thumbnail(v, self.data.means, rgb), label=self.view_caption(v), format="jpeg", jpeg_quality=85
+                )
                 self._view_buttons.append(button)
                 self._view_images.append(image)
 
@@ -514,8 +594,9 @@ class FluidViewer:
         """'#rank name (S = .., A = .., S/A = ..)': the score and its parts, to two significant digits."""
         if v.rank is None:
             return f"{v.index}: {v.name}"
-        parts = "".join(f", {k} = {_two_digits(x)}" for k, x in (("A", v.coverage), ("S/A", v.physics_mean))
-                        if x is not None)
+        parts = "".join(
+            f", {k} = {_two_digits(x)}" for k, x in (("A", v.coverage), ("S/A", v.physics_mean)) if x is not None
+        )
         return f"#{v.rank} {v.name} (S = {_two_digits(v.score)}{parts})"
 
     def go_to(self, client, view: CandidateView) -> None:
@@ -526,8 +607,12 @@ class FluidViewer:
             client.camera.wxyz = view.wxyz
             client.camera.position = view.position
             client.camera.look_at = view.position + view.forward * distance
-        log.info("view moved to camera %d %s%s", view.index, view.name,
-                 "" if view.rank is None else f" (rank {view.rank}, S = {_two_digits(view.score)})")
+        log.info(
+            "view moved to camera %d %s%s",
+            view.index,
+            view.name,
+            "" if view.rank is None else f" (rank {view.rank}, S = {_two_digits(view.score)})",
+        )
         self._show_uncertainty(view)
 
     def _show_uncertainty(self, view: CandidateView) -> None:
@@ -575,8 +660,13 @@ class FluidViewer:
             self.server.stop()
 
 
-def open_viewer(result: str | Path, gaussians: str | Path | None = None, scores: str | Path | None = None,
-                cameras: str | Path | None = None, options: ViewerOptions | None = None) -> FluidViewer:
+def open_viewer(
+    result: str | Path,
+    gaussians: str | Path | None = None,
+    scores: str | Path | None = None,
+    cameras: str | Path | None = None,
+    options: ViewerOptions | None = None,
+) -> FluidViewer:
     """Read everything, check that it belongs together, and start the server.
 
     Args:
@@ -594,9 +684,13 @@ def open_viewer(result: str | Path, gaussians: str | Path | None = None, scores:
     data = load_view_data(result)
     bad = int(np.count_nonzero(~np.isfinite(data.divergence)))
     if bad:
-        log.warning("%s: %d of %d Gaussians have a non-finite D_g (NaN or infinite: a diverged or corrupted "
-                    "result); they are drawn as D_g = 0 (dark blue). Re-run `fluidgs simulate` for a sound result",
-                    data.path, bad, len(data.divergence))
+        log.warning(
+            "%s: %d of %d Gaussians have a non-finite D_g (NaN or infinite: a diverged or corrupted "
+            "result); they are drawn as D_g = 0 (dark blue). Re-run `fluidgs simulate` for a sound result",
+            data.path,
+            bad,
+            len(data.divergence),
+        )
     if options.probe is not None and options.probe not in data.directions:
         raise ValueError(f"--probe {options.probe}: {data.path} has the probes {', '.join(data.directions)}")
     looks = splat_looks(gaussians, data)
@@ -604,27 +698,32 @@ def open_viewer(result: str | Path, gaussians: str | Path | None = None, scores:
     if cameras is None and score_data is not None:
         cameras = cameras_path_of(score_data, Path(scores))
         if cameras is None:
-            raise ValueError(f"--scores {scores} names the cameras {score_data.get('cameras')!r}, which are not "
-                             "there; pass --cameras transforms.json")
+            raise ValueError(
+                f"--scores {scores} names the cameras {score_data.get('cameras')!r}, which are not "
+                "there; pass --cameras transforms.json"
+            )
     if cameras is not None:
         check_input_file(cameras, "--cameras", "pass the transforms.json of the candidate cameras")
     views = candidate_views(cameras, data.scene_to_sim, score_data, str(data.path)) if cameras is not None else []
     if scores is not None:
         views = [replace(v, png=view_png(scores, v)) for v in views]
     if not _is_loopback(options.host):
-        log.warning("serving on %s: anyone who can reach this machine on port %d can open the viewer",
-                    options.host, options.port)
+        log.warning(
+            "serving on %s: anyone who can reach this machine on port %d can open the viewer",
+            options.host,
+            options.port,
+        )
     return FluidViewer(data, looks, views, options)
 
 
 def serve(viewer: FluidViewer, announce=log.info) -> int:
     """Announce the URL (``announce(line)``; `fluidgs view` prints it), serve until Ctrl-C (or SIGTERM), stop
     cleanly; returns 0."""
+
     def on_term(signum, frame):
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, on_term) if threading.current_thread() is threading.main_thread() \
-        else None
+    previous = signal.signal(signal.SIGTERM, on_term) if threading.current_thread() is threading.main_thread() else None
     announce(f"fluidgs view: {viewer.url} (Ctrl-C stops)")
     try:
         viewer.wait()

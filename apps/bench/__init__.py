@@ -31,8 +31,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
     for name, (module_name, help_text) in BENCHMARKS.items():
         module = importlib.import_module(module_name)
-        q = sub.add_parser(name, help=help_text, description=(module.__doc__ or help_text).strip().splitlines()[0],
-                           formatter_class=HelpFormatter)
+        q = sub.add_parser(
+            name,
+            help=help_text,
+            description=(module.__doc__ or help_text).strip().splitlines()[0],
+            formatter_class=HelpFormatter,
+        )
         module.add_arguments(q)
         q.set_defaults(_bench=module)
 

@@ -54,34 +54,79 @@ def _shifts(text: str) -> tuple[float, ...]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("gaussians", type=Path, help="the capture (any supported Gaussian format)")
-    p.add_argument("--up", "--up-axis", dest="up", default="+y", metavar="UP",
-                   help="the capture's up direction (axis or X,Y,Z vector; default: %(default)s)")
+    p.add_argument(
+        "--up",
+        "--up-axis",
+        dest="up",
+        default="+y",
+        metavar="UP",
+        help="the capture's up direction (axis or X,Y,Z vector; default: %(default)s)",
+    )
     p.add_argument("--scale", default="auto", help="metres per scene unit, or auto (2 m largest extent)")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--point", type=_vector, default=None, metavar="X,Y,Z",
-                       help="a surface point on the hole's axis, simulation metres (Y-up)")
-    where.add_argument("--side", choices=sorted(SIDES), default="+x",
-                       help="find the point on this side of the object at --height (default: %(default)s)")
-    p.add_argument("--height", type=float, default=None,
-                   help="--side: simulation height y of the point, m (default: the middle of the object)")
-    p.add_argument("--lateral", type=float, default=0.0,
-                   help="--side: offset across the side, m (z for the x sides, x for the z sides; default 0)")
-    p.add_argument("--normal", type=_vector, default=None, metavar="X,Y,Z",
-                   help="the hole's axis (default: the surface normal of the centres within 8 cm, facing out)")
+    where.add_argument(
+        "--point",
+        type=_vector,
+        default=None,
+        metavar="X,Y,Z",
+        help="a surface point on the hole's axis, simulation metres (Y-up)",
+    )
+    where.add_argument(
+        "--side",
+        choices=sorted(SIDES),
+        default="+x",
+        help="find the point on this side of the object at --height (default: %(default)s)",
+    )
+    p.add_argument(
+        "--height",
+        type=float,
+        default=None,
+        help="--side: simulation height y of the point, m (default: the middle of the object)",
+    )
+    p.add_argument(
+        "--lateral",
+        type=float,
+        default=0.0,
+        help="--side: offset across the side, m (z for the x sides, x for the z sides; default 0)",
+    )
+    p.add_argument(
+        "--normal",
+        type=_vector,
+        default=None,
+        metavar="X,Y,Z",
+        help="the hole's axis (default: the surface normal of the centres within 8 cm, facing out)",
+    )
     p.add_argument("--radius", type=float, default=0.055, help="hole radius, m (default: %(default)s, 11 cm wide)")
-    p.add_argument("--depth", type=float, default=0.06,
-                   help="half-depth of the hole's cylinder along the normal, m; inf cuts through the object "
-                        "(default: %(default)s)")
+    p.add_argument(
+        "--depth",
+        type=float,
+        default=0.06,
+        help="half-depth of the hole's cylinder along the normal, m; inf cuts through the object "
+        "(default: %(default)s)",
+    )
     p.add_argument("--band", type=float, default=0.055, help="rim width beyond the radius, m (default: %(default)s)")
-    p.add_argument("--see-through", type=float, default=None, metavar="EPS",
-                   help="also remove every Gaussian whose peak opacity on a ray through the disc (within the slab) "
-                        "exceeds EPS, so that a render sees through the hole (default: centres only)")
-    p.add_argument("--ideal", action="store_true",
-                   help="also cut every lattice point inside the hole's cylinder out of the holed set's solid: an "
-                        "ideal hole at lattice resolution, to measure what the rim's D_g can resolve (default: off, "
-                        "the solid of the holed Gaussians)")
-    p.add_argument("--shifts", type=_shifts, default=(0.0,), metavar="F,F,...",
-                   help="lattice shifts, fractions of the spacing along x, y and z (default: 0)")
+    p.add_argument(
+        "--see-through",
+        type=float,
+        default=None,
+        metavar="EPS",
+        help="also remove every Gaussian whose peak opacity on a ray through the disc (within the slab) "
+        "exceeds EPS, so that a render sees through the hole (default: centres only)",
+    )
+    p.add_argument(
+        "--ideal",
+        action="store_true",
+        help="also cut every lattice point inside the hole's cylinder out of the holed set's solid: an "
+        "ideal hole at lattice resolution, to measure what the rim's D_g can resolve (default: off, "
+        "the solid of the holed Gaussians)",
+    )
+    p.add_argument(
+        "--shifts",
+        type=_shifts,
+        default=(0.0,),
+        metavar="F,F,...",
+        help="lattice shifts, fractions of the spacing along x, y and z (default: 0)",
+    )
     p.add_argument("--paper", action="store_true", help="paper setting: r = 0.025 m, 750 steps (default: quick)")
     p.add_argument("--particle-radius", type=float, default=None, help="particle radius r, m (overrides the preset)")
     p.add_argument("--steps", type=positive_int, default=None, help="steps per probe (default: 300, 750 with --paper)")
@@ -109,19 +154,25 @@ def locate_hole(args: argparse.Namespace, means: np.ndarray, opacities: np.ndarr
 
 def print_shift(r: dict) -> None:
     ai, ah = r["axis_opacity_intact"], r["axis_opacity_holed"]
-    print(f"shift {r['shift']:g} spacing: {'ideal hole, ' if r.get('ideal') else ''}{r['gaussians_removed']} "
-          f"Gaussians removed, rim {r['rim_gaussians']}; solid "
-          f"{r['solid_intact']} -> {r['solid_holed']} ({r['solid_removed']} removed, {r['solid_added']} added); axis "
-          f"opacity {ai[0]:.2f} -> {ah[0]:.2f} (largest single Gaussian {ai[1]:.2f} -> {ah[1]:.2f}); open to a "
-          f"render: {100 * r['open_fraction_holed'][0]:.0f} % of the disc (per Gaussian "
-          f"{100 * r['open_fraction_holed'][1]:.0f} %); {r['seconds']:.0f} s")
+    print(
+        f"shift {r['shift']:g} spacing: {'ideal hole, ' if r.get('ideal') else ''}{r['gaussians_removed']} "
+        f"Gaussians removed, rim {r['rim_gaussians']}; solid "
+        f"{r['solid_intact']} -> {r['solid_holed']} ({r['solid_removed']} removed, {r['solid_added']} added); axis "
+        f"opacity {ai[0]:.2f} -> {ah[0]:.2f} (largest single Gaussian {ai[1]:.2f} -> {ah[1]:.2f}); open to a "
+        f"render: {100 * r['open_fraction_holed'][0]:.0f} % of the disc (per Gaussian "
+        f"{100 * r['open_fraction_holed'][1]:.0f} %); {r['seconds']:.0f} s"
+    )
     for d, p in r.get("probes", {}).items():
         label = d + ("*" if d == r["head_on"] else "")
-        print(f"  {label:>4}: rim D_g {p['intact']:.4g} -> {p['holed']:.4g} 1/s  x{p['ratio']:.3f}  (reached "
-              f"{p['reached_intact']:.2f} -> {p['reached_holed']:.2f}, leaked {p['leaked_holed']})")
+        print(
+            f"  {label:>4}: rim D_g {p['intact']:.4g} -> {p['holed']:.4g} 1/s  x{p['ratio']:.3f}  (reached "
+            f"{p['reached_intact']:.2f} -> {p['reached_holed']:.2f}, leaked {p['leaked_holed']})"
+        )
     if "max_ratio" in r:
-        print(f"  max: rim D_g {r['max_intact']:.4g} -> {r['max_holed']:.4g} 1/s  x{r['max_ratio']:.3f}; D-bar "
-              f"{r['dbar_intact']:.4g} -> {r['dbar_holed']:.4g} (x{r['dbar_holed'] / r['dbar_intact']:.3f})")
+        print(
+            f"  max: rim D_g {r['max_intact']:.4g} -> {r['max_holed']:.4g} 1/s  x{r['max_ratio']:.3f}; D-bar "
+            f"{r['dbar_intact']:.4g} -> {r['dbar_holed']:.4g} (x{r['dbar_holed'] / r['dbar_intact']:.3f})"
+        )
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -145,30 +196,56 @@ def run_command(args: argparse.Namespace) -> int:
     radius = args.particle_radius or (0.025 if args.paper else QUICK["particle_radius"])
     steps = args.steps or (750 if args.paper else QUICK["steps"])
     scale = args.scale if args.scale == "auto" else float(args.scale)
-    cfg = PhysicsConfig(particle_radius=radius, steps=steps, directions=parse_directions(args.directions),
-                        up=args.up, scale=scale, empty_reference=False)
+    cfg = PhysicsConfig(
+        particle_radius=radius,
+        steps=steps,
+        directions=parse_directions(args.directions),
+        up=args.up,
+        scale=scale,
+        empty_reference=False,
+    )
     init_taichi(args.device, cfg.precision, args.threads)
-    transform = scene_transform(gaussians, cfg)    # fixed here: the holed set keeps the intact set's scale
+    transform = scene_transform(gaussians, cfg)  # fixed here: the holed set keeps the intact set's scale
     cfg = dataclasses.replace(cfg, scale=transform.scale)
     means, _, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
     hole = locate_hole(args, means, opacities)
-    print(f"{args.gaussians}: {gaussians.num:,} Gaussians, {transform.scale:.4g} m per unit; hole at "
-          f"{np.round(hole.point, 3).tolist()} m, normal {np.round(hole.normal, 3).tolist()}, radius {hole.radius} m, "
-          f"half-depth {hole.depth} m, rim band {hole.band} m; r = {radius} m, {steps} steps, "
-          f"probes {','.join(cfg.directions)}")
+    print(
+        f"{args.gaussians}: {gaussians.num:,} Gaussians, {transform.scale:.4g} m per unit; hole at "
+        f"{np.round(hole.point, 3).tolist()} m, normal {np.round(hole.normal, 3).tolist()}, radius {hole.radius} m, "
+        f"half-depth {hole.depth} m, rim band {hole.band} m; r = {radius} m, {steps} steps, "
+        f"probes {','.join(cfg.directions)}"
+    )
     results = []
     for shift in args.shifts:
-        results.append(measure_shift(gaussians, cfg, transform, hole, shift, args.solid_only, args.see_through,
-                                     ideal=args.ideal))
+        results.append(
+            measure_shift(gaussians, cfg, transform, hole, shift, args.solid_only, args.see_through, ideal=args.ideal)
+        )
         print_shift(results[-1])
     if len(results) > 1 and not args.solid_only:
         ratios = np.array([r["max_ratio"] for r in results])
         head = np.array([r["probes"][r["head_on"]]["ratio"] for r in results])
-        print(f"rim ratio over {len(results)} shifts: max-combined {ratios.min():.3f} - {ratios.max():.3f}, head-on "
-              f"probe ({results[0]['head_on']}) {head.min():.3f} - {head.max():.3f}")
+        print(
+            f"rim ratio over {len(results)} shifts: max-combined {ratios.min():.3f} - {ratios.max():.3f}, head-on "
+            f"probe ({results[0]['head_on']}) {head.min():.3f} - {head.max():.3f}"
+        )
     if args.json is not None:
-        hole_doc = {"point": hole.point, "normal": hole.normal, "radius": hole.radius, "depth": hole.depth,
-                    "band": hole.band, "see_through": args.see_through, "ideal": args.ideal}
-        write_json_atomic(args.json, {"source": str(args.gaussians), "hole": hole_doc, "particle_radius": radius,
-                                      "steps": steps, "shifts": results})
+        hole_doc = {
+            "point": hole.point,
+            "normal": hole.normal,
+            "radius": hole.radius,
+            "depth": hole.depth,
+            "band": hole.band,
+            "see_through": args.see_through,
+            "ideal": args.ideal,
+        }
+        write_json_atomic(
+            args.json,
+            {
+                "source": str(args.gaussians),
+                "hole": hole_doc,
+                "particle_radius": radius,
+                "steps": steps,
+                "shifts": results,
+            },
+        )
     return 0

@@ -29,19 +29,43 @@ TARGETS_MS = {(5000, 100, 100): 40.0, (20000, 200, 200): 450.0}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--threads", type=thread_count, default=1,
-                   help="torch CPU threads; the issue's targets are for 1 (default: %(default)s)")
-    p.add_argument("--repeats", type=int, default=10,
-                   help="timed forward+backward passes per case, after one warm-up pass (default: %(default)s)")
-    p.add_argument("--sizes", type=str, default="5000@100x100,20000@200x200",
-                   help="comma-separated N@WxH cases: N Gaussians, W x H pixels (default: %(default)s)")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="compute device; cuda falls back to cpu with a warning (default: %(default)s)")
-    p.add_argument("--backend", choices=("torch", "gsplat", "auto"), default="torch",
-                   help="renderer backend (default: %(default)s)")
+    p.add_argument(
+        "--threads",
+        type=thread_count,
+        default=1,
+        help="torch CPU threads; the issue's targets are for 1 (default: %(default)s)",
+    )
+    p.add_argument(
+        "--repeats",
+        type=int,
+        default=10,
+        help="timed forward+backward passes per case, after one warm-up pass (default: %(default)s)",
+    )
+    p.add_argument(
+        "--sizes",
+        type=str,
+        default="5000@100x100,20000@200x200",
+        help="comma-separated N@WxH cases: N Gaussians, W x H pixels (default: %(default)s)",
+    )
+    p.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="compute device; cuda falls back to cpu with a warning (default: %(default)s)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("torch", "gsplat", "auto"),
+        default="torch",
+        help="renderer backend (default: %(default)s)",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed of the scene (default: %(default)s)")
-    p.add_argument("--json", type=str, default=None,
-                   help="also write the figures to this JSON file (default: %(default)s, no file)")
+    p.add_argument(
+        "--json",
+        type=str,
+        default=None,
+        help="also write the figures to this JSON file (default: %(default)s, no file)",
+    )
 
 
 def parse_sizes(text: str) -> list[tuple[int, int, int]]:
@@ -81,26 +105,42 @@ def run_command(args: argparse.Namespace) -> int:
     try:
         load = os.getloadavg()
         ref_before = reference_workload_ms(device)
-        results = [time_case(n, w, h, args.seed, args.repeats, args.backend, device, TARGETS_MS.get((n, w, h)))
-                   for n, w, h in tqdm(cases, desc="bench render", unit="case")]
+        results = [
+            time_case(n, w, h, args.seed, args.repeats, args.backend, device, TARGETS_MS.get((n, w, h)))
+            for n, w, h in tqdm(cases, desc="bench render", unit="case")
+        ]
         ref_after = reference_workload_ms(device)
     finally:  # the command also runs in-process (tests): leave the thread setting as it was
         torch.set_num_threads(previous_threads)
-    print(f"recon.render ({args.backend} backend, {device}, {args.threads} thread(s)), forward + backward, "
-          f"median of {args.repeats}")
-    print(f"  machine load average (1/5/15 min): {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; reference workload "
-          f"(10 x 512^2 matmul): {ref_before:.1f} ms before, {ref_after:.1f} ms after")
+    print(
+        f"recon.render ({args.backend} backend, {device}, {args.threads} thread(s)), forward + backward, "
+        f"median of {args.repeats}"
+    )
+    print(
+        f"  machine load average (1/5/15 min): {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; reference workload "
+        f"(10 x 512^2 matmul): {ref_before:.1f} ms before, {ref_after:.1f} ms after"
+    )
     for r in results:
         target = "no target"
         if r["target_ms"]:
             verdict = "met" if r["forward_backward_ms"] <= r["target_ms"] else "MISSED"
             target = f"target <= {r['target_ms']:.0f} ms ({verdict})"
-        print(f"  {r['gaussians']} Gaussians @ {r['width']}x{r['height']} ({r['pixels']} px): {r['visible']} visible, "
-              f"mean radius {r['mean_radius_px']:.1f} px, {r['candidate_pairs']} pairs in boxes, {r['pairs']} "
-              f"with alpha >= 1/255 ({r['stopped_pairs']} after an early stop)")
+        print(
+            f"  {r['gaussians']} Gaussians @ {r['width']}x{r['height']} ({r['pixels']} px): {r['visible']} visible, "
+            f"mean radius {r['mean_radius_px']:.1f} px, {r['candidate_pairs']} pairs in boxes, {r['pairs']} "
+            f"with alpha >= 1/255 ({r['stopped_pairs']} after an early stop)"
+        )
         print(f"    forward {r['forward_ms']:.1f} ms, forward+backward {r['forward_backward_ms']:.1f} ms; {target}")
     if args.json:
-        write_json_atomic(args.json, {"backend": args.backend, "device": str(device), "threads": args.threads,
-                                "load_average": load, "reference_workload_ms": [ref_before, ref_after],
-                                "cases": results})
+        write_json_atomic(
+            args.json,
+            {
+                "backend": args.backend,
+                "device": str(device),
+                "threads": args.threads,
+                "load_average": load,
+                "reference_workload_ms": [ref_before, ref_after],
+                "cases": results,
+            },
+        )
     return 0

@@ -30,30 +30,57 @@ MILLION_GAUSSIANS = 1_000_000
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--gaussians", type=Path, default=None,
-                   help=f"Gaussian set (default: {ASSET.name} when present, else 4,000 Gaussians on the Ahmed body "
-                        "surface)")
+    p.add_argument(
+        "--gaussians",
+        type=Path,
+        default=None,
+        help=f"Gaussian set (default: {ASSET.name} when present, else 4,000 Gaussians on the Ahmed body surface)",
+    )
     p.add_argument("--paper", action="store_true", help="paper setting: r = 0.025 m, 750 steps (default: quick preset)")
-    p.add_argument("--particle-radius", type=float, default=None,
-                   help="particle radius r in m (default: 0.05, or 0.025 with --paper)")
+    p.add_argument(
+        "--particle-radius",
+        type=float,
+        default=None,
+        help="particle radius r in m (default: 0.05, or 0.025 with --paper)",
+    )
     p.add_argument("--steps", type=int, default=None, help="steps per probe (default: 300, or 750 with --paper)")
     p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes")
     p.add_argument("--empty-reference", action="store_true", help="also time the empty-scene reference runs")
     p.add_argument("--no-fill", action="store_true", help="keep the solid hollow (filling is the default)")
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="compute device; cuda falls back to cpu with a logged warning")
+    p.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="compute device; cuda falls back to cpu with a logged warning",
+    )
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
-    p.add_argument("--up", "--up-axis", dest="up", default="+y", metavar="UP",
-                   help="the scene's up direction, rotated to simulation +y: +x, -x, +y, -y, +z, -z or a vector "
-                        "such as 0,-1,0 (COLMAP captures are often -y; default: +y)")
-    p.add_argument("--densify", type=positive_int, default=None, metavar="K",
-                   help="also time a K x denser copy of the set (K - 1 jittered copies added), same object")
-    p.add_argument("--jitter", type=float, default=0.5,
-                   help="--densify: each copy's means move by this many standard deviations along the Gaussian's "
-                        "axes (default: 0.5)")
-    p.add_argument("--densify-only", action="store_true",
-                   help="--densify: time only the dense set (its peak memory alone)")
+    p.add_argument(
+        "--up",
+        "--up-axis",
+        dest="up",
+        default="+y",
+        metavar="UP",
+        help="the scene's up direction, rotated to simulation +y: +x, -x, +y, -y, +z, -z or a vector "
+        "such as 0,-1,0 (COLMAP captures are often -y; default: +y)",
+    )
+    p.add_argument(
+        "--densify",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help="also time a K x denser copy of the set (K - 1 jittered copies added), same object",
+    )
+    p.add_argument(
+        "--jitter",
+        type=float,
+        default=0.5,
+        help="--densify: each copy's means move by this many standard deviations along the Gaussian's "
+        "axes (default: 0.5)",
+    )
+    p.add_argument(
+        "--densify-only", action="store_true", help="--densify: time only the dense set (its peak memory alone)"
+    )
     p.add_argument("--seed", type=int, default=0, help="--densify: random seed of the jitter")
 
 
@@ -74,37 +101,56 @@ def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
     t = res.timings
     total_steps = cfg.steps * len(cfg.directions)
     share = t["aggregation"] / max(t["simulation"], 1e-12)
-    print(f"Gaussians: {res.num_gaussians} ({source}), solid particles {len(res.solid)}, "
-          f"r = {cfg.particle_radius} m, {cfg.steps} steps x {len(cfg.directions)} probes")
+    print(
+        f"Gaussians: {res.num_gaussians} ({source}), solid particles {len(res.solid)}, "
+        f"r = {cfg.particle_radius} m, {cfg.steps} steps x {len(cfg.directions)} probes"
+    )
     fluid = 0
     for d in cfg.directions:
         st = res.stats[d]
         fluid = max(fluid, int(st["active"][0]))
-        print(f"  probe {d:>3}: {int(st['active'][0])} fluid particles, density/divergence iterations "
-              f"{np.mean(st['density_iterations']):.2f}/{np.mean(st['divergence_iterations']):.2f}")
-    print(f"simulation {t['simulation']:.2f} s ({total_steps / max(t['simulation'], 1e-12):.1f} steps/s), "
-          f"aggregation {t['aggregation']:.3f} s (+{t['accumulator_setup']:.3f} s grid set-up), "
-          f"solidify {t['solidify']:.2f} s")
+        print(
+            f"  probe {d:>3}: {int(st['active'][0])} fluid particles, density/divergence iterations "
+            f"{np.mean(st['density_iterations']):.2f}/{np.mean(st['divergence_iterations']):.2f}"
+        )
+    print(
+        f"simulation {t['simulation']:.2f} s ({total_steps / max(t['simulation'], 1e-12):.1f} steps/s), "
+        f"aggregation {t['aggregation']:.3f} s (+{t['accumulator_setup']:.3f} s grid set-up), "
+        f"solidify {t['solidify']:.2f} s"
+    )
     target = share_target(res.num_gaussians)
-    print(f"aggregation share of the step time: {100 * share:.1f} % (target < {100 * target:.0f} % at "
-          f"{res.num_gaussians:,} Gaussians; < 10 % below 1M, < 15 % from 1M): "
-          f"{'met' if share < target else 'NOT met'}")
+    print(
+        f"aggregation share of the step time: {100 * share:.1f} % (target < {100 * target:.0f} % at "
+        f"{res.num_gaussians:,} Gaussians; < 10 % below 1M, < 15 % from 1M): "
+        f"{'met' if share < target else 'NOT met'}"
+    )
     total = t["total"] - t["empty_reference"]
     label = "paper-setting" if paper else "quick"
-    print(f"{label} total for {len(cfg.directions)} probes: {total:.1f} s"
-          + ("" if paper else f" (target < 60 s for five probes): {'met' if total < 60 else 'NOT met'}"))
+    print(
+        f"{label} total for {len(cfg.directions)} probes: {total:.1f} s"
+        + ("" if paper else f" (target < 60 s for five probes): {'met' if total < 60 else 'NOT met'}")
+    )
     if cfg.empty_reference:
         print(f"empty-scene reference: {t['empty_reference']:.1f} s more")
     verdict = "converged" if cfg.steps >= CONVERGED_STEPS else f"NOT converged (needs >= {CONVERGED_STEPS} steps)"
-    print(f"view ranking at r = {cfg.particle_radius} m x {cfg.steps} steps: {verdict}, docs/results.md; one "
-          f"physics pick at this setting costs {total:.1f} s here")
+    print(
+        f"view ranking at r = {cfg.particle_radius} m x {cfg.steps} steps: {verdict}, docs/results.md; one "
+        f"physics pick at this setting costs {total:.1f} s here"
+    )
     estimate = GaussianAccumulator.estimate_bytes(res.num_gaussians, fluid, cfg.track_distinct)
     rss = peak_rss_bytes()
     print(f"peak resident memory so far {rss / 2**30:.2f} GiB (the accumulator's estimate {estimate / 2**30:.2f} GiB)")
-    return {"timings": t, "aggregation_share": share, "aggregation_share_target": target, "total": total,
-            "gaussians": res.num_gaussians,
-            "solid": len(res.solid), "fluid_particles": fluid, "peak_rss_bytes": rss,
-            "accumulator_estimate_bytes": estimate}
+    return {
+        "timings": t,
+        "aggregation_share": share,
+        "aggregation_share_target": target,
+        "total": total,
+        "gaussians": res.num_gaussians,
+        "solid": len(res.solid),
+        "fluid_particles": fluid,
+        "peak_rss_bytes": rss,
+        "accumulator_estimate_bytes": estimate,
+    }
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -127,8 +173,14 @@ def run_command(args: argparse.Namespace) -> int:
     dense = None if args.densify is None else jittered_copies(gaussians, args.densify, args.jitter, args.seed)
     radius = args.particle_radius or (0.025 if args.paper else QUICK["particle_radius"])
     steps = args.steps or (750 if args.paper else QUICK["steps"])
-    cfg = PhysicsConfig(particle_radius=radius, steps=steps, directions=parse_directions(args.directions),
-                        empty_reference=args.empty_reference, fill_cavities=not args.no_fill, up=args.up)
+    cfg = PhysicsConfig(
+        particle_radius=radius,
+        steps=steps,
+        directions=parse_directions(args.directions),
+        empty_reference=args.empty_reference,
+        fill_cavities=not args.no_fill,
+        up=args.up,
+    )
     init_taichi(args.device, cfg.precision, args.threads)
     source = str(path or "Ahmed body surface samples")
     figures = {"steps": steps, "particle_radius": radius, "directions": list(cfg.directions)}
@@ -140,8 +192,10 @@ def run_command(args: argparse.Namespace) -> int:
         if not args.densify_only:
             ratio = figures["dense"]["total"] / max(figures["total"], 1e-12)
             figures["dense_time_ratio"] = ratio
-            print(f"{args.densify} x denser set: {figures['dense']['gaussians']} Gaussians, {ratio:.2f} x the time of "
-                  f"the {figures['gaussians']} Gaussians (same run)")
+            print(
+                f"{args.densify} x denser set: {figures['dense']['gaussians']} Gaussians, {ratio:.2f} x the time of "
+                f"the {figures['gaussians']} Gaussians (same run)"
+            )
     if args.json is not None:
         write_json(args.json, figures)
     return 0

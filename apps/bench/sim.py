@@ -23,14 +23,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=100, help="time steps to time (default: 100)")
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads for both engines (default: 2)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="compute device (default: cpu)")
-    p.add_argument("--no-peer", action="store_true",
-                   help="skip the SPlisHSPlasH comparison even when pysplishsplash is installed")
-    p.add_argument("--no-divergence-warm-start", action="store_true",
-                   help="our engine: start the divergence solver cold (solver.divergence_warm_start = false; one "
-                        "list pass fewer per step); SPlisHSPlasH always warm-starts (default: warm start)")
-    p.add_argument("--rounds", type=int, default=1,
-                   help="run the engines this many times, alternating, and also print each round's ratio and the "
-                        "ratio of each engine's fastest round (shared, noisy machines; default: 1)")
+    p.add_argument(
+        "--no-peer", action="store_true", help="skip the SPlisHSPlasH comparison even when pysplishsplash is installed"
+    )
+    p.add_argument(
+        "--no-divergence-warm-start",
+        action="store_true",
+        help="our engine: start the divergence solver cold (solver.divergence_warm_start = false; one "
+        "list pass fewer per step); SPlisHSPlasH always warm-starts (default: warm start)",
+    )
+    p.add_argument(
+        "--rounds",
+        type=int,
+        default=1,
+        help="run the engines this many times, alternating, and also print each round's ratio and the "
+        "ratio of each engine's fastest round (shared, noisy machines; default: 1)",
+    )
     p.add_argument("--json", type=str, default=None, help="also write the figures to this JSON file")
 
 
@@ -52,13 +60,19 @@ def run_ours(scene, steps: int, divergence_warm_start: bool = True) -> dict:
         hist.append(solver.step())
         times.append(time.perf_counter() - t)
     stages = {k: 1e3 * v / max(steps - 1, 1) for k, v in solver.stage_times.items()}
-    return {"fluid_particles": solver.fluid.capacity, "solid_particles": len(particles.solid),
-            "wall_particles": len(particles.walls), "steps": steps, "setup_s": setup_s,
-            "first_step_ms": 1e3 * times[0], "median_ms_steps_2_to_n": 1e3 * statistics.median(times[1:]),
-            "mean_ms_per_stage": stages,
-            "density_iterations_mean": float(np.mean([h.density_iterations for h in hist[1:]])),
-            "divergence_iterations_mean": float(np.mean([h.divergence_iterations for h in hist[1:]])),
-            "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    return {
+        "fluid_particles": solver.fluid.capacity,
+        "solid_particles": len(particles.solid),
+        "wall_particles": len(particles.walls),
+        "steps": steps,
+        "setup_s": setup_s,
+        "first_step_ms": 1e3 * times[0],
+        "median_ms_steps_2_to_n": 1e3 * statistics.median(times[1:]),
+        "mean_ms_per_stage": stages,
+        "density_iterations_mean": float(np.mean([h.density_iterations for h in hist[1:]])),
+        "divergence_iterations_mean": float(np.mean([h.divergence_iterations for h in hist[1:]])),
+        "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+    }
 
 
 def _more_rounds(args: argparse.Namespace, scene, ours: dict, peer: dict, run_splash) -> list[dict]:
@@ -68,14 +82,18 @@ def _more_rounds(args: argparse.Namespace, scene, ours: dict, peer: dict, run_sp
         o = run_ours(scene, args.steps, divergence_warm_start=not args.no_divergence_warm_start)
         q = run_splash(scene)
         rounds.append({"ours_ms": o["median_ms_steps_2_to_n"], "peer_ms": q["median_ms_steps_2_to_n"]})
-        print(f"round {k}: ours {rounds[-1]['ours_ms']:.1f} ms, SPlisHSPlasH {rounds[-1]['peer_ms']:.1f} ms, "
-              f"ratio {rounds[-1]['ours_ms'] / rounds[-1]['peer_ms']:.2f}")
+        print(
+            f"round {k}: ours {rounds[-1]['ours_ms']:.1f} ms, SPlisHSPlasH {rounds[-1]['peer_ms']:.1f} ms, "
+            f"ratio {rounds[-1]['ours_ms'] / rounds[-1]['peer_ms']:.2f}"
+        )
     for r in rounds:
         r["ratio"] = r["ours_ms"] / r["peer_ms"]
     ratios = sorted(r["ratio"] for r in rounds)
     best = min(r["ours_ms"] for r in rounds) / min(r["peer_ms"] for r in rounds)
-    print(f"over {len(rounds)} rounds: ratio {ratios[0]:.2f}-{ratios[-1]:.2f} "
-          f"(median {statistics.median(ratios):.2f}); fastest round of each engine: {best:.2f}  (target <= 0.5)")
+    print(
+        f"over {len(rounds)} rounds: ratio {ratios[0]:.2f}-{ratios[-1]:.2f} "
+        f"(median {statistics.median(ratios):.2f}); fastest round of each engine: {best:.2f}  (target <= 0.5)"
+    )
     return rounds
 
 
@@ -95,18 +113,27 @@ def run_command(args: argparse.Namespace) -> int:
     device = init_taichi(args.device, "f32", args.threads)
     scene = PeerScene(steps=args.steps, threads=args.threads)
     ours = run_ours(scene, args.steps, divergence_warm_start=not args.no_divergence_warm_start)
-    report = {"device": device, "threads": args.threads, "fluidgaussian": ours,
-              "divergence_warm_start": not args.no_divergence_warm_start}
+    report = {
+        "device": device,
+        "threads": args.threads,
+        "fluidgaussian": ours,
+        "divergence_warm_start": not args.no_divergence_warm_start,
+    }
     cold = ", divergence solver not warm-started" if args.no_divergence_warm_start else ""
     print(f"FluidGaussian DFSPH ({device}, {args.threads} threads{cold})")
-    print(f"  particles: {ours['fluid_particles']} fluid, {ours['solid_particles']} solid, "
-          f"{ours['wall_particles']} wall")
+    print(
+        f"  particles: {ours['fluid_particles']} fluid, {ours['solid_particles']} solid, {ours['wall_particles']} wall"
+    )
     print(f"  first step (JIT compile or cache load): {ours['first_step_ms']:.0f} ms")
-    print(f"  median over steps 2..{args.steps}: {ours['median_ms_steps_2_to_n']:.1f} ms/step "
-          f"({1e3 / ours['median_ms_steps_2_to_n']:.2f} steps/s)")
+    print(
+        f"  median over steps 2..{args.steps}: {ours['median_ms_steps_2_to_n']:.1f} ms/step "
+        f"({1e3 / ours['median_ms_steps_2_to_n']:.2f} steps/s)"
+    )
     print("  stages (mean ms/step): " + ", ".join(f"{k} {v:.1f}" for k, v in ours["mean_ms_per_stage"].items()))
-    print(f"  solver iterations (mean): density {ours['density_iterations_mean']:.2f}, "
-          f"divergence {ours['divergence_iterations_mean']:.2f}")
+    print(
+        f"  solver iterations (mean): density {ours['density_iterations_mean']:.2f}, "
+        f"divergence {ours['divergence_iterations_mean']:.2f}"
+    )
     print(f"  peak memory: {ours['peak_rss_mib']:.0f} MiB")
     if not args.no_peer:
         if splash_available():

@@ -34,55 +34,94 @@ TARGET_S = 20.0  # the issue's target for 200 cameras x 1M Gaussians, no PNGs, 2
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--gaussians", type=Path, default=ASSETS / "ahmed_gaussians.ply",
-                   help="Gaussian set (default: the bundled asset)")
-    p.add_argument("--cameras", type=Path, default=ASSETS / "ahmed_cameras.json",
-                   help="candidate cameras of the ranking check (default: the bundled asset's)")
-    p.add_argument("--result", type=Path, default=None,
-                   help="RESULT.h5 of these Gaussians for D_g (default: a seeded log-normal stand-in)")
-    p.add_argument("--render-width", type=int, default=320,
-                   help="width of the ranking check's views, as `fluidgs score` (default: %(default)s)")
-    p.add_argument("--occlusion", action="store_true",
-                   help="also compare the coarse depth buffer with the render-based depth test, and time it")
+    p.add_argument(
+        "--gaussians",
+        type=Path,
+        default=ASSETS / "ahmed_gaussians.ply",
+        help="Gaussian set (default: the bundled asset)",
+    )
+    p.add_argument(
+        "--cameras",
+        type=Path,
+        default=ASSETS / "ahmed_cameras.json",
+        help="candidate cameras of the ranking check (default: the bundled asset's)",
+    )
+    p.add_argument(
+        "--result",
+        type=Path,
+        default=None,
+        help="RESULT.h5 of these Gaussians for D_g (default: a seeded log-normal stand-in)",
+    )
+    p.add_argument(
+        "--render-width",
+        type=int,
+        default=320,
+        help="width of the ranking check's views, as `fluidgs score` (default: %(default)s)",
+    )
+    p.add_argument(
+        "--occlusion",
+        action="store_true",
+        help="also compare the coarse depth buffer with the render-based depth test, and time it",
+    )
     p.add_argument("--no-ranking", action="store_true", help="skip the ranking check (no full renders)")
-    p.add_argument("--count", type=int, default=1_000_000,
-                   help="Gaussians of the timing set (jittered copies of --gaussians; default: %(default)s)")
+    p.add_argument(
+        "--count",
+        type=int,
+        default=1_000_000,
+        help="Gaussians of the timing set (jittered copies of --gaussians; default: %(default)s)",
+    )
     p.add_argument("--views", type=int, default=200, help="cameras of the timing run (default: %(default)s)")
     p.add_argument("--width", type=int, default=320, help="image width (and height) of the timing run's cameras")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="torch device; cuda falls back to cpu with a warning (default: %(default)s)")
+    p.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="torch device; cuda falls back to cpu with a warning (default: %(default)s)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the jitter, the cameras and the stand-in D_g")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
 
 
 def print_ranking(r: dict, source: str) -> None:
     print(f"ranking check: {r['views']} candidate views, {source}")
-    print(f"  full renders {r['render_s']:.2f} s ({1e3 * r['render_s'] / r['views']:.0f} ms/view), projection "
-          f"{r['projection_s']:.3f} s ({1e3 * r['projection_s'] / r['views']:.1f} ms/view)")
-    print(f"  radii equal to the renderer's in every view: {r['radii_equal']}; largest relative score difference "
-          f"{r['max_relative_difference']:.2e}")
+    print(
+        f"  full renders {r['render_s']:.2f} s ({1e3 * r['render_s'] / r['views']:.0f} ms/view), projection "
+        f"{r['projection_s']:.3f} s ({1e3 * r['projection_s'] / r['views']:.1f} ms/view)"
+    )
+    print(
+        f"  radii equal to the renderer's in every view: {r['radii_equal']}; largest relative score difference "
+        f"{r['max_relative_difference']:.2e}"
+    )
     print(f"  Spearman {r['spearman']:.6f}; identical order: {r['identical_order']}")
     print(f"  order (best first): {r['order']}")
     if "occlusion" in r:
         o = r["occlusion"]
-        print(f"  --occlusion: coarse depth buffer vs render-based depth test: {100 * o['verdict_agreement']:.1f} % of "
-              f"the visible (view, Gaussian) pairs agree (hidden: {100 * o['hidden_coarse']:.2f} % vs "
-              f"{100 * o['hidden_render']:.2f} %); S(T) Spearman {o['spearman']:.4f}, same best view: "
-              f"{o['same_best']}, top-5 overlap {o['top5_overlap']}/5")
+        print(
+            f"  --occlusion: coarse depth buffer vs render-based depth test: {100 * o['verdict_agreement']:.1f} % of "
+            f"the visible (view, Gaussian) pairs agree (hidden: {100 * o['hidden_coarse']:.2f} % vs "
+            f"{100 * o['hidden_render']:.2f} %); S(T) Spearman {o['spearman']:.4f}, same best view: "
+            f"{o['same_best']}, top-5 overlap {o['top5_overlap']}/5"
+        )
 
 
 def print_timing(t: dict) -> None:
-    print(f"timing: {t['views']} cameras x {t['gaussians']:,} Gaussians at {t['width']} x {t['width']} px, no PNGs "
-          f"({100 * t['visible_fraction']:.0f} % of the pairs visible)")
-    print(f"  total {t['total_s']:.2f} s wall ({t['cpu_s']:.2f} s of CPU time: the process ran "
-          f"{100 * t['cpu_s'] / max(t['total_s'], 1e-9):.0f} % of the wall time), {t['per_view_ms']:.1f} ms/view, "
-          f"{t['ns_per_pair']:.1f} ns per pair; peak RSS {t['peak_rss_mib']:.0f} MiB (before scoring "
-          f"{t['rss_before_mib']:.0f} MiB)")
+    print(
+        f"timing: {t['views']} cameras x {t['gaussians']:,} Gaussians at {t['width']} x {t['width']} px, no PNGs "
+        f"({100 * t['visible_fraction']:.0f} % of the pairs visible)"
+    )
+    print(
+        f"  total {t['total_s']:.2f} s wall ({t['cpu_s']:.2f} s of CPU time: the process ran "
+        f"{100 * t['cpu_s'] / max(t['total_s'], 1e-9):.0f} % of the wall time), {t['per_view_ms']:.1f} ms/view, "
+        f"{t['ns_per_pair']:.1f} ns per pair; peak RSS {t['peak_rss_mib']:.0f} MiB (before scoring "
+        f"{t['rss_before_mib']:.0f} MiB)"
+    )
     scale = (200 * 1_000_000) / (t["views"] * t["gaussians"])
-    print(f"  target: 200 cameras x 1M Gaussians <= {TARGET_S:.0f} s: {t['total_s'] * scale:.1f} s wall "
-          f"({'met' if t['total_s'] * scale <= TARGET_S else 'NOT met'}), {t['cpu_s'] * scale:.1f} s CPU "
-          f"({'met' if t['cpu_s'] * scale <= TARGET_S else 'NOT met'})"
-          + ("" if scale == 1 else " (scaled from this run)"))
+    print(
+        f"  target: 200 cameras x 1M Gaussians <= {TARGET_S:.0f} s: {t['total_s'] * scale:.1f} s wall "
+        f"({'met' if t['total_s'] * scale <= TARGET_S else 'NOT met'}), {t['cpu_s'] * scale:.1f} s CPU "
+        f"({'met' if t['cpu_s'] * scale <= TARGET_S else 'NOT met'})"
+        + ("" if scale == 1 else " (scaled from this run)")
+    )
     if "occlusion_total_s" in t:
         print(f"  with the coarse depth buffer (--occlusion): {t['occlusion_total_s']:.2f} s")
 
@@ -112,12 +151,15 @@ def run_command(args: argparse.Namespace) -> int:
         cams = [render_size(c, args.render_width) for c in load_cameras(args.cameras, None)]
         report["ranking"] = compare_with_renders(gaussians, cams, d, args.occlusion, device)
         print_ranking(report["ranking"], source)
-    report["timing"] = time_projected_scores(gaussians, d, args.count, args.views, args.width, args.seed,
-                                             args.occlusion, device)
+    report["timing"] = time_projected_scores(
+        gaussians, d, args.count, args.views, args.width, args.seed, args.occlusion, device
+    )
     print_timing(report["timing"])
     ref_after = reference_ms()
-    print(f"machine load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; reference workload (512^2 matmul, "
-          f"1 thread) {ref_before:.1f} ms before, {ref_after:.1f} ms after; torch threads {torch.get_num_threads()}")
+    print(
+        f"machine load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; reference workload (512^2 matmul, "
+        f"1 thread) {ref_before:.1f} ms before, {ref_after:.1f} ms after; torch threads {torch.get_num_threads()}"
+    )
     report.update(load_average=load, reference_ms=[ref_before, ref_after])
     if args.json is not None:
         write_json_atomic(args.json, report)

@@ -31,7 +31,7 @@ def _attribute_section(doc: str) -> dict[str, str]:
         return out
     names: list[str] = []
     indent = None
-    for line in lines[start + 1:]:
+    for line in lines[start + 1 :]:
         if not line.strip():
             continue
         depth = len(line) - len(line.lstrip())
@@ -65,7 +65,7 @@ def help_and_default(text: str, default: Any) -> tuple[str, str]:
     text = plain(text)
     match = _NONE_CLAUSE.search(text) if default is None else None
     if match:
-        return text[:match.start()].rstrip(" ,;"), match.group(1).strip().rstrip(".")
+        return text[: match.start()].rstrip(" ,;"), match.group(1).strip().rstrip(".")
     return text, format_value(default)
 
 
@@ -109,8 +109,13 @@ def format_value(value: Any) -> str:
     return str(value)
 
 
-def add_config_options(parser, cls: type, fields: Sequence[str], overrides: Mapping[str, Mapping] | None = None,
-                       presets: Mapping[str, Mapping[str, Any]] | None = None) -> list[argparse.Action]:
+def add_config_options(
+    parser,
+    cls: type,
+    fields: Sequence[str],
+    overrides: Mapping[str, Mapping] | None = None,
+    presets: Mapping[str, Mapping[str, Any]] | None = None,
+) -> list[argparse.Action]:
     """Add one option per field of the dataclass ``cls`` to ``parser`` (a parser or an argument group).
 
     Args:
@@ -152,13 +157,20 @@ def add_config_options(parser, cls: type, fields: Sequence[str], overrides: Mapp
             long = next((f for f in flags if f.startswith("--")), flags[0])
             over.setdefault("metavar", long.lstrip("-").replace("-", "_").upper())
         default_note = f"default: {shown}" + "".join(f"; {e}" for e in extra)
-        actions.append(parser.add_argument(*flags, default=None if over.get("action") != "store_true" else False,
-                                           help=f"{text} ({default_note})", **over))
+        actions.append(
+            parser.add_argument(
+                *flags,
+                default=None if over.get("action") != "store_true" else False,
+                help=f"{text} ({default_note})",
+                **over,
+            )
+        )
     return actions
 
 
-def config_values(cls: type, args: argparse.Namespace, fields: Sequence[str],
-                  overrides: Mapping[str, Mapping] | None = None) -> dict[str, Any]:
+def config_values(
+    cls: type, args: argparse.Namespace, fields: Sequence[str], overrides: Mapping[str, Mapping] | None = None
+) -> dict[str, Any]:
     """``{field: value}`` of the options of ``fields`` that were given on the command line (None and unset
     flags are left out), converted by each override's ``convert``; a ValueError from it names the option."""
     values: dict[str, Any] = {}
@@ -181,9 +193,15 @@ def config_values(cls: type, args: argparse.Namespace, fields: Sequence[str],
     return values
 
 
-def config_from_args(cls: type, args: argparse.Namespace, fields: Sequence[str],
-                     overrides: Mapping[str, Mapping] | None = None, preset: Mapping[str, Any] | None = None,
-                     base: Any = None, **extra: Any):
+def config_from_args(
+    cls: type,
+    args: argparse.Namespace,
+    fields: Sequence[str],
+    overrides: Mapping[str, Mapping] | None = None,
+    preset: Mapping[str, Any] | None = None,
+    base: Any = None,
+    **extra: Any,
+):
     """The config of the command line: the dataclass defaults (or ``base``), then ``preset``, then the options of
     ``fields`` the user gave, then ``extra`` (values the command computes). The config validates itself."""
     values = {**(preset or {}), **config_values(cls, args, fields, overrides), **extra}
@@ -197,8 +215,9 @@ def parse_list(text, item: Callable[[str], Any] = str, option: str = "the list",
     return parse(text, item, option, **checks)
 
 
-def index_list(text: str | None, option: str, count: int | None = None, what: str | None = None,
-               **hints: str) -> tuple[int, ...]:
+def index_list(
+    text: str | None, option: str, count: int | None = None, what: str | None = None, **hints: str
+) -> tuple[int, ...]:
     """``"0,5"`` -> (0, 5): distinct indices >= 0 (below ``count`` when given); ValueError naming ``option``
     (``hints``: ``empty_hint``, ``range_hint`` of :func:`nbv.lists.parse_list`)."""
     return parse_list(text, int, option, minimum=0, below=count, unique=True, what=what, **hints)

@@ -13,8 +13,16 @@ from fluidsim.files import check_input_file
 from .fields import add_config_options, config_values
 
 # ---- the probe options of simulate, score, sweep, critical, inspect and bench score (nbv.physics.PhysicsConfig) ----
-PROBE_FIELDS = ("particle_radius", "steps", "dt", "speed", "viscosity", "directions", "accumulate_every",
-                "opacity_threshold")
+PROBE_FIELDS = (
+    "particle_radius",
+    "steps",
+    "dt",
+    "speed",
+    "viscosity",
+    "directions",
+    "accumulate_every",
+    "opacity_threshold",
+)
 FRAME_FIELDS = ("up", "scale", "crop")
 SOLID_FIELDS = ("fill_cavities",)
 RUN_FIELDS = ("empty_reference", "max_memory_gb")
@@ -27,21 +35,41 @@ def probe_overrides(default_directions: str = "all five", cameras: bool = False)
 
     auto = ", or 'auto': the cameras' mean up vector (logged)" if cameras else ""
     return {
-        "directions": {"help": f"comma list of probes out of {','.join(DIRECTIONS)}",
-                       "default_text": default_directions},
-        "up": {"flags": ("--up", "--up-axis"), "metavar": "UP",
-               "help": "the scene's up direction, rotated to simulation +y: +x, -x, +y, -y, +z, -z or a vector such "
-                       f"as 0,-1,0 (COLMAP captures are often -y){auto}"},
-        "scale": {"help": "metres per scene unit, or 'auto': the robust object box's largest extent -> 2 m, the "
-                          "paper's domain", "convert": _scale},
-        "crop": {"metavar": "BOX", "default_text": "keep all",
-                 "help": "keep only the Gaussians inside xmin,ymin,zmin,xmax,ymax,zmax (scene units), or 'auto': "
-                         "the robust object box grown by 10 %% per side"},
-        "fill_cavities": {"flags": ("--no-fill",), "dest": "no_fill", "negate": True, "default_text": "filled",
-                          "help": "keep the solid hollow: do not fill what the Gaussians enclose"},
-        "empty_reference": {"flags": ("--no-empty-reference",), "dest": "no_empty_reference", "negate": True,
-                            "default_text": "run it", "help": "skip the empty-scene D-bar reference (halves the "
-                                                              "run time)"},
+        "directions": {
+            "help": f"comma list of probes out of {','.join(DIRECTIONS)}",
+            "default_text": default_directions,
+        },
+        "up": {
+            "flags": ("--up", "--up-axis"),
+            "metavar": "UP",
+            "help": "the scene's up direction, rotated to simulation +y: +x, -x, +y, -y, +z, -z or a vector such "
+            f"as 0,-1,0 (COLMAP captures are often -y){auto}",
+        },
+        "scale": {
+            "help": "metres per scene unit, or 'auto': the robust object box's largest extent -> 2 m, the "
+            "paper's domain",
+            "convert": _scale,
+        },
+        "crop": {
+            "metavar": "BOX",
+            "default_text": "keep all",
+            "help": "keep only the Gaussians inside xmin,ymin,zmin,xmax,ymax,zmax (scene units), or 'auto': "
+            "the robust object box grown by 10 %% per side",
+        },
+        "fill_cavities": {
+            "flags": ("--no-fill",),
+            "dest": "no_fill",
+            "negate": True,
+            "default_text": "filled",
+            "help": "keep the solid hollow: do not fill what the Gaussians enclose",
+        },
+        "empty_reference": {
+            "flags": ("--no-empty-reference",),
+            "dest": "no_empty_reference",
+            "negate": True,
+            "default_text": "run it",
+            "help": "skip the empty-scene D-bar reference (halves the run time)",
+        },
     }
 
 
@@ -67,16 +95,20 @@ def add_frame_arguments(g, cameras: bool = False, scale: bool = True, crop: bool
     add_config_options(g, config, names, probe_overrides(cameras=cameras))
 
 
-def add_physics_arguments(p: argparse.ArgumentParser, track_distinct: bool = False,
-                          empty_reference: bool = True, cameras: bool = False) -> None:
+def add_physics_arguments(
+    p: argparse.ArgumentParser, track_distinct: bool = False, empty_reference: bool = True, cameras: bool = False
+) -> None:
     """The probe options shared by simulate, score, sweep, critical and bench score, generated from
     :class:`nbv.physics.PhysicsConfig` (``empty_reference``: offer --no-empty-reference)."""
     config, quick = physics_config_class()
     over = probe_overrides("-x" if track_distinct else "all five", cameras)
     g = p.add_argument_group("probes")
-    g.add_argument("--quick", action="store_true",
-                   help=f"quick preset: r = {quick['particle_radius']} m and {quick['steps']} steps per probe (unless "
-                        "given explicitly; default: the paper's)")
+    g.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"quick preset: r = {quick['particle_radius']} m and {quick['steps']} steps per probe (unless "
+        "given explicitly; default: the paper's)",
+    )
     add_config_options(g, config, PROBE_FIELDS, over, presets={"--quick": quick})
     add_config_options(g, config, FRAME_FIELDS + SOLID_FIELDS, over)
     add_config_options(g, config, RUN_FIELDS if empty_reference else RUN_FIELDS[1:], over)
@@ -87,14 +119,23 @@ def add_runtime_arguments(p, threads_help: str = "CPU threads", device_help: str
     """--device (cpu or cuda; cuda falls back to cpu with a logged warning) and --threads (>= 1)."""
     from ..runtime import thread_count
 
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help=f"{device_help}; cuda falls back to cpu with a logged warning when unavailable "
-                        "(default: cpu)")
+    p.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help=f"{device_help}; cuda falls back to cpu with a logged warning when unavailable (default: cpu)",
+    )
     p.add_argument("--threads", type=thread_count, default=None, help=f"{threads_help} (default: all cores)")
 
 
-def physics_config_from_args(args: argparse.Namespace, track_distinct: bool = False, default_directions=None,
-                             cameras=None, preset: Mapping[str, Any] | None = None, **extra):
+def physics_config_from_args(
+    args: argparse.Namespace,
+    track_distinct: bool = False,
+    default_directions=None,
+    cameras=None,
+    preset: Mapping[str, Any] | None = None,
+    **extra,
+):
     """A validated :class:`nbv.physics.PhysicsConfig` from the probe options (``cameras`` for ``--up auto``;
     ``preset``: values under the options', by default :data:`nbv.physics.QUICK` with ``--quick``; ``extra``: fields
     the command sets itself). Options the parser lacks keep the dataclass default."""
@@ -127,12 +168,16 @@ def up_from_args(args: argparse.Namespace, cameras=None):
         parse_up(up)  # the error names --up
         return up
     if orbit_count(getattr(args, "cameras", None) or "") is not None:
-        raise ValueError("--up auto takes the up direction from a camera file, and --cameras orbit:N builds its "
-                         "cameras around --up; give the up direction (--up -y for a y-down COLMAP capture, --up +z "
-                         "for a z-up scene)")
+        raise ValueError(
+            "--up auto takes the up direction from a camera file, and --cameras orbit:N builds its "
+            "cameras around --up; give the up direction (--up -y for a y-down COLMAP capture, --up +z "
+            "for a z-up scene)"
+        )
     if not cameras:
-        raise ValueError("--up auto takes the up direction from cameras, and this command has none; give the up "
-                         "direction (--up -y for a y-down COLMAP capture, --up +z for a z-up scene)")
+        raise ValueError(
+            "--up auto takes the up direction from cameras, and this command has none; give the up "
+            "direction (--up -y for a y-down COLMAP capture, --up +z for a z-up scene)"
+        )
     from recon.frames import up_from_cameras
 
     vector = up_from_cameras(cameras)
@@ -143,14 +188,27 @@ def up_from_args(args: argparse.Namespace, cameras=None):
 def add_record_arguments(p: argparse.ArgumentParser) -> None:
     """--record-probe, --record-every, --record-max-gb: keep probes' fluid in RESULT.h5 for `fluidgs view`."""
     g = p.add_argument_group("trajectories (for `fluidgs view`)")
-    g.add_argument("--record-probe", default=None, metavar="DIRS",
-                   help="record these probes' fluid (positions, D_i, speed) every --record-every steps into RESULT.h5, "
-                        "to replay them in `fluidgs view`: a probe (-x) or a comma list (default: none; the file stays "
-                        "small)")
-    g.add_argument("--record-every", type=int, default=10, metavar="K",
-                   help="steps between recorded frames (default: 10); each frame costs 24 bytes per fluid particle")
-    g.add_argument("--record-max-gb", type=float, default=2.0,
-                   help="refuse, before simulating, a recording larger than this in GiB (default: 2)")
+    g.add_argument(
+        "--record-probe",
+        default=None,
+        metavar="DIRS",
+        help="record these probes' fluid (positions, D_i, speed) every --record-every steps into RESULT.h5, "
+        "to replay them in `fluidgs view`: a probe (-x) or a comma list (default: none; the file stays "
+        "small)",
+    )
+    g.add_argument(
+        "--record-every",
+        type=int,
+        default=10,
+        metavar="K",
+        help="steps between recorded frames (default: 10); each frame costs 24 bytes per fluid particle",
+    )
+    g.add_argument(
+        "--record-max-gb",
+        type=float,
+        default=2.0,
+        help="refuse, before simulating, a recording larger than this in GiB (default: 2)",
+    )
 
 
 def record_config_from_args(args: argparse.Namespace, config):
@@ -173,9 +231,11 @@ def record_config_from_args(args: argparse.Namespace, config):
     return record
 
 
-CAMERAS_HELP = ("candidate cameras, in the Gaussians' frame: orbit:N (N cameras on rings around the robust object "
-                "box, looking at its centre with --up up; see --elevations), a transforms.json (Blender / NeRF / "
-                "nerfstudio), a COLMAP model folder (sparse/0, or a folder holding it) or graphdeco's cameras.json")
+CAMERAS_HELP = (
+    "candidate cameras, in the Gaussians' frame: orbit:N (N cameras on rings around the robust object "
+    "box, looking at its centre with --up up; see --elevations), a transforms.json (Blender / NeRF / "
+    "nerfstudio), a COLMAP model folder (sparse/0, or a folder holding it) or graphdeco's cameras.json"
+)
 
 
 def add_orbit_arguments(p) -> None:
@@ -183,12 +243,21 @@ def add_orbit_arguments(p) -> None:
     from recon.camera_paths import ORBIT_ELEVATIONS_DEG, ORBIT_FOV_X_DEG
 
     default = ",".join(f"{e:g}" for e in ORBIT_ELEVATIONS_DEG)
-    p.add_argument("--elevations", default=None, metavar="DEGREES",
-                   help="orbit:N only: comma list of ring elevations above the horizon, degrees in (-90, 90); the N "
-                        f"cameras are split over the rings (default: {default})")
-    p.add_argument("--orbit-fov", type=float, default=None, metavar="DEGREES",
-                   help="orbit:N only: horizontal field of view in degrees; the cameras stand back until the object's "
-                        f"bounding sphere fills the narrower field of view (default: {ORBIT_FOV_X_DEG:g})")
+    p.add_argument(
+        "--elevations",
+        default=None,
+        metavar="DEGREES",
+        help="orbit:N only: comma list of ring elevations above the horizon, degrees in (-90, 90); the N "
+        f"cameras are split over the rings (default: {default})",
+    )
+    p.add_argument(
+        "--orbit-fov",
+        type=float,
+        default=None,
+        metavar="DEGREES",
+        help="orbit:N only: horizontal field of view in degrees; the cameras stand back until the object's "
+        f"bounding sphere fills the narrower field of view (default: {ORBIT_FOV_X_DEG:g})",
+    )
 
 
 def add_camera_arguments(p: argparse.ArgumentParser) -> None:
@@ -196,12 +265,19 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     and critical."""
     p.add_argument("--cameras", required=True, metavar="CAMERAS", help=f"{CAMERAS_HELP} (required)")
     add_orbit_arguments(p)
-    p.add_argument("--res", type=int, default=None,
-                   help="image width in pixels when the cameras file gives no w/h and no images (height from the "
-                        "aspect of w/h when known, else square)")
-    p.add_argument("--render-width", type=int, default=320,
-                   help="render (and weight) at most this width in pixels; the weights pi R^2/(HW) barely change "
-                        "with resolution")
+    p.add_argument(
+        "--res",
+        type=int,
+        default=None,
+        help="image width in pixels when the cameras file gives no w/h and no images (height from the "
+        "aspect of w/h when known, else square)",
+    )
+    p.add_argument(
+        "--render-width",
+        type=int,
+        default=320,
+        help="render (and weight) at most this width in pixels; the weights pi R^2/(HW) barely change with resolution",
+    )
     p.add_argument("--candidates", default=None, help="comma list of camera indices to score (default: all)")
 
 
@@ -216,8 +292,10 @@ def orbit_from_args(args: argparse.Namespace, width: int):
     if count is None:
         given = [o for o, v in (("--elevations", args.elevations), ("--orbit-fov", args.orbit_fov)) if v is not None]
         if given:
-            raise ValueError(f"{' and '.join(given)} shape the cameras of --cameras orbit:N, and --cameras is "
-                             f"{args.cameras or 'not given'}; drop {' and '.join(given)} or pass --cameras orbit:N")
+            raise ValueError(
+                f"{' and '.join(given)} shape the cameras of --cameras orbit:N, and --cameras is "
+                f"{args.cameras or 'not given'}; drop {' and '.join(given)} or pass --cameras orbit:N"
+            )
         return None
     values = {"width": width}
     if args.elevations is not None:
@@ -242,8 +320,11 @@ def orbit_cameras_logged(gaussians, config, orbit):
     from nbv.physics.scene_frame import parse_up, up_label
 
     cams = orbit_cameras(gaussians, config, orbit)
-    logging.getLogger("fluidgs").info("cameras: %s around the robust object box, up %s (`fluidgs cameras` writes "
-                                      "them as a transforms.json)", orbit.describe(), up_label(parse_up(config.up)))
+    logging.getLogger("fluidgs").info(
+        "cameras: %s around the robust object box, up %s (`fluidgs cameras` writes them as a transforms.json)",
+        orbit.describe(),
+        up_label(parse_up(config.up)),
+    )
     return cams
 
 
@@ -253,8 +334,10 @@ UP_DISAGREES_DEG = 60.0  # warn when --up is further than this from the cameras'
 
 def frame_hint() -> str:
     """The one line said when --up is not given: the up assumed, and the usual fix for COLMAP captures."""
-    return ("frame: no --up given, so the file's +y axis is taken as up (the top probe falls along -y); COLMAP "
-            "captures are usually y-down: pass --up -y for them (`fluidgs inspect --png` shows which way is up)")
+    return (
+        "frame: no --up given, so the file's +y axis is taken as up (the top probe falls along -y); COLMAP "
+        "captures are usually y-down: pass --up -y for them (`fluidgs inspect --png` shows which way is up)"
+    )
 
 
 def check_up_against_cameras(up, cameras, what: str = "the cameras") -> str | None:
@@ -270,9 +353,11 @@ def check_up_against_cameras(up, cameras, what: str = "the cameras") -> str | No
         return None
     angle, mean = found
     axis, off = nearest_axis(mean)
-    return (f"the up direction {up_label(u)} is {angle:.0f} deg from {what}' mean up ({up_label(mean)}, {off:.0f} deg "
-            f"from {axis}): the capture would be simulated {'upside down' if angle > 120 else 'on its side'}; pass "
-            f"--up {axis} (or --up auto to take the cameras' mean up)")
+    return (
+        f"the up direction {up_label(u)} is {angle:.0f} deg from {what}' mean up ({up_label(mean)}, {off:.0f} deg "
+        f"from {axis}): the capture would be simulated {'upside down' if angle > 120 else 'on its side'}; pass "
+        f"--up {axis} (or --up auto to take the cameras' mean up)"
+    )
 
 
 def warn_frame(config, cameras=None, up_given: bool = True, what: str = "the cameras") -> None:
@@ -306,21 +391,37 @@ def result_overridden_options(args: argparse.Namespace) -> list[str]:
     if getattr(args, "fill_cavities", False):
         given.append("--fill-cavities")
     return given
+
+
 # ---- inputs and outputs named on the command line --------------------------------------------------------------
 def add_gaussian_file_arguments(p: argparse.ArgumentParser) -> None:
     """--spz-frame, --colmap and --dataparser-transforms: what a Gaussian file's content cannot say
     (:class:`recon.formats.LoadOptions`)."""
     g = p.add_argument_group("Gaussian file")
-    g.add_argument("--spz-frame", choices=("rub", "ply"), default="rub",
-                   help="what an .spz stores: 'rub', Niantic's right-up-back, turned half a turn about x to the .ply "
-                        "frame, or 'ply', the .ply frame as splat-transform and SuperSplat write it (default: rub)")
-    g.add_argument("--colmap", type=Path, default=None, metavar="DIR",
-                   help="for a gsplat checkpoint: the COLMAP model it was trained on (sparse/0 or its parent); its "
-                        "normalisation is recomputed and undone, so sizes are in scene units (default: none, the "
-                        "trainer's normalised units, with a warning)")
-    g.add_argument("--dataparser-transforms", type=Path, default=None, metavar="FILE",
-                   help="for a nerfstudio checkpoint: its dataparser_transforms.json, undone so sizes are in scene "
-                        "units (default: the one beside the run's config.yml)")
+    g.add_argument(
+        "--spz-frame",
+        choices=("rub", "ply"),
+        default="rub",
+        help="what an .spz stores: 'rub', Niantic's right-up-back, turned half a turn about x to the .ply "
+        "frame, or 'ply', the .ply frame as splat-transform and SuperSplat write it (default: rub)",
+    )
+    g.add_argument(
+        "--colmap",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="for a gsplat checkpoint: the COLMAP model it was trained on (sparse/0 or its parent); its "
+        "normalisation is recomputed and undone, so sizes are in scene units (default: none, the "
+        "trainer's normalised units, with a warning)",
+    )
+    g.add_argument(
+        "--dataparser-transforms",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="for a nerfstudio checkpoint: its dataparser_transforms.json, undone so sizes are in scene "
+        "units (default: the one beside the run's config.yml)",
+    )
 
 
 def load_gaussians_checked(path, args=None):
@@ -333,8 +434,11 @@ def load_gaussians_checked(path, args=None):
 
     # a folder passes: recon.formats says it is a folder
     check_input_file(path, "Gaussian file", f"pass a Gaussian file ({SUPPORTED})", folder_ok=True)
-    options = LoadOptions(spz_frame=getattr(args, "spz_frame", None) or "rub", colmap=getattr(args, "colmap", None),
-                          dataparser_transforms=getattr(args, "dataparser_transforms", None))
+    options = LoadOptions(
+        spz_frame=getattr(args, "spz_frame", None) or "rub",
+        colmap=getattr(args, "colmap", None),
+        dataparser_transforms=getattr(args, "dataparser_transforms", None),
+    )
     gaussians, fmt, frame = load_gaussians_framed(path, options)
     if fmt in ("spz", "checkpoint") and frame.metric:
         logging.getLogger(__name__).info("%s", frame.description)
@@ -354,8 +458,18 @@ def check_output_file(path, suffixes: tuple[str, ...]):
 
 # The files of a dataset folder that loading reads (cameras, points, normalisation), at the top, in sparse/ and in
 # sparse/0/: no output may overwrite them. Images are left out: no command that reads a dataset writes images.
-DATASET_FILES = ("transforms_*.json", "dataset.json", "mesh.ply", "cameras.txt", "cameras.bin", "images.txt",
-                 "images.bin", "points3D.txt", "points3D.bin", "points3D.ply")
+DATASET_FILES = (
+    "transforms_*.json",
+    "dataset.json",
+    "mesh.ply",
+    "cameras.txt",
+    "cameras.bin",
+    "images.txt",
+    "images.bin",
+    "points3D.txt",
+    "points3D.bin",
+    "points3D.ply",
+)
 
 
 def dataset_inputs(dataset) -> list[tuple[str, Path]]:
@@ -364,8 +478,13 @@ def dataset_inputs(dataset) -> list[tuple[str, Path]]:
     root = Path(dataset)
     if root.is_file():
         return [("DATASET file", root)]
-    return [("DATASET file", f) for folder in (root, root / "sparse", root / "sparse" / "0") if folder.is_dir()
-            for pattern in DATASET_FILES for f in sorted(folder.glob(pattern))]
+    return [
+        ("DATASET file", f)
+        for folder in (root, root / "sparse", root / "sparse" / "0")
+        if folder.is_dir()
+        for pattern in DATASET_FILES
+        for f in sorted(folder.glob(pattern))
+    ]
 
 
 def save_diverged(exc, path: Path | None) -> int:
@@ -387,19 +506,27 @@ def save_diverged(exc, path: Path | None) -> int:
 # ---- visibility of the Gaussians in a candidate view (score, critical, active) -----------------------------------
 def add_visibility_arguments(p) -> None:
     """--frustum-only (the paper's visibility) and --occlusion (the depth test, now the default; kept for scripts)."""
-    p.add_argument("--frustum-only", action="store_true",
-                   help="count every Gaussian inside the view's frustum, hidden or not: the paper's visibility, for "
-                        "replication (default: off, the depth test counts only the Gaussians not hidden behind "
-                        "others: a coarse depth buffer of the projected centres; the active loop's paper preset "
-                        "keeps the frustum)")
-    p.add_argument("--occlusion", action="store_true",
-                   help="count only the Gaussians the depth test finds unhidden; accepted for old scripts, as it is "
-                        "what happens without --frustum-only (default: on unless --frustum-only)")
+    p.add_argument(
+        "--frustum-only",
+        action="store_true",
+        help="count every Gaussian inside the view's frustum, hidden or not: the paper's visibility, for "
+        "replication (default: off, the depth test counts only the Gaussians not hidden behind "
+        "others: a coarse depth buffer of the projected centres; the active loop's paper preset "
+        "keeps the frustum)",
+    )
+    p.add_argument(
+        "--occlusion",
+        action="store_true",
+        help="count only the Gaussians the depth test finds unhidden; accepted for old scripts, as it is "
+        "what happens without --frustum-only (default: on unless --frustum-only)",
+    )
 
 
 def check_visibility_arguments(args: argparse.Namespace) -> None:
     """ValueError (exit 2) for --frustum-only with --occlusion, which ask for two visibilities."""
     if getattr(args, "frustum_only", False) and getattr(args, "occlusion", False):
-        raise ValueError("--frustum-only (the paper's visibility) and --occlusion (the depth test) ask for two "
-                         "visibilities; drop --occlusion for the paper's, or --frustum-only for the depth test (the "
-                         "default)")
+        raise ValueError(
+            "--frustum-only (the paper's visibility) and --occlusion (the depth test) ask for two "
+            "visibilities; drop --occlusion for the paper's, or --frustum-only for the depth test (the "
+            "default)"
+        )

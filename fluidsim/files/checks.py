@@ -34,11 +34,14 @@ def _check_name_lengths(p: Path, folder: Path) -> None:
         name_max, path_max = 255, 4096
     for part in p.absolute().parts[1:]:
         if len(os.fsencode(part)) > name_max:
-            raise OutputError(f"output path {p}: the name {part[:40]}... is {len(os.fsencode(part))} bytes, longer "
-                              f"than the {name_max} bytes this file system allows; choose a shorter name")
+            raise OutputError(
+                f"output path {p}: the name {part[:40]}... is {len(os.fsencode(part))} bytes, longer "
+                f"than the {name_max} bytes this file system allows; choose a shorter name"
+            )
     if len(os.fsencode(str(p.absolute()))) >= path_max:
-        raise OutputError(f"output path {p} is longer than the {path_max} bytes this system allows; choose a "
-                          "shorter path")
+        raise OutputError(
+            f"output path {p} is longer than the {path_max} bytes this system allows; choose a shorter path"
+        )
 
 
 def check_writable(path: PathLike) -> Path:
@@ -56,8 +59,9 @@ def check_writable(path: PathLike) -> Path:
     parent = p.parent if str(p.parent) else Path(".")
     blocker = _first_existing(parent)
     if not blocker.is_dir():
-        raise OutputError(f"output path {p}: {blocker} is a file, not a folder; choose an output path whose "
-                          "folders are folders")
+        raise OutputError(
+            f"output path {p}: {blocker} is a file, not a folder; choose an output path whose folders are folders"
+        )
     _check_name_lengths(p, blocker)
     if not parent.exists():
         missing = [parent, *[q for q in parent.parents if not q.exists()]]
@@ -74,8 +78,9 @@ def check_writable(path: PathLike) -> Path:
         fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     except OSError as exc:
         untrack_temp(probe)
-        raise OutputError(f"output folder {parent} is not writable ({exc.strerror}); choose another output "
-                          "path") from exc
+        raise OutputError(
+            f"output folder {parent} is not writable ({exc.strerror}); choose another output path"
+        ) from exc
     os.close(fd)
     probe.unlink()
     untrack_temp(probe)
@@ -102,10 +107,13 @@ def input_problem(path: PathLike, folder_ok: bool = False) -> str | None:
         return f"cannot be read ({exc.strerror})"
     if stat.S_ISREG(mode) or (folder_ok and stat.S_ISDIR(mode)):
         return None
-    kinds = ((stat.S_ISDIR, "is a folder, not a file"),
-             (stat.S_ISFIFO, "is a FIFO (named pipe), not a file: reading it would wait for a writer"),
-             (stat.S_ISCHR, "is a character device (such as /dev/zero), not a file"),
-             (stat.S_ISBLK, "is a block device, not a file"), (stat.S_ISSOCK, "is a socket, not a file"))
+    kinds = (
+        (stat.S_ISDIR, "is a folder, not a file"),
+        (stat.S_ISFIFO, "is a FIFO (named pipe), not a file: reading it would wait for a writer"),
+        (stat.S_ISCHR, "is a character device (such as /dev/zero), not a file"),
+        (stat.S_ISBLK, "is a block device, not a file"),
+        (stat.S_ISSOCK, "is a socket, not a file"),
+    )
     return next((text for test, text in kinds if test(mode)), "is not a regular file")
 
 
@@ -160,12 +168,21 @@ def check_not_input(outputs: Labelled, inputs: Labelled, replaced: Labelled | No
     for olabel, out in _pairs(outputs):
         for ilabel, inp in ins:
             if same_file(out, inp):
-                how = (" (a hard link to the same file)" if os.path.realpath(out) != os.path.realpath(inp) else
-                       " (through a symbolic link)" if os.path.abspath(out) != os.path.abspath(inp) else "")
-                raise ValueError(f"{olabel} {out} is the input {ilabel} {inp}{how}: writing it would destroy the "
-                                 f"input; choose another output path for {olabel}")
+                how = (
+                    " (a hard link to the same file)"
+                    if os.path.realpath(out) != os.path.realpath(inp)
+                    else " (through a symbolic link)"
+                    if os.path.abspath(out) != os.path.abspath(inp)
+                    else ""
+                )
+                raise ValueError(
+                    f"{olabel} {out} is the input {ilabel} {inp}{how}: writing it would destroy the "
+                    f"input; choose another output path for {olabel}"
+                )
     for olabel, folder in _pairs(replaced):
         for ilabel, inp in ins:
             if _inside(inp, folder):
-                raise ValueError(f"{olabel} {folder} would be replaced, but the input {ilabel} {inp} lies inside "
-                                 f"it; choose another output folder for {olabel} or move the input out")
+                raise ValueError(
+                    f"{olabel} {folder} would be replaced, but the input {ilabel} {inp} lies inside "
+                    f"it; choose another output folder for {olabel} or move the input out"
+                )

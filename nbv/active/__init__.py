@@ -1,13 +1,25 @@
-"""The active-reconstruction loop: its config and the run (train, plan, add a view, repeat).
-"""
+"""The active-reconstruction loop: its config and the run (train, plan, add a view, repeat)."""
 
 from fluidsim.lazy import lazy_exports
 
 _EXPORTS = {
     **dict.fromkeys(("CHECKPOINT_VERSION", "MODES", "PRESETS", "RUN_FILES", "ActiveConfig"), "config"),
-    **dict.fromkeys(("ActiveRun", "RunState", "anchor_direction", "biased_initial_views", "config_differences",
-                     "dataset_up", "is_empty_solid", "load_active_dataset", "planner_seed", "prepare_run_dir",
-                     "run_active"), "loop"),
+    **dict.fromkeys(
+        (
+            "ActiveRun",
+            "RunState",
+            "anchor_direction",
+            "biased_initial_views",
+            "config_differences",
+            "dataset_up",
+            "is_empty_solid",
+            "load_active_dataset",
+            "planner_seed",
+            "prepare_run_dir",
+            "run_active",
+        ),
+        "loop",
+    ),
 }
 __all__ = sorted(_EXPORTS)
 

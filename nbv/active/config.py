@@ -28,14 +28,28 @@ RUN_FILES = ("config.json", "rounds.json", "checkpoint.pt", "gaussians.ply", "ev
 # they fall every 100 iterations, and a selection right after one sees an almost transparent reconstruction with no
 # solid for the probes.
 PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {"resolution": None, "total_iterations": 30000, "iterations_per_view": 100, "occlusion": False,
-              "train": {}, "physics": {}},
-    "cpu-small": {"resolution": 64, "total_iterations": 1000, "iterations_per_view": 10,
-                  "train": {"init_points": 1000, "sh_degree": 1, "max_gaussians": 4000, "densify_from_iter": 0,
-                            "opacity_reset_interval": 1000000},
-                  "physics": {"particle_radius": 0.05, "steps": 150, "empty_reference": False}},
+    "paper": {
+        "resolution": None,
+        "total_iterations": 30000,
+        "iterations_per_view": 100,
+        "occlusion": False,
+        "train": {},
+        "physics": {},
+    },
+    "cpu-small": {
+        "resolution": 64,
+        "total_iterations": 1000,
+        "iterations_per_view": 10,
+        "train": {
+            "init_points": 1000,
+            "sh_degree": 1,
+            "max_gaussians": 4000,
+            "densify_from_iter": 0,
+            "opacity_reset_interval": 1000000,
+        },
+        "physics": {"particle_radius": 0.05, "steps": 150, "empty_reference": False},
+    },
 }
-
 
 
 @dataclass(frozen=True)
@@ -92,15 +106,22 @@ class ActiveConfig:
                 object.__setattr__(self, "up", tuple(float(c) for c in self.up))
         if not isinstance(self.method, str) or not self.method:
             raise ValueError(f"ActiveConfig.method must be a planner name, got {self.method!r}")
-        for name, low in (("budget", 1), ("initial_count", 1), ("iterations_per_view", 0), ("total_iterations", 1),
-                          ("seed", 0)):
+        for name, low in (
+            ("budget", 1),
+            ("initial_count", 1),
+            ("iterations_per_view", 0),
+            ("total_iterations", 1),
+            ("seed", 0),
+        ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:
                 raise ValueError(f"ActiveConfig.{name} must be an integer >= {low}, got {v!r}")
         for name, high in (("budget", MAX_VIEWS), ("initial_count", MAX_VIEWS), ("seed", MAX_SEED)):
             if getattr(self, name) > high:
-                raise ValueError(f"ActiveConfig.{name} must be at most {high:,}, got {getattr(self, name):,}; "
-                                 "a view count is at most the dataset's candidate views")
+                raise ValueError(
+                    f"ActiveConfig.{name} must be at most {high:,}, got {getattr(self, name):,}; "
+                    "a view count is at most the dataset's candidate views"
+                )
         if self.initial_ids is not None:
             if isinstance(self.initial_ids, (str, bytes)) or len(self.initial_ids) > MAX_VIEWS:
                 raise ValueError(f"ActiveConfig.initial_ids must be a list of at most {MAX_VIEWS:,} view indices")
@@ -110,18 +131,21 @@ class ActiveConfig:
             object.__setattr__(self, "initial_ids", ids)
             object.__setattr__(self, "initial_count", len(ids))
         if self.initial_count > self.budget:
-            raise ValueError(f"ActiveConfig.initial_count ({self.initial_count}) must not exceed the budget "
-                             f"({self.budget})")
+            raise ValueError(
+                f"ActiveConfig.initial_count ({self.initial_count}) must not exceed the budget ({self.budget})"
+            )
         if self.initial_direction is not None:
             d = tuple(float(v) for v in self.initial_direction)
             if len(d) != 3 or not all(math.isfinite(v) for v in d) or math.hypot(*d) == 0:
-                raise ValueError(f"ActiveConfig.initial_direction must be a non-zero (x, y, z), "
-                                 f"got {self.initial_direction!r}")
+                raise ValueError(
+                    f"ActiveConfig.initial_direction must be a non-zero (x, y, z), got {self.initial_direction!r}"
+                )
             object.__setattr__(self, "initial_direction", d)
         if self.mode not in MODES:
             raise ValueError(f"ActiveConfig.mode must be one of {MODES}, got {self.mode!r}")
-        if self.resolution is not None and (isinstance(self.resolution, bool) or not isinstance(self.resolution, int)
-                                            or self.resolution < 8):
+        if self.resolution is not None and (
+            isinstance(self.resolution, bool) or not isinstance(self.resolution, int) or self.resolution < 8
+        ):
             raise ValueError(f"ActiveConfig.resolution must be None or a width >= 8 pixels, got {self.resolution!r}")
         if not isinstance(self.physics, PhysicsConfig):
             raise ValueError(f"ActiveConfig.physics must be a PhysicsConfig, got {type(self.physics).__name__}")
@@ -133,9 +157,11 @@ class ActiveConfig:
         if bad:
             raise ValueError(f"ActiveConfig.train: unknown TrainConfig keys {bad}")
         if self.mode == "continue" and self.schedule_iterations() > self.total_iterations:
-            raise ValueError(f"ActiveConfig.total_iterations ({self.total_iterations}) is below the iterations of the "
-                             f"selection rounds ({self.schedule_iterations()} = iterations_per_view x sum of "
-                             f"n_selected); raise total_iterations or lower iterations_per_view")
+            raise ValueError(
+                f"ActiveConfig.total_iterations ({self.total_iterations}) is below the iterations of the "
+                f"selection rounds ({self.schedule_iterations()} = iterations_per_view x sum of "
+                f"n_selected); raise total_iterations or lower iterations_per_view"
+            )
         self.train_config(self.total_iterations)  # validates the overrides now
 
     @classmethod

@@ -77,7 +77,6 @@ from recon.train import Trainer, initial_gaussians, look_at_point, scene_extent,
 log = logging.getLogger(__name__)
 
 
-
 # ---- initial views and seeds -------------------------------------------------------------------------
 def anchor_direction(seed: int) -> torch.Tensor:
     """[3] float64 unit vector drawn from ``seed`` (normalised Gaussian sample)."""
@@ -86,9 +85,9 @@ def anchor_direction(seed: int) -> torch.Tensor:
     return v / v.norm()
 
 
-
-def biased_initial_views(cameras: Sequence, count: int, seed: int = 0,
-                         direction: Sequence[float] | None = None) -> list[int]:
+def biased_initial_views(
+    cameras: Sequence, count: int, seed: int = 0, direction: Sequence[float] | None = None
+) -> list[int]:
     """Biased initial views: the camera closest to an anchor direction, then its nearest neighbours.
 
     Args:
@@ -104,16 +103,18 @@ def biased_initial_views(cameras: Sequence, count: int, seed: int = 0,
         raise ValueError(f"initial views: need 1 <= count <= {len(cameras)} candidates, got {count}")
     centres = torch.stack([c.center for c in cameras]).to(torch.float64)
     target = look_at_point(cameras)
-    d = anchor_direction(seed) if direction is None else torch.tensor([float(v) for v in direction],
-                                                                      dtype=torch.float64)
+    d = (
+        anchor_direction(seed)
+        if direction is None
+        else torch.tensor([float(v) for v in direction], dtype=torch.float64)
+    )
     d = d / d.norm()
     dirs = centres - target
     cos = (dirs @ d) / dirs.norm(dim=-1).clamp_min(1e-12)
     first = int(torch.argsort(-cos, stable=True)[0])
     dist = (centres - centres[first]).norm(dim=-1)
     order = torch.argsort(dist, stable=True).tolist()
-    return [first] + [i for i in order if i != first][:count - 1]
-
+    return [first] + [i for i in order if i != first][: count - 1]
 
 
 def is_empty_solid(exc: ValueError) -> bool:
@@ -122,14 +123,13 @@ def is_empty_solid(exc: ValueError) -> bool:
     return "the solid is " in str(exc)
 
 
-
 def planner_seed(seed: int, round_index: int) -> int:
     """The planner seed of one selection round (planners are rebuilt each round; see the module docstring)."""
     return int(seed) * 1000 + int(round_index)
 
 
-
 # ---- the loop ----------------------------------------------------------------------------------------
+
 
 def pick_parts(context: PlanningContext, pick: int, fields: ProbeFields | None) -> dict:
     """Coverage beside a pick: every candidate's coverage A(T) = sum of w_g over the Gaussians it counts (with the
@@ -147,9 +147,11 @@ def pick_parts(context: PlanningContext, pick: int, fields: ProbeFields | None) 
     d = ones if fields is None else torch.as_tensor(fields.per_probe, dtype=torch.float64).amax(0).cpu()
     scored = scores.projected_view_scores(d, g, list(context.candidates), depth_buffer=buffer)
     parts = view_parts(scored.scores.numpy(), scored.coverage.numpy())
-    out: dict[str, Any] = {"occlusion": bool(context.occlusion),
-                           "coverage": {i: p["coverage"] for i, p in zip(ids, parts, strict=True)},
-                           "pick_coverage_rank": parts[pick]["coverage_rank"]}
+    out: dict[str, Any] = {
+        "occlusion": bool(context.occlusion),
+        "coverage": {i: p["coverage"] for i, p in zip(ids, parts, strict=True)},
+        "pick_coverage_rank": parts[pick]["coverage_rank"],
+    }
     if fields is not None:
         out["physics_mean"] = {i: p["physics_mean"] for i, p in zip(ids, parts, strict=True)}
         out["pick_physics_rank"] = parts[pick]["physics_rank"]
@@ -165,6 +167,7 @@ def parts_summary(parts: dict) -> str:
         text += f", physics-part rank {parts['pick_physics_rank']}; {coverage_line(parts['agreement'])}"
     return text
 
+
 @dataclass
 class RunState:
     """Progress of a run (what checkpoint.pt holds besides the trainer)."""
@@ -172,7 +175,6 @@ class RunState:
     selected: list[int]
     rounds: list[dict]
     phase: str = "rounds"  # "rounds" while selecting, "final" while training to the end, "done" once written
-
 
 
 def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
@@ -185,7 +187,6 @@ def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
         elif json_safe(a) != json_safe(b):
             out.append(f"{prefix}{key}")
     return out
-
 
 
 def prepare_run_dir(run_dir: Path, run_config: dict, overwrite: bool) -> bool:
@@ -205,8 +206,10 @@ def prepare_run_dir(run_dir: Path, run_config: dict, overwrite: bool) -> bool:
             raise ValueError(f"{cfg_path} is not valid JSON ({exc}); pass --overwrite to start again") from exc
         diff = config_differences(old, json_safe(run_config))
         if diff:
-            raise ValueError(f"{run_dir} holds a run with another config (differing keys: {', '.join(diff)}); "
-                             "use another -o folder, the same options, or --overwrite to start again")
+            raise ValueError(
+                f"{run_dir} holds a run with another config (differing keys: {', '.join(diff)}); "
+                "use another -o folder, the same options, or --overwrite to start again"
+            )
         return (run_dir / "checkpoint.pt").is_file()
     if overwrite:
         for name in RUN_FILES:
@@ -216,10 +219,8 @@ def prepare_run_dir(run_dir: Path, run_config: dict, overwrite: bool) -> bool:
     return False
 
 
-
 def _dataset_run_config(dataset_path: Path, config: ActiveConfig) -> dict:
     return {"dataset": str(Path(dataset_path).resolve()), "active": config.to_dict()}
-
 
 
 def load_active_dataset(dataset_path: str | Path, config: ActiveConfig):
@@ -232,13 +233,15 @@ def load_active_dataset(dataset_path: str | Path, config: ActiveConfig):
     ds = load_dataset(dataset_path, resolution=config.resolution)
     n = len(ds.train)
     if n < config.budget:
-        raise ValueError(f"{dataset_path}: {n} candidate (train) views but the budget is {config.budget}; "
-                         "lower --budget or render more train views")
+        raise ValueError(
+            f"{dataset_path}: {n} candidate (train) views but the budget is {config.budget}; "
+            "lower --budget or render more train views"
+        )
     if config.initial_ids is not None and max(config.initial_ids) >= n:
-        raise ValueError(f"--initial-views {list(config.initial_ids)} out of range: the train split has {n} views "
-                         f"(0..{n - 1})")
+        raise ValueError(
+            f"--initial-views {list(config.initial_ids)} out of range: the train split has {n} views (0..{n - 1})"
+        )
     return ds
-
 
 
 def dataset_up(spec: str | tuple[float, float, float] | None, dataset) -> str | tuple[float, float, float]:
@@ -260,7 +263,6 @@ def dataset_up(spec: str | tuple[float, float, float] | None, dataset) -> str | 
     return tuple(float(c) for c in up)
 
 
-
 class ActiveRun:
     """One active-reconstruction run in a folder: :meth:`run` executes or resumes it.
 
@@ -278,13 +280,25 @@ class ActiveRun:
         progress: tqdm bars.
     """
 
-    def __init__(self, dataset_path: str | Path, run_dir: str | Path, config: ActiveConfig, *,
-                 physics_fn: Callable[[GaussianSet], torch.Tensor] | None = None,
-                 on_round: Callable[[dict], None] | None = None, device: str = "cpu", overwrite: bool = False,
-                 progress: bool = True, final_checkpoint_every: int = 1000,
-                 on_final_checkpoint: Callable[[int], None] | None = None) -> None:
-        if isinstance(final_checkpoint_every, bool) or not isinstance(final_checkpoint_every, int) \
-                or final_checkpoint_every < 1:
+    def __init__(
+        self,
+        dataset_path: str | Path,
+        run_dir: str | Path,
+        config: ActiveConfig,
+        *,
+        physics_fn: Callable[[GaussianSet], torch.Tensor] | None = None,
+        on_round: Callable[[dict], None] | None = None,
+        device: str = "cpu",
+        overwrite: bool = False,
+        progress: bool = True,
+        final_checkpoint_every: int = 1000,
+        on_final_checkpoint: Callable[[int], None] | None = None,
+    ) -> None:
+        if (
+            isinstance(final_checkpoint_every, bool)
+            or not isinstance(final_checkpoint_every, int)
+            or final_checkpoint_every < 1
+        ):
             raise ValueError(f"final_checkpoint_every must be an integer >= 1, got {final_checkpoint_every!r}")
         self.final_checkpoint_every = final_checkpoint_every
         self.on_final_checkpoint = on_final_checkpoint
@@ -306,8 +320,9 @@ class ActiveRun:
         self.extent = scene_extent(self.cameras)
         self.background = torch.tensor(self.dataset.background, dtype=torch.float32, device=device)
         init_cfg = config.train_config(config.total_iterations)
-        self.initial = initial_gaussians(init_cfg, self.cameras, self.dataset.points,
-                                         self.dataset.point_colors).to(device)
+        self.initial = initial_gaussians(init_cfg, self.cameras, self.dataset.points, self.dataset.point_colors).to(
+            device
+        )
 
     # ---- pieces --------------------------------------------------------------------------------
     def initial_ids(self) -> list[int]:
@@ -317,8 +332,13 @@ class ActiveRun:
         return biased_initial_views(self.cameras, c.initial_count, c.seed, c.initial_direction)
 
     def new_trainer(self, iterations: int) -> Trainer:
-        return Trainer(self.initial, self.config.train_config(iterations), extent=self.extent,
-                       data_background=self.dataset.background, backend=self.config.backend)
+        return Trainer(
+            self.initial,
+            self.config.train_config(iterations),
+            extent=self.extent,
+            data_background=self.dataset.background,
+            backend=self.config.backend,
+        )
 
     def _physics(self, record: dict, fields: dict | None = None) -> Callable[[GaussianSet], torch.Tensor]:
         """The context's physics callable; it notes D-bar, per-probe D-bar and the time in ``record``, and puts
@@ -334,8 +354,9 @@ class ActiveRun:
                 return d
 
             try:
-                res = simulate_gaussians(gaussians, self.physics_config, progress=self.progress,
-                                         source=f"round {record['round']}")
+                res = simulate_gaussians(
+                    gaussians, self.physics_config, progress=self.progress, source=f"round {record['round']}"
+                )
             except ValueError as exc:
                 if not is_empty_solid(exc):
                     raise
@@ -346,14 +367,21 @@ class ActiveRun:
                 zeros = torch.zeros(gaussians.num, dtype=torch.float64)
                 store["fields"] = ProbeFields(("none",), zeros.reshape(1, -1), zeros.reshape(1, -1))
                 return zeros
-            store["fields"] = ProbeFields(tuple(res.directions), torch.from_numpy(res.per_probe),
-                                          None if res.empty_per_probe is None
-                                          else torch.from_numpy(res.empty_per_probe))
+            store["fields"] = ProbeFields(
+                tuple(res.directions),
+                torch.from_numpy(res.per_probe),
+                None if res.empty_per_probe is None else torch.from_numpy(res.empty_per_probe),
+            )
             covs = torch.from_numpy(res.covariances)
             record["physics"] = {
-                "seconds": time.perf_counter() - t0, "dbar": res.dbar, "solid_particles": int(len(res.solid)),
-                "dbar_per_direction": {d: scores.geometry_divergence(covs, torch.from_numpy(res.per_probe[i]))
-                                       for i, d in enumerate(res.directions)}}
+                "seconds": time.perf_counter() - t0,
+                "dbar": res.dbar,
+                "solid_particles": int(len(res.solid)),
+                "dbar_per_direction": {
+                    d: scores.geometry_divergence(covs, torch.from_numpy(res.per_probe[i]))
+                    for i, d in enumerate(res.directions)
+                },
+            }
             return torch.from_numpy(res.divergence)
 
         return run
@@ -374,22 +402,34 @@ class ActiveRun:
             return {"iterations": 0, "seconds": 0.0}
         with tqdm(total=iterations, desc=label, unit="it", disable=not self.progress, leave=False) as bar:
             out = trainer.train(views, iterations, callback=lambda st: bar.update(1))
-        return {"iterations": iterations, "seconds": out.wall_time_s, "final_loss": out.losses[-1],
-                "final_psnr": out.psnrs[-1], "num_gaussians": out.num_gaussians[-1]}
+        return {
+            "iterations": iterations,
+            "seconds": out.wall_time_s,
+            "final_loss": out.losses[-1],
+            "final_psnr": out.psnrs[-1],
+            "num_gaussians": out.num_gaussians[-1],
+        }
 
     def _train_final(self, state: RunState, trainer: Trainer, views: list) -> dict:
         """Train to ``total_iterations`` in chunks, with a checkpoint (trainer included) after each chunk."""
         total = self.config.total_iterations
         start = trainer.iteration
         summary: dict[str, Any] = {"iterations": 0, "seconds": 0.0}
-        with tqdm(total=max(total - start, 0), desc="final train", unit="it", disable=not self.progress,
-                  leave=False) as bar:
+        with tqdm(
+            total=max(total - start, 0), desc="final train", unit="it", disable=not self.progress, leave=False
+        ) as bar:
             while trainer.iteration < total:
                 n = min(self.final_checkpoint_every, total - trainer.iteration)
                 out = trainer.train(views, n, callback=lambda st: bar.update(1))
-                summary.update({"iterations": summary["iterations"] + n,
-                                "seconds": summary["seconds"] + out.wall_time_s, "final_loss": out.losses[-1],
-                                "final_psnr": out.psnrs[-1], "num_gaussians": out.num_gaussians[-1]})
+                summary.update(
+                    {
+                        "iterations": summary["iterations"] + n,
+                        "seconds": summary["seconds"] + out.wall_time_s,
+                        "final_loss": out.losses[-1],
+                        "final_psnr": out.psnrs[-1],
+                        "num_gaussians": out.num_gaussians[-1],
+                    }
+                )
                 self._save_checkpoint(state, trainer)
                 if self.on_final_checkpoint is not None:
                     self.on_final_checkpoint(trainer.iteration)
@@ -397,15 +437,27 @@ class ActiveRun:
         return summary
 
     def _save_checkpoint(self, state: RunState, trainer: Trainer | None) -> None:
-        payload = {"version": CHECKPOINT_VERSION, "config": self.config.to_dict(), "selected": list(state.selected),
-                   "rounds": len(state.rounds), "phase": state.phase,
-                   "trainer": None if trainer is None else trainer.state_dict(), "torch_rng": torch.get_rng_state()}
+        payload = {
+            "version": CHECKPOINT_VERSION,
+            "config": self.config.to_dict(),
+            "selected": list(state.selected),
+            "rounds": len(state.rounds),
+            "phase": state.phase,
+            "trainer": None if trainer is None else trainer.state_dict(),
+            "torch_rng": torch.get_rng_state(),
+        }
         write_atomic(self.run_dir / "checkpoint.pt", lambda tmp: torch.save(payload, tmp))
 
     def _write_rounds(self, state: RunState, final: dict | None = None) -> None:
-        data = {"method": self.config.method, "mode": self.config.mode, "budget": self.config.budget,
-                "initial_ids": state.selected[:self.config.initial_count], "selected": list(state.selected),
-                "selected_names": [self.views[i].name for i in state.selected], "rounds": state.rounds}
+        data = {
+            "method": self.config.method,
+            "mode": self.config.mode,
+            "budget": self.config.budget,
+            "initial_ids": state.selected[: self.config.initial_count],
+            "selected": list(state.selected),
+            "selected_names": [self.views[i].name for i in state.selected],
+            "rounds": state.rounds,
+        }
         if final is not None:
             data["final"] = final
         write_json_atomic(self.run_dir / "rounds.json", data)
@@ -413,13 +465,17 @@ class ActiveRun:
     def _load(self) -> tuple[RunState, Trainer | None]:
         ckpt = load_checkpoint(self.run_dir / "checkpoint.pt")
         if ckpt.get("version") != CHECKPOINT_VERSION:
-            raise ValueError(f"{self.run_dir / 'checkpoint.pt'} has checkpoint version {ckpt.get('version')}, "
-                             f"expected {CHECKPOINT_VERSION}; pass --overwrite to start again")
+            raise ValueError(
+                f"{self.run_dir / 'checkpoint.pt'} has checkpoint version {ckpt.get('version')}, "
+                f"expected {CHECKPOINT_VERSION}; pass --overwrite to start again"
+            )
         rounds_path = self.run_dir / "rounds.json"
-        rounds = json.loads(rounds_path.read_text())["rounds"][:ckpt["rounds"]] if rounds_path.is_file() else []
+        rounds = json.loads(rounds_path.read_text())["rounds"][: ckpt["rounds"]] if rounds_path.is_file() else []
         if len(rounds) != ckpt["rounds"]:
-            raise ValueError(f"{rounds_path} has {len(rounds)} rounds but the checkpoint {ckpt['rounds']}; "
-                             "pass --overwrite to start again")
+            raise ValueError(
+                f"{rounds_path} has {len(rounds)} rounds but the checkpoint {ckpt['rounds']}; "
+                "pass --overwrite to start again"
+            )
         torch.set_rng_state(ckpt["torch_rng"])
         trainer = None
         if ckpt["trainer"] is not None:
@@ -434,8 +490,9 @@ class ActiveRun:
         t_start = time.perf_counter()
         stale = remove_stale_temps(self.run_dir)  # left by a run killed at once (SIGKILL): this run owns the folder
         if stale:
-            log.info("%s: removed %d temporary file(s) of an earlier run killed while writing", self.run_dir,
-                     len(stale))
+            log.info(
+                "%s: removed %d temporary file(s) of an earlier run killed while writing", self.run_dir, len(stale)
+            )
         if self.resumable:
             state, trainer = self._load()
             log.info("%s: resuming after %d of %d selections", self.run_dir, len(state.rounds), len(c.rounds()))
@@ -460,22 +517,40 @@ class ActiveRun:
             fields: dict = {}
             physics = self._physics(record, fields)
             context = PlanningContext(
-                gaussians=trainer.gaussians, train_views=train_views, candidates=[self.cameras[i] for i in remaining],
-                candidate_ids=remaining, n_selected=n, budget=c.budget, background=self.background,
-                physics=physics, round=r, occlusion=c.occlusion, probe_fields=self._probe_fields(physics, fields))
+                gaussians=trainer.gaussians,
+                train_views=train_views,
+                candidates=[self.cameras[i] for i in remaining],
+                candidate_ids=remaining,
+                n_selected=n,
+                budget=c.budget,
+                background=self.background,
+                physics=physics,
+                round=r,
+                occlusion=c.occlusion,
+                probe_fields=self._probe_fields(physics, fields),
+            )
             planner = make_planner(c.method, **{**dict(c.planner), "seed": planner_seed(c.seed, r)})
             t_plan = time.perf_counter()
             sel = planner.select(context)
             if not 0 <= sel.pick < len(remaining):
                 raise ValueError(f"planner {c.method!r} picked position {sel.pick} of {len(remaining)} candidates")
             pick = remaining[sel.pick]
-            record.update({
-                "candidates": remaining, "candidate_names": [self.views[i].name for i in remaining],
-                "shortlist": [remaining[p] for p in sel.shortlist], "k": sel.k,
-                "scores": {name: {str(remaining[p]): float(v) for p, v in enumerate(vals)}
-                           for name, vals in sel.scores.items()},
-                "pick": pick, "pick_name": self.views[pick].name, "planner_seconds": dict(sel.seconds),
-                "selection_seconds": time.perf_counter() - t_plan})
+            record.update(
+                {
+                    "candidates": remaining,
+                    "candidate_names": [self.views[i].name for i in remaining],
+                    "shortlist": [remaining[p] for p in sel.shortlist],
+                    "k": sel.k,
+                    "scores": {
+                        name: {str(remaining[p]): float(v) for p, v in enumerate(vals)}
+                        for name, vals in sel.scores.items()
+                    },
+                    "pick": pick,
+                    "pick_name": self.views[pick].name,
+                    "planner_seconds": dict(sel.seconds),
+                    "selection_seconds": time.perf_counter() - t_plan,
+                }
+            )
             record["parts"] = pick_parts(context, sel.pick, fields.get("fields"))
             record["round_seconds"] = time.perf_counter() - t0
             state.selected.append(pick)
@@ -484,9 +559,16 @@ class ActiveRun:
             # _load trims rounds.json to the checkpoint.
             self._write_rounds(state)
             self._save_checkpoint(state, trainer if c.mode == "continue" else None)
-            log.info("round %d/%d: picked %s (%d) from %d candidates in %.1f s; %s", r + 1, len(c.rounds()),
-                     self.views[pick].name, pick, len(remaining), record["round_seconds"],
-                     parts_summary(record["parts"]))
+            log.info(
+                "round %d/%d: picked %s (%d) from %d candidates in %.1f s; %s",
+                r + 1,
+                len(c.rounds()),
+                self.views[pick].name,
+                pick,
+                len(remaining),
+                record["round_seconds"],
+                parts_summary(record["parts"]),
+            )
             if self.on_round is not None:
                 self.on_round(record)
         return self._finish(state, trainer, t_start)
@@ -501,12 +583,15 @@ class ActiveRun:
         gaussians = trainer.gaussians
         save_gaussians(gaussians, self.run_dir / "gaussians.ply")
         state.phase = "done"
-        final = {"training": training, "iterations": trainer.iteration, "num_gaussians": gaussians.num,
-                 "seconds_this_session": time.perf_counter() - t_start}
+        final = {
+            "training": training,
+            "iterations": trainer.iteration,
+            "num_gaussians": gaussians.num,
+            "seconds_this_session": time.perf_counter() - t_start,
+        }
         self._write_rounds(state, final)
         self._save_checkpoint(state, None)
         return json.loads((self.run_dir / "rounds.json").read_text())
-
 
 
 CHECKPOINT_KEYS = frozenset({"version", "config", "selected", "rounds", "phase", "trainer", "torch_rng"})
@@ -527,13 +612,17 @@ def load_checkpoint(path: str | Path) -> dict:
     except pickle.UnpicklingError as exc:
         found = re.search(r"(?:unsupported GLOBAL|Unsupported global:?) ?(?:GLOBAL )?([\w.]+)", str(exc))
         if found:
-            raise ValueError(f"{path} is refused: loading it would call {found.group(1)}, and a checkpoint holds "
-                             f"tensors and plain types only (a planted file could run code); {fix}") from None
-        raise ValueError(f"{path} is not a readable checkpoint (not a torch.save file of tensors and plain "
-                         f"types); {fix}") from None
+            raise ValueError(
+                f"{path} is refused: loading it would call {found.group(1)}, and a checkpoint holds "
+                f"tensors and plain types only (a planted file could run code); {fix}"
+            ) from None
+        raise ValueError(
+            f"{path} is not a readable checkpoint (not a torch.save file of tensors and plain types); {fix}"
+        ) from None
     except (RuntimeError, EOFError, OSError, AttributeError, ValueError) as exc:
-        raise ValueError(f"{path} is not a readable checkpoint ({type(exc).__name__}: {str(exc)[:200]}); "
-                         f"{fix}") from None
+        raise ValueError(
+            f"{path} is not a readable checkpoint ({type(exc).__name__}: {str(exc)[:200]}); {fix}"
+        ) from None
     if not isinstance(ckpt, dict) or not CHECKPOINT_KEYS <= set(ckpt):
         keys = sorted(ckpt) if isinstance(ckpt, dict) else type(ckpt).__name__
         raise ValueError(f"{path} is not a checkpoint of `fluidgs active` (holds {keys}); {fix}")
@@ -549,7 +638,6 @@ def _state_to(state: Any, device: str) -> Any:
     if isinstance(state, torch.Tensor) and state.is_floating_point():
         return state.to(device)
     return state
-
 
 
 def run_active(dataset_path: str | Path, run_dir: str | Path, config: ActiveConfig, **kwargs: Any) -> dict:

@@ -66,6 +66,10 @@ def jittered_to_count(gaussians: GaussianSet, count: int, seed: int) -> Gaussian
     jitter = torch.randn(reps * n, 3, generator=gen, dtype=gaussians.dtype) * gaussians.max_radii()[index, None]
     jitter[:n] = 0.0
     take = slice(0, count)
-    return GaussianSet(gaussians.means[index][take] + jitter[take], gaussians.quats[index][take],
-                       gaussians.log_scales[index][take], gaussians.opacity_logits[index][take],
-                       gaussians.sh[index][take])
+    return GaussianSet(
+        gaussians.means[index][take] + jitter[take],
+        gaussians.quats[index][take],
+        gaussians.log_scales[index][take],
+        gaussians.opacity_logits[index][take],
+        gaussians.sh[index][take],
+    )

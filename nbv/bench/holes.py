@@ -103,8 +103,15 @@ class Hole:
         return slab & (r >= edge) & (r < edge + self.band)
 
 
-def surface_point(means: np.ndarray, opacities: np.ndarray, side: np.ndarray, height: float,
-                  lateral: float = 0.0, tube: float = 0.04, shell: float = 0.05) -> np.ndarray:
+def surface_point(
+    means: np.ndarray,
+    opacities: np.ndarray,
+    side: np.ndarray,
+    height: float,
+    lateral: float = 0.0,
+    tube: float = 0.04,
+    shell: float = 0.05,
+) -> np.ndarray:
     """The outer surface of the object on ``side`` at simulation height ``height``.
 
     The centres (o_g >= 0.05) within ``tube`` of the horizontal line through (lateral offset, height) along ``side``
@@ -129,9 +136,11 @@ def surface_point(means: np.ndarray, opacities: np.ndarray, side: np.ndarray, he
     along, across = m @ u, m @ w
     sel = (np.abs(m[:, 1] - height) < tube) & (np.abs(across - lateral) < tube) & (np.asarray(opacities) >= 0.05)
     if not sel.any():
-        raise ValueError(f"no Gaussian centre within {tube} m of the line at height {height} m, lateral {lateral} m "
-                         f"along {u.round(3).tolist()}: choose a height inside the object (sim y "
-                         f"{m[:, 1].min():.2f} - {m[:, 1].max():.2f} m)")
+        raise ValueError(
+            f"no Gaussian centre within {tube} m of the line at height {height} m, lateral {lateral} m "
+            f"along {u.round(3).tolist()}: choose a height inside the object (sim y "
+            f"{m[:, 1].min():.2f} - {m[:, 1].max():.2f} m)"
+        )
     outer = sel & (along >= along[sel].max() - shell)
     return np.median(m[outer], axis=0)
 
@@ -145,8 +154,10 @@ def surface_normal(means: np.ndarray, point: np.ndarray, outward: np.ndarray, ra
     m = np.asarray(means, np.float64)
     near = m[np.linalg.norm(m - np.asarray(point), axis=1) < radius]
     if len(near) < 3:
-        raise ValueError(f"fewer than 3 Gaussian centres within {radius} m of {np.round(point, 3).tolist()}: "
-                         f"give the hole's normal explicitly")
+        raise ValueError(
+            f"fewer than 3 Gaussian centres within {radius} m of {np.round(point, 3).tolist()}: "
+            f"give the hole's normal explicitly"
+        )
     q = near - near.mean(0)
     _, vecs = np.linalg.eigh(q.T @ q)
     n = vecs[:, 0]
@@ -165,12 +176,18 @@ def disc_offsets(hole: Hole, step: float) -> np.ndarray:
     """[K, 2] in-plane offsets (m) of the rays through the hole's disc: a square grid of pitch ``step``, r < R."""
     k = np.arange(-math.floor(hole.radius / step), math.floor(hole.radius / step) + 1) * step
     a, b = (m.ravel() for m in np.meshgrid(k, k, indexing="ij"))
-    inside = a * a + b * b < hole.radius ** 2
+    inside = a * a + b * b < hole.radius**2
     return np.stack([a[inside], b[inside]], 1)
 
 
-def ray_peaks(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray,
-              offset: tuple[float, float] = (0.0, 0.0), span: tuple[float, float] | None = None) -> np.ndarray:
+def ray_peaks(
+    hole: Hole,
+    means: np.ndarray,
+    inv_covs: np.ndarray,
+    opacities: np.ndarray,
+    offset: tuple[float, float] = (0.0, 0.0),
+    span: tuple[float, float] | None = None,
+) -> np.ndarray:
     """[N] each Gaussian's peak opacity a_g = o_g max_s exp(-d_g(x(s))^2 / 2) on a ray parallel to the hole's axis.
 
     The ray is x(s) = p + offset + s n, s in ``span`` (default: the hole's slab, +-depth; an infinite depth gives the
@@ -186,16 +203,22 @@ def ray_peaks(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np
     lo, hi = span if span is not None else (-hole.depth, hole.depth)
     inv = np.asarray(inv_covs, np.float64)
     d = origin - np.asarray(means, np.float64)
-    an = inv @ n                                  # [N, 3]: A n, with n^T A n > 0
+    an = inv @ n  # [N, 3]: A n, with n^T A n > 0
     s = np.clip(-np.einsum("ni,ni->n", d, an) / (an @ n), lo, hi)
     y = d + s[:, None] * n
-    return np.minimum(np.asarray(opacities, np.float64) * np.exp(-0.5 * np.einsum("ni,nij,nj->n", y, inv, y)),
-                      MAX_ALPHA)
+    return np.minimum(
+        np.asarray(opacities, np.float64) * np.exp(-0.5 * np.einsum("ni,nij,nj->n", y, inv, y)), MAX_ALPHA
+    )
 
 
-def axis_opacity(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray,
-                 offset: tuple[float, float] = (0.0, 0.0), span: tuple[float, float] | None = None
-                 ) -> tuple[float, float]:
+def axis_opacity(
+    hole: Hole,
+    means: np.ndarray,
+    inv_covs: np.ndarray,
+    opacities: np.ndarray,
+    offset: tuple[float, float] = (0.0, 0.0),
+    span: tuple[float, float] | None = None,
+) -> tuple[float, float]:
     """What a 3DGS render along a ray parallel to the hole's axis shows (:func:`ray_peaks`).
 
     Returns:
@@ -207,8 +230,15 @@ def axis_opacity(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities:
     return float(1.0 - np.exp(np.log1p(-alpha).sum())), float(alpha.max())
 
 
-def open_fraction(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray, tau: float,
-                  step: float = 0.01, span: tuple[float, float] | None = None) -> tuple[float, float]:
+def open_fraction(
+    hole: Hole,
+    means: np.ndarray,
+    inv_covs: np.ndarray,
+    opacities: np.ndarray,
+    tau: float,
+    step: float = 0.01,
+    span: tuple[float, float] | None = None,
+) -> tuple[float, float]:
     """The fraction of the disc's rays (:func:`disc_offsets`) a render sees through: (combined opacity < tau, and
     no single Gaussian reaching tau, the issue's per-Gaussian test)."""
     rays = [axis_opacity(hole, means, inv_covs, opacities, tuple(o), span) for o in disc_offsets(hole, step)]
@@ -216,8 +246,15 @@ def open_fraction(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities
     return float((c < tau).mean()), float((single < tau).mean())
 
 
-def covering(hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray, eps: float,
-             step: float = 0.005, span: tuple[float, float] | None = None) -> np.ndarray:
+def covering(
+    hole: Hole,
+    means: np.ndarray,
+    inv_covs: np.ndarray,
+    opacities: np.ndarray,
+    eps: float,
+    step: float = 0.005,
+    span: tuple[float, float] | None = None,
+) -> np.ndarray:
     """[N] bool, the Gaussians whose peak on some ray through the disc exceeds ``eps`` (a see-through hole also
     removes these: its footprint crosses the disc)."""
     out = np.zeros(len(means), dtype=bool)
@@ -240,9 +277,11 @@ def rim_ratios(intact: np.ndarray, holed: np.ndarray, kept: np.ndarray, rim: np.
     intact, holed = np.atleast_2d(intact), np.atleast_2d(holed)
     kept, rim = np.asarray(kept, np.int64), np.asarray(rim, bool)
     if intact.shape[0] != holed.shape[0] or holed.shape[1] != len(kept) or intact.shape[1] != len(rim):
-        raise ValueError(f"rim_ratios: intact {intact.shape}, holed {holed.shape}, kept {kept.shape} and rim "
-                         f"{rim.shape} do not match (holed rows are the kept Gaussians of the intact set)")
-    rows = rim[kept]                              # holed rows on the rim
+        raise ValueError(
+            f"rim_ratios: intact {intact.shape}, holed {holed.shape}, kept {kept.shape} and rim "
+            f"{rim.shape} do not match (holed rows are the kept Gaussians of the intact set)"
+        )
+    rows = rim[kept]  # holed rows on the rim
     if not rows.any():
         raise ValueError("rim_ratios: no rim Gaussian is left in the holed set; widen the rim band")
     mine = kept[rows]
@@ -280,12 +319,14 @@ def cut_cylinder(solid: SolidLattice, hole: Hole) -> SolidLattice:
 def _shifted(gaussians, transform, delta_sim: np.ndarray):
     """The set moved by ``delta_sim`` [3] simulation metres (its means only)."""
     d = torch.as_tensor(transform.to_scene(delta_sim[None])[0], dtype=gaussians.means.dtype)
-    return GaussianSet(gaussians.means + d, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits,
-                       gaussians.sh)
+    return GaussianSet(
+        gaussians.means + d, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh
+    )
 
 
 def head_on_probe(directions, normal) -> str:
     """The probe whose flow runs most against the hole's outward normal (the fluid meets the hole head-on)."""
+
     def flow(label: str) -> np.ndarray:
         v = np.zeros(3)
         v["xyz".index(label[1])] = 1.0 if label[0] == "+" else -1.0
@@ -308,15 +349,26 @@ def probe_figures(intact, holed, kept: np.ndarray, rim: np.ndarray, normal) -> d
     """
     ratios = rim_ratios(intact.per_probe, holed.per_probe, kept, rim)
     rows = rim[kept]
-    probes = {d: {"intact": float(intact.per_probe[k][rim].mean()), "holed": float(holed.per_probe[k][rows].mean()),
-                  "ratio": ratios[f"probe {k}"],
-                  "reached_intact": float((intact.per_probe_counts[k][rim] > 0).mean()),
-                  "reached_holed": float((holed.per_probe_counts[k][rows] > 0).mean()),
-                  "leaked_holed": int(holed.leaks[d].final)}
-              for k, d in enumerate(intact.directions)}
-    return {"probes": probes, "head_on": head_on_probe(intact.directions, normal),
-            "max_intact": float(intact.divergence[rim].mean()), "max_holed": float(holed.divergence[rows].mean()),
-            "max_ratio": ratios["max"], "dbar_intact": float(intact.dbar), "dbar_holed": float(holed.dbar)}
+    probes = {
+        d: {
+            "intact": float(intact.per_probe[k][rim].mean()),
+            "holed": float(holed.per_probe[k][rows].mean()),
+            "ratio": ratios[f"probe {k}"],
+            "reached_intact": float((intact.per_probe_counts[k][rim] > 0).mean()),
+            "reached_holed": float((holed.per_probe_counts[k][rows] > 0).mean()),
+            "leaked_holed": int(holed.leaks[d].final),
+        }
+        for k, d in enumerate(intact.directions)
+    }
+    return {
+        "probes": probes,
+        "head_on": head_on_probe(intact.directions, normal),
+        "max_intact": float(intact.divergence[rim].mean()),
+        "max_holed": float(holed.divergence[rows].mean()),
+        "max_ratio": ratios["max"],
+        "dbar_intact": float(intact.dbar),
+        "dbar_holed": float(holed.dbar),
+    }
 
 
 def simulate_with_hole(gaussians, cfg, hole: Hole | None = None):
@@ -328,8 +380,16 @@ def simulate_with_hole(gaussians, cfg, hole: Hole | None = None):
     return simulate_solid(frame, cut_cylinder(frame.solidify(), hole), progress=False)
 
 
-def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: bool,
-                  see_through: float | None = None, ideal: bool = False) -> dict:
+def measure_shift(
+    gaussians,
+    cfg,
+    transform,
+    hole,
+    shift: float,
+    solid_only: bool,
+    see_through: float | None = None,
+    ideal: bool = False,
+) -> dict:
     """One lattice shift: the solids of the intact and the holed set, then (unless ``solid_only``) the probes.
 
     Args:
@@ -355,11 +415,15 @@ def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: boo
     kept = np.nonzero(~removed)[0]
     holed = moved.subset(torch.from_numpy(kept))
     tau = cfg.opacity_threshold
-    out = {"shift": shift, "ideal": ideal, "gaussians_removed": int(removed.sum()),
-           "rim_gaussians": int(h.rim(means, ~removed).sum()),
-           "axis_opacity_intact": axis_opacity(h, means, inv, opacities),
-           "axis_opacity_holed": axis_opacity(h, means[kept], inv[kept], opacities[kept]),
-           "open_fraction_holed": open_fraction(h, means[kept], inv[kept], opacities[kept], tau)}
+    out = {
+        "shift": shift,
+        "ideal": ideal,
+        "gaussians_removed": int(removed.sum()),
+        "rim_gaussians": int(h.rim(means, ~removed).sum()),
+        "axis_opacity_intact": axis_opacity(h, means, inv, opacities),
+        "axis_opacity_holed": axis_opacity(h, means[kept], inv[kept], opacities[kept]),
+        "open_fraction_holed": open_fraction(h, means[kept], inv[kept], opacities[kept], tau),
+    }
     t0 = time.perf_counter()
     if solid_only:
         scfg = cfg.solidify_config()
@@ -369,8 +433,13 @@ def measure_shift(gaussians, cfg, transform, hole, shift: float, solid_only: boo
         res = [simulate_gaussians(moved, cfg, progress=False), simulate_with_hole(holed, cfg, h if ideal else None)]
         solids = [r.solid for r in res]
     a, b = (lattice_keys(s, spacing) for s in solids)
-    out.update(solid_intact=len(a), solid_holed=len(b), solid_removed=len(a - b), solid_added=len(b - a),
-               seconds=time.perf_counter() - t0)
+    out.update(
+        solid_intact=len(a),
+        solid_holed=len(b),
+        solid_removed=len(a - b),
+        solid_added=len(b - a),
+        seconds=time.perf_counter() - t0,
+    )
     if solid_only:
         return out
     out.update(probe_figures(res[0], res[1], kept, h.rim(means, ~removed), h.normal))

@@ -60,12 +60,14 @@ def _occlusion_agreement(g, cams, renders, metric: torch.Tensor) -> dict:
     s_render = view_scores(metric, renders, visible=by_render)
     s_coarse = projected_view_scores(metric, g, cams, depth_buffer=DepthBuffer()).scores
     top = set(rank(s_render)[:5].tolist())
-    return {"verdict_agreement": float((coarse == by_render)[visible].double().mean()),
-            "hidden_render": float((visible & ~by_render).sum() / visible.sum()),
-            "hidden_coarse": float((visible & ~coarse).sum() / visible.sum()),
-            "spearman": spearman(s_coarse, s_render),
-            "same_best": int(rank(s_coarse)[0]) == int(rank(s_render)[0]),
-            "top5_overlap": len(top & set(rank(s_coarse)[:5].tolist()))}
+    return {
+        "verdict_agreement": float((coarse == by_render)[visible].double().mean()),
+        "hidden_render": float((visible & ~by_render).sum() / visible.sum()),
+        "hidden_coarse": float((visible & ~coarse).sum() / visible.sum()),
+        "spearman": spearman(s_coarse, s_render),
+        "same_best": int(rank(s_coarse)[0]) == int(rank(s_render)[0]),
+        "top5_overlap": len(top & set(rank(s_coarse)[:5].tolist())),
+    }
 
 
 def compare_with_renders(gaussians, cams, d: np.ndarray, occlusion: bool, device) -> dict:
@@ -90,19 +92,25 @@ def compare_with_renders(gaussians, cams, d: np.ndarray, occlusion: bool, device
     t = time.perf_counter()
     fast = projected_view_scores(metric, g, cams).scores
     t_proj = time.perf_counter() - t
-    radii_equal = all(torch.equal(o.radii.cpu(), r) for o, r in
-                      zip(renders, _projected_radii(g, cams), strict=True))
-    out = {"views": len(cams), "render_s": t_render, "projection_s": t_proj, "radii_equal": radii_equal,
-           "max_relative_difference": float(((fast - full).abs() / full.abs().clamp_min(1e-300)).max()),
-           "spearman": spearman(fast, full), "identical_order": rank(fast).tolist() == rank(full).tolist(),
-           "order": rank(fast).tolist()}
+    radii_equal = all(torch.equal(o.radii.cpu(), r) for o, r in zip(renders, _projected_radii(g, cams), strict=True))
+    out = {
+        "views": len(cams),
+        "render_s": t_render,
+        "projection_s": t_proj,
+        "radii_equal": radii_equal,
+        "max_relative_difference": float(((fast - full).abs() / full.abs().clamp_min(1e-300)).max()),
+        "spearman": spearman(fast, full),
+        "identical_order": rank(fast).tolist() == rank(full).tolist(),
+        "order": rank(fast).tolist(),
+    }
     if occlusion:
         out["occlusion"] = _occlusion_agreement(g, cams, renders, metric)
     return out
 
 
-def time_projected_scores(gaussians, d: np.ndarray, count: int, views: int, width: int, seed: int, occlusion: bool,
-                          device) -> dict:
+def time_projected_scores(
+    gaussians, d: np.ndarray, count: int, views: int, width: int, seed: int, occlusion: bool, device
+) -> dict:
     """Time :func:`nbv.scores.projected_view_scores` on ``gaussians`` densified to ``count`` (``fluidgs bench views``).
 
     The set is densified by jittered copies (:func:`nbv.bench.dense_sets.jittered_to_count`), its metric is ``d`` [G]
@@ -121,10 +129,18 @@ def time_projected_scores(gaussians, d: np.ndarray, count: int, views: int, widt
     t, cpu = time.perf_counter(), time.process_time()
     scored = projected_view_scores(metric, big, cams)
     total, cpu = time.perf_counter() - t, time.process_time() - cpu
-    out = {"gaussians": big.num, "views": len(cams), "width": width, "total_s": total, "cpu_s": cpu,
-           "per_view_ms": 1e3 * total / len(cams), "ns_per_pair": 1e9 * total / (len(cams) * big.num),
-           "visible_fraction": float(scored.counted.sum()) / (len(cams) * big.num),
-           "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "rss_before_mib": rss_before}
+    out = {
+        "gaussians": big.num,
+        "views": len(cams),
+        "width": width,
+        "total_s": total,
+        "cpu_s": cpu,
+        "per_view_ms": 1e3 * total / len(cams),
+        "ns_per_pair": 1e9 * total / (len(cams) * big.num),
+        "visible_fraction": float(scored.counted.sum()) / (len(cams) * big.num),
+        "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "rss_before_mib": rss_before,
+    }
     if occlusion:
         t = time.perf_counter()
         projected_view_scores(metric, big, cams, depth_buffer=DepthBuffer())

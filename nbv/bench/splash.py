@@ -105,8 +105,15 @@ class PeerScene:
     gravity: tuple = (0.0, -9.81, 0.0)
 
     def __post_init__(self) -> None:
-        for name in ("particle_radius", "dt", "sphere_radius", "viscosity", "rest_density",
-                     "max_density_error_percent", "max_divergence_error_percent"):
+        for name in (
+            "particle_radius",
+            "dt",
+            "sphere_radius",
+            "viscosity",
+            "rest_density",
+            "max_density_error_percent",
+            "max_divergence_error_percent",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"PeerScene.{name} must be a finite number > 0, got {value!r}")
@@ -114,17 +121,24 @@ class PeerScene:
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 raise ValueError(f"PeerScene.{name} must be an integer >= 1, got {getattr(self, name)!r}")
         if self.max_iterations < self.min_iterations:
-            raise ValueError(f"PeerScene.max_iterations ({self.max_iterations}) must be >= min_iterations "
-                             f"({self.min_iterations})")
+            raise ValueError(
+                f"PeerScene.max_iterations ({self.max_iterations}) must be >= min_iterations ({self.min_iterations})"
+            )
         boxes = (("fluid", self.fluid_min, self.fluid_max), ("domain", self.domain_min, self.domain_max))
         for label, lo, hi in boxes:
             if len(lo) != 3 or len(hi) != 3 or not all(a < b for a, b in zip(lo, hi, strict=True)):
-                raise ValueError(f"PeerScene.{label}_min/{label}_max must be 3 numbers each with min < max per "
-                                 f"axis, got {lo} and {hi}")
-        if not all(d0 <= f0 and f1 <= d1 for d0, f0, f1, d1 in
-                   zip(self.domain_min, self.fluid_min, self.fluid_max, self.domain_max, strict=True)):
-            raise ValueError(f"PeerScene: the fluid box {self.fluid_min}..{self.fluid_max} must lie inside the "
-                             f"domain {self.domain_min}..{self.domain_max}")
+                raise ValueError(
+                    f"PeerScene.{label}_min/{label}_max must be 3 numbers each with min < max per "
+                    f"axis, got {lo} and {hi}"
+                )
+        if not all(
+            d0 <= f0 and f1 <= d1
+            for d0, f0, f1, d1 in zip(self.domain_min, self.fluid_min, self.fluid_max, self.domain_max, strict=True)
+        ):
+            raise ValueError(
+                f"PeerScene: the fluid box {self.fluid_min}..{self.fluid_max} must lie inside the "
+                f"domain {self.domain_min}..{self.domain_max}"
+            )
 
     @property
     def spacing(self) -> float:
@@ -138,8 +152,7 @@ class PeerScene:
 
     def expected_fluid_particles(self) -> int:
         """Number of fluid particles the cell-centred lattice puts into the slab box."""
-        counts = [round((hi - lo) / self.spacing)
-                  for lo, hi in zip(self.fluid_min, self.fluid_max, strict=True)]
+        counts = [round((hi - lo) / self.spacing) for lo, hi in zip(self.fluid_min, self.fluid_max, strict=True)]
         return math.prod(counts)
 
 
@@ -162,27 +175,42 @@ def peer_config(scene: PeerScene, divergence_warm_start: bool = True) -> SolverC
     """This engine's solver settings for ``scene``: the same r, dt, mu, rho0, gravity, tolerances (in %) and
     iteration bounds as SPlisHSPlasH gets, and free slip at the walls (``boundary_viscosity = 0``, as the peer's
     zero boundary viscosity)."""
-    return SolverConfig(particle_radius=scene.particle_radius, dt=scene.dt, viscosity=scene.viscosity,
-                        rest_density=scene.rest_density, gravity=tuple(scene.gravity),
-                        max_density_error=scene.max_density_error_percent,
-                        max_divergence_error=scene.max_divergence_error_percent,
-                        min_iterations=scene.min_iterations, max_iterations=scene.max_iterations,
-                        boundary_viscosity=0.0, divergence_warm_start=divergence_warm_start)
+    return SolverConfig(
+        particle_radius=scene.particle_radius,
+        dt=scene.dt,
+        viscosity=scene.viscosity,
+        rest_density=scene.rest_density,
+        gravity=tuple(scene.gravity),
+        max_density_error=scene.max_density_error_percent,
+        max_divergence_error=scene.max_divergence_error_percent,
+        min_iterations=scene.min_iterations,
+        max_iterations=scene.max_iterations,
+        boundary_viscosity=0.0,
+        divergence_warm_start=divergence_warm_start,
+    )
 
 
 def peer_particles(scene: PeerScene, spacing: float) -> PeerParticles:
     """Sample ``scene`` at ``spacing`` (m): the fluid slab, the filled sphere and two layers of closed walls."""
     fluid = lattice_in_box(scene.fluid_min, scene.fluid_max, spacing)
-    return PeerParticles(fluid=fluid,
-                         velocity=np.broadcast_to(np.asarray(scene.fluid_velocity, np.float64), fluid.shape),
-                         solid=sphere_particles(scene.sphere_center, scene.sphere_radius, spacing, fill=True),
-                         walls=wall_particles(scene.domain_min, scene.domain_max, spacing, 2))
+    return PeerParticles(
+        fluid=fluid,
+        velocity=np.broadcast_to(np.asarray(scene.fluid_velocity, np.float64), fluid.shape),
+        solid=sphere_particles(scene.sphere_center, scene.sphere_radius, spacing, fill=True),
+        walls=wall_particles(scene.domain_min, scene.domain_max, spacing, 2),
+    )
 
 
 def peer_solver(scene: PeerScene, particles: PeerParticles, config: SolverConfig) -> DFSPHSolver:
     """The solver of ``scene`` (Taichi must be initialised): the sphere and the walls are one boundary set."""
-    return DFSPHSolver(config, scene.domain_min, scene.domain_max, particles.fluid, particles.velocity,
-                       np.concatenate([particles.solid, particles.walls]))
+    return DFSPHSolver(
+        config,
+        scene.domain_min,
+        scene.domain_max,
+        particles.fluid,
+        particles.velocity,
+        np.concatenate([particles.solid, particles.walls]),
+    )
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -193,11 +221,42 @@ def peer_solver(scene: PeerScene, particles: PeerParticles, config: SolverConfig
 def icosphere(subdivisions: int) -> tuple[list[tuple[float, float, float]], list[tuple[int, int, int]]]:
     """Unit icosphere (radius 1), faces wound counter-clockwise seen from outside (outward normals)."""
     t = (1.0 + math.sqrt(5.0)) / 2.0
-    verts = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
-             (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
-             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5),
-             (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    verts = [
+        (-1, t, 0),
+        (1, t, 0),
+        (-1, -t, 0),
+        (1, -t, 0),
+        (0, -1, t),
+        (0, 1, t),
+        (0, -1, -t),
+        (0, 1, -t),
+        (t, 0, -1),
+        (t, 0, 1),
+        (-t, 0, -1),
+        (-t, 0, 1),
+    ]
+    faces = [
+        (0, 11, 5),
+        (0, 5, 1),
+        (0, 1, 7),
+        (0, 7, 10),
+        (0, 10, 11),
+        (1, 5, 9),
+        (5, 11, 4),
+        (11, 10, 2),
+        (10, 7, 6),
+        (7, 1, 8),
+        (3, 9, 4),
+        (3, 4, 2),
+        (3, 2, 6),
+        (3, 6, 8),
+        (3, 8, 9),
+        (4, 9, 5),
+        (2, 4, 11),
+        (6, 2, 10),
+        (8, 6, 7),
+        (9, 8, 1),
+    ]
 
     def unit(v):
         n = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
@@ -410,18 +469,21 @@ def run_splash(scene: PeerScene, timeout_s: float = 1200) -> dict:
         job_file = tmpdir / "job.json"
         job_file.write_text(json.dumps(job))
         env = dict(os.environ, OMP_NUM_THREADS=str(scene.threads))
-        log.info("running SPlisHSPlasH DFSPH: %d steps, %d threads, ~%d fluid particles",
-                 scene.steps, scene.threads, scene.expected_fluid_particles())
+        log.info(
+            "running SPlisHSPlasH DFSPH: %d steps, %d threads, ~%d fluid particles",
+            scene.steps,
+            scene.threads,
+            scene.expected_fluid_particles(),
+        )
         try:
-            proc = subprocess.run(_worker_cmd("--worker", str(job_file)), env=env, capture_output=True,
-                                  text=True, timeout=timeout_s)
+            proc = subprocess.run(
+                _worker_cmd("--worker", str(job_file)), env=env, capture_output=True, text=True, timeout=timeout_s
+            )
         except subprocess.TimeoutExpired as exc:
             raise RuntimeError(f"SPlisHSPlasH run timed out after {timeout_s} s") from exc
         result_file = tmpdir / "result.json"
         if proc.returncode == EXIT_NO_SPLASH:
-            raise RuntimeError(
-                f"pysplishsplash is not importable: {proc.stderr.strip()[-800:]}\n{INSTALL_HINT}"
-            )
+            raise RuntimeError(f"pysplishsplash is not importable: {proc.stderr.strip()[-800:]}\n{INSTALL_HINT}")
         if proc.returncode != 0 or not result_file.exists():
             tail = (proc.stdout[-1500:] + "\n" + proc.stderr[-1500:]).strip()
             raise RuntimeError(
@@ -429,7 +491,11 @@ def run_splash(scene: PeerScene, timeout_s: float = 1200) -> dict:
                 f"{', segfault' if proc.returncode == -11 else ''}).\n{tail}\n{INSTALL_HINT}"
             )
         result = json.loads(result_file.read_text())
-    log.info("SPlisHSPlasH: %d fluid / %d boundary particles, median %.1f ms/step (steps 2..%d)",
-             result["fluid_particles"], result["boundary_particles"], result["median_ms_steps_2_to_n"],
-             result["steps"])
+    log.info(
+        "SPlisHSPlasH: %d fluid / %d boundary particles, median %.1f ms/step (steps 2..%d)",
+        result["fluid_particles"],
+        result["boundary_particles"],
+        result["median_ms_steps_2_to_n"],
+        result["steps"],
+    )
     return result

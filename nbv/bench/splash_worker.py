@@ -119,9 +119,11 @@ def _read_config(sph, base) -> dict:
         "viscosityMethodName": visco.getMethodName() if hasattr(visco, "getMethodName") else None,
         "viscosity_kinematic": visco.getValueFloat(visco.VISCOSITY_COEFFICIENT),
         "viscosityBoundary": visco.getValueFloat(visco.VISCOSITY_COEFFICIENT_BOUNDARY)
-        if hasattr(visco, "VISCOSITY_COEFFICIENT_BOUNDARY") else None,
-        "exporters_active": [e.name for e in [*base.getParticleExporters(), *base.getRigidBodyExporters()]
-                             if e.exporter.getActive()],
+        if hasattr(visco, "VISCOSITY_COEFFICIENT_BOUNDARY")
+        else None,
+        "exporters_active": [
+            e.name for e in [*base.getParticleExporters(), *base.getRigidBodyExporters()] if e.exporter.getActive()
+        ],
     }
 
 
@@ -151,9 +153,13 @@ def _end_state(sph) -> dict:
         speeds.append(math.sqrt(float(v[0]) ** 2 + float(v[1]) ** 2 + float(v[2]) ** 2))
         lo = [min(a, float(b)) for a, b in zip(lo, x, strict=True)]
         hi = [max(a, float(b)) for a, b in zip(hi, x, strict=True)]
-    return {"fluid_particles": int(n_fluid), "boundary_particles": int(n_boundary),
-            "final_max_speed": max(speeds, default=0.0),
-            "final_mean_speed": statistics.fmean(speeds) if speeds else 0.0, "final_fluid_bbox": [lo, hi]}
+    return {
+        "fluid_particles": int(n_fluid),
+        "boundary_particles": int(n_boundary),
+        "final_max_speed": max(speeds, default=0.0),
+        "final_mean_speed": statistics.fmean(speeds) if speeds else 0.0,
+        "final_fluid_bbox": [lo, hi],
+    }
 
 
 def _worker(job_file: str) -> int:
@@ -164,8 +170,9 @@ def _worker(job_file: str) -> int:
     sph = _import_splash()
 
     base = sph.Exec.SimulatorBase()
-    base.init(sceneFile=job["scene_file"], useCache=False, outputDir=job["output_dir"], initialPause=False,
-              useGui=False)
+    base.init(
+        sceneFile=job["scene_file"], useCache=False, outputDir=job["output_dir"], initialPause=False, useGui=False
+    )
     t0 = time.perf_counter()
     base.initSimulation()
     _enforce_settings(sph, job["expect"], dt)

@@ -81,10 +81,14 @@ def file_kind(f: h5py.File, path: Path) -> str:
     if isinstance(probes, h5py.Group) and any("trajectory" in probes[d] for d in probes):
         return "result"
     if "gaussians" in f or isinstance(probes, h5py.Group):
-        raise ValueError(f"--vtk: {path} is a RESULT.h5 without recorded trajectories; re-run simulate with "
-                         "--record-probe -x (or the probes you want) to record its fluid frames")
-    raise ValueError(f"--vtk: {path} holds neither /frames (an OUT.h5 of `fluidgs sim`) nor recorded probe "
-                     "trajectories (a RESULT.h5 of `fluidgs simulate --record-probe`); pass one of those")
+        raise ValueError(
+            f"--vtk: {path} is a RESULT.h5 without recorded trajectories; re-run simulate with "
+            "--record-probe -x (or the probes you want) to record its fluid frames"
+        )
+    raise ValueError(
+        f"--vtk: {path} holds neither /frames (an OUT.h5 of `fluidgs sim`) nor recorded probe "
+        "trajectories (a RESULT.h5 of `fluidgs simulate --record-probe`); pass one of those"
+    )
 
 
 def _scene(f: h5py.File) -> dict:
@@ -127,17 +131,18 @@ def _out_frames(f: h5py.File, missing: set[str]) -> Iterator[ParticleFrame]:
         yield ParticleFrame(int(g.attrs["step"]), float(g.attrs["time"]), x, data)
 
 
-def _trajectory_frames(group: h5py.Group, dt: float, missing: set[str], retired: list[int]
-                       ) -> Iterator[ParticleFrame]:
+def _trajectory_frames(group: h5py.Group, dt: float, missing: set[str], retired: list[int]) -> Iterator[ParticleFrame]:
     t = group["trajectory"]
     steps = np.asarray(t["steps"][()], np.int64)
     for i, step in enumerate(steps.tolist()):
         x = np.asarray(t["x"][i], np.float32)
         keep = np.isfinite(x).all(axis=1)
         retired.append(int((~keep).sum()))
-        data: dict[str, np.ndarray] = {"divergence": np.asarray(t["D"][i], np.float32)[keep],
-                                       "speed": np.asarray(t["speed"][i], np.float32)[keep],
-                                       "id": np.flatnonzero(keep).astype(np.int32)}
+        data: dict[str, np.ndarray] = {
+            "divergence": np.asarray(t["D"][i], np.float32)[keep],
+            "speed": np.asarray(t["speed"][i], np.float32)[keep],
+            "id": np.flatnonzero(keep).astype(np.int32),
+        }
         if "v" in t:
             data["velocity"] = np.asarray(t["v"][i], np.float32)[keep]
         if "density" in t:
@@ -188,13 +193,16 @@ def check_recorded(path: str | Path, probes: tuple[str, ...] | None = None) -> l
         recorded = [d for d in group if "trajectory" in group[d]] if isinstance(group, h5py.Group) else []
     absent = [d for d in probes or () if d not in recorded]
     if absent:
-        raise ValueError(f"--probe {','.join(absent)}: not recorded in {path} (recorded: "
-                         f"{','.join(recorded) or 'none'}); choose among those")
+        raise ValueError(
+            f"--probe {','.join(absent)}: not recorded in {path} (recorded: "
+            f"{','.join(recorded) or 'none'}); choose among those"
+        )
     return recorded if probes is None else list(probes)
 
 
-def export_vtk(source: str | Path, folder: str | Path, probes: tuple[str, ...] | None = None,
-               progress: bool = False) -> dict:
+def export_vtk(
+    source: str | Path, folder: str | Path, probes: tuple[str, ...] | None = None, progress: bool = False
+) -> dict:
     """Write the particle frames of ``source`` (OUT.h5 or RESULT.h5) into ``folder`` (module docstring).
 
     Args:
@@ -221,8 +229,14 @@ def export_vtk(source: str | Path, folder: str | Path, probes: tuple[str, ...] |
             dt = float(cfg.get("dt", 0.0))
             chosen = check_recorded(source, probes)
             solid, walls = np.asarray(f["solid/x"][()], np.float32), np.zeros((0, 3), np.float32)
-            series = [Series(probe_series_name(d), len(f["probes"][d]["trajectory/steps"]),
-                             _trajectory_frames(f["probes"][d], dt, missing, retired)) for d in chosen]
+            series = [
+                Series(
+                    probe_series_name(d),
+                    len(f["probes"][d]["trajectory/steps"]),
+                    _trajectory_frames(f["probes"][d], dt, missing, retired),
+                )
+                for d in chosen
+            ]
         total = sum(s.count for s in series)
         with atomic_folder(folder) as tmp, tqdm(total=total, desc="vtk", unit="frame", disable=not progress) as bar:
             for s in series:
@@ -243,6 +257,9 @@ def export_vtk(source: str | Path, folder: str | Path, probes: tuple[str, ...] |
     for name in sorted(missing):
         log.warning("%s: the frames hold no %s (written before it was recorded); the VTK files lack it", source, name)
     if retired and max(retired):
-        log.info("%s: particles that had left the domain are left out of the frames (up to %d per frame)", source,
-                 max(retired))
+        log.info(
+            "%s: particles that had left the domain are left out of the frames (up to %d per frame)",
+            source,
+            max(retired),
+        )
     return {"kind": kind, "series": written, "files": files, "missing": sorted(missing)}

@@ -63,7 +63,7 @@ class VoxelGrid:
     @property
     def volume(self) -> float:
         """Occupied volume, cells x s^3 (m^3)."""
-        return self.cells * self.spacing ** 3
+        return self.cells * self.spacing**3
 
     def centres(self) -> np.ndarray:
         """[M, 3] float64 centres of the solid cells, m, in C order of (i, j, k)."""
@@ -96,8 +96,10 @@ def voxel_grid(points: np.ndarray, spacing: float) -> VoxelGrid:
     index = np.rint(steps).astype(np.int64)
     off = float(np.abs(steps - index).max())
     if off > LATTICE_TOLERANCE:
-        raise ValueError(f"solid points are off the lattice of spacing {spacing} m (by up to {off:.3g} spacings); "
-                         "pass the spacing the solid was built with (2 x particle_radius)")
+        raise ValueError(
+            f"solid points are off the lattice of spacing {spacing} m (by up to {off:.3g} spacings); "
+            "pass the spacing the solid was built with (2 x particle_radius)"
+        )
     occupancy = np.zeros(tuple(index.max(axis=0) + 1), dtype=bool)
     occupancy[index[:, 0], index[:, 1], index[:, 2]] = True
     return VoxelGrid(occupancy, origin, float(spacing))
@@ -117,8 +119,9 @@ def solid_mesh(grid: VoxelGrid, refine: int = 2):
     for axis in range(3):
         fine = fine.repeat(refine, axis=axis)
     h = grid.spacing / refine
-    verts, faces, _, _ = marching_cubes(np.pad(fine, 1).astype(np.float32), level=0.5, spacing=(h,) * 3,
-                                        allow_degenerate=False)
+    verts, faces, _, _ = marching_cubes(
+        np.pad(fine, 1).astype(np.float32), level=0.5, spacing=(h,) * 3, allow_degenerate=False
+    )
     # fine cell (a, b, c) of the padded array is centred at origin - s/2 + h/2 + h (a - 1, b - 1, c - 1)
     verts = verts.astype(np.float64) + (grid.origin - 0.5 * grid.spacing - 0.5 * h)
     mesh = trimesh.Trimesh(vertices=verts, faces=faces, process=True)
@@ -131,9 +134,11 @@ def check_export_path(path: Path, option: str = "--export-solid") -> Path:
     """``path`` if its suffix is a mesh or a voxel-grid suffix; the message names ``option`` and the suffixes."""
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES + GRID_SUFFIXES:
-        raise ValueError(f"{option} {path}: unknown suffix {path.suffix!r}; use a mesh "
-                         f"({', '.join(MESH_SUFFIXES)}; the voxel grid is written beside it as .voxels.h5) "
-                         f"or a voxel grid ({', '.join(GRID_SUFFIXES)})")
+        raise ValueError(
+            f"{option} {path}: unknown suffix {path.suffix!r}; use a mesh "
+            f"({', '.join(MESH_SUFFIXES)}; the voxel grid is written beside it as .voxels.h5) "
+            f"or a voxel grid ({', '.join(GRID_SUFFIXES)})"
+        )
     return path
 
 
@@ -168,8 +173,9 @@ def write_mesh(path: Path, mesh) -> Path:
     return write_bytes_atomic(path, data.encode("utf-8") if isinstance(data, str) else data)
 
 
-def export_solid(path: Path, points: np.ndarray, spacing: float, scene_to_sim: np.ndarray | None = None,
-                 frame: str = "sim") -> dict:
+def export_solid(
+    path: Path, points: np.ndarray, spacing: float, scene_to_sim: np.ndarray | None = None, frame: str = "sim"
+) -> dict:
     """Write the solid of a probe run: the mesh (by the suffix of ``path``) and the voxel grid (:func:`export_paths`).
 
     Args:

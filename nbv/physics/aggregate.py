@@ -94,8 +94,16 @@ from nbv.physics.aggregate_levels import (
 if TYPE_CHECKING:
     from fluidsim import DFSPHSolver
 
-__all__ = ["GaussianAccumulator", "GaussianLevels", "GaussianLists", "accumulate_reference", "accumulation_rows",
-           "plan_levels", "reach_classes", "within_reach_reference"]
+__all__ = [
+    "GaussianAccumulator",
+    "GaussianLevels",
+    "GaussianLists",
+    "accumulate_reference",
+    "accumulation_rows",
+    "plan_levels",
+    "reach_classes",
+    "within_reach_reference",
+]
 
 log = logging.getLogger(__name__)
 
@@ -157,9 +165,17 @@ class GaussianAccumulator:
         >>> divergence_per_gaussian = acc.means()
     """
 
-    def __init__(self, lists: GaussianLists, domain_min, domain_max, *, track_distinct: bool = False,
-                 max_fluid: int = 0, distinct_budget_bytes: int = DEFAULT_DISTINCT_BUDGET,
-                 batch_steps: int = BATCH_STEPS):
+    def __init__(
+        self,
+        lists: GaussianLists,
+        domain_min,
+        domain_max,
+        *,
+        track_distinct: bool = False,
+        max_fluid: int = 0,
+        distinct_budget_bytes: int = DEFAULT_DISTINCT_BUDGET,
+        batch_steps: int = BATCH_STEPS,
+    ):
         dmin, dmax = _as_box("domain_min/domain_max", domain_min, domain_max)
         if int(max_fluid) < 0:
             raise ValueError(f"max_fluid must be >= 0, got {max_fluid}")
@@ -167,9 +183,11 @@ class GaussianAccumulator:
             raise ValueError(f"batch_steps must be >= 1 (1: accumulate every step at once), got {batch_steps}")
         bmin, bmax = lists.bounds
         if not ((dmin >= bmin).all() and (dmax <= bmax).all()):
-            raise ValueError(f"domain_min/domain_max {dmin.tolist()} - {dmax.tolist()} reach beyond the bounds the "
-                             f"lists were built for, {bmin.tolist()} - {bmax.tolist()}; build the lists over the union "
-                             "of the probes' domains")
+            raise ValueError(
+                f"domain_min/domain_max {dmin.tolist()} - {dmax.tolist()} reach beyond the bounds the "
+                f"lists were built for, {bmin.tolist()} - {bmax.tolist()}; build the lists over the union "
+                "of the probes' domains"
+            )
         self.lists = lists
         self.domain_min, self.domain_max = dmin, dmax
         self.batch_steps = int(batch_steps)
@@ -195,15 +213,16 @@ class GaussianAccumulator:
         self._interleave = footprint > INTERLEAVE_ABOVE_BYTES
         self._steps_arrays: dict = {}
         self._no_prev = ti.Vector.ndarray(3, ti.f64, shape=1)
-        self._emitted = ti.ndarray(ti.i64, shape=1)    # keys listed by the last launch
+        self._emitted = ti.ndarray(ti.i64, shape=1)  # keys listed by the last launch
         self._stage_prev = self._no_prev
         self.distinct = DistinctParticles(kept, distinct_budget_bytes) if track_distinct else None
         if self.distinct is not None and max_fluid:
             self.distinct.ensure_ids(int(max_fluid))
 
     @classmethod
-    def build(cls, centers: np.ndarray, reach: np.ndarray, domain_min, domain_max, *, grid_bounds=None,
-              **kwargs) -> GaussianAccumulator:
+    def build(
+        cls, centers: np.ndarray, reach: np.ndarray, domain_min, domain_max, *, grid_bounds=None, **kwargs
+    ) -> GaussianAccumulator:
         """Lists and sums at once, for one probe: the lists over ``domain_min``/``domain_max`` and ``grid_bounds``
         ((min [3], max [3]) m, e.g. the union of all probes' domains; default the domain). ``centers`` [G, 3] and
         ``reach`` [G] as :class:`nbv.physics.aggregate_levels.GaussianLists`; ``kwargs`` as the constructor."""
@@ -247,10 +266,18 @@ class GaussianAccumulator:
 
     # -- memory ---------------------------------------------------------------------------------
     @staticmethod
-    def estimate_bytes(num_gaussians: int, max_fluid: int, track_distinct: bool = False, *,
-                       distinct_pairs: int | None = None, threads: int | None = None,
-                       batch_steps: int = BATCH_STEPS, distinct_budget_bytes: int = DEFAULT_DISTINCT_BUDGET,
-                       float_bytes: int = 4, num_levels: int | None = None) -> int:
+    def estimate_bytes(
+        num_gaussians: int,
+        max_fluid: int,
+        track_distinct: bool = False,
+        *,
+        distinct_pairs: int | None = None,
+        threads: int | None = None,
+        batch_steps: int = BATCH_STEPS,
+        distinct_budget_bytes: int = DEFAULT_DISTINCT_BUDGET,
+        float_bytes: int = 4,
+        num_levels: int | None = None,
+    ) -> int:
         """An upper estimate of the bytes an accumulator takes at its peak, before anything is allocated.
 
         Args:
@@ -321,14 +348,27 @@ class GaussianAccumulator:
         steps = self._step_array(offsets)
         distinct = self.distinct
         if distinct is None:
-            kernels.accumulate(longest, steps, xs, values, *geometry, self._private, serial, self._acc,
-                               self._cell_sums)
+            kernels.accumulate(longest, steps, xs, values, *geometry, self._private, serial, self._acc, self._cell_sums)
             return
         add_values = True
         while True:  # a full key buffer: grow it and list the batch's pairs again (without adding the values again)
             self._emitted.fill(0)
-            kernels.accumulate_tracked(longest, steps, xs, values, ids, prevs, *geometry, add_values, True,
-                                       self._private, serial, self._acc, distinct.keys, self._emitted)
+            kernels.accumulate_tracked(
+                longest,
+                steps,
+                xs,
+                values,
+                ids,
+                prevs,
+                *geometry,
+                add_values,
+                True,
+                self._private,
+                serial,
+                self._acc,
+                distinct.keys,
+                self._emitted,
+            )
             add_values = False
             emitted = int(self._emitted.to_numpy()[0])
             if emitted <= distinct.keys.shape[0]:
@@ -375,8 +415,20 @@ class GaussianAccumulator:
             self.flush()
             if not same_type or n > self._stage_capacity:
                 self._allocate_stage(n, capacity, xs.dtype, values.dtype)
-        kernels.stage_particles(n, self._staged, xs, values, ids, self._stage_x, self._stage_values, self._stage_ids,
-                                self._last_samples(), self._stage_prev, self.track_distinct, serial)
+        kernels.stage_particles(
+            n,
+            self._staged,
+            xs,
+            values,
+            ids,
+            self._stage_x,
+            self._stage_values,
+            self._stage_ids,
+            self._last_samples(),
+            self._stage_prev,
+            self.track_distinct,
+            serial,
+        )
         self._staged += n
         self._staged_steps += 1
         self._offsets.append(self._staged)
@@ -468,8 +520,11 @@ class GaussianAccumulator:
             total += spread.to_numpy()
         if total[-1, 0] and not self._saturation_logged:
             self._saturation_logged = True
-            log.warning("%d accumulated values were NaN or beyond +-%g and were clamped (NaN: 0)", total[-1, 0],
-                        kernels.VALUE_LIMIT / kernels.VALUE_SCALE)
+            log.warning(
+                "%d accumulated values were NaN or beyond +-%g and were clamped (NaN: 0)",
+                total[-1, 0],
+                kernels.VALUE_LIMIT / kernels.VALUE_SCALE,
+            )
         return total
 
     @property
@@ -498,8 +553,9 @@ class GaussianAccumulator:
         return np.where(counts > 0, self.sums / np.maximum(counts, 1), 0.0)
 
 
-def within_reach_reference(centers: np.ndarray, reach: np.ndarray, positions: np.ndarray,
-                           domain_min=None, domain_max=None) -> np.ndarray:
+def within_reach_reference(
+    centers: np.ndarray, reach: np.ndarray, positions: np.ndarray, domain_min=None, domain_max=None
+) -> np.ndarray:
     """O(P G) twin of the grid test: [P, G] bool, |x_i - mu_g|^2 < reach_g^2 (and x_i inside the domain, if given)."""
     c = np.asarray(centers, np.float64).reshape(-1, 3)
     r = np.asarray(reach, np.float64).reshape(-1)
@@ -513,8 +569,9 @@ def within_reach_reference(centers: np.ndarray, reach: np.ndarray, positions: np
     return near
 
 
-def accumulate_reference(centers: np.ndarray, reach: np.ndarray, positions: np.ndarray, values: np.ndarray,
-                         domain_min=None, domain_max=None) -> tuple[np.ndarray, np.ndarray]:
+def accumulate_reference(
+    centers: np.ndarray, reach: np.ndarray, positions: np.ndarray, values: np.ndarray, domain_min=None, domain_max=None
+) -> tuple[np.ndarray, np.ndarray]:
     """O(P G) twin of :class:`GaussianAccumulator`: every particle against every Gaussian.
 
     Args:

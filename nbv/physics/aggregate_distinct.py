@@ -97,8 +97,9 @@ class HashPairs:
         words = bits.bits.to_numpy()
         chunk = max(1, (1 << 22) // max(words.shape[1], 1))
         for g0 in range(0, words.shape[0], chunk):
-            block = np.unpackbits(np.ascontiguousarray(words[g0: g0 + chunk]).view(np.uint8), axis=1,
-                                  bitorder="little")
+            block = np.unpackbits(
+                np.ascontiguousarray(words[g0 : g0 + chunk]).view(np.uint8), axis=1, bitorder="little"
+            )
             g, pid = np.nonzero(block)
             if len(g):
                 keys = ((g + g0).astype(np.int64) << 32) + pid
@@ -118,8 +119,11 @@ class HashPairs:
         old = self.hashes
         self._new(2 * old.shape[0])
         kernels.insert_keys(old.shape[0], old, self.hashes, self.fill)
-        log.debug("distinct pairs: hash set grown to %d slots (%.0f MiB)", self.hashes.shape[0],
-                  8 * self.hashes.shape[0] / 2**20)
+        log.debug(
+            "distinct pairs: hash set grown to %d slots (%.0f MiB)",
+            self.hashes.shape[0],
+            8 * self.hashes.shape[0] / 2**20,
+        )
 
     def count(self, counts) -> None:
         """``counts[g]`` += the keys of g in the set."""
@@ -159,8 +163,10 @@ class DistinctParticles:
             return
         cap = max(needed, (self.id_capacity * 5) // 4)
         if cap > MAX_PARTICLE_IDS:
-            raise ValueError(f"particle ids up to {needed - 1} need {24 * cap / 2**30:.1f} GiB of per-id records "
-                             f"(ids must stay below {MAX_PARTICLE_IDS}); number the particles densely from 0")
+            raise ValueError(
+                f"particle ids up to {needed - 1} need {24 * cap / 2**30:.1f} GiB of per-id records "
+                f"(ids must stay below {MAX_PARTICLE_IDS}); number the particles densely from 0"
+            )
         old = None if self.id_capacity == 0 else self.last.to_numpy()
         self.last = ti.Vector.ndarray(3, ti.f64, shape=cap)
         self.last.fill(float("nan"))
@@ -175,8 +181,12 @@ class DistinctParticles:
     def _widen(self, width: int) -> None:
         kept = max(self.num_kept, 1)
         if kept * width * 4 > self.budget_bytes:
-            log.info("distinct-particle bit matrix of %d x %d words exceeds %.0f MiB: using an exact hash set of pairs",
-                     kept, width, self.budget_bytes / 2**20)
+            log.info(
+                "distinct-particle bit matrix of %d x %d words exceeds %.0f MiB: using an exact hash set of pairs",
+                kept,
+                width,
+                self.budget_bytes / 2**20,
+            )
             self.pairs = HashPairs() if self.pairs is None else HashPairs.from_bits(self.pairs)
             return
         self.pairs = BitPairs(self.num_kept, width, self.pairs)

@@ -201,9 +201,22 @@ def set_insert(hashes: ti.template(), fill: ti.template(), key):
 
 
 @ti.func
-def visit_gaussian(g, x, q, row, pid, prev, prev_ok, gauss: ti.template(), add_values: ti.template(),
-                   track: ti.template(), private: ti.template(), acc: ti.template(),
-                   keys: ti.template(), emitted: ti.template()):
+def visit_gaussian(
+    g,
+    x,
+    q,
+    row,
+    pid,
+    prev,
+    prev_ok,
+    gauss: ti.template(),
+    add_values: ti.template(),
+    track: ti.template(),
+    private: ti.template(),
+    acc: ti.template(),
+    keys: ti.template(),
+    emitted: ti.template(),
+):
     """Paper Eq. 2-3 for one (particle, Gaussian) pair: when |x - mu_g|^2 < r_g^2 add the value (quanta q) and 1 to
     row ``row`` of g, and record the particle id ``pid`` unless the particle's previous sample ``prev`` (``prev_ok``:
     it was inside the domain) was within reach of g too, which recorded the pair then.
@@ -232,9 +245,25 @@ def visit_gaussian(g, x, q, row, pid, prev, prev_ok, gauss: ti.template(), add_v
 
 
 @ti.func
-def visit_level(lv, x, q, row, pid, prev, prev_ok, table: ti.template(), lists: ti.template(),
-                gauss: ti.template(), add_values: ti.template(), track: ti.template(), private: ti.template(),
-                acc: ti.template(), cell_sums: ti.template(), keys: ti.template(), emitted: ti.template()):
+def visit_level(
+    lv,
+    x,
+    q,
+    row,
+    pid,
+    prev,
+    prev_ok,
+    table: ti.template(),
+    lists: ti.template(),
+    gauss: ti.template(),
+    add_values: ti.template(),
+    track: ti.template(),
+    private: ti.template(),
+    acc: ti.template(),
+    cell_sums: ti.template(),
+    keys: ti.template(),
+    emitted: ti.template(),
+):
     """The Gaussians of level ``lv`` listed in the cell of x: those that only touch the cell are tested; those that
     cover it are hits without a test, and the value goes once into the cell's own sum (``cell_sums``), spread onto
     them on read (:func:`spread_cells`). With ``track`` every listed Gaussian is tested (each visit is recorded)."""
@@ -246,8 +275,9 @@ def visit_level(lv, x, q, row, pid, prev, prev_ok, table: ti.template(), lists: 
         if ti.static(track):
             first = begin
         for s in range(first, end):
-            visit_gaussian(lists[items + s], x, q, row, pid, prev, prev_ok, gauss, add_values, track, private, acc,
-                           keys, emitted)
+            visit_gaussian(
+                lists[items + s], x, q, row, pid, prev, prev_ok, gauss, add_values, track, private, acc, keys, emitted
+            )
         if ti.static(add_values and not track):
             if middle > begin:
                 if ti.static(private):
@@ -259,10 +289,24 @@ def visit_level(lv, x, q, row, pid, prev, prev_ok, table: ti.template(), lists: 
 
 
 @ti.func
-def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.template(), prevs: ti.template(),
-                   table: ti.template(), lists: ti.template(), gauss: ti.template(), add_values: ti.template(),
-                   track: ti.template(), private: ti.template(), acc: ti.template(), cell_sums: ti.template(),
-                   keys: ti.template(), emitted: ti.template()):
+def visit_particle(
+    i,
+    row,
+    xs: ti.template(),
+    values: ti.template(),
+    ids: ti.template(),
+    prevs: ti.template(),
+    table: ti.template(),
+    lists: ti.template(),
+    gauss: ti.template(),
+    add_values: ti.template(),
+    track: ti.template(),
+    private: ti.template(),
+    acc: ti.template(),
+    cell_sums: ti.template(),
+    keys: ti.template(),
+    emitted: ti.template(),
+):
     """Paper Eq. 2-3 for fluid particle i inside the domain: every level (:func:`visit_level`); a saturated value
     (:func:`fixed_point`) is counted in the extra slot G."""
     x = ti.cast(xs[i], ti.f64)
@@ -282,15 +326,47 @@ def visit_particle(i, row, xs: ti.template(), values: ti.template(), ids: ti.tem
             prev_ok = inside_domain(table, prev)
             pid = ti.cast(ids[i], ti.i32)
         for lv in range(1, table.shape[0]):
-            visit_level(lv, x, q, row, pid, prev, prev_ok, table, lists, gauss, add_values, track, private, acc,
-                        cell_sums, keys, emitted)
+            visit_level(
+                lv,
+                x,
+                q,
+                row,
+                pid,
+                prev,
+                prev_ok,
+                table,
+                lists,
+                gauss,
+                add_values,
+                track,
+                private,
+                acc,
+                cell_sums,
+                keys,
+                emitted,
+            )
 
 
 @ti.func
-def visit_all(n, steps: ti.template(), xs: ti.template(), values: ti.template(), ids: ti.template(),
-              prevs: ti.template(), table: ti.template(), lists: ti.template(), gauss: ti.template(),
-              add_values: ti.template(), track: ti.template(), private: ti.template(), serial: ti.template(),
-              acc: ti.template(), cell_sums: ti.template(), keys: ti.template(), emitted: ti.template()):
+def visit_all(
+    n,
+    steps: ti.template(),
+    xs: ti.template(),
+    values: ti.template(),
+    ids: ti.template(),
+    prevs: ti.template(),
+    table: ti.template(),
+    lists: ti.template(),
+    gauss: ti.template(),
+    add_values: ti.template(),
+    track: ti.template(),
+    private: ti.template(),
+    serial: ti.template(),
+    acc: ti.template(),
+    cell_sums: ti.template(),
+    keys: ti.template(),
+    emitted: ti.template(),
+):
     """All particles of the staged steps (``steps``: B + 1 offsets, step s holds particles steps[s]..steps[s+1]-1),
     interleaved: iteration k (of n, the longest step) visits particle k of every step. The solver keeps its
     particles sorted by cell, so particle k of consecutive steps sits at about the same place, and its cell lists,
@@ -305,8 +381,24 @@ def visit_all(n, steps: ti.template(), xs: ti.template(), values: ti.template(),
             for s in range(b):
                 i = steps[s] + k
                 if i < steps[s + 1]:
-                    visit_particle(i, 0, xs, values, ids, prevs, table, lists, gauss, add_values, track, private,
-                                   acc, cell_sums, keys, emitted)
+                    visit_particle(
+                        i,
+                        0,
+                        xs,
+                        values,
+                        ids,
+                        prevs,
+                        table,
+                        lists,
+                        gauss,
+                        add_values,
+                        track,
+                        private,
+                        acc,
+                        cell_sums,
+                        keys,
+                        emitted,
+                    )
     else:
         for k in range(n):
             row = 0
@@ -315,8 +407,24 @@ def visit_all(n, steps: ti.template(), xs: ti.template(), values: ti.template(),
             for s in range(b):
                 i = steps[s] + k
                 if i < steps[s + 1]:
-                    visit_particle(i, row, xs, values, ids, prevs, table, lists, gauss, add_values, track, private,
-                                   acc, cell_sums, keys, emitted)
+                    visit_particle(
+                        i,
+                        row,
+                        xs,
+                        values,
+                        ids,
+                        prevs,
+                        table,
+                        lists,
+                        gauss,
+                        add_values,
+                        track,
+                        private,
+                        acc,
+                        cell_sums,
+                        keys,
+                        emitted,
+                    )
 
 
 @ti.kernel
@@ -348,8 +456,9 @@ def accumulate(
     ``serial``: the particles run on the launching thread (row 0), which on small probes costs less than
     waking the thread pool.
     """
-    visit_all(n, steps, xs, values, values, xs, table, lists, gauss, True, False, private, serial, acc, cell_sums,
-              acc, acc)
+    visit_all(
+        n, steps, xs, values, values, xs, table, lists, gauss, True, False, private, serial, acc, cell_sums, acc, acc
+    )
 
 
 @ti.kernel
@@ -381,14 +490,41 @@ def accumulate_tracked(
 
     ``serial``: as in :func:`accumulate`.
     """
-    visit_all(n, steps, xs, values, ids, prevs, table, lists, gauss, add_values, track, private, serial, acc, acc,
-              keys, emitted)
+    visit_all(
+        n,
+        steps,
+        xs,
+        values,
+        ids,
+        prevs,
+        table,
+        lists,
+        gauss,
+        add_values,
+        track,
+        private,
+        serial,
+        acc,
+        acc,
+        keys,
+        emitted,
+    )
 
 
 @ti.func
-def stage_one(i, offset, xs: ti.template(), values: ti.template(), ids: ti.template(), staged_x: ti.template(),
-              staged_values: ti.template(), staged_ids: ti.template(), last: ti.template(), staged_prev: ti.template(),
-              track: ti.template()):
+def stage_one(
+    i,
+    offset,
+    xs: ti.template(),
+    values: ti.template(),
+    ids: ti.template(),
+    staged_x: ti.template(),
+    staged_values: ti.template(),
+    staged_ids: ti.template(),
+    last: ti.template(),
+    staged_prev: ti.template(),
+    track: ti.template(),
+):
     staged_x[offset + i] = xs[i]
     staged_values[offset + i] = values[i]
     staged_ids[offset + i] = ids[i]
@@ -429,8 +565,12 @@ def stage_particles(
 
 
 @ti.kernel
-def insert_keys(n: ti.i32, keys: ti.types.ndarray(dtype=ti.i64, ndim=1), hashes: ti.types.ndarray(dtype=ti.i64, ndim=1),
-                fill: ti.types.ndarray(dtype=ti.i64, ndim=1)):
+def insert_keys(
+    n: ti.i32,
+    keys: ti.types.ndarray(dtype=ti.i64, ndim=1),
+    hashes: ti.types.ndarray(dtype=ti.i64, ndim=1),
+    fill: ti.types.ndarray(dtype=ti.i64, ndim=1),
+):
     """Insert the keys >= 0 among ``keys[:n]`` (listed pairs, or another set's slots) into the set ``hashes``."""
     for i in range(n):
         if keys[i] != EMPTY_KEY:
@@ -524,8 +664,12 @@ def scatter_cells(
 
 
 @ti.kernel
-def spread_cells(table: ti.types.ndarray(dtype=ti.f64, ndim=2), lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 cell_sums: ti.types.ndarray(dtype=ti.i64, ndim=3), out: ti.types.ndarray(dtype=ti.i64, ndim=2)):
+def spread_cells(
+    table: ti.types.ndarray(dtype=ti.f64, ndim=2),
+    lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    cell_sums: ti.types.ndarray(dtype=ti.i64, ndim=3),
+    out: ti.types.ndarray(dtype=ti.i64, ndim=2),
+):
     """``out[g]`` += the sums and counts that particles left in the cells g covers (``cell_sums`` [rows, cells, 2],
     the rows summed): integer adds, so the result is the same in any order."""
     items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)

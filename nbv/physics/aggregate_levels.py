@@ -116,8 +116,14 @@ class _Group:
     moments: np.ndarray
 
     def merged(self, other: _Group) -> _Group:
-        return _Group(self.members + other.members, self.count + other.count, max(self.reach, other.reach),
-                      np.minimum(self.lo, other.lo), np.maximum(self.hi, other.hi), self.moments + other.moments)
+        return _Group(
+            self.members + other.members,
+            self.count + other.count,
+            max(self.reach, other.reach),
+            np.minimum(self.lo, other.lo),
+            np.maximum(self.hi, other.hi),
+            self.moments + other.moments,
+        )
 
     def tested(self, cell: float) -> float:
         """The volume (m^3) where particles test this group's Gaussians with cells of edge C: a Gaussian of reach r
@@ -143,8 +149,9 @@ def _reach_groups(centers: np.ndarray, reach: np.ndarray, lo: np.ndarray, hi: np
         c, r = centers[idx], reach[idx]
         box_lo = np.maximum((c - r[:, None]).min(0), lo)
         box_hi = np.minimum((c + r[:, None]).max(0), hi)
-        groups.append(_Group([idx], len(idx), float(r.max()), box_lo, box_hi,
-                             np.array([r.sum(), (r * r).sum(), (r**3).sum()])))
+        groups.append(
+            _Group([idx], len(idx), float(r.max()), box_lo, box_hi, np.array([r.sum(), (r * r).sum(), (r**3).sum()]))
+        )
     merged = [groups[0]]
     for g in groups[1:]:
         both = merged[-1].merged(g)
@@ -159,13 +166,18 @@ def _tested(reach: np.ndarray, cell: float) -> float:
     """The volume (m^3) where particles test Gaussians of these reaches with cells of edge C (per unit particle
     density: the tests): the cells a sphere touches (the sphere dilated by a cell, C^3 + 6 C^2 r + 3 pi C r^2 +
     4/3 pi r^3) less the cells it covers, which take no test (about the sphere eroded by half a cell diagonal)."""
-    touched = len(reach) * cell**3 + 6 * cell * cell * reach.sum() + 3 * math.pi * cell * (reach * reach).sum() \
+    touched = (
+        len(reach) * cell**3
+        + 6 * cell * cell * reach.sum()
+        + 3 * math.pi * cell * (reach * reach).sum()
         + 4.0 / 3.0 * math.pi * (reach**3).sum()
+    )
     return float(touched - 4.0 / 3.0 * math.pi * (np.maximum(reach - 0.5 * math.sqrt(3.0) * cell, 0.0) ** 3).sum())
 
 
-def _cell_boxes(centers: np.ndarray, reach: np.ndarray, origin: np.ndarray, cell: float,
-                dims: np.ndarray) -> np.ndarray:
+def _cell_boxes(
+    centers: np.ndarray, reach: np.ndarray, origin: np.ndarray, cell: float, dims: np.ndarray
+) -> np.ndarray:
     """[N] int64 cells in each Gaussian's clipped cell box (an upper bound of the cells it is listed in)."""
     first = np.clip(np.floor((centers - reach[:, None] - origin) / cell), 0, dims - 1)
     last = np.clip(np.floor((centers + reach[:, None] - origin) / cell), -1, dims - 1)
@@ -187,8 +199,9 @@ def _level_grid(group: _Group, cell: float) -> tuple[float, np.ndarray]:
         cell *= 1.25
 
 
-def _fit_cells(groups: list[_Group], centers: list[np.ndarray], reach: list[np.ndarray],
-               budget: int) -> tuple[list[tuple[float, np.ndarray]], list[int]]:
+def _fit_cells(
+    groups: list[_Group], centers: list[np.ndarray], reach: list[np.ndarray], budget: int
+) -> tuple[list[tuple[float, np.ndarray]], list[int]]:
     """The (cell, dims) of every level and its list-entry bound (:func:`_cell_boxes`), within ``budget`` entries.
 
     Every level starts at ``CELL_FRACTION`` of its largest reach; while the bounds exceed the budget, the level with
@@ -197,8 +210,9 @@ def _fit_cells(groups: list[_Group], centers: list[np.ndarray], reach: list[np.n
     Gaussians (which many particles test) get fine cells for little memory.
     """
     grids = [_level_grid(g, CELL_FRACTION * g.reach) for g in groups]
-    boxes = [int(_cell_boxes(c, r, g.lo, *grid).sum()) for g, c, r, grid in zip(groups, centers, reach, grids,
-                                                                               strict=True)]
+    boxes = [
+        int(_cell_boxes(c, r, g.lo, *grid).sum()) for g, c, r, grid in zip(groups, centers, reach, grids, strict=True)
+    ]
     while sum(boxes) > budget:
         w = int(np.argmax(boxes))
         grids[w] = _level_grid(groups[w], 1.25 * grids[w][0])
@@ -242,8 +256,14 @@ def plan_levels(centers: np.ndarray, reach: np.ndarray, bounds_min, bounds_max) 
     keep = (reach > 0) & ((gap * gap).sum(1) < reach * reach * (1 + 1e-9) + 1e-300)
     kept = np.nonzero(keep)[0]
     if len(kept) == 0:
-        return GaussianLevels(np.zeros(0, np.int64), np.zeros((0, kernels.TABLE_WIDTH)), np.zeros(1, np.int64),
-                              np.zeros(1, np.int64), 0, (lo, hi))
+        return GaussianLevels(
+            np.zeros(0, np.int64),
+            np.zeros((0, kernels.TABLE_WIDTH)),
+            np.zeros(1, np.int64),
+            np.zeros(1, np.int64),
+            0,
+            (lo, hi),
+        )
     c_kept, r_kept = centers[kept], reach[kept]
     groups = _reach_groups(c_kept, r_kept, lo, hi)
     members = [np.sort(np.concatenate(g.members)) for g in groups]
@@ -260,8 +280,14 @@ def plan_levels(centers: np.ndarray, reach: np.ndarray, bounds_min, bounds_max) 
         first.append(first[-1] + len(m))
         offset += int(np.prod(dims))
     centre_starts = np.concatenate([[0], np.cumsum(np.concatenate(centre_counts), dtype=np.int64)])
-    return GaussianLevels(np.concatenate(orders), np.asarray(rows, np.float64), np.asarray(first, np.int64),
-                          centre_starts, sum(boxes), (lo, hi))
+    return GaussianLevels(
+        np.concatenate(orders),
+        np.asarray(rows, np.float64),
+        np.asarray(first, np.int64),
+        centre_starts,
+        sum(boxes),
+        (lo, hi),
+    )
 
 
 # ---- the lists, built once per run -----------------------------------------------------------------
@@ -358,11 +384,23 @@ class GaussianLists:
                 # Gaussians in fine cells, each Gaussian scattering itself on one thread (a random write costs more)
                 gather = float(np.prod(lv.table[level, 5:8])) * span**2 + (last - first) * span**3
                 if _SCATTER_COST * (last - first) * span**3 < gather:
-                    kernels.scatter_cells(first, last, level + 1, slack, fill, self.gauss, ti_reach, table,
-                                          counts, covering, lists)
+                    kernels.scatter_cells(
+                        first, last, level + 1, slack, fill, self.gauss, ti_reach, table, counts, covering, lists
+                    )
                 else:
-                    kernels.list_cells(level + 1, reach_cells, slack, fill, self.gauss, ti_reach, table,
-                                       centres, counts, covering, lists)
+                    kernels.list_cells(
+                        level + 1,
+                        reach_cells,
+                        slack,
+                        fill,
+                        self.gauss,
+                        ti_reach,
+                        table,
+                        centres,
+                        counts,
+                        covering,
+                        lists,
+                    )
 
         passes(False, counts)
         total_counts = counts.to_numpy()[:cells].astype(np.int64)
@@ -382,10 +420,19 @@ class GaussianLists:
         self.covered_entries = int((splits - starts[:-1]).sum())
         self.levels = replace(lv, centre_starts=np.zeros(0, np.int64))  # only the build needs them
         self.list_entries = total
-        log.debug("Gaussian levels: %d of %d Gaussians kept in %d levels (%s), cells %s m, %d cells, %d list entries "
-                  "(%.1f per Gaussian, %d covering their cell)", self.num_kept, self.num_gaussians, lv.num_levels,
-                  lv.counts.tolist(), [float(f"{c:.3g}") for c in lv.cell_sizes], cells, total,
-                  total / max(self.num_kept, 1), self.covered_entries)
+        log.debug(
+            "Gaussian levels: %d of %d Gaussians kept in %d levels (%s), cells %s m, %d cells, %d list entries "
+            "(%.1f per Gaussian, %d covering their cell)",
+            self.num_kept,
+            self.num_gaussians,
+            lv.num_levels,
+            lv.counts.tolist(),
+            [float(f"{c:.3g}") for c in lv.cell_sizes],
+            cells,
+            total,
+            total / max(self.num_kept, 1),
+            self.covered_entries,
+        )
 
     def _table_array(self) -> np.ndarray:
         """The ``table`` argument of the kernels (see ``aggregate_kernels.TABLE_WIDTH``)."""

@@ -84,8 +84,10 @@ def _check_views(cameras: Sequence, depths: Sequence) -> list[np.ndarray]:
         raise ValueError(f"carving: {len(cams)} cameras but {len(maps)} depth maps; pass one depth map per camera")
     for cam, d in zip(cams, maps, strict=True):
         if d.shape != (cam.height, cam.width):
-            raise ValueError(f"carving: the depth map of camera {cam.name!r} has shape {d.shape}, expected "
-                             f"({cam.height}, {cam.width}) (H, W)")
+            raise ValueError(
+                f"carving: the depth map of camera {cam.name!r} has shape {d.shape}, expected "
+                f"({cam.height}, {cam.width}) (H, W)"
+            )
         if np.isnan(d).any():
             raise ValueError(f"carving: the depth map of camera {cam.name!r} holds NaN; use inf for empty pixels")
     return maps
@@ -100,11 +102,10 @@ def nearest_surface(depth: np.ndarray) -> np.ndarray:
     """
     d = np.pad(np.asarray(depth, dtype=np.float64), 1, constant_values=np.inf)
     h, w = depth.shape
-    return np.min([d[i:i + h, j:j + w] for i in range(3) for j in range(3)], axis=0)
+    return np.min([d[i : i + h, j : j + w] for i in range(3) for j in range(3)], axis=0)
 
 
-def seen_empty(points_scene: np.ndarray, cameras: Sequence, depths: Sequence[np.ndarray],
-               margin: float) -> np.ndarray:
+def seen_empty(points_scene: np.ndarray, cameras: Sequence, depths: Sequence[np.ndarray], margin: float) -> np.ndarray:
     """[P] bool: some camera sees the point (scene units) in front of its depth map by more than ``margin``.
 
     ``depths`` are taken as they are; :func:`carve_outside` passes them through :func:`nearest_surface` first.
@@ -127,8 +128,15 @@ def seen_empty(points_scene: np.ndarray, cameras: Sequence, depths: Sequence[np.
     return seen
 
 
-def carve_outside(occupancy: np.ndarray, lattice_min: np.ndarray, spacing: float, cameras: Sequence,
-                  depths: Sequence[np.ndarray], transform, margin: float = 0.0) -> np.ndarray:
+def carve_outside(
+    occupancy: np.ndarray,
+    lattice_min: np.ndarray,
+    spacing: float,
+    cameras: Sequence,
+    depths: Sequence[np.ndarray],
+    transform,
+    margin: float = 0.0,
+) -> np.ndarray:
     """The carved solid: ``occupancy`` plus every lattice point that no camera sees empty.
 
     Args:

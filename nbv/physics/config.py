@@ -29,7 +29,6 @@ QUICK = {"particle_radius": 0.035, "steps": 750}
 ESTIMATOR_RADII = 4.0
 
 
-
 @dataclass(frozen=True)
 class PhysicsConfig:
     """How the Gaussians are probed (the defaults are the paper's; :data:`QUICK` is the quick preset).
@@ -105,10 +104,15 @@ class PhysicsConfig:
         up = parse_up(self.up, "PhysicsConfig.up")
         object.__setattr__(self, "up", up_label(up) if isinstance(self.up, str) else tuple(float(c) for c in up))
         object.__setattr__(self, "crop", parse_crop(self.crop))
-        if self.scale != "auto" and (isinstance(self.scale, bool) or not isinstance(self.scale, (int, float))
-                                     or not math.isfinite(self.scale) or self.scale <= 0):
-            raise ValueError(f"PhysicsConfig.scale must be 'auto' or a number > 0 (m per scene unit), "
-                             f"got {self.scale!r}")
+        if self.scale != "auto" and (
+            isinstance(self.scale, bool)
+            or not isinstance(self.scale, (int, float))
+            or not math.isfinite(self.scale)
+            or self.scale <= 0
+        ):
+            raise ValueError(
+                f"PhysicsConfig.scale must be 'auto' or a number > 0 (m per scene unit), got {self.scale!r}"
+            )
         if self.precision not in ("f32", "f64"):
             raise ValueError(f"PhysicsConfig.precision must be 'f32' or 'f64', got {self.precision!r}")
         if self.max_memory_gb is not None and not self.max_memory_gb > 0:
@@ -132,9 +136,16 @@ class PhysicsConfig:
         # h_r = h_k = 4 r: the paper's 0.1 m at r = 0.025 m, scaled so that coarse presets still see neighbours
         extra.setdefault("estimator_radius", ESTIMATOR_RADII * self.particle_radius)
         extra.setdefault("estimator_kernel_radius", ESTIMATOR_RADII * self.particle_radius)
-        return SolverConfig(**{**extra, "particle_radius": self.particle_radius, "dt": self.dt if dt is None else dt,
-                               "viscosity": self.viscosity, "rest_density": self.rest_density,
-                               "precision": self.precision})
+        return SolverConfig(
+            **{
+                **extra,
+                "particle_radius": self.particle_radius,
+                "dt": self.dt if dt is None else dt,
+                "viscosity": self.viscosity,
+                "rest_density": self.rest_density,
+                "precision": self.precision,
+            }
+        )
 
     def probe_config(self) -> ProbeConfig:
         """The fluidsim probe parameters (slab, walls, directions)."""
@@ -148,8 +159,14 @@ class PhysicsConfig:
         fields."""
         from nbv.physics.solidify import SolidifyConfig  # noqa: PLC0415 - loads Taichi; --help needs only the config
 
-        return SolidifyConfig(**{"spacing": 2.0 * self.particle_radius, "opacity_threshold": self.opacity_threshold,
-                                 "fill_cavities": self.fill_cavities, **overrides})
+        return SolidifyConfig(
+            **{
+                "spacing": 2.0 * self.particle_radius,
+                "opacity_threshold": self.opacity_threshold,
+                "fill_cavities": self.fill_cavities,
+                **overrides,
+            }
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able dict (``from_dict`` reads it back)."""
@@ -181,7 +198,6 @@ class PhysicsConfig:
         return cls(**d)
 
 
-
 # ---- transform and guards ------------------------------------------------------------------------
 def kept_gaussians(gaussians, config: PhysicsConfig, report: bool = True) -> np.ndarray | None:
     """[G] bool: the Gaussians that ``config.crop`` keeps (centres inside the crop box), or None without a crop.
@@ -196,15 +212,17 @@ def kept_gaussians(gaussians, config: PhysicsConfig, report: bool = True) -> np.
     lo, hi = crop_box(config.crop, means, opacities, config.opacity_threshold)
     kept = inside_box(means, lo, hi)
     if not kept.any():
-        raise ValueError(f"--crop {config.crop}: the box [{', '.join(f'{v:.4g}' for v in lo)}] - "
-                         f"[{', '.join(f'{v:.4g}' for v in hi)}] (scene units) keeps none of the {len(means):,} "
-                         f"Gaussians, whose centres span [{', '.join(f'{v:.4g}' for v in means.min(0))}] - "
-                         f"[{', '.join(f'{v:.4g}' for v in means.max(0))}]; widen the box or use --crop auto")
+        raise ValueError(
+            f"--crop {config.crop}: the box [{', '.join(f'{v:.4g}' for v in lo)}] - "
+            f"[{', '.join(f'{v:.4g}' for v in hi)}] (scene units) keeps none of the {len(means):,} "
+            f"Gaussians, whose centres span [{', '.join(f'{v:.4g}' for v in means.min(0))}] - "
+            f"[{', '.join(f'{v:.4g}' for v in means.max(0))}]; widen the box or use --crop auto"
+        )
     if report:
-        log.info("crop %s: kept %d of %d Gaussians (%d dropped)", config.crop, int(kept.sum()), len(kept),
-                 int((~kept).sum()))
+        log.info(
+            "crop %s: kept %d of %d Gaussians (%d dropped)", config.crop, int(kept.sum()), len(kept), int((~kept).sum())
+        )
     return kept
-
 
 
 _CROP_NOT_GIVEN = object()
@@ -222,8 +240,10 @@ def scene_transform(gaussians, config: PhysicsConfig, *, kept=_CROP_NOT_GIVEN):
     box = object_box(gaussians, config, kept=kept)
     extent = 0.0 if box is None else float((box[1] - box[0]).max())
     if not extent > 0:
-        raise ValueError("cannot pick scale='auto': the Gaussians have no spatial extent; "
-                         "pass a number (metres per scene unit) as the scale")
+        raise ValueError(
+            "cannot pick scale='auto': the Gaussians have no spatial extent; "
+            "pass a number (metres per scene unit) as the scale"
+        )
     return SceneTransform(config.up, config.target_extent / extent)
 
 
@@ -245,7 +265,6 @@ def object_box(gaussians, config: PhysicsConfig, *, kept=_CROP_NOT_GIVEN) -> tup
     if len(means) < 2:
         return None
     return robust_box(SceneTransform(config.up, 1.0).to_sim(means), opacities, config.opacity_threshold)
-
 
 
 def parse_directions(text: str | Sequence[str]) -> tuple[str, ...]:

@@ -156,8 +156,9 @@ def _dilate(mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def speck_points(occupancy: np.ndarray, means: np.ndarray, opacities: np.ndarray, lattice_min: np.ndarray,
-                 spacing: float, tau: float) -> np.ndarray:
+def speck_points(
+    occupancy: np.ndarray, means: np.ndarray, opacities: np.ndarray, lattice_min: np.ndarray, spacing: float, tau: float
+) -> np.ndarray:
     """The lattice points nearest to the centres of the Gaussians (o_g >= tau) that left no solid point within one
     spacing (3 x 3 x 3 neighbourhood) of that point. The lattice spans the Gaussians' sigma boxes, so a centre
     may lie up to one spacing past its last layer: it takes the last layer's point.
@@ -181,8 +182,9 @@ def speck_points(occupancy: np.ndarray, means: np.ndarray, opacities: np.ndarray
     return out
 
 
-def occupancy_from_fields(log_t: np.ndarray, cuts: np.ndarray | None, tau: float,
-                          fill: bool) -> tuple[np.ndarray, dict[str, int]]:
+def occupancy_from_fields(
+    log_t: np.ndarray, cuts: np.ndarray | None, tau: float, fill: bool
+) -> tuple[np.ndarray, dict[str, int]]:
     """Tests 1-3 on the lattice fields: the solid points (before specks and carving).
 
     Args:

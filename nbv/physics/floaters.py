@@ -38,8 +38,9 @@ def others_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return others_lo, others_hi
 
 
-def solid_capable_boxes(box_lo: np.ndarray, box_hi: np.ndarray, opacities: np.ndarray,
-                        tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def solid_capable_boxes(
+    box_lo: np.ndarray, box_hi: np.ndarray, opacities: np.ndarray, tau: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The Gaussians' sigma boxes reduced to where they can take part in making solid (module docstring).
 
     Args:
@@ -76,8 +77,7 @@ def lattice_extent(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray) -> tuple[np
     return lo[keep].min(0), hi[keep].max(0)
 
 
-def dominant_gaussian(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray,
-                      spacing: float) -> tuple[int, float] | None:
+def dominant_gaussian(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray, spacing: float) -> tuple[int, float] | None:
     """The Gaussian whose removal shrinks the lattice most, if at least :data:`DOMINANT_FACTOR`-fold.
 
     Args:
@@ -102,8 +102,16 @@ def dominant_gaussian(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray,
     return (int(idx[cand[best]]), float(factors[best])) if factors[best] >= DOMINANT_FACTOR else None
 
 
-def dominant_note(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray, spacing: float, means: np.ndarray,
-                  covs: np.ndarray, opacities: np.ndarray, transform) -> str:
+def dominant_note(
+    lo: np.ndarray,
+    hi: np.ndarray,
+    keep: np.ndarray,
+    spacing: float,
+    means: np.ndarray,
+    covs: np.ndarray,
+    opacities: np.ndarray,
+    transform,
+) -> str:
     """``"; Gaussian 12 (centre ..., ...) alone widens it 1e9-fold: ..."`` for a size error, or "" when none does.
 
     Args:
@@ -115,7 +123,7 @@ def dominant_note(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray, spacing: flo
     if found is None:
         return ""
     i, factor = found
-    centre = transform.to_scene(means[i:i + 1])[0]
+    centre = transform.to_scene(means[i : i + 1])[0]
     sigmas = np.sqrt(np.maximum(np.linalg.eigvalsh(covs[i]), 0.0)) / transform.scale
     others = keep.copy()
     others[i] = False
@@ -123,10 +131,14 @@ def dominant_note(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray, spacing: flo
     if np.all((means[i] >= olo) & (means[i] <= ohi)):  # a crop keeps Gaussians by their centre: it would keep this one
         fix = "delete that Gaussian from the file (its centre lies among the others, so a --crop box keeps it)"
     else:
-        fix = ("delete that floater, or crop the Gaussians to the object (--crop auto, or --crop "
-               "xmin,ymin,zmin,xmax,ymax,zmax in scene units)")
-    return (f"; Gaussian {i} (centre {_fmt(centre)}, standard deviations {_fmt(sigmas)} in scene units, opacity "
-            f"{float(opacities[i]):.3g}) alone widens it {factor:.3g}-fold: {fix}")
+        fix = (
+            "delete that floater, or crop the Gaussians to the object (--crop auto, or --crop "
+            "xmin,ymin,zmin,xmax,ymax,zmax in scene units)"
+        )
+    return (
+        f"; Gaussian {i} (centre {_fmt(centre)}, standard deviations {_fmt(sigmas)} in scene units, opacity "
+        f"{float(opacities[i]):.3g}) alone widens it {factor:.3g}-fold: {fix}"
+    )
 
 
 def _fmt(v: np.ndarray) -> str:

@@ -124,8 +124,9 @@ class LeakCounter:
         if f.active == 0 or not 0 <= step < self._steps:
             return
         self._ensure_flags(f.capacity)
-        solid_kernels.flag_deep_inside(f.active, f.x, self.deep, self._origin, 1.0 / self.spacing, int(step),
-                                       self._flags, self._counts)
+        solid_kernels.flag_deep_inside(
+            f.active, f.x, self.deep, self._origin, 1.0 / self.spacing, int(step), self._flags, self._counts
+        )
 
     def finish(self, solver) -> ProbeLeaks:
         """The final positions and ids, the particles inside at the end, and the per-step counts."""
@@ -138,8 +139,9 @@ class LeakCounter:
         leaked = np.zeros(0, np.int32)
         if f.active:
             self._ensure_flags(f.capacity)
-            solid_kernels.flag_deep_inside(f.active, f.x, self.deep, self._origin, 1.0 / self.spacing, -1,
-                                           self._flags, self._counts)
+            solid_kernels.flag_deep_inside(
+                f.active, f.x, self.deep, self._origin, 1.0 / self.spacing, -1, self._flags, self._counts
+            )
             flags = self._flags.to_numpy()[: f.active].astype(bool)
             leaked = np.sort(f.numpy("ids")[flags]).astype(np.int32)
         per_step = self._counts.to_numpy()[: self._steps].astype(np.int32)
@@ -151,14 +153,20 @@ def write_probe_leaks(group, leaks: ProbeLeaks) -> None:
     ds = group.create_dataset("leaked", data=np.asarray(leaks.leaked_ids, np.int32))
     ds.attrs["final"], ds.attrs["max"], ds.attrs["max_step"] = leaks.final, leaks.max, leaks.max_step
     group.create_dataset("leaked_per_step", data=np.asarray(leaks.per_step, np.int32))
-    group.create_dataset("x_final", data=np.asarray(leaks.x_final, np.float32).reshape(-1, 3), compression="gzip",
-                         compression_opts=1)
-    group.create_dataset("ids_final", data=np.asarray(leaks.ids_final, np.int32), compression="gzip",
-                         compression_opts=1)
+    group.create_dataset(
+        "x_final", data=np.asarray(leaks.x_final, np.float32).reshape(-1, 3), compression="gzip", compression_opts=1
+    )
+    group.create_dataset(
+        "ids_final", data=np.asarray(leaks.ids_final, np.int32), compression="gzip", compression_opts=1
+    )
 
 
 def read_probe_leaks(group) -> ProbeLeaks:
     """Inverse of :func:`write_probe_leaks`."""
     per_step = group["leaked_per_step"][()] if "leaked_per_step" in group else np.zeros(0, np.int32)
-    return ProbeLeaks(x_final=group["x_final"][()], ids_final=group["ids_final"][()],
-                      leaked_ids=group["leaked"][()], per_step=per_step)
+    return ProbeLeaks(
+        x_final=group["x_final"][()],
+        ids_final=group["ids_final"][()],
+        leaked_ids=group["leaked"][()],
+        per_step=per_step,
+    )

@@ -36,9 +36,15 @@ BYTES_PER_GAUSSIAN_PROBE = 24
 BYTES_PER_LATTICE_POINT = 2
 
 
-
-def estimate_memory(gaussians, config: PhysicsConfig, transform=None, solid_points: np.ndarray | None = None, *,
-                    sim: SimGaussians | None = None, setups=None) -> dict[str, float]:
+def estimate_memory(
+    gaussians,
+    config: PhysicsConfig,
+    transform=None,
+    solid_points: np.ndarray | None = None,
+    *,
+    sim: SimGaussians | None = None,
+    setups=None,
+) -> dict[str, float]:
     """An upper estimate of the memory one probe needs, before any probe is allocated.
 
     Without ``solid_points`` it is cheap: the box of the solid lattice stands for the solid's box (the
@@ -60,8 +66,11 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None, solid_poin
     ``transform``), so that they are not converted again. ``setups``: the probes already laid out around
     ``solid_points`` (:attr:`nbv.physics.plan.ProbePlan.setups`), so that they are not laid out again.
     """
-    transform = sim.transform if sim is not None else (
-        transform if transform is not None else scene_transform(gaussians, config))
+    transform = (
+        sim.transform
+        if sim is not None
+        else (transform if transform is not None else scene_transform(gaussians, config))
+    )
     sim = as_sim(sim if sim is not None else gaussians, transform)
     spacing = 2.0 * config.particle_radius
     scfg = config.solidify_config(max_points=2**62)
@@ -83,9 +92,12 @@ def estimate_memory(gaussians, config: PhysicsConfig, transform=None, solid_poin
         area = 2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2])
         walls = area * probe.wall_layers / spacing**2
         fluid, boundary = max(fluid, int(f)), max(boundary, int(walls) + solid_count)
-    return {"lattice_points": lattice, "fluid_particles": fluid, "boundary_particles": boundary,
-            **_memory_parts(gaussians, config, lattice, fluid, boundary)}
-
+    return {
+        "lattice_points": lattice,
+        "fluid_particles": fluid,
+        "boundary_particles": boundary,
+        **_memory_parts(gaussians, config, lattice, fluid, boundary),
+    }
 
 
 def _memory_parts(gaussians, config: PhysicsConfig, lattice: int, fluid: int, boundary: int) -> dict[str, float]:
@@ -94,18 +106,26 @@ def _memory_parts(gaussians, config: PhysicsConfig, lattice: int, fluid: int, bo
     its accumulator (``accumulator_bytes``), and ``bytes`` = resident + the larger of the two phases."""
     g = int(gaussians.num)
     tensors = (gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh)
-    resident = sum(t.numel() * t.element_size() for t in tensors) \
-        + g * (BYTES_PER_GAUSSIAN_RUN + BYTES_PER_GAUSSIAN_PROBE * len(config.directions))
+    resident = sum(t.numel() * t.element_size() for t in tensors) + g * (
+        BYTES_PER_GAUSSIAN_RUN + BYTES_PER_GAUSSIAN_PROBE * len(config.directions)
+    )
     solidify = estimate_solidify_bytes(g, lattice)
     probe = fluid * BYTES_PER_FLUID + boundary * BYTES_PER_BOUNDARY + lattice * BYTES_PER_LATTICE_POINT
     radii = gaussians.log_scales.detach().max(dim=1).values.double().exp().cpu().numpy()  # ratios: scale-free
-    accumulator = GaussianAccumulator.estimate_bytes(g, fluid, config.track_distinct,
-                                                     float_bytes=4 if config.precision == "f32" else 8,
-                                                     num_levels=reach_classes(radii))
-    return {"resident_bytes": float(resident), "solidify_bytes": float(solidify), "probe_bytes": float(probe),
-            "accumulator_bytes": float(accumulator),
-            "bytes": float(resident + max(solidify, probe + accumulator))}
-
+    accumulator = GaussianAccumulator.estimate_bytes(
+        g,
+        fluid,
+        config.track_distinct,
+        float_bytes=4 if config.precision == "f32" else 8,
+        num_levels=reach_classes(radii),
+    )
+    return {
+        "resident_bytes": float(resident),
+        "solidify_bytes": float(solidify),
+        "probe_bytes": float(probe),
+        "accumulator_bytes": float(accumulator),
+        "bytes": float(resident + max(solidify, probe + accumulator)),
+    }
 
 
 def check_memory_bound(frame) -> bool:
@@ -123,11 +143,12 @@ def check_memory_bound(frame) -> bool:
     config, sim = frame.config, frame.sim
     cheap = estimate_memory(sim.gaussians, config, frame.transform, sim=sim)
     exact = cheap["bytes"] > memory_limit_bytes(config)
-    if exact and (cheap["lattice_points"] > config.solidify_config().max_points
-                  or cheap["resident_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)):
+    if exact and (
+        cheap["lattice_points"] > config.solidify_config().max_points
+        or cheap["resident_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)
+    ):
         check_memory(sim.gaussians, config, frame.transform, sim=sim)  # the solid is too costly: raise
     return exact
-
 
 
 def memory_limit_bytes(config: PhysicsConfig) -> float:
@@ -135,9 +156,15 @@ def memory_limit_bytes(config: PhysicsConfig) -> float:
     return config.max_memory_gb * 2**30 if config.max_memory_gb is not None else float(available_memory_bytes())
 
 
-
-def check_memory(gaussians, config: PhysicsConfig, transform=None, solid_points: np.ndarray | None = None, *,
-                 sim: SimGaussians | None = None, setups=None) -> dict[str, float]:
+def check_memory(
+    gaussians,
+    config: PhysicsConfig,
+    transform=None,
+    solid_points: np.ndarray | None = None,
+    *,
+    sim: SimGaussians | None = None,
+    setups=None,
+) -> dict[str, float]:
     """Raise ValueError, with the estimate and the fix, when a probe would not fit in memory.
 
     See :func:`estimate_memory` for ``solid_points`` (the exact check once the solid is known), ``sim`` and
@@ -153,13 +180,14 @@ def check_memory(gaussians, config: PhysicsConfig, transform=None, solid_points:
             f"{est['lattice_points']:,} points, {gaussians.num:,} Gaussians: {gib['resident_bytes']:.3g} GiB for the "
             f"Gaussians, then {gib['solidify_bytes']:.3g} GiB to solidify, {gib['probe_bytes']:.3g} GiB per probe and "
             f"{gib['accumulator_bytes']:.3g} GiB for its per-Gaussian accumulator) but {limit / 2**30:.3g} GiB are "
-            f"{available}{_memory_fix(gaussians, config, transform, est, limit, sim)}")
+            f"{available}{_memory_fix(gaussians, config, transform, est, limit, sim)}"
+        )
     return est
 
 
-
-def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, float], limit: float,
-                sim: SimGaussians | None = None) -> str:
+def _memory_fix(
+    gaussians, config: PhysicsConfig, transform, est: dict[str, float], limit: float, sim: SimGaussians | None = None
+) -> str:
     """The advice of :func:`check_memory`: the Gaussian that alone widens the lattice, if one does (a larger
     radius cannot help then), else the particle radius that would fit, if the object is still resolved."""
     transform = transform if transform is not None else scene_transform(gaussians, config)
@@ -174,17 +202,23 @@ def _memory_fix(gaussians, config: PhysicsConfig, transform, est: dict[str, floa
     # the Gaussians' own bytes do not shrink with a larger radius
     fixed = est["resident_bytes"] + max(est["accumulator_bytes"], float(gaussians.num) * BYTES_PER_GAUSSIAN_SOLIDIFY)
     if fixed >= limit:
-        return (f"; the {gaussians.num:,} Gaussians alone need about {fixed / 2**30:.3g} GiB (the set, the "
-                "per-Gaussian accumulator or the solidification), so a larger particle radius cannot help: crop "
-                "them to the object (--crop auto, or --crop xmin,ymin,zmin,xmax,ymax,zmax in scene units), prune "
-                "them, or allow more memory (--max-memory-gb) on a larger machine")
+        return (
+            f"; the {gaussians.num:,} Gaussians alone need about {fixed / 2**30:.3g} GiB (the set, the "
+            "per-Gaussian accumulator or the solidification), so a larger particle radius cannot help: crop "
+            "them to the object (--crop auto, or --crop xmin,ymin,zmin,xmax,ymax,zmax in scene units), prune "
+            "them, or allow more memory (--max-memory-gb) on a larger machine"
+        )
     # the fluid and the lattice (the rest of the bytes) scale as 1 / r^3: the radius that would fit, if the object
     # stays resolved
     radius = config.particle_radius * ((est["bytes"] - fixed) / (limit - fixed)) ** (1.0 / 3.0)
     extent = float(np.max(np.subtract(*floaters.lattice_extent(*boxes)[::-1])))
     if 2.0 * radius <= extent / 4.0:
-        return (f"; use a particle radius of about {radius:.3g} m or more (--particle-radius; --quick is "
-                f"{QUICK['particle_radius']} m), a smaller scale (--scale), or crop the Gaussians (--crop)")
-    return (f"; a particle radius that fits ({radius:.3g} m) would leave the {extent:.3g} m solid box fewer than 4 "
-            "particles across: crop the Gaussians to the object (--crop auto, or --crop xmin,ymin,zmin,xmax,ymax,zmax "
-            "in scene units) or use a smaller scale (--scale)")
+        return (
+            f"; use a particle radius of about {radius:.3g} m or more (--particle-radius; --quick is "
+            f"{QUICK['particle_radius']} m), a smaller scale (--scale), or crop the Gaussians (--crop)"
+        )
+    return (
+        f"; a particle radius that fits ({radius:.3g} m) would leave the {extent:.3g} m solid box fewer than 4 "
+        "particles across: crop the Gaussians to the object (--crop auto, or --crop xmin,ymin,zmin,xmax,ymax,zmax "
+        "in scene units) or use a smaller scale (--scale)"
+    )

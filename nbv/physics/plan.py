@@ -111,11 +111,19 @@ def expand_to_all(part: PhysicsResult, gaussians, kept: np.ndarray, config: Phys
 
     means, covs, _, radii = gaussian_arrays_in_sim(gaussians, part.transform)
     return replace(
-        part, per_probe=full(part.per_probe, 1), per_probe_counts=full(part.per_probe_counts, 1),
-        per_probe_distinct=full(part.per_probe_distinct, 1), divergence=full(part.divergence),
-        divergence_mean=full(part.divergence_mean), empty_per_probe=full(part.empty_per_probe, 1),
-        means=np.ascontiguousarray(means), covariances=np.ascontiguousarray(covs),
-        reach=np.ascontiguousarray(config.n_radius * radii), config=config, kept=kept.copy())
+        part,
+        per_probe=full(part.per_probe, 1),
+        per_probe_counts=full(part.per_probe_counts, 1),
+        per_probe_distinct=full(part.per_probe_distinct, 1),
+        divergence=full(part.divergence),
+        divergence_mean=full(part.divergence_mean),
+        empty_per_probe=full(part.empty_per_probe, 1),
+        means=np.ascontiguousarray(means),
+        covariances=np.ascontiguousarray(covs),
+        reach=np.ascontiguousarray(config.n_radius * radii),
+        config=config,
+        kept=kept.copy(),
+    )
 
 
 @dataclass(frozen=True)
@@ -143,11 +151,15 @@ class ProbePlan:
 
     def fluid_counts(self, directions) -> dict[str, int]:
         """F per probe of ``directions``: the fluid particles of its slab, before running."""
-        return {d: int(len(lattice_in_box(self.setups[d].fluid_min, self.setups[d].fluid_max, self.spacing)))
-                for d in directions}
+        return {
+            d: int(len(lattice_in_box(self.setups[d].fluid_min, self.setups[d].fluid_max, self.spacing)))
+            for d in directions
+        }
 
 
 def probe_domains_union(setups: dict[str, ProbeSetup]) -> tuple[np.ndarray, np.ndarray]:
     """(min [3], max [3]) m: the box around the domains of ``setups``."""
-    return (np.min([np.asarray(s.domain_min, np.float64) for s in setups.values()], axis=0),
-            np.max([np.asarray(s.domain_max, np.float64) for s in setups.values()], axis=0))
+    return (
+        np.min([np.asarray(s.domain_min, np.float64) for s in setups.values()], axis=0),
+        np.max([np.asarray(s.domain_max, np.float64) for s in setups.values()], axis=0),
+    )

@@ -103,7 +103,6 @@ class PhysicsResult:
         return self.per_probe_distinct.sum(0)
 
 
-
 class ProbeDiverged(SimulationDiverged):
     """A probe diverged. ``probe`` and ``step`` say where; ``result`` holds the probes completed before it
     (``status`` "diverged", ``failure`` set), for saving: nothing computed is lost."""
@@ -115,7 +114,6 @@ class ProbeDiverged(SimulationDiverged):
         self.args = (f"probe {probe} diverged at step {step}: {reason} (probes completed: {done})",)
 
 
-
 def gaussians_sha256(gaussians) -> str:
     """SHA-256 (hex) of what the probes depend on: the float32 bytes of means, quats, log_scales and
     opacity_logits, in that order (colours are left out, so a re-coloured copy has the same digest)."""
@@ -125,10 +123,8 @@ def gaussians_sha256(gaussians) -> str:
     return h.hexdigest()
 
 
-
 def _t(a: np.ndarray):
     return torch.from_numpy(np.asarray(a, np.float64))
-
 
 
 # ---- HDF5 ------------------------------------------------------------------------------------------
@@ -208,7 +204,6 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
     return p
 
 
-
 def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
     """Read a result written by :func:`save_result` (``trajectories``: also the recorded probe trajectories, which
     can be large; by default ``PhysicsResult.trajectories`` is left empty).
@@ -227,42 +222,78 @@ def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
             g = f["gaussians/D"].shape[0]
             per_probe = np.stack([pg["D"][()] for pg in probes]) if probes else np.zeros((0, g))
             counts = np.stack([pg["counts"][()] for pg in probes]) if probes else np.zeros((0, g), np.int64)
-            distinct = np.stack([pg["distinct"][()] for pg in probes]) \
-                if probes and all("distinct" in pg for pg in probes) else None
-            empty = np.stack([pg["D_empty"][()] for pg in probes]) \
-                if probes and all("D_empty" in pg for pg in probes) else None
-            domains = {d: (np.asarray(pg.attrs["domain_min"]), np.asarray(pg.attrs["domain_max"]))
-                       for d, pg in zip(dirs, probes, strict=True) if "domain_min" in pg.attrs}
-            warnings = {d: list(json.loads(pg.attrs["warnings"])) if "warnings" in pg.attrs else []
-                        for d, pg in zip(dirs, probes, strict=True)}
-            failure = {"probe": str(f.attrs["diverged_probe"]), "step": int(f.attrs["diverged_step"]),
-                       "reason": str(f.attrs["diverged_reason"])} if "diverged_probe" in f.attrs else None
+            distinct = (
+                np.stack([pg["distinct"][()] for pg in probes])
+                if probes and all("distinct" in pg for pg in probes)
+                else None
+            )
+            empty = (
+                np.stack([pg["D_empty"][()] for pg in probes])
+                if probes and all("D_empty" in pg for pg in probes)
+                else None
+            )
+            domains = {
+                d: (np.asarray(pg.attrs["domain_min"]), np.asarray(pg.attrs["domain_max"]))
+                for d, pg in zip(dirs, probes, strict=True)
+                if "domain_min" in pg.attrs
+            }
+            warnings = {
+                d: list(json.loads(pg.attrs["warnings"])) if "warnings" in pg.attrs else []
+                for d, pg in zip(dirs, probes, strict=True)
+            }
+            failure = (
+                {
+                    "probe": str(f.attrs["diverged_probe"]),
+                    "step": int(f.attrs["diverged_step"]),
+                    "reason": str(f.attrs["diverged_reason"]),
+                }
+                if "diverged_probe" in f.attrs
+                else None
+            )
 
             def opt(key: str) -> float | None:
                 v = float(f.attrs[key])
                 return None if math.isnan(v) else v
 
             return PhysicsResult(
-                directions=dirs, per_probe=per_probe, per_probe_counts=counts, per_probe_distinct=distinct,
-                divergence=f["gaussians/D"][()], divergence_mean=f["gaussians/D_mean"][()],
-                dbar=float(f.attrs["dbar"]), dbar_mean=float(f.attrs["dbar_mean"]), dbar_empty=opt("dbar_empty"),
-                dbar_empty_mean=opt("dbar_empty_mean"), empty_per_probe=empty, solid=f["solid/x"][()],
-                transform=SceneTransform(tuple(f.attrs["up"]) if "up" in f.attrs else str(f.attrs["up_axis"]),
-                                         float(f.attrs["scale"])),
+                directions=dirs,
+                per_probe=per_probe,
+                per_probe_counts=counts,
+                per_probe_distinct=distinct,
+                divergence=f["gaussians/D"][()],
+                divergence_mean=f["gaussians/D_mean"][()],
+                dbar=float(f.attrs["dbar"]),
+                dbar_mean=float(f.attrs["dbar_mean"]),
+                dbar_empty=opt("dbar_empty"),
+                dbar_empty_mean=opt("dbar_empty_mean"),
+                empty_per_probe=empty,
+                solid=f["solid/x"][()],
+                transform=SceneTransform(
+                    tuple(f.attrs["up"]) if "up" in f.attrs else str(f.attrs["up_axis"]), float(f.attrs["scale"])
+                ),
                 kept=f["gaussians/kept"][()] if "gaussians/kept" in f else None,
-                means=f["gaussians/means"][()], covariances=f["gaussians/covariances"][()],
-                reach=f["gaussians/reach"][()], stats={d: pg["stats"][()] for d, pg in zip(dirs, probes, strict=True)},
-                domains=domains, timings=json.loads(f.attrs["timings"]),
-                config=PhysicsConfig.from_dict(json.loads(f.attrs["config"])), source=str(f.attrs["source"]),
+                means=f["gaussians/means"][()],
+                covariances=f["gaussians/covariances"][()],
+                reach=f["gaussians/reach"][()],
+                stats={d: pg["stats"][()] for d, pg in zip(dirs, probes, strict=True)},
+                domains=domains,
+                timings=json.loads(f.attrs["timings"]),
+                config=PhysicsConfig.from_dict(json.loads(f.attrs["config"])),
+                source=str(f.attrs["source"]),
                 source_frame=str(f.attrs.get("source_frame", "")),
-                warnings=warnings, gaussians_sha256=str(f.attrs.get("gaussians_sha256", "")),
-                status=str(f.attrs.get("status", "complete")), failure=failure,
+                warnings=warnings,
+                gaussians_sha256=str(f.attrs.get("gaussians_sha256", "")),
+                status=str(f.attrs.get("status", "complete")),
+                failure=failure,
                 leaks={d: read_probe_leaks(pg) for d, pg in zip(dirs, probes, strict=True) if "leaked" in pg},
-                trajectories={d: read_trajectory(pg) for d, pg in zip(dirs, probes, strict=True)
-                              if trajectories and "trajectory" in pg})
+                trajectories={
+                    d: read_trajectory(pg)
+                    for d, pg in zip(dirs, probes, strict=True)
+                    if trajectories and "trajectory" in pg
+                },
+            )
     except (OSError, KeyError) as exc:
         raise ValueError(f"cannot read the result file {p}: {exc}; re-run `fluidgs simulate`") from exc
-
 
 
 def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> None:
@@ -279,22 +310,28 @@ def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> 
     """
     num = gaussians if isinstance(gaussians, int) else gaussians.num
     if result.num_gaussians != num:
-        raise ValueError(f"{path} holds D_g for {result.num_gaussians} Gaussians but the .ply has {num}; "
-                         "pass the result of this .ply or drop --result to simulate again")
+        raise ValueError(
+            f"{path} holds D_g for {result.num_gaussians} Gaussians but the .ply has {num}; "
+            "pass the result of this .ply or drop --result to simulate again"
+        )
     if result.status != "complete":
         f = result.failure or {}
-        raise ValueError(f"{path} is the result of a run that diverged (probe {f.get('probe')} at step "
-                         f"{f.get('step')}: {f.get('reason')}); it has only the probes "
-                         f"{', '.join(result.directions) or 'none'}; re-run `fluidgs simulate` with a smaller --dt")
+        raise ValueError(
+            f"{path} is the result of a run that diverged (probe {f.get('probe')} at step "
+            f"{f.get('step')}: {f.get('reason')}); it has only the probes "
+            f"{', '.join(result.directions) or 'none'}; re-run `fluidgs simulate` with a smaller --dt"
+        )
     if isinstance(gaussians, int):
         return
     if result.gaussians_sha256:
         digest = gaussians_sha256(gaussians)
         if digest != result.gaussians_sha256:
-            raise ValueError(f"{path} was computed for other Gaussians (same count, {num}, but different positions, "
-                             f"shapes or opacities: content hash {result.gaussians_sha256[:12]}... vs "
-                             f"{digest[:12]}... of this file); pass the result of these Gaussians or drop --result "
-                             "to simulate again")
+            raise ValueError(
+                f"{path} was computed for other Gaussians (same count, {num}, but different positions, "
+                f"shapes or opacities: content hash {result.gaussians_sha256[:12]}... vs "
+                f"{digest[:12]}... of this file); pass the result of these Gaussians or drop --result "
+                "to simulate again"
+            )
         return
 
     means = np.asarray(gaussian_arrays_in_sim(gaussians, result.transform)[0], np.float64)
@@ -302,6 +339,8 @@ def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> 
     size = float(np.ptp(stored, axis=0).max()) if len(stored) else 0.0
     gap = float(np.abs(means - stored).max()) if len(stored) else 0.0
     if not gap <= 1e-5 * max(size, 1e-12):
-        raise ValueError(f"{path} was computed for other Gaussians (same count, {num}, but centres up to {gap:.3g} m "
-                         "away from the stored ones); pass the result of these Gaussians or drop --result to "
-                         "simulate again")
+        raise ValueError(
+            f"{path} was computed for other Gaussians (same count, {num}, but centres up to {gap:.3g} m "
+            "away from the stored ones); pass the result of these Gaussians or drop --result to "
+            "simulate again"
+        )

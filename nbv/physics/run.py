@@ -55,24 +55,26 @@ log = logging.getLogger(__name__)
 RETIRED_WARNING_FRACTION = 0.5
 
 
-
 def probe_warnings(direction: str, counts: np.ndarray, history: list[StepStats]) -> list[str]:
     """What makes one probe's D_g suspect, logged as warnings: no fluid particle came within reach of any
     Gaussian (its D_g^(IC) is 0 everywhere), or more than RETIRED_WARNING_FRACTION of the fluid left the domain."""
     out = []
     steps = len(history)
     if not np.any(np.asarray(counts) > 0):
-        out.append(f"no fluid particle came within reach of any Gaussian in {steps} steps, so D_g of this probe is 0 "
-                   "everywhere; check the time step (--dt), the scale and the up direction")
+        out.append(
+            f"no fluid particle came within reach of any Gaussian in {steps} steps, so D_g of this probe is 0 "
+            "everywhere; check the time step (--dt), the scale and the up direction"
+        )
     initial = history[0].active + history[0].retired if history else 0
     retired = sum(s.retired for s in history)
     if initial and retired > RETIRED_WARNING_FRACTION * initial:
-        out.append(f"{retired} of {initial} fluid particles ({100.0 * retired / initial:.0f} %) left the domain "
-                   f"within {steps} steps; reduce the time step (--dt)")
+        out.append(
+            f"{retired} of {initial} fluid particles ({100.0 * retired / initial:.0f} %) left the domain "
+            f"within {steps} steps; reduce the time step (--dt)"
+        )
     for w in out:
         log.warning("probe %s: %s", direction, w)
     return out
-
 
 
 # ---- the probe runs --------------------------------------------------------------------------------
@@ -80,14 +82,22 @@ def _progress_bar(direction: str, steps: int, enabled: bool):
     return tqdm(total=steps, desc=f"probe {direction}", unit="step", disable=not enabled, leave=False)
 
 
-
 class _ProbeRecorder:
     """Callbacks for ``fluidsim.run_probes``: the Gaussians' cell lists built once (over the union of the probes'
     domains), fresh sums per probe, timings and a progress bar."""
 
-    def __init__(self, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig, progress: bool,
-                 label: str = "", grid_bounds: tuple[np.ndarray, np.ndarray] | None = None, solid=None,
-                 record=None, lists: GaussianLists | None = None):
+    def __init__(
+        self,
+        centers: np.ndarray,
+        reach: np.ndarray,
+        config: PhysicsConfig,
+        progress: bool,
+        label: str = "",
+        grid_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+        solid=None,
+        record=None,
+        lists: GaussianLists | None = None,
+    ):
         self.centers, self.reach, self.config, self.progress, self.label = centers, reach, config, progress, label
         self.lists = lists
         # fluid particles deep inside the (filled) solid lattice, counted at every step (nbv.physics.leaks)
@@ -115,8 +125,13 @@ class _ProbeRecorder:
         if self.lists is None:
             self.lists = GaussianLists(self.centers, self.reach, *self.grid_bounds)
         self.acc = None  # the last probe's sums go before this one's are allocated
-        self.acc = GaussianAccumulator(self.lists, solver.domain_min, solver.domain_max,
-                                       track_distinct=self.config.track_distinct, max_fluid=solver.fluid.capacity)
+        self.acc = GaussianAccumulator(
+            self.lists,
+            solver.domain_min,
+            solver.domain_max,
+            track_distinct=self.config.track_distinct,
+            max_fluid=solver.fluid.capacity,
+        )
         self.build_s += time.perf_counter() - t0
         self.domains[direction] = (solver.domain_min.copy(), solver.domain_max.copy())
         self.current = direction
@@ -141,8 +156,12 @@ class _ProbeRecorder:
 
     def tick(self, direction: str, stats: StepStats) -> None:
         self.bar.update(1)
-        self.bar.set_postfix(it=f"{stats.density_iterations}/{stats.divergence_iterations}",
-                             vmax=f"{stats.max_speed:.2f}", fluid=stats.active, refresh=False)
+        self.bar.set_postfix(
+            it=f"{stats.density_iterations}/{stats.divergence_iterations}",
+            vmax=f"{stats.max_speed:.2f}",
+            fluid=stats.active,
+            refresh=False,
+        )
 
     def end(self, direction: str, solver: DFSPHSolver, history: list[StepStats]) -> None:
         t0 = time.perf_counter()
@@ -167,21 +186,34 @@ class _ProbeRecorder:
             self.bar.close()
 
 
-
-def _run_with(recorder: _ProbeRecorder, solid: np.ndarray, plan: ProbePlan, config: PhysicsConfig,
-              scfg: SolverConfig) -> dict[str, list[StepStats]]:
+def _run_with(
+    recorder: _ProbeRecorder, solid: np.ndarray, plan: ProbePlan, config: PhysicsConfig, scfg: SolverConfig
+) -> dict[str, list[StepStats]]:
     try:
-        return run_probes(solid, scfg, config.probe_config(), config.steps, on_step=recorder.step,
-                          on_probe_start=recorder.start, on_probe_end=recorder.end, progress=recorder.tick,
-                          setups=plan.setups)
+        return run_probes(
+            solid,
+            scfg,
+            config.probe_config(),
+            config.steps,
+            on_step=recorder.step,
+            on_probe_start=recorder.start,
+            on_probe_end=recorder.end,
+            progress=recorder.tick,
+            setups=plan.setups,
+        )
     finally:
         recorder.close()
 
 
-
-def empty_scene_probes(plan: ProbePlan, centers: np.ndarray, reach: np.ndarray, config: PhysicsConfig,
-                       progress: bool = True, cache: dict | None = None,
-                       lists: GaussianLists | None = None) -> tuple[np.ndarray, float]:
+def empty_scene_probes(
+    plan: ProbePlan,
+    centers: np.ndarray,
+    reach: np.ndarray,
+    config: PhysicsConfig,
+    progress: bool = True,
+    cache: dict | None = None,
+    lists: GaussianLists | None = None,
+) -> tuple[np.ndarray, float]:
     """D_g^(IC) of the empty scene: each probe's slab in its walled domain with no solid, onto the same Gaussians.
 
     Args:
@@ -201,8 +233,15 @@ def empty_scene_probes(plan: ProbePlan, centers: np.ndarray, reach: np.ndarray, 
     key_cfg = json.dumps(config.to_dict(), sort_keys=True, default=str)
     key_g = hash((centers.tobytes(), reach.tobytes()))
     out = []
-    rec = _ProbeRecorder(centers, reach, replace(config, track_distinct=False), progress, label="empty ",
-                         grid_bounds=plan.bounds, lists=lists)
+    rec = _ProbeRecorder(
+        centers,
+        reach,
+        replace(config, track_distinct=False),
+        progress,
+        label="empty ",
+        grid_bounds=plan.bounds,
+        lists=lists,
+    )
     for d in config.directions:
         setup = plan.setups[d]
         key = (setup, key_cfg, key_g)
@@ -215,8 +254,12 @@ def empty_scene_probes(plan: ProbePlan, centers: np.ndarray, reach: np.ndarray, 
         solver = DFSPHSolver(scfg, setup.domain_min, setup.domain_max, fluid, vel, walls)
         rec.start(d, solver)
         try:
-            history = run_solver(solver, config.steps, on_step=lambda s, st, d=d, r=rec: r.step(d, s, st),
-                                 progress=lambda st, d=d, r=rec: r.tick(d, st))
+            history = run_solver(
+                solver,
+                config.steps,
+                on_step=lambda s, st, d=d, r=rec: r.step(d, s, st),
+                progress=lambda st, d=d, r=rec: r.tick(d, st),
+            )
         except SimulationDiverged as exc:
             exc.probe = f"empty-scene {d}"  # which run diverged, for ProbeDiverged
             raise
@@ -229,13 +272,18 @@ def empty_scene_probes(plan: ProbePlan, centers: np.ndarray, reach: np.ndarray, 
     return np.stack(out), time.perf_counter() - t0
 
 
-
 _EMPTY_CACHE: dict = {}
 
 
-
-def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, source: str = "",
-                       record: RecordConfig | None = None, *, source_frame: str = "") -> PhysicsResult:
+def simulate_gaussians(
+    gaussians,
+    config: PhysicsConfig,
+    progress: bool = True,
+    source: str = "",
+    record: RecordConfig | None = None,
+    *,
+    source_frame: str = "",
+) -> PhysicsResult:
     """Run the probes against the solid of ``gaussians`` and aggregate D_i onto every Gaussian (Eq. 2-3).
 
     Uses the Taichi runtime already initialised by the caller (never calls ``ti.init``).
@@ -260,22 +308,37 @@ def simulate_gaussians(gaussians, config: PhysicsConfig, progress: bool = True, 
     if record is not None:
         record.check_probes(config.directions, config.steps)
     frame = RunFrame.of(gaussians, config, source)  # Sec. 3.2: the kept Gaussians in simulation metres, Y-up
-    exact_memory = check_memory_bound(frame)         # the Gaussians' box fits, or the solid will be checked
+    exact_memory = check_memory_bound(frame)  # the Gaussians' box fits, or the solid will be checked
     t0 = time.perf_counter()
-    solid = frame.solidify()                         # Sec. 3.2: the static boundary (opacity >= tau, filled)
+    solid = frame.solidify()  # Sec. 3.2: the static boundary (opacity >= tau, filled)
     try:
-        result = simulate_solid(frame, solid, progress, source, record, exact_memory=exact_memory,
-                                solidify_s=time.perf_counter() - t0, started=started)
+        result = simulate_solid(
+            frame,
+            solid,
+            progress,
+            source,
+            record,
+            exact_memory=exact_memory,
+            solidify_s=time.perf_counter() - t0,
+            started=started,
+        )
     except ProbeDiverged as exc:
         exc.result = replace(exc.result, source_frame=source_frame)
         raise
     return replace(result, source_frame=source_frame)
 
 
-
-def simulate_solid(frame: RunFrame, solid: SolidLattice, progress: bool = True, source: str = "",
-                   record: RecordConfig | None = None, *, exact_memory: bool = True, solidify_s: float = 0.0,
-                   started: float | None = None) -> PhysicsResult:
+def simulate_solid(
+    frame: RunFrame,
+    solid: SolidLattice,
+    progress: bool = True,
+    source: str = "",
+    record: RecordConfig | None = None,
+    *,
+    exact_memory: bool = True,
+    solidify_s: float = 0.0,
+    started: float | None = None,
+) -> PhysicsResult:
     """The probes of :func:`simulate_gaussians` against a given solid of ``frame``'s Gaussians (that function's
     ``frame.solidify()``, or an edited one: ``fluidgs bench hole --ideal`` cuts a hole into it).
 
@@ -293,37 +356,62 @@ def simulate_solid(frame: RunFrame, solid: SolidLattice, progress: bool = True, 
     """
     started = time.perf_counter() if started is None else started
     config, scfg = frame.config, frame.config.solver_config()
-    log.info("solid: %d particles from %d Gaussians (scale %.4g m/unit)", len(solid.points), frame.sim.num,
-             frame.transform.scale)
+    log.info(
+        "solid: %d particles from %d Gaussians (scale %.4g m/unit)",
+        len(solid.points),
+        frame.sim.num,
+        frame.transform.scale,
+    )
     plan = ProbePlan.of(solid.points, config)  # Sec. 3.2, Fig. 3: one slab and domain per probe
-    if exact_memory:                            # the probes around the real solid
-        check_memory(frame.sim.gaussians, config, frame.transform, solid_points=solid.points, sim=frame.sim,
-                     setups=plan.setups)
+    if exact_memory:  # the probes around the real solid
+        check_memory(
+            frame.sim.gaussians, config, frame.transform, solid_points=solid.points, sim=frame.sim, setups=plan.setups
+        )
     check_probe_time_steps(plan, config, scfg)  # CFL: inflow plus free fall through each domain
     if record is not None:
         check_record_size(plan.fluid_counts(record.directions), config.steps, record)
-    try:                                        # Eq. 1-3: D_i of every step onto the Gaussians within n r_g
+    try:  # Eq. 1-3: D_i of every step onto the Gaussians within n r_g
         result = _probe(frame, solid, plan, progress, source, record, solidify_s, started)
     except ProbeDiverged as exc:
         exc.result = frame.expand(exc.result)
         raise
-    return frame.expand(result)                 # every Gaussian of the run gets its row
+    return frame.expand(result)  # every Gaussian of the run gets its row
 
 
-
-def _probe(frame: RunFrame, solid: SolidLattice, plan: ProbePlan, progress: bool, source: str,
-           record: RecordConfig | None, solidify_s: float, started: float) -> PhysicsResult:
+def _probe(
+    frame: RunFrame,
+    solid: SolidLattice,
+    plan: ProbePlan,
+    progress: bool,
+    source: str,
+    record: RecordConfig | None,
+    solidify_s: float,
+    started: float,
+) -> PhysicsResult:
     """The probes and, with ``config.empty_reference``, the empty scene: the result on the simulated Gaussians."""
     config, scfg = frame.config, frame.config.solver_config()
     means, covs, reach = frame.means, frame.covariances, frame.reach
     recorder = _ProbeRecorder(means, reach, config, progress, solid=solid, record=record, grid_bounds=plan.bounds)
-    base = dict(solid=np.asarray(solid.points, np.float64), transform=frame.transform, means=means, covariances=covs,
-                reach=reach, config=config, source=source, gaussians_sha256=frame.digest)
+    base = dict(
+        solid=np.asarray(solid.points, np.float64),
+        transform=frame.transform,
+        means=means,
+        covariances=covs,
+        reach=reach,
+        config=config,
+        source=source,
+        gaussians_sha256=frame.digest,
+    )
 
     def timings(empty_s: float = 0.0) -> dict[str, float]:
-        return {"solidify": solidify_s, "simulation": recorder.probe_s - recorder.aggregation_s,
-                "aggregation": recorder.aggregation_s, "accumulator_setup": recorder.build_s,
-                "empty_reference": empty_s, "total": time.perf_counter() - started}
+        return {
+            "solidify": solidify_s,
+            "simulation": recorder.probe_s - recorder.aggregation_s,
+            "aggregation": recorder.aggregation_s,
+            "accumulator_setup": recorder.build_s,
+            "empty_reference": empty_s,
+            "total": time.perf_counter() - started,
+        }
 
     try:
         _run_with(recorder, solid.points, plan, config, scfg)
@@ -336,29 +424,37 @@ def _probe(frame: RunFrame, solid: SolidLattice, plan: ProbePlan, progress: bool
     if not config.empty_reference:
         return result
     try:
-        empty, empty_s = empty_scene_probes(plan, means, reach, config, progress, _EMPTY_CACHE,
-                                            lists=recorder.lists)
+        empty, empty_s = empty_scene_probes(plan, means, reach, config, progress, _EMPTY_CACHE, lists=recorder.lists)
     except SimulationDiverged as exc:
         probe = getattr(exc, "probe", "empty-scene")
         failure = {"probe": probe, "step": int(exc.step), "reason": exc.reason}
         raise ProbeDiverged(probe, exc.step, exc.reason, replace(result, status="diverged", failure=failure)) from exc
-    return replace(result, empty_per_probe=empty, timings=timings(empty_s),
-                   dbar_empty=scores.geometry_divergence(_t(covs), _t(empty.max(0))),
-                   dbar_empty_mean=scores.geometry_divergence(_t(covs), _t(empty.mean(0))))
-
+    return replace(
+        result,
+        empty_per_probe=empty,
+        timings=timings(empty_s),
+        dbar_empty=scores.geometry_divergence(_t(covs), _t(empty.max(0))),
+        dbar_empty_mean=scores.geometry_divergence(_t(covs), _t(empty.mean(0))),
+    )
 
 
 def check_probe_time_steps(plan: ProbePlan, config: PhysicsConfig, scfg: SolverConfig) -> None:
     """Refuse, before any probe runs, a time step too large for the particle spacing in any probe's domain
     (:func:`fluidsim.simulation.check_time_step`: inflow speed plus free fall through the domain)."""
     for d, s in plan.setups.items():
-        check_time_step(scfg, float(np.linalg.norm(s.velocity)), s.domain_min, s.domain_max, config.steps,
-                        where=f"probe {d} (--dt {scfg.dt:g} s, --speed {config.speed:g} m/s)")
+        check_time_step(
+            scfg,
+            float(np.linalg.norm(s.velocity)),
+            s.domain_min,
+            s.domain_max,
+            config.steps,
+            where=f"probe {d} (--dt {scfg.dt:g} s, --speed {config.speed:g} m/s)",
+        )
 
 
-
-def _assemble(recorder: _ProbeRecorder, dirs: Sequence[str], base: dict[str, Any], timings: dict[str, float],
-              **extra: Any) -> PhysicsResult:
+def _assemble(
+    recorder: _ProbeRecorder, dirs: Sequence[str], base: dict[str, Any], timings: dict[str, float], **extra: Any
+) -> PhysicsResult:
     """The PhysicsResult of the probes ``dirs`` that ``recorder`` completed (none: D_g = 0, D-bar NaN)."""
     covs = base["covariances"]
     g, dirs = len(covs), tuple(dirs)
@@ -374,11 +470,25 @@ def _assemble(recorder: _ProbeRecorder, dirs: Sequence[str], base: dict[str, Any
         distinct = counts.copy() if recorder.config.track_distinct else None
         d_max, d_mean, dbar, dbar_mean = np.zeros(g), np.zeros(g), float("nan"), float("nan")
     return PhysicsResult(
-        directions=dirs, per_probe=per_probe, per_probe_counts=counts, per_probe_distinct=distinct,
-        divergence=d_max, divergence_mean=d_mean, dbar=dbar, dbar_mean=dbar_mean, dbar_empty=None,
-        dbar_empty_mean=None, empty_per_probe=None, stats={d: stats_table(recorder.histories[d]) for d in dirs},
-        domains={d: recorder.domains[d] for d in dirs}, timings=timings,
+        directions=dirs,
+        per_probe=per_probe,
+        per_probe_counts=counts,
+        per_probe_distinct=distinct,
+        divergence=d_max,
+        divergence_mean=d_mean,
+        dbar=dbar,
+        dbar_mean=dbar_mean,
+        dbar_empty=None,
+        dbar_empty_mean=None,
+        empty_per_probe=None,
+        stats={d: stats_table(recorder.histories[d]) for d in dirs},
+        domains={d: recorder.domains[d] for d in dirs},
+        timings=timings,
         warnings={d: probe_warnings(d, recorder.counts[d], recorder.histories[d]) for d in dirs},
         leaks={d: recorder.leaks[d] for d in dirs if d in recorder.leaks},
-        trajectories={} if recorder.trajectory is None else
-        {d: recorder.trajectory.results[d] for d in dirs if d in recorder.trajectory.results}, **base, **extra)
+        trajectories={}
+        if recorder.trajectory is None
+        else {d: recorder.trajectory.results[d] for d in dirs if d in recorder.trajectory.results},
+        **base,
+        **extra,
+    )

@@ -106,8 +106,10 @@ def nearest_axis(up: np.ndarray) -> tuple[str, float]:
 def describe_auto_up(up: np.ndarray) -> str:
     """The log line of ``--up auto``: the vector, and the nearest axis with its angle (to pass it explicitly)."""
     name, angle = nearest_axis(up)
-    return (f"--up auto: the cameras' mean up vector is {up_label(up)}, {angle:.1f} deg from {name} "
-            f"(pass --up {name} to use the axis itself)")
+    return (
+        f"--up auto: the cameras' mean up vector is {up_label(up)}, {angle:.1f} deg from {name} "
+        f"(pass --up {name} to use the axis itself)"
+    )
 
 
 def rotation_to_y_up(up: np.ndarray) -> np.ndarray:
@@ -150,8 +152,7 @@ class SceneTransform:
     def __init__(self, up: str | Sequence[float] = "+y", scale: float = 1.0) -> None:
         u = parse_up(up, "SceneTransform.up")
         if isinstance(scale, bool) or not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-            raise ValueError(f"SceneTransform.scale must be a finite number > 0 (metres per scene unit), "
-                             f"got {scale!r}")
+            raise ValueError(f"SceneTransform.scale must be a finite number > 0 (metres per scene unit), got {scale!r}")
         object.__setattr__(self, "up", tuple(float(c) for c in u))
         object.__setattr__(self, "scale", float(scale))
 
@@ -190,12 +191,16 @@ class SceneTransform:
         """Scene covariances [N, 3, 3] -> simulation covariances scale^2 R Sigma R^T [N, 3, 3] (m^2)."""
         c = np.asarray(covs, dtype=np.float64).reshape(-1, 3, 3)
         m = self.rotation
-        return (self.scale ** 2) * (m @ c @ m.T)
+        return (self.scale**2) * (m @ c @ m.T)
 
     def to_dict(self) -> dict:
         """JSON-able: up (vector and label), scale, and the 4x4 matrix."""
-        return {"up": list(self.up), "up_label": self.up_label, "scale_m_per_unit": self.scale,
-                "scene_to_sim": self.matrix.tolist()}
+        return {
+            "up": list(self.up),
+            "up_label": self.up_label,
+            "scale_m_per_unit": self.scale,
+            "scene_to_sim": self.matrix.tolist(),
+        }
 
 
 # ---- the Gaussians in the simulation frame --------------------------------------------------------------
@@ -211,8 +216,9 @@ def _rotations_in_sim(gaussians: GaussianSet, transform: SceneTransform) -> np.n
     return transform.rotation @ rot
 
 
-def gaussian_arrays_in_sim(gaussians: GaussianSet,
-                           transform: SceneTransform) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def gaussian_arrays_in_sim(
+    gaussians: GaussianSet, transform: SceneTransform
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The Gaussians' geometry in simulation metres.
 
     Args:
@@ -309,8 +315,9 @@ def weighted_quantiles(values: np.ndarray, weights: np.ndarray, quantiles: Seque
     return np.interp(np.asarray(quantiles, dtype=np.float64), cdf, v)
 
 
-def robust_box(means: np.ndarray, opacities: np.ndarray, tau: float,
-               quantiles: tuple[float, float] = ROBUST_QUANTILES) -> tuple[np.ndarray, np.ndarray]:
+def robust_box(
+    means: np.ndarray, opacities: np.ndarray, tau: float, quantiles: tuple[float, float] = ROBUST_QUANTILES
+) -> tuple[np.ndarray, np.ndarray]:
     """The robust object box: per-axis opacity-weighted quantiles of the centres with opacity >= tau.
 
     Args:
@@ -358,8 +365,9 @@ def parse_crop(spec: str | Sequence[float] | None) -> str | tuple[float, ...] | 
     return tuple(values)
 
 
-def crop_box(crop: str | Sequence[float], means: np.ndarray, opacities: np.ndarray, tau: float,
-             margin: float = CROP_MARGIN) -> tuple[np.ndarray, np.ndarray]:
+def crop_box(
+    crop: str | Sequence[float], means: np.ndarray, opacities: np.ndarray, tau: float, margin: float = CROP_MARGIN
+) -> tuple[np.ndarray, np.ndarray]:
     """(lo [3], hi [3]) scene units of a crop: the given corners, or the robust box grown by ``margin``."""
     if isinstance(crop, str):
         if crop != "auto":

@@ -54,9 +54,14 @@ def splat_log_transmittance(
         rest = local // nz
         j = ti.cast(rest % ny, ti.i32) + box_lo[g, 1]
         i = ti.cast(rest // ny, ti.i32) + box_lo[g, 0]
-        d = ti.Vector([lattice_min[0] + spacing * i - means[g, 0],
-                       lattice_min[1] + spacing * j - means[g, 1],
-                       lattice_min[2] + spacing * k - means[g, 2]], ti.f64)
+        d = ti.Vector(
+            [
+                lattice_min[0] + spacing * i - means[g, 0],
+                lattice_min[1] + spacing * j - means[g, 1],
+                lattice_min[2] + spacing * k - means[g, 2],
+            ],
+            ti.f64,
+        )
         d2 = ti.cast(0.0, ti.f64)
         for a in ti.static(range(3)):
             for b in ti.static(range(3)):
@@ -116,9 +121,14 @@ def splat_edge_log_transmittance(
         rest = local // nz
         j = ti.cast(rest % ny, ti.i32) + box_lo[g, 1]
         i = ti.cast(rest // ny, ti.i32) + box_lo[g, 0]
-        d = ti.Vector([lattice_min[0] + spacing * i - means[g, 0],
-                       lattice_min[1] + spacing * j - means[g, 1],
-                       lattice_min[2] + spacing * k - means[g, 2]], ti.f64)
+        d = ti.Vector(
+            [
+                lattice_min[0] + spacing * i - means[g, 0],
+                lattice_min[1] + spacing * j - means[g, 1],
+                lattice_min[2] + spacing * k - means[g, 2],
+            ],
+            ti.f64,
+        )
         ad = ti.cast(0.0, ti.f64)
         for b in ti.static(range(3)):
             ad += inv_covs[g, axis, b] * d[b]

@@ -137,8 +137,9 @@ class SolidifyConfig:
         if not (0.0 < self.opacity_threshold < 1.0):
             raise ValueError(f"SolidifyConfig.opacity_threshold (tau) must be in (0, 1), got {self.opacity_threshold}")
         if not (math.isfinite(self.sigma_cutoff) and self.sigma_cutoff > 0):
-            raise ValueError(f"SolidifyConfig.sigma_cutoff must be > 0 (in standard deviations), "
-                             f"got {self.sigma_cutoff}")
+            raise ValueError(
+                f"SolidifyConfig.sigma_cutoff must be > 0 (in standard deviations), got {self.sigma_cutoff}"
+            )
         for name in ("fill_cavities", "thin"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"SolidifyConfig.{name} must be True or False, got {getattr(self, name)!r}")
@@ -151,17 +152,20 @@ class SolidifyConfig:
         if int(self.min_points) < 1:
             raise ValueError(f"SolidifyConfig.min_points must be >= 1, got {self.min_points}")
         if not (math.isfinite(self.carve_margin) and self.carve_margin >= 0):
-            raise ValueError(f"SolidifyConfig.carve_margin must be a finite number >= 0 (spacings), "
-                             f"got {self.carve_margin}")
+            raise ValueError(
+                f"SolidifyConfig.carve_margin must be a finite number >= 0 (spacings), got {self.carve_margin}"
+            )
         if self.bounds is not None:
             try:
                 lo, hi = (np.asarray(b, dtype=np.float64).reshape(3) for b in self.bounds)
             except (TypeError, ValueError) as exc:
-                raise ValueError(f"SolidifyConfig.bounds must be ((xmin, ymin, zmin), (xmax, ymax, zmax)) in m, "
-                                 f"got {self.bounds!r}") from exc
+                raise ValueError(
+                    f"SolidifyConfig.bounds must be ((xmin, ymin, zmin), (xmax, ymax, zmax)) in m, got {self.bounds!r}"
+                ) from exc
             if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
-                raise ValueError(f"SolidifyConfig.bounds must be finite with min < max on every axis, "
-                                 f"got {self.bounds!r}")
+                raise ValueError(
+                    f"SolidifyConfig.bounds must be finite with min < max on every axis, got {self.bounds!r}"
+                )
             object.__setattr__(self, "bounds", (tuple(lo.tolist()), tuple(hi.tolist())))
 
 
@@ -199,8 +203,9 @@ def solid_boxes(means: np.ndarray, covs: np.ndarray, opacities: np.ndarray, conf
     return floaters.solid_capable_boxes(means - ext, means + ext, opacities, config.opacity_threshold)
 
 
-def _lattice_geometry(means: np.ndarray, covs: np.ndarray, config: SolidifyConfig,
-                      opacities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _lattice_geometry(
+    means: np.ndarray, covs: np.ndarray, config: SolidifyConfig, opacities: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Lattice origin (snapped to a multiple of the spacing) and point counts per axis (float64, may be huge).
 
     The lattice spans the boxes of the Gaussians that can make solid (:func:`solid_boxes`), so a faint floater,
@@ -210,16 +215,19 @@ def _lattice_geometry(means: np.ndarray, covs: np.ndarray, config: SolidifyConfi
         lo = np.maximum(lo, config.bounds[0])
         hi = np.minimum(hi, config.bounds[1])
         if (hi < lo).any():
-            raise ValueError(f"SolidifyConfig.bounds {config.bounds} do not overlap the Gaussians' 3-sigma boxes "
-                             f"[{lo.tolist()}, {hi.tolist()}] (sim metres); widen the bounds or check the scale")
+            raise ValueError(
+                f"SolidifyConfig.bounds {config.bounds} do not overlap the Gaussians' 3-sigma boxes "
+                f"[{lo.tolist()}, {hi.tolist()}] (sim metres); widen the bounds or check the scale"
+            )
     s = config.spacing
     lattice_min = np.floor(lo / s) * s
     dims = np.floor((hi - lattice_min) / s + 1e-9) + 1.0
     return lattice_min, np.maximum(dims, 1.0)
 
 
-def estimate_lattice_points(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
-                            transform: SceneTransform) -> int:
+def estimate_lattice_points(
+    gaussians: GaussianSet | SimGaussians, config: SolidifyConfig, transform: SceneTransform
+) -> int:
     """Number of lattice points :func:`gaussians_to_solid` would allocate (cheap; nothing large is allocated).
 
     Args:
@@ -250,8 +258,9 @@ def estimate_solidify_bytes(num_gaussians: int, lattice_points: float) -> float:
     return float(lattice_points) * BYTES_PER_POINT + float(num_gaussians) * BYTES_PER_GAUSSIAN
 
 
-def _work_sizes(means, covs, lattice_min, dims, config: SolidifyConfig, points: bool = True,
-                edges: bool = True) -> np.ndarray:
+def _work_sizes(
+    means, covs, lattice_min, dims, config: SolidifyConfig, points: bool = True, edges: bool = True
+) -> np.ndarray:
     """[N] float64 work items of each Gaussian: lattice points of its sigma box (test 1, with ``points``) plus the
     edges along x, y and z that meet it (test 2, with ``edges`` and ``config.thin``), the counts of
     :func:`_box_index_ranges` and :func:`_edge_boxes` from one pass over the Gaussians (float64 counts are exact
@@ -264,8 +273,7 @@ def _work_sizes(means, covs, lattice_min, dims, config: SolidifyConfig, points: 
         hi.append(np.floor((means[:, a] + half[:, a] - lattice_min[a]) / config.spacing))
         span.append(np.maximum(np.clip(hi[a], -1.0, top) - np.clip(lo[a], 0.0, top) + 1.0, 0.0))  # points on a
         if edges and config.thin and dims[a] >= 2:  # edges along a start at points lo - 1 .. hi, up to top - 1
-            runs.append(np.maximum(np.clip(hi[a], -1.0, top - 1.0) - np.clip(lo[a] - 1.0, 0.0, top - 1.0) + 1.0,
-                                   0.0))
+            runs.append(np.maximum(np.clip(hi[a], -1.0, top - 1.0) - np.clip(lo[a] - 1.0, 0.0, top - 1.0) + 1.0, 0.0))
         else:
             runs.append(None)
     sizes = span[0] * span[1] * span[2] if points else np.zeros(len(means))
@@ -285,37 +293,47 @@ def estimate_work(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
     return int(_work_sizes(means, covs, lattice_min, dims.astype(np.int64), config).sum())
 
 
-def _lattice_or_raise(means: np.ndarray, covs: np.ndarray, config: SolidifyConfig, transform: SceneTransform,
-                      opacities: np.ndarray, points: bool = True,
-                      edges: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+def _lattice_or_raise(
+    means: np.ndarray,
+    covs: np.ndarray,
+    config: SolidifyConfig,
+    transform: SceneTransform,
+    opacities: np.ndarray,
+    points: bool = True,
+    edges: bool = True,
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Lattice origin, point counts per axis (int64) and their product, or the ValueError of a guard: the lattice
     size (naming the Gaussian that alone widens the lattice, if one does), the memory (``config.max_bytes``) and
     the work of the tests to run (``points``: test 1; ``edges``: test 2; ``config.max_work``)."""
     lattice_min, dims_f = _lattice_geometry(means, covs, config, opacities)
     estimate = float(np.prod(dims_f))
     if estimate > config.max_points:
-        note = floaters.dominant_note(*solid_boxes(means, covs, opacities, config), config.spacing, means, covs,
-                                      opacities, transform)
+        note = floaters.dominant_note(
+            *solid_boxes(means, covs, opacities, config), config.spacing, means, covs, opacities, transform
+        )
         raise ValueError(
             f"the solid lattice would have about {estimate:.3g} points ({dims_f.astype(np.int64).tolist()}, "
             f"~{estimate * BYTES_PER_POINT / 2**20:.0f} MiB) > max_points = {config.max_points}{note}; otherwise use "
             f"a larger spacing (now {config.spacing} m), a smaller scene scale (now {transform.scale} m per unit), "
-            f"prune large or far-away floater Gaussians, or set SolidifyConfig.bounds around the object")
+            f"prune large or far-away floater Gaussians, or set SolidifyConfig.bounds around the object"
+        )
     need = estimate_solidify_bytes(len(means), estimate)
     if config.max_bytes is not None and need > config.max_bytes:
         raise ValueError(
             f"solidifying would need about {need / 2**30:.3g} GiB ({estimate:.3g} lattice points x {BYTES_PER_POINT} B "
             f"and {len(means):,} Gaussians x {BYTES_PER_GAUSSIAN} B) but {config.max_bytes / 2**30:.3g} GiB are "
             f"allowed (--max-memory-gb); crop the Gaussians to the object (--crop auto), use a larger spacing "
-            f"(--particle-radius; now {config.spacing} m apart), prune Gaussians, or allow more memory")
+            f"(--particle-radius; now {config.spacing} m apart), prune Gaussians, or allow more memory"
+        )
     dims = dims_f.astype(np.int64)
     sizes = _work_sizes(means, covs, lattice_min, dims, config, points, edges)
     _check_work(sizes, estimate, config, transform, means)
     return lattice_min, dims, estimate
 
 
-def _check_work(sizes: np.ndarray, estimate: float, config: SolidifyConfig, transform: SceneTransform,
-                means: np.ndarray) -> None:
+def _check_work(
+    sizes: np.ndarray, estimate: float, config: SolidifyConfig, transform: SceneTransform, means: np.ndarray
+) -> None:
     """The time guard: ValueError when the work items ``sizes`` [N] add up to more than ``config.max_work``, with
     the time it would take, the Gaussian that takes the most and the fix."""
     total = int(sizes.sum())
@@ -325,16 +343,19 @@ def _check_work(sizes: np.ndarray, estimate: float, config: SolidifyConfig, tran
     share = sizes[worst] / total
     note = ""
     if share > 0.1:
-        centre = ", ".join(f"{v:.4g}" for v in transform.to_scene(means[worst:worst + 1])[0])
-        note = (f"; Gaussian {worst} (centre ({centre})) alone takes {100 * share:.0f} % of it: prune it or leave "
-                f"it out with a --crop box")
+        centre = ", ".join(f"{v:.4g}" for v in transform.to_scene(means[worst : worst + 1])[0])
+        note = (
+            f"; Gaussian {worst} (centre ({centre})) alone takes {100 * share:.0f} % of it: prune it or leave "
+            f"it out with a --crop box"
+        )
     raise ValueError(
         f"the solid's opacity tests would take {total:.3g} work items (a Gaussian and a lattice point or edge of its "
         f"{config.sigma_cutoff}-sigma box, {total / max(len(sizes), 1):.3g} per Gaussian over a lattice of "
         f"{estimate:.3g} points), about {total * SECONDS_PER_WORK_ITEM / 60:.3g} min on a 2-core CPU, "
         f"> max_work = {config.max_work:.3g}{note}; crop the Gaussians to the object (--crop auto), use a larger "
         f"spacing (--particle-radius; now {config.spacing} m apart) or a smaller scale (--scale; now "
-        f"{transform.scale} m per unit), prune large floater Gaussians, or set SolidifyConfig.bounds or max_work")
+        f"{transform.scale} m per unit), prune large floater Gaussians, or set SolidifyConfig.bounds or max_work"
+    )
 
 
 def _flat_work(first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -353,19 +374,34 @@ def _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, conf
     log_t.fill(0.0)
     if total:
         args = _ndarrays(
-            offsets=(offsets, ti.i64), box_lo=(first[keep].astype(np.int32), ti.i32),
+            offsets=(offsets, ti.i64),
+            box_lo=(first[keep].astype(np.int32), ti.i32),
             box_dims=((last[keep] - first[keep] + 1).astype(np.int32), ti.i32),
-            means=(means[keep], ti.f64), inv_covs=(inv_covs[keep], ti.f64), opacities=(opacities[keep], ti.f64))
+            means=(means[keep], ti.f64),
+            inv_covs=(inv_covs[keep], ti.f64),
+            opacities=(opacities[keep], ti.f64),
+        )
         for start in range(0, total, _WORK_CHUNK):
             solid_kernels.splat_log_transmittance(
-                start, min(_WORK_CHUNK, total - start), args["offsets"], args["box_lo"], args["box_dims"],
-                args["means"], args["inv_covs"], args["opacities"], ti.Vector(lattice_min.tolist(), ti.f64),
-                float(config.spacing), MAX_ALPHA, log_t)
+                start,
+                min(_WORK_CHUNK, total - start),
+                args["offsets"],
+                args["box_lo"],
+                args["box_dims"],
+                args["means"],
+                args["inv_covs"],
+                args["opacities"],
+                ti.Vector(lattice_min.tolist(), ti.f64),
+                float(config.spacing),
+                MAX_ALPHA,
+                log_t,
+            )
     return log_t.to_numpy()
 
 
-def lattice_log_transmittance(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
-                              transform: SceneTransform) -> tuple[np.ndarray, np.ndarray]:
+def lattice_log_transmittance(
+    gaussians: GaussianSet | SimGaussians, config: SolidifyConfig, transform: SceneTransform
+) -> tuple[np.ndarray, np.ndarray]:
     """Test 1's fast path: log-transmittance sum_g log(1 - o_g exp(-d_g^2 / 2)) at every lattice point.
 
     Args:
@@ -415,19 +451,35 @@ def _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims,
         if not total:
             continue
         args = _ndarrays(
-            offsets=(offsets, ti.i64), box_lo=(first[keep].astype(np.int32), ti.i32),
+            offsets=(offsets, ti.i64),
+            box_lo=(first[keep].astype(np.int32), ti.i32),
             box_dims=((last[keep] - first[keep] + 1).astype(np.int32), ti.i32),
-            means=(means[keep], ti.f64), inv_covs=(inv_covs[keep], ti.f64), opacities=(opacities[keep], ti.f64))
+            means=(means[keep], ti.f64),
+            inv_covs=(inv_covs[keep], ti.f64),
+            opacities=(opacities[keep], ti.f64),
+        )
         for start in range(0, total, _WORK_CHUNK):
             solid_kernels.splat_edge_log_transmittance(
-                start, min(_WORK_CHUNK, total - start), axis, args["offsets"], args["box_lo"], args["box_dims"],
-                args["means"], args["inv_covs"], args["opacities"], ti.Vector(lattice_min.tolist(), ti.f64),
-                float(config.spacing), MAX_ALPHA, edges)
+                start,
+                min(_WORK_CHUNK, total - start),
+                axis,
+                args["offsets"],
+                args["box_lo"],
+                args["box_dims"],
+                args["means"],
+                args["inv_covs"],
+                args["opacities"],
+                ti.Vector(lattice_min.tolist(), ti.f64),
+                float(config.spacing),
+                MAX_ALPHA,
+                edges,
+            )
     return edges.to_numpy()
 
 
-def lattice_edge_log_transmittance(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
-                                   transform: SceneTransform) -> tuple[np.ndarray, np.ndarray]:
+def lattice_edge_log_transmittance(
+    gaussians: GaussianSet | SimGaussians, config: SolidifyConfig, transform: SceneTransform
+) -> tuple[np.ndarray, np.ndarray]:
     """Test 2's fast path: the log-transmittance of every lattice edge (each Gaussian at its peak on the edge).
 
     Args:
@@ -445,16 +497,25 @@ def lattice_edge_log_transmittance(gaussians: GaussianSet | SimGaussians, config
     return lattice_min, _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
 
 
-def lattice_cut_edges(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
-                      transform: SceneTransform) -> tuple[np.ndarray, np.ndarray]:
+def lattice_cut_edges(
+    gaussians: GaussianSet | SimGaussians, config: SolidifyConfig, transform: SceneTransform
+) -> tuple[np.ndarray, np.ndarray]:
     """Test 2: lattice_min [3] m and cut [3, X, Y, Z] bool, the edges whose accumulated opacity reaches tau."""
     lattice_min, edge_log_t = lattice_edge_log_transmittance(gaussians, config, transform)
     return lattice_min, below(edge_log_t, config.opacity_threshold)
 
 
-def edge_log_transmittance_reference(lattice_min: np.ndarray, shape: tuple[int, int, int], spacing: float,
-                                     means: np.ndarray, covs: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray,
-                                     *, sigma_cutoff: float | None = None) -> np.ndarray:
+def edge_log_transmittance_reference(
+    lattice_min: np.ndarray,
+    shape: tuple[int, int, int],
+    spacing: float,
+    means: np.ndarray,
+    covs: np.ndarray,
+    inv_covs: np.ndarray,
+    opacities: np.ndarray,
+    *,
+    sigma_cutoff: float | None = None,
+) -> np.ndarray:
     """Brute-force twin of :func:`lattice_edge_log_transmittance`: every edge against every Gaussian (float64).
 
     Args:
@@ -491,8 +552,14 @@ def edge_log_transmittance_reference(lattice_min: np.ndarray, shape: tuple[int, 
     return out
 
 
-def gaussians_to_solid(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig, transform: SceneTransform, *,
-                       cameras=None, depths=None) -> SolidLattice:
+def gaussians_to_solid(
+    gaussians: GaussianSet | SimGaussians,
+    config: SolidifyConfig,
+    transform: SceneTransform,
+    *,
+    cameras=None,
+    depths=None,
+) -> SolidLattice:
     """Solid lattice points of a Gaussian set (the module docstring's tests 1-3, specks, optional carving).
 
     Args:
@@ -517,8 +584,14 @@ def gaussians_to_solid(gaussians: GaussianSet | SimGaussians, config: SolidifyCo
     lattice_min, dims, _ = _lattice_or_raise(means, covs, config, transform, opacities)
     inv_covs = sim.inverse_covariances()
     log_t = _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
-    cuts = below(_edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config),
-                  config.opacity_threshold) if config.thin else None
+    cuts = (
+        below(
+            _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config),
+            config.opacity_threshold,
+        )
+        if config.thin
+        else None
+    )
     occupancy, counts = occupancy_from_fields(log_t, cuts, config.opacity_threshold, config.fill_cavities)
     del log_t, cuts
     counts["specks"] = counts["carved"] = 0
@@ -530,8 +603,9 @@ def gaussians_to_solid(gaussians: GaussianSet | SimGaussians, config: SolidifyCo
         if depths is None:
             depths = surface_depths(sim.gaussians, cameras)
         before = int(occupancy.sum())
-        occupancy = carve_outside(occupancy, lattice_min, config.spacing, cameras, depths, transform,
-                                  margin=config.carve_margin)
+        occupancy = carve_outside(
+            occupancy, lattice_min, config.spacing, cameras, depths, transform, margin=config.carve_margin
+        )
         counts["carved"] = int(occupancy.sum()) - before
     count = int(occupancy.sum())
     counts["total"] = count
@@ -540,12 +614,25 @@ def gaussians_to_solid(gaussians: GaussianSet | SimGaussians, config: SolidifyCo
         raise ValueError(
             f"the solid is {what}: too few lattice points reach the combined opacity tau = "
             f"{config.opacity_threshold} at spacing {config.spacing} m over {gaussians.num} Gaussians; use a lower "
-            f"opacity_threshold (tau), a smaller spacing, or check the scene scale ({transform.scale} m per unit)")
+            f"opacity_threshold (tau), a smaller spacing, or check the scene scale ({transform.scale} m per unit)"
+        )
     points = lattice_min + config.spacing * np.argwhere(occupancy).astype(np.float64)
-    log.info("solid: %d of %d lattice points (%s at %.4g m): %s", count, occupancy.size, list(occupancy.shape),
-             config.spacing, counts)
-    return SolidLattice(points=points, lattice_min=lattice_min, lattice_shape=tuple(int(d) for d in occupancy.shape),
-                        occupancy=occupancy, spacing=float(config.spacing), counts=counts)
+    log.info(
+        "solid: %d of %d lattice points (%s at %.4g m): %s",
+        count,
+        occupancy.size,
+        list(occupancy.shape),
+        config.spacing,
+        counts,
+    )
+    return SolidLattice(
+        points=points,
+        lattice_min=lattice_min,
+        lattice_shape=tuple(int(d) for d in occupancy.shape),
+        occupancy=occupancy,
+        spacing=float(config.spacing),
+        counts=counts,
+    )
 
 
 def _ndarrays(**arrays) -> dict:
@@ -558,8 +645,9 @@ def _ndarrays(**arrays) -> dict:
     return out
 
 
-def combined_opacity_reference(points: np.ndarray, means: np.ndarray, covs: np.ndarray, opacities: np.ndarray, *,
-                               sigma_cutoff: float | None = None) -> np.ndarray:
+def combined_opacity_reference(
+    points: np.ndarray, means: np.ndarray, covs: np.ndarray, opacities: np.ndarray, *, sigma_cutoff: float | None = None
+) -> np.ndarray:
     """Brute-force twin of test 1: 1 - prod_g (1 - min(o_g exp(-d_g^2 / 2), 1 - 1e-6)) at every point, every Gaussian.
 
     Args:

@@ -80,11 +80,15 @@ class RecordConfig:
         ``steps`` steps would record no frame."""
         missing = [d for d in self.directions if d not in tuple(directions)]
         if missing:
-            raise ValueError(f"--record-probe {','.join(missing)}: not among the probes run "
-                             f"(--directions {','.join(directions)}); record one of those or add it to --directions")
+            raise ValueError(
+                f"--record-probe {','.join(missing)}: not among the probes run "
+                f"(--directions {','.join(directions)}); record one of those or add it to --directions"
+            )
         if self.frames(steps) < 1:
-            raise ValueError(f"--record-every {self.every} is more than the {steps} steps of a probe, so no frame "
-                             f"would be recorded; use --record-every {max(1, steps // 10)}")
+            raise ValueError(
+                f"--record-every {self.every} is more than the {steps} steps of a probe, so no frame "
+                f"would be recorded; use --record-every {max(1, steps // 10)}"
+            )
 
 
 @dataclass(frozen=True)
@@ -119,8 +123,9 @@ class ProbeTrajectory:
 
     @property
     def nbytes(self) -> int:
-        return int(sum(a.nbytes for a in (self.x, self.divergence, self.speed, self.velocity, self.density)
-                       if a is not None))
+        return int(
+            sum(a.nbytes for a in (self.x, self.divergence, self.speed, self.velocity, self.density) if a is not None)
+        )
 
 
 def trajectory_bytes(fluid_particles: int, frames: int) -> int:
@@ -145,12 +150,19 @@ def check_record_size(fluid_counts: dict[str, int], steps: int, record: RecordCo
     what = ", ".join(f"probe {d}: {f:,} particles" for d, f in fluid_counts.items())
     if total > limit:
         fewer = max(record.every + 1, math.ceil(record.every * total / limit))
-        raise ValueError(f"recording {what} x {frames} frames (every {record.every} steps) x {BYTES_PER_SAMPLE} bytes "
-                         f"would take {total / 2**20:,.0f} MiB, over the limit of {limit / 2**20:,.0f} MiB "
-                         f"(--record-max-gb, at most half the available memory); use --record-every {fewer} or "
-                         "record fewer probes")
-    log.info("recording %s x %d frames (every %d steps): %.1f MiB in memory and in RESULT.h5", what, frames,
-             record.every, total / 2**20)
+        raise ValueError(
+            f"recording {what} x {frames} frames (every {record.every} steps) x {BYTES_PER_SAMPLE} bytes "
+            f"would take {total / 2**20:,.0f} MiB, over the limit of {limit / 2**20:,.0f} MiB "
+            f"(--record-max-gb, at most half the available memory); use --record-every {fewer} or "
+            "record fewer probes"
+        )
+    log.info(
+        "recording %s x %d frames (every %d steps): %.1f MiB in memory and in RESULT.h5",
+        what,
+        frames,
+        record.every,
+        total / 2**20,
+    )
     return total
 
 
@@ -171,10 +183,14 @@ class TrajectoryRecorder:
             return
         frames, fluid = self.record.frames(self.steps), int(solver.fluid.capacity)
         self._direction = direction
-        self._buffers = (np.full((frames, fluid, 3), np.nan, np.float32), np.full((frames, fluid), np.nan, np.float16),
-                         np.full((frames, fluid), np.nan, np.float16),
-                         np.arange(1, frames + 1, dtype=np.int32) * self.record.every,
-                         np.full((frames, fluid, 3), np.nan, np.float16), np.full((frames, fluid), np.nan, np.float16))
+        self._buffers = (
+            np.full((frames, fluid, 3), np.nan, np.float32),
+            np.full((frames, fluid), np.nan, np.float16),
+            np.full((frames, fluid), np.nan, np.float16),
+            np.arange(1, frames + 1, dtype=np.int32) * self.record.every,
+            np.full((frames, fluid, 3), np.nan, np.float16),
+            np.full((frames, fluid), np.nan, np.float16),
+        )
 
     def step(self, direction: str, solver, step: int) -> None:
         """After step ``step`` (0-based): take a frame when ``step + 1`` is a multiple of k."""
@@ -200,8 +216,15 @@ class TrajectoryRecorder:
         if direction != self._direction or self._buffers is None:
             return
         x, divergence, speed, steps, velocity, density = self._buffers
-        self.results[direction] = ProbeTrajectory(steps=steps, x=x, divergence=divergence, speed=speed,
-                                                  every=self.record.every, velocity=velocity, density=density)
+        self.results[direction] = ProbeTrajectory(
+            steps=steps,
+            x=x,
+            divergence=divergence,
+            speed=speed,
+            every=self.record.every,
+            velocity=velocity,
+            density=density,
+        )
         self._direction, self._buffers = None, None
 
 
@@ -224,6 +247,12 @@ def write_trajectory(group, trajectory: ProbeTrajectory) -> None:
 def read_trajectory(group) -> ProbeTrajectory:
     """Inverse of :func:`write_trajectory` (``group`` is ``/probes/<dir>``; it must hold a trajectory)."""
     g = group[GROUP]
-    return ProbeTrajectory(steps=g["steps"][()], x=g["x"][()], divergence=g["D"][()], speed=g["speed"][()],
-                           every=int(g.attrs["every"]), velocity=g["v"][()] if "v" in g else None,
-                           density=g["density"][()] if "density" in g else None)
+    return ProbeTrajectory(
+        steps=g["steps"][()],
+        x=g["x"][()],
+        divergence=g["D"][()],
+        speed=g["speed"][()],
+        every=int(g.attrs["every"]),
+        velocity=g["v"][()] if "v" in g else None,
+        density=g["density"][()] if "density" in g else None,
+    )

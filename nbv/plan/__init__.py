@@ -48,15 +48,18 @@ is rasterised for it: :func:`physics_view_scores` takes them from the batched pr
 (:func:`nbv.scores.projected_view_scores`).
 """
 
-
 from fluidsim.lazy import lazy_exports
 
 _EXPORTS = {
     **dict.fromkeys(("MIN_SHORTLIST", "Planner", "PlanningContext", "ProbeFields", "Selection", "fused_k"), "base"),
-    "FisherPlanner": "fisher", "VariancePlanner": "variance", "RandomConfig": "random", "RandomPlanner": "random",
+    "FisherPlanner": "fisher",
+    "VariancePlanner": "variance",
+    "RandomConfig": "random",
+    "RandomPlanner": "random",
     **dict.fromkeys(("FusedPlanner", "balanced_scores", "excess_divergence", "per_probe_normalised"), "fused"),
-    **dict.fromkeys(("PhysicsPlanner", "PhysicsPlannerConfig", "physics_view_scores", "shuffled_divergence"),
-                    "physics"),
+    **dict.fromkeys(
+        ("PhysicsPlanner", "PhysicsPlannerConfig", "physics_view_scores", "shuffled_divergence"), "physics"
+    ),
     **dict.fromkeys(("PLANNERS", "config_type", "make_planner", "uses_physics"), "registry"),
     **dict.fromkeys(("FUSED", "FUSED_RULES", "FusedRule", "PLANNER_NAMES", "describe_planners"), "rules"),
 }

@@ -17,7 +17,6 @@ from recon.gaussians import GaussianSet
 MIN_SHORTLIST = 2  # the smallest top-K of the fused planners (paper appendix: K = max(B - n, 2))
 
 
-
 @dataclass(frozen=True)
 class ProbeFields:
     """The per-direction divergence of one probe run on the current Gaussians.
@@ -36,18 +35,21 @@ class ProbeFields:
     def __post_init__(self) -> None:
         d = torch.as_tensor(self.per_probe, dtype=torch.float64)
         if d.ndim != 2 or d.shape[0] != len(self.directions) or d.shape[0] < 1:
-            raise ValueError(f"ProbeFields.per_probe must be [P, N] with P = {len(self.directions)} directions, "
-                             f"got shape {tuple(d.shape)}")
+            raise ValueError(
+                f"ProbeFields.per_probe must be [P, N] with P = {len(self.directions)} directions, "
+                f"got shape {tuple(d.shape)}"
+            )
         if not torch.isfinite(d).all():
             raise ValueError("ProbeFields.per_probe holds NaN or Inf; check the probe run")
         object.__setattr__(self, "per_probe", d)
         if self.empty_per_probe is not None:
             e = torch.as_tensor(self.empty_per_probe, dtype=torch.float64)
             if e.shape != d.shape or not torch.isfinite(e).all():
-                raise ValueError(f"ProbeFields.empty_per_probe must be finite and shaped like per_probe "
-                                 f"{tuple(d.shape)}, got {tuple(e.shape)}")
+                raise ValueError(
+                    f"ProbeFields.empty_per_probe must be finite and shaped like per_probe "
+                    f"{tuple(d.shape)}, got {tuple(e.shape)}"
+                )
             object.__setattr__(self, "empty_per_probe", e)
-
 
 
 @dataclass(frozen=True)
@@ -85,14 +87,17 @@ class PlanningContext:
 
     def __post_init__(self) -> None:
         if len(self.candidates) != len(self.candidate_ids):
-            raise ValueError(f"PlanningContext: {len(self.candidates)} candidates but {len(self.candidate_ids)} "
-                             "candidate_ids; pass one id per candidate camera")
+            raise ValueError(
+                f"PlanningContext: {len(self.candidates)} candidates but {len(self.candidate_ids)} "
+                "candidate_ids; pass one id per candidate camera"
+            )
         if self.budget < 1 or self.n_selected < 0:
-            raise ValueError(f"PlanningContext: budget must be >= 1 and n_selected >= 0, got budget={self.budget}, "
-                             f"n_selected={self.n_selected}")
+            raise ValueError(
+                f"PlanningContext: budget must be >= 1 and n_selected >= 0, got budget={self.budget}, "
+                f"n_selected={self.n_selected}"
+            )
         if not isinstance(self.gaussians, GaussianSet):
             raise ValueError(f"PlanningContext.gaussians must be a GaussianSet, got {type(self.gaussians).__name__}")
-
 
 
 @dataclass
@@ -115,7 +120,6 @@ class Selection:
     seconds: dict[str, float]
 
 
-
 @runtime_checkable
 class Planner(Protocol):
     """A next-best-view planner (see the module docstring for the registered ones)."""
@@ -125,11 +129,9 @@ class Planner(Protocol):
     def select(self, context: PlanningContext) -> Selection: ...
 
 
-
 def fused_k(budget: int, n_selected: int) -> int:
     """K = max(B - n_selected, 2), the shortlist size of the fused planners."""
     return max(budget - n_selected, MIN_SHORTLIST)
-
 
 
 def nan_scores(count: int) -> list[float]:
@@ -137,12 +139,10 @@ def nan_scores(count: int) -> list[float]:
     return [math.nan] * count
 
 
-
 def check_candidates(context: PlanningContext, name: str) -> None:
     """Raise ValueError naming planner ``name`` when ``context`` has no candidate view left."""
     if len(context.candidates) == 0:
         raise ValueError(f"planner {name!r}: no candidate views are left; stop before the candidate pool is empty")
-
 
 
 def descending(scores: list[float]) -> list[int]:

@@ -11,7 +11,6 @@ from nbv.plan.fisher_info import FisherConfig, greedy_top_k
 log = logging.getLogger(__name__)
 
 
-
 class FisherPlanner:
     """FisherRF: the candidate with the largest expected information gain (:mod:`nbv.plan.fisher_info`)."""
 
@@ -24,8 +23,14 @@ class FisherPlanner:
     def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
         """The greedy top-k positions and every candidate's score against the selected views."""
         g = context.gaussians.detach()
-        ranking = greedy_top_k(g, context.candidates, [v.camera for v in context.train_views],
-                               context.background.to(g.device), k, self.config)
+        ranking = greedy_top_k(
+            g,
+            context.candidates,
+            [v.camera for v in context.train_views],
+            context.background.to(g.device),
+            k,
+            self.config,
+        )
         if ranking.recomputed:
             log.info("fisher: %d candidate H recomputed (cache_mb=%g)", ranking.recomputed, self.config.cache_mb)
         return ranking.order, ranking.scores
@@ -35,6 +40,10 @@ class FisherPlanner:
         start = time.perf_counter()
         order, scores = self.rank(context, 1)
         shortlist = order + [i for i in descending(scores) if i not in order]
-        return Selection(pick=order[0], shortlist=shortlist, k=None,
-                         scores={"visual": scores, "physics": nan_scores(len(scores))},
-                         seconds={"visual": time.perf_counter() - start, "physics": 0.0})
+        return Selection(
+            pick=order[0],
+            shortlist=shortlist,
+            k=None,
+            scores={"visual": scores, "physics": nan_scores(len(scores))},
+            seconds={"visual": time.perf_counter() - start, "physics": 0.0},
+        )

@@ -93,16 +93,22 @@ class FisherConfig:
 def _degree(gaussians: GaussianSet, sh_degree: int | None) -> int:
     degree = gaussians.sh_degree if sh_degree is None else sh_degree
     if not 0 <= degree <= gaussians.sh_degree:
-        raise ValueError(f"sh_degree {sh_degree} exceeds the stored SH degree {gaussians.sh_degree}; "
-                         "pass sh_degree=None or a smaller degree")
+        raise ValueError(
+            f"sh_degree {sh_degree} exceeds the stored SH degree {gaussians.sh_degree}; "
+            "pass sh_degree=None or a smaller degree"
+        )
     return degree
 
 
 def _parameter_leaves(gaussians: GaussianSet, degree: int, include_rotations: bool) -> dict[str, torch.Tensor]:
     """Fresh leaf tensors (requiring grad) of the differentiated parameters, in column order."""
     g = gaussians.detach()
-    leaves = {"means": g.means, "log_scales": g.log_scales, "opacity_logits": g.opacity_logits,
-              "sh": g.sh[:, : (degree + 1) ** 2]}
+    leaves = {
+        "means": g.means,
+        "log_scales": g.log_scales,
+        "opacity_logits": g.opacity_logits,
+        "sh": g.sh[:, : (degree + 1) ** 2],
+    }
     if include_rotations:
         leaves["quats"] = g.quats
     return {name: t.clone().requires_grad_(True) for name, t in leaves.items()}
@@ -119,8 +125,9 @@ def parameter_count(sh_degree: int, include_rotations: bool = False) -> int:
     return 7 + 3 * (sh_degree + 1) ** 2 + (4 if include_rotations else 0)
 
 
-def local_jacobians(gaussians: GaussianSet, camera: Camera, *, sh_degree: int | None = None,
-                    include_rotations: bool = False) -> list[list[tuple[int, torch.Tensor]]]:
+def local_jacobians(
+    gaussians: GaussianSet, camera: Camera, *, sh_degree: int | None = None, include_rotations: bool = False
+) -> list[list[tuple[int, torch.Tensor]]]:
     """A_g = d a_g / d theta_g for every Gaussian, grouped by parameter block.
 
     Args:
@@ -139,16 +146,23 @@ def local_jacobians(gaussians: GaussianSet, camera: Camera, *, sh_degree: int | 
         colors = gaussian_colors(g, camera, degree)
         attributes = torch.cat([proj.means2d, proj.conics, g.opacities[:, None], colors], -1)  # [N, 9]
         for k in range(attributes.shape[1]):
-            grads = torch.autograd.grad(attributes[:, k].sum(), [leaves[n] for n in names], retain_graph=True,
-                                        allow_unused=True)
+            grads = torch.autograd.grad(
+                attributes[:, k].sum(), [leaves[n] for n in names], retain_graph=True, allow_unused=True
+            )
             for b, grad in enumerate(grads):
                 if grad is not None:
                     blocks[b].append((k, grad.reshape(g.num, -1)))
     return blocks
 
 
-def view_fisher(gaussians: GaussianSet, camera: Camera, background: torch.Tensor | float | None = None, *,
-                sh_degree: int | None = None, include_rotations: bool = False) -> torch.Tensor:
+def view_fisher(
+    gaussians: GaussianSet,
+    camera: Camera,
+    background: torch.Tensor | float | None = None,
+    *,
+    sh_degree: int | None = None,
+    include_rotations: bool = False,
+) -> torch.Tensor:
     """The diagonal of J^T J of one view, per Gaussian and parameter (see the module docstring).
 
     Args:
@@ -197,8 +211,14 @@ def _block_matrix(rows: list[tuple[int, torch.Tensor]], n: int, attrs: int, like
     return out
 
 
-def view_fisher_reference(gaussians: GaussianSet, camera: Camera, background: torch.Tensor | float | None = None,
-                          *, sh_degree: int | None = None, include_rotations: bool = False) -> torch.Tensor:
+def view_fisher_reference(
+    gaussians: GaussianSet,
+    camera: Camera,
+    background: torch.Tensor | float | None = None,
+    *,
+    sh_degree: int | None = None,
+    include_rotations: bool = False,
+) -> torch.Tensor:
     """Brute-force twin of :func:`view_fisher`: the dense reference renderer, one backward pass per pixel.
 
     O(H W N) per pass and H W passes: tiny scenes only (tests). Same Args and Returns.
@@ -212,8 +232,10 @@ def view_fisher_reference(gaussians: GaussianSet, camera: Camera, background: to
         h = torch.zeros(g.num, parameter_count(degree, include_rotations), dtype=g.dtype, device=g.device)
         for p in range(image.shape[0]):
             grads = torch.autograd.grad(image[p].sum(), params, retain_graph=True, allow_unused=True)
-            flat = [torch.zeros_like(t).reshape(g.num, -1) if d is None else d.reshape(g.num, -1)
-                    for t, d in zip(params, grads, strict=True)]
+            flat = [
+                torch.zeros_like(t).reshape(g.num, -1) if d is None else d.reshape(g.num, -1)
+                for t, d in zip(params, grads, strict=True)
+            ]
             h += torch.cat(flat, -1) ** 2
     return h
 
@@ -226,8 +248,10 @@ def fisher_score(h_candidate: torch.Tensor, h_train: torch.Tensor, regularizatio
         regularization: lambda.
     """
     if h_candidate.shape != h_train.shape:
-        raise ValueError(f"fisher_score: candidate H {tuple(h_candidate.shape)} and train H "
-                         f"{tuple(h_train.shape)} differ; compute both from the same Gaussians")
+        raise ValueError(
+            f"fisher_score: candidate H {tuple(h_candidate.shape)} and train H "
+            f"{tuple(h_train.shape)} differ; compute both from the same Gaussians"
+        )
     return float((h_candidate.to(torch.float64) / (h_train.to(torch.float64) + regularization)).sum())
 
 
@@ -246,8 +270,9 @@ class FisherRanking:
     recomputed: int = 0
 
 
-def greedy_top_k_reference(h_train: torch.Tensor, h_candidates: Sequence[torch.Tensor], k: int,
-                           regularization: float = DEFAULT_LAMBDA) -> list[int]:
+def greedy_top_k_reference(
+    h_train: torch.Tensor, h_candidates: Sequence[torch.Tensor], k: int, regularization: float = DEFAULT_LAMBDA
+) -> list[int]:
     """Plain greedy twin of the lazy list of :func:`greedy_top_k`: rescore every candidate at every step."""
     h = h_train.clone()
     remaining, order = list(range(len(h_candidates))), []
@@ -260,9 +285,15 @@ def greedy_top_k_reference(h_train: torch.Tensor, h_candidates: Sequence[torch.T
     return order
 
 
-def greedy_top_k(gaussians: GaussianSet, candidates: Sequence[Camera], train_cameras: Sequence[Camera],
-                 background: torch.Tensor | float | None, k: int, config: FisherConfig = FisherConfig(),
-                 progress=None) -> FisherRanking:
+def greedy_top_k(
+    gaussians: GaussianSet,
+    candidates: Sequence[Camera],
+    train_cameras: Sequence[Camera],
+    background: torch.Tensor | float | None,
+    k: int,
+    config: FisherConfig = FisherConfig(),
+    progress=None,
+) -> FisherRanking:
     """The greedy FisherRF top-k list of the candidate views (lazy evaluation, exact greedy result).
 
     Args:
@@ -282,8 +313,9 @@ def greedy_top_k(gaussians: GaussianSet, candidates: Sequence[Camera], train_cam
         raise ValueError(f"greedy_top_k: k must be >= 1, got {k}")
 
     def fisher(camera: Camera) -> torch.Tensor:
-        return view_fisher(gaussians, camera, background, sh_degree=config.sh_degree,
-                           include_rotations=config.include_rotations)
+        return view_fisher(
+            gaussians, camera, background, sh_degree=config.sh_degree, include_rotations=config.include_rotations
+        )
 
     lam = config.regularization
     degree = _degree(gaussians, config.sh_degree)

@@ -3,6 +3,7 @@
 One class, :class:`FusedPlanner`, runs every rule of the table :data:`nbv.plan.rules.FUSED_RULES`; see :mod:`nbv.plan`
 for what each rule does (paper Sec. 3.1 and 3.4, Appendix "view selection").
 """
+
 from __future__ import annotations
 
 import logging
@@ -38,11 +39,12 @@ def excess_divergence(fields: ProbeFields) -> torch.Tensor:
         ValueError: the empty scene was not run.
     """
     if fields.empty_per_probe is None:
-        raise ValueError("fisher+excess needs the empty-scene probes: set the selection physics' empty_reference "
-                         "to true (ActiveConfig.physics, or \"physics\": {\"empty_reference\": true} in an "
-                         "experiment's \"active\" overrides)")
+        raise ValueError(
+            "fisher+excess needs the empty-scene probes: set the selection physics' empty_reference "
+            'to true (ActiveConfig.physics, or "physics": {"empty_reference": true} in an '
+            'experiment\'s "active" overrides)'
+        )
     return (fields.per_probe - fields.empty_per_probe).clamp_min(0.0).amax(dim=0)
-
 
 
 def per_probe_normalised(per_probe: torch.Tensor) -> torch.Tensor:
@@ -67,7 +69,6 @@ def per_probe_normalised(per_probe: torch.Tensor) -> torch.Tensor:
     return (d / scale[:, None]).amax(dim=0)
 
 
-
 def _standardised(x: torch.Tensor) -> torch.Tensor:
     """(x - mean) / std over the entries (population std); zeros when the entries are all equal."""
     std = x.std(unbiased=False) if x.numel() > 1 else torch.zeros((), dtype=x.dtype)
@@ -75,7 +76,6 @@ def _standardised(x: torch.Tensor) -> torch.Tensor:
     if not float(std) > 1e-12 * max(scale, 1e-300):
         return torch.zeros_like(x)
     return (x - x.mean()) / std
-
 
 
 def balanced_scores(coverage: list[float], physics: list[float]) -> list[float]:
@@ -97,7 +97,6 @@ def balanced_scores(coverage: list[float], physics: list[float]) -> list[float]:
     s = torch.tensor(physics, dtype=torch.float64)
     mean_d = torch.where(a > 0, s / a.clamp_min(1e-300), torch.zeros_like(s))
     return (_standardised(a) + _standardised(mean_d)).tolist()
-
 
 
 class FusedPlanner:
@@ -149,12 +148,16 @@ class FusedPlanner:
             return shuffled_divergence(divergence, self.config.seed, context.round)
         if self.control in ("excess", "perprobe"):
             if context.probe_fields is None:
-                raise ValueError(f"planner {self.name!r} needs PlanningContext.probe_fields (the per-probe D_g of "
-                                 "the probe run); the active loop passes it, other callers must too")
+                raise ValueError(
+                    f"planner {self.name!r} needs PlanningContext.probe_fields (the per-probe D_g of "
+                    "the probe run); the active loop passes it, other callers must too"
+                )
             fields = context.probe_fields(context.gaussians)
             if fields.per_probe.shape[1] != context.gaussians.num:
-                raise ValueError(f"probe_fields returned {fields.per_probe.shape[1]} Gaussians' values for "
-                                 f"{context.gaussians.num} Gaussians; it must score the Gaussians it is given")
+                raise ValueError(
+                    f"probe_fields returned {fields.per_probe.shape[1]} Gaussians' values for "
+                    f"{context.gaussians.num} Gaussians; it must score the Gaussians it is given"
+                )
             return excess_divergence(fields) if self.control == "excess" else per_probe_normalised(fields.per_probe)
         return divergence
 
@@ -170,16 +173,26 @@ class FusedPlanner:
         cams = [context.candidates[i] for i in shortlist]
         chosen = physics_view_scores(context.gaussians, cams, divergence, occlusion=occlusion)
         if self.combine == "balanced":
-            coverage = physics_view_scores(context.gaussians, cams, torch.ones(context.gaussians.num,
-                                                                               dtype=torch.float64),
-                                           occlusion=occlusion)
+            coverage = physics_view_scores(
+                context.gaussians, cams, torch.ones(context.gaussians.num, dtype=torch.float64), occlusion=occlusion
+            )
             chosen = balanced_scores(coverage, chosen)
         physics = nan_scores(count)
         for i, s in zip(shortlist, chosen, strict=True):
             physics[i] = s
         best = max(range(len(shortlist)), key=lambda j: (chosen[j], -j))
-        log.info("%s: K=%d, visual top-K %s, S(T) %s -> position %d", self.name, k, shortlist,
-                 [f"{s:.4g}" for s in chosen], shortlist[best])
-        return Selection(pick=shortlist[best], shortlist=list(shortlist), k=k,
-                         scores={"visual": list(visual), "physics": physics},
-                         seconds={"visual": mid - start, "physics": time.perf_counter() - mid})
+        log.info(
+            "%s: K=%d, visual top-K %s, S(T) %s -> position %d",
+            self.name,
+            k,
+            shortlist,
+            [f"{s:.4g}" for s in chosen],
+            shortlist[best],
+        )
+        return Selection(
+            pick=shortlist[best],
+            shortlist=list(shortlist),
+            k=k,
+            scores={"visual": list(visual), "physics": physics},
+            seconds={"visual": mid - start, "physics": time.perf_counter() - mid},
+        )

@@ -85,14 +85,20 @@ class FVSPlanner:
     def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
         """The greedy farthest-point list of k positions and every candidate's distance d(c) to the selected."""
         selected = [v.camera for v in context.train_views]
-        return (farthest_view_order(context.candidates, selected, k),
-                farthest_view_distances(context.candidates, selected))
+        return (
+            farthest_view_order(context.candidates, selected, k),
+            farthest_view_distances(context.candidates, selected),
+        )
 
     def select(self, context: PlanningContext) -> Selection:
         check_candidates(context, self.name)
         start = time.perf_counter()
         count = len(context.candidates)
         order, scores = self.rank(context, count)
-        return Selection(pick=order[0], shortlist=order, k=None,
-                         scores={"visual": scores, "physics": nan_scores(count)},
-                         seconds={"visual": time.perf_counter() - start, "physics": 0.0})
+        return Selection(
+            pick=order[0],
+            shortlist=order,
+            k=None,
+            scores={"visual": scores, "physics": nan_scores(count)},
+            seconds={"visual": time.perf_counter() - start, "physics": 0.0},
+        )

@@ -33,9 +33,13 @@ class PhysicsPlannerConfig:
             raise ValueError(f"PhysicsPlannerConfig.weighted must be a bool, got {self.weighted!r}")
 
 
-
-def physics_view_scores(gaussians: GaussianSet, cameras: list[Camera], divergence: torch.Tensor,
-                        weighted: bool = True, occlusion: bool = False) -> list[float]:
+def physics_view_scores(
+    gaussians: GaussianSet,
+    cameras: list[Camera],
+    divergence: torch.Tensor,
+    weighted: bool = True,
+    occlusion: bool = False,
+) -> list[float]:
     """S(T) = sum_g w_g(T) D_g (paper Eq. 4-5) of every camera, from the batched projection (no render).
 
     Args:
@@ -49,16 +53,18 @@ def physics_view_scores(gaussians: GaussianSet, cameras: list[Camera], divergenc
     """
     d = torch.as_tensor(divergence).detach().reshape(-1)
     if d.numel() != gaussians.num:
-        raise ValueError(f"physics returned {d.numel()} per-Gaussian values for {gaussians.num} Gaussians; "
-                         "the physics callable must score the Gaussians it is given")
+        raise ValueError(
+            f"physics returned {d.numel()} per-Gaussian values for {gaussians.num} Gaussians; "
+            "the physics callable must score the Gaussians it is given"
+        )
     if not torch.isfinite(d).all():
         raise ValueError("physics returned NaN or Inf per-Gaussian divergences; check the probe run")
     if not cameras:
         return []
     buffer = DepthBuffer() if occlusion else None
-    return projected_view_scores(d, gaussians.detach(), list(cameras), weighted=weighted,
-                                 depth_buffer=buffer).scores.tolist()
-
+    return projected_view_scores(
+        d, gaussians.detach(), list(cameras), weighted=weighted, depth_buffer=buffer
+    ).scores.tolist()
 
 
 def shuffled_divergence(divergence: torch.Tensor, seed: int, round_index: int = 0) -> torch.Tensor:
@@ -77,14 +83,14 @@ def shuffled_divergence(divergence: torch.Tensor, seed: int, round_index: int = 
     return d[torch.from_numpy(rng.permutation(d.numel())).to(d.device)]
 
 
-
 def run_physics(context: PlanningContext, name: str) -> torch.Tensor:
     """[N] D_g of the current Gaussians from ``context.physics`` (the probe runner), for planner ``name``."""
     if context.physics is None:
-        raise ValueError(f"planner {name!r} needs PlanningContext.physics (the probe runner giving D_g); "
-                         "pass one, or use a visual-only planner")
+        raise ValueError(
+            f"planner {name!r} needs PlanningContext.physics (the probe runner giving D_g); "
+            "pass one, or use a visual-only planner"
+        )
     return context.physics(context.gaussians)
-
 
 
 class PhysicsPlanner:
@@ -100,9 +106,14 @@ class PhysicsPlanner:
         check_candidates(context, self.name)
         start = time.perf_counter()
         divergence = run_physics(context, self.name)
-        scores = physics_view_scores(context.gaussians, context.candidates, divergence, self.config.weighted,
-                                     context.occlusion)
+        scores = physics_view_scores(
+            context.gaussians, context.candidates, divergence, self.config.weighted, context.occlusion
+        )
         order = descending(scores)
-        return Selection(pick=order[0], shortlist=order, k=None,
-                         scores={"visual": nan_scores(len(scores)), "physics": scores},
-                         seconds={"visual": 0.0, "physics": time.perf_counter() - start})
+        return Selection(
+            pick=order[0],
+            shortlist=order,
+            k=None,
+            scores={"visual": nan_scores(len(scores)), "physics": scores},
+            seconds={"visual": 0.0, "physics": time.perf_counter() - start},
+        )

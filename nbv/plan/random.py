@@ -25,7 +25,6 @@ class RandomConfig:
             raise ValueError(f"RandomConfig.seed must be an int >= 0, got {self.seed!r}")
 
 
-
 class RandomPlanner:
     """A uniformly random candidate (reproducible from (seed, round))."""
 
@@ -47,6 +46,10 @@ class RandomPlanner:
         rng = np.random.default_rng([self.config.seed, context.round])
         pick = int(rng.integers(len(context.candidates)))
         count = len(context.candidates)
-        return Selection(pick=pick, shortlist=list(range(count)), k=None,
-                         scores={"visual": nan_scores(count), "physics": nan_scores(count)},
-                         seconds={"visual": time.perf_counter() - start, "physics": 0.0})
+        return Selection(
+            pick=pick,
+            shortlist=list(range(count)),
+            k=None,
+            scores={"visual": nan_scores(count), "physics": nan_scores(count)},
+            seconds={"visual": time.perf_counter() - start, "physics": 0.0},
+        )

@@ -18,9 +18,14 @@ from nbv.plan.rules import FUSED, PLANNER_NAMES, FusedRule
 from nbv.plan.variance import VariancePlanner
 
 # name -> the planner class, or the fused rule that FusedPlanner runs
-PLANNERS: dict[str, type | FusedRule] = {"random": RandomPlanner, "fisher": FisherPlanner,
-                                         "variance": VariancePlanner, "physics": PhysicsPlanner, "fvs": FVSPlanner,
-                                         **FUSED}
+PLANNERS: dict[str, type | FusedRule] = {
+    "random": RandomPlanner,
+    "fisher": FisherPlanner,
+    "variance": VariancePlanner,
+    "physics": PhysicsPlanner,
+    "fvs": FVSPlanner,
+    **FUSED,
+}
 if tuple(PLANNERS) != PLANNER_NAMES:
     raise RuntimeError(f"nbv.plan.registry lists {tuple(PLANNERS)}, nbv.plan.rules {PLANNER_NAMES}")
 

@@ -27,8 +27,7 @@ class VariancePlanner:
     def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
         """The top-k positions by variance reduction and every candidate's score."""
         g = context.gaussians.detach()
-        warm = self.log_variances if self.log_variances is not None and self.log_variances.numel() == g.num \
-            else None
+        warm = self.log_variances if self.log_variances is not None and self.log_variances.numel() == g.num else None
         fit = fit_variances(g, context.train_views, context.background.to(g.device), self.config, warm)
         self.log_variances = fit.log_variances
         scores = variance_scores(g, context.candidates, fit.variances, self.config.prior_floor)
@@ -38,6 +37,10 @@ class VariancePlanner:
         check_candidates(context, self.name)
         start = time.perf_counter()
         _, scores = self.rank(context, len(context.candidates))
-        return Selection(pick=descending(scores)[0], shortlist=descending(scores), k=None,
-                         scores={"visual": scores, "physics": nan_scores(len(scores))},
-                         seconds={"visual": time.perf_counter() - start, "physics": 0.0})
+        return Selection(
+            pick=descending(scores)[0],
+            shortlist=descending(scores),
+            k=None,
+            scores={"visual": scores, "physics": nan_scores(len(scores))},
+            seconds={"visual": time.perf_counter() - start, "physics": 0.0},
+        )

@@ -125,8 +125,9 @@ def variance_reduction_reference(pairs: ViewPairs, variances: torch.Tensor, prio
     return total
 
 
-def nll_loss(log_variances: torch.Tensor, pairs: Sequence[ViewPairs], squared_errors: Sequence[torch.Tensor],
-             floor: float) -> torch.Tensor:
+def nll_loss(
+    log_variances: torch.Tensor, pairs: Sequence[ViewPairs], squared_errors: Sequence[torch.Tensor], floor: float
+) -> torch.Tensor:
     """mean over all pixels of ||C - C_gt||^2 / (2 sigma^2) + 1/2 log sigma^2, sigma^2 = sum w v + floor.
 
     Args:
@@ -155,9 +156,13 @@ class VarianceFit:
         return torch.exp(self.log_variances)
 
 
-def fit_variances(gaussians: GaussianSet, views: Sequence, background: torch.Tensor | float | None,
-                  config: VarianceConfig = VarianceConfig(), init_log_variances: torch.Tensor | None = None
-                  ) -> VarianceFit:
+def fit_variances(
+    gaussians: GaussianSet,
+    views: Sequence,
+    background: torch.Tensor | float | None,
+    config: VarianceConfig = VarianceConfig(),
+    init_log_variances: torch.Tensor | None = None,
+) -> VarianceFit:
     """Fit the per-Gaussian variances on the selected views with the Gaussians frozen (ActiveNeRF NLL).
 
     Args:
@@ -172,11 +177,15 @@ def fit_variances(gaussians: GaussianSet, views: Sequence, background: torch.Ten
     n = gaussians.num
     for i, view in enumerate(views):
         if getattr(view, "image", None) is None:
-            raise ValueError(f"fit_variances: train view {i} ({getattr(view, 'name', '?')}) has no image; "
-                             "the variance fit needs the captured images of the selected views")
+            raise ValueError(
+                f"fit_variances: train view {i} ({getattr(view, 'name', '?')}) has no image; "
+                "the variance fit needs the captured images of the selected views"
+            )
     if init_log_variances is not None and tuple(init_log_variances.shape) != (n,):
-        raise ValueError(f"fit_variances: init_log_variances has shape {tuple(init_log_variances.shape)}, "
-                         f"expected ({n},); start afresh with None when the Gaussians changed")
+        raise ValueError(
+            f"fit_variances: init_log_variances has shape {tuple(init_log_variances.shape)}, "
+            f"expected ({n},); start afresh with None when the Gaussians changed"
+        )
     g = gaussians.detach()
     all_pairs, errors = [], []
     with torch.no_grad():
@@ -185,12 +194,17 @@ def fit_variances(gaussians: GaussianSet, views: Sequence, background: torch.Ten
             image = render(g, cam, background, sh_degree=config.sh_degree).image
             gt = view.image.to(device=image.device, dtype=image.dtype)
             if gt.shape != image.shape:
-                raise ValueError(f"fit_variances: view {getattr(view, 'name', '?')} image {tuple(gt.shape)} does "
-                                 f"not match its camera {tuple(image.shape)}; load images at the camera's size")
+                raise ValueError(
+                    f"fit_variances: view {getattr(view, 'name', '?')} image {tuple(gt.shape)} does "
+                    f"not match its camera {tuple(image.shape)}; load images at the camera's size"
+                )
             all_pairs.append(view_pairs(g, cam))
             errors.append(((image - gt) ** 2).sum(-1).reshape(-1).to(torch.float64))
-    start = torch.full((n,), math.log(config.initial_variance), dtype=torch.float64, device=g.device) \
-        if init_log_variances is None else init_log_variances.detach().to(device=g.device, dtype=torch.float64)
+    start = (
+        torch.full((n,), math.log(config.initial_variance), dtype=torch.float64, device=g.device)
+        if init_log_variances is None
+        else init_log_variances.detach().to(device=g.device, dtype=torch.float64)
+    )
     log_v = start.clone().requires_grad_(True)
     if not views:
         return VarianceFit(log_v.detach(), math.nan, math.nan)
@@ -198,10 +212,18 @@ def fit_variances(gaussians: GaussianSet, views: Sequence, background: torch.Ten
     offsets = [0]
     for vp in all_pairs:
         offsets.append(offsets[-1] + vp.num_pixels)
-    merged = [ViewPairs(torch.cat([vp.pixels + off for vp, off in zip(all_pairs, offsets, strict=False)]),
-                        torch.cat([vp.gaussians for vp in all_pairs]), torch.cat([vp.alpha for vp in all_pairs]),
-                        torch.cat([vp.transmittance for vp in all_pairs]), torch.cat([vp.live for vp in all_pairs]),
-                        torch.cat([vp.weights for vp in all_pairs]).to(torch.float64), offsets[-1], 1)]
+    merged = [
+        ViewPairs(
+            torch.cat([vp.pixels + off for vp, off in zip(all_pairs, offsets, strict=False)]),
+            torch.cat([vp.gaussians for vp in all_pairs]),
+            torch.cat([vp.alpha for vp in all_pairs]),
+            torch.cat([vp.transmittance for vp in all_pairs]),
+            torch.cat([vp.live for vp in all_pairs]),
+            torch.cat([vp.weights for vp in all_pairs]).to(torch.float64),
+            offsets[-1],
+            1,
+        )
+    ]
     merged_errors = [torch.cat(errors)]
     with torch.enable_grad():
         optimizer = torch.optim.Adam([log_v], lr=config.learning_rate)
@@ -212,13 +234,19 @@ def fit_variances(gaussians: GaussianSet, views: Sequence, background: torch.Ten
             loss.backward()
             optimizer.step()
         after = float(nll_loss(log_v.detach(), merged, merged_errors, config.variance_floor))
-    log.debug("variance fit: NLL %.5g -> %.5g over %d views, %d iterations", before, after, len(views),
-              config.iterations)
+    log.debug(
+        "variance fit: NLL %.5g -> %.5g over %d views, %d iterations", before, after, len(views), config.iterations
+    )
     return VarianceFit(log_v.detach(), before, after)
 
 
-def variance_scores(gaussians: GaussianSet, candidates: Sequence[Camera], variances: torch.Tensor,
-                    prior_floor: float = PRIOR_FLOOR, progress=None) -> list[float]:
+def variance_scores(
+    gaussians: GaussianSet,
+    candidates: Sequence[Camera],
+    variances: torch.Tensor,
+    prior_floor: float = PRIOR_FLOOR,
+    progress=None,
+) -> list[float]:
     """Score(T) of every candidate camera (module docstring).
 
     Args:
@@ -228,9 +256,13 @@ def variance_scores(gaussians: GaussianSet, candidates: Sequence[Camera], varian
         C floats.
     """
     if tuple(variances.shape) != (gaussians.num,):
-        raise ValueError(f"variance_scores: variances {tuple(variances.shape)} must be [{gaussians.num}] "
-                         "(one per Gaussian); refit them after densification")
+        raise ValueError(
+            f"variance_scores: variances {tuple(variances.shape)} must be [{gaussians.num}] "
+            "(one per Gaussian); refit them after densification"
+        )
     positions = range(len(candidates))
     v = variances.to(gaussians.device)
-    return [float(variance_reduction(view_pairs(gaussians, candidates[i]), v, prior_floor))
-            for i in (progress(positions) if progress is not None else positions)]
+    return [
+        float(variance_reduction(view_pairs(gaussians, candidates[i]), v, prior_floor))
+        for i in (progress(positions) if progress is not None else positions)
+    ]

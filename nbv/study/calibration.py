@@ -32,8 +32,7 @@ def _check_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
     v = np.asarray(vertices, np.float64)
     t = np.asarray(triangles, np.int64)
     if v.ndim != 2 or v.shape[1] != 3 or t.ndim != 2 or t.shape[1] != 3 or len(t) == 0:
-        raise ValueError(f"mesh: vertices must be [V, 3] and triangles [T, 3] with T >= 1, got {v.shape} and "
-                         f"{t.shape}")
+        raise ValueError(f"mesh: vertices must be [V, 3] and triangles [T, 3] with T >= 1, got {v.shape} and {t.shape}")
     if t.min() < 0 or t.max() >= len(v):
         raise ValueError(f"mesh: triangle indices must lie in 0..{len(v) - 1}")
     return v, t
@@ -126,8 +125,9 @@ def sample_surface(vertices, triangles, count: int, seed: int = 0) -> np.ndarray
     return (1 - s)[:, None] * a[tri] + (s * (1 - r2))[:, None] * b[tri] + (s * r2)[:, None] * c[tri]
 
 
-def missing_samples(samples, gaussians: GaussianSet, sigmas: float = 2.0, min_opacity: float = 0.0,
-                    chunk: int = 256) -> np.ndarray:
+def missing_samples(
+    samples, gaussians: GaussianSet, sigmas: float = 2.0, min_opacity: float = 0.0, chunk: int = 256
+) -> np.ndarray:
     """Which surface samples lie outside the ``sigmas`` ellipsoid of every Gaussian with opacity >= ``min_opacity``.
 
     Args:
@@ -148,12 +148,12 @@ def missing_samples(samples, gaussians: GaussianSet, sigmas: float = 2.0, min_op
         return out.numpy()
     reach = sigmas * scales.amax(dim=1)
     for start in range(0, len(x), chunk):
-        xs = x[start:start + chunk]
+        xs = x[start : start + chunk]
         diff = xs[:, None, :] - means[None]  # [s, N, 3]
         near = diff.norm(dim=-1) <= reach[None]
         local = torch.einsum("snk,nkj->snj", diff, rot) / scales[None]  # coordinates along the principal axes / s
-        inside = near & ((local ** 2).sum(-1) <= sigmas ** 2)
-        out[start:start + chunk] = ~inside.any(dim=1)
+        inside = near & ((local**2).sum(-1) <= sigmas**2)
+        out[start : start + chunk] = ~inside.any(dim=1)
     return out.numpy()
 
 
@@ -172,8 +172,9 @@ def visible_samples(samples, cameras: Sequence[Camera], vertices, triangles, tol
     xt = torch.from_numpy(x)
     for i, cam in enumerate(cameras):
         uv, z = cam.project(xt)
-        inside = ((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0)
-                  & (uv[:, 1] < cam.height)).numpy()
+        inside = (
+            (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        ).numpy()
         origin = cam.center.to(torch.float64).numpy()
         d = x - origin
         dist = np.linalg.norm(d, axis=1)

@@ -92,8 +92,10 @@ class ProbeSetting:
     def __post_init__(self) -> None:
         d, r = np.asarray(self.divergence), np.asarray(self.reached)
         if d.ndim != 1 or r.shape != d.shape:
-            raise ValueError(f"ProbeSetting {self.label!r}: divergence and reached must be [G] arrays of one length, "
-                             f"got {d.shape} and {r.shape}")
+            raise ValueError(
+                f"ProbeSetting {self.label!r}: divergence and reached must be [G] arrays of one length, "
+                f"got {d.shape} and {r.shape}"
+            )
         if not np.isfinite(d).all():
             raise ValueError(f"ProbeSetting {self.label!r}: D_g has NaN or Inf values")
 
@@ -103,11 +105,16 @@ def load_setting(path: str | Path, label: str | None = None) -> ProbeSetting:
     res = load_result(path)
     cfg = res.config
     active = [int(s["active"].max()) for s in res.stats.values() if len(s)]
-    return ProbeSetting(label=label or f"r={cfg.particle_radius:g} m, {cfg.steps} steps",
-                        particle_radius=float(cfg.particle_radius), steps=int(cfg.steps),
-                        divergence=np.asarray(res.divergence, np.float64),
-                        reached=np.asarray(res.per_probe_counts).sum(0) > 0, dbar=float(res.dbar),
-                        seconds=res.timings.get("total"), fluid_particles=max(active) if active else None)
+    return ProbeSetting(
+        label=label or f"r={cfg.particle_radius:g} m, {cfg.steps} steps",
+        particle_radius=float(cfg.particle_radius),
+        steps=int(cfg.steps),
+        divergence=np.asarray(res.divergence, np.float64),
+        reached=np.asarray(res.per_probe_counts).sum(0) > 0,
+        dbar=float(res.dbar),
+        seconds=res.timings.get("total"),
+        fluid_particles=max(active) if active else None,
+    )
 
 
 def view_weight_matrix(gaussians, cameras: Sequence, occlusion: bool = False) -> np.ndarray:
@@ -196,8 +203,10 @@ def view_terms(weights: np.ndarray, divergence: np.ndarray) -> tuple[np.ndarray,
     w = np.asarray(weights, np.float64)
     d = np.asarray(divergence, np.float64).reshape(-1)
     if w.ndim != 2 or w.shape[1] != d.size:
-        raise ValueError(f"view_terms: weights {w.shape} do not match {d.size} per-Gaussian values; score the "
-                         "Gaussian set the probes ran on")
+        raise ValueError(
+            f"view_terms: weights {w.shape} do not match {d.size} per-Gaussian values; score the "
+            "Gaussian set the probes ran on"
+        )
     score, cover = w @ d, w.sum(1)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_seen = np.where(cover > 0, score / np.where(cover > 0, cover, 1.0), np.nan)
@@ -209,20 +218,27 @@ def summarize_setting(setting: ProbeSetting, weights: np.ndarray) -> SettingSumm
     seen = mean_seen[np.isfinite(mean_seen)]
     reached = np.asarray(setting.reached, bool)
     return SettingSummary(
-        label=setting.label, seconds=setting.seconds, fluid_particles=setting.fluid_particles, dbar=setting.dbar,
+        label=setting.label,
+        seconds=setting.seconds,
+        fluid_particles=setting.fluid_particles,
+        dbar=setting.dbar,
         mean_divergence=float(setting.divergence[reached].mean()) if reached.any() else 0.0,
-        reached=float(reached.mean()), score_vs_coverage_spearman=spearman(score, cover),
+        reached=float(reached.mean()),
+        score_vs_coverage_spearman=spearman(score, cover),
         score_vs_coverage_pearson=pearson(score, cover),
         mean_seen_cv=float(seen.std() / seen.mean()) if seen.size and seen.mean() > 0 else math.nan,
         mean_seen_vs_coverage_spearman=spearman(_snapped(seen), cover[np.isfinite(mean_seen)]),
-        top_view=int(_descending(score)[0]))
+        top_view=int(_descending(score)[0]),
+    )
 
 
 def compare_settings(a: ProbeSetting, b: ProbeSetting, weights: np.ndarray, top_k: int = TOP_K) -> PairSummary:
     """How far setting ``b`` agrees with setting ``a`` (same Gaussians, same weights)."""
     if a.divergence.shape != b.divergence.shape:
-        raise ValueError(f"settings {a.label!r} and {b.label!r} hold D_g of {a.divergence.size} and "
-                         f"{b.divergence.size} Gaussians; compare runs of one Gaussian set")
+        raise ValueError(
+            f"settings {a.label!r} and {b.label!r} hold D_g of {a.divergence.size} and "
+            f"{b.divergence.size} Gaussians; compare runs of one Gaussian set"
+        )
     common = np.asarray(a.reached, bool) & np.asarray(b.reached, bool)
     sa, _, ma = view_terms(weights, a.divergence)
     sb, _, mb = view_terms(weights, b.divergence)
@@ -231,16 +247,21 @@ def compare_settings(a: ProbeSetting, b: ProbeSetting, weights: np.ndarray, top_
     rank_b = {int(v): i + 1 for i, v in enumerate(order_b)}
     k = min(top_k, len(sa))
     return PairSummary(
-        first=a.label, second=b.label, common=int(common.sum()),
+        first=a.label,
+        second=b.label,
+        common=int(common.sum()),
         d_pearson=pearson(a.divergence[common], b.divergence[common]),
         d_spearman=spearman(a.divergence[common], b.divergence[common]),
-        score_spearman=spearman(sa, sb), mean_seen_spearman=spearman(_snapped(ma[finite]), _snapped(mb[finite])),
+        score_spearman=spearman(sa, sb),
+        mean_seen_spearman=spearman(_snapped(ma[finite]), _snapped(mb[finite])),
         top_view_rank=rank_b[int(order_a[0])],
-        top_k_overlap=len(set(order_a[:k].tolist()) & set(order_b[:k].tolist())))
+        top_k_overlap=len(set(order_a[:k].tolist()) & set(order_b[:k].tolist())),
+    )
 
 
-def study(settings: Sequence[ProbeSetting], weights: np.ndarray,
-          top_k: int = TOP_K) -> tuple[list[SettingSummary], list[PairSummary]]:
+def study(
+    settings: Sequence[ProbeSetting], weights: np.ndarray, top_k: int = TOP_K
+) -> tuple[list[SettingSummary], list[PairSummary]]:
     """Every setting's summary and every pair's agreement (pairs in the order of ``settings``)."""
     if len(settings) < 1:
         raise ValueError("convergence study: pass at least one probe setting")
@@ -257,19 +278,29 @@ def _f(x: float | None, digits: int = 3) -> str:
 
 def format_study(summaries: Sequence[SettingSummary], pairs: Sequence[PairSummary], top_k: int = TOP_K) -> str:
     """Markdown: one table of the settings, one of the pairs."""
-    lines = ["| setting | fluid particles | time (s) | D-bar (m^4/s) | reached | mean D_g (1/s) | "
-             "S vs coverage Spearman | S vs coverage Pearson | CV of S/A over views | S/A vs coverage Spearman | "
-             "top view |",
-             "|" + "---|" * 11]
+    lines = [
+        "| setting | fluid particles | time (s) | D-bar (m^4/s) | reached | mean D_g (1/s) | "
+        "S vs coverage Spearman | S vs coverage Pearson | CV of S/A over views | S/A vs coverage Spearman | "
+        "top view |",
+        "|" + "---|" * 11,
+    ]
     for s in summaries:
-        lines.append(f"| {s.label} | {s.fluid_particles if s.fluid_particles is not None else 'n/a'} | "
-                     f"{_f(s.seconds, 1)} | {s.dbar:.3e} | {s.reached:.1%} | {_f(s.mean_divergence)} | "
-                     f"{_f(s.score_vs_coverage_spearman)} | {_f(s.score_vs_coverage_pearson)} | "
-                     f"{s.mean_seen_cv:.2%} | {_f(s.mean_seen_vs_coverage_spearman)} | {s.top_view} |")
-    lines += ["", f"| first | second | common Gaussians | D_g Pearson | D_g Spearman | S(T) Spearman | "
-                  f"S/A Spearman | rank of first's top view | top-{top_k} overlap |", "|" + "---|" * 9]
+        lines.append(
+            f"| {s.label} | {s.fluid_particles if s.fluid_particles is not None else 'n/a'} | "
+            f"{_f(s.seconds, 1)} | {s.dbar:.3e} | {s.reached:.1%} | {_f(s.mean_divergence)} | "
+            f"{_f(s.score_vs_coverage_spearman)} | {_f(s.score_vs_coverage_pearson)} | "
+            f"{s.mean_seen_cv:.2%} | {_f(s.mean_seen_vs_coverage_spearman)} | {s.top_view} |"
+        )
+    lines += [
+        "",
+        f"| first | second | common Gaussians | D_g Pearson | D_g Spearman | S(T) Spearman | "
+        f"S/A Spearman | rank of first's top view | top-{top_k} overlap |",
+        "|" + "---|" * 9,
+    ]
     for p in pairs:
-        lines.append(f"| {p.first} | {p.second} | {p.common} | {_f(p.d_pearson)} | {_f(p.d_spearman)} | "
-                     f"{_f(p.score_spearman)} | {_f(p.mean_seen_spearman)} | {p.top_view_rank} | "
-                     f"{p.top_k_overlap} |")
+        lines.append(
+            f"| {p.first} | {p.second} | {p.common} | {_f(p.d_pearson)} | {_f(p.d_spearman)} | "
+            f"{_f(p.score_spearman)} | {_f(p.mean_seen_spearman)} | {p.top_view_rank} | "
+            f"{p.top_k_overlap} |"
+        )
     return "\n".join(lines) + "\n"

@@ -85,8 +85,9 @@ class EvalConfig:
         if not 0.0 <= self.chamfer_opacity < 1.0:
             raise ValueError(f"EvalConfig.chamfer_opacity must be in [0, 1), got {self.chamfer_opacity!r}")
         if self.critical_direction not in DIRECTIONS:
-            raise ValueError(f"EvalConfig.critical_direction must be one of {','.join(DIRECTIONS)}, "
-                             f"got {self.critical_direction!r}")
+            raise ValueError(
+                f"EvalConfig.critical_direction must be one of {','.join(DIRECTIONS)}, got {self.critical_direction!r}"
+            )
         if self.physics is not None and not isinstance(self.physics, PhysicsConfig):
             raise ValueError(f"EvalConfig.physics must be a PhysicsConfig or None, got {type(self.physics).__name__}")
 
@@ -116,8 +117,11 @@ def eval_physics_config(run_physics: PhysicsConfig, config: EvalConfig, up) -> P
     """
     if config.physics is not None:
         base = config.physics
-        dirs = base.directions if config.critical_direction in base.directions else \
-            tuple(base.directions) + (config.critical_direction,)
+        dirs = (
+            base.directions
+            if config.critical_direction in base.directions
+            else tuple(base.directions) + (config.critical_direction,)
+        )
     else:
         base, dirs = run_physics, DIRECTIONS
     return replace(base, empty_reference=True, track_distinct=True, up=up, directions=dirs)
@@ -173,8 +177,12 @@ def chamfer_to_mesh(gaussians, mesh_path: Path, config: EvalConfig) -> dict[str,
     vertices, triangles = load_mesh(mesh_path)
     surface = sample_mesh_surface(vertices, triangles, config.chamfer_samples, config.seed)
     points = gaussians.means[keep].detach().cpu().double().numpy()
-    return {"chamfer": chamfer_distance(points, surface), "gaussians_used": int(keep.sum()),
-            "mesh_samples": config.chamfer_samples, "mesh": str(mesh_path)}
+    return {
+        "chamfer": chamfer_distance(points, surface),
+        "gaussians_used": int(keep.sum()),
+        "mesh_samples": config.chamfer_samples,
+        "mesh": str(mesh_path),
+    }
 
 
 @torch.no_grad()
@@ -197,8 +205,9 @@ def lpips_scores(gaussians, views, renders) -> dict[str, Any]:
     if reason is not None:
         return {"lpips": "unavailable", "reason": reason}
     net = load_lpips(device=gaussians.means.device)
-    values = [float(lpips(out.image.clamp(0, 1), v.image.to(out.image), net)) for out, v in zip(renders, views,
-                                                                                                  strict=True)]
+    values = [
+        float(lpips(out.image.clamp(0, 1), v.image.to(out.image), net)) for out, v in zip(renders, views, strict=True)
+    ]
     return {"lpips": sum(values) / len(values), "per_view": values}
 
 
@@ -214,28 +223,42 @@ def critical_metrics(gaussians, result, renders, rows, views, config: EvalConfig
         seen |= unoccluded(gaussians.means, reach, views[k].camera, renders[k])
     covs = torch.from_numpy(result.covariances)
     d = torch.from_numpy(result.divergence)
-    return {"critical_psnr": sum(rows[k]["psnr"] for k in subset) / len(subset),
-            "critical_dbar": geometry_divergence(covs[seen], d[seen]),
-            "critical_views": [views[k].name for k in subset], "critical_scores": [float(v) for v in c],
-            "critical_gaussians": int(seen.sum()), "critical_direction": config.critical_direction}
+    return {
+        "critical_psnr": sum(rows[k]["psnr"] for k in subset) / len(subset),
+        "critical_dbar": geometry_divergence(covs[seen], d[seen]),
+        "critical_views": [views[k].name for k in subset],
+        "critical_scores": [float(v) for v in c],
+        "critical_gaussians": int(seen.sum()),
+        "critical_direction": config.critical_direction,
+    }
 
 
 def physics_metrics(result) -> dict[str, Any]:
     """D-bar, the empty-scene D-bar and the per-direction D-bars of one probe run."""
     covs = torch.from_numpy(result.covariances)
-    per_dir = {d: geometry_divergence(covs, torch.from_numpy(result.per_probe[i]))
-               for i, d in enumerate(result.directions)}
+    per_dir = {
+        d: geometry_divergence(covs, torch.from_numpy(result.per_probe[i])) for i, d in enumerate(result.directions)
+    }
     empty_dir = None
     if result.empty_per_probe is not None:
-        empty_dir = {d: geometry_divergence(covs, torch.from_numpy(result.empty_per_probe[i]))
-                     for i, d in enumerate(result.directions)}
-    return {"dbar": result.dbar, "dbar_mean": result.dbar_mean, "dbar_empty": result.dbar_empty,
-            "dbar_per_direction": per_dir, "dbar_empty_per_direction": empty_dir,
-            "solid_particles": int(len(result.solid)), "physics_seconds": result.timings.get("total")}
+        empty_dir = {
+            d: geometry_divergence(covs, torch.from_numpy(result.empty_per_probe[i]))
+            for i, d in enumerate(result.directions)
+        }
+    return {
+        "dbar": result.dbar,
+        "dbar_mean": result.dbar_mean,
+        "dbar_empty": result.dbar_empty,
+        "dbar_per_direction": per_dir,
+        "dbar_empty_per_direction": empty_dir,
+        "solid_particles": int(len(result.solid)),
+        "physics_seconds": result.timings.get("total"),
+    }
 
 
-def evaluate_run(run_dir: str | Path, config: EvalConfig | None = None, *, device: str = "cpu",
-                 progress: bool = True) -> dict[str, Any]:
+def evaluate_run(
+    run_dir: str | Path, config: EvalConfig | None = None, *, device: str = "cpu", progress: bool = True
+) -> dict[str, Any]:
     """Evaluate ``RUN/gaussians.ply`` and write ``RUN/eval.json`` and ``RUN/eval.md``.
 
     Needs an initialised Taichi runtime (the probes).
@@ -254,8 +277,10 @@ def evaluate_run(run_dir: str | Path, config: EvalConfig | None = None, *, devic
     run_dir = Path(run_dir)
     cfg_path, ply = run_dir / "config.json", run_dir / "gaussians.ply"
     if not cfg_path.is_file() or not ply.is_file():
-        raise ValueError(f"{run_dir} is not a finished active run (needs config.json and gaussians.ply); "
-                         "run `fluidgs active DATASET -o RUN` first")
+        raise ValueError(
+            f"{run_dir} is not a finished active run (needs config.json and gaussians.ply); "
+            "run `fluidgs active DATASET -o RUN` first"
+        )
     run_cfg = json.loads(cfg_path.read_text())
     active = ActiveConfig.from_dict(run_cfg["active"])
     ds = load_dataset(run_cfg["dataset"], resolution=active.resolution)
@@ -267,13 +292,21 @@ def evaluate_run(run_dir: str | Path, config: EvalConfig | None = None, *, devic
     views = [view_to(v, device) for v in ds.test]
     renders, rows = render_test_views(gaussians, views, ds.background, active.backend)
     out: dict[str, Any] = {
-        "run": str(run_dir), "dataset": run_cfg["dataset"], "method": active.method, "seed": active.seed,
-        "num_gaussians": gaussians.num, "test_views": len(views), "config": config.to_dict(),
+        "run": str(run_dir),
+        "dataset": run_cfg["dataset"],
+        "method": active.method,
+        "seed": active.seed,
+        "num_gaussians": gaussians.num,
+        "test_views": len(views),
+        "config": config.to_dict(),
         "physics_config": pcfg.to_dict(),
-        "psnr": sum(r["psnr"] for r in rows) / len(rows), "ssim": sum(r["ssim"] for r in rows) / len(rows),
-        "per_view": rows}
-    out.update(lpips_scores(gaussians, views, renders) if config.lpips else
-               {"lpips": "unavailable", "reason": "disabled"})
+        "psnr": sum(r["psnr"] for r in rows) / len(rows),
+        "ssim": sum(r["ssim"] for r in rows) / len(rows),
+        "per_view": rows,
+    }
+    out.update(
+        lpips_scores(gaussians, views, renders) if config.lpips else {"lpips": "unavailable", "reason": "disabled"}
+    )
     if ds.mesh_path is not None:
         out.update(chamfer_to_mesh(gaussians, ds.mesh_path, config))
     else:
@@ -284,8 +317,9 @@ def evaluate_run(run_dir: str | Path, config: EvalConfig | None = None, *, devic
         if not is_empty_solid(exc):
             raise
         log.warning("%s: %s; no D-bar", run_dir, exc)
-        out.update({"dbar": None, "dbar_empty": None, "critical_psnr": None, "critical_dbar": None,
-                    "physics_error": str(exc)})
+        out.update(
+            {"dbar": None, "dbar_empty": None, "critical_psnr": None, "critical_dbar": None, "physics_error": str(exc)}
+        )
     else:
         out.update(physics_metrics(result))
         out["scale_m_per_unit"] = float(result.transform.scale)
@@ -309,8 +343,22 @@ def _fmt(v: Any, digits: int = 4) -> str:
 
 def markdown_line(out: dict[str, Any]) -> str:
     """A Markdown table (header and one row) of the headline metrics."""
-    cols = ("method", "seed", "psnr", "ssim", "lpips", "dbar", "dbar_empty", "chamfer", "critical_psnr",
-            "critical_dbar")
+    cols = (
+        "method",
+        "seed",
+        "psnr",
+        "ssim",
+        "lpips",
+        "dbar",
+        "dbar_empty",
+        "chamfer",
+        "critical_psnr",
+        "critical_dbar",
+    )
     head = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
-    return head + "| " + " | ".join(str(out.get(c)) if c in ("method", "seed") else _fmt(out.get(c))
-                                    for c in cols) + " |\n"
+    return (
+        head
+        + "| "
+        + " | ".join(str(out.get(c)) if c in ("method", "seed") else _fmt(out.get(c)) for c in cols)
+        + " |\n"
+    )

@@ -43,8 +43,9 @@ class LocalExecutor:
 
     name = "local"
 
-    def __init__(self, workers: int = 1, initializer: Callable[..., None] | None = None,
-                 initargs: Sequence[Any] = ()) -> None:
+    def __init__(
+        self, workers: int = 1, initializer: Callable[..., None] | None = None, initargs: Sequence[Any] = ()
+    ) -> None:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ValueError(f"--workers must be an integer >= 1, got {workers!r}")
         self.workers = workers
@@ -60,8 +61,12 @@ class LocalExecutor:
         if not jobs:
             return
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(self.workers, len(jobs)), mp_context=ctx,
-                                 initializer=self.initializer, initargs=self.initargs) as pool:
+        with ProcessPoolExecutor(
+            max_workers=min(self.workers, len(jobs)),
+            mp_context=ctx,
+            initializer=self.initializer,
+            initargs=self.initargs,
+        ) as pool:
             try:
                 futures = {pool.submit(fn, job): job for job in jobs}
                 for fut in as_completed(futures):
@@ -110,10 +115,12 @@ class JobLost(RuntimeError):
     def __init__(self, job: Any, tries: int, cause: BaseException) -> None:
         text = repr(job)
         text = text if len(text) <= 300 else text[:297] + "..."
-        super().__init__(f"Ray lost job {text}: its worker died on {tries} {'try' if tries == 1 else 'tries'} "
-                         f"({type(cause).__name__}: "
-                         f"{str(cause).splitlines()[0] if str(cause) else 'no detail'}); check the nodes' memory and "
-                         "logs, or raise max_retries")
+        super().__init__(
+            f"Ray lost job {text}: its worker died on {tries} {'try' if tries == 1 else 'tries'} "
+            f"({type(cause).__name__}: "
+            f"{str(cause).splitlines()[0] if str(cause) else 'no detail'}); check the nodes' memory and "
+            "logs, or raise max_retries"
+        )
         self.job = job
 
 
@@ -122,8 +129,9 @@ def import_ray():
     try:
         import ray  # noqa: PLC0415 - the optional 'ray' extra
     except ImportError as exc:
-        raise ValueError("--executor ray needs the optional Ray package: pip install ray "
-                         "(or use --executor local)") from exc
+        raise ValueError(
+            "--executor ray needs the optional Ray package: pip install ray (or use --executor local)"
+        ) from exc
     return ray
 
 
@@ -143,9 +151,16 @@ class RayExecutor:
 
     name = "ray"
 
-    def __init__(self, address: str | None = None, initializer: Callable[..., None] | None = None,
-                 initargs: Sequence[Any] = (), num_cpus: float = 1.0, local_cpus: int | None = None,
-                 max_retries: int = 2, spread: bool = True) -> None:
+    def __init__(
+        self,
+        address: str | None = None,
+        initializer: Callable[..., None] | None = None,
+        initargs: Sequence[Any] = (),
+        num_cpus: float = 1.0,
+        local_cpus: int | None = None,
+        max_retries: int = 2,
+        spread: bool = True,
+    ) -> None:
         if isinstance(max_retries, bool) or not isinstance(max_retries, int) or max_retries < 0:
             raise ValueError(f"max_retries must be an integer >= 0, got {max_retries!r}")
         self.ray = import_ray()
@@ -155,8 +170,9 @@ class RayExecutor:
         self.initializer = initializer or _noop
         self.initargs = tuple(initargs)
         self.num_cpus = float(num_cpus)
-        if local_cpus is not None and (isinstance(local_cpus, bool) or not isinstance(local_cpus, int)
-                                       or local_cpus < 1):
+        if local_cpus is not None and (
+            isinstance(local_cpus, bool) or not isinstance(local_cpus, int) or local_cpus < 1
+        ):
             raise ValueError(f"local_cpus must be None or an integer >= 1, got {local_cpus!r}")
         self.local_cpus = local_cpus
         self.started = False
@@ -178,15 +194,22 @@ class RayExecutor:
             # "local": a new instance, never the last one started on this machine (ray.init's default). Ray installs
             # its own SIGTERM handler in the driver; the caller's handlers are put back, so that a signal ends the
             # tasks through the clean-up below instead of aborting the driver.
-            handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)} \
-                if threading.current_thread() is threading.main_thread() else {}
+            handlers = (
+                {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+                if threading.current_thread() is threading.main_thread()
+                else {}
+            )
             ray.init(address=self.address or "local", **kwargs)
             for sig, handler in handlers.items():
                 signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
             self.started = self.address is None
             log.info("connected to Ray at %s", self.address or "a new local instance")
-        task = ray.remote(num_cpus=self.num_cpus, max_retries=self.max_retries, retry_exceptions=False,
-                          scheduling_strategy="SPREAD" if self.spread else "DEFAULT")(_ray_task)
+        task = ray.remote(
+            num_cpus=self.num_cpus,
+            max_retries=self.max_retries,
+            retry_exceptions=False,
+            scheduling_strategy="SPREAD" if self.spread else "DEFAULT",
+        )(_ray_task)
         pending = {task.remote(fn, job, self.initializer, self.initargs): job for job in jobs}
         try:
             yield from self._collect(pending)

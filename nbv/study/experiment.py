@@ -65,11 +65,9 @@ from recon.datasets import count_train_views, dataset_format
 log = logging.getLogger(__name__)
 
 
-
 class JobFailed(RuntimeError):
     """An experiment job raised: the message names the job, its error and how to resume; ``__cause__`` is the job's
     own exception (`fluidgs experiment` exits with that cause's code, in one line)."""
-
 
 
 def plan_jobs(config: ExperimentConfig) -> list[dict]:
@@ -80,18 +78,35 @@ def plan_jobs(config: ExperimentConfig) -> list[dict]:
     for scene, name in zip(config.scenes, scene_names(config.scenes), strict=True):
         for seed in config.seeds:
             for method in config.methods:
-                jobs.append({"kind": "method", "scene": name, "dataset": scene, "method": method, "seed": seed,
-                             "run_dir": str(out / "runs" / name / method_folder(method) / f"seed{seed}"),
-                             "active": config.active_config(method, seed).to_dict(), "eval": eval_cfg})
+                jobs.append(
+                    {
+                        "kind": "method",
+                        "scene": name,
+                        "dataset": scene,
+                        "method": method,
+                        "seed": seed,
+                        "run_dir": str(out / "runs" / name / method_folder(method) / f"seed{seed}"),
+                        "active": config.active_config(method, seed).to_dict(),
+                        "eval": eval_cfg,
+                    }
+                )
             if config.reference_views is not None:
                 n = config.reference_views
                 ref = config.active_config("random", seed, budget=n, initial_ids=tuple(range(n)))
                 label = reference_label(n)
-                jobs.append({"kind": "reference", "scene": name, "dataset": scene, "method": label, "seed": seed,
-                             "run_dir": str(out / "runs" / name / label / f"seed{seed}"), "active": ref.to_dict(),
-                             "eval": eval_cfg})
+                jobs.append(
+                    {
+                        "kind": "reference",
+                        "scene": name,
+                        "dataset": scene,
+                        "method": label,
+                        "seed": seed,
+                        "run_dir": str(out / "runs" / name / label / f"seed{seed}"),
+                        "active": ref.to_dict(),
+                        "eval": eval_cfg,
+                    }
+                )
     return jobs
-
 
 
 def run_job(job: dict) -> dict:
@@ -112,9 +127,15 @@ def run_job(job: dict) -> dict:
             log.info("%s: already evaluated", run_dir)
     if result is None:
         result = evaluate_run(run_dir, eval_cfg, progress=False)
-    return {"kind": job["kind"], "scene": job["scene"], "method": job["method"], "seed": job["seed"],
-            "run_dir": str(run_dir), "selected": rounds.get("selected"), **result["summary"]}
-
+    return {
+        "kind": job["kind"],
+        "scene": job["scene"],
+        "method": job["method"],
+        "seed": job["seed"],
+        "run_dir": str(run_dir),
+        "selected": rounds.get("selected"),
+        **result["summary"],
+    }
 
 
 def check_scenes(config: ExperimentConfig) -> None:
@@ -135,7 +156,6 @@ def check_scenes(config: ExperimentConfig) -> None:
             config.check_scene_views(scene, views)
 
 
-
 def collect_rows(results, jobs: list[dict], out: Path, bar) -> list[dict]:
     """The result rows of ``results`` (the executor's (job, row) pairs) as they come; a failed job raises
     :class:`JobFailed` naming it."""
@@ -147,15 +167,25 @@ def collect_rows(results, jobs: list[dict], out: Path, bar) -> list[dict]:
             return rows
         except Exception as exc:
             failed = getattr(exc, "job", None)
-            where = f"{failed['scene']} {failed['method']} seed {failed['seed']} ({failed['run_dir']})" if failed \
+            where = (
+                f"{failed['scene']} {failed['method']} seed {failed['seed']} ({failed['run_dir']})"
+                if failed
                 else "a job"
-            raise JobFailed(f"experiment job {where} failed: {type(exc).__name__}: {exc}. Finished jobs are kept "
-                            f"under {out}; fix the cause and run the same command again to resume") from exc
+            )
+            raise JobFailed(
+                f"experiment job {where} failed: {type(exc).__name__}: {exc}. Finished jobs are kept "
+                f"under {out}; fix the cause and run the same command again to resume"
+            ) from exc
         rows.append(row)
         bar.update(1)
-        log.info("done: %s %s seed %d (PSNR %s, D-bar %s)", job["scene"], job["method"], job["seed"],
-                 row.get("psnr"), row.get("dbar"))
-
+        log.info(
+            "done: %s %s seed %d (PSNR %s, D-bar %s)",
+            job["scene"],
+            job["method"],
+            job["seed"],
+            row.get("psnr"),
+            row.get("dbar"),
+        )
 
 
 def run_experiment(config: ExperimentConfig, executor, progress: bool = True) -> dict[str, Any]:

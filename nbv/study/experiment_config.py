@@ -22,15 +22,33 @@ MAX_JOBS = 10_000
 
 CONFIG_KEYS = ("scenes", "methods", "seeds", "preset", "output", "reference_views", "active", "eval")
 
-ABLATION_ORDER = ("random", "random+fluid", "random+area", "random+shuffled", "fisher", "fisher+fluid", "fisher+area",
-                  "fisher+shuffled", "variance", "variance+fluid", "variance+area", "variance+shuffled")
+ABLATION_ORDER = (
+    "random",
+    "random+fluid",
+    "random+area",
+    "random+shuffled",
+    "fisher",
+    "fisher+fluid",
+    "fisher+area",
+    "fisher+shuffled",
+    "variance",
+    "variance+fluid",
+    "variance+area",
+    "variance+shuffled",
+)
 
 # what re-ranks the shortlist of a fused method <visual>+<pick> (the ablation table's "physics pick" column)
-PICKS = {"fluid": "yes", "area": "no: coverage sum w_g (D_g = 1)", "shuffled": "D_g shuffled across the Gaussians",
-         "fluid-occ": "yes, depth-tested visibility", "area-occ": "no: coverage of the unhidden Gaussians",
-         "excess": "D_g minus the empty-scene D_g", "perprobe": "D_g normalised per probe",
-         "balanced": "z(coverage) + z(S / coverage)", "balanced-occ": "z(coverage) + z(S / coverage), depth-tested"}
-
+PICKS = {
+    "fluid": "yes",
+    "area": "no: coverage sum w_g (D_g = 1)",
+    "shuffled": "D_g shuffled across the Gaussians",
+    "fluid-occ": "yes, depth-tested visibility",
+    "area-occ": "no: coverage of the unhidden Gaussians",
+    "excess": "D_g minus the empty-scene D_g",
+    "perprobe": "D_g normalised per probe",
+    "balanced": "z(coverage) + z(S / coverage)",
+    "balanced-occ": "z(coverage) + z(S / coverage), depth-tested",
+}
 
 
 @dataclass(frozen=True)
@@ -65,21 +83,29 @@ class ExperimentConfig:
             object.__setattr__(self, name, tuple(v))
         jobs = len(self.scenes) * len(self.methods) * len(self.seeds)
         if jobs > MAX_JOBS:
-            raise ValueError(f"experiment config: {len(self.scenes)} scenes x {len(self.methods)} methods x "
-                             f"{len(self.seeds)} seeds make {jobs:,} jobs, more than the {MAX_JOBS:,} an experiment "
-                             "may plan; list fewer seeds, methods or scenes (or split the study into several configs)")
+            raise ValueError(
+                f"experiment config: {len(self.scenes)} scenes x {len(self.methods)} methods x "
+                f"{len(self.seeds)} seeds make {jobs:,} jobs, more than the {MAX_JOBS:,} an experiment "
+                "may plan; list fewer seeds, methods or scenes (or split the study into several configs)"
+            )
         if len(set(self.methods)) != len(self.methods) or len(set(self.seeds)) != len(self.seeds):
             raise ValueError("experiment config: 'methods' and 'seeds' must not repeat entries")
         bad_seeds = [s for s in self.seeds if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s <= MAX_SEED]
         if bad_seeds:
-            raise ValueError(f"experiment config: 'seeds' must be integers from 0 to {MAX_SEED}, got "
-                             f"{bad_seeds[:5]!r}{' ...' if len(bad_seeds) > 5 else ''}")
-        if self.reference_views is not None and (isinstance(self.reference_views, bool)
-                                                 or not isinstance(self.reference_views, int)
-                                                 or not 1 <= self.reference_views <= MAX_VIEWS):
-            raise ValueError(f"experiment config: 'reference_views' must be null or an integer from 1 to "
-                             f"{MAX_VIEWS:,} (the paper: >= 20; at most the scenes' candidate views), got "
-                             f"{self.reference_views!r}")
+            raise ValueError(
+                f"experiment config: 'seeds' must be integers from 0 to {MAX_SEED}, got "
+                f"{bad_seeds[:5]!r}{' ...' if len(bad_seeds) > 5 else ''}"
+            )
+        if self.reference_views is not None and (
+            isinstance(self.reference_views, bool)
+            or not isinstance(self.reference_views, int)
+            or not 1 <= self.reference_views <= MAX_VIEWS
+        ):
+            raise ValueError(
+                f"experiment config: 'reference_views' must be null or an integer from 1 to "
+                f"{MAX_VIEWS:,} (the paper: >= 20; at most the scenes' candidate views), got "
+                f"{self.reference_views!r}"
+            )
         for name in ("active", "eval"):
             if not isinstance(getattr(self, name), dict):
                 raise ValueError(f"experiment config: {name!r} must be an object of overrides")
@@ -98,8 +124,10 @@ class ExperimentConfig:
         except json.JSONDecodeError as exc:
             raise ValueError(f"experiment config {path} is not valid JSON: {exc}") from exc
         except RecursionError:
-            raise ValueError(f"experiment config {path} nests its JSON too deeply (thousands of levels); an "
-                             "experiment config is an object of a few levels") from None
+            raise ValueError(
+                f"experiment config {path} nests its JSON too deeply (thousands of levels); an "
+                "experiment config is an object of a few levels"
+            ) from None
         if not isinstance(data, dict):
             raise ValueError(f"experiment config {path} must hold a JSON object")
         bad = sorted(set(data) - set(CONFIG_KEYS))
@@ -137,12 +165,13 @@ class ExperimentConfig:
             counts.append(("active.initial_ids (largest index + 1)", max(active.initial_ids) + 1))
         for key, n in counts:
             if n is not None and n > views:
-                raise ValueError(f"experiment config {key!r} is {n:,}, but the scene {scene} has only {views} "
-                                 f"candidate (train) views; lower {key.split(' ')[0]!r} to at most {views}")
+                raise ValueError(
+                    f"experiment config {key!r} is {n:,}, but the scene {scene} has only {views} "
+                    f"candidate (train) views; lower {key.split(' ')[0]!r} to at most {views}"
+                )
 
     def eval_config(self) -> EvalConfig:
         return EvalConfig.from_dict(self.eval)
-
 
 
 def check_method(method: str) -> str:
@@ -157,12 +186,13 @@ def check_method(method: str) -> str:
     if base not in PLANNERS:
         close = difflib.get_close_matches(base, list(PLANNERS), n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise ValueError(f"experiment config: method {method!r} is not a planner{hint}; the methods are "
-                         f"{', '.join(sorted(PLANNERS))}, each optionally with @ and a probe direction "
-                         f"({', '.join(DIRECTIONS)})")
+        raise ValueError(
+            f"experiment config: method {method!r} is not a planner{hint}; the methods are "
+            f"{', '.join(sorted(PLANNERS))}, each optionally with @ and a probe direction "
+            f"({', '.join(DIRECTIONS)})"
+        )
     split_method(method)  # the direction, and whether the method's pick runs the probes
     return method
-
 
 
 def split_method(method: str) -> tuple[str, str | None]:
@@ -175,15 +205,17 @@ def split_method(method: str) -> tuple[str, str | None]:
         return method, None
     base, _, direction = method.partition("@")
     if direction not in DIRECTIONS:
-        raise ValueError(f"experiment method {method!r}: unknown probe direction {direction!r}; use one of "
-                         f"{', '.join(DIRECTIONS)}")
+        raise ValueError(
+            f"experiment method {method!r}: unknown probe direction {direction!r}; use one of {', '.join(DIRECTIONS)}"
+        )
     if base not in PLANNERS or not uses_physics(base):
-        raise ValueError(f"experiment method {method!r}: a single-direction variant needs a method whose pick uses "
-                         "the physics (fisher+fluid, variance+fluid, random+fluid, a +shuffled control, "
-                         "fisher+fluid-occ, fisher+excess, fisher+perprobe, fisher+balanced(-occ) or physics; "
-                         "the +area controls run no probe)")
+        raise ValueError(
+            f"experiment method {method!r}: a single-direction variant needs a method whose pick uses "
+            "the physics (fisher+fluid, variance+fluid, random+fluid, a +shuffled control, "
+            "fisher+fluid-occ, fisher+excess, fisher+perprobe, fisher+balanced(-occ) or physics; "
+            "the +area controls run no probe)"
+        )
     return base, direction
-
 
 
 def method_folder(method: str) -> str:
@@ -194,12 +226,10 @@ def method_folder(method: str) -> str:
     return base.replace("+", "_") + (f"_at{direction}" if sep else "")
 
 
-
 def scene_names(scenes: Sequence[str]) -> list[str]:
     """Folder names of the scenes, made unique with an index suffix."""
     names = [Path(s).name or "scene" for s in scenes]
     return [n if names.count(n) == 1 else f"{n}-{i}" for i, n in enumerate(names)]
-
 
 
 def reference_label(views: int) -> str:

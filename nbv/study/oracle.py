@@ -101,17 +101,26 @@ def check_scenes(config: OracleConfig) -> dict[str, dict]:
         except ValueError as exc:
             raise ValueError(f"oracle config 'scenes': {exc}") from exc
         if not ds.test:
-            raise ValueError(f"oracle config 'scenes': {scene} has no test views; the oracle gain is a test PSNR, so "
-                             "render the dataset with test views (fluidgs render-dataset --test N) or drop the scene")
+            raise ValueError(
+                f"oracle config 'scenes': {scene} has no test views; the oracle gain is a test PSNR, so "
+                "render the dataset with test views (fluidgs render-dataset --test N) or drop the scene"
+            )
         largest = max(config.states)
         if largest >= len(ds.train):
-            raise ValueError(f"oracle config 'states': a state of {largest} views leaves no candidate of the "
-                             f"{len(ds.train)} in {scene}; use states below {len(ds.train)}")
+            raise ValueError(
+                f"oracle config 'states': a state of {largest} views leaves no candidate of the "
+                f"{len(ds.train)} in {scene}; use states below {len(ds.train)}"
+            )
         if acfg.budget > len(ds.train):
-            raise ValueError(f"oracle config 'active': budget {acfg.budget} exceeds the {len(ds.train)} candidates of "
-                             f"{scene}; lower active.budget")
-        out[scene] = {"candidates": len(ds.train), "test": len(ds.test),
-                      "mesh": None if ds.mesh_path is None else str(ds.mesh_path)}
+            raise ValueError(
+                f"oracle config 'active': budget {acfg.budget} exceeds the {len(ds.train)} candidates of "
+                f"{scene}; lower active.budget"
+            )
+        out[scene] = {
+            "candidates": len(ds.train),
+            "test": len(ds.test),
+            "mesh": None if ds.mesh_path is None else str(ds.mesh_path),
+        }
     return out
 
 
@@ -131,8 +140,16 @@ def plan_jobs(config: OracleConfig) -> list[dict]:
     for scene, name in zip(config.scenes, scene_names(config.scenes), strict=True):
         for seed in config.seeds:
             for n in sorted(config.states):
-                jobs.append({"scene": name, "dataset": scene, "seed": seed, "n": n, "config": cfg,
-                             "path": str(state_path(config.output, name, seed, n))})
+                jobs.append(
+                    {
+                        "scene": name,
+                        "dataset": scene,
+                        "seed": seed,
+                        "n": n,
+                        "config": cfg,
+                        "path": str(state_path(config.output, name, seed, n)),
+                    }
+                )
     return jobs
 
 
@@ -160,13 +177,17 @@ def probe_run(gaussians: GaussianSet, physics: PhysicsConfig, source: str = "") 
         log.warning("%s: %s; D_g = 0", source, exc)
         zeros = torch.zeros(gaussians.num, dtype=torch.float64)
         return zeros, ProbeFields(("none",), zeros.reshape(1, -1), zeros.reshape(1, -1))
-    fields = ProbeFields(tuple(res.directions), torch.from_numpy(res.per_probe),
-                         None if res.empty_per_probe is None else torch.from_numpy(res.empty_per_probe))
+    fields = ProbeFields(
+        tuple(res.directions),
+        torch.from_numpy(res.per_probe),
+        None if res.empty_per_probe is None else torch.from_numpy(res.empty_per_probe),
+    )
     return torch.from_numpy(res.divergence).to(torch.float64), fields
 
 
-def rule_values(values: str, divergence: torch.Tensor, fields: ProbeFields, seed: int,
-                round_index: int) -> torch.Tensor:
+def rule_values(
+    values: str, divergence: torch.Tensor, fields: ProbeFields, seed: int, round_index: int
+) -> torch.Tensor:
     """The per-Gaussian values v_g of a physics rule (``RULES[...].values``)."""
     if values == "divergence":
         return divergence
@@ -179,8 +200,9 @@ def rule_values(values: str, divergence: torch.Tensor, fields: ProbeFields, seed
     raise ValueError(f"rule_values: {values!r} is not a physics value")
 
 
-def score_rules(config: OracleConfig, context: PlanningContext, physics: dict[str, PhysicsConfig],
-                seed: int, shortlist_k: int) -> tuple[dict[str, list[float]], list[int], dict[str, Any]]:
+def score_rules(
+    config: OracleConfig, context: PlanningContext, physics: dict[str, PhysicsConfig], seed: int, shortlist_k: int
+) -> tuple[dict[str, list[float]], list[int], dict[str, Any]]:
     """Every rule's score of every candidate of ``context``.
 
     Args:
@@ -245,9 +267,16 @@ def score_rules(config: OracleConfig, context: PlanningContext, physics: dict[st
 
 
 # ---- the oracle --------------------------------------------------------------------------------------
-def oracle_gains(new_trainer: Callable[[], Trainer], state: dict, train_views: list, candidate_views: list,
-                 test_views: list, background: Sequence[float], horizon: int,
-                 progress: Callable[[], None] | None = None) -> dict[str, Any]:
+def oracle_gains(
+    new_trainer: Callable[[], Trainer],
+    state: dict,
+    train_views: list,
+    candidate_views: list,
+    test_views: list,
+    background: Sequence[float],
+    horizon: int,
+    progress: Callable[[], None] | None = None,
+) -> dict[str, Any]:
     """Train one copy per candidate (and one without) for ``horizon`` iterations from ``state``; their test metrics.
 
     Args:
@@ -260,6 +289,7 @@ def oracle_gains(new_trainer: Callable[[], Trainer], state: dict, train_views: l
     Returns:
         {"psnr_base", "ssim_base", "psnr": [C], "ssim": [C], "gain_psnr": [C] dB, "gain_ssim": [C]}.
     """
+
     def run(views: list) -> dict:
         trainer = new_trainer()
         trainer.load_state_dict(copy.deepcopy(state))
@@ -275,8 +305,14 @@ def oracle_gains(new_trainer: Callable[[], Trainer], state: dict, train_views: l
         m = run(list(train_views) + [view])
         psnrs.append(m["psnr"])
         ssims.append(m["ssim"])
-    return {"psnr_base": base["psnr"], "ssim_base": base["ssim"], "psnr": psnrs, "ssim": ssims,
-            "gain_psnr": [p - base["psnr"] for p in psnrs], "gain_ssim": [s - base["ssim"] for s in ssims]}
+    return {
+        "psnr_base": base["psnr"],
+        "ssim_base": base["ssim"],
+        "psnr": psnrs,
+        "ssim": ssims,
+        "gain_psnr": [p - base["psnr"] for p in psnrs],
+        "gain_ssim": [s - base["ssim"] for s in ssims],
+    }
 
 
 def fisher_diagonal(gaussians: GaussianSet, cameras: list, background: torch.Tensor) -> torch.Tensor:
@@ -287,9 +323,17 @@ def fisher_diagonal(gaussians: GaussianSet, cameras: list, background: torch.Ten
     return h
 
 
-def calibrate(gaussians: GaussianSet, mesh_path: str, train_cameras: list, candidate_cameras: list,
-              background: torch.Tensor, signals_physics: dict[str, torch.Tensor], scores: dict[str, list[float]],
-              gains: list[float], seed: int) -> dict[str, Any]:
+def calibrate(
+    gaussians: GaussianSet,
+    mesh_path: str,
+    train_cameras: list,
+    candidate_cameras: list,
+    background: torch.Tensor,
+    signals_physics: dict[str, torch.Tensor],
+    scores: dict[str, list[float]],
+    gains: list[float],
+    seed: int,
+) -> dict[str, Any]:
     """The per-Gaussian calibration of one state (module :mod:`nbv.study.calibration`).
 
     Every signal is oriented as an uncertainty (larger = more likely wrong): D_g and its variants as they are,
@@ -299,15 +343,25 @@ def calibrate(gaussians: GaussianSet, mesh_path: str, train_cameras: list, candi
     vertices, triangles = load_mesh(mesh_path)
     g = gaussians.detach().to("cpu")
     dist = cal.surface_distance(g.means.double().numpy(), vertices, triangles)
-    signals = {"opacity": 1.0 - g.opacities.double(), "largest scale": g.max_radii().double(),
-               "fisher diagonal": -fisher_diagonal(g, train_cameras, background)}
+    signals = {
+        "opacity": 1.0 - g.opacities.double(),
+        "largest scale": g.max_radii().double(),
+        "fisher diagonal": -fisher_diagonal(g, train_cameras, background),
+    }
     signals.update(signals_physics)
-    out: dict[str, Any] = {"gaussians": g.num, "mean_distance": float(dist.mean()),
-                           "median_distance": float(np.median(dist)), "signals": {}}
+    out: dict[str, Any] = {
+        "gaussians": g.num,
+        "mean_distance": float(dist.mean()),
+        "median_distance": float(np.median(dist)),
+        "signals": {},
+    }
     for name, u in signals.items():
         u = u.numpy() if isinstance(u, torch.Tensor) else np.asarray(u)
-        out["signals"][name] = {"spearman": spearman(u, dist), "ause": cal.ause(u, dist),
-                                "reached": float((u > 0).mean()) if name.startswith("D_g") else None}
+        out["signals"][name] = {
+            "spearman": spearman(u, dist),
+            "ause": cal.ause(u, dist),
+            "reached": float((u > 0).mean()) if name.startswith("D_g") else None,
+        }
     samples = cal.sample_surface(vertices, triangles, CALIBRATION_SAMPLES, seed)
     missing = cal.missing_samples(samples, g, 2.0, MISSING_OPACITY)
     seen = cal.visible_samples(samples, candidate_cameras, vertices, triangles)
@@ -342,11 +396,15 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
     initial = initial_gaussians(acfg.train_config(acfg.total_iterations), cameras, ds.points, ds.point_colors)
 
     def new_trainer(iterations: int = acfg.total_iterations) -> Trainer:
-        return Trainer(initial, acfg.train_config(iterations), extent=extent, data_background=ds.background,
-                       backend=acfg.backend)
+        return Trainer(
+            initial, acfg.train_config(iterations), extent=extent, data_background=ds.background, backend=acfg.backend
+        )
 
-    selected = list(acfg.initial_ids) if acfg.initial_ids is not None else \
-        biased_initial_views(cameras, acfg.initial_count, acfg.seed, acfg.initial_direction)
+    selected = (
+        list(acfg.initial_ids)
+        if acfg.initial_ids is not None
+        else biased_initial_views(cameras, acfg.initial_count, acfg.seed, acfg.initial_direction)
+    )
     known = _known_picks(job, config)
     loop_physics = PhysicsConfig.from_dict({**acfg.physics.to_dict(), "up": up})
     t_start = time.perf_counter()
@@ -366,13 +424,22 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
         remaining = [i for i in range(len(views)) if i not in set(selected)]
         ps = planner_seed(seed, round_index)
         context = PlanningContext(
-            gaussians=trainer.gaussians, train_views=[views[i] for i in selected],
-            candidates=[cameras[i] for i in remaining], candidate_ids=remaining, n_selected=n, budget=acfg.budget,
-            background=background, round=round_index, occlusion=acfg.occlusion,
+            gaussians=trainer.gaussians,
+            train_views=[views[i] for i in selected],
+            candidates=[cameras[i] for i in remaining],
+            candidate_ids=remaining,
+            n_selected=n,
+            budget=acfg.budget,
+            background=background,
+            round=round_index,
+            occlusion=acfg.occlusion,
             physics=(lambda gs: probe_run(gs, loop_physics, "reaching planner")[0])
-            if uses_physics(config.planner) else None,
+            if uses_physics(config.planner)
+            else None,
             probe_fields=(lambda gs: probe_run(gs, loop_physics, "reaching planner")[1])
-            if uses_physics(config.planner) else None)
+            if uses_physics(config.planner)
+            else None,
+        )
         pick = make_planner(config.planner, **{**dict(acfg.planner), "seed": ps}).select(context).pick
         selected.append(remaining[pick])
     t_reach = time.perf_counter() - t_start
@@ -380,25 +447,51 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
     remaining = [i for i in range(len(views)) if i not in set(selected)]
     ps = planner_seed(seed, round_index)
     g = trainer.gaussians
-    context = PlanningContext(gaussians=g, train_views=[views[i] for i in selected],
-                              candidates=[cameras[i] for i in remaining], candidate_ids=remaining,
-                              n_selected=target, budget=acfg.budget, background=background, round=round_index,
-                              occlusion=acfg.occlusion)
+    context = PlanningContext(
+        gaussians=g,
+        train_views=[views[i] for i in selected],
+        candidates=[cameras[i] for i in remaining],
+        candidate_ids=remaining,
+        n_selected=target,
+        budget=acfg.budget,
+        background=background,
+        round=round_index,
+        occlusion=acfg.occlusion,
+    )
     k = config.top_k if config.top_k is not None else fused_k(acfg.budget, target)
-    physics = {name: PhysicsConfig.from_dict({**config.probe_config(name).to_dict(), "up": up})
-               for name in config.probes}
+    physics = {
+        name: PhysicsConfig.from_dict({**config.probe_config(name).to_dict(), "up": up}) for name in config.probes
+    }
     t0 = time.perf_counter()
     scores, shortlist, extra = score_rules(config, context, physics, ps, k)
     t_rules = time.perf_counter() - t0
     t0 = time.perf_counter()
-    oracle = oracle_gains(new_trainer, trainer.state_dict(), [views[i] for i in selected],
-                          [views[i] for i in remaining], tests, ds.background, config.horizon, progress)
+    oracle = oracle_gains(
+        new_trainer,
+        trainer.state_dict(),
+        [views[i] for i in selected],
+        [views[i] for i in remaining],
+        tests,
+        ds.background,
+        config.horizon,
+        progress,
+    )
     t_oracle = time.perf_counter() - t0
     record: dict[str, Any] = {
-        "config": state_key(config), "scene": job["scene"], "dataset": job["dataset"], "seed": seed,
+        "config": state_key(config),
+        "scene": job["scene"],
+        "dataset": job["dataset"],
+        "seed": seed,
         "n_selected": target,
-        "selected": selected, "candidates": remaining, "candidate_names": [views[i].name for i in remaining],
-        "num_gaussians": g.num, "shortlist": shortlist, "k": k, "oracle": oracle, "scores": scores}
+        "selected": selected,
+        "candidates": remaining,
+        "candidate_names": [views[i].name for i in remaining],
+        "num_gaussians": g.num,
+        "shortlist": shortlist,
+        "k": k,
+        "oracle": oracle,
+        "scores": scores,
+    }
     if config.calibration and ds.mesh_path is not None:
         t0 = time.perf_counter()
         signals = {}
@@ -407,9 +500,17 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
             signals[f"perprobe:{setting}"] = per_probe_normalised(fields.per_probe)
             if fields.empty_per_probe is not None:
                 signals[f"excess:{setting}"] = excess_divergence(fields)
-        record["calibration"] = calibrate(g, str(ds.mesh_path), [cameras[i] for i in selected],
-                                          [cameras[i] for i in remaining], background, signals, scores,
-                                          oracle["gain_psnr"], seed)
+        record["calibration"] = calibrate(
+            g,
+            str(ds.mesh_path),
+            [cameras[i] for i in selected],
+            [cameras[i] for i in remaining],
+            background,
+            signals,
+            scores,
+            oracle["gain_psnr"],
+            seed,
+        )
         extra["seconds"]["calibration"] = time.perf_counter() - t0
     record["seconds"] = {"reach": t_reach, "rules": t_rules, "oracle": t_oracle, **extra["seconds"]}
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -429,8 +530,9 @@ def _known_picks(job: dict, config: OracleConfig) -> list[int]:
 
 
 # ---- statistics --------------------------------------------------------------------------------------
-def bootstrap_interval(groups: Sequence[Sequence[float]], resamples: int, seed: int = 0,
-                       level: float = 0.95) -> tuple[float, float, float]:
+def bootstrap_interval(
+    groups: Sequence[Sequence[float]], resamples: int, seed: int = 0, level: float = 0.95
+) -> tuple[float, float, float]:
     """(mean, low, high): the mean of all values and its percentile bootstrap interval over the groups.
 
     Each resample draws the groups (here the (scene, seed) pairs) with replacement and takes the mean of all their
@@ -478,56 +580,108 @@ def summarise(config: OracleConfig, states: list[dict]) -> dict[str, Any]:
     for label in labels:
         rho = per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_psnr"]))
         rho_ssim = per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_ssim"]))
-        reg = per_state(lambda st, label=label: regret(st["scores"][label], st["oracle"]["gain_psnr"],
-                                                       st["shortlist"]))
-        rows[label] = {"spearman": bootstrap_interval(rho, b), "spearman_ssim": bootstrap_interval(rho_ssim, b),
-                       "regret": bootstrap_interval(reg, b), "states": sum(len(g) for g in rho),
-                       "per_state": [x for g in rho for x in g]}
+        reg = per_state(lambda st, label=label: regret(st["scores"][label], st["oracle"]["gain_psnr"], st["shortlist"]))
+        rows[label] = {
+            "spearman": bootstrap_interval(rho, b),
+            "spearman_ssim": bootstrap_interval(rho_ssim, b),
+            "regret": bootstrap_interval(reg, b),
+            "states": sum(len(g) for g in rho),
+            "per_state": [x for g in rho for x in g],
+        }
     paired = {}
     for label in config.physics_rules():
         control = rule_of(label).control
-        diff = [[a - c for a, c in zip(ga, gc, strict=True)] for ga, gc in
-                zip(per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_psnr"])),
-                    per_state(lambda st, control=control: spearman(st["scores"][control], st["oracle"]["gain_psnr"])),
-                    strict=True)]
+        diff = [
+            [a - c for a, c in zip(ga, gc, strict=True)]
+            for ga, gc in zip(
+                per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_psnr"])),
+                per_state(lambda st, control=control: spearman(st["scores"][control], st["oracle"]["gain_psnr"])),
+                strict=True,
+            )
+        ]
         flat = [x for g in diff for x in g if math.isfinite(x)]
         st = paired_stats(flat, [0.0] * len(flat), True) if flat else None
-        paired[label] = {"control": control, "difference": bootstrap_interval(diff, b),
-                         "better": None if st is None else st.wins, "worse": None if st is None else st.losses,
-                         "sign_p": None if st is None else st.sign_p,
-                         "wilcoxon_p": None if st is None else st.wilcoxon_p,
-                         "wilcoxon_note": "" if st is None else st.wilcoxon_note}
+        paired[label] = {
+            "control": control,
+            "difference": bootstrap_interval(diff, b),
+            "better": None if st is None else st.wins,
+            "worse": None if st is None else st.losses,
+            "sign_p": None if st is None else st.sign_p,
+            "wilcoxon_p": None if st is None else st.wilcoxon_p,
+            "wilcoxon_note": "" if st is None else st.wilcoxon_note,
+        }
     calib = _summarise_calibration(groups, keys, b)
     gains = [st["oracle"]["gain_psnr"] for st in states]
-    return {"states": len(states), "pairs": [list(k) for k in keys], "rules": rows, "paired": paired,
-            "calibration": calib,
-            "oracle": {"mean_gain_psnr": float(np.mean([np.mean(g) for g in gains])) if gains else math.nan,
-                       "mean_best_gain_psnr": float(np.mean([max(g) for g in gains])) if gains else math.nan,
-                       "mean_base_psnr": float(np.mean([st["oracle"]["psnr_base"] for st in states]))
-                       if states else math.nan}}
+    return {
+        "states": len(states),
+        "pairs": [list(k) for k in keys],
+        "rules": rows,
+        "paired": paired,
+        "calibration": calib,
+        "oracle": {
+            "mean_gain_psnr": float(np.mean([np.mean(g) for g in gains])) if gains else math.nan,
+            "mean_best_gain_psnr": float(np.mean([max(g) for g in gains])) if gains else math.nan,
+            "mean_base_psnr": float(np.mean([st["oracle"]["psnr_base"] for st in states])) if states else math.nan,
+        },
+    }
 
 
 def _summarise_calibration(groups: dict, keys: list, resamples: int) -> dict[str, Any]:
     with_cal = [k for k in keys if any("calibration" in st for st in groups[k])]
     if not with_cal:
         return {}
-    names = list(dict.fromkeys(n for k in with_cal for st in groups[k] if "calibration" in st
-                               for n in st["calibration"]["signals"]))
+    names = list(
+        dict.fromkeys(
+            n for k in with_cal for st in groups[k] if "calibration" in st for n in st["calibration"]["signals"]
+        )
+    )
     signals = {}
     for name in names:
+
         def vals(field: str, name=name) -> list[list[float]]:
-            return [[st["calibration"]["signals"][name][field] for st in groups[k]
-                     if "calibration" in st and name in st["calibration"]["signals"]] for k in with_cal]
-        signals[name] = {"spearman": bootstrap_interval(vals("spearman"), resamples),
-                         "ause": bootstrap_interval(vals("ause"), resamples)}
-    rules = list(dict.fromkeys(r for k in with_cal for st in groups[k] if "calibration" in st
-                               for r in st["calibration"]["rules_vs_missing"]))
-    missing = {r: bootstrap_interval([[st["calibration"]["rules_vs_missing"][r] for st in groups[k]
-                                       if "calibration" in st] for k in with_cal], resamples) for r in rules}
-    gain = bootstrap_interval([[st["calibration"]["gain_vs_missing"] for st in groups[k] if "calibration" in st]
-                               for k in with_cal], resamples)
-    share = bootstrap_interval([[st["calibration"]["missing"]["missing"] / st["calibration"]["missing"]["samples"]
-                                 for st in groups[k] if "calibration" in st] for k in with_cal], resamples)
+            return [
+                [
+                    st["calibration"]["signals"][name][field]
+                    for st in groups[k]
+                    if "calibration" in st and name in st["calibration"]["signals"]
+                ]
+                for k in with_cal
+            ]
+
+        signals[name] = {
+            "spearman": bootstrap_interval(vals("spearman"), resamples),
+            "ause": bootstrap_interval(vals("ause"), resamples),
+        }
+    rules = list(
+        dict.fromkeys(
+            r
+            for k in with_cal
+            for st in groups[k]
+            if "calibration" in st
+            for r in st["calibration"]["rules_vs_missing"]
+        )
+    )
+    missing = {
+        r: bootstrap_interval(
+            [[st["calibration"]["rules_vs_missing"][r] for st in groups[k] if "calibration" in st] for k in with_cal],
+            resamples,
+        )
+        for r in rules
+    }
+    gain = bootstrap_interval(
+        [[st["calibration"]["gain_vs_missing"] for st in groups[k] if "calibration" in st] for k in with_cal], resamples
+    )
+    share = bootstrap_interval(
+        [
+            [
+                st["calibration"]["missing"]["missing"] / st["calibration"]["missing"]["samples"]
+                for st in groups[k]
+                if "calibration" in st
+            ]
+            for k in with_cal
+        ],
+        resamples,
+    )
     return {"signals": signals, "rules_vs_missing": missing, "gain_vs_missing": gain, "missing_share": share}
 
 
@@ -544,35 +698,61 @@ def _ci(t: Sequence[float], fmt: str = "+.2f") -> str:
 def format_summary(summary: dict[str, Any]) -> str:
     """Markdown tables of :func:`summarise`."""
     o = summary["oracle"]
-    lines = [f"States: {summary['states']} over {len(summary['pairs'])} (scene, seed) pairs. Intervals: 95 % "
-             "bootstrap over the (scene, seed) pairs.", "",
-             f"Mean base test PSNR {o['mean_base_psnr']:.2f} dB; mean oracle gain {o['mean_gain_psnr']:+.3f} dB, "
-             f"best candidate's {o['mean_best_gain_psnr']:+.3f} dB.", "",
-             "| rule | Spearman with the PSNR gain | Spearman with the SSIM gain | regret in FisherRF's top-K (dB) | "
-             "states |", "| --- | --- | --- | --- | --- |"]
-    order = sorted(summary["rules"], key=lambda r: -(summary["rules"][r]["spearman"][0]
-                                                      if math.isfinite(summary["rules"][r]["spearman"][0]) else -9))
+    lines = [
+        f"States: {summary['states']} over {len(summary['pairs'])} (scene, seed) pairs. Intervals: 95 % "
+        "bootstrap over the (scene, seed) pairs.",
+        "",
+        f"Mean base test PSNR {o['mean_base_psnr']:.2f} dB; mean oracle gain {o['mean_gain_psnr']:+.3f} dB, "
+        f"best candidate's {o['mean_best_gain_psnr']:+.3f} dB.",
+        "",
+        "| rule | Spearman with the PSNR gain | Spearman with the SSIM gain | regret in FisherRF's top-K (dB) | "
+        "states |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    order = sorted(
+        summary["rules"],
+        key=lambda r: (
+            -(summary["rules"][r]["spearman"][0] if math.isfinite(summary["rules"][r]["spearman"][0]) else -9)
+        ),
+    )
     for label in order:
         row = summary["rules"][label]
-        lines.append(f"| {label} | {_ci(row['spearman'])} | {_ci(row['spearman_ssim'])} | "
-                     f"{_ci(row['regret'], '.3f')} | {row['states']} |")
+        lines.append(
+            f"| {label} | {_ci(row['spearman'])} | {_ci(row['spearman_ssim'])} | "
+            f"{_ci(row['regret'], '.3f')} | {row['states']} |"
+        )
     if summary["paired"]:
-        lines += ["", "| physics rule | against | Δ Spearman | better / worse states | sign-test p | Wilcoxon p |",
-                  "| --- | --- | --- | --- | --- | --- |"]
+        lines += [
+            "",
+            "| physics rule | against | Δ Spearman | better / worse states | sign-test p | Wilcoxon p |",
+            "| --- | --- | --- | --- | --- | --- |",
+        ]
         for label, row in summary["paired"].items():
-            lines.append(f"| {label} | {row['control']} | {_ci(row['difference'])} | {row['better']} / {row['worse']} "
-                         f"| {format_p(row['sign_p'])} | {format_p(row['wilcoxon_p'], row['wilcoxon_note'])} |")
+            lines.append(
+                f"| {label} | {row['control']} | {_ci(row['difference'])} | {row['better']} / {row['worse']} "
+                f"| {format_p(row['sign_p'])} | {format_p(row['wilcoxon_p'], row['wilcoxon_note'])} |"
+            )
     cal_ = summary.get("calibration") or {}
     if cal_:
-        lines += ["", "Per-Gaussian calibration against the distance to the mesh (signals oriented as uncertainty; "
-                  "Spearman > 0 and a small AUSE are good):", "", "| signal | Spearman with the distance | AUSE |",
-                  "| --- | --- | --- |"]
+        lines += [
+            "",
+            "Per-Gaussian calibration against the distance to the mesh (signals oriented as uncertainty; "
+            "Spearman > 0 and a small AUSE are good):",
+            "",
+            "| signal | Spearman with the distance | AUSE |",
+            "| --- | --- | --- |",
+        ]
         for name, row in cal_["signals"].items():
             lines.append(f"| {name} | {_ci(row['spearman'])} | {_ci(row['ause'], '.3f')} |")
-        lines += ["", f"Missing geometry (mesh samples outside every Gaussian's 2-sigma ellipsoid): "
-                  f"{_ci(cal_['missing_share'], '.2f')} of the samples. Spearman of each rule's scores with the "
-                  f"missing samples a view sees (the oracle gain's: {_ci(cal_['gain_vs_missing'])}):", "",
-                  "| rule | Spearman with the missing samples seen |", "| --- | --- |"]
+        lines += [
+            "",
+            f"Missing geometry (mesh samples outside every Gaussian's 2-sigma ellipsoid): "
+            f"{_ci(cal_['missing_share'], '.2f')} of the samples. Spearman of each rule's scores with the "
+            f"missing samples a view sees (the oracle gain's: {_ci(cal_['gain_vs_missing'])}):",
+            "",
+            "| rule | Spearman with the missing samples seen |",
+            "| --- | --- |",
+        ]
         for name, t in cal_["rules_vs_missing"].items():
             lines.append(f"| {name} | {_ci(t)} |")
     return "\n".join(lines) + "\n"
@@ -596,8 +776,7 @@ def run_oracle(config: OracleConfig, executor, progress: bool = True) -> dict[st
     write_json_atomic(out / "oracle-config.json", {"config": json_safe(config.to_dict()), "scenes": scenes})
     jobs = plan_jobs(config)
     todo = [j for j in jobs if _stored(Path(j["path"]), j["config"]) is None]
-    with tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="states", unit="state",
-              disable=not progress) as bar:
+    with tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="states", unit="state", disable=not progress) as bar:
         results = executor.map(_state_task, todo)
         while True:
             try:
@@ -607,11 +786,18 @@ def run_oracle(config: OracleConfig, executor, progress: bool = True) -> dict[st
             except Exception as exc:
                 failed = getattr(exc, "job", None)
                 where = f"{failed['scene']} seed {failed['seed']} state {failed['n']}" if failed else "a state"
-                raise RuntimeError(f"oracle {where} failed: {exc}. Finished states are kept under {out / 'states'}; "
-                                   "fix the cause and run the same command again to resume") from exc
+                raise RuntimeError(
+                    f"oracle {where} failed: {exc}. Finished states are kept under {out / 'states'}; "
+                    "fix the cause and run the same command again to resume"
+                ) from exc
             bar.update(1)
-            log.info("done: %s seed %d state %d (%.0f s oracle)", job["scene"], job["seed"], job["n"],
-                     row["seconds"]["oracle"])
+            log.info(
+                "done: %s seed %d state %d (%.0f s oracle)",
+                job["scene"],
+                job["seed"],
+                job["n"],
+                row["seconds"]["oracle"],
+            )
     states = [json.loads(Path(j["path"]).read_text()) for j in jobs]
     summary = summarise(config, states)
     markdown = format_summary(summary)

@@ -36,8 +36,21 @@ from nbv.active import ActiveConfig
 from nbv.physics import PhysicsConfig
 from nbv.plan import PLANNERS
 
-CONFIG_KEYS = ("scenes", "seeds", "states", "planner", "rules", "probes", "horizon", "top_k", "preset", "active",
-               "calibration", "bootstrap", "output")
+CONFIG_KEYS = (
+    "scenes",
+    "seeds",
+    "states",
+    "planner",
+    "rules",
+    "probes",
+    "horizon",
+    "top_k",
+    "preset",
+    "active",
+    "calibration",
+    "bootstrap",
+    "output",
+)
 
 VALUES = ("fisher", "variance", "fvs", "random", "ones", "divergence", "shuffled", "excess", "perprobe")
 PHYSICS_VALUES = ("divergence", "shuffled", "excess", "perprobe")
@@ -85,9 +98,12 @@ class Rule:
 
 def _physics_rules() -> list[Rule]:
     out = []
-    for values, label in (("divergence", "S(T) of D_g"), ("shuffled", "S(T) of D_g permuted across the Gaussians"),
-                          ("excess", "S(T) of the excess over the empty scene"),
-                          ("perprobe", "S(T) of D_g with every probe normalised")):
+    for values, label in (
+        ("divergence", "S(T) of D_g"),
+        ("shuffled", "S(T) of D_g permuted across the Gaussians"),
+        ("excess", "S(T) of the excess over the empty scene"),
+        ("perprobe", "S(T) of D_g with every probe normalised"),
+    ):
         base = {"divergence": "fluid"}.get(values, values)
         for occ in (False, True):
             suffix, vis = ("-occ", "depth-tested") if occ else ("", "frustum")
@@ -99,14 +115,18 @@ def _physics_rules() -> list[Rule]:
     return out
 
 
-RULES: dict[str, Rule] = {r.name: r for r in [
-    Rule("fisher", "fisher", description="FisherRF: sum H_c / (H_train + lambda)"),
-    Rule("variance", "variance", description="ActiveNeRF variance reduction"),
-    Rule("fvs", "fvs", description="farthest view sampling: distance to the nearest selected camera"),
-    Rule("random", "random", description="uniform noise (a rule that knows nothing)"),
-    Rule("coverage", "ones", False, description="coverage A(T) = sum w_g, frustum"),
-    Rule("coverage-occ", "ones", True, description="coverage A(T) of the unhidden Gaussians"),
-    *_physics_rules()]}
+RULES: dict[str, Rule] = {
+    r.name: r
+    for r in [
+        Rule("fisher", "fisher", description="FisherRF: sum H_c / (H_train + lambda)"),
+        Rule("variance", "variance", description="ActiveNeRF variance reduction"),
+        Rule("fvs", "fvs", description="farthest view sampling: distance to the nearest selected camera"),
+        Rule("random", "random", description="uniform noise (a rule that knows nothing)"),
+        Rule("coverage", "ones", False, description="coverage A(T) = sum w_g, frustum"),
+        Rule("coverage-occ", "ones", True, description="coverage A(T) of the unhidden Gaussians"),
+        *_physics_rules(),
+    ]
+}
 
 
 def rule_of(label: str) -> Rule:
@@ -167,17 +187,23 @@ class OracleConfig:
             if rule not in RULES:
                 close = difflib.get_close_matches(str(rule), list(RULES), n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
-                raise ValueError(f"oracle config: 'rules' has the unknown rule {rule!r}{hint}; the rules are "
-                                 f"{', '.join(RULES)}")
+                raise ValueError(
+                    f"oracle config: 'rules' has the unknown rule {rule!r}{hint}; the rules are {', '.join(RULES)}"
+                )
         if self.planner not in PLANNERS:
-            raise ValueError(f"oracle config: 'planner' {self.planner!r} is not a planner; choose one of "
-                             f"{', '.join(sorted(PLANNERS))}")
+            raise ValueError(
+                f"oracle config: 'planner' {self.planner!r} is not a planner; choose one of "
+                f"{', '.join(sorted(PLANNERS))}"
+            )
         if not _is_int(self.horizon, 1):
-            raise ValueError(f"oracle config: 'horizon' (M, iterations per oracle copy) must be an integer >= 1, "
-                             f"got {self.horizon!r}; the study's default is 100")
+            raise ValueError(
+                f"oracle config: 'horizon' (M, iterations per oracle copy) must be an integer >= 1, "
+                f"got {self.horizon!r}; the study's default is 100"
+            )
         if self.top_k is not None and not _is_int(self.top_k, 1):
-            raise ValueError(f"oracle config: 'top_k' must be null (the loop's K) or an integer >= 1, "
-                             f"got {self.top_k!r}")
+            raise ValueError(
+                f"oracle config: 'top_k' must be null (the loop's K) or an integer >= 1, got {self.top_k!r}"
+            )
         if not _is_int(self.bootstrap, 100):
             raise ValueError(f"oracle config: 'bootstrap' must be an integer >= 100, got {self.bootstrap!r}")
         if not isinstance(self.calibration, bool):
@@ -185,20 +211,26 @@ class OracleConfig:
         if not isinstance(self.active, dict):
             raise ValueError("oracle config: 'active' must be an object of ActiveConfig overrides")
         if not isinstance(self.probes, dict) or not self.probes:
-            raise ValueError("oracle config: 'probes' must be a non-empty object: setting name -> PhysicsConfig "
-                             "overrides, e.g. {\"s750\": {\"steps\": 750}}")
+            raise ValueError(
+                "oracle config: 'probes' must be a non-empty object: setting name -> PhysicsConfig "
+                'overrides, e.g. {"s750": {"steps": 750}}'
+            )
         for name, over in self.probes.items():
             if not isinstance(name, str) or not name or ":" in name or not isinstance(over, dict):
-                raise ValueError(f"oracle config: 'probes' entry {name!r} must be a name without ':' mapped to an "
-                                 "object of PhysicsConfig overrides")
+                raise ValueError(
+                    f"oracle config: 'probes' entry {name!r} must be a name without ':' mapped to an "
+                    "object of PhysicsConfig overrides"
+                )
         base = self.active_config(self.seeds[0])  # validates the preset and the overrides
         for name in self.probes:
             self.probe_config(name)
         low = base.initial_count
         for n in self.states:
             if not _is_int(n, low):
-                raise ValueError(f"oracle config: 'states' entry {n!r} must be an integer >= the {low} initial "
-                                 "views; lower it or set active.initial_count")
+                raise ValueError(
+                    f"oracle config: 'states' entry {n!r} must be an integer >= the {low} initial "
+                    "views; lower it or set active.initial_count"
+                )
 
     @classmethod
     def load(cls, path: str | Path) -> OracleConfig:
@@ -262,5 +294,4 @@ class OracleConfig:
         return names + self.physics_rules()
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in
-                ((k, getattr(self, k)) for k in CONFIG_KEYS)}
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in ((k, getattr(self, k)) for k in CONFIG_KEYS)}

@@ -27,9 +27,14 @@ from dataclasses import dataclass
 ALPHA = 0.05
 VISUAL_PLANNERS = ("fisher", "variance", "random")
 # (row key, label, higher is better)
-PAIRED_METRICS = (("psnr", "PSNR (dB)", True), ("ssim", "SSIM", True), ("chamfer", "Chamfer (scene units)", False),
-                  ("dbar", "D-bar (m^4/s)", False), ("critical_psnr", "critical PSNR (dB)", True),
-                  ("critical_dbar", "critical D-bar (m^4/s)", False))
+PAIRED_METRICS = (
+    ("psnr", "PSNR (dB)", True),
+    ("ssim", "SSIM", True),
+    ("chamfer", "Chamfer (scene units)", False),
+    ("dbar", "D-bar (m^4/s)", False),
+    ("critical_psnr", "critical PSNR (dB)", True),
+    ("critical_dbar", "critical D-bar (m^4/s)", False),
+)
 
 
 def sign_test_p(wins: int, losses: int) -> float:
@@ -40,14 +45,20 @@ def sign_test_p(wins: int, losses: int) -> float:
     Returns:
         p in (0, 1]; 1 when there is no non-tied pair.
     """
-    if isinstance(wins, bool) or isinstance(losses, bool) or not isinstance(wins, int) \
-            or not isinstance(losses, int) or wins < 0 or losses < 0:
+    if (
+        isinstance(wins, bool)
+        or isinstance(losses, bool)
+        or not isinstance(wins, int)
+        or not isinstance(losses, int)
+        or wins < 0
+        or losses < 0
+    ):
         raise ValueError(f"sign_test_p: wins and losses must be integers >= 0, got {wins!r}, {losses!r}")
     n = wins + losses
     if n == 0:
         return 1.0
     tail = sum(math.comb(n, k) for k in range(min(wins, losses) + 1))
-    return min(1.0, 2.0 * tail / 2.0 ** n)
+    return min(1.0, 2.0 * tail / 2.0**n)
 
 
 def scipy_available() -> bool:
@@ -102,8 +113,12 @@ class PairedStats:
         """Which tests give p < alpha: "both tests", "sign test only", "Wilcoxon only" or "neither"."""
         sign = self.sign_p < alpha
         wil = self.wilcoxon_p is not None and self.wilcoxon_p < alpha
-        return {(True, True): "both tests", (True, False): "sign test only", (False, True): "Wilcoxon only",
-                (False, False): "neither"}[(sign, wil)]
+        return {
+            (True, True): "both tests",
+            (True, False): "sign test only",
+            (False, True): "Wilcoxon only",
+            (False, False): "neither",
+        }[(sign, wil)]
 
 
 def paired_stats(first: Sequence[float], second: Sequence[float], higher_is_better: bool) -> PairedStats:
@@ -120,9 +135,17 @@ def paired_stats(first: Sequence[float], second: Sequence[float], higher_is_bett
     n = len(diffs)
     ordered = sorted(diffs)
     median = math.nan if n == 0 else (ordered[n // 2] if n % 2 else 0.5 * (ordered[n // 2 - 1] + ordered[n // 2]))
-    return PairedStats(n=n, wins=wins, losses=losses, ties=n - wins - losses,
-                       mean_diff=math.fsum(diffs) / n if n else math.nan, median_diff=median,
-                       sign_p=sign_test_p(wins, losses), wilcoxon_p=p_w, wilcoxon_note=note)
+    return PairedStats(
+        n=n,
+        wins=wins,
+        losses=losses,
+        ties=n - wins - losses,
+        mean_diff=math.fsum(diffs) / n if n else math.nan,
+        median_diff=median,
+        sign_p=sign_test_p(wins, losses),
+        wilcoxon_p=p_w,
+        wilcoxon_note=note,
+    )
 
 
 def _finite(v) -> bool:
@@ -137,9 +160,13 @@ def paired_values(rows: Sequence[dict], first: str, second: str, key: str) -> tu
     Returns:
         (first's values, second's values), in the rows' (scene, seed) order.
     """
+
     def values(method: str) -> dict[tuple[str, int], float]:
-        return {(r["scene"], r["seed"]): float(r[key]) for r in rows
-                if r.get("kind", "method") == "method" and r["method"] == method and _finite(r.get(key))}
+        return {
+            (r["scene"], r["seed"]): float(r[key])
+            for r in rows
+            if r.get("kind", "method") == "method" and r["method"] == method and _finite(r.get(key))
+        }
 
     a, b = values(first), values(second)
     keys = [k for k in a if k in b]
@@ -154,8 +181,7 @@ def comparisons(methods: Sequence[str]) -> list[tuple[str, str]]:
     have = set(methods)
     out = []
     for v in VISUAL_PLANNERS:
-        for pair in ((f"{v}+fluid", v), (f"{v}+fluid", f"{v}+area"), (f"{v}+fluid", f"{v}+shuffled"),
-                     (f"{v}+area", v)):
+        for pair in ((f"{v}+fluid", v), (f"{v}+fluid", f"{v}+area"), (f"{v}+fluid", f"{v}+shuffled"), (f"{v}+area", v)):
             if pair[0] in have and pair[1] in have:
                 out.append(pair)
     for v in VISUAL_PLANNERS:
@@ -181,8 +207,9 @@ def format_p(p: float | None, note: str = "") -> str:
     return f"{p:.1e}" if p < 1e-4 else f"{p:.4f}"
 
 
-def paired_table(rows: Sequence[dict], methods: Sequence[str] | None = None,
-                 alpha: float = ALPHA) -> tuple[list[str], list[list[str]], list[str]] | None:
+def paired_table(
+    rows: Sequence[dict], methods: Sequence[str] | None = None, alpha: float = ALPHA
+) -> tuple[list[str], list[list[str]], list[str]] | None:
     """The paired comparison table of the experiment rows.
 
     Args:
@@ -193,13 +220,27 @@ def paired_table(rows: Sequence[dict], methods: Sequence[str] | None = None,
         (header, body rows, summary lines in Markdown) or None when no comparison of :func:`comparisons` has
         both methods.
     """
-    names = list(dict.fromkeys(r["method"] for r in rows if r.get("kind", "method") == "method")) \
-        if methods is None else list(methods)
+    names = (
+        list(dict.fromkeys(r["method"] for r in rows if r.get("kind", "method") == "method"))
+        if methods is None
+        else list(methods)
+    )
     pairs = comparisons(names)
     if not pairs:
         return None
-    header = ["comparison", "metric", "pairs", "better", "worse", "ties", "mean Δ", "median Δ", "sign-test p",
-              "Wilcoxon p", f"p < {alpha:g}"]
+    header = [
+        "comparison",
+        "metric",
+        "pairs",
+        "better",
+        "worse",
+        "ties",
+        "mean Δ",
+        "median Δ",
+        "sign-test p",
+        "Wilcoxon p",
+        f"p < {alpha:g}",
+    ]
     body, clear, unclear = [], [], []
     for first, second in pairs:
         label = f"{first} vs {second}"
@@ -210,24 +251,46 @@ def paired_table(rows: Sequence[dict], methods: Sequence[str] | None = None,
                 continue
             st = paired_stats(a, b, higher)
             verdict = st.significant(alpha)
-            body.append([label, metric, str(st.n), str(st.wins), str(st.losses), str(st.ties),
-                         format_diff(st.mean_diff), format_diff(st.median_diff), format_p(st.sign_p),
-                         format_p(st.wilcoxon_p, st.wilcoxon_note), verdict])
+            body.append(
+                [
+                    label,
+                    metric,
+                    str(st.n),
+                    str(st.wins),
+                    str(st.losses),
+                    str(st.ties),
+                    format_diff(st.mean_diff),
+                    format_diff(st.median_diff),
+                    format_p(st.sign_p),
+                    format_p(st.wilcoxon_p, st.wilcoxon_note),
+                    verdict,
+                ]
+            )
             if verdict == "neither":
                 failed.append(metric)
             else:
-                better = "better" if st.wins > st.losses or (st.wins == st.losses and (st.mean_diff > 0) == higher) \
+                better = (
+                    "better"
+                    if st.wins > st.losses or (st.wins == st.losses and (st.mean_diff > 0) == higher)
                     else "worse"
-                passed.append(f"{metric} ({better}, {st.wins}/{st.n} pairs better; {verdict}: sign p = "
-                              f"{format_p(st.sign_p)}, Wilcoxon p = {format_p(st.wilcoxon_p, st.wilcoxon_note)})")
+                )
+                passed.append(
+                    f"{metric} ({better}, {st.wins}/{st.n} pairs better; {verdict}: sign p = "
+                    f"{format_p(st.sign_p)}, Wilcoxon p = {format_p(st.wilcoxon_p, st.wilcoxon_note)})"
+                )
         if passed:
             clear.append(f"- {label}: {'; '.join(passed)}")
         if failed:
             unclear.append(f"- {label}: {', '.join(failed)}")
-    summary = [f"Δ = first − second. Two-sided tests; ties and zero differences dropped; the Wilcoxon test is "
-               f"{'scipy.stats.wilcoxon' if scipy_available() else 'n/a (scipy not installed)'}. No correction for "
-               f"the {len(body)} comparisons: about {alpha * len(body):.1f} of them clear p < {alpha:g} by chance "
-               "alone.", "", f"**Clear p < {alpha:g}** (by at least one test):", ""]
+    summary = [
+        f"Δ = first − second. Two-sided tests; ties and zero differences dropped; the Wilcoxon test is "
+        f"{'scipy.stats.wilcoxon' if scipy_available() else 'n/a (scipy not installed)'}. No correction for "
+        f"the {len(body)} comparisons: about {alpha * len(body):.1f} of them clear p < {alpha:g} by chance "
+        "alone.",
+        "",
+        f"**Clear p < {alpha:g}** (by at least one test):",
+        "",
+    ]
     summary += clear or ["- none"]
     summary += ["", f"**Do not clear p < {alpha:g}** (neither test):", ""]
     summary += unclear or ["- none"]

@@ -41,7 +41,7 @@ from tqdm import tqdm
 from nbv.io import atomic_output
 from nbv.lists import parse_list
 from nbv.physics import PhysicsConfig, PhysicsResult, scene_transform, simulate_gaussians
-from nbv.physics.trajectory import probe_fluid_counts
+from nbv.physics.plan import ProbePlan
 
 log = logging.getLogger(__name__)
 
@@ -195,14 +195,20 @@ def calibrate(gaussians, config: PhysicsConfig, steps: int = CALIBRATION_MAX_STE
     t = res.timings
     stepping = t["simulation"] + t["aggregation"]
     empty = t.get("empty_reference", 0.0) if config.empty_reference else 0.0
-    counts = probe_fluid_counts(res.solid, config.directions, config.probe_config(), config.solver_config().spacing)
+    counts = ProbePlan.of(res.solid, config).fluid_counts(config.directions)
     weights = {d: counts[d] / max(counts[first], 1) for d in config.directions}
-    return Calibration(step_s=stepping / n, run_s=max(t["total"] - stepping - empty, 0.0), steps=n,
-                       empty_step_s=empty / n if config.empty_reference else None, weights=weights)
+    return Calibration(
+        step_s=stepping / n,
+        run_s=max(t["total"] - stepping - empty, 0.0),
+        steps=n,
+        empty_step_s=empty / n if config.empty_reference else None,
+        weights=weights,
+    )
 
 
-def estimate(plan: Sequence[SweepStep], config: PhysicsConfig, calibration: Calibration,
-             other: bool = False) -> list[float]:
+def estimate(
+    plan: Sequence[SweepStep], config: PhysicsConfig, calibration: Calibration, other: bool = False
+) -> list[float]:
     """Seconds per speed: its probe-steps against a solid x ``calibration.step_s``, those of the empty scene x
     ``empty_step_s``, each probe weighted by its fluid particles (``calibration.weights``), plus ``run_s`` per
     simulation it runs."""
@@ -224,8 +230,14 @@ def pinned(gaussians, config: PhysicsConfig) -> PhysicsConfig:
     return config
 
 
-def run_sweep(gaussians, config: PhysicsConfig, velocities: Sequence[float], other=None,
-              progress: bool = True, re_length: str | float = "object") -> list[SweepPoint]:
+def run_sweep(
+    gaussians,
+    config: PhysicsConfig,
+    velocities: Sequence[float],
+    other=None,
+    progress: bool = True,
+    re_length: str | float = "object",
+) -> list[SweepPoint]:
     """D-bar (and D-bar of the empty scene, of ``other`` and the gap) at each speed, CFL-constant Delta t, same
     duration.
 
@@ -249,20 +261,42 @@ def run_sweep(gaussians, config: PhysicsConfig, velocities: Sequence[float], oth
         for st, n in zip(plan, work, strict=True):
             cfg = replace(config, speed=st.speed, dt=st.dt, steps=st.steps)
             res = simulate_gaussians(gaussians, cfg, progress=progress)
-            other_dbar = simulate_gaussians(other, replace(cfg, empty_reference=False), progress=progress).dbar \
-                if other is not None else None
+            other_dbar = (
+                simulate_gaussians(other, replace(cfg, empty_reference=False), progress=progress).dbar
+                if other is not None
+                else None
+            )
             length, source = reynolds_length(res, re_length)
             re = reynolds(st.speed, length, config.rest_density, config.viscosity)
-            points.append(SweepPoint(st.speed, re, st.dt, st.steps, res.dbar, other_dbar, length, source,
-                                     res.dbar_empty))
+            points.append(
+                SweepPoint(st.speed, re, st.dt, st.steps, res.dbar, other_dbar, length, source, res.dbar_empty)
+            )
             bar.update(n)
-            log.info("U = %g m/s: Re = %.4g (L = %.4g m, %s), dt = %.3g s, %d steps, D-bar = %.4g", st.speed, re,
-                     length, source, st.dt, st.steps, res.dbar)
+            log.info(
+                "U = %g m/s: Re = %.4g (L = %.4g m, %s), dt = %.3g s, %d steps, D-bar = %.4g",
+                st.speed,
+                re,
+                length,
+                source,
+                st.dt,
+                st.steps,
+                res.dbar,
+            )
     return points
 
 
-CSV_FIELDS = ("speed_m_s", "reynolds", "re_length_m", "re_length_from", "dt_s", "steps", "dbar_m4_s",
-              "dbar_empty_m4_s", "dbar_other_m4_s", "gap_m4_s")
+CSV_FIELDS = (
+    "speed_m_s",
+    "reynolds",
+    "re_length_m",
+    "re_length_from",
+    "dt_s",
+    "steps",
+    "dbar_m4_s",
+    "dbar_empty_m4_s",
+    "dbar_other_m4_s",
+    "gap_m4_s",
+)
 
 
 def write_csv(path: str | Path, points: Sequence[SweepPoint]) -> Path:
@@ -273,9 +307,18 @@ def write_csv(path: str | Path, points: Sequence[SweepPoint]) -> Path:
         w = csv.writer(fh)
         w.writerow(CSV_FIELDS)
         for pt in points:
-            w.writerow([f"{pt.speed:g}", f"{pt.reynolds:.6g}", f"{pt.re_length:.6g}", pt.re_length_from,
-                        f"{pt.dt:.6g}", pt.steps, f"{pt.dbar:.6g}",
-                        "" if pt.dbar_empty is None else f"{pt.dbar_empty:.6g}",
-                        "" if pt.dbar_other is None else f"{pt.dbar_other:.6g}",
-                        "" if pt.gap is None else f"{pt.gap:.6g}"])
+            w.writerow(
+                [
+                    f"{pt.speed:g}",
+                    f"{pt.reynolds:.6g}",
+                    f"{pt.re_length:.6g}",
+                    pt.re_length_from,
+                    f"{pt.dt:.6g}",
+                    pt.steps,
+                    f"{pt.dbar:.6g}",
+                    "" if pt.dbar_empty is None else f"{pt.dbar_empty:.6g}",
+                    "" if pt.dbar_other is None else f"{pt.dbar_other:.6g}",
+                    "" if pt.gap is None else f"{pt.gap:.6g}",
+                ]
+            )
     return p

@@ -27,14 +27,12 @@ def mean_std(values: Sequence[Any]) -> tuple[float | None, float | None, int]:
     return float(arr.mean()), float(arr.std(ddof=1)) if len(xs) > 1 else 0.0, len(xs)
 
 
-
 def _cell(values: Sequence[Any]) -> str:
     m, s, n = mean_std(values)
     if m is None:
         return "n/a"
     big = abs(m) >= 1e4 or (m != 0 and abs(m) < 1e-2)
     return f"{m:.3e} ± {s:.1e}" if big else f"{m:.4f} ± {s:.4f}"
-
 
 
 def _table(title: str, header: list[str], body: list[list[str]]) -> tuple[str, str]:
@@ -47,14 +45,12 @@ def _table(title: str, header: list[str], body: list[list[str]]) -> tuple[str, s
     return "\n".join(md) + "\n", buf.getvalue()
 
 
-
 def _by_method(rows: list[dict], kind: str | None = "method") -> dict[str, list[dict]]:
     groups: dict[str, list[dict]] = {}
     for r in rows:
         if kind is None or r["kind"] == kind:
             groups.setdefault(r["method"], []).append(r)
     return groups
-
 
 
 def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
@@ -66,47 +62,88 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
 
     tables = {}
     vis_cols = ["method", "n", "PSNR (dB)", "SSIM", "LPIPS", "Chamfer (scene units)"]
-    body = [[m, n_col(rs), _cell([r["psnr"] for r in rs]), _cell([r["ssim"] for r in rs]),
-             _cell([r["lpips"] for r in rs]), _cell([r["chamfer"] for r in rs])]
-            for m, rs in {**methods, **refs}.items()]
+    body = [
+        [
+            m,
+            n_col(rs),
+            _cell([r["psnr"] for r in rs]),
+            _cell([r["ssim"] for r in rs]),
+            _cell([r["lpips"] for r in rs]),
+            _cell([r["chamfer"] for r in rs]),
+        ]
+        for m, rs in {**methods, **refs}.items()
+    ]
     tables["visual"] = _table("Visual metrics (test views)", vis_cols, body)
 
     phys_cols = ["method", "n", "D-bar (m^4/s)", "critical PSNR (dB)", "critical D-bar (m^4/s)"]
-    body = [[m, n_col(rs), _cell([r["dbar"] for r in rs]), _cell([r["critical_psnr"] for r in rs]),
-             _cell([r["critical_dbar"] for r in rs])] for m, rs in methods.items()]
+    body = [
+        [
+            m,
+            n_col(rs),
+            _cell([r["dbar"] for r in rs]),
+            _cell([r["critical_psnr"] for r in rs]),
+            _cell([r["critical_dbar"] for r in rs]),
+        ]
+        for m, rs in methods.items()
+    ]
     all_runs = [r for rs in methods.values() for r in rs]
     body.append(["empty scene (reference)", n_col(all_runs), _cell([r["dbar_empty"] for r in all_runs]), "", ""])
     for m, rs in refs.items():
-        body.append([f"many-view: {m}", n_col(rs), _cell([r["dbar"] for r in rs]),
-                     _cell([r["critical_psnr"] for r in rs]), _cell([r["critical_dbar"] for r in rs])])
+        body.append(
+            [
+                f"many-view: {m}",
+                n_col(rs),
+                _cell([r["dbar"] for r in rs]),
+                _cell([r["critical_psnr"] for r in rs]),
+                _cell([r["critical_dbar"] for r in rs]),
+            ]
+        )
     tables["physics"] = _table("Geometry divergence D-bar (lower is better) with the references", phys_cols, body)
 
     abl_cols = ["method", "shortlist", "physics pick", "n", "PSNR (dB)", "D-bar (m^4/s)", "critical D-bar (m^4/s)"]
     body = []
-    for m in [m for m in ABLATION_ORDER if m in methods] + [m for m in methods
-                                                            if m not in ABLATION_ORDER and "@" not in m]:
+    for m in [m for m in ABLATION_ORDER if m in methods] + [
+        m for m in methods if m not in ABLATION_ORDER and "@" not in m
+    ]:
         rs = methods[m]
         visual, _, pick = m.partition("+")
         fused = pick in PICKS
-        shortlist = ("random K" if visual == "random" else f"{visual} top-K") if fused else \
-            ("all (random pick)" if m == "random" else "all")
+        shortlist = (
+            ("random K" if visual == "random" else f"{visual} top-K")
+            if fused
+            else ("all (random pick)" if m == "random" else "all")
+        )
         physics_pick = PICKS[pick] if fused else ("yes" if m == "physics" else "no")
-        body.append([m, shortlist, physics_pick, n_col(rs),
-                     _cell([r["psnr"] for r in rs]), _cell([r["dbar"] for r in rs]),
-                     _cell([r["critical_dbar"] for r in rs])])
-    tables["ablation_random"] = _table("Selection ablation: random vs visual shortlist, with / without physics",
-                                       abl_cols, body)
+        body.append(
+            [
+                m,
+                shortlist,
+                physics_pick,
+                n_col(rs),
+                _cell([r["psnr"] for r in rs]),
+                _cell([r["dbar"] for r in rs]),
+                _cell([r["critical_dbar"] for r in rs]),
+            ]
+        )
+    tables["ablation_random"] = _table(
+        "Selection ablation: random vs visual shortlist, with / without physics", abl_cols, body
+    )
     paired = paired_table(rows)
     if paired is not None:
         header, body, summary = paired
-        md, text = _table("Paired: each physics pick against its planner and its controls (same scene and seed)",
-                          header, body)
+        md, text = _table(
+            "Paired: each physics pick against its planner and its controls (same scene and seed)", header, body
+        )
         tables["paired"] = (md + "\n" + "\n".join(summary) + "\n", text)
 
     dirs = [d for d in DIRECTIONS if any((r.get("dbar_per_direction") or {}).get(d) is not None for r in rows)]
     dir_cols = ["method", "n"] + [f"D-bar {d} (m^4/s)" for d in dirs] + ["D-bar max (m^4/s)"]
-    body = [[m, n_col(rs)] + [_cell([(r.get("dbar_per_direction") or {}).get(d) for r in rs]) for d in dirs]
-            + [_cell([r["dbar"] for r in rs])] for m, rs in {**methods, **refs}.items()]
+    body = [
+        [m, n_col(rs)]
+        + [_cell([(r.get("dbar_per_direction") or {}).get(d) for r in rs]) for d in dirs]
+        + [_cell([r["dbar"] for r in rs])]
+        for m, rs in {**methods, **refs}.items()
+    ]
     tables["ablation_direction"] = _table("Per-direction ablation: D-bar of each probe's own D_g", dir_cols, body)
 
     single = {m: rs for m, rs in methods.items() if "@" in m}
@@ -116,20 +153,30 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
         for base in bases:
             visual = base.split("+")[0]
             names += [m for m in (visual, base) if m in methods]
-            names += sorted((m for m in single if split_method(m)[0] == base),
-                            key=lambda m: DIRECTIONS.index(split_method(m)[1]))
+            names += sorted(
+                (m for m in single if split_method(m)[0] == base), key=lambda m: DIRECTIONS.index(split_method(m)[1])
+            )
         cols = ["method", "selection physics", "n", "PSNR (dB)", "SSIM", "D-bar (m^4/s)", "critical D-bar (m^4/s)"]
         body = []
         for m in dict.fromkeys(names):
             base, direction = split_method(m)
             driven = direction or ("all five probes" if base.endswith("+fluid") or base == "physics" else "none")
             rs = methods[m]
-            body.append([m, driven, n_col(rs), _cell([r["psnr"] for r in rs]), _cell([r["ssim"] for r in rs]),
-                         _cell([r["dbar"] for r in rs]), _cell([r["critical_dbar"] for r in rs])])
+            body.append(
+                [
+                    m,
+                    driven,
+                    n_col(rs),
+                    _cell([r["psnr"] for r in rs]),
+                    _cell([r["ssim"] for r in rs]),
+                    _cell([r["dbar"] for r in rs]),
+                    _cell([r["critical_dbar"] for r in rs]),
+                ]
+            )
         tables["ablation_selection_direction"] = _table(
-            "Per-direction ablation of the selection: physics from one probe direction", cols, body)
+            "Per-direction ablation of the selection: physics from one probe direction", cols, body
+        )
     return tables
-
 
 
 def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[str, Any]:
@@ -144,18 +191,22 @@ def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[
     for name, (md, text) in tables.items():
         files.append(write_text_atomic(tdir / f"{name}.md", md))
         files.append(write_text_atomic(tdir / f"{name}.csv", text))
-    head = (f"# Experiment\n\nscenes: {', '.join(scene_names(config.scenes))}; methods: {', '.join(config.methods)}; "
-            f"seeds: {list(config.seeds)}; preset: {config.preset}. Cells: mean ± sample std over scenes x seeds "
-            "(n runs).\n\n")
+    head = (
+        f"# Experiment\n\nscenes: {', '.join(scene_names(config.scenes))}; methods: {', '.join(config.methods)}; "
+        f"seeds: {list(config.seeds)}; preset: {config.preset}. Cells: mean ± sample std over scenes x seeds "
+        "(n runs).\n\n"
+    )
     combined = head + "\n".join(md for md, _ in tables.values())
     files.append(write_text_atomic(out / "tables.md", combined))
     groups = {**_by_method(rows), **_by_method(rows, "reference")}
     labels = list(groups)
-    for key, title, ylabel in (("psnr", "test PSNR", "PSNR (dB)"),
-                               ("dbar", "geometry divergence D-bar", DBAR_LABEL)):
+    for key, title, ylabel in (("psnr", "test PSNR", "PSNR (dB)"), ("dbar", "geometry divergence D-bar", DBAR_LABEL)):
         stats = [mean_std([r[key] for r in groups[m]]) for m in labels]
-        files.append(bar_chart(pdir / f"{key}.png", labels, [s[0] for s in stats], [s[1] for s in stats],
-                               title=title, ylabel=ylabel))
+        files.append(
+            bar_chart(
+                pdir / f"{key}.png", labels, [s[0] for s in stats], [s[1] for s in stats], title=title, ylabel=ylabel
+            )
+        )
     dir_labels, dir_means, dir_stds = [], [], []
     for m in labels:
         for d in DIRECTIONS:
@@ -166,7 +217,16 @@ def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[
                 dir_means.append(mean)
                 dir_stds.append(std)
     if dir_labels:
-        files.append(bar_chart(pdir / "dbar_direction.png", dir_labels, dir_means, dir_stds,
-                               title="D-bar per probe direction", ylabel=DBAR_LABEL, xlabel="method and probe",
-                               width=max(720, 60 * len(dir_labels))))
+        files.append(
+            bar_chart(
+                pdir / "dbar_direction.png",
+                dir_labels,
+                dir_means,
+                dir_stds,
+                title="D-bar per probe direction",
+                ylabel=DBAR_LABEL,
+                xlabel="method and probe",
+                width=max(720, 60 * len(dir_labels)),
+            )
+        )
     return {"rows": rows, "tables": {k: md for k, (md, _) in tables.items()}, "files": [str(f) for f in files]}

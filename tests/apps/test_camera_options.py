@@ -45,23 +45,57 @@ class _Stop(RuntimeError):
 @pytest.fixture
 def stop_before_probes(monkeypatch):
     """The commands stop where the probes would start (the cameras are chosen and checked by then)."""
+
     def stop(*args, **kwargs):
         raise _Stop("stopped before the probes")
+
     monkeypatch.setattr(apps.runtime, "init_taichi", stop)
 
 
 def test_cameras_command_writes_the_orbit_in_every_format(tmp_path, caplog):
     ply = _ply(tmp_path)
-    code, log = _run(["cameras", str(ply), "--orbit", "6", "--up", "-y", "--elevations", "-10,30",
-                      "-o", str(tmp_path / "cams.json")], caplog)
+    code, log = _run(
+        [
+            "cameras",
+            str(ply),
+            "--orbit",
+            "6",
+            "--up",
+            "-y",
+            "--elevations",
+            "-10,30",
+            "-o",
+            str(tmp_path / "cams.json"),
+        ],
+        caplog,
+    )
     assert code == 0, log
     g = load_gaussians(ply)
     want = orbit_cameras(g, PhysicsConfig(up="-y"), Orbit(6, elevations_deg=(-10.0, 30.0)))
-    for fmt, out in (("transforms", tmp_path / "cams.json"), ("graphdeco", tmp_path / "g.json"),
-                     ("colmap", tmp_path / "model")):
+    for fmt, out in (
+        ("transforms", tmp_path / "cams.json"),
+        ("graphdeco", tmp_path / "g.json"),
+        ("colmap", tmp_path / "model"),
+    ):
         if fmt != "transforms":
-            assert _run(["cameras", str(ply), "--orbit", "6", "--up=-y", "--elevations=-10,30", "--format", fmt,
-                         "-o", str(out)], caplog)[0] == 0
+            assert (
+                _run(
+                    [
+                        "cameras",
+                        str(ply),
+                        "--orbit",
+                        "6",
+                        "--up=-y",
+                        "--elevations=-10,30",
+                        "--format",
+                        fmt,
+                        "-o",
+                        str(out),
+                    ],
+                    caplog,
+                )[0]
+                == 0
+            )
         got = load_camera_file(out)
         assert len(got) == 6, fmt
         for a, b in zip(got, want, strict=True):
@@ -70,21 +104,24 @@ def test_cameras_command_writes_the_orbit_in_every_format(tmp_path, caplog):
     assert "frame: no --up given" not in log  # --up was given
 
 
-@pytest.mark.parametrize("extra, names", [
-    (["--cameras", "orbit:0"], ["orbit:0", "orbit:24"]),
-    (["--cameras", "orbit:4", "--crop", "5,5,5,6,6,6"], ["--crop", "widen the box"]),
-    (["--cameras", "FOLDER"], ["a folder with no camera file", "COLMAP model"]),
-    (["--cameras", "MISSING"], ["no such file or folder", "transforms.json"]),
-    (["--cameras", "FOLDER", "--elevations", "10"], ["--elevations", "orbit:N"]),
-    (["--cameras", "orbit:4", "--up", "auto"], ["--up auto", "orbit:N"]),
-])
+@pytest.mark.parametrize(
+    "extra, names",
+    [
+        (["--cameras", "orbit:0"], ["orbit:0", "orbit:24"]),
+        (["--cameras", "orbit:4", "--crop", "5,5,5,6,6,6"], ["--crop", "widen the box"]),
+        (["--cameras", "FOLDER"], ["a folder with no camera file", "COLMAP model"]),
+        (["--cameras", "MISSING"], ["no such file or folder", "transforms.json"]),
+        (["--cameras", "FOLDER", "--elevations", "10"], ["--elevations", "orbit:N"]),
+        (["--cameras", "orbit:4", "--up", "auto"], ["--up auto", "orbit:N"]),
+    ],
+)
 @pytest.mark.parametrize("command", ["score", "critical"])
-def test_bad_cameras_exit_2_naming_the_option_and_the_fix(command, extra, names, tmp_path, caplog,
-                                                          stop_before_probes):
+def test_bad_cameras_exit_2_naming_the_option_and_the_fix(command, extra, names, tmp_path, caplog, stop_before_probes):
     ply = _ply(tmp_path)
     (tmp_path / "empty").mkdir()
-    extra = [str(tmp_path / "empty") if e == "FOLDER" else str(tmp_path / "nothing") if e == "MISSING" else e
-             for e in extra]
+    extra = [
+        str(tmp_path / "empty") if e == "FOLDER" else str(tmp_path / "nothing") if e == "MISSING" else e for e in extra
+    ]
     code, log = _run([command, str(ply), *extra, "-o", str(tmp_path / "out.json")], caplog)
     assert code == 2, log
     for name in names:
@@ -122,9 +159,34 @@ def test_cameras_far_from_the_up_are_named():
 
 def test_result_lists_every_option_it_overrides():
     parser = cli.build_parser("score")
-    argv = ["score", "g.ply", "--cameras", "c.json", "-o", "s.json", "--result", "r.h5", "--up", "-y", "--quick",
-            "--particle-radius", "0.05", "--no-fill", "--directions", "-x,+x", "--crop=auto", "--device", "cpu"]
+    argv = [
+        "score",
+        "g.ply",
+        "--cameras",
+        "c.json",
+        "-o",
+        "s.json",
+        "--result",
+        "r.h5",
+        "--up",
+        "-y",
+        "--quick",
+        "--particle-radius",
+        "0.05",
+        "--no-fill",
+        "--directions",
+        "-x,+x",
+        "--crop=auto",
+        "--device",
+        "cpu",
+    ]
     args = parser.parse_args(cli.join_dash_values(argv, parser))
-    assert result_overridden_options(args) == ["--quick", "--particle-radius 0.05", "--directions -x,+x", "--up -y",
-                                               "--crop auto", "--no-fill"]
+    assert result_overridden_options(args) == [
+        "--quick",
+        "--particle-radius 0.05",
+        "--directions -x,+x",
+        "--up -y",
+        "--crop auto",
+        "--no-fill",
+    ]
     assert result_overridden_options(argparse.Namespace()) == []

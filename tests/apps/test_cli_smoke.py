@@ -45,8 +45,11 @@ def _id(path: tuple[str, ...]) -> str:
 
 
 def _options(parser: argparse.ArgumentParser) -> list[argparse.Action]:
-    return [a for a in parser._actions if a.option_strings and not isinstance(a, argparse._HelpAction)
-            and a.help != argparse.SUPPRESS]
+    return [
+        a
+        for a in parser._actions
+        if a.option_strings and not isinstance(a, argparse._HelpAction) and a.help != argparse.SUPPRESS
+    ]
 
 
 def _help_blocks(text: str) -> dict[str, str]:
@@ -101,8 +104,15 @@ class _TookTooLong(BaseException):  # not an Exception: the CLI's handlers must 
     pass
 
 
-OUTPUT_KINDS = {r"\.(h5|hdf5)\b|\bHDF5\b": ".h5", r"\.json\b|\bJSON\b": ".json", r"\.csv\b|\bCSV\b": ".csv",
-                r"\.ply\b": ".ply", r"\.mp4\b": ".mp4", r"\.obj\b": ".obj", r"\b(folder|directory)\b": ""}
+OUTPUT_KINDS = {
+    r"\.(h5|hdf5)\b|\bHDF5\b": ".h5",
+    r"\.json\b|\bJSON\b": ".json",
+    r"\.csv\b|\bCSV\b": ".csv",
+    r"\.ply\b": ".ply",
+    r"\.mp4\b": ".mp4",
+    r"\.obj\b": ".obj",
+    r"\b(folder|directory)\b": "",
+}
 
 
 def _output_path(action: argparse.Action, folder: Path) -> str:

@@ -59,16 +59,19 @@ def test_every_value_option_of_every_parser_takes_a_dash_value_both_ways():
     assert checked > 200  # every command's options were walked
 
 
-@pytest.mark.parametrize("argv, dest, value", [
-    (["simulate", "g.ply", "-o", "r.h5", "--video", "-x"], "video", "-x"),
-    (["simulate", "g.ply", "-o", "r.h5", "--directions", "-x,+x"], "directions", "-x,+x"),
-    (["simulate", "g.ply", "-o", "r.h5", "--directions=-x,+x"], "directions", "-x,+x"),
-    (["score", "g.ply", "--cameras", "orbit:4", "-o", "s.json", "--metric", "-x"], "metric", "-x"),
-    (["score", "g.ply", "--cameras", "orbit:4", "-o", "s.json", "--elevations", "-10,20"], "elevations", "-10,20"),
-    (["critical", "g.ply", "--cameras", "c.json", "--up", "-y"], "up", "-y"),
-    (["inspect", "g.ply", "--crop", "-1,-1,-1,1,1,1"], "crop", "-1,-1,-1,1,1,1"),
-    (["simulate", "g.ply", "-o", "r.h5", "--record-probe", "-x"], "record_probe", "-x"),
-])
+@pytest.mark.parametrize(
+    "argv, dest, value",
+    [
+        (["simulate", "g.ply", "-o", "r.h5", "--video", "-x"], "video", "-x"),
+        (["simulate", "g.ply", "-o", "r.h5", "--directions", "-x,+x"], "directions", "-x,+x"),
+        (["simulate", "g.ply", "-o", "r.h5", "--directions=-x,+x"], "directions", "-x,+x"),
+        (["score", "g.ply", "--cameras", "orbit:4", "-o", "s.json", "--metric", "-x"], "metric", "-x"),
+        (["score", "g.ply", "--cameras", "orbit:4", "-o", "s.json", "--elevations", "-10,20"], "elevations", "-10,20"),
+        (["critical", "g.ply", "--cameras", "c.json", "--up", "-y"], "up", "-y"),
+        (["inspect", "g.ply", "--crop", "-1,-1,-1,1,1,1"], "crop", "-1,-1,-1,1,1,1"),
+        (["simulate", "g.ply", "-o", "r.h5", "--record-probe", "-x"], "record_probe", "-x"),
+    ],
+)
 def test_the_issues_examples(argv, dest, value):
     parser = cli.build_parser(cli.command_of(argv))
     assert getattr(parser.parse_args(cli.join_dash_values(argv, parser)), dest) == value

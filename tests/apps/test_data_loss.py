@@ -60,17 +60,29 @@ def _sphere(n: int = 300) -> GaussianSet:
 
 
 def _cameras(path: Path) -> Path:
-    cams = [Camera.look_at((2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40,
-                           math.radians(50), name=f"cam{k}") for k, a in enumerate(np.arange(4) * math.pi / 2)]
+    cams = [
+        Camera.look_at(
+            (2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, math.radians(50), name=f"cam{k}"
+        )
+        for k, a in enumerate(np.arange(4) * math.pi / 2)
+    ]
     frames = [{"file_path": f"./{c.name}", "transform_matrix": c.opengl_c2w().tolist()} for c in cams]
     path.write_text(json.dumps({"camera_angle_x": math.radians(50), "w": 48, "h": 40, "frames": frames}))
     return path
 
 
 def _scene(**over) -> dict:
-    s = {"particle_radius": 0.05, "rest_density": 1000.0, "viscosity": 10.0, "gravity": [0, -9.81, 0],
-         "dt": 0.002, "steps": 5, "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-         "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}], "solids": []}
+    s = {
+        "particle_radius": 0.05,
+        "rest_density": 1000.0,
+        "viscosity": 10.0,
+        "gravity": [0, -9.81, 0],
+        "dt": 0.002,
+        "steps": 5,
+        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
+        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
+        "solids": [],
+    }
     s.update(over)
     return s
 
@@ -91,8 +103,12 @@ def test_simulate_refuses_a_ply_output_that_is_the_input(data, tmp_path, caplog,
     mine = tmp_path / "mine.ply"
     mine.write_bytes(data["ply"].read_bytes())
     (tmp_path / "sub").mkdir()
-    target = {"same": mine, "dotdot": tmp_path / "sub" / ".." / "mine.ply", "symlink": tmp_path / "link.ply",
-              "hardlink": tmp_path / "hard.ply"}[spelling]
+    target = {
+        "same": mine,
+        "dotdot": tmp_path / "sub" / ".." / "mine.ply",
+        "symlink": tmp_path / "link.ply",
+        "hardlink": tmp_path / "hard.ply",
+    }[spelling]
     if spelling == "symlink":
         target.symlink_to(mine)
     elif spelling == "hardlink":
@@ -108,13 +124,43 @@ def test_other_commands_refuse_outputs_that_are_inputs(data, tmp_path, caplog):
     cams = tmp_path / "cams.json"
     cams.write_text(data["cameras"].read_text())
     cams_before = cams.read_text()
-    assert cli.main(["score", str(data["ply"]), "--cameras", str(cams), "--result", str(data["h5"]), "-o", str(cams),
-                     "--no-png"]) == 2
+    assert (
+        cli.main(
+            [
+                "score",
+                str(data["ply"]),
+                "--cameras",
+                str(cams),
+                "--result",
+                str(data["h5"]),
+                "-o",
+                str(cams),
+                "--no-png",
+            ]
+        )
+        == 2
+    )
     assert cams.read_text() == cams_before and "--cameras" in caplog.text
     result_copy = tmp_path / "r.h5"
     result_copy.write_bytes(data["h5"].read_bytes())
-    assert cli.main(["score", str(data["ply"]), "--cameras", str(cams), "--result", str(result_copy), "--save-result",
-                     str(result_copy), "-o", str(tmp_path / "s.json"), "--no-png"]) == 2
+    assert (
+        cli.main(
+            [
+                "score",
+                str(data["ply"]),
+                "--cameras",
+                str(cams),
+                "--result",
+                str(result_copy),
+                "--save-result",
+                str(result_copy),
+                "-o",
+                str(tmp_path / "s.json"),
+                "--no-png",
+            ]
+        )
+        == 2
+    )
     # sim: the scene and each solid's points file
     np.save(tmp_path / "cube.npy", np.full((8, 3), 0.7))
     (tmp_path / "scene.json").write_text(json.dumps(_scene(solids=[{"points": "cube.npy"}])))
@@ -135,8 +181,25 @@ def test_render_dataset_overwrite_refuses_a_mesh_inside_the_folder_it_replaces(t
     out.mkdir()
     mesh = out / "tetra.obj"
     mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
-    assert cli.main(["render-dataset", str(mesh), "-o", str(out), "--overwrite", "--train", "1", "--test", "1",
-                     "--res", "16", "--no-progress"]) == 2
+    assert (
+        cli.main(
+            [
+                "render-dataset",
+                str(mesh),
+                "-o",
+                str(out),
+                "--overwrite",
+                "--train",
+                "1",
+                "--test",
+                "1",
+                "--res",
+                "16",
+                "--no-progress",
+            ]
+        )
+        == 2
+    )
     assert mesh.is_file() and "MESH" in caplog.text
 
 
@@ -202,8 +265,9 @@ def test_probe_that_loses_its_fluid_is_recorded_and_score_refuses_zero_divergenc
     from nbv.physics import probe_warnings
 
     # max_cfl lifted on purpose: every fluid particle leaves the domain in the first step (the issue's --dt 0.5)
-    cfg = PhysicsConfig(particle_radius=0.08, steps=3, dt=0.5, empty_reference=False, directions=("-x",),
-                        solver={"max_cfl": 1e6})
+    cfg = PhysicsConfig(
+        particle_radius=0.08, steps=3, dt=0.5, empty_reference=False, directions=("-x",), solver={"max_cfl": 1e6}
+    )
     res = simulate_gaussians(load_gaussians(data["ply"]), cfg, progress=False)
     assert res.divergence.max() < 1e-4  # 1/s: what a few particles on their way out left behind
     warns = res.warnings["-x"]
@@ -213,14 +277,35 @@ def test_probe_that_loses_its_fluid_is_recorded_and_score_refuses_zero_divergenc
     with h5py.File(tmp_path / "lost.h5") as f:
         assert json.loads(f["probes/-x"].attrs["warnings"]) == warns
     # a probe that reaches no Gaussian: D_g^(IC) = 0 everywhere, said so
-    assert any("no fluid particle came within reach" in w
-               for w in probe_warnings("-x", np.zeros(300, np.int64), list(res.stats["-x"][:0])))
-    zero = replace(res, per_probe=np.zeros_like(res.per_probe), divergence=np.zeros(300),
-                   divergence_mean=np.zeros(300), per_probe_counts=np.zeros_like(res.per_probe_counts))
+    assert any(
+        "no fluid particle came within reach" in w
+        for w in probe_warnings("-x", np.zeros(300, np.int64), list(res.stats["-x"][:0]))
+    )
+    zero = replace(
+        res,
+        per_probe=np.zeros_like(res.per_probe),
+        divergence=np.zeros(300),
+        divergence_mean=np.zeros(300),
+        per_probe_counts=np.zeros_like(res.per_probe_counts),
+    )
     save_result(tmp_path / "zero.h5", zero)
     caplog.clear()
-    assert cli.main(["score", str(data["ply"]), "--cameras", str(data["cameras"]), "--result",
-                     str(tmp_path / "zero.h5"), "-o", str(tmp_path / "s.json"), "--no-png"]) == 2
+    assert (
+        cli.main(
+            [
+                "score",
+                str(data["ply"]),
+                "--cameras",
+                str(data["cameras"]),
+                "--result",
+                str(tmp_path / "zero.h5"),
+                "-o",
+                str(tmp_path / "s.json"),
+                "--no-png",
+            ]
+        )
+        == 2
+    )
     assert "is 0 for every one of the 300 Gaussians" in caplog.text and "left the domain" in caplog.text
     assert not (tmp_path / "s.json").exists()
 
@@ -230,15 +315,43 @@ def test_score_refuses_the_result_of_other_gaussians_with_the_same_count(data, t
     g = load_gaussians(data["ply"])
     other = GaussianSet(g.means + 0.01, g.quats, g.log_scales, g.opacity_logits, g.sh)
     save_gaussians(other, tmp_path / "other.ply")
-    assert cli.main(["score", str(tmp_path / "other.ply"), "--cameras", str(data["cameras"]), "--result",
-                     str(data["h5"]), "-o", str(tmp_path / "s.json"), "--no-png"]) == 2
+    assert (
+        cli.main(
+            [
+                "score",
+                str(tmp_path / "other.ply"),
+                "--cameras",
+                str(data["cameras"]),
+                "--result",
+                str(data["h5"]),
+                "-o",
+                str(tmp_path / "s.json"),
+                "--no-png",
+            ]
+        )
+        == 2
+    )
     assert "other Gaussians" in caplog.text
     # a re-coloured copy (the heat-map .ply) has the same geometry: accepted
     recolored = GaussianSet(g.means, g.quats, g.log_scales, g.opacity_logits, torch.zeros_like(g.sh))
     assert gaussians_sha256(recolored) == load_result(data["h5"]).gaussians_sha256
     save_gaussians(recolored, tmp_path / "recolored.ply")
-    assert cli.main(["score", str(tmp_path / "recolored.ply"), "--cameras", str(data["cameras"]), "--result",
-                     str(data["h5"]), "-o", str(tmp_path / "s.json"), "--no-png"]) == 0
+    assert (
+        cli.main(
+            [
+                "score",
+                str(tmp_path / "recolored.ply"),
+                "--cameras",
+                str(data["cameras"]),
+                "--result",
+                str(data["h5"]),
+                "-o",
+                str(tmp_path / "s.json"),
+                "--no-png",
+            ]
+        )
+        == 0
+    )
 
 
 def test_results_without_a_hash_are_checked_by_their_centres(data, tmp_path):
@@ -256,8 +369,20 @@ def test_results_without_a_hash_are_checked_by_their_centres(data, tmp_path):
 
 
 # ---- 4. a probe that diverges inside simulate / score -----------------------------------------------------------
-DIVERGE = ["--directions=-y,-x", "--speed", "250", "--dt", "0.0001", "--particle-radius", "0.08", "--steps", "10",
-           "--no-empty-reference", "--threads", "2"]  # -y falls from rest; -x starts at 250 m/s > max_speed 200
+DIVERGE = [
+    "--directions=-y,-x",
+    "--speed",
+    "250",
+    "--dt",
+    "0.0001",
+    "--particle-radius",
+    "0.08",
+    "--steps",
+    "10",
+    "--no-empty-reference",
+    "--threads",
+    "2",
+]  # -y falls from rest; -x starts at 250 m/s > max_speed 200
 
 
 def test_simulate_keeps_the_completed_probes_of_a_diverging_run(data, tmp_path, caplog):
@@ -272,8 +397,23 @@ def test_simulate_keeps_the_completed_probes_of_a_diverging_run(data, tmp_path, 
         check_result_matches(res, load_gaussians(data["ply"]), out)
     caplog.clear()
     saved = tmp_path / "saved.h5"
-    assert cli.main(["score", str(data["ply"]), "--cameras", str(data["cameras"]), "-o", str(tmp_path / "s.json"),
-                     "--no-png", "--save-result", str(saved), *DIVERGE]) == 3
+    assert (
+        cli.main(
+            [
+                "score",
+                str(data["ply"]),
+                "--cameras",
+                str(data["cameras"]),
+                "-o",
+                str(tmp_path / "s.json"),
+                "--no-png",
+                "--save-result",
+                str(saved),
+                *DIVERGE,
+            ]
+        )
+        == 3
+    )
     assert "probe -x diverged" in caplog.text and load_result(saved).status == "diverged"
     assert not (tmp_path / "s.json").exists()
 
@@ -281,8 +421,9 @@ def test_simulate_keeps_the_completed_probes_of_a_diverging_run(data, tmp_path, 
 def test_a_result_with_no_completed_probe_loads(data, tmp_path):
     from nbv.physics import ProbeDiverged
 
-    cfg = PhysicsConfig(particle_radius=0.08, steps=5, dt=0.0001, speed=250.0, empty_reference=False,
-                        directions=("-x",))
+    cfg = PhysicsConfig(
+        particle_radius=0.08, steps=5, dt=0.0001, speed=250.0, empty_reference=False, directions=("-x",)
+    )
     with pytest.raises(ProbeDiverged, match="probe -x diverged at step 0.*probes completed: none") as info:
         simulate_gaussians(load_gaussians(data["ply"]), cfg, progress=False)
     back = load_result(save_result(tmp_path / "none.h5", info.value.result))
@@ -293,8 +434,12 @@ def test_a_result_with_no_completed_probe_loads(data, tmp_path):
 def test_a_legal_255_byte_output_name_is_written(data, tmp_path):
     name = "r" * 252 + ".h5"  # 255 bytes: the longest name ext4 allows
     out = tmp_path / name
-    assert cli.main(["simulate", str(data["ply"]), "-o", str(out), "--ply", str(tmp_path / "c.ply"),
-                     "--directions=-x", *FAST]) == 0
+    assert (
+        cli.main(
+            ["simulate", str(data["ply"]), "-o", str(out), "--ply", str(tmp_path / "c.ply"), "--directions=-x", *FAST]
+        )
+        == 0
+    )
     assert load_result(out).directions == ("-x",) and not list(tmp_path.glob(".*tmp*"))
 
 
@@ -345,11 +490,21 @@ def _run_until_steps(cmd: list[str], log: Path, steps: int, timeout: float = 240
 @pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_sim_keeps_its_frames_when_interrupted(tmp_path, sig, code):
     block = {"min": [0.1, 0.1, 0.1], "max": [0.6, 0.6, 0.6], "velocity": [1, 0, 0]}
-    (tmp_path / "scene.json").write_text(json.dumps(_scene(steps=100000, particle_radius=0.02,
-                                                           fluid_blocks=[block])))
+    (tmp_path / "scene.json").write_text(json.dumps(_scene(steps=100000, particle_radius=0.02, fluid_blocks=[block])))
     out = tmp_path / "out.h5"
-    cmd = [sys.executable, "-m", "apps.cli", "sim", str(tmp_path / "scene.json"), "-o", str(out), "--save-every", "3",
-           "--threads", "2"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "apps.cli",
+        "sim",
+        str(tmp_path / "scene.json"),
+        "-o",
+        str(out),
+        "--save-every",
+        "3",
+        "--threads",
+        "2",
+    ]
     proc = _run_until_steps(cmd, tmp_path / "log.txt", 7)
     proc.send_signal(sig)
     assert proc.wait(timeout=120) == code, (tmp_path / "log.txt").read_text()[-2000:]
@@ -363,8 +518,13 @@ def test_sim_keeps_its_frames_when_interrupted(tmp_path, sig, code):
         assert frames[:3] == ["000000", "000003", "000006"] and frames[-1] == f"{last:06d}"  # the state at the stop
         assert f[f"frames/{frames[-1]}/x"].shape[0] > 1000
     if sig == signal.SIGTERM:  # a rerun overwrites the interrupted file
-        subprocess.run([*cmd, "--steps", "3"], check=True, capture_output=True, cwd=ROOT,
-                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+        subprocess.run(
+            [*cmd, "--steps", "3"],
+            check=True,
+            capture_output=True,
+            cwd=ROOT,
+            env={**os.environ, "PYTHONPATH": str(ROOT)},
+        )
         with h5py.File(out) as f:
             assert f.attrs["status"] == "complete" and len(f["stats"]) == 3
 

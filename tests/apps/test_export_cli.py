@@ -24,8 +24,9 @@ def _sphere(n: int = 300) -> GaussianSet:
     i = np.arange(n) + 0.5
     phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
     pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), torch.full((n, 3), 0.5), scale=0.06,
-                                   opacity=0.9)
+    return GaussianSet.from_points(
+        torch.tensor(pts, dtype=torch.float32), torch.full((n, 3), 0.5), scale=0.06, opacity=0.9
+    )
 
 
 @pytest.fixture(scope="module")
@@ -33,9 +34,27 @@ def run(tmp_path_factory):
     root = tmp_path_factory.mktemp("export")
     ply = save_gaussians(_sphere(), root / "sphere.ply")
     h5 = root / "result.h5"
-    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", "--record-probe", "-x",
-                     "--record-every", "5", "--export-solid", str(root / "solid.glb"), "--export-frame", "sim",
-                     *FAST]) == 0
+    assert (
+        cli.main(
+            [
+                "simulate",
+                str(ply),
+                "-o",
+                str(h5),
+                "--directions=-x,+z",
+                "--record-probe",
+                "-x",
+                "--record-every",
+                "5",
+                "--export-solid",
+                str(root / "solid.glb"),
+                "--export-frame",
+                "sim",
+                *FAST,
+            ]
+        )
+        == 0
+    )
     return root, ply, h5
 
 
@@ -86,8 +105,12 @@ def test_export_result_vtk_equals_the_trajectory(run, tmp_path):
 def test_bad_exports_exit_2_before_any_work(run, tmp_path, caplog):
     root, ply, h5 = run
     t0 = time.perf_counter()
-    assert cli.main(["simulate", str(ply), "-o", str(tmp_path / "r.h5"), "--export-solid",
-                     str(tmp_path / "solid.fbx"), *FAST]) == 2
+    assert (
+        cli.main(
+            ["simulate", str(ply), "-o", str(tmp_path / "r.h5"), "--export-solid", str(tmp_path / "solid.fbx"), *FAST]
+        )
+        == 2
+    )
     assert "--export-solid" in caplog.text and ".glb" in caplog.text
     assert cli.main(["simulate", str(ply), "-o", str(tmp_path / "r.h5"), "--walls", "faint", *FAST]) == 2
     assert "apply to --video" in caplog.text

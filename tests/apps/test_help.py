@@ -15,8 +15,11 @@ def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentP
 
 def _option_help(parser: argparse.ArgumentParser) -> dict[str, str]:
     fmt = parser._get_formatter()
-    return {a.dest: fmt._get_help_string(a) for a in parser._actions
-            if a.option_strings and not isinstance(a, argparse._HelpAction)}
+    return {
+        a.dest: fmt._get_help_string(a)
+        for a in parser._actions
+        if a.option_strings and not isinstance(a, argparse._HelpAction)
+    }
 
 
 def test_every_option_of_every_command_states_its_default_once():

@@ -37,8 +37,14 @@ class _InProcess:
             yield job, result
 
 
-@pytest.mark.parametrize("error, code", [(RuntimeError("boom inside the job"), 1), (ValueError("bad frame"), 2),
-                                         (OSError(28, "No space left on device"), 4)])
+@pytest.mark.parametrize(
+    "error, code",
+    [
+        (RuntimeError("boom inside the job"), 1),
+        (ValueError("bad frame"), 2),
+        (OSError(28, "No space left on device"), 4),
+    ],
+)
 def test_a_failing_experiment_job_is_one_line(blender_scene, tmp_path, monkeypatch, caplog, capsys, error, code):
     import apps.experiment
     import nbv.study.experiment
@@ -49,8 +55,17 @@ def test_a_failing_experiment_job_is_one_line(blender_scene, tmp_path, monkeypat
     monkeypatch.setattr(nbv.study.experiment, "run_job", fail)
     monkeypatch.setattr(apps.experiment, "make_executor", lambda *a, **k: _InProcess())
     path = tmp_path / "exp.json"
-    path.write_text(json.dumps({"scenes": [str(blender_scene)], "methods": ["random"], "reference_views": None,
-                                "output": "out", "active": {"budget": 4}}))
+    path.write_text(
+        json.dumps(
+            {
+                "scenes": [str(blender_scene)],
+                "methods": ["random"],
+                "reference_views": None,
+                "output": "out",
+                "active": {"budget": 4},
+            }
+        )
+    )
     assert cli.main(["experiment", str(path), "--no-progress"]) == code
     msg = _errors(caplog)
     assert "experiment job scene random seed 0" in msg and str(error) in msg and "run the same command again" in msg
@@ -66,8 +81,11 @@ def odd_inputs(tmp_path):
     os.mkfifo(fifo)
     loop = tmp_path / "loop.ply"
     loop.symlink_to(loop)
-    return {"fifo": (fifo, "is a FIFO (named pipe)"), "zero": ("/dev/zero", "is a character device"),
-            "loop": (loop, "is a symbolic link loop")}
+    return {
+        "fifo": (fifo, "is a FIFO (named pipe)"),
+        "zero": ("/dev/zero", "is a character device"),
+        "loop": (loop, "is a symbolic link loop"),
+    }
 
 
 @pytest.mark.parametrize("kind", ["fifo", "zero", "loop"])
@@ -113,8 +131,11 @@ def test_deeply_nested_json_is_a_clear_error(tmp_path, caplog):
         (tmp_path / name).write_text(deep if name != "transforms.json" else '{"frames": ' + deep + "}")
     assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "o.h5")]) == 2
     assert "nests its JSON too deeply" in _errors(caplog)
-    for read, name in ((ExperimentConfig.load, "exp.json"), (load_cameras, "transforms.json"),
-                       (read_scores, "scores.json")):
+    for read, name in (
+        (ExperimentConfig.load, "exp.json"),
+        (load_cameras, "transforms.json"),
+        (read_scores, "scores.json"),
+    ):
         with pytest.raises(ValueError, match="too deeply"):
             read(tmp_path / name)
 
@@ -123,9 +144,17 @@ def test_deeply_nested_json_is_a_clear_error(tmp_path, caplog):
 def test_sim_disk_full_at_close_is_exit_4(tmp_path, monkeypatch, caplog, capsys):
     import h5py
 
-    scene = {"particle_radius": 0.05, "rest_density": 1000.0, "viscosity": 10.0, "gravity": [0, -9.81, 0],
-             "dt": 0.002, "steps": 2, "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-             "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}], "solids": []}
+    scene = {
+        "particle_radius": 0.05,
+        "rest_density": 1000.0,
+        "viscosity": 10.0,
+        "gravity": [0, -9.81, 0],
+        "dt": 0.002,
+        "steps": 2,
+        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
+        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
+        "solids": [],
+    }
     (tmp_path / "scene.json").write_text(json.dumps(scene))
     real_close = h5py.File.close
 
@@ -142,9 +171,18 @@ def test_sim_disk_full_at_close_is_exit_4(tmp_path, monkeypatch, caplog, capsys)
 
 
 def test_sim_steps_0_names_the_option(tmp_path, caplog):
-    (tmp_path / "scene.json").write_text(json.dumps({"particle_radius": 0.05, "dt": 0.002, "steps": 2,
-                                                     "rest_density": 1000.0, "viscosity": 10.0,
-                                                     "domain": {"min": [0, 0, 0], "max": [1, 1, 1]},
-                                                     "fluid_blocks": [{"min": [0.1] * 3, "max": [0.5] * 3}]}))
+    (tmp_path / "scene.json").write_text(
+        json.dumps(
+            {
+                "particle_radius": 0.05,
+                "dt": 0.002,
+                "steps": 2,
+                "rest_density": 1000.0,
+                "viscosity": 10.0,
+                "domain": {"min": [0, 0, 0], "max": [1, 1, 1]},
+                "fluid_blocks": [{"min": [0.1] * 3, "max": [0.5] * 3}],
+            }
+        )
+    )
     assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "o.h5"), "--steps", "0"]) == 2
     assert "--steps must be an integer >= 1" in _errors(caplog) and "scene key" not in _errors(caplog)

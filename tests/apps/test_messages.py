@@ -41,9 +41,16 @@ COARSE = dict(particle_radius=0.08, steps=5, dt=0.004, empty_reference=False, di
 
 
 def _scene(**over) -> dict:
-    s = {"particle_radius": 0.05, "rest_density": 1000.0, "viscosity": 10.0, "gravity": [0, -9.81, 0],
-         "dt": 0.002, "steps": 2, "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-         "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [0, 0, 0]}]}
+    s = {
+        "particle_radius": 0.05,
+        "rest_density": 1000.0,
+        "viscosity": 10.0,
+        "gravity": [0, -9.81, 0],
+        "dt": 0.002,
+        "steps": 2,
+        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
+        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [0, 0, 0]}],
+    }
     s.update(over)
     return s
 
@@ -87,8 +94,11 @@ def test_ctrl_c_prints_one_line_and_exits_130(monkeypatch, tmp_path, caplog, cap
 
 # ---- sim: the memory estimate ---------------------------------------------------------------------------------
 def test_sim_refuses_a_20_km_domain_before_allocating(tmp_path, caplog):
-    scene = _write_scene(tmp_path / "wide.json", domain={"min": [0, 0, 0], "max": [20000, 10, 10], "walls": True},
-                         fluid_blocks=[{"min": [0.1, 0.1, 0.1], "max": [1, 1, 1]}])
+    scene = _write_scene(
+        tmp_path / "wide.json",
+        domain={"min": [0, 0, 0], "max": [20000, 10, 10], "walls": True},
+        fluid_blocks=[{"min": [0.1, 0.1, 0.1], "max": [1, 1, 1]}],
+    )
     t0 = time.perf_counter()
     assert cli.main(["sim", str(scene), "-o", str(tmp_path / "new" / "out.h5")]) == 2
     assert time.perf_counter() - t0 < 20
@@ -141,14 +151,35 @@ def test_a_faint_huge_floater_does_not_size_the_lattice():
     solid = gaussians_to_solid(floater, cfg, tr)
     assert solid.lattice_shape == gaussians_to_solid(sphere, cfg, tr).lattice_shape
     pcfg = PhysicsConfig(**COARSE, scale=1.0)
-    assert physics.estimate_memory(floater, pcfg)["fluid_particles"] == \
-        physics.estimate_memory(sphere, pcfg)["fluid_particles"]
+    assert (
+        physics.estimate_memory(floater, pcfg)["fluid_particles"]
+        == physics.estimate_memory(sphere, pcfg)["fluid_particles"]
+    )
 
 
 def test_simulate_runs_with_one_faint_floater(tmp_path):
     ply = save_gaussians(_with_gaussian(_sphere(), [0.1, 0.0, 0.0], 10.0, 0.1), tmp_path / "floater.ply")
-    assert cli.main(["simulate", str(ply), "-o", str(tmp_path / "r.h5"), "--particle-radius", "0.08", "--steps", "4",
-                     "--dt", "0.004", "--no-empty-reference", "--threads", "2", "--directions=-x"]) == 0
+    assert (
+        cli.main(
+            [
+                "simulate",
+                str(ply),
+                "-o",
+                str(tmp_path / "r.h5"),
+                "--particle-radius",
+                "0.08",
+                "--steps",
+                "4",
+                "--dt",
+                "0.004",
+                "--no-empty-reference",
+                "--threads",
+                "2",
+                "--directions=-x",
+            ]
+        )
+        == 0
+    )
 
 
 def test_an_opaque_huge_gaussian_is_named():
@@ -173,8 +204,9 @@ def test_a_far_opaque_speck_is_named_with_crop():
     # Gaussians' do not), or, when the Gaussians alone do not fit, cropping them
     parts = physics.estimate_memory(sphere, PhysicsConfig(**COARSE, scale=1.0))
     with pytest.raises(ValueError, match="particle radius of about"):
-        physics.check_memory(sphere, PhysicsConfig(**COARSE, scale=1.0,
-                                                   max_memory_gb=(near - parts["probe_bytes"] / 2) / 2**30))
+        physics.check_memory(
+            sphere, PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=(near - parts["probe_bytes"] / 2) / 2**30)
+        )
     with pytest.raises(ValueError, match="Gaussians alone need about .*cannot help: crop them"):
         physics.check_memory(sphere, PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=near / 4 / 2**30))
 
@@ -248,8 +280,9 @@ def test_a_block_thinner_than_the_spacing_is_not_said_to_lie_in_a_solid(tmp_path
     thin = [{"min": [0.4, 0.4, 0.4], "max": [0.45, 0.6, 0.6]}]
     with pytest.raises(SceneError, match=r"fluid_blocks\[0\].*0.05 m along x, less than the particle spacing 0.1 m"):
         parse_scene(_scene(fluid_blocks=thin))
-    assert cli.main(["sim", str(_write_scene(tmp_path / "s.json", fluid_blocks=thin)), "-o",
-                     str(tmp_path / "o.h5")]) == 2
+    assert (
+        cli.main(["sim", str(_write_scene(tmp_path / "s.json", fluid_blocks=thin)), "-o", str(tmp_path / "o.h5")]) == 2
+    )
     assert "solid" not in _errors(caplog) and "particle spacing" in _errors(caplog)
 
 
@@ -265,9 +298,14 @@ def test_fluid_removed_by_a_solid_says_how_many_and_why(tmp_path):
 def _fake_dataset(folder, frames: int):
     folder.mkdir()
     eye = np.eye(4).tolist()
-    (folder / "transforms_train.json").write_text(json.dumps(
-        {"camera_angle_x": 0.8, "frames": [{"file_path": f"./train/r_{i}", "transform_matrix": eye}
-                                           for i in range(frames)]}))
+    (folder / "transforms_train.json").write_text(
+        json.dumps(
+            {
+                "camera_angle_x": 0.8,
+                "frames": [{"file_path": f"./train/r_{i}", "transform_matrix": eye} for i in range(frames)],
+            }
+        )
+    )
     return folder
 
 

@@ -41,12 +41,34 @@ def _write_cameras(path, cams, width=48, height=40, fov=FOV):
 def scene(tmp_path_factory):
     root = tmp_path_factory.mktemp("nbv_cli")
     ply = save_gaussians(_sphere(), root / "sphere.ply")
-    cams = [Camera.look_at((2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40,
-                           math.radians(50), name=f"cam{k}") for k, a in enumerate(np.arange(6) * math.pi / 3)]
+    cams = [
+        Camera.look_at(
+            (2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, math.radians(50), name=f"cam{k}"
+        )
+        for k, a in enumerate(np.arange(6) * math.pi / 3)
+    ]
     cameras = _write_cameras(root / "transforms.json", cams)
     h5 = root / "result.h5"
-    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", "--video=-x", "--walls", "faint",
-                     "--width", "320", "--height", "240", *FAST]) == 0
+    assert (
+        cli.main(
+            [
+                "simulate",
+                str(ply),
+                "-o",
+                str(h5),
+                "--directions=-x,+z",
+                "--video=-x",
+                "--walls",
+                "faint",
+                "--width",
+                "320",
+                "--height",
+                "240",
+                *FAST,
+            ]
+        )
+        == 0
+    )
     return dict(root=root, ply=ply, cameras=cameras, h5=h5)
 
 
@@ -66,8 +88,23 @@ def test_simulate_outputs(scene):
 
 def test_score_ranks_views(scene, tmp_path):
     out = tmp_path / "scores.json"
-    assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "--result", str(scene["h5"]),
-                     "-o", str(out), "--top-k", "3"]) == 0
+    assert (
+        cli.main(
+            [
+                "score",
+                str(scene["ply"]),
+                "--cameras",
+                str(scene["cameras"]),
+                "--result",
+                str(scene["h5"]),
+                "-o",
+                str(out),
+                "--top-k",
+                "3",
+            ]
+        )
+        == 0
+    )
     data = json.loads(out.read_text())
     views = data["views"]
     assert [v["rank"] for v in views] == list(range(1, 7))
@@ -77,9 +114,26 @@ def test_score_ranks_views(scene, tmp_path):
     assert [p[:7] for p in pngs] == [f"rank{r:03d}" for r in range(1, 6)]
     # a subset keeps the camera indices of the file, and the same scores
     out2 = tmp_path / "subset.json"
-    assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "--result", str(scene["h5"]),
-                     "-o", str(out2), "--candidates", "1,4", "--no-png", "--export-solid",
-                     str(tmp_path / "solid.h5")]) == 0
+    assert (
+        cli.main(
+            [
+                "score",
+                str(scene["ply"]),
+                "--cameras",
+                str(scene["cameras"]),
+                "--result",
+                str(scene["h5"]),
+                "-o",
+                str(out2),
+                "--candidates",
+                "1,4",
+                "--no-png",
+                "--export-solid",
+                str(tmp_path / "solid.h5"),
+            ]
+        )
+        == 0
+    )
     with h5py.File(tmp_path / "solid.h5") as f:  # --export-solid writes the solid stored in RESULT.h5
         assert int(f["occupancy"][()].sum()) == len(load_result(scene["h5"]).solid)
     sub = {v["index"]: v["score"] for v in json.loads(out2.read_text())["views"]}
@@ -89,16 +143,49 @@ def test_score_ranks_views(scene, tmp_path):
 
 def test_score_simulates_without_result(scene, tmp_path):
     out = tmp_path / "s.json"
-    assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(out), "--no-png",
-                     "--directions=-x", "--occlusion", "--save-result", str(tmp_path / "r.h5"), *FAST]) == 0
+    assert (
+        cli.main(
+            [
+                "score",
+                str(scene["ply"]),
+                "--cameras",
+                str(scene["cameras"]),
+                "-o",
+                str(out),
+                "--no-png",
+                "--directions=-x",
+                "--occlusion",
+                "--save-result",
+                str(tmp_path / "r.h5"),
+                *FAST,
+            ]
+        )
+        == 0
+    )
     assert json.loads(out.read_text())["occlusion"] is True
     assert load_result(tmp_path / "r.h5").directions == ("-x",)
 
 
 def test_critical_subset(scene, tmp_path, caplog):
     out = tmp_path / "critical.json"
-    assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(out),
-                     "--subset", "4", "--save-result", str(tmp_path / "c.h5"), *FAST]) == 0
+    assert (
+        cli.main(
+            [
+                "critical",
+                str(scene["ply"]),
+                "--cameras",
+                str(scene["cameras"]),
+                "-o",
+                str(out),
+                "--subset",
+                "4",
+                "--save-result",
+                str(tmp_path / "c.h5"),
+                *FAST,
+            ]
+        )
+        == 0
+    )
     data = json.loads(out.read_text())
     assert data["directions"] == ["-x"] and data["distinct_particles"]["gaussians_reached"] > 0
     assert data["critical_subset"] == [v["index"] for v in data["views"][:4]]
@@ -108,21 +195,64 @@ def test_critical_subset(scene, tmp_path, caplog):
     # --result reuses the saved run: the same C(T), and 2 of 6 warns of nothing
     again = tmp_path / "again.json"
     caplog.clear()
-    assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(again),
-                     "--subset", "2", "--result", str(tmp_path / "c.h5")]) == 0
+    assert (
+        cli.main(
+            [
+                "critical",
+                str(scene["ply"]),
+                "--cameras",
+                str(scene["cameras"]),
+                "-o",
+                str(again),
+                "--subset",
+                "2",
+                "--result",
+                str(tmp_path / "c.h5"),
+            ]
+        )
+        == 0
+    )
     second = json.loads(again.read_text())
     assert [v["critical_score"] for v in second["views"]] == [v["critical_score"] for v in data["views"]]
     assert second["subset_warning"] is None and "candidate views" not in caplog.text
     # a RESULT.h5 without distinct counts (simulate's) is exit 2, naming the fix
-    assert cli.main(["critical", str(scene["ply"]), "--cameras", str(scene["cameras"]), "-o", str(again),
-                     "--result", str(scene["h5"])]) == 2
+    assert (
+        cli.main(
+            [
+                "critical",
+                str(scene["ply"]),
+                "--cameras",
+                str(scene["cameras"]),
+                "-o",
+                str(again),
+                "--result",
+                str(scene["h5"]),
+            ]
+        )
+        == 2
+    )
     assert "--save-result" in caplog.text
 
 
 def test_sweep_csv_and_plot(scene, tmp_path, capsys, caplog):
     out = tmp_path / "sweep.csv"
-    assert cli.main(["sweep", str(scene["ply"]), "--velocities", "3,6", "--directions=-x", "-o", str(out),
-                     "--compare", str(scene["ply"]), *[a for a in FAST if a != "--no-empty-reference"]]) == 0
+    assert (
+        cli.main(
+            [
+                "sweep",
+                str(scene["ply"]),
+                "--velocities",
+                "3,6",
+                "--directions=-x",
+                "-o",
+                str(out),
+                "--compare",
+                str(scene["ply"]),
+                *[a for a in FAST if a != "--no-empty-reference"],
+            ]
+        )
+        == 0
+    )
     rows = list(csv.DictReader(out.open()))
     assert [r["steps"] for r in rows] == ["40", "80"]
     assert float(rows[0]["gap_m4_s"]) == pytest.approx(0.0, abs=1e-12)  # OTHER = the same set
@@ -139,8 +269,22 @@ def test_sweep_csv_and_plot(scene, tmp_path, capsys, caplog):
 
 
 def test_bench_score_prints_share(scene, capsys):
-    assert cli.main(["bench", "score", "--gaussians", str(scene["ply"]), "--particle-radius", "0.08", "--steps",
-                     "20", "--directions=-x"]) == 0
+    assert (
+        cli.main(
+            [
+                "bench",
+                "score",
+                "--gaussians",
+                str(scene["ply"]),
+                "--particle-radius",
+                "0.08",
+                "--steps",
+                "20",
+                "--directions=-x",
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "aggregation share of the step time" in text and "fluid particles" in text
     assert "(target < 10 % at " in text  # a small set: the 10 % target, not the million-Gaussian one
@@ -157,31 +301,82 @@ def test_bench_score_share_target_by_set_size():
 
 def test_bad_inputs_fail_early(scene, tmp_path, caplog):
     not_3dgs = tmp_path / "points.ply"
-    not_3dgs.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
-                        "property float z\nend_header\n0 0 0\n")
+    not_3dgs.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+        "property float z\nend_header\n0 0 0\n"
+    )
     assert cli.main(["simulate", str(not_3dgs), "-o", str(tmp_path / "a.h5"), *FAST]) == 2
     away = [Camera.look_at((0, 0, 3), (0, 0, 6), (0, 1, 0), 48, 40, math.radians(50), name="away")]
     cams_away = _write_cameras(tmp_path / "away.json", away)
     caplog.clear()
-    assert cli.main(["score", str(scene["ply"]), "--cameras", str(cams_away), "-o", str(tmp_path / "s.json"),
-                     *FAST]) == 2
+    assert (
+        cli.main(["score", str(scene["ply"]), "--cameras", str(cams_away), "-o", str(tmp_path / "s.json"), *FAST]) == 2
+    )
     assert "sees any Gaussian" in caplog.text
     blocker = tmp_path / "blocker"
     blocker.write_text("a file, not a folder")
     assert cli.main(["simulate", str(scene["ply"]), "-o", str(blocker / "r.h5"), *FAST]) == 4  # an output error
     caplog.clear()
-    assert cli.main(["simulate", str(scene["ply"]), "-o", str(tmp_path / "big.h5"), "--particle-radius", "0.002",
-                     "--steps", "5", "--no-empty-reference"]) == 2
+    assert (
+        cli.main(
+            [
+                "simulate",
+                str(scene["ply"]),
+                "-o",
+                str(tmp_path / "big.h5"),
+                "--particle-radius",
+                "0.002",
+                "--steps",
+                "5",
+                "--no-empty-reference",
+            ]
+        )
+        == 2
+    )
     assert "GiB" in caplog.text and "particle radius" in caplog.text
     assert not (tmp_path / "big.h5").exists()
-    assert cli.main(["score", str(scene["ply"]), "--cameras", str(scene["cameras"]), "--result", str(scene["h5"]),
-                     "-o", str(tmp_path / "x.json"), "--candidates", "9"]) == 2
+    assert (
+        cli.main(
+            [
+                "score",
+                str(scene["ply"]),
+                "--cameras",
+                str(scene["cameras"]),
+                "--result",
+                str(scene["h5"]),
+                "-o",
+                str(tmp_path / "x.json"),
+                "--candidates",
+                "9",
+            ]
+        )
+        == 2
+    )
 
 
 def test_demo_runs_on_given_gaussians(scene, tmp_path):
     out = tmp_path / "demo"
-    assert cli.main(["demo", "-o", str(out), "--gaussians", str(scene["ply"]), "--cameras", str(scene["cameras"]),
-                     "--particle-radius", "0.08", "--steps", "20", "--no-video", "--threads", "2"]) == 0
+    assert (
+        cli.main(
+            [
+                "demo",
+                "-o",
+                str(out),
+                "--gaussians",
+                str(scene["ply"]),
+                "--cameras",
+                str(scene["cameras"]),
+                "--particle-radius",
+                "0.08",
+                "--steps",
+                "20",
+                "--no-video",
+                "--threads",
+                "2",
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["gaussians"] == 300 and set(summary["probes"]) == {"-x", "+x", "-z", "+z", "-y"}
     assert len(json.loads((out / "scores.json").read_text())["views"]) == 6

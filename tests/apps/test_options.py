@@ -100,9 +100,16 @@ def test_config_from_args_takes_only_the_given_options_over_the_preset():
 
 
 def test_flags_renames_negation_and_convert():
-    over = {"fill": {"flags": ("--no-fill",), "dest": "no_fill", "negate": True, "default_text": "filled",
-                     "help": "keep the solid hollow"},
-            "names": {"flags": ("--probes",), "convert": lambda t: tuple(parse_list(t, str, "--probes"))}}
+    over = {
+        "fill": {
+            "flags": ("--no-fill",),
+            "dest": "no_fill",
+            "negate": True,
+            "default_text": "filled",
+            "help": "keep the solid hollow",
+        },
+        "names": {"flags": ("--probes",), "convert": lambda t: tuple(parse_list(t, str, "--probes"))},
+    }
     p = _parser(("fill", "names"), over)
     assert _help(p, "no_fill") == "keep the solid hollow (default: filled)"
     assert _help(p, "names") == "the probes, a tuple (default: a,b)"
@@ -151,8 +158,9 @@ def test_active_help_shows_each_preset_value():
 
     small = PRESETS["cpu-small"]
     p = _subparser("active")
-    assert _help(p, "iters_per_view").endswith(f"(default: 100; {small['iterations_per_view']} with --preset "
-                                               "cpu-small)")
+    assert _help(p, "iters_per_view").endswith(
+        f"(default: 100; {small['iterations_per_view']} with --preset cpu-small)"
+    )
     assert f"{small['physics']['steps']} with --preset cpu-small" in _help(p, "probe_steps")
     assert f"{small['train']['max_gaussians']} with --preset cpu-small" in _help(p, "max_gaussians")
 
@@ -162,16 +170,22 @@ def test_parse_list_checks_and_names_the_option():
     assert parse_list(["-x", "+z"], str, "--directions", allowed=("-x", "+z")) == ("-x", "+z")
     assert index_list("4, 2,", "--candidates", 6) == (4, 2)
     assert float_list("1,0,-0.5", "--initial-direction", size=3) == (1.0, 0.0, -0.5)
-    cases = [(lambda: parse_list("3,-1", float, "--velocities", positive=True, what="speed"),
-              r"--velocities must be speeds > 0, got \[3.0, -1.0\]"),
-             (lambda: parse_list("1,nan", float, "--v"), "must be finite"),
-             (lambda: float_list("1,0", "--initial-direction", size=3), "must be 3 comma-separated numbers"),
-             (lambda: index_list(" , ", "--views"), "lists no entry"),
-             (lambda: index_list("0,7", "--views", 6, range_hint="the split has 6"), r"\[7\] out of range: the split"),
-             (lambda: index_list("-1", "--views"), "indices start at 0"),
-             (lambda: index_list("2,2", "--c", what="camera"), r"lists camera\(s\) \[2\] more than once"),
-             (lambda: parse_list("-x,-q", str, "--directions", allowed=("-x",), what="probe"),
-              r"--directions: unknown probes \['-q'\]; use a comma list of -x")]
+    cases = [
+        (
+            lambda: parse_list("3,-1", float, "--velocities", positive=True, what="speed"),
+            r"--velocities must be speeds > 0, got \[3.0, -1.0\]",
+        ),
+        (lambda: parse_list("1,nan", float, "--v"), "must be finite"),
+        (lambda: float_list("1,0", "--initial-direction", size=3), "must be 3 comma-separated numbers"),
+        (lambda: index_list(" , ", "--views"), "lists no entry"),
+        (lambda: index_list("0,7", "--views", 6, range_hint="the split has 6"), r"\[7\] out of range: the split"),
+        (lambda: index_list("-1", "--views"), "indices start at 0"),
+        (lambda: index_list("2,2", "--c", what="camera"), r"lists camera\(s\) \[2\] more than once"),
+        (
+            lambda: parse_list("-x,-q", str, "--directions", allowed=("-x",), what="probe"),
+            r"--directions: unknown probes \['-q'\]; use a comma list of -x",
+        ),
+    ]
     for call, message in cases:
         with pytest.raises(ValueError, match=message):
             call()
@@ -180,16 +194,22 @@ def test_parse_list_checks_and_names_the_option():
 def test_directions_are_defined_once():
     """The five probe names are spelled out in fluidsim/directions.py only; every other module imports them."""
     spelled = re.compile(r"""["']-x["'],\s*["']\+x["'],\s*["']-z["'],\s*["']\+z["'],\s*["']-y["']""")
-    found = [str(f.relative_to(ROOT)) for pkg in ("fluidsim", "recon", "nbv", "viz", "apps")
-             for f in sorted((ROOT / pkg).rglob("*.py")) if spelled.search(f.read_text())]
+    found = [
+        str(f.relative_to(ROOT))
+        for pkg in ("fluidsim", "recon", "nbv", "viz", "apps")
+        for f in sorted((ROOT / pkg).rglob("*.py"))
+        if spelled.search(f.read_text())
+    ]
     assert found == ["fluidsim/directions.py"]
 
 
 def test_names_and_top_level_help_load_no_engine():
     """viz and `fluidgs --help` read the probe names and list the commands without Taichi or torch."""
-    code = ("import sys\nfrom fluidsim.directions import DIRECTIONS\nimport viz.data\nfrom apps import cli\n"
-            "cli.build_parser('')\n"
-            "print(sorted(m for m in ('taichi', 'torch', 'nbv') if m in sys.modules))")
+    code = (
+        "import sys\nfrom fluidsim.directions import DIRECTIONS\nimport viz.data\nfrom apps import cli\n"
+        "cli.build_parser('')\n"
+        "print(sorted(m for m in ('taichi', 'torch', 'nbv') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]"

@@ -35,7 +35,7 @@ def test_matching_runtime_is_kept(taichi_settings):
     kept = ti.ndarray(ti.f32, shape=8)
     arch = taichi_settings.arch  # the session's (FLUIDGS_TEST_ARCH)
     assert init_taichi(arch, "f32", threads=threads, debug=debug) == arch
-    assert ti.lang.impl.get_runtime().prog is prog          # no ti.init: arrays and kernels stay
+    assert ti.lang.impl.get_runtime().prog is prog  # no ti.init: arrays and kernels stay
     _fill(kept, 2.0)
     assert np.all(kept.to_numpy() == 2.0)
 
@@ -44,25 +44,27 @@ def test_reinit_with_old_arrays_in_a_cycle_keeps_new_arrays_alive(taichi_setting
     _, debug, threads = _current()
     arch = taichi_settings.arch
     enabled = gc.isenabled()
-    gc.disable()                                            # the cycle survives until collected
+    gc.disable()  # the cycle survives until collected
     try:
         old = weakref.ref(_Cycle([ti.ndarray(ti.f32, shape=64) for _ in range(32)]))
-        assert old() is not None                            # only a collection can free it
-        init_taichi(arch, "f32", threads=threads, debug=not debug)       # other settings: a real ti.init
+        assert old() is not None  # only a collection can free it
+        init_taichi(arch, "f32", threads=threads, debug=not debug)  # other settings: a real ti.init
         assert old() is None, "the old runtime's arrays outlived ti.init (they would free by a stale address)"
         fresh = [ti.ndarray(ti.f32, shape=64) for _ in range(32)]
-        gc.collect()                                        # the old arrays die now, under the new runtime
+        gc.collect()  # the old arrays die now, under the new runtime
         for k, a in enumerate(fresh):
             _fill(a, float(k))
             assert np.all(a.to_numpy() == k), f"array {k} of the new runtime was freed by an old one"
     finally:
         if enabled:
             gc.enable()
-        init_taichi(arch, "f32", threads=threads, debug=debug)           # back to the session's settings
+        init_taichi(arch, "f32", threads=threads, debug=debug)  # back to the session's settings
 
 
-HANG = ("import time\nfrom apps.taichi_runtime import startup_watchdog\nwith startup_watchdog(1.0):\n"
-        "    time.sleep(60)\nprint('not reached')\n")
+HANG = (
+    "import time\nfrom apps.taichi_runtime import startup_watchdog\nwith startup_watchdog(1.0):\n"
+    "    time.sleep(60)\nprint('not reached')\n"
+)
 
 
 def test_startup_watchdog_says_so_and_stops_a_hang():

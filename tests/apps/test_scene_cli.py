@@ -11,29 +11,39 @@ from fluidsim.scene import SceneError, load_scene, parse_scene
 
 
 def _scene(**over):
-    s = {"particle_radius": 0.05, "rest_density": 1000.0, "viscosity": 10.0, "gravity": [0, -9.81, 0],
-         "dt": 0.002, "steps": 5, "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-         "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
-         "solids": []}
+    s = {
+        "particle_radius": 0.05,
+        "rest_density": 1000.0,
+        "viscosity": 10.0,
+        "gravity": [0, -9.81, 0],
+        "dt": 0.002,
+        "steps": 5,
+        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
+        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
+        "solids": [],
+    }
     s.update(over)
     return s
 
 
-@pytest.mark.parametrize("change,key", [
-    ({"partcle_radius": 0.1}, "partcle_radius"),
-    ({"particle_radius": -1.0}, "particle_radius"),
-    ({"dt": float("nan")}, "dt"),
-    ({"gravity": [0, 1]}, "gravity"),
-    ({"steps": 0}, "steps"),
-    ({"domain": {"min": [0, 0, 0], "max": [1, -1, 1]}}, "domain"),
-    ({"domain": {"min": [0, 0, 0], "max": [1, 1, 1], "wals": True}}, "wals"),
-    ({"fluid_blocks": [{"min": [0, 0, 0], "max": [2, 2, 2]}]}, "fluid_blocks[0]"),
-    ({"fluid_blocks": []}, "fluid_blocks"),
-    ({"solids": [{"mesh": "nope.obj"}]}, "solids[0]"),
-    ({"solids": [{"points": "a.npy", "mesh": "b.obj"}]}, "solids[0]"),
-    ({"solver": {"max_density_eror": 0.1}}, "max_density_eror"),
-    ({"solver": {"min_iterations": 5, "max_iterations": 2}}, "min_iterations"),
-])
+@pytest.mark.parametrize(
+    "change,key",
+    [
+        ({"partcle_radius": 0.1}, "partcle_radius"),
+        ({"particle_radius": -1.0}, "particle_radius"),
+        ({"dt": float("nan")}, "dt"),
+        ({"gravity": [0, 1]}, "gravity"),
+        ({"steps": 0}, "steps"),
+        ({"domain": {"min": [0, 0, 0], "max": [1, -1, 1]}}, "domain"),
+        ({"domain": {"min": [0, 0, 0], "max": [1, 1, 1], "wals": True}}, "wals"),
+        ({"fluid_blocks": [{"min": [0, 0, 0], "max": [2, 2, 2]}]}, "fluid_blocks[0]"),
+        ({"fluid_blocks": []}, "fluid_blocks"),
+        ({"solids": [{"mesh": "nope.obj"}]}, "solids[0]"),
+        ({"solids": [{"points": "a.npy", "mesh": "b.obj"}]}, "solids[0]"),
+        ({"solver": {"max_density_eror": 0.1}}, "max_density_eror"),
+        ({"solver": {"min_iterations": 5, "max_iterations": 2}}, "min_iterations"),
+    ],
+)
 def test_bad_scenes_name_the_key(change, key):
     with pytest.raises(SceneError, match=key.replace("[", r"\[").replace("]", r"\]")):
         parse_scene(_scene(**change))
@@ -49,10 +59,14 @@ def test_scene_round_trips(tmp_path):
 
 
 def test_sim_command_writes_documented_layout(tmp_path):
-    np.save(tmp_path / "cube.npy", np.stack(np.meshgrid(*[np.arange(0.6, 0.8, 0.1)] * 3, indexing="ij"), -1)
-            .reshape(-1, 3))
-    scene = _scene(steps=6, solids=[{"points": "cube.npy"}],
-                   fluid_blocks=[{"min": [0.1, 0.1, 0.1], "max": [0.9, 0.9, 0.9], "velocity": [1, 0, 0]}])
+    np.save(
+        tmp_path / "cube.npy", np.stack(np.meshgrid(*[np.arange(0.6, 0.8, 0.1)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    )
+    scene = _scene(
+        steps=6,
+        solids=[{"points": "cube.npy"}],
+        fluid_blocks=[{"min": [0.1, 0.1, 0.1], "max": [0.9, 0.9, 0.9], "velocity": [1, 0, 0]}],
+    )
     (tmp_path / "scene.json").write_text(json.dumps(scene))
     out = tmp_path / "res" / "out.h5"
     assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(out), "--save-every", "3"]) == 0
@@ -97,8 +111,23 @@ def test_f64_run_agrees_with_f32(tmp_path):
     finals = {}
     for precision in ("f32", "f64"):
         out = tmp_path / f"{precision}.h5"
-        subprocess.run([sys.executable, "-m", "apps.cli", "sim", str(tmp_path / "scene.json"), "-o", str(out),
-                        "--precision", precision, "--save-every", "25"], check=True, capture_output=True)
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "apps.cli",
+                "sim",
+                str(tmp_path / "scene.json"),
+                "-o",
+                str(out),
+                "--precision",
+                precision,
+                "--save-every",
+                "25",
+            ],
+            check=True,
+            capture_output=True,
+        )
         with h5py.File(out) as f:
             finals[precision] = (f["frames/000025/x"][:].astype(np.float64), f["stats"][:])
     (x32, s32), (x64, s64) = finals["f32"], finals["f64"]

@@ -39,9 +39,17 @@ def _sphere(n: int = 300) -> GaussianSet:
 
 
 def _scene(**over) -> dict:
-    s = {"particle_radius": 0.05, "rest_density": 1000.0, "viscosity": 10.0, "gravity": [0, -9.81, 0],
-         "dt": 0.002, "steps": 4, "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-         "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}], "solids": []}
+    s = {
+        "particle_radius": 0.05,
+        "rest_density": 1000.0,
+        "viscosity": 10.0,
+        "gravity": [0, -9.81, 0],
+        "dt": 0.002,
+        "steps": 4,
+        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
+        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
+        "solids": [],
+    }
     s.update(over)
     return s
 
@@ -98,8 +106,16 @@ def test_sigterm_between_two_outputs_keeps_the_first_complete(sphere, tmp_path, 
 
 def test_sigterm_in_the_final_write_of_sweep(sphere, tmp_path, kill_at_commit):
     kill_at_commit("s.png", 2)
-    args = ["sweep", str(sphere), "--velocities", "3", "--directions=-x", "-o", str(tmp_path / "s.csv"),
-            *[a for a in FAST if a != "--no-empty-reference"]]
+    args = [
+        "sweep",
+        str(sphere),
+        "--velocities",
+        "3",
+        "--directions=-x",
+        "-o",
+        str(tmp_path / "s.csv"),
+        *[a for a in FAST if a != "--no-empty-reference"],
+    ]
     assert cli.main(args) == 143
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv"]  # the CSV was written before the plot
     assert (tmp_path / "s.csv").read_text().count("\n") == 2
@@ -179,9 +195,14 @@ def test_remove_unfinished_and_stale_temps(tmp_path):
 
 # ---- signals at random moments, in subprocesses -------------------------------------------------------------------
 def _start(args: list[str], log: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "apps.cli", *args], stdout=subprocess.DEVNULL,
-                            stderr=open(log, "w"), cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
-                            start_new_session=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "apps.cli", *args],
+        stdout=subprocess.DEVNULL,
+        stderr=open(log, "w"),
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        start_new_session=True,
+    )
 
 
 def _wait_for(log: Path, text: str, proc: subprocess.Popen, timeout: float = 120) -> None:
@@ -222,8 +243,7 @@ def test_simulate_stopped_at_random_moments_leaves_valid_outputs_or_none(sphere,
 @pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_sim_second_signal_gives_the_first_signals_code(tmp_path, sig, code):
     block = {"min": [0.1, 0.1, 0.1], "max": [0.6, 0.6, 0.6], "velocity": [1, 0, 0]}
-    (tmp_path / "scene.json").write_text(json.dumps(_scene(steps=100000, particle_radius=0.02,
-                                                           fluid_blocks=[block])))
+    (tmp_path / "scene.json").write_text(json.dumps(_scene(steps=100000, particle_radius=0.02, fluid_blocks=[block])))
     log = tmp_path / "log.txt"
     proc = _start(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "out.h5"), "--threads", "2"], log)
     _wait_for(log, "fluid particles", proc)
@@ -274,12 +294,25 @@ def test_sigterm_on_experiment_ends_its_workers(tmp_path, workers):
 
     from helpers.paths import TORUS
 
-    scene = render_mesh_dataset(TORUS, tmp_path / "torus", MeshDatasetConfig(n_train=8, n_test=2, resolution=16,
-                                                                              supersample=1), progress=False)
-    active = {"budget": 3, "iterations_per_view": 2, "total_iterations": 100000, "resolution": 16, "backend": "torch",
-              "train": {"init_points": 100, "sh_degree": 0, "max_gaussians": 200}}
-    config = {"scenes": [str(scene)], "methods": ["random"], "seeds": [0, 1], "reference_views": None,
-              "output": str(tmp_path / "out"), "active": active}
+    scene = render_mesh_dataset(
+        TORUS, tmp_path / "torus", MeshDatasetConfig(n_train=8, n_test=2, resolution=16, supersample=1), progress=False
+    )
+    active = {
+        "budget": 3,
+        "iterations_per_view": 2,
+        "total_iterations": 100000,
+        "resolution": 16,
+        "backend": "torch",
+        "train": {"init_points": 100, "sh_degree": 0, "max_gaussians": 200},
+    }
+    config = {
+        "scenes": [str(scene)],
+        "methods": ["random"],
+        "seeds": [0, 1],
+        "reference_views": None,
+        "output": str(tmp_path / "out"),
+        "active": active,
+    }
     (tmp_path / "exp.json").write_text(json.dumps(config))
     log = tmp_path / "log.txt"
     executor = ["--executor", "ray"] if workers == "ray" else ["--workers", str(workers)]

@@ -27,9 +27,13 @@ def _set(n: int, degree: int, seed: int = 0) -> GaussianSet:
     k = (degree + 1) ** 2
     rgb = 0.05 + 0.9 * torch.rand(n, 3, generator=gen)
     sh = torch.cat([((rgb - 0.5) / SH_C0)[:, None], 1.6 * torch.rand(n, k - 1, 3, generator=gen) - 0.8], 1)
-    return GaussianSet(means=2 * torch.rand(n, 3, generator=gen) - 1, quats=quats / quats.norm(dim=1, keepdim=True),
-                       log_scales=-3 - 2 * torch.rand(n, 3, generator=gen),
-                       opacity_logits=torch.randn(n, generator=gen), sh=sh)
+    return GaussianSet(
+        means=2 * torch.rand(n, 3, generator=gen) - 1,
+        quats=quats / quats.norm(dim=1, keepdim=True),
+        log_scales=-3 - 2 * torch.rand(n, 3, generator=gen),
+        opacity_logits=torch.randn(n, generator=gen),
+        sh=sh,
+    )
 
 
 def _raises(path, *fragments: str) -> str:
@@ -82,8 +86,12 @@ def test_standard_ply_with_an_element_before_vertex_loads(tmp_path, fmt):
 
 def test_element_before_vertex_that_cannot_be_skipped(tmp_path):
     g = _set(3, 0)
-    lists = _standard_ply(g, "binary_little_endian", ["element face 1", "property list uchar int idx"],
-                          bytes([3]) + struct.pack("<3i", 0, 1, 2))
+    lists = _standard_ply(
+        g,
+        "binary_little_endian",
+        ["element face 1", "property list uchar int idx"],
+        bytes([3]) + struct.pack("<3i", 0, 1, 2),
+    )
     (tmp_path / "list.ply").write_bytes(lists)
     _raises(tmp_path / "list.ply", "'face'", "comes before 'vertex'", "list properties", "re-export")
     cut = _standard_ply(g, "binary_little_endian", ["element camera 1000", "property double fx"], b"")
@@ -134,7 +142,7 @@ def test_non_finite_chunk_bounds_warn_nothing(tmp_path):
     path = encode_compressed_ply(_set(300, 0), tmp_path / "c.ply")
     data = bytearray(path.read_bytes())
     start = data.index(b"end_header\n") + len(b"end_header\n")
-    data[start + 4:start + 8] = struct.pack("<f", float("inf"))  # chunk 0 min_y
+    data[start + 4 : start + 8] = struct.pack("<f", float("inf"))  # chunk 0 min_y
     bad = tmp_path / "inf.ply"
     bad.write_bytes(bytes(data))
     with warnings.catch_warnings():
@@ -145,8 +153,11 @@ def test_non_finite_chunk_bounds_warn_nothing(tmp_path):
 def test_formats_agree_on_count_and_box(tmp_path):
     """One set through standard .ply, compressed .ply (N not a multiple of 256), .splat and .spz v2/v3/v4."""
     g = _set(1000, 0)
-    paths = {"ply": tmp_path / "g.ply", "compressed_ply": encode_compressed_ply(g, tmp_path / "g.compressed.PLY"),
-             "splat": encode_splat(g, tmp_path / "g.SPLAT")}
+    paths = {
+        "ply": tmp_path / "g.ply",
+        "compressed_ply": encode_compressed_ply(g, tmp_path / "g.compressed.PLY"),
+        "splat": encode_splat(g, tmp_path / "g.SPLAT"),
+    }
     save_gaussians(g, paths["ply"])
     for v in (2, 3, 4):
         paths[f"spz{v}"] = encode_spz(g, tmp_path / f"g{v}.spz", version=v)
@@ -154,13 +165,20 @@ def test_formats_agree_on_count_and_box(tmp_path):
     for name, path in paths.items():
         back, fmt = formats.load_gaussians_with_format(path)
         assert fmt == name.rstrip("234") and back.num == 1000, name
-        step = 2.0 ** -12 if fmt == "spz" else 2.0 / 1023  # spz fixed point; 10-bit y of the packed position
+        step = 2.0**-12 if fmt == "spz" else 2.0 / 1023  # spz fixed point; 10-bit y of the packed position
         torch.testing.assert_close(back.means.min(0).values, lo, rtol=0, atol=step, msg=name)
         torch.testing.assert_close(back.means.max(0).values, hi, rtol=0, atol=step, msg=name)
 
 
-@pytest.mark.parametrize(("spec", "expected"), [("1e200,0,0", [1, 0, 0]), ("0,-1e300,1e300", [0, -0.5**0.5, 0.5**0.5]),
-                                                ("1e-200,0,0", [1, 0, 0]), ("0,-1e-300,0", [0, -1, 0])])
+@pytest.mark.parametrize(
+    ("spec", "expected"),
+    [
+        ("1e200,0,0", [1, 0, 0]),
+        ("0,-1e300,1e300", [0, -(0.5**0.5), 0.5**0.5]),
+        ("1e-200,0,0", [1, 0, 0]),
+        ("0,-1e-300,0", [0, -1, 0]),
+    ],
+)
 def test_up_vectors_of_any_finite_size_give_their_direction(spec, expected):
     """A huge --up used to overflow the norm and come back as the zero vector (silently no up at all)."""
     from nbv.physics.scene_frame import parse_up
@@ -203,13 +221,15 @@ def test_ctrl_c_while_the_cli_loads_is_one_line(tmp_path):
     import subprocess
     import sys
 
-    code = ("import sys\n"
-            "class Stop:\n"
-            "    def find_spec(self, name, path=None, target=None):\n"
-            "        if name == 'apps.active':\n"
-            "            raise KeyboardInterrupt\n"
-            "sys.meta_path.insert(0, Stop())\n"
-            "from apps.cli import main\n")
+    code = (
+        "import sys\n"
+        "class Stop:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'apps.active':\n"
+        "            raise KeyboardInterrupt\n"
+        "sys.meta_path.insert(0, Stop())\n"
+        "from apps.cli import main\n"
+    )
     done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert done.returncode == 130, done.stderr
     assert "Traceback" not in done.stderr and "interrupted" in done.stderr, done.stderr

@@ -80,7 +80,7 @@ def hand_written_atomic_writes(source: str) -> list[tuple[int, str]]:
 
 
 def test_the_scan_catches_each_hand_written_pattern():
-    bad = '''
+    bad = """
 import os, shutil, tempfile
 from os import replace
 def f(p, q, data):
@@ -88,7 +88,7 @@ def f(p, q, data):
     fd, tmp = tempfile.mkstemp(dir=".")
     name = f".{q.name}.tmp"
     other = ".fgs-" + "x"
-'''
+"""
     whats = [w for _, w in hand_written_atomic_writes(bad)]
     assert whats.count("os.replace") == 1 and "os.rename" in whats and "shutil.move" in whats
     assert ".rename()" in whats and ".replace(path)" in whats and "tempfile.mkstemp" in whats
@@ -111,13 +111,19 @@ def test_no_module_but_fluidsim_files_writes_files_atomically_by_hand():
             if rel in SANCTIONED:
                 continue
             offenders += [f"{rel}:{line}: {what}" for line, what in hand_written_atomic_writes(path.read_text())]
-    assert not offenders, ("write outputs through fluidsim.files (or nbv.io), not by hand:\n" + "\n".join(offenders))
+    assert not offenders, "write outputs through fluidsim.files (or nbv.io), not by hand:\n" + "\n".join(offenders)
 
 
 def test_fluidsim_files_imports_neither_taichi_nor_torch_nor_numpy():
     code = "import sys, fluidsim.files; print(sorted(m for m in ('taichi', 'torch', 'numpy') if m in sys.modules))"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)}).stdout
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    ).stdout
     assert out.strip() == "[]"
 
 
@@ -193,10 +199,26 @@ def test_atomic_folder_replaces_a_whole_folder_or_leaves_it(tmp_path):
 
 
 def test_json_is_strict_and_takes_numpy_scalars(tmp_path):
-    data = {"nan": float("nan"), "inf": np.float32("inf"), "f": np.float32(1.5), "i": np.int64(7), "t": (1, 2),
-            "b": True, "p": Path("a/b"), 3: "key"}
-    assert json_safe(data) == {"nan": None, "inf": None, "f": 1.5, "i": 7, "t": [1, 2], "b": True, "p": "a/b",
-                               "3": "key"}
+    data = {
+        "nan": float("nan"),
+        "inf": np.float32("inf"),
+        "f": np.float32(1.5),
+        "i": np.int64(7),
+        "t": (1, 2),
+        "b": True,
+        "p": Path("a/b"),
+        3: "key",
+    }
+    assert json_safe(data) == {
+        "nan": None,
+        "inf": None,
+        "f": 1.5,
+        "i": 7,
+        "t": [1, 2],
+        "b": True,
+        "p": "a/b",
+        "3": "key",
+    }
     assert type(json_safe(np.int64(7))) is int and type(json_safe(np.float64(2.0))) is float
     path = write_json_atomic(tmp_path / "r.json", data)
     text = path.read_text()

@@ -34,14 +34,14 @@ def test_resting_block_keeps_rest_density_and_stays_at_rest():
     late = history[250:]
     state = solver.fluid_state()
     speeds = np.linalg.norm(state["v"], axis=1)
-    assert history[-1].active == len(x)                      # no particle lost
-    assert max(s.density_error for s in late) < 0.05           # % of rho_0, solver average
-    assert max(s.max_speed for s in late) < 0.5                # m/s (a 0.19 m fall would give 1.9)
-    assert speeds.mean() < 0.05                                # m/s
+    assert history[-1].active == len(x)  # no particle lost
+    assert max(s.density_error for s in late) < 0.05  # % of rho_0, solver average
+    assert max(s.max_speed for s in late) < 0.5  # m/s (a 0.19 m fall would give 1.9)
+    assert speeds.mean() < 0.05  # m/s
     interior = state["x"][:, 1] < top0 - 2 * cfg.support_radius
     assert abs(np.median(state["density"][interior]) - 1.0) < 0.01
     assert abs(np.percentile(state["x"][:, 1], 99) - top0) < 2 * sp  # the column keeps its height
-    assert state["x"][:, 1].min() > 0.0                          # nobody sank into the floor
+    assert state["x"][:, 1].min() > 0.0  # nobody sank into the floor
 
 
 def _count_compiled():
@@ -60,7 +60,7 @@ def test_probe_moves_fluid_toward_sphere_and_none_ends_inside():
     solid = sphere_particles([0, 0, 0], 0.4, cfg.spacing, fill=True)
     probe = ProbeConfig(speed=3.0, slab_thickness=0.3, margin=0.15, padding=0.3, directions=("-x", "-y"))
     setup = probe_setup(solid, "-x", probe, cfg.spacing)
-    assert setup.fluid_min[0] > solid[:, 0].max()            # slab upstream (+x side) of the solid
+    assert setup.fluid_min[0] > solid[:, 0].max()  # slab upstream (+x side) of the solid
     assert setup.velocity == (-3.0, 0.0, 0.0)
     assert np.all(np.asarray(setup.domain_min) < solid.min(0)) and np.all(np.asarray(setup.domain_max) > solid.max(0))
     starts, ends, compiled = {}, {}, []
@@ -98,8 +98,14 @@ def test_diverging_run_stops_with_the_step_named():
 
 def test_precision_must_match_runtime():
     with pytest.raises(ValueError, match="default_fp"):
-        DFSPHSolver(SolverConfig(precision="f64"), [0, 0, 0], [1, 1, 1], np.zeros((1, 3)) + 0.5,
-                    np.zeros((1, 3)), np.zeros((0, 3)))
+        DFSPHSolver(
+            SolverConfig(precision="f64"),
+            [0, 0, 0],
+            [1, 1, 1],
+            np.zeros((1, 3)) + 0.5,
+            np.zeros((1, 3)),
+            np.zeros((0, 3)),
+        )
     assert ti.lang.impl.get_runtime().default_fp == ti.f32
 
 
@@ -142,6 +148,7 @@ def test_probe_without_divergence_warm_start_meets_the_same_tolerances():
     def record(warm):
         def on_end(d, s, hist):
             results[warm] = (hist, s.fluid_state())
+
         return on_end
 
     for warm in (True, False):

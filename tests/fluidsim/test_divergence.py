@@ -52,8 +52,17 @@ def test_linear_field_gives_trace_at_interior_particles(h_r):
     np.testing.assert_allclose(d[interior], c * abs(np.trace(A)), rtol=1e-4)
 
 
-@pytest.mark.parametrize("h_r,h_k,fused", [(0.1, 0.1, False), (0.1, 0.1, True), (0.12, 0.1, True), (0.08, 0.1, False),
-                                          (0.15, 0.12, False), (0.12, 0.1, False)])
+@pytest.mark.parametrize(
+    "h_r,h_k,fused",
+    [
+        (0.1, 0.1, False),
+        (0.1, 0.1, True),
+        (0.12, 0.1, True),
+        (0.08, 0.1, False),
+        (0.15, 0.12, False),
+        (0.12, 0.1, False),
+    ],
+)
 def test_fast_paths_match_numpy_twin(h_r, h_k, fused):
     rng = np.random.default_rng(7)
     cfg = SolverConfig(particle_radius=0.025, estimator_radius=h_r, estimator_kernel_radius=h_k)
@@ -62,8 +71,9 @@ def test_fast_paths_match_numpy_twin(h_r, h_k, fused):
     wall = lattice_in_box([0.3, 0.2, 0.3], [0.6, 0.3, 0.6], cfg.spacing)[:, :] - [0, 0.002, 0]
     solver, xs, vs, rho, d = _estimate(cfg, x, v, wall, fused)
     b = solver.boundary
-    ref = divergence_estimate_np(xs, vs, solver.fluid_volume / rho, b.x.to_numpy()[: b.count],
-                                 b.volume.to_numpy()[: b.count], h_r, h_k)
+    ref = divergence_estimate_np(
+        xs, vs, solver.fluid_volume / rho, b.x.to_numpy()[: b.count], b.volume.to_numpy()[: b.count], h_r, h_k
+    )
     np.testing.assert_allclose(d, ref, rtol=2e-3, atol=2e-3 * ref.max())
     sums, counts = solver.divergence_accumulation()
     assert counts.min() == 1 and counts.max() == 1

@@ -28,8 +28,16 @@ def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=N
     counts = ti.ndarray(ti.i32, shape=spec.num_cells + 1)
     starts = ti.ndarray(ti.i32, shape=spec.num_cells + 2)
     order = ti.ndarray(ti.i32, shape=capacity)
-    args = (ti.Vector(list(spec.origin), ti.f64), ti.Vector(list(spec.inv_cell), ti.f64), grid.ivec3(*spec.dims),
-            ti.Vector(list(box_min), ti.f64), ti.Vector(list(box_max), ti.f64), cell_ids, ranks, counts)
+    args = (
+        ti.Vector(list(spec.origin), ti.f64),
+        ti.Vector(list(spec.inv_cell), ti.f64),
+        grid.ivec3(*spec.dims),
+        ti.Vector(list(box_min), ti.f64),
+        ti.Vector(list(box_max), ti.f64),
+        cell_ids,
+        ranks,
+        counts,
+    )
     blocks = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
     counts.fill(0)  # both sorts count into it from zero (their contract: zero on entry)
     if one_launch:
@@ -61,8 +69,7 @@ def test_counting_sort_is_a_stable_sort_by_cell(z_split):
     # are the same, in an order that depends on thread timing in the parallel sorts (nothing reads it)
     two = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], capacity=3000)
     for serial in (False, True):
-        one = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], one_launch=True, capacity=3000,
-                              serial=serial)
+        one = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], one_launch=True, capacity=3000, serial=serial)
         kept2 = one[0]
         assert kept2 == two[0] and 0 < kept2 < 2900
         np.testing.assert_array_equal(one[1][:kept2], two[1][:kept2])
@@ -92,8 +99,14 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
     spec = grid_for_box(lo, hi, h, 0.0, z_split)  # tight grid: particles fill the corner and edge cells
     assert spec.dims[2] == 3 * z_split
     fluid = rng.uniform(lo, hi, (1500, 3))
-    corners = np.array([[x, y, z] for x in (lo[0] + 1e-4, hi[0] - 1e-4) for y in (lo[1] + 1e-4, hi[1] - 1e-4)
-                        for z in (lo[2] + 1e-4, hi[2] - 1e-4)])
+    corners = np.array(
+        [
+            [x, y, z]
+            for x in (lo[0] + 1e-4, hi[0] - 1e-4)
+            for y in (lo[1] + 1e-4, hi[1] - 1e-4)
+            for z in (lo[2] + 1e-4, hi[2] - 1e-4)
+        ]
+    )
     fluid = np.concatenate([fluid, corners])
     bpts = rng.uniform(lo, hi, (700, 3))
     n = len(fluid)
@@ -119,8 +132,13 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
     bsum, gsum = ti.Vector.ndarray(3, ti.f32, shape=n), ti.Vector.ndarray(3, ti.f32, shape=n)
     vel = rng.normal(0.0, 1.0, (n, 3)).astype(np.float32)
     v_nd, src = _to_nd(vel), ti.ndarray(ti.f32, shape=n)
-    args = (ti.Vector(list(spec.origin), ti.f64), ti.Vector(list(spec.inv_cell), ti.f64), grid.ivec3(*spec.dims),
-            h, 1.0e-4)
+    args = (
+        ti.Vector(list(spec.origin), ti.f64),
+        ti.Vector(list(spec.inv_cell), ti.f64),
+        grid.ivec3(*spec.dims),
+        h,
+        1.0e-4,
+    )
     table = ti.Vector.ndarray(2, ti.f32, shape=CUBIC_TABLE_SIZE + 2)
     table.from_numpy(cubic_table_np(h).astype(np.float32))
     kappa = rng.uniform(0.0, 2.0, n).astype(np.float32)  # the divergence solver's stored stiffness
@@ -129,10 +147,35 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
     push = ti.Vector.ndarray(3, ti.f32, shape=n)
     ssum = ti.ndarray(ti.f32, shape=n)
     while True:
-        m = neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
-                                          nb.boundary_count, nb.boundary_pairs,
-                                          bsum, gsum, dens, fac, v_nd, src, table, 0, kappa_nd, push,
-                                          nb.format, nb.coef_scale, 0.5, 0.002, ssum, True)
+        m = neighbors.build_neighborhoods(
+            n,
+            x_nd,
+            st,
+            bx_nd,
+            bvol,
+            bst,
+            *args,
+            nb.fluid_count,
+            nb.fluid_pairs,
+            nb.boundary_count,
+            nb.boundary_pairs,
+            bsum,
+            gsum,
+            dens,
+            fac,
+            v_nd,
+            src,
+            table,
+            0,
+            kappa_nd,
+            push,
+            nb.format,
+            nb.coef_scale,
+            0.5,
+            0.002,
+            ssum,
+            True,
+        )
         assert m[2] == 0  # no offset beyond 16 bits among 1,508 particles
         if m[0] <= nb.fluid_capacity and m[1] <= nb.boundary_capacity:
             break
@@ -153,8 +196,12 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
             cnt = fc[i] if lists is fi else bc[i]
             r = x32[i] - pts[lists[i, :cnt]]
             rtol = 5e-4 if lists is fi and fmt == neighbors.NARROW else 1e-4
-            np.testing.assert_allclose(coef[i, :cnt, None] * r, 1.0e-4 * cubic_grad_w_np(r, h), rtol=rtol,
-                                       atol=1e-6 * 1.0e-4 * 48 / np.pi / h**4)
+            np.testing.assert_allclose(
+                coef[i, :cnt, None] * r,
+                1.0e-4 * cubic_grad_w_np(r, h),
+                rtol=rtol,
+                atol=1e-6 * 1.0e-4 * 48 / np.pi / h**4,
+            )
     # the stored boundary gradient sum = the numpy sum of V_b grad W over the brute-force neighbours
     ref_sum = np.array([1.0e-4 * cubic_grad_w_np(x32[i] - b32[ref_b[i]], h).sum(0) for i in range(n)])
     assert np.abs(ref_sum).max() > 0  # some particles do see the boundary
@@ -173,9 +220,35 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
     # warm (1): the divergence solver's warm-start push P_i = kappa_i (sum_j g_ij + sum_b g_ib)
     # + sum_j kappa_j g_ij instead of the source; lists, density and factor bit for bit the same
     before = [a.to_numpy() for a in (nb.fluid_pairs, dens, fac, gsum)]
-    neighbors.build_neighborhoods(n, x_nd, st, bx_nd, bvol, bst, *args, nb.fluid_count, nb.fluid_pairs,
-                                  nb.boundary_count, nb.boundary_pairs, bsum, gsum, dens, fac, v_nd, src, table, 1,
-                                  kappa_nd, push, nb.format, nb.coef_scale, 0.5, 0.002, ssum, True)
+    neighbors.build_neighborhoods(
+        n,
+        x_nd,
+        st,
+        bx_nd,
+        bvol,
+        bst,
+        *args,
+        nb.fluid_count,
+        nb.fluid_pairs,
+        nb.boundary_count,
+        nb.boundary_pairs,
+        bsum,
+        gsum,
+        dens,
+        fac,
+        v_nd,
+        src,
+        table,
+        1,
+        kappa_nd,
+        push,
+        nb.format,
+        nb.coef_scale,
+        0.5,
+        0.002,
+        ssum,
+        True,
+    )
     for a, b in zip(before, (nb.fluid_pairs, dens, fac, gsum), strict=True):
         np.testing.assert_array_equal(a, b.to_numpy())
     k = kappa.astype(np.float64)
@@ -217,15 +290,33 @@ def _count_within(s: ti.template(), j, r, ctx: ti.template()):
 
 
 @ti.kernel
-def _walk_counts(n: ti.i32, x: ti.types.ndarray(ndim=1), starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 bx: ti.types.ndarray(ndim=1), bstarts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 origin: ti.types.vector(3, ti.f64), inv_cell: ti.types.vector(3, ti.f64), dims: grid.ivec3,
-                 reach: ti.i32, reach_z: ti.i32, radius: float, out: ti.types.ndarray(dtype=ti.i32, ndim=2)):
+def _walk_counts(
+    n: ti.i32,
+    x: ti.types.ndarray(ndim=1),
+    starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    bx: ti.types.ndarray(ndim=1),
+    bstarts: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    origin: ti.types.vector(3, ti.f64),
+    inv_cell: ti.types.vector(3, ti.f64),
+    dims: grid.ivec3,
+    reach: ti.i32,
+    reach_z: ti.i32,
+    radius: float,
+    out: ti.types.ndarray(dtype=ti.i32, ndim=2),
+):
     for i in range(n):
         count_f, sum_f, count_b, sum_b = 0, 0, 0, 0
-        neighbors.for_each_neighbor(x[i], origin, inv_cell, dims, reach, reach_z, ((x, starts), (bx, bstarts)),
-                                    _count_within, ti.static(_Walked(i, radius * radius, count_f, sum_f, count_b,
-                                                                     sum_b)))
+        neighbors.for_each_neighbor(
+            x[i],
+            origin,
+            inv_cell,
+            dims,
+            reach,
+            reach_z,
+            ((x, starts), (bx, bstarts)),
+            _count_within,
+            ti.static(_Walked(i, radius * radius, count_f, sum_f, count_b, sum_b)),
+        )
         out[i, 0] = count_f
         out[i, 1] = sum_f
         out[i, 2] = count_b
@@ -242,8 +333,16 @@ def test_neighbour_walk_visits_each_candidate_once(radius_cells):
     spec = grid_for_box([0, 0, 0], [0.6, 0.5, 0.4], cell, 0.0, 2)
     radius = radius_cells * cell
     pts = rng.uniform([0, 0, 0], [0.6, 0.5, 0.4], (700, 3))
-    pts[:8] = [[0, 0, 0], [0.6 - 1e-6, 0.5 - 1e-6, 0.4 - 1e-6], [0, 0.5 - 1e-6, 0], [0.3, 0.0, 0.4 - 1e-6],
-               [0.6 - 1e-6, 0, 0], [0, 0, 0.2], [0.3, 0.25, 0.2], [0.3, 0.25, 0.2001]]
+    pts[:8] = [
+        [0, 0, 0],
+        [0.6 - 1e-6, 0.5 - 1e-6, 0.4 - 1e-6],
+        [0, 0.5 - 1e-6, 0],
+        [0.3, 0.0, 0.4 - 1e-6],
+        [0.6 - 1e-6, 0, 0],
+        [0, 0, 0.2],
+        [0.3, 0.25, 0.2],
+        [0.3, 0.25, 0.2001],
+    ]
     bpts = rng.uniform([0, 0, 0], [0.6, 0.5, 0.4], (300, 3))
     fx, fstarts, dropped = sort_points_by_cell(pts, spec)
     bx, bstarts, bdropped = sort_points_by_cell(bpts, spec)
@@ -255,8 +354,20 @@ def test_neighbour_walk_visits_each_candidate_once(radius_cells):
     reach = int(np.ceil(radius / spec.cell_size))
     reach_z = int(np.ceil(radius / spec.cell_sizes[2]))
     assert (reach, reach_z) == ((1, 2) if radius_cells == 1.0 else (2, 4))
-    _walk_counts(len(fx), _to_nd(fx), st, _to_nd(bx), bst, ti.Vector(list(spec.origin), ti.f64),
-                 ti.Vector(list(spec.inv_cell), ti.f64), grid.ivec3(*spec.dims), reach, reach_z, radius, out)
+    _walk_counts(
+        len(fx),
+        _to_nd(fx),
+        st,
+        _to_nd(bx),
+        bst,
+        ti.Vector(list(spec.origin), ti.f64),
+        ti.Vector(list(spec.inv_cell), ti.f64),
+        grid.ivec3(*spec.dims),
+        reach,
+        reach_z,
+        radius,
+        out,
+    )
     got = out.to_numpy()
     x32, b32 = fx.astype(np.float32).astype(np.float64), bx.astype(np.float32).astype(np.float64)
     ref_f = brute_force_neighbors_np(x32, x32, radius, exclude_self=True)

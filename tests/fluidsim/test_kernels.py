@@ -51,14 +51,22 @@ def test_gradient_matches_finite_difference_of_w():
         if not 0.05 * h < np.linalg.norm(r) < 0.95 * h:
             continue
         eps = 1e-7
-        fd = np.array([(cubic_w_np(np.linalg.norm(r + eps * e), h) - cubic_w_np(np.linalg.norm(r - eps * e), h))
-                       / (2 * eps) for e in np.eye(3)])
+        fd = np.array(
+            [
+                (cubic_w_np(np.linalg.norm(r + eps * e), h) - cubic_w_np(np.linalg.norm(r - eps * e), h)) / (2 * eps)
+                for e in np.eye(3)
+            ]
+        )
         np.testing.assert_allclose(cubic_grad_w_np(r, h), fd, rtol=1e-5, atol=1e-3)
 
 
 @ti.kernel
-def _eval(rs: ti.types.ndarray(dtype=ti.math.vec3, ndim=1), h: ti.f32,
-          w: ti.types.ndarray(dtype=ti.f32, ndim=1), g: ti.types.ndarray(dtype=ti.math.vec3, ndim=1)):
+def _eval(
+    rs: ti.types.ndarray(dtype=ti.math.vec3, ndim=1),
+    h: ti.f32,
+    w: ti.types.ndarray(dtype=ti.f32, ndim=1),
+    g: ti.types.ndarray(dtype=ti.math.vec3, ndim=1),
+):
     for i in range(rs.shape[0]):
         w[i] = cubic_w(rs[i].norm(), h)
         g[i] = cubic_grad_w(rs[i], h)
@@ -106,9 +114,12 @@ def test_kernel_table_interpolates_the_spline():
 
 
 @ti.kernel
-def _eval_table(rs: ti.types.ndarray(dtype=ti.f64, ndim=1), scale: ti.f64,
-                table: ti.types.ndarray(dtype=ti.types.vector(2, ti.f64), ndim=1),
-                out: ti.types.ndarray(dtype=ti.types.vector(2, ti.f64), ndim=1)):
+def _eval_table(
+    rs: ti.types.ndarray(dtype=ti.f64, ndim=1),
+    scale: ti.f64,
+    table: ti.types.ndarray(dtype=ti.types.vector(2, ti.f64), ndim=1),
+    out: ti.types.ndarray(dtype=ti.types.vector(2, ti.f64), ndim=1),
+):
     for i in range(rs.shape[0]):
         w, c = cubic_from_table(rs[i], scale, table)
         out[i] = ti.Vector([w, c])

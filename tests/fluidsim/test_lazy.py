@@ -24,7 +24,9 @@ def test_names_load_on_first_use_and_are_cached():
 
 
 def test_the_packages_import_without_taichi_or_torch():
-    code = ("import sys, fluidsim, recon, nbv, nbv.physics, nbv.active; "
-            "print(sorted(m for m in ('taichi', 'torch') if m in sys.modules))")
+    code = (
+        "import sys, fluidsim, recon, nbv, nbv.physics, nbv.active; "
+        "print(sorted(m for m in ('taichi', 'torch') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO).stdout
     assert out.strip().splitlines()[-1] == "[]"

@@ -79,8 +79,19 @@ def test_forces_pass_matches_numpy_twins(mu_b):
     np.testing.assert_array_equal(f.numpy("stiffness_sum"), 0.0)  # a cold start: no stiffness yet
     acc = (v_cold - v_all[: f.active]) / dt
 
-    ref = non_pressure_np(xs, vs, rho, solver.fluid_volume, bx, bvol, cfg.support_radius, cfg.viscosity, mu_b,
-                          cfg.rest_density, cfg.gravity)
+    ref = non_pressure_np(
+        xs,
+        vs,
+        rho,
+        solver.fluid_volume,
+        bx,
+        bvol,
+        cfg.support_radius,
+        cfg.viscosity,
+        mu_b,
+        cfg.rest_density,
+        cfg.gravity,
+    )
     visc = ref - np.asarray(cfg.gravity)
     assert np.abs(visc).max() > 1.0  # the viscous part is far from negligible here
     np.testing.assert_allclose(acc, ref, rtol=2e-3, atol=2e-3 * np.abs(visc).max())
@@ -107,8 +118,19 @@ def test_forces_pass_copies_the_velocities_of_retired_slots():
     v0 = f.numpy("v", active_only=False)
     out = f.velocity_scratch()
     out.fill(7.0)
-    passes.predict_velocities(f, b, nb, cfg.dt, solver.gravity, cfg.viscosity, cfg.wall_viscosity, cfg.rest_density,
-                              solver.h, warm=False, estimate=False)
+    passes.predict_velocities(
+        f,
+        b,
+        nb,
+        cfg.dt,
+        solver.gravity,
+        cfg.viscosity,
+        cfg.wall_viscosity,
+        cfg.rest_density,
+        solver.h,
+        warm=False,
+        estimate=False,
+    )
     assert f.v is out  # the pass wrote the spare buffer, which is now v
     new = out.to_numpy()
     np.testing.assert_array_equal(new[n:], v0[n:])
@@ -170,8 +192,9 @@ def _apply_with(solver, stiffness, dt):
     pairs, grad_b = _gradients(solver)
     v = solver.fluid.numpy("v").astype(np.float64)
     k = np.asarray(stiffness, np.float64)
-    return np.array([v[i] - dt * (((k[i] + k[j])[:, None] * g).sum(0) + k[i] * grad_b[i])
-                     for i, (j, g) in pairs.items()])
+    return np.array(
+        [v[i] - dt * (((k[i] + k[j])[:, None] * g).sum(0) + k[i] * grad_b[i]) for i, (j, g) in pairs.items()]
+    )
 
 
 def _divergence_np(solver):
@@ -389,8 +412,9 @@ def test_boundary_pairs_are_stored_only_where_a_pass_reads_them():
         slip.neighborhoods.lists("boundary")
     # the counts are full either way (the free-surface test reads them)
     n = slip.fluid.active
-    np.testing.assert_array_equal(slip.neighborhoods.boundary_count.to_numpy()[:n],
-                                  no_slip.neighborhoods.boundary_count.to_numpy()[:n])
+    np.testing.assert_array_equal(
+        slip.neighborhoods.boundary_count.to_numpy()[:n], no_slip.neighborhoods.boundary_count.to_numpy()[:n]
+    )
     assert slip.neighborhoods.boundary_count.to_numpy()[:n].max() > 8
     cfg = SolverConfig(particle_radius=0.025, boundary_viscosity=0.0, estimator_radius=0.08)  # Eq. 1 walks lists
     x = lattice_in_box([0.3, 0.3, 0.3], [0.6, 0.6, 0.6], cfg.spacing)
@@ -414,8 +438,7 @@ def test_step_runs_the_stages_in_the_order_of_algorithm_1(h_r):
     solver.stage_times = {}
     stats = solver.step()
     own = ["divergence_estimate"] if h_r > cfg.support_radius else []
-    assert list(solver.stage_times) == ["sort", "neighbors", "divergence_solve", *own, "non_pressure",
-                                        "density_solve"]
+    assert list(solver.stage_times) == ["sort", "neighbors", "divergence_solve", *own, "non_pressure", "density_solve"]
     assert stats.divergence_iterations >= 1 and stats.density_iterations >= cfg.min_iterations
     _, counts = solver.divergence_accumulation()
     assert counts.max() == 1  # Eq. 1 ran once, in one stage or the other

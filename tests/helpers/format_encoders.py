@@ -26,8 +26,13 @@ RUB_FLIP_POSITION = np.array([1.0, -1.0, -1.0], np.float32)  # RDF <-> RUB, a ha
 
 def _arrays(g: GaussianSet) -> dict[str, np.ndarray]:
     g = g.detach().to(device="cpu", dtype=torch.float32)
-    return {"means": g.means.numpy(), "quats": g.quats.numpy(), "log_scales": g.log_scales.numpy(),
-            "logits": g.opacity_logits.numpy(), "sh": g.sh.numpy()}
+    return {
+        "means": g.means.numpy(),
+        "quats": g.quats.numpy(),
+        "log_scales": g.log_scales.numpy(),
+        "logits": g.opacity_logits.numpy(),
+        "sh": g.sh.numpy(),
+    }
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
@@ -81,23 +86,44 @@ def encode_compressed_ply(g: GaussianSet, path: Path, chunk_colors: bool = True,
 
     def pack_111011(x, lo, hi):
         t = _normalize(x, lo[index], hi[index])
-        return (pack_unorm(t[:, 0], 11) << np.uint32(21)) | (pack_unorm(t[:, 1], 10) << np.uint32(11)) \
+        return (
+            (pack_unorm(t[:, 0], 11) << np.uint32(21))
+            | (pack_unorm(t[:, 1], 10) << np.uint32(11))
             | pack_unorm(t[:, 2], 11)
+        )
 
     t = _normalize(rgb, clo[index], chi[index]) if chunk_colors else rgb
-    color = (pack_unorm(t[:, 0], 8) << np.uint32(24)) | (pack_unorm(t[:, 1], 8) << np.uint32(16)) \
-        | (pack_unorm(t[:, 2], 8) << np.uint32(8)) | pack_unorm(_sigmoid(a["logits"]), 8)
-    vertex = np.stack([pack_111011(a["means"], plo, phi), pack_rotation(a["quats"]),
-                       pack_111011(a["log_scales"], slo, shi), color], 1).astype("<u4")
+    color = (
+        (pack_unorm(t[:, 0], 8) << np.uint32(24))
+        | (pack_unorm(t[:, 1], 8) << np.uint32(16))
+        | (pack_unorm(t[:, 2], 8) << np.uint32(8))
+        | pack_unorm(_sigmoid(a["logits"]), 8)
+    )
+    vertex = np.stack(
+        [pack_111011(a["means"], plo, phi), pack_rotation(a["quats"]), pack_111011(a["log_scales"], slo, shi), color], 1
+    ).astype("<u4")
     chunk_cols = [plo, phi, slo, shi] + ([clo, chi] if chunk_colors else [])
     chunk = np.concatenate(chunk_cols, 1).astype("<f4")
-    names = ["min_x", "min_y", "min_z", "max_x", "max_y", "max_z", "min_scale_x", "min_scale_y", "min_scale_z",
-             "max_scale_x", "max_scale_y", "max_scale_z"]
+    names = [
+        "min_x",
+        "min_y",
+        "min_z",
+        "max_x",
+        "max_y",
+        "max_z",
+        "min_scale_x",
+        "min_scale_y",
+        "min_scale_z",
+        "max_scale_x",
+        "max_scale_y",
+        "max_scale_z",
+    ]
     names += ["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"] if chunk_colors else []
     header = ["ply", "format binary_little_endian 1.0", "comment test encoder", f"element chunk {chunks}"]
     header += [f"property float {p}" for p in names]
-    header += [f"element vertex {n}"] + [f"property uint packed_{p}" for p in ("position", "rotation", "scale",
-                                                                                "color")]
+    header += [f"element vertex {n}"] + [
+        f"property uint packed_{p}" for p in ("position", "rotation", "scale", "color")
+    ]
     body = chunk.tobytes() + vertex.tobytes()
     k = a["sh"].shape[1]
     if with_sh and k > 1:
@@ -142,14 +168,25 @@ def spz_attributes(g: GaussianSet, version: int, frame: str = "rdf", fractional_
         s = np.where(xyzw[:, 3:4] < 0, -127.5, 127.5)
         rotations = _to_uint8(xyzw[:, :3] * s + 127.5).tobytes()
     rest = a["sh"][:, 1:] * (RUB_SH_SIGNS[: k - 1, None] if flip else 1.0)
-    return {"positions": positions.tobytes(), "alphas": _to_uint8(_sigmoid(a["logits"]) * 255.0).tobytes(),
-            "colors": _to_uint8(a["sh"][:, 0] * (0.15 * 255.0) + 127.5).tobytes(),
-            "scales": _to_uint8((a["log_scales"] + 10.0) * 16.0).tobytes(), "rotations": rotations,
-            "sh": _to_uint8(rest * 128.0 + 128.0).tobytes()}
+    return {
+        "positions": positions.tobytes(),
+        "alphas": _to_uint8(_sigmoid(a["logits"]) * 255.0).tobytes(),
+        "colors": _to_uint8(a["sh"][:, 0] * (0.15 * 255.0) + 127.5).tobytes(),
+        "scales": _to_uint8((a["log_scales"] + 10.0) * 16.0).tobytes(),
+        "rotations": rotations,
+        "sh": _to_uint8(rest * 128.0 + 128.0).tobytes(),
+    }
 
 
-def encode_spz(g: GaussianSet, path: Path, version: int = 4, frame: str = "rdf", flags: int = 0,
-               extension: bytes = b"", extension_first: bool = False) -> Path:
+def encode_spz(
+    g: GaussianSet,
+    path: Path,
+    version: int = 4,
+    frame: str = "rdf",
+    flags: int = 0,
+    extension: bytes = b"",
+    extension_first: bool = False,
+) -> Path:
     """Write an .spz: versions 2-3 as one gzip stream, version 4 as header + TOC + zstd streams."""
     attrs = spz_attributes(g, version, frame)
     n, degree = g.num, g.sh_degree
@@ -228,11 +265,15 @@ def encode_sog(g: GaussianSet, path: Path, version: int = 2, bundle: bool = True
     mins, maxs = logs.min(0), logs.max(0)
     q16 = np.round((logs - mins) / np.where(maxs > mins, maxs - mins, 1.0) * 65535.0).astype(np.uint32)
     alpha = np.full((n, 1), 255, np.uint8)
-    files = {"means_l.webp": np.concatenate([(q16 & 0xFF).astype(np.uint8), alpha], 1),
-             "means_u.webp": np.concatenate([(q16 >> 8).astype(np.uint8), alpha], 1),
-             "quats.webp": sog_quats(a["quats"])}
-    meta = {"means": {"mins": mins.tolist(), "maxs": maxs.tolist(), "files": ["means_l.webp", "means_u.webp"]},
-            "quats": {"files": ["quats.webp"]}}
+    files = {
+        "means_l.webp": np.concatenate([(q16 & 0xFF).astype(np.uint8), alpha], 1),
+        "means_u.webp": np.concatenate([(q16 >> 8).astype(np.uint8), alpha], 1),
+        "quats.webp": sog_quats(a["quats"]),
+    }
+    meta = {
+        "means": {"mins": mins.tolist(), "maxs": maxs.tolist(), "files": ["means_l.webp", "means_u.webp"]},
+        "quats": {"files": ["quats.webp"]},
+    }
     opacity = _to_uint8(_sigmoid(a["logits"]) * 255.0)[:, None]
     if version == 2:
         book, codes = _codebook_codes(a["log_scales"])
@@ -257,8 +298,12 @@ def encode_sog(g: GaussianSet, path: Path, version: int = 2, bundle: bool = True
         rest = a["sh"][:, 1:]  # [N, C, 3]
         if version == 2:
             book, codes = _codebook_codes(rest)
-            meta["shN"] = {"count": n, "bands": int(round(math.sqrt(k))) - 1, "codebook": book,
-                           "files": ["shN_centroids.webp", "shN_labels.webp"]}
+            meta["shN"] = {
+                "count": n,
+                "bands": int(round(math.sqrt(k))) - 1,
+                "codebook": book,
+                "files": ["shN_centroids.webp", "shN_labels.webp"],
+            }
         else:
             lo, hi = float(rest.min()), float(rest.max())
             codes = _to_uint8((rest - lo) / (hi - lo) * 255.0)
@@ -319,8 +364,9 @@ def encode_ksplat(g: GaussianSet, path: Path, mode: int = 0, sections: int = 1, 
         partial = [rem] if rem else []
         buckets = full + len(partial)
         bucket_of = np.arange(m) // bucket_capacity
-        centres = np.array([a["means"][idx[bucket_of == b]].mean(0) for b in range(buckets)]) if mode else \
-            np.zeros((0, 3))
+        centres = (
+            np.array([a["means"][idx[bucket_of == b]].mean(0) for b in range(buckets)]) if mode else np.zeros((0, 3))
+        )
         block = 2.0 * float(np.abs(a["means"][idx] - centres[bucket_of]).max()) * 1.01 + 1e-6 if mode else 1.0
         quant = 32767
         parts = []
@@ -331,8 +377,13 @@ def encode_ksplat(g: GaussianSet, path: Path, mode: int = 0, sections: int = 1, 
             parts.append(np.clip(raw, 0, 65535).astype("<u2").view(np.uint8).reshape(m, -1))
         parts.append(np.exp(a["log_scales"][idx]).astype(f_type).view(np.uint8).reshape(m, -1))
         parts.append(a["quats"][idx].astype(f_type).view(np.uint8).reshape(m, -1))
-        rgba = np.concatenate([_to_uint8((0.5 + SH_C0 * a["sh"][idx, 0]) * 255.0),
-                               _to_uint8(_sigmoid(a["logits"][idx]) * 255.0)[:, None]], 1)
+        rgba = np.concatenate(
+            [
+                _to_uint8((0.5 + SH_C0 * a["sh"][idx, 0]) * 255.0),
+                _to_uint8(_sigmoid(a["logits"][idx]) * 255.0)[:, None],
+            ],
+            1,
+        )
         parts.append(rgba)
         if degree:
             values = _ksplat_sh_values(a["sh"][idx, 1:], degree)

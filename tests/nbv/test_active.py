@@ -22,13 +22,22 @@ def tiny_dataset(tmp_path_factory):
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
 
     out = tmp_path_factory.mktemp("active") / "torus"
-    return render_mesh_dataset(TORUS, out, MeshDatasetConfig(n_train=8, n_test=3, resolution=24, supersample=1),
-                               progress=False)
+    return render_mesh_dataset(
+        TORUS, out, MeshDatasetConfig(n_train=8, n_test=3, resolution=24, supersample=1), progress=False
+    )
 
 
 def tiny_config(**overrides) -> ActiveConfig:
-    base = dict(method="random", budget=4, iterations_per_view=2, total_iterations=30, resolution=16,
-                train=TINY_TRAIN, backend="torch", physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004))
+    base = dict(
+        method="random",
+        budget=4,
+        iterations_per_view=2,
+        total_iterations=30,
+        resolution=16,
+        train=TINY_TRAIN,
+        backend="torch",
+        physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004),
+    )
     return ActiveConfig(**{**base, **overrides})
 
 
@@ -61,8 +70,7 @@ def test_schedule_and_validation():
 def test_biased_initial_views_pick_the_anchor_and_its_neighbours():
     # 12 cameras on a circle around the origin; the anchor +x is closest to camera 3 (placed at +x)
     angles = [2 * math.pi * (k - 3) / 12 for k in range(12)]
-    cams = [Camera.look_at([4 * math.cos(a), 0.3, 4 * math.sin(a)], [0, 0, 0], [0, 1, 0], 16, 16, 0.9)
-            for a in angles]
+    cams = [Camera.look_at([4 * math.cos(a), 0.3, 4 * math.sin(a)], [0, 0, 0], [0, 1, 0], 16, 16, 0.9) for a in angles]
     ids = biased_initial_views(cams, 3, direction=(1.0, 0.0, 0.0))
     assert ids[0] == 3 and set(ids[1:]) == {2, 4}  # the two circle neighbours of camera 3
     assert biased_initial_views(cams, 2, seed=5) == biased_initial_views(cams, 2, seed=5)
@@ -94,7 +102,7 @@ def test_round_log_and_outputs(straight_run):
     assert logged["selected"][:2] == [0, 1] and len(logged["selected"]) == 5 == len(set(logged["selected"]))
     assert len(logged["rounds"]) == 3
     for r, rec in enumerate(logged["rounds"]):
-        before = logged["selected"][:2 + r]
+        before = logged["selected"][: 2 + r]
         assert rec["round"] == r and rec["n_selected"] == 2 + r
         assert rec["training"]["iterations"] == (2 + r) * cfg.iterations_per_view
         assert sorted(rec["candidates"] + before) == list(range(8))  # the candidates are the unselected views
@@ -126,12 +134,16 @@ def test_resume_after_interruption_equals_uninterrupted_run(tiny_dataset, straig
     assert not leftover_temp_files(tmp_path / "resumed")
 
     seen = []
-    resumed = run_active(tiny_dataset, tmp_path / "resumed", cfg, on_round=lambda rec: seen.append(rec["round"]),
-                         progress=False)
+    resumed = run_active(
+        tiny_dataset, tmp_path / "resumed", cfg, on_round=lambda rec: seen.append(rec["round"]), progress=False
+    )
     assert seen == [2]  # rounds 0 and 1 are not recomputed
     assert resumed["selected"] == straight["selected"]
-    for a, b in zip(load_gaussians(tmp_path / "resumed" / "gaussians.ply").tensors(),
-                    load_gaussians(straight_dir / "gaussians.ply").tensors(), strict=True):
+    for a, b in zip(
+        load_gaussians(tmp_path / "resumed" / "gaussians.ply").tensors(),
+        load_gaussians(straight_dir / "gaussians.ply").tensors(),
+        strict=True,
+    ):
         assert torch.equal(a, b)
     again = run_active(tiny_dataset, tmp_path / "resumed", cfg, on_round=seen.append, progress=False)
     assert again == resumed and seen == [2]  # a finished run is not recomputed
@@ -155,18 +167,34 @@ def test_resume_inside_the_final_training(tiny_dataset, tmp_path, mode):
             raise Interrupt
 
     with pytest.raises(Interrupt):
-        run_active(tiny_dataset, tmp_path / "resumed", cfg, final_checkpoint_every=4,
-                   on_final_checkpoint=stop_at_second_chunk, progress=False)
+        run_active(
+            tiny_dataset,
+            tmp_path / "resumed",
+            cfg,
+            final_checkpoint_every=4,
+            on_final_checkpoint=stop_at_second_chunk,
+            progress=False,
+        )
     assert not (tmp_path / "resumed" / "gaussians.ply").exists()
     rounds = []
-    resumed = run_active(tiny_dataset, tmp_path / "resumed", cfg, final_checkpoint_every=4,
-                         on_final_checkpoint=seen.append, on_round=rounds.append, progress=False)
+    resumed = run_active(
+        tiny_dataset,
+        tmp_path / "resumed",
+        cfg,
+        final_checkpoint_every=4,
+        on_final_checkpoint=seen.append,
+        on_round=rounds.append,
+        progress=False,
+    )
     assert rounds == []  # every selection was kept
     assert seen[2] == seen[1] + 4 and seen[-1] == 24  # training went on from the second chunk's checkpoint
     assert resumed["final"]["training"]["resumed_from_iteration"] == seen[1]
     assert resumed["selected"] == straight["selected"]
-    for a, b in zip(load_gaussians(tmp_path / "resumed" / "gaussians.ply").tensors(),
-                    load_gaussians(tmp_path / "straight" / "gaussians.ply").tensors(), strict=True):
+    for a, b in zip(
+        load_gaussians(tmp_path / "resumed" / "gaussians.ply").tensors(),
+        load_gaussians(tmp_path / "straight" / "gaussians.ply").tensors(),
+        strict=True,
+    ):
         assert torch.equal(a, b)
     assert not leftover_temp_files(tmp_path / "resumed")
     with pytest.raises(ValueError, match="final_checkpoint_every"):
@@ -211,10 +239,12 @@ def test_real_probes_inside_the_loop(tiny_dataset, tmp_path):
     physics planner picks the shortlisted view of largest S(T). The 4-iteration torus is barely opaque: at the
     default tau = 0.3 no lattice point reaches it (measured: 0 solid particles, the empty-solid fallback); at
     tau = 0.05 about 700 do, so the probes meet a solid."""
-    physics = PhysicsConfig(particle_radius=0.1, steps=8, dt=0.004, directions=("-x",), empty_reference=False,
-                            opacity_threshold=0.05)
-    rounds = run_active(tiny_dataset, tmp_path / "run", tiny_config(method="physics", budget=3, physics=physics),
-                        progress=False)
+    physics = PhysicsConfig(
+        particle_radius=0.1, steps=8, dt=0.004, directions=("-x",), empty_reference=False, opacity_threshold=0.05
+    )
+    rounds = run_active(
+        tiny_dataset, tmp_path / "run", tiny_config(method="physics", budget=3, physics=physics), progress=False
+    )
     rec = rounds["rounds"][0]
     phys = rec["physics"]
     assert "error" not in phys, f"the probes did not run: {phys['error']}"
@@ -234,9 +264,35 @@ def test_active_cli_smoke(tiny_dataset, tmp_path):
     from apps.cli import main
 
     run = tmp_path / "run"
-    args = ["active", str(tiny_dataset), "-o", str(run), "--method", "random", "--preset", "cpu-small", "--res", "24",
-            "--budget", "3", "--iters-per-view", "2", "--iterations", "10", "--init-points", "150",
-            "--max-gaussians", "300", "--sh-degree", "0", "--backend", "torch", "--threads", "1", "--no-progress"]
+    args = [
+        "active",
+        str(tiny_dataset),
+        "-o",
+        str(run),
+        "--method",
+        "random",
+        "--preset",
+        "cpu-small",
+        "--res",
+        "24",
+        "--budget",
+        "3",
+        "--iters-per-view",
+        "2",
+        "--iterations",
+        "10",
+        "--init-points",
+        "150",
+        "--max-gaussians",
+        "300",
+        "--sh-degree",
+        "0",
+        "--backend",
+        "torch",
+        "--threads",
+        "1",
+        "--no-progress",
+    ]
     assert main(args) == 0
     assert len(json.loads((run / "rounds.json").read_text())["selected"]) == 3
     assert (run / "gaussians.ply").is_file()
@@ -254,7 +310,7 @@ def test_write_atomic_leaves_nothing_behind_on_failure(tmp_path):
     assert json.loads(target.read_text()) == {"a": None, "b": [1, 2]}  # strict JSON: NaN -> null
 
     def half_write(tmp):
-        tmp.write_text("{\"partial\": ")
+        tmp.write_text('{"partial": ')
         raise OSError("disk full")
 
     with pytest.raises(OSError, match="disk full"):

@@ -29,8 +29,8 @@ def random_gaussians(g: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     centers = rng.uniform(-1.3, 1.3, (g, 3))
     reach = np.exp(rng.uniform(np.log(0.01), np.log(0.8), g))
-    reach[:3] = [5.0, 0.0, 2.0]          # huge (covering the domain), zero, large
-    centers[3] = [3.0, 0.0, 0.0]         # outside the domain, reaching in
+    reach[:3] = [5.0, 0.0, 2.0]  # huge (covering the domain), zero, large
+    centers[3] = [3.0, 0.0, 0.0]  # outside the domain, reaching in
     reach[3] = 2.5
     return centers, reach
 
@@ -38,8 +38,10 @@ def random_gaussians(g: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 def quantized_sums(centers, reach, steps, *domain) -> np.ndarray:
     """The twin's sums of the values as the kernels add them: each rounded to 1 / VALUE_SCALE, summed exactly
     (integers in f64), so the accumulator must equal them bit for bit."""
-    total = sum(accumulate_reference(centers, reach, pos, np.floor(np.asarray(val, np.float64) * VALUE_SCALE + 0.5),
-                                     *domain)[0] for pos, val in steps)
+    total = sum(
+        accumulate_reference(centers, reach, pos, np.floor(np.asarray(val, np.float64) * VALUE_SCALE + 0.5), *domain)[0]
+        for pos, val in steps
+    )
     return total / VALUE_SCALE
 
 
@@ -61,15 +63,16 @@ def chunks(steps, size: int = 256):
     """The steps' particles in chunks (the twin holds a [P, G, 3] array)."""
     for p, v, *rest in steps:
         for i in range(0, len(p), size):
-            yield (p[i: i + size], v[i: i + size], *[r[i: i + size] for r in rest])
+            yield (p[i : i + size], v[i : i + size], *[r[i : i + size] for r in rest])
 
 
 def check_against_twin(acc: GaussianAccumulator, centers, reach, steps, lo=DOMAIN_MIN, hi=DOMAIN_MAX) -> np.ndarray:
     """Counts exactly, sums bit for bit (fixed point) and, when tracked, distinct counts exactly; returns counts."""
     counts = sum(accumulate_reference(centers, reach, p, v, lo, hi)[1] for p, v, *_ in chunks(steps))
     assert np.array_equal(acc.counts, counts)
-    np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, [(p, v) for p, v, *_ in chunks(steps)],
-                                                           lo, hi))
+    np.testing.assert_array_equal(
+        acc.sums, quantized_sums(centers, reach, [(p, v) for p, v, *_ in chunks(steps)], lo, hi)
+    )
     if acc.track_distinct:
         assert np.array_equal(acc.distinct_counts, distinct_reference(centers, reach, list(chunks(steps)), lo, hi))
     return counts
@@ -89,7 +92,7 @@ def test_accumulator_equals_brute_force_twin():
         sums += s
         counts += c
     assert np.array_equal(acc.counts, counts)
-    assert counts.min() == 0 and counts.max() > 100 and counts[1] == 0     # zero reach never counts
+    assert counts.min() == 0 and counts.max() > 100 and counts[1] == 0  # zero reach never counts
     np.testing.assert_array_equal(acc.sums, quantized_sums(centers, reach, steps, DOMAIN_MIN, DOMAIN_MAX))
     # within half a quantum per sample of the unrounded sums
     assert np.all(np.abs(acc.sums - sums) <= 0.5 * counts / VALUE_SCALE + 1e-12 * np.abs(sums).max())
@@ -102,16 +105,18 @@ def test_accumulator_equals_brute_force_twin():
     assert not acc.counts.any() and not acc.sums.any()
 
 
-@pytest.mark.parametrize("budget, storage", [(512 * 2**20, ("bits", "bits")), (1000, ("bits", "hash")),
-                                             (64, ("hash", "hash"))])
+@pytest.mark.parametrize(
+    "budget, storage", [(512 * 2**20, ("bits", "bits")), (1000, ("bits", "hash")), (64, ("hash", "hash"))]
+)
 def test_distinct_counts_are_exact(budget, storage):
     """Bit matrix (large budget), bit matrix grown then moved to the hash set (1000 B), hash set from the start."""
     centers, reach = random_gaussians(100, seed=2)
     rng = np.random.default_rng(3)
-    acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True,
-                              distinct_budget_bytes=budget)
+    acc = GaussianAccumulator.build(
+        centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, distinct_budget_bytes=budget
+    )
     steps = []
-    for pool in (40, 40, 300, 300):      # small ids first (the storage grows), repeated visits
+    for pool in (40, 40, 300, 300):  # small ids first (the storage grows), repeated visits
         steps.append(random_step(rng, 35, pool))
         acc.add(*steps[-1])
         if len(steps) == 1:
@@ -119,7 +124,7 @@ def test_distinct_counts_are_exact(budget, storage):
     assert acc.distinct_storage == storage[1]
     expected = distinct_reference(centers, reach, steps)
     assert np.array_equal(acc.distinct_counts, expected)
-    assert (acc.counts >= expected).all() and (acc.counts > expected).any()   # repeats count once
+    assert (acc.counts >= expected).all() and (acc.counts > expected).any()  # repeats count once
     acc.reset()
     assert not acc.distinct_counts.any()
 
@@ -134,13 +139,16 @@ def test_distinct_particles_that_leave_and_return_count_once(monkeypatch):
     reach = np.array([0.2, 0.2, 0.05])
     ids = np.arange(4)
     # particle 0: in g0, in neither, in g0 again; 1: in g0, outside the domain, in g0; 2: g0 -> g1 -> g0; 3: never near
-    path = [np.array([[0.1, 0, 0], [0.1, 0, 0], [0.05, 0, 0], [0.6, 0.6, 0.6]]),
-            np.array([[0.25, 0, 0], [5.0, 0, 0], [0.5, 0.05, 0], [0.6, 0.6, 0.6]]),
-            np.array([[0.0, 0.05, 0], [0.0, 0.1, 0], [0.0, 0.0, 0.05], [0.6, 0.6, 0.6]])]
+    path = [
+        np.array([[0.1, 0, 0], [0.1, 0, 0], [0.05, 0, 0], [0.6, 0.6, 0.6]]),
+        np.array([[0.25, 0, 0], [5.0, 0, 0], [0.5, 0.05, 0], [0.6, 0.6, 0.6]]),
+        np.array([[0.0, 0.05, 0], [0.0, 0.1, 0], [0.0, 0.0, 0.05], [0.6, 0.6, 0.6]]),
+    ]
     steps = [(p, np.ones(4), ids) for p in path]
     for budget in (512 * 2**20, 0):
-        acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=4,
-                                  distinct_budget_bytes=budget)
+        acc = GaussianAccumulator.build(
+            centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=4, distinct_budget_bytes=budget
+        )
         for p, v, i in steps:
             acc.add(p, v, i)
         assert acc.distinct_storage == ("bits" if budget else "hash")
@@ -149,8 +157,9 @@ def test_distinct_particles_that_leave_and_return_count_once(monkeypatch):
     # many pairs into the 16-slot set: growth with refused inserts, pairs never lost nor doubled
     many, many_reach = random_gaussians(300, seed=11)
     rng = np.random.default_rng(12)
-    acc = GaussianAccumulator.build(many, many_reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True,
-                              distinct_budget_bytes=0)
+    acc = GaussianAccumulator.build(
+        many, many_reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, distinct_budget_bytes=0
+    )
     steps = [random_step(rng, 500, 600) for _ in range(3)]
     for p, v, i in steps:
         acc.add(p, v, i)
@@ -223,14 +232,17 @@ def test_degenerate_sets_match_the_twin():
     """One Gaussian, zero reaches, Gaussians wholly outside the domain: still exactly the twin."""
     rng = np.random.default_rng(6)
     pos, val, _ = random_step(rng, 500, 1000)
-    cases = [(np.zeros((1, 3)), np.array([0.7])), (rng.uniform(-1, 1, (4, 3)), np.zeros(4)),
-             (np.array([[5.0, 0.0, 0.0], [0.0, -4.0, 0.0]]), np.array([1.0, 3.5]))]
+    cases = [
+        (np.zeros((1, 3)), np.array([0.7])),
+        (rng.uniform(-1, 1, (4, 3)), np.zeros(4)),
+        (np.array([[5.0, 0.0, 0.0], [0.0, -4.0, 0.0]]), np.array([1.0, 3.5])),
+    ]
     for centers, reach in cases:
         acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX)
         acc.add(pos, val)
         check_against_twin(acc, centers, reach, [(pos, val)])
-    assert acc.counts[1] > 0 and acc.counts[0] == 0       # the last case: one reaches in, one does not
-    assert acc.num_kept == 1                               # and the other one is not even kept
+    assert acc.counts[1] > 0 and acc.counts[0] == 0  # the last case: one reaches in, one does not
+    assert acc.num_kept == 1  # and the other one is not even kept
 
 
 def test_probes_share_the_lists_and_get_fresh_sums():
@@ -265,8 +277,9 @@ def test_probes_share_the_lists_and_get_fresh_sums():
         GaussianAccumulator(lists, [0.0, 0.0, 0.0], [0.0, 1.0, 1.0])
 
 
-@pytest.mark.parametrize("rows, private, serial_below", [(1, False, 0), (1, True, 10**6), (3, True, 10**6),
-                                                         (3, True, 0)])
+@pytest.mark.parametrize(
+    "rows, private, serial_below", [(1, False, 0), (1, True, 10**6), (3, True, 10**6), (3, True, 0)]
+)
 def test_atomic_and_per_thread_row_paths_equal_the_twin(monkeypatch, rows, private, serial_below):
     # (1, False) is the GPU path (atomic adds), run here on the CPU; 3 rows is more rows than threads; the particles
     # run on the launching thread (serial_below above the particle count, or fewer rows than pool threads) or in
@@ -394,7 +407,7 @@ def listed_reference(levels, centers, reach, lists: np.ndarray, rng, sample: int
         origin, cell, dims, offset = row[0:3], row[4], row[5:8].astype(int), int(row[8])
         first, last = levels.first[lv], levels.first[lv + 1]
         count = int(np.prod(dims))
-        sizes = lists[offset + 1: offset + count + 1] - lists[offset: offset + count]
+        sizes = lists[offset + 1 : offset + count + 1] - lists[offset : offset + count]
         busy = np.nonzero(sizes)[0]
         picked = np.unique(np.concatenate([rng.permutation(busy)[:sample], rng.integers(0, count, sample)]))
         ijk = np.stack([picked // (dims[1] * dims[2]), (picked // dims[2]) % dims[1], picked % dims[2]], -1)
@@ -405,7 +418,7 @@ def listed_reference(levels, centers, reach, lists: np.ndarray, rng, sample: int
             far = np.maximum(np.abs(c[first:last] - (box - slack)), np.abs(box + cell + slack - c[first:last]))
             cover = touch & ((far**2).sum(-1) * (1 + 1e-9) < r[first:last] ** 2)
             begin, split, end = lists[offset + t], lists[cells + 1 + offset + t], lists[offset + t + 1]
-            items = lists[2 * cells + 1 + begin: 2 * cells + 1 + end]
+            items = lists[2 * cells + 1 + begin : 2 * cells + 1 + end]
             expected = first + np.concatenate([np.nonzero(cover)[0], np.nonzero(touch & ~cover)[0]])
             assert np.array_equal(items, expected) and split - begin == cover.sum()
 
@@ -422,11 +435,11 @@ def test_levels_of_a_set_with_reaches_spanning_100x_are_exact(monkeypatch, looku
     acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=True, max_fluid=2000)
     lv = acc.levels
     assert lv.num_levels >= levels and acc.num_kept == len(centers) and acc.covered_entries > 0
-    assert np.array_equal(np.sort(lv.order), np.arange(len(centers)))      # each Gaussian in exactly one level
-    assert (np.diff(lv.cell_sizes) <= 0).all()                              # largest reaches first
+    assert np.array_equal(np.sort(lv.order), np.arange(len(centers)))  # each Gaussian in exactly one level
+    assert (np.diff(lv.cell_sizes) <= 0).all()  # largest reaches first
     for level in range(lv.num_levels):
-        members = reach[lv.order[lv.first[level]: lv.first[level + 1]]]
-        assert members.max() / members.min() > 1.2                          # a class, not a single reach
+        members = reach[lv.order[lv.first[level] : lv.first[level + 1]]]
+        assert members.max() / members.min() > 1.2  # a class, not a single reach
     assert acc.list_entries <= lv.entries_bound <= ENTRIES_PER_GAUSSIAN * len(centers) + _ENTRY_SLACK
     listed_reference(lv, centers, reach, acc.lists.lists.to_numpy(), rng)
     steps = near_surface_steps(rng, centers, 4, 1500, 2000)
@@ -473,17 +486,17 @@ def test_gaussians_on_level_and_cell_boundaries_are_exact(monkeypatch):
     assert lv.num_levels >= 4 and (lv.table[:, 0:3] == lo).all()
     level_of = np.empty(len(reach), int)
     for level in range(lv.num_levels):
-        level_of[lv.order[lv.first[level]: lv.first[level + 1]]] = level
+        level_of[lv.order[lv.first[level] : lv.first[level + 1]]] = level
     cell = lv.table[level_of[: len(free)], 4][:, None]
-    free = lo + np.round((free - lo) / cell) * cell          # onto the faces of their level's cells
+    free = lo + np.round((free - lo) / cell) * cell  # onto the faces of their level's cells
     centers = np.concatenate([free, anchors])
     acc = GaussianAccumulator.build(centers, reach, lo, hi)
-    assert np.array_equal(acc.levels.table, lv.table)        # the same grids
+    assert np.array_equal(acc.levels.table, lv.table)  # the same grids
     pts = [free + s * reach[: len(free), None] * e for e in np.eye(3) for s in (1.0, -1.0)]  # at the reach
     for f in (1 - 1e-15, 1 + 1e-15, 1 - 1e-12, 0.5):
         pts.append(free + f * reach[: len(free), None] * np.array([1.0, 0.0, 0.0]))
     faces = lo + lv.table[:, 4][:, None, None] * rng.integers(0, 8, (lv.num_levels, 60, 3))
-    pts.append(faces.reshape(-1, 3))                          # on cell faces of every level
+    pts.append(faces.reshape(-1, 3))  # on cell faces of every level
     pos = np.concatenate(pts)
     steps = [(pos, rng.normal(size=len(pos)))]
     acc.add(*steps[0])
@@ -504,7 +517,7 @@ def test_a_set_the_old_cell_lists_refused_fits_in_bounded_memory():
     pos, val, _ = random_step(rng, 2000, 2000)
     pos[:1000] = centers[40:1040] + rng.normal(0.0, 0.002, (1000, 3))  # within reach of the tiny ones
     acc.add(pos, val)
-    assert acc.covered_entries > 0.5 * acc.list_entries   # the big ones cover most of their cells: no test there
+    assert acc.covered_entries > 0.5 * acc.list_entries  # the big ones cover most of their cells: no test there
     counts = check_against_twin(acc, centers, reach, [(pos, val)])
     assert counts[:40].min() > 500 and (counts[40:] > 0).sum() > 500
 
@@ -513,7 +526,7 @@ def test_plan_levels_drops_what_no_particle_can_reach():
     centers = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [1.5, 0.0, 0.0], [0.2, 0.1, 0.0]])
     reach = np.array([0.1, 0.5, 0.6, 0.0])
     lv = plan_levels(centers, reach, [-1.0] * 3, [1.0] * 3)
-    assert sorted(lv.order.tolist()) == [0, 2]   # 1 is 2 m away with a 0.5 m reach; 3 has no reach
+    assert sorted(lv.order.tolist()) == [0, 2]  # 1 is 2 m away with a 0.5 m reach; 3 has no reach
     empty = plan_levels(centers[1:2], reach[1:2], [-1.0] * 3, [1.0] * 3)
     assert empty.num_levels == 0 and len(empty.order) == 0
 
@@ -547,8 +560,14 @@ def test_results_are_the_same_bits_on_any_thread_count():
     sums, the same counts and distinct counts (bit matrix and hash set)."""
     runs = []
     for threads in (1, 2, 3):
-        out = subprocess.run([sys.executable, "-c", THREADS_SCRIPT, str(threads), str(HERE), str(TESTS)],
-                             capture_output=True, text=True, cwd=REPO, timeout=300, check=True)
+        out = subprocess.run(
+            [sys.executable, "-c", THREADS_SCRIPT, str(threads), str(HERE), str(TESTS)],
+            capture_output=True,
+            text=True,
+            cwd=REPO,
+            timeout=300,
+            check=True,
+        )
         runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
     assert [[r["rows"] for r in run] for run in runs] == [[1, 1, 1], [2, 2, 2], [3, 3, 3]]
     assert [r["storage"] for r in runs[0]] == ["bits", "hash", "none"]
@@ -578,13 +597,15 @@ def test_estimate_bytes_bounds_what_is_allocated():
     centers, reach = multi_level_set(20000, seed=61)
     rng = np.random.default_rng(62)
     for track, budget in ((False, 512 * 2**20), (True, 512 * 2**20), (True, 0)):
-        acc = GaussianAccumulator.build(centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=3000,
-                                  distinct_budget_bytes=budget)
+        acc = GaussianAccumulator.build(
+            centers, reach, DOMAIN_MIN, DOMAIN_MAX, track_distinct=track, max_fluid=3000, distinct_budget_bytes=budget
+        )
         for p, v, i in near_surface_steps(rng, centers, 3, 3000, 3000):
             acc.add(p, v, i)
         pairs = int(acc.distinct_counts.sum()) if track else None
-        estimate = GaussianAccumulator.estimate_bytes(len(centers), 3000, track, distinct_pairs=pairs,
-                                                      distinct_budget_bytes=budget)
+        estimate = GaussianAccumulator.estimate_bytes(
+            len(centers), 3000, track, distinct_pairs=pairs, distinct_budget_bytes=budget
+        )
         assert allocated_bytes(acc) <= estimate
     # the scale the bit matrix cannot reach: 1M Gaussians x 100k particles (12.5 GB of bits) -> the hash set, sized
     # by the pairs (5.0M measured on a 1.07M-Gaussian capture's -x probe)
@@ -615,8 +636,8 @@ def test_jittered_copies_make_a_denser_set_of_the_same_object():
     rot = quaternion_to_rotation(base.quats.double())
     offsets = dense.means[n:].double().reshape(3, n, 3) - base.means.double()
     local = torch.einsum("nji,knj->kni", rot, offsets)
-    ratio = local / base.log_scales.double().exp()               # offsets in standard deviations per axis
-    assert 0.4 < float(ratio[..., :2].std()) < 0.6                # jitter 0.5 sigma along the two long axes
-    assert float(local[..., 2].abs().max()) < 1e-3                # and within 0.5 sigma (5e-5) of the plane: f32 noise
+    ratio = local / base.log_scales.double().exp()  # offsets in standard deviations per axis
+    assert 0.4 < float(ratio[..., :2].std()) < 0.6  # jitter 0.5 sigma along the two long axes
+    assert float(local[..., 2].abs().max()) < 1e-3  # and within 0.5 sigma (5e-5) of the plane: f32 noise
     with pytest.raises(ValueError, match="densify"):
         jittered_copies(base, 0, 0.5)

@@ -26,8 +26,11 @@ from recon.camera import Camera
 from recon.gaussians import GaussianSet
 
 # the candidates beyond coverage: the fused rules on FisherRF other than FluidGaussian and its two controls
-CANDIDATES = tuple(r.name for r in FUSED_RULES if r.visual == "fisher"
-                   and (r.depth_test or r.control in ("excess", "perprobe") or r.combine == "balanced"))
+CANDIDATES = tuple(
+    r.name
+    for r in FUSED_RULES
+    if r.visual == "fisher" and (r.depth_test or r.control in ("excess", "perprobe") or r.combine == "balanced")
+)
 
 
 class StubVisual:
@@ -53,9 +56,18 @@ def _two_groups() -> GaussianSet:
 
 
 def _context(g, cams, physics=None, fields=None, occlusion=False) -> PlanningContext:
-    return PlanningContext(gaussians=g, train_views=[], candidates=cams, candidate_ids=list(range(len(cams))),
-                           n_selected=1, budget=1 + len(cams), background=torch.ones(3), physics=physics,
-                           occlusion=occlusion, probe_fields=None if fields is None else (lambda _: fields))
+    return PlanningContext(
+        gaussians=g,
+        train_views=[],
+        candidates=cams,
+        candidate_ids=list(range(len(cams))),
+        n_selected=1,
+        budget=1 + len(cams),
+        background=torch.ones(3),
+        physics=physics,
+        occlusion=occlusion,
+        probe_fields=None if fields is None else (lambda _: fields),
+    )
 
 
 def _planner(name: str, order: list[int]):
@@ -183,8 +195,9 @@ def test_excess_candidate_ignores_what_the_empty_scene_explains():
     with pytest.raises(ValueError, match="probe_fields"):
         _planner("fisher+excess", [0, 1]).select(_context(g, cams, physics=lambda _: d))
     with pytest.raises(ValueError, match="empty_reference"):
-        _planner("fisher+excess", [0, 1]).select(_context(g, cams, physics=lambda _: d,
-                                                          fields=ProbeFields(("-x",), d[None])))
+        _planner("fisher+excess", [0, 1]).select(
+            _context(g, cams, physics=lambda _: d, fields=ProbeFields(("-x",), d[None]))
+        )
 
 
 def test_perprobe_candidate_lets_the_quiet_probe_count():
@@ -230,17 +243,26 @@ def test_active_loop_hands_the_probe_fields_to_the_planner(tmp_path):
     from helpers.paths import TORUS
     from helpers.training import TINY_TRAIN
 
-    ds = render_mesh_dataset(TORUS, tmp_path / "torus", MeshDatasetConfig(n_train=6, n_test=2, resolution=16,
-                                                                           supersample=1), progress=False)
+    ds = render_mesh_dataset(
+        TORUS, tmp_path / "torus", MeshDatasetConfig(n_train=6, n_test=2, resolution=16, supersample=1), progress=False
+    )
     calls = []
 
     def fake_physics(gaussians):
         calls.append(gaussians.num)
         return gaussians.means.detach()[:, 0].abs().double()
 
-    cfg = ActiveConfig(method="fisher+perprobe", budget=4, iterations_per_view=1, total_iterations=6, resolution=16,
-                       train=TINY_TRAIN, backend="torch", mode="reset",
-                       physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004))
+    cfg = ActiveConfig(
+        method="fisher+perprobe",
+        budget=4,
+        iterations_per_view=1,
+        total_iterations=6,
+        resolution=16,
+        train=TINY_TRAIN,
+        backend="torch",
+        mode="reset",
+        physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004),
+    )
     rounds = run_active(ds, tmp_path / "run", cfg, physics_fn=fake_physics, progress=False)
     assert len(calls) == 2  # the probes ran once per selection, for both the D_g and the per-probe fields
     for rec in rounds["rounds"]:

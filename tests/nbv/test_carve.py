@@ -36,7 +36,7 @@ def sphere_depths(cameras, radius: float) -> list[np.ndarray]:
         o = c2w[:3, 3]
         b = d @ o
         a = (d * d).sum(-1)
-        disc = b * b - a * (o @ o - radius ** 2)
+        disc = b * b - a * (o @ o - radius**2)
         t = np.where(disc >= 0, (-b - np.sqrt(np.maximum(disc, 0))) / a, np.inf)
         out.append(t)  # with d's z = 1 in camera axes, t is the view depth
     return out
@@ -56,7 +56,7 @@ def test_surface_depth_is_where_the_opacity_reaches_one_half():
     mean = (out.depth / out.alpha.clamp_min(1e-9)).detach().numpy()
     assert (mean[12:20, 12:20] > 2.2).all() and (mean[12:20, 12:20] < 3.0).all()
     thin = flat_gaussians(means[:1], np.array([[0, 0, 1.0]]), sigma_t=0.5, sigma_n=0.01, opacity=0.4)
-    assert np.isinf(surface_depths(thin, [cam])[0]).all()         # 1 - T never reaches 0.5
+    assert np.isinf(surface_depths(thin, [cam])[0]).all()  # 1 - T never reaches 0.5
     with pytest.raises(ValueError, match="level"):
         surface_depths(g, [cam], level=1.0)
 
@@ -70,8 +70,8 @@ def test_carving_a_sphere_from_analytic_depths_gives_its_visual_hull():
     carved = carve_outside(np.zeros(shape, bool), lattice_min, sp, cams, depths, SceneTransform(), margin=0.0)
     idx = np.stack(np.meshgrid(*[np.arange(d) for d in shape], indexing="ij"), -1)
     r = np.linalg.norm(lattice_min + sp * idx, axis=-1)
-    assert carved[r < 0.5].all()                                   # nothing inside the sphere is seen empty
-    assert not carved[r > 0.75].any()                              # the hull of 24 views hugs the sphere
+    assert carved[r < 0.5].all()  # nothing inside the sphere is seen empty
+    assert not carved[r > 0.75].any()  # the hull of 24 views hugs the sphere
     ratio = carved.sum() / (r < 0.5).sum()
     assert 1.0 <= ratio < 1.25
     # the margin keeps more in front of the surface; solid points always stay
@@ -87,7 +87,7 @@ def test_carving_follows_the_scene_transform():
     cams = ring_cameras(6)
     depths = sphere_depths(cams, 0.5)
     pts_sim = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.8], [0.0, 1.8, 0.0]])
-    tr = SceneTransform("z", 2.0)                                  # scene (x, y, z) -> sim 2 (x, z, -y)
+    tr = SceneTransform("z", 2.0)  # scene (x, y, z) -> sim 2 (x, z, -y)
     seen = seen_empty(tr.to_scene(pts_sim), cams, depths, 0.0)
     # sim (0, 0, 1.8) is scene (0, -0.9, 0): in front of the ring cameras' sphere, seen empty by one of them;
     # sim (0, 1.8, 0) is scene (0, 0, 0.9): seen as well; the centre never is
@@ -99,8 +99,9 @@ def test_view_checks_name_the_problem():
     with pytest.raises(ValueError, match="2 cameras but 1 depth"):
         carve_outside(np.zeros((2, 2, 2), bool), np.zeros(3), 0.1, cams, [np.zeros((8, 8))], SceneTransform())
     with pytest.raises(ValueError, match="shape"):
-        carve_outside(np.zeros((2, 2, 2), bool), np.zeros(3), 0.1, cams, [np.zeros((8, 8)), np.zeros((4, 8))],
-                      SceneTransform())
+        carve_outside(
+            np.zeros((2, 2, 2), bool), np.zeros(3), 0.1, cams, [np.zeros((8, 8)), np.zeros((4, 8))], SceneTransform()
+        )
 
 
 def test_carving_closes_a_thin_shell_with_a_hole():
@@ -108,22 +109,23 @@ def test_carving_closes_a_thin_shell_with_a_hole():
     one-point shell; carved from cameras that do not look into the hole, the unseen inside is solid."""
     shell = sphere_shell(0.6)
     means = shell.means.numpy()
-    g = shell.subset(torch.from_numpy(means[:, 1] < 0.45))         # a hole of radius 0.4 m at the top
+    g = shell.subset(torch.from_numpy(means[:, 1] < 0.45))  # a hole of radius 0.4 m at the top
     cfg = SolidifyConfig(spacing=SPACING)
     open_solid = gaussians_to_solid(g, cfg, SceneTransform())
-    volume = 4.0 / 3.0 * math.pi * 0.6 ** 3 / SPACING ** 3
+    volume = 4.0 / 3.0 * math.pi * 0.6**3 / SPACING**3
     assert open_solid.counts["enclosed"] == 0 and len(open_solid.points) < 0.3 * volume
-    cams = ring_cameras(6, heights=(0.0, -2.0), size=128)         # around and below: none sees into the hole
+    cams = ring_cameras(6, heights=(0.0, -2.0), size=128)  # around and below: none sees into the hole
     depths = surface_depths(g, cams)
     carved = gaussians_to_solid(g, cfg, SceneTransform(), cameras=cams, depths=depths)
     assert carved.counts["carved"] > 0.6 * volume
     assert abs(len(carved.points) / volume - 1.0) < 0.15
     r = np.linalg.norm(carved.points, axis=1)
-    assert r.max() < 0.6 + 2 * SPACING and (r > 0.6 + SPACING / 2).sum() < 0.03 * volume   # hardly grown
+    assert r.max() < 0.6 + 2 * SPACING and (r > 0.6 + SPACING / 2).sum() < 0.03 * volume  # hardly grown
     # A camera above looks in through the hole: what it sees inside is empty, as for a real cup.
     top = Camera.look_at((0.0, 3.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 128, 128, 0.9, name="top")
-    cup = gaussians_to_solid(g, cfg, SceneTransform(), cameras=[*cams, top],
-                             depths=[*depths, *surface_depths(g, [top])])
+    cup = gaussians_to_solid(
+        g, cfg, SceneTransform(), cameras=[*cams, top], depths=[*depths, *surface_depths(g, [top])]
+    )
     axis = cup.points[np.linalg.norm(cup.points[:, [0, 2]], axis=1) < 0.1]
     assert len(cup.points) < len(carved.points) and (axis[:, 1] > -0.5).sum() == 0
 
@@ -136,13 +138,13 @@ def test_sphere_of_surface_gaussians_is_carved_like_the_analytic_sphere():
     exact = sphere_depths(cams, 0.6)
     for a, b in zip(rendered, exact, strict=True):
         both = np.isfinite(a) & np.isfinite(b)
-        assert both.sum() > 0.1 * a.size                           # the sphere covers ~15 % of the view
-        assert (np.isfinite(a) >= np.isfinite(b)).all()            # the rendered silhouette holds the sphere's
-        assert (a[both] <= b[both] + 0.01).all()                   # never behind the sphere: carving never cuts it
-        front = both & (b < 2.5)                                   # away from the rim, where splats overhang:
-        assert np.abs(a[front] - b[front]).max() < 0.04            # the crossing disc's centre, within 2 sigma_t
+        assert both.sum() > 0.1 * a.size  # the sphere covers ~15 % of the view
+        assert (np.isfinite(a) >= np.isfinite(b)).all()  # the rendered silhouette holds the sphere's
+        assert (a[both] <= b[both] + 0.01).all()  # never behind the sphere: carving never cuts it
+        front = both & (b < 2.5)  # away from the rim, where splats overhang:
+        assert np.abs(a[front] - b[front]).max() < 0.04  # the crossing disc's centre, within 2 sigma_t
         # The splats overhang the sphere's silhouette by at most two pixels: at 48 px a disc projects to a third
         # of a pixel, and the rasterizer's 0.3 px^2 low-pass spreads it over about one more.
         grown = np.pad(np.isfinite(b), 2)
-        grown = np.max([grown[i:i + b.shape[0], j:j + b.shape[1]] for i in range(5) for j in range(5)], axis=0)
+        grown = np.max([grown[i : i + b.shape[0], j : j + b.shape[1]] for i in range(5) for j in range(5)], axis=0)
         assert not (np.isfinite(a) & ~grown).any()

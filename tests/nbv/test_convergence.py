@@ -34,8 +34,8 @@ def test_average_ranks_and_correlations():
     b = a + rng.normal(size=50)
     c = np.round(b, 0)  # many ties
     assert pearson(a, b) == pytest.approx(np.corrcoef(a, b)[0, 1], rel=1e-12)
-    assert spearman(a, a ** 3) == pytest.approx(1.0)  # monotone: rank correlation 1, Pearson below
-    assert pearson(a, a ** 3) < 0.95
+    assert spearman(a, a**3) == pytest.approx(1.0)  # monotone: rank correlation 1, Pearson below
+    assert pearson(a, a**3) < 0.95
     assert spearman(a, -a) == pytest.approx(-1.0)
     assert math.isnan(pearson([1.0, 1.0, 1.0], [1.0, 2.0, 3.0])) and math.isnan(spearman([2.0], [3.0]))
     scipy_stats = pytest.importorskip("scipy.stats")
@@ -54,15 +54,23 @@ def _cams():
     out = []
     for k, a in enumerate(np.linspace(0, 2 * math.pi, 7, endpoint=False)):
         d = 3.0 + 0.4 * k
-        out.append(Camera.look_at((d * math.cos(a), 0.3, d * math.sin(a)), (0, 0, 0), (0, 1, 0), 24, 24, 0.9,
-                                  name=f"c{k}"))
+        out.append(
+            Camera.look_at((d * math.cos(a), 0.3, d * math.sin(a)), (0, 0, 0), (0, 1, 0), 24, 24, 0.9, name=f"c{k}")
+        )
     return out
 
 
 def _setting(label, d, reached=None, seconds=1.0):
     d = np.asarray(d, np.float64)
-    return ProbeSetting(label=label, particle_radius=0.05, steps=10, divergence=d,
-                        reached=np.ones(d.size, bool) if reached is None else reached, dbar=1e-3, seconds=seconds)
+    return ProbeSetting(
+        label=label,
+        particle_radius=0.05,
+        steps=10,
+        divergence=d,
+        reached=np.ones(d.size, bool) if reached is None else reached,
+        dbar=1e-3,
+        seconds=seconds,
+    )
 
 
 def test_view_terms_equal_view_scores():
@@ -126,13 +134,27 @@ def test_load_setting_reads_a_result_file(tmp_path):
     config = PhysicsConfig(particle_radius=0.035, steps=300, scale=2.0)
     stats = stats_table([StepStats(0, 0.002, 0.002, 2, 0.1, 1, 0.1, 3.0, 0, 0, 123, 20, 10)])
     res = PhysicsResult(
-        directions=("-x", "+x"), per_probe=np.array([[0.0, 1.0, 2.0, 0.0, 4.0, 0.0], [0.0, 3.0, 0.0, 0.0, 1.0, 0.0]]),
-        per_probe_counts=np.array([[0, 2, 1, 0, 5, 0], [0, 1, 0, 0, 2, 1]]), per_probe_distinct=None,
-        divergence=np.array([0.0, 3.0, 2.0, 0.0, 4.0, 0.0]), divergence_mean=np.array([0.0, 2.0, 1.0, 0.0, 2.5, 0.0]),
-        dbar=1.5e-3, dbar_mean=1e-3, dbar_empty=None, dbar_empty_mean=None, empty_per_probe=None,
-        solid=np.zeros((2, 3)), transform=scene_transform(_scene(), config), means=np.zeros((n, 3)),
-        covariances=np.tile(np.eye(3), (n, 1, 1)), reach=np.ones(n), stats={"-x": stats, "+x": stats}, domains={},
-        timings={"total": 12.5}, config=config)
+        directions=("-x", "+x"),
+        per_probe=np.array([[0.0, 1.0, 2.0, 0.0, 4.0, 0.0], [0.0, 3.0, 0.0, 0.0, 1.0, 0.0]]),
+        per_probe_counts=np.array([[0, 2, 1, 0, 5, 0], [0, 1, 0, 0, 2, 1]]),
+        per_probe_distinct=None,
+        divergence=np.array([0.0, 3.0, 2.0, 0.0, 4.0, 0.0]),
+        divergence_mean=np.array([0.0, 2.0, 1.0, 0.0, 2.5, 0.0]),
+        dbar=1.5e-3,
+        dbar_mean=1e-3,
+        dbar_empty=None,
+        dbar_empty_mean=None,
+        empty_per_probe=None,
+        solid=np.zeros((2, 3)),
+        transform=scene_transform(_scene(), config),
+        means=np.zeros((n, 3)),
+        covariances=np.tile(np.eye(3), (n, 1, 1)),
+        reach=np.ones(n),
+        stats={"-x": stats, "+x": stats},
+        domains={},
+        timings={"total": 12.5},
+        config=config,
+    )
     path = save_result(tmp_path / "r.h5", res)
     s = load_setting(path)
     assert s.label == "r=0.035 m, 300 steps" and s.particle_radius == 0.035 and s.steps == 300

@@ -25,12 +25,25 @@ from recon.gaussians import GaussianSet
 def _scene(n: int = 300, seed: int = 0):
     gen = torch.Generator().manual_seed(seed)
     means = (torch.rand(n, 3, generator=gen, dtype=torch.float64) - 0.5) * 1.5
-    g = GaussianSet(means, torch.randn(n, 4, generator=gen, dtype=torch.float64),
-                    torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4 - 2.8,
-                    torch.randn(n, generator=gen, dtype=torch.float64) + 0.5,
-                    0.3 * torch.randn(n, 1, 3, generator=gen, dtype=torch.float64)).to(dtype=torch.float32)
-    cams = [Camera.look_at((3 * math.cos(a), 0.4, 3 * math.sin(a)), (0, 0, 0), (0, 1, 0), 36 + 4 * k, 28 + 2 * k,
-                           math.radians(55), name=f"c{k}") for k, a in enumerate((0.0, 1.3, 2.9, 4.4))]
+    g = GaussianSet(
+        means,
+        torch.randn(n, 4, generator=gen, dtype=torch.float64),
+        torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4 - 2.8,
+        torch.randn(n, generator=gen, dtype=torch.float64) + 0.5,
+        0.3 * torch.randn(n, 1, 3, generator=gen, dtype=torch.float64),
+    ).to(dtype=torch.float32)
+    cams = [
+        Camera.look_at(
+            (3 * math.cos(a), 0.4, 3 * math.sin(a)),
+            (0, 0, 0),
+            (0, 1, 0),
+            36 + 4 * k,
+            28 + 2 * k,
+            math.radians(55),
+            name=f"c{k}",
+        )
+        for k, a in enumerate((0.0, 1.3, 2.9, 4.4))
+    ]
     return g, cams, torch.rand(n, generator=gen, dtype=torch.float64) * 5
 
 
@@ -40,8 +53,9 @@ def test_coverage_is_the_score_of_ones_over_the_same_counted_gaussians(occlusion
     g, cams, metric = _scene()
     buffer = scores.DepthBuffer() if occlusion else None
     scored = scores.projected_view_scores(metric, g, cams, weighted=weighted, depth_buffer=buffer)
-    ones = scores.projected_view_scores(torch.ones(g.num, dtype=torch.float64), g, cams, weighted=weighted,
-                                        depth_buffer=buffer)
+    ones = scores.projected_view_scores(
+        torch.ones(g.num, dtype=torch.float64), g, cams, weighted=weighted, depth_buffer=buffer
+    )
     assert torch.allclose(scored.coverage, ones.scores, rtol=1e-12, atol=0)
     assert torch.equal(scored.counted, ones.counted)
     if not weighted:
@@ -50,8 +64,9 @@ def test_coverage_is_the_score_of_ones_over_the_same_counted_gaussians(occlusion
     assert torch.allclose(scored.physics_mean * scored.coverage, scored.scores, rtol=1e-12, atol=0)
     assert (scored.physics_mean >= 0).all() and (scored.physics_mean <= metric.max()).all()
     # a constant metric c gives P = c in every view that counts anything
-    const = scores.projected_view_scores(torch.full((g.num,), 2.5, dtype=torch.float64), g, cams,
-                                         weighted=weighted, depth_buffer=buffer)
+    const = scores.projected_view_scores(
+        torch.full((g.num,), 2.5, dtype=torch.float64), g, cams, weighted=weighted, depth_buffer=buffer
+    )
     assert torch.allclose(const.physics_mean, torch.full((len(cams),), 2.5, dtype=torch.float64), rtol=1e-12)
     # seen: the union of what the views count (a metric that is 1 only off the union scores 0 everywhere)
     assert scored.seen.shape == (g.num,) and scored.seen.any()
@@ -89,8 +104,14 @@ def test_agreement_when_coverage_decides_and_when_physics_does():
 
 
 def test_format_number_gives_two_significant_digits():
-    assert [format_number(v) for v in (364.8, 4.866, 0.0123, 1.26e-6, 5.0, None)] == \
-        ["360", "4.9", "0.012", "1.3e-06", "5", "-"]
+    assert [format_number(v) for v in (364.8, 4.866, 0.0123, 1.26e-6, 5.0, None)] == [
+        "360",
+        "4.9",
+        "0.012",
+        "1.3e-06",
+        "5",
+        "-",
+    ]
 
 
 def _blob(value: float, x: float) -> GaussianSet:
@@ -108,8 +129,12 @@ def test_uncertainty_image_of_a_constant_is_that_constant_times_alpha():
 def test_uncertainty_image_shows_a_gaussians_own_value_where_it_is_drawn():
     cam = Camera.look_at((0, 0, -3.0), (0, 0, 0), (0, -1, 0), 64, 48, 0.9)
     left, right = _blob(1.0, -0.6), _blob(1.0, 0.6)
-    both = GaussianSet(*(torch.cat([getattr(left, f), getattr(right, f)]) for f in
-                         ("means", "quats", "log_scales", "opacity_logits", "sh")))
+    both = GaussianSet(
+        *(
+            torch.cat([getattr(left, f), getattr(right, f)])
+            for f in ("means", "quats", "log_scales", "opacity_logits", "sh")
+        )
+    )
     img, alpha = uncertainty_image(both, cam, np.array([0.0, 8.0]))
     _, alpha_right = uncertainty_image(right, cam, np.array([1.0]))
     np.testing.assert_allclose(img, 8.0 * alpha_right, rtol=1e-5, atol=1e-6)  # only the right blob's pixels
@@ -136,11 +161,14 @@ def test_uncertainty_png_marks_what_lies_above_the_range():
         over_range_marks(np.zeros((16, 16, 3), np.uint8), np.ones((8, 8), bool))
 
 
-@pytest.mark.parametrize("argv, option", [
-    (["score", "g.ply", "--cameras", "c.json", "-o", "s.json", "--uncertainty-images", "--no-png"], "--no-png"),
-    (["score", "g.ply", "--cameras", "c.json", "-o", "s.json", "--frustum-only", "--occlusion"], "--frustum-only"),
-    (["critical", "g.ply", "--cameras", "c.json", "--frustum-only", "--occlusion"], "--frustum-only"),
-])
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["score", "g.ply", "--cameras", "c.json", "-o", "s.json", "--uncertainty-images", "--no-png"], "--no-png"),
+        (["score", "g.ply", "--cameras", "c.json", "-o", "s.json", "--frustum-only", "--occlusion"], "--frustum-only"),
+        (["critical", "g.ply", "--cameras", "c.json", "--frustum-only", "--occlusion"], "--frustum-only"),
+    ],
+)
 def test_contradictory_options_exit_2_before_any_file_is_read(argv, option, tmp_path, monkeypatch, caplog):
     from apps.cli import main
 

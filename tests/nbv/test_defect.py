@@ -35,8 +35,9 @@ from recon.render import render
 
 N_SIDE = 13
 HOLE = 0.25  # hole radius, scene units
-CFG = PhysicsConfig(particle_radius=0.08, steps=75, dt=0.004, scale=2.0, empty_reference=False,
-                    directions=("-x", "+x", "-z", "+z"))
+CFG = PhysicsConfig(
+    particle_radius=0.08, steps=75, dt=0.004, scale=2.0, empty_reference=False, directions=("-x", "+x", "-z", "+z")
+)
 
 
 def cube_shell(n: int = N_SIDE) -> tuple[np.ndarray, np.ndarray]:
@@ -70,8 +71,12 @@ def runs():
     res_i = simulate_gaussians(intact, CFG, progress=False)
     res_h = simulate_gaussians(holed, CFG, progress=False)
     rim = front & (r >= HOLE) & (r < HOLE + 2.0 / (N_SIDE - 1))  # two Gaussian spacings around the hole
-    cams = [Camera.look_at((2.5 * math.cos(a), 0.2, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 64, 64,
-                           math.radians(45), name=f"c{k}") for k, a in enumerate(np.arange(8) * 2 * math.pi / 8)]
+    cams = [
+        Camera.look_at(
+            (2.5 * math.cos(a), 0.2, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 64, 64, math.radians(45), name=f"c{k}"
+        )
+        for k, a in enumerate(np.arange(8) * 2 * math.pi / 8)
+    ]
     return dict(intact=intact, holed=holed, res_i=res_i, res_h=res_h, keep=keep, rim=rim, cams=cams)
 
 
@@ -79,8 +84,9 @@ def _scores(g: GaussianSet, d: np.ndarray, cams, occlusion: bool) -> torch.Tenso
     outs = [render(g, c, 1.0) for c in cams]
     vis = None
     if occlusion:
-        vis = torch.stack([unoccluded(g.means, 3 * g.max_radii().double(), c, o) for c, o in zip(cams, outs,
-                                                                                                strict=True)])
+        vis = torch.stack(
+            [unoccluded(g.means, 3 * g.max_radii().double(), c, o) for c, o in zip(cams, outs, strict=True)]
+        )
     return view_scores(torch.from_numpy(d), outs, visible=vis)
 
 
@@ -142,7 +148,6 @@ def test_defect_axis_cameras_gain_most(runs):
     axis, side = [0, 3, 4, 5], [1, 2, 6, 7]
     assert min(gain[k] for k in axis) > 1.5 * max(gain[k] for k in side)
     assert set(rank(s_h)[:4].tolist()) == set(axis)
-
 
 
 def test_coverage_alone_does_not_find_the_hole(runs):

@@ -19,10 +19,22 @@ from nbv.study.tables import build_tables, mean_std
 from helpers.paths import TORUS
 
 COARSE = {"particle_radius": 0.08, "steps": 20, "dt": 0.004, "directions": ["-x", "+z"]}
-TINY_ACTIVE = {"budget": 3, "iterations_per_view": 2, "total_iterations": 40, "resolution": 16, "backend": "torch",
-               "train": {"init_points": 150, "sh_degree": 0, "max_gaussians": 300, "init_opacity": 0.5,
-                         "opacity_reset_interval": 100000, "densify_from_iter": 0},
-               "physics": COARSE}
+TINY_ACTIVE = {
+    "budget": 3,
+    "iterations_per_view": 2,
+    "total_iterations": 40,
+    "resolution": 16,
+    "backend": "torch",
+    "train": {
+        "init_points": 150,
+        "sh_degree": 0,
+        "max_gaussians": 300,
+        "init_opacity": 0.5,
+        "opacity_reset_interval": 100000,
+        "densify_from_iter": 0,
+    },
+    "physics": COARSE,
+}
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +43,9 @@ def tiny_dataset(tmp_path_factory):
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
 
     out = tmp_path_factory.mktemp("experiment") / "torus"
-    return render_mesh_dataset(TORUS, out, MeshDatasetConfig(n_train=8, n_test=3, resolution=24, supersample=1),
-                               progress=False)
+    return render_mesh_dataset(
+        TORUS, out, MeshDatasetConfig(n_train=8, n_test=3, resolution=24, supersample=1), progress=False
+    )
 
 
 @pytest.fixture(scope="module")
@@ -64,8 +77,9 @@ def test_eval_json_keys_and_finite_metrics(finished_run):
     from recon.formats import load_gaussians
     from recon.train import evaluate
 
-    out = evaluate_run(finished_run, EvalConfig(physics=PhysicsConfig.from_dict(COARSE), critical_views=2),
-                       progress=False)
+    out = evaluate_run(
+        finished_run, EvalConfig(physics=PhysicsConfig.from_dict(COARSE), critical_views=2), progress=False
+    )
     stored = json.loads((finished_run / "eval.json").read_text())
     assert stored == out
     for key in ("psnr", "ssim", "dbar", "dbar_empty", "chamfer", "critical_psnr", "critical_dbar"):
@@ -97,8 +111,27 @@ def test_eval_json_keys_and_finite_metrics(finished_run):
 def test_eval_cli_smoke_and_bad_input(finished_run, tmp_path):
     from apps.cli import main
 
-    assert main(["eval", str(finished_run), "--particle-radius", "0.1", "--probe-steps", "6", "--directions=-x",
-                 "--critical-views", "1", "--chamfer-samples", "500", "--threads", "1", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                str(finished_run),
+                "--particle-radius",
+                "0.1",
+                "--probe-steps",
+                "6",
+                "--directions=-x",
+                "--critical-views",
+                "1",
+                "--chamfer-samples",
+                "500",
+                "--threads",
+                "1",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     out = json.loads((finished_run / "eval.json").read_text())
     assert out["physics_config"]["particle_radius"] == 0.1 and len(out["critical_views"]) == 1
     assert main(["eval", str(tmp_path)]) == 2  # not a run folder
@@ -108,16 +141,32 @@ def test_eval_cli_smoke_and_bad_input(finished_run, tmp_path):
 
 
 def row(method, seed, psnr, dbar, kind="method"):
-    return {"kind": kind, "scene": "s", "method": method, "seed": seed, "psnr": psnr, "ssim": 0.9, "lpips": None,
-            "chamfer": 0.1, "dbar": dbar, "dbar_empty": 2.0, "critical_psnr": psnr - 1, "critical_dbar": dbar / 2,
-            "dbar_per_direction": {"-x": dbar, "+x": dbar / 4}}
+    return {
+        "kind": kind,
+        "scene": "s",
+        "method": method,
+        "seed": seed,
+        "psnr": psnr,
+        "ssim": 0.9,
+        "lpips": None,
+        "chamfer": 0.1,
+        "dbar": dbar,
+        "dbar_empty": 2.0,
+        "critical_psnr": psnr - 1,
+        "critical_dbar": dbar / 2,
+        "dbar_per_direction": {"-x": dbar, "+x": dbar / 4},
+    }
 
 
 def test_mean_std_and_tables():
     assert mean_std([1.0, 3.0, None, float("nan")]) == (2.0, pytest.approx(math.sqrt(2.0)), 2)
     assert mean_std([None]) == (None, None, 0)
-    rows = [row("random", 0, 20.0, 0.5), row("random", 1, 22.0, 0.7), row("fisher+fluid", 0, 21.0, 0.3),
-            row("reference-20views", 0, 25.0, 0.1, kind="reference")]
+    rows = [
+        row("random", 0, 20.0, 0.5),
+        row("random", 1, 22.0, 0.7),
+        row("fisher+fluid", 0, 21.0, 0.3),
+        row("reference-20views", 0, 25.0, 0.1, kind="reference"),
+    ]
     tables = build_tables(rows)
     assert set(tables) == {"visual", "physics", "ablation_random", "ablation_direction"}
     vis = list(csv.reader(tables["visual"][1].splitlines()))
@@ -144,16 +193,25 @@ def test_single_direction_methods_and_their_table():
         split_method("fisher+fluid@+y")
     with pytest.raises(ValueError, match="uses\\s+the physics|uses the physics"):
         split_method("fisher@-x")
-    config = ExperimentConfig(scenes=("a",), methods=("fisher", "fisher+fluid", "fisher+fluid@-z"), seeds=(0,),
-                              active={"physics": {"steps": 30}})
+    config = ExperimentConfig(
+        scenes=("a",),
+        methods=("fisher", "fisher+fluid", "fisher+fluid@-z"),
+        seeds=(0,),
+        active={"physics": {"steps": 30}},
+    )
     single = config.active_config("fisher+fluid@-z", 0)
     assert single.method == "fisher+fluid" and single.physics.directions == ("-z",) and single.physics.steps == 30
     assert config.active_config("fisher+fluid", 0).physics.directions == ("-x", "+x", "-z", "+z", "-y")
     with pytest.raises(ValueError, match="unknown probe direction"):
         ExperimentConfig(scenes=("a",), methods=("fisher+fluid@up",), seeds=(0,))
 
-    rows = [row("fisher", 0, 20.0, 0.5), row("fisher+fluid", 0, 22.0, 0.3), row("fisher+fluid@-z", 0, 21.0, 0.4),
-            row("fisher+fluid@-x", 0, 21.5, 0.35), row("random", 0, 19.0, 0.6)]
+    rows = [
+        row("fisher", 0, 20.0, 0.5),
+        row("fisher+fluid", 0, 22.0, 0.3),
+        row("fisher+fluid@-z", 0, 21.0, 0.4),
+        row("fisher+fluid@-x", 0, 21.5, 0.35),
+        row("random", 0, 19.0, 0.6),
+    ]
     tables = build_tables(rows)
     body = list(csv.reader(tables["ablation_selection_direction"][1].splitlines()))
     assert [r[0] for r in body[1:]] == ["fisher", "fisher+fluid", "fisher+fluid@-x", "fisher+fluid@-z"]
@@ -176,9 +234,16 @@ def test_single_direction_methods_and_their_table():
 def test_experiment_local_executor_end_to_end(tiny_dataset, tmp_path):
     from apps.cli import main
 
-    config = {"scenes": [str(tiny_dataset)], "methods": ["random", "physics"], "seeds": [0, 1], "preset": "cpu-small",
-              "output": "out", "reference_views": 4, "active": TINY_ACTIVE,
-              "eval": {"physics": COARSE, "critical_views": 2, "chamfer_samples": 500}}
+    config = {
+        "scenes": [str(tiny_dataset)],
+        "methods": ["random", "physics"],
+        "seeds": [0, 1],
+        "preset": "cpu-small",
+        "output": "out",
+        "reference_views": 4,
+        "active": TINY_ACTIVE,
+        "eval": {"physics": COARSE, "critical_views": 2, "chamfer_samples": 500},
+    }
     path = tmp_path / "exp.json"
     path.write_text(json.dumps(config))
     args = ["experiment", str(path), "--executor", "local", "--workers", "1", "--threads", "1", "--no-progress"]
@@ -243,8 +308,12 @@ def test_experiment_checks_every_scene_before_any_job(tiny_dataset, tmp_path):
         def map(self, fn, jobs):
             raise AssertionError("no job may start with a bad scene in the config")
 
-    config = ExperimentConfig(scenes=(str(tiny_dataset), str(tmp_path / "tiyn")), methods=("random",), seeds=(0,),
-                              output=str(tmp_path / "out"))
+    config = ExperimentConfig(
+        scenes=(str(tiny_dataset), str(tmp_path / "tiyn")),
+        methods=("random",),
+        seeds=(0,),
+        output=str(tmp_path / "out"),
+    )
     with pytest.raises(ValueError, match="'scenes'.*tiyn.*does not exist"):
         run_experiment(config, Recorder(), progress=False)
 
@@ -288,17 +357,28 @@ def test_experiment_counts_that_allocate_are_refused_quickly(tiny_dataset, tmp_p
     from nbv.study.experiment import run_experiment
     from nbv.study.experiment_config import ExperimentConfig
 
-    cases = [({"reference_views": 1_000_000_000}, "'reference_views' must be null or an integer from 1 to 100,000"),
-             ({"active": {"budget": 1_000_000_000}}, "budget must be at most 100,000"),
-             ({"seeds": list(range(1_000_000))}, "1,000,000 jobs, more than the 10,000"),
-             ({"seeds": [2**70]}, "'seeds' must be integers from 0 to"),
-             ({"reference_views": 9, "active": TINY_ACTIVE},
-              "'reference_views' is 9, but the scene .* has only 8 candidate"),
-             ({"active": {**TINY_ACTIVE, "budget": 12, "total_iterations": 500}},
-              "'active.budget' is 12, but the scene .* has only 8")]
+    cases = [
+        ({"reference_views": 1_000_000_000}, "'reference_views' must be null or an integer from 1 to 100,000"),
+        ({"active": {"budget": 1_000_000_000}}, "budget must be at most 100,000"),
+        ({"seeds": list(range(1_000_000))}, "1,000,000 jobs, more than the 10,000"),
+        ({"seeds": [2**70]}, "'seeds' must be integers from 0 to"),
+        (
+            {"reference_views": 9, "active": TINY_ACTIVE},
+            "'reference_views' is 9, but the scene .* has only 8 candidate",
+        ),
+        (
+            {"active": {**TINY_ACTIVE, "budget": 12, "total_iterations": 500}},
+            "'active.budget' is 12, but the scene .* has only 8",
+        ),
+    ]
     for i, (extra, message) in enumerate(cases):
-        config = {"scenes": [str(tiny_dataset)], "methods": ["random"], "preset": "cpu-small",
-                  "output": f"out{i}", **extra}
+        config = {
+            "scenes": [str(tiny_dataset)],
+            "methods": ["random"],
+            "preset": "cpu-small",
+            "output": f"out{i}",
+            **extra,
+        }
         path = tmp_path / f"exp{i}.json"
         path.write_text(json.dumps(config))
         t0 = time.perf_counter()

@@ -20,8 +20,9 @@ from fluidsim.recording import probe_to_h5
 from fluidsim.sources import sphere_particles
 from nbv.export.particles import check_vtk_source, export_vtk, split_boundary
 from nbv.export.solid import check_export_path, export_paths, export_solid, solid_mesh, voxel_grid
+from recon.formats import load_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import load_gaussians, read_ply_vertices, save_gaussians
+from recon.ply import read_ply_vertices, save_gaussians
 
 from helpers.vtk_files import read_pvd, read_vtu
 
@@ -29,16 +30,23 @@ S = 0.05
 
 
 def _ball(radius_cells: int) -> np.ndarray:
-    g = np.mgrid[-radius_cells - 1:radius_cells + 2, -radius_cells - 1:radius_cells + 2,
-                 -radius_cells - 1:radius_cells + 2].reshape(3, -1).T
-    return g[(g ** 2).sum(1) <= radius_cells ** 2]
+    g = (
+        np.mgrid[
+            -radius_cells - 1 : radius_cells + 2,
+            -radius_cells - 1 : radius_cells + 2,
+            -radius_cells - 1 : radius_cells + 2,
+        ]
+        .reshape(3, -1)
+        .T
+    )
+    return g[(g**2).sum(1) <= radius_cells**2]
 
 
 # ---- the solid -------------------------------------------------------------------------------------------------
 def test_voxel_grid_rebuilds_the_lattice_points():
     pts = _ball(4) * S + np.array([0.3, -0.15, 0.05])
     grid = voxel_grid(pts, S)
-    assert grid.cells == len(pts) and grid.volume == pytest.approx(len(pts) * S ** 3)
+    assert grid.cells == len(pts) and grid.volume == pytest.approx(len(pts) * S**3)
     np.testing.assert_allclose(np.sort(grid.centres(), axis=0), np.sort(pts, axis=0), atol=1e-12)
     with pytest.raises(ValueError, match="off the lattice"):
         voxel_grid(pts + np.array([0.3 * S, 0, 0]) * (np.arange(len(pts)) % 2)[:, None], S)
@@ -46,12 +54,16 @@ def test_voxel_grid_rebuilds_the_lattice_points():
         voxel_grid(np.zeros((0, 3)), S)
 
 
-@pytest.mark.parametrize("cells, refine, low", [
-    (_ball(10), 2, 0.995), (_ball(10), 1, 0.99),  # a sphere 20 cells across: only edges and corners are cut
-    (np.array([[i, j, 0] for i in range(10) for j in range(10)]), 2, 0.97),  # a one-cell sheet
-    (np.array([[i, 0, 0] for i in range(10)]), 2, 0.85),  # a one-cell line
-    (np.array([[0, 0, 0], [1, 1, 0], [2, 2, 1]]), 2, 0.74),  # cells touching only along edges and at a corner
-])
+@pytest.mark.parametrize(
+    "cells, refine, low",
+    [
+        (_ball(10), 2, 0.995),
+        (_ball(10), 1, 0.99),  # a sphere 20 cells across: only edges and corners are cut
+        (np.array([[i, j, 0] for i in range(10) for j in range(10)]), 2, 0.97),  # a one-cell sheet
+        (np.array([[i, 0, 0] for i in range(10)]), 2, 0.85),  # a one-cell line
+        (np.array([[0, 0, 0], [1, 1, 0], [2, 2, 1]]), 2, 0.74),  # cells touching only along edges and at a corner
+    ],
+)
 def test_mesh_is_watertight_inside_the_cubes_and_keeps_the_volume(cells, refine, low):
     grid = voxel_grid(cells * S, S)
     mesh = solid_mesh(grid, refine)
@@ -66,8 +78,8 @@ def test_mesh_is_watertight_inside_the_cubes_and_keeps_the_volume(cells, refine,
 def test_one_cell_mesh_is_the_cube_with_cut_edges():
     grid = voxel_grid(np.zeros((1, 3)), S)
     # refine 1: the octahedron through the face centres, volume s^3 / 6
-    assert solid_mesh(grid, 1).volume == pytest.approx(S ** 3 / 6, rel=1e-6)
-    assert solid_mesh(grid, 2).volume == pytest.approx(S ** 3 * 17 / 24, rel=1e-6)
+    assert solid_mesh(grid, 1).volume == pytest.approx(S**3 / 6, rel=1e-6)
+    assert solid_mesh(grid, 2).volume == pytest.approx(S**3 * 17 / 24, rel=1e-6)
 
 
 def test_export_writes_mesh_and_voxels_that_read_back(tmp_path):
@@ -86,7 +98,7 @@ def test_export_writes_mesh_and_voxels_that_read_back(tmp_path):
         centres = f.attrs["origin"] + f.attrs["spacing"] * np.argwhere(occ)
         np.testing.assert_allclose(np.sort(centres, axis=0), np.sort(pts, axis=0), atol=1e-12)
         np.testing.assert_array_equal(f.attrs["scene_to_sim"], scene_to_sim)
-        assert f.attrs["volume_m3"] == pytest.approx(len(pts) * S ** 3)
+        assert f.attrs["volume_m3"] == pytest.approx(len(pts) * S**3)
     # the scene frame: the inverse of scene_to_sim (half the size here)
     info = export_solid(tmp_path / "scene.ply", pts, S, scene_to_sim, frame="scene")
     assert trimesh.load(info["mesh"], force="mesh").volume == pytest.approx(info["mesh_volume_m3"] / 8, rel=1e-5)
@@ -97,7 +109,9 @@ def test_export_writes_mesh_and_voxels_that_read_back(tmp_path):
 
 def test_export_paths_and_suffixes():
     assert export_paths(check_export_path("a/solid.glb")) == (
-        check_export_path("a/solid.glb"), check_export_path("a/solid.voxels.h5"))
+        check_export_path("a/solid.glb"),
+        check_export_path("a/solid.voxels.h5"),
+    )
     with pytest.raises(ValueError, match=r"--export-solid .*'\.fbx'.*\.glb"):
         check_export_path("solid.fbx")
 
@@ -112,8 +126,12 @@ def test_extra_ply_properties_read_back(tmp_path):
     for k, v in d.items():
         np.testing.assert_array_equal(cols[k], v.astype(np.float32))
     torch.testing.assert_close(load_gaussians(path).means, g.means)
-    for bad, match in (({"x": np.zeros(20)}, "standard"), ({"D max": np.zeros(20)}, "letters"),
-                       ({"D": np.zeros(3)}, "3 values"), ({"D": np.full(20, np.nan)}, "NaN")):
+    for bad, match in (
+        ({"x": np.zeros(20)}, "standard"),
+        ({"D max": np.zeros(20)}, "letters"),
+        ({"D": np.zeros(3)}, "3 values"),
+        ({"D": np.full(20, np.nan)}, "NaN"),
+    ):
         with pytest.raises(ValueError, match=match):
             save_gaussians(g, tmp_path / "bad.ply", extra=bad)
     with pytest.raises(ValueError, match=r"need a \.ply"):

@@ -41,9 +41,13 @@ def _camera(eye=(0.3, -0.2, -3.0), size=6, fov_deg=50.0) -> Camera:
 
 
 def _ring(count, size=10, radius=3.0):
-    return [_camera((radius * math.sin(2 * math.pi * i / count), -0.4 + 0.2 * i, -radius * math.cos(2 * math.pi * i /
-                                                                                                    count)), size)
-            for i in range(count)]
+    return [
+        _camera(
+            (radius * math.sin(2 * math.pi * i / count), -0.4 + 0.2 * i, -radius * math.cos(2 * math.pi * i / count)),
+            size,
+        )
+        for i in range(count)
+    ]
 
 
 @pytest.mark.parametrize("include_rotations", [False, True])
@@ -90,8 +94,9 @@ def test_pair_quantities_reproduce_the_render():
     opacity = pairs.pixel_sum(pairs.weights)
     torch.testing.assert_close(opacity, out.alpha.reshape(-1), rtol=1e-12, atol=1e-12)
     # T_after = T (1 - alpha) on the composited pairs; pairs after the early stop have no weight
-    torch.testing.assert_close(pairs.transmittance_after[pairs.live],
-                               (pairs.transmittance * (1 - pairs.alpha))[pairs.live])
+    torch.testing.assert_close(
+        pairs.transmittance_after[pairs.live], (pairs.transmittance * (1 - pairs.alpha))[pairs.live]
+    )
     assert torch.all(pairs.weights[~pairs.live] == 0)
     grads = pair_attribute_gradients(g, cam, background)
     torch.testing.assert_close(grads.image, out.image, rtol=1e-12, atol=1e-12)

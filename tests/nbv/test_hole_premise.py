@@ -39,47 +39,52 @@ from nbv.physics.solidify import (
 )
 from recon.gaussians import GaussianSet
 
-RADIUS = 0.6           # sphere, m (scale 1: scene units are simulation metres, +y up)
-SPACING = 0.1          # lattice spacing of the probes below (r = 0.05 m)
+RADIUS = 0.6  # sphere, m (scale 1: scene units are simulation metres, +y up)
+SPACING = 0.1  # lattice spacing of the probes below (r = 0.05 m)
 HOLE = Hole((RADIUS, 0.0, 0.0), (1.0, 0.0, 0.0), radius=0.2, depth=0.1, band=0.1)
 TAU = 0.3
-SURFACE_SIGMA = 0.04   # in-plane sigma of the surface Gaussians, m: their reach 3 sigma exceeds the spacing
+SURFACE_SIGMA = 0.04  # in-plane sigma of the surface Gaussians, m: their reach 3 sigma exceeds the spacing
 TAIL_SIGMA, TAIL_DEPTH, TAIL_GAP = (0.12, 0.05), 0.05, 1.0  # the sub-surface Gaussians: sigma (plane, normal), m
 CFG = PhysicsConfig(particle_radius=0.05, steps=75, dt=0.004, scale=1.0, empty_reference=False, directions=("-x",))
 
 
-def flat_gaussians(means: np.ndarray, normals: np.ndarray, sigma_t: float, sigma_n: float,
-                   opacity: float) -> GaussianSet:
+def flat_gaussians(
+    means: np.ndarray, normals: np.ndarray, sigma_t: float, sigma_n: float, opacity: float
+) -> GaussianSet:
     """Discs: local z (the smallest scale) along ``normals``; quaternion (1 + n_z, -n_y, n_x, 0) turns z to n."""
     n = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     q = np.stack([1.0 + n[:, 2], -n[:, 1], n[:, 0], np.zeros(len(n))], 1)
     q[q[:, 0] < 1e-9] = [0.0, 1.0, 0.0, 0.0]
     logit = math.log(opacity / (1.0 - opacity))
-    return GaussianSet(torch.tensor(means, dtype=torch.float64), torch.tensor(q),
-                       torch.tensor(np.tile(np.log([sigma_t, sigma_t, sigma_n]), (len(n), 1))),
-                       torch.full((len(n),), logit, dtype=torch.float64),
-                       torch.zeros(len(n), 1, 3, dtype=torch.float64))
+    return GaussianSet(
+        torch.tensor(means, dtype=torch.float64),
+        torch.tensor(q),
+        torch.tensor(np.tile(np.log([sigma_t, sigma_t, sigma_n]), (len(n), 1))),
+        torch.full((len(n),), logit, dtype=torch.float64),
+        torch.zeros(len(n), 1, 3, dtype=torch.float64),
+    )
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
     k = np.arange(n) + 0.5
-    phi, theta = np.arccos(1 - 2 * k / n), math.pi * (1 + 5 ** 0.5) * k
+    phi, theta = np.arccos(1 - 2 * k / n), math.pi * (1 + 5**0.5) * k
     return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
 
 
 def concat(*sets: GaussianSet) -> GaussianSet:
-    return GaussianSet(*(torch.cat([getattr(s, f) for s in sets]) for f in
-                         ("means", "quats", "log_scales", "opacity_logits", "sh")))
+    return GaussianSet(
+        *(torch.cat([getattr(s, f) for s in sets]) for f in ("means", "quats", "log_scales", "opacity_logits", "sh"))
+    )
 
 
 def capture_like(with_tails: bool = True) -> GaussianSet:
     """The hollow sphere's surface (sigma 4 cm in the plane, 1 cm along the normal, o = 0.9), plus, 5 cm under it,
     flat Gaussians of sigma 12 cm in the plane and 5 cm along the normal (o = 0.9), one sigma apart."""
-    d = fibonacci_sphere(int(4 * math.pi * RADIUS ** 2 / (1.2 * SURFACE_SIGMA) ** 2))
+    d = fibonacci_sphere(int(4 * math.pi * RADIUS**2 / (1.2 * SURFACE_SIGMA) ** 2))
     surface = flat_gaussians(RADIUS * d, d, SURFACE_SIGMA, SPACING / 10.0, 0.9)
     if not with_tails:
         return surface
-    e = fibonacci_sphere(int(4 * math.pi * RADIUS ** 2 / (TAIL_GAP * TAIL_SIGMA[0]) ** 2))
+    e = fibonacci_sphere(int(4 * math.pi * RADIUS**2 / (TAIL_GAP * TAIL_SIGMA[0]) ** 2))
     return concat(surface, flat_gaussians((RADIUS - TAIL_DEPTH) * e, e, *TAIL_SIGMA, 0.9))
 
 
@@ -107,12 +112,16 @@ def solid_keys(g: GaussianSet) -> set:
 def test_hole_and_rim_masks_by_hand():
     h = Hole((1.0, 0.0, 0.0), (2.0, 0.0, 0.0), radius=0.1, depth=0.05, band=0.1)
     assert h.normal == (1.0, 0.0, 0.0)
-    pts = np.array([[1.0, 0.05, 0.0],     # t 0, r 0.05: in the hole
-                    [1.04, 0.0, 0.099],   # t 0.04, r 0.099: in the hole
-                    [1.06, 0.0, 0.0],     # t 0.06: outside the slab
-                    [1.0, 0.1, 0.0],      # r = R: the rim's first radius
-                    [0.96, 0.0, -0.19],   # r 0.19: rim
-                    [1.0, 0.2, 0.0]])     # r = R + band: outside the rim
+    pts = np.array(
+        [
+            [1.0, 0.05, 0.0],  # t 0, r 0.05: in the hole
+            [1.04, 0.0, 0.099],  # t 0.04, r 0.099: in the hole
+            [1.06, 0.0, 0.0],  # t 0.06: outside the slab
+            [1.0, 0.1, 0.0],  # r = R: the rim's first radius
+            [0.96, 0.0, -0.19],  # r 0.19: rim
+            [1.0, 0.2, 0.0],
+        ]
+    )  # r = R + band: outside the rim
     assert h.removed(pts).tolist() == [True, True, False, False, False, False]
     assert h.rim(pts).tolist() == [False, False, False, True, True, False]
     t, r = h.coordinates(pts)
@@ -122,9 +131,16 @@ def test_hole_and_rim_masks_by_hand():
     assert tunnel.removed(np.array([[0.0, 0.05, -50.0], [0.0, 0.2, 0.0]])).tolist() == [True, False]
 
 
-@pytest.mark.parametrize("kwargs, word", [({"radius": 0.0}, "radius"), ({"band": float("nan")}, "band"),
-                                          ({"depth": -1.0}, "depth"), ({"normal": (0.0, 0.0, 0.0)}, "normal"),
-                                          ({"point": (0.0, 1.0)}, "point")])
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        ({"radius": 0.0}, "radius"),
+        ({"band": float("nan")}, "band"),
+        ({"depth": -1.0}, "depth"),
+        ({"normal": (0.0, 0.0, 0.0)}, "normal"),
+        ({"point": (0.0, 1.0)}, "point"),
+    ],
+)
 def test_hole_validation_names_the_field(kwargs, word):
     base = {"point": (0.0, 0.0, 0.0), "normal": (1.0, 0.0, 0.0)}
     with pytest.raises(ValueError, match=word):
@@ -133,9 +149,13 @@ def test_hole_validation_names_the_field(kwargs, word):
 
 def test_ray_peaks_equal_dense_sampling_of_the_ray():
     rng = np.random.default_rng(3)
-    g = GaussianSet(torch.tensor(rng.uniform(-0.3, 0.3, (40, 3))), torch.tensor(rng.normal(size=(40, 4))),
-                    torch.tensor(rng.uniform(np.log(0.01), np.log(0.2), (40, 3))),
-                    torch.tensor(rng.normal(size=40)), torch.zeros(40, 1, 3, dtype=torch.float64))
+    g = GaussianSet(
+        torch.tensor(rng.uniform(-0.3, 0.3, (40, 3))),
+        torch.tensor(rng.normal(size=(40, 4))),
+        torch.tensor(rng.uniform(np.log(0.01), np.log(0.2), (40, 3))),
+        torch.tensor(rng.normal(size=40)),
+        torch.zeros(40, 1, 3, dtype=torch.float64),
+    )
     means, inv, opacities = arrays(g)
     h = Hole((0.05, -0.02, 0.1), (0.3, 1.0, -0.5), radius=0.1, depth=0.2)
     a = np.cross(np.asarray(h.normal), (0.0, 1.0, 0.0))
@@ -149,7 +169,7 @@ def test_ray_peaks_equal_dense_sampling_of_the_ray():
         d = x - means[k]
         dense[k] = opacities[k] * np.exp(-0.5 * np.einsum("si,ij,sj->s", d, inv[k], d)).max()
     exact = ray_peaks(h, means, inv, opacities, offset)
-    assert np.all(exact >= dense - 1e-12)                 # the exact peak is never below a sample
+    assert np.all(exact >= dense - 1e-12)  # the exact peak is never below a sample
     np.testing.assert_allclose(exact, dense, rtol=1e-4, atol=1e-9)
     combined, single = axis_opacity(h, means, inv, opacities, offset)
     assert combined == pytest.approx(1.0 - np.prod(1.0 - exact), rel=1e-12)
@@ -159,13 +179,13 @@ def test_ray_peaks_equal_dense_sampling_of_the_ray():
 def test_disc_offsets_cover_the_disc():
     offsets = disc_offsets(HOLE, 0.01)
     assert (np.hypot(*offsets.T) < HOLE.radius + 1e-12).all()
-    assert len(offsets) == pytest.approx(math.pi * HOLE.radius ** 2 / 0.01 ** 2, rel=0.02)
+    assert len(offsets) == pytest.approx(math.pi * HOLE.radius**2 / 0.01**2, rel=0.02)
 
 
 def test_rim_ratios_by_hand():
     intact = np.array([[1.0, 2.0, 3.0, 4.0], [4.0, 0.0, 1.0, 1.0]])
-    holed_rows = np.array([[9.0, 6.0, 8.0], [1.0, 2.0, 0.0]])   # the rows of intact Gaussians 0, 2, 3
-    rim = np.array([False, True, True, True])                  # Gaussian 1 was removed; the rim left is 2, 3
+    holed_rows = np.array([[9.0, 6.0, 8.0], [1.0, 2.0, 0.0]])  # the rows of intact Gaussians 0, 2, 3
+    rim = np.array([False, True, True, True])  # Gaussian 1 was removed; the rim left is 2, 3
     out = rim_ratios(intact, holed_rows, np.array([0, 2, 3]), rim)
     assert out["probe 0"] == pytest.approx(((6 + 8) / 2) / ((3 + 4) / 2))
     assert out["probe 1"] == pytest.approx(((2 + 0) / 2) / ((1 + 1) / 2))
@@ -179,7 +199,7 @@ def test_a_hollow_surface_opens_where_its_centres_are_removed():
     g = capture_like(with_tails=False)
     hg, kept = holed(g)
     means, inv, opacities = arrays(hg)
-    assert open_fraction(HOLE, means, inv, opacities, TAU)[0] > 0.4   # the edge tails cover the rest (0.56)
+    assert open_fraction(HOLE, means, inv, opacities, TAU)[0] > 0.4  # the edge tails cover the rest (0.56)
     intact, holed_solid = solid_keys(g), solid_keys(hg)
     # the filled ball becomes a shell open to the fluid: most of its interior leaves the solid
     assert len(intact - holed_solid) > 0.5 * len(intact)
@@ -193,7 +213,7 @@ def test_covering_tails_keep_a_centre_hole_closed_and_a_see_through_hole_opens()
     hg, _ = holed(g)
     means, inv, opacities = arrays(hg)
     combined_open, single_open = open_fraction(HOLE, means, inv, opacities, TAU)
-    assert combined_open == 0.0 and single_open < 0.25      # the person capture: 0 % and 13 % (0 % for a tunnel)
+    assert combined_open == 0.0 and single_open < 0.25  # the person capture: 0 % and 13 % (0 % for a tunnel)
     assert solid_keys(hg) == solid_keys(g)
     sg, _ = holed(g, see_through=0.02)
     means, inv, opacities = arrays(sg)
@@ -230,7 +250,7 @@ def test_rim_divergence_needs_the_hole_to_open(probes):
 def test_head_on_probe_and_lattice_keys():
     """The head-on probe's flow is the most anti-parallel to the normal; lattice keys round to the nearest site."""
     dirs = ("-x", "+x", "-z", "+z", "-y")
-    assert head_on_probe(dirs, (1.0, 0.0, 0.0)) == "-x"          # fluid flows along -x onto a +x-facing hole
+    assert head_on_probe(dirs, (1.0, 0.0, 0.0)) == "-x"  # fluid flows along -x onto a +x-facing hole
     assert head_on_probe(dirs, (0.0, 0.0, -1.0)) == "+z"
     assert head_on_probe(dirs, (0.0, 1.0, 0.0)) == "-y"
     assert head_on_probe(dirs, (0.6, 0.0, 0.8)) == "-z"
@@ -245,8 +265,14 @@ def test_cut_cylinder_equals_brute_force_and_keeps_occupancy():
     occupancy[1:12, 1:8, 2:10] = True
     occupancy[6, 4, 5] = False  # a pocket: never re-filled by the cut
     ijk = np.argwhere(occupancy)
-    solid = SolidLattice(points=lo + spacing * ijk, lattice_min=lo, lattice_shape=shape, occupancy=occupancy,
-                  spacing=spacing, counts={"opacity": len(ijk), "total": len(ijk)})
+    solid = SolidLattice(
+        points=lo + spacing * ijk,
+        lattice_min=lo,
+        lattice_shape=shape,
+        occupancy=occupancy,
+        spacing=spacing,
+        counts={"opacity": len(ijk), "total": len(ijk)},
+    )
     hole = Hole((0.05, 0.0, 0.0), (1.0, 0.3, -0.2), radius=0.11, depth=0.08)
     cut = cut_cylinder(solid, hole)
     n = np.asarray(hole.normal)
@@ -267,8 +293,9 @@ def test_simulate_with_hole_runs_the_probes_against_the_cut_solid():
     gaussians = capture_like()
     cfg = dataclasses.replace(CFG, steps=5)
     res = simulate_with_hole(gaussians, cfg, HOLE)
-    plain = gaussians_to_solid(gaussians, SolidifyConfig(spacing=SPACING, opacity_threshold=TAU),
-                               SceneTransform("+y", 1.0))
+    plain = gaussians_to_solid(
+        gaussians, SolidifyConfig(spacing=SPACING, opacity_threshold=TAU), SceneTransform("+y", 1.0)
+    )
     cut = lattice_keys(cut_cylinder(plain, HOLE).points, SPACING)
     assert len(cut) < len(plain.points)
     assert lattice_keys(res.solid, SPACING) == cut
@@ -283,21 +310,84 @@ def test_bench_hole_command_prints_and_writes_the_figures(tmp_path, capsys):
 
     ply = save_gaussians(capture_like(), tmp_path / "sphere.ply")
     out = tmp_path / "hole.json"
-    args = ["bench", "hole", str(ply), "--scale", "1", "--point", "0.6,0,0", "--radius", "0.2", "--depth", "0.1",
-            "--band", "0.1", "--particle-radius", "0.05", "--steps", "20", "--directions=-x", "--json", str(out)]
+    args = [
+        "bench",
+        "hole",
+        str(ply),
+        "--scale",
+        "1",
+        "--point",
+        "0.6,0,0",
+        "--radius",
+        "0.2",
+        "--depth",
+        "0.1",
+        "--band",
+        "0.1",
+        "--particle-radius",
+        "0.05",
+        "--steps",
+        "20",
+        "--directions=-x",
+        "--json",
+        str(out),
+    ]
     assert cli.main(args) == 0
     text = capsys.readouterr().out
     assert "solid 1357 -> 1357 (0 removed, 0 added)" in text and "-x*" in text and "x1.000" in text
     doc = json.loads(out.read_text())
     assert doc["shifts"][0]["solid_removed"] == 0 and doc["shifts"][0]["head_on"] == "-x"
     assert doc["shifts"][0]["probes"]["-x"]["ratio"] == pytest.approx(1.0, abs=1e-12)
-    assert cli.main(["bench", "hole", str(ply), "--scale", "1", "--point", "0.6,0,0", "--radius", "0.2",
-                     "--see-through", "0.02", "--particle-radius", "0.05", "--solid-only", "--shifts", "0,0.5"]) == 0
+    assert (
+        cli.main(
+            [
+                "bench",
+                "hole",
+                str(ply),
+                "--scale",
+                "1",
+                "--point",
+                "0.6,0,0",
+                "--radius",
+                "0.2",
+                "--see-through",
+                "0.02",
+                "--particle-radius",
+                "0.05",
+                "--solid-only",
+                "--shifts",
+                "0,0.5",
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert text.count("open to a render: 100 % of the disc") == 2
     # --ideal: the same covered hole, its cylinder cut out of the holed solid (the centres-only hole removed none)
-    assert cli.main(["bench", "hole", str(ply), "--scale", "1", "--point", "0.6,0,0", "--radius", "0.2", "--depth",
-                     "0.1", "--particle-radius", "0.05", "--solid-only", "--ideal", "--json", str(out)]) == 0
+    assert (
+        cli.main(
+            [
+                "bench",
+                "hole",
+                str(ply),
+                "--scale",
+                "1",
+                "--point",
+                "0.6,0,0",
+                "--radius",
+                "0.2",
+                "--depth",
+                "0.1",
+                "--particle-radius",
+                "0.05",
+                "--solid-only",
+                "--ideal",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert "ideal hole, " in capsys.readouterr().out
     doc = json.loads(out.read_text())
     shift = doc["shifts"][0]
@@ -313,4 +403,4 @@ def test_bench_hole_refuses_bad_options(tmp_path):
     base = ["bench", "hole", str(ply), "--scale", "1", "--point", "0.6,0,0", "--solid-only"]
     assert cli.main([*base, "--see-through", "1.5"]) == 2
     assert cli.main([*base, "--radius", "-1"]) == 2
-    assert cli.main([*base[:5], "--side", "+z", "--height", "5", "--solid-only"]) == 2   # no surface at y = 5 m
+    assert cli.main([*base[:5], "--side", "+z", "--height", "5", "--solid-only"]) == 2  # no surface at y = 5 m

@@ -14,8 +14,18 @@ from recon.ply import save_gaussians
 
 from helpers.paths import BIKER_COMPRESSED_PLY as REAL
 
-KEYS = ("format", "count", "sh_degree", "bbox_min", "bbox_max", "robust_min", "robust_max", "up",
-        "scale_m_per_unit", "solid_particles")
+KEYS = (
+    "format",
+    "count",
+    "sh_degree",
+    "bbox_min",
+    "bbox_max",
+    "robust_min",
+    "robust_max",
+    "up",
+    "scale_m_per_unit",
+    "solid_particles",
+)
 
 
 def _ball(tmp_path: Path, n: int = 3000) -> Path:
@@ -46,7 +56,7 @@ def test_inspect_writes_the_figures_and_three_views(tmp_path, capsys):
     # the solid (red) is drawn in every panel
     red = image[..., 2].astype(int) - image[..., 0] > 50
     third = image.shape[1] // 3
-    assert all(red[:, k * third:(k + 1) * third].sum() > 50 for k in range(3))
+    assert all(red[:, k * third : (k + 1) * third].sum() > 50 for k in range(3))
 
 
 def test_inspect_crop_auto_drops_the_floater(tmp_path, capsys):
@@ -57,8 +67,14 @@ def test_inspect_crop_auto_drops_the_floater(tmp_path, capsys):
     assert s["kept"] == 3000 and "kept 3,000 of 3,001" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize(("argv", "message"), [(["--up", "0,0,0"], "zero vector"), (["--up", "w"], "--up"),
-                                               (["--crop", "100,100,100,101,101,101"], "keeps none")])
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--up", "0,0,0"], "zero vector"),
+        (["--up", "w"], "--up"),
+        (["--crop", "100,100,100,101,101,101"], "keeps none"),
+    ],
+)
 def test_inspect_bad_options_exit_2_naming_them(tmp_path, caplog, argv, message):
     ply = _ball(tmp_path, 200)
     assert main(["inspect", str(ply), "--quick", *argv]) == 2

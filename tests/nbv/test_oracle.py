@@ -26,8 +26,18 @@ from helpers.training import TINY_TRAIN
 
 def ring(count: int, radius: float = 3.0) -> list[Camera]:
     angles = np.arange(count) * 2 * math.pi / count
-    return [Camera.look_at((radius * math.cos(a), 0.0, radius * math.sin(a)), (0, 0, 0), (0, 1, 0), 16, 16,
-                           math.radians(50), name=f"c{k}") for k, a in enumerate(angles)]
+    return [
+        Camera.look_at(
+            (radius * math.cos(a), 0.0, radius * math.sin(a)),
+            (0, 0, 0),
+            (0, 1, 0),
+            16,
+            16,
+            math.radians(50),
+            name=f"c{k}",
+        )
+        for k, a in enumerate(angles)
+    ]
 
 
 # ---- farthest view sampling ----------------------------------------------------------------------------
@@ -48,8 +58,15 @@ def test_fvs_planner_is_registered_and_picks_the_farthest():
     cams = ring(6)
     from recon.datasets import View
 
-    ctx = PlanningContext(gaussians=g, train_views=[View(cams[0], None, None, "c0")], candidates=cams[1:],
-                          candidate_ids=list(range(1, 6)), n_selected=1, budget=4, background=torch.ones(3))
+    ctx = PlanningContext(
+        gaussians=g,
+        train_views=[View(cams[0], None, None, "c0")],
+        candidates=cams[1:],
+        candidate_ids=list(range(1, 6)),
+        n_selected=1,
+        budget=4,
+        background=torch.ones(3),
+    )
     sel = make_planner("fvs", seed=2).select(ctx)
     assert cams[1:][sel.pick].name == "c3" and sel.shortlist[0] == sel.pick and len(sel.shortlist) == 5
 
@@ -102,9 +119,13 @@ def test_ause_is_zero_for_a_perfect_ranking_and_largest_for_the_inverted_one():
 
 
 def test_missing_samples_use_the_2_sigma_ellipsoid():
-    g = GaussianSet(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64),
-                    torch.log(torch.tensor([[0.1, 0.2, 0.05]], dtype=torch.float64)),
-                    torch.tensor([2.0], dtype=torch.float64), torch.zeros(1, 1, 3, dtype=torch.float64))
+    g = GaussianSet(
+        torch.zeros(1, 3, dtype=torch.float64),
+        torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64),
+        torch.log(torch.tensor([[0.1, 0.2, 0.05]], dtype=torch.float64)),
+        torch.tensor([2.0], dtype=torch.float64),
+        torch.zeros(1, 1, 3, dtype=torch.float64),
+    )
     pts = np.array([[0.19, 0, 0], [0.21, 0, 0], [0, 0.39, 0], [0, 0.41, 0], [0, 0, 0.09], [0, 0, 0.11]])
     assert cal.missing_samples(pts, g).tolist() == [False, True, False, True, False, True]
     assert cal.missing_samples(pts, g, min_opacity=0.95).all()  # sigmoid(2) = 0.88 covers nothing above 0.95
@@ -143,24 +164,44 @@ def tiny_dataset(tmp_path_factory):
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
 
     out = tmp_path_factory.mktemp("oracle") / "torus"
-    render_mesh_dataset(TORUS, out, MeshDatasetConfig(n_train=6, n_test=3, resolution=24, supersample=1),
-                        progress=False)
+    render_mesh_dataset(
+        TORUS, out, MeshDatasetConfig(n_train=6, n_test=3, resolution=24, supersample=1), progress=False
+    )
     return out
 
 
 def tiny(tmp_path, dataset, **over) -> dict:
-    base = {"scenes": [str(dataset)], "seeds": [0], "states": [2], "horizon": 3, "output": str(tmp_path / "out"),
-            "rules": ["fisher", "fvs", "random", "coverage", "coverage-occ", "fluid-occ", "ratio-occ"],
-            "active": {"resolution": 16, "iterations_per_view": 3, "total_iterations": 60, "budget": 4,
-                       "train": TINY_TRAIN, "backend": "torch"},
-            "probes": {"coarse": {"particle_radius": 0.08, "steps": 20, "dt": 0.004, "directions": ["-x"]}},
-            "bootstrap": 200}
+    base = {
+        "scenes": [str(dataset)],
+        "seeds": [0],
+        "states": [2],
+        "horizon": 3,
+        "output": str(tmp_path / "out"),
+        "rules": ["fisher", "fvs", "random", "coverage", "coverage-occ", "fluid-occ", "ratio-occ"],
+        "active": {
+            "resolution": 16,
+            "iterations_per_view": 3,
+            "total_iterations": 60,
+            "budget": 4,
+            "train": TINY_TRAIN,
+            "backend": "torch",
+        },
+        "probes": {"coarse": {"particle_radius": 0.08, "steps": 20, "dt": 0.004, "directions": ["-x"]}},
+        "bootstrap": 200,
+    }
     return {**base, **over}
 
 
-@pytest.mark.parametrize(("over", "key"), [({"rules": ["fisher", "fluid-occc"]}, "rules"), ({"horizon": 0}, "horizon"),
-                                           ({"states": [1]}, "states"), ({"planner": "fisherrf"}, "planner"),
-                                           ({"probes": {"a": {"steps": -1}}}, "probes")])
+@pytest.mark.parametrize(
+    ("over", "key"),
+    [
+        ({"rules": ["fisher", "fluid-occc"]}, "rules"),
+        ({"horizon": 0}, "horizon"),
+        ({"states": [1]}, "states"),
+        ({"planner": "fisherrf"}, "planner"),
+        ({"probes": {"a": {"steps": -1}}}, "probes"),
+    ],
+)
 def test_bad_config_names_the_key(tmp_path, over, key):
     with pytest.raises(ValueError, match=f"'{key}'"):
         OracleConfig(**tiny(tmp_path, "x", **over))
@@ -229,8 +270,10 @@ def test_every_state_is_written_and_the_rules_score_every_candidate(study):
         assert np.allclose(o["gain_psnr"], np.array(o["psnr"]) - o["psnr_base"])
         assert "calibration" in st and len(st["calibration"]["missing"]["per_view"]) == c
     # a larger state of the same (scene, seed) continues the smaller one's selection
-    by = {(json.loads(p.read_text())["seed"], json.loads(p.read_text())["n_selected"]): json.loads(p.read_text())
-          for p in states}
+    by = {
+        (json.loads(p.read_text())["seed"], json.loads(p.read_text())["n_selected"]): json.loads(p.read_text())
+        for p in states
+    }
     for seed in (0, 1):
         assert by[(seed, 3)]["selected"][:2] == by[(seed, 2)]["selected"]
 
@@ -245,8 +288,9 @@ def test_summary_spearman_agrees_with_an_independent_computation(study):
         rhos = [r for r in rhos if np.isfinite(r)]
         assert out["summary"]["rules"][label]["spearman"][0] == pytest.approx(np.mean(rhos), abs=1e-9)
     again = summarise(config, states)
-    assert again["rules"]["fisher"]["spearman"] == pytest.approx(out["summary"]["rules"]["fisher"]["spearman"],
-                                                                 nan_ok=True)
+    assert again["rules"]["fisher"]["spearman"] == pytest.approx(
+        out["summary"]["rules"]["fisher"]["spearman"], nan_ok=True
+    )
     assert "fluid-occ:coarse" in out["summary"]["paired"] and "| fisher |" in out["markdown"]
 
 

@@ -47,10 +47,17 @@ from recon.train import Trainer, scene_extent
 from recon.train_config import TrainConfig
 
 N_SIDE, HOLE = 13, 0.25
-PROBES = PhysicsConfig(particle_radius=0.08, steps=75, dt=0.004, scale=2.0, empty_reference=False,
-                       directions=("-x", "+x", "-z", "+z"))
-FACE_COLOURS = {(0, 1): (0.9, 0.2, 0.2), (0, 0): (0.2, 0.2, 0.9), (1, 1): (0.2, 0.8, 0.2), (1, 0): (0.8, 0.8, 0.2),
-                (2, 1): (0.2, 0.8, 0.8), (2, 0): (0.8, 0.2, 0.8)}
+PROBES = PhysicsConfig(
+    particle_radius=0.08, steps=75, dt=0.004, scale=2.0, empty_reference=False, directions=("-x", "+x", "-z", "+z")
+)
+FACE_COLOURS = {
+    (0, 1): (0.9, 0.2, 0.2),
+    (0, 0): (0.2, 0.2, 0.9),
+    (1, 1): (0.2, 0.8, 0.2),
+    (1, 0): (0.8, 0.8, 0.2),
+    (2, 1): (0.2, 0.8, 0.8),
+    (2, 0): (0.8, 0.2, 0.8),
+}
 SELECTED, CANDIDATES, HOLE_CAMERA = [4], [0, 1, 2, 3, 5, 6, 7], 0
 
 
@@ -74,14 +81,27 @@ def coloured_cube() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _gaussians(points: np.ndarray, colours: np.ndarray) -> GaussianSet:
-    return GaussianSet.from_points(torch.tensor(points, dtype=torch.float32),
-                                   torch.tensor(colours, dtype=torch.float32), scale=0.7 / (N_SIDE - 1), opacity=0.9)
+    return GaussianSet.from_points(
+        torch.tensor(points, dtype=torch.float32),
+        torch.tensor(colours, dtype=torch.float32),
+        scale=0.7 / (N_SIDE - 1),
+        opacity=0.9,
+    )
 
 
 def _ring(count: int, height: float, offset: float, prefix: str) -> list[Camera]:
-    return [Camera.look_at((2.5 * math.cos(x), height, 2.5 * math.sin(x)), (0, 0, 0), (0, 1, 0), 48, 48,
-                           math.radians(45), name=f"{prefix}{k}")
-            for k, x in enumerate((np.arange(count) + offset) * 2 * math.pi / count)]
+    return [
+        Camera.look_at(
+            (2.5 * math.cos(x), height, 2.5 * math.sin(x)),
+            (0, 0, 0),
+            (0, 1, 0),
+            48,
+            48,
+            math.radians(45),
+            name=f"{prefix}{k}",
+        )
+        for k, x in enumerate((np.arange(count) + offset) * 2 * math.pi / count)
+    ]
 
 
 def _rank(scores, position: int) -> int:
@@ -100,22 +120,37 @@ def case():
     with torch.no_grad():
         views = [View(c, render(truth, c, bg, backend="torch").image.clamp(0, 1), None, c.name) for c in cams]
         test_views = [View(c, render(truth, c, bg, backend="torch").image.clamp(0, 1), None, c.name) for c in tests]
-    cfg = TrainConfig.for_iterations(200, sh_degree=0, densify_from_iter=0, opacity_reset_interval=10 ** 6)
+    cfg = TrainConfig.for_iterations(200, sh_degree=0, densify_from_iter=0, opacity_reset_interval=10**6)
 
     def new_trainer() -> Trainer:
         return Trainer(holed, cfg, extent=scene_extent(cams), backend="torch")
 
     state = new_trainer().state_dict()
     state["iteration"] = 150  # late in the schedule: decayed learning rates
-    oracle = oracle_gains(new_trainer, state, [views[i] for i in SELECTED], [views[i] for i in CANDIDATES],
-                          test_views, (1.0, 1.0, 1.0), 30)
-    ctx = PlanningContext(gaussians=holed, train_views=[views[i] for i in SELECTED],
-                          candidates=[cams[i] for i in CANDIDATES], candidate_ids=CANDIDATES, n_selected=1, budget=4,
-                          background=bg)
+    oracle = oracle_gains(
+        new_trainer,
+        state,
+        [views[i] for i in SELECTED],
+        [views[i] for i in CANDIDATES],
+        test_views,
+        (1.0, 1.0, 1.0),
+        30,
+    )
+    ctx = PlanningContext(
+        gaussians=holed,
+        train_views=[views[i] for i in SELECTED],
+        candidates=[cams[i] for i in CANDIDATES],
+        candidate_ids=CANDIDATES,
+        n_selected=1,
+        budget=4,
+        background=bg,
+    )
     divergence, _ = probe_run(holed, PROBES)
     ones = torch.ones(holed.num, dtype=torch.float64)
-    scores = {"fisher": FisherPlanner().rank(ctx, 1)[1],
-              "fvs": farthest_view_distances(ctx.candidates, [cams[i] for i in SELECTED])}
+    scores = {
+        "fisher": FisherPlanner().rank(ctx, 1)[1],
+        "fvs": farthest_view_distances(ctx.candidates, [cams[i] for i in SELECTED]),
+    }
     for occ, suffix in ((False, ""), (True, "-occ")):
         scores["coverage" + suffix] = physics_view_scores(holed, ctx.candidates, ones, occlusion=occ)
         scores["fluid" + suffix] = physics_view_scores(holed, ctx.candidates, divergence, occlusion=occ)

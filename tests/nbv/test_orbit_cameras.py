@@ -30,13 +30,16 @@ def _figure(up, centre=(0.3, -0.2, 0.5), height=1.0, seed=0):
     colors[t < -0.35 * height] = (0.0, 0.0, 1.0)
     pts = np.vstack([pts, np.asarray(centre) + 40.0 * a])  # one far floater
     colors = np.vstack([colors, [0.5, 0.5, 0.5]])
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), torch.tensor(colors, dtype=torch.float32),
-                                   scale=0.02 * height, opacity=0.9)
+    return GaussianSet.from_points(
+        torch.tensor(pts, dtype=torch.float32),
+        torch.tensor(colors, dtype=torch.float32),
+        scale=0.02 * height,
+        opacity=0.9,
+    )
 
 
 def _centroid(weight):
-    rows, cols = torch.meshgrid(torch.arange(weight.shape[0]) + 0.5, torch.arange(weight.shape[1]) + 0.5,
-                                indexing="ij")
+    rows, cols = torch.meshgrid(torch.arange(weight.shape[0]) + 0.5, torch.arange(weight.shape[1]) + 0.5, indexing="ij")
     total = weight.sum()
     return float((weight * rows).sum() / total), float((weight * cols).sum() / total)
 

@@ -42,16 +42,22 @@ def _wilcoxon_exact(d: list[float]) -> float:
     n = len(d)
     total = n * (n + 1) // 2
     stat = min(w_plus, total - w_plus)
-    count = sum(1 for signs in itertools.product((0, 1), repeat=n)
-                if min(s := sum(r for r, b in zip(range(1, n + 1), signs, strict=True) if b), total - s) <= stat)
+    count = sum(
+        1
+        for signs in itertools.product((0, 1), repeat=n)
+        if min(s := sum(r for r, b in zip(range(1, n + 1), signs, strict=True) if b), total - s) <= stat
+    )
     return min(1.0, count / 2**n)
 
 
 @pytest.mark.skipif(not scipy_available(), reason="scipy is not installed")
 def test_wilcoxon_matches_the_exact_enumeration():
     assert wilcoxon_p([1, 2, 3, 4, 5, 6])[0] == pytest.approx(2 / 64)
-    for d in ([0.3, -1.2, 2.5, 0.7, -0.1, 1.9, 3.3, -0.45], [1.0, -2.0, 3.5, 4.25, 5.5, -6.0, 7.0],
-              [-0.2, -0.5, 0.9, -1.4, -2.2, -0.05, -3.0, 0.6, -1.1]):
+    for d in (
+        [0.3, -1.2, 2.5, 0.7, -0.1, 1.9, 3.3, -0.45],
+        [1.0, -2.0, 3.5, 4.25, 5.5, -6.0, 7.0],
+        [-0.2, -0.5, 0.9, -1.4, -2.2, -0.05, -3.0, 0.6, -1.1],
+    ):
         assert wilcoxon_p(d)[0] == pytest.approx(_wilcoxon_exact(d), rel=1e-9)
     assert wilcoxon_p([0.0, 2.0, 1.0, 3.0])[0] == pytest.approx(_wilcoxon_exact([2.0, 1.0, 3.0]))  # zeros dropped
     p, note = wilcoxon_p([0.0, 0.0])
@@ -82,9 +88,21 @@ def test_paired_stats_wins_follow_the_metric_direction():
 
 
 def _row(method, scene, seed, psnr, dbar, kind="method"):
-    return {"kind": kind, "scene": scene, "method": method, "seed": seed, "psnr": psnr, "ssim": 0.9, "lpips": None,
-            "chamfer": 0.1, "dbar": dbar, "dbar_empty": 1e-5, "critical_psnr": psnr - 1.0, "critical_dbar": dbar,
-            "dbar_per_direction": {"-x": dbar}}
+    return {
+        "kind": kind,
+        "scene": scene,
+        "method": method,
+        "seed": seed,
+        "psnr": psnr,
+        "ssim": 0.9,
+        "lpips": None,
+        "chamfer": 0.1,
+        "dbar": dbar,
+        "dbar_empty": 1e-5,
+        "critical_psnr": psnr - 1.0,
+        "critical_dbar": dbar,
+        "dbar_per_direction": {"-x": dbar},
+    }
 
 
 def _experiment_rows() -> list[dict]:
@@ -92,9 +110,11 @@ def _experiment_rows() -> list[dict]:
     rows = []
     for i, (scene, seed) in enumerate(itertools.product(("a", "b"), range(4))):
         base = 20.0 + i
-        rows += [_row("fisher", scene, seed, base, 4e-3),
-                 _row("fisher+fluid", scene, seed, base + 1.0 + 0.01 * i, 3e-3),
-                 _row("fisher+area", scene, seed, base + 1.0 + (0.1 if i % 2 else -0.1), 3e-3)]
+        rows += [
+            _row("fisher", scene, seed, base, 4e-3),
+            _row("fisher+fluid", scene, seed, base + 1.0 + 0.01 * i, 3e-3),
+            _row("fisher+area", scene, seed, base + 1.0 + (0.1 if i % 2 else -0.1), 3e-3),
+        ]
     rows.append(_row("fisher+fluid", "c", 0, 30.0, 1e-3))  # no partner: not paired
     rows.append(_row("reference-20views", "a", 0, 40.0, 1e-3, kind="reference"))
     return rows
@@ -108,7 +128,10 @@ def test_paired_values_match_scene_and_seed():
     rows[0]["psnr"] = None  # a missing metric drops that pair only
     assert len(paired_values(rows, "fisher+fluid", "fisher", "psnr")[0]) == 7
     assert comparisons(["fisher", "fisher+fluid", "fisher+area", "random"]) == [
-        ("fisher+fluid", "fisher"), ("fisher+fluid", "fisher+area"), ("fisher+area", "fisher")]
+        ("fisher+fluid", "fisher"),
+        ("fisher+fluid", "fisher+area"),
+        ("fisher+area", "fisher"),
+    ]
     assert comparisons(["random", "fisher+fluid"]) == []
 
 
@@ -117,8 +140,17 @@ def test_experiment_paired_table_states_what_clears_p_005():
     md, text = tables["paired"]
     body = {(r[0], r[1]): r for r in csv.reader(text.splitlines())}
     head = body[("comparison", "metric")]
-    assert head[2:] == ["pairs", "better", "worse", "ties", "mean Δ", "median Δ", "sign-test p", "Wilcoxon p",
-                        "p < 0.05"]
+    assert head[2:] == [
+        "pairs",
+        "better",
+        "worse",
+        "ties",
+        "mean Δ",
+        "median Δ",
+        "sign-test p",
+        "Wilcoxon p",
+        "p < 0.05",
+    ]
     vs_fisher = body[("fisher+fluid vs fisher", "PSNR (dB)")]
     assert vs_fisher[2:6] == ["8", "8", "0", "0"]
     assert vs_fisher[6] == "+1.035" and float(vs_fisher[8]) == pytest.approx(2 / 256, abs=1e-4)
@@ -150,11 +182,15 @@ def test_shuffled_controls_have_single_direction_variants_and_area_ones_do_not()
 
 
 def test_ablation_table_names_what_re_ranks_the_shortlist():
-    rows = [_row(m, "a", 0, 20.0, 1e-3) for m in ("random+area", "fisher", "fisher+shuffled", "fisher+area",
-                                                   "fisher+fluid")]
+    rows = [
+        _row(m, "a", 0, 20.0, 1e-3) for m in ("random+area", "fisher", "fisher+shuffled", "fisher+area", "fisher+fluid")
+    ]
     body = {r[0]: r for r in csv.reader(build_tables(rows)["ablation_random"][1].splitlines())}
     assert list(body)[1:] == ["random+area", "fisher", "fisher+fluid", "fisher+area", "fisher+shuffled"]
     assert body["fisher+area"][1:3] == ["fisher top-K", "no: coverage sum w_g (D_g = 1)"]
     assert body["fisher+shuffled"][2] == "D_g shuffled across the Gaussians"
-    assert body["random+area"][1] == "random K" and body["fisher+fluid"][2] == "yes" and body["fisher"][1:3] == \
-        ["all", "no"]
+    assert (
+        body["random+area"][1] == "random K"
+        and body["fisher+fluid"][2] == "yes"
+        and body["fisher"][1:3] == ["all", "no"]
+    )

@@ -27,8 +27,9 @@ def fibonacci_sphere(n: int) -> np.ndarray:
 
 
 def sphere_gaussians(n: int = 300, radius: float = 0.5, scale: float = 0.06) -> GaussianSet:
-    return GaussianSet.from_points(torch.tensor(fibonacci_sphere(n) * radius, dtype=torch.float32), scale=scale,
-                                   opacity=0.9)
+    return GaussianSet.from_points(
+        torch.tensor(fibonacci_sphere(n) * radius, dtype=torch.float32), scale=scale, opacity=0.9
+    )
 
 
 @pytest.fixture(scope="module")
@@ -74,8 +75,9 @@ def test_simulation_matches_brute_force_twin(sphere):
     assert res.per_probe.shape == (2, sphere.num)
     np.testing.assert_array_equal(res.divergence, res.per_probe.max(0))
     np.testing.assert_allclose(res.divergence_mean, res.per_probe.mean(0))
-    assert res.dbar == pytest.approx(scores.geometry_divergence(torch.from_numpy(res.covariances),
-                                                                torch.from_numpy(res.divergence)))
+    assert res.dbar == pytest.approx(
+        scores.geometry_divergence(torch.from_numpy(res.covariances), torch.from_numpy(res.divergence))
+    )
     assert res.dbar >= res.dbar_mean > 0
     # the flow reaches the upstream side of the sphere: many Gaussians get samples, not all
     touched = (res.per_probe_counts[0] > 0).mean()
@@ -92,16 +94,18 @@ def test_simulation_matches_brute_force_twin(sphere):
         if (step + 1) % 2:
             continue
         st = solver.fluid_state()
-        s, c = accumulate_reference(res.means, res.reach, st["x"], st["divergence"], solver.domain_min,
-                                    solver.domain_max)
+        s, c = accumulate_reference(
+            res.means, res.reach, st["x"], st["divergence"], solver.domain_min, solver.domain_max
+        )
         sums += s
         counts += c
         d = np.linalg.norm(st["x"][:, None] - res.means[None], axis=-1)
         for i, g in zip(*np.nonzero(d < res.reach[None]), strict=True):
             seen[g].add(int(st["ids"][i]))
     np.testing.assert_array_equal(res.per_probe_counts[1], counts)
-    np.testing.assert_allclose(res.per_probe[1], np.where(counts > 0, sums / np.maximum(counts, 1), 0), rtol=1e-5,
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        res.per_probe[1], np.where(counts > 0, sums / np.maximum(counts, 1), 0), rtol=1e-5, atol=1e-6
+    )
     np.testing.assert_array_equal(res.per_probe_distinct[1], [len(s) for s in seen])
 
 
@@ -116,8 +120,17 @@ def test_result_roundtrip_and_empty_reference(sphere, tmp_path):
     assert again.timings["empty_reference"] < 0.5 * res.timings["empty_reference"]
     path = save_result(tmp_path / "r.h5", res)
     back = load_result(path)
-    for key in ("per_probe", "per_probe_counts", "divergence", "divergence_mean", "solid", "means", "covariances",
-                "reach", "empty_per_probe"):
+    for key in (
+        "per_probe",
+        "per_probe_counts",
+        "divergence",
+        "divergence_mean",
+        "solid",
+        "means",
+        "covariances",
+        "reach",
+        "empty_per_probe",
+    ):
         np.testing.assert_array_equal(getattr(back, key), getattr(res, key))
     assert (back.dbar, back.dbar_empty, back.config, back.source) == (res.dbar, res.dbar_empty, res.config, "sphere")
     assert back.transform.scale == res.transform.scale
@@ -151,15 +164,15 @@ def test_sweep_counts_probe_steps_and_parses_the_re_length():
     plan = sweep.schedule([3, 6, 50], dt_base=0.002, steps_base=750)
     cfg = PhysicsConfig()  # five probes and the empty scene
     assert sweep.probe_steps(plan, cfg) == [750 * 10, 1500 * 10, 12500 * 10]
-    assert sweep.probe_steps(plan, replace(cfg, empty_reference=False), other=True) == [750 * 10, 1500 * 10,
-                                                                                        12500 * 10]
+    assert sweep.probe_steps(plan, replace(cfg, empty_reference=False), other=True) == [750 * 10, 1500 * 10, 12500 * 10]
     cal = sweep.Calibration(step_s=0.1, run_s=5.0, steps=40)
     assert sweep.estimate(plan, cfg, cal) == pytest.approx([755.0, 1505.0, 12505.0])
     # the empty scene at its own rate: 5 probes x steps x (0.1 + 0.02) s
     cal = sweep.Calibration(step_s=0.1, run_s=5.0, steps=40, empty_step_s=0.02)
     assert sweep.estimate(plan, cfg, cal) == pytest.approx([455.0, 905.0, 7505.0])
     assert sweep.estimate(plan, replace(cfg, empty_reference=False), cal, other=True) == pytest.approx(
-        [760.0, 1510.0, 12510.0])
+        [760.0, 1510.0, 12510.0]
+    )
     # probes weighted by their fluid particles against the timed one: 5 probes of weight 0.5 cost 2.5 timed ones
     cal = sweep.Calibration(step_s=0.1, run_s=5.0, steps=40, weights=dict.fromkeys(cfg.directions, 0.5))
     assert sweep.estimate(plan, cfg, cal) == pytest.approx([380.0, 755.0, 6255.0])
@@ -230,9 +243,17 @@ def test_memory_check_uses_the_real_solid_when_faint_gaussians_widen_the_box(sph
     only_sphere = physics.estimate_memory(sphere, cfg, transform)
     assert cheap["fluid_particles"] > 20 * only_sphere["fluid_particles"]
     limit_gb = (cheap["bytes"] + only_sphere["bytes"]) / 2 / 2**30  # between the real need and the cheap bound
-    result = simulate_gaussians(scene, PhysicsConfig(**{**COARSE, "steps": 5}, directions=("-x",), scale=1.0,
-                                                     max_memory_gb=limit_gb), progress=False)
+    result = simulate_gaussians(
+        scene,
+        PhysicsConfig(**{**COARSE, "steps": 5}, directions=("-x",), scale=1.0, max_memory_gb=limit_gb),
+        progress=False,
+    )
     assert np.ptp(result.solid, axis=0).max() < 1.5  # the faint Gaussians made no solid
     with pytest.raises(ValueError, match="would need about"):
-        simulate_gaussians(scene, PhysicsConfig(**{**COARSE, "steps": 5}, directions=("-x",), scale=1.0,
-                                                max_memory_gb=only_sphere["bytes"] / 4 / 2**30), progress=False)
+        simulate_gaussians(
+            scene,
+            PhysicsConfig(
+                **{**COARSE, "steps": 5}, directions=("-x",), scale=1.0, max_memory_gb=only_sphere["bytes"] / 4 / 2**30
+            ),
+            progress=False,
+        )

@@ -55,8 +55,11 @@ def test_the_crop_is_a_subset_of_one_run():
     res = simulate_gaussians(g, cfg, progress=False)
     kept = means[:, 0] <= 0.3
     np.testing.assert_array_equal(res.kept, kept)
-    alone = simulate_gaussians(g.subset(torch.from_numpy(np.nonzero(kept)[0])),
-                               PhysicsConfig(**{**cfg.to_dict(), "crop": None}), progress=False)
+    alone = simulate_gaussians(
+        g.subset(torch.from_numpy(np.nonzero(kept)[0])),
+        PhysicsConfig(**{**cfg.to_dict(), "crop": None}),
+        progress=False,
+    )
     np.testing.assert_array_equal(res.per_probe[:, kept], alone.per_probe)
     assert (res.per_probe[:, ~kept] == 0).all() and res.dbar == alone.dbar and res.config.crop == crop
 

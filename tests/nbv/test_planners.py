@@ -74,16 +74,25 @@ class StubVisual:
         return self.order[:k], [float(len(self.order) - self.order.index(i)) for i in range(len(self.order))]
 
 
-def _context(gaussians=None, train=None, candidates=None, n_selected=2, budget=4, physics=None,
-             round_=0) -> PlanningContext:
+def _context(
+    gaussians=None, train=None, candidates=None, n_selected=2, budget=4, physics=None, round_=0
+) -> PlanningContext:
     g = _scene() if gaussians is None else gaussians
     cams = _candidates() if candidates is None else candidates
     if train is None:
         cam = _cam(0.3, distance=3.5, size=12, fov_deg=60.0)
         train = [View(cam, render(g, cam, 1.0).image.detach(), None, "train0")]
-    return PlanningContext(gaussians=g, train_views=train, candidates=cams,
-                           candidate_ids=list(range(10, 10 + len(cams))), n_selected=n_selected, budget=budget,
-                           background=torch.ones(3), physics=physics, round=round_)
+    return PlanningContext(
+        gaussians=g,
+        train_views=train,
+        candidates=cams,
+        candidate_ids=list(range(10, 10 + len(cams))),
+        n_selected=n_selected,
+        budget=budget,
+        background=torch.ones(3),
+        physics=physics,
+        round=round_,
+    )
 
 
 def _check_selection(sel: Selection, count: int) -> None:
@@ -98,9 +107,17 @@ def test_registry_names_and_make_planner():
     from nbv.plan import FUSED_RULES, PLANNER_NAMES, FusedRule, describe_planners, uses_physics
 
     assert tuple(PLANNERS) == PLANNER_NAMES and len(set(PLANNER_NAMES)) == len(PLANNER_NAMES)
-    assert {"random", "fisher", "variance", "physics", "fisher+fluid", "variance+fluid", "random+fluid", "fvs",
-            "fvs+fluid"} <= set(
-        PLANNERS)
+    assert {
+        "random",
+        "fisher",
+        "variance",
+        "physics",
+        "fisher+fluid",
+        "variance+fluid",
+        "random+fluid",
+        "fvs",
+        "fvs+fluid",
+    } <= set(PLANNERS)
     for name in PLANNERS:
         planner = make_planner(name, seed=3)
         assert isinstance(planner, Planner)
@@ -109,8 +126,10 @@ def test_registry_names_and_make_planner():
     for rule in FUSED_RULES:  # each rule's name is <visual>+..., and the planner runs that rule on that visual planner
         planner = make_planner(rule.name)
         assert rule.name.startswith(rule.visual + "+") and planner.rule is rule
-        assert type(planner.visual).__name__ == {"fisher": "FisherPlanner", "variance": "VariancePlanner",
-                                                 "random": "RandomPlanner"}[rule.visual]
+        assert (
+            type(planner.visual).__name__
+            == {"fisher": "FisherPlanner", "variance": "VariancePlanner", "random": "RandomPlanner"}[rule.visual]
+        )
         assert uses_physics(rule.name) == (rule.control != "area") == planner.uses_physics
     with pytest.raises(ValueError, match="control must be one of"):
         FusedRule("fisher+x", "fisher", control="x")
@@ -207,8 +226,9 @@ def test_fused_pick_is_the_top_k_member_with_largest_physics_score(name):
 def test_fisher_fluid_end_to_end_picks_from_the_greedy_fisher_list():
     ctx = _context(n_selected=1, budget=3, physics=FakePhysics())
     sel = make_planner("fisher+fluid").select(ctx)
-    order = greedy_top_k(ctx.gaussians, ctx.candidates, [v.camera for v in ctx.train_views], ctx.background, 2,
-                         FisherConfig()).order
+    order = greedy_top_k(
+        ctx.gaussians, ctx.candidates, [v.camera for v in ctx.train_views], ctx.background, 2, FisherConfig()
+    ).order
     assert sel.k == 2 and sel.shortlist == order
     physics = [sel.scores["physics"][i] for i in order]
     assert sel.pick == order[max(range(2), key=lambda j: (physics[j], -j))]
@@ -364,8 +384,9 @@ def test_shuffled_control_scores_the_permuted_divergence(visual):
         assert physics.calls == 1  # the probes run (once)
         expected = physics_view_scores(g, cams, shuffled_divergence(FakePhysics()(g), seed, 3))
         assert [sel.scores["physics"][i] for i in range(4)] == pytest.approx(expected, rel=1e-12)
-        assert make_planner(f"{visual}+shuffled", seed=seed).select(ctx).scores["physics"] == \
-            pytest.approx(sel.scores["physics"], rel=0)  # reproducible from the seed
+        assert make_planner(f"{visual}+shuffled", seed=seed).select(ctx).scores["physics"] == pytest.approx(
+            sel.scores["physics"], rel=0
+        )  # reproducible from the seed
         picks.add(sel.pick)
     fluid = physics_view_scores(g, cams, FakePhysics()(g))
     assert max(range(4), key=lambda i: fluid[i]) in (2, 3)  # the true D_g points right ...

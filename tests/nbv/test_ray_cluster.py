@@ -18,8 +18,9 @@ import time
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.skipif(importlib.util.find_spec("ray") is None,
-                                reason="Ray is not installed (optional extra: pip install -e .[ray])")
+pytestmark = pytest.mark.skipif(
+    importlib.util.find_spec("ray") is None, reason="Ray is not installed (optional extra: pip install -e .[ray])"
+)
 NODES = 2
 # Ray and the executors are imported inside the functions: the local executor's worker processes import this
 # module to find the job function, and importing Ray or nbv (Taichi, torch) there costs seconds for nothing.

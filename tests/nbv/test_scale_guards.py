@@ -21,8 +21,9 @@ class _NoTaichi:
         raise AssertionError("allocated before the guards")
 
 
-def surface_gaussians(n: int, radius: float = 1.0, sigma: float = 0.02, normal_sigma: float = 0.002,
-                      opacity: float = 0.4, seed: int = 0) -> GaussianSet:
+def surface_gaussians(
+    n: int, radius: float = 1.0, sigma: float = 0.02, normal_sigma: float = 0.002, opacity: float = 0.4, seed: int = 0
+) -> GaussianSet:
     """n flat Gaussians tangent to a sphere (a dense capture's surface elements)."""
     rng = np.random.default_rng(seed)
     normals = rng.normal(size=(n, 3))
@@ -32,9 +33,13 @@ def surface_gaussians(n: int, radius: float = 1.0, sigma: float = 0.02, normal_s
     quats[quats[:, 0] < 1e-6] = (0.0, 1.0, 0.0, 0.0)
     scales = np.log(np.tile([sigma, sigma, normal_sigma], (n, 1)))
     logit = np.full(n, np.log(opacity / (1 - opacity)))
-    return GaussianSet(torch.tensor(radius * normals, dtype=torch.float32), torch.tensor(quats, dtype=torch.float32),
-                       torch.tensor(scales, dtype=torch.float32), torch.tensor(logit, dtype=torch.float32),
-                       torch.zeros(n, 1, 3))
+    return GaussianSet(
+        torch.tensor(radius * normals, dtype=torch.float32),
+        torch.tensor(quats, dtype=torch.float32),
+        torch.tensor(scales, dtype=torch.float32),
+        torch.tensor(logit, dtype=torch.float32),
+        torch.zeros(n, 1, 3),
+    )
 
 
 def test_work_count_equals_the_kernels_boxes():
@@ -42,11 +47,18 @@ def test_work_count_equals_the_kernels_boxes():
     Gaussian, also for Gaussians clipped by the bounds or outside the lattice."""
     rng = np.random.default_rng(1)
     n = 300
-    g = GaussianSet(torch.tensor(rng.uniform(-0.5, 0.5, (n, 3))), torch.tensor(rng.normal(size=(n, 4))),
-                    torch.tensor(rng.uniform(np.log(0.005), np.log(0.3), (n, 3))), torch.tensor(rng.normal(0, 2, n)),
-                    torch.zeros(n, 1, 3, dtype=torch.float64))
-    for cfg in (SolidifyConfig(spacing=0.05), SolidifyConfig(spacing=0.03, bounds=((-0.2, -0.3, -1), (0.3, 1, 0.1))),
-                SolidifyConfig(spacing=0.04, thin=False)):
+    g = GaussianSet(
+        torch.tensor(rng.uniform(-0.5, 0.5, (n, 3))),
+        torch.tensor(rng.normal(size=(n, 4))),
+        torch.tensor(rng.uniform(np.log(0.005), np.log(0.3), (n, 3))),
+        torch.tensor(rng.normal(0, 2, n)),
+        torch.zeros(n, 1, 3, dtype=torch.float64),
+    )
+    for cfg in (
+        SolidifyConfig(spacing=0.05),
+        SolidifyConfig(spacing=0.03, bounds=((-0.2, -0.3, -1), (0.3, 1, 0.1))),
+        SolidifyConfig(spacing=0.04, thin=False),
+    ):
         tr = SceneTransform("z", 1.3)
         means, covs, opacities, _ = scene_frame.gaussian_arrays_in_sim(g, tr)
         lattice_min, dims_f = solidify._lattice_geometry(means, covs, cfg, opacities)
@@ -72,8 +84,9 @@ def _passes_the_guards(g: GaussianSet, cfg: SolidifyConfig, tr: SceneTransform) 
 
 def test_a_million_gaussian_surface_passes_the_guards():
     """1.07M thin surface Gaussians (a dense capture) at spacing 0.05."""
-    _passes_the_guards(surface_gaussians(1_070_000, radius=0.7, sigma=0.012), SolidifyConfig(spacing=0.05),
-                       SceneTransform())
+    _passes_the_guards(
+        surface_gaussians(1_070_000, radius=0.7, sigma=0.012), SolidifyConfig(spacing=0.05), SceneTransform()
+    )
 
 
 @pytest.mark.skipif(not BIKER.is_file(), reason="the real capture is not on this machine")
@@ -103,8 +116,11 @@ def test_an_absurd_set_is_refused_before_any_allocation(monkeypatch):
 
 
 def test_one_huge_opaque_gaussian_is_named_by_the_time_guard(monkeypatch):
-    g = GaussianSet.from_points(torch.tensor([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [3.0, 2.0, 1.0]]),
-                                scale=torch.tensor([0.05, 0.05, 0.6]), opacity=0.9)
+    g = GaussianSet.from_points(
+        torch.tensor([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [3.0, 2.0, 1.0]]),
+        scale=torch.tensor([0.05, 0.05, 0.6]),
+        opacity=0.9,
+    )
     cfg = SolidifyConfig(spacing=0.02, max_work=10_000_000)
     monkeypatch.setattr(solidify, "ti", _NoTaichi())
     with pytest.raises(ValueError, match=r"Gaussian 2 \(centre \(3, 2, 1\)\) alone takes \d+ % of it"):
@@ -148,15 +164,17 @@ def test_the_memory_estimate_covers_the_accumulator_and_the_gaussians():
         est = physics.estimate_memory(g, cfg)
         acc = GaussianAccumulator.estimate_bytes(g.num, est["fluid_particles"], track, num_levels=1)
         assert est["accumulator_bytes"] == acc  # one reach class: all the Gaussians have the same scale
-        assert est["bytes"] == est["resident_bytes"] + max(est["solidify_bytes"],
-                                                           est["probe_bytes"] + est["accumulator_bytes"])
+        assert est["bytes"] == est["resident_bytes"] + max(
+            est["solidify_bytes"], est["probe_bytes"] + est["accumulator_bytes"]
+        )
     # a million Gaussians: their own bytes dominate, and a larger radius does not shrink them
     big = GaussianSet.from_points(torch.rand(1_000_000, 3), scale=0.004, opacity=0.5)
     coarse = physics.estimate_memory(big, PhysicsConfig(particle_radius=0.1, scale=1.0))
     assert coarse["accumulator_bytes"] > 100 * 2**20 and coarse["resident_bytes"] > 50 * 2**20
     with pytest.raises(ValueError, match=r"1,000,000 Gaussians alone need about .*--crop"):
-        physics.check_memory(big, PhysicsConfig(particle_radius=0.1, scale=1.0,
-                                                max_memory_gb=0.9 * coarse["accumulator_bytes"] / 2**30))
+        physics.check_memory(
+            big, PhysicsConfig(particle_radius=0.1, scale=1.0, max_memory_gb=0.9 * coarse["accumulator_bytes"] / 2**30)
+        )
     assert reach_classes(np.array([1.0, 0.6, 0.45])) == 2 and reach_classes(np.array([3.0, 3.0])) == 1
     assert reach_classes(np.geomspace(1e-6, 1.0, 50)) == 16
 
@@ -176,8 +194,11 @@ def test_a_set_too_large_for_the_memory_stops_before_the_solid(monkeypatch):
 
     monkeypatch.setattr(solidify, "gaussians_to_solid", no_solid)
     with pytest.raises(ValueError, match=r"would need about .* GiB to solidify, .* accumulator\)"):
-        simulate_gaussians(g, PhysicsConfig(particle_radius=0.05, steps=2, directions=("-x",), scale=1.0,
-                                            max_memory_gb=limit / 2**30), progress=False)
+        simulate_gaussians(
+            g,
+            PhysicsConfig(particle_radius=0.05, steps=2, directions=("-x",), scale=1.0, max_memory_gb=limit / 2**30),
+            progress=False,
+        )
 
 
 def test_the_empty_reference_reuses_the_lists(monkeypatch):

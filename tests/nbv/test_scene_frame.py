@@ -21,9 +21,19 @@ from nbv.physics.scene_frame import (
 from recon.gaussians import GaussianSet
 
 
-@pytest.mark.parametrize(("spec", "vec"), [("y", (0, 1, 0)), ("+y", (0, 1, 0)), ("-y", (0, -1, 0)),
-                                           ("z", (0, 0, 1)), ("-X", (-1, 0, 0)), ("0,-2,0", (0, -1, 0)),
-                                           ((0.0, 0.0, 3.0), (0, 0, 1)), ("[1, 1, 0]", (2**-0.5, 2**-0.5, 0))])
+@pytest.mark.parametrize(
+    ("spec", "vec"),
+    [
+        ("y", (0, 1, 0)),
+        ("+y", (0, 1, 0)),
+        ("-y", (0, -1, 0)),
+        ("z", (0, 0, 1)),
+        ("-X", (-1, 0, 0)),
+        ("0,-2,0", (0, -1, 0)),
+        ((0.0, 0.0, 3.0), (0, 0, 1)),
+        ("[1, 1, 0]", (2**-0.5, 2**-0.5, 0)),
+    ],
+)
 def test_parse_up_axes_and_vectors(spec, vec):
     assert np.allclose(parse_up(spec), vec)
 
@@ -159,25 +169,32 @@ def test_an_upside_down_capture_stands_with_its_heavy_end_down():
     assert np.allclose(np.sort(sim_flip[:, 1]), np.sort(sim[:, 1]))
 
 
-@pytest.mark.parametrize("argv", [["--up", "-y"], ["--up=-y"], ["--up-axis", "-y"], ["--up", "0,-1,0"],
-                                  ["--up", "-0.1,-1,0"]])
+@pytest.mark.parametrize(
+    "argv", [["--up", "-y"], ["--up=-y"], ["--up-axis", "-y"], ["--up", "0,-1,0"], ["--up", "-0.1,-1,0"]]
+)
 def test_up_on_the_command_line_as_typed(argv):
     args = build_parser().parse_args(join_dash_values(["simulate", "g.ply", "-o", "r.h5", *argv]))
     assert parse_up(args.up)[1] < -0.9
 
 
 def test_crop_with_negative_corners_on_the_command_line():
-    args = build_parser().parse_args(join_dash_values(["simulate", "g.ply", "-o", "r.h5", "--crop",
-                                                       "-1,-1,-1,1,1,1", "--up", "-z"]))
+    args = build_parser().parse_args(
+        join_dash_values(["simulate", "g.ply", "-o", "r.h5", "--crop", "-1,-1,-1,1,1,1", "--up", "-z"])
+    )
     assert args.crop == "-1,-1,-1,1,1,1" and args.up == "-z"
 
 
 def test_every_gaussian_command_takes_up():
     parser = build_parser()
     cams = ["--cameras", "c.json"]
-    for cmd, extra in (("simulate", ["g.ply", "-o", "r.h5"]), ("score", ["g.ply", *cams, "-o", "s.json"]),
-                       ("sweep", ["g.ply", "-o", "s.csv"]), ("critical", ["g.ply", *cams, "-o", "c.json"]),
-                       ("inspect", ["g.ply"]), ("active", ["data", "-o", "run"])):
+    for cmd, extra in (
+        ("simulate", ["g.ply", "-o", "r.h5"]),
+        ("score", ["g.ply", *cams, "-o", "s.json"]),
+        ("sweep", ["g.ply", "-o", "s.csv"]),
+        ("critical", ["g.ply", *cams, "-o", "c.json"]),
+        ("inspect", ["g.ply"]),
+        ("active", ["data", "-o", "run"]),
+    ):
         args = parser.parse_args(join_dash_values([cmd, *extra, "--up", "-y"]))
         assert args.up == "-y", cmd
 
@@ -198,8 +215,9 @@ def test_a_cropped_simulation_gives_every_gaussian_a_row_and_records_the_crop(tm
     pts = rng.normal(size=(300, 3))
     pts = 0.5 * pts / np.linalg.norm(pts, axis=1, keepdims=True)
     g = _gaussians(np.vstack([pts, [[30.0, 0.0, 0.0]]]), scale=0.06)
-    cfg = PhysicsConfig(particle_radius=0.08, steps=60, dt=0.004, empty_reference=False, directions=("-x",),
-                        crop=(-1, -1, -1, 1, 1, 1))
+    cfg = PhysicsConfig(
+        particle_radius=0.08, steps=60, dt=0.004, empty_reference=False, directions=("-x",), crop=(-1, -1, -1, 1, 1, 1)
+    )
     res = simulate_gaussians(g, cfg, progress=False)
     assert res.divergence.shape == (301,) and res.per_probe.shape == (1, 301)
     assert res.kept is not None and res.kept[:300].all() and not res.kept[300]

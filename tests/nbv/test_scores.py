@@ -69,7 +69,7 @@ def test_rank_descending_stable_ties():
 def test_geometry_divergence_hand_case():
     cov = torch.stack([torch.diag(torch.tensor([1.0, 2.0, 3.0])), torch.eye(3) * 0.5])
     d = torch.tensor([2.0, 4.0])
-    expected = (math.pi * 36 * 2 + math.pi * 1.5 ** 2 * 4) / 2
+    expected = (math.pi * 36 * 2 + math.pi * 1.5**2 * 4) / 2
     assert scores.geometry_divergence(cov, d) == pytest.approx(expected)
     # rotation-invariant: s_g = tr(Sigma_g)
     q = torch.linalg.qr(torch.randn(3, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(1)))[0]
@@ -120,12 +120,25 @@ def _scene(n: int = 400, seed: int = 0, dtype=torch.float32):
 
     gen = torch.Generator().manual_seed(seed)
     means = (torch.rand(n, 3, generator=gen, dtype=torch.float64) - 0.5) * 1.5
-    g = GaussianSet(means, torch.randn(n, 4, generator=gen, dtype=torch.float64),
-                    torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4 - 2.8,
-                    torch.randn(n, generator=gen, dtype=torch.float64) + 0.5,
-                    0.3 * torch.randn(n, 1, 3, generator=gen, dtype=torch.float64)).to(dtype=dtype)
-    cams = [Camera.look_at((3 * math.cos(a), 0.4, 3 * math.sin(a)), (0, 0, 0), (0, 1, 0), 36 + 4 * k, 28 + 2 * k,
-                           math.radians(55), name=f"c{k}") for k, a in enumerate((0.0, 1.3, 2.9, 4.4))]
+    g = GaussianSet(
+        means,
+        torch.randn(n, 4, generator=gen, dtype=torch.float64),
+        torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4 - 2.8,
+        torch.randn(n, generator=gen, dtype=torch.float64) + 0.5,
+        0.3 * torch.randn(n, 1, 3, generator=gen, dtype=torch.float64),
+    ).to(dtype=dtype)
+    cams = [
+        Camera.look_at(
+            (3 * math.cos(a), 0.4, 3 * math.sin(a)),
+            (0, 0, 0),
+            (0, 1, 0),
+            36 + 4 * k,
+            28 + 2 * k,
+            math.radians(55),
+            name=f"c{k}",
+        )
+        for k, a in enumerate((0.0, 1.3, 2.9, 4.4))
+    ]
     cams.append(Camera.look_at((0, 0, 0.4), (0, 0, 3), (0, 1, 0), 30, 30, math.radians(60), name="inside"))
     return g, cams, torch.rand(n, generator=gen, dtype=torch.float64) * 5
 
@@ -137,8 +150,10 @@ def test_view_scores_take_projected_radii_and_per_view_sizes():
     radii, visible = project_visibility(g, cams)
     sizes = [(c.height, c.width) for c in cams]
     from_pair = scores.view_scores(metric, (radii, visible), image_size=sizes)
-    ref = [scores.view_scores_reference(metric, radii[k:k + 1], visible[k:k + 1], h, w)[0]
-           for k, (h, w) in enumerate(sizes)]
+    ref = [
+        scores.view_scores_reference(metric, radii[k : k + 1], visible[k : k + 1], h, w)[0]
+        for k, (h, w) in enumerate(sizes)
+    ]
     assert torch.allclose(from_pair, torch.tensor(ref, dtype=torch.float64), rtol=1e-12, atol=0)
     assert torch.allclose(scores.view_scores(metric, radii, image_size=sizes), from_pair, rtol=1e-15, atol=0)
     with pytest.raises(ValueError, match="one per view"):
@@ -231,8 +246,9 @@ def test_depth_buffer_matches_its_loop_twin():
         fast = scores.coarse_unoccluded(g, cams, config, block=151)
         for k, cam in enumerate(cams):
             assert fast[k].tolist() == scores.coarse_unoccluded_reference(g, cam, config), (config, k)
-        visible = torch.stack([torch.as_tensor(scores.coarse_unoccluded_reference(
-            g, c, scores.DepthBuffer(min_alpha=1.0))) for c in cams])  # min_alpha 1: nothing is ever hidden
+        visible = torch.stack(
+            [torch.as_tensor(scores.coarse_unoccluded_reference(g, c, scores.DepthBuffer(min_alpha=1.0))) for c in cams]
+        )  # min_alpha 1: nothing is ever hidden
         assert (fast <= visible).all() and (fast < visible).any()  # the depth test hides some visible ones
 
 
@@ -274,11 +290,14 @@ def test_depth_buffer_agrees_with_the_render_on_a_closed_shell():
             p[:, [k for k in range(3) if k != axis]] = torch.stack([a, b], -1)
             faces.append(p)
     g = GaussianSet.from_points(torch.unique(torch.cat(faces), dim=0), scale=0.7 / 12, opacity=0.9)
-    cams = [Camera.look_at((2.5 * math.cos(x), 0.2, 2.5 * math.sin(x)), (0, 0, 0), (0, 1, 0), 64, 64,
-                           math.radians(45)) for x in (2 * math.pi * k / 8 for k in range(8))]
+    cams = [
+        Camera.look_at((2.5 * math.cos(x), 0.2, 2.5 * math.sin(x)), (0, 0, 0), (0, 1, 0), 64, 64, math.radians(45))
+        for x in (2 * math.pi * k / 8 for k in range(8))
+    ]
     outs = [render(g, c, 1.0) for c in cams]
-    by_render = torch.stack([scores.unoccluded(g.means, 3 * g.max_radii().double(), c, o)
-                             for c, o in zip(cams, outs, strict=True)])
+    by_render = torch.stack(
+        [scores.unoccluded(g.means, 3 * g.max_radii().double(), c, o) for c, o in zip(cams, outs, strict=True)]
+    )
     coarse = scores.coarse_unoccluded(g, cams)
     visible = torch.stack([o.visible for o in outs])
     assert 0.4 < float((visible & ~by_render).sum() / visible.sum()) < 0.8
@@ -297,8 +316,28 @@ def test_bench_views_smoke(tmp_path, capsys):
     cameras = tmp_path / "transforms.json"
     cameras.write_text(json.dumps({"camera_angle_x": math.radians(55), "w": 40, "h": 30, "frames": frames}))
     out = tmp_path / "bench.json"
-    assert cli.main(["bench", "views", "--gaussians", str(ply), "--cameras", str(cameras), "--count", "1000",
-                     "--views", "3", "--width", "32", "--occlusion", "--json", str(out)]) == 0
+    assert (
+        cli.main(
+            [
+                "bench",
+                "views",
+                "--gaussians",
+                str(ply),
+                "--cameras",
+                str(cameras),
+                "--count",
+                "1000",
+                "--views",
+                "3",
+                "--width",
+                "32",
+                "--occlusion",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "identical order: True" in text and "radii equal to the renderer's in every view: True" in text
     report = json.loads(out.read_text())
@@ -314,8 +353,9 @@ def test_time_projected_scores_figures():
     from nbv.bench.score_agreement import time_projected_scores
 
     g, _, _ = _scene(200, seed=3)
-    t = time_projected_scores(g, np.linspace(0.1, 1.0, 200), count=500, views=4, width=24, seed=1, occlusion=True,
-                              device=torch.device("cpu"))
+    t = time_projected_scores(
+        g, np.linspace(0.1, 1.0, 200), count=500, views=4, width=24, seed=1, occlusion=True, device=torch.device("cpu")
+    )
     assert (t["gaussians"], t["views"], t["width"]) == (500, 4, 24)
     assert t["per_view_ms"] == pytest.approx(1e3 * t["total_s"] / 4)
     assert t["ns_per_pair"] == pytest.approx(1e9 * t["total_s"] / (4 * 500))

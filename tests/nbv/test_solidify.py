@@ -30,9 +30,13 @@ from recon.gaussians import GaussianSet
 def random_gaussians(n: int, seed: int, extent: float = 0.3, scale_range=(0.02, 0.12)) -> GaussianSet:
     rng = np.random.default_rng(seed)
     lo, hi = np.log(scale_range[0]), np.log(scale_range[1])
-    return GaussianSet(torch.tensor(rng.uniform(-extent, extent, (n, 3))), torch.tensor(rng.normal(size=(n, 4))),
-                       torch.tensor(rng.uniform(lo, hi, (n, 3))), torch.tensor(rng.normal(0.5, 1.5, n)),
-                       torch.zeros(n, 1, 3, dtype=torch.float64))
+    return GaussianSet(
+        torch.tensor(rng.uniform(-extent, extent, (n, 3))),
+        torch.tensor(rng.normal(size=(n, 4))),
+        torch.tensor(rng.uniform(lo, hi, (n, 3))),
+        torch.tensor(rng.normal(0.5, 1.5, n)),
+        torch.zeros(n, 1, 3, dtype=torch.float64),
+    )
 
 
 def lattice_points(lattice_min, shape, spacing):
@@ -51,12 +55,12 @@ def test_lattice_opacity_matches_brute_force_twin():
     means, covs, opac, _ = gaussian_arrays_in_sim(g, tr)
     cut = combined_opacity_reference(pts, means, covs, opac, sigma_cutoff=cfg.sigma_cutoff)
     full = combined_opacity_reference(pts, means, covs, opac)
-    assert fast.max() > 0.9 and (fast < 1e-3).mean() > 0.05      # the lattice sees solid and empty space
-    assert np.abs(fast - cut).max() < 2e-5                        # same sum, f32 accumulation
+    assert fast.max() > 0.9 and (fast < 1e-3).mean() > 0.05  # the lattice sees solid and empty space
+    assert np.abs(fast - cut).max() < 2e-5  # same sum, f32 accumulation
     # The cut drops only points with d_g >= 3: at most -log(1 - o_g e^-4.5) per Gaussian in log T.
     bound = 1.0 - math.exp(np.log1p(-np.minimum(opac * math.exp(-4.5), MAX_ALPHA)).sum())
     assert np.abs(fast - full).max() <= bound + 2e-5
-    assert np.abs(fast - full).max() > 1e-6                       # the cut does drop something
+    assert np.abs(fast - full).max() > 1e-6  # the cut does drop something
 
 
 def test_solid_mask_equals_twin_away_from_tau():
@@ -76,8 +80,8 @@ def test_solid_mask_equals_twin_away_from_tau():
 
 def test_transform_z_up_rotation_scale_and_inverse():
     tr = SceneTransform("z", 2.0)
-    assert np.allclose(tr.to_sim([[0.0, 0.0, 1.0]]), [[0.0, 2.0, 0.0]])    # +z -> +y
-    assert np.allclose(tr.to_sim([[0.0, 1.0, 0.0]]), [[0.0, 0.0, -2.0]])   # +y -> -z
+    assert np.allclose(tr.to_sim([[0.0, 0.0, 1.0]]), [[0.0, 2.0, 0.0]])  # +z -> +y
+    assert np.allclose(tr.to_sim([[0.0, 1.0, 0.0]]), [[0.0, 0.0, -2.0]])  # +y -> -z
     assert np.allclose(tr.to_sim([[1.0, 0.0, 0.0]]), [[2.0, 0.0, 0.0]])
     p = np.random.default_rng(2).normal(size=(20, 3))
     assert np.allclose(tr.to_scene(tr.to_sim(p)), p)
@@ -96,30 +100,31 @@ def test_transform_z_up_rotation_scale_and_inverse():
 
 def test_z_up_scene_stands_up_along_y():
     g = GaussianSet.from_points(torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64), scale=0.05, opacity=0.9)
-    g.log_scales[:, 2] = math.log(0.3)                  # a needle along scene +z, centred at z = 1
+    g.log_scales[:, 2] = math.log(0.3)  # a needle along scene +z, centred at z = 1
     solid = gaussians_to_solid(g, SolidifyConfig(spacing=0.05), SceneTransform("z", 1.0))
     assert solid.counts["opacity"] > 0 and solid.counts["total"] == len(solid.points)
     extent = solid.points.max(0) - solid.points.min(0)
-    assert extent[1] > 3 * max(extent[0], extent[2])    # along sim y
+    assert extent[1] > 3 * max(extent[0], extent[2])  # along sim y
     assert np.allclose(solid.points.mean(0), [0.0, 1.0, 0.0], atol=0.03)
 
 
 def test_single_gaussian_gives_ball_of_predicted_radius_and_scale_applies():
     o, sigma, tau, sp = 0.9, 0.1, 0.3, 0.02
     g = GaussianSet.from_points(torch.zeros(1, 3, dtype=torch.float64), scale=sigma, opacity=o)
-    radius = sigma * math.sqrt(2.0 * math.log(o / tau))   # o exp(-r^2 / 2 sigma^2) = tau
+    radius = sigma * math.sqrt(2.0 * math.log(o / tau))  # o exp(-r^2 / 2 sigma^2) = tau
     for scale in (1.0, 2.0):
-        centre = gaussians_to_solid(g, SolidifyConfig(spacing=sp, opacity_threshold=tau, thin=False),
-                                    SceneTransform("y", scale))
+        centre = gaussians_to_solid(
+            g, SolidifyConfig(spacing=sp, opacity_threshold=tau, thin=False), SceneTransform("y", scale)
+        )
         r = np.linalg.norm(centre.points, axis=1)
-        assert r.max() <= scale * radius + 1e-9                   # test 1: the points inside the tau-sphere
-        expected = 4.0 / 3.0 * math.pi * (scale * radius) ** 3 / sp ** 3
+        assert r.max() <= scale * radius + 1e-9  # test 1: the points inside the tau-sphere
+        expected = 4.0 / 3.0 * math.pi * (scale * radius) ** 3 / sp**3
         assert abs(len(centre.points) / expected - 1.0) < 0.05
         # The edge test adds, where an edge between two outside points grazes the sphere, its end nearer the
         # centre: within the sagitta s^2 / (8 R) of the surface, a handful of points.
         solid = gaussians_to_solid(g, SolidifyConfig(spacing=sp, opacity_threshold=tau), SceneTransform("y", scale))
         r = np.linalg.norm(solid.points, axis=1)
-        assert r.max() <= scale * radius + sp ** 2 / (8 * scale * radius) + 1e-9
+        assert r.max() <= scale * radius + sp**2 / (8 * scale * radius) + 1e-9
         assert 0 <= len(solid.points) - len(centre.points) < 0.01 * expected
         assert solid.counts["thin"] == len(solid.points) - len(centre.points)
 
@@ -128,12 +133,12 @@ def fibonacci_sphere(n: int) -> np.ndarray:
     """[n, 3] nearly uniform unit vectors."""
     k = np.arange(n) + 0.5
     phi = np.arccos(1 - 2 * k / n)
-    theta = math.pi * (1 + 5 ** 0.5) * k
+    theta = math.pi * (1 + 5**0.5) * k
     return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
 
 
 def shell_gaussians(radius: float, sigma: float, opacity: float) -> GaussianSet:
-    n = int(4 * math.pi * radius ** 2 / (0.8 * sigma) ** 2)
+    n = int(4 * math.pi * radius**2 / (0.8 * sigma) ** 2)
     return GaussianSet.from_points(torch.tensor(radius * fibonacci_sphere(n)), scale=sigma, opacity=opacity)
 
 
@@ -141,11 +146,11 @@ def test_hollow_shell_fills_to_a_ball_unless_fill_is_off():
     sp, radius = 0.05, 0.4
     g = shell_gaussians(radius, 0.03, 0.9)
     hollow = gaussians_to_solid(g, SolidifyConfig(spacing=sp, fill_cavities=False), SceneTransform())
-    filled = gaussians_to_solid(g, SolidifyConfig(spacing=sp), SceneTransform())   # filling is the default
-    assert np.linalg.norm(hollow.points, axis=1).min() > radius - 0.1   # the interior stays empty
+    filled = gaussians_to_solid(g, SolidifyConfig(spacing=sp), SceneTransform())  # filling is the default
+    assert np.linalg.norm(hollow.points, axis=1).min() > radius - 0.1  # the interior stays empty
     pts = lattice_points(filled.lattice_min, filled.lattice_shape, sp)
     inner = np.linalg.norm(pts, axis=1) < radius - 0.05
-    assert filled.occupancy.reshape(-1)[inner].all()                    # ... and is filled with the option
+    assert filled.occupancy.reshape(-1)[inner].all()  # ... and is filled with the option
     assert (filled.occupancy >= hollow.occupancy).all()
     # Volume inside the outer surface (combined opacity = tau), radius found along 50 rays by the twin.
     dirs = fibonacci_sphere(50)
@@ -153,8 +158,8 @@ def test_hollow_shell_fills_to_a_ball_unless_fill_is_off():
     means, covs, opac, _ = gaussian_arrays_in_sim(g, SceneTransform())
     opacity = combined_opacity_reference((radii[:, None, None] * dirs[None]).reshape(-1, 3), means, covs, opac)
     solid_along = opacity.reshape(len(radii), -1) >= 0.3
-    outer = radii[len(radii) - 1 - np.argmax(solid_along[::-1], axis=0)]   # outermost solid radius per ray
-    expected = np.mean(4.0 / 3.0 * math.pi * outer ** 3) / sp ** 3
+    outer = radii[len(radii) - 1 - np.argmax(solid_along[::-1], axis=0)]  # outermost solid radius per ray
+    expected = np.mean(4.0 / 3.0 * math.pi * outer**3) / sp**3
     assert abs(len(filled.points) / expected - 1.0) < 0.03
     r_in = np.linalg.norm(hollow.points, axis=1).min()
     cavity = (np.linalg.norm(pts, axis=1) < r_in - 1e-9).sum()
@@ -191,13 +196,19 @@ def test_bounds_clip_the_lattice():
     assert len(kept) == len(clipped.points)
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"spacing": 0.0}, "spacing"), ({"spacing": 0.05, "opacity_threshold": 1.0}, "opacity_threshold"),
-    ({"spacing": 0.05, "sigma_cutoff": -1.0}, "sigma_cutoff"), ({"spacing": 0.05, "max_points": 0}, "max_points"),
-    ({"spacing": 0.05, "bounds": ((0, 0, 0), (1, -1, 1))}, "bounds"),
-    ({"spacing": 0.05, "fill_cavities": 1}, "fill_cavities"), ({"spacing": 0.05, "thin": "yes"}, "thin"),
-    ({"spacing": 0.05, "carve_margin": -1.0}, "carve_margin"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"spacing": 0.0}, "spacing"),
+        ({"spacing": 0.05, "opacity_threshold": 1.0}, "opacity_threshold"),
+        ({"spacing": 0.05, "sigma_cutoff": -1.0}, "sigma_cutoff"),
+        ({"spacing": 0.05, "max_points": 0}, "max_points"),
+        ({"spacing": 0.05, "bounds": ((0, 0, 0), (1, -1, 1))}, "bounds"),
+        ({"spacing": 0.05, "fill_cavities": 1}, "fill_cavities"),
+        ({"spacing": 0.05, "thin": "yes"}, "thin"),
+        ({"spacing": 0.05, "carve_margin": -1.0}, "carve_margin"),
+    ],
+)
 def test_config_validation_names_the_field(kwargs, field):
     with pytest.raises(ValueError, match=field):
         SolidifyConfig(**kwargs)
@@ -217,16 +228,21 @@ def thin_random_gaussians(n: int, seed: int) -> GaussianSet:
     scales = np.exp(rng.uniform(np.log(0.01), np.log(0.08), (n, 3)))
     flat = rng.random(n) < 0.6
     scales[flat, 2] = rng.uniform(0.001, 0.004, flat.sum())
-    return GaussianSet(torch.tensor(rng.uniform(-0.25, 0.25, (n, 3))), torch.tensor(rng.normal(size=(n, 4))),
-                       torch.tensor(np.log(scales)), torch.tensor(rng.normal(0.5, 1.5, n)),
-                       torch.zeros(n, 1, 3, dtype=torch.float64))
+    return GaussianSet(
+        torch.tensor(rng.uniform(-0.25, 0.25, (n, 3))),
+        torch.tensor(rng.normal(size=(n, 4))),
+        torch.tensor(np.log(scales)),
+        torch.tensor(rng.normal(0.5, 1.5, n)),
+        torch.zeros(n, 1, 3, dtype=torch.float64),
+    )
 
 
 def edge_twin(g, cfg, tr, lattice_min, shape, sigma_cutoff="config"):
     means, covs, opac, _ = gaussian_arrays_in_sim(g, tr)
     cut = cfg.sigma_cutoff if sigma_cutoff == "config" else sigma_cutoff
-    return edge_log_transmittance_reference(lattice_min, shape, cfg.spacing, means, covs,
-                                            inverse_covariances_in_sim(g, tr), opac, sigma_cutoff=cut)
+    return edge_log_transmittance_reference(
+        lattice_min, shape, cfg.spacing, means, covs, inverse_covariances_in_sim(g, tr), opac, sigma_cutoff=cut
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -240,7 +256,7 @@ def test_edge_opacity_matches_brute_force_twin(seed):
     ref = edge_twin(g, cfg, tr, lattice_min, log_t.shape)
     fast = 1.0 - np.exp(edge_log_t.astype(np.float64))
     cut_ref = 1.0 - np.exp(ref)
-    assert np.abs(fast - cut_ref).max() < 2e-5                     # the same sum, f32 accumulation
+    assert np.abs(fast - cut_ref).max() < 2e-5  # the same sum, f32 accumulation
     thr = cfg.opacity_threshold
     cuts = lattice_cut_edges(g, cfg, tr)[1]
     decided = np.abs(cut_ref - thr) > 1e-4
@@ -248,7 +264,7 @@ def test_edge_opacity_matches_brute_force_twin(seed):
     assert np.array_equal(cuts[decided], (cut_ref >= thr)[decided])  # integer result: exact where f32 cannot flip
     assert 0.001 < cuts.mean() < 0.5
     opaque = log_t.astype(np.float64) <= math.log1p(-thr)
-    assert (cuts[0] & ~opaque & ~np.roll(opaque, -1, axis=0)).any()   # edges cut where test 1 sees nothing
+    assert (cuts[0] & ~opaque & ~np.roll(opaque, -1, axis=0)).any()  # edges cut where test 1 sees nothing
     # The sigma-box cut drops Gaussians whose peak on the edge is at most o_g e^-4.5: the bound of test 1.
     full = 1.0 - np.exp(edge_twin(g, cfg, tr, lattice_min, log_t.shape, sigma_cutoff=None))
     _, _, opac, _ = gaussian_arrays_in_sim(g, tr)
@@ -273,17 +289,20 @@ def test_edge_peaks_agree_with_dense_sampling_of_each_edge():
     for axis in range(3):
         starts = np.argwhere(np.ones(shape, bool))
         starts = starts[starts[:, axis] < shape[axis] - 1]
-        high = np.nonzero(exact[(axis, *starts.T)] > 0.3)[0]        # the edges that matter, and random ones
-        starts = starts[np.concatenate([rng.choice(high, min(150, len(high)), replace=False),
-                                        rng.choice(len(starts), 150, replace=False)])]
+        high = np.nonzero(exact[(axis, *starts.T)] > 0.3)[0]  # the edges that matter, and random ones
+        starts = starts[
+            np.concatenate(
+                [rng.choice(high, min(150, len(high)), replace=False), rng.choice(len(starts), 150, replace=False)]
+            )
+        ]
         p = lattice_min + cfg.spacing * starts
-        x = p[:, None, :] + cfg.spacing * t[None, :, None] * np.eye(3)[axis]   # [E, T, 3]
-        d = x[:, :, None, :] - means[None, None]                             # [E, T, G, 3]
+        x = p[:, None, :] + cfg.spacing * t[None, :, None] * np.eye(3)[axis]  # [E, T, 3]
+        d = x[:, :, None, :] - means[None, None]  # [E, T, G, 3]
         peak = np.minimum((opac * np.exp(-0.5 * np.einsum("etga,gab,etgb->etg", d, inv, d))).max(axis=1), MAX_ALPHA)
         sampled = 1.0 - np.exp(np.log1p(-peak).sum(axis=1))
         want = exact[(axis, *starts.T)]
-        assert (sampled <= want + 1e-12).all()                     # no sample beats the exact peak
-        assert np.abs(sampled - want).max() < 0.01                 # and the dense sample comes close to it
+        assert (sampled <= want + 1e-12).all()  # no sample beats the exact peak
+        assert np.abs(sampled - want).max() < 0.01  # and the dense sample comes close to it
         assert (want > 0.3).sum() > 5
 
 
@@ -327,7 +346,7 @@ def test_fill_enclosed_equals_flood_fill(seed):
     rng = np.random.default_rng(seed)
     occ = rng.random((14, 11, 9)) < 0.45
     occ[3:10, 3:8, 2:7] = True
-    occ[4:9, 4:7, 3:6] = False                                 # a box cavity with a winding wall
+    occ[4:9, 4:7, 3:6] = False  # a box cavity with a winding wall
     occ[5, 5, 4] = True
     got = fill_enclosed(occ)
     assert np.array_equal(got, fill_enclosed_reference(occ))
@@ -346,7 +365,7 @@ def test_outside_region_with_cut_edges_equals_flood_fill(seed):
     cuts[1, 3:9, 2, 3:9] = cuts[1, 3:9, 7, 3:9] = True
     cuts[2, 3:9, 3:8, 2] = cuts[2, 3:9, 3:8, 8] = True
     occ[3:9, 3:8, 3:9] = False
-    for axis in range(3):                                       # the last layer starts no edge
+    for axis in range(3):  # the last layer starts no edge
         last = [slice(None)] * 3
         last[axis] = -1
         cuts[(axis, *last)] = False
@@ -388,7 +407,7 @@ def test_fill_of_a_long_winding_passage_is_fast_and_exact():
     minute on such a lattice at 10^7 points)."""
     n = 40
     idx = np.indices((n, n, n)).astype(np.float64) - n / 2 + 0.5
-    r = np.sqrt((idx ** 2).sum(0))
+    r = np.sqrt((idx**2).sum(0))
     occ = np.zeros((n, n, n), bool)
     for k, radius in enumerate(range(4, 19, 3)):
         shell = np.abs(r - radius) < 0.8
@@ -396,7 +415,7 @@ def test_fill_of_a_long_winding_passage_is_fast_and_exact():
         occ |= shell & ~hole
     got = fill_enclosed(occ)
     assert np.array_equal(got, fill_enclosed_reference(occ))
-    assert (got & ~occ).sum() == 0                              # every shell has a hole: nothing is enclosed
+    assert (got & ~occ).sum() == 0  # every shell has a hole: nothing is enclosed
 
 
 # ---- the whole occupancy against a twin made of loops -----------------------------------------------
@@ -423,7 +442,7 @@ def solid_reference(g: GaussianSet, cfg: SolidifyConfig, tr: SceneTransform, lat
             continue
         c = np.minimum(np.floor(rel + 0.5).astype(int), np.array(shape) - 1)
         lo, hi = np.maximum(c - 1, 0), c + 2
-        if not before[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]].any():
+        if not before[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]].any():
             solid[tuple(c)] = True
     return solid, np.concatenate([opacity.reshape(-1), edge_opacity.reshape(-1)])
 
@@ -435,7 +454,7 @@ def test_occupancy_equals_loop_twin_exactly(seed, fill):
     tr = SceneTransform()
     solid = gaussians_to_solid(g, cfg, tr)
     ref, opacity = solid_reference(g, cfg, tr, solid.lattice_min, solid.lattice_shape)
-    assert np.abs(opacity - cfg.opacity_threshold).min() > 1e-4    # nothing decided by f32 rounding (seed choice)
+    assert np.abs(opacity - cfg.opacity_threshold).min() > 1e-4  # nothing decided by f32 rounding (seed choice)
     assert np.array_equal(solid.occupancy, ref)
     assert solid.counts["thin"] > 0 and solid.counts["total"] == ref.sum()
     assert solid.counts["total"] > solid.counts["opacity"]
@@ -444,18 +463,22 @@ def test_occupancy_equals_loop_twin_exactly(seed, fill):
 def test_lone_thin_gaussian_between_lattice_points_is_a_speck():
     sp = 0.05
     # a tiny flat disc in the middle of a lattice cell: no lattice point, no edge reaches it
-    g = GaussianSet(torch.tensor([[0.03, 0.03, 0.03], [0.525, 0.525, 0.525]], dtype=torch.float64),
-                    torch.tensor([[1.0, 0, 0, 0]] * 2, dtype=torch.float64),
-                    torch.log(torch.tensor([[0.005, 0.005, 0.0005]] * 2, dtype=torch.float64)),
-                    torch.tensor([2.0, -2.0], dtype=torch.float64), torch.zeros(2, 1, 3, dtype=torch.float64))
+    g = GaussianSet(
+        torch.tensor([[0.03, 0.03, 0.03], [0.525, 0.525, 0.525]], dtype=torch.float64),
+        torch.tensor([[1.0, 0, 0, 0]] * 2, dtype=torch.float64),
+        torch.log(torch.tensor([[0.005, 0.005, 0.0005]] * 2, dtype=torch.float64)),
+        torch.tensor([2.0, -2.0], dtype=torch.float64),
+        torch.zeros(2, 1, 3, dtype=torch.float64),
+    )
     solid = gaussians_to_solid(g, SolidifyConfig(spacing=sp, min_points=1), SceneTransform())
     assert solid.counts["opacity"] == solid.counts["thin"] == 0
-    assert solid.counts["specks"] == 1                            # the opaque one only (the other has o = 0.12)
+    assert solid.counts["specks"] == 1  # the opaque one only (the other has o = 0.12)
     # the faint one cannot make solid alone, so it does not size the lattice (nbv.physics.floaters): the lattice is
     # the opaque one's box, whose only point takes the speck (within one spacing of the centre)
     assert solid.lattice_shape == (1, 1, 1) and np.allclose(solid.points, [[0.0, 0.0, 0.0]])
-    off = gaussians_to_solid(g, SolidifyConfig(spacing=sp, min_points=1, thin=True, fill_cavities=False),
-                             SceneTransform())
+    off = gaussians_to_solid(
+        g, SolidifyConfig(spacing=sp, min_points=1, thin=True, fill_cavities=False), SceneTransform()
+    )
     assert len(off.points) == 1
     with pytest.raises(ValueError, match="empty"):
         gaussians_to_solid(g, SolidifyConfig(spacing=sp, min_points=1, thin=False), SceneTransform())

@@ -16,8 +16,16 @@ from fluidsim.sources import sphere_particles
 from nbv.bench import splash as peer
 from nbv.bench.splash import PeerScene, icosphere, peer_config, peer_particles, peer_solver, splash_scene_json, unit_box
 
-SMALL = PeerScene(particle_radius=0.1, steps=3, sphere_radius=0.5, fluid_min=(0.8, -0.6, -0.6),
-                  fluid_max=(1.4, 0.6, 0.6), domain_min=(-1.2, -1.0, -1.0), domain_max=(2.0, 1.0, 1.0), threads=1)
+SMALL = PeerScene(
+    particle_radius=0.1,
+    steps=3,
+    sphere_radius=0.5,
+    fluid_min=(0.8, -0.6, -0.6),
+    fluid_max=(1.4, 0.6, 0.6),
+    domain_min=(-1.2, -1.0, -1.0),
+    domain_max=(2.0, 1.0, 1.0),
+    threads=1,
+)
 
 
 def _signed_volume(verts, faces) -> float:
@@ -138,14 +146,17 @@ def test_bench_sim_smoke(tmp_path, capsys):
     assert cli.main(["bench", "sim", "--steps", "1", "--no-peer"]) == 2
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"particle_radius": 0.0}, "particle_radius must be a finite number > 0"),
-    ({"dt": float("nan")}, "dt must be a finite number > 0"),
-    ({"steps": 0}, "steps must be an integer >= 1"),
-    ({"max_iterations": 1}, "max_iterations .1. must be >= min_iterations"),
-    ({"fluid_min": (2.2, -1.0, -1.0)}, "fluid_min/fluid_max must be 3 numbers each with min < max"),
-    ({"fluid_max": (3.0, 1.35, 1.35)}, "must lie inside the domain"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"particle_radius": 0.0}, "particle_radius must be a finite number > 0"),
+        ({"dt": float("nan")}, "dt must be a finite number > 0"),
+        ({"steps": 0}, "steps must be an integer >= 1"),
+        ({"max_iterations": 1}, "max_iterations .1. must be >= min_iterations"),
+        ({"fluid_min": (2.2, -1.0, -1.0)}, "fluid_min/fluid_max must be 3 numbers each with min < max"),
+        ({"fluid_max": (3.0, 1.35, 1.35)}, "must lie inside the domain"),
+    ],
+)
 def test_peer_scene_is_validated(change, message):
     with pytest.raises(ValueError, match=message):
         replace(PeerScene(), **change)

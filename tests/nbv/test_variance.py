@@ -43,9 +43,16 @@ def _camera_at(x: float, size=12) -> Camera:
 def test_prior_posterior_by_hand_one_pixel_two_gaussians():
     alpha = torch.tensor([0.5, 0.4], dtype=F64)
     trans = torch.tensor([1.0, 0.5], dtype=F64)
-    pairs = ViewPairs(pixels=torch.tensor([0, 0], dtype=torch.int32), gaussians=torch.tensor([0, 1], dtype=torch.int32),
-                      alpha=alpha, transmittance=trans, live=torch.tensor([True, True]),
-                      weights=alpha * trans, width=1, height=1)
+    pairs = ViewPairs(
+        pixels=torch.tensor([0, 0], dtype=torch.int32),
+        gaussians=torch.tensor([0, 1], dtype=torch.int32),
+        alpha=alpha,
+        transmittance=trans,
+        live=torch.tensor([True, True]),
+        weights=alpha * trans,
+        width=1,
+        height=1,
+    )
     v = torch.tensor([0.2, 0.05], dtype=F64)
     w1, w2 = 0.5 * (1.0 * (1 - 0.5)), 0.4 * (0.5 * (1 - 0.4))  # alpha x transmittance after the Gaussian
     prior = 1e-4 + 0.2 * w1**2 + 0.05 * w2**2
@@ -117,8 +124,16 @@ def test_nll_fit_lowers_the_loss_and_raises_v_where_the_error_is_larger():
 
 def test_nll_loss_formula_by_hand():
     alpha = torch.tensor([0.5], dtype=F64)
-    pairs = ViewPairs(torch.tensor([0], dtype=torch.int32), torch.tensor([0], dtype=torch.int32), alpha,
-                      torch.ones(1, dtype=F64), torch.tensor([True]), alpha.clone(), 2, 1)
+    pairs = ViewPairs(
+        torch.tensor([0], dtype=torch.int32),
+        torch.tensor([0], dtype=torch.int32),
+        alpha,
+        torch.ones(1, dtype=F64),
+        torch.tensor([True]),
+        alpha.clone(),
+        2,
+        1,
+    )
     err = torch.tensor([0.04, 0.09], dtype=F64)
     loss = nll_loss(torch.log(torch.tensor([0.2], dtype=F64)), [pairs], [err], 1e-3)
     s0, s1 = 0.5 * 0.2 + 1e-3, 1e-3  # pixel 1 sees no Gaussian

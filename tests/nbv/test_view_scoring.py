@@ -29,19 +29,30 @@ from viz.annotate import label, to_bgr
 
 def _scene(n: int = 300, seed: int = 0):
     gen = torch.Generator().manual_seed(seed)
-    g = GaussianSet((torch.rand(n, 3, generator=gen, dtype=torch.float64) - 0.5) * 1.5,
-                    torch.randn(n, 4, generator=gen, dtype=torch.float64),
-                    torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4 - 2.8,
-                    torch.randn(n, generator=gen, dtype=torch.float64) + 0.5,
-                    0.3 * torch.randn(n, 1, 3, generator=gen, dtype=torch.float64)).to(dtype=torch.float32)
-    cams = [Camera.look_at((3 * math.cos(a), 0.4, 3 * math.sin(a)), (0, 0, 0), (0, 1, 0), 40, 32, math.radians(55),
-                           name=f"c{k}") for k, a in enumerate((0.0, 1.3, 2.9, 4.4))]
+    g = GaussianSet(
+        (torch.rand(n, 3, generator=gen, dtype=torch.float64) - 0.5) * 1.5,
+        torch.randn(n, 4, generator=gen, dtype=torch.float64),
+        torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4 - 2.8,
+        torch.randn(n, generator=gen, dtype=torch.float64) + 0.5,
+        0.3 * torch.randn(n, 1, 3, generator=gen, dtype=torch.float64),
+    ).to(dtype=torch.float32)
+    cams = [
+        Camera.look_at(
+            (3 * math.cos(a), 0.4, 3 * math.sin(a)), (0, 0, 0), (0, 1, 0), 40, 32, math.radians(55), name=f"c{k}"
+        )
+        for k, a in enumerate((0.0, 1.3, 2.9, 4.4))
+    ]
     return g, cams
 
 
 def _result(per_probe: np.ndarray, directions=("-x", "+x")):
-    return SimpleNamespace(divergence=per_probe.max(0), divergence_mean=per_probe.mean(0), per_probe=per_probe,
-                           directions=list(directions), warnings={})
+    return SimpleNamespace(
+        divergence=per_probe.max(0),
+        divergence_mean=per_probe.mean(0),
+        per_probe=per_probe,
+        directions=list(directions),
+        warnings={},
+    )
 
 
 def test_metric_values_pick_the_probe_or_the_combination():
@@ -80,15 +91,24 @@ def test_render_size_caps_the_width_only():
 def test_score_rows_are_the_projected_scores_best_first():
     g, cams = _scene()
     metric = np.random.default_rng(3).uniform(0, 5, g.num)
-    rows = score_views(g, cams, [7, 8, 9, 10], _result(np.stack([metric, metric / 2])), "-x", None,
-                       visible_centres=[1, 2, 3, 4], progress=False)  # the depth test is the default
+    rows = score_views(
+        g,
+        cams,
+        [7, 8, 9, 10],
+        _result(np.stack([metric, metric / 2])),
+        "-x",
+        None,
+        visible_centres=[1, 2, 3, 4],
+        progress=False,
+    )  # the depth test is the default
     expected = scores.projected_view_scores(torch.from_numpy(metric), g, cams, depth_buffer=scores.DepthBuffer())
     order = scores.rank(expected.scores).tolist()
     assert [r["index"] for r in rows] == [7 + k for k in order] and [r["rank"] for r in rows] == [1, 2, 3, 4]
     assert [r["score"] for r in rows] == pytest.approx(expected.scores[order].tolist(), rel=1e-12)
     assert [r["visible_centres"] for r in rows] == [1 + k for k in order]
-    frustum = score_views(g, cams, [7, 8, 9, 10], _result(np.stack([metric, metric / 2])), "-x", None,
-                          occlusion=False, progress=False)
+    frustum = score_views(
+        g, cams, [7, 8, 9, 10], _result(np.stack([metric, metric / 2])), "-x", None, occlusion=False, progress=False
+    )
     paper = scores.projected_view_scores(torch.from_numpy(metric), g, cams)
     assert sorted(r["score"] for r in frustum) == pytest.approx(sorted(paper.scores.tolist()), rel=1e-12)
 
@@ -145,9 +165,20 @@ def test_to_bgr_and_label():
 
 
 def test_format_table_lists_the_best_rows_with_their_parts():
-    rows = [{"rank": 1, "index": 7, "name": "a_very_long_camera_name_cut_at_24", "score": 0.000123456, "visible": 12,
-             "coverage": 0.5, "coverage_rank": 2, "physics_mean": 0.000246912, "physics_rank": 1},
-            {"rank": 2, "index": 3, "name": "b", "score": 5.0, "visible": 0}]
+    rows = [
+        {
+            "rank": 1,
+            "index": 7,
+            "name": "a_very_long_camera_name_cut_at_24",
+            "score": 0.000123456,
+            "visible": 12,
+            "coverage": 0.5,
+            "coverage_rank": 2,
+            "physics_mean": 0.000246912,
+            "physics_rank": 1,
+        },
+        {"rank": 2, "index": 3, "name": "b", "score": 5.0, "visible": 0},
+    ]
     lines = format_table(rows).splitlines()
     assert lines[0].split() == ["rank", "index", "name", "S", "A", "A#", "S/A", "S/A#", "visible"]
     assert len(lines) == 3

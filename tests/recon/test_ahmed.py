@@ -19,10 +19,10 @@ def _analytic_volume(slant_deg: float, stilts: bool) -> float:
     # nose: section (H - 2R + 2g)(W - 2R + 2g) with g(s) = sqrt(R^2 - s^2), s in [0, R];
     # int g ds = pi R^2 / 4, int g^2 ds = 2 R^3 / 3
     a, b = H - 2 * R, W - 2 * R
-    nose = a * b * R + 2 * (a + b) * math.pi * R * R / 4 + 4 * 2 * R ** 3 / 3
+    nose = a * b * R + 2 * (a + b) * math.pi * R * R / 4 + 4 * 2 * R**3 / 3
     straight = H * W * (L - R - run)
     rear = W * (H * run - run * run * math.tan(phi) / 2)
-    legs = 4 * math.pi * STILT_R ** 2 * CLEAR if stilts else 0.0
+    legs = 4 * math.pi * STILT_R**2 * CLEAR if stilts else 0.0
     return nose + straight + rear + legs
 
 
@@ -33,7 +33,7 @@ def _signed_volume(v, t):
 def _fit_circle(p: np.ndarray) -> tuple[np.ndarray, float]:
     """Algebraic least-squares circle through 2-D points: centre and radius."""
     a = np.c_[2 * p, np.ones(len(p))]
-    sol = np.linalg.lstsq(a, (p ** 2).sum(1), rcond=None)[0]
+    sol = np.linalg.lstsq(a, (p**2).sum(1), rcond=None)[0]
     return sol[:2], float(np.sqrt(sol[2] + sol[:2] @ sol[:2]))
 
 
@@ -94,8 +94,12 @@ def test_front_rounding_radius_from_surface_samples():
     centre, radius = _fit_circle(top[:, [0, 1]])  # side view: the top front edge
     assert len(top) > 500
     assert radius == pytest.approx(R, rel=0.01) and np.allclose(centre, [L / 2 - R, CLEAR + H - R], atol=1e-3)
-    side = p[(p[:, 0] > L / 2 - R + 0.005) & (p[:, 2] > W / 2 - R + 0.005) & (p[:, 1] > CLEAR + R + 0.005)
-             & (p[:, 1] < CLEAR + H - R - 0.005)]
+    side = p[
+        (p[:, 0] > L / 2 - R + 0.005)
+        & (p[:, 2] > W / 2 - R + 0.005)
+        & (p[:, 1] > CLEAR + R + 0.005)
+        & (p[:, 1] < CLEAR + H - R - 0.005)
+    ]
     centre, radius = _fit_circle(side[:, [0, 2]])  # plan view: the right front edge
     assert len(side) > 200
     assert radius == pytest.approx(R, rel=0.01) and np.allclose(centre, [L / 2 - R, W / 2 - R], atol=1e-3)
@@ -109,8 +113,7 @@ def test_stilts_stand_where_documented():
             near = feet[np.hypot(feet[:, 0] - xc, feet[:, 2] - zc) < 0.05]
             d = np.hypot(near[:, 0] - xc, near[:, 2] - zc)
             assert len(near) >= 24 and np.all((np.isclose(d, STILT_R)) | (d < 1e-12))
-    assert len(feet) == 4 * (np.sum(np.isclose(np.hypot(feet[:, 0] - L / 2 + 0.202, feet[:, 2] - 0.1635), STILT_R))
-                             + 1)
+    assert len(feet) == 4 * (np.sum(np.isclose(np.hypot(feet[:, 0] - L / 2 + 0.202, feet[:, 2] - 0.1635), STILT_R)) + 1)
 
 
 def test_up_axis_scale_and_validation():

@@ -26,11 +26,17 @@ def _write(path, meta):
 
 def _file(tmp_path, frames=None, **keys):
     meta = {"camera_angle_x": FOV, "w": 48, "h": 40, **keys}
-    meta["frames"] = frames if frames is not None else [
-        {"file_path": "./a", "transform_matrix": EYE},
-        {"file_path": "./b", "transform_matrix": Camera.look_at((3, 1, 2), (0, 0, 0), (0, 1, 0), 8, 8, 1.0)
-         .opengl_c2w().tolist()},
-    ]
+    meta["frames"] = (
+        frames
+        if frames is not None
+        else [
+            {"file_path": "./a", "transform_matrix": EYE},
+            {
+                "file_path": "./b",
+                "transform_matrix": Camera.look_at((3, 1, 2), (0, 0, 0), (0, 1, 0), 8, 8, 1.0).opengl_c2w().tolist(),
+            },
+        ]
+    )
     return _write(tmp_path / "transforms.json", {k: v for k, v in meta.items() if v is not None})
 
 
@@ -84,36 +90,71 @@ F1 = r"transforms\.json: frame 1 \(file_path './r_7'\)"
 TOP = r"transforms\.json: frame 0 \(file_path './a'\)"
 
 
-@pytest.mark.parametrize("keys, frames, res, message", [
-    # raised ZeroDivisionError in apps.score.load_cameras
-    ({"w": 0, "h": 0}, None, 24, TOP + r": key 'w' \(top level\) must be a positive integer image size in pixels"),
-    ({"w": 0, "h": 0}, None, None, TOP + r": key 'w' \(top level\) must be a positive integer"),
-    ({"h": 12.5}, None, None, TOP + r": key 'h' \(top level\) must be a positive integer"),
-    ({}, [{"file_path": "./a", "transform_matrix": EYE}, {"file_path": "./r_7", "transform_matrix": EYE, "w": -3}],
-     None, F1 + r": key 'w' must be a positive integer"),
-    # printed 'Singular matrix' / 'could not convert string to float' without the file and frame
-    ({}, _bad([[0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 4], [0, 0, 0, 1]]), None,
-     F1 + r": 'transform_matrix' is singular \(its 3x3 rotation part has determinant 0\)"),
-    ({}, _bad([["x", 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]), None,
-     F1 + r": 'transform_matrix' is not a numeric matrix \(could not convert string to float: 'x'\)"),
-    ({"camera_angle_x": "wide"}, None, None, TOP + r": key 'camera_angle_x' \(top level\) must be a number, "
-                                                 r"got 'wide'"),
-    ({}, [{"file_path": "./a", "transform_matrix": EYE, "fl_x": [1]}], None, TOP + r": key 'fl_x' must be a number"),
-    ({}, [{"file_path": "./a", "transform_matrix": EYE, "fl_x": True}], None, TOP + r": key 'fl_x' must be a number"),
-    ({"camera_angle_x": 4.0}, None, None, TOP + r": key 'camera_angle_x' \(top level\) \(field of view\) must be in"),
-    ({}, [{"file_path": "./a", "transform_matrix": EYE, "fl_y": 0}], None, TOP + r": key 'fl_y' .* must be > 0"),
-    ({}, _bad(SCALED), None, F1 + r": 'transform_matrix' 3x3 part is not orthonormal"),
-    ({}, _bad(MIRROR), None, F1 + r": 'transform_matrix' 3x3 part is a reflection"),
-    ({}, _bad([EYE[0], EYE[1], EYE[2], [0, 0, 1, 1]]), None, F1 + r": 'transform_matrix' last row must be"),
-    ({}, _bad([[1, 0, 0], [0, 1, 0]]), None, F1 + r": 'transform_matrix' must be a 4x4 \(or 3x4\) matrix"),
-    ({}, _bad([[1, 0, 0, 0], [0, 1, 0]]), None, F1 + r": 'transform_matrix' is not a numeric matrix"),
-    ({}, _bad([[math.nan, 0, 0, 0], *EYE[1:]]), None, F1 + r": 'transform_matrix' holds NaN"),
-    ({}, [{"file_path": "./a"}], None, TOP + r" has no 'transform_matrix' key"),
-    ({"camera_angle_x": None}, None, None, r"transforms\.json: missing 'camera_angle_x'.*'fl_x'.*frame 0"),
-    ({}, [], None, r"transforms\.json: 'frames' is empty"),
-    ({}, [3], None, r"transforms\.json: frame 0 is not an object"),
-    ({}, None, 0, r"res \(--res\) must be a positive integer"),
-])
+@pytest.mark.parametrize(
+    "keys, frames, res, message",
+    [
+        # raised ZeroDivisionError in apps.score.load_cameras
+        ({"w": 0, "h": 0}, None, 24, TOP + r": key 'w' \(top level\) must be a positive integer image size in pixels"),
+        ({"w": 0, "h": 0}, None, None, TOP + r": key 'w' \(top level\) must be a positive integer"),
+        ({"h": 12.5}, None, None, TOP + r": key 'h' \(top level\) must be a positive integer"),
+        (
+            {},
+            [{"file_path": "./a", "transform_matrix": EYE}, {"file_path": "./r_7", "transform_matrix": EYE, "w": -3}],
+            None,
+            F1 + r": key 'w' must be a positive integer",
+        ),
+        # printed 'Singular matrix' / 'could not convert string to float' without the file and frame
+        (
+            {},
+            _bad([[0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 4], [0, 0, 0, 1]]),
+            None,
+            F1 + r": 'transform_matrix' is singular \(its 3x3 rotation part has determinant 0\)",
+        ),
+        (
+            {},
+            _bad([["x", 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]),
+            None,
+            F1 + r": 'transform_matrix' is not a numeric matrix \(could not convert string to float: 'x'\)",
+        ),
+        (
+            {"camera_angle_x": "wide"},
+            None,
+            None,
+            TOP + r": key 'camera_angle_x' \(top level\) must be a number, "
+            r"got 'wide'",
+        ),
+        (
+            {},
+            [{"file_path": "./a", "transform_matrix": EYE, "fl_x": [1]}],
+            None,
+            TOP + r": key 'fl_x' must be a number",
+        ),
+        (
+            {},
+            [{"file_path": "./a", "transform_matrix": EYE, "fl_x": True}],
+            None,
+            TOP + r": key 'fl_x' must be a number",
+        ),
+        (
+            {"camera_angle_x": 4.0},
+            None,
+            None,
+            TOP + r": key 'camera_angle_x' \(top level\) \(field of view\) must be in",
+        ),
+        ({}, [{"file_path": "./a", "transform_matrix": EYE, "fl_y": 0}], None, TOP + r": key 'fl_y' .* must be > 0"),
+        ({}, _bad(SCALED), None, F1 + r": 'transform_matrix' 3x3 part is not orthonormal"),
+        ({}, _bad(MIRROR), None, F1 + r": 'transform_matrix' 3x3 part is a reflection"),
+        ({}, _bad([EYE[0], EYE[1], EYE[2], [0, 0, 1, 1]]), None, F1 + r": 'transform_matrix' last row must be"),
+        ({}, _bad([[1, 0, 0], [0, 1, 0]]), None, F1 + r": 'transform_matrix' must be a 4x4 \(or 3x4\) matrix"),
+        ({}, _bad([[1, 0, 0, 0], [0, 1, 0]]), None, F1 + r": 'transform_matrix' is not a numeric matrix"),
+        ({}, _bad([[math.nan, 0, 0, 0], *EYE[1:]]), None, F1 + r": 'transform_matrix' holds NaN"),
+        ({}, [{"file_path": "./a"}], None, TOP + r" has no 'transform_matrix' key"),
+        ({"camera_angle_x": None}, None, None, r"transforms\.json: missing 'camera_angle_x'.*'fl_x'.*frame 0"),
+        ({}, [], None, r"transforms\.json: 'frames' is empty"),
+        ({}, [3], None, r"transforms\.json: frame 0 is not an object"),
+        ({}, None, 0, r"res \(--res\) must be a positive integer"),
+    ],
+)
 def test_errors_name_file_frame_and_key(tmp_path, keys, frames, res, message):
     path = _file(tmp_path, frames=frames, **keys)
     with pytest.raises(ValueError, match=message):
@@ -140,8 +181,9 @@ def test_apps_readers_are_this_reader(tmp_path):
         assert [c.name for c in read] == [c.name for c in cams]
         for a, b in zip(read, cams, strict=True):
             torch.testing.assert_close(a.world_to_camera, b.world_to_camera, atol=1e-12, rtol=0)
-            assert (a.width, a.height, a.fx, a.fy, a.cx, a.cy) == pytest.approx((b.width, b.height, b.fx, b.fy,
-                                                                                 b.cx, b.cy))
+            assert (a.width, a.height, a.fx, a.fy, a.cx, a.cy) == pytest.approx(
+                (b.width, b.height, b.fx, b.fy, b.cx, b.cy)
+            )
     assert [c.width for c in load_cameras(path, 8)] == [8] * 4
     with pytest.raises(ValueError, match=r"frame 1 \(file_path './r_7'\): 'transform_matrix' is singular"):
         load_cameras(_file(tmp_path, frames=_bad([[0] * 4, [0] * 4, [0, 0, 0, 4], [0, 0, 0, 1]])))

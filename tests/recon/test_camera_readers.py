@@ -25,8 +25,10 @@ from recon.colmap import MODELS_BY_NAME, quaternion_wxyz_to_matrix
 
 def _cams():
     cams = random_sphere(6, 4.0, 48, 36, 0.9, seed=3, hemisphere=True, target=(0.5, -0.2, 0.1))
-    return [Camera(c.width, c.height, c.fx, c.fy * 1.02, c.width / 2, c.height / 2, c.world_to_camera,
-                   f"img_{i:02d}") for i, c in enumerate(cams)]
+    return [
+        Camera(c.width, c.height, c.fx, c.fy * 1.02, c.width / 2, c.height / 2, c.world_to_camera, f"img_{i:02d}")
+        for i, c in enumerate(cams)
+    ]
 
 
 def _colmap_binary(cams) -> tuple[bytes, bytes]:
@@ -34,8 +36,9 @@ def _colmap_binary(cams) -> tuple[bytes, bytes]:
     cam_bytes = struct.pack("<Q", len(cams))
     img_bytes = struct.pack("<Q", len(cams))
     for i, c in enumerate(cams, start=1):
-        cam_bytes += struct.pack("<IiQQ4d", i, MODELS_BY_NAME["PINHOLE"].model_id, c.width, c.height, c.fx, c.fy,
-                                 c.cx, c.cy)
+        cam_bytes += struct.pack(
+            "<IiQQ4d", i, MODELS_BY_NAME["PINHOLE"].model_id, c.width, c.height, c.fx, c.fy, c.cx, c.cy
+        )
         w2c = c.world_to_camera.numpy()
         q = rotation_to_quaternion_wxyz(w2c[:3, :3])
         img_bytes += struct.pack("<I4d3dI", i, *q, *w2c[:3, 3], i) + f"{c.name}.png".encode() + b"\0"
@@ -58,10 +61,15 @@ def _write_all(root, cams):
     cam_bin, img_bin = _colmap_binary(cams)
     (binary / "cameras.bin").write_bytes(cam_bin)
     (binary / "images.bin").write_bytes(img_bin)
-    return {"transforms": root / "poses.json", "graphdeco": root / "model_cameras.json",
-            "colmap text, model folder": text, "colmap text, sparse": text.parent,
-            "colmap text, dataset root": text.parent.parent, "colmap binary, dataset root": binary.parent.parent,
-            "colmap binary, a model file": binary / "images.bin"}
+    return {
+        "transforms": root / "poses.json",
+        "graphdeco": root / "model_cameras.json",
+        "colmap text, model folder": text,
+        "colmap text, sparse": text.parent,
+        "colmap text, dataset root": text.parent.parent,
+        "colmap binary, dataset root": binary.parent.parent,
+        "colmap binary, a model file": binary / "images.bin",
+    }
 
 
 def test_the_same_poses_in_every_format_give_the_same_cameras(tmp_path):
@@ -91,10 +99,28 @@ def test_graphdeco_layout_decoded_by_hand(tmp_path):
     columns x right, y down, z forward in the world); the principal point is the image centre."""
     # a camera at (0, 0, -5) with its axes along the world's looks along +z: the origin is at the image centre, depth 5;
     # a second one turned half about y sits at (0, 0, 5) and sees world +x on its left (image x decreasing)
-    entries = [{"id": 0, "img_name": "front", "width": 40, "height": 30, "position": [0, 0, -5.0],
-                "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1.0]], "fy": 50.0, "fx": 60.0},
-               {"id": 1, "img_name": "back", "width": 40, "height": 30, "position": [0, 0, 5.0],
-                "rotation": [[-1, 0, 0], [0, 1, 0], [0, 0, -1.0]], "fy": 50.0, "fx": 60.0}]
+    entries = [
+        {
+            "id": 0,
+            "img_name": "front",
+            "width": 40,
+            "height": 30,
+            "position": [0, 0, -5.0],
+            "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1.0]],
+            "fy": 50.0,
+            "fx": 60.0,
+        },
+        {
+            "id": 1,
+            "img_name": "back",
+            "width": 40,
+            "height": 30,
+            "position": [0, 0, 5.0],
+            "rotation": [[-1, 0, 0], [0, 1, 0], [0, 0, -1.0]],
+            "fy": 50.0,
+            "fx": 60.0,
+        },
+    ]
     path = tmp_path / "cameras.json"
     path.write_text(json.dumps(entries))
     front, back = load_camera_file(tmp_path)  # the folder holding cameras.json
@@ -137,8 +163,20 @@ def test_a_folder_that_exists_is_never_missing_and_the_error_lists_what_is_accep
     with pytest.raises(ValueError, match=r"not a camera file: it holds an object with keys \['camera'\].*COLMAP"):
         load_camera_file(other)
     bad = tmp_path / "bad.json"
-    bad.write_text(json.dumps([{"position": [0, 0, 0], "rotation": [[2, 0, 0], [0, 1, 0], [0, 0, 1]], "width": 4,
-                                "height": 4, "fx": 1, "fy": 1}]))
+    bad.write_text(
+        json.dumps(
+            [
+                {
+                    "position": [0, 0, 0],
+                    "rotation": [[2, 0, 0], [0, 1, 0], [0, 0, 1]],
+                    "width": 4,
+                    "height": 4,
+                    "fx": 1,
+                    "fy": 1,
+                }
+            ]
+        )
+    )
     with pytest.raises(ValueError, match=r"bad.json: entry 0: 'rotation' is not a rotation"):
         load_camera_file(bad)
 

@@ -46,14 +46,22 @@ CAMERAS = [  # camera_id, model, width, height, params
 def _images():
     rng = np.random.default_rng(0)
     out = []
-    records = [(3, 1, "a.png"), (5, 2, "b.png"), (4, 1, "c.png"), (3_000_000_000, 7, "sub dir/d e.png"),
-               (40, 9, "f.jpg"), (2, 2**32 - 2, "g.png")]  # ids >= 2^31: COLMAP's ids are unsigned
+    records = [
+        (3, 1, "a.png"),
+        (5, 2, "b.png"),
+        (4, 1, "c.png"),
+        (3_000_000_000, 7, "sub dir/d e.png"),
+        (40, 9, "f.jpg"),
+        (2, 2**32 - 2, "g.png"),
+    ]  # ids >= 2^31: COLMAP's ids are unsigned
     for k, (image_id, cam_id, name) in enumerate(records):
         q = rng.standard_normal(4)
         q = q / np.linalg.norm(q)
         t = rng.standard_normal(3) * 3
-        points2d = [(float(x), float(y), int(pid)) for x, y, pid in
-                    zip(rng.random(k) * 50, rng.random(k) * 40, [7, 8, INVALID_POINT3D, 7, 8][:k], strict=True)]
+        points2d = [
+            (float(x), float(y), int(pid))
+            for x, y, pid in zip(rng.random(k) * 50, rng.random(k) * 40, [7, 8, INVALID_POINT3D, 7, 8][:k], strict=True)
+        ]
         out.append((image_id, q, t, cam_id, name, points2d))
     return out
 
@@ -94,8 +102,9 @@ def _encode_points(points) -> bytes:
 
 
 def _text_cameras(cameras) -> str:
-    return "# Camera list\n" + "".join(f"{c} {m} {w} {h} {' '.join(repr(p) for p in params)}\n"
-                                       for c, m, w, h, params in cameras)
+    return "# Camera list\n" + "".join(
+        f"{c} {m} {w} {h} {' '.join(repr(p) for p in params)}\n" for c, m, w, h, params in cameras
+    )
 
 
 def _text_images(images) -> str:
@@ -109,7 +118,9 @@ def _text_images(images) -> str:
 def _text_points(points) -> str:
     return "# 3D point list\n" + "".join(
         f"{pid} {' '.join(repr(v) for v in xyz)} {' '.join(str(c) for c in rgb)} {error!r} "
-        f"{' '.join(f'{i} {j}' for i, j in track)}\n" for pid, xyz, rgb, error, track in points)
+        f"{' '.join(f'{i} {j}' for i, j in track)}\n"
+        for pid, xyz, rgb, error, track in points
+    )
 
 
 def _write_model(folder, binary=True, text=True, cameras=CAMERAS, images=IMAGES, points=POINTS):
@@ -134,15 +145,20 @@ def test_binary_and_text_readers_agree_exactly(tmp_path):
     assert cams_bin == cams_txt
     assert cams_bin[7] == (32, 32, 40.5, 40.5, 16.0, 16.25) and cams_bin[9] == (80, 60, 70.0, 71.0, 40.5, 29.5)
     imgs_bin, imgs_txt = read_colmap_images_binary(folder / "images.bin"), read_colmap_images(folder / "images.txt")
-    assert [(i, c, n) for i, _, c, n in imgs_bin] == [(i, c, n) for i, _, c, n in imgs_txt] == \
-        [(i, c, n) for i, _, _, c, n, _ in IMAGES]
+    assert (
+        [(i, c, n) for i, _, c, n in imgs_bin]
+        == [(i, c, n) for i, _, c, n in imgs_txt]
+        == [(i, c, n) for i, _, _, c, n, _ in IMAGES]
+    )
     for (_, w2c_bin, _, _), (_, w2c_txt, _, _), (_, q, t, _, _, _) in zip(imgs_bin, imgs_txt, IMAGES, strict=True):
         np.testing.assert_array_equal(w2c_bin, w2c_txt)
         np.testing.assert_allclose(w2c_bin[:3, :3], quaternion_wxyz_to_matrix(q), atol=1e-15)
         np.testing.assert_array_equal(w2c_bin[:3, 3], t)
         np.testing.assert_array_equal(w2c_bin[3], [0, 0, 0, 1])
-    (xyz_b, rgb_b), (xyz_t, rgb_t) = (read_colmap_points_binary(folder / "points3D.bin"),
-                                      read_colmap_points(folder / "points3D.txt"))
+    (xyz_b, rgb_b), (xyz_t, rgb_t) = (
+        read_colmap_points_binary(folder / "points3D.bin"),
+        read_colmap_points(folder / "points3D.txt"),
+    )
     np.testing.assert_array_equal(xyz_b, xyz_t)
     np.testing.assert_array_equal(rgb_b, rgb_t)
     assert xyz_b.dtype == rgb_b.dtype == np.float32 and xyz_b.shape == (3, 3)
@@ -186,36 +202,67 @@ def _le_double(hex_be: str) -> bytes:
 
 def test_records_decoded_by_hand(tmp_path):
     # cameras.bin: count 1; camera 7, model 1 (PINHOLE), 640 x 480, fx 500, fy 510, cx 320, cy 240.
-    cams = (bytes.fromhex("0100000000000000") + bytes.fromhex("07000000") + bytes.fromhex("01000000")
-            + bytes.fromhex("8002000000000000") + bytes.fromhex("e001000000000000")
-            + _le_double("407f400000000000") + _le_double("407fe00000000000")
-            + _le_double("4074000000000000") + _le_double("406e000000000000"))
+    cams = (
+        bytes.fromhex("0100000000000000")
+        + bytes.fromhex("07000000")
+        + bytes.fromhex("01000000")
+        + bytes.fromhex("8002000000000000")
+        + bytes.fromhex("e001000000000000")
+        + _le_double("407f400000000000")
+        + _le_double("407fe00000000000")
+        + _le_double("4074000000000000")
+        + _le_double("406e000000000000")
+    )
     (tmp_path / "cameras.bin").write_bytes(cams)
     assert read_colmap_cameras_binary(tmp_path / "cameras.bin") == {7: (640, 480, 500.0, 510.0, 320.0, 240.0)}
     # images.bin: count 1; image 3, q = (0, 0, 1, 0) (a half turn about y), t = (0, 0, 5), camera 7, "a.png",
     # one 2-D point (52, 36) without a 3-D point.
     one, zero, five = _le_double("3ff0000000000000"), bytes(8), _le_double("4014000000000000")
-    images = (bytes.fromhex("0100000000000000") + bytes.fromhex("03000000") + zero + zero + one + zero
-              + zero + zero + five + bytes.fromhex("07000000") + b"a.png\x00" + bytes.fromhex("0100000000000000")
-              + _le_double("404a000000000000") + _le_double("4042000000000000") + b"\xff" * 8)
+    images = (
+        bytes.fromhex("0100000000000000")
+        + bytes.fromhex("03000000")
+        + zero
+        + zero
+        + one
+        + zero
+        + zero
+        + zero
+        + five
+        + bytes.fromhex("07000000")
+        + b"a.png\x00"
+        + bytes.fromhex("0100000000000000")
+        + _le_double("404a000000000000")
+        + _le_double("4042000000000000")
+        + b"\xff" * 8
+    )
     (tmp_path / "images.bin").write_bytes(images)
     ((image_id, w2c, cam_id, name),) = read_colmap_images_binary(tmp_path / "images.bin")
     assert (image_id, cam_id, name) == (3, 7, "a.png")
     np.testing.assert_allclose(w2c, [[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, -1, 5], [0, 0, 0, 1]], atol=1e-15)
     # points3D.bin: count 1; point 2^32 + 7 at (1, 0.5, -2), colour (255, 0, 51), error 0.25, track of 2.
-    points = (bytes.fromhex("0100000000000000") + bytes.fromhex("0700000001000000") + one
-              + _le_double("3fe0000000000000") + _le_double("c000000000000000") + bytes([255, 0, 51])
-              + _le_double("3fd0000000000000") + bytes.fromhex("0200000000000000")
-              + bytes.fromhex("03000000") + bytes.fromhex("00000000") + bytes.fromhex("05000000")
-              + bytes.fromhex("02000000"))
+    points = (
+        bytes.fromhex("0100000000000000")
+        + bytes.fromhex("0700000001000000")
+        + one
+        + _le_double("3fe0000000000000")
+        + _le_double("c000000000000000")
+        + bytes([255, 0, 51])
+        + _le_double("3fd0000000000000")
+        + bytes.fromhex("0200000000000000")
+        + bytes.fromhex("03000000")
+        + bytes.fromhex("00000000")
+        + bytes.fromhex("05000000")
+        + bytes.fromhex("02000000")
+    )
     (tmp_path / "points3D.bin").write_bytes(points)
     xyz, rgb = read_colmap_points_binary(tmp_path / "points3D.bin")
     np.testing.assert_array_equal(xyz, [[1.0, 0.5, -2.0]])
     np.testing.assert_allclose(rgb, [[1.0, 0.0, 0.2]], atol=1e-7)
     # the hand-written bytes are what the test encoder writes (so the encoder above follows the same layout)
     assert cams == _encode_cameras([(7, "PINHOLE", 640, 480, [500.0, 510.0, 320.0, 240.0])])
-    assert images == _encode_images([(3, (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 5.0), 7, "a.png",
-                                      [(52.0, 36.0, INVALID_POINT3D)])])
+    assert images == _encode_images(
+        [(3, (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 5.0), 7, "a.png", [(52.0, 36.0, INVALID_POINT3D)])]
+    )
     assert points == _encode_points([(2**32 + 7, (1.0, 0.5, -2.0), (255, 0, 51), 0.25, [(3, 0), (5, 2)])])
 
 
@@ -239,8 +286,11 @@ def test_camera_model_table_matches_colmap():
 
 # ---- truncated and corrupt files ----------------------------------------------------------------------
 
-READERS = {"cameras.bin": read_colmap_cameras_binary, "images.bin": read_colmap_images_binary,
-           "points3D.bin": read_colmap_points_binary}
+READERS = {
+    "cameras.bin": read_colmap_cameras_binary,
+    "images.bin": read_colmap_images_binary,
+    "points3D.bin": read_colmap_points_binary,
+}
 
 
 @pytest.mark.parametrize("name", BINARY_FILES)
@@ -270,8 +320,11 @@ def test_declared_count_is_checked_against_the_file_size(tmp_path):
     image = bytearray(_encode_images(IMAGES[:1]))
     image[-8:] = struct.pack("<Q", 2**40)
     (folder / "images.bin").write_bytes(bytes(image))
-    with pytest.raises(ValueError, match=r"images\.bin: truncated: declares 1 images but ends at byte \d+ inside "
-                                         r"image 1"):
+    with pytest.raises(
+        ValueError,
+        match=r"images\.bin: truncated: declares 1 images but ends at byte \d+ inside "
+        r"image 1",
+    ):
         read_colmap_images_binary(folder / "images.bin")
 
 
@@ -328,8 +381,14 @@ def test_load_colmap_binary_equals_text(tmp_path):
         a, b = getattr(ds_bin, split), getattr(ds_txt, split)
         assert [v.name for v in a] == [v.name for v in b]
         for va, vb in zip(a, b, strict=True):
-            assert (va.camera.width, va.camera.height, va.camera.fx, va.camera.fy, va.camera.cx, va.camera.cy) == \
-                (vb.camera.width, vb.camera.height, vb.camera.fx, vb.camera.fy, vb.camera.cx, vb.camera.cy)
+            assert (va.camera.width, va.camera.height, va.camera.fx, va.camera.fy, va.camera.cx, va.camera.cy) == (
+                vb.camera.width,
+                vb.camera.height,
+                vb.camera.fx,
+                vb.camera.fy,
+                vb.camera.cx,
+                vb.camera.cy,
+            )
             assert torch.equal(va.camera.world_to_camera, vb.camera.world_to_camera)
     # sorted by name, every 8th to test: a.png first
     assert [v.name for v in ds_bin.test] == ["a"] and len(ds_bin.train) == 5 and ds_bin.val == []
@@ -348,8 +407,11 @@ def test_load_colmap_errors_name_the_binary_files(tmp_path):
     root = _dataset(tmp_path, text=False)
     images = [(3, IMAGES[0][1], IMAGES[0][2], 77, "a.png", [])]
     (root / "sparse" / "0" / "images.bin").write_bytes(_encode_images(images))
-    with pytest.raises(ValueError, match=r"images\.bin: image 3 \(a\.png\) uses camera 77, which is not in "
-                                         r"cameras\.bin"):
+    with pytest.raises(
+        ValueError,
+        match=r"images\.bin: image 3 \(a\.png\) uses camera 77, which is not in "
+        r"cameras\.bin",
+    ):
         load_colmap(root)
     (root / "sparse" / "0" / "images.bin").unlink()
     with pytest.raises(ValueError, match=r"no COLMAP model \(cameras\.bin.*cameras\.txt"):
@@ -358,5 +420,4 @@ def test_load_colmap_errors_name_the_binary_files(tmp_path):
 
 def test_quaternion_of_a_quarter_turn():
     c = math.cos(math.pi / 4)
-    np.testing.assert_allclose(quaternion_wxyz_to_matrix([c, 0, 0, c]), [[0, -1, 0], [1, 0, 0], [0, 0, 1]],
-                               atol=1e-15)
+    np.testing.assert_allclose(quaternion_wxyz_to_matrix([c, 0, 0, c]), [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-15)

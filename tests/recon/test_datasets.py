@@ -86,7 +86,7 @@ def test_orbit_positions_and_poles():
 
 def test_orbit_around_aims_at_the_box_centre_from_its_extent():
     """The cameras sit 1.6 x the largest extent from the bounding box's centre and see it in the image centre."""
-    points = np.array([[1.0, 2.0, 3.0], [3.0, 2.5, 4.0], [2.0, 3.0, 3.5]])   # box centre (2, 2.5, 3.5), extent 2
+    points = np.array([[1.0, 2.0, 3.0], [3.0, 2.5, 4.0], [2.0, 3.0, 3.5]])  # box centre (2, 2.5, 3.5), extent 2
     cams = orbit_around(points, 6, 40)
     assert len(cams) == 6 and (cams[0].width, cams[0].height) == (40, 30)
     centre = np.array([2.0, 2.5, 3.5])
@@ -96,10 +96,17 @@ def test_orbit_around_aims_at_the_box_centre_from_its_extent():
     np.testing.assert_allclose(uv[0].numpy(), [20.0, 15.0], atol=1e-9)
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"n": 0}, "n"), ({"radius": -1.0}, "radius"), ({"fov_x": 4.0}, "fov_x"), ({"up_axis": "x"}, "up_axis"),
-    ({"width": 0}, "width"), ({"target": (0, 0)}, "target"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"n": 0}, "n"),
+        ({"radius": -1.0}, "radius"),
+        ({"fov_x": 4.0}, "fov_x"),
+        ({"up_axis": "x"}, "up_axis"),
+        ({"width": 0}, "width"),
+        ({"target": (0, 0)}, "target"),
+    ],
+)
 def test_camera_path_errors_name_the_argument(kwargs, field):
     args = {"n": 4, "radius": 6.0, "width": 32, "height": 32, "fov_x": FOV, "seed": 0} | kwargs
     with pytest.raises(ValueError, match=field):
@@ -143,8 +150,12 @@ def _blender_dataset(root, width=8, height=6, splits=("train", "test"), angle=0.
             rgba[0, 1, 3] = 1.0
             _write_rgba(root / split / f"r_{i}.png", rgba)
             images[(split, i)] = np.round(rgba * 255) / 255
-            frames.append({"file_path": f"./{split}/r_{i}" + (".png" if i else ""),
-                           "transform_matrix": _c2w([4.0, 1.0 + i, 2.0]).tolist()})
+            frames.append(
+                {
+                    "file_path": f"./{split}/r_{i}" + (".png" if i else ""),
+                    "transform_matrix": _c2w([4.0, 1.0 + i, 2.0]).tolist(),
+                }
+            )
         (root / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": angle, "frames": frames}))
     return images
 
@@ -196,8 +207,9 @@ def test_blender_downscale_halves_intrinsics(tmp_path):
         # area averaging of the composited image: each output pixel is the mean of a 2x2 block
         blocks = full.train[0].image.reshape(3, 2, 4, 2, 3).mean(dim=(1, 3))
         torch.testing.assert_close(half.train[0].image, blocks, atol=1e-6, rtol=0)
-        torch.testing.assert_close(half.train[0].alpha, full.train[0].alpha.reshape(3, 2, 4, 2).mean(dim=(1, 3)),
-                                   atol=1e-6, rtol=0)
+        torch.testing.assert_close(
+            half.train[0].alpha, full.train[0].alpha.reshape(3, 2, 4, 2).mean(dim=(1, 3)), atol=1e-6, rtol=0
+        )
 
 
 def test_blender_16bit_grey_and_shared_val(tmp_path):
@@ -225,14 +237,19 @@ def _edit(path, fn):
     path.write_text(json.dumps(meta))
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda m: m.pop("camera_angle_x"), r"transforms_train\.json.*camera_angle_x"),
-    (lambda m: m["frames"][0].update(file_path="./train/missing"), r"transforms_train\.json.*missing"),
-    (lambda m: m["frames"][1].update(transform_matrix=[[1, 0, 0], [0, 1, 0]]),
-     r"transforms_train\.json: frame 1 \(file_path './train/r_1.png'\): 'transform_matrix'"),
-    (lambda m: m["frames"][1].pop("transform_matrix"), r"transforms_train\.json.*transform_matrix"),
-    (lambda m: m.update(w=16, h=12), r"r_0\.png.*8x6"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda m: m.pop("camera_angle_x"), r"transforms_train\.json.*camera_angle_x"),
+        (lambda m: m["frames"][0].update(file_path="./train/missing"), r"transforms_train\.json.*missing"),
+        (
+            lambda m: m["frames"][1].update(transform_matrix=[[1, 0, 0], [0, 1, 0]]),
+            r"transforms_train\.json: frame 1 \(file_path './train/r_1.png'\): 'transform_matrix'",
+        ),
+        (lambda m: m["frames"][1].pop("transform_matrix"), r"transforms_train\.json.*transform_matrix"),
+        (lambda m: m.update(w=16, h=12), r"r_0\.png.*8x6"),
+    ],
+)
 def test_blender_errors_name_file_and_key(tmp_path, edit, message):
     _blender_dataset(tmp_path)
     _edit(tmp_path / "transforms_train.json", edit)

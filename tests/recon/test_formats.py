@@ -40,9 +40,13 @@ def _set(n: int, degree: int, seed: int = 0, min_w: float = 0.0) -> GaussianSet:
     k = (degree + 1) ** 2
     rgb = 0.02 + 0.96 * torch.rand(n, 3, generator=gen)
     sh = torch.cat([((rgb - 0.5) / SH_C0)[:, None], 1.8 * torch.rand(n, k - 1, 3, generator=gen) - 0.9], 1)
-    return GaussianSet(means=4 * torch.rand(n, 3, generator=gen) - 2, quats=quats,
-                       log_scales=7 * torch.rand(n, 3, generator=gen) - 6,
-                       opacity_logits=10 * torch.rand(n, generator=gen) - 5, sh=sh)
+    return GaussianSet(
+        means=4 * torch.rand(n, 3, generator=gen) - 2,
+        quats=quats,
+        log_scales=7 * torch.rand(n, 3, generator=gen) - 6,
+        opacity_logits=10 * torch.rand(n, generator=gen) - 5,
+        sh=sh,
+    )
 
 
 def _unit_aligned(q: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
@@ -139,11 +143,23 @@ def test_rub_to_rdf_sh_signs_follow_the_basis():
 
 
 # ---- records decoded by hand -----------------------------------------------------------------------------------
-def _compressed_header(chunks: int, n: int, sh_props: int = 0, sh_rows: int | None = None,
-                       colors: bool = True) -> bytes:
-    names = ["min_x", "min_y", "min_z", "max_x", "max_y", "max_z", "min_scale_x", "min_scale_y", "min_scale_z",
-             "max_scale_x", "max_scale_y", "max_scale_z"] + (["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"]
-                                                             if colors else [])
+def _compressed_header(
+    chunks: int, n: int, sh_props: int = 0, sh_rows: int | None = None, colors: bool = True
+) -> bytes:
+    names = [
+        "min_x",
+        "min_y",
+        "min_z",
+        "max_x",
+        "max_y",
+        "max_z",
+        "min_scale_x",
+        "min_scale_y",
+        "min_scale_z",
+        "max_scale_x",
+        "max_scale_y",
+        "max_scale_z",
+    ] + (["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"] if colors else [])
     lines = ["ply", "format binary_little_endian 1.0", f"element chunk {chunks}"]
     lines += [f"property float {p}" for p in names] + [f"element vertex {n}"]
     lines += [f"property uint packed_{p}" for p in ("position", "rotation", "scale", "color")]
@@ -154,17 +170,38 @@ def _compressed_header(chunks: int, n: int, sh_props: int = 0, sh_rows: int | No
 
 
 def test_compressed_ply_record_by_hand(tmp_path):
-    bounds = [-1.0, 0.0, 2.0, 3.0, 1.0, 4.0,  # position min xyz, max xyz
-              -5.0, -4.0, -3.0, -1.0, 0.0, 1.0,  # log-scale min xyz, max xyz
-              0.2, 0.0, 0.1, 0.8, 1.0, 0.5]  # colour min rgb, max rgb
+    bounds = [
+        -1.0,
+        0.0,
+        2.0,
+        3.0,
+        1.0,
+        4.0,  # position min xyz, max xyz
+        -5.0,
+        -4.0,
+        -3.0,
+        -1.0,
+        0.0,
+        1.0,  # log-scale min xyz, max xyz
+        0.2,
+        0.0,
+        0.1,
+        0.8,
+        1.0,
+        0.5,
+    ]  # colour min rgb, max rgb
     position = (1023 << 21) | (256 << 11) | 2047
     rotation = (2 << 30) | (700 << 20) | (300 << 10) | 512  # largest: rot_2 (y); then w, x, z
     scale = (0 << 21) | (1023 << 11) | 1024
     color = (255 << 24) | (0 << 16) | (51 << 8) | 51
     sh = bytes([0, 255, 128] + [64] * 6)  # f_rest_0..8, channel-major
     path = tmp_path / "one.compressed.ply"
-    path.write_bytes(_compressed_header(1, 1, 9) + struct.pack("<18f", *bounds)
-                     + struct.pack("<4I", position, rotation, scale, color) + sh)
+    path.write_bytes(
+        _compressed_header(1, 1, 9)
+        + struct.pack("<18f", *bounds)
+        + struct.pack("<4I", position, rotation, scale, color)
+        + sh
+    )
     g = formats.load_gaussians(path)
     tx, ty, tz = 1023 / 2047, 256 / 1023, 1.0
     want_means = [-1 + 4 * tx, 0 + 1 * ty, 2 + 2 * tz]
@@ -186,8 +223,7 @@ def _spz_v3_record() -> bytes:
     pos = [2048, -2048, 4096]  # 0.5, -0.5, 1.0 at 12 fractional bits
     positions = b"".join(struct.pack("<i", v)[:3] for v in pos)
     rotation = (3 << 30) | (256 << 20) | ((1 << 9 | 128) << 10) | 0  # w largest; x +256, y -128, z 0
-    return (positions + bytes([255]) + bytes([128, 0, 255]) + bytes([160, 0, 255])
-            + struct.pack("<I", rotation))
+    return positions + bytes([255]) + bytes([128, 0, 255]) + bytes([160, 0, 255]) + struct.pack("<I", rotation)
 
 
 def test_spz_record_by_hand(tmp_path):
@@ -227,7 +263,7 @@ def test_spz_version2_rotation_by_hand(tmp_path):
     g = _set(1, 0)
     path = encode_spz(g, tmp_path / "v2.spz", version=2)
     raw = bytearray(gzip.decompress(path.read_bytes()))
-    raw[16 + 16: 16 + 19] = bytes([191, 127, 64])  # after 9 + 1 + 3 + 3 bytes: x, y, z = c / 127.5 - 1
+    raw[16 + 16 : 16 + 19] = bytes([191, 127, 64])  # after 9 + 1 + 3 + 3 bytes: x, y, z = c / 127.5 - 1
     path.write_bytes(gzip.compress(bytes(raw)))
     x, y, z = 191 / 127.5 - 1, 127 / 127.5 - 1, 64 / 127.5 - 1
     w = math.sqrt(1 - x * x - y * y - z * z)
@@ -237,8 +273,9 @@ def test_spz_version2_rotation_by_hand(tmp_path):
 
 def test_splat_record_by_hand(tmp_path):
     path = tmp_path / "one.splat"
-    path.write_bytes(struct.pack("<6f", 1.0, -2.0, 3.5, 0.5, 1.0, 2.0) + bytes([255, 0, 128, 64])
-                     + bytes([255, 128, 100, 128]))
+    path.write_bytes(
+        struct.pack("<6f", 1.0, -2.0, 3.5, 0.5, 1.0, 2.0) + bytes([255, 0, 128, 64]) + bytes([255, 128, 100, 128])
+    )
     g = formats.load_gaussians(path)
     assert g.means[0].tolist() == [1.0, -2.0, 3.5]
     torch.testing.assert_close(g.log_scales[0], torch.tensor([math.log(0.5), 0.0, math.log(2.0)]))
@@ -310,9 +347,11 @@ def _raises(path: Path, *fragments: str) -> str:
 
 def test_truncated_files(tmp_path):
     g = _set(600, 1)
-    for name, path in [("compressed", encode_compressed_ply(g, tmp_path / "c.ply")),
-                       ("spz4", encode_spz(g, tmp_path / "g4.spz", version=4)),
-                       ("splat", encode_splat(g, tmp_path / "g.splat"))]:
+    for name, path in [
+        ("compressed", encode_compressed_ply(g, tmp_path / "c.ply")),
+        ("spz4", encode_spz(g, tmp_path / "g4.spz", version=4)),
+        ("splat", encode_splat(g, tmp_path / "g.splat")),
+    ]:
         cut = tmp_path / f"cut_{name}{path.suffix}"
         cut.write_bytes(path.read_bytes()[:-7])
         _raises(cut, "truncated")
@@ -338,7 +377,7 @@ def test_corrupt_streams(tmp_path):
         formats.load_gaussians(tmp_path / "mid.spz")
     data = bytearray(encode_spz(g, tmp_path / "g4.spz", version=4).read_bytes())
     first_stream = 32 + 5 * 16
-    data[first_stream:first_stream + 4] = b"\x00\x00\x00\x00"  # the zstd frame magic of the positions
+    data[first_stream : first_stream + 4] = b"\x00\x00\x00\x00"  # the zstd frame magic of the positions
     (tmp_path / "z.spz").write_bytes(bytes(data))
     _raises(tmp_path / "z.spz", "corrupt zstd stream", "positions")
     gz = tmp_path / "notspz.spz"
@@ -364,8 +403,11 @@ def test_spz_extensions_are_skipped(tmp_path):
     g = _set(40, 1)
     ext = struct.pack("<II", 0xADBE0002, 12) + struct.pack("<3f", 0.0, 1.0, 2.0)
     plain = formats.load_gaussians(encode_spz(g, tmp_path / "plain.spz", version=3))
-    for name, kwargs in [("v4", {"version": 4}), ("tail", {"version": 3}),
-                         ("front", {"version": 3, "extension_first": True})]:
+    for name, kwargs in [
+        ("v4", {"version": 4}),
+        ("tail", {"version": 3}),
+        ("front", {"version": 3, "extension_first": True}),
+    ]:
         path = encode_spz(g, tmp_path / f"{name}.spz", flags=0x2, extension=ext, **kwargs)
         for a, b in zip(formats.load_gaussians(path).tensors(), plain.tensors(), strict=True):
             assert torch.equal(a, b), name
@@ -375,10 +417,14 @@ def test_compressed_ply_header_problems(tmp_path):
     bounds = struct.pack("<18f", *([0.0] * 6 + [-1.0] * 3 + [0.0] * 3 + [0.0] * 3 + [1.0] * 3))
     words = struct.pack("<4I", 0, 3 << 30, 0, 0xFFFFFFFF)
     cases = {
-        "wrong_count.ply": (_compressed_header(1, 1, 10) + bounds + words + b"\x80" * 10,
-                            "SH data does not match the header"),
-        "wrong_rows.ply": (_compressed_header(1, 1, 9, sh_rows=2) + bounds + words + b"\x80" * 18,
-                           "SH data does not match the header"),
+        "wrong_count.ply": (
+            _compressed_header(1, 1, 10) + bounds + words + b"\x80" * 10,
+            "SH data does not match the header",
+        ),
+        "wrong_rows.ply": (
+            _compressed_header(1, 1, 9, sh_rows=2) + bounds + words + b"\x80" * 18,
+            "SH data does not match the header",
+        ),
         "chunks.ply": (_compressed_header(2, 1) + bounds * 2 + words, "expected ceil(1 / 256) = 1"),
     }
     for name, (content, fragment) in cases.items():
@@ -405,9 +451,12 @@ def test_huge_declared_sizes_fail_fast_without_allocating(tmp_path):
     """Headers declaring ~1e11 elements on a 1 KB file: ValueError before any allocation, in every reader."""
     n = 10**11
     std = tmp_path / "std.ply"
-    std.write_bytes(f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\n".encode()
-                    + b"".join(f"property float {p}\n".encode() for p in ply.ply_property_names(0))
-                    + b"end_header\n" + b"\0" * 1024)
+    std.write_bytes(
+        f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\n".encode()
+        + b"".join(f"property float {p}\n".encode() for p in ply.ply_property_names(0))
+        + b"end_header\n"
+        + b"\0" * 1024
+    )
     compressed = tmp_path / "huge.compressed.ply"
     compressed.write_bytes(_compressed_header(math.ceil(n / 256), n, 45) + b"\0" * 1024)
     spz4 = tmp_path / "huge4.spz"
@@ -438,8 +487,12 @@ def test_garbage_npz_is_never_called_pickled(tmp_path):
     bad_member = tmp_path / "badmember.npz"
     with zipfile.ZipFile(bad_member, "w") as zf:
         zf.writestr("means.npy", os.urandom(300))
-    for path, fragment in [(garbage, ".npz"), (objects, "Python objects"), (not_npy, "not a .npy array"),
-                           (bad_member, "not a readable .npz archive")]:
+    for path, fragment in [
+        (garbage, ".npz"),
+        (objects, "Python objects"),
+        (not_npy, "not a .npy array"),
+        (bad_member, "not a readable .npz archive"),
+    ]:
         message = _raises(path, fragment)
         assert "pickle" not in message.lower(), message
 

@@ -22,8 +22,9 @@ def test_orbits_give_their_up_axis(up_axis, elevation):
     cams = orbit(12, 5.0, elevation, 32, 24, FOV, up_axis=up_axis, target=(0.5, -1.0, 2.0))
     np.testing.assert_allclose(up_from_cameras(cams), up_vector(up_axis), atol=1e-12)
     # each camera's up is the world up made perpendicular to its view: its up component is cos(elevation)
-    np.testing.assert_allclose(camera_up_vectors(cams) @ up_vector(up_axis), math.cos(math.radians(elevation)),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        camera_up_vectors(cams) @ up_vector(up_axis), math.cos(math.radians(elevation)), atol=1e-12
+    )
 
 
 def test_y_down_cameras_give_minus_y():
@@ -66,8 +67,7 @@ def test_inconsistent_up_raises_naming_the_option():
         up_from_cameras(cams, min_agreement=0.0)
     # a looser threshold accepts a weak agreement: 5 upright + 3 rolled average to length 2/8
     mixed = orbit(8, 4.0, 0.0, 16, 16, FOV)
-    mixed = mixed[:5] + [Camera(c.width, c.height, c.fx, c.fy, c.cx, c.cy, flip @ c.world_to_camera)
-                         for c in mixed[5:]]
+    mixed = mixed[:5] + [Camera(c.width, c.height, c.fx, c.fy, c.cx, c.cy, flip @ c.world_to_camera) for c in mixed[5:]]
     with pytest.raises(ValueError, match="length 0.2"):
         up_from_cameras(mixed, min_agreement=0.3)
     assert up_from_cameras(mixed, min_agreement=0.2)[1] > 0.9

@@ -19,9 +19,13 @@ from recon.gaussians import (
 
 def random_set(n=6, degree=1, seed=0, dtype=torch.float64):
     g = torch.Generator().manual_seed(seed)
-    return GaussianSet(torch.randn(n, 3, generator=g, dtype=dtype), torch.randn(n, 4, generator=g, dtype=dtype),
-                       0.3 * torch.randn(n, 3, generator=g, dtype=dtype), torch.randn(n, generator=g, dtype=dtype),
-                       torch.randn(n, sh_coefficient_count(degree), 3, generator=g, dtype=dtype))
+    return GaussianSet(
+        torch.randn(n, 3, generator=g, dtype=dtype),
+        torch.randn(n, 4, generator=g, dtype=dtype),
+        0.3 * torch.randn(n, 3, generator=g, dtype=dtype),
+        torch.randn(n, generator=g, dtype=dtype),
+        torch.randn(n, sh_coefficient_count(degree), 3, generator=g, dtype=dtype),
+    )
 
 
 def test_rotation_matrices_are_orthonormal_and_match_axis_angle():
@@ -38,7 +42,7 @@ def test_rotation_matrices_are_orthonormal_and_match_axis_angle():
 def test_covariance_eigenvalues_are_squared_scales():
     g = random_set(8)
     ev = torch.linalg.eigvalsh(g.covariances())
-    assert torch.allclose(ev, torch.sort(g.scales ** 2, dim=-1).values, rtol=1e-9, atol=1e-12)
+    assert torch.allclose(ev, torch.sort(g.scales**2, dim=-1).values, rtol=1e-9, atol=1e-12)
     assert torch.allclose(g.max_radii(), g.scales.max(-1).values)
 
 

@@ -60,8 +60,9 @@ def _read_mesh(path):
 
 
 def test_raycaster_matches_bruteforce_twin():
-    mesh = o3d.geometry.TriangleMesh.create_torus(torus_radius=1.0, tube_radius=0.4, radial_resolution=10,
-                                                  tubular_resolution=6)
+    mesh = o3d.geometry.TriangleMesh.create_torus(
+        torus_radius=1.0, tube_radius=0.4, radial_resolution=10, tubular_resolution=6
+    )
     vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
     caster = MeshRaycaster(vertices, triangles)
     for cam in random_sphere(3, 3.5, 20, 16, math.radians(60.0), seed=5):
@@ -195,8 +196,9 @@ def test_seeded_and_deterministic(torus_dataset, tmp_path):
     again = render_mesh_dataset(TORUS, tmp_path / "again", SMALL, progress=False)
     for name in ("transforms_train.json", "transforms_test.json", "train/r_002.png", "test/r_001.png"):
         assert (again / name).read_bytes() == (torus_dataset / name).read_bytes()
-    other = render_mesh_dataset(TORUS, tmp_path / "other", MeshDatasetConfig(n_train=6, n_test=3, resolution=56,
-                                                                             seed=2), progress=False)
+    other = render_mesh_dataset(
+        TORUS, tmp_path / "other", MeshDatasetConfig(n_train=6, n_test=3, resolution=56, seed=2), progress=False
+    )
     assert (other / "transforms_train.json").read_bytes() != (torus_dataset / "transforms_train.json").read_bytes()
 
 
@@ -214,10 +216,21 @@ def test_z_up_hemisphere_and_binary_alpha(tmp_path):
 # ---- errors and the command ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("field, value", [
-    ("n_train", 0), ("resolution", 4), ("fov_x", 200.0), ("box_size", -1.0), ("radius", 1.0), ("color", "grey"),
-    ("color", "#12345g"), ("ambient", 1.5), ("up_axis", "x"), ("supersample", 0),
-])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("n_train", 0),
+        ("resolution", 4),
+        ("fov_x", 200.0),
+        ("box_size", -1.0),
+        ("radius", 1.0),
+        ("color", "grey"),
+        ("color", "#12345g"),
+        ("ambient", 1.5),
+        ("up_axis", "x"),
+        ("supersample", 0),
+    ],
+)
 def test_config_errors_name_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         MeshDatasetConfig(**{field: value})
@@ -250,8 +263,26 @@ def test_cli_smoke(tmp_path, capsys):
     mesh = tmp_path / "torus.obj"
     shutil.copy(TORUS, mesh)
     out = tmp_path / "ds"
-    args = ["render-dataset", str(mesh), "-o", str(out), "--train", "3", "--test", "2", "--res", "24", "--up", "z",
-            "--hemisphere", "--color", "#ff8000", "--seed", "4", "--no-progress"]
+    args = [
+        "render-dataset",
+        str(mesh),
+        "-o",
+        str(out),
+        "--train",
+        "3",
+        "--test",
+        "2",
+        "--res",
+        "24",
+        "--up",
+        "z",
+        "--hemisphere",
+        "--color",
+        "#ff8000",
+        "--seed",
+        "4",
+        "--no-progress",
+    ]
     assert cli.main(args) == 0
     assert "wrote" in capsys.readouterr().out
     info = json.loads((out / "dataset.json").read_text())

@@ -20,14 +20,14 @@ from recon.metrics import (
     ssim,
 )
 
-C1, C2 = 0.01 ** 2, 0.03 ** 2
+C1, C2 = 0.01**2, 0.03**2
 
 
 def _ssim_numpy(x: np.ndarray, y: np.ndarray, size=11, sigma=1.5, padding="same") -> float:
     """Slow SSIM: explicit 2-D Gaussian window, explicit loops over pixels, zero padding for 'same'."""
     r = size // 2
     t = np.arange(size) - r
-    g = np.exp(-t ** 2 / (2 * sigma ** 2))
+    g = np.exp(-(t**2) / (2 * sigma**2))
     window = np.outer(g, g) / np.outer(g, g).sum()
     h, w, c = x.shape
     if padding == "same":
@@ -40,7 +40,7 @@ def _ssim_numpy(x: np.ndarray, y: np.ndarray, size=11, sigma=1.5, padding="same"
     for ch in range(c):
         for i in rows:
             for j in cols:
-                px, py = x[i:i + size, j:j + size, ch], y[i:i + size, j:j + size, ch]
+                px, py = x[i : i + size, j : j + size, ch], y[i : i + size, j : j + size, ch]
                 mx, my = (window * px).sum(), (window * py).sum()
                 vx = (window * px * px).sum() - mx * mx
                 vy = (window * py * py).sum() - my * my
@@ -81,7 +81,7 @@ def test_ssim_of_constant_images_matches_the_luminance_formula(a, b):
 def test_ssim_matches_the_slow_numpy_reference(padding):
     gen = torch.Generator().manual_seed(3)
     x = torch.rand(17, 15, 3, dtype=torch.float64, generator=gen)
-    y = (0.6 * x + 0.4 * torch.rand(17, 15, 3, dtype=torch.float64, generator=gen))
+    y = 0.6 * x + 0.4 * torch.rand(17, 15, 3, dtype=torch.float64, generator=gen)
     fast = float(ssim(x, y, padding=padding))
     slow = _ssim_numpy(x.numpy(), y.numpy(), padding=padding)
     assert fast == pytest.approx(slow, abs=1e-10)
@@ -156,7 +156,8 @@ def test_chamfer_distance_properties():
         assert fast > 0
     assert chamfer_distance(a, a) == 0.0
     assert chamfer_distance(torch.from_numpy(a).float(), torch.from_numpy(b).float()) == pytest.approx(
-        chamfer_distance(a, b), abs=1e-6)
+        chamfer_distance(a, b), abs=1e-6
+    )
 
 
 def test_chamfer_distance_of_parallel_offset_grids():
@@ -165,9 +166,9 @@ def test_chamfer_distance_of_parallel_offset_grids():
     a = np.c_[grid, np.zeros(len(grid))]
     b = a + [0.0, 0.0, 0.03]  # a copy lifted by 0.03: every nearest neighbour is the point straight above
     assert chamfer_distance(a, b) == pytest.approx(0.03, abs=1e-12)
-    assert chamfer_distance(a, b, squared=True) == pytest.approx(0.03 ** 2, abs=1e-12)
+    assert chamfer_distance(a, b, squared=True) == pytest.approx(0.03**2, abs=1e-12)
     shifted = a + [0.05, 0.0, 0.04]  # half a grid step sideways and lifted: every point's nearest neighbour
-    expected = np.hypot(0.05, 0.04)   # is a half step away in x, edges included
+    expected = np.hypot(0.05, 0.04)  # is a half step away in x, edges included
     assert chamfer_distance(a, shifted) == pytest.approx(expected, abs=1e-12)
     assert chamfer_distance_reference(a, shifted) == pytest.approx(expected, abs=1e-12)
 

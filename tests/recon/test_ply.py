@@ -14,9 +14,13 @@ from recon.ply import ply_property_names, save_gaussians
 def _random_set(n: int, degree: int, seed: int = 0) -> GaussianSet:
     gen = torch.Generator().manual_seed(seed)
     k = (degree + 1) ** 2
-    return GaussianSet(torch.randn(n, 3, generator=gen), torch.randn(n, 4, generator=gen),
-                       torch.randn(n, 3, generator=gen), torch.randn(n, generator=gen),
-                       torch.randn(n, k, 3, generator=gen))
+    return GaussianSet(
+        torch.randn(n, 3, generator=gen),
+        torch.randn(n, 4, generator=gen),
+        torch.randn(n, 3, generator=gen),
+        torch.randn(n, generator=gen),
+        torch.randn(n, k, 3, generator=gen),
+    )
 
 
 def _reference_names(degree: int) -> list[str]:
@@ -34,13 +38,18 @@ def _reference_names(degree: int) -> list[str]:
 def _write_ply(path, names, table, fmt="binary_little_endian", types=None, extra_header="", tail=b""):
     """A PLY written with numpy only: one vertex element with the given columns."""
     types = types or ["float"] * len(names)
-    header = "ply\n" f"format {fmt} 1.0\n" "comment written by the test\n" f"element vertex {len(table)}\n"
+    header = f"ply\nformat {fmt} 1.0\ncomment written by the test\nelement vertex {len(table)}\n"
     header += "".join(f"property {t} {p}\n" for t, p in zip(types, names, strict=True))
     header += extra_header + "end_header\n"
     np_types = {"float": "f4", "double": "f8", "uchar": "u1", "int": "i4"}
     if fmt == "ascii":
-        body = "".join(" ".join(repr(float(v)) if t in ("float", "double") else str(int(v))
-                                for v, t in zip(row, types, strict=True)) + "\n" for row in table).encode()
+        body = "".join(
+            " ".join(
+                repr(float(v)) if t in ("float", "double") else str(int(v)) for v, t in zip(row, types, strict=True)
+            )
+            + "\n"
+            for row in table
+        ).encode()
     else:
         order = "<" if fmt == "binary_little_endian" else ">"
         rows = np.zeros(len(table), dtype=[(p, order + np_types[t]) for p, t in zip(names, types, strict=True)])
@@ -56,8 +65,18 @@ def _reference_save(g: GaussianSet, path):
     n = g.num
     f_dc = g.sh[:, :1].transpose(1, 2).flatten(start_dim=1).numpy()
     f_rest = g.sh[:, 1:].transpose(1, 2).flatten(start_dim=1).numpy()
-    attrs = np.concatenate([g.means.numpy(), np.zeros((n, 3), np.float32), f_dc, f_rest,
-                            g.opacity_logits[:, None].numpy(), g.log_scales.numpy(), g.quats.numpy()], axis=1)
+    attrs = np.concatenate(
+        [
+            g.means.numpy(),
+            np.zeros((n, 3), np.float32),
+            f_dc,
+            f_rest,
+            g.opacity_logits[:, None].numpy(),
+            g.log_scales.numpy(),
+            g.quats.numpy(),
+        ],
+        axis=1,
+    )
     return _write_ply(path, _reference_names(g.sh_degree), attrs)
 
 
@@ -79,10 +98,13 @@ def test_written_header_and_f_rest_layout_match_the_reference(tmp_path):
     g.sh[:, 1:] = torch.tensor([[c * (k - 1) + j for c in range(3)] for j in range(k - 1)], dtype=torch.float32)
     path = save_gaussians(g, tmp_path / "g.ply")
     raw = path.read_bytes()
-    header = ("ply\nformat binary_little_endian 1.0\nelement vertex 4\n"
-              + "".join(f"property float {p}\n" for p in _reference_names(3)) + "end_header\n").encode()
+    header = (
+        "ply\nformat binary_little_endian 1.0\nelement vertex 4\n"
+        + "".join(f"property float {p}\n" for p in _reference_names(3))
+        + "end_header\n"
+    ).encode()
     assert raw.startswith(header) and ply_property_names(3) == _reference_names(3)
-    rows = np.frombuffer(raw[len(header):], dtype=[(p, "<f4") for p in _reference_names(3)])
+    rows = np.frombuffer(raw[len(header) :], dtype=[(p, "<f4") for p in _reference_names(3)])
     assert rows.shape == (4,)
     for i in range(45):
         assert np.all(rows[f"f_rest_{i}"] == i)
@@ -115,9 +137,19 @@ def test_reads_a_reference_layout_degree_3_file(tmp_path):
 def test_reads_ascii_big_endian_mixed_types_and_extra_elements(tmp_path, fmt):
     g = _random_set(6, 1, seed=3).map(lambda t: t.double().float())
     names = _reference_names(1) + ["red"]
-    table = np.concatenate([g.means.numpy(), np.zeros((6, 3)), g.sh[:, 0].numpy(),
-                            g.sh[:, 1:].transpose(1, 2).reshape(6, 9).numpy(), g.opacity_logits[:, None].numpy(),
-                            g.log_scales.numpy(), g.quats.numpy(), np.full((6, 1), 200)], 1)
+    table = np.concatenate(
+        [
+            g.means.numpy(),
+            np.zeros((6, 3)),
+            g.sh[:, 0].numpy(),
+            g.sh[:, 1:].transpose(1, 2).reshape(6, 9).numpy(),
+            g.opacity_logits[:, None].numpy(),
+            g.log_scales.numpy(),
+            g.quats.numpy(),
+            np.full((6, 1), 200),
+        ],
+        1,
+    )
     types = ["double"] * 3 + ["float"] * (len(names) - 4) + ["uchar"]
     extra = "element face 1\nproperty list uchar int vertex_indices\n"
     tail = b"3 0 1 2\n" if fmt == "ascii" else bytes([3]) + np.array([0, 1, 2], ">i4").tobytes()
@@ -128,8 +160,15 @@ def test_reads_ascii_big_endian_mixed_types_and_extra_elements(tmp_path, fmt):
 
 def test_reads_gsplat_style_npz(tmp_path):
     g = _random_set(8, 2)
-    np.savez(tmp_path / "ckpt.npz", means=g.means.numpy(), quats=g.quats.numpy(), scales=g.log_scales.numpy(),
-             opacities=g.opacity_logits.numpy(), sh0=g.sh[:, :1].numpy(), shN=g.sh[:, 1:].numpy())
+    np.savez(
+        tmp_path / "ckpt.npz",
+        means=g.means.numpy(),
+        quats=g.quats.numpy(),
+        scales=g.log_scales.numpy(),
+        opacities=g.opacity_logits.numpy(),
+        sh0=g.sh[:, :1].numpy(),
+        shN=g.sh[:, 1:].numpy(),
+    )
     back = load_gaussians(tmp_path / "ckpt.npz")
     for a, b in zip(g.tensors(), back.tensors(), strict=True):
         assert torch.equal(a, b)
@@ -147,8 +186,12 @@ def _bad_files(tmp_path):
     out = {}
     out["not a PLY"] = tmp_path / "text.ply"
     out["not a PLY"].write_text("hello\nworld\n")
-    out["missing"] = _write_ply(tmp_path / "cloud.ply", ["x", "y", "z", "red", "green", "blue"],
-                                np.ones((3, 6)), types=["float"] * 3 + ["uchar"] * 3)
+    out["missing"] = _write_ply(
+        tmp_path / "cloud.ply",
+        ["x", "y", "z", "red", "green", "blue"],
+        np.ones((3, 6)),
+        types=["float"] * 3 + ["uchar"] * 3,
+    )
     full = _write_ply(tmp_path / "full.ply", names, table).read_bytes()
     out["truncated"] = tmp_path / "cut.ply"
     out["truncated"].write_bytes(full[:-10])
@@ -176,8 +219,14 @@ def _bad_files(tmp_path):
     out["lacks the Gaussian arrays"] = tmp_path / "keys.npz"
     np.savez(out["lacks the Gaussian arrays"], means=np.zeros((3, 3)))
     out["must have shape"] = tmp_path / "shape.npz"
-    np.savez(out["must have shape"], means=np.zeros((3, 3)), quats=np.ones((3, 3)), log_scales=np.zeros((3, 3)),
-             opacity_logits=np.zeros(3), sh=np.zeros((3, 1, 3)))
+    np.savez(
+        out["must have shape"],
+        means=np.zeros((3, 3)),
+        quats=np.ones((3, 3)),
+        log_scales=np.zeros((3, 3)),
+        opacity_logits=np.zeros(3),
+        sh=np.zeros((3, 1, 3)),
+    )
     return out
 
 

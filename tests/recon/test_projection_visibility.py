@@ -96,8 +96,16 @@ def test_frustum_edge_row_matches_the_pixel_centre_rule():
     proj = project_gaussians(gaussians, cam)
     full = render(gaussians, cam, 1.0)
     assert torch.equal(radii[0], full.radii) and torch.equal(visible[0], full.visible)
-    unclipped = torch.ceil(3.0 * torch.sqrt(torch.linalg.eigvalsh(torch.stack([torch.linalg.inv(torch.tensor(
-        [[a, b], [b, c]], dtype=F64)) for a, b, c in proj.conics.tolist()]))[:, -1]))
+    unclipped = torch.ceil(
+        3.0
+        * torch.sqrt(
+            torch.linalg.eigvalsh(
+                torch.stack(
+                    [torch.linalg.inv(torch.tensor([[a, b], [b, c]], dtype=F64)) for a, b, c in proj.conics.tolist()]
+                )
+            )[:, -1]
+        )
+    )
     rule = []
     for (u, v), r in zip(proj.means2d.tolist(), unclipped.tolist(), strict=True):
         cols = [i for i in range(cam.width) if u - r <= i + 0.5 <= u + r]

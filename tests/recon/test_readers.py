@@ -37,9 +37,13 @@ def _set(n: int, degree: int, seed: int = 0) -> GaussianSet:
     k = (degree + 1) ** 2
     rgb = 0.02 + 0.96 * torch.rand(n, 3, generator=gen)
     sh = torch.cat([((rgb - 0.5) / SH_C0)[:, None], 1.8 * torch.rand(n, k - 1, 3, generator=gen) - 0.9], 1)
-    return GaussianSet(means=4 * torch.rand(n, 3, generator=gen) - 2, quats=quats,
-                       log_scales=7 * torch.rand(n, 3, generator=gen) - 6,
-                       opacity_logits=10 * torch.rand(n, generator=gen) - 5, sh=sh)
+    return GaussianSet(
+        means=4 * torch.rand(n, 3, generator=gen) - 2,
+        quats=quats,
+        log_scales=7 * torch.rand(n, 3, generator=gen) - 6,
+        opacity_logits=10 * torch.rand(n, generator=gen) - 5,
+        sh=sh,
+    )
 
 
 def _aligned(q: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
@@ -68,7 +72,7 @@ def _raises(path, *fragments, **options):
 def test_sog_round_trip_within_quantisation(tmp_path, version, degree, bundle):
     g = _set(300, degree, seed=version + degree)
     path = encode_sog(g, tmp_path / ("g.sog" if bundle else "g"), version=version, bundle=bundle)
-    for target in ([path] if bundle else [path, path / "meta.json"]):
+    for target in [path] if bundle else [path, path / "meta.json"]:
         back, fmt, frame = formats.load_gaussians_framed(target)
         assert fmt == "sog" and back.num == g.num and back.sh_degree == degree and frame.metric
         logs = torch.sign(g.means) * torch.log1p(g.means.abs())
@@ -78,8 +82,15 @@ def test_sog_round_trip_within_quantisation(tmp_path, version, degree, bundle):
         step = (g.log_scales.max() - g.log_scales.min()) / 255
         tol = step / 2 if version == 2 else (g.log_scales.max(0).values - g.log_scales.min(0).values) / 255 / 2
         _within(back.log_scales, g.log_scales, tol, "log-scales")
-        dc_tol = ((g.sh[:, 0].max() - g.sh[:, 0].min()) if version == 2
-                  else (g.sh[:, 0].max(0).values - g.sh[:, 0].min(0).values)) / 255 / 2
+        dc_tol = (
+            (
+                (g.sh[:, 0].max() - g.sh[:, 0].min())
+                if version == 2
+                else (g.sh[:, 0].max(0).values - g.sh[:, 0].min(0).values)
+            )
+            / 255
+            / 2
+        )
         _within(back.sh[:, 0], g.sh[:, 0], dc_tol, "SH DC")
         if version == 2:
             _within(back.opacities, g.opacities, 0.5 / 255, "opacity")
@@ -103,18 +114,27 @@ def _sog_one(tmp_path, pixels: dict, meta: dict, name="one.sog"):
 
 def _sog_meta(**extra):
     book = [-5.0 + 0.04 * i for i in range(256)]
-    meta = {"version": 2, "count": 1,
-            "means": {"mins": [-1.0, 0.0, -2.0], "maxs": [1.0, 2.0, 2.0], "files": ["l.webp", "u.webp"]},
-            "scales": {"codebook": book, "files": ["s.webp"]}, "quats": {"files": ["q.webp"]},
-            "sh0": {"codebook": book, "files": ["c.webp"]}}
+    meta = {
+        "version": 2,
+        "count": 1,
+        "means": {"mins": [-1.0, 0.0, -2.0], "maxs": [1.0, 2.0, 2.0], "files": ["l.webp", "u.webp"]},
+        "scales": {"codebook": book, "files": ["s.webp"]},
+        "quats": {"files": ["q.webp"]},
+        "sh0": {"codebook": book, "files": ["c.webp"]},
+    }
     meta.update(extra)
     return meta
 
 
 def _sog_pixels(quat_tag=254):
     q = (0x8000, 0xFFFF, 0x4000)  # x, y, z 16-bit codes
-    return {"l.webp": [[v & 0xFF for v in q] + [255]], "u.webp": [[v >> 8 for v in q] + [255]],
-            "s.webp": [[0, 100, 255, 255]], "q.webp": [[200, 60, 128, quat_tag]], "c.webp": [[10, 20, 30, 51]]}
+    return {
+        "l.webp": [[v & 0xFF for v in q] + [255]],
+        "u.webp": [[v >> 8 for v in q] + [255]],
+        "s.webp": [[0, 100, 255, 255]],
+        "q.webp": [[200, 60, 128, quat_tag]],
+        "c.webp": [[10, 20, 30, 51]],
+    }
 
 
 def test_sog_record_by_hand(tmp_path):
@@ -134,8 +154,11 @@ def test_sog_bad_input(tmp_path):
     pixels = _sog_pixels()
     del pixels["s.webp"]
     _raises(_sog_one(tmp_path, pixels, _sog_meta(), "missing.sog"), "'s.webp'", "missing")
-    _raises(_sog_one(tmp_path, _sog_pixels(), _sog_meta(count=5), "count.sog"), "fewer than the 5 Gaussians",
-            "count larger than the images hold")
+    _raises(
+        _sog_one(tmp_path, _sog_pixels(), _sog_meta(count=5), "count.sog"),
+        "fewer than the 5 Gaussians",
+        "count larger than the images hold",
+    )
     _raises(_sog_one(tmp_path, _sog_pixels(), _sog_meta(version=3), "v3.sog"), "SOG version 3 is not supported")
     _raises(_sog_one(tmp_path, _sog_pixels(quat_tag=17), _sog_meta(), "tag.sog"), "reserved mode byte")
     folder = encode_sog(_set(20, 1), tmp_path / "folder", bundle=False)
@@ -155,7 +178,7 @@ def test_ksplat_round_trip_within_quantisation(tmp_path, mode, degree, sections)
         _within(back.log_scales, g.log_scales, 1e-5, "log-scales")
     else:
         _within(back.means, g.means, 3e-4, "means (u16 in buckets)")  # block / 2 / 32767 / 2 with block < 4
-        _within(back.log_scales, g.log_scales, 2.0 ** -11 + 1e-4, "log-scales (f16: relative 2^-11)")
+        _within(back.log_scales, g.log_scales, 2.0**-11 + 1e-4, "log-scales (f16: relative 2^-11)")
     _within(back.sh[:, 0] * SH_C0 + 0.5, g.sh[:, 0] * SH_C0 + 0.5, 0.5 / 255, "colour")
     _within(back.opacities, g.opacities, 0.5 / 255, "opacity")
     _within(_aligned(back.quats, g.quats), g.quats, 1e-6 if mode == 0 else 1e-3, "rotation")
@@ -173,9 +196,15 @@ def _ksplat_one(path, mode=1, version=(0, 1), records=None, count=1):
     struct.pack_into("<IIIIfHHI", section, 0, count, count, 64, 1, 2.0, 12, 0, 1000)
     struct.pack_into("<IIH", section, 32, 0, 1, 0)  # no full bucket, one partial, SH degree 0
     body = struct.pack("<I", count) + struct.pack("<3f", 10.0, 20.0, 30.0)
-    record = records if records is not None else (
-        struct.pack("<3H", 1000, 2000, 0) + np.array([0.5, 1.0, 2.0, 1.0, 0.0, 0.0, 0.0], "<f2").tobytes()
-        + bytes([255, 0, 51, 102]))
+    record = (
+        records
+        if records is not None
+        else (
+            struct.pack("<3H", 1000, 2000, 0)
+            + np.array([0.5, 1.0, 2.0, 1.0, 0.0, 0.0, 0.0], "<f2").tobytes()
+            + bytes([255, 0, 51, 102])
+        )
+    )
     path.write_bytes(bytes(header) + bytes(section) + body + record)
     return path
 
@@ -247,8 +276,7 @@ def _write_colmap(folder, rng):
         w2c = np.linalg.inv(c2w)
         qx, qy, qz, qw = (float(v) for v in Rotation.from_matrix(w2c[:3, :3]).as_quat())
         tx, ty, tz = (float(v) for v in w2c[:3, 3])
-        lines += [f"{i + 1} {qw!r} {qx!r} {qy!r} {qz!r} {tx!r} {ty!r} {tz!r} 1 im{i:02d}.png",
-                  ""]
+        lines += [f"{i + 1} {qw!r} {qx!r} {qy!r} {qz!r} {tx!r} {ty!r} {tz!r} 1 im{i:02d}.png", ""]
     (folder / "images.txt").write_text("\n".join(lines) + "\n")
     points = rng.normal(size=(400, 3)) * [1.0, 0.4, 0.6] + [1.0, -2.0, 0.5]
     rows = [" ".join(repr(float(v)) for v in p) for p in points]
@@ -271,13 +299,20 @@ def test_gsplat_ranks_restored_to_the_metric_frame(tmp_path):
     ckpts.mkdir(parents=True)
     for rank, part in enumerate((slice(0, 120), slice(120, 200))):
         sub = trained.subset(torch.arange(200)[part])
-        splats = {"means": sub.means, "quats": sub.quats * 3.0, "scales": sub.log_scales,
-                  "opacities": sub.opacity_logits, "sh0": sub.sh[:, :1], "shN": sub.sh[:, 1:]}
+        splats = {
+            "means": sub.means,
+            "quats": sub.quats * 3.0,
+            "scales": sub.log_scales,
+            "opacities": sub.opacity_logits,
+            "sh0": sub.sh[:, :1],
+            "shN": sub.sh[:, 1:],
+        }
         torch.save({"step": 6999, "splats": splats}, ckpts / f"ckpt_6999_rank{rank}.pt")
     raw = load_checkpoint(ckpts / "ckpt_6999_rank1.pt")
     assert raw.trainer == "gsplat" and raw.gaussians.num == 200 and len(raw.files) == 2
-    back, fmt, frame = formats.load_gaussians_framed(ckpts / "ckpt_6999_rank0.pt",
-                                                     formats.LoadOptions(colmap=tmp_path / "data"))
+    back, fmt, frame = formats.load_gaussians_framed(
+        ckpts / "ckpt_6999_rank0.pt", formats.LoadOptions(colmap=tmp_path / "data")
+    )
     assert fmt == "checkpoint" and frame.metric and "gsplat" in frame.description
     torch.testing.assert_close(back.means, metric.means, rtol=0, atol=1e-4)
     torch.testing.assert_close(back.covariances(), metric.covariances(), rtol=1e-3, atol=1e-5)
@@ -298,9 +333,14 @@ def test_nerfstudio_restored_with_dataparser_transforms(tmp_path, layout, caplog
     (run / "dataparser_transforms.json").write_text(json.dumps(doc))
     trained = _to_trainer(metric, m)
     prefix = {"gauss_params": "_model.gauss_params.", "ddp": "module._model.gauss_params.", "old": "_model."}[layout]
-    params = {"means": trained.means, "quats": trained.quats, "scales": trained.log_scales,
-              "opacities": trained.opacity_logits[:, None], "features_dc": trained.sh[:, 0],
-              "features_rest": trained.sh[:, 1:]}
+    params = {
+        "means": trained.means,
+        "quats": trained.quats,
+        "scales": trained.log_scales,
+        "opacities": trained.opacity_logits[:, None],
+        "features_dc": trained.sh[:, 0],
+        "features_rest": trained.sh[:, 1:],
+    }
     pipeline = {prefix + k: v for k, v in params.items()}
     pipeline["_model.field.some_mlp.weight"] = torch.zeros(2, 2)
     ckpt = run / "nerfstudio_models" / "step-000029999.ckpt"
@@ -317,15 +357,22 @@ def test_nerfstudio_restored_with_dataparser_transforms(tmp_path, layout, caplog
     assert not frame.metric and "normalised units" in caplog.text and "--dataparser-transforms" in caplog.text
     torch.testing.assert_close(raw.means, trained.means.float())
     given, _, frame = formats.load_gaussians_framed(
-        ckpt, formats.LoadOptions(dataparser_transforms=tmp_path / "elsewhere.json"))
+        ckpt, formats.LoadOptions(dataparser_transforms=tmp_path / "elsewhere.json")
+    )
     assert frame.metric
     torch.testing.assert_close(given.means, metric.means, rtol=0, atol=1e-4)
 
 
 def test_splatfacto_degree_zero_colour_is_a_logit(tmp_path):
     rgb = torch.tensor([[0.2, 0.5, 0.9]])
-    params = {"means": torch.zeros(1, 3), "quats": torch.tensor([[2.0, 0, 0, 0]]), "scales": torch.zeros(1, 3),
-              "opacities": torch.zeros(1, 1), "features_dc": torch.logit(rgb), "features_rest": torch.zeros(1, 0, 3)}
+    params = {
+        "means": torch.zeros(1, 3),
+        "quats": torch.tensor([[2.0, 0, 0, 0]]),
+        "scales": torch.zeros(1, 3),
+        "opacities": torch.zeros(1, 1),
+        "features_dc": torch.logit(rgb),
+        "features_rest": torch.zeros(1, 0, 3),
+    }
     pipeline = {f"_model.gauss_params.{k}": v for k, v in params.items()}
     torch.save({"pipeline": pipeline}, tmp_path / "step-1.ckpt")
     g = load_checkpoint(tmp_path / "step-1.ckpt").gaussians
@@ -336,8 +383,10 @@ def test_splatfacto_degree_zero_colour_is_a_logit(tmp_path):
 def test_checkpoints_without_gaussians_and_unsafe_pickles(tmp_path):
     torch.save({"step": 5, "app_module": {"embeds.weight": torch.zeros(3, 4)}}, tmp_path / "ckpt_5_rank0.pt")
     _raises(tmp_path / "ckpt_5_rank0.pt", "without Gaussians")
-    torch.save({"step": 5, "splats": {"features": torch.zeros(3, 4), "colors": torch.zeros(3, 3)}},
-               tmp_path / "ckpt_6_rank0.pt")
+    torch.save(
+        {"step": 5, "splats": {"features": torch.zeros(3, 4), "colors": torch.zeros(3, 3)}},
+        tmp_path / "ckpt_6_rank0.pt",
+    )
     _raises(tmp_path / "ckpt_6_rank0.pt", "without Gaussians", "'means'")
     torch.save({"optimizers": {"means": {"state": {}}}}, tmp_path / "optim.ckpt")
     _raises(tmp_path / "optim.ckpt", "without Gaussians")

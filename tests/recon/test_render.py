@@ -22,8 +22,15 @@ F64 = torch.float64
 
 def _axis_camera(width=64, height=48, focal=50.0, cx=None, cy=None) -> Camera:
     """Camera at the origin looking down +z with OpenCV axes (world = camera frame)."""
-    return Camera(width, height, focal, focal, width / 2 if cx is None else cx, height / 2 if cy is None else cy,
-                  torch.eye(4, dtype=F64))
+    return Camera(
+        width,
+        height,
+        focal,
+        focal,
+        width / 2 if cx is None else cx,
+        height / 2 if cy is None else cy,
+        torch.eye(4, dtype=F64),
+    )
 
 
 def _isotropic(points, sigma, opacity=0.5, rgb=(0.2, 0.6, 0.9), dtype=F64) -> GaussianSet:
@@ -108,7 +115,7 @@ def test_background_and_single_gaussian_hand_computed():
     assert out.depth[24, 32].item() == pytest.approx(o * z)
     # outside the 3-sigma box: exactly the background, zero alpha and depth
     far = torch.ones(48, 64, dtype=torch.bool)
-    far[24 - 5:24 + 6, 32 - 5:32 + 6] = False
+    far[24 - 5 : 24 + 6, 32 - 5 : 32 + 6] = False
     assert torch.equal(out.image[far], bg.expand(int(far.sum()), 3))
     assert (out.alpha[far] == 0).all() and (out.depth[far] == 0).all()
 
@@ -153,8 +160,9 @@ def test_sparse_matches_dense_reference_with_early_stop_and_alpha_skip():
 
     grads_fast = torch.autograd.grad(loss(fast), params + [fast.means2d], retain_graph=True)
     grads_slow = torch.autograd.grad(loss(slow), params + [slow.means2d])
-    for name, gf, gs in zip(("means", "quats", "log_scales", "opacity_logits", "sh", "means2d"), grads_fast,
-                            grads_slow, strict=True):
+    for name, gf, gs in zip(
+        ("means", "quats", "log_scales", "opacity_logits", "sh", "means2d"), grads_fast, grads_slow, strict=True
+    ):
         assert gs.abs().max() > 0, name
         torch.testing.assert_close(gf, gs, rtol=1e-9, atol=1e-10, msg=name)
 

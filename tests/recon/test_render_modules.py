@@ -40,7 +40,7 @@ def _cycle(graph: dict[str, set[str]], starts) -> list[str] | None:
         stack.append(node)
         for nxt in sorted(graph.get(node, ())):
             if state.get(nxt) == 1:
-                return stack[stack.index(nxt):] + [nxt]
+                return stack[stack.index(nxt) :] + [nxt]
             if nxt not in state and (found := visit(nxt)):
                 return found
         stack.pop()
@@ -68,8 +68,13 @@ def test_the_renderer_modules_import_each_other_without_a_cycle():
 
 
 def test_no_renderer_module_imports_a_private_name_of_another():
-    private = [(stem, m, n) for stem in RENDERER for m, names in _imports(RECON / f"{stem}.py") for n in names
-               if n.startswith("_")]
+    private = [
+        (stem, m, n)
+        for stem in RENDERER
+        for m, names in _imports(RECON / f"{stem}.py")
+        for n in names
+        if n.startswith("_")
+    ]
     assert private == [], private
 
 

@@ -23,7 +23,7 @@ def test_degree1_matches_direct_formula():
     gen = torch.Generator().manual_seed(0)
     sh = torch.randn(50, 4, 3, generator=gen, dtype=torch.float64)
     dirs = torch.nn.functional.normalize(torch.randn(50, 3, generator=gen, dtype=torch.float64), dim=-1)
-    x, y, z = (dirs[:, i:i + 1] for i in range(3))
+    x, y, z = (dirs[:, i : i + 1] for i in range(3))
     expected = SH_C0 * sh[:, 0] - SH_C1 * y * sh[:, 1] + SH_C1 * z * sh[:, 2] - SH_C1 * x * sh[:, 3]
     torch.testing.assert_close(eval_sh(sh, dirs), expected, rtol=0, atol=1e-12)
 

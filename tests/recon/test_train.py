@@ -28,15 +28,17 @@ def reference_expon_lr(step, lr_init, lr_final, max_steps, delay_steps=0, delay_
     else:
         delay = 1.0
     t = min(max(step / max_steps, 0), 1)
-    return delay * lr_init ** (1 - t) * lr_final ** t
+    return delay * lr_init ** (1 - t) * lr_final**t
 
 
 @pytest.mark.parametrize("step", [0, 1, 7500, 15000, 29999, 30000, 45000])
 def test_expon_lr_matches_reference_formula(step):
-    assert expon_lr(step, 1.6e-4, 1.6e-6, 30000) == pytest.approx(reference_expon_lr(step, 1.6e-4, 1.6e-6, 30000),
-                                                                  rel=1e-12)
+    assert expon_lr(step, 1.6e-4, 1.6e-6, 30000) == pytest.approx(
+        reference_expon_lr(step, 1.6e-4, 1.6e-6, 30000), rel=1e-12
+    )
     assert expon_lr(step, 1.6e-4, 1.6e-6, 30000, 1000, 0.01) == pytest.approx(
-        reference_expon_lr(step, 1.6e-4, 1.6e-6, 30000, 1000, 0.01), rel=1e-12)
+        reference_expon_lr(step, 1.6e-4, 1.6e-6, 30000, 1000, 0.01), rel=1e-12
+    )
 
 
 def test_expon_lr_known_values():
@@ -59,7 +61,7 @@ def test_grouped_adam_equals_torch_adam():
     theirs = torch.optim.Adam([{"params": [ta], "lr": 0.01}, {"params": [tb], "lr": 0.1}], eps=1e-15)
     for _ in range(6):
         for a, b, opt in ((ours.params["a"], ours.params["b"], ours), (ta, tb, theirs)):
-            loss = (a.sin() * 3).sum() + (b ** 3).sum()
+            loss = (a.sin() * 3).sum() + (b**3).sum()
             loss.backward()
             opt.step()
             opt.zero_grad()
@@ -93,7 +95,7 @@ def test_adam_reset_state_and_skip():
     adam.step(skip=("y",))
     assert (adam.params["x"] != 0).all() and (adam.params["y"] == 0).all()
     adam.reset_state("x", torch.full((3,), 5.0))
-    assert torch.equal(adam.state["x"].exp_avg, torch.zeros(3)) and torch.equal(adam.params["x"], torch.full((3,), 5.))
+    assert torch.equal(adam.state["x"].exp_avg, torch.zeros(3)) and torch.equal(adam.params["x"], torch.full((3,), 5.0))
 
 
 # ---- density control -------------------------------------------------------------------------------
@@ -110,15 +112,26 @@ def hand_made_set() -> GaussianSet:
 
 def hand_made_stats() -> DensityStats:
     # mean grads: 3e-4 (hot), 1e-4 (cold), 5e-4 (hot), 0 (never seen), 1e-3 (hot but transparent), 0
-    return DensityStats(grad_accum=torch.tensor([6e-4, 1e-4, 1.5e-3, 0.0, 1e-3, 0.0]),
-                        denom=torch.tensor([2.0, 1.0, 3.0, 0.0, 1.0, 2.0]),
-                        max_radii2d=torch.tensor([3.0, 4.0, 30.0, 1.0, 2.0, 5.0]))
+    return DensityStats(
+        grad_accum=torch.tensor([6e-4, 1e-4, 1.5e-3, 0.0, 1e-3, 0.0]),
+        denom=torch.tensor([2.0, 1.0, 3.0, 0.0, 1.0, 2.0]),
+        max_radii2d=torch.tensor([3.0, 4.0, 30.0, 1.0, 2.0, 5.0]),
+    )
 
 
 def test_densify_clone_split_prune_counts():
     g, stats = hand_made_set(), hand_made_stats()
-    res = densify_and_prune(g, stats, grad_threshold=2e-4, percent_dense=0.01, extent=10.0, min_opacity=0.005,
-                            max_screen_size=None, big_world_fraction=0.1, generator=torch.Generator().manual_seed(0))
+    res = densify_and_prune(
+        g,
+        stats,
+        grad_threshold=2e-4,
+        percent_dense=0.01,
+        extent=10.0,
+        min_opacity=0.005,
+        max_screen_size=None,
+        big_world_fraction=0.1,
+        generator=torch.Generator().manual_seed(0),
+    )
     # clone: 0 (small, hot) and 4 (small, hot, then pruned with its clone for opacity); split: 2.
     assert (res.cloned, res.split) == (2, 1)
     # old: 0, 1, 3, 5 survive (2 replaced by its children, 4 pruned); new: clones of 0 and 4 (4's pruned), 2 children
@@ -134,9 +147,18 @@ def test_densify_clone_split_prune_counts():
 
 def test_prune_by_size_after_reset():
     g, stats = hand_made_set(), hand_made_stats()
-    res = densify_and_prune(g, stats, grad_threshold=2e-4, percent_dense=0.01, extent=10.0, min_opacity=0.005,
-                            max_screen_size=20.0, big_world_fraction=0.1, generator=torch.Generator().manual_seed(0),
-                            densify=False)
+    res = densify_and_prune(
+        g,
+        stats,
+        grad_threshold=2e-4,
+        percent_dense=0.01,
+        extent=10.0,
+        min_opacity=0.005,
+        max_screen_size=20.0,
+        big_world_fraction=0.1,
+        generator=torch.Generator().manual_seed(0),
+        densify=False,
+    )
     # 2 is 30 px on screen, 4 is transparent, 5 has scale 2.0 > 0.1 x 10
     assert res.origin.tolist() == [0, 1, 3]
     assert (res.cloned, res.split, res.pruned) == (0, 0, 3)
@@ -144,9 +166,18 @@ def test_prune_by_size_after_reset():
 
 def test_densify_respects_the_cap_by_gradient():
     g, stats = hand_made_set(), hand_made_stats()
-    res = densify_and_prune(g, stats, grad_threshold=2e-4, percent_dense=0.01, extent=10.0, min_opacity=1e-6,
-                            max_screen_size=None, big_world_fraction=None, generator=torch.Generator().manual_seed(0),
-                            max_gaussians=8)
+    res = densify_and_prune(
+        g,
+        stats,
+        grad_threshold=2e-4,
+        percent_dense=0.01,
+        extent=10.0,
+        min_opacity=1e-6,
+        max_screen_size=None,
+        big_world_fraction=None,
+        generator=torch.Generator().manual_seed(0),
+        max_gaussians=8,
+    )
     # budget 2 among candidates 0 (3e-4), 2 (5e-4), 4 (1e-3): the two largest gradients win
     assert (res.cloned, res.split) == (1, 1)
     assert res.gaussians.num == 8
@@ -154,8 +185,13 @@ def test_densify_respects_the_cap_by_gradient():
 
 def test_split_samples_follow_the_covariance():
     g = GaussianSet.from_points(torch.zeros(1, 3), scale=1.0)
-    g = GaussianSet(g.means, torch.tensor([[math.cos(0.3), 0, 0, math.sin(0.3)]]), torch.log(torch.tensor([[2.0, 0.5,
-                    0.1]])), g.opacity_logits, g.sh)
+    g = GaussianSet(
+        g.means,
+        torch.tensor([[math.cos(0.3), 0, 0, math.sin(0.3)]]),
+        torch.log(torch.tensor([[2.0, 0.5, 0.1]])),
+        g.opacity_logits,
+        g.sh,
+    )
     many = GaussianSet(*(t.repeat(4000, *([1] * (t.dim() - 1))) for t in g.tensors()))
     kids = split_samples(many, torch.ones(4000, dtype=torch.bool), torch.Generator().manual_seed(1))
     cov = torch.cov(kids.means.T)
@@ -167,8 +203,9 @@ def test_density_stats_and_ndc_gradient():
     stats = DensityStats.zeros(3)
     grad = ndc_gradient(torch.tensor([[3.0, 4.0], [1.0, 0.0], [0.0, 1.0]]), width=2, height=2)  # x W/2, y H/2
     stats.update(grad, torch.tensor([5, 0, 2]), torch.tensor([True, False, True]))
-    stats.update(torch.tensor([[0.0, 1.0], [1.0, 1.0], [0.0, 0.0]]), torch.tensor([2, 0, 7]),
-                 torch.tensor([True, False, True]))
+    stats.update(
+        torch.tensor([[0.0, 1.0], [1.0, 1.0], [0.0, 0.0]]), torch.tensor([2, 0, 7]), torch.tensor([True, False, True])
+    )
     torch.testing.assert_close(stats.mean_grad(), torch.tensor([3.0, 0.0, 0.5]))
     torch.testing.assert_close(stats.max_radii2d, torch.tensor([5.0, 0.0, 7.0]))
     torch.testing.assert_close(ndc_gradient(torch.tensor([[1.0, 1.0]]), 64, 32), torch.tensor([[32.0, 16.0]]))
@@ -216,8 +253,10 @@ def test_knn_chunked_equals_reference():
 def test_scene_extent_and_look_at():
     from recon.camera import Camera
 
-    cams = [Camera.look_at([4.0 * math.cos(a), 0.5, 4.0 * math.sin(a)], [0.2, 0.1, -0.3], [0, 1, 0], 16, 16, 0.8)
-            for a in torch.linspace(0, 2 * math.pi, 7)[:-1].tolist()]
+    cams = [
+        Camera.look_at([4.0 * math.cos(a), 0.5, 4.0 * math.sin(a)], [0.2, 0.1, -0.3], [0, 1, 0], 16, 16, 0.8)
+        for a in torch.linspace(0, 2 * math.pi, 7)[:-1].tolist()
+    ]
     centres = torch.stack([c.center for c in cams])
     expected = 1.1 * float((centres - centres.mean(0)).norm(dim=-1).max())
     assert scene_extent(cams) == pytest.approx(expected)
@@ -231,8 +270,9 @@ def test_composite_target_recovers_other_backgrounds():
     rgb, alpha = torch.rand(4, 4, 3, generator=gen), torch.rand(4, 4, generator=gen)
     white = rgb * alpha[..., None] + (1 - alpha[..., None])
     bg = torch.tensor([0.2, 0.5, 0.9])
-    torch.testing.assert_close(composite_target(white, alpha, torch.ones(3), bg),
-                               rgb * alpha[..., None] + bg * (1 - alpha[..., None]))
+    torch.testing.assert_close(
+        composite_target(white, alpha, torch.ones(3), bg), rgb * alpha[..., None] + bg * (1 - alpha[..., None])
+    )
     with pytest.raises(ValueError, match="alpha"):
         composite_target(white, None, torch.ones(3), bg)
 
@@ -248,13 +288,15 @@ def tiny_scene():
     from recon.render import render
 
     gen = torch.Generator().manual_seed(0)
-    gt = GaussianSet.from_points((torch.rand(200, 3, generator=gen) - 0.5) * 1.5, torch.rand(200, 3, generator=gen),
-                                 scale=0.12, opacity=0.8)
+    gt = GaussianSet.from_points(
+        (torch.rand(200, 3, generator=gen) - 0.5) * 1.5, torch.rand(200, 3, generator=gen), scale=0.12, opacity=0.8
+    )
     views = []
     angles = torch.linspace(0, 2 * math.pi, 9)[:-1].tolist()
     for i, a in enumerate(angles):
-        cam = Camera.look_at([3 * math.cos(a), math.sin(3 * a), 3 * math.sin(a)], [0, 0, 0], [0, 1, 0], 16, 16, 0.9,
-                             name=f"v{i}")
+        cam = Camera.look_at(
+            [3 * math.cos(a), math.sin(3 * a), 3 * math.sin(a)], [0, 0, 0], [0, 1, 0], 16, 16, 0.9, name=f"v{i}"
+        )
         with torch.no_grad():
             out = render(gt, cam, torch.ones(3), backend="torch")
         views.append(View(cam, out.image, out.alpha, cam.name))
@@ -276,8 +318,9 @@ def test_loss_decreases_and_density_control_runs(tiny_scene):
 
     def mean_loss(gaussians):
         with torch.no_grad():
-            return sum(float(photometric_loss(render(gaussians, v.camera, 1.0, backend="torch").image, v.image))
-                       for v in views) / len(views)
+            return sum(
+                float(photometric_loss(render(gaussians, v.camera, 1.0, backend="torch").image, v.image)) for v in views
+            ) / len(views)
 
     g, log = train(views, cfg, backend="torch")
     before, after = mean_loss(initial_gaussians(cfg, [v.camera for v in views])), mean_loss(g)
@@ -325,8 +368,14 @@ def test_schedules_inside_the_trainer(tiny_scene):
     from recon.optim import expon_lr
     from recon.train import Trainer, initial_gaussians
 
-    cfg = tiny_config(iterations=60, sh_degree=2, sh_increase_interval=10, opacity_reset_interval=7,
-                      densify_until_iter=8, densify_from_iter=100)
+    cfg = tiny_config(
+        iterations=60,
+        sh_degree=2,
+        sh_increase_interval=10,
+        opacity_reset_interval=7,
+        densify_until_iter=8,
+        densify_from_iter=100,
+    )
     views = tiny_scene[:4]
     extent = scene_extent([v.camera for v in views])
     trainer = Trainer(initial_gaussians(cfg, [v.camera for v in views]), cfg, extent=extent, backend="torch")
@@ -365,12 +414,37 @@ def test_train_cli_smoke(tmp_path):
 
     from helpers.paths import TORUS
 
-    data = render_mesh_dataset(TORUS, tmp_path / "ds", MeshDatasetConfig(n_train=4, n_test=2, resolution=16,
-                                                                         supersample=1), progress=False)
+    data = render_mesh_dataset(
+        TORUS, tmp_path / "ds", MeshDatasetConfig(n_train=4, n_test=2, resolution=16, supersample=1), progress=False
+    )
     out = tmp_path / "g.ply"
-    assert main(["train", str(data), "-o", str(out), "--iters", "20", "--res", "16", "--init-points", "300",
-                 "--sh-degree", "1", "--views", "0,1,3", "--background", "random", "--threads", "1",
-                 "--device", "cuda"]) == 0  # falls back to the CPU where CUDA is missing
+    assert (
+        main(
+            [
+                "train",
+                str(data),
+                "-o",
+                str(out),
+                "--iters",
+                "20",
+                "--res",
+                "16",
+                "--init-points",
+                "300",
+                "--sh-degree",
+                "1",
+                "--views",
+                "0,1,3",
+                "--background",
+                "random",
+                "--threads",
+                "1",
+                "--device",
+                "cuda",
+            ]
+        )
+        == 0
+    )  # falls back to the CPU where CUDA is missing
     report = json.loads(out.with_suffix(".json").read_text())
     assert report["train_views"] == ["r_000", "r_001", "r_003"]
     assert math.isfinite(report["test"]["psnr"]) and report["config"]["iterations"] == 20
@@ -389,8 +463,30 @@ def test_make_assets_smoke(tmp_path):
     from recon.formats import load_gaussians
 
     out = tmp_path / "assets"
-    assert main(["make-assets", "-o", str(out), "--res", "16", "--candidates", "3", "--test", "1", "--train-views",
-                 "2", "--iters", "10", "--max-gaussians", "400", "--seed", "3"]) == 0
+    assert (
+        main(
+            [
+                "make-assets",
+                "-o",
+                str(out),
+                "--res",
+                "16",
+                "--candidates",
+                "3",
+                "--test",
+                "1",
+                "--train-views",
+                "2",
+                "--iters",
+                "10",
+                "--max-gaussians",
+                "400",
+                "--seed",
+                "3",
+            ]
+        )
+        == 0
+    )
     report = json.loads((out / "ahmed_asset.json").read_text())
     g = load_gaussians(out / "ahmed_gaussians.ply")
     assert g.num == report["num_gaussians"] <= 400 and g.sh_degree == 0

@@ -11,7 +11,7 @@ from viz.plots import PALETTE, bar_chart, plot_sweep
 
 
 def _pixels_near(image_bgr: np.ndarray, hex_rgb: str, tol: int = 30) -> int:
-    rgb = np.array([int(hex_rgb[i:i + 2], 16) for i in (1, 3, 5)])
+    rgb = np.array([int(hex_rgb[i : i + 2], 16) for i in (1, 3, 5)])
     return int((np.abs(image_bgr[..., ::-1].astype(int) - rgb).max(axis=-1) <= tol).sum())
 
 
@@ -32,9 +32,16 @@ def _check_png(path, width, height):
 
 def test_sweep_plot_draws_both_series_and_the_table(tmp_path):
     speeds = [3, 4, 5, 10, 20, 50]
-    out = plot_sweep(tmp_path / "sweep.png", speeds, [1e-4 * u for u in speeds],
-                     dbar_other=[1.3e-4 * u for u in speeds], reynolds=[1e5 * u for u in speeds],
-                     dts=[3e-3 / u for u in speeds], steps=[40 * u for u in speeds], title="D-bar vs U")
+    out = plot_sweep(
+        tmp_path / "sweep.png",
+        speeds,
+        [1e-4 * u for u in speeds],
+        dbar_other=[1.3e-4 * u for u in speeds],
+        reynolds=[1e5 * u for u in speeds],
+        dts=[3e-3 / u for u in speeds],
+        steps=[40 * u for u in speeds],
+        title="D-bar vs U",
+    )
     image = _check_png(out, 900, 620)
     assert _pixels_near(image, PALETTE[0]) > 300 and _pixels_near(image, PALETTE[1]) > 300
     single = _check_png(plot_sweep(tmp_path / "one.png", speeds, [2e-4] * len(speeds)), 900, 620)
@@ -52,13 +59,26 @@ def test_sweep_plot_rejects_bad_input(tmp_path):
 
 
 def test_bar_chart_bars_whiskers_and_missing_values(tmp_path):
-    out = bar_chart(tmp_path / "psnr.png", ["random", "physics", "reference-4views"], [22.0, 24.0, None],
-                    [0.5, 0.0, None], title="test PSNR", ylabel="PSNR (dB)")
+    out = bar_chart(
+        tmp_path / "psnr.png",
+        ["random", "physics", "reference-4views"],
+        [22.0, 24.0, None],
+        [0.5, 0.0, None],
+        title="test PSNR",
+        ylabel="PSNR (dB)",
+    )
     image = _check_png(out, 720, 420)
     assert _pixels_near(image, PALETTE[0], 10) > 2000 and _pixels_near(image, PALETTE[1], 10) > 2000
     assert _pixels_near(image, PALETTE[2], 10) == 0  # the missing mean has no bar ("n/a")
-    wide = bar_chart(tmp_path / "wide.png", [f"m{i}" for i in range(20)], list(range(20)), [1.0] * 20,
-                     title="D-bar per probe direction", ylabel="D-bar (m^4/s)", width=1200)
+    wide = bar_chart(
+        tmp_path / "wide.png",
+        [f"m{i}" for i in range(20)],
+        list(range(20)),
+        [1.0] * 20,
+        title="D-bar per probe direction",
+        ylabel="D-bar (m^4/s)",
+        width=1200,
+    )
     _check_png(wide, 1200, 420)
     with pytest.raises(ValueError, match="means needs 2 values"):
         bar_chart(tmp_path / "x.png", ["a", "b"], [1.0], [0.0, 0.0], title="t", ylabel="y")
@@ -67,8 +87,19 @@ def test_bar_chart_bars_whiskers_and_missing_values(tmp_path):
 def test_apps_sweep_plot_takes_sweep_points(tmp_path):
     from apps.sweep import plot_sweep as app_plot
 
-    points = [SimpleNamespace(speed=u, dbar=1e-4 * u, dbar_other=None, reynolds=1e5 * u, dt=1e-3 / u, steps=40 * u,
-                              gap=None, dbar_empty=1e-5 * u) for u in (3, 6)]
+    points = [
+        SimpleNamespace(
+            speed=u,
+            dbar=1e-4 * u,
+            dbar_other=None,
+            reynolds=1e5 * u,
+            dt=1e-3 / u,
+            steps=40 * u,
+            gap=None,
+            dbar_empty=1e-5 * u,
+        )
+        for u in (3, 6)
+    ]
     _check_png(app_plot(points, tmp_path / "sweep.png", title="D-bar vs U: x.ply"), 900, 620)
 
 
@@ -76,10 +107,25 @@ def test_experiment_bar_charts(tmp_path):
     from nbv.study.experiment_config import ExperimentConfig
     from nbv.study.tables import write_tables
 
-    rows = [{"kind": "method", "method": m, "scene": "torus", "seed": s, "psnr": 20.0 + s + (m == "physics"),
-             "ssim": 0.8, "lpips": 0.2, "chamfer": 0.01, "dbar": 1e-3 * (1 + s), "dbar_empty": 1e-4,
-             "critical_psnr": 19.0, "critical_dbar": 1e-3, "dbar_per_direction": {"-x": 1e-3, "+x": 2e-3}}
-            for m in ("random", "physics") for s in (0, 1)]
+    rows = [
+        {
+            "kind": "method",
+            "method": m,
+            "scene": "torus",
+            "seed": s,
+            "psnr": 20.0 + s + (m == "physics"),
+            "ssim": 0.8,
+            "lpips": 0.2,
+            "chamfer": 0.01,
+            "dbar": 1e-3 * (1 + s),
+            "dbar_empty": 1e-4,
+            "critical_psnr": 19.0,
+            "critical_dbar": 1e-3,
+            "dbar_per_direction": {"-x": 1e-3, "+x": 2e-3},
+        }
+        for m in ("random", "physics")
+        for s in (0, 1)
+    ]
     config = ExperimentConfig(scenes=("torus",), methods=("random", "physics"), seeds=(0, 1))
     written = write_tables(rows, config, tmp_path)
     for name in ("psnr.png", "dbar.png", "dbar_direction.png"):

@@ -131,8 +131,9 @@ def test_depth_orders_points_along_each_view():
 def test_view_bases_are_orthonormal_and_not_mirrored():
     for view in rf.VIEWS:
         right, up, forward = rf.view_basis(view)
-        np.testing.assert_allclose(np.stack([right, up, forward]) @ np.stack([right, up, forward]).T,
-                                   np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(
+            np.stack([right, up, forward]) @ np.stack([right, up, forward]).T, np.eye(3), atol=1e-12
+        )
         np.testing.assert_allclose(np.cross(right, up), -forward, atol=1e-12)  # right x up points at camera
 
 
@@ -288,7 +289,7 @@ def _sphere_scene(path):
     around and in front of the ball (a slab in front along +z, the camera's side in the front view)."""
     s = 0.05
     g = np.mgrid[-6:7, -6:7, -6:7].reshape(3, -1).T
-    ball = g[(g ** 2).sum(1) <= 36] * s + 1.5
+    ball = g[(g**2).sum(1) <= 36] * s + 1.5
     walls = np.array([[x, y, z] for x in (-0.1, 3.1) for y in np.linspace(0, 3, 30) for z in np.linspace(0, 3, 30)])
     rng = np.random.default_rng(2)
     fluid = rng.random((4000, 3)) * [3, 3, 0.3] + [0, 0, 2.2]  # a slab between the ball and the camera, partly
@@ -309,7 +310,7 @@ def test_a_frame_shows_the_solid_distinct_from_the_fluid_and_framed(tmp_path):
     path, ball = _sphere_scene(tmp_path / "OUT.h5")
     image = cv2.imread(str(render_frames(path, tmp_path / "f", FrameStyle(width=W, height=H), False)[0]))
     x0, y0, vw, vh = scene_viewport(W, H)
-    scene = image[y0:y0 + vh, x0:x0 + vw].reshape(-1, 3).astype(np.int64)
+    scene = image[y0 : y0 + vh, x0 : x0 + vw].reshape(-1, 3).astype(np.int64)
     # a pixel is the solid's when its colour is a shade of ivory: proportional to SOLID_BGR within rounding
     scale = scene @ rf.SOLID_BGR / (rf.SOLID_BGR @ rf.SOLID_BGR)
     ivory = (np.abs(scene - scale[:, None] * rf.SOLID_BGR).max(axis=1) <= 2) & (scale >= rf._SOLID_FAR - 0.02)
@@ -331,8 +332,9 @@ def test_a_frame_shows_the_solid_distinct_from_the_fluid_and_framed(tmp_path):
     np.testing.assert_allclose(hi - lo, 0.6 * (1 + 2 * rf.OBJECT_MARGIN))
     # the slab behind the ball is hidden where the ball is: the centre of the cut-out corner is ivory
     u, v = _pixel_in(ball.mean(axis=0) + [-0.15, -0.15, 0.3], lo, hi)
-    np.testing.assert_array_less(np.abs(image[v, u].astype(int) - rf.SOLID_BGR * (image[v, u] @ rf.SOLID_BGR)
-                                        / (rf.SOLID_BGR @ rf.SOLID_BGR)), 3)
+    np.testing.assert_array_less(
+        np.abs(image[v, u].astype(int) - rf.SOLID_BGR * (image[v, u] @ rf.SOLID_BGR) / (rf.SOLID_BGR @ rf.SOLID_BGR)), 3
+    )
 
 
 def _pixel_in(point, lo, hi, view="front"):
@@ -472,16 +474,49 @@ def test_cli_arguments_and_run(tmp_path, capsys):
     parser = argparse.ArgumentParser()
     cli.add_arguments(parser)
     help_text = " ".join(parser.format_help().split())
-    for option in ["--color-by", "--view", "--width", "--height", "--point-size", "--vmax", "--no-boundary",
-                   "--fps", "--walls", "--frame"]:
+    for option in [
+        "--color-by",
+        "--view",
+        "--width",
+        "--height",
+        "--point-size",
+        "--vmax",
+        "--no-boundary",
+        "--fps",
+        "--walls",
+        "--frame",
+    ]:
         assert option in help_text
-    for phrase in ["in pixels", "(default: 960)", "(default: 720)", "1/s", "m/s", "99th percentile",
-                   "frames per second, .mp4 only (default: 30)"]:
+    for phrase in [
+        "in pixels",
+        "(default: 960)",
+        "(default: 720)",
+        "1/s",
+        "m/s",
+        "99th percentile",
+        "frames per second, .mp4 only (default: 30)",
+    ]:
         assert phrase in help_text
 
     h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000", "000010"))
-    args = parser.parse_args([str(h5), "-o", str(tmp_path / "f"), "--width", str(W), "--height", str(H),
-                              "--view", "iso", "--color-by", "speed", "--vmax", "2.5", "--no-boundary"])
+    args = parser.parse_args(
+        [
+            str(h5),
+            "-o",
+            str(tmp_path / "f"),
+            "--width",
+            str(W),
+            "--height",
+            str(H),
+            "--view",
+            "iso",
+            "--color-by",
+            "speed",
+            "--vmax",
+            "2.5",
+            "--no-boundary",
+        ]
+    )
     assert args.no_boundary and args.vmax == 2.5
     assert cli.run(args) == 0
     assert len(list((tmp_path / "f").glob("frame_*.png"))) == 2
@@ -504,8 +539,10 @@ def test_viz_frames_needs_neither_taichi_nor_torch():
     import subprocess
     import sys
 
-    code = ("import sys, viz.frames, viz.video, viz.plots, fluidsim.files; "
-            "print(sorted(m for m in ('taichi', 'torch') if m in sys.modules))")
+    code = (
+        "import sys, viz.frames, viz.video, viz.plots, fluidsim.files; "
+        "print(sorted(m for m in ('taichi', 'torch') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 

@@ -10,8 +10,14 @@ from viz.video import even_size, pad_to_even, probe_video, read_mp4, write_mp4
 def _smooth_frames(n: int, h: int, w: int) -> list[np.ndarray]:
     """RGB gradients that move a little each frame (smooth, so a lossy codec keeps them well)."""
     y, x = np.mgrid[0:h, 0:w].astype(np.float64)
-    return [np.stack([40 + 160 * x / w + 2 * k, 30 + 180 * y / h, 120 + 60 * np.sin(x / 25.0 + y / 31.0 + 0.2 * k)],
-                     axis=-1).round().astype(np.uint8) for k in range(n)]
+    return [
+        np.stack(
+            [40 + 160 * x / w + 2 * k, 30 + 180 * y / h, 120 + 60 * np.sin(x / 25.0 + y / 31.0 + 0.2 * k)], axis=-1
+        )
+        .round()
+        .astype(np.uint8)
+        for k in range(n)
+    ]
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -24,8 +30,8 @@ def _top_level_boxes(path) -> list[bytes]:
     data = path.read_bytes()
     boxes, at = [], 0
     while at + 8 <= len(data):
-        size = int.from_bytes(data[at:at + 4], "big")
-        boxes.append(data[at + 4:at + 8])
+        size = int.from_bytes(data[at : at + 4], "big")
+        boxes.append(data[at + 4 : at + 8])
         if size < 8:
             break
         at += size

@@ -50,10 +50,10 @@ EVERY = 5
 FOV = math.radians(50)
 
 
-
 def _two(value: float) -> str:
     """Two significant digits, as `fluidgs score` and the viewer print them."""
     return f"{float(f'{value:.2g}'):g}"
+
 
 def _sphere(n: int = 300) -> GaussianSet:
     i = np.arange(n) + 0.5
@@ -64,8 +64,10 @@ def _sphere(n: int = 300) -> GaussianSet:
 
 
 def _cameras(path: Path) -> Path:
-    cams = [Camera.look_at((2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, FOV,
-                           name=f"cam{k}") for k, a in enumerate(np.arange(6) * math.pi / 3)]
+    cams = [
+        Camera.look_at((2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, FOV, name=f"cam{k}")
+        for k, a in enumerate(np.arange(6) * math.pi / 3)
+    ]
     frames = [{"file_path": f"./{c.name}", "transform_matrix": c.opengl_c2w().tolist()} for c in cams]
     path.write_text(json.dumps({"camera_angle_x": FOV, "w": 48, "h": 40, "frames": frames}))
     return path
@@ -78,10 +80,29 @@ def scene(tmp_path_factory):
     ply = save_gaussians(_sphere(), root / "sphere.ply")
     cameras = _cameras(root / "transforms.json")
     h5, scores = root / "result.h5", root / "scores.json"
-    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", "--record-probe", "-x",
-                     "--record-every", str(EVERY), "--accumulate-every", str(EVERY), *FAST]) == 0
-    assert cli.main(["score", str(ply), "--cameras", str(cameras), "--result", str(h5), "-o", str(scores),
-                     "--no-png"]) == 0
+    assert (
+        cli.main(
+            [
+                "simulate",
+                str(ply),
+                "-o",
+                str(h5),
+                "--directions=-x,+z",
+                "--record-probe",
+                "-x",
+                "--record-every",
+                str(EVERY),
+                "--accumulate-every",
+                str(EVERY),
+                *FAST,
+            ]
+        )
+        == 0
+    )
+    assert (
+        cli.main(["score", str(ply), "--cameras", str(cameras), "--result", str(h5), "-o", str(scores), "--no-png"])
+        == 0
+    )
     return SimpleNamespace(root=root, ply=ply, cameras=cameras, h5=h5, scores=scores)
 
 
@@ -147,8 +168,24 @@ def test_recording_is_checked_before_simulating(scene, tmp_path, caplog):
     assert "not among the probes run" in caplog.text
     assert cli.main([*base, "--record-probe", "-x", "--record-every", "41"]) == 2
     assert "no frame" in caplog.text
-    assert cli.main(["score", str(scene.ply), "--cameras", str(scene.cameras), "--result", str(scene.h5),
-                     "-o", str(tmp_path / "s.json"), "--record-probe", "-x", "--no-png"]) == 2
+    assert (
+        cli.main(
+            [
+                "score",
+                str(scene.ply),
+                "--cameras",
+                str(scene.cameras),
+                "--result",
+                str(scene.h5),
+                "-o",
+                str(tmp_path / "s.json"),
+                "--record-probe",
+                "-x",
+                "--no-png",
+            ]
+        )
+        == 2
+    )
     assert "--save-result" in caplog.text
     assert time.perf_counter() - t0 < 60 and not (tmp_path / "r.h5").exists()
 
@@ -218,8 +255,10 @@ def test_cameras_are_moved_to_the_simulation_frame(scene):
     from nbv.physics.scene_frame import SceneTransform
 
     scores = read_scores(scene.scores)
-    cams = [Camera.look_at((2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, FOV)
-            for a in np.arange(6) * math.pi / 3]
+    cams = [
+        Camera.look_at((2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, FOV)
+        for a in np.arange(6) * math.pi / 3
+    ]
     for transform in (SceneTransform("+y", 2.0), SceneTransform("+z", 0.5), SceneTransform((0.3, -1.0, 0.2), 3.0)):
         views = candidate_views(scene.cameras, transform.matrix, scores)
         assert [v.index for v in views] == list(range(6))
@@ -320,8 +359,9 @@ def test_viewer_colours_frames_and_cameras(scene, viewer_of):
     np.testing.assert_allclose(v._splats.rgbs, v.looks.rgb * 255, atol=1.0)  # viser truncates to uint8
     assert not v._colorbar.visible
     v.set_color_mode("D_g +z")
-    np.testing.assert_array_equal(v._splats.rgbs, np.round(turbo(d.per_probe["+z"], color_scale(d.per_probe["+z"]))
-                                                           * 255).astype(np.uint8))
+    np.testing.assert_array_equal(
+        v._splats.rgbs, np.round(turbo(d.per_probe["+z"], color_scale(d.per_probe["+z"])) * 255).astype(np.uint8)
+    )
     assert v._colorbar.visible
     # the replay: frame 3 is drawn, then play advances it
     traj = load_trajectory(d, "-x")
@@ -465,8 +505,13 @@ def test_view_command_rejects_bad_input(scene, tmp_path, caplog):
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_view_command_stops_cleanly(scene, stop):
     pytest.importorskip("viser")
-    proc = subprocess.Popen([sys.executable, "-m", "apps.cli", "view", str(scene.h5), "--port", "0"], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "apps.cli", "view", str(scene.h5), "--port", "0"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = proc.stdout.readline()
         assert line.startswith("fluidgs view: http://127.0.0.1:"), line + proc.stderr.read()
@@ -516,17 +561,28 @@ class _DevTools:
 
 
 # flags for WebGL in software: Chromium 1xx renders WebGL through ANGLE on SwiftShader (Vulkan) headless
-BROWSER_FLAGS = ("--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                 "--no-first-run", "--disable-gpu-sandbox", "--window-size=1024,768", "--hide-scrollbars")
-READY = ("(() => { const im = [...document.images].filter(i => i.getBoundingClientRect().width > 150); "
-         "return !!document.querySelector('canvas') && im.length > 0 && im.every(i => i.complete && "
-         "i.naturalWidth > 0); })()")
-BARS = ("JSON.stringify([...document.images].map(i => i.getBoundingClientRect()).filter(r => r.width > 150)"
-        ".map(r => [r.left, r.top, r.width, r.height]))")
+BROWSER_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--no-first-run",
+    "--disable-gpu-sandbox",
+    "--window-size=1024,768",
+    "--hide-scrollbars",
+)
+READY = (
+    "(() => { const im = [...document.images].filter(i => i.getBoundingClientRect().width > 150); "
+    "return !!document.querySelector('canvas') && im.length > 0 && im.every(i => i.complete && "
+    "i.naturalWidth > 0); })()"
+)
+BARS = (
+    "JSON.stringify([...document.images].map(i => i.getBoundingClientRect()).filter(r => r.width > 150)"
+    ".map(r => [r.left, r.top, r.width, r.height]))"
+)
 
 
-def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dismiss: bool = False,
-                        ready: str = READY):
+def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dismiss: bool = False, ready: str = READY):
     """Yield (RGB uint8 [H, W, 3], colour-bar rectangles [[x, y, w, h], ...]) of ``url`` in headless Chromium, every
     second or so once the page shows a canvas and its colour bars, until ``timeout`` s have passed.
 
@@ -536,9 +592,11 @@ def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dism
     import websockets.sync.client
 
     with tempfile.TemporaryDirectory() as profile:
-        proc = subprocess.Popen([_browser(), *BROWSER_FLAGS, "--remote-debugging-port=0",
-                                 f"--user-data-dir={profile}", "about:blank"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        proc = subprocess.Popen(
+            [_browser(), *BROWSER_FLAGS, "--remote-debugging-port=0", f"--user-data-dir={profile}", "about:blank"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         try:
             deadline = time.time() + timeout
             port_file = Path(profile) / "DevToolsActivePort"
@@ -550,11 +608,15 @@ def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dism
             port = port_file.read_text().split()[0]
             targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=30))
             page = next(t for t in targets if t.get("type") == "page")
-            with websockets.sync.client.connect(page["webSocketDebuggerUrl"], max_size=None,
-                                                open_timeout=30) as ws:
+            with websockets.sync.client.connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=30) as ws:
                 tools = _DevTools(ws)
-                tools.call("Emulation.setDeviceMetricsOverride", width=size[0], height=size[1],
-                           deviceScaleFactor=1, mobile=False)
+                tools.call(
+                    "Emulation.setDeviceMetricsOverride",
+                    width=size[0],
+                    height=size[1],
+                    deviceScaleFactor=1,
+                    mobile=False,
+                )
                 tools.call("Page.navigate", url=url)
                 while not tools.eval(ready):
                     if time.time() > deadline:
@@ -564,8 +626,10 @@ def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dism
                 while time.time() < deadline:
                     time.sleep(1.0)
                     if dismiss:
-                        tools.eval("[...document.querySelectorAll('.mantine-Notification-closeButton')]"
-                                   ".forEach(b => b.click())")
+                        tools.eval(
+                            "[...document.querySelectorAll('.mantine-Notification-closeButton')]"
+                            ".forEach(b => b.click())"
+                        )
                         time.sleep(0.5)
                     png = base64.b64decode(tools.call("Page.captureScreenshot", format="png")["data"])
                     bgr = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
@@ -582,8 +646,8 @@ def splat_drawn(img: np.ndarray) -> bool:
     """Non-background pixels in the middle of the viewport (where the initial camera puts the object), background
     in its lower-right corner left of the control panel."""
     h, w = img.shape[:2]
-    centre = img[h // 2 - 40:h // 2 + 40, w // 2 - 40:w // 2 + 40].astype(int)
-    corner = img[h - 90:h - 10, w // 2 + 40:w // 2 + 120].astype(int)
+    centre = img[h // 2 - 40 : h // 2 + 40, w // 2 - 40 : w // 2 + 40].astype(int)
+    corner = img[h - 90 : h - 10, w // 2 + 40 : w // 2 + 120].astype(int)
     drawn = (np.abs(centre - 255).max(-1) > 40).mean()
     empty = (np.abs(corner - 255).max(-1) <= 10).mean()
     return drawn > 0.9 and empty > 0.9
@@ -592,7 +656,7 @@ def splat_drawn(img: np.ndarray) -> bool:
 def colorbar_drawn(img: np.ndarray, rect) -> bool:
     """The TURBO ramp across the colour bar image: blue at 15 % of it, green at 50 %, red at 85 %."""
     x, y, w, h = (int(round(c)) for c in rect)
-    row = img[y + h // 6, x:x + w].astype(int)  # the ramp is the top third of the image
+    row = img[y + h // 6, x : x + w].astype(int)  # the ramp is the top third of the image
     blue, green, red = (row[int(f * (w - 1))] for f in (0.15, 0.5, 0.85))
     return bool(blue[2] > blue[0] + 80 and green[1] > max(green[0], green[2]) + 40 and red[0] > red[2] + 80)
 
@@ -668,8 +732,19 @@ def test_view_label_shows_the_score_and_its_parts(tmp_path):
     from viz.viewer import FluidViewer
 
     eye = np.eye(3)
-    v = CandidateView(3, "c3", np.zeros(3), eye, np.array([1.0, 0, 0, 0]), 0.8, 1.3, score=364.8, rank=1,
-                      coverage=74.97, physics_mean=4.866)
+    v = CandidateView(
+        3,
+        "c3",
+        np.zeros(3),
+        eye,
+        np.array([1.0, 0, 0, 0]),
+        0.8,
+        1.3,
+        score=364.8,
+        rank=1,
+        coverage=74.97,
+        physics_mean=4.866,
+    )
     assert FluidViewer._view_label(v) == "#1 c3 (S = 360, A = 75, S/A = 4.9)"
     png = tmp_path / "u.png"
     assert _uncertainty_png({"uncertainty_image": {"png": str(png)}}) is None  # named but missing
@@ -677,9 +752,11 @@ def test_view_label_shows_the_score_and_its_parts(tmp_path):
     assert _uncertainty_png({"uncertainty_image": {"png": str(png)}}) == png and _uncertainty_png(None) is None
 
 
-PANEL_READY = ("(() => { const t = document.body.innerText; const thumbs = [...document.images].filter(i => "
-               "i.naturalWidth === 200 && i.complete); return t.includes('Top views') && t.includes('#1 ') && "
-               "t.includes('S = ') && thumbs.length >= 3; })()")
+PANEL_READY = (
+    "(() => { const t = document.body.innerText; const thumbs = [...document.images].filter(i => "
+    "i.naturalWidth === 200 && i.complete); return t.includes('Top views') && t.includes('#1 ') && "
+    "t.includes('S = ') && thumbs.length >= 3; })()"
+)
 
 
 def test_browser_shows_the_list_of_views(scene, viewer_of, tmp_path):
