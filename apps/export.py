@@ -122,13 +122,16 @@ def _solid_of_file(path: Path) -> tuple:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.files import check_not_input, check_writable
+    import h5py
+
+    from fluidsim.files import check_input_file, check_not_input, check_writable
     from nbv.export.particles import check_recorded, check_vtk_source, export_vtk
 
+    check_input_file(args.h5, "H5", "pass an OUT.h5 (fluidgs sim) or a RESULT.h5 (fluidgs simulate)")
+    if not h5py.is_hdf5(args.h5):
+        raise ValueError(f"H5 {args.h5} is not an HDF5 file; pass an OUT.h5 (fluidgs sim) or a RESULT.h5")
     if args.vtk is None and args.solid is None:
         raise ValueError("export: nothing to write; pass --vtk DIR (particle frames) and/or --solid PATH (the solid)")
-    if not args.h5.is_file():
-        raise FileNotFoundError(f"{args.h5} does not exist or is not a file; pass an OUT.h5 or a RESULT.h5")
     outputs = {"--vtk": args.vtk, **solid_export_outputs(args.solid)}
     if args.solid is not None:
         outputs["--solid"] = outputs.pop("--export-solid")

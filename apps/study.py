@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .runtime import positive_int
+from .runtime import positive_int, thread_count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -27,10 +27,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--executor",
         choices=("local", "ray"),
         default="local",
-        help="local: a process pool here; ray: tasks on a Ray cluster",
+        help="local: a process pool here; ray: tasks on a Ray cluster (default: %(default)s)",
     )
-    q.add_argument("--workers", type=positive_int, default=1, help="local worker processes")
-    q.add_argument("--threads", type=positive_int, default=1, help="torch and Taichi CPU threads per worker")
+    q.add_argument("--workers", type=positive_int, default=1, help="local worker processes (default: %(default)s)")
+    q.add_argument(
+        "--threads", type=thread_count, default=1, help="torch and Taichi CPU threads per worker (default: %(default)s)"
+    )
     q.add_argument(
         "--address",
         default=None,
@@ -38,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(default: start a local Ray instance)",
     )
     q.add_argument("--output", type=Path, default=None, help="results folder (default: the config's 'output')")
-    q.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    q.add_argument("--no-progress", action="store_true", help="hide the progress bar (default: shown)")
 
 
 def run_command(args: argparse.Namespace) -> int:
