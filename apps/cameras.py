@@ -16,6 +16,7 @@ from pathlib import Path
 from .options import (
     add_config_options,
     add_frame_arguments,
+    add_gaussian_file_arguments,
     add_orbit_arguments,
     check_output_file,
     load_gaussians_checked,
@@ -53,6 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     config, _ = physics_config_class()
     add_config_options(g, config, ("opacity_threshold",), probe_overrides())
     add_orbit_arguments(p)
+    add_gaussian_file_arguments(p)
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -82,7 +84,7 @@ def run_command(args: argparse.Namespace) -> int:
         check_output_file(out, (".json",))
         files = {out.name: out}
     check_not_input({"-o": list(files.values())[0]}, {"GAUSSIANS": args.gaussians})
-    gaussians = load_gaussians_checked(args.gaussians)
+    gaussians = load_gaussians_checked(args.gaussians, args)
     warn_frame(config, up_given=args.up is not None)
     cams = orbit_cameras_logged(gaussians, config, orbit)
     note = (

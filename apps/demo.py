@@ -32,6 +32,7 @@ from .options import (
     CAMERAS_HELP,
     add_config_options,
     add_frame_arguments,
+    add_gaussian_file_arguments,
     add_orbit_arguments,
     add_runtime_arguments,
     physics_config_from_args,
@@ -67,6 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"{CAMERAS_HELP} (default: assets/{CAMERAS.name} for the bundled Gaussians, else orbit:{DEMO_ORBIT})",
     )
     add_orbit_arguments(p)
+    add_gaussian_file_arguments(p)
     from nbv.physics import QUICK, PhysicsConfig
 
     add_frame_arguments(p, scale=False, crop=False)
@@ -143,7 +145,7 @@ def run_command(args: argparse.Namespace) -> int:
     file_cams = None if orbit is not None else camera_file_from_args(args)
     cfg = physics_config_from_args(args, preset=QUICK, empty_reference=False, cameras=file_cams)
     if gpath is not None:
-        gaussians, source = load_gaussians_checked(gpath), str(gpath)
+        gaussians, source = load_gaussians_checked(gpath, args), str(gpath)
     else:
         log.warning("%s is not there yet: using Gaussians sampled on the Ahmed body mesh surface", GAUSSIANS)
         gaussians, source = ahmed_surface_gaussians(), "Ahmed body surface samples (recon.ahmed)"
@@ -162,7 +164,12 @@ def run_command(args: argparse.Namespace) -> int:
     from nbv.physics.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view`
 
     result = simulate_gaussians(
-        gaussians, cfg, progress=True, source=source, record=RecordConfig(("-x",), every=max(1, cfg.steps // 30))
+        gaussians,
+        cfg,
+        progress=True,
+        source=source,
+        record=RecordConfig(("-x",), every=max(1, cfg.steps // 30)),
+        source_frame=getattr(args, "source_frame", ""),
     )
     save_result(out / "result.h5", result)
     save_colored_gaussians(gaussians, result.divergence, out / "gaussians_divergence.ply", divergence_columns(result))

@@ -128,7 +128,7 @@ def run_command(args: argparse.Namespace) -> int:
     )
     check_writable(output.with_suffix(".png"))
     gaussians = load_gaussians_checked(args.gaussians, args)
-    other = load_gaussians_checked(args.compare) if args.compare is not None else None
+    other = load_gaussians_checked(args.compare, args) if args.compare is not None else None
     init_taichi(args.device, config.precision, args.threads)
     config = pinned(gaussians, config)
     plan = schedule(velocities, config.dt, config.steps, u_base=config.speed)
