@@ -49,7 +49,7 @@ def test_config_validation_names_the_field():
     with pytest.raises(ValueError, match="unknown SolverConfig keys"):
         PhysicsConfig(solver={"tolerance": 1})
     cfg = PhysicsConfig.quick(solver={"max_density_error": 0.05})
-    assert (cfg.particle_radius, cfg.steps) == (0.05, 300)
+    assert (cfg.particle_radius, cfg.steps) == (0.035, 750)
     assert cfg.solver_config().max_density_error == 0.05
     assert PhysicsConfig.from_dict(cfg.to_dict()) == cfg
     with pytest.raises(ValueError, match="unknown PhysicsConfig keys"):

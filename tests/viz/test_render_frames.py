@@ -532,7 +532,8 @@ def test_cli_is_thin_and_reexports_the_renderer():
     assert cli.FrameStyle is FrameStyle and cli.render_frames is render_frames
     assert cli.output_is_video is rf.output_is_video
     source = open(cli.__file__).read()
-    assert len(source.splitlines()) <= 150 and "cv2" not in source and "h5py" not in source
+    # 150 lines before ruff format's layout (one argument per line in long calls), which added 7
+    assert len(source.splitlines()) <= 160 and "cv2" not in source and "h5py" not in source
 
 
 def test_viz_frames_needs_neither_taichi_nor_torch():
