@@ -10,6 +10,8 @@ own cell, |x - mu_g|^2 < r_g^2 in f64 as the numpy twin does, and adds its value
 covering ones (:func:`spread_cells` hands those sums to them on read).
 """
 
+from typing import NamedTuple
+
 import taichi as ti
 
 vec3d = ti.types.vector(3, ti.f64)
@@ -200,178 +202,143 @@ def set_insert(hashes: ti.template(), fill: ti.template(), key):
         slot = (slot + 1) & mask
 
 
+class Samples(NamedTuple):
+    """The particles a pass visits (kernel arguments, bound at compile time): positions ``xs`` (m), values
+    ``values``, and for tracking the ids ``ids`` and each one's previous sample ``prevs`` (vec3 f64, m; NaN: none).
+    An untracked pass hands any arrays as ``ids`` and ``prevs``: they are never read."""
+
+    xs: object
+    values: object
+    ids: object
+    prevs: object
+
+
+class Levels(NamedTuple):
+    """The levels built once per run (kernel arguments): ``table`` (see ``TABLE_WIDTH``), ``lists`` (cell starts,
+    splits and items) and ``gauss`` (mu_g, r_g^2 as vec4 f64)."""
+
+    table: object
+    lists: object
+    gauss: object
+
+
+class Sums(NamedTuple):
+    """What a pass adds into (kernel arguments): ``acc`` [rows, G + 1, 2] (quanta, hits), ``cell_sums`` [rows, cells,
+    2] of the covered cells, and for tracking the listed keys ``keys`` and their count ``emitted[0]``. A pass that
+    does not use one hands another array of the same kind: it is never written."""
+
+    acc: object
+    cell_sums: object
+    keys: object
+    emitted: object
+
+
+class Mode(NamedTuple):
+    """Compile-time switches of a pass: ``add_values`` (add the values and hits), ``track`` (list the (Gaussian,
+    particle id) pairs) and ``private`` (each CPU thread adds into its own row without atomics; otherwise row 0,
+    atomic)."""
+
+    add_values: bool
+    track: bool
+    private: bool
+
+
 @ti.func
-def visit_gaussian(
-    g,
-    x,
-    q,
-    row,
-    pid,
-    prev,
-    prev_ok,
-    gauss: ti.template(),
-    add_values: ti.template(),
-    track: ti.template(),
-    private: ti.template(),
-    acc: ti.template(),
-    keys: ti.template(),
-    emitted: ti.template(),
-):
+def visit_gaussian(g, x, q, row, pid, prev, prev_ok, levels: ti.template(), mode: ti.template(), sums: ti.template()):
     """Paper Eq. 2-3 for one (particle, Gaussian) pair: when |x - mu_g|^2 < r_g^2 add the value (quanta q) and 1 to
     row ``row`` of g, and record the particle id ``pid`` unless the particle's previous sample ``prev`` (``prev_ok``:
     it was inside the domain) was within reach of g too, which recorded the pair then.
 
-    With ``private`` the row belongs to one thread only and the adds are plain; otherwise atomic (GPUs).
+    With ``mode.private`` the row belongs to one thread only and the adds are plain; otherwise atomic (GPUs).
     """
-    p = gauss[g]
+    p = levels.gauss[g]
+    acc = ti.static(sums.acc)
     dx, dy, dz = x[0] - p[0], x[1] - p[1], x[2] - p[2]
     hit = dx * dx + dy * dy + dz * dz < p[3]
-    if ti.static(add_values and private):
+    if ti.static(mode.add_values and mode.private):
         # branch-free: a plain add of 0 on a miss is cheaper than the mispredicted branch of an unpredictable test
         acc[row, g, 0] = acc[row, g, 0] + ti.select(hit, q, ti.i64(0))
         acc[row, g, 1] = acc[row, g, 1] + ti.select(hit, ti.i64(1), ti.i64(0))
-    if ti.static(add_values and not private):
+    if ti.static(mode.add_values and not mode.private):
         if hit:
             ti.atomic_add(acc[0, g, 0], q)
             ti.atomic_add(acc[0, g, 1], ti.i64(1))
-    if ti.static(track):
+    if ti.static(mode.track):
         # the previous sample's test, computed branch-free: only the rare first step of a visit branches
         ex, ey, ez = prev[0] - p[0], prev[1] - p[1], prev[2] - p[2]
         seen = ti.select(prev_ok, ex * ex + ey * ey + ez * ez < p[3], False)
         if ti.select(seen, False, hit):  # listed here, recorded by another kernel: a lean inner loop
-            slot = ti.atomic_add(emitted[0], ti.i64(1))
-            if slot < keys.shape[0]:
-                keys[slot] = (ti.cast(g, ti.i64) << 32) + ti.cast(pid, ti.i64)
+            slot = ti.atomic_add(sums.emitted[0], ti.i64(1))
+            if slot < sums.keys.shape[0]:
+                sums.keys[slot] = (ti.cast(g, ti.i64) << 32) + ti.cast(pid, ti.i64)
 
 
 @ti.func
-def visit_level(
-    lv,
-    x,
-    q,
-    row,
-    pid,
-    prev,
-    prev_ok,
-    table: ti.template(),
-    lists: ti.template(),
-    gauss: ti.template(),
-    add_values: ti.template(),
-    track: ti.template(),
-    private: ti.template(),
-    acc: ti.template(),
-    cell_sums: ti.template(),
-    keys: ti.template(),
-    emitted: ti.template(),
-):
+def visit_level(lv, x, q, row, pid, prev, prev_ok, levels: ti.template(), mode: ti.template(), sums: ti.template()):
     """The Gaussians of level ``lv`` listed in the cell of x: those that only touch the cell are tested; those that
-    cover it are hits without a test, and the value goes once into the cell's own sum (``cell_sums``), spread onto
-    them on read (:func:`spread_cells`). With ``track`` every listed Gaussian is tested (each visit is recorded)."""
+    cover it are hits without a test, and the value goes once into the cell's own sum (``sums.cell_sums``), spread
+    onto them on read (:func:`spread_cells`). With ``mode.track`` every listed Gaussian is tested (each visit is
+    recorded)."""
+    table, lists = ti.static(levels.table, levels.lists)
     inside, c = level_cell(table, lv, x)
     if inside:
         items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
         begin, middle, end = lists[c], lists[ti.cast(table[0, SPLITS_OFFSET], ti.i32) + c], lists[c + 1]
         first = middle
-        if ti.static(track):
+        if ti.static(mode.track):
             first = begin
         for s in range(first, end):
-            visit_gaussian(
-                lists[items + s], x, q, row, pid, prev, prev_ok, gauss, add_values, track, private, acc, keys, emitted
-            )
-        if ti.static(add_values and not track):
+            visit_gaussian(lists[items + s], x, q, row, pid, prev, prev_ok, levels, mode, sums)
+        if ti.static(mode.add_values and not mode.track):
             if middle > begin:
-                if ti.static(private):
-                    cell_sums[row, c, 0] += q
-                    cell_sums[row, c, 1] += 1
+                if ti.static(mode.private):
+                    sums.cell_sums[row, c, 0] += q
+                    sums.cell_sums[row, c, 1] += 1
                 else:
-                    ti.atomic_add(cell_sums[0, c, 0], q)
-                    ti.atomic_add(cell_sums[0, c, 1], ti.i64(1))
+                    ti.atomic_add(sums.cell_sums[0, c, 0], q)
+                    ti.atomic_add(sums.cell_sums[0, c, 1], ti.i64(1))
 
 
 @ti.func
-def visit_particle(
-    i,
-    row,
-    xs: ti.template(),
-    values: ti.template(),
-    ids: ti.template(),
-    prevs: ti.template(),
-    table: ti.template(),
-    lists: ti.template(),
-    gauss: ti.template(),
-    add_values: ti.template(),
-    track: ti.template(),
-    private: ti.template(),
-    acc: ti.template(),
-    cell_sums: ti.template(),
-    keys: ti.template(),
-    emitted: ti.template(),
-):
+def visit_particle(i, row, samples: ti.template(), levels: ti.template(), mode: ti.template(), sums: ti.template()):
     """Paper Eq. 2-3 for fluid particle i inside the domain: every level (:func:`visit_level`); a saturated value
     (:func:`fixed_point`) is counted in the extra slot G."""
-    x = ti.cast(xs[i], ti.f64)
+    table, acc = ti.static(levels.table, sums.acc)
+    x = ti.cast(samples.xs[i], ti.f64)
     if inside_domain(table, x):
-        q, saturated = fixed_point(values[i])
-        if ti.static(add_values):
+        q, saturated = fixed_point(samples.values[i])
+        if ti.static(mode.add_values):
             if saturated:
-                if ti.static(private):
+                if ti.static(mode.private):
                     acc[row, acc.shape[1] - 1, 0] += 1
                 else:
                     ti.atomic_add(acc[0, acc.shape[1] - 1, 0], ti.i64(1))
         prev = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         prev_ok = False
         pid = 0
-        if ti.static(track):
-            prev = prevs[i]
+        if ti.static(mode.track):
+            prev = samples.prevs[i]
             prev_ok = inside_domain(table, prev)
-            pid = ti.cast(ids[i], ti.i32)
+            pid = ti.cast(samples.ids[i], ti.i32)
         for lv in range(1, table.shape[0]):
-            visit_level(
-                lv,
-                x,
-                q,
-                row,
-                pid,
-                prev,
-                prev_ok,
-                table,
-                lists,
-                gauss,
-                add_values,
-                track,
-                private,
-                acc,
-                cell_sums,
-                keys,
-                emitted,
-            )
+            visit_level(lv, x, q, row, pid, prev, prev_ok, levels, mode, sums)
 
 
 @ti.func
 def visit_all(
     n,
     steps: ti.template(),
-    xs: ti.template(),
-    values: ti.template(),
-    ids: ti.template(),
-    prevs: ti.template(),
-    table: ti.template(),
-    lists: ti.template(),
-    gauss: ti.template(),
-    add_values: ti.template(),
-    track: ti.template(),
-    private: ti.template(),
+    samples: ti.template(),
+    levels: ti.template(),
+    mode: ti.template(),
+    sums: ti.template(),
     serial: ti.template(),
-    acc: ti.template(),
-    cell_sums: ti.template(),
-    keys: ti.template(),
-    emitted: ti.template(),
 ):
     """All particles of the staged steps (``steps``: B + 1 offsets, step s holds particles steps[s]..steps[s+1]-1),
     interleaved: iteration k (of n, the longest step) visits particle k of every step. The solver keeps its
     particles sorted by cell, so particle k of consecutive steps sits at about the same place, and its cell lists,
     Gaussians and sums are still in the caches for the next step's. On the launching thread into row 0
-    (``serial``), in parallel with each CPU thread adding into its own row (``private``: row = the thread's
+    (``serial``), in parallel with each CPU thread adding into its own row (``mode.private``: row = the thread's
     index, so the caller gives at least as many rows as threads), or in parallel with atomic adds into row 0
     (GPUs). The sums are integers, so the order does not change them."""
     b = steps.shape[0] - 1
@@ -381,50 +348,16 @@ def visit_all(
             for s in range(b):
                 i = steps[s] + k
                 if i < steps[s + 1]:
-                    visit_particle(
-                        i,
-                        0,
-                        xs,
-                        values,
-                        ids,
-                        prevs,
-                        table,
-                        lists,
-                        gauss,
-                        add_values,
-                        track,
-                        private,
-                        acc,
-                        cell_sums,
-                        keys,
-                        emitted,
-                    )
+                    visit_particle(i, 0, samples, levels, mode, sums)
     else:
         for k in range(n):
             row = 0
-            if ti.static(private):
+            if ti.static(mode.private):
                 row = ti.global_thread_idx()
             for s in range(b):
                 i = steps[s] + k
                 if i < steps[s + 1]:
-                    visit_particle(
-                        i,
-                        row,
-                        xs,
-                        values,
-                        ids,
-                        prevs,
-                        table,
-                        lists,
-                        gauss,
-                        add_values,
-                        track,
-                        private,
-                        acc,
-                        cell_sums,
-                        keys,
-                        emitted,
-                    )
+                    visit_particle(i, row, samples, levels, mode, sums)
 
 
 @ti.kernel
@@ -457,7 +390,13 @@ def accumulate(
     waking the thread pool.
     """
     visit_all(
-        n, steps, xs, values, values, xs, table, lists, gauss, True, False, private, serial, acc, cell_sums, acc, acc
+        n,
+        steps,
+        ti.static(Samples(xs, values, values, xs)),
+        ti.static(Levels(table, lists, gauss)),
+        ti.static(Mode(True, False, private)),
+        ti.static(Sums(acc, cell_sums, acc, acc)),
+        serial,
     )
 
 
@@ -493,21 +432,11 @@ def accumulate_tracked(
     visit_all(
         n,
         steps,
-        xs,
-        values,
-        ids,
-        prevs,
-        table,
-        lists,
-        gauss,
-        add_values,
-        track,
-        private,
+        ti.static(Samples(xs, values, ids, prevs)),
+        ti.static(Levels(table, lists, gauss)),
+        ti.static(Mode(add_values, track, private)),
+        ti.static(Sums(acc, acc, keys, emitted)),
         serial,
-        acc,
-        acc,
-        keys,
-        emitted,
     )
 
 
