@@ -345,7 +345,8 @@ def divergence_estimate(
 ) -> None:
     """Paper Eq. 1 as a pass of its own (:mod:`fluidsim.estimator`), by the path its radii allow: the stored
     gradients (h_k = h <= h_r), the lists filtered to h_r (h_r <= h), or the grid walked to h_r."""
-    if math.isclose(h_k, h, rel_tol=1e-9) and h_r >= h:
+    path = estimator.estimate_path(h, h_r, h_k)
+    if path == estimator.FROM_GRADIENTS:
         estimator.divergence_estimate_from_gradients(
             fluid.active,
             fluid.x,
@@ -360,7 +361,7 @@ def divergence_estimate(
             fluid.divergence_sum,
             fluid.divergence_count,
         )
-    elif h_r <= h:
+    elif path == estimator.FROM_LISTS:
         estimator.divergence_estimate_from_lists(
             fluid.active,
             h_r,
