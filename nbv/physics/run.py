@@ -336,7 +336,7 @@ def simulate_gaussians(
     Args:
         gaussians: a ``recon.gaussians.GaussianSet`` in scene units.
         config: probe settings.
-        progress: a tqdm bar per probe (steps, solver iterations, max speed).
+        progress: one bar over the probes and the empty scene ("probe k of n", one ETA; :class:`RunProgress`).
         source: a label for the result (the .ply path).
         source_frame: the JSON record of the frame the file was read in (``recon.formats.SourceFrame.to_json``),
             stored in RESULT.h5.
