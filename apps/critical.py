@@ -98,8 +98,8 @@ def run_command(args: argparse.Namespace) -> int:
         reach_warning,
         render_size,
         rows_agreement,
-        torch_device,
     )
+    from recon.device import torch_device
 
     from .runtime import init_taichi
 

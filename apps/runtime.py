@@ -16,7 +16,6 @@ __all__ = [
     *_FROM_TAICHI_RUNTIME,
     "deterministic_torch",
     "positive_int",
-    "select_device",
     "setup_runtime",
     "thread_count",
 ]
@@ -70,19 +69,11 @@ def deterministic_torch():
         torch.use_deterministic_algorithms(before, warn_only=warn_before)
 
 
-def select_device(requested: str) -> str:
-    """``requested`` ("cpu" or "cuda"), or "cpu" with a logged warning when no CUDA device is usable."""
-    import torch
-
-    if requested == "cuda" and not torch.cuda.is_available():
-        log.warning("--device cuda requested but no CUDA device is usable; falling back to the CPU")
-        return "cpu"
-    return requested
-
-
 def setup_runtime(device: str, threads: int | None, precision: str) -> str:
     """torch threads, Taichi runtime; returns the torch device actually used."""
     import torch
+
+    from recon.device import torch_device
 
     from .taichi_runtime import init_taichi
 
@@ -90,6 +81,6 @@ def setup_runtime(device: str, threads: int | None, precision: str) -> str:
         if threads < 1:
             raise ValueError(f"--threads must be >= 1, got {threads}")
         torch.set_num_threads(threads)
-    used = select_device(device)
+    used = torch_device(device)
     init_taichi(used, precision, threads)
     return used

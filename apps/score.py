@@ -163,11 +163,11 @@ def run_command(args: argparse.Namespace) -> int:
         reach_warning,
         render_size,
         rows_agreement,
-        torch_device,
         write_uncertainty_images,
         write_view_pngs,
     )
     from recon.camera_files import transforms_json
+    from recon.device import torch_device
 
     check_arguments(args)
     occlusion = not args.frustum_only

@@ -11,7 +11,7 @@ from pathlib import Path
 from fluidsim.files import write_json_atomic
 
 from .options import add_config_options, config_values, dataset_inputs, index_list
-from .runtime import deterministic_torch, select_device, thread_count
+from .runtime import deterministic_torch, thread_count
 
 log = logging.getLogger("fluidgs")
 
@@ -92,6 +92,7 @@ def run_command(args: argparse.Namespace) -> int:
 
     from fluidsim.files import check_not_input, check_writable
     from recon.datasets import load_dataset
+    from recon.device import torch_device
     from recon.ply import save_gaussians
     from recon.train import TrainConfig, evaluate, train, view_to
 
@@ -109,7 +110,7 @@ def run_command(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     config = TrainConfig.for_iterations(args.iters, **config_values(TrainConfig, args, TRAIN_FIELDS, TRAIN_OVERRIDES))
     seed = config.seed
-    device = select_device(args.device)
+    device = torch_device(args.device)
     torch.manual_seed(seed)
 
     start = time.perf_counter()

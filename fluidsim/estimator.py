@@ -21,6 +21,7 @@ a time step the first case is computed inside the non-pressure pass
 O(N^2) numpy twin of all of them.
 """
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -31,6 +32,28 @@ from .kernels import cubic_grad_w, cubic_grad_w_np
 from .neighbors import fluid_pair, for_each_neighbor, unpack_pair
 
 vec3d = ti.types.vector(3, ti.f64)
+
+# The fast paths of Eq. 1 (:func:`estimate_path`).
+FROM_GRADIENTS = "gradients"
+FROM_LISTS = "lists"
+FROM_GRID = "grid"
+
+
+def estimate_path(h: float, h_r: float, h_k: float) -> str:
+    """Which fast path computes Eq. 1 for the support radius ``h`` of the neighbour lists, the estimator radius
+    ``h_r`` and its kernel radius ``h_k`` (all m): ``FROM_GRADIENTS`` when h_k = h <= h_r (the stored gradients,
+    fused into the non-pressure pass in a time step), else ``FROM_LISTS`` when h_r <= h (the lists filtered to
+    h_r), else ``FROM_GRID`` (the grid walked to h_r). The one place the choice is made.
+
+    Example:
+        >>> estimate_path(0.1, 0.1, 0.1), estimate_path(0.1, 0.05, 0.05), estimate_path(0.1, 0.2, 0.1)
+        ('gradients', 'lists', 'grid')
+    """
+    if math.isclose(h_k, h, rel_tol=1e-9) and h_r >= h:
+        return FROM_GRADIENTS
+    if h_r <= h:
+        return FROM_LISTS
+    return FROM_GRID
 
 
 @ti.func

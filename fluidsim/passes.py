@@ -1,12 +1,18 @@
 """One thin Python wrapper per pass of the time step: the kernels' argument lists, in one place.
 
-Each kernel takes its arrays one by one (explicit ``ti.types.ndarray`` arguments compile once per dtype and
-never per simulation; argument packs were measured no cheaper to launch), up to 31 of them. The wrappers
-here take the owners of those arrays instead, :class:`~fluidsim.particles.FluidParticles`,
-:class:`~fluidsim.particles.BoundaryParticles`, :class:`~fluidsim.particles.Neighborhoods` and
-:class:`FluidGrid`, and spell the argument lists out once (in the manner of gsplat's ``_wrapper.py``), so
-:meth:`fluidsim.solver.DFSPHSolver.step` reads like Algorithm 1 of Bender & Koschier. They hold no state and
-add one Python call per launch (well under a microsecond against a launch's ~45 us).
+Each kernel takes its arrays one by one, up to 31 of them: explicit ``ti.types.ndarray`` arguments compile once per
+dtype and never per simulation, and Taichi 1.7 offers no grouping of arrays that costs nothing. A
+``ti.data_oriented`` class passed as ``ti.template()`` cannot hold ndarrays (only fields, which compile per
+simulation); a ``ti.types.argpack`` can, but the velocity buffers swap every step, so a pack would be built anew
+per launch (measured 0.30 ms against 0.08 ms for three plain arguments, CPU), and a kernel taking two packs failed
+to compile; a ``ti.types.struct`` fixes its ``float`` members to f32 where it is declared, before ``ti.init`` picks
+the precision. Inside the kernels, the per-pair work takes its inputs grouped (the neighbourhood pass's visitor
+context in :mod:`fluidsim.neighbors`, bound at compile time, which costs nothing). The wrappers here take the
+owners of those arrays instead, :class:`~fluidsim.particles.FluidParticles`,
+:class:`~fluidsim.particles.BoundaryParticles`, :class:`~fluidsim.particles.Neighborhoods` and :class:`FluidGrid`,
+and spell the argument lists out once (in the manner of gsplat's ``_wrapper.py``), so
+:meth:`fluidsim.solver.DFSPHSolver.step` reads like Algorithm 1 of Bender & Koschier. They hold no state and add
+one Python call per launch (well under a microsecond against a launch's ~45 us).
 
 The equation numbers (E1)-(E10), (W1)-(W3) are those of :mod:`fluidsim.solver`'s docstring.
 """
@@ -339,7 +345,8 @@ def divergence_estimate(
 ) -> None:
     """Paper Eq. 1 as a pass of its own (:mod:`fluidsim.estimator`), by the path its radii allow: the stored
     gradients (h_k = h <= h_r), the lists filtered to h_r (h_r <= h), or the grid walked to h_r."""
-    if math.isclose(h_k, h, rel_tol=1e-9) and h_r >= h:
+    path = estimator.estimate_path(h, h_r, h_k)
+    if path == estimator.FROM_GRADIENTS:
         estimator.divergence_estimate_from_gradients(
             fluid.active,
             fluid.x,
@@ -354,7 +361,7 @@ def divergence_estimate(
             fluid.divergence_sum,
             fluid.divergence_count,
         )
-    elif h_r <= h:
+    elif path == estimator.FROM_LISTS:
         estimator.divergence_estimate_from_lists(
             fluid.active,
             h_r,

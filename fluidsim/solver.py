@@ -77,7 +77,6 @@ iteration cap) are judged by the caller (:mod:`fluidsim.simulation`), which know
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -85,7 +84,7 @@ from typing import NamedTuple
 import numpy as np
 import taichi as ti
 
-from . import neighbors, passes
+from . import estimator, neighbors, passes
 from .config import RETIRE_MARGIN_MAX, SolverConfig
 from .grid import Z_SPLIT, GridSpec, cell_index_np, grid_for_box
 from .kernels import CUBIC_TABLE_SIZE, cubic_table_np, cubic_w_np
@@ -348,15 +347,16 @@ class DFSPHSolver:
     @property
     def estimate_in_non_pressure_pass(self) -> bool:
         """Whether paper Eq. 1 can use the stored gradients (h_k = h <= h_r), fused into the non-pressure pass."""
+        return self._estimate_path() == estimator.FROM_GRADIENTS
+
+    def _estimate_path(self) -> str:
+        """The fast path of paper Eq. 1 (:func:`fluidsim.estimator.estimate_path`)."""
         cfg = self.config
-        return math.isclose(cfg.estimator_kernel_radius, self.h, rel_tol=1e-9) and cfg.estimator_radius >= self.h
+        return estimator.estimate_path(self.h, cfg.estimator_radius, cfg.estimator_kernel_radius)
 
     def _reads_boundary_lists(self) -> bool:
         """Whether a pass reads the boundary pairs: the fluid-boundary viscosity, or Eq. 1 walking the lists."""
-        cfg = self.config
-        return cfg.wall_viscosity != 0.0 or (
-            not self.estimate_in_non_pressure_pass and cfg.estimator_radius <= cfg.support_radius
-        )
+        return self.config.wall_viscosity != 0.0 or self._estimate_path() == estimator.FROM_LISTS
 
     def find_neighborhoods(self, dt: float | None = None) -> NeighborCounts:
         """Neighbour lists, rho_i (E1), alpha_i (E2) and the divergence solver's cold source (E3) or warm start (W1),

@@ -5,7 +5,7 @@ screen-space radii R_g. The radii and visibility come from the projection alone
 (:func:`nbv.scores.projected_view_scores`, equal to the renderer's bit for bit), so no candidate is rendered to score
 it; full renders are made only for the PNGs (the render beside a D_g heat-map of the same view: the Gaussians
 re-coloured by D_g on the TURBO map, rendered with the same camera). This is the library side of `fluidgs score`
-and of the demo; `fluidgs critical` and `bench views` use the checks and the device helper.
+and of the demo; `fluidgs critical` and `bench views` use the checks.
 """
 
 from __future__ import annotations
@@ -24,18 +24,11 @@ from nbv.heatmap import color_scale, colored_gaussians, over_range_marks, uncert
 from nbv.io import write_atomic, write_png_atomic
 from nbv.lists import parse_list
 from nbv.scores import DepthBuffer, geometry_divergence, projected_counts, projected_view_scores, rank
+from recon.device import torch_device
 from recon.render import render
 from viz.annotate import label, to_bgr
 
 log = logging.getLogger(__name__)
-
-
-def torch_device(name: str) -> str:
-    """'cuda' when asked for and available, else 'cpu' (with a logged warning)."""
-    if name == "cuda" and not torch.cuda.is_available():
-        log.warning("--device cuda requested but torch sees no CUDA device; rendering on the CPU")
-        return "cpu"
-    return name
 
 
 def parse_candidates(text: str | None, count: int) -> list[int]:

@@ -17,7 +17,7 @@ module             what                                        main entry
 :mod:`.colors`     TURBO map and colour bars (nbv.heatmap's)   :func:`turbo`, :func:`colorbar_image`
 :mod:`.viewer`     the viser server                            :func:`open_viewer`, :func:`serve`
 :mod:`.frames`     OUT.h5 as orthographic depth-sorted dots    :func:`render_frames`, :class:`FrameStyle`
-:mod:`.video`      H.264 MP4 (yuv420p, faststart), atomic      :func:`write_mp4`, :func:`probe_video`
+:mod:`.video`      H.264 MP4 (yuv420p, faststart), atomic      :func:`write_mp4`, :func:`video_info`
 :mod:`.plots`      sweep plot, bar charts (matplotlib, Agg)    :func:`plot_sweep`, :func:`bar_chart`
 =================  ==========================================  ========================================
 """

@@ -277,7 +277,7 @@ def render_frames(
     _check_input_file(h5_path)
     with h5py.File(h5_path, "r") as f:
         source = _Source.inspect(f, h5_path, style)
-        _prepare_output(out, is_video, style)
+        _prepare_output(out, is_video)
         vmax = style.vmax if style.vmax is not None else source.percentile_vmax()
         logger.info(
             "rendering %d frames of %s (%s, view %s, vmax %.4g %s) to %s",
@@ -534,7 +534,7 @@ def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 # Output
 
 
-def _prepare_output(out: Path, is_video: bool, style: FrameStyle) -> None:
+def _prepare_output(out: Path, is_video: bool) -> None:
     directory = out.parent if is_video else out
     if is_video:
         check_encoder(out)

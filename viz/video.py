@@ -164,7 +164,7 @@ class VideoInfo:
     frames: int
 
 
-def probe_video(path: str | os.PathLike) -> VideoInfo:
+def video_info(path: str | os.PathLike) -> VideoInfo:
     """Read the stream header and count the frames of a video file (decodes it once)."""
     import imageio_ffmpeg  # noqa: PLC0415 - loaded only when a video is written or read (~0.1 s)
 

@@ -1,6 +1,6 @@
 """`fluidgs bench render`: forward + backward time of the differentiable rasterizer (recon.render).
 
-Scene (the issue's benchmark): N seeded random Gaussians in the cube [-1, 1]^3 seen from 4 m by a
+Scene: N seeded random Gaussians in the cube [-1, 1]^3 seen from 4 m by a
 60-degree camera, SH degree 3, opacities sigmoid(N(0, 1.5)), per-axis scales log-normal around 2 cm.
 Sizes are in world units, so the footprints average about 3 px of radius at 100 x 100 and about
 5 px at 200 x 200 (a trained scene's scale: a few pixels; the command prints the measured mean).
@@ -24,7 +24,7 @@ from ..runtime import thread_count
 from .yardsticks import reference_workload_ms
 
 LOG = logging.getLogger("fluidgs.bench.render")
-# (Gaussians, width, height) -> target ms for forward + backward on one thread (the issue's targets)
+# (Gaussians, width, height) -> target ms for forward + backward on one thread (the rasterizer's targets)
 TARGETS_MS = {(5000, 100, 100): 40.0, (20000, 200, 200): 450.0}
 
 
@@ -33,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--threads",
         type=thread_count,
         default=1,
-        help="torch CPU threads; the issue's targets are for 1 (default: %(default)s)",
+        help="torch CPU threads; the targets are for 1 (default: %(default)s)",
     )
     p.add_argument(
         "--repeats",
@@ -89,6 +89,7 @@ def parse_sizes(text: str) -> list[tuple[int, int, int]]:
 def run_command(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from recon.device import torch_device
     from recon.render_bench import time_case
 
     if args.threads < 1:
@@ -96,10 +97,7 @@ def run_command(args: argparse.Namespace) -> int:
     if args.repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
     cases = parse_sizes(args.sizes)
-    device = torch.device(args.device)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        LOG.warning("--device cuda: no CUDA device is usable; running on the CPU")
-        device = torch.device("cpu")
+    device = torch.device(torch_device(args.device))
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     try:

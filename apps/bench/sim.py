@@ -1,6 +1,6 @@
 """`fluidgs bench sim`: the paper-scale probe, timed, and side by side with SPlisHSPlasH when installed.
 
-Scene (the issue's benchmark): a solid sphere of radius 1 m filled at spacing 0.05 (about 33k
+Scene: a solid sphere of radius 1 m filled at spacing 0.05 (about 33k
 particles), a 1 m thick slab flowing -x at 3 m/s (about 58k fluid particles), r = 0.025, dt = 0.002,
 closed walls. It prints particle counts, the median ms per step over steps 2..N, a breakdown by
 stage, solver iterations and peak memory. Quote ratios, not absolute times: machines are shared.

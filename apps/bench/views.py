@@ -10,7 +10,7 @@ Two parts, both printed:
   test (:func:`nbv.scores.unoccluded`): the fraction of visible (view, Gaussian) pairs with the same verdict and
   the Spearman correlation of the two S(T). D_g comes from ``--result`` (a RESULT.h5 of these Gaussians);
   without it a seeded log-normal stand-in is used (the check is about radii and visibility, not physics).
-- **Timing** (the issue's target: 200 candidate cameras on 1M Gaussians in <= 20 s without PNGs): the asset
+- **Timing** (the target: 200 candidate cameras on 1M Gaussians in <= 20 s without PNGs): the asset
   densified to ``--count`` Gaussians by jittered copies (:func:`nbv.bench.dense_sets.jittered_to_count`: each copy moved
   by N(0, r_g^2) per axis, r_g the largest principal standard deviation), scored from ``--views`` cameras on a
   sphere of radius 6 around the origin (the paper's dataset geometry, 50 degree field of view) at ``--width``
@@ -30,7 +30,7 @@ from pathlib import Path
 from fluidsim.files import write_json_atomic
 
 ASSETS = Path(__file__).resolve().parents[2] / "assets"
-TARGET_S = 20.0  # the target for 200 cameras x 1M Gaussians, no PNGs, 2-core CPU
+TARGET_S = 20.0  # the target for 200 cameras x 1M Gaussians, no PNGs, 2-core CPU
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -130,8 +130,9 @@ def run_command(args: argparse.Namespace) -> int:
     import torch
 
     from nbv.bench.score_agreement import compare_with_renders, load_divergence, time_projected_scores
-    from nbv.view_scoring import render_size, torch_device
+    from nbv.view_scoring import render_size
     from recon.datasets import load_cameras
+    from recon.device import torch_device
 
     from ..options import check_output_file, load_gaussians_checked
     from .yardsticks import reference_ms

@@ -23,7 +23,7 @@ RUN_FILES = ("config.json", "rounds.json", "checkpoint.pt", "gaussians.ply", "ev
 
 # Presets: defaults of ActiveConfig fields ("train" and "physics" are TrainConfig / PhysicsConfig overrides).
 # cpu-small is sized to run a full fisher+fluid loop (8 selections with 5 probes each) on a 64 px, 40-candidate
-# dataset within 15 minutes on 2 CPU cores (measured in the issue-5 report). It has no opacity resets (neither the
+# dataset within 15 minutes on 2 CPU cores (measured when the preset was sized). It has no opacity resets (neither the
 # periodic one nor the white-background one at densify_from_iter, which 0 disables): compressed to 1000 iterations
 # they fall every 100 iterations, and a selection right after one sees an almost transparent reconstruction with no
 # solid for the probes.

@@ -240,7 +240,7 @@ def open_fraction(
     span: tuple[float, float] | None = None,
 ) -> tuple[float, float]:
     """The fraction of the disc's rays (:func:`disc_offsets`) a render sees through: (combined opacity < tau, and
-    no single Gaussian reaching tau, the issue's per-Gaussian test)."""
+    no single Gaussian reaching tau, the per-Gaussian test of the hole premise)."""
     rays = [axis_opacity(hole, means, inv_covs, opacities, tuple(o), span) for o in disc_offsets(hole, step)]
     c, single = np.array(rays).T
     return float((c < tau).mean()), float((single < tau).mean())

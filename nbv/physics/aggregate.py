@@ -77,6 +77,7 @@ from nbv.physics.aggregate_distinct import (
     DistinctParticles,
     default_distinct_pairs,
 )
+from nbv.physics.aggregate_level_kernels import TABLE_WIDTH
 from nbv.physics.aggregate_levels import (
     _ENTRY_SLACK,
     CELLS_PER_GAUSSIAN,
@@ -193,7 +194,7 @@ class GaussianAccumulator:
         self.batch_steps = int(batch_steps)
         self.serial_below = SERIAL_BELOW
         kept = lists.num_kept
-        self._table = ti.ndarray(ti.f64, shape=(lists.levels.num_levels + 1, kernels.TABLE_WIDTH))
+        self._table = ti.ndarray(ti.f64, shape=(lists.levels.num_levels + 1, TABLE_WIDTH))
         self._table.from_numpy(lists.table(dmin, dmax))
         self.rows, self._private = accumulation_rows(kept)
         self._pool_threads = max(int(ti.lang.impl.current_cfg().cpu_max_num_threads or 0), 1)

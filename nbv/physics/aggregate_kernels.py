@@ -1,33 +1,23 @@
-"""Taichi kernels of :mod:`nbv.physics.aggregate`: the per-level cell lists, the per-step accumulation (paper
-Eq. 2-3), the staging copy, and the set of (Gaussian, particle id) pairs behind the distinct counts |P_g|.
+"""Taichi kernels of :mod:`nbv.physics.aggregate`: the per-step accumulation (paper Eq. 2-3), the staging copy, the
+set of (Gaussian, particle id) pairs behind the distinct counts |P_g|, and the read of the covered cells' sums.
 
-The static Gaussians are sorted into a few levels by reach (see ``nbv.physics.aggregate.plan_levels``); a level is a
-uniform grid whose cell is a fraction of the level's largest reach, and a Gaussian of that level is listed in every
-cell of it whose box comes closer than its reach to its centre (at most (2 / fraction + 1)^3 cells, whatever the other
-levels hold), first the Gaussians that cover the cell, then the others. The lists are built once per run (counting
-pass, prefix sum on the host, fill pass). A fluid particle tests, on every level, the Gaussians that only touch its
-own cell, |x - mu_g|^2 < r_g^2 in f64 as the numpy twin does, and adds its value once to the cell's sum for the
-covering ones (:func:`spread_cells` hands those sums to them on read).
+A fluid particle finds its cell on every level (the levels and their cell lists are built once per run by
+:mod:`nbv.physics.aggregate_level_kernels`), tests the Gaussians that only touch its own cell, |x - mu_g|^2 < r_g^2
+in f64 as the numpy twin does, and adds its value once to the cell's sum for the covering ones (:func:`spread_cells`
+hands those sums to them on read).
 """
 
+from typing import NamedTuple
+
 import taichi as ti
+
+from nbv.physics.aggregate_level_kernels import ITEMS_OFFSET, SPLITS_OFFSET
 
 vec3d = ti.types.vector(3, ti.f64)
 vec4d = ti.types.vector(4, ti.f64)
 
 # An empty slot of the hash set (keys are g * 2^32 + id >= 0).
 EMPTY_KEY = -1
-
-# Layout of the ``table`` [L + 1, TABLE_WIDTH] f64 array. Row 0: domain_min (3), domain_max (3) (the probe's domain
-# clipped to the levels' grids), offset of the items in ``lists``, offset of the cell splits in ``lists``. Row 1 + l,
-# level l: origin (3), 1 / cell, cell (m), dims (3), offset of the level's first cell in the cell starts. One small
-# array, because every kernel argument costs launch time, which on small probes is a good part of the aggregation.
-# ``lists``: the start of every cell's items (all levels' cells, then the end), every cell's split, then the items;
-# a cell's items are the Gaussians that cover it (every point of the cell within reach) up to its split, then the
-# ones that only touch it, each part in ascending order.
-TABLE_WIDTH = 9
-ITEMS_OFFSET = 6
-SPLITS_OFFSET = 7
 
 # Fixed-point sums: a value v is added as floor(v * VALUE_SCALE + 1/2) in an i64, clamped to +-VALUE_LIMIT quanta (NaN
 # adds 0; both are counted as saturated in the extra Gaussian slot G). Integer sums are exact and do
@@ -64,32 +54,6 @@ def inside_domain(table: ti.template(), x):
 
 
 @ti.func
-def box_distance2(center, c, origin, cell):
-    """Squared distance from ``center`` to the box of cell ``c`` (0 inside)."""
-    d2 = ti.cast(0.0, ti.f64)
-    for a in ti.static(range(3)):
-        lo = origin[a] + cell * c[a]
-        hi = lo + cell
-        e = ti.max(ti.max(lo - center[a], center[a] - hi), 0.0)
-        d2 += e * e
-    return d2
-
-
-@ti.func
-def covers(center, c, origin, cell, slack, reach2):
-    """Whether every point of cell ``c``'s box, grown by ``slack``, lies within reach of ``center`` (``reach2``: the
-    squared reach the particles are tested against, with a relative margin of 1e-9): every particle that the kernels
-    assign to the cell is then a hit, with no test."""
-    d2 = ti.cast(0.0, ti.f64)
-    for a in ti.static(range(3)):
-        lo = origin[a] + cell * c[a] - slack
-        hi = lo + cell + 2.0 * slack
-        e = ti.max(ti.abs(center[a] - lo), ti.abs(hi - center[a]))
-        d2 += e * e
-    return d2 * (1.0 + 1e-9) < reach2
-
-
-@ti.func
 def level_cell(table: ti.template(), lv, x):
     """(inside, index): the cell of x in level ``lv`` (row ``lv`` of ``table``) and its index in the cell starts; a
     cell outside the level's grid is never clamped (inside = False: no Gaussian of the level reaches there)."""
@@ -102,67 +66,6 @@ def level_cell(table: ti.template(), lv, x):
         else:
             lin = lin * ti.cast(table[lv, 5 + d], ti.i32) + ti.cast(f, ti.i32)
     return inside, lin + ti.cast(table[lv, 8], ti.i32)
-
-
-@ti.kernel
-def list_cells(
-    lv: ti.i32,
-    reach_cells: ti.i32,
-    slack: ti.f64,
-    fill: ti.template(),
-    gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
-    reach: ti.types.ndarray(dtype=ti.f64, ndim=1),
-    table: ti.types.ndarray(dtype=ti.f64, ndim=2),
-    centres: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    cell_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    cover_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
-):
-    """Counting pass (``fill`` False: ``cell_counts[c]`` = the Gaussians listed in cell c, ``cover_counts[c]`` = those
-    that cover it) or fill pass (``fill`` True: the items of cell c, the cell starts and splits having been written to
-    ``lists``) of level ``lv``.
-
-    Each cell gathers its own items (no atomics, sequential writes, items in ascending order): the Gaussians whose
-    centre cell lies within ``reach_cells`` cells along each axis (``centres``: the first internal Gaussian of each
-    centre cell, the Gaussians being sorted by it), kept when the cell's box is closer than ``reach[g] + slack`` to
-    the centre (:func:`covers` tells the covering ones). The slack (a tiny fraction of a cell) absorbs rounding in the
-    particles' cell assignment. A centre outside the grid was clipped into it, which only brings its cell closer to
-    every cell of the grid.
-    """
-    origin = ti.Vector([table[lv, 0], table[lv, 1], table[lv, 2]])
-    cell = table[lv, 4]
-    d0, d1, d2 = ti.cast(table[lv, 5], ti.i32), ti.cast(table[lv, 6], ti.i32), ti.cast(table[lv, 7], ti.i32)
-    offset = ti.cast(table[lv, 8], ti.i32)
-    items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
-    splits = ti.cast(table[0, SPLITS_OFFSET], ti.i32)
-    m = reach_cells
-    for t in range(d0 * d1 * d2):
-        tc = ti.Vector([t // (d1 * d2), (t // d2) % d1, t % d2])
-        found, covering = 0, 0
-        start, middle = 0, 0
-        if ti.static(fill):
-            start = items + lists[offset + t]
-            middle = items + lists[splits + offset + t]
-        for a in range(ti.max(tc[0] - m, 0), ti.min(tc[0] + m, d0 - 1) + 1):
-            for b in range(ti.max(tc[1] - m, 0), ti.min(tc[1] + m, d1 - 1) + 1):
-                row = offset + (a * d1 + b) * d2
-                k0, k1 = ti.max(tc[2] - m, 0), ti.min(tc[2] + m, d2 - 1)
-                for g in range(centres[row + k0], centres[row + k1 + 1]):
-                    p = gauss[g]
-                    centre = ti.Vector([p[0], p[1], p[2]])
-                    r = reach[g] + slack
-                    if box_distance2(centre, tc, origin, cell) < r * r:
-                        if covers(centre, tc, origin, cell, slack, p[3]):
-                            if ti.static(fill):
-                                lists[start + covering] = g
-                            covering += 1
-                        else:
-                            if ti.static(fill):
-                                lists[middle + found - covering] = g
-                        found += 1
-        if ti.static(not fill):
-            cell_counts[offset + t] = found
-            cover_counts[offset + t] = covering
 
 
 @ti.func
@@ -200,178 +103,143 @@ def set_insert(hashes: ti.template(), fill: ti.template(), key):
         slot = (slot + 1) & mask
 
 
+class Samples(NamedTuple):
+    """The particles a pass visits (kernel arguments, bound at compile time): positions ``xs`` (m), values
+    ``values``, and for tracking the ids ``ids`` and each one's previous sample ``prevs`` (vec3 f64, m; NaN: none).
+    An untracked pass hands any arrays as ``ids`` and ``prevs``: they are never read."""
+
+    xs: object
+    values: object
+    ids: object
+    prevs: object
+
+
+class Levels(NamedTuple):
+    """The levels built once per run (kernel arguments): ``table`` and ``lists`` (cell starts, splits and items;
+    see ``nbv.physics.aggregate_level_kernels.TABLE_WIDTH``) and ``gauss`` (mu_g, r_g^2 as vec4 f64)."""
+
+    table: object
+    lists: object
+    gauss: object
+
+
+class Sums(NamedTuple):
+    """What a pass adds into (kernel arguments): ``acc`` [rows, G + 1, 2] (quanta, hits), ``cell_sums`` [rows, cells,
+    2] of the covered cells, and for tracking the listed keys ``keys`` and their count ``emitted[0]``. A pass that
+    does not use one hands another array of the same kind: it is never written."""
+
+    acc: object
+    cell_sums: object
+    keys: object
+    emitted: object
+
+
+class Mode(NamedTuple):
+    """Compile-time switches of a pass: ``add_values`` (add the values and hits), ``track`` (list the (Gaussian,
+    particle id) pairs) and ``private`` (each CPU thread adds into its own row without atomics; otherwise row 0,
+    atomic)."""
+
+    add_values: bool
+    track: bool
+    private: bool
+
+
 @ti.func
-def visit_gaussian(
-    g,
-    x,
-    q,
-    row,
-    pid,
-    prev,
-    prev_ok,
-    gauss: ti.template(),
-    add_values: ti.template(),
-    track: ti.template(),
-    private: ti.template(),
-    acc: ti.template(),
-    keys: ti.template(),
-    emitted: ti.template(),
-):
+def visit_gaussian(g, x, q, row, pid, prev, prev_ok, levels: ti.template(), mode: ti.template(), sums: ti.template()):
     """Paper Eq. 2-3 for one (particle, Gaussian) pair: when |x - mu_g|^2 < r_g^2 add the value (quanta q) and 1 to
     row ``row`` of g, and record the particle id ``pid`` unless the particle's previous sample ``prev`` (``prev_ok``:
     it was inside the domain) was within reach of g too, which recorded the pair then.
 
-    With ``private`` the row belongs to one thread only and the adds are plain; otherwise atomic (GPUs).
+    With ``mode.private`` the row belongs to one thread only and the adds are plain; otherwise atomic (GPUs).
     """
-    p = gauss[g]
+    p = levels.gauss[g]
+    acc = ti.static(sums.acc)
     dx, dy, dz = x[0] - p[0], x[1] - p[1], x[2] - p[2]
     hit = dx * dx + dy * dy + dz * dz < p[3]
-    if ti.static(add_values and private):
+    if ti.static(mode.add_values and mode.private):
         # branch-free: a plain add of 0 on a miss is cheaper than the mispredicted branch of an unpredictable test
         acc[row, g, 0] = acc[row, g, 0] + ti.select(hit, q, ti.i64(0))
         acc[row, g, 1] = acc[row, g, 1] + ti.select(hit, ti.i64(1), ti.i64(0))
-    if ti.static(add_values and not private):
+    if ti.static(mode.add_values and not mode.private):
         if hit:
             ti.atomic_add(acc[0, g, 0], q)
             ti.atomic_add(acc[0, g, 1], ti.i64(1))
-    if ti.static(track):
+    if ti.static(mode.track):
         # the previous sample's test, computed branch-free: only the rare first step of a visit branches
         ex, ey, ez = prev[0] - p[0], prev[1] - p[1], prev[2] - p[2]
         seen = ti.select(prev_ok, ex * ex + ey * ey + ez * ez < p[3], False)
         if ti.select(seen, False, hit):  # listed here, recorded by another kernel: a lean inner loop
-            slot = ti.atomic_add(emitted[0], ti.i64(1))
-            if slot < keys.shape[0]:
-                keys[slot] = (ti.cast(g, ti.i64) << 32) + ti.cast(pid, ti.i64)
+            slot = ti.atomic_add(sums.emitted[0], ti.i64(1))
+            if slot < sums.keys.shape[0]:
+                sums.keys[slot] = (ti.cast(g, ti.i64) << 32) + ti.cast(pid, ti.i64)
 
 
 @ti.func
-def visit_level(
-    lv,
-    x,
-    q,
-    row,
-    pid,
-    prev,
-    prev_ok,
-    table: ti.template(),
-    lists: ti.template(),
-    gauss: ti.template(),
-    add_values: ti.template(),
-    track: ti.template(),
-    private: ti.template(),
-    acc: ti.template(),
-    cell_sums: ti.template(),
-    keys: ti.template(),
-    emitted: ti.template(),
-):
+def visit_level(lv, x, q, row, pid, prev, prev_ok, levels: ti.template(), mode: ti.template(), sums: ti.template()):
     """The Gaussians of level ``lv`` listed in the cell of x: those that only touch the cell are tested; those that
-    cover it are hits without a test, and the value goes once into the cell's own sum (``cell_sums``), spread onto
-    them on read (:func:`spread_cells`). With ``track`` every listed Gaussian is tested (each visit is recorded)."""
+    cover it are hits without a test, and the value goes once into the cell's own sum (``sums.cell_sums``), spread
+    onto them on read (:func:`spread_cells`). With ``mode.track`` every listed Gaussian is tested (each visit is
+    recorded)."""
+    table, lists = ti.static(levels.table, levels.lists)
     inside, c = level_cell(table, lv, x)
     if inside:
         items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
         begin, middle, end = lists[c], lists[ti.cast(table[0, SPLITS_OFFSET], ti.i32) + c], lists[c + 1]
         first = middle
-        if ti.static(track):
+        if ti.static(mode.track):
             first = begin
         for s in range(first, end):
-            visit_gaussian(
-                lists[items + s], x, q, row, pid, prev, prev_ok, gauss, add_values, track, private, acc, keys, emitted
-            )
-        if ti.static(add_values and not track):
+            visit_gaussian(lists[items + s], x, q, row, pid, prev, prev_ok, levels, mode, sums)
+        if ti.static(mode.add_values and not mode.track):
             if middle > begin:
-                if ti.static(private):
-                    cell_sums[row, c, 0] += q
-                    cell_sums[row, c, 1] += 1
+                if ti.static(mode.private):
+                    sums.cell_sums[row, c, 0] += q
+                    sums.cell_sums[row, c, 1] += 1
                 else:
-                    ti.atomic_add(cell_sums[0, c, 0], q)
-                    ti.atomic_add(cell_sums[0, c, 1], ti.i64(1))
+                    ti.atomic_add(sums.cell_sums[0, c, 0], q)
+                    ti.atomic_add(sums.cell_sums[0, c, 1], ti.i64(1))
 
 
 @ti.func
-def visit_particle(
-    i,
-    row,
-    xs: ti.template(),
-    values: ti.template(),
-    ids: ti.template(),
-    prevs: ti.template(),
-    table: ti.template(),
-    lists: ti.template(),
-    gauss: ti.template(),
-    add_values: ti.template(),
-    track: ti.template(),
-    private: ti.template(),
-    acc: ti.template(),
-    cell_sums: ti.template(),
-    keys: ti.template(),
-    emitted: ti.template(),
-):
+def visit_particle(i, row, samples: ti.template(), levels: ti.template(), mode: ti.template(), sums: ti.template()):
     """Paper Eq. 2-3 for fluid particle i inside the domain: every level (:func:`visit_level`); a saturated value
     (:func:`fixed_point`) is counted in the extra slot G."""
-    x = ti.cast(xs[i], ti.f64)
+    table, acc = ti.static(levels.table, sums.acc)
+    x = ti.cast(samples.xs[i], ti.f64)
     if inside_domain(table, x):
-        q, saturated = fixed_point(values[i])
-        if ti.static(add_values):
+        q, saturated = fixed_point(samples.values[i])
+        if ti.static(mode.add_values):
             if saturated:
-                if ti.static(private):
+                if ti.static(mode.private):
                     acc[row, acc.shape[1] - 1, 0] += 1
                 else:
                     ti.atomic_add(acc[0, acc.shape[1] - 1, 0], ti.i64(1))
         prev = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         prev_ok = False
         pid = 0
-        if ti.static(track):
-            prev = prevs[i]
+        if ti.static(mode.track):
+            prev = samples.prevs[i]
             prev_ok = inside_domain(table, prev)
-            pid = ti.cast(ids[i], ti.i32)
+            pid = ti.cast(samples.ids[i], ti.i32)
         for lv in range(1, table.shape[0]):
-            visit_level(
-                lv,
-                x,
-                q,
-                row,
-                pid,
-                prev,
-                prev_ok,
-                table,
-                lists,
-                gauss,
-                add_values,
-                track,
-                private,
-                acc,
-                cell_sums,
-                keys,
-                emitted,
-            )
+            visit_level(lv, x, q, row, pid, prev, prev_ok, levels, mode, sums)
 
 
 @ti.func
 def visit_all(
     n,
     steps: ti.template(),
-    xs: ti.template(),
-    values: ti.template(),
-    ids: ti.template(),
-    prevs: ti.template(),
-    table: ti.template(),
-    lists: ti.template(),
-    gauss: ti.template(),
-    add_values: ti.template(),
-    track: ti.template(),
-    private: ti.template(),
+    samples: ti.template(),
+    levels: ti.template(),
+    mode: ti.template(),
+    sums: ti.template(),
     serial: ti.template(),
-    acc: ti.template(),
-    cell_sums: ti.template(),
-    keys: ti.template(),
-    emitted: ti.template(),
 ):
     """All particles of the staged steps (``steps``: B + 1 offsets, step s holds particles steps[s]..steps[s+1]-1),
     interleaved: iteration k (of n, the longest step) visits particle k of every step. The solver keeps its
     particles sorted by cell, so particle k of consecutive steps sits at about the same place, and its cell lists,
     Gaussians and sums are still in the caches for the next step's. On the launching thread into row 0
-    (``serial``), in parallel with each CPU thread adding into its own row (``private``: row = the thread's
+    (``serial``), in parallel with each CPU thread adding into its own row (``mode.private``: row = the thread's
     index, so the caller gives at least as many rows as threads), or in parallel with atomic adds into row 0
     (GPUs). The sums are integers, so the order does not change them."""
     b = steps.shape[0] - 1
@@ -381,50 +249,16 @@ def visit_all(
             for s in range(b):
                 i = steps[s] + k
                 if i < steps[s + 1]:
-                    visit_particle(
-                        i,
-                        0,
-                        xs,
-                        values,
-                        ids,
-                        prevs,
-                        table,
-                        lists,
-                        gauss,
-                        add_values,
-                        track,
-                        private,
-                        acc,
-                        cell_sums,
-                        keys,
-                        emitted,
-                    )
+                    visit_particle(i, 0, samples, levels, mode, sums)
     else:
         for k in range(n):
             row = 0
-            if ti.static(private):
+            if ti.static(mode.private):
                 row = ti.global_thread_idx()
             for s in range(b):
                 i = steps[s] + k
                 if i < steps[s + 1]:
-                    visit_particle(
-                        i,
-                        row,
-                        xs,
-                        values,
-                        ids,
-                        prevs,
-                        table,
-                        lists,
-                        gauss,
-                        add_values,
-                        track,
-                        private,
-                        acc,
-                        cell_sums,
-                        keys,
-                        emitted,
-                    )
+                    visit_particle(i, row, samples, levels, mode, sums)
 
 
 @ti.kernel
@@ -448,8 +282,8 @@ def accumulate(
 
     ``n``, ``steps``: the longest staged step and the staged steps' offsets of :func:`visit_all` (one step: n
     particles, steps = [0, n]).
-    ``table``, ``lists``: see ``TABLE_WIDTH``. A particle in a cell that Gaussians cover adds its value once to
-    ``cell_sums[row, c]`` (:func:`visit_level`).
+    ``table``, ``lists``: see ``aggregate_level_kernels.TABLE_WIDTH``. A particle in a cell that Gaussians cover
+    adds its value once to ``cell_sums[row, c]`` (:func:`visit_level`).
     ``private`` (CPUs): ``acc`` has a row per thread of the pool, each thread adds into its own row without
     atomics, and the caller sums the rows; the sums are integers, so the result is bitwise the same for any
     thread count or schedule. Otherwise (GPUs) one row and atomic adds.
@@ -457,7 +291,13 @@ def accumulate(
     waking the thread pool.
     """
     visit_all(
-        n, steps, xs, values, values, xs, table, lists, gauss, True, False, private, serial, acc, cell_sums, acc, acc
+        n,
+        steps,
+        ti.static(Samples(xs, values, values, xs)),
+        ti.static(Levels(table, lists, gauss)),
+        ti.static(Mode(True, False, private)),
+        ti.static(Sums(acc, cell_sums, acc, acc)),
+        serial,
     )
 
 
@@ -493,21 +333,11 @@ def accumulate_tracked(
     visit_all(
         n,
         steps,
-        xs,
-        values,
-        ids,
-        prevs,
-        table,
-        lists,
-        gauss,
-        add_values,
-        track,
-        private,
+        ti.static(Samples(xs, values, ids, prevs)),
+        ti.static(Levels(table, lists, gauss)),
+        ti.static(Mode(add_values, track, private)),
+        ti.static(Sums(acc, acc, keys, emitted)),
         serial,
-        acc,
-        acc,
-        keys,
-        emitted,
     )
 
 
@@ -603,64 +433,6 @@ def count_bits(bits: ti.types.ndarray(dtype=ti.u32, ndim=2), counts: ti.types.nd
         for w in range(bits.shape[1]):
             total += ti.cast(ti.math.popcnt(bits[g, w]), ti.i64)
         counts[g] = total
-
-
-@ti.kernel
-def copy_into(src: ti.types.ndarray(dtype=ti.i32, ndim=1), dst: ti.types.ndarray(dtype=ti.i32, ndim=1)):
-    """``dst[:len(src)] = src``."""
-    for c in range(src.shape[0]):
-        dst[c] = src[c]
-
-
-@ti.kernel
-def scatter_cells(
-    first: ti.i32,
-    last: ti.i32,
-    lv: ti.i32,
-    slack: ti.f64,
-    fill: ti.template(),
-    gauss: ti.types.ndarray(dtype=vec4d, ndim=1),
-    reach: ti.types.ndarray(dtype=ti.f64, ndim=1),
-    table: ti.types.ndarray(dtype=ti.f64, ndim=2),
-    cell_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    cover_counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    lists: ti.types.ndarray(dtype=ti.i32, ndim=1),
-):
-    """:func:`list_cells` for a level of few Gaussians with fine cells (where every cell gathering from its
-    neighbourhood would cost more than the Gaussians' own cells): each internal Gaussian first..last-1 of level
-    ``lv``, in order on one thread, adds itself to the cells its reach sphere touches (counting pass: ``cell_counts``
-    and ``cover_counts`` as in :func:`list_cells`; fill pass: both zeroed by the caller and used as the cursors of the
-    partial and the covering part). The items come out in ascending order, the same lists as :func:`list_cells`.
-    """
-    origin = ti.Vector([table[lv, 0], table[lv, 1], table[lv, 2]])
-    inv_cell, cell = table[lv, 3], table[lv, 4]
-    dims = ti.Vector([ti.cast(table[lv, 5], ti.i32), ti.cast(table[lv, 6], ti.i32), ti.cast(table[lv, 7], ti.i32)])
-    offset = ti.cast(table[lv, 8], ti.i32)
-    items = ti.cast(table[0, ITEMS_OFFSET], ti.i32)
-    splits = ti.cast(table[0, SPLITS_OFFSET], ti.i32)
-    ti.loop_config(serialize=True)
-    for g in range(first, last):
-        p = gauss[g]
-        c = ti.Vector([p[0], p[1], p[2]])
-        r = reach[g] + slack
-        lo = ti.max(ti.floor((c - r - origin) * inv_cell, ti.i32), 0)
-        hi = ti.min(ti.floor((c + r - origin) * inv_cell, ti.i32), dims - 1)
-        for i in range(lo[0], hi[0] + 1):
-            for j in range(lo[1], hi[1] + 1):
-                for k in range(lo[2], hi[2] + 1):
-                    cijk = ti.Vector([i, j, k])
-                    if box_distance2(c, cijk, origin, cell) < r * r:
-                        t = offset + (i * dims[1] + j) * dims[2] + k
-                        if covers(c, cijk, origin, cell, slack, p[3]):
-                            if ti.static(fill):
-                                lists[items + lists[t] + cover_counts[t]] = g
-                            else:
-                                cell_counts[t] += 1
-                            cover_counts[t] += 1
-                        else:
-                            if ti.static(fill):
-                                lists[items + lists[splits + t] + cell_counts[t]] = g
-                            cell_counts[t] += 1
 
 
 @ti.kernel

@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import taichi as ti
 
-from nbv.physics import aggregate_kernels as kernels
+from nbv.physics import aggregate_level_kernels as kernels
 
 log = logging.getLogger(__name__)
 
@@ -343,7 +343,7 @@ class GaussianLists:
         return bool(self.covered_entries)
 
     def table(self, domain_min: np.ndarray, domain_max: np.ndarray) -> np.ndarray:
-        """The kernels' ``table`` argument for a probe's domain (see ``aggregate_kernels.TABLE_WIDTH``)."""
+        """The kernels' ``table`` argument for a probe's domain (see ``aggregate_level_kernels.TABLE_WIDTH``)."""
         head = np.zeros((1, kernels.TABLE_WIDTH))
         # Particles outside the levels' grids reach no Gaussian: the kernels' domain test also skips them (most of a
         # probe's fluid is away from the object), with every level lookup.
@@ -359,7 +359,7 @@ class GaussianLists:
 
     def _build(self, reach: np.ndarray) -> None:
         """The cell lists of every level (counting pass, prefix sum, fill pass, each cell gathering its own items)
-        in one ``lists`` array (``aggregate_kernels.TABLE_WIDTH``): the start of every cell's items (all levels'
+        in one ``lists`` array (``aggregate_level_kernels.TABLE_WIDTH``): the start of every cell's items (all levels'
         cells, then the end), every cell's split (the covering Gaussians before it), then the items."""
         lv = self.levels
         cells = lv.num_cells
@@ -435,7 +435,7 @@ class GaussianLists:
         )
 
     def _table_array(self) -> np.ndarray:
-        """The ``table`` argument of the kernels (see ``aggregate_kernels.TABLE_WIDTH``)."""
+        """The ``table`` argument of the kernels (see ``aggregate_level_kernels.TABLE_WIDTH``)."""
         head = np.zeros((1, kernels.TABLE_WIDTH))
         # Particles outside the levels' grids reach no Gaussian: the kernels' domain test also skips them (most of a
         # probe's fluid is away from the object), with every level lookup.

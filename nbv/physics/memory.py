@@ -10,13 +10,13 @@ from fluidsim.probes import probe_setups
 from nbv.physics import floaters
 from nbv.physics.aggregate import GaussianAccumulator, reach_classes
 from nbv.physics.config import QUICK, PhysicsConfig, scene_transform
-from nbv.physics.scene_frame import SimGaussians, as_sim
-from nbv.physics.solidify import BYTES_PER_GAUSSIAN as BYTES_PER_GAUSSIAN_SOLIDIFY
-from nbv.physics.solidify import (
+from nbv.physics.lattice import BYTES_PER_GAUSSIAN as BYTES_PER_GAUSSIAN_SOLIDIFY
+from nbv.physics.lattice import (
     estimate_lattice_points,
     estimate_solidify_bytes,
     solid_boxes,
 )
+from nbv.physics.scene_frame import SimGaussians, as_sim
 
 # Memory per fluid particle of one probe (solver state, pressure-solver arrays, fluid and boundary neighbour lists)
 # and per boundary particle (walls and solid), doubled for headroom: the peak resident memory of probes around a
@@ -52,10 +52,10 @@ def estimate_memory(
     box, those under tau / 10 left out, :mod:`nbv.physics.floaters`). With ``solid_points`` [P, 3] (sim metres, the
     solidified Gaussians) the probes are laid out around the real solid, which is smaller when faint or
     scattered Gaussians widen the box but make no solid. Uses the per-particle byte counts ``BYTES_PER_*``
-    and the solid lattice estimate of :func:`nbv.physics.solidify.estimate_lattice_points`.
+    and the solid lattice estimate of :func:`nbv.physics.lattice.estimate_lattice_points`.
 
     The bytes add the Gaussians held all run to the larger of the solidification's peak
-    (:func:`nbv.physics.solidify.estimate_solidify_bytes`) and one probe's (its solver, and the per-Gaussian
+    (:func:`nbv.physics.lattice.estimate_solidify_bytes`) and one probe's (its solver, and the per-Gaussian
     accumulator's :meth:`nbv.physics.aggregate.GaussianAccumulator.estimate_bytes`).
 
     Returns:

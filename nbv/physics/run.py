@@ -78,20 +78,73 @@ def probe_warnings(direction: str, counts: np.ndarray, history: list[StepStats])
 
 
 # ---- the probe runs --------------------------------------------------------------------------------
-def _progress_bar(direction: str, steps: int, enabled: bool):
-    return tqdm(total=steps, desc=f"probe {direction}", unit="step", disable=not enabled, leave=False)
+class RunProgress:
+    """One progress bar for a run's probes and its empty-scene reference: "probe k of n" and the probe's direction
+    as the description, and one ETA over all of them.
+
+    A step of a probe costs about in proportion to its fluid particles, so the bar counts fluid particle-steps
+    (each step weighted by its slab's particles, :meth:`ProbePlan.fluid_counts`) and shows the percentage, not the
+    count: the probes differ in size (the side probes' slabs are larger than the vertical ones'), and the ETA holds
+    across them. The first probe's first steps include Taichi's compilation, so the ETA starts high.
+
+    Args:
+        plan: the run's probes. config: the run's settings (directions, steps, empty reference).
+        enabled: draw the bar (False: a silent one).
+        empty: whether the empty-scene probes follow the probes (``config.empty_reference`` by default).
+    """
+
+    def __init__(self, plan: ProbePlan, config: PhysicsConfig, enabled: bool, empty: bool | None = None):
+        empty = config.empty_reference if empty is None else empty
+        self.weights = plan.fluid_counts(config.directions)
+        self.steps = config.steps
+        self.count = len(config.directions) * (2 if empty else 1)
+        self.index = 0
+        self.weight = 0
+        total = self.steps * sum(self.weights.values()) * (2 if empty else 1)
+        self.bar = tqdm(
+            total=total,
+            desc=f"probe 0 of {self.count}",
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}{postfix}",
+            disable=not enabled,
+            leave=False,
+        )
+
+    def start(self, direction: str, label: str = "") -> None:
+        """The next probe (``label``: "empty " for the empty scene's) starts."""
+        self.index += 1
+        self.weight = self.weights[direction]
+        self.bar.set_description_str(f"probe {self.index} of {self.count} ({label}{direction})", refresh=False)
+
+    def skip(self, direction: str, label: str = "") -> None:
+        """The next probe is not run (its result was cached): the bar moves past it."""
+        self.start(direction, label)
+        self.bar.update(self.steps * self.weight)
+
+    def tick(self, stats: StepStats) -> None:
+        """One step of the current probe ran."""
+        self.bar.update(self.weight)
+        self.bar.set_postfix(
+            step=f"{stats.step + 1}/{self.steps}",
+            it=f"{stats.density_iterations}/{stats.divergence_iterations}",
+            vmax=f"{stats.max_speed:.2f}",
+            fluid=stats.active,
+            refresh=False,
+        )
+
+    def close(self) -> None:
+        self.bar.close()
 
 
 class _ProbeRecorder:
     """Callbacks for ``fluidsim.run_probes``: the Gaussians' cell lists built once (over the union of the probes'
-    domains), fresh sums per probe, timings and a progress bar."""
+    domains), fresh sums per probe, timings, and the steps shown on the run's bar (``progress``)."""
 
     def __init__(
         self,
         centers: np.ndarray,
         reach: np.ndarray,
         config: PhysicsConfig,
-        progress: bool,
+        progress: RunProgress,
         label: str = "",
         grid_bounds: tuple[np.ndarray, np.ndarray] | None = None,
         solid=None,
@@ -107,7 +160,6 @@ class _ProbeRecorder:
         self.leaks: dict[str, Any] = {}
         self.grid_bounds = grid_bounds
         self.acc = None
-        self.bar = None
         self.means: dict[str, np.ndarray] = {}
         self.counts: dict[str, np.ndarray] = {}
         self.distinct: dict[str, np.ndarray] = {}
@@ -139,7 +191,7 @@ class _ProbeRecorder:
             self.leak_counter.start(self.config.steps)
         if self.trajectory is not None:
             self.trajectory.start(direction, solver)
-        self.bar = _progress_bar(f"{self.label}{direction}", self.config.steps, self.progress)
+        self.progress.start(direction, self.label)
         self._t_start = time.perf_counter()
 
     def step(self, direction: str, solver: DFSPHSolver, stats: StepStats) -> None:
@@ -154,14 +206,8 @@ class _ProbeRecorder:
             ti.sync()
             self.aggregation_s += time.perf_counter() - t0
 
-    def tick(self, direction: str, stats: StepStats) -> None:
-        self.bar.update(1)
-        self.bar.set_postfix(
-            it=f"{stats.density_iterations}/{stats.divergence_iterations}",
-            vmax=f"{stats.max_speed:.2f}",
-            fluid=stats.active,
-            refresh=False,
-        )
+    def tick(self, stats: StepStats) -> None:
+        self.progress.tick(stats)
 
     def end(self, direction: str, solver: DFSPHSolver, history: list[StepStats]) -> None:
         t0 = time.perf_counter()
@@ -169,7 +215,6 @@ class _ProbeRecorder:
         ti.sync()
         self.aggregation_s += time.perf_counter() - t0
         self.probe_s += time.perf_counter() - self._t_start
-        self.bar.close()
         self.means[direction] = np.asarray(self.acc.means(), np.float64)
         self.counts[direction] = np.asarray(self.acc.counts, np.int64)
         if self.config.track_distinct:
@@ -181,28 +226,21 @@ class _ProbeRecorder:
         if self.trajectory is not None:
             self.trajectory.end(direction)
 
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
 
 def _run_with(
     recorder: _ProbeRecorder, solid: np.ndarray, plan: ProbePlan, config: PhysicsConfig, scfg: SolverConfig
 ) -> dict[str, list[StepStats]]:
-    try:
-        return run_probes(
-            solid,
-            scfg,
-            config.probe_config(),
-            config.steps,
-            on_step=recorder.step,
-            on_probe_start=recorder.start,
-            on_probe_end=recorder.end,
-            progress=recorder.tick,
-            setups=plan.setups,
-        )
-    finally:
-        recorder.close()
+    return run_probes(
+        solid,
+        scfg,
+        config.probe_config(),
+        config.steps,
+        on_step=recorder.step,
+        on_probe_start=recorder.start,
+        on_probe_end=recorder.end,
+        progress=lambda d, st: recorder.tick(st),
+        setups=plan.setups,
+    )
 
 
 def empty_scene_probes(
@@ -210,7 +248,7 @@ def empty_scene_probes(
     centers: np.ndarray,
     reach: np.ndarray,
     config: PhysicsConfig,
-    progress: bool = True,
+    progress: bool | RunProgress = True,
     cache: dict | None = None,
     lists: GaussianLists | None = None,
 ) -> tuple[np.ndarray, float]:
@@ -220,7 +258,8 @@ def empty_scene_probes(
         plan: the probes laid out around the solid (which is not simulated).
         centers, reach: [G, 3], [G] sim metres.
         config: the probe settings.
-        progress: show a bar per probe.
+        progress: show a bar over these probes (True), or move the run's bar (a :class:`RunProgress` that counts
+            them; it stays open).
         cache: a dict to reuse results within a process, keyed by domain, settings and Gaussians.
         lists: the cell lists of these Gaussians (:class:`nbv.physics.aggregate.GaussianLists`; the probe run's,
             which cover the same domains). None: built over the union of the probes' domains, for every probe.
@@ -233,42 +272,48 @@ def empty_scene_probes(
     key_cfg = json.dumps(config.to_dict(), sort_keys=True, default=str)
     key_g = hash((centers.tobytes(), reach.tobytes()))
     out = []
+    bar = progress if isinstance(progress, RunProgress) else None
+    if bar is None:
+        bar = RunProgress(plan, replace(config, empty_reference=False), enabled=bool(progress))
     rec = _ProbeRecorder(
         centers,
         reach,
         replace(config, track_distinct=False),
-        progress,
+        bar,
         label="empty ",
         grid_bounds=plan.bounds,
         lists=lists,
     )
-    for d in config.directions:
-        setup = plan.setups[d]
-        key = (setup, key_cfg, key_g)
-        if cache is not None and key in cache:
-            out.append(cache[key])
-            continue
-        fluid = lattice_in_box(setup.fluid_min, setup.fluid_max, scfg.spacing)
-        vel = np.broadcast_to(np.asarray(setup.velocity), fluid.shape)
-        walls = wall_particles(setup.domain_min, setup.domain_max, scfg.spacing, probe.wall_layers)
-        solver = DFSPHSolver(scfg, setup.domain_min, setup.domain_max, fluid, vel, walls)
-        rec.start(d, solver)
-        try:
-            history = run_solver(
-                solver,
-                config.steps,
-                on_step=lambda s, st, d=d, r=rec: r.step(d, s, st),
-                progress=lambda st, d=d, r=rec: r.tick(d, st),
-            )
-        except SimulationDiverged as exc:
-            exc.probe = f"empty-scene {d}"  # which run diverged, for ProbeDiverged
-            raise
-        finally:
-            rec.close()
-        rec.end(d, solver, history)
-        out.append(rec.means[d])
-        if cache is not None:
-            cache[key] = rec.means[d]
+    try:
+        for d in config.directions:
+            setup = plan.setups[d]
+            key = (setup, key_cfg, key_g)
+            if cache is not None and key in cache:
+                bar.skip(d, "empty ")
+                out.append(cache[key])
+                continue
+            fluid = lattice_in_box(setup.fluid_min, setup.fluid_max, scfg.spacing)
+            vel = np.broadcast_to(np.asarray(setup.velocity), fluid.shape)
+            walls = wall_particles(setup.domain_min, setup.domain_max, scfg.spacing, probe.wall_layers)
+            solver = DFSPHSolver(scfg, setup.domain_min, setup.domain_max, fluid, vel, walls)
+            rec.start(d, solver)
+            try:
+                history = run_solver(
+                    solver,
+                    config.steps,
+                    on_step=lambda s, st, d=d, r=rec: r.step(d, s, st),
+                    progress=rec.tick,
+                )
+            except SimulationDiverged as exc:
+                exc.probe = f"empty-scene {d}"  # which run diverged, for ProbeDiverged
+                raise
+            rec.end(d, solver, history)
+            out.append(rec.means[d])
+            if cache is not None:
+                cache[key] = rec.means[d]
+    finally:
+        if bar is not progress:  # a bar of its own: closed here; the run's bar is closed by the run
+            bar.close()
     return np.stack(out), time.perf_counter() - t0
 
 
@@ -291,7 +336,7 @@ def simulate_gaussians(
     Args:
         gaussians: a ``recon.gaussians.GaussianSet`` in scene units.
         config: probe settings.
-        progress: a tqdm bar per probe (steps, solver iterations, max speed).
+        progress: one bar over the probes and the empty scene ("probe k of n", one ETA; :class:`RunProgress`).
         source: a label for the result (the .ply path).
         source_frame: the JSON record of the frame the file was read in (``recon.formats.SourceFrame.to_json``),
             stored in RESULT.h5.
@@ -389,9 +434,26 @@ def _probe(
     started: float,
 ) -> PhysicsResult:
     """The probes and, with ``config.empty_reference``, the empty scene: the result on the simulated Gaussians."""
+    bar = RunProgress(plan, frame.config, progress)  # "probe k of n", one ETA over the probes and the empty scene
+    try:
+        return _probe_with(frame, solid, plan, bar, source, record, solidify_s, started)
+    finally:
+        bar.close()
+
+
+def _probe_with(
+    frame: RunFrame,
+    solid: SolidLattice,
+    plan: ProbePlan,
+    bar: RunProgress,
+    source: str,
+    record: RecordConfig | None,
+    solidify_s: float,
+    started: float,
+) -> PhysicsResult:
     config, scfg = frame.config, frame.config.solver_config()
     means, covs, reach = frame.means, frame.covariances, frame.reach
-    recorder = _ProbeRecorder(means, reach, config, progress, solid=solid, record=record, grid_bounds=plan.bounds)
+    recorder = _ProbeRecorder(means, reach, config, bar, solid=solid, record=record, grid_bounds=plan.bounds)
     base = dict(
         solid=np.asarray(solid.points, np.float64),
         transform=frame.transform,
@@ -424,7 +486,7 @@ def _probe(
     if not config.empty_reference:
         return result
     try:
-        empty, empty_s = empty_scene_probes(plan, means, reach, config, progress, _EMPTY_CACHE, lists=recorder.lists)
+        empty, empty_s = empty_scene_probes(plan, means, reach, config, bar, _EMPTY_CACHE, lists=recorder.lists)
     except SimulationDiverged as exc:
         probe = getattr(exc, "probe", "empty-scene")
         failure = {"probe": probe, "step": int(exc.step), "reason": exc.reason}

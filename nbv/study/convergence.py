@@ -1,4 +1,4 @@
-"""Convergence of D_g and of the candidate-view ranking across probe settings (issue 19, item 3).
+"""Convergence of D_g and of the candidate-view ranking across probe settings.
 
 Given several probe runs of the *same* Gaussian set at different settings (particle radius r, run length) and the
 candidate cameras, this module measures how much the per-Gaussian divergence D_g and the view ranking it gives

@@ -156,7 +156,7 @@ def check_scenes(config: ExperimentConfig) -> None:
             config.check_scene_views(scene, views)
 
 
-def collect_rows(results, jobs: list[dict], out: Path, bar) -> list[dict]:
+def collect_rows(results, out: Path, bar) -> list[dict]:
     """The result rows of ``results`` (the executor's (job, row) pairs) as they come; a failed job raises
     :class:`JobFailed` naming it."""
     rows = []
@@ -203,7 +203,7 @@ def run_experiment(config: ExperimentConfig, executor, progress: bool = True) ->
     with tqdm(total=len(jobs), desc="jobs", unit="job", disable=not progress) as bar:
         results = executor.map(run_job, jobs)
         try:
-            rows = collect_rows(results, jobs, out, bar)
+            rows = collect_rows(results, out, bar)
         finally:  # a signal here too stops the executor's workers (the generator's clean-up)
             close = getattr(results, "close", None)
             if close is not None:

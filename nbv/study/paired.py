@@ -1,7 +1,7 @@
 """Paired comparisons of two methods run on the same (scene, seed): wins, differences and their significance.
 
 Two runs of an experiment that share scene and seed share the initial views, the training seed and the planner
-seed, so the difference of a metric between two methods is measured per pair (issue 19). For each pair of methods
+seed, so the difference of a metric between two methods is measured per pair. For each pair of methods
 and each metric this module gives:
 
 - **wins / losses / ties**: pairs where the first method is better / worse / equal ("better" follows the
@@ -176,7 +176,7 @@ def paired_values(rows: Sequence[dict], first: str, second: str, key: str) -> tu
 def comparisons(methods: Sequence[str]) -> list[tuple[str, str]]:
     """(first, second) method pairs to compare, among ``methods``: each ``<visual>+fluid`` against ``<visual>``,
     ``<visual>+area`` and ``<visual>+shuffled``, and ``<visual>+area`` against ``<visual>``; then every other
-    ``<visual>+<candidate>`` (``fisher+fluid-occ``, ``fisher+excess``, ...; issue 19 item 4) against
+    ``<visual>+<candidate>`` (``fisher+fluid-occ``, ``fisher+excess``, ...) against
     ``<visual>+area``, ``<visual>+fluid`` and, except the control itself, ``<visual>+area-occ``."""
     have = set(methods)
     out = []

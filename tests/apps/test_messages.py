@@ -23,11 +23,11 @@ from fluidsim.simulation import build_solver
 from fluidsim.sources import mesh_particles, wall_particle_count, wall_particles
 from nbv import physics
 from nbv.physics import PhysicsConfig, floaters
+from nbv.physics.lattice import estimate_lattice_points
 from nbv.physics.solidify import (
     SceneTransform,
     SolidifyConfig,
     combined_opacity_reference,
-    estimate_lattice_points,
     gaussians_to_solid,
 )
 from nbv.study.experiment_config import ExperimentConfig

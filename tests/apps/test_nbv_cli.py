@@ -16,7 +16,7 @@ from recon.camera import Camera
 from recon.formats import load_gaussians
 from recon.gaussians import GaussianSet
 from recon.ply import save_gaussians
-from viz.video import probe_video
+from viz.video import video_info
 
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 
@@ -82,7 +82,7 @@ def test_simulate_outputs(scene):
     # colours follow D_g: the Gaussian with the largest D_g is not coloured like one with D_g = 0
     hi, lo = int(np.argmax(res.divergence)), int(np.argmin(res.divergence))
     assert (colored.sh[hi, 0] - colored.sh[lo, 0]).abs().max() > 0.5
-    info = probe_video(scene["root"] / "result_probe-x.mp4")  # --video takes render-frames' drawing options
+    info = video_info(scene["root"] / "result_probe-x.mp4")  # --video takes render-frames' drawing options
     assert (info.width, info.height) == (320, 240) and info.frames >= 2
 
 

@@ -444,10 +444,12 @@ def test_step_runs_the_stages_in_the_order_of_algorithm_1(h_r):
     assert counts.max() == 1  # Eq. 1 ran once, in one stage or the other
 
 
-def test_the_estimator_keeps_its_former_module_name():
-    from fluidsim import divergence, estimator
+def test_one_owner_chooses_the_path_of_eq1():
+    from fluidsim.estimator import FROM_GRADIENTS, FROM_GRID, FROM_LISTS, estimate_path
 
-    assert divergence.divergence_np is estimator.divergence_estimate_np
-    assert divergence.estimate_divergence_from_gradients is estimator.divergence_estimate_from_gradients
-    assert divergence.estimate_divergence_from_lists is estimator.divergence_estimate_from_lists
-    assert divergence.estimate_divergence_from_grid is estimator.divergence_estimate_from_grid
+    h = 0.1
+    assert estimate_path(h, h, h * (1 + 1e-12)) == FROM_GRADIENTS  # h_k = h (to rounding), h_r >= h
+    assert estimate_path(h, 2 * h, h) == FROM_GRADIENTS
+    assert estimate_path(h, h, 0.8 * h) == FROM_LISTS  # another kernel radius: the lists, filtered
+    assert estimate_path(h, 0.5 * h, h) == FROM_LISTS
+    assert estimate_path(h, 1.5 * h, 0.8 * h) == FROM_GRID  # beyond the lists with another kernel

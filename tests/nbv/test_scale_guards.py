@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from nbv.physics import scene_frame, solidify
+from nbv.physics import lattice, scene_frame, solidify
+from nbv.physics.lattice import estimate_lattice_points, estimate_work
 from nbv.physics.scene_frame import SceneTransform
-from nbv.physics.solidify import SolidifyConfig, estimate_lattice_points, estimate_work, gaussians_to_solid
+from nbv.physics.solidify import SolidifyConfig, gaussians_to_solid
 from recon.gaussians import GaussianSet
 
 BIKER = Path("/work/shared/real-splats/biker.compressed.ply")
@@ -61,14 +62,14 @@ def test_work_count_equals_the_kernels_boxes():
     ):
         tr = SceneTransform("z", 1.3)
         means, covs, opacities, _ = scene_frame.gaussian_arrays_in_sim(g, tr)
-        lattice_min, dims_f = solidify._lattice_geometry(means, covs, cfg, opacities)
+        lattice_min, dims_f = lattice.lattice_geometry(means, covs, cfg, opacities)
         dims = dims_f.astype(np.int64)
-        first, last = solidify._box_index_ranges(means, covs, lattice_min, dims, cfg)
+        first, last = lattice.box_index_ranges(means, covs, lattice_min, dims, cfg)
         expected = np.prod(np.maximum(last - first + 1, 0), axis=1)
         for axis in range(3 if cfg.thin else 0):
             first, last = solidify._edge_boxes(means, covs, lattice_min, dims, cfg, axis)
             expected = expected + np.prod(np.maximum(last - first + 1, 0), axis=1)
-        sizes = solidify._work_sizes(means, covs, lattice_min, dims, cfg)
+        sizes = lattice.work_sizes(means, covs, lattice_min, dims, cfg)
         np.testing.assert_array_equal(sizes, expected)
         assert estimate_work(g, cfg, tr) == int(expected.sum()) > 0
 
@@ -76,10 +77,10 @@ def test_work_count_equals_the_kernels_boxes():
 def _passes_the_guards(g: GaussianSet, cfg: SolidifyConfig, tr: SceneTransform) -> None:
     """The old fixed guard (64 work items per lattice point) refuses g; the time and memory guards let it run."""
     means, covs, opacities, _ = scene_frame.gaussian_arrays_in_sim(g, tr)
-    lattice_min, dims, points = solidify._lattice_or_raise(means, covs, cfg, tr, opacities)  # raises when refused
-    work = solidify._work_sizes(means, covs, lattice_min, dims, cfg).sum()
+    lattice_min, dims, points = lattice.checked_lattice(means, covs, cfg, tr, opacities)  # raises when refused
+    work = lattice.work_sizes(means, covs, lattice_min, dims, cfg).sum()
     assert 64 * points < work < cfg.max_work / 100
-    assert solidify.estimate_solidify_bytes(len(means), points) < 2**30
+    assert lattice.estimate_solidify_bytes(len(means), points) < 2**30
 
 
 def test_a_million_gaussian_surface_passes_the_guards():
@@ -130,7 +131,7 @@ def test_one_huge_opaque_gaussian_is_named_by_the_time_guard(monkeypatch):
 def test_the_memory_guard_names_the_figure_and_the_fix(monkeypatch):
     g = surface_gaussians(2000)
     cfg = SolidifyConfig(spacing=0.05, max_bytes=2**20)
-    need = solidify.estimate_solidify_bytes(2000, estimate_lattice_points(g, cfg, SceneTransform()))
+    need = lattice.estimate_solidify_bytes(2000, estimate_lattice_points(g, cfg, SceneTransform()))
     assert need > 2**20
     monkeypatch.setattr(solidify, "ti", _NoTaichi())
     with pytest.raises(ValueError, match=r"solidifying would need about .* GiB .*2,000 Gaussians.*--max-memory-gb"):

@@ -11,6 +11,7 @@ import torch
 
 from nbv.physics import solidify
 from nbv.physics.fill import connected_components, fill_enclosed, outside_region
+from nbv.physics.lattice import estimate_lattice_points
 from nbv.physics.scene_frame import gaussian_arrays_in_sim, inverse_covariances_in_sim
 from nbv.physics.solidify import (
     MAX_ALPHA,
@@ -18,7 +19,6 @@ from nbv.physics.solidify import (
     SolidifyConfig,
     combined_opacity_reference,
     edge_log_transmittance_reference,
-    estimate_lattice_points,
     gaussians_to_solid,
     lattice_cut_edges,
     lattice_edge_log_transmittance,

@@ -15,7 +15,7 @@ import pytest
 from apps import render_frames as cli
 from viz import frames as rf
 from viz.frames import FrameStyle, project, render_frames, scene_viewport
-from viz.video import probe_video, read_mp4
+from viz.video import read_mp4, video_info
 
 DOMAIN_MIN = np.array([0.0, 0.0, 0.0])
 DOMAIN_MAX = np.array([2.0, 1.0, 1.0])
@@ -355,7 +355,7 @@ def test_mp4_has_one_frame_per_h5_frame(tmp_path):
     out = tmp_path / "video" / "out.mp4"
     assert render_frames(h5, out, FrameStyle(width=W, height=H, fps=10), progress=False) == [out]
     assert [p.name for p in out.parent.iterdir()] == ["out.mp4"]  # the temporary file was renamed
-    info = probe_video(out)
+    info = video_info(out)
     assert (info.codec, info.pixel_format, info.width, info.height, info.frames) == ("h264", "yuv420p", W, H, 4)
     assert info.fps == pytest.approx(10.0)
     # the video shows what the PNG frames show: same hot pixel, and close overall
@@ -372,7 +372,7 @@ def test_odd_mp4_size_is_padded_by_one_edge_pixel(tmp_path):
     h5 = _write_h5(tmp_path / "OUT.h5", keys=("000000",))
     out = tmp_path / "odd.mp4"
     render_frames(h5, out, FrameStyle(width=W + 1, height=H + 1), progress=False)
-    info = probe_video(out)
+    info = video_info(out)
     assert (info.codec, info.width, info.height, info.frames) == ("h264", W + 2, H + 2, 1)
     frame = read_mp4(out)[0].astype(np.int64)
     # the padding repeats the last column and row (lossy: compared as the mean absolute difference)

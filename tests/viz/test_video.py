@@ -4,7 +4,7 @@ pixels close to the input on a smooth frame, odd sizes padded by one edge pixel,
 import numpy as np
 import pytest
 
-from viz.video import even_size, pad_to_even, probe_video, read_mp4, write_mp4
+from viz.video import even_size, pad_to_even, read_mp4, video_info, write_mp4
 
 
 def _smooth_frames(n: int, h: int, w: int) -> list[np.ndarray]:
@@ -42,7 +42,7 @@ def test_h264_yuv420p_faststart_and_close_to_the_input(tmp_path):
     frames = _smooth_frames(12, 120, 160)
     out = tmp_path / "clip.mp4"
     assert write_mp4(iter(frames), out, fps=24) == out
-    info = probe_video(out)
+    info = video_info(out)
     assert (info.codec, info.pixel_format, info.width, info.height, info.frames) == ("h264", "yuv420p", 160, 120, 12)
     assert info.fps == pytest.approx(24.0)
     boxes = _top_level_boxes(out)
@@ -73,7 +73,7 @@ def test_odd_frames_are_padded_with_their_edge(tmp_path):
     even = frame[:120, :160]
     assert pad_to_even(even) is even
     write_mp4([frame, frame], tmp_path / "odd.mp4", fps=5)
-    info = probe_video(tmp_path / "odd.mp4")
+    info = video_info(tmp_path / "odd.mp4")
     assert (info.width, info.height, info.frames) == (162, 122, 2)
     assert _psnr(read_mp4(tmp_path / "odd.mp4")[0][:121, :161], frame) > 30.0
 
