@@ -66,7 +66,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--save-result", type=Path, default=None, help="when simulating, also write RESULT.h5 here (default: none)"
     )
-    add_physics_arguments(p, track_distinct=True, cameras=True)
+    add_physics_arguments(p, track_distinct=True, cameras=True, replicas=True)
 
 
 log = logging.getLogger("fluidgs")
@@ -97,6 +97,7 @@ def run_command(args: argparse.Namespace) -> int:
         ranked_rows,
         reach_warning,
         render_size,
+        replicas_view_agreement,
         rows_agreement,
         torch_device,
     )
@@ -166,6 +167,16 @@ def run_command(args: argparse.Namespace) -> int:
     subset = critical_subset(scored.scores, args.subset).tolist()
     rows = ranked_rows(scored, cams, idx, value="critical_score")
     agreement = rows_agreement(rows, "critical_score")
+    if result.replicas is not None:  # each replica's own ranking by its |P_g|, against the others
+        agreement["replicas"] = replicas_view_agreement(
+            result.replicas,
+            result.replicas.distinct_counts(),
+            gaussians,
+            cams,
+            idx,
+            occlusion=occlusion,
+            device=args.device,
+        )
     print("\n".join(probe_lines(result)))
     warning = reach_warning(distinct, scored.seen, result.config, "fluid particle", "C")
     if warning is not None:

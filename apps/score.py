@@ -102,7 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     add_record_arguments(p)
     add_solid_export_arguments(p)
-    add_physics_arguments(p, cameras=True)
+    add_physics_arguments(p, cameras=True, replicas=True)
 
 
 def obtain_result(args, gaussians, config, record=None):
@@ -162,6 +162,7 @@ def run_command(args: argparse.Namespace) -> int:
         ranked_rows,
         reach_warning,
         render_size,
+        replicas_view_agreement,
         rows_agreement,
         torch_device,
         write_uncertainty_images,
@@ -227,6 +228,18 @@ def run_command(args: argparse.Namespace) -> int:
     )
     rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
     agreement = rows_agreement(rows)
+    if result.replicas is not None:  # each replica's own ranking, against the others
+        per_replica = result.replicas.metric_values(args.metric, result.directions)
+        agreement["replicas"] = replicas_view_agreement(
+            result.replicas,
+            per_replica,
+            gaussians,
+            cams,
+            idx,
+            weighted=not args.unweighted,
+            occlusion=occlusion,
+            device=args.device,
+        )
     print("\n".join(probe_lines(result)))
     warning = reach_warning(values, scored.seen, result.config)
     if warning is not None:
