@@ -244,7 +244,9 @@ def simulate_replicas(
     for k, offset in enumerate(offsets):
         t0 = time.perf_counter()
         if len(offsets) > 1:
-            log.info("replica %d of %d: lattice shifted by (%.3f, %.3f, %.3f) spacings", k + 1, len(offsets), *offset)
+            log.info(
+                "replica %d (of 0-%d): lattice shifted by (%.3f, %.3f, %.3f) spacings", k, len(offsets) - 1, *offset
+            )
         solid = frame.solidify(tuple(offset))
         try:
             results.append(
