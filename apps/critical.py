@@ -86,7 +86,7 @@ def run_command(args: argparse.Namespace) -> int:
     import torch
 
     from fluidsim.files import check_not_input, write_json_atomic
-    from nbv.coverage import agreement_lines
+    from nbv.coverage import agreement_lines, one_run_line
     from nbv.physics import check_result_matches, load_result, save_result, simulate_gaussians
     from nbv.scores import DepthBuffer, critical_subset, projected_view_scores
     from nbv.view_scoring import (
@@ -183,6 +183,8 @@ def run_command(args: argparse.Namespace) -> int:
         log.warning("%s", warning)
     print(format_table(rows, args.top_k, value="critical_score"))
     print("\n".join(agreement_lines(agreement, "fluid-particle count", "C")))
+    if result.replicas is None:
+        print(one_run_line("C"))
     print(f"critical subset ({len(subset)} views): {[idx[k] for k in subset]}")
     too_many = subset_warning(len(subset), len(idx))
     if too_many is not None:

@@ -149,7 +149,7 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
-    from nbv.coverage import agreement_lines
+    from nbv.coverage import agreement_lines, one_run_line
     from nbv.physics import ProbeDiverged
     from nbv.scores import rank
     from nbv.view_scoring import (
@@ -246,6 +246,8 @@ def run_command(args: argparse.Namespace) -> int:
         log.warning("%s", warning)
     print(format_table(rows, args.top_k))
     print("\n".join(agreement_lines(agreement)))
+    if result.replicas is None:
+        print(one_run_line())
     images = {}
     if png_dir is not None:
         order = rank(scored.scores).tolist()

@@ -154,6 +154,14 @@ def replicas_line(replicas: dict, symbol: str = "S") -> str:
     return f"replicas: {n} shifted lattices, {symbol}(T) from their mean; {ranking}{per_gaussian}"
 
 
+def one_run_line(symbol: str = "S") -> str:
+    """The printed line of a ranking from one probe run: its reproducibility over lattice positions is unmeasured."""
+    return (
+        f"replicas: 1 lattice position, so how far {symbol}(T) depends on where the lattice lies is not measured; "
+        "--replicas N runs N shifted lattices, averages over them and says how far their rankings agree"
+    )
+
+
 def agreement_lines(agreement: dict, physics: str = "physics", symbol: str = "S") -> list[str]:
     """The printed verdict on a ranking: the :func:`coverage_line`, and with replicas the :func:`replicas_line`."""
     lines = [coverage_line(agreement, physics, symbol)]

@@ -42,8 +42,9 @@ def test_score_reports_the_replicas_agreement(ply, tmp_path, capsys):
     assert cli.main([*args[:5], str(again), "--no-png", "--result", str(h5)]) == 0
     assert json.loads(again.read_text())["agreement"]["replicas"] == rep
     capsys.readouterr()
-    assert cli.main([*args, *FAST]) == 0  # one run: no replicas line, no replicas entry
-    assert "replicas:" not in capsys.readouterr().out
+    assert cli.main([*args, *FAST]) == 0  # one run: a note instead of the figures, no replicas entry
+    printed = capsys.readouterr().out
+    assert "replicas: 1 lattice position" in printed and "shifted lattices, S(T)" not in printed
     assert "replicas" not in json.loads(out.read_text())["agreement"]
 
 
