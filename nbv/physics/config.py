@@ -172,8 +172,12 @@ class PhysicsConfig:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-able dict (``from_dict`` reads it back)."""
+        """A JSON-able dict (``from_dict`` reads it back). ``replicas`` is left out at its default, 1, so that the
+        record of one run (RESULT.h5, scores.json, an active run's config.json) is the one written before replicas
+        existed, and such a run resumes."""
         d = asdict(self)
+        if self.replicas == 1:
+            del d["replicas"]
         d["directions"] = list(self.directions)
         d["solver"] = dict(self.solver)
         d["up"] = self.up if isinstance(self.up, str) else list(self.up)

@@ -210,3 +210,10 @@ def test_memory_check_counts_the_replicas(sphere):
         simulate_gaussians(sphere, PhysicsConfig(**COARSE, replicas=10**9, max_memory_gb=1.0), progress=False)
     with pytest.raises(ValueError, match="replicas"):
         PhysicsConfig(replicas=0)
+
+
+def test_config_records_replicas_only_when_more_than_one():
+    one, two = PhysicsConfig(), PhysicsConfig(replicas=2)
+    assert "replicas" not in one.to_dict()  # the record of one run is the one written before replicas existed
+    assert two.to_dict()["replicas"] == 2
+    assert PhysicsConfig.from_dict(one.to_dict()) == one and PhysicsConfig.from_dict(two.to_dict()) == two
