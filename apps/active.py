@@ -27,7 +27,7 @@ ACTIVE_FIELDS = (
     "seed",
 )
 TRAIN_FIELDS = ("init_points", "sh_degree", "max_gaussians")
-PHYSICS_FIELDS = ("particle_radius", "steps", "directions")
+PHYSICS_FIELDS = ("particle_radius", "steps", "directions", "replicas")
 
 
 def overrides() -> dict[str, dict]:
@@ -36,6 +36,7 @@ def overrides() -> dict[str, dict]:
     from nbv.plan.rules import describe_planners
 
     from .options import float_list, index_list
+    from .options.groups import probe_overrides
 
     return {
         "method": {"help": f"planner: {describe_planners()}"},
@@ -63,6 +64,7 @@ def overrides() -> dict[str, dict]:
         "particle_radius": {"help": "probe particle radius r, m"},
         "steps": {"flags": ("--probe-steps",), "dest": "probe_steps"},
         "directions": {"help": f"probes, comma list of {','.join(DIRECTIONS)}", "default_text": "all five"},
+        "replicas": probe_overrides()["replicas"],
     }
 
 

@@ -66,7 +66,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--save-result", type=Path, default=None, help="when simulating, also write RESULT.h5 here (default: none)"
     )
-    add_physics_arguments(p, track_distinct=True, cameras=True)
+    add_physics_arguments(p, track_distinct=True, cameras=True, replicas=True)
 
 
 log = logging.getLogger("fluidgs")
@@ -86,7 +86,7 @@ def run_command(args: argparse.Namespace) -> int:
     import torch
 
     from fluidsim.files import check_not_input, write_json_atomic
-    from nbv.coverage import agreement_lines
+    from nbv.coverage import agreement_lines, one_run_line
     from nbv.physics import check_result_matches, load_result, save_result, simulate_gaussians
     from nbv.scores import DepthBuffer, critical_subset, projected_view_scores
     from nbv.view_scoring import (
@@ -97,6 +97,7 @@ def run_command(args: argparse.Namespace) -> int:
         ranked_rows,
         reach_warning,
         render_size,
+        replicas_view_agreement,
         rows_agreement,
     )
     from recon.device import torch_device
@@ -166,12 +167,24 @@ def run_command(args: argparse.Namespace) -> int:
     subset = critical_subset(scored.scores, args.subset).tolist()
     rows = ranked_rows(scored, cams, idx, value="critical_score")
     agreement = rows_agreement(rows, "critical_score")
+    if result.replicas is not None:  # each replica's own ranking by its |P_g|, against the others
+        agreement["replicas"] = replicas_view_agreement(
+            result.replicas,
+            result.replicas.distinct_counts(),
+            gaussians,
+            cams,
+            idx,
+            occlusion=occlusion,
+            device=args.device,
+        )
     print("\n".join(probe_lines(result)))
     warning = reach_warning(distinct, scored.seen, result.config, "fluid particle", "C")
     if warning is not None:
         log.warning("%s", warning)
     print(format_table(rows, args.top_k, value="critical_score"))
     print("\n".join(agreement_lines(agreement, "fluid-particle count", "C")))
+    if result.replicas is None:
+        print(one_run_line("C"))
     print(f"critical subset ({len(subset)} views): {[idx[k] for k in subset]}")
     too_many = subset_warning(len(subset), len(idx))
     if too_many is not None:

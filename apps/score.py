@@ -102,7 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     add_record_arguments(p)
     add_solid_export_arguments(p)
-    add_physics_arguments(p, cameras=True)
+    add_physics_arguments(p, cameras=True, replicas=True)
 
 
 def obtain_result(args, gaussians, config, record=None):
@@ -149,7 +149,7 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
-    from nbv.coverage import agreement_lines
+    from nbv.coverage import agreement_lines, one_run_line
     from nbv.physics import ProbeDiverged
     from nbv.scores import rank
     from nbv.view_scoring import (
@@ -162,6 +162,7 @@ def run_command(args: argparse.Namespace) -> int:
         ranked_rows,
         reach_warning,
         render_size,
+        replicas_view_agreement,
         rows_agreement,
         write_uncertainty_images,
         write_view_pngs,
@@ -227,12 +228,26 @@ def run_command(args: argparse.Namespace) -> int:
     )
     rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
     agreement = rows_agreement(rows)
+    if result.replicas is not None:  # each replica's own ranking, against the others
+        per_replica = result.replicas.metric_values(args.metric, result.directions)
+        agreement["replicas"] = replicas_view_agreement(
+            result.replicas,
+            per_replica,
+            gaussians,
+            cams,
+            idx,
+            weighted=not args.unweighted,
+            occlusion=occlusion,
+            device=args.device,
+        )
     print("\n".join(probe_lines(result)))
     warning = reach_warning(values, scored.seen, result.config)
     if warning is not None:
         log.warning("%s", warning)
     print(format_table(rows, args.top_k))
     print("\n".join(agreement_lines(agreement)))
+    if result.replicas is None:
+        print(one_run_line())
     images = {}
     if png_dir is not None:
         order = rank(scored.scores).tolist()

@@ -61,7 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         " by --video (as render-frames; here the defaults are --view iso, --width 640, "
         "--height 480, and --fps makes the clip last about 8 s)",
     )
-    add_physics_arguments(p)
+    add_physics_arguments(p, replicas=True)
 
 
 def default_ply_path(output: Path) -> Path:
@@ -72,6 +72,7 @@ def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, check_writable
     from nbv.outputs import divergence_columns, probe_video, result_summary, save_colored_gaussians
     from nbv.physics import ProbeDiverged, save_result, simulate_gaussians
+    from nbv.physics.replicas import replicas_gaussian_line
 
     from .runtime import init_taichi
 
@@ -135,6 +136,8 @@ def run_command(args: argparse.Namespace) -> int:
             print(f"    WARNING: {w}")
     empty = "n/a" if result.dbar_empty is None else f"{result.dbar_empty:.4g}"
     print(f"D-bar {result.dbar:.4g} m^4/s (mean-combined {result.dbar_mean:.4g}; empty scene {empty})")
+    if result.replicas is not None:
+        print(replicas_gaussian_line(result.replicas))
     t = result.timings
     print(
         f"time: simulation {t['simulation']:.1f} s, aggregation {t['aggregation']:.2f} s, "

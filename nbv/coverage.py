@@ -137,9 +137,37 @@ def coverage_line(agreement: dict, physics: str = "physics", symbol: str = "S") 
     )
 
 
+def replicas_line(replicas: dict, symbol: str = "S") -> str:
+    """The printed line on how far the replicas of a probe run agree (``agreement["replicas"]``,
+    :func:`nbv.physics.replicas.replica_agreement`)."""
+    n, views, gaussians = replicas["count"], replicas["spearman_views_mean"], replicas["spearman_gaussians_mean"]
+    ranking = (
+        f"their view rankings agree at Spearman {views:.2f} (pairwise mean; min {replicas['spearman_views_min']:.2f})"
+        if views is not None
+        else "their view rankings cannot be compared (fewer than 3 views)"
+    )
+    per_gaussian = (
+        f", their D_g at {gaussians:.2f} per Gaussian (min {replicas['spearman_gaussians_min']:.2f})"
+        if gaussians is not None
+        else ""
+    )
+    return f"replicas: {n} shifted lattices, {symbol}(T) from their mean; {ranking}{per_gaussian}"
+
+
+def one_run_line(symbol: str = "S") -> str:
+    """The printed line of a ranking from one probe run: its reproducibility over lattice positions is unmeasured."""
+    return (
+        f"replicas: 1 lattice position, so how far {symbol}(T) depends on where the lattice lies is not measured; "
+        "--replicas N runs N shifted lattices, averages over them and says how far their rankings agree"
+    )
+
+
 def agreement_lines(agreement: dict, physics: str = "physics", symbol: str = "S") -> list[str]:
-    """The printed verdict on a ranking: the :func:`coverage_line` (further agreement figures follow it)."""
-    return [coverage_line(agreement, physics, symbol)]
+    """The printed verdict on a ranking: the :func:`coverage_line`, and with replicas the :func:`replicas_line`."""
+    lines = [coverage_line(agreement, physics, symbol)]
+    if agreement.get("replicas") is not None:
+        lines.append(replicas_line(agreement["replicas"], symbol))
+    return lines
 
 
 def format_number(value: float | None, digits: int = SCORE_DIGITS) -> str:

@@ -122,6 +122,23 @@ def project_scores(gaussians, cams, values, *, weighted: bool = True, occlusion:
     return scored
 
 
+def replicas_view_agreement(
+    replicas, values, gaussians, cams, idx: list[int], *, weighted: bool = True, occlusion: bool = True, device="cpu"
+) -> dict:
+    """``agreement["replicas"]`` of a ranking: each replica's view scores from its own per-Gaussian metric
+    (``values`` [N, G], e.g. :meth:`nbv.physics.replicas.ReplicaRuns.metric_values`), then
+    :func:`nbv.physics.replicas.replica_agreement` (their view rankings and D_g, pairwise)."""
+    from nbv.physics.replicas import replica_agreement  # noqa: PLC0415 - loads the physics (Taichi) only when used
+
+    per = np.stack(
+        [
+            project_scores(gaussians, cams, v, weighted=weighted, occlusion=occlusion, device=device).scores.numpy()
+            for v in np.asarray(values, np.float64)
+        ]
+    )
+    return replica_agreement(replicas, per, idx)
+
+
 def ranked_rows(scored, cams, idx: list[int], value: str = "score", visible_centres=None) -> list[dict]:
     """Rows of a :class:`nbv.scores.ProjectedScores`, best first: rank, index, name, ``value`` (S(T)), coverage
     A(T), physics_mean S/A, coverage_rank, physics_rank, visible (the Gaussians counted; and visible_centres when

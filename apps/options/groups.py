@@ -26,6 +26,7 @@ PROBE_FIELDS = (
 FRAME_FIELDS = ("up", "scale", "crop")
 SOLID_FIELDS = ("fill_cavities",)
 RUN_FIELDS = ("empty_reference", "max_memory_gb")
+REPLICA_FIELDS = ("replicas",)  # simulate, score and critical (add_physics_arguments(replicas=True))
 
 
 def probe_overrides(default_directions: str = "all five", cameras: bool = False) -> dict[str, dict]:
@@ -70,7 +71,24 @@ def probe_overrides(default_directions: str = "all five", cameras: bool = False)
             "default_text": "run it",
             "help": "skip the empty-scene D-bar reference (halves the run time)",
         },
+        "replicas": {
+            "metavar": "N",
+            "help": "run the probes N times, the solid lattice and the fluid slab shifted by a fraction of a "
+            "spacing each time (Halton offsets; the first unshifted), average D_g over them and report how far "
+            "they agree; costs N times the probe time",
+            "convert": replica_count,
+        },
     }
+
+
+def replica_count(value: int) -> int:
+    """--replicas: an integer >= 1 (ValueError naming the option)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(
+            f"--replicas must be a whole number of runs >= 1, got {value!r}; use 1 for one run, 2 or more to "
+            "average D_g over shifted lattices"
+        )
+    return value
 
 
 def _scale(text: str):
@@ -96,10 +114,15 @@ def add_frame_arguments(g, cameras: bool = False, scale: bool = True, crop: bool
 
 
 def add_physics_arguments(
-    p: argparse.ArgumentParser, track_distinct: bool = False, empty_reference: bool = True, cameras: bool = False
+    p: argparse.ArgumentParser,
+    track_distinct: bool = False,
+    empty_reference: bool = True,
+    cameras: bool = False,
+    replicas: bool = False,
 ) -> None:
     """The probe options shared by simulate, score, sweep, critical and bench score, generated from
-    :class:`nbv.physics.PhysicsConfig` (``empty_reference``: offer --no-empty-reference)."""
+    :class:`nbv.physics.PhysicsConfig` (``empty_reference``: offer --no-empty-reference; ``replicas``: offer
+    --replicas)."""
     config, quick = physics_config_class()
     over = probe_overrides("-x" if track_distinct else "all five", cameras)
     g = p.add_argument_group("probes")
@@ -112,6 +135,8 @@ def add_physics_arguments(
     add_config_options(g, config, PROBE_FIELDS, over, presets={"--quick": quick})
     add_config_options(g, config, FRAME_FIELDS + SOLID_FIELDS, over)
     add_config_options(g, config, RUN_FIELDS if empty_reference else RUN_FIELDS[1:], over)
+    if replicas:
+        add_config_options(g, config, REPLICA_FIELDS, over)
     add_runtime_arguments(p)
 
 
@@ -142,7 +167,8 @@ def physics_config_from_args(
     from nbv.physics import parse_directions
 
     config, quick = physics_config_class()
-    values = config_values(config, args, PROBE_FIELDS + FRAME_FIELDS + SOLID_FIELDS + RUN_FIELDS, probe_overrides())
+    fields = PROBE_FIELDS + FRAME_FIELDS + SOLID_FIELDS + RUN_FIELDS + REPLICA_FIELDS
+    values = config_values(config, args, fields, probe_overrides())
     if "directions" in values:
         values["directions"] = parse_directions(values["directions"])
     elif default_directions:
@@ -380,7 +406,7 @@ def result_overridden_options(args: argparse.Namespace) -> list[str]:
     fixes all of them, so with ``--result`` they are ignored."""
     over = probe_overrides()
     given = ["--quick"] if getattr(args, "quick", False) else []
-    for name in PROBE_FIELDS + FRAME_FIELDS + SOLID_FIELDS + RUN_FIELDS:
+    for name in PROBE_FIELDS + FRAME_FIELDS + SOLID_FIELDS + RUN_FIELDS + REPLICA_FIELDS:
         o = over.get(name, {})
         dest = o.get("dest", name)
         value = getattr(args, dest, None)

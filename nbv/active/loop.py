@@ -377,6 +377,7 @@ class ActiveRun:
                 "seconds": time.perf_counter() - t0,
                 "dbar": res.dbar,
                 "solid_particles": int(len(res.solid)),
+                **({} if res.replicas is None else {"replicas": res.replicas.summary()}),
                 "dbar_per_direction": {
                     d: scores.geometry_divergence(covs, torch.from_numpy(res.per_probe[i]))
                     for i, d in enumerate(res.directions)

@@ -57,6 +57,8 @@ class PhysicsConfig:
         empty_reference: also run the probes without the solid for the empty-scene D-bar.
         precision: "f32" or "f64"; must match the Taichi runtime's default float.
         max_memory_gb: refuse to start above this estimated memory, GiB (None: the available memory).
+        replicas: run the probes this many times, the solid lattice and the fluid slab shifted by a fraction of a
+            spacing each time, and average D_g over the runs (1: one run; :mod:`nbv.physics.replicas`).
         solver: extra ``fluidsim.SolverConfig`` fields (tolerances, iteration bounds), as (key, value) pairs.
             The estimator radii h_r, h_k default to 4 r (the paper's 0.1 m at r = 0.025 m) unless given here.
     """
@@ -80,6 +82,7 @@ class PhysicsConfig:
     empty_reference: bool = True
     precision: str = "f32"
     max_memory_gb: float | None = None
+    replicas: int = 1
     solver: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
@@ -91,7 +94,7 @@ class PhysicsConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"PhysicsConfig.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("steps", "accumulate_every"):
+        for name in ("steps", "accumulate_every", "replicas"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"PhysicsConfig.{name} must be an integer >= 1, got {v!r}")
@@ -169,8 +172,12 @@ class PhysicsConfig:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-able dict (``from_dict`` reads it back)."""
+        """A JSON-able dict (``from_dict`` reads it back). ``replicas`` is left out at its default, 1, so that the
+        record of one run (RESULT.h5, scores.json, an active run's config.json) is the one written before replicas
+        existed, and such a run resumes."""
         d = asdict(self)
+        if self.replicas == 1:
+            del d["replicas"]
         d["directions"] = list(self.directions)
         d["solver"] = dict(self.solver)
         d["up"] = self.up if isinstance(self.up, str) else list(self.up)

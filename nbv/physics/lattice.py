@@ -49,7 +49,8 @@ def solid_boxes(means: np.ndarray, covs: np.ndarray, opacities: np.ndarray, conf
 def lattice_geometry(
     means: np.ndarray, covs: np.ndarray, config: SolidifyConfig, opacities: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Lattice origin (snapped to a multiple of the spacing) and point counts per axis (float64, may be huge).
+    """Lattice origin (snapped to a multiple of the spacing, plus ``config.lattice_offset`` spacings) and point
+    counts per axis (float64, may be huge).
 
     The lattice spans the boxes of the Gaussians that can make solid (:func:`solid_boxes`), so a faint floater,
     however large, does not widen it."""
@@ -63,7 +64,8 @@ def lattice_geometry(
                 f"[{lo.tolist()}, {hi.tolist()}] (sim metres); widen the bounds or check the scale"
             )
     s = config.spacing
-    lattice_min = np.floor(lo / s) * s
+    offset = np.asarray(config.lattice_offset, np.float64)  # spacings; 0: exactly the multiples of s
+    lattice_min = (np.floor(lo / s - offset) + offset) * s
     dims = np.floor((hi - lattice_min) / s + 1e-9) + 1.0
     return lattice_min, np.maximum(dims, 1.0)
 

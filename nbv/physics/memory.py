@@ -35,6 +35,15 @@ BYTES_PER_GAUSSIAN_PROBE = 24
 
 BYTES_PER_LATTICE_POINT = 2
 
+# Per Gaussian and replica, with PhysicsConfig.replicas > 1 (nbv.physics.replicas): each replica's result is held until
+# they are combined (D_g max and mean 16 B, with a crop its own centres, covariances and reach 104 B) and so are its
+# rows in the combined result's ReplicaRuns (reached 1 B, rounded up to 8).
+BYTES_PER_GAUSSIAN_REPLICA = 128
+
+# Per Gaussian, probe and replica: the result's rows (D_g^(IC), samples, distinct counts, empty-scene D_g^(IC): 32 B)
+# and the ReplicaRuns rows (D_g^(IC) and distinct counts: 16 B).
+BYTES_PER_GAUSSIAN_REPLICA_PROBE = 48
+
 
 def estimate_memory(
     gaussians,
@@ -54,13 +63,14 @@ def estimate_memory(
     scattered Gaussians widen the box but make no solid. Uses the per-particle byte counts ``BYTES_PER_*``
     and the solid lattice estimate of :func:`nbv.physics.lattice.estimate_lattice_points`.
 
-    The bytes add the Gaussians held all run to the larger of the solidification's peak
-    (:func:`nbv.physics.lattice.estimate_solidify_bytes`) and one probe's (its solver, and the per-Gaussian
-    accumulator's :meth:`nbv.physics.aggregate.GaussianAccumulator.estimate_bytes`).
+    The bytes add the Gaussians held all run, and with ``config.replicas`` > 1 the replicas' per-Gaussian arrays, to
+    the larger of the solidification's peak (:func:`nbv.physics.lattice.estimate_solidify_bytes`) and one probe's
+    (its solver, and the per-Gaussian accumulator's :meth:`nbv.physics.aggregate.GaussianAccumulator.estimate_bytes`);
+    the replicas run one after another, so the peak of one probe does not grow with them.
 
     Returns:
         dict: lattice_points, fluid_particles (largest probe), boundary_particles, and the bytes (floats):
-        resident_bytes, solidify_bytes, probe_bytes, accumulator_bytes and their total ``bytes``.
+        resident_bytes, replica_bytes, solidify_bytes, probe_bytes, accumulator_bytes and their total ``bytes``.
 
     ``sim``: the Gaussians already in the simulation frame (:class:`~nbv.physics.scene_frame.SimGaussians`, with
     ``transform``), so that they are not converted again. ``setups``: the probes already laid out around
@@ -102,13 +112,15 @@ def estimate_memory(
 
 def _memory_parts(gaussians, config: PhysicsConfig, lattice: int, fluid: int, boundary: int) -> dict[str, float]:
     """The bytes of :func:`estimate_memory`: the Gaussian set and the per-Gaussian arrays held all run
-    (``resident_bytes``), the solidification's peak (``solidify_bytes``), one probe's solver (``probe_bytes``) and
-    its accumulator (``accumulator_bytes``), and ``bytes`` = resident + the larger of the two phases."""
+    (``resident_bytes``), the replicas' arrays (``replica_bytes``, 0 for one run), the solidification's peak
+    (``solidify_bytes``), one probe's solver (``probe_bytes``) and its accumulator (``accumulator_bytes``), and
+    ``bytes`` = resident + replicas + the larger of the two phases."""
     g = int(gaussians.num)
     tensors = (gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh)
     resident = sum(t.numel() * t.element_size() for t in tensors) + g * (
         BYTES_PER_GAUSSIAN_RUN + BYTES_PER_GAUSSIAN_PROBE * len(config.directions)
     )
+    replicas = replica_bytes(g, config)
     solidify = estimate_solidify_bytes(g, lattice)
     probe = fluid * BYTES_PER_FLUID + boundary * BYTES_PER_BOUNDARY + lattice * BYTES_PER_LATTICE_POINT
     radii = gaussians.log_scales.detach().max(dim=1).values.double().exp().cpu().numpy()  # ratios: scale-free
@@ -121,11 +133,20 @@ def _memory_parts(gaussians, config: PhysicsConfig, lattice: int, fluid: int, bo
     )
     return {
         "resident_bytes": float(resident),
+        "replica_bytes": float(replicas),
         "solidify_bytes": float(solidify),
         "probe_bytes": float(probe),
         "accumulator_bytes": float(accumulator),
-        "bytes": float(resident + max(solidify, probe + accumulator)),
+        "bytes": float(resident + replicas + max(solidify, probe + accumulator)),
     }
+
+
+def replica_bytes(num_gaussians: int, config: PhysicsConfig) -> float:
+    """Bytes the replicas of a run keep per Gaussian (:mod:`nbv.physics.replicas`): 0 for one run."""
+    if config.replicas == 1:
+        return 0.0
+    per_replica = BYTES_PER_GAUSSIAN_REPLICA + BYTES_PER_GAUSSIAN_REPLICA_PROBE * len(config.directions)
+    return float(config.replicas) * float(num_gaussians) * per_replica
 
 
 def check_memory_bound(frame) -> bool:
@@ -145,7 +166,7 @@ def check_memory_bound(frame) -> bool:
     exact = cheap["bytes"] > memory_limit_bytes(config)
     if exact and (
         cheap["lattice_points"] > config.solidify_config().max_points
-        or cheap["resident_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)
+        or cheap["resident_bytes"] + cheap["replica_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)
     ):
         check_memory(sim.gaussians, config, frame.transform, sim=sim)  # the solid is too costly: raise
     return exact
@@ -173,12 +194,21 @@ def check_memory(
     limit = memory_limit_bytes(config)
     if est["bytes"] > limit:
         available = "allowed (--max-memory-gb)" if config.max_memory_gb is not None else "available"
-        gib = {k: est[k] / 2**30 for k in ("resident_bytes", "solidify_bytes", "probe_bytes", "accumulator_bytes")}
+        gib = {
+            k: est[k] / 2**30
+            for k in ("resident_bytes", "replica_bytes", "solidify_bytes", "probe_bytes", "accumulator_bytes")
+        }
+        replicas = (
+            f", {gib['replica_bytes']:.3g} GiB for the {config.replicas} replicas' per-Gaussian arrays"
+            if est["replica_bytes"]
+            else ""
+        )
         raise ValueError(
             f"the probe would need about {est['bytes'] / 2**30:.4g} GiB ({est['fluid_particles']:,} fluid and "
             f"{est['boundary_particles']:,} boundary particles at r = {config.particle_radius} m, a solid lattice of "
             f"{est['lattice_points']:,} points, {gaussians.num:,} Gaussians: {gib['resident_bytes']:.3g} GiB for the "
-            f"Gaussians, then {gib['solidify_bytes']:.3g} GiB to solidify, {gib['probe_bytes']:.3g} GiB per probe and "
+            f"Gaussians{replicas}, then {gib['solidify_bytes']:.3g} GiB to solidify, {gib['probe_bytes']:.3g} GiB "
+            "per probe and "
             f"{gib['accumulator_bytes']:.3g} GiB for its per-Gaussian accumulator) but {limit / 2**30:.3g} GiB are "
             f"{available}{_memory_fix(gaussians, config, transform, est, limit, sim)}"
         )
@@ -188,8 +218,17 @@ def check_memory(
 def _memory_fix(
     gaussians, config: PhysicsConfig, transform, est: dict[str, float], limit: float, sim: SimGaussians | None = None
 ) -> str:
-    """The advice of :func:`check_memory`: the Gaussian that alone widens the lattice, if one does (a larger
-    radius cannot help then), else the particle radius that would fit, if the object is still resolved."""
+    """The advice of :func:`check_memory`: fewer replicas when they alone make the difference, else the Gaussian
+    that alone widens the lattice, if one does (a larger radius cannot help then), else the particle radius that
+    would fit, if the object is still resolved."""
+    if est["replica_bytes"] and est["bytes"] - est["replica_bytes"] <= limit:
+        per_replica = est["replica_bytes"] / config.replicas
+        fits = max(1, int((limit - (est["bytes"] - est["replica_bytes"])) // per_replica))
+        return (
+            f"; --replicas {config.replicas} is too many for this memory: each replica keeps "
+            f"{per_replica / 2**30:.3g} GiB of per-Gaussian arrays, so use --replicas {fits} or fewer, or allow more "
+            "memory (--max-memory-gb)"
+        )
     transform = transform if transform is not None else scene_transform(gaussians, config)
     spacing = 2.0 * config.particle_radius
     scfg = config.solidify_config(max_points=2**62)

@@ -80,10 +80,12 @@ class RunFrame:
         """[K, 3, 3] float64 covariances of the simulated Gaussians, m^2."""
         return np.ascontiguousarray(self.sim.covariances, np.float64)
 
-    def solidify(self) -> SolidLattice:
+    def solidify(self, lattice_offset: tuple[float, float, float] | None = None) -> SolidLattice:
         """The solid of the simulated Gaussians (:func:`nbv.physics.solidify.gaussians_to_solid` under
-        ``config.solidify_config()``)."""
-        return gaussians_to_solid(self.sim, self.config.solidify_config(), self.transform)
+        ``config.solidify_config()``; ``lattice_offset``: the lattice shifted by these fractions of the spacing, as
+        a replica of the run is, :mod:`nbv.physics.replicas`)."""
+        extra = {} if lattice_offset is None else {"lattice_offset": tuple(lattice_offset)}
+        return gaussians_to_solid(self.sim, self.config.solidify_config(**extra), self.transform)
 
     def expand(self, result: PhysicsResult) -> PhysicsResult:
         """A :class:`nbv.physics.PhysicsResult` on the simulated Gaussians -> one row per Gaussian of the run (the

@@ -19,6 +19,7 @@ from fluidsim.files import check_input_file
 from nbv.io import atomic_h5
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.leaks import read_probe_leaks, write_probe_leaks
+from nbv.physics.replicas import ReplicaRuns, read_replicas, write_replicas
 from nbv.physics.scene_frame import SceneTransform, gaussian_arrays_in_sim
 from nbv.physics.trajectory import (
     read_trajectory,
@@ -60,6 +61,8 @@ class PhysicsResult:
             empty in files written before it.
         trajectories: per recorded direction, its fluid every k steps (:class:`nbv.physics.trajectory.ProbeTrajectory`;
             only with ``record``); :func:`load_result` reads them only when asked (``trajectories=True``).
+        replicas: with ``config.replicas`` > 1, what each replica gave (:class:`nbv.physics.replicas.ReplicaRuns`);
+            the fields above are then the replicas combined (:mod:`nbv.physics.replicas`). None: one run.
     """
 
     directions: tuple[str, ...]
@@ -91,6 +94,7 @@ class PhysicsResult:
     failure: dict[str, Any] | None = None
     leaks: dict[str, Any] = field(default_factory=dict)
     trajectories: dict[str, Any] = field(default_factory=dict)
+    replicas: ReplicaRuns | None = None
 
     @property
     def num_gaussians(self) -> int:
@@ -160,6 +164,11 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         attributes too: gaussians_sha256 (:func:`gaussians_sha256`), status ("complete" or "diverged": then
                     /probes holds the probes completed before it, and diverged_probe, diverged_step,
                     diverged_reason say which probe diverged at which step and why)
+        /replicas               only with config.replicas > 1 (:func:`nbv.physics.replicas.write_replicas`):
+                                offsets (N, 3) spacings, D (N, P, G) each replica's D_g^(IC), distinct (N, P, G),
+                                reached (N, G); attributes solid_points, seconds, spearman_gaussians_mean, _min,
+                                _pairs (the per-Gaussian Spearman of D_g between replicas). The datasets above
+                                are then the replicas combined.
 
     Returns:
         the path written.
@@ -201,6 +210,8 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         if result.failure is not None:
             for key in ("probe", "step", "reason"):
                 f.attrs[f"diverged_{key}"] = result.failure[key]
+        if result.replicas is not None:
+            write_replicas(f, result.replicas)
     return p
 
 
@@ -291,6 +302,7 @@ def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
                     for d, pg in zip(dirs, probes, strict=True)
                     if trajectories and "trajectory" in pg
                 },
+                replicas=read_replicas(f),
             )
     except (OSError, KeyError) as exc:
         raise ValueError(f"cannot read the result file {p}: {exc}; re-run `fluidgs simulate`") from exc

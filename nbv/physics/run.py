@@ -45,6 +45,7 @@ from nbv.physics.config import PhysicsConfig
 from nbv.physics.leaks import LeakCounter
 from nbv.physics.memory import check_memory, check_memory_bound
 from nbv.physics.plan import ProbePlan, RunFrame
+from nbv.physics.replicas import simulate_replicas
 from nbv.physics.result import PhysicsResult, ProbeDiverged, _t
 from nbv.physics.solidify import SolidLattice
 from nbv.physics.trajectory import RecordConfig, TrajectoryRecorder, check_record_size
@@ -343,7 +344,8 @@ def simulate_gaussians(
         record: a :class:`nbv.physics.trajectory.RecordConfig`: keep those probes' fluid every k steps in
             ``PhysicsResult.trajectories`` (None: nothing recorded).
     Returns:
-        PhysicsResult.
+        PhysicsResult; with ``config.replicas`` > 1, the replicas combined
+        (:func:`nbv.physics.replicas.simulate_replicas`).
     Raises:
         ValueError: bad Gaussians, an empty solid, a run too large for memory, a time step too large for the
             particle spacing (CFL), or a recording too large or of a probe not run, before any simulation.
@@ -355,18 +357,21 @@ def simulate_gaussians(
     frame = RunFrame.of(gaussians, config, source)  # Sec. 3.2: the kept Gaussians in simulation metres, Y-up
     exact_memory = check_memory_bound(frame)  # the Gaussians' box fits, or the solid will be checked
     t0 = time.perf_counter()
-    solid = frame.solidify()  # Sec. 3.2: the static boundary (opacity >= tau, filled)
     try:
-        result = simulate_solid(
-            frame,
-            solid,
-            progress,
-            source,
-            record,
-            exact_memory=exact_memory,
-            solidify_s=time.perf_counter() - t0,
-            started=started,
-        )
+        if config.replicas > 1:  # the probes once per shifted lattice, combined
+            result = simulate_replicas(frame, progress, source, record, exact_memory=exact_memory, started=started)
+        else:
+            solid = frame.solidify()  # Sec. 3.2: the static boundary (opacity >= tau, filled)
+            result = simulate_solid(
+                frame,
+                solid,
+                progress,
+                source,
+                record,
+                exact_memory=exact_memory,
+                solidify_s=time.perf_counter() - t0,
+                started=started,
+            )
     except ProbeDiverged as exc:
         exc.result = replace(exc.result, source_frame=source_frame)
         raise

@@ -107,6 +107,9 @@ class SolidifyConfig:
         carve_margin: space carving keeps the points within this many spacings in front of a depth map's
             surface. 0 (default): the Gaussians' own solid points are never carved, so no margin is needed to
             keep the surface, and each spacing of margin grows the carved body by about that much.
+        lattice_offset: (3,) where the lattice sits, in spacings, each in [0, 1): its points are
+            (lattice_offset + (i, j, k)) spacing. (0, 0, 0) (default): the multiples of the spacing. Replicas of a
+            probe run (:mod:`nbv.physics.replicas`) shift it to sample the same Gaussians at other lattice positions.
     """
 
     spacing: float
@@ -120,6 +123,7 @@ class SolidifyConfig:
     bounds: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     min_points: int = 8
     carve_margin: float = 0.0
+    lattice_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.spacing) and self.spacing > 0):
@@ -157,6 +161,18 @@ class SolidifyConfig:
                     f"SolidifyConfig.bounds must be finite with min < max on every axis, got {self.bounds!r}"
                 )
             object.__setattr__(self, "bounds", (tuple(lo.tolist()), tuple(hi.tolist())))
+        try:
+            offset = np.asarray(self.lattice_offset, dtype=np.float64).reshape(3)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"SolidifyConfig.lattice_offset must be 3 fractions of the spacing, got {self.lattice_offset!r}"
+            ) from exc
+        if not (np.isfinite(offset).all() and (offset >= 0).all() and (offset < 1).all()):
+            raise ValueError(
+                "SolidifyConfig.lattice_offset must be 3 fractions of the spacing in [0, 1), "
+                f"got {self.lattice_offset!r}"
+            )
+        object.__setattr__(self, "lattice_offset", tuple(offset.tolist()))
 
 
 @dataclass(frozen=True)
@@ -165,7 +181,8 @@ class SolidLattice:
 
     Attributes:
         points: [M, 3] float64 simulation metres, the lattice points that are solid.
-        lattice_min: [3] simulation metres, lattice point (0, 0, 0) (a multiple of the spacing).
+        lattice_min: [3] simulation metres, lattice point (0, 0, 0) (a multiple of the spacing, plus the
+            config's ``lattice_offset`` spacings).
         lattice_shape: (X, Y, Z) lattice points per axis.
         occupancy: [X, Y, Z] bool, the solid points (point (i, j, k) is lattice_min + spacing (i, j, k)).
         spacing: the lattice spacing, m.
