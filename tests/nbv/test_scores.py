@@ -344,6 +344,9 @@ def test_bench_views_smoke(tmp_path, capsys):
     report = json.loads(out.read_text())
     assert report["ranking"]["spearman"] == pytest.approx(1.0) and report["timing"]["gaussians"] == 1000
     assert 0.0 <= report["ranking"]["occlusion"]["verdict_agreement"] <= 1.0
+    assert "M Gaussian-views/s" in text and text.count("same counts: True") == 2  # frustum and depth test
+    assert [r["depth_test"] for r in report["timing"]["reference"]] == [False, True]
+    assert all(r["max_relative_difference"] < 1e-12 and r["views"] == 3 for r in report["timing"]["reference"])
     assert cli.main(["bench", "views", "--gaussians", str(ply), "--count", "0", "--no-ranking"]) == 2
 
 
@@ -355,9 +358,21 @@ def test_time_projected_scores_figures():
 
     g, _, _ = _scene(200, seed=3)
     t = time_projected_scores(
-        g, np.linspace(0.1, 1.0, 200), count=500, views=4, width=24, seed=1, occlusion=True, device=torch.device("cpu")
+        g,
+        np.linspace(0.1, 1.0, 200),
+        count=500,
+        views=4,
+        width=24,
+        seed=1,
+        occlusion=True,
+        device=torch.device("cpu"),
+        threads=2,
+        reference_views=2,
     )
-    assert (t["gaussians"], t["views"], t["width"]) == (500, 4, 24)
+    assert (t["gaussians"], t["views"], t["width"], t["height"], t["threads"]) == (500, 4, 24, 18, 2)
+    assert t["gaussian_views_per_s"] == pytest.approx(4 * 500 / t["total_s"])
+    assert t["occlusion_gaussian_views_per_s"] == pytest.approx(4 * 500 / t["occlusion_total_s"])
+    assert [r["views"] for r in t["reference"]] == [2, 2] and all(r["counted_equal"] for r in t["reference"])
     assert t["per_view_ms"] == pytest.approx(1e3 * t["total_s"] / 4)
     assert t["ns_per_pair"] == pytest.approx(1e9 * t["total_s"] / (4 * 500))
     assert 0.0 < t["visible_fraction"] <= 1.0 and t["peak_rss_mib"] >= t["rss_before_mib"] > 0
