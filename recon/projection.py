@@ -179,6 +179,54 @@ def _screen_terms(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewConstants):
     return u, v, tz, a, b, c
 
 
+def _screen_terms_in_place(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewConstants):
+    """:func:`_screen_terms` without gradients, in fewer and reused buffers (no new values: the same operations on
+    the same operands in the same order, so the same bits; a test holds the two together).
+
+    About 20 % faster on the CPU at 32k-element blocks, where the ~60 temporaries of :func:`_screen_terms` do not
+    stay in the cache.
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = cam.rot
+    s00, s01, s02, s11, s12, s22 = sigma
+
+    def row(a, b, c, t):  # x a + y b + z c + t
+        out = x * a
+        out += y * b
+        out += z * c
+        out += t
+        return out
+
+    def dot(a0, b0, a1, b1, a2, b2):  # a0 b0 + a1 b1 + a2 b2
+        out = a0 * b0
+        out += a1 * b1
+        out += a2 * b2
+        return out
+
+    def edge(r, s, q):  # r - s q
+        out = s * q
+        return torch.sub(r, out, out=out)
+
+    tx, ty, tz = row(r00, r01, r02, cam.trans[0]), row(r10, r11, r12, cam.trans[1]), row(r20, r21, r22, cam.trans[2])
+    inv_z = tz.clamp_min(cam.near).reciprocal_()
+    xz, yz = tx.mul_(inv_z), ty.mul_(inv_z)
+    u, v = xz * cam.fx, yz * cam.fy
+    u += cam.cx
+    v += cam.cy
+    sx, sy = xz.clamp_(-cam.lim_x, cam.lim_x), yz.clamp_(-cam.lim_y, cam.lim_y)
+    e00, e01, e02 = edge(r00, sx, r20), edge(r01, sx, r21), edge(r02, sx, r22)
+    e10, e11, e12 = edge(r10, sy, r20), edge(r11, sy, r21), edge(r12, sy, r22)
+    p0, p1, p2 = dot(s00, e00, s01, e01, s02, e02), dot(s01, e00, s11, e01, s12, e02), dot(s02, e00, s12, e01, s22, e02)
+    q0, q1, q2 = dot(s00, e10, s01, e11, s02, e12), dot(s01, e10, s11, e11, s12, e12), dot(s02, e10, s12, e11, s22, e12)
+    inv_z2 = inv_z.mul_(inv_z)
+    a, b, c = dot(e00, p0, e01, p1, e02, p2), dot(e10, p0, e11, p1, e12, p2), dot(e10, q0, e11, q1, e12, q2)
+    a *= inv_z2 * cam.fxx
+    a += DILATION
+    b *= inv_z2 * cam.fxy
+    c *= inv_z2 * cam.fyy
+    c += DILATION
+    return u, v, tz, a, b, c
+
+
 def _footprint_radii(u, v, tz, a, c, det, cam: ViewConstants) -> torch.Tensor:
     """Float radii ceil(3 sqrt(lambda_max)) of visible footprints, 0 for culled ones, [N] (no gradient).
 
@@ -187,15 +235,25 @@ def _footprint_radii(u, v, tz, a, c, det, cam: ViewConstants) -> torch.Tensor:
     sign of one min over the margins) because torch's comparisons and ``where`` cost 5-50 times an
     arithmetic op on the CPU.
     """
-    mid = (a + c) * 0.5
-    lam_max = torch.sqrt((mid * mid - det).clamp_min(0.0)) + mid
-    radii = torch.ceil(torch.sqrt(lam_max) * EXTENT_SIGMAS).clamp_max(MAX_RADIUS)
-    margin = torch.minimum(
-        torch.minimum(_axis_margin(u, radii, cam.mid_x, cam.half_x), _axis_margin(v, radii, cam.mid_y, cam.half_y)),
-        torch.minimum(radii - 1.0, tz - cam.near_up),
-    )
+    # in place on its own temporaries (the inputs are left alone): fewer buffers, the same operations and bits
+    mid = a + c
+    mid *= 0.5
+    radii = mid * mid  # lambda_max = sqrt(max(mid^2 - det, 0)) + mid, then r = min(ceil(3 sqrt(lambda_max)), MAX)
+    radii -= det
+    radii.clamp_min_(0.0).sqrt_()
+    radii += mid
+    radii.sqrt_()
+    radii *= EXTENT_SIGMAS
+    radii.ceil_().clamp_max_(MAX_RADIUS)
+    margin = torch.minimum(_axis_margin(u, radii, cam.mid_x, cam.half_x), _axis_margin(v, radii, cam.mid_y, cam.half_y))
+    below = radii - 1.0
+    torch.minimum(below, tz - cam.near_up, out=below)
+    torch.minimum(margin, below, out=margin)
     # sign(margin) + 1 is 0 exactly when some margin is < 0; NaN anywhere (non-finite input) culls too
-    return (radii * (torch.sign(margin) + 1.0).clamp_max(1.0)).nan_to_num(0.0)
+    margin.sign_()
+    margin += 1.0
+    radii *= margin.clamp_max_(1.0)
+    return radii.nan_to_num_(0.0)
 
 
 def _axis_range(center: torch.Tensor, radii: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -217,7 +275,9 @@ def _axis_margin(center: torch.Tensor, radii: torch.Tensor, mid: torch.Tensor, h
     only for a centre within one ulp of that interval's ends; both projection paths evaluate this same
     expression, so they agree there too.)
     """
-    return (radii + half) - (center - mid).abs()
+    out = radii + half
+    out -= (center - mid).abs_()
+    return out
 
 
 def footprint_boxes(
@@ -382,8 +442,9 @@ def view_blocks(
         for n0 in range(0, terms.num, block):
             cols = slice(n0, min(n0 + block, terms.num))
             with inline_ops(terms.xyz.device):
-                u, v, tz, a, b, c = _screen_terms(*terms.xyz[:, cols], terms.sigma[:, cols].unbind(0), cam)
-                det = a * c - b * b
+                u, v, tz, a, b, c = _screen_terms_in_place(*terms.xyz[:, cols], terms.sigma[:, cols].unbind(0), cam)
+                det = a * c
+                det -= b.mul_(b)
                 radii = _footprint_radii(u, v, tz, a, c, det, cam)
             yield VisibilityBlock(index, cols, radii, u, v, tz, det)
 

@@ -14,7 +14,6 @@ log-normal stand-in (:func:`stand_in_divergence`): the check is about radii and 
 
 from __future__ import annotations
 
-import math
 import resource
 import time
 from pathlib import Path
@@ -23,10 +22,19 @@ import numpy as np
 import torch
 
 from nbv.bench.dense_sets import jittered_to_count
+from nbv.orbit import Orbit, orbit_cameras
 from nbv.physics import check_result_matches, load_result
-from nbv.scores import DepthBuffer, coarse_unoccluded, projected_view_scores, rank, unoccluded, view_scores
+from nbv.physics.config import PhysicsConfig
+from nbv.scores import (
+    DepthBuffer,
+    coarse_unoccluded,
+    projected_view_scores,
+    projected_view_scores_reference,
+    rank,
+    unoccluded,
+    view_scores,
+)
 from nbv.study.convergence import spearman
-from recon.camera_paths import random_sphere
 from recon.projection import project_visibility
 from recon.render import render
 
@@ -108,41 +116,96 @@ def compare_with_renders(gaussians, cams, d: np.ndarray, occlusion: bool, device
     return out
 
 
+def _timed(score, *args, **kwargs):
+    """(result, wall s, process CPU s) of one call."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    out = score(*args, **kwargs)
+    return out, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def largest_relative_difference(got: torch.Tensor, expected: torch.Tensor) -> float:
+    """max_c |got_c - expected_c| / |expected_c| of two [C] score vectors (0 / 0 counts as 0)."""
+    diff = (got - expected).abs()
+    return float(torch.where(diff > 0, diff / expected.abs().clamp_min(torch.finfo(torch.float64).tiny), 0.0).max())
+
+
 def time_projected_scores(
-    gaussians, d: np.ndarray, count: int, views: int, width: int, seed: int, occlusion: bool, device
+    gaussians,
+    d: np.ndarray,
+    count: int,
+    views: int,
+    width: int,
+    seed: int,
+    occlusion: bool,
+    device,
+    *,
+    threads: int | None = None,
+    reference_views: int = 0,
 ) -> dict:
     """Time :func:`nbv.scores.projected_view_scores` on ``gaussians`` densified to ``count`` (``fluidgs bench views``).
 
     The set is densified by jittered copies (:func:`nbv.bench.dense_sets.jittered_to_count`), its metric is ``d`` [G]
-    repeated, and it is scored from ``views`` cameras on a sphere of radius 6 around the origin (50 degree field of
-    view, ``width`` x ``width`` pixels, no PNGs).
+    repeated, and it is scored from an orbit of ``views`` cameras around it (:func:`nbv.orbit.orbit_cameras`: the
+    candidates of ``--cameras orbit:N``, ``width`` x 3/4 ``width`` pixels, no PNGs). With ``reference_views`` > 0
+    the one-thread twin (:func:`nbv.scores.projected_view_scores_reference`) and the fast path score the first
+    ``reference_views`` cameras one after the other: the ratio of their times and the largest relative difference
+    of their scores.
 
     Returns:
-        ``gaussians``, ``views``, ``width``, ``total_s`` (wall), ``cpu_s``, ``per_view_ms``, ``ns_per_pair``,
-        ``visible_fraction`` of the (camera, Gaussian) pairs, ``peak_rss_mib`` / ``rss_before_mib`` (MiB) and, with
-        ``occlusion``, ``occlusion_total_s`` (the same scoring with the coarse :class:`nbv.scores.DepthBuffer`).
+        ``gaussians``, ``views``, ``width``, ``height``, ``threads``, ``total_s`` (wall), ``cpu_s``,
+        ``per_view_ms``, ``ns_per_pair``, ``gaussian_views_per_s``, ``visible_fraction`` of the (camera, Gaussian)
+        pairs, ``peak_rss_mib`` / ``rss_before_mib`` (MiB); with ``occlusion`` the same scoring with the coarse
+        :class:`nbv.scores.DepthBuffer`: ``occlusion_total_s``, ``occlusion_cpu_s``,
+        ``occlusion_gaussian_views_per_s``, ``counted_fraction``; with ``reference_views``, ``reference``: a list of
+        {``depth_test``, ``views``, ``reference_s``, ``fast_s``, ``speedup``, ``max_relative_difference``}.
     """
     big = jittered_to_count(gaussians, count, seed).to(device)
     metric = torch.from_numpy(np.resize(d, count))
-    cams = random_sphere(views, 6.0, width, width, math.radians(50.0), seed=seed)
+    cams = orbit_cameras(big, PhysicsConfig(), Orbit(views, width=width))
+    workers = threads or torch.get_num_threads()
+    pairs = len(cams) * big.num
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    t, cpu = time.perf_counter(), time.process_time()
-    scored = projected_view_scores(metric, big, cams)
-    total, cpu = time.perf_counter() - t, time.process_time() - cpu
+    scored, total, cpu = _timed(projected_view_scores, metric, big, cams, threads=workers)
     out = {
         "gaussians": big.num,
         "views": len(cams),
-        "width": width,
+        "width": cams[0].width,
+        "height": cams[0].height,
+        "threads": workers,
         "total_s": total,
         "cpu_s": cpu,
         "per_view_ms": 1e3 * total / len(cams),
-        "ns_per_pair": 1e9 * total / (len(cams) * big.num),
-        "visible_fraction": float(scored.counted.sum()) / (len(cams) * big.num),
-        "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-        "rss_before_mib": rss_before,
+        "ns_per_pair": 1e9 * total / pairs,
+        "gaussian_views_per_s": pairs / total,
+        "visible_fraction": float(scored.counted.sum()) / pairs,
     }
     if occlusion:
-        t = time.perf_counter()
-        projected_view_scores(metric, big, cams, depth_buffer=DepthBuffer())
-        out["occlusion_total_s"] = time.perf_counter() - t
+        hidden, total, cpu = _timed(
+            projected_view_scores, metric, big, cams, depth_buffer=DepthBuffer(), threads=workers
+        )
+        out.update(
+            occlusion_total_s=total,
+            occlusion_cpu_s=cpu,
+            occlusion_gaussian_views_per_s=pairs / total,
+            counted_fraction=float(hidden.counted.sum()) / pairs,
+        )
+    if reference_views > 0:
+        few = cams[: min(reference_views, len(cams))]
+        out["reference"] = []
+        for config in (None, DepthBuffer()) if occlusion else (None,):
+            expected, ref_s, _ = _timed(projected_view_scores_reference, metric, big, few, depth_buffer=config)
+            got, fast_s, _ = _timed(projected_view_scores, metric, big, few, depth_buffer=config, threads=workers)
+            out["reference"].append(
+                {
+                    "depth_test": config is not None,
+                    "views": len(few),
+                    "reference_s": ref_s,
+                    "fast_s": fast_s,
+                    "speedup": ref_s / fast_s,
+                    "max_relative_difference": largest_relative_difference(got.scores, expected.scores),
+                    "counted_equal": bool(torch.equal(got.counted, expected.counted)),
+                }
+            )
+    out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out["rss_before_mib"] = rss_before
     return out

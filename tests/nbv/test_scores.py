@@ -8,6 +8,7 @@ import torch
 
 from nbv import scores
 from recon.camera import Camera
+from recon.projection import project_visibility_reference
 
 
 @dataclass
@@ -343,6 +344,9 @@ def test_bench_views_smoke(tmp_path, capsys):
     report = json.loads(out.read_text())
     assert report["ranking"]["spearman"] == pytest.approx(1.0) and report["timing"]["gaussians"] == 1000
     assert 0.0 <= report["ranking"]["occlusion"]["verdict_agreement"] <= 1.0
+    assert "M Gaussian-views/s" in text and text.count("same counts: True") == 2  # frustum and depth test
+    assert [r["depth_test"] for r in report["timing"]["reference"]] == [False, True]
+    assert all(r["max_relative_difference"] < 1e-12 and r["views"] == 3 for r in report["timing"]["reference"])
     assert cli.main(["bench", "views", "--gaussians", str(ply), "--count", "0", "--no-ranking"]) == 2
 
 
@@ -354,10 +358,90 @@ def test_time_projected_scores_figures():
 
     g, _, _ = _scene(200, seed=3)
     t = time_projected_scores(
-        g, np.linspace(0.1, 1.0, 200), count=500, views=4, width=24, seed=1, occlusion=True, device=torch.device("cpu")
+        g,
+        np.linspace(0.1, 1.0, 200),
+        count=500,
+        views=4,
+        width=24,
+        seed=1,
+        occlusion=True,
+        device=torch.device("cpu"),
+        threads=2,
+        reference_views=2,
     )
-    assert (t["gaussians"], t["views"], t["width"]) == (500, 4, 24)
+    assert (t["gaussians"], t["views"], t["width"], t["height"], t["threads"]) == (500, 4, 24, 18, 2)
+    assert t["gaussian_views_per_s"] == pytest.approx(4 * 500 / t["total_s"])
+    assert t["occlusion_gaussian_views_per_s"] == pytest.approx(4 * 500 / t["occlusion_total_s"])
+    assert [r["views"] for r in t["reference"]] == [2, 2] and all(r["counted_equal"] for r in t["reference"])
     assert t["per_view_ms"] == pytest.approx(1e3 * t["total_s"] / 4)
     assert t["ns_per_pair"] == pytest.approx(1e9 * t["total_s"] / (4 * 500))
     assert 0.0 < t["visible_fraction"] <= 1.0 and t["peak_rss_mib"] >= t["rss_before_mib"] > 0
     assert t["occlusion_total_s"] > 0
+
+
+# ---- the fast projected scores against their one-thread twin ----------------------------------------------------
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("occlusion", [False, True])
+@pytest.mark.parametrize("weighted", [True, False])
+def test_fast_path_equals_its_twin(dtype, occlusion, weighted):
+    """Counted Gaussians and seen flags exactly; S(T) and A(T) exactly without the depth test (the same block sums
+    in the same order), to the float64 summation order with it (the twin sums each view in one dot product)."""
+    g, cams, metric = _scene(500, seed=4, dtype=dtype)
+    configs = (
+        [scores.DepthBuffer(), scores.DepthBuffer(cell_radii=2.5, depth_bins=3, min_alpha=0.3)] if occlusion else [None]
+    )
+    for config in configs:
+        ref = scores.projected_view_scores_reference(metric, g, cams, weighted=weighted, depth_buffer=config, block=97)
+        assert 0 < int(ref.counted.min()) and int(ref.counted.max()) <= g.num
+        for threads in (1, 2, 3, 8):
+            got = scores.projected_view_scores(
+                metric, g, cams, weighted=weighted, depth_buffer=config, block=97, threads=threads
+            )
+            assert got.counted.tolist() == ref.counted.tolist(), (config, threads)
+            assert got.seen.dtype == torch.bool and torch.equal(got.seen, ref.seen)
+            if config is None:
+                assert torch.equal(got.scores, ref.scores) and torch.equal(got.coverage, ref.coverage)
+            else:
+                assert torch.allclose(got.scores, ref.scores, rtol=1e-12, atol=0)
+                assert torch.allclose(got.coverage, ref.coverage, rtol=1e-12, atol=0)
+
+
+def test_depth_tested_view_hides_what_the_whole_array_test_hides():
+    """Per view, the Gaussians counted with the depth test are those of :func:`coarse_unoccluded` (the test on
+    whole arrays), and some visible ones are hidden."""
+    g, cams, _ = _scene(600, seed=3, dtype=torch.float64)
+    ones = torch.ones(g.num, dtype=torch.float64)
+    config = scores.DepthBuffer()
+    counted = scores.projected_view_scores(ones, g, cams, weighted=False, depth_buffer=config, block=131, threads=2)
+    whole = scores.coarse_unoccluded(g, cams, config)
+    assert counted.counted.tolist() == whole.sum(1).tolist()
+    assert counted.scores.tolist() == whole.sum(1).double().tolist()  # unweighted, M = 1: S(T) is the count
+    radii, _ = project_visibility_reference(g, cams)
+    assert (whole.sum(1) < (radii > 0).sum(1)).any()
+
+
+def test_radii_are_the_renderers():
+    """Unweighted, M_g = one-hot: S(T) says whether g counts; weighted, A(T) of one Gaussian is pi R^2 / (H W) with
+    R the renderer's radius, in every camera and with every thread count."""
+    g, cams, _ = _scene(40, seed=5)
+    radii, _ = project_visibility_reference(g, cams)
+    for i in range(0, g.num, 7):
+        one = torch.zeros(g.num, dtype=torch.float64)
+        one[i] = 1.0
+        got = scores.projected_view_scores(one, g, cams, threads=2)
+        expected = [
+            min(math.pi * float(r) ** 2 / (c.width * c.height), 1.0) for r, c in zip(radii[:, i], cams, strict=True)
+        ]
+        assert got.scores.tolist() == pytest.approx(expected, rel=1e-15, abs=0)
+
+
+def test_threads_bad_input_and_a_view_of_nothing():
+    g, cams, metric = _scene(50)
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="threads"):
+            scores.projected_view_scores(metric, g, cams, threads=bad)
+    away = Camera.look_at((0, 0, 5), (0, 0, 10), (0, 1, 0), 16, 16, math.radians(40))  # looks away from the set
+    for config in (None, scores.DepthBuffer()):
+        got = scores.projected_view_scores(metric, g, [away, cams[0]], depth_buffer=config, threads=2)
+        assert float(got.scores[0]) == 0.0 and int(got.counted[0]) == 0 and float(got.coverage[0]) == 0.0
+        assert int(got.counted[1]) > 0

@@ -186,3 +186,45 @@ def test_bad_input_raises_value_errors():
         project_visibility(gaussians.means, [cam])
     with pytest.raises(ValueError, match="float32 or float64"):
         project_visibility(gaussians.to(dtype=torch.float16), [cam])
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_in_place_core_gives_the_same_bits(dtype):
+    """The batched path's in-place core and footprint equal the differentiable core and the out-of-place footprint
+    (the formulas of the module docstring written as plain expressions) bit for bit, NaN and clamped radii included."""
+    from recon.projection import (
+        EXTENT_SIGMAS,
+        ViewConstants,
+        _footprint_radii,
+        _screen_terms,
+        _screen_terms_in_place,
+        covariance_terms,
+    )
+
+    gaussians = _random_set(3000, seed=11, dtype=dtype)
+    gaussians.log_scales[:5] = 20.0  # radius clamped to MAX_RADIUS
+    gaussians.log_scales[5:10] = 60.0  # overflowing covariance: NaN, culled
+    sigma = [t.detach() for t in covariance_terms(gaussians)]
+    x, y, z = gaussians.means.detach().T
+    checked = 0
+    for cam in _cameras(seed=12):
+        k = ViewConstants.of(cam, NEAR_PLANE, gaussians.means)
+        u, v, tz, a, b, c = _screen_terms(x, y, z, sigma, k)
+        got = _screen_terms_in_place(x, y, z, sigma, k)
+        for name, want, have in zip("u v tz a b c".split(), (u, v, tz, a, b, c), got, strict=True):
+            assert torch.equal(want.nan_to_num(7.0), have.nan_to_num(7.0)), name
+        det = a * c - b * b
+        mid = (a + c) * 0.5
+        radii = torch.ceil(torch.sqrt(torch.sqrt((mid * mid - det).clamp_min(0.0)) + mid) * EXTENT_SIGMAS)
+        radii = radii.clamp_max(MAX_RADIUS)
+        margins = [
+            (radii + half) - (w - centre).abs() for w, centre, half in ((u, k.mid_x, k.half_x), (v, k.mid_y, k.half_y))
+        ]
+        margin = torch.minimum(torch.minimum(*margins), torch.minimum(radii - 1.0, tz - k.near_up))
+        expected = (radii * (torch.sign(margin) + 1.0).clamp_max(1.0)).nan_to_num(0.0)
+        inputs = [t.clone() for t in (u, v, tz, a, c, det)]
+        assert torch.equal(_footprint_radii(u, v, tz, a, c, det, k), expected)
+        for before, after in zip(inputs, (u, v, tz, a, c, det), strict=True):  # the inputs are left alone
+            assert torch.equal(before.nan_to_num(7.0), after.nan_to_num(7.0))
+        checked += int((expected > 0).sum())
+    assert checked > 1000
