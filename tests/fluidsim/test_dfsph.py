@@ -9,7 +9,7 @@ from fluidsim import (
     ProbeConfig,
     SolverConfig,
     dfsph,
-    divergence,
+    estimator,
     grid,
     neighbors,
     probe_setup,
@@ -45,7 +45,7 @@ def test_resting_block_keeps_rest_density_and_stays_at_rest():
 
 
 def _count_compiled():
-    mods = (dfsph, divergence, grid, neighbors, viscosity)
+    mods = (dfsph, estimator, grid, neighbors, viscosity)
     total = 0
     for m in mods:
         for obj in vars(m).values():
