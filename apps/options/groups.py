@@ -25,7 +25,8 @@ PROBE_FIELDS = (
 )
 FRAME_FIELDS = ("up", "scale", "crop")
 SOLID_FIELDS = ("fill_cavities",)
-RUN_FIELDS = ("empty_reference", "max_memory_gb")
+RUN_FIELDS = ("empty_reference", "empty_cache", "max_memory_gb")
+EMPTY_FIELDS = ("empty_reference", "empty_cache")  # offered only where the empty scene runs
 
 
 def probe_overrides(default_directions: str = "all five", cameras: bool = False) -> dict[str, dict]:
@@ -70,6 +71,15 @@ def probe_overrides(default_directions: str = "all five", cameras: bool = False)
             "default_text": "run it",
             "help": "skip the empty-scene D-bar reference (halves the run time)",
         },
+        "empty_cache": {
+            "flags": ("--no-cache",),
+            "dest": "no_cache",
+            "negate": True,
+            "default_text": "use the cache: $FLUIDGS_CACHE_DIR, else $XDG_CACHE_HOME/fluidgs or ~/.cache/fluidgs, "
+            "at most $FLUIDGS_CACHE_MAX_GB GiB (default 4)",
+            "help": "simulate the empty-scene reference afresh instead of accumulating its cached fluid (bit-identical "
+            "either way), and store nothing",
+        },
     }
 
 
@@ -111,7 +121,7 @@ def add_physics_arguments(
     )
     add_config_options(g, config, PROBE_FIELDS, over, presets={"--quick": quick})
     add_config_options(g, config, FRAME_FIELDS + SOLID_FIELDS, over)
-    add_config_options(g, config, RUN_FIELDS if empty_reference else RUN_FIELDS[1:], over)
+    add_config_options(g, config, tuple(f for f in RUN_FIELDS if empty_reference or f not in EMPTY_FIELDS), over)
     add_runtime_arguments(p)
 
 
