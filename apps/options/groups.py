@@ -76,7 +76,7 @@ def probe_overrides(default_directions: str = "all five", cameras: bool = False)
             "dest": "no_cache",
             "negate": True,
             "default_text": "use the cache: $FLUIDGS_CACHE_DIR, else $XDG_CACHE_HOME/fluidgs or ~/.cache/fluidgs, "
-            "at most $FLUIDGS_CACHE_MAX_GB GiB (default 4)",
+            "at most $FLUIDGS_CACHE_MAX_GB GiB, 4 unless set",
             "help": "simulate the empty-scene reference afresh instead of accumulating its cached fluid (bit-identical "
             "either way), and store nothing",
         },
