@@ -163,7 +163,12 @@ def physics_config_from_args(
         values["empty_reference"] = False  # commands without the option never run the empty scene
     if preset is None:
         preset = quick if getattr(args, "quick", False) else {}
-    return config(**{**preset, **values, "track_distinct": track_distinct, **extra})
+    cfg = config(**{**preset, **values, "track_distinct": track_distinct, **extra})
+    if cfg.empty_reference and cfg.empty_cache:
+        from nbv.physics.empty_cache import max_bytes_from_env
+
+        max_bytes_from_env()  # a bad FLUIDGS_CACHE_MAX_GB is exit 2 before Taichi starts
+    return cfg
 
 
 def up_from_args(args: argparse.Namespace, cameras=None):

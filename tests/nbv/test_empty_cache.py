@@ -219,3 +219,23 @@ def test_simulate_uses_the_cache_unless_told_not_to(monkeypatch, tmp_path):
     with pytest.raises(ValueError, match="FLUIDGS_CACHE_MAX_GB"):
         simulate_gaussians(g, cfg, progress=False)
     assert not built
+
+
+def test_a_bad_bound_is_refused_by_the_command_line(monkeypatch, tmp_path, caplog):
+    from apps import cli
+    from recon.ply import save_gaussians
+
+    ply = save_gaussians(_sphere(), tmp_path / "g.ply")
+    monkeypatch.setenv("FLUIDGS_CACHE_MAX_GB", "lots")
+    argv = ["simulate", str(ply), "-o", str(tmp_path / "r.h5"), "--steps", "2", "--particle-radius", "0.08"]
+    try:
+        code = int(cli.main(argv) or 0)
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2 and "FLUIDGS_CACHE_MAX_GB='lots'" in caplog.text
+    assert not (tmp_path / "r.h5").exists()
+    try:  # --no-cache does not read the bound
+        code = int(cli.main([*argv, "--no-cache", "--no-empty-reference", "--dt", "0.004"]) or 0)
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 0
