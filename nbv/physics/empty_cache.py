@@ -25,9 +25,13 @@ D_g from the cache is the same bits as the one accumulated during the simulation
   removed and rebuilt, never read.
 - **An unwritable folder** turns the cache off for the rest of the run with one warning.
 
+A second kind of entry keeps the means of those samples accumulated onto one set of Gaussians (:func:`means_key`:
+the samples' key, the Gaussians' centres and reach, the accumulator's source; 8 bytes per Gaussian), so that a run
+on the same Gaussians skips the accumulation too.
+
 File layout of an entry ``<key>.empty``: 8 bytes :data:`MAGIC`, a little-endian u64 header length, a JSON header
-(format, key, float type, samples, steps, payload bytes, payload SHA-256), then the payload: the particles per step
-[S] int64, the positions [N, 3] and the values [N] of the solver's float type.
+(format, key, the arrays' names, types and shapes, payload bytes, payload SHA-256), then the arrays: the particles
+per step [S] int64, the positions [N, 3] and the values [N] of the solver's float type; or the means [G] float64.
 """
 
 from __future__ import annotations
@@ -57,7 +61,6 @@ DEFAULT_MAX_GB = 4.0
 # A temporary file older than this was left by a killed writer (a live writer's is younger): removed on eviction.
 STALE_TEMP_S = 24 * 3600.0
 _HEADER_LIMIT = 1 << 16
-_FLOATS = {"f32": np.dtype("<f4"), "f64": np.dtype("<f8")}
 
 
 @dataclass(frozen=True)
@@ -73,10 +76,6 @@ class EmptySamples:
     positions: np.ndarray
     values: np.ndarray
     step_counts: np.ndarray
-
-    @property
-    def float_name(self) -> str:
-        return "f64" if self.positions.dtype == np.float64 else "f32"
 
     @property
     def nbytes(self) -> int:
@@ -105,6 +104,14 @@ class SampleRecorder:
         return EmptySamples(np.ascontiguousarray(x), np.ascontiguousarray(v), counts)
 
 
+def _source_digest(files) -> str:
+    h = hashlib.sha256()
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
 @functools.cache
 def code_digest() -> str:
     """SHA-256 of the source that makes the empty scene's fluid: the ``fluidsim`` package, the probe runner and this
@@ -112,11 +119,23 @@ def code_digest() -> str:
     import fluidsim  # noqa: PLC0415 - its path only
     from nbv.physics import run  # noqa: PLC0415 - run imports this module
 
-    files = sorted(Path(fluidsim.__file__).parent.rglob("*.py")) + [Path(run.__file__), Path(__file__)]
-    h = hashlib.sha256()
-    for f in files:
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
+    return _source_digest(sorted(Path(fluidsim.__file__).parent.rglob("*.py")) + [Path(run.__file__), Path(__file__)])
+
+
+@functools.cache
+def accumulator_digest() -> str:
+    """SHA-256 of the accumulator's source (``nbv/physics/aggregate*.py``): what turns samples into means."""
+    return _source_digest(sorted(Path(__file__).parent.glob("aggregate*.py")))
+
+
+def means_key(samples_key: str, centers: np.ndarray, reach: np.ndarray) -> str:
+    """The entry of the means of the samples under ``samples_key`` accumulated onto these Gaussians ([G, 3] centres
+    and [G] reach, sim metres): a run on the same Gaussians skips the accumulation too."""
+    h = hashlib.sha256(f"{samples_key}:{accumulator_digest()}:means".encode())
+    for a in (centers, reach):
+        a = np.ascontiguousarray(a, np.float64)
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
     return h.hexdigest()
 
 
@@ -208,7 +227,18 @@ class EmptyCache:
 
     # -- reading -----------------------------------------------------------------------------------
     def load(self, key: str) -> EmptySamples | None:
-        """The entry of ``key``, or None when there is none or it is damaged (logged, removed: it is rebuilt)."""
+        """The fluid samples under ``key``, or None when there are none or the entry is damaged (logged, removed: it
+        is rebuilt)."""
+        arrays = self._read(key, ("step_counts", "positions", "values"))
+        return None if arrays is None else EmptySamples(arrays["positions"], arrays["values"], arrays["step_counts"])
+
+    def load_means(self, key: str, num_gaussians: int) -> np.ndarray | None:
+        """The [G] float64 means accumulated under ``key`` (:func:`means_key`: these samples onto these Gaussians),
+        or None as :meth:`load`."""
+        arrays = self._read(key, ("means",), num_gaussians)
+        return None if arrays is None else arrays["means"]
+
+    def _read(self, key: str, names: tuple[str, ...], num_gaussians: int | None = None) -> dict | None:
         if self.disabled:
             return None
         p = self.path(key)
@@ -220,7 +250,9 @@ class EmptyCache:
             log.warning("empty-scene cache entry %s cannot be read (%s); the empty scene is simulated", p, exc)
             return None
         try:
-            samples = _decode(data, key)
+            arrays = _decode(data, key, names)
+            if num_gaussians is not None and arrays["means"].shape != (num_gaussians,):
+                raise ValueError(f"{arrays['means'].shape[0]} means for {num_gaussians} Gaussians")
         except ValueError as exc:
             log.warning(
                 "empty-scene cache entry %s is damaged (%s); ignored, the empty scene is simulated again", p, exc
@@ -231,15 +263,24 @@ class EmptyCache:
             os.utime(p)  # the entry was used: the last to go
         except OSError:
             pass
-        return samples
+        return arrays
 
     # -- writing -----------------------------------------------------------------------------------
     def save(self, key: str, samples: EmptySamples) -> bool:
         """Store ``samples`` under ``key`` (atomically), then keep the folder within the bound. An unwritable folder
         turns this cache off with one warning. Returns whether the entry was stored."""
+        return self._write(
+            key, {"step_counts": samples.step_counts, "positions": samples.positions, "values": samples.values}
+        )
+
+    def save_means(self, key: str, means: np.ndarray) -> bool:
+        """Store [G] float64 means under ``key`` (:func:`means_key`), as :meth:`save`."""
+        return self._write(key, {"means": np.asarray(means, np.float64)})
+
+    def _write(self, key: str, arrays: dict[str, np.ndarray]) -> bool:
         if self.disabled:
             return False
-        header, payload_parts = _encode(samples, key)
+        header, payload_parts = _encode(arrays, key)
         size = len(header) + sum(len(b) for b in payload_parts)
         if size > self.max_bytes:
             log.info("empty-scene entry of %.3g GB exceeds the cache bound (%s); not stored", size / 1e9, CACHE_MAX_ENV)
@@ -312,22 +353,26 @@ class EmptyCache:
         return removed
 
 
-def _encode(samples: EmptySamples, key: str) -> tuple[bytes, list[bytes]]:
-    dtype = _FLOATS[samples.float_name]
-    parts = [
-        np.ascontiguousarray(samples.step_counts, "<i8").tobytes(),
-        np.ascontiguousarray(samples.positions, dtype).tobytes(),
-        np.ascontiguousarray(samples.values, dtype).tobytes(),
-    ]
+_DTYPES = ("<f4", "<f8", "<i8")
+
+
+def _encode(arrays: dict[str, np.ndarray], key: str) -> tuple[bytes, list[bytes]]:
+    """(header, payload parts) of an entry holding ``arrays`` (little-endian f4, f8 or i8)."""
+    parts, layout = [], []
     h = hashlib.sha256()
-    for part in parts:
+    for name, a in arrays.items():
+        a = np.asarray(a)
+        dtype = a.dtype.newbyteorder("<")
+        if dtype.str not in _DTYPES:
+            raise ValueError(f"{name}: dtype {a.dtype} is not one of {_DTYPES}")
+        part = np.ascontiguousarray(a, dtype).tobytes()
         h.update(part)
+        parts.append(part)
+        layout.append([name, dtype.str, list(a.shape)])
     head = {
         "format": FORMAT_VERSION,
         "key": key,
-        "float": samples.float_name,
-        "samples": len(samples.values),
-        "steps": len(samples.step_counts),
+        "arrays": layout,
         "payload_bytes": sum(len(p) for p in parts),
         "sha256": h.hexdigest(),
     }
@@ -335,8 +380,9 @@ def _encode(samples: EmptySamples, key: str) -> tuple[bytes, list[bytes]]:
     return MAGIC + len(text).to_bytes(8, "little") + text, parts
 
 
-def _decode(data: bytes, key: str) -> EmptySamples:
-    """The samples of an entry's bytes; ValueError naming what is wrong (magic, header, key, size, hash)."""
+def _decode(data: bytes, key: str, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The arrays ``names`` of an entry's bytes (read-only views); ValueError naming what is wrong (magic, header,
+    key, layout, size, hash, and for fluid samples the steps' counts)."""
     if len(data) < 16 or data[:8] != MAGIC:
         raise ValueError("not an empty-scene cache entry (wrong magic)")
     n_head = int.from_bytes(data[8:16], "little")
@@ -344,31 +390,34 @@ def _decode(data: bytes, key: str) -> EmptySamples:
         raise ValueError(f"header of {n_head} bytes in a file of {len(data)}")
     try:
         head = json.loads(data[16 : 16 + n_head])
-        fmt, entry_key, name = head["format"], head["key"], head["float"]
-        n, steps, n_payload, digest = (
-            int(head["samples"]),
-            int(head["steps"]),
-            int(head["payload_bytes"]),
-            str(head["sha256"]),
-        )
+        fmt, entry_key, digest = head["format"], head["key"], str(head["sha256"])
+        n_payload = int(head["payload_bytes"])
+        layout = [(str(n), str(d), tuple(int(k) for k in shape)) for n, d, shape in head["arrays"]]
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"unreadable header ({exc})") from None
     if fmt != FORMAT_VERSION:
         raise ValueError(f"format {fmt}, expected {FORMAT_VERSION}")
     if entry_key != key:
         raise ValueError(f"it holds key {str(entry_key)[:12]}..., not {key[:12]}... (a foreign entry)")
-    if name not in _FLOATS or n < 0 or steps < 0:
-        raise ValueError(f"float type {name!r}, {n} samples, {steps} steps")
-    dtype = _FLOATS[name]
-    expected = 8 * steps + 4 * dtype.itemsize * n
-    if n_payload != expected or len(data) != 16 + n_head + n_payload:
-        raise ValueError(f"{len(data)} bytes, expected {16 + n_head + expected} (truncated or padded)")
+    if tuple(n for n, _, _ in layout) != names:
+        raise ValueError(f"it holds {[n for n, _, _ in layout]}, not {list(names)}")
+    if any(d not in _DTYPES or any(k < 0 for k in shape) for _, d, shape in layout):
+        raise ValueError(f"bad array layout {layout}")
+    sizes = [np.dtype(d).itemsize * math.prod(shape) for _, d, shape in layout]
+    if n_payload != sum(sizes) or len(data) != 16 + n_head + n_payload:
+        raise ValueError(f"{len(data)} bytes, expected {16 + n_head + sum(sizes)} (truncated or padded)")
     payload = memoryview(data)[16 + n_head :]
     if hashlib.sha256(payload).hexdigest() != digest:
         raise ValueError("the payload's SHA-256 differs from the header's")
-    counts = np.frombuffer(payload, "<i8", steps, 0)
-    positions = np.frombuffer(payload, dtype, 3 * n, 8 * steps).reshape(n, 3)
-    values = np.frombuffer(payload, dtype, n, 8 * steps + 3 * n * dtype.itemsize)
-    if int(counts.sum()) != n or (counts < 0).any():
-        raise ValueError(f"the steps' particle counts sum to {int(counts.sum())}, not {n}")
-    return EmptySamples(positions, values, counts)
+    out, offset = {}, 0
+    for (name, d, shape), size in zip(layout, sizes, strict=True):
+        out[name] = np.frombuffer(payload, d, math.prod(shape), offset).reshape(shape)
+        offset += size
+    if "step_counts" in out:
+        counts, pos, vals = out["step_counts"], out["positions"], out["values"]
+        n = len(vals)
+        if counts.ndim != 1 or pos.shape != (n, 3) or vals.ndim != 1 or pos.dtype != vals.dtype:
+            raise ValueError(f"samples of shapes {pos.shape} and {vals.shape}")
+        if pos.dtype.str not in ("<f4", "<f8") or (counts < 0).any() or int(counts.sum()) != n:
+            raise ValueError(f"the steps' particle counts sum to {int(counts.sum())}, not {n}")
+    return out

@@ -42,7 +42,7 @@ from fluidsim.sources import wall_particles
 from nbv import scores
 from nbv.physics.aggregate import GaussianAccumulator, GaussianLists
 from nbv.physics.config import PhysicsConfig
-from nbv.physics.empty_cache import EmptyCache, EmptySamples, SampleRecorder, cache_key
+from nbv.physics.empty_cache import EmptyCache, EmptySamples, SampleRecorder, cache_key, means_key
 from nbv.physics.leaks import LeakCounter
 from nbv.physics.memory import check_memory, check_memory_bound
 from nbv.physics.plan import ProbePlan, RunFrame
@@ -270,10 +270,18 @@ def empty_scene_probes(
         stored = (
             None if store is None else cache_key(setup, scfg, probe.wall_layers, config.steps, config.accumulate_every)
         )
+        reused = None if stored is None else store.load_means(means_key(stored, centers, reach), len(centers))
+        if reused is not None:  # these Gaussians' means of the stored fluid
+            log.info("empty-scene probe %s: D_g from the cache", d)
+            out.append(reused)
+            if cache is not None:
+                cache[key] = reused
+            continue
         samples = None if stored is None else store.load(stored)
         if samples is not None:
             log.info("empty-scene probe %s: the fluid from the cache %s", d, store.path(stored))
             rec.replay(d, setup.domain_min, setup.domain_max, samples)
+            store.save_means(means_key(stored, centers, reach), rec.means[d])
             out.append(rec.means[d])
             if cache is not None:
                 cache[key] = rec.means[d]
@@ -305,6 +313,7 @@ def empty_scene_probes(
         rec.end(d, solver, history)
         if sampler is not None:
             store.save(stored, sampler.samples())
+            store.save_means(means_key(stored, centers, reach), rec.means[d])
         out.append(rec.means[d])
         if cache is not None:
             cache[key] = rec.means[d]

@@ -60,7 +60,7 @@ def test_cached_reference_equals_the_simulated_one_on_any_gaussians(scene, tmp_p
     store = EmptyCache(tmp_path, 2**30)
     built = _count_solvers(monkeypatch)
     first, _ = empty_scene_probes(plan, *sets[0], CFG, progress=False, store=store)
-    assert len(built) == 2 and len(store.entries()) == 2
+    assert len(built) == 2 and len(store.entries()) == 4  # per probe: the fluid, and its means on these Gaussians
     for means, reach in sets:
         fresh, _ = empty_scene_probes(plan, means, reach, CFG, progress=False)
         assert len(built) == 4
@@ -92,20 +92,29 @@ def test_samples_replayed_in_batches_equal_the_twin():
         acc.add_samples(pos, vals.astype(np.float64), counts)
 
 
-def _one_entry(plan, sets, tmp_path):
+def _entries(plan, sets, tmp_path):
+    """One probe simulated and stored: its fluid samples' entry and its means' entry (the smaller)."""
     store = EmptyCache(tmp_path, 2**30)
     cfg = PhysicsConfig(**{**CFG.to_dict(), "directions": ("-x",)})
     expected, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)
-    (entry,) = [p for _, _, p in store.entries()]
-    return store, cfg, expected, entry
+    means, samples = [p for _, p in sorted((size, p) for _, size, p in store.entries())]
+    return store, cfg, expected, samples, means
 
 
-@pytest.mark.parametrize("damage", ["flip", "truncate", "foreign", "magic", "pad"])
-def test_a_damaged_entry_is_refused_and_rebuilt(scene, tmp_path, monkeypatch, caplog, damage):
+@pytest.mark.parametrize(
+    "kind, damage",
+    [("samples", d) for d in ("flip", "truncate", "foreign", "magic", "pad")] + [("means", "flip"), ("means", "pad")],
+)
+def test_a_damaged_entry_is_refused_and_rebuilt(scene, tmp_path, monkeypatch, caplog, kind, damage):
+    """A damaged fluid entry is simulated again; a damaged means entry is accumulated again from the fluid; either
+    gives the same bits as before, with a warning naming the entry, and is rebuilt whole."""
     plan, sets = scene
-    store, cfg, expected, entry = _one_entry(plan, sets, tmp_path)
+    store, cfg, expected, samples, means = _entries(plan, sets, tmp_path)
+    entry = samples if kind == "samples" else means
+    if kind == "samples":
+        means.unlink()  # the fluid itself is read
     data = bytearray(entry.read_bytes())
-    if damage == "flip":  # one bit of one position: without the hash, a wrong D_g
+    if damage == "flip":  # one bit of the payload: without the hash, a wrong D_g
         data[-50] ^= 0x10
     elif damage == "truncate":
         data = data[: len(data) // 2]
@@ -120,10 +129,13 @@ def test_a_damaged_entry_is_refused_and_rebuilt(scene, tmp_path, monkeypatch, ca
     built = _count_solvers(monkeypatch)
     with caplog.at_level(logging.WARNING, logger="nbv.physics.empty_cache"):
         again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)
-    assert len(built) == 1  # simulated again
+    assert len(built) == (1 if kind == "samples" else 0)  # simulated again, or accumulated again
     np.testing.assert_array_equal(again, expected)
     assert any("damaged" in r.getMessage() and str(entry) in r.getMessage() for r in caplog.records)
-    assert store.load(entry.name[: -len(empty_cache.SUFFIX)]) is not None  # rebuilt whole
+    assert len(store.entries()) == 2 and entry.read_bytes() != bytes(data)  # rebuilt whole
+    built.clear()
+    np.testing.assert_array_equal(empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)[0], expected)
+    assert not built
 
 
 def test_an_unwritable_folder_runs_without_the_cache_with_one_line(scene, tmp_path, caplog):
@@ -143,8 +155,8 @@ def test_an_unwritable_folder_runs_without_the_cache_with_one_line(scene, tmp_pa
     np.testing.assert_array_equal(out, empty_scene_probes(plan, *sets[0], CFG, progress=False)[0])
 
 
-def _fake(n: int) -> EmptySamples:
-    return EmptySamples(np.zeros((n, 3), np.float32), np.zeros(n, np.float32), np.array([n], np.int64))
+def _fake(n: int) -> dict:
+    return {"step_counts": np.array([n]), "positions": np.zeros((n, 3), np.float32), "values": np.zeros(n, np.float32)}
 
 
 def test_the_folder_keeps_its_bound_least_recently_used_first(tmp_path):
@@ -152,13 +164,13 @@ def test_the_folder_keeps_its_bound_least_recently_used_first(tmp_path):
     store = EmptyCache(tmp_path, int(2.5 * one))
     now = 1_000_000.0
     for i, key in enumerate(("a" * 64, "b" * 64)):
-        assert store.save(key, _fake(1000))
+        assert store.save(key, EmptySamples(**_fake(1000)))
         os.utime(store.path(key), (now + i, now + i))
     assert store.load("a" * 64) is not None  # a is used: b is now the least recently used
-    assert store.save("c" * 64, _fake(1000))
+    assert store.save("c" * 64, EmptySamples(**_fake(1000)))
     assert {p.name[:1] for _, _, p in store.entries()} == {"a", "c"}
     assert sum(size for _, size, _ in store.entries()) <= store.max_bytes
-    assert not store.save("d" * 64, _fake(4000))  # larger than the bound: not stored
+    assert not store.save("d" * 64, EmptySamples(**_fake(4000)))  # larger than the bound: not stored
     assert not store.path("d" * 64).exists()
     stale = tmp_path / ".fgs-0123abcd.tmp"
     stale.write_bytes(b"x")
@@ -206,7 +218,7 @@ def test_simulate_uses_the_cache_unless_told_not_to(monkeypatch, tmp_path):
     off = simulate_gaussians(g, PhysicsConfig(**{**cfg.to_dict(), "empty_cache": False}), progress=False)
     assert not (tmp_path / "cache").exists()
     on = simulate_gaussians(g, cfg, progress=False)
-    assert len(list((tmp_path / "cache").glob("*.empty"))) == 1
+    assert len(list((tmp_path / "cache").glob("*.empty"))) == 2  # the fluid and its means
     run._EMPTY_CACHE.clear()
     built = _count_solvers(monkeypatch)
     again = simulate_gaussians(g, cfg, progress=False)
