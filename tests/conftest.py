@@ -122,6 +122,18 @@ def taichi_settings_restored(taichi_runtime: TaichiSettings):
         taichi_runtime.init()
 
 
+@pytest.fixture(scope="session", autouse=True)
+def empty_scene_cache(tmp_path_factory):
+    """The empty-scene cache (nbv.physics.empty_cache) of this session in a fresh folder, never the user's."""
+    old = os.environ.get("FLUIDGS_CACHE_DIR")
+    os.environ["FLUIDGS_CACHE_DIR"] = str(tmp_path_factory.mktemp("empty-scene-cache"))
+    yield Path(os.environ["FLUIDGS_CACHE_DIR"])
+    if old is None:
+        os.environ.pop("FLUIDGS_CACHE_DIR", None)
+    else:
+        os.environ["FLUIDGS_CACHE_DIR"] = old
+
+
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     """The repository root (where ``assets/`` and ``docs/`` are), independent of where a test file sits."""

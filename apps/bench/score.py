@@ -178,6 +178,7 @@ def run_command(args: argparse.Namespace) -> int:
         steps=steps,
         directions=parse_directions(args.directions),
         empty_reference=args.empty_reference,
+        empty_cache=False,  # a benchmark times the empty scene simulated
         fill_cavities=not args.no_fill,
         up=args.up,
     )

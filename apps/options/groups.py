@@ -25,7 +25,8 @@ PROBE_FIELDS = (
 )
 FRAME_FIELDS = ("up", "scale", "crop")
 SOLID_FIELDS = ("fill_cavities",)
-RUN_FIELDS = ("empty_reference", "max_memory_gb")
+RUN_FIELDS = ("empty_reference", "empty_cache", "max_memory_gb")
+EMPTY_FIELDS = ("empty_reference", "empty_cache")  # offered only where the empty scene runs
 REPLICA_FIELDS = ("replicas",)  # simulate, score and critical (add_physics_arguments(replicas=True))
 
 
@@ -77,6 +78,15 @@ def probe_overrides(default_directions: str = "all five", cameras: bool = False)
             "spacing each time (Halton offsets; the first unshifted), average D_g over them and report how far "
             "they agree; costs N times the probe time",
             "convert": replica_count,
+        },
+        "empty_cache": {
+            "flags": ("--no-cache",),
+            "dest": "no_cache",
+            "negate": True,
+            "default_text": "use the cache: $FLUIDGS_CACHE_DIR, else $XDG_CACHE_HOME/fluidgs or ~/.cache/fluidgs, "
+            "at most $FLUIDGS_CACHE_MAX_GB GiB, 4 unless set",
+            "help": "simulate the empty-scene reference afresh instead of accumulating its cached fluid (bit-identical "
+            "either way), and store nothing",
         },
     }
 
@@ -134,7 +144,7 @@ def add_physics_arguments(
     )
     add_config_options(g, config, PROBE_FIELDS, over, presets={"--quick": quick})
     add_config_options(g, config, FRAME_FIELDS + SOLID_FIELDS, over)
-    add_config_options(g, config, RUN_FIELDS if empty_reference else RUN_FIELDS[1:], over)
+    add_config_options(g, config, tuple(f for f in RUN_FIELDS if empty_reference or f not in EMPTY_FIELDS), over)
     if replicas:
         add_config_options(g, config, REPLICA_FIELDS, over)
     add_runtime_arguments(p)
@@ -179,7 +189,12 @@ def physics_config_from_args(
         values["empty_reference"] = False  # commands without the option never run the empty scene
     if preset is None:
         preset = quick if getattr(args, "quick", False) else {}
-    return config(**{**preset, **values, "track_distinct": track_distinct, **extra})
+    cfg = config(**{**preset, **values, "track_distinct": track_distinct, **extra})
+    if cfg.empty_reference and cfg.empty_cache:
+        from nbv.physics.empty_cache import max_bytes_from_env
+
+        max_bytes_from_env()  # a bad FLUIDGS_CACHE_MAX_GB is exit 2 before Taichi starts
+    return cfg
 
 
 def up_from_args(args: argparse.Namespace, cameras=None):

@@ -405,6 +405,48 @@ class GaussianAccumulator:
         if small:
             self.flush()
 
+    def add_samples(self, positions: np.ndarray, values: np.ndarray, step_counts: np.ndarray) -> None:
+        """Add recorded solver steps (e.g. the empty scene's, :mod:`nbv.physics.empty_cache`): the same sums and counts,
+        bit for bit, as :meth:`add_from_solver` after each of those steps (integer sums do not depend on the order).
+
+        Args:
+            positions: [N, 3] float32 or float64 (the solver's type) positions of the steps' active particles, m.
+            values: [N] the same float type, their D_i.
+            step_counts: [S] particles per step (they sum to N); batches of ``batch_steps`` whole steps are visited
+                as the staged steps are.
+        Raises:
+            ValueError: with distinct tracking (recorded steps carry no ids), or mismatched shapes or types.
+        """
+        if self.distinct is not None:
+            raise ValueError("add_samples cannot track distinct particles; use add_from_solver or add with ids")
+        pos, vals = np.asarray(positions), np.asarray(values)
+        counts = np.asarray(step_counts, np.int64).reshape(-1)
+        if pos.dtype not in (np.float32, np.float64) or pos.ndim != 2 or pos.shape[1] != 3:
+            raise ValueError(f"positions must be [N, 3] float32 or float64, got {pos.shape} {pos.dtype}")
+        if vals.shape != (len(pos),) or vals.dtype != pos.dtype:
+            raise ValueError(f"values must be [{len(pos)}] {pos.dtype} like positions, got {vals.shape} {vals.dtype}")
+        if (counts < 0).any() or int(counts.sum()) != len(pos):
+            raise ValueError(f"step_counts must be >= 0 and sum to {len(pos)} positions, got {int(counts.sum())}")
+        self.flush()
+        counts = counts[counts > 0]  # a step without active fluid adds nothing (add_from_solver skips it)
+        fp = ti.f64 if pos.dtype == np.float64 else ti.f32
+        budget = max(int(counts.max(initial=1)), _STAGE_BUDGET // (4 * pos.itemsize))
+        ends = np.cumsum(counts)
+        s = start = 0
+        while s < len(counts):
+            e = s + 1  # whole steps, at most batch_steps of them within the staging budget
+            while e < len(counts) and e - s < self.batch_steps and ends[e] - start <= budget:
+                e += 1
+            stop = int(ends[e - 1])
+            if stop > start:
+                xs = ti.Vector.ndarray(3, fp, shape=stop - start)
+                xs.from_numpy(np.ascontiguousarray(pos[start:stop]))
+                v = ti.ndarray(fp, shape=stop - start)
+                v.from_numpy(np.ascontiguousarray(vals[start:stop]))
+                offsets = [0, *(int(c) - start for c in ends[s:e])]
+                self._run(stop - start, xs, v, v, self._no_prev, offsets)
+            s, start = e, stop
+
     def _last_samples(self):
         """Each particle id's previous sample (the kernels' ``last``; a placeholder without distinct tracking)."""
         return self._no_prev if self.distinct is None else self.distinct.last

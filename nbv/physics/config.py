@@ -55,6 +55,8 @@ class PhysicsConfig:
             filled body; :mod:`nbv.physics.solidify`). False keeps the one-point-thick shell.
         track_distinct: count distinct fluid particles per Gaussian (|P_g|, for critical regions).
         empty_reference: also run the probes without the solid for the empty-scene D-bar.
+        empty_cache: reuse the empty scene's fluid from the user cache folder, and store it there
+            (:mod:`nbv.physics.empty_cache`; False: simulate it afresh and store nothing).
         precision: "f32" or "f64"; must match the Taichi runtime's default float.
         max_memory_gb: refuse to start above this estimated memory, GiB (None: the available memory).
         replicas: run the probes this many times, the solid lattice and the fluid slab shifted by a fraction of a
@@ -80,6 +82,7 @@ class PhysicsConfig:
     fill_cavities: bool = True
     track_distinct: bool = False
     empty_reference: bool = True
+    empty_cache: bool = True
     precision: str = "f32"
     max_memory_gb: float | None = None
     replicas: int = 1

@@ -42,6 +42,7 @@ from fluidsim.sources import wall_particles
 from nbv import scores
 from nbv.physics.aggregate import GaussianAccumulator, GaussianLists
 from nbv.physics.config import PhysicsConfig
+from nbv.physics.empty_cache import EmptyCache, EmptySamples, SampleRecorder, cache_key, means_key
 from nbv.physics.leaks import LeakCounter
 from nbv.physics.memory import check_memory, check_memory_bound
 from nbv.physics.plan import ProbePlan, RunFrame
@@ -227,6 +228,21 @@ class _ProbeRecorder:
         if self.trajectory is not None:
             self.trajectory.end(direction)
 
+    def replay(self, direction: str, domain_min, domain_max, samples: EmptySamples) -> None:
+        """A probe's recorded steps (the empty-scene cache) onto the Gaussians: the means and counts that
+        :meth:`start`, :meth:`step` and :meth:`end` give while its solver runs, bit for bit."""
+        t0 = time.perf_counter()
+        if self.lists is None:
+            self.lists = GaussianLists(self.centers, self.reach, *self.grid_bounds)
+        acc = GaussianAccumulator(self.lists, domain_min, domain_max)
+        t1 = time.perf_counter()
+        acc.add_samples(samples.positions, samples.values, samples.step_counts)
+        self.means[direction] = np.asarray(acc.means(), np.float64)
+        self.counts[direction] = np.asarray(acc.counts, np.int64)
+        self.domains[direction] = (np.asarray(domain_min, np.float64), np.asarray(domain_max, np.float64))
+        self.build_s += t1 - t0
+        self.aggregation_s += time.perf_counter() - t1
+
 
 def _run_with(
     recorder: _ProbeRecorder, solid: np.ndarray, plan: ProbePlan, config: PhysicsConfig, scfg: SolverConfig
@@ -252,6 +268,7 @@ def empty_scene_probes(
     progress: bool | RunProgress = True,
     cache: dict | None = None,
     lists: GaussianLists | None = None,
+    store: EmptyCache | None = None,
 ) -> tuple[np.ndarray, float]:
     """D_g^(IC) of the empty scene: each probe's slab in its walled domain with no solid, onto the same Gaussians.
 
@@ -264,6 +281,8 @@ def empty_scene_probes(
         cache: a dict to reuse results within a process, keyed by domain, settings and Gaussians.
         lists: the cell lists of these Gaussians (:class:`nbv.physics.aggregate.GaussianLists`; the probe run's,
             which cover the same domains). None: built over the union of the probes' domains, for every probe.
+        store: the disk cache of the empty scene's fluid (:class:`nbv.physics.empty_cache.EmptyCache`): a probe found
+            there is accumulated from it, one simulated is stored. None: simulate every probe.
     Returns:
         ([P, G] float64 per-probe means, seconds spent).
     """
@@ -293,22 +312,50 @@ def empty_scene_probes(
                 bar.skip(d, "empty ")
                 out.append(cache[key])
                 continue
+            stored = (
+                None
+                if store is None
+                else cache_key(setup, scfg, probe.wall_layers, config.steps, config.accumulate_every)
+            )
+            reused = None if stored is None else store.load_means(means_key(stored, centers, reach), len(centers))
+            if reused is not None:  # these Gaussians' means of the stored fluid
+                log.info("empty-scene probe %s: D_g from the cache", d)
+                bar.skip(d, "empty ")
+                out.append(reused)
+                if cache is not None:
+                    cache[key] = reused
+                continue
+            samples = None if stored is None else store.load(stored)
+            if samples is not None:
+                log.info("empty-scene probe %s: the fluid from the cache %s", d, store.path(stored))
+                bar.skip(d, "empty ")
+                rec.replay(d, setup.domain_min, setup.domain_max, samples)
+                store.save_means(means_key(stored, centers, reach), rec.means[d])
+                out.append(rec.means[d])
+                if cache is not None:
+                    cache[key] = rec.means[d]
+                continue
+            sampler = None if stored is None else SampleRecorder(config.accumulate_every)
             fluid = lattice_in_box(setup.fluid_min, setup.fluid_max, scfg.spacing)
             vel = np.broadcast_to(np.asarray(setup.velocity), fluid.shape)
             walls = wall_particles(setup.domain_min, setup.domain_max, scfg.spacing, probe.wall_layers)
             solver = DFSPHSolver(scfg, setup.domain_min, setup.domain_max, fluid, vel, walls)
             rec.start(d, solver)
+
+            def on_step(s, st, d=d, r=rec, k=sampler):
+                r.step(d, s, st)
+                if k is not None:  # the fluid kept for the cache
+                    k.step(s, st)
+
             try:
-                history = run_solver(
-                    solver,
-                    config.steps,
-                    on_step=lambda s, st, d=d, r=rec: r.step(d, s, st),
-                    progress=rec.tick,
-                )
+                history = run_solver(solver, config.steps, on_step=on_step, progress=rec.tick)
             except SimulationDiverged as exc:
                 exc.probe = f"empty-scene {d}"  # which run diverged, for ProbeDiverged
                 raise
             rec.end(d, solver, history)
+            if sampler is not None:
+                store.save(stored, sampler.samples())
+                store.save_means(means_key(stored, centers, reach), rec.means[d])
             out.append(rec.means[d])
             if cache is not None:
                 cache[key] = rec.means[d]
@@ -420,8 +467,10 @@ def simulate_solid(
     check_probe_time_steps(plan, config, scfg)  # CFL: inflow plus free fall through each domain
     if record is not None:
         check_record_size(plan.fluid_counts(record.directions), config.steps, record)
+    # the empty scene's cache, its bound read now (a bad FLUIDGS_CACHE_MAX_GB is refused before any probe)
+    store = EmptyCache.from_environment() if config.empty_reference and config.empty_cache else None
     try:  # Eq. 1-3: D_i of every step onto the Gaussians within n r_g
-        result = _probe(frame, solid, plan, progress, source, record, solidify_s, started)
+        result = _probe(frame, solid, plan, progress, source, record, solidify_s, started, store)
     except ProbeDiverged as exc:
         exc.result = frame.expand(exc.result)
         raise
@@ -437,11 +486,13 @@ def _probe(
     record: RecordConfig | None,
     solidify_s: float,
     started: float,
+    store: EmptyCache | None = None,
 ) -> PhysicsResult:
-    """The probes and, with ``config.empty_reference``, the empty scene: the result on the simulated Gaussians."""
+    """The probes and, with ``config.empty_reference``, the empty scene (its fluid from ``store`` where there): the
+    result on the simulated Gaussians."""
     bar = RunProgress(plan, frame.config, progress)  # "probe k of n", one ETA over the probes and the empty scene
     try:
-        return _probe_with(frame, solid, plan, bar, source, record, solidify_s, started)
+        return _probe_with(frame, solid, plan, bar, source, record, solidify_s, started, store)
     finally:
         bar.close()
 
@@ -455,6 +506,7 @@ def _probe_with(
     record: RecordConfig | None,
     solidify_s: float,
     started: float,
+    store: EmptyCache | None = None,
 ) -> PhysicsResult:
     config, scfg = frame.config, frame.config.solver_config()
     means, covs, reach = frame.means, frame.covariances, frame.reach
@@ -491,7 +543,8 @@ def _probe_with(
     if not config.empty_reference:
         return result
     try:
-        empty, empty_s = empty_scene_probes(plan, means, reach, config, bar, _EMPTY_CACHE, lists=recorder.lists)
+        memo = _EMPTY_CACHE if config.empty_cache else None
+        empty, empty_s = empty_scene_probes(plan, means, reach, config, bar, memo, recorder.lists, store)
     except SimulationDiverged as exc:
         probe = getattr(exc, "probe", "empty-scene")
         failure = {"probe": probe, "step": int(exc.step), "reason": exc.reason}

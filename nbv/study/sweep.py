@@ -189,7 +189,7 @@ def calibrate(gaussians, config: PhysicsConfig, steps: int = CALIBRATION_MAX_STE
     speed)."""
     first = "-x" if "-x" in config.directions else config.directions[0]
     n = max(1, min(int(steps), config.steps))
-    cfg = replace(config, directions=(first,), steps=n)
+    cfg = replace(config, directions=(first,), steps=n, empty_cache=False)  # timed as simulated, nothing stored
     simulate_gaussians(gaussians, replace(cfg, steps=min(2, n)), progress=False)
     res = simulate_gaussians(gaussians, cfg, progress=False)
     t = res.timings

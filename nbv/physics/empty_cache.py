@@ -1,0 +1,423 @@
+"""A disk cache of the empty scene's fluid (the reference of paper Sec. 3.3), so that it is simulated once.
+
+The empty-scene probes run each probe's slab in its walled domain with no solid. Their fluid depends on the probe's
+slab, domain and inflow (:class:`fluidsim.probes.ProbeSetup`), the solver settings, the number of steps and the
+engine, never on the Gaussians: only the accumulation onto the Gaussians does (D_g^empty, paper Eq. 2-3). So the
+cache keeps what the accumulator consumes, every accumulated step's active fluid particles as (x_i, D_i) in the
+solver's own float type (:class:`EmptySamples`), and a later run accumulates them onto its own Gaussians. The
+accumulator's sums are fixed-point integers (:mod:`nbv.physics.aggregate`), exact in any order, so the reference
+D_g from the cache is the same bits as the one accumulated during the simulation.
+
+- **Key**: SHA-256 of the setup (slab, domain, inflow velocity), every ``fluidsim.SolverConfig`` field (precision
+  included), the wall layers, the steps and the accumulation stride, the Taichi arch and version, the format
+  version and a digest of the engine's source (the ``fluidsim`` package and the probe runner), so that an engine
+  change never reads an old trajectory. One entry per probe: the -y probe, which starts at rest, is shared by runs
+  at different inflow speeds.
+- **Folder**: ``$FLUIDGS_CACHE_DIR``, else ``$XDG_CACHE_HOME/fluidgs``, else ``~/.cache/fluidgs``
+  (:func:`cache_folder`).
+- **Bound**: ``$FLUIDGS_CACHE_MAX_GB`` GiB (default :data:`DEFAULT_MAX_GB`); after each write the least recently used
+  entries (by modification time; a read touches its entry) go until the rest fits. An entry larger than the bound
+  is not stored. At the paper's setting the 152k-Gaussian person capture's five probes take 0.58 GB (16 bytes per
+  particle and step in f32), the quick preset's 0.19 GB.
+- **Concurrent runs**: an entry is written to a temporary file and renamed into place
+  (:func:`fluidsim.files.atomic_output`), so a reader sees a whole entry or none; a reader checks the magic, the
+  key, the size and the SHA-256 of the payload, and an entry that fails (corrupt, truncated, foreign) is logged,
+  removed and rebuilt, never read.
+- **An unwritable folder** turns the cache off for the rest of the run with one warning.
+
+A second kind of entry keeps the means of those samples accumulated onto one set of Gaussians (:func:`means_key`:
+the samples' key, the Gaussians' centres and reach, the accumulator's source; 8 bytes per Gaussian), so that a run
+on the same Gaussians skips the accumulation too.
+
+File layout of an entry ``<key>.empty``: 8 bytes :data:`MAGIC`, a little-endian u64 header length, a JSON header
+(format, key, the arrays' names, types and shapes, payload bytes, payload SHA-256), then the arrays: the particles
+per step [S] int64, the positions [N, 3] and the values [N] of the solver's float type; or the means [G] float64.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import logging
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fluidsim.files import TEMP_NAME, atomic_output
+
+log = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+MAGIC = b"FGSEMPTY"
+SUFFIX = ".empty"
+CACHE_DIR_ENV = "FLUIDGS_CACHE_DIR"
+CACHE_MAX_ENV = "FLUIDGS_CACHE_MAX_GB"
+DEFAULT_MAX_GB = 4.0
+# A temporary file older than this was left by a killed writer (a live writer's is younger): removed on eviction.
+STALE_TEMP_S = 24 * 3600.0
+_HEADER_LIMIT = 1 << 16
+
+
+@dataclass(frozen=True)
+class EmptySamples:
+    """The accumulated steps of one empty-scene probe: what :meth:`GaussianAccumulator.add_samples` consumes.
+
+    Attributes:
+        positions: [N, 3] float32 or float64 (the solver's precision) x_i after each accumulated step, m.
+        values: [N] the same float type, D_i of that step, 1/s.
+        step_counts: [S] int64 active particles per accumulated step (they sum to N).
+    """
+
+    positions: np.ndarray
+    values: np.ndarray
+    step_counts: np.ndarray
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.step_counts.nbytes + self.positions.nbytes + self.values.nbytes)
+
+
+class SampleRecorder:
+    """Keeps the active fluid's (x_i, D_i) of every accumulated step of a solver run (``on_step`` callback)."""
+
+    def __init__(self, accumulate_every: int):
+        self.accumulate_every = int(accumulate_every)
+        self._x: list[np.ndarray] = []
+        self._v: list[np.ndarray] = []
+
+    def step(self, solver, stats) -> None:
+        """After ``solver.step()``: the step's positions and D_i, on the steps the accumulator adds."""
+        if (stats.step + 1) % self.accumulate_every:
+            return
+        self._x.append(solver.fluid.numpy("x"))
+        self._v.append(solver.fluid.numpy("divergence"))
+
+    def samples(self) -> EmptySamples:
+        counts = np.asarray([len(v) for v in self._v], np.int64)
+        x = np.concatenate(self._x).reshape(-1, 3) if self._x else np.zeros((0, 3), np.float32)
+        v = np.concatenate(self._v) if self._v else np.zeros(0, x.dtype)
+        return EmptySamples(np.ascontiguousarray(x), np.ascontiguousarray(v), counts)
+
+
+def _source_digest(files) -> str:
+    h = hashlib.sha256()
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+@functools.cache
+def code_digest() -> str:
+    """SHA-256 of the source that makes the empty scene's fluid: the ``fluidsim`` package, the probe runner and this
+    module (an engine change gives new keys)."""
+    import fluidsim  # noqa: PLC0415 - its path only
+    from nbv.physics import run  # noqa: PLC0415 - run imports this module
+
+    return _source_digest(sorted(Path(fluidsim.__file__).parent.rglob("*.py")) + [Path(run.__file__), Path(__file__)])
+
+
+@functools.cache
+def accumulator_digest() -> str:
+    """SHA-256 of the accumulator's source (``nbv/physics/aggregate*.py``): what turns samples into means."""
+    return _source_digest(sorted(Path(__file__).parent.glob("aggregate*.py")))
+
+
+def means_key(samples_key: str, centers: np.ndarray, reach: np.ndarray) -> str:
+    """The entry of the means of the samples under ``samples_key`` accumulated onto these Gaussians ([G, 3] centres
+    and [G] reach, sim metres): a run on the same Gaussians skips the accumulation too."""
+    h = hashlib.sha256(f"{samples_key}:{accumulator_digest()}:means".encode())
+    for a in (centers, reach):
+        a = np.ascontiguousarray(a, np.float64)
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def cache_key(setup, solver_config, wall_layers: int, steps: int, accumulate_every: int) -> str:
+    """The entry of one empty-scene probe: SHA-256 hex of everything its fluid depends on.
+
+    Args:
+        setup: the probe's ``fluidsim.probes.ProbeSetup`` (its direction name is left out: only the geometry counts).
+        solver_config: ``fluidsim.SolverConfig`` (all fields, precision included).
+        wall_layers: layers of wall particles. steps: solver steps. accumulate_every: the accumulated stride.
+    Returns:
+        64 hex digits.
+    """
+    import taichi as ti  # noqa: PLC0415 - the runtime's arch and version
+
+    geometry = {k: v for k, v in asdict(setup).items() if k != "direction"}
+    record = {
+        "format": FORMAT_VERSION,
+        "code": code_digest(),
+        "taichi": ".".join(str(p) for p in ti.__version__),
+        "arch": ti.lang.impl.current_cfg().arch.name,
+        "setup": geometry,
+        "solver": asdict(solver_config),
+        "wall_layers": int(wall_layers),
+        "steps": int(steps),
+        "accumulate_every": int(accumulate_every),
+    }
+    text = json.dumps(record, sort_keys=True, default=repr)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def cache_folder() -> Path:
+    """``$FLUIDGS_CACHE_DIR``, else ``$XDG_CACHE_HOME/fluidgs``, else ``~/.cache/fluidgs``."""
+    given = os.environ.get(CACHE_DIR_ENV, "").strip()
+    if given:
+        return Path(given).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME", "").strip()
+    return (Path(xdg).expanduser() if xdg else Path.home() / ".cache") / "fluidgs"
+
+
+def max_bytes_from_env() -> int:
+    """The bound in bytes from ``$FLUIDGS_CACHE_MAX_GB`` (GiB, >= 0; default :data:`DEFAULT_MAX_GB`).
+
+    Raises:
+        ValueError: the variable is not a finite number >= 0.
+    """
+    text = os.environ.get(CACHE_MAX_ENV, "").strip()
+    if not text:
+        return int(DEFAULT_MAX_GB * 2**30)
+    try:
+        gb = float(text)
+    except ValueError:
+        gb = float("nan")
+    if not math.isfinite(gb) or gb < 0:
+        raise ValueError(
+            f"{CACHE_MAX_ENV}={text!r}: give the empty-scene cache's bound in GiB, a number >= 0 (0 stores nothing; "
+            f"default {DEFAULT_MAX_GB:g}), or unset it"
+        )
+    return int(gb * 2**30)
+
+
+class EmptyCache:
+    """The empty-scene entries in one folder, at most ``max_bytes`` in all (least recently used go first).
+
+    Args:
+        folder: the cache folder (created on the first write).
+        max_bytes: the bound, bytes (0: nothing is stored).
+
+    Example:
+        >>> cache = EmptyCache.from_environment()                                         # doctest: +SKIP
+        >>> key = cache_key(setup, config.solver_config(), 2, config.steps, 1)             # doctest: +SKIP
+        >>> samples = cache.load(key)  # None: not there (or damaged, then removed)        # doctest: +SKIP
+    """
+
+    def __init__(self, folder: str | os.PathLike, max_bytes: int):
+        if int(max_bytes) < 0:
+            raise ValueError(f"max_bytes must be >= 0, got {max_bytes}")
+        self.folder = Path(folder)
+        self.max_bytes = int(max_bytes)
+        self.disabled = False
+
+    @classmethod
+    def from_environment(cls) -> EmptyCache:
+        """The user's cache: :func:`cache_folder`, bounded by :func:`max_bytes_from_env` (ValueError on a bad bound)."""
+        return cls(cache_folder(), max_bytes_from_env())
+
+    def path(self, key: str) -> Path:
+        return self.folder / f"{key}{SUFFIX}"
+
+    # -- reading -----------------------------------------------------------------------------------
+    def load(self, key: str) -> EmptySamples | None:
+        """The fluid samples under ``key``, or None when there are none or the entry is damaged (logged, removed: it
+        is rebuilt)."""
+        arrays = self._read(key, ("step_counts", "positions", "values"))
+        return None if arrays is None else EmptySamples(arrays["positions"], arrays["values"], arrays["step_counts"])
+
+    def load_means(self, key: str, num_gaussians: int) -> np.ndarray | None:
+        """The [G] float64 means accumulated under ``key`` (:func:`means_key`: these samples onto these Gaussians),
+        or None as :meth:`load`."""
+        arrays = self._read(key, ("means",), num_gaussians)
+        return None if arrays is None else arrays["means"]
+
+    def _read(self, key: str, names: tuple[str, ...], num_gaussians: int | None = None) -> dict | None:
+        if self.disabled:
+            return None
+        p = self.path(key)
+        try:
+            data = p.read_bytes()
+        except (FileNotFoundError, NotADirectoryError):
+            return None  # not stored (or no folder yet)
+        except OSError as exc:
+            log.warning("empty-scene cache entry %s cannot be read (%s); the empty scene is simulated", p, exc)
+            return None
+        try:
+            arrays = _decode(data, key, names)
+            if num_gaussians is not None and arrays["means"].shape != (num_gaussians,):
+                raise ValueError(f"{arrays['means'].shape[0]} means for {num_gaussians} Gaussians")
+        except ValueError as exc:
+            log.warning(
+                "empty-scene cache entry %s is damaged (%s); ignored, the empty scene is simulated again", p, exc
+            )
+            p.unlink(missing_ok=True)
+            return None
+        try:
+            os.utime(p)  # the entry was used: the last to go
+        except OSError:
+            pass
+        return arrays
+
+    # -- writing -----------------------------------------------------------------------------------
+    def save(self, key: str, samples: EmptySamples) -> bool:
+        """Store ``samples`` under ``key`` (atomically), then keep the folder within the bound. An unwritable folder
+        turns this cache off with one warning. Returns whether the entry was stored."""
+        return self._write(
+            key, {"step_counts": samples.step_counts, "positions": samples.positions, "values": samples.values}
+        )
+
+    def save_means(self, key: str, means: np.ndarray) -> bool:
+        """Store [G] float64 means under ``key`` (:func:`means_key`), as :meth:`save`."""
+        return self._write(key, {"means": np.asarray(means, np.float64)})
+
+    def _write(self, key: str, arrays: dict[str, np.ndarray]) -> bool:
+        if self.disabled:
+            return False
+        header, payload_parts = _encode(arrays, key)
+        size = len(header) + sum(len(b) for b in payload_parts)
+        if size > self.max_bytes:
+            log.info("empty-scene entry of %.3g GB exceeds the cache bound (%s); not stored", size / 1e9, CACHE_MAX_ENV)
+            return False
+        p = self.path(key)
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            with atomic_output(p) as tmp, open(tmp, "wb") as f:
+                f.write(header)
+                for part in payload_parts:
+                    f.write(part)
+        except OSError as exc:
+            self.disabled = True
+            log.warning(
+                "empty-scene cache folder %s cannot be written (%s); running without the cache (set %s to a "
+                "writable folder)",
+                self.folder,
+                exc,
+                CACHE_DIR_ENV,
+            )
+            return False
+        self.evict(keep=p)
+        return True
+
+    def entries(self) -> list[tuple[float, int, Path]]:
+        """(modification time, bytes, path) of every entry, oldest first."""
+        out = []
+        try:
+            found = list(os.scandir(self.folder))
+        except OSError:
+            return out
+        for e in found:
+            if not e.name.endswith(SUFFIX):
+                continue
+            try:
+                st = e.stat(follow_symlinks=False)
+            except OSError:
+                continue  # removed by another run meanwhile
+            out.append((st.st_mtime, st.st_size, Path(e.path)))
+        return sorted(out)
+
+    def evict(self, keep: Path | None = None) -> list[Path]:
+        """Remove the least recently used entries until the rest fits the bound (``keep`` last), and temporary files
+        that killed writers left more than :data:`STALE_TEMP_S` ago. Returns the removed entries."""
+        now = time.time()
+        try:
+            for e in os.scandir(self.folder):
+                if TEMP_NAME.match(e.name) and now - e.stat(follow_symlinks=False).st_mtime > STALE_TEMP_S:
+                    Path(e.path).unlink(missing_ok=True)
+        except OSError:
+            pass
+        entries = self.entries()
+        total = sum(size for _, size, _ in entries)
+        removed = []
+        for _, size, p in sorted(entries, key=lambda e: (e[2] == keep, e[0])):
+            if total <= self.max_bytes:
+                break
+            try:
+                p.unlink()
+            except FileNotFoundError:
+                pass  # another run removed it
+            except OSError:
+                continue
+            total -= size
+            removed.append(p)
+        if removed:
+            log.info(
+                "empty-scene cache: %d least recently used entries removed (bound %s)", len(removed), CACHE_MAX_ENV
+            )
+        return removed
+
+
+_DTYPES = ("<f4", "<f8", "<i8")
+
+
+def _encode(arrays: dict[str, np.ndarray], key: str) -> tuple[bytes, list[bytes]]:
+    """(header, payload parts) of an entry holding ``arrays`` (little-endian f4, f8 or i8)."""
+    parts, layout = [], []
+    h = hashlib.sha256()
+    for name, a in arrays.items():
+        a = np.asarray(a)
+        dtype = a.dtype.newbyteorder("<")
+        if dtype.str not in _DTYPES:
+            raise ValueError(f"{name}: dtype {a.dtype} is not one of {_DTYPES}")
+        part = np.ascontiguousarray(a, dtype).tobytes()
+        h.update(part)
+        parts.append(part)
+        layout.append([name, dtype.str, list(a.shape)])
+    head = {
+        "format": FORMAT_VERSION,
+        "key": key,
+        "arrays": layout,
+        "payload_bytes": sum(len(p) for p in parts),
+        "sha256": h.hexdigest(),
+    }
+    text = json.dumps(head, sort_keys=True).encode()
+    return MAGIC + len(text).to_bytes(8, "little") + text, parts
+
+
+def _decode(data: bytes, key: str, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The arrays ``names`` of an entry's bytes (read-only views); ValueError naming what is wrong (magic, header,
+    key, layout, size, hash, and for fluid samples the steps' counts)."""
+    if len(data) < 16 or data[:8] != MAGIC:
+        raise ValueError("not an empty-scene cache entry (wrong magic)")
+    n_head = int.from_bytes(data[8:16], "little")
+    if n_head > min(_HEADER_LIMIT, len(data) - 16):
+        raise ValueError(f"header of {n_head} bytes in a file of {len(data)}")
+    try:
+        head = json.loads(data[16 : 16 + n_head])
+        fmt, entry_key, digest = head["format"], head["key"], str(head["sha256"])
+        n_payload = int(head["payload_bytes"])
+        layout = [(str(n), str(d), tuple(int(k) for k in shape)) for n, d, shape in head["arrays"]]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"unreadable header ({exc})") from None
+    if fmt != FORMAT_VERSION:
+        raise ValueError(f"format {fmt}, expected {FORMAT_VERSION}")
+    if entry_key != key:
+        raise ValueError(f"it holds key {str(entry_key)[:12]}..., not {key[:12]}... (a foreign entry)")
+    if tuple(n for n, _, _ in layout) != names:
+        raise ValueError(f"it holds {[n for n, _, _ in layout]}, not {list(names)}")
+    if any(d not in _DTYPES or any(k < 0 for k in shape) for _, d, shape in layout):
+        raise ValueError(f"bad array layout {layout}")
+    sizes = [np.dtype(d).itemsize * math.prod(shape) for _, d, shape in layout]
+    if n_payload != sum(sizes) or len(data) != 16 + n_head + n_payload:
+        raise ValueError(f"{len(data)} bytes, expected {16 + n_head + sum(sizes)} (truncated or padded)")
+    payload = memoryview(data)[16 + n_head :]
+    if hashlib.sha256(payload).hexdigest() != digest:
+        raise ValueError("the payload's SHA-256 differs from the header's")
+    out, offset = {}, 0
+    for (name, d, shape), size in zip(layout, sizes, strict=True):
+        out[name] = np.frombuffer(payload, d, math.prod(shape), offset).reshape(shape)
+        offset += size
+    if "step_counts" in out:
+        counts, pos, vals = out["step_counts"], out["positions"], out["values"]
+        n = len(vals)
+        if counts.ndim != 1 or pos.shape != (n, 3) or vals.ndim != 1 or pos.dtype != vals.dtype:
+            raise ValueError(f"samples of shapes {pos.shape} and {vals.shape}")
+        if pos.dtype.str not in ("<f4", "<f8") or (counts < 0).any() or int(counts.sum()) != n:
+            raise ValueError(f"the steps' particle counts sum to {int(counts.sum())}, not {n}")
+    return out
