@@ -55,7 +55,8 @@ O(G + particles) with a fixed bound per Gaussian (:meth:`GaussianAccumulator.est
   (ordered linear probing with ``atomic_max``), at most half full: 16-32 bytes per distinct pair (a 1.07M-Gaussian
   capture's -x probe has 5.0M pairs, 4.7 per Gaussian), doubled by rehashing before it would fill beyond half.
 
-:func:`accumulate_reference` (and :func:`within_reach_reference`) are the O(N G) numpy twins.
+:func:`nbv.physics.aggregate_reference.accumulate_reference` (and ``within_reach_reference``) are the O(N G) numpy
+twins.
 """
 
 from __future__ import annotations
@@ -99,11 +100,9 @@ __all__ = [
     "GaussianAccumulator",
     "GaussianLevels",
     "GaussianLists",
-    "accumulate_reference",
     "accumulation_rows",
     "plan_levels",
     "reach_classes",
-    "within_reach_reference",
 ]
 
 log = logging.getLogger(__name__)
@@ -594,35 +593,3 @@ class GaussianAccumulator:
         """[G] sum / count (D_g of paper Eq. 3), 0 where the count is 0."""
         counts = self.counts
         return np.where(counts > 0, self.sums / np.maximum(counts, 1), 0.0)
-
-
-def within_reach_reference(
-    centers: np.ndarray, reach: np.ndarray, positions: np.ndarray, domain_min=None, domain_max=None
-) -> np.ndarray:
-    """O(P G) twin of the grid test: [P, G] bool, |x_i - mu_g|^2 < reach_g^2 (and x_i inside the domain, if given)."""
-    c = np.asarray(centers, np.float64).reshape(-1, 3)
-    r = np.asarray(reach, np.float64).reshape(-1)
-    p = np.asarray(positions, np.float64).reshape(-1, 3)
-    d = p[:, None, :] - c[None, :, :]
-    near = (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]) < (r * r)[None, :]
-    if domain_min is not None and domain_max is not None:
-        lo = np.asarray(domain_min, np.float64).reshape(3)
-        hi = np.asarray(domain_max, np.float64).reshape(3)
-        near &= np.all((p >= lo) & (p <= hi), axis=1)[:, None]
-    return near
-
-
-def accumulate_reference(
-    centers: np.ndarray, reach: np.ndarray, positions: np.ndarray, values: np.ndarray, domain_min=None, domain_max=None
-) -> tuple[np.ndarray, np.ndarray]:
-    """O(P G) twin of :class:`GaussianAccumulator`: every particle against every Gaussian.
-
-    Args:
-        centers: [G, 3] m. reach: [G] m. positions: [P, 3] m. values: [P].
-        domain_min, domain_max: optional [3] m; particles outside are ignored (as the accumulator does).
-    Returns:
-        (sums [G] float64, counts [G] int64).
-    """
-    near = within_reach_reference(centers, reach, positions, domain_min, domain_max)
-    vals = np.asarray(values, np.float64).reshape(-1)
-    return near.T.astype(np.float64) @ vals, near.sum(axis=0).astype(np.int64)

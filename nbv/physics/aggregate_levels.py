@@ -4,7 +4,7 @@ The static Gaussians are sorted into levels by reach (:func:`plan_levels`), each
 list the Gaussians that reach them (:class:`GaussianLists`); every probe of a run reuses them, and only its sums
 (:class:`nbv.physics.aggregate.GaussianAccumulator`) are fresh. The cost model and the budgets are described in
 :mod:`nbv.physics.aggregate`. No numpy twin here: the lists are checked through the accumulator against
-:func:`nbv.physics.aggregate.accumulate_reference`.
+:func:`nbv.physics.aggregate_reference.accumulate_reference`.
 """
 
 from __future__ import annotations

@@ -13,9 +13,10 @@ from fluidsim import DFSPHSolver, SolverConfig
 from fluidsim.scene import lattice_in_box
 from fluidsim.sources import sphere_particles, wall_particles
 from nbv.physics import aggregate, aggregate_distinct, aggregate_levels
-from nbv.physics.aggregate import GaussianAccumulator, GaussianLists, accumulate_reference, within_reach_reference
+from nbv.physics.aggregate import GaussianAccumulator, GaussianLists
 from nbv.physics.aggregate_kernels import VALUE_LIMIT, VALUE_SCALE
 from nbv.physics.aggregate_levels import _ENTRY_SLACK, ENTRIES_PER_GAUSSIAN, plan_levels
+from nbv.physics.aggregate_reference import accumulate_reference, within_reach_reference
 
 from helpers.paths import REPO, TESTS
 

@@ -11,7 +11,8 @@ import torch
 
 from nbv import physics
 from nbv.physics import PhysicsConfig, ProbePlan, empty_cache, empty_scene_probes, run, simulate_gaussians
-from nbv.physics.aggregate import GaussianAccumulator, accumulate_reference
+from nbv.physics.aggregate import GaussianAccumulator
+from nbv.physics.aggregate_reference import accumulate_reference
 from nbv.physics.empty_cache import EmptyCache, EmptySamples, cache_key
 from nbv.physics.scene_frame import gaussian_arrays_in_sim
 from nbv.physics.solidify import SolidifyConfig, gaussians_to_solid

@@ -11,7 +11,7 @@ import torch
 from fluidsim.probes import build_probe_solver, probe_setup
 from nbv import physics, scores
 from nbv.physics import PhysicsConfig, load_result, save_result, simulate_gaussians
-from nbv.physics.aggregate import accumulate_reference
+from nbv.physics.aggregate_reference import accumulate_reference
 from nbv.study import sweep
 from recon.gaussians import GaussianSet
 

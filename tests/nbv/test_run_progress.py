@@ -4,7 +4,7 @@ that one ETA holds across probes of different sizes."""
 import io
 from types import SimpleNamespace
 
-from nbv.physics.run import RunProgress
+from nbv.physics.progress import RunProgress
 
 
 class _Plan:

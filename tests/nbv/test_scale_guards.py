@@ -244,7 +244,8 @@ def test_interleaved_steps_of_different_sizes_equal_the_twin(monkeypatch, track)
     import taichi as ti
 
     from nbv.physics import aggregate
-    from nbv.physics.aggregate import GaussianAccumulator, accumulate_reference
+    from nbv.physics.aggregate import GaussianAccumulator
+    from nbv.physics.aggregate_reference import accumulate_reference, within_reach_reference
 
     monkeypatch.setattr(aggregate, "INTERLEAVE_ABOVE_BYTES", 0)
     rng = np.random.default_rng(11)
@@ -266,7 +267,7 @@ def test_interleaved_steps_of_different_sizes_equal_the_twin(monkeypatch, track)
         acc._stage(n, 64, xs, vs, ii, serial=False)
         s, c = accumulate_reference(centers, reach, x, np.round(v * 2**24) / 2**24, lo, hi)
         sums, counts = sums + s, counts + c
-        for g, p in zip(*np.nonzero(aggregate.within_reach_reference(centers, reach, x, lo, hi).T), strict=True):
+        for g, p in zip(*np.nonzero(within_reach_reference(centers, reach, x, lo, hi).T), strict=True):
             seen[g].add(p)
     assert acc._staged_steps == 1  # the fifth step is staged, the first four were accumulated interleaved
     np.testing.assert_array_equal(acc.counts, counts)

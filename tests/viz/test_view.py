@@ -1,8 +1,8 @@
 """`fluidgs view` (viz) and the probe trajectories it replays (nbv.physics.trajectory), on a tiny sphere.
 
 - the recorded frames are what the probe accumulated: D_g^(-x) and the sample counts recomputed from the frames
-  (brute force, nbv.physics.aggregate.within_reach_reference) match RESULT.h5, and the last frame is the probe's
-  end state;
+  (brute force, nbv.physics.aggregate_reference.within_reach_reference) match RESULT.h5, and the last frame is
+  the probe's end state;
 - RESULT.h5 for the viewer: missing arrays, other Gaussians, a missing trajectory: errors naming the fix;
 - the cameras in the simulation frame, the colours (nbv.heatmap's), the viser server (colours, frames, camera
   clicks, a port in use, Ctrl-C) and a real headless Chromium screenshot of the splat and its colour bar.
@@ -30,7 +30,7 @@ import pytest
 import torch
 
 from apps import cli
-from nbv.physics.aggregate import within_reach_reference
+from nbv.physics.aggregate_reference import within_reach_reference
 from recon.camera import Camera
 from recon.datasets import load_cameras
 from recon.formats import load_gaussians
