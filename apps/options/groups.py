@@ -10,7 +10,7 @@ from typing import Any
 
 from fluidsim.files import check_input_file
 
-from .fields import add_config_options, config_values
+from .fields import add_config_options, config_values, option_names, options_named
 
 # ---- the probe options of simulate, score, sweep, critical, inspect and bench score (nbv.physics.PhysicsConfig) ----
 PROBE_FIELDS = (
@@ -142,7 +142,8 @@ def physics_config_from_args(
     from nbv.physics import parse_directions
 
     config, quick = physics_config_class()
-    values = config_values(config, args, PROBE_FIELDS + FRAME_FIELDS + SOLID_FIELDS + RUN_FIELDS, probe_overrides())
+    names = PROBE_FIELDS + FRAME_FIELDS + SOLID_FIELDS + RUN_FIELDS
+    values = config_values(config, args, names, probe_overrides())
     if "directions" in values:
         values["directions"] = parse_directions(values["directions"])
     elif default_directions:
@@ -153,7 +154,8 @@ def physics_config_from_args(
         values["empty_reference"] = False  # commands without the option never run the empty scene
     if preset is None:
         preset = quick if getattr(args, "quick", False) else {}
-    return config(**{**preset, **values, "track_distinct": track_distinct, **extra})
+    with options_named(option_names(config, names, probe_overrides())):
+        return config(**{**preset, **values, "track_distinct": track_distinct, **extra})
 
 
 def up_from_args(args: argparse.Namespace, cameras=None):
@@ -454,6 +456,22 @@ def check_output_file(path, suffixes: tuple[str, ...]):
     if suffixes and Path(path).suffix.lower() not in suffixes:
         raise ValueError(f"output {path} must end with {' or '.join(suffixes)}")
     return check_writable(path)
+
+
+def check_output_folder(folder, where: str) -> Path:
+    """Fail before any work when the results folder ``folder`` cannot be made or written: an
+    :class:`~fluidsim.files.OutputError` (exit 4) that starts with ``where`` (the option or config key that gave
+    it), never the file system's bare errno text."""
+    from fluidsim.files import OutputError, check_writable
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{where} {folder} is a file, not a folder; give a results folder that is not a file")
+    try:
+        check_writable(folder / "results.json")
+    except OutputError as exc:
+        raise OutputError(f"{where} {folder}: {exc}") from None
+    return folder
 
 
 # The files of a dataset folder that loading reads (cameras, points, normalisation), at the top, in sparse/ and in

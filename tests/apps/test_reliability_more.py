@@ -1,0 +1,243 @@
+"""Limits, messages and silent mistakes of the hostile sweep: each case is first rebuilt as the sweep ran it, and
+each must end in one line that names the input or option that caused it and the fix (no traceback, no silent
+result)."""
+
+import json
+import logging
+import math
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from apps import cli
+from recon.camera import Camera
+from recon.gaussians import GaussianSet
+from recon.ply import save_gaussians
+
+FAST = ["--particle-radius", "0.08", "--steps", "5", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
+
+
+def _errors(caplog) -> str:
+    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
+
+
+def _warnings(caplog) -> str:
+    return " ".join(r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
+
+
+def _scene(**over) -> dict:
+    s = {
+        "particle_radius": 0.05,
+        "rest_density": 1000.0,
+        "viscosity": 10.0,
+        "gravity": [0, -9.81, 0],
+        "dt": 0.002,
+        "steps": 2,
+        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
+        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
+    }
+    s.update(over)
+    return s
+
+
+def _sphere(n: int = 300) -> GaussianSet:
+    i = np.arange(n) + 0.5
+    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
+    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
+    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
+
+
+def _cameras(path, w: int = 48, h: int = 40):
+    cams = [
+        Camera.look_at(
+            (2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, math.radians(50), name=f"cam{k}"
+        )
+        for k, a in enumerate(np.arange(4) * math.pi / 2)
+    ]
+    frames = [{"file_path": f"./{c.name}", "transform_matrix": c.opengl_c2w().tolist()} for c in cams]
+    path.write_text(json.dumps({"camera_angle_x": math.radians(50), "w": w, "h": h, "frames": frames}))
+    return path
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """A 300-Gaussian sphere, four cameras and its -x RESULT.h5 (simulate, 5 coarse steps)."""
+    root = tmp_path_factory.mktemp("more")
+    ply = save_gaussians(_sphere(), root / "mine.ply")
+    cams = _cameras(root / "transforms.json")
+    h5 = root / "r.h5"
+    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x", *FAST]) == 0
+    return dict(root=root, ply=ply, cameras=cams, h5=h5)
+
+
+# ---- counts that allocate ---------------------------------------------------------------------------------------
+def test_max_neighbors_1e9_is_refused_before_allocating_naming_the_key(tmp_path, caplog, capsys):
+    """`"max_neighbors": 1e9` gave a Taichi allocation traceback (an overflowed size of 1.8e19 bytes)."""
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(_scene(solver={"max_neighbors": 1_000_000_000})))
+    assert cli.main(["sim", str(scene), "-o", str(tmp_path / "o.h5"), "--threads", "1"]) == 2
+    msg = _errors(caplog)
+    assert "'solver.max_neighbors' = 1000000000" in msg and "remove 'max_neighbors'" in msg
+    assert "Traceback" not in capsys.readouterr().err and not (tmp_path / "o.h5").exists()
+
+
+def test_max_neighbors_enters_the_memory_estimate():
+    from fluidsim.memory import BYTES_PER_LIST_SLOT, default_list_capacity, estimate_scene_memory
+    from fluidsim.scene import parse_scene
+
+    plain = estimate_scene_memory(parse_scene(_scene(), "."))
+    wide = estimate_scene_memory(parse_scene(_scene(solver={"max_neighbors": 1000}), "."))
+    extra = 1000 - default_list_capacity(parse_scene(_scene(), ".").config)
+    assert plain.list_bytes == 0
+    assert wide.bytes - plain.bytes == pytest.approx(plain.fluid_particles * extra * BYTES_PER_LIST_SLOT["f32"])
+
+
+def test_a_million_wall_layers_blame_the_wall_layers_not_the_domain(tmp_path, caplog):
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(_scene(domain={"min": [0, 0, 0], "max": [1, 1, 1], "wall_layers": 1_000_000})))
+    assert cli.main(["sim", str(scene), "-o", str(tmp_path / "o.h5"), "--threads", "1"]) == 2
+    msg = _errors(caplog)
+    assert "'domain.wall_layers' = 1000000" in msg and "set 'domain.wall_layers' to 2" in msg
+    assert "shrink 'domain'" not in msg
+
+
+# ---- messages that name the real cause ---------------------------------------------------------------------------
+def test_a_tiny_dt_is_called_too_small_not_too_large(data, tmp_path, caplog):
+    out = tmp_path / "r.h5"
+    assert cli.main(["simulate", str(data["ply"]), "-o", str(out), "--directions=-x", *FAST, "--dt", "1e-300"]) == 2
+    msg = _errors(caplog)
+    assert "--dt must be at least 1e-08 s" in msg and "too small, not too large" in msg and "reduce dt" not in msg
+    assert not out.exists()
+
+
+def test_a_huge_viscosity_is_refused_naming_the_viscosity_and_its_limit(data, tmp_path, caplog):
+    """`--viscosity 1e6` diverged at step 2 ("fluid speed 2.55e+04 m/s exceeds max_speed; reduce dt")."""
+    out = tmp_path / "r.h5"
+    args = ["simulate", str(data["ply"]), "-o", str(out), "--directions=-x", *FAST, "--viscosity", "1e6"]
+    assert cli.main(args) == 2
+    msg = _errors(caplog)
+    assert "viscosity 1e+06 Pa s is above the stability limit of the explicit viscosity step" in msg
+    assert "lower viscosity to 800 Pa s or less" in msg and not out.exists()
+
+
+def test_the_viscous_limit_follows_the_diffusion_bound():
+    """dt <= 0.125 (h/2)^2 rho0 / mu: at r = 0.05 m (h = 0.2 m), rho0 = 1000, dt = 0.002 s the bound is 625 Pa s
+    (measured with `fluidgs sim`: 600 Pa s ran 60 steps, 1000 Pa s diverged at step 19)."""
+    from fluidsim.config import SolverConfig
+    from fluidsim.simulation import check_viscous_time_step, viscous_dt_limit
+
+    cfg = SolverConfig(particle_radius=0.05, dt=0.002, viscosity=600.0)
+    assert viscous_dt_limit(cfg, 625.0) == pytest.approx(0.002)
+    assert viscous_dt_limit(cfg, 0.0) == math.inf
+    check_viscous_time_step(cfg)
+    with pytest.raises(ValueError, match="viscosity 1000 Pa s.*lower viscosity to 625 Pa s"):
+        check_viscous_time_step(SolverConfig(particle_radius=0.05, dt=0.002, viscosity=1000.0), "scene s.json")
+    with pytest.raises(ValueError, match="boundary_viscosity 5000 Pa s"):
+        check_viscous_time_step(SolverConfig(particle_radius=0.05, dt=0.002, boundary_viscosity=5000.0))
+
+
+def test_config_errors_name_the_option_not_the_class(tmp_path, caplog):
+    """`PhysicsConfig.scale` and `ActiveConfig.budget` appeared where the user wrote --scale and --budget."""
+    (tmp_path / "ds").mkdir()
+    assert cli.main(["simulate", "g.ply", "-o", str(tmp_path / "r.h5"), "--scale", "0"]) == 2
+    assert cli.main(["active", str(tmp_path / "ds"), "-o", str(tmp_path / "run"), "--budget", "0"]) == 2
+    assert cli.main(["active", str(tmp_path / "ds"), "-o", str(tmp_path / "run"), "--probe-steps", "0"]) == 2
+    msg = _errors(caplog)
+    assert "--scale must be 'auto' or a number > 0" in msg and "--budget must be an integer >= 1" in msg
+    assert "--probe-steps must be an integer >= 1" in msg and "Config." not in msg
+
+
+def test_rename_fields_replaces_whole_names_only():
+    from apps.options import option_names
+    from apps.options.fields import rename_fields
+    from nbv.physics import PhysicsConfig
+
+    names = option_names(PhysicsConfig, ("steps", "fill_cavities"), {"fill_cavities": {"flags": ("--no-fill",)}})
+    assert names == {"PhysicsConfig.steps": "--steps", "PhysicsConfig.fill_cavities": "--no-fill"}
+    assert rename_fields("PhysicsConfig.steps and PhysicsConfig.steps_x", names) == "--steps and PhysicsConfig.steps_x"
+
+
+@pytest.fixture(scope="module")
+def blender_scene(tmp_path_factory):
+    root = tmp_path_factory.mktemp("scene") / "scene"
+    root.mkdir()
+    frame = {"file_path": "./train/r_0", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}
+    for split in ("train", "test"):
+        (root / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": [frame] * 8}))
+    return root
+
+
+@pytest.mark.parametrize(
+    "active, key",
+    [({"budget": 0}, "'active.budget' must be"), ({"budget": 4, "physics": {"steps": 0}}, "'active.physics.steps'")],
+)
+def test_experiment_config_errors_name_the_key(blender_scene, tmp_path, caplog, active, key):
+    path = tmp_path / "exp.json"
+    path.write_text(json.dumps({"scenes": [str(blender_scene)], "methods": ["random"], "active": active}))
+    assert cli.main(["experiment", str(path), "--no-progress"]) == 2
+    assert key in _errors(caplog) and "Config." not in _errors(caplog)
+
+
+def test_experiment_output_that_is_a_file_is_named_as_the_key(blender_scene, tmp_path, caplog):
+    """`"output": "../A.ply"` (an existing file) printed "[Errno 17] File exists: ..."."""
+    (tmp_path / "A.ply").write_text("not a folder")
+    (tmp_path / "sub").mkdir()
+    path = tmp_path / "sub" / "exp.json"
+    path.write_text(
+        json.dumps(
+            {
+                "scenes": [str(blender_scene)],
+                "methods": ["random"],
+                "reference_views": None,
+                "output": "../A.ply",
+                "active": {"budget": 4},
+            }
+        )
+    )
+    assert cli.main(["experiment", str(path), "--no-progress"]) == 4
+    msg = _errors(caplog)
+    assert f"the 'output' of {path}" in msg and "is a file, not a folder" in msg and "Errno" not in msg
+    assert (tmp_path / "A.ply").read_text() == "not a folder"
+
+
+# ---- a result with no completed probe --------------------------------------------------------------------------------
+@pytest.fixture
+def no_probe(data, tmp_path):
+    """RESULT.h5 of a run that diverged in its first probe (the layout `simulate` writes then)."""
+    bad = tmp_path / "none.h5"
+    shutil.copy(data["h5"], bad)
+    with h5py.File(bad, "r+") as f:
+        del f["probes"]
+        f.attrs["directions"] = "[]"
+        f.attrs.update(status="diverged", diverged_probe="-x", diverged_step=0, diverged_reason="fluid speed 250 m/s")
+    return bad
+
+
+def test_view_of_a_result_with_no_completed_probe_is_one_line(no_probe, caplog, capsys):
+    pytest.importorskip("viser")
+    assert cli.main(["view", str(no_probe), "--port", "0"]) == 2
+    msg = _errors(caplog)
+    assert "has no D_g to show" in msg and "diverged in probe -x at step 0" in msg and "before completing" in msg
+    assert "IndexError" not in capsys.readouterr().err
+
+
+def test_score_of_a_result_with_no_completed_probe_says_none_completed(data, no_probe, tmp_path, caplog):
+    out = tmp_path / "s.json"
+    args = ["score", str(data["ply"]), "--cameras", str(data["cameras"]), "--result", str(no_probe), "-o", str(out)]
+    assert cli.main([*args, "--no-png"]) == 2
+    assert "no probe completed" in _errors(caplog) and not out.exists()
+
+
+# ---- nothing silently wrong ------------------------------------------------------------------------------------------
+def test_speed_0_is_refused_naming_the_option(data, tmp_path, caplog):
+    """`--speed 0` completed with D-bar = 0 and no warning."""
+    out = tmp_path / "r.h5"
+    assert cli.main(["simulate", str(data["ply"]), "-o", str(out), "--directions=-x,-y", *FAST, "--speed", "0"]) == 2
+    msg = _errors(caplog)
+    assert "--speed is 0 m/s: the probes -x would have no inflow and measure nothing" in msg and not out.exists()
+    from nbv.physics import PhysicsConfig
+
+    assert PhysicsConfig(speed=0.0, directions=("-y",)).speed == 0.0  # the -y probe falls from rest: allowed
