@@ -239,6 +239,11 @@ def kept_gaussians(gaussians, config: PhysicsConfig, report: bool = True) -> np.
 _CROP_NOT_GIVEN = object()
 
 
+# The smallest object box, in scene units, that scale "auto" blows up to ``target_extent``: below it the scale passes
+# 1e12 m per unit and the Gaussians' covariances (scale^2 sigma^2) leave float32's range.
+MIN_AUTO_EXTENT = 1.0e-12
+
+
 def scene_transform(gaussians, config: PhysicsConfig, *, kept=_CROP_NOT_GIVEN):
     """The :class:`nbv.physics.scene_frame.SceneTransform` for ``config.up`` and ``config.scale`` ("auto" resolved).
 
@@ -250,10 +255,12 @@ def scene_transform(gaussians, config: PhysicsConfig, *, kept=_CROP_NOT_GIVEN):
         return SceneTransform(config.up, float(config.scale))
     box = object_box(gaussians, config, kept=kept)
     extent = 0.0 if box is None else float((box[1] - box[0]).max())
-    if not extent > 0:
+    if not extent >= MIN_AUTO_EXTENT:
         raise ValueError(
-            "cannot pick scale='auto': the Gaussians have no spatial extent; "
-            "pass a number (metres per scene unit) as the scale"
+            f"cannot pick scale='auto': the Gaussians' object box is {extent:.3g} scene units across (their centres "
+            f"coincide or nearly: one point, or subnormal coordinates), less than the {MIN_AUTO_EXTENT:g} units the "
+            "scale can blow up to the object's size; check the file's coordinates, or pass --scale (metres per "
+            "scene unit)"
         )
     return SceneTransform(config.up, config.target_extent / extent)
 

@@ -241,3 +241,67 @@ def test_speed_0_is_refused_naming_the_option(data, tmp_path, caplog):
     from nbv.physics import PhysicsConfig
 
     assert PhysicsConfig(speed=0.0, directions=("-y",)).speed == 0.0  # the -y probe falls from rest: allowed
+
+
+# ---- extreme numbers in a Gaussian file ----------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "field, value, what",
+    [
+        ("means", 1e38, "a centre coordinate beyond +-1e15 scene units"),
+        ("log_scales", 88.0, "a log-scale beyond +-30"),
+        ("log_scales", -88.0, "a log-scale beyond +-30"),
+    ],
+)
+def test_extreme_means_and_scales_name_the_gaussians(tmp_path, caplog, capsys, field, value, what):
+    """Means of 1e38 and log-scales of +-88 printed 113-digit counts from an int64 overflow (or passed silently)."""
+    props = ("x", "y", "z") if field == "means" else ("scale_0", "scale_1", "scale_2")
+    path = _patched_ply(save_gaussians(_sphere(), tmp_path / "x.ply"), [3, 7], props, value)
+    assert cli.main(["inspect", str(path), "--threads", "1"]) == 2
+    msg = _errors(caplog)
+    assert f"2 Gaussians have {what}" in msg and "first rows [3, 7]" in msg and f"{value:.3g}" in msg
+    assert ",000,000" not in msg and "Traceback" not in capsys.readouterr().err
+
+
+def _patched_ply(path, rows, props, value):
+    """``path`` (a binary float32 3DGS .ply) with ``props`` of ``rows`` set to ``value`` (the writer refuses it)."""
+    raw = path.read_bytes()
+    end = raw.index(b"end_header\n") + len(b"end_header\n")
+    names = [line.split()[-1].decode() for line in raw[:end].splitlines() if line.startswith(b"property")]
+    table = np.frombuffer(raw[end:], np.float32).reshape(-1, len(names)).copy()
+    for p in props:
+        table[rows, names.index(p)] = value
+    path.write_bytes(raw[:end] + table.tobytes())
+    return path
+
+
+def test_subnormal_centres_are_named_as_such_by_scale_auto(tmp_path, caplog):
+    path = save_gaussians(_sphere(), tmp_path / "tiny.ply")
+    raw = path.read_bytes()
+    end = raw.index(b"end_header\n") + len(b"end_header\n")
+    names = [line.split()[-1].decode() for line in raw[:end].splitlines() if line.startswith(b"property")]
+    table = np.frombuffer(raw[end:], np.float32).reshape(-1, len(names)).copy()
+    table[:, :3] = _sphere().means.numpy() * 1e-39  # subnormal float32 centres (0 where Taichi flushes them)
+    path.write_bytes(raw[:end] + table.tobytes())
+    assert cli.main(["inspect", str(path), "--threads", "1"]) == 2
+    assert "centres coincide or nearly" in _errors(caplog) and "pass --scale" in _errors(caplog)
+
+
+def test_huge_counts_are_written_in_powers_of_ten():
+    from nbv.physics.memory import _count
+
+    assert _count(1234567) == "1,234,567" and _count(1.65e114) == "1.65e+114"
+
+
+def test_a_diverged_result_records_a_positive_simulation_time(data):
+    """A probe that diverged after some aggregated steps recorded simulation = probe time (0: not added) minus
+    aggregation time (added each step): -0.22 s."""
+    from nbv.physics import PhysicsConfig, ProbeDiverged, simulate_gaussians
+    from recon import load_gaussians
+
+    cfg = PhysicsConfig(
+        particle_radius=0.08, steps=20, dt=0.004, empty_reference=False, directions=("-x",), solver={"max_speed": 3.05}
+    )
+    with pytest.raises(ProbeDiverged) as info:
+        simulate_gaussians(load_gaussians(data["ply"]), cfg, progress=False)
+    t = info.value.result.timings
+    assert info.value.step > 0 and t["aggregation"] > 0 and t["simulation"] > 0
