@@ -178,7 +178,8 @@ def check_memory(
             f"the probe would need about {est['bytes'] / 2**30:.4g} GiB ({_count(est['fluid_particles'])} fluid and "
             f"{_count(est['boundary_particles'])} boundary particles at r = {config.particle_radius} m, a solid "
             f"lattice of {_count(est['lattice_points'])} points, {gaussians.num:,} Gaussians: "
-            f"{gib['resident_bytes']:.3g} GiB for the Gaussians, then {gib['solidify_bytes']:.3g} GiB to solidify, {gib['probe_bytes']:.3g} GiB per probe and "
+            f"{gib['resident_bytes']:.3g} GiB for the Gaussians, then {gib['solidify_bytes']:.3g} GiB to solidify, "
+            f"{gib['probe_bytes']:.3g} GiB per probe and "
             f"{gib['accumulator_bytes']:.3g} GiB for its per-Gaussian accumulator) but {limit / 2**30:.3g} GiB are "
             f"{available}{_memory_fix(gaussians, config, transform, est, limit, sim)}"
         )
