@@ -155,7 +155,9 @@ def physics_config_from_args(
     if preset is None:
         preset = quick if getattr(args, "quick", False) else {}
     with options_named(option_names(config, names, probe_overrides())):
-        return config(**{**preset, **values, "track_distinct": track_distinct, **extra})
+        physics = config(**{**preset, **values, "track_distinct": track_distinct, **extra})
+        physics.check_inflow()
+    return physics
 
 
 def up_from_args(args: argparse.Namespace, cameras=None):

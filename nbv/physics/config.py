@@ -119,18 +119,26 @@ class PhysicsConfig:
             raise ValueError(f"PhysicsConfig.max_memory_gb must be > 0 or None, got {self.max_memory_gb}")
         solver = tuple((str(k), v) for k, v in (self.solver.items() if isinstance(self.solver, dict) else self.solver))
         object.__setattr__(self, "solver", solver)
-        horizontal = [d for d in dirs if d != "-y"]
-        if self.speed == 0 and horizontal:
-            raise ValueError(
-                f"PhysicsConfig.speed is 0 m/s: the probes {', '.join(horizontal)} would have no inflow and measure "
-                "nothing (D_g = 0 everywhere); use a speed > 0 m/s (default 3), or only the -y probe"
-            )
         try:
             self.solver_config()  # validates the pass-through keys now
         except ValueError as exc:
             if str(exc).split(" ", 1)[0] in ("particle_radius", "dt", "viscosity", "rest_density", "precision"):
                 raise ValueError(f"PhysicsConfig.{exc}") from None  # a field of this config: named as one
             raise
+
+    def check_inflow(self) -> None:
+        """Refuse a speed of 0 with horizontal probes: they would have no inflow and measure nothing (D_g = 0
+        everywhere, and no warning). Results of such runs still load; commands call this before a new run.
+
+        Raises:
+            ValueError: naming ``PhysicsConfig.speed`` (the commands name their option or key).
+        """
+        horizontal = [d for d in self.directions if d != "-y"]
+        if self.speed == 0 and horizontal:
+            raise ValueError(
+                f"PhysicsConfig.speed is 0 m/s: the probes {', '.join(horizontal)} would have no inflow and measure "
+                "nothing (D_g = 0 everywhere); use a speed > 0 m/s (default 3), or only the -y probe"
+            )
 
     @classmethod
     def quick(cls, **overrides: Any) -> PhysicsConfig:

@@ -116,7 +116,7 @@ class ExperimentConfig:
             with _config_keys(
                 {"ActiveConfig": "active.", "TrainConfig": "active.train.", "PhysicsConfig": "active.physics."}
             ):
-                self.active_config(method, self.seeds[0])
+                self.active_config(method, self.seeds[0]).physics.check_inflow()
         with _config_keys({"EvalConfig": "eval.", "PhysicsConfig": "eval.physics."}):
             self.eval_config()
 

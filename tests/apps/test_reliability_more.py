@@ -64,12 +64,12 @@ def _cameras(path, w: int = 48, h: int = 40):
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
-    """A 300-Gaussian sphere, four cameras and its -x RESULT.h5 (simulate, 5 coarse steps)."""
+    """A 300-Gaussian sphere, four cameras and its -x RESULT.h5 (simulate, 20 coarse steps)."""
     root = tmp_path_factory.mktemp("more")
     ply = save_gaussians(_sphere(), root / "mine.ply")
     cams = _cameras(root / "transforms.json")
     h5 = root / "r.h5"
-    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x", *FAST]) == 0
+    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x", *FAST, "--steps", "20"]) == 0
     return dict(root=root, ply=ply, cameras=cams, h5=h5)
 
 
@@ -305,3 +305,79 @@ def test_a_diverged_result_records_a_positive_simulation_time(data):
         simulate_gaussians(load_gaussians(data["ply"]), cfg, progress=False)
     t = info.value.result.timings
     assert info.value.step > 0 and t["aggregation"] > 0 and t["simulation"] > 0
+
+
+def test_speed_0_in_an_experiment_names_the_key(blender_scene, tmp_path, caplog):
+    path = tmp_path / "exp.json"
+    active = {"budget": 4, "physics": {"speed": 0.0}}
+    path.write_text(json.dumps({"scenes": [str(blender_scene)], "methods": ["random+fluid"], "active": active}))
+    assert cli.main(["experiment", str(path), "--no-progress"]) == 2
+    assert "'active.physics.speed' is 0 m/s" in _errors(caplog)
+
+
+def test_absurd_image_sizes_are_refused_naming_the_camera(data, tmp_path, caplog):
+    """Cameras with w = h = 1e9 tied every view with no warning."""
+    from recon.camera import MAX_IMAGE_SIDE
+
+    huge = _cameras(tmp_path / "huge.json", w=10**9, h=10**9)
+    out = tmp_path / "s.json"
+    args = ["score", str(data["ply"]), "--cameras", str(huge), "--result", str(data["h5"]), "-o", str(out), "--no-png"]
+    assert cli.main(args) == 2
+    msg = _errors(caplog)
+    assert "frame 0 (file_path './cam0'): key 'w' (top level) is 1,000,000,000 pixels" in msg
+    assert f"more than {MAX_IMAGE_SIDE:,}" in msg and not out.exists()
+    with pytest.raises(ValueError, match="Camera 'c': height 70,000 pixels is more than 65,536"):
+        Camera(10, 70_000, 5.0, 5.0, 5.0, 5.0, torch.eye(4), "c")
+
+
+def test_score_removes_its_own_stale_view_images_only(data, tmp_path):
+    """Re-running `score` into the same views folder kept the old PNGs beside the new ones."""
+    out, views = tmp_path / "s.json", tmp_path / "s_views"
+    views.mkdir()
+    stale = [views / "rank003_002_cam2.png", views / "rank009_009_old_uncertainty.npy"]
+    mine = [views / "notes.png", views / "rank_1.png", views / "readme.txt"]
+    for p in stale + mine:
+        p.write_bytes(b"x")
+    args = ["score", str(data["ply"]), "--cameras", str(data["cameras"]), "--result", str(data["h5"]), "-o", str(out)]
+    assert cli.main([*args, "--png-top", "1"]) == 0
+    written = sorted(p.name for p in views.iterdir() if p.name.startswith("rank0"))
+    assert len(written) == 1 and written[0].startswith("rank001_")
+    assert all(p.exists() for p in mine) and not any(p.exists() for p in stale)
+
+
+def test_render_dataset_into_an_unwritable_folder_is_exit_4(tmp_path, monkeypatch, caplog):
+    """render-dataset exited 2 on a read-only output where the other commands exit 4 (root ignores the mode bits,
+    so the check is made to see an unwritable folder)."""
+    import recon.mesh_render
+
+    from helpers.paths import TORUS
+
+    import os
+
+    real = os.access
+    monkeypatch.setattr(recon.mesh_render.os, "access", lambda path, mode, **k: not mode & os.W_OK and real(path, mode))
+    assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "ds"), "--no-progress"]) == 4
+    assert "is not writable" in _errors(caplog) and not (tmp_path / "ds").exists()
+    monkeypatch.undo()
+    (tmp_path / "file").write_text("x")
+    assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "file"), "--no-progress"]) == 4
+
+
+@pytest.mark.parametrize(
+    "body, what",
+    [
+        (b"\x00\x01\x02garbage" * 2000, "runs past 4,096 bytes"),
+        (b"\xff\xfe\x80\n" * 10, "before the non-ASCII bytes at byte 70"),
+        (b"comment a\n" * 20000, "within its first 10,000 lines"),
+    ],
+)
+def test_a_ply_header_that_never_ends_says_so(tmp_path, body, what):
+    """A header with no end_header was reported as an unknown keyword (the data read as one)."""
+    from recon import load_gaussians
+
+    path = tmp_path / "noend.ply"
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n" + body)
+    with pytest.raises(ValueError) as info:
+        load_gaussians(path)
+    assert "has no 'end_header' line" in str(info.value) and what in str(info.value)
+    assert "unknown PLY header keyword" not in str(info.value)
