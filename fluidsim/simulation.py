@@ -151,9 +151,9 @@ def check_time_step(
     Raises:
         ValueError: naming ``where``, the CFL number, the speed bound and the largest dt that passes.
     """
-    check_viscous_time_step(config, where)
     cfl, v = run_cfl(config, initial_speed, domain_min, domain_max, steps)
     if cfl <= config.max_cfl:
+        check_viscous_time_step(config, where)  # after the CFL check: a dt too large for both is named by it
         return cfl
     sp = config.spacing
     if config.time_step == "fixed":

@@ -98,7 +98,11 @@ class GaussianSet:
     sh: torch.Tensor
 
     def __post_init__(self) -> None:
-        n = self.means.shape[0] if self.means.dim() == 2 else -1
+        m = self.means
+        if not isinstance(m, torch.Tensor) or m.dim() != 2 or m.shape[1] != 3:
+            got = tuple(m.shape) if isinstance(m, torch.Tensor) else type(m).__name__
+            raise ValueError(f"GaussianSet.means must have shape (N, 3) (one centre per Gaussian), got {got}")
+        n = m.shape[0]
         expected = {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,)}
         for name, shape in expected.items():
             t = getattr(self, name)

@@ -348,11 +348,11 @@ def test_score_removes_its_own_stale_view_images_only(data, tmp_path):
 def test_render_dataset_into_an_unwritable_folder_is_exit_4(tmp_path, monkeypatch, caplog):
     """render-dataset exited 2 on a read-only output where the other commands exit 4 (root ignores the mode bits,
     so the check is made to see an unwritable folder)."""
+    import os
+
     import recon.mesh_render
 
     from helpers.paths import TORUS
-
-    import os
 
     real = os.access
     monkeypatch.setattr(recon.mesh_render.os, "access", lambda path, mode, **k: not mode & os.W_OK and real(path, mode))
@@ -381,3 +381,66 @@ def test_a_ply_header_that_never_ends_says_so(tmp_path, body, what):
         load_gaussians(path)
     assert "has no 'end_header' line" in str(info.value) and what in str(info.value)
     assert "unknown PLY header keyword" not in str(info.value)
+
+
+# ---- names and full disks ------------------------------------------------------------------------------------------
+def test_a_gaussian_set_with_1d_means_names_the_shape_not_n_minus_1():
+    with pytest.raises(ValueError) as info:
+        GaussianSet(torch.zeros(3), torch.zeros(1, 4), torch.zeros(1, 3), torch.zeros(1), torch.zeros(1, 1, 3))
+    assert "GaussianSet.means must have shape (N, 3)" in str(info.value) and "-1" not in str(info.value)
+
+
+def test_a_non_utf8_file_name_is_refused_before_the_run(data, tmp_path, caplog):
+    """A non-UTF-8 Gaussian file name ran the whole job, then failed writing RESULT.h5 ("'utf-8' codec can't
+    encode character '\\udcff'") without naming the file."""
+    import os
+    import time
+
+    odd = os.fsdecode(os.fsencode(str(tmp_path)) + b"/m\xff.ply")
+    shutil.copy(data["ply"], odd)
+    t0 = time.monotonic()
+    assert cli.main(["simulate", odd, "-o", str(tmp_path / "r.h5"), "--directions=-x", *FAST]) == 2
+    assert cli.main(["simulate", str(data["ply"]), "-o", odd[:-4] + ".h5", "--directions=-x", *FAST]) == 2
+    assert time.monotonic() - t0 < 5
+    msg = _errors(caplog)
+    assert "GAUSSIANS b'" in msg and "--output b'" in msg and "m\\xff" in msg and "is not valid UTF-8" in msg
+    assert not (tmp_path / "r.h5").exists()
+
+
+H5_FULL = (
+    "Unable to synchronously create dataset (file write failed: time = Thu Dec  3 05:00:00 2026, filename = "
+    "'/tmp/x/.fgs-0a1b2c3d.tmp', file descriptor = 5, errno = 28, error message = 'No space left on device', buf = "
+    "0x55d0, total write size = 4096, bytes this sub-write = 4096, bytes actually written = 18446744073709551615)"
+)
+
+
+def test_a_full_disk_in_h5py_is_named_in_words(data, tmp_path, monkeypatch, caplog):
+    """A full disk printed h5py's raw text (time, file descriptor, buffer address...)."""
+    import nbv.io
+
+    def full(*args, **kwargs):
+        raise OSError(H5_FULL)
+
+    monkeypatch.setattr(nbv.io.h5py.File, "create_dataset", full)
+    out = tmp_path / "r.h5"
+    assert cli.main(["simulate", str(data["ply"]), "-o", str(out), "--directions=-x", *FAST]) == 4
+    msg = _errors(caplog)
+    assert f"cannot write {out}: No space left on device (errno 28)" in msg and "file descriptor" not in msg
+    assert "no output was written" in msg and sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_second_output_that_fails_says_which_survived(data, tmp_path, monkeypatch, caplog):
+    """RESULT.h5 written, then the coloured .ply hits a full disk: the message says RESULT.h5 is complete."""
+    import nbv.outputs
+    from fluidsim.files import output_errors
+
+    def full(gaussians, values, path, columns):
+        with output_errors(path):
+            raise OSError(H5_FULL)
+
+    monkeypatch.setattr(nbv.outputs, "save_colored_gaussians", full)
+    out, ply = tmp_path / "r.h5", tmp_path / "c.ply"
+    assert cli.main(["simulate", str(data["ply"]), "-o", str(out), "--ply", str(ply), "--directions=-x", *FAST]) == 4
+    msg = _errors(caplog)
+    assert f"cannot write {ply}: No space left on device" in msg and f"written before it, complete: {out}" in msg
+    assert out.exists() and not ply.exists()
