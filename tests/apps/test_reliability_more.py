@@ -370,6 +370,7 @@ def test_render_dataset_into_an_unwritable_folder_is_exit_4(tmp_path, monkeypatc
         (b"\xff\xfe\x80\n" * 10, "before the non-ASCII bytes at byte 70"),
         (b"comment a\n" * 20000, "within its first 10,000 lines"),
     ],
+    ids=["binary", "non-ascii", "endless"],
 )
 def test_a_ply_header_that_never_ends_says_so(tmp_path, body, what):
     """A header with no end_header was reported as an unknown keyword (the data read as one)."""
