@@ -189,9 +189,20 @@ def check_plan(args: argparse.Namespace) -> None:
 def config_from_args(args: argparse.Namespace):
     """The validated ActiveConfig of the command line (the preset's values unless an option is given)."""
     from nbv.active import ActiveConfig
+    from nbv.physics import PhysicsConfig
+    from recon.train_config import TrainConfig
 
+    from .options import option_names, options_named
+
+    over = overrides()
+    names = {
+        **option_names(ActiveConfig, (*ACTIVE_FIELDS, "backend"), over),
+        **option_names(TrainConfig, TRAIN_FIELDS, over),
+        **option_names(PhysicsConfig, PHYSICS_FIELDS, over),
+    }
     active, train, physics = option_values(args)
-    return ActiveConfig.from_preset(args.preset, **active, train=train, physics=physics)
+    with options_named(names):
+        return ActiveConfig.from_preset(args.preset, **active, train=train, physics=physics)
 
 
 def run_command(args: argparse.Namespace) -> int:

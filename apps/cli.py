@@ -13,7 +13,8 @@ code  meaning
       before it is saved (RESULT.h5 with status "diverged", OUT.h5 with the fault as status; `score` only
       with --save-result)
 4     an output cannot be written: full disk (ENOSPC) or quota, read-only file system (EROFS), no permission,
-      a name too long (ENAMETOOLONG), a parent that is a file, a folder where a file is wanted
+      a name too long (ENAMETOOLONG), a parent that is a file, a folder where a file is wanted; the message names
+      the outputs written before the failure (complete), or says that none was
 130   interrupted by Ctrl-C (SIGINT); `sim` first saves its frames so far (status "interrupted"); every command
       removes its unfinished temporary files and stops its worker processes (apps.signals)
 143   stopped by SIGTERM (kill, timeout, a batch scheduler), with the same clean-up as 130; also any command whose
@@ -26,9 +27,10 @@ from __future__ import annotations
 import argparse
 import errno
 import logging
+import os
 import sys
 
-from fluidsim.files import OutputError, remove_unfinished
+from fluidsim.files import OutputError, remove_unfinished, written_outputs
 
 from .signals import Stopped, first_signal, signal_name, stop_signals
 
@@ -139,6 +141,35 @@ def value_options(parser: argparse.ArgumentParser) -> tuple[frozenset[str], froz
     return frozenset(takes), frozenset(every)
 
 
+def non_utf8_argument(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str | None:
+    """The message for the first argument of the command line that is not valid UTF-8 (a file name of other bytes,
+    which Python keeps as surrogates), naming its option; None when every argument is. The results record file
+    names as text (RESULT.h5's source, scores.json), which such a name cannot be written into."""
+    stack = [parser]
+    while stack:
+        p = stack.pop()
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                stack.extend(c for name, c in action.choices.items() if name == getattr(args, "command", None))
+                continue
+            value = getattr(args, action.dest, None)
+            for v in value if isinstance(value, (list, tuple)) else [value]:
+                if not isinstance(v, (str, os.PathLike)):
+                    continue
+                try:
+                    os.fspath(v).encode("utf-8")
+                except UnicodeEncodeError:
+                    name = (
+                        action.option_strings[-1] if action.option_strings else (action.metavar or action.dest.upper())
+                    )
+                    raw = os.fsencode(v)
+                    return (
+                        f"{name} {raw!r}: the name is not valid UTF-8, and the outputs record file names as UTF-8 "
+                        "text; rename the file (or folder) to a UTF-8 name and run again"
+                    )
+    return None
+
+
 def join_dash_values(argv: list[str], parser: argparse.ArgumentParser | None = None) -> list[str]:
     """One rule for values that start with '-' (a probe "-x", a probe list "-x,+x", an up "-y", a box
     "-1,-1,-1,1,1,1", a vector "-0.1,1,0"): argparse would read such a value as an option, so ``--opt -x`` becomes
@@ -191,6 +222,10 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
     )
+    bad_name = non_utf8_argument(parser, args)
+    if bad_name is not None:  # before any work: the name would fail where a result records it, after the run
+        logging.getLogger("fluidgs").error("%s", bad_name)
+        return EXIT_BAD_INPUT
     code = EXIT_INTERRUPTED
     try:
         with stop_signals():
@@ -204,14 +239,20 @@ def run_module(args: argparse.Namespace) -> int:
     """Run the parsed command; returns its exit code (one logged line for every expected failure)."""
     module = args._module
     runner = getattr(module, "run_command", None) or module.run
+    before = len(written_outputs())
     try:
         return int(runner(args) or 0)
     except Stopped as exc:  # SIGINT or SIGTERM (apps.signals): one line, what is already written stays written
         logging.getLogger("fluidgs").error("interrupted by %s", signal_name(exc.signum))
         return exc.exit_code
     except (ValueError, OSError, FileNotFoundError) as exc:
-        logging.getLogger("fluidgs").error("%s", exc)
-        return EXIT_OUTPUT if is_output_error(exc) else EXIT_BAD_INPUT
+        if not is_output_error(exc):
+            logging.getLogger("fluidgs").error("%s", exc)
+            return EXIT_BAD_INPUT
+        done = written_outputs()[before:]
+        kept = f"; written before it, complete: {', '.join(map(str, done))}" if done else "; no output was written"
+        logging.getLogger("fluidgs").error("%s%s", exc, kept)
+        return EXIT_OUTPUT
     except RuntimeError as exc:
         from fluidsim.simulation import SimulationDiverged
 

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+import re
 from pathlib import Path
 
 from fluidsim.directions import DIRECTIONS
@@ -250,12 +252,14 @@ def run_command(args: argparse.Namespace) -> int:
         print(one_run_line())
     images = {}
     if png_dir is not None:
+        earlier = view_files(png_dir)
         order = rank(scored.scores).tolist()
         shown = order if args.png_all else order[: args.png_top]
         device = torch_device(args.device)
         write_view_pngs(gaussians, cams, shown, rows, values, args.metric, png_dir, device, True)
         if args.uncertainty_images:
             images = write_uncertainty_images(gaussians, cams, shown, rows, values, args.metric, png_dir, device)
+        remove_stale(earlier)
     for row in rows:
         if row["index"] in images:
             row["uncertainty_image"] = {k: str(png_dir / v) for k, v in images[row["index"]].items()}
@@ -285,3 +289,25 @@ def run_command(args: argparse.Namespace) -> int:
     if h5 is not None:
         print(f"see them in a browser: fluidgs view {h5} --gaussians {args.gaussians} --scores {output}")
     return 0
+
+
+# the files `score` writes into its views folder (nbv.view_scoring): rank001_004_name.png, and with
+# --uncertainty-images rank001_004_name_uncertainty.png / .npy
+VIEW_FILE = re.compile(r"^rank\d{3,}_\d{3,}_.*(\.png|_uncertainty\.npy)$")
+
+
+def view_files(folder: Path) -> dict[Path, int]:
+    """{file: inode} of the files of ``score``'s own naming pattern (:data:`VIEW_FILE`) in ``folder``."""
+    if not folder.is_dir():
+        return {}
+    return {p: p.stat().st_ino for p in folder.iterdir() if VIEW_FILE.match(p.name) and p.is_file()}
+
+
+def remove_stale(earlier: dict[Path, int]) -> None:
+    """Remove the view files an earlier run wrote that this run did not write again (the same inode: every writer
+    replaces its file atomically, so a rewritten file has a new one); nothing else in the folder is touched."""
+    stale = [p for p, inode in earlier.items() if p.is_file() and os.stat(p).st_ino == inode]
+    for p in stale:
+        p.unlink()
+    if stale:
+        log.info("removed %d view images of an earlier run from %s", len(stale), stale[0].parent)

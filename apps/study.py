@@ -51,10 +51,14 @@ def run_command(args: argparse.Namespace) -> int:
     from nbv.study.oracle_config import OracleConfig
 
     from .experiment import make_executor
+    from .options import check_output_folder
 
     config = OracleConfig.load(args.config)
     if args.output is not None:
         config = replace(config, output=str(args.output))
+    check_output_folder(
+        config.output, "--output" if args.output is not None else f"the 'output' of {args.config}"
+    )  # before any work: a folder that is a file, or cannot be made, is named as the option or key that gave it
     check_not_input(
         [("output file", Path(config.output) / name) for name in ("oracle.json", "oracle.md")], {"CONFIG": args.config}
     )

@@ -16,6 +16,9 @@ TIME_STEP_MODES = ("fixed", "cfl")
 PRECISIONS = ("f32", "f64")
 # The solver's grid extends 4 spacings + h past the domain box; fluid may go at most this far out.
 RETIRE_MARGIN_MAX = 4.0
+# the smallest time step, s: below it a run needs over 1e8 steps per simulated second and the pressure solver's
+# 1 / dt^2 factors reach the float32 range's end (1 / dt^2 overflows below 5e-20 s)
+MIN_DT = 1.0e-8
 
 
 def _finite(name: str, value: Any) -> float:
@@ -124,6 +127,13 @@ class SolverConfig:
             raise ValueError(f"boundary_viscosity must be >= 0 Pa s, got {self.boundary_viscosity}")
         object.__setattr__(self, "gravity", _vec3("gravity", self.gravity))
         _positive("dt", self.dt)
+        for name in ("dt", "dt_min"):
+            if getattr(self, name) < MIN_DT:
+                raise ValueError(
+                    f"{name} must be at least {MIN_DT:g} s, got {getattr(self, name):g}: the time step is too small, "
+                    f"not too large (a step below {MIN_DT:g} s needs more than {1 / MIN_DT:.0e} steps per simulated "
+                    "second, and the pressure solver's 1/dt^2 overflows); use a dt of 1e-4 to 5e-3 s"
+                )
         if self.time_step not in TIME_STEP_MODES:
             raise ValueError(f"time_step must be one of {TIME_STEP_MODES}, got {self.time_step!r}")
         _positive("cfl_factor", self.cfl_factor)

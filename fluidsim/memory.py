@@ -28,7 +28,7 @@ import numpy as np
 
 from .config import RETIRE_MARGIN_MAX
 from .grid import Z_SPLIT
-from .scene import Scene, SceneError, lattice_counts
+from .scene import Domain, Scene, SceneError, lattice_counts
 from .sources import load_mesh, wall_particle_count
 
 BYTES_PER_FLUID = 1024
@@ -38,6 +38,9 @@ BYTES_PER_CELL = 40
 # corners); per point of a filled mesh's bounding-box lattice, float64 positions and the occupancy query
 BYTES_PER_SURFACE_PARTICLE = 512
 BYTES_PER_FILL_POINT = 96
+# one slot of a particle's fluid and boundary neighbour lists (fluidsim.particles.Neighborhoods): f32 runs a 4-byte
+# fluid pair and an 8-byte boundary pair, f64 runs 16 bytes each
+BYTES_PER_LIST_SLOT = {"f32": 12, "f64": 32}
 
 
 @dataclass(frozen=True)
@@ -51,6 +54,8 @@ class SceneMemory:
         grid_cells: cells of the solver's neighbour grid over the padded domain.
         sampling_bytes: the transient arrays of sampling the mesh solids, bytes.
         bytes: the total, bytes.
+        list_bytes: the neighbour-list slots the scene's ``max_neighbors`` asks for beyond those of the default
+            capacity (which ``BYTES_PER_FLUID`` holds), bytes.
     """
 
     fluid_particles: float
@@ -59,6 +64,7 @@ class SceneMemory:
     grid_cells: float
     sampling_bytes: float
     bytes: float
+    list_bytes: float = 0.0
 
     def parts(self) -> dict[str, float]:
         """Bytes per item: fluid, walls, solids (with their sampling) and grid."""
@@ -67,6 +73,7 @@ class SceneMemory:
             "walls": self.wall_particles * BYTES_PER_BOUNDARY,
             "solids": self.solid_particles * BYTES_PER_BOUNDARY + self.sampling_bytes,
             "grid": self.grid_cells * BYTES_PER_CELL,
+            "lists": self.list_bytes,
         }
 
 
@@ -161,7 +168,8 @@ def estimate_scene_memory(scene: Scene) -> SceneMemory:
             count, extra = _mesh_counts(Path(scene.base_dir) / solid.mesh, spacing, solid.fill)
             solids, sampling = solids + count, sampling + extra
     cells = grid_cell_count(scene)
-    total = fluid * BYTES_PER_FLUID + (walls + solids) * BYTES_PER_BOUNDARY + cells * BYTES_PER_CELL + sampling
+    lists = fluid * extra_list_slots(scene.config) * BYTES_PER_LIST_SLOT[scene.config.precision]
+    total = fluid * BYTES_PER_FLUID + (walls + solids) * BYTES_PER_BOUNDARY + cells * BYTES_PER_CELL + sampling + lists
     return SceneMemory(
         fluid_particles=fluid,
         wall_particles=walls,
@@ -169,7 +177,22 @@ def estimate_scene_memory(scene: Scene) -> SceneMemory:
         grid_cells=cells,
         sampling_bytes=sampling,
         bytes=float(total),
+        list_bytes=float(lists),
     )
+
+
+def default_list_capacity(config) -> int:
+    """The neighbour-list slots per particle the solver allocates when ``max_neighbors`` is not set."""
+    from .neighbors import lattice_neighbor_count, list_capacity  # noqa: PLC0415 - loads Taichi; the estimate does not
+
+    return list_capacity(lattice_neighbor_count(config.spacing, config.support_radius))
+
+
+def extra_list_slots(config) -> int:
+    """Slots per particle that ``config.max_neighbors`` adds to the default capacity (0 when it is not set)."""
+    if config.max_neighbors is None:
+        return 0
+    return max(0, int(config.max_neighbors) - default_list_capacity(config))
 
 
 def _advice(scene: Scene, est: SceneMemory, limit: float) -> str:
@@ -177,12 +200,26 @@ def _advice(scene: Scene, est: SceneMemory, limit: float) -> str:
     parts = est.parts()
     worst = max(parts, key=parts.get)
     r = scene.config.particle_radius
+    if worst == "lists":
+        return (
+            f"most of it is the neighbour lists: 'solver.max_neighbors' = {scene.config.max_neighbors} slots for each "
+            f"of {est.fluid_particles:.3g} fluid particles; remove 'max_neighbors' (the lists then follow the "
+            f"largest neighbour count, {default_list_capacity(scene.config)} slots at rest) or set it much lower"
+        )
     ext = np.subtract(scene.domain.max, scene.domain.min)
     size = " x ".join(f"{e:.6g}" for e in ext)
     # every count scales as 1 / r^3 or faster (walls and grid cells as 1 / r^2 and 1 / h^3): r (total/limit)^(1/3)
     # is the smallest particle radius that can fit
     larger_r = r * (est.bytes / limit) ** (1.0 / 3.0)
     radius = f"a particle_radius of about {larger_r:.3g} m or more (now {r:g} m)"
+    layers = scene.domain.wall_layers
+    if worst == "walls" and layers > Domain.wall_layers:
+        reach = math.ceil(scene.config.support_radius / scene.config.spacing)
+        return (
+            f"most of it is the walls ({est.wall_particles:.3g} particles): 'domain.wall_layers' = {layers} layers; "
+            f"the kernel reaches {reach} layers into a wall (h = {scene.config.support_radius:g} m), so set "
+            f"'domain.wall_layers' to {max(reach, Domain.wall_layers)} (the default is {Domain.wall_layers})"
+        )
     if worst in ("walls", "grid"):
         return (
             f"most of it is the {size} m domain ({est.wall_particles:.3g} wall particles, "

@@ -19,6 +19,11 @@ import torch
 _GL_TO_CV = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
 
 
+# The largest image width or height, pixels: 8 times an 8K frame. A larger image cannot be rendered (65,536^2 pixels
+# of float32 RGB are 48 GiB) and is a corrupt or mistyped camera file.
+MAX_IMAGE_SIDE = 65536
+
+
 @dataclass(frozen=True)
 class Camera:
     """One pinhole view.
@@ -44,6 +49,12 @@ class Camera:
             val = getattr(self, key)
             if int(val) != val or val <= 0:
                 raise ValueError(f"Camera {self.name!r}: {key} must be a positive integer, got {val}")
+            if val > MAX_IMAGE_SIDE:
+                raise ValueError(
+                    f"Camera {self.name!r}: {key} {int(val):,} pixels is more than {MAX_IMAGE_SIDE:,}, the largest "
+                    "image side a camera may have (its image would not fit in memory, and every view's score would "
+                    "tie); fix the camera's image size"
+                )
             object.__setattr__(self, key, int(val))
         for key in ("fx", "fy", "cx", "cy"):
             val = float(getattr(self, key))

@@ -52,7 +52,7 @@ import cv2
 import numpy as np
 import torch
 
-from .camera import Camera
+from .camera import MAX_IMAGE_SIDE, Camera
 from .colmap import BINARY_FILES, TEXT_FILES, find_colmap_sparse, read_colmap_model
 
 logger = logging.getLogger(__name__)
@@ -316,6 +316,11 @@ def _intrinsic_value(where: str, key: str, raw, top_level: bool):
             raise ValueError(
                 f"{where}: key '{key}'{origin} must be a positive integer image size in pixels, got "
                 f"{raw!r}; fix it, or remove 'w' and 'h' to take the size from the image"
+            )
+        if val > MAX_IMAGE_SIDE:
+            raise ValueError(
+                f"{where}: key '{key}'{origin} is {int(val):,} pixels, more than {MAX_IMAGE_SIDE:,}, the largest "
+                "image side a camera may have; fix it, or remove 'w' and 'h' to take the size from the image"
             )
         return int(val)
     if key in ("fl_x", "fl_y") and val <= 0:

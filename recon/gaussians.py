@@ -13,6 +13,13 @@ from dataclasses import dataclass, fields
 
 import torch
 
+# The largest centre coordinate and |log-scale| a Gaussian may have. Beyond them the float32 arithmetic of every
+# consumer breaks (a squared distance overflows above 1.8e19, exp(2 x 44) overflows, exp(-2 x 44) is subnormal),
+# and no capture comes near: 1e15 scene units is 7,000 AU in metres, exp(30) = 1e13 times the unit; a trained
+# capture spans log-scales of about -12 to 0.
+MAX_COORDINATE = 1.0e15
+MAX_ABS_LOG_SCALE = 30.0
+
 SH_C0 = 0.28209479177387814  # Y_0^0, the constant real spherical harmonic
 
 
@@ -91,7 +98,11 @@ class GaussianSet:
     sh: torch.Tensor
 
     def __post_init__(self) -> None:
-        n = self.means.shape[0] if self.means.dim() == 2 else -1
+        m = self.means
+        if not isinstance(m, torch.Tensor) or m.dim() != 2 or m.shape[1] != 3:
+            got = tuple(m.shape) if isinstance(m, torch.Tensor) else type(m).__name__
+            raise ValueError(f"GaussianSet.means must have shape (N, 3) (one centre per Gaussian), got {got}")
+        n = m.shape[0]
         expected = {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,)}
         for name, shape in expected.items():
             t = getattr(self, name)
@@ -249,6 +260,7 @@ class GaussianSet:
                     f"{source}: {len(rows)} Gaussians have NaN or Inf in {f.name} "
                     f"(first rows {rows[:5].tolist()}); remove or repair them"
                 )
+        self._check_magnitudes(source)
         zero = self.quats.norm(dim=-1) == 0
         if zero.any():
             rows = torch.nonzero(zero).flatten()
@@ -257,6 +269,27 @@ class GaussianSet:
                 f"(first rows {rows[:5].tolist()}); set them to (1, 0, 0, 0)"
             )
         return self
+
+    def _check_magnitudes(self, source: str) -> None:
+        """Refuse centres beyond ``MAX_COORDINATE`` and log-scales beyond ``MAX_ABS_LOG_SCALE``, naming the rows."""
+        for name, values, bound, what in (
+            ("means", self.means, MAX_COORDINATE, "a centre coordinate beyond +-1e15 scene units"),
+            (
+                "log_scales",
+                self.log_scales,
+                MAX_ABS_LOG_SCALE,
+                "a log-scale beyond +-30 (a size of exp(30) = 1e13 or exp(-30) = 1e-13 scene units)",
+            ),
+        ):
+            bad = values.abs().amax(-1) > bound
+            if bad.any():
+                rows = torch.nonzero(bad).flatten()
+                first = int(rows[0])
+                raise ValueError(
+                    f"{source}: {len(rows)} Gaussians have {what} (first rows {rows[:5].tolist()}; Gaussian {first} "
+                    f"has {name} ({', '.join(f'{v:.3g}' for v in values[first].tolist())})): a corrupt or "
+                    "unconverted file; delete or repair those Gaussians"
+                )
 
 
 def concat(sets: list[GaussianSet]) -> GaussianSet:

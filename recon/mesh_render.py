@@ -61,7 +61,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from fluidsim.files import atomic_folder
+from fluidsim.files import OutputError, atomic_folder
 
 from .camera import Camera
 from .camera_paths import UP_AXES, random_sphere
@@ -357,14 +357,14 @@ def _write_json(path: Path, data: dict) -> None:
 
 def _check_output(out_dir: Path, overwrite: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
-        raise ValueError(f"{out_dir}: output exists and is not a folder; choose another -o")
+        raise OutputError(f"{out_dir}: output exists and is not a folder; choose another -o")
     if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
         raise ValueError(f"{out_dir}: output folder is not empty; pass --overwrite (overwrite=True) to replace it")
     parent = out_dir.parent
     if not parent.is_dir():
         raise ValueError(f"{parent}: parent folder of the output does not exist; create it first")
     if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"{parent}: parent folder of the output is not writable")
+        raise OutputError(f"{parent}: parent folder of the output is not writable; choose a writable -o")
 
 
 def render_mesh_dataset(

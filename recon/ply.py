@@ -181,13 +181,23 @@ def parse_ply_header(fh, source: str) -> PlyLayout:
     fmt = None
     elements: list[list] = []  # [name, count, [(prop, type)]]
     for _ in range(MAX_HEADER_LINES):
+        start = fh.tell()
         raw = fh.readline(MAX_HEADER_LINE_BYTES)
         if not raw:
             raise ValueError(f"{source}: the PLY header has no 'end_header' line (truncated file)")
+        if len(raw) >= MAX_HEADER_LINE_BYTES and not raw.endswith(b"\n"):
+            raise ValueError(
+                f"{source}: the PLY header has no 'end_header' line within its first {fh.tell():,} bytes: the line "
+                f"at byte {start:,} runs past {MAX_HEADER_LINE_BYTES:,} bytes, so data follows where the header "
+                "should have ended; the header is truncated or damaged (a PLY header ends with 'end_header')"
+            )
         try:
             words = raw.decode("ascii").split()
         except UnicodeDecodeError as exc:
-            raise ValueError(f"{source}: the PLY header contains non-ASCII bytes ({exc})") from None
+            raise ValueError(
+                f"{source}: the PLY header has no 'end_header' line before the non-ASCII bytes at byte {start:,} "
+                f"({exc.reason}); the header is truncated or damaged (a PLY header ends with 'end_header')"
+            ) from None
         if not words or words[0] in ("comment", "obj_info"):
             continue
         key = words[0]
@@ -216,7 +226,10 @@ def parse_ply_header(fh, source: str) -> PlyLayout:
         else:
             raise ValueError(f"{source}: unknown PLY header keyword {key!r}")
     else:
-        raise ValueError(f"{source}: the PLY header is longer than {MAX_HEADER_LINES} lines")
+        raise ValueError(
+            f"{source}: the PLY header has no 'end_header' line within its first {MAX_HEADER_LINES:,} lines "
+            f"({fh.tell():,} bytes); the header is truncated or damaged (a PLY header ends with 'end_header')"
+        )
     if fmt is None:
         raise ValueError(f"{source}: the PLY header has no 'format' line")
     return PlyLayout(fmt, tuple(PlyElement(n, c, tuple(p)) for n, c, p in elements), fh.tell())

@@ -235,6 +235,15 @@ def load_view_data(path: str | Path) -> ViewData:
                 f"{p} lacks {', '.join('/' + k for k in missing)} (written by another version of fluidgs); {redo}"
             )
         directions = tuple(json.loads(f.attrs["directions"]))
+        if not directions:
+            status = str(f.attrs.get("status", ""))
+            why = (
+                f"the run diverged in probe {f.attrs.get('diverged_probe')} at step {f.attrs.get('diverged_step')} "
+                f"({f.attrs.get('diverged_reason')}) before completing any probe"
+                if status == "diverged"
+                else "it holds no probe"
+            )
+            raise ValueError(f"{p} has no D_g to show: {why}; {redo} with a smaller --dt or --speed")
         missing = [f"/probes/{d}/D" for d in directions if f"probes/{d}/D" not in f]
         if missing:
             raise ValueError(f"{p} lacks {', '.join(missing)}; {redo}")

@@ -36,6 +36,8 @@ from .fields import (
     help_and_default,
     index_list,
     option_dest,
+    option_names,
+    options_named,
     parse_list,
 )
 from .groups import (
@@ -50,6 +52,7 @@ from .groups import (
     add_visibility_arguments,
     camera_file_from_args,
     check_output_file,
+    check_output_folder,
     check_up_against_cameras,
     check_visibility_arguments,
     dataset_inputs,
@@ -86,6 +89,7 @@ __all__ = [
     "add_runtime_arguments",
     "add_visibility_arguments",
     "check_output_file",
+    "check_output_folder",
     "check_visibility_arguments",
     "config_from_args",
     "config_values",
@@ -97,6 +101,8 @@ __all__ = [
     "load_gaussians_checked",
     "add_gaussian_file_arguments",
     "option_dest",
+    "option_names",
+    "options_named",
     "parse_list",
     "physics_config_from_args",
     "probe_overrides",

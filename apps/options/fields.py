@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
 import re
@@ -193,6 +194,33 @@ def config_values(
     return values
 
 
+def option_names(cls: type, fields: Sequence[str], overrides: Mapping[str, Mapping] | None = None) -> dict[str, str]:
+    """``{"Class.field": "--flag"}``: the option the user writes for each field of ``fields``."""
+    return {
+        f"{cls.__name__}.{name}": (overrides or {}).get(name, {}).get("flags", ("--" + name.replace("_", "-"),))[0]
+        for name in fields
+    }
+
+
+def rename_fields(message: str, names: Mapping[str, str]) -> str:
+    """``message`` with every ``Class.field`` of ``names`` replaced by what the user wrote (an option, a key)."""
+    for internal in sorted(names, key=len, reverse=True):
+        message = re.sub(rf"\b{re.escape(internal)}\b", names[internal], message)
+    return message
+
+
+@contextlib.contextmanager
+def options_named(names: Mapping[str, str]):
+    """Re-raise a config's ValueError with its ``Class.field`` names replaced by the user's (:func:`rename_fields`)."""
+    try:
+        yield
+    except ValueError as exc:
+        message = rename_fields(str(exc), names)
+        if message == str(exc):
+            raise
+        raise ValueError(message) from None
+
+
 def config_from_args(
     cls: type,
     args: argparse.Namespace,
@@ -205,7 +233,8 @@ def config_from_args(
     """The config of the command line: the dataclass defaults (or ``base``), then ``preset``, then the options of
     ``fields`` the user gave, then ``extra`` (values the command computes). The config validates itself."""
     values = {**(preset or {}), **config_values(cls, args, fields, overrides), **extra}
-    return dataclasses.replace(base, **values) if base is not None else cls(**values)
+    with options_named(option_names(cls, fields, overrides)):
+        return dataclasses.replace(base, **values) if base is not None else cls(**values)
 
 
 def parse_list(text, item: Callable[[str], Any] = str, option: str = "the list", **checks):

@@ -10,7 +10,7 @@ from typing import Any
 
 from fluidsim.files import check_input_file
 
-from .fields import add_config_options, config_values
+from .fields import add_config_options, config_values, option_names, options_named
 
 # ---- the probe options of simulate, score, sweep, critical, inspect and bench score (nbv.physics.PhysicsConfig) ----
 PROBE_FIELDS = (
@@ -177,8 +177,8 @@ def physics_config_from_args(
     from nbv.physics import parse_directions
 
     config, quick = physics_config_class()
-    fields = PROBE_FIELDS + FRAME_FIELDS + SOLID_FIELDS + RUN_FIELDS + REPLICA_FIELDS
-    values = config_values(config, args, fields, probe_overrides())
+    names = PROBE_FIELDS + FRAME_FIELDS + SOLID_FIELDS + RUN_FIELDS + REPLICA_FIELDS
+    values = config_values(config, args, names, probe_overrides())
     if "directions" in values:
         values["directions"] = parse_directions(values["directions"])
     elif default_directions:
@@ -189,12 +189,14 @@ def physics_config_from_args(
         values["empty_reference"] = False  # commands without the option never run the empty scene
     if preset is None:
         preset = quick if getattr(args, "quick", False) else {}
-    cfg = config(**{**preset, **values, "track_distinct": track_distinct, **extra})
-    if cfg.empty_reference and cfg.empty_cache:
+    with options_named(option_names(config, names, probe_overrides())):
+        physics = config(**{**preset, **values, "track_distinct": track_distinct, **extra})
+        physics.check_inflow()
+    if physics.empty_reference and physics.empty_cache:
         from nbv.physics.empty_cache import max_bytes_from_env
 
         max_bytes_from_env()  # a bad FLUIDGS_CACHE_MAX_GB is exit 2 before Taichi starts
-    return cfg
+    return physics
 
 
 def up_from_args(args: argparse.Namespace, cameras=None):
@@ -495,6 +497,22 @@ def check_output_file(path, suffixes: tuple[str, ...]):
     if suffixes and Path(path).suffix.lower() not in suffixes:
         raise ValueError(f"output {path} must end with {' or '.join(suffixes)}")
     return check_writable(path)
+
+
+def check_output_folder(folder, where: str) -> Path:
+    """Fail before any work when the results folder ``folder`` cannot be made or written: an
+    :class:`~fluidsim.files.OutputError` (exit 4) that starts with ``where`` (the option or config key that gave
+    it), never the file system's bare errno text."""
+    from fluidsim.files import OutputError, check_writable
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{where} {folder} is a file, not a folder; give a results folder that is not a file")
+    try:
+        check_writable(folder / "results.json")
+    except OutputError as exc:
+        raise OutputError(f"{where} {folder}: {exc}") from None
+    return folder
 
 
 # The files of a dataset folder that loading reads (cameras, points, normalisation), at the top, in sparse/ and in

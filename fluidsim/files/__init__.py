@@ -22,6 +22,7 @@ name                           what
 :class:`OutputError`           an output cannot be written (exit code 4 of `fluidgs`)
 :func:`remove_unfinished`      at a signal or an error: this process's temporary files and empty new folders go
 :func:`remove_stale_temps`     a run folder's ``.fgs-*.tmp`` left by a process killed at once (SIGKILL)
+:func:`written_outputs`        the outputs completed so far (a later failure names those that survived)
 =============================  ===============================================================================
 
 Temporary files are named ``.fgs-<8 hex>.tmp<suffix>`` in the output's folder (:func:`temp_path`).
@@ -45,6 +46,7 @@ from .atomic import (
     write_bytes_atomic,
     write_json_atomic,
     write_text_atomic,
+    written_outputs,
 )
 from .checks import check_input_file, check_not_input, check_writable, input_problem, same_file
 
@@ -71,4 +73,5 @@ __all__ = [
     "write_bytes_atomic",
     "write_json_atomic",
     "write_text_atomic",
+    "written_outputs",
 ]

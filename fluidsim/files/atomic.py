@@ -39,6 +39,11 @@ TEMP_NAME = re.compile(r"^\.fgs-[0-9a-f]{8}\.tmp")  # what temp_path makes (a su
 # `.fgs-*.tmp` nor an empty folder outlives an interrupted or refused run.
 _LIVE: set[Path] = set()
 _CREATED: list[Path] = []
+# The outputs this process has renamed into place, in order: when a later output fails, the message says which
+# ones are complete (:func:`written_outputs`).
+_WRITTEN: list[Path] = []
+# h5py and other C libraries report the errno inside their text ("... errno = 28, error message = 'No space ...'")
+_ERRNO_IN_TEXT = re.compile(r"errno\s*=\s*(\d+)")
 
 
 class OutputError(OSError):
@@ -65,9 +70,24 @@ def output_errors(path: PathLike) -> Iterator[None]:
     except OutputError:
         raise
     except OSError as exc:
-        err = OutputError(f"cannot write {path}: {exc}; free disk space or choose a writable output path")
-        err.errno = exc.errno
+        code = exc.errno
+        if code is None:
+            found = _ERRNO_IN_TEXT.search(str(exc))
+            code = int(found.group(1)) if found else None
+        reason = f"{os.strerror(code)} (errno {code})" if code else str(exc)
+        err = OutputError(f"cannot write {path}: {reason}; free disk space or choose a writable output path")
+        err.errno = code
         raise err from exc
+
+
+def note_written(path: PathLike) -> None:
+    """Note ``path`` as an output this process has completed (renamed into place)."""
+    _WRITTEN.append(Path(path))
+
+
+def written_outputs() -> list[Path]:
+    """The outputs this process has completed so far, in order (each complete: they were renamed into place)."""
+    return list(_WRITTEN)
 
 
 class PendingFile:
@@ -91,6 +111,7 @@ class PendingFile:
         with output_errors(self.path):
             os.replace(self.tmp, self.path)
         _LIVE.discard(self.tmp.absolute())
+        note_written(self.path)
         return self.path
 
     def discard(self) -> None:
@@ -175,6 +196,7 @@ def atomic_folder(path: PathLike) -> Iterator[Path]:
                 _LIVE.discard(old)
             else:
                 os.replace(tmp, path)
+            note_written(path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         _LIVE.discard(tmp)

@@ -125,7 +125,26 @@ class PhysicsConfig:
             raise ValueError(f"PhysicsConfig.max_memory_gb must be > 0 or None, got {self.max_memory_gb}")
         solver = tuple((str(k), v) for k, v in (self.solver.items() if isinstance(self.solver, dict) else self.solver))
         object.__setattr__(self, "solver", solver)
-        self.solver_config()  # validates the pass-through keys now
+        try:
+            self.solver_config()  # validates the pass-through keys now
+        except ValueError as exc:
+            if str(exc).split(" ", 1)[0] in ("particle_radius", "dt", "viscosity", "rest_density", "precision"):
+                raise ValueError(f"PhysicsConfig.{exc}") from None  # a field of this config: named as one
+            raise
+
+    def check_inflow(self) -> None:
+        """Refuse a speed of 0 with horizontal probes: they would have no inflow and measure nothing (D_g = 0
+        everywhere, and no warning). Results of such runs still load; commands call this before a new run.
+
+        Raises:
+            ValueError: naming ``PhysicsConfig.speed`` (the commands name their option or key).
+        """
+        horizontal = [d for d in self.directions if d != "-y"]
+        if self.speed == 0 and horizontal:
+            raise ValueError(
+                f"PhysicsConfig.speed is 0 m/s: the probes {', '.join(horizontal)} would have no inflow and measure "
+                "nothing (D_g = 0 everywhere); use a speed > 0 m/s (default 3), or only the -y probe"
+            )
 
     @classmethod
     def quick(cls, **overrides: Any) -> PhysicsConfig:
@@ -238,6 +257,11 @@ def kept_gaussians(gaussians, config: PhysicsConfig, report: bool = True) -> np.
 _CROP_NOT_GIVEN = object()
 
 
+# The smallest object box, in scene units, that scale "auto" blows up to ``target_extent``: below it the scale passes
+# 1e12 m per unit and the Gaussians' covariances (scale^2 sigma^2) leave float32's range.
+MIN_AUTO_EXTENT = 1.0e-12
+
+
 def scene_transform(gaussians, config: PhysicsConfig, *, kept=_CROP_NOT_GIVEN):
     """The :class:`nbv.physics.scene_frame.SceneTransform` for ``config.up`` and ``config.scale`` ("auto" resolved).
 
@@ -249,10 +273,12 @@ def scene_transform(gaussians, config: PhysicsConfig, *, kept=_CROP_NOT_GIVEN):
         return SceneTransform(config.up, float(config.scale))
     box = object_box(gaussians, config, kept=kept)
     extent = 0.0 if box is None else float((box[1] - box[0]).max())
-    if not extent > 0:
+    if not extent >= MIN_AUTO_EXTENT:
         raise ValueError(
-            "cannot pick scale='auto': the Gaussians have no spatial extent; "
-            "pass a number (metres per scene unit) as the scale"
+            f"cannot pick scale='auto': the Gaussians' object box is {extent:.3g} scene units across (their centres "
+            f"coincide or nearly: one point, or subnormal coordinates), less than the {MIN_AUTO_EXTENT:g} units the "
+            "scale can blow up to the object's size; check the file's coordinates, or pass --scale (metres per "
+            "scene unit)"
         )
     return SceneTransform(config.up, config.target_extent / extent)
 

@@ -158,8 +158,8 @@ def checked_lattice(
             *solid_boxes(means, covs, opacities, config), config.spacing, means, covs, opacities, transform
         )
         raise ValueError(
-            f"the solid lattice would have about {estimate:.3g} points ({dims_f.astype(np.int64).tolist()}, "
-            f"~{estimate * BYTES_PER_POINT / 2**20:.0f} MiB) > max_points = {config.max_points}{note}; otherwise use "
+            f"the solid lattice would have about {estimate:.3g} points ({' x '.join(f'{d:.3g}' for d in dims_f)}, "
+            f"~{estimate * BYTES_PER_POINT / 2**20:.3g} MiB) > max_points = {config.max_points}{note}; otherwise use "
             f"a larger spacing (now {config.spacing} m), a smaller scene scale (now {transform.scale} m per unit), "
             f"prune large or far-away floater Gaussians, or set SolidifyConfig.bounds around the object"
         )

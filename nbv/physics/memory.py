@@ -204,15 +204,20 @@ def check_memory(
             else ""
         )
         raise ValueError(
-            f"the probe would need about {est['bytes'] / 2**30:.4g} GiB ({est['fluid_particles']:,} fluid and "
-            f"{est['boundary_particles']:,} boundary particles at r = {config.particle_radius} m, a solid lattice of "
-            f"{est['lattice_points']:,} points, {gaussians.num:,} Gaussians: {gib['resident_bytes']:.3g} GiB for the "
-            f"Gaussians{replicas}, then {gib['solidify_bytes']:.3g} GiB to solidify, {gib['probe_bytes']:.3g} GiB "
-            "per probe and "
+            f"the probe would need about {est['bytes'] / 2**30:.4g} GiB ({_count(est['fluid_particles'])} fluid and "
+            f"{_count(est['boundary_particles'])} boundary particles at r = {config.particle_radius} m, a solid "
+            f"lattice of {_count(est['lattice_points'])} points, {gaussians.num:,} Gaussians: "
+            f"{gib['resident_bytes']:.3g} GiB for the Gaussians{replicas}, then {gib['solidify_bytes']:.3g} GiB to "
+            f"solidify, {gib['probe_bytes']:.3g} GiB per probe and "
             f"{gib['accumulator_bytes']:.3g} GiB for its per-Gaussian accumulator) but {limit / 2**30:.3g} GiB are "
             f"{available}{_memory_fix(gaussians, config, transform, est, limit, sim)}"
         )
     return est
+
+
+def _count(n: float) -> str:
+    """A count with thousands separators, or in powers of ten when it is too large to read (1.65e+114)."""
+    return f"{int(n):,}" if n < 1e12 else f"{float(n):.3g}"
 
 
 def _memory_fix(

@@ -330,8 +330,9 @@ def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> 
         f = result.failure or {}
         raise ValueError(
             f"{path} is the result of a run that diverged (probe {f.get('probe')} at step "
-            f"{f.get('step')}: {f.get('reason')}); it has only the probes "
-            f"{', '.join(result.directions) or 'none'}; re-run `fluidgs simulate` with a smaller --dt"
+            f"{f.get('step')}: {f.get('reason')}); "
+            + (f"it has only the probes {', '.join(result.directions)}" if result.directions else "no probe completed")
+            + "; re-run `fluidgs simulate` with a smaller --dt"
         )
     if isinstance(gaussians, int):
         return

@@ -154,6 +154,12 @@ class _ProbeRecorder:
     def tick(self, stats: StepStats) -> None:
         self.progress.tick(stats)
 
+    def stop(self) -> None:
+        """The current probe ended early (it diverged): its time so far counts as probe time, as its aggregation
+        time already does."""
+        if self.current is not None and self.current not in self.histories:
+            self.probe_s += time.perf_counter() - self._t_start
+
     def end(self, direction: str, solver: DFSPHSolver, history: list[StepStats]) -> None:
         t0 = time.perf_counter()
         self.acc.flush()  # the last staged steps count as aggregation time
@@ -479,6 +485,7 @@ def _probe_with(
         _run_with(recorder, solid.points, plan, config, scfg)
     except SimulationDiverged as exc:  # keep the probes completed before it, say which one diverged where
         done = tuple(d for d in config.directions if d in recorder.histories)
+        recorder.stop()
         failure = {"probe": recorder.current, "step": int(exc.step), "reason": exc.reason}
         result = _assemble(recorder, done, base, timings(), status="diverged", failure=failure)
         raise ProbeDiverged(str(recorder.current), exc.step, exc.reason, result) from exc

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import difflib
 import json
-from collections.abc import Sequence
+import re
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -111,8 +113,12 @@ class ExperimentConfig:
                 raise ValueError(f"experiment config: {name!r} must be an object of overrides")
         for method in self.methods:  # validates the names, the overrides and the preset before any job starts
             check_method(method)
-            self.active_config(method, self.seeds[0])
-        self.eval_config()
+            with _config_keys(
+                {"ActiveConfig": "active.", "TrainConfig": "active.train.", "PhysicsConfig": "active.physics."}
+            ):
+                self.active_config(method, self.seeds[0]).physics.check_inflow()
+        with _config_keys({"EvalConfig": "eval.", "PhysicsConfig": "eval.physics."}):
+            self.eval_config()
 
     @classmethod
     def load(cls, path: str | Path) -> ExperimentConfig:
@@ -172,6 +178,20 @@ class ExperimentConfig:
 
     def eval_config(self) -> EvalConfig:
         return EvalConfig.from_dict(self.eval)
+
+
+@contextmanager
+def _config_keys(keys: dict[str, str]) -> Iterator[None]:
+    """Re-raise a ValueError of a nested config with its ``Class.field`` names as the experiment config's keys
+    (``ActiveConfig.budget`` -> ``'active.budget'``): the user wrote the keys, not the classes."""
+    try:
+        yield
+    except ValueError as exc:
+        pattern = re.compile(rf"\b({'|'.join(keys)})\.(\w+)")
+        message = pattern.sub(lambda m: f"'{keys[m.group(1)]}{m.group(2)}'", str(exc))
+        if message == str(exc):
+            raise
+        raise ValueError(f"experiment config: {message}") from None
 
 
 def check_method(method: str) -> str:

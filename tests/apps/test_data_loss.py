@@ -264,9 +264,16 @@ def test_probe_that_loses_its_fluid_is_recorded_and_score_refuses_zero_divergenc
 
     from nbv.physics import probe_warnings
 
-    # max_cfl lifted on purpose: every fluid particle leaves the domain in the first step (the issue's --dt 0.5)
+    # max_cfl lifted on purpose: every fluid particle leaves the domain in the first step (the issue's --dt 0.5); a
+    # viscosity under the explicit step's limit at that dt (6.4 Pa s at r = 0.08 m)
     cfg = PhysicsConfig(
-        particle_radius=0.08, steps=3, dt=0.5, empty_reference=False, directions=("-x",), solver={"max_cfl": 1e6}
+        particle_radius=0.08,
+        steps=3,
+        dt=0.5,
+        viscosity=1.0,
+        empty_reference=False,
+        directions=("-x",),
+        solver={"max_cfl": 1e6},
     )
     res = simulate_gaussians(load_gaussians(data["ply"]), cfg, progress=False)
     assert res.divergence.max() < 1e-4  # 1/s: what a few particles on their way out left behind

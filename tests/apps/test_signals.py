@@ -218,7 +218,7 @@ def test_simulate_stopped_at_random_moments_leaves_valid_outputs_or_none(sphere,
     """SIGTERM at random moments of the probes and the final writes (seeded): exit 143 (or 0 when the signal came
     after the end), and each output is complete and valid, or absent."""
     from nbv.physics import load_result
-    from recon.ply import load_gaussians
+    from recon import load_gaussians
 
     rng = random.Random(7)
     for k in range(3):

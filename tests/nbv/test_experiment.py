@@ -359,7 +359,7 @@ def test_experiment_counts_that_allocate_are_refused_quickly(tiny_dataset, tmp_p
 
     cases = [
         ({"reference_views": 1_000_000_000}, "'reference_views' must be null or an integer from 1 to 100,000"),
-        ({"active": {"budget": 1_000_000_000}}, "budget must be at most 100,000"),
+        ({"active": {"budget": 1_000_000_000}}, "'active.budget' must be at most 100,000"),
         ({"seeds": list(range(1_000_000))}, "1,000,000 jobs, more than the 10,000"),
         ({"seeds": [2**70]}, "'seeds' must be integers from 0 to"),
         (
