@@ -128,7 +128,12 @@ def test_registry_names_and_make_planner():
         assert rule.name.startswith(rule.visual + "+") and planner.rule is rule
         assert (
             type(planner.visual).__name__
-            == {"fisher": "FisherPlanner", "variance": "VariancePlanner", "random": "RandomPlanner"}[rule.visual]
+            == {
+                "fisher": "FisherPlanner",
+                "variance": "VariancePlanner",
+                "random": "RandomPlanner",
+                "fvs": "FVSPlanner",
+            }[rule.visual]
         )
         assert uses_physics(rule.name) == (rule.control != "area") == planner.uses_physics
     with pytest.raises(ValueError, match="control must be one of"):
