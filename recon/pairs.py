@@ -30,8 +30,6 @@ from dataclasses import dataclass
 import torch
 
 from ._rasterize import Composite, build_pairs, transmittance
-from ._rasterize import _scatter_sum as scatter_sum
-from ._rasterize import _transmittance_and_ends as transmittance_and_ends
 from .camera import Camera
 from .gaussians import GaussianSet
 from .projection import Projection, project_gaussians
@@ -141,6 +139,11 @@ class PairGradients:
     image: torch.Tensor
 
 
+def _weighted_bincount(index: torch.Tensor, values: torch.Tensor, size: int) -> torch.Tensor:
+    """out[k] = sum of values[i] with index[i] == k, [size], as the compositing sums it (a weighted bincount)."""
+    return torch.bincount(index, weights=values, minlength=size).to(values.dtype)
+
+
 def _check_degree(gaussians: GaussianSet, sh_degree: int | None) -> int:
     if not isinstance(gaussians, GaussianSet):
         raise ValueError(f"gaussians must be a GaussianSet, got {type(gaussians).__name__}")
@@ -191,13 +194,14 @@ def pair_attribute_gradients(
     with torch.no_grad():
         proj, pairs = _pairs_of(g, camera)
         colors = gaussian_colors(g, camera, degree)
-        alpha, trans, live, ends = transmittance_and_ends(pairs, num_pixels)
+        alpha, trans, live = transmittance(pairs, num_pixels)
+        ends = torch.cumsum(torch.bincount(pairs.pixels, minlength=num_pixels), 0) - 1  # each pixel's last pair
         weights = alpha * trans * live
         pix, gid = pairs.pixels, pairs.gaussians
-        t_final = 1.0 - scatter_sum(pix, weights, num_pixels)
+        t_final = 1.0 - _weighted_bincount(pix, weights, num_pixels)
         pair_colors = [colors[:, k].contiguous().index_select(0, gid) for k in range(3)]
         image = torch.stack(
-            [scatter_sum(pix, weights * c, num_pixels) + t_final * bg[k] for k, c in enumerate(pair_colors)], -1
+            [_weighted_bincount(pix, weights * c, num_pixels) + t_final * bg[k] for k, c in enumerate(pair_colors)], -1
         )
         dot = (pair_colors[0] + pair_colors[1]) + pair_colors[2]
         # suffix sums over the composited pairs behind each pair, plus the background term (float64 cumsum)
