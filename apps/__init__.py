@@ -2,17 +2,15 @@
 
 torch's OpenMP threads wait at each parallel region's barrier. By default they spin there, and on a shared CPU a
 spinning thread holds the core that its partner needs: with two threads on the loaded 2-core machine, training and
-FisherRF ran 10-25 times slower than with one (docs/performance.md). The package therefore loads torch with
-``OMP_WAIT_POLICY=PASSIVE`` (waiting threads sleep) before any subcommand does, and removes the variable again: the
-OpenMP runtime reads it once, when torch loads it, and child processes (the SPlisHSPlasH peer of ``bench sim``) keep
-their own defaults. A policy the user sets is left alone.
+FisherRF ran 10-25 times slower than with one (docs/performance.md). The package therefore sets
+``OMP_WAIT_POLICY=PASSIVE`` (waiting threads sleep) before any subcommand loads torch; the OpenMP runtime reads it
+when torch loads it. Nothing is imported here, so `fluidgs --help` and `fluidgs sim` stay free of torch. A policy
+the user sets is left alone. ``FLUIDGS_OMP_POLICY_SET`` marks that the policy is ours, so that the SPlisHSPlasH peer
+of ``bench sim`` (:mod:`nbv.bench.splash`) runs with its own defaults.
 """
 
 import os
 
 if "OMP_WAIT_POLICY" not in os.environ:
     os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
-    try:
-        import torch  # noqa: F401 (loads the OpenMP runtime under the policy)
-    finally:
-        del os.environ["OMP_WAIT_POLICY"]
+    os.environ["FLUIDGS_OMP_POLICY_SET"] = "1"
