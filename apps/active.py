@@ -207,7 +207,7 @@ def config_from_args(args: argparse.Namespace):
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
-    from nbv.active import RUN_FILES, ActiveRun
+    from nbv.active import RUN_FILES, ActiveRun, timing_line, visual_name
 
     from .options import dataset_inputs
     from .runtime import setup_runtime
@@ -222,6 +222,8 @@ def run_command(args: argparse.Namespace) -> int:
     rounds = run.run()
     final = rounds.get("final", {})
     print(f"selected views: {rounds['selected']} ({', '.join(rounds['selected_names'])})")
+    if "timing" in final:
+        print(timing_line(final["timing"], visual_name(config.method)))
     print(
         f"wrote {args.output / 'gaussians.ply'} ({final.get('num_gaussians')} Gaussians, "
         f"{final.get('iterations')} iterations) and {args.output / 'rounds.json'}"

@@ -34,7 +34,7 @@ from .camera import Camera
 from .gaussians import GaussianSet
 from .projection import Projection, project_gaussians
 from .render import gaussian_colors
-from .render_types import PairList, background_tensor
+from .render_types import ALPHA_MAX, PairList, background_tensor
 
 ATTRIBUTES = ("u", "v", "conic_a", "conic_b", "conic_c", "opacity", "red", "green", "blue")  # columns of a_g
 
@@ -127,7 +127,9 @@ class PairGradients:
         pixels: [P] int32 pixel of each pair.
         gaussians: [P] int32 Gaussian of each pair.
         grads: [P, 9] d(sum_c C_{pixel,c}) / d a_g, columns as :data:`ATTRIBUTES` (means2d u, v in pixels,
-            conic A, B, C in 1/px^2, opacity, colour R, G, B). Zero for skipped or stopped pairs.
+            conic A, B, C in 1/px^2, opacity, colour R, G, B). Zero for skipped or stopped pairs. The three colour
+            columns are equal (each is the pair's compositing weight w_p). The fast path stores it attribute-major
+            (``grads.T`` is contiguous).
         image: [H, W, 3] the rendered image (identical to ``render(...).image``).
     """
 
@@ -135,6 +137,20 @@ class PairGradients:
     gaussians: torch.Tensor
     grads: torch.Tensor
     image: torch.Tensor
+
+
+def _weighted_bincount(index: torch.Tensor, values: torch.Tensor, size: int) -> torch.Tensor:
+    """out[k] = sum of values[i] with index[i] == k, [size], as the compositing sums it (a weighted bincount)."""
+    return torch.bincount(index, weights=values, minlength=size).to(values.dtype)
+
+
+def _check_degree(gaussians: GaussianSet, sh_degree: int | None) -> int:
+    if not isinstance(gaussians, GaussianSet):
+        raise ValueError(f"gaussians must be a GaussianSet, got {type(gaussians).__name__}")
+    degree = gaussians.sh_degree if sh_degree is None else sh_degree
+    if not isinstance(degree, int) or not 0 <= degree <= gaussians.sh_degree:
+        raise ValueError(f"sh_degree must be an int in 0..{gaussians.sh_degree} (the stored degree), got {sh_degree!r}")
+    return degree
 
 
 def pair_attribute_gradients(
@@ -146,8 +162,16 @@ def pair_attribute_gradients(
 ) -> PairGradients:
     """Per-(pixel, Gaussian) gradients of the channel-summed pixel colour w.r.t. the 2-D attributes.
 
-    One forward and one backward pass of the renderer's compositing over per-pair copies of the
-    attributes (see the module docstring).
+    The closed form of the compositing backward (:mod:`recon._rasterize`) with a unit gradient on every pixel's
+    three channels, evaluated per pair instead of summed per Gaussian: with f_p the pair's colour summed over the
+    channels and S_p = sum over the composited pairs q behind p in its pixel of w_q f_q, plus T_final sum(bg),
+
+        d C / d colour_c = w_p,   d C / d alpha_p = T_p f_p - S_p / (1 - alpha_p),
+        d C / d power_p = alpha_p d C / d alpha_p (0 where alpha is clamped at 0.99),
+
+    and power = -1/2 (A dx^2 + C dy^2) - B dx dy gives the mean and conic columns, alpha = o exp(power) the
+    opacity column. No autograd graph and no per-pair copies: the arithmetic is the twin's
+    (:func:`pair_attribute_gradients_reference`), operation for operation, so the results are bit-identical.
 
     Args:
         gaussians: N Gaussians (float32 or float64; gradients are not taken w.r.t. them).
@@ -156,12 +180,70 @@ def pair_attribute_gradients(
         sh_degree: SH bands used for the colours (None = all stored).
     Returns:
         :class:`PairGradients` with P pairs.
+
+    Example:
+        >>> pg = pair_attribute_gradients(gaussians, camera, 1.0)
+        >>> pg.grads.shape == (pg.pixels.numel(), 9)
+        True
     """
-    if not isinstance(gaussians, GaussianSet):
-        raise ValueError(f"gaussians must be a GaussianSet, got {type(gaussians).__name__}")
-    degree = gaussians.sh_degree if sh_degree is None else sh_degree
-    if not isinstance(degree, int) or not 0 <= degree <= gaussians.sh_degree:
-        raise ValueError(f"sh_degree must be an int in 0..{gaussians.sh_degree} (the stored degree), got {sh_degree!r}")
+    degree = _check_degree(gaussians, sh_degree)
+    g = gaussians.detach()
+    bg = background_tensor(background, g.means)
+    w, h = camera.width, camera.height
+    num_pixels = w * h
+    with torch.no_grad():
+        proj, pairs = _pairs_of(g, camera)
+        colors = gaussian_colors(g, camera, degree)
+        alpha, trans, live = transmittance(pairs, num_pixels)
+        ends = torch.cumsum(torch.bincount(pairs.pixels, minlength=num_pixels), 0) - 1  # each pixel's last pair
+        weights = alpha * trans * live
+        pix, gid = pairs.pixels, pairs.gaussians
+        t_final = 1.0 - _weighted_bincount(pix, weights, num_pixels)
+        pair_colors = [colors[:, k].contiguous().index_select(0, gid) for k in range(3)]
+        image = torch.stack(
+            [_weighted_bincount(pix, weights * c, num_pixels) + t_final * bg[k] for k, c in enumerate(pair_colors)], -1
+        )
+        dot = (pair_colors[0] + pair_colors[1]) + pair_colors[2]
+        # suffix sums over the composited pairs behind each pair, plus the background term (float64 cumsum)
+        csum = torch.cumsum((weights * dot).to(torch.float64), 0)
+        total = csum.index_select(0, ends.clamp_min(0)) if pairs.num else csum.new_zeros(ends.numel())
+        total = total + (t_final * (torch.ones(num_pixels, 3, dtype=bg.dtype, device=bg.device) @ bg)).to(torch.float64)
+        suffix = total.index_select(0, pix) - csum
+        grad_alpha = torch.where(
+            live, trans * dot - (suffix / (1.0 - alpha.to(torch.float64))).to(dot.dtype), torch.zeros_like(dot)
+        )
+        grad_power = torch.where(pairs.alpha < ALPHA_MAX, grad_alpha * alpha, torch.zeros_like(alpha))
+        dx, dy = pairs.dx, pairs.row_dy.index_select(0, pairs.rows)
+        s1 = grad_power * dx
+        ca, cb, cc = (proj.conics[:, k].contiguous().index_select(0, gid) for k in range(3))
+        opacities = g.opacities.index_select(0, gid)
+        columns = (
+            ca * s1 + cb * dy * grad_power,
+            cb * s1 + cc * dy * grad_power,
+            -0.5 * (s1 * dx),
+            -dy * s1,
+            -0.5 * dy * dy * grad_power,
+            grad_power / opacities.clamp_min(torch.finfo(opacities.dtype).tiny),
+            weights,
+            weights,
+            weights,
+        )
+        grads = torch.stack(columns, 0).T  # [P, 9] over attribute-major storage: .T is contiguous
+    return PairGradients(pixels=pix, gaussians=gid, grads=grads, image=image.reshape(h, w, 3))
+
+
+def pair_attribute_gradients_reference(
+    gaussians: GaussianSet,
+    camera: Camera,
+    background: torch.Tensor | float | None = None,
+    *,
+    sh_degree: int | None = None,
+) -> PairGradients:
+    """Autograd twin of :func:`pair_attribute_gradients`: one forward and one backward pass of the renderer's
+    compositing (:class:`recon._rasterize.Composite`) over per-pair copies of the attributes (see the module
+    docstring). Same Args and Returns; the results are bit-identical.
+    """
+    degree = _check_degree(gaussians, sh_degree)
     g = gaussians.detach()
     bg = background_tensor(background, g.means)
     w, h = camera.width, camera.height

@@ -20,6 +20,7 @@ _EXPORTS = {
         ),
         "loop",
     ),
+    **dict.fromkeys(("PARTS", "round_timing", "run_timing", "timing_line", "visual_name"), "timing"),
 }
 __all__ = sorted(_EXPORTS)
 

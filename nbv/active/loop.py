@@ -34,7 +34,8 @@ planner state crosses rounds and a resumed run makes the same choices as an unin
 Run folder (every file is written atomically, through :mod:`nbv.io`)::
 
     RUN/config.json     {"dataset": absolute path, "active": ActiveConfig.to_dict()}
-    RUN/rounds.json     {"rounds": [one record per selection], "final": {...} once finished}
+    RUN/rounds.json     {"rounds": [one record per selection, with its "timing" split], "final": {...} once finished,
+                        with the run's "timing" (:mod:`nbv.active.timing`)}
     RUN/checkpoint.pt   completed rounds, selected ids, Trainer.state_dict (continue mode, and during the final
                         training in both modes), torch RNG, phase
     RUN/gaussians.ply   the final Gaussians (3DGS .ply)
@@ -63,6 +64,7 @@ from tqdm import tqdm
 from fluidsim.files import remove_stale_temps
 from nbv import scores
 from nbv.active.config import CHECKPOINT_VERSION, RUN_FILES, ActiveConfig
+from nbv.active.timing import round_timing, run_timing
 from nbv.coverage import coverage_line, ranking_agreement, view_parts
 from nbv.io import json_safe, write_atomic, write_json_atomic
 from nbv.physics import simulate_gaussians
@@ -323,6 +325,7 @@ class ActiveRun:
         self.initial = initial_gaussians(init_cfg, self.cameras, self.dataset.points, self.dataset.point_colors).to(
             device
         )
+        self._write_seconds = 0.0  # this session's rounds.json and checkpoint writes (the run's "other" part)
 
     # ---- pieces --------------------------------------------------------------------------------
     def initial_ids(self) -> list[int]:
@@ -507,12 +510,13 @@ class ActiveRun:
         for r, n in enumerate(c.rounds()):
             if r < len(state.rounds):
                 continue
-            t0 = time.perf_counter()
+            t0, cpu0 = time.perf_counter(), time.process_time()
             train_views = [self.views[i] for i in state.selected]
             iters = n * c.iterations_per_view
             if c.mode == "reset":
                 trainer = self.new_trainer(max(iters, 1))
             training = self._train(trainer, train_views, iters, f"round {r + 1} train")
+            training_seconds = time.perf_counter() - t0
             remaining = [i for i in range(len(self.views)) if i not in set(state.selected)]
             record: dict[str, Any] = {"round": r, "n_selected": n, "training": training}
             fields: dict = {}
@@ -552,14 +556,26 @@ class ActiveRun:
                     "selection_seconds": time.perf_counter() - t_plan,
                 }
             )
+            t_parts = time.perf_counter()
             record["parts"] = pick_parts(context, sel.pick, fields.get("fields"))
-            record["round_seconds"] = time.perf_counter() - t0
+            end = time.perf_counter()
+            record["round_seconds"] = end - t0
+            record["cpu_seconds"] = time.process_time() - cpu0
+            record["timing"] = round_timing(
+                round_seconds=record["round_seconds"],
+                training=training_seconds,
+                selection=record["selection_seconds"],
+                visual=float(sel.seconds.get("visual", 0.0)),
+                probes=float(record.get("physics", {}).get("seconds", 0.0)),
+                parts=end - t_parts,
+            )
             state.selected.append(pick)
             state.rounds.append(record)
             # rounds.json first: a crash between the two files leaves a checkpoint that is one round behind, and
             # _load trims rounds.json to the checkpoint.
             self._write_rounds(state)
             self._save_checkpoint(state, trainer if c.mode == "continue" else None)
+            self._write_seconds += time.perf_counter() - end
             log.info(
                 "round %d/%d: picked %s (%d) from %d candidates in %.1f s; %s",
                 r + 1,
@@ -576,6 +592,7 @@ class ActiveRun:
 
     def _finish(self, state: RunState, trainer: Trainer | None, t_start: float) -> dict:
         c = self.config
+        t_final = time.perf_counter()
         views = [self.views[i] for i in state.selected]
         if trainer is None or (c.mode == "reset" and state.phase != "final"):
             trainer = self.new_trainer(c.total_iterations)
@@ -584,11 +601,15 @@ class ActiveRun:
         gaussians = trainer.gaussians
         save_gaussians(gaussians, self.run_dir / "gaussians.ply")
         state.phase = "done"
+        final_seconds = time.perf_counter() - t_final
         final = {
             "training": training,
             "iterations": trainer.iteration,
             "num_gaussians": gaussians.num,
             "seconds_this_session": time.perf_counter() - t_start,
+            "timing": run_timing(
+                state.rounds, training["seconds"], max(final_seconds - training["seconds"], 0.0) + self._write_seconds
+            ),
         }
         self._write_rounds(state, final)
         self._save_checkpoint(state, None)

@@ -469,6 +469,8 @@ def run_splash(scene: PeerScene, timeout_s: float = 1200) -> dict:
         job_file = tmpdir / "job.json"
         job_file.write_text(json.dumps(job))
         env = dict(os.environ, OMP_NUM_THREADS=str(scene.threads))
+        if env.pop("FLUIDGS_OMP_POLICY_SET", None):  # the passive policy fluidgs set for torch: not the peer's
+            env.pop("OMP_WAIT_POLICY", None)
         log.info(
             "running SPlisHSPlasH DFSPH: %d steps, %d threads, ~%d fluid particles",
             scene.steps,

@@ -145,13 +145,19 @@ def local_jacobians(
         proj = project_gaussians(g, camera)
         colors = gaussian_colors(g, camera, degree)
         attributes = torch.cat([proj.means2d, proj.conics, g.opacities[:, None], colors], -1)  # [N, 9]
-        for k in range(attributes.shape[1]):
-            grads = torch.autograd.grad(
-                attributes[:, k].sum(), [leaves[n] for n in names], retain_graph=True, allow_unused=True
-            )
-            for b, grad in enumerate(grads):
-                if grad is not None:
-                    blocks[b].append((k, grad.reshape(g.num, -1)))
+        attrs = attributes.shape[1]
+        # the nine backward passes as one batched pass: grad_outputs row k is the indicator of attribute k
+        unit = torch.eye(attrs, dtype=attributes.dtype, device=attributes.device)[:, None, :].expand(-1, g.num, -1)
+        grads = torch.autograd.grad(
+            attributes, [leaves[n] for n in names], grad_outputs=unit, is_grads_batched=True, allow_unused=True
+        )
+    for b, grad in enumerate(grads):
+        if grad is None:
+            continue
+        rows = grad.reshape(attrs, g.num, -1)
+        for k in range(attrs):
+            if bool(rows[k].any()):
+                blocks[b].append((k, rows[k]))
     return blocks
 
 
@@ -187,16 +193,24 @@ def view_fisher(
     n, attrs = gaussians.num, grads.shape[0]
     jac = torch.cat([_block_matrix(rows, n, attrs, grads) for rows in blocks], 1)  # [9, D, N]: A_g^T per g
     support = (jac != 0).any(-1)  # [9, D]: attribute k moves column d for some Gaussian
+    # equal rows of G (the three colour channels: each is the pair's weight w_p) give equal Gram entries
+    first = list(range(attrs))
+    for k in range(attrs):
+        first[k] = next(j for j in range(k + 1) if j == k or torch.equal(grads[j], grads[k]))
+    grams: dict[tuple[int, int], torch.Tensor] = {}
     h = torch.zeros(jac.shape[1], n, dtype=grads.dtype, device=grads.device)
     for k in range(attrs):
         for m in range(k, attrs):
             cols = torch.nonzero(support[k] & support[m]).flatten()
             if cols.numel() == 0:
                 continue
-            # M_g[k, m] = sum over the pairs p of g of G_p[k] G_p[m]
-            gram = torch.zeros(n, dtype=grads.dtype, device=grads.device).index_add_(0, gid, grads[k] * grads[m])
+            key = (first[k], first[m])
+            if key not in grams:  # M_g[k, m] = sum over the pairs p of g of G_p[k] G_p[m]
+                grams[key] = torch.zeros(n, dtype=grads.dtype, device=grads.device).index_add_(
+                    0, gid, grads[key[0]] * grads[key[1]]
+                )
             jk, jm = jac[k].index_select(0, cols), jac[m].index_select(0, cols)
-            h.index_add_(0, cols, jk * jm * ((1.0 if k == m else 2.0) * gram))
+            h.index_add_(0, cols, jk * jm * ((1.0 if k == m else 2.0) * grams[key]))
     # a sum of squares: the quadratic form may round a few ulps below 0
     return h.T.clamp_min(0.0).to(gaussians.dtype).contiguous()
 

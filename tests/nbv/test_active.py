@@ -1,4 +1,5 @@
-"""The active-reconstruction loop (nbv.active, `fluidgs active`): schedule, initial views, round logs, resume."""
+"""The active-reconstruction loop (nbv.active, `fluidgs active`): schedule, initial views, round logs, the time
+split, resume."""
 
 import json
 import math
@@ -7,7 +8,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from nbv.active import ActiveConfig, biased_initial_views, config_differences, run_active
+from nbv.active import PARTS, ActiveConfig, biased_initial_views, config_differences, run_active
+from nbv.active.timing import round_timing, run_timing, timing_line, visual_name
 from nbv.physics import PhysicsConfig
 from recon.camera import Camera
 from recon.formats import load_gaussians
@@ -110,6 +112,7 @@ def test_round_log_and_outputs(straight_run):
         assert rec["shortlist"] == rec["candidates"] and rec["k"] is None  # random: every candidate considered
         assert set(rec["scores"]) >= {"visual"} and set(rec["scores"]["visual"]) == {str(i) for i in rec["candidates"]}
     assert logged["final"]["iterations"] == cfg.total_iterations
+    _check_timing(logged)
     g = load_gaussians(run / "gaussians.ply")
     assert g.num == logged["final"]["num_gaussians"]
     assert json.loads((run / "config.json").read_text())["active"]["method"] == "random"
@@ -231,7 +234,41 @@ def test_fused_method_logs_k_and_physics_scores(tiny_dataset, tmp_path):
         assert rec["pick"] == max(rec["shortlist"], key=lambda i: physics[str(i)])
         assert rec["physics"]["source"] == "custom"
         assert rec["training"]["iterations"] == rec["n_selected"] * cfg.iterations_per_view
+        assert rec["timing"]["probes"] == rec["physics"]["seconds"] > 0  # the probes are their own part
     assert rounds["final"]["iterations"] == cfg.total_iterations  # reset: a fresh full-length final run
+    _check_timing(rounds)
+
+
+def _check_timing(rounds: dict) -> None:
+    """Every round's parts add up to its wall time, and the run's split sums the rounds and the final training."""
+    for rec in rounds["rounds"]:
+        parts = rec["timing"]
+        assert set(parts) == set(PARTS) and all(v >= 0 for v in parts.values())
+        assert sum(parts.values()) == pytest.approx(rec["round_seconds"], rel=1e-9, abs=1e-9)
+        assert parts["training"] >= rec["training"]["seconds"] > 0 and rec["cpu_seconds"] > 0
+    run = rounds["final"]["timing"]
+    for part in PARTS:
+        from_rounds = sum(rec["timing"][part] for rec in rounds["rounds"])
+        extra = {"training": rounds["final"]["training"]["seconds"]}.get(part, 0.0)
+        if part == "other":
+            assert run["seconds"][part] >= from_rounds
+        else:
+            assert run["seconds"][part] == pytest.approx(from_rounds + extra)
+    assert run["total_seconds"] == pytest.approx(sum(run["seconds"].values()))
+    assert sum(run["share"].values()) == pytest.approx(1.0)
+
+
+def test_round_timing_split_by_hand():
+    t = round_timing(round_seconds=10.0, training=2.0, selection=7.0, visual=4.0, probes=2.5, parts=0.25)
+    assert t == {"training": 2.0, "visual": 4.0, "probes": 2.5, "scoring": 0.75, "other": 0.75}
+    run = run_timing([{"timing": t, "cpu_seconds": 6.0}] * 2, final_training=4.0, final_other=0.5)
+    assert run["seconds"] == {"training": 8.0, "visual": 8.0, "probes": 5.0, "scoring": 1.5, "other": 2.0}
+    assert run["total_seconds"] == 24.5 and run["rounds_cpu_seconds"] == 12.0
+    assert run["share"]["visual"] == pytest.approx(8.0 / 24.5)
+    line = timing_line(run, visual_name("fisher+fluid"))
+    assert line.startswith("time: training 8.0 s (33%), FisherRF 8.0 s (33%), probes 5.0 s (20%), scoring 1.5 s (6%)")
+    assert line.endswith("; 24.5 s in all")
+    assert visual_name("variance+area") == "variance" and visual_name("random") == "random"
 
 
 def test_real_probes_inside_the_loop(tiny_dataset, tmp_path):
@@ -260,7 +297,7 @@ def test_real_probes_inside_the_loop(tiny_dataset, tmp_path):
 # ---- CLI -----------------------------------------------------------------------------------------
 
 
-def test_active_cli_smoke(tiny_dataset, tmp_path):
+def test_active_cli_smoke(tiny_dataset, tmp_path, capsys):
     from apps.cli import main
 
     run = tmp_path / "run"
@@ -294,7 +331,10 @@ def test_active_cli_smoke(tiny_dataset, tmp_path):
         "--no-progress",
     ]
     assert main(args) == 0
-    assert len(json.loads((run / "rounds.json").read_text())["selected"]) == 3
+    rounds = json.loads((run / "rounds.json").read_text())
+    assert len(rounds["selected"]) == 3
+    # the time split is printed at the end, as rounds.json keeps it
+    assert timing_line(rounds["final"]["timing"], "random") in capsys.readouterr().out
     assert (run / "gaussians.ply").is_file()
     # bad input fails before any training and names the option
     assert main(args[:3] + [str(tmp_path / "bad"), "--initial-views", "0,99", "--res", "24"]) == 2

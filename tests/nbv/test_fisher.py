@@ -1,8 +1,11 @@
 """Tests for nbv/plan/fisher_info.py and recon/pairs.py: the per-pixel Fisher diagonal against brute force (one backward
 pass per pixel through the dense reference renderer) in float64, with and without rotations, with the early
 stop triggered; that the naive square of the summed-image gradient differs (so the twin test can fail); the
-per-pair compositing quantities against the rendered image and opacity; the score formula by hand; the lazy
-greedy top-K against the plain greedy twin, with and without the H cache; and config validation."""
+per-pair compositing quantities against the rendered image and opacity; the closed-form per-pair gradients
+against their autograd twin (bit for bit); the fast H against the earlier computation (a twin kept here: per-pair
+copies through autograd, nine backward passes, every Gram entry formed) bit for bit, with the greedy list and the
+scores of a fixture pinned; the score formula by hand; the lazy greedy top-K against the plain greedy twin, with
+and without the H cache; and config validation."""
 
 import math
 
@@ -11,6 +14,10 @@ import torch
 
 from nbv.plan.fisher_info import (
     FisherConfig,
+    _block_matrix,
+    _degree,
+    _leaf_set,
+    _parameter_leaves,
     fisher_score,
     greedy_top_k,
     greedy_top_k_reference,
@@ -20,8 +27,9 @@ from nbv.plan.fisher_info import (
 )
 from recon.camera import Camera
 from recon.gaussians import GaussianSet
-from recon.pairs import pair_attribute_gradients, view_pairs
-from recon.render import render
+from recon.pairs import pair_attribute_gradients, pair_attribute_gradients_reference, view_pairs
+from recon.projection import project_gaussians
+from recon.render import gaussian_colors, render
 
 F64 = torch.float64
 
@@ -168,3 +176,79 @@ def test_fisher_config_validation_and_inputs():
         view_fisher(_scene(sh_degree=0), _camera(), sh_degree=2)
     with pytest.raises(ValueError, match="no candidate"):
         greedy_top_k(_scene(), [], [], 1.0, 1)
+
+
+def _view_fisher_unbatched(gaussians, camera, background, sh_degree=None, include_rotations=False):
+    """The earlier :func:`view_fisher`, kept as its twin: per-pair gradients through autograd, one backward pass
+    per attribute for the local Jacobians, and every Gram entry formed (no shared colour entries)."""
+    degree = _degree(gaussians, sh_degree)
+    pg = pair_attribute_gradients_reference(gaussians, camera, background, sh_degree=degree)
+    leaves = _parameter_leaves(gaussians, degree, include_rotations)
+    names = list(leaves)
+    blocks = [[] for _ in names]
+    with torch.enable_grad():
+        g = _leaf_set(gaussians, leaves)
+        proj = project_gaussians(g, camera)
+        colors = gaussian_colors(g, camera, degree)
+        attributes = torch.cat([proj.means2d, proj.conics, g.opacities[:, None], colors], -1)
+        for k in range(attributes.shape[1]):
+            grads = torch.autograd.grad(
+                attributes[:, k].sum(), [leaves[n] for n in names], retain_graph=True, allow_unused=True
+            )
+            for b, grad in enumerate(grads):
+                if grad is not None:
+                    blocks[b].append((k, grad.reshape(g.num, -1)))
+    grads, gid = pg.grads.T.to(F64).contiguous(), pg.gaussians
+    n, attrs = gaussians.num, grads.shape[0]
+    jac = torch.cat([_block_matrix(rows, n, attrs, grads) for rows in blocks], 1)
+    support = (jac != 0).any(-1)
+    h = torch.zeros(jac.shape[1], n, dtype=F64)
+    for k in range(attrs):
+        for m in range(k, attrs):
+            cols = torch.nonzero(support[k] & support[m]).flatten()
+            if cols.numel() == 0:
+                continue
+            gram = torch.zeros(n, dtype=F64).index_add_(0, gid, grads[k] * grads[m])
+            jk, jm = jac[k].index_select(0, cols), jac[m].index_select(0, cols)
+            h.index_add_(0, cols, jk * jm * ((1.0 if k == m else 2.0) * gram))
+    return h.T.clamp_min(0.0).to(gaussians.dtype).contiguous()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64])
+def test_closed_form_pair_gradients_equal_the_autograd_twin_bit_for_bit(dtype):
+    g = _scene(n=8, seed=3, logit_mean=6.0, scale=0.3, sh_degree=2, dtype=dtype)  # early stops, clamped alphas
+    cam = _camera(size=7)
+    background = torch.tensor([0.1, 0.5, 0.8], dtype=dtype)
+    fast = pair_attribute_gradients(g, cam, background)
+    slow = pair_attribute_gradients_reference(g, cam, background)
+    pairs = view_pairs(g, cam)
+    assert (~pairs.live & (pairs.alpha > 0)).any() and (pairs.alpha >= 0.99 - 1e-7).any()
+    assert fast.grads.abs().max() > 0.1
+    assert torch.equal(fast.grads, slow.grads) and torch.equal(fast.image, slow.image)
+    assert torch.equal(fast.pixels, slow.pixels) and torch.equal(fast.gaussians, slow.gaussians)
+    assert torch.equal(fast.grads[:, 6], fast.grads[:, 7]) and torch.equal(fast.grads[:, 6], fast.grads[:, 8])
+
+
+@pytest.mark.parametrize(("dtype", "include_rotations", "sh_degree"), [(torch.float32, False, 1), (F64, True, 2)])
+def test_view_fisher_equals_the_earlier_computation_bit_for_bit(dtype, include_rotations, sh_degree):
+    g = _scene(n=40, seed=11, scale=0.15, logit_mean=1.0, sh_degree=sh_degree, dtype=dtype)
+    for cam in _ring(3, size=16):
+        fast = view_fisher(g, cam, 0.3, include_rotations=include_rotations)
+        slow = _view_fisher_unbatched(g, cam, 0.3, include_rotations=include_rotations)
+        assert slow.abs().max() > 1e-3
+        assert torch.equal(fast, slow)
+
+
+def test_fisher_selection_and_scores_pinned_on_a_fixture():
+    """The greedy list and the scores of this fixture, as computed before the fast path (and by its twin)."""
+    g = _scene(n=40, seed=11, scale=0.15, logit_mean=1.0, dtype=torch.float32)
+    cams, train = _ring(9, size=16), [_camera((0.0, 0.0, -3.0), 16), _camera((3.0, 0.0, 0.0), 16)]
+    background = torch.tensor([0.2, 0.4, 0.6])
+    ranking = greedy_top_k(g, cams, train, background, 5)
+    assert ranking.order == [5, 8, 6, 3, 4]
+    pinned = [1207.17, 921.964, 356.054, 9801.9, 41043.9, 86663.6, 64786.0, 37083.3, 13698.5]
+    assert ranking.scores == pytest.approx(pinned, rel=1e-5)
+    h_train = sum(_view_fisher_unbatched(g, c, background).double() for c in train)
+    h_cands = [_view_fisher_unbatched(g, c, background) for c in cams]
+    assert ranking.order == greedy_top_k_reference(h_train, h_cands, 5)
+    assert ranking.scores == [fisher_score(h, h_train) for h in h_cands]
