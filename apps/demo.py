@@ -110,9 +110,10 @@ def run_command(args: argparse.Namespace) -> int:
     )
     if args.solid is not None:
         return run_mesh_demo(args)
+    from nbv.coverage import agreement_lines
     from nbv.outputs import divergence_columns, probe_video, result_summary, save_colored_gaussians
     from nbv.physics import QUICK, save_result, simulate_gaussians
-    from nbv.view_scoring import check_cameras_see, format_table, render_size, score_views
+    from nbv.view_scoring import check_cameras_see, format_table, render_size, rows_agreement, score_views
     from recon.ahmed import ahmed_surface_gaussians
     from recon.camera_files import transforms_json
 
@@ -183,13 +184,16 @@ def run_command(args: argparse.Namespace) -> int:
         device=args.device,
         visible_centres=centres,
     )
+    agreement = rows_agreement(rows)
     print(format_table(rows))
+    print("\n".join(agreement_lines(agreement)))
     write_json_atomic(
         out / "scores.json",
         {
             "cameras": str(cpath or args.cameras),
             "gaussians": source,
             "views": rows,
+            "agreement": agreement,
             "dbar_m4_s": result.dbar,
             "config": cfg.to_dict(),
         },
@@ -199,7 +203,7 @@ def run_command(args: argparse.Namespace) -> int:
     summary = result_summary(result)
     summary.update(source=source, cameras=cameras_label, wall_time_s=time.perf_counter() - t0)
     write_json_atomic(out / "summary.json", summary)
-    print(f"{result.num_gaussians} Gaussians ({source}); D-bar {result.dbar:.4g} m^4/s; best view {rows[0]['name']}")
+    print(f"{result.num_gaussians} Gaussians ({source}); D-bar {result.dbar:.2g} m^4/s; best view {rows[0]['name']}")
     print(
         f"outputs in {out}: result.h5, gaussians_divergence.ply, scores.json, views/, summary.json"
         + ("" if args.no_video else ", probe_-x.mp4")
