@@ -28,11 +28,12 @@ import argparse
 import errno
 import logging
 import os
+import signal
 import sys
 
 from fluidsim.files import OutputError, remove_unfinished, written_outputs
 
-from .signals import Stopped, first_signal, signal_name, stop_signals
+from .signals import Stopped, exit_after_commands, first_signal, signal_name, stop_signals
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
 try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets one line too, not a traceback
@@ -286,5 +287,18 @@ def interrupted_import(exc: ImportError) -> bool:
     return False
 
 
+def entry() -> None:
+    """The ``fluidgs`` executable: :func:`main`, then the process exit. After a stop signal the process ends with
+    that signal's code (130 or 143). A stop signal that lands once the command has returned (a second Ctrl-C after a
+    quick save, a SIGTERM just after the end) does not change the exit code: until the command's handlers are gone it
+    exits at once with its code (:func:`apps.signals.exit_after_commands`), and during the interpreter's shutdown,
+    where Python restores the default handlers, it is ignored (the outputs are complete or removed by then)."""
+    exit_after_commands()
+    code = main()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

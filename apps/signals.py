@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -48,6 +49,15 @@ def signal_name(signum: int) -> str:
 class _State:
     first: int | None = None  # the first stop signal received
     count = 0
+    exit_after = False  # set by the executable (apps.cli.entry): the process exits when the command returns
+
+
+def exit_after_commands() -> None:
+    """This process ends when its command returns (the executable, :func:`apps.cli.entry`): :func:`stop_signals`
+    then leaves a handler that exits at once with the stop signal's code instead of restoring the previous ones, so a
+    signal that lands during the exit (a second Ctrl-C after a quick save, a SIGTERM just after the end) gives 130 or
+    143, not death by the signal."""
+    _State.exit_after = True
 
 
 def first_signal() -> int | None:
@@ -68,6 +78,18 @@ def _exit_now() -> None:
 
     remove_unfinished(created_folders=False)
     os._exit(128 + (_State.first or signal.SIGINT))
+
+
+def _exit_at_once(signum: int, frame) -> None:
+    """A stop signal after the command returned, while the process exits: its outputs are complete or removed
+    already, so exit now, with the first stop signal's code (130 or 143), not killed with another status."""
+    note_signal(signum)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    _exit_now()
 
 
 def handle(signum: int, frame) -> None:
@@ -95,8 +117,8 @@ def stop_signals() -> Iterator[None]:
     try:
         yield
     finally:
-        for sig, previous in old.items():
-            signal.signal(sig, previous)
+        for sig, previous in old.items():  # in the executable, the process is ending: a late signal ends it now
+            signal.signal(sig, _exit_at_once if _State.exit_after else previous)
 
 
 def worker_signals() -> None:

@@ -4,9 +4,8 @@ SPlisHSPlasH peer of bench sim runs with its own defaults."""
 import os
 import subprocess
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from helpers.paths import REPO
 
 PROBE = """
 import os, sys
@@ -17,7 +16,7 @@ print(os.environ.get("OMP_WAIT_POLICY"), os.environ.get("FLUIDGS_OMP_POLICY_SET"
 
 def _run(env_policy):
     env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "FLUIDGS_OMP_POLICY_SET")}
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
     if env_policy is not None:
         env["OMP_WAIT_POLICY"] = env_policy
     out = subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, check=True)
