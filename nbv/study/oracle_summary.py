@@ -1,0 +1,249 @@
+"""The oracle study's statistics (``fluidgs study oracle``, :mod:`nbv.study.oracle`): per rule the mean Spearman
+with the oracle gain and its bootstrap interval over (scene, seed), the regret inside FisherRF's top-K, the paired
+differences of the physics rules against their coverage controls, and the calibration means; and the Markdown
+summary (``oracle.md``)."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from nbv.study.convergence import spearman
+from nbv.study.oracle_config import OracleConfig, rule_of
+from nbv.study.paired import format_p, paired_stats
+
+
+# ---- statistics --------------------------------------------------------------------------------------
+def bootstrap_interval(
+    groups: Sequence[Sequence[float]], resamples: int, seed: int = 0, level: float = 0.95
+) -> tuple[float, float, float]:
+    """(mean, low, high): the mean of all values and its percentile bootstrap interval over the groups.
+
+    Each resample draws the groups (here the (scene, seed) pairs) with replacement and takes the mean of all their
+    values, so values within a group move together. NaN values are dropped first.
+    """
+    clean = [[float(x) for x in g if x is not None and math.isfinite(float(x))] for g in groups]
+    clean = [g for g in clean if g]
+    if not clean:
+        return math.nan, math.nan, math.nan
+    flat = [x for g in clean for x in g]
+    mean = float(np.mean(flat))
+    if len(clean) == 1:
+        return mean, math.nan, math.nan
+    rng = np.random.default_rng(seed)
+    sums = np.array([sum(g) for g in clean])
+    counts = np.array([len(g) for g in clean])
+    picks = rng.integers(len(clean), size=(resamples, len(clean)))
+    means = sums[picks].sum(axis=1) / counts[picks].sum(axis=1)
+    lo, hi = np.quantile(means, [(1 - level) / 2, 1 - (1 - level) / 2])
+    return mean, float(lo), float(hi)
+
+
+def regret(scores: Sequence[float], gains: Sequence[float], shortlist: Sequence[int]) -> float:
+    """Best gain in the shortlist minus the gain of the rule's pick there (ties: the shortlist's order)."""
+    if not shortlist:
+        return math.nan
+    pick = max(range(len(shortlist)), key=lambda j: (float(scores[shortlist[j]]), -j))
+    return max(float(gains[i]) for i in shortlist) - float(gains[shortlist[pick]])
+
+
+def summarise(config: OracleConfig, states: list[dict]) -> dict[str, Any]:
+    """Per rule: mean Spearman with the oracle gain (PSNR, SSIM) and regret with intervals; physics rules against
+    their coverage controls; the calibration means."""
+    labels = config.scored_rules()
+    groups: dict[tuple[str, int], list[dict]] = defaultdict(list)
+    for st in states:
+        groups[(st["scene"], st["seed"])].append(st)
+    keys = sorted(groups)
+    b = config.bootstrap
+
+    def per_state(fn) -> list[list[float]]:
+        return [[fn(st) for st in groups[key]] for key in keys]
+
+    rows = {}
+    for label in labels:
+        rho = per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_psnr"]))
+        rho_ssim = per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_ssim"]))
+        reg = per_state(lambda st, label=label: regret(st["scores"][label], st["oracle"]["gain_psnr"], st["shortlist"]))
+        rows[label] = {
+            "spearman": bootstrap_interval(rho, b),
+            "spearman_ssim": bootstrap_interval(rho_ssim, b),
+            "regret": bootstrap_interval(reg, b),
+            "states": sum(len(g) for g in rho),
+            "per_state": [x for g in rho for x in g],
+        }
+    paired = {}
+    for label in config.physics_rules():
+        control = rule_of(label).control
+        diff = [
+            [a - c for a, c in zip(ga, gc, strict=True)]
+            for ga, gc in zip(
+                per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_psnr"])),
+                per_state(lambda st, control=control: spearman(st["scores"][control], st["oracle"]["gain_psnr"])),
+                strict=True,
+            )
+        ]
+        flat = [x for g in diff for x in g if math.isfinite(x)]
+        st = paired_stats(flat, [0.0] * len(flat), True) if flat else None
+        paired[label] = {
+            "control": control,
+            "difference": bootstrap_interval(diff, b),
+            "better": None if st is None else st.wins,
+            "worse": None if st is None else st.losses,
+            "sign_p": None if st is None else st.sign_p,
+            "wilcoxon_p": None if st is None else st.wilcoxon_p,
+            "wilcoxon_note": "" if st is None else st.wilcoxon_note,
+        }
+    calib = _summarise_calibration(groups, keys, b)
+    gains = [st["oracle"]["gain_psnr"] for st in states]
+    return {
+        "states": len(states),
+        "pairs": [list(k) for k in keys],
+        "rules": rows,
+        "paired": paired,
+        "calibration": calib,
+        "oracle": {
+            "mean_gain_psnr": float(np.mean([np.mean(g) for g in gains])) if gains else math.nan,
+            "mean_best_gain_psnr": float(np.mean([max(g) for g in gains])) if gains else math.nan,
+            "mean_base_psnr": float(np.mean([st["oracle"]["psnr_base"] for st in states])) if states else math.nan,
+        },
+    }
+
+
+def _summarise_calibration(groups: dict, keys: list, resamples: int) -> dict[str, Any]:
+    with_cal = [k for k in keys if any("calibration" in st for st in groups[k])]
+    if not with_cal:
+        return {}
+    names = list(
+        dict.fromkeys(
+            n for k in with_cal for st in groups[k] if "calibration" in st for n in st["calibration"]["signals"]
+        )
+    )
+    signals = {}
+    for name in names:
+
+        def vals(field: str, name=name) -> list[list[float]]:
+            return [
+                [
+                    st["calibration"]["signals"][name][field]
+                    for st in groups[k]
+                    if "calibration" in st and name in st["calibration"]["signals"]
+                ]
+                for k in with_cal
+            ]
+
+        signals[name] = {
+            "spearman": bootstrap_interval(vals("spearman"), resamples),
+            "ause": bootstrap_interval(vals("ause"), resamples),
+        }
+    rules = list(
+        dict.fromkeys(
+            r
+            for k in with_cal
+            for st in groups[k]
+            if "calibration" in st
+            for r in st["calibration"]["rules_vs_missing"]
+        )
+    )
+    missing = {
+        r: bootstrap_interval(
+            [[st["calibration"]["rules_vs_missing"][r] for st in groups[k] if "calibration" in st] for k in with_cal],
+            resamples,
+        )
+        for r in rules
+    }
+    gain = bootstrap_interval(
+        [[st["calibration"]["gain_vs_missing"] for st in groups[k] if "calibration" in st] for k in with_cal], resamples
+    )
+    share = bootstrap_interval(
+        [
+            [
+                st["calibration"]["missing"]["missing"] / st["calibration"]["missing"]["samples"]
+                for st in groups[k]
+                if "calibration" in st
+            ]
+            for k in with_cal
+        ],
+        resamples,
+    )
+    return {"signals": signals, "rules_vs_missing": missing, "gain_vs_missing": gain, "missing_share": share}
+
+
+# ---- tables ------------------------------------------------------------------------------------------
+def _ci(t: Sequence[float], fmt: str = "+.2f") -> str:
+    mean, lo, hi = t
+    if not math.isfinite(mean):
+        return "n/a"
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return f"{mean:{fmt}} (one pair: no interval)"
+    return f"{mean:{fmt}} ({lo:{fmt}}..{hi:{fmt}})"
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    """Markdown tables of :func:`summarise`."""
+    o = summary["oracle"]
+    lines = [
+        f"States: {summary['states']} over {len(summary['pairs'])} (scene, seed) pairs. Intervals: 95 % "
+        "bootstrap over the (scene, seed) pairs.",
+        "",
+        f"Mean base test PSNR {o['mean_base_psnr']:.2f} dB; mean oracle gain {o['mean_gain_psnr']:+.3f} dB, "
+        f"best candidate's {o['mean_best_gain_psnr']:+.3f} dB.",
+        "",
+        "| rule | Spearman with the PSNR gain | Spearman with the SSIM gain | regret in FisherRF's top-K (dB) | "
+        "states |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    order = sorted(
+        summary["rules"],
+        key=lambda r: (
+            -(summary["rules"][r]["spearman"][0] if math.isfinite(summary["rules"][r]["spearman"][0]) else -9)
+        ),
+    )
+    for label in order:
+        row = summary["rules"][label]
+        lines.append(
+            f"| {label} | {_ci(row['spearman'])} | {_ci(row['spearman_ssim'])} | "
+            f"{_ci(row['regret'], '.3f')} | {row['states']} |"
+        )
+    if summary["paired"]:
+        lines += [
+            "",
+            "| physics rule | against | Δ Spearman | better / worse states | sign-test p | Wilcoxon p |",
+            "| --- | --- | --- | --- | --- | --- |",
+        ]
+        for label, row in summary["paired"].items():
+            lines.append(
+                f"| {label} | {row['control']} | {_ci(row['difference'])} | {row['better']} / {row['worse']} "
+                f"| {format_p(row['sign_p'])} | {format_p(row['wilcoxon_p'], row['wilcoxon_note'])} |"
+            )
+    cal_ = summary.get("calibration") or {}
+    if cal_:
+        lines += [
+            "",
+            "Per-Gaussian calibration against the distance to the mesh (signals oriented as uncertainty; "
+            "Spearman > 0 and a small AUSE are good):",
+            "",
+            "| signal | Spearman with the distance | AUSE |",
+            "| --- | --- | --- |",
+        ]
+        for name, row in cal_["signals"].items():
+            lines.append(f"| {name} | {_ci(row['spearman'])} | {_ci(row['ause'], '.3f')} |")
+        lines += [
+            "",
+            f"Missing geometry (mesh samples outside every Gaussian's 2-sigma ellipsoid): "
+            f"{_ci(cal_['missing_share'], '.2f')} of the samples. Spearman of each rule's scores with the "
+            f"missing samples a view sees (the oracle gain's: {_ci(cal_['gain_vs_missing'])}):",
+            "",
+            "| rule | Spearman with the missing samples seen |",
+            "| --- | --- |",
+        ]
+        for name, t in cal_["rules_vs_missing"].items():
+            lines.append(f"| {name} | {_ci(t)} |")
+    return "\n".join(lines) + "\n"
+
+
+# ---- the study ---------------------------------------------------------------------------------------
