@@ -143,6 +143,10 @@ def test_bench_sim_smoke(tmp_path, capsys):
     assert "particles: 58320 fluid, 33401 solid, 64960 wall" in text and "median over steps 2..2" in text
     figures = json.loads(out.read_text())["fluidgaussian"]
     assert figures["fluid_particles"] == PeerScene().expected_fluid_particles() == 58320 and figures["steps"] == 2
+    # the throughput the engine target is stated in: fluid particles over the median step time
+    rate = figures["fluid_particle_steps_per_s"]
+    assert rate == pytest.approx(58320 / (figures["median_ms_steps_2_to_n"] / 1e3))
+    assert f"{rate / 1e6:.2g} M fluid particle-steps/s" in text
     assert cli.main(["bench", "sim", "--steps", "1", "--no-peer"]) == 2
 
 
