@@ -46,7 +46,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -57,30 +56,21 @@ from pathlib import Path
 import cv2
 import h5py
 import numpy as np
-from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from fluidsim.files import write_bytes_atomic
 
 from .colors import TURBO_BGR
+from .frame_source import COLOR_BY, FrameSource, box_corners, check_domain, check_frames_file
 from .video import check_encoder, write_mp4
 
 logger = logging.getLogger(__name__)
 
 VIEWS = ("front", "side", "top", "iso")
-# color_by -> (dataset in each frame group, colour-bar title, unit)
-COLOR_BY = {
-    "divergence": ("divergence", "|div v|", "1/s"),
-    "speed": ("v", "speed |v|", "m/s"),
-}
-MAX_BOUNDARY_POINTS = 50_000  # walls drawn at most
-MAX_SOLID_POINTS = 400_000
 WALLS = ("hidden", "faint", "shown")
 FRAMES = ("object", "domain")
 OBJECT_MARGIN = 0.35  # the object's box grows by this fraction of its largest extent on every side
 MAX_SOLID_RADIUS = 24  # px
-VMAX_PERCENTILE = 99.0
-VMAX_MAX_SAMPLES = 2_000_000  # values pooled over all frames to estimate the percentile
 MIN_WIDTH, MIN_HEIGHT = 160, 120
 
 _SQRT2, _SQRT3, _SQRT6 = math.sqrt(2.0), math.sqrt(3.0), math.sqrt(6.0)
@@ -212,14 +202,14 @@ def project(
         raise ValueError(f"points must have shape (N, 3), got {points.shape}")
     if not np.isfinite(points).all():
         raise ValueError("points contain NaN or inf; drop them before projecting")
-    lo, hi = _check_domain(domain_min, domain_max)
+    lo, hi = check_domain(domain_min, domain_max)
     basis = view_basis(view)
     margin = default_margin(width, height) if margin is None else margin
     avail_w, avail_h = width - 1 - 2 * margin, height - 1 - 2 * margin
     if avail_w <= 0 or avail_h <= 0:
         raise ValueError(f"canvas {width}x{height} px leaves no room inside a margin of {margin} px")
 
-    corners = _box_corners(lo, hi) @ basis[:2].T  # (8, 2) screen coordinates [m]
+    corners = box_corners(lo, hi) @ basis[:2].T  # (8, 2) screen coordinates [m]
     c_lo, c_hi = corners.min(axis=0), corners.max(axis=0)
     scale = min(avail_w / (c_hi[0] - c_lo[0]), avail_h / (c_hi[1] - c_lo[1]))  # [px/m]
     mid = 0.5 * (c_lo + c_hi)
@@ -274,9 +264,9 @@ def render_frames(
         raise ValueError(f"style must be a FrameStyle, got {type(style).__name__}")
     h5_path, out = Path(h5_path), Path(out)
     is_video = output_is_video(out, png)
-    _check_input_file(h5_path)
+    check_frames_file(h5_path)
     with h5py.File(h5_path, "r") as f:
-        source = _Source.inspect(f, h5_path, style)
+        source = FrameSource.inspect(f, h5_path, style)
         _prepare_output(out, is_video)
         vmax = style.vmax if style.vmax is not None else source.percentile_vmax()
         logger.info(
@@ -323,211 +313,6 @@ def output_is_video(out: Path, png: bool = False) -> bool:
         f"frames (a path without a suffix), not {out.suffix!r}; use -o {out.with_suffix('.mp4')} for "
         f"a video, or add --png to write the frames into the directory {out}"
     )
-
-
-# ---------------------------------------------------------------------------------------------------
-# Input
-
-
-class _Source:
-    """A checked, open simulation file: frame keys in order, domain box and what to read per frame."""
-
-    def __init__(self, file, path, keys, counts, value_name, domain, boundary, walls=None) -> None:
-        self.file: h5py.File = file
-        self.path: Path = path
-        self.keys: tuple[str, ...] = keys
-        self.counts: tuple[int, ...] = counts
-        self.value_name: str = value_name
-        self.domain_min, self.domain_max = domain
-        self.boundary: np.ndarray | None = boundary  # (M', 3) finite solid particles, already subsampled
-        self.walls: np.ndarray | None = walls  # (W', 3) finite wall particles, already subsampled
-        self.dropped = 0  # particles skipped so far because their position was NaN or inf
-
-    @staticmethod
-    def inspect(f: h5py.File, path: Path, style: FrameStyle) -> _Source:
-        frames = f.get("/frames")
-        if not isinstance(frames, h5py.Group):
-            raise ValueError(f"{path} has no /frames group; is it a simulation output file (OUT.h5)?")
-        bad = [k for k in frames if not k.isdigit()]
-        if bad:
-            raise ValueError(f"{path}: /frames holds non-numeric keys {bad[:5]}; expected e.g. '000010'")
-        keys = tuple(sorted(frames, key=int))
-        if not keys:
-            raise ValueError(f"{path}: /frames is empty; run the simulation long enough to write a frame")
-        value_name = COLOR_BY[style.color_by][0]
-        counts = []
-        for k in keys:
-            g = frames[k]
-            where = f"{path}:/frames/{k}"
-            if not isinstance(g, h5py.Group):
-                raise ValueError(f"{where} is not a group")
-            x = _dataset(g, "x", where)
-            val = _dataset(g, value_name, where, hint=f"or choose another --color-by than {style.color_by}")
-            if x.ndim != 2 or x.shape[1] != 3:
-                raise ValueError(f"{where}/x must have shape (N, 3), got {x.shape}")
-            n = x.shape[0]
-            want = (n, 3) if value_name == "v" else (n,)
-            if val.shape != want:
-                raise ValueError(
-                    f"{where}/{value_name} has shape {val.shape}; x has shape {x.shape}, so expected {want}"
-                )
-            for attr in ("time", "step"):
-                if attr not in g.attrs:
-                    raise ValueError(f"{where} lacks the attribute '{attr}'")
-            counts.append(n)
-
-        boundary = walls = None
-        domain = _domain_from_scene(f, path)
-        if style.show_boundary and "boundary" in f and "x" in f["boundary"]:
-            boundary, walls = _read_boundary(f["boundary"]["x"], path, domain)
-        if domain is None:
-            domain = _domain_from_particles(frames, keys, boundary)
-        return _Source(f, path, keys, tuple(counts), value_name, domain, boundary, walls)
-
-    def frame(self, i: int) -> tuple[np.ndarray, np.ndarray, float, int]:
-        """Positions (N', 3) with non-finite rows dropped, their colour values (N',), time [s], step."""
-        g = self.file["frames"][self.keys[i]]
-        x = np.asarray(g["x"][()], dtype=np.float64)
-        values = _magnitudes(g[self.value_name][()])
-        ok = np.isfinite(x).all(axis=1)
-        if not ok.all():
-            self.dropped += int((~ok).sum())
-            x, values = x[ok], values[ok]
-        return x, values, float(g.attrs["time"]), int(g.attrs["step"])
-
-    def spacing(self, solid: np.ndarray) -> float | None:
-        """The particle spacing [m]: 2 x the scene's ``particle_radius``, else the median nearest-neighbour distance
-        of (at most 5,000 of) the solid particles, else None."""
-        raw = self.file.attrs.get("scene")
-        try:
-            radius = json.loads(raw.decode() if isinstance(raw, bytes) else str(raw)).get("particle_radius")
-            if radius is not None and float(radius) > 0:
-                return 2.0 * float(radius)
-        except (ValueError, TypeError, AttributeError):
-            pass
-        if len(solid) < 2:
-            return None
-        sample = solid[:: max(1, len(solid) // 5000)]
-        dist, _ = cKDTree(solid).query(sample, k=2)
-        return float(np.median(dist[:, 1])) or None
-
-    def percentile_vmax(self) -> float:
-        """99th percentile of the colour values over all frames (strided sample of at most 2M values)."""
-        stride = max(1, math.ceil(sum(self.counts) / VMAX_MAX_SAMPLES))
-        pooled = [_magnitudes(self.file["frames"][k][self.value_name][()])[::stride] for k in self.keys]
-        values = np.concatenate(pooled) if pooled else np.zeros(0)
-        values = values[np.isfinite(values)]
-        vmax = float(np.percentile(values, VMAX_PERCENTILE)) if values.size else 0.0
-        if not vmax > 0:
-            vmax = float(values.max()) if values.size else 0.0
-        if not vmax > 0:
-            logger.warning("%s: all %s values are zero; using vmax = 1", self.path, self.value_name)
-            vmax = 1.0
-        return vmax
-
-
-def _check_input_file(path: Path) -> None:
-    if not path.exists():
-        raise FileNotFoundError(f"{path} does not exist; pass the OUT.h5 written by the simulation")
-    if not path.is_file():
-        raise ValueError(f"{path} is not a file; pass the OUT.h5 written by the simulation")
-    if not h5py.is_hdf5(path):
-        raise ValueError(f"{path} is not an HDF5 file; pass the OUT.h5 written by the simulation")
-
-
-def _dataset(group: h5py.Group, name: str, where: str, hint: str = "") -> h5py.Dataset:
-    ds = group.get(name)
-    if not isinstance(ds, h5py.Dataset):
-        raise ValueError(f"{where} has no dataset '{name}'" + (f"; {hint}" if hint else ""))
-    if ds.dtype.kind not in "fiu":
-        raise ValueError(f"{where}/{name} has dtype {ds.dtype}; expected a float array")
-    return ds
-
-
-def _magnitudes(values: np.ndarray) -> np.ndarray:
-    """Colour value per particle: |value| for (N,), Euclidean norm for (N, 3)."""
-    values = np.asarray(values, dtype=np.float64)
-    return np.linalg.norm(values, axis=1) if values.ndim == 2 else np.abs(values)
-
-
-def _read_boundary(ds: h5py.Dataset, path: Path, domain) -> tuple[np.ndarray, np.ndarray]:
-    """(solid, walls): the boundary particles inside and outside the domain box (all solid without a domain), each
-    a uniform random subset (fixed seed) of at most MAX_SOLID_POINTS / MAX_BOUNDARY_POINTS when larger.
-
-    Random rather than strided, because a stride through a regularly sampled wall draws moire patterns.
-    The dataset is read in blocks so that a huge boundary never sits in memory whole.
-    """
-    if ds.ndim != 2 or ds.shape[1] != 3 or ds.dtype.kind not in "fiu":
-        raise ValueError(f"{path}:/boundary/x must be a float array of shape (M, 3), got {ds.shape} {ds.dtype}")
-    block = 1 << 20
-    solid, walls = [], []
-    for start in range(0, ds.shape[0], block):
-        points = np.asarray(ds[start : start + block], dtype=np.float64).reshape(-1, 3)
-        points = points[np.isfinite(points).all(axis=1)]
-        inside = (
-            np.ones(len(points), bool)
-            if domain is None
-            else ((points >= domain[0]) & (points <= domain[1])).all(axis=1)
-        )
-        solid.append(points[inside])
-        walls.append(points[~inside])
-    return (
-        _subset(np.concatenate(solid or [np.zeros((0, 3))]), MAX_SOLID_POINTS, path, "solid"),
-        _subset(np.concatenate(walls or [np.zeros((0, 3))]), MAX_BOUNDARY_POINTS, path, "wall"),
-    )
-
-
-def _subset(points: np.ndarray, limit: int, path: Path, what: str) -> np.ndarray:
-    if len(points) <= limit:
-        return points
-    chosen = np.sort(np.random.default_rng(0).choice(len(points), limit, replace=False))
-    logger.info("%s: drawing %d of %d %s particles", path, limit, len(points), what)
-    return points[chosen]
-
-
-def _domain_from_scene(f: h5py.File, path: Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """Domain box from the root ``scene`` JSON, or None (with a warning) when it is missing or unusable."""
-    raw = f.attrs.get("scene")
-    try:
-        if raw is None:
-            raise ValueError("the root attribute 'scene' is missing")
-        if isinstance(raw, bytes):
-            raw = raw.decode("utf-8")
-        domain = json.loads(str(raw))["domain"]
-        return _check_domain(domain["min"], domain["max"])
-    except (ValueError, KeyError, TypeError) as e:
-        logger.warning("%s: no usable scene domain (%s); fitting the view to the particles instead", path, e)
-        return None
-
-
-def _domain_from_particles(frames: h5py.Group, keys, boundary) -> tuple[np.ndarray, np.ndarray]:
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    clouds = [frames[k]["x"][()] for k in keys] + ([boundary] if boundary is not None else [])
-    for points in clouds:
-        points = np.asarray(points, dtype=np.float64)
-        points = points[np.isfinite(points).all(axis=1)]
-        if len(points):
-            lo, hi = np.minimum(lo, points.min(axis=0)), np.maximum(hi, points.max(axis=0))
-    if not np.isfinite(lo).all():
-        lo, hi = np.zeros(3), np.ones(3)
-    pad = 0.5 * max(float((hi - lo).max()), 1e-3)
-    flat = hi - lo < 1e-9
-    return np.where(flat, lo - pad, lo), np.where(flat, hi + pad, hi)
-
-
-def _check_domain(domain_min, domain_max) -> tuple[np.ndarray, np.ndarray]:
-    lo = np.asarray(domain_min, dtype=np.float64)
-    hi = np.asarray(domain_max, dtype=np.float64)
-    if lo.shape != (3,) or hi.shape != (3,):
-        raise ValueError(f"domain min and max must have shape (3,), got {lo.shape} and {hi.shape}")
-    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
-        raise ValueError(f"domain needs finite min < max on every axis, got min {lo} and max {hi}")
-    return lo, hi
-
-
-def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """(8, 3) corners; bit i of the corner index selects max along axis i."""
-    return np.array([[hi[a] if (c >> a) & 1 else lo[a] for a in range(3)] for c in range(8)])
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -637,7 +422,7 @@ class _Layout:
 class _Renderer:
     """Draws frames of one source with one style; the static layer (box, boundary) is drawn once."""
 
-    def __init__(self, source: _Source, style: FrameStyle, vmax: float) -> None:
+    def __init__(self, source: FrameSource, style: FrameStyle, vmax: float) -> None:
         self.source, self.style, self.vmax = source, style, vmax
         self.layout = _Layout.of(style.width, style.height)
         x0, y0, vw, vh = self.layout.viewport
@@ -646,7 +431,7 @@ class _Renderer:
         solid = source.boundary if source.boundary is not None else np.zeros((0, 3))
         self.lo, self.hi = camera_box(solid, source.domain_min, source.domain_max, style.frame)
         self.draw_box = style.frame == "domain" or not len(solid)
-        corners = _box_corners(source.domain_min, source.domain_max)
+        corners = box_corners(source.domain_min, source.domain_max)
         self.corner_uv, self.corner_depth = self._project(corners)
         self.depth_range = (float(self.corner_depth.min()), float(self.corner_depth.max()))
         self.solid_uv, self.solid_depth = self._project(solid)
@@ -760,7 +545,7 @@ def camera_box(solid: np.ndarray, domain_min, domain_max, frame: str = "object")
     Returns:
         (lo, hi), each (3,) float64 [m].
     """
-    lo, hi = _check_domain(domain_min, domain_max)
+    lo, hi = check_domain(domain_min, domain_max)
     solid = np.asarray(solid, dtype=np.float64).reshape(-1, 3)
     if frame == "domain" or not len(solid):
         return lo, hi

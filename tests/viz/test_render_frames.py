@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from apps import render_frames as cli
+from viz import frame_source
 from viz import frames as rf
 from viz.frames import FrameStyle, project, render_frames, scene_viewport
 from viz.video import read_mp4, video_info
@@ -138,7 +139,7 @@ def test_view_bases_are_orthonormal_and_not_mirrored():
 
 
 def test_iso_projection_fits_the_box_and_puts_the_top_corner_on_the_margin():
-    corners = rf._box_corners(DOMAIN_MIN, DOMAIN_MAX)
+    corners = frame_source.box_corners(DOMAIN_MIN, DOMAIN_MAX)
     uv, _ = project(corners, DOMAIN_MIN, DOMAIN_MAX, "iso", 400, 300, margin=10)
     assert uv[:, 0].min() >= 10 and uv[:, 0].max() <= 389 and uv[:, 1].min() >= 10 and uv[:, 1].max() <= 289
     assert uv[:, 1].min() == 10 or uv[:, 0].min() == 10  # one axis touches the margin
@@ -219,7 +220,7 @@ def test_default_vmax_is_the_99th_percentile_over_all_frames(tmp_path):
     h5 = _write_h5(tmp_path / "OUT.h5")
     with h5py.File(h5) as f:
         pooled = np.concatenate([f[f"frames/{k}/divergence"][()] for k in f["frames"]])
-        source = rf._Source.inspect(f, h5, FrameStyle())
+        source = frame_source.FrameSource.inspect(f, h5, FrameStyle())
         assert source.percentile_vmax() == pytest.approx(np.percentile(pooled, 99.0), rel=1e-6)
 
 
@@ -271,16 +272,16 @@ def test_solid_is_ivory_walls_hidden_by_default_and_all_can_be_hidden(tmp_path):
 
 
 def test_boundary_is_split_by_the_domain_and_subsampled(tmp_path, monkeypatch):
-    monkeypatch.setattr(rf, "MAX_BOUNDARY_POINTS", 100)
-    monkeypatch.setattr(rf, "MAX_SOLID_POINTS", 50)
+    monkeypatch.setattr(frame_source, "MAX_BOUNDARY_POINTS", 100)
+    monkeypatch.setattr(frame_source, "MAX_SOLID_POINTS", 50)
     with h5py.File(tmp_path / "b.h5", "w") as f:
         f["x"] = np.random.default_rng(0).random((1000, 3)) * 2 - 0.5  # [-0.5, 1.5)^3
         domain = (np.zeros(3), np.ones(3))
-        solid, walls = rf._read_boundary(f["x"], tmp_path / "b.h5", domain)
+        solid, walls = frame_source._read_boundary(f["x"], tmp_path / "b.h5", domain)
         assert solid.shape == (50, 3) and walls.shape == (100, 3)
         assert ((solid >= 0) & (solid <= 1)).all() and (((walls < 0) | (walls > 1)).any(axis=1)).all()
         assert len(np.unique(walls, axis=0)) == 100 and np.isin(walls[:, 0], f["x"][:, 0]).all()
-        everything, none = rf._read_boundary(f["x"], tmp_path / "b.h5", None)  # no domain: all of it is solid
+        everything, none = frame_source._read_boundary(f["x"], tmp_path / "b.h5", None)  # no domain: all of it is solid
         assert len(everything) == 50 and len(none) == 0
 
 
