@@ -43,6 +43,9 @@ class PhysicsConfig:
         directions: probes to run, a subset of :data:`fluidsim.directions.DIRECTIONS`.
         accumulate_every: accumulate D_i every k-th step (k >= 1).
         n_radius: n of Eq. 2: particles within n r_g of a Gaussian count for it.
+        reach_floor: the smallest reach, in SPH support radii h = 4 r: a Gaussian's reach is max(n r_g,
+            reach_floor h) (:meth:`reach`). 0 (default): the paper's n r_g. 1 gives thin surface Gaussians, whose
+            n r_g is smaller than the gap the fluid keeps from the solid, a value; a study variant (docs/results.md).
         opacity_threshold: tau: combined opacity at or above which a lattice point is solid (unitless, 0..1).
         up: the scene's up direction, which becomes simulation +y: an axis ("+y", "-y", "+z", ...) or a 3-tuple
             (:func:`nbv.physics.scene_frame.parse_up`). COLMAP captures are often y-down: up "-y".
@@ -74,6 +77,7 @@ class PhysicsConfig:
     directions: tuple[str, ...] = DIRECTIONS
     accumulate_every: int = 1
     n_radius: float = 3.0
+    reach_floor: float = 0.0
     opacity_threshold: float = 0.3
     up: str | tuple[float, float, float] = "+y"
     scale: float | str = "auto"
@@ -93,7 +97,7 @@ class PhysicsConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ValueError(f"PhysicsConfig.{name} must be a finite number > 0, got {v!r}")
-        for name in ("speed", "viscosity"):
+        for name in ("speed", "viscosity", "reach_floor"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"PhysicsConfig.{name} must be a finite number >= 0, got {v!r}")
@@ -151,6 +155,14 @@ class PhysicsConfig:
         """The quick preset (r = 0.05 m, 300 steps per probe) with optional overrides."""
         return cls(**{**QUICK, **overrides})
 
+    def reach(self, radii: np.ndarray) -> np.ndarray:
+        """[K] float64 reach of Gaussians of largest standard deviation ``radii`` (m): n r_g (Eq. 2), at least
+        ``reach_floor`` SPH support radii."""
+        reach = self.n_radius * np.asarray(radii, np.float64)
+        if self.reach_floor > 0:
+            reach = np.maximum(reach, self.reach_floor * self.solver_config().support_radius)
+        return np.ascontiguousarray(reach)
+
     def solver_config(self, dt: float | None = None) -> SolverConfig:
         """The fluidsim solver parameters of these probes (``dt`` overrides the time step)."""
         known = {f.name for f in fields(SolverConfig)}
@@ -198,8 +210,9 @@ class PhysicsConfig:
         record of one run (RESULT.h5, scores.json, an active run's config.json) is the one written before replicas
         existed, and such a run resumes."""
         d = asdict(self)
-        if self.replicas == 1:
-            del d["replicas"]
+        for name, default in (("replicas", 1), ("reach_floor", 0.0)):  # records written before these existed
+            if d[name] == default:
+                del d[name]
         d["directions"] = list(self.directions)
         d["solver"] = dict(self.solver)
         d["up"] = self.up if isinstance(self.up, str) else list(self.up)

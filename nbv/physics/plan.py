@@ -67,7 +67,7 @@ class RunFrame:
         transform = scene_transform(gaussians, config, kept=kept)
         simulated = gaussians if kept is None else gaussians.subset(torch.from_numpy(np.nonzero(kept)[0]))
         sim = SimGaussians.of(simulated, transform)
-        reach = np.ascontiguousarray(config.n_radius * np.asarray(sim.radii, np.float64))
+        reach = config.reach(sim.radii)
         return cls(config, gaussians, transform, kept, sim, reach, gaussians_sha256(gaussians))
 
     @property
@@ -122,7 +122,7 @@ def expand_to_all(part: PhysicsResult, gaussians, kept: np.ndarray, config: Phys
         empty_per_probe=full(part.empty_per_probe, 1),
         means=np.ascontiguousarray(means),
         covariances=np.ascontiguousarray(covs),
-        reach=np.ascontiguousarray(config.n_radius * radii),
+        reach=config.reach(radii),
         config=config,
         kept=kept.copy(),
     )

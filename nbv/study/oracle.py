@@ -35,7 +35,7 @@ import time
 from collections import defaultdict
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -57,6 +57,7 @@ from nbv.study import calibration as cal
 from nbv.study.convergence import spearman
 from nbv.study.oracle_config import RULES, OracleConfig, rule_of
 from nbv.study.oracle_summary import format_summary, summarise
+from nbv.study.thin import thin_or_open
 from recon.datasets import load_dataset
 from recon.gaussians import GaussianSet
 from recon.mesh_render import load_mesh
@@ -165,9 +166,18 @@ def _stored(path: Path, config: dict) -> dict | None:
 
 
 # ---- probes and rules --------------------------------------------------------------------------------
-def probe_run(gaussians: GaussianSet, physics: PhysicsConfig, source: str = "") -> tuple[torch.Tensor, ProbeFields]:
-    """D_g [N] (float64, 1/s) and the per-probe fields of one probe run; zeros when the Gaussians form no solid
-    (as the active loop does for a barely trained reconstruction)."""
+class ProbeRun(NamedTuple):
+    """One probe run at a state: D_g [N] (float64, 1/s), the per-probe fields, and [N] bool where the solid is
+    thin or open (:func:`nbv.study.thin.thin_or_open`; every Gaussian when they form no solid)."""
+
+    divergence: torch.Tensor
+    fields: ProbeFields
+    thin: torch.Tensor
+
+
+def probe_run(gaussians: GaussianSet, physics: PhysicsConfig, source: str = "") -> ProbeRun:
+    """The probes of one setting on ``gaussians``; D_g = 0 when the Gaussians form no solid (as the active loop
+    does for a barely trained reconstruction)."""
     try:
         res = simulate_gaussians(gaussians, physics, progress=False, source=source)
     except ValueError as exc:
@@ -175,27 +185,29 @@ def probe_run(gaussians: GaussianSet, physics: PhysicsConfig, source: str = "") 
             raise
         log.warning("%s: %s; D_g = 0", source, exc)
         zeros = torch.zeros(gaussians.num, dtype=torch.float64)
-        return zeros, ProbeFields(("none",), zeros.reshape(1, -1), zeros.reshape(1, -1))
+        fields = ProbeFields(("none",), zeros.reshape(1, -1), zeros.reshape(1, -1))
+        return ProbeRun(zeros, fields, torch.ones(gaussians.num, dtype=torch.bool))
     fields = ProbeFields(
         tuple(res.directions),
         torch.from_numpy(res.per_probe),
         None if res.empty_per_probe is None else torch.from_numpy(res.empty_per_probe),
     )
-    return torch.from_numpy(res.divergence).to(torch.float64), fields
+    thin = thin_or_open(res.solid, 2.0 * physics.particle_radius, res.means, res.reach)
+    return ProbeRun(torch.from_numpy(res.divergence).to(torch.float64), fields, torch.from_numpy(thin))
 
 
-def rule_values(
-    values: str, divergence: torch.Tensor, fields: ProbeFields, seed: int, round_index: int
-) -> torch.Tensor:
+def rule_values(values: str, run: ProbeRun, seed: int, round_index: int) -> torch.Tensor:
     """The per-Gaussian values v_g of a physics rule (``RULES[...].values``)."""
     if values == "divergence":
-        return divergence
+        return run.divergence
     if values == "shuffled":
-        return shuffled_divergence(divergence, seed, round_index)
+        return shuffled_divergence(run.divergence, seed, round_index)
     if values == "excess":
-        return excess_divergence(fields)
+        return excess_divergence(run.fields)
     if values == "perprobe":
-        return per_probe_normalised(fields.per_probe)
+        return per_probe_normalised(run.fields.per_probe)
+    if values == "thin":
+        return torch.where(run.thin, run.divergence, torch.zeros_like(run.divergence))
     raise ValueError(f"rule_values: {values!r} is not a physics value")
 
 
@@ -244,15 +256,15 @@ def score_rules(
         if not labels:
             continue
         t0 = time.perf_counter()
-        divergence, fields = probe_run(g, pcfg, source=f"probe setting {setting}")
+        run = probe_run(g, pcfg, source=f"probe setting {setting}")
         t1 = time.perf_counter()
-        fields_out[setting] = (divergence, fields)
+        fields_out[setting] = run
         cache: dict[tuple[str, bool], list[float]] = {}
         for label in labels:
             rule = rule_of(label)
             key = (rule.values, rule.depth_test)
             if key not in cache:
-                v = rule_values(rule.values, divergence, fields, seed, context.round)
+                v = rule_values(rule.values, run, seed, context.round)
                 cache[key] = physics_view_scores(g, cams, v, occlusion=rule.depth_test)
             s, a = cache[key], coverage[rule.depth_test]
             if rule.combine == "balanced":
@@ -432,10 +444,10 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
             background=background,
             round=round_index,
             occlusion=acfg.occlusion,
-            physics=(lambda gs: probe_run(gs, loop_physics, "reaching planner")[0])
+            physics=(lambda gs: probe_run(gs, loop_physics, "reaching planner").divergence)
             if uses_physics(config.planner)
             else None,
-            probe_fields=(lambda gs: probe_run(gs, loop_physics, "reaching planner")[1])
+            probe_fields=(lambda gs: probe_run(gs, loop_physics, "reaching planner").fields)
             if uses_physics(config.planner)
             else None,
         )
@@ -490,15 +502,17 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
         "k": k,
         "oracle": oracle,
         "scores": scores,
+        "thin_share": {name: float(run.thin.double().mean()) for name, run in extra["fields"].items()},
     }
     if config.calibration and ds.mesh_path is not None:
         t0 = time.perf_counter()
         signals = {}
-        for setting, (divergence, fields) in extra["fields"].items():
-            signals[f"D_g:{setting}"] = divergence
-            signals[f"perprobe:{setting}"] = per_probe_normalised(fields.per_probe)
-            if fields.empty_per_probe is not None:
-                signals[f"excess:{setting}"] = excess_divergence(fields)
+        for setting, run in extra["fields"].items():
+            signals[f"D_g:{setting}"] = run.divergence
+            signals[f"perprobe:{setting}"] = per_probe_normalised(run.fields.per_probe)
+            if run.fields.empty_per_probe is not None:
+                signals[f"excess:{setting}"] = excess_divergence(run.fields)
+            signals[f"thin:{setting}"] = rule_values("thin", run, seed, 0)
         record["calibration"] = calibrate(
             g,
             str(ds.mesh_path),

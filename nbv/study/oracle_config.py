@@ -52,8 +52,8 @@ CONFIG_KEYS = (
     "output",
 )
 
-VALUES = ("fisher", "variance", "fvs", "random", "ones", "divergence", "shuffled", "excess", "perprobe")
-PHYSICS_VALUES = ("divergence", "shuffled", "excess", "perprobe")
+VALUES = ("fisher", "variance", "fvs", "random", "ones", "divergence", "shuffled", "excess", "perprobe", "thin")
+PHYSICS_VALUES = ("divergence", "shuffled", "excess", "perprobe", "thin")
 COMBINES = ("sum", "balanced", "ratio")
 
 
@@ -66,7 +66,8 @@ class Rule:
         values: what it scores: a visual planner's per-candidate score ("fisher", "variance"), the farthest-view
             distance ("fvs"), uniform noise ("random"), or S(T) = sum_g w_g(T) v_g of per-Gaussian values v_g:
             "ones" (the coverage A(T)), "divergence" (D_g), "shuffled" (D_g permuted), "excess" (over the empty
-            scene), "perprobe" (each probe normalised before the max).
+            scene), "perprobe" (each probe normalised before the max), "thin" (D_g where the solid is thin or
+            open, 0 elsewhere: :mod:`nbv.study.thin`).
         depth_test: S(T) counts only the Gaussians the coarse depth test finds unhidden.
         combine: "sum" (S(T)), "balanced" (z(A) + z(S/A) over the candidates) or "ratio" (the physics part
             P(T) = S/A).
@@ -103,6 +104,7 @@ def _physics_rules() -> list[Rule]:
         ("shuffled", "S(T) of D_g permuted across the Gaussians"),
         ("excess", "S(T) of the excess over the empty scene"),
         ("perprobe", "S(T) of D_g with every probe normalised"),
+        ("thin", "S(T) of D_g where the solid is thin or open"),
     ):
         base = {"divergence": "fluid"}.get(values, values)
         for occ in (False, True):

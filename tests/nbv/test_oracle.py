@@ -178,7 +178,7 @@ def tiny(tmp_path, dataset, **over) -> dict:
         "states": [2],
         "horizon": 3,
         "output": str(tmp_path / "out"),
-        "rules": ["fisher", "fvs", "random", "coverage", "coverage-occ", "fluid-occ", "ratio-occ"],
+        "rules": ["fisher", "fvs", "random", "coverage", "coverage-occ", "fluid-occ", "thin-occ", "ratio-occ"],
         "active": {
             "resolution": 16,
             "iterations_per_view": 3,
@@ -270,6 +270,12 @@ def test_every_state_is_written_and_the_rules_score_every_candidate(study):
         o = st["oracle"]
         assert np.allclose(o["gain_psnr"], np.array(o["psnr"]) - o["psnr_base"])
         assert "calibration" in st and len(st["calibration"]["missing"]["per_view"]) == c
+        share = st["thin_share"]["coarse"]
+        assert 0.0 <= share <= 1.0
+        thin, full = np.array(st["scores"]["thin-occ:coarse"]), np.array(st["scores"]["fluid-occ:coarse"])
+        assert (thin <= full * (1 + 1e-12)).all()  # D_g masked to the thin or open part: never more
+        if share == 1.0:  # every Gaussian thin or open: the thin rule is the plain S(T)
+            np.testing.assert_array_equal(thin, full)
     # a larger state of the same (scene, seed) continues the smaller one's selection
     by = {
         (json.loads(p.read_text())["seed"], json.loads(p.read_text())["n_selected"]): json.loads(p.read_text())

@@ -145,7 +145,7 @@ def case():
         budget=4,
         background=bg,
     )
-    divergence, _ = probe_run(holed, PROBES)
+    divergence = probe_run(holed, PROBES).divergence
     ones = torch.ones(holed.num, dtype=torch.float64)
     scores = {
         "fisher": FisherPlanner().rank(ctx, 1)[1],

@@ -266,3 +266,23 @@ def test_memory_check_uses_the_real_solid_when_faint_gaussians_widen_the_box(sph
             ),
             progress=False,
         )
+
+
+def test_reach_floor_widens_only_the_thin_gaussians_reach(sphere):
+    # thin Gaussians (scale 0.02 -> n r_g well below h = 4 r after auto scaling) get reach max(n r_g, h): the same
+    # fluid then counts for a superset of the particles, so no count falls and the thin ones gain samples
+    thin = sphere_gaussians(scale=0.02)
+    base = PhysicsConfig(**COARSE, directions=("-x",))
+    floored = replace(base, reach_floor=1.0)
+    h = base.solver_config().support_radius
+    radii = np.array([0.01, 0.1, 1.0])
+    np.testing.assert_array_equal(floored.reach(radii), np.maximum(3.0 * radii, h))
+    np.testing.assert_array_equal(base.reach(radii), 3.0 * radii)
+    assert "reach_floor" not in base.to_dict() and PhysicsConfig.from_dict(floored.to_dict()) == floored
+    with pytest.raises(ValueError, match="reach_floor"):
+        PhysicsConfig(reach_floor=-1.0)
+    a = simulate_gaussians(thin, base, progress=False)
+    b = simulate_gaussians(thin, floored, progress=False)
+    assert (a.reach < h).all() and (b.reach == h).all()
+    assert (b.per_probe_counts >= a.per_probe_counts).all()
+    assert (b.per_probe_counts > 0).sum() > (a.per_probe_counts > 0).sum()
