@@ -6,16 +6,21 @@ the rasterizer's inputs (means, activated scales and opacities, raw SH) and lets
 the activations exp (scales) and sigmoid (opacity) *once*, i.e. with the factor d act / d raw and not its square.
 Ours is the diagonal of J^T J in the trainer's own parameters (log scales, opacity logits): the factor squared.
 These tests pin that choice (and show that it differs from the public code's factor, so they can fail), the
-acquisition as the trace of H_c (H_train + lambda I)^-1 with dense matrices."""
+acquisition as the trace of H_c (H_train + lambda I)^-1 with dense matrices, and that the planner differentiates only
+the SH bands the trainer fits (FisherRF's rasterizer renders the active SH degree only)."""
 
 import math
 
 import pytest
 import torch
 
-from nbv.plan.fisher_info import DEFAULT_LAMBDA, fisher_score, view_fisher
+from nbv.plan import PlanningContext
+from nbv.plan.fisher import FisherPlanner
+from nbv.plan.fisher_info import DEFAULT_LAMBDA, FisherConfig, fisher_score, greedy_top_k, view_fisher
 from recon.camera import Camera
+from recon.datasets import View
 from recon.gaussians import GaussianSet
+from recon.render import render
 from recon.render_reference import render_dense_reference
 
 F64 = torch.float64
@@ -80,3 +85,34 @@ def test_score_is_the_trace_of_candidate_h_times_inverse_regularised_train_h():
     dense_next = torch.trace(torch.diag(h_next.flatten()) @ torch.linalg.inv(both))
     assert fisher_score(h_next, h_train + h_c) == pytest.approx(float(dense_next), rel=1e-9)
     assert fisher_score(h_next, h_train + h_c) < fisher_score(h_next, h_train)
+
+
+def _context(g: GaussianSet, cams: list[Camera], sh_degree: int | None) -> PlanningContext:
+    train_cam = _camera((0.3, -0.2, -3.0), size=10)
+    train = [View(train_cam, render(g, train_cam, 1.0).image.detach(), None, "train0")]
+    return PlanningContext(g, train, cams, list(range(len(cams))), 1, 10, torch.ones(3), sh_degree=sh_degree)
+
+
+def test_planner_differentiates_the_sh_bands_the_trainer_fits():
+    g = _scene(n=12, seed=7, sh_degree=1, dtype=torch.float32)
+    sh = g.sh.clone()
+    sh[:, 1:] = 0.0  # the trainer pads the bands it has not activated with zeros and does not update them
+    g = GaussianSet(g.means, g.quats, g.log_scales, g.opacity_logits, sh)
+    cams = [_camera((3 * math.sin(a), 0.3, -3 * math.cos(a)), size=10) for a in (0.4, 1.2, 2.0, 2.8, 3.6)]
+    train = [_camera((0.3, -0.2, -3.0), size=10)]
+    active = greedy_top_k(g, cams, train, torch.ones(3), 3, FisherConfig(sh_degree=0))
+    stored = greedy_top_k(g, cams, train, torch.ones(3), 3, FisherConfig())
+    assert active.scores != pytest.approx(stored.scores, rel=1e-3)  # the zero band's columns do count when included
+    order, scores = FisherPlanner().rank(_context(g, cams, 0), 3)
+    assert (order, scores) == (active.order, active.scores)
+    order, scores = FisherPlanner().rank(_context(g, cams, None), 3)  # no degree given: all stored bands
+    assert (order, scores) == (stored.order, stored.scores)
+    order, scores = FisherPlanner(FisherConfig(sh_degree=1)).rank(_context(g, cams, 0), 3)  # the config wins
+    assert (order, scores) == (stored.order, stored.scores)
+
+
+def test_context_sh_degree_validation():
+    g, cams = _scene(n=3, sh_degree=1, dtype=torch.float32), [_camera(size=4)]
+    for bad in (2, -1, True, 1.0):
+        with pytest.raises(ValueError, match="sh_degree"):
+            PlanningContext(g, [], cams, [0], 0, 10, torch.ones(3), sh_degree=bad)
