@@ -533,6 +533,7 @@ class ActiveRun:
                 round=r,
                 occlusion=c.occlusion,
                 probe_fields=self._probe_fields(physics, fields),
+                sh_degree=trainer.active_sh_degree,
             )
             planner = make_planner(c.method, **{**dict(c.planner), "seed": planner_seed(c.seed, r)})
             t_plan = time.perf_counter()

@@ -71,6 +71,8 @@ class PlanningContext:
             unhidden (not in the paper, whose visibility is frustum culling); the ``+area`` controls use it too.
         probe_fields: the probes' per-direction D_g (and the empty scene's) of given Gaussians, from the same run as
             ``physics`` (:class:`ProbeFields`), or None; needed by ``fisher+excess`` and ``fisher+perprobe``.
+        sh_degree: the SH degree the trainer renders and fits now (its active degree, which rises during
+            training), 0..the stored degree; None = all stored bands. FisherRF differentiates these bands only.
     """
 
     gaussians: GaussianSet
@@ -84,6 +86,7 @@ class PlanningContext:
     round: int = 0
     occlusion: bool = False
     probe_fields: Callable[[GaussianSet], ProbeFields] | None = None
+    sh_degree: int | None = None
 
     def __post_init__(self) -> None:
         if len(self.candidates) != len(self.candidate_ids):
@@ -98,6 +101,15 @@ class PlanningContext:
             )
         if not isinstance(self.gaussians, GaussianSet):
             raise ValueError(f"PlanningContext.gaussians must be a GaussianSet, got {type(self.gaussians).__name__}")
+        if self.sh_degree is not None and (
+            isinstance(self.sh_degree, bool)
+            or not isinstance(self.sh_degree, int)
+            or not 0 <= self.sh_degree <= self.gaussians.sh_degree
+        ):
+            raise ValueError(
+                f"PlanningContext.sh_degree must be None or 0..{self.gaussians.sh_degree} (the stored SH degree), "
+                f"got {self.sh_degree!r}; pass the trainer's active SH degree"
+            )
 
 
 @dataclass

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 
@@ -21,15 +22,23 @@ class FisherPlanner:
         self.config = config if config is not None else FisherConfig()
 
     def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
-        """The greedy top-k positions and every candidate's score against the selected views."""
+        """The greedy top-k positions and every candidate's score against the selected views.
+
+        The SH bands differentiated are ``config.sh_degree`` when set, else the context's (the trainer's active
+        degree: a band it does not fit yet is no parameter of the model, as in FisherRF, whose rasterizer renders
+        the active degree only), else all stored bands.
+        """
         g = context.gaussians.detach()
+        config = self.config
+        if config.sh_degree is None and context.sh_degree is not None:
+            config = dataclasses.replace(config, sh_degree=context.sh_degree)
         ranking = greedy_top_k(
             g,
             context.candidates,
             [v.camera for v in context.train_views],
             context.background.to(g.device),
             k,
-            self.config,
+            config,
         )
         if ranking.recomputed:
             log.info("fisher: %d candidate H recomputed (cache_mb=%g)", ranking.recomputed, self.config.cache_mb)

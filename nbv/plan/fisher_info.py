@@ -13,6 +13,12 @@ optimises, in its parameterisation:
     means (3, scene units) | log_scales (3) | opacity_logit (1) | sh (K x 3 raw coefficients, row-major)
     | quats (4, only with ``include_rotations``; excluded by default, as in FisherRF).
 
+H is the exact diagonal of J^T J in these parameters: the log-scale column is s^2 sum_p (d C_p / d s)^2 and the
+logit column o'^2 sum_p (d C_p / d o)^2. FisherRF's public code squares the gradient with respect to the activated
+scale and opacity and lets autograd apply exp' and sigmoid' once (s, o' instead of their squares); we follow the
+derivation. Only the SH bands the trainer fits are parameters (``sh_degree``; the planner takes the trainer's active
+degree from the planning context), as FisherRF's rasterizer renders the active degree only.
+
 The score of a candidate view c given the selected views is (FisherRF Eq. 9 with a diagonal H)
 
     Score(c) = sum_theta H_c / (H_train + lambda),   H_train = sum over the selected views of H,  lambda = 1e-6,

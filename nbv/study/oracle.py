@@ -450,6 +450,7 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
             probe_fields=(lambda gs: probe_run(gs, loop_physics, "reaching planner").fields)
             if uses_physics(config.planner)
             else None,
+            sh_degree=trainer.active_sh_degree,
         )
         pick = make_planner(config.planner, **{**dict(acfg.planner), "seed": ps}).select(context).pick
         selected.append(remaining[pick])
@@ -468,6 +469,7 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
         background=background,
         round=round_index,
         occlusion=acfg.occlusion,
+        sh_degree=trainer.active_sh_degree,
     )
     k = config.top_k if config.top_k is not None else fused_k(acfg.budget, target)
     physics = {
