@@ -208,6 +208,8 @@ def rule_values(values: str, run: ProbeRun, seed: int, round_index: int) -> torc
         return per_probe_normalised(run.fields.per_probe)
     if values == "thin":
         return torch.where(run.thin, run.divergence, torch.zeros_like(run.divergence))
+    if values == "thinmask":
+        return run.thin.to(torch.float64)
     raise ValueError(f"rule_values: {values!r} is not a physics value")
 
 

@@ -52,8 +52,20 @@ CONFIG_KEYS = (
     "output",
 )
 
-VALUES = ("fisher", "variance", "fvs", "random", "ones", "divergence", "shuffled", "excess", "perprobe", "thin")
-PHYSICS_VALUES = ("divergence", "shuffled", "excess", "perprobe", "thin")
+VALUES = (
+    "fisher",
+    "variance",
+    "fvs",
+    "random",
+    "ones",
+    "divergence",
+    "shuffled",
+    "excess",
+    "perprobe",
+    "thin",
+    "thinmask",
+)
+PHYSICS_VALUES = ("divergence", "shuffled", "excess", "perprobe", "thin", "thinmask")
 COMBINES = ("sum", "balanced", "ratio")
 
 
@@ -67,7 +79,8 @@ class Rule:
             distance ("fvs"), uniform noise ("random"), or S(T) = sum_g w_g(T) v_g of per-Gaussian values v_g:
             "ones" (the coverage A(T)), "divergence" (D_g), "shuffled" (D_g permuted), "excess" (over the empty
             scene), "perprobe" (each probe normalised before the max), "thin" (D_g where the solid is thin or
-            open, 0 elsewhere: :mod:`nbv.study.thin`).
+            open, 0 elsewhere: :mod:`nbv.study.thin`), "thinmask" (1 there, 0 elsewhere: the thin rules' own
+            coverage control, which needs the probes' solid but not their fluid).
         depth_test: S(T) counts only the Gaussians the coarse depth test finds unhidden.
         combine: "sum" (S(T)), "balanced" (z(A) + z(S/A) over the candidates) or "ratio" (the physics part
             P(T) = S/A).
@@ -105,8 +118,9 @@ def _physics_rules() -> list[Rule]:
         ("excess", "S(T) of the excess over the empty scene"),
         ("perprobe", "S(T) of D_g with every probe normalised"),
         ("thin", "S(T) of D_g where the solid is thin or open"),
+        ("thinmask", "the coverage of the Gaussians where the solid is thin or open (the thin rules' control)"),
     ):
-        base = {"divergence": "fluid"}.get(values, values)
+        base = {"divergence": "fluid", "thinmask": "thin-area"}.get(values, values)
         for occ in (False, True):
             suffix, vis = ("-occ", "depth-tested") if occ else ("", "frustum")
             out.append(Rule(base + suffix, values, occ, "sum", f"{label}, {vis}"))

@@ -178,7 +178,17 @@ def tiny(tmp_path, dataset, **over) -> dict:
         "states": [2],
         "horizon": 3,
         "output": str(tmp_path / "out"),
-        "rules": ["fisher", "fvs", "random", "coverage", "coverage-occ", "fluid-occ", "thin-occ", "ratio-occ"],
+        "rules": [
+            "fisher",
+            "fvs",
+            "random",
+            "coverage",
+            "coverage-occ",
+            "fluid-occ",
+            "thin-occ",
+            "thin-area-occ",
+            "ratio-occ",
+        ],
         "active": {
             "resolution": 16,
             "iterations_per_view": 3,
@@ -274,8 +284,12 @@ def test_every_state_is_written_and_the_rules_score_every_candidate(study):
         assert 0.0 <= share <= 1.0
         thin, full = np.array(st["scores"]["thin-occ:coarse"]), np.array(st["scores"]["fluid-occ:coarse"])
         assert (thin <= full * (1 + 1e-12)).all()  # D_g masked to the thin or open part: never more
-        if share == 1.0:  # every Gaussian thin or open: the thin rule is the plain S(T)
+        area = np.array(st["scores"]["thin-area-occ:coarse"])
+        cover = np.array(st["scores"]["coverage-occ"])
+        assert (area <= cover * (1 + 1e-12)).all()  # the thin part's coverage: never more than the coverage
+        if share == 1.0:  # every Gaussian thin or open: the thin rules are the plain ones
             np.testing.assert_array_equal(thin, full)
+            np.testing.assert_allclose(area, cover, rtol=1e-12)
     # a larger state of the same (scene, seed) continues the smaller one's selection
     by = {
         (json.loads(p.read_text())["seed"], json.loads(p.read_text())["n_selected"]): json.loads(p.read_text())
