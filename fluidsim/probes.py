@@ -12,10 +12,12 @@ The solid's bounding box is first snapped outward to a grid of ``snap`` particle
 and the slab and domain are laid out around the snapped box. The grid is anchored at the origin, shifted by where
 the solid's lattice sits (:func:`lattice_phase`), so that the snapped box moves the box's sides by whole spacings
 and the slab's particles stay on the solid's lattice along the flow, shifted with it in a replica. Solids on one
-lattice whose boxes' sides lie in the same grid cells (the Gaussians of two rounds of the active loop, usually) then
-get the same probes, bit for bit, and so the same empty scene, which is cached by its setup. The price: the solid's
-box grows by less than one snap per side, and the slab and the domain, laid out in fractions of its extent, by at
-most 2.3 snaps per side (upstream: the box, half its growth in extent as slab thickness, 15 % as padding).
+lattice whose boxes' sides lie in the same grid cells (runs on nearly the same Gaussians) then get the same probes,
+bit for bit, and so the same empty scene, which is cached by its setup. The price: the solid's box grows by less
+than one snap per side, and the slab and the domain, laid out in fractions of its extent, by at most 2.3 snaps per
+side (upstream: the box, half its growth in extent as slab thickness, 15 % as padding). Off by default: on the
+rounds of an active loop, whose solids' boxes move by several spacings, the larger probes cost more than the empty
+scenes the cache saves.
 All probes reuse the kernels already compiled in this Taichi runtime: arrays are ndarrays, so a new
 probe allocates memory but never recompiles.
 """

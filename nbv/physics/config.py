@@ -64,8 +64,8 @@ class PhysicsConfig:
         max_memory_gb: refuse to start above this estimated memory, GiB (None: the available memory).
         probe_snap: snap the solid's bounding box outward to a grid of this many particle spacings before the
             probes' slabs and domains are laid out around it (``fluidsim.ProbeConfig.snap``), so that solids whose
-            boxes differ by less than that (two rounds of the active loop) usually share their probes and so the
-            empty scene's cached fluid. 0 (default): the box as it is; docs/performance.md measures what it costs.
+            boxes' sides lie in the same grid cells share their probes and so the empty scene's cached fluid.
+            0 (default): the box as it is; docs/performance.md measures what it costs and gains.
         replicas: run the probes this many times, the solid lattice and the fluid slab shifted by a fraction of a
             spacing each time, and average D_g over the runs (1: one run; :mod:`nbv.physics.replicas`).
         solver: extra ``fluidsim.SolverConfig`` fields (tolerances, iteration bounds), as (key, value) pairs.
