@@ -7,6 +7,17 @@ For a static solid, a fluid slab is placed upstream of it and released:
 
 The slab leaves a gap to the solid's bounding box, has a given thickness along the flow and spans the
 solid across the flow with a margin. The domain box is the bounding box of solid and slab, padded.
+
+The solid's bounding box is first snapped outward to a grid of ``snap`` particle spacings (:func:`snapped_box`),
+and the slab and domain are laid out around the snapped box. The grid is anchored at the origin, shifted by where
+the solid's lattice sits (:func:`lattice_phase`), so that the snapped box moves the box's sides by whole spacings
+and the slab's particles stay on the solid's lattice along the flow, shifted with it in a replica. Solids on one
+lattice whose boxes' sides lie in the same grid cells (runs on nearly the same Gaussians) then get the same probes,
+bit for bit, and so the same empty scene, which is cached by its setup. The price: the solid's box grows by less
+than one snap per side, and the slab and the domain, laid out in fractions of its extent, by at most 2.3 snaps per
+side (upstream: the box, half its growth in extent as slab thickness, 15 % as padding). Off by default: on the
+rounds of an active loop, whose solids' boxes move by several spacings, the larger probes cost more than the empty
+scenes the cache saves.
 All probes reuse the kernels already compiled in this Taichi runtime: arrays are ndarrays, so a new
 probe allocates memory but never recompiles.
 """
@@ -44,6 +55,9 @@ class ProbeConfig:
         walls: close the domain with wall particles (as the paper does).
         wall_layers: layers of wall particles.
         directions: which probes to run, a subset of :data:`DIRECTIONS`.
+        snap: the grid the solid's bounding box is snapped outward to before the slab and the domain are laid out,
+            in particle spacings (anchored at the origin plus the solid lattice's phase; :func:`snapped_box`); 0:
+            the box as it is.
     """
 
     speed: float = 3.0
@@ -54,8 +68,11 @@ class ProbeConfig:
     walls: bool = True
     wall_layers: int = 2
     directions: tuple[str, ...] = DIRECTIONS
+    snap: int = 0
 
     def __post_init__(self) -> None:
+        if isinstance(self.snap, bool) or not isinstance(self.snap, int) or self.snap < 0:
+            raise ValueError(f"probe snap must be a whole number of particle spacings >= 0 (0: off), got {self.snap!r}")
         if not (math.isfinite(self.speed) and self.speed >= 0):
             raise ValueError(f"probe speed must be a finite number >= 0 m/s, got {self.speed}")
         for name in ("slab_thickness", "gap", "margin", "padding"):
@@ -89,13 +106,63 @@ def flow_vector(direction: str) -> np.ndarray:
     return v
 
 
+# A box side within this fraction of the snap grid's cell from a grid line counts as on it, so that float noise in
+# a solid's coordinates (one lattice point computed from two origins) never moves the snapped side by a whole cell.
+SNAP_TOLERANCE = 1e-6
+# The lattice phase is rounded to this fraction of a spacing, for the same reason.
+PHASE_STEPS = 2**20
+
+
+def lattice_phase(lo, spacing: float) -> np.ndarray:
+    """Where a box's low sides sit on the lattice of the spacing: ``lo`` modulo ``spacing``, rounded to
+    1 / ``PHASE_STEPS`` of a spacing so that float noise never changes it.
+
+    Every solid sampled on one lattice (the solid lattice at one offset, whatever its origin) has one phase: its box
+    sides lie half a spacing off its points.
+
+    Args:
+        lo: (3,) m. spacing: m (> 0).
+    Returns:
+        (3,) float64 in [0, spacing), m.
+    """
+    u = np.asarray(lo, np.float64) / spacing
+    steps = np.round((u - np.floor(u)) * PHASE_STEPS) % PHASE_STEPS
+    return steps / PHASE_STEPS * spacing
+
+
+def snapped_box(lo, hi, cell: float, phase=0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A box grown outward to a grid: the smallest box around (lo, hi) whose sides lie on ``phase + k cell``.
+
+    Each side moves outward by less than one cell; a side within ``SNAP_TOLERANCE`` cells of a grid line goes to that
+    line (so it may move inward by at most that much; with a phase from :func:`lattice_phase`, by its rounding too,
+    1 / (2 ``PHASE_STEPS``) spacings: well under a micrometre, against the half spacing between a solid's box and its
+    points). Boxes whose sides lie in the same grid cells give the same floats, whatever their own coordinates.
+
+    Args:
+        lo, hi: (3,) m, the box. cell: the grid's cell size, m (> 0). phase: (3,) or scalar m, where the grid lines
+            sit (:func:`lattice_phase`; 0: the multiples of ``cell``).
+    Returns:
+        (lo [3], hi [3]) float64 on the grid.
+    Example:
+        >>> [b.tolist() for b in snapped_box([-0.9, 0.1, 0.0], [0.8, 0.3, 0.5], 0.5)]
+        [[-1.0, 0.0, 0.0], [1.0, 0.5, 0.5]]
+    """
+    phase = np.broadcast_to(np.asarray(phase, np.float64), (3,))
+    lo = np.asarray(lo, np.float64) - phase
+    hi = np.asarray(hi, np.float64) - phase
+    return (
+        np.floor(lo / cell + SNAP_TOLERANCE) * cell + phase,
+        np.ceil(hi / cell - SNAP_TOLERANCE) * cell + phase,
+    )
+
+
 def probe_setup(solid_points: np.ndarray, direction: str, probe: ProbeConfig, spacing: float) -> ProbeSetup:
     """The slab and domain of one probe around a solid particle set.
 
     Args:
         solid_points: (M, 3) m, the static solid.
         direction: one of :data:`DIRECTIONS`.
-        probe: slab parameters.
+        probe: slab parameters (``probe.snap``: the solid's box is snapped outward to that grid first).
         spacing: particle spacing 2 r, m.
     Returns:
         ProbeSetup.
@@ -104,6 +171,8 @@ def probe_setup(solid_points: np.ndarray, direction: str, probe: ProbeConfig, sp
     if len(pts) == 0 or not np.isfinite(pts).all():
         raise ValueError("the solid has no particles or non-finite ones; check the solid input")
     lo, hi = pts.min(0) - 0.5 * spacing, pts.max(0) + 0.5 * spacing
+    if probe.snap:  # reproducible under small changes of the solid: the same setup, the same empty scene
+        lo, hi = snapped_box(lo, hi, probe.snap * spacing, lattice_phase(lo, spacing))
     extent = hi - lo
     flow = flow_vector(direction)
     axis = int(np.argmax(np.abs(flow)))

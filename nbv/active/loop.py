@@ -69,7 +69,7 @@ from nbv.coverage import coverage_line, ranking_agreement, view_parts
 from nbv.io import json_safe, write_atomic, write_json_atomic
 from nbv.physics import simulate_gaussians
 from nbv.physics.scene_frame import describe_auto_up
-from nbv.plan import PLANNERS, PlanningContext, ProbeFields, make_planner
+from nbv.plan import PLANNERS, PlanningContext, ProbeFields, make_planner, reads_empty_scene
 from recon.datasets import load_dataset
 from recon.frames import up_from_cameras
 from recon.gaussians import GaussianSet
@@ -315,6 +315,11 @@ class ActiveRun:
         self.progress = progress
         self.dataset = load_active_dataset(dataset_path, config)
         self.physics_config = replace(config.physics, up=dataset_up(config.up, self.dataset))
+        if self.physics_config.empty_reference and not reads_empty_scene(config.method):
+            # the pick never reads the empty scene, and the rounds record no D-bar of it: running it would double
+            # every round's probe time for nothing
+            log.info("%s does not read the empty-scene probes: the rounds run without them", config.method)
+            self.physics_config = replace(self.physics_config, empty_reference=False)
         self.physics_fn = physics_fn
         self.resumable = prepare_run_dir(self.run_dir, _dataset_run_config(self.dataset_path, config), overwrite)
         self.views = [view_to(v, device) for v in self.dataset.train]

@@ -62,6 +62,10 @@ class PhysicsConfig:
             (:mod:`nbv.physics.empty_cache`; False: simulate it afresh and store nothing).
         precision: "f32" or "f64"; must match the Taichi runtime's default float.
         max_memory_gb: refuse to start above this estimated memory, GiB (None: the available memory).
+        probe_snap: snap the solid's bounding box outward to a grid of this many particle spacings before the
+            probes' slabs and domains are laid out around it (``fluidsim.ProbeConfig.snap``), so that solids whose
+            boxes' sides lie in the same grid cells share their probes and so the empty scene's cached fluid.
+            0 (default): the box as it is; docs/performance.md measures what it costs and gains.
         replicas: run the probes this many times, the solid lattice and the fluid slab shifted by a fraction of a
             spacing each time, and average D_g over the runs (1: one run; :mod:`nbv.physics.replicas`).
         solver: extra ``fluidsim.SolverConfig`` fields (tolerances, iteration bounds), as (key, value) pairs.
@@ -89,6 +93,7 @@ class PhysicsConfig:
     empty_cache: bool = True
     precision: str = "f32"
     max_memory_gb: float | None = None
+    probe_snap: int = 0
     replicas: int = 1
     solver: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
 
@@ -105,6 +110,10 @@ class PhysicsConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"PhysicsConfig.{name} must be an integer >= 1, got {v!r}")
+        if isinstance(self.probe_snap, bool) or not isinstance(self.probe_snap, int) or self.probe_snap < 0:
+            raise ValueError(
+                f"PhysicsConfig.probe_snap must be an integer >= 0 (particle spacings), got {self.probe_snap!r}"
+            )
         if not 0.0 < self.opacity_threshold < 1.0:
             raise ValueError(f"PhysicsConfig.opacity_threshold must be in (0, 1), got {self.opacity_threshold}")
         dirs = tuple(self.directions)
@@ -188,7 +197,7 @@ class PhysicsConfig:
         """The fluidsim probe parameters (slab, walls, directions)."""
         from fluidsim.probes import ProbeConfig  # noqa: PLC0415 - loads Taichi; `fluidgs CMD --help` needs only the config
 
-        return ProbeConfig(speed=self.speed, directions=self.directions)
+        return ProbeConfig(speed=self.speed, directions=self.directions, snap=self.probe_snap)
 
     def solidify_config(self, **overrides: Any) -> SolidifyConfig:
         """How these Gaussians become solid (:class:`nbv.physics.solidify.SolidifyConfig`): the lattice at the fluid
@@ -210,7 +219,7 @@ class PhysicsConfig:
         record of one run (RESULT.h5, scores.json, an active run's config.json) is the one written before replicas
         existed, and such a run resumes."""
         d = asdict(self)
-        for name, default in (("replicas", 1), ("reach_floor", 0.0)):  # records written before these existed
+        for name, default in (("replicas", 1), ("reach_floor", 0.0), ("probe_snap", 0)):  # records before these existed
             if d[name] == default:
                 del d[name]
         d["directions"] = list(self.directions)

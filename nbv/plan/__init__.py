@@ -60,7 +60,7 @@ _EXPORTS = {
     **dict.fromkeys(
         ("PhysicsPlanner", "PhysicsPlannerConfig", "physics_view_scores", "shuffled_divergence"), "physics"
     ),
-    **dict.fromkeys(("PLANNERS", "config_type", "make_planner", "uses_physics"), "registry"),
+    **dict.fromkeys(("PLANNERS", "config_type", "make_planner", "reads_empty_scene", "uses_physics"), "registry"),
     **dict.fromkeys(("FUSED", "FUSED_RULES", "FusedRule", "PLANNER_NAMES", "describe_planners"), "rules"),
 }
 __all__ = sorted(_EXPORTS)

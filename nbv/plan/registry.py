@@ -48,6 +48,13 @@ def uses_physics(name: str) -> bool:
     return entry.uses_physics if isinstance(entry, FusedRule) else entry is PhysicsPlanner
 
 
+def reads_empty_scene(name: str) -> bool:
+    """Whether the registered planner ``name`` reads the empty-scene probes for its pick (fisher+excess); the others
+    never look at them, so a run for their picks can leave the empty scene out."""
+    entry = _entry(name)
+    return isinstance(entry, FusedRule) and entry.reads_empty_scene
+
+
 def make_planner(name: str, **overrides) -> Planner:
     """Build a registered planner from its config dataclass with ``overrides`` (e.g. ``seed=3``).
 

@@ -59,6 +59,11 @@ class FusedRule:
         """Whether the pick runs the probes (False for the coverage controls)."""
         return self.control != "area"
 
+    @property
+    def reads_empty_scene(self) -> bool:
+        """Whether the pick reads the empty-scene probes' D_g (the "excess" control)."""
+        return self.control == "excess"
+
 
 FUSED_RULES = (
     FusedRule("fisher+fluid", "fisher", summary="FluidGaussian: FisherRF's top-K re-ranked by S(T)"),

@@ -294,6 +294,21 @@ def test_real_probes_inside_the_loop(tiny_dataset, tmp_path):
     assert rec["pick"] == max(scores, key=scores.get)
 
 
+def test_the_rounds_run_the_empty_scene_only_for_a_planner_that_reads_it(tiny_dataset, tmp_path):
+    """The empty-scene probes cost as much as the probes; only fisher+excess reads them, so the rounds of every other
+    planner leave them out (the recorded config keeps the user's setting)."""
+    from nbv.active.loop import ActiveRun
+    from nbv.plan import PLANNERS, reads_empty_scene
+
+    assert [m for m in PLANNERS if reads_empty_scene(m)] == ["fisher+excess"]
+    for method, runs_empty in (("fisher+fluid", False), ("physics", False), ("fisher+excess", True)):
+        cfg = tiny_config(method=method)
+        assert cfg.physics.empty_reference  # the default
+        run = ActiveRun(tiny_dataset, tmp_path / method, cfg, progress=False)
+        assert run.physics_config.empty_reference is runs_empty
+        assert run.config.physics.empty_reference
+
+
 # ---- CLI -----------------------------------------------------------------------------------------
 
 

@@ -4,11 +4,13 @@ the folder stays within its bound."""
 
 import logging
 import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
+from fluidsim.probes import probe_setups
 from nbv import physics
 from nbv.physics import PhysicsConfig, ProbePlan, empty_cache, empty_scene_probes, run, simulate_gaussians
 from nbv.physics.aggregate import GaussianAccumulator
@@ -252,3 +254,33 @@ def test_a_bad_bound_is_refused_by_the_command_line(monkeypatch, tmp_path, caplo
     except SystemExit as exc:
         code = exc.code
     assert code == 0
+
+
+def test_slightly_moved_gaussians_reuse_the_empty_scene(monkeypatch, tmp_path, caplog):
+    """Gaussians moved by one spacing (as between two rounds of the active loop) give another solid box but, snapped
+    to the probes' grid, the same setups: the second run accumulates the first run's empty-scene fluid (counted as
+    solver runs, not timed)."""
+    monkeypatch.setenv("FLUIDGS_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(run, "_EMPTY_CACHE", {})
+    runs = []
+    real = run.run_solver
+    monkeypatch.setattr(run, "run_solver", lambda *a, **k: runs.append(1) or real(*a, **k))
+    cfg = PhysicsConfig(
+        particle_radius=0.05, steps=20, dt=0.002, directions=("-x",), scale=1.0, empty_reference=True, probe_snap=4
+    )
+    first, moved = _sphere(), _sphere(shift=(0.1, 0.0, 0.0))  # sides near +-0.6 m, inside a cell of the 0.4 m grid
+    solids = [physics.RunFrame.of(g, cfg).solidify().points for g in (first, moved)]
+    assert not np.array_equal(solids[0].max(0), solids[1].max(0))  # the solid's box moved ...
+    unsnapped = [probe_setups(p, replace(cfg.probe_config(), snap=0), 0.1, cfg.directions) for p in solids]
+    assert unsnapped[0] != unsnapped[1]  # ... which, unsnapped, gives other probes
+    assert ProbePlan.of(solids[0], cfg).setups == ProbePlan.of(solids[1], cfg).setups
+    assert PhysicsConfig.from_dict(cfg.to_dict()) == cfg and "probe_snap" not in PhysicsConfig().to_dict()
+    with pytest.raises(ValueError, match="probe_snap"):
+        PhysicsConfig(probe_snap=-1)
+    a = simulate_gaussians(first, cfg, progress=False)
+    assert len(runs) == 1  # the empty scene ran once (the probe with the solid runs in fluidsim.probes)
+    with caplog.at_level(logging.INFO, logger="nbv.physics.run"):
+        b = simulate_gaussians(moved, cfg, progress=False)
+    assert len(runs) == 1  # ... and the moved Gaussians' run took it from the cache
+    assert "empty-scene probe -x: the fluid from the cache" in caplog.text
+    assert a.empty_per_probe.shape == b.empty_per_probe.shape == (1, len(b.means))  # accumulated onto its own
