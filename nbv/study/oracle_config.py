@@ -109,6 +109,15 @@ class Rule:
             return None
         return "coverage-occ" if self.depth_test else "coverage"
 
+    @property
+    def own_control(self) -> str | None:
+        """A second control, for the rules that weight D_g by a mask: the coverage of the masked Gaussians alone
+        (``thin`` -> ``thin-area``, with the same visibility and probe setting), so that what D_g adds is measured
+        apart from what the mask adds."""
+        if self.values != "thin":
+            return None
+        return "thin-area-occ" if self.depth_test else "thin-area"
+
 
 def _physics_rules() -> list[Rule]:
     out = []
@@ -298,7 +307,12 @@ class OracleConfig:
 
     def physics_rules(self) -> list[str]:
         """The reported labels of the physics rules, ``RULE:SETTING``, and their coverage controls."""
-        return [f"{r}:{p}" for r in self.rules if RULES[r].physics for p in self.probes]
+        names = [r for r in self.rules if RULES[r].physics]
+        for r in list(names):
+            own = RULES[r].own_control
+            if own is not None and own not in names:
+                names.append(own)
+        return [f"{r}:{p}" for r in names for p in self.probes]
 
     def scored_rules(self) -> list[str]:
         """Every rule computed at a state: the listed ones, the physics ones per probe setting, their controls."""

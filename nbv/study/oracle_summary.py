@@ -76,20 +76,20 @@ def summarise(config: OracleConfig, states: list[dict]) -> dict[str, Any]:
             "states": sum(len(g) for g in rho),
             "per_state": [x for g in rho for x in g],
         }
-    paired = {}
-    for label in config.physics_rules():
-        control = rule_of(label).control
+
+    def versus(label: str, control: str) -> dict[str, Any]:
         diff = [
             [a - c for a, c in zip(ga, gc, strict=True)]
             for ga, gc in zip(
-                per_state(lambda st, label=label: spearman(st["scores"][label], st["oracle"]["gain_psnr"])),
-                per_state(lambda st, control=control: spearman(st["scores"][control], st["oracle"]["gain_psnr"])),
+                per_state(lambda st: spearman(st["scores"][label], st["oracle"]["gain_psnr"])),
+                per_state(lambda st: spearman(st["scores"][control], st["oracle"]["gain_psnr"])),
                 strict=True,
             )
         ]
         flat = [x for g in diff for x in g if math.isfinite(x)]
         st = paired_stats(flat, [0.0] * len(flat), True) if flat else None
-        paired[label] = {
+        return {
+            "rule": label,
             "control": control,
             "difference": bootstrap_interval(diff, b),
             "better": None if st is None else st.wins,
@@ -98,6 +98,14 @@ def summarise(config: OracleConfig, states: list[dict]) -> dict[str, Any]:
             "wilcoxon_p": None if st is None else st.wilcoxon_p,
             "wilcoxon_note": "" if st is None else st.wilcoxon_note,
         }
+
+    paired = {}
+    for label in config.physics_rules():
+        rule = rule_of(label)
+        paired[label] = versus(label, rule.control)
+        if rule.own_control is not None:  # D_g against the coverage of its own mask
+            own = f"{rule.own_control}:{label.partition(':')[2]}"
+            paired[f"{label} vs {own}"] = versus(label, own)
     calib = _summarise_calibration(groups, keys, b)
     gains = [st["oracle"]["gain_psnr"] for st in states]
     return {
@@ -217,7 +225,8 @@ def format_summary(summary: dict[str, Any]) -> str:
         ]
         for label, row in summary["paired"].items():
             lines.append(
-                f"| {label} | {row['control']} | {_ci(row['difference'])} | {row['better']} / {row['worse']} "
+                f"| {row.get('rule', label)} | {row['control']} | {_ci(row['difference'])} | "
+                f"{row['better']} / {row['worse']} "
                 f"| {format_p(row['sign_p'])} | {format_p(row['wilcoxon_p'], row['wilcoxon_note'])} |"
             )
     cal_ = summary.get("calibration") or {}

@@ -53,6 +53,13 @@ def test_fvs_distances_and_greedy_order_on_a_ring():
     assert farthest_view_distances(cams, []) == [math.inf] * 8
 
 
+def test_a_thin_rule_brings_the_coverage_of_its_mask_as_a_control(tmp_path):
+    cfg = OracleConfig(**{**tiny(tmp_path, tmp_path, rules=["thin"]), "probes": {"a": {}, "b": {}}})
+    assert cfg.physics_rules() == ["thin:a", "thin:b", "thin-area:a", "thin-area:b"]
+    assert {"coverage", "thin-area:a"} <= set(cfg.scored_rules())
+    assert RULES["thin-occ"].own_control == "thin-area-occ" and RULES["fluid"].own_control is None
+
+
 def test_fvs_planner_is_registered_and_picks_the_farthest():
     assert "fvs" in PLANNERS and "fvs" in RULES
     g = GaussianSet.from_points(torch.zeros(4, 3), scale=0.1)
@@ -313,6 +320,17 @@ def test_summary_spearman_agrees_with_an_independent_computation(study):
         out["summary"]["rules"]["fisher"]["spearman"], nan_ok=True
     )
     assert "fluid-occ:coarse" in out["summary"]["paired"] and "| fisher |" in out["markdown"]
+    # the thin rule also against the coverage of its own mask
+    own = out["summary"]["paired"]["thin-occ:coarse vs thin-area-occ:coarse"]
+    diffs = [
+        spearmanr(st["scores"]["thin-occ:coarse"], st["oracle"]["gain_psnr"])[0]
+        - spearmanr(st["scores"]["thin-area-occ:coarse"], st["oracle"]["gain_psnr"])[0]
+        for st in states
+    ]
+    diffs = [d for d in diffs if np.isfinite(d)]
+    if diffs:
+        assert own["difference"][0] == pytest.approx(np.mean(diffs), abs=1e-9)
+    assert own["control"] == "thin-area-occ:coarse" and own["rule"] == "thin-occ:coarse"
 
 
 def test_a_finished_study_resumes_without_training(study):
