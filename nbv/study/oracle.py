@@ -251,6 +251,10 @@ def score_rules(
     for name in ("coverage", "coverage-occ"):
         if name in wanted:
             scores[name] = coverage[RULES[name].depth_test]
+    clear = 1.0 - g.opacities.detach().to(torch.float64)
+    for name in ("transparent", "transparent-occ"):
+        if name in wanted:
+            scores[name] = physics_view_scores(g, cams, clear, occlusion=RULES[name].depth_test)
     seconds["coverage"] = time.perf_counter() - t0
     fields_out = {}
     for setting, pcfg in physics.items():

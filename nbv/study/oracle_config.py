@@ -58,6 +58,7 @@ VALUES = (
     "fvs",
     "random",
     "ones",
+    "transparency",
     "divergence",
     "shuffled",
     "excess",
@@ -77,7 +78,8 @@ class Rule:
         name: the rule's name in configs and tables.
         values: what it scores: a visual planner's per-candidate score ("fisher", "variance"), the farthest-view
             distance ("fvs"), uniform noise ("random"), or S(T) = sum_g w_g(T) v_g of per-Gaussian values v_g:
-            "ones" (the coverage A(T)), "divergence" (D_g), "shuffled" (D_g permuted), "excess" (over the empty
+            "ones" (the coverage A(T)), "transparency" (1 - opacity: a coverage of the Gaussians the model is
+            unsure of, with no probes), "divergence" (D_g), "shuffled" (D_g permuted), "excess" (over the empty
             scene), "perprobe" (each probe normalised before the max), "thin" (D_g where the solid is thin or
             open, 0 elsewhere: :mod:`nbv.study.thin`), "thinmask" (1 there, 0 elsewhere: the thin rules' own
             coverage control, which needs the probes' solid but not their fluid).
@@ -149,6 +151,8 @@ RULES: dict[str, Rule] = {
         Rule("random", "random", description="uniform noise (a rule that knows nothing)"),
         Rule("coverage", "ones", False, description="coverage A(T) = sum w_g, frustum"),
         Rule("coverage-occ", "ones", True, description="coverage A(T) of the unhidden Gaussians"),
+        Rule("transparent", "transparency", False, description="S(T) of 1 - opacity (no probes), frustum"),
+        Rule("transparent-occ", "transparency", True, description="S(T) of 1 - opacity (no probes), depth-tested"),
         *_physics_rules(),
     ]
 }

@@ -195,6 +195,7 @@ def tiny(tmp_path, dataset, **over) -> dict:
             "thin-occ",
             "thin-area-occ",
             "ratio-occ",
+            "transparent-occ",
         ],
         "active": {
             "resolution": 16,
@@ -291,6 +292,8 @@ def test_every_state_is_written_and_the_rules_score_every_candidate(study):
         assert 0.0 <= share <= 1.0
         thin, full = np.array(st["scores"]["thin-occ:coarse"]), np.array(st["scores"]["fluid-occ:coarse"])
         assert (thin <= full * (1 + 1e-12)).all()  # D_g masked to the thin or open part: never more
+        clear = np.array(st["scores"]["transparent-occ"])  # 1 - opacity in (0, 1): below the coverage
+        assert (clear <= np.array(st["scores"]["coverage-occ"])).all() and (clear >= 0).all()
         area = np.array(st["scores"]["thin-area-occ:coarse"])
         cover = np.array(st["scores"]["coverage-occ"])
         assert (area <= cover * (1 + 1e-12)).all()  # the thin part's coverage: never more than the coverage
