@@ -69,6 +69,7 @@ from nbv.coverage import coverage_line, ranking_agreement, view_parts
 from nbv.io import json_safe, write_atomic, write_json_atomic
 from nbv.physics import simulate_gaussians
 from nbv.physics.scene_frame import describe_auto_up
+from nbv.physics.thin import thin_or_open_gaussians
 from nbv.plan import PLANNERS, PlanningContext, ProbeFields, make_planner, reads_empty_scene
 from recon.datasets import load_dataset
 from recon.frames import up_from_cameras
@@ -395,6 +396,18 @@ class ActiveRun:
 
         return run
 
+    def _solid_mask(self, record: dict) -> Callable[[GaussianSet], torch.Tensor]:
+        """The context's ``solid_mask`` (the ``+thin-area`` planners): the thin-or-open Gaussians under the selection
+        physics, from the solid alone; it notes the time and the share in ``record``."""
+
+        def get(gaussians: GaussianSet) -> torch.Tensor:
+            t0 = time.perf_counter()
+            mask = thin_or_open_gaussians(gaussians, self.physics_config)
+            record["solid_mask"] = {"seconds": time.perf_counter() - t0, "share": float(mask.double().mean())}
+            return mask
+
+        return get
+
     @staticmethod
     def _probe_fields(physics: Callable[[GaussianSet], torch.Tensor], fields: dict):
         """The context's ``probe_fields``: the per-probe D_g of ``physics``'s run (it runs the probes if needed)."""
@@ -539,6 +552,7 @@ class ActiveRun:
                 occlusion=c.occlusion,
                 probe_fields=self._probe_fields(physics, fields),
                 sh_degree=trainer.active_sh_degree,
+                solid_mask=self._solid_mask(record),
             )
             planner = make_planner(c.method, **{**dict(c.planner), "seed": planner_seed(c.seed, r)})
             t_plan = time.perf_counter()
@@ -572,7 +586,8 @@ class ActiveRun:
                 training=training_seconds,
                 selection=record["selection_seconds"],
                 visual=float(sel.seconds.get("visual", 0.0)),
-                probes=float(record.get("physics", {}).get("seconds", 0.0)),
+                probes=float(record.get("physics", {}).get("seconds", 0.0))
+                + float(record.get("solid_mask", {}).get("seconds", 0.0)),
                 parts=end - t_parts,
             )
             state.selected.append(pick)

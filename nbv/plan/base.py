@@ -73,6 +73,9 @@ class PlanningContext:
             ``physics`` (:class:`ProbeFields`), or None; needed by ``fisher+excess`` and ``fisher+perprobe``.
         sh_degree: the SH degree the trainer renders and fits now (its active degree, which rises during
             training), 0..the stored degree; None = all stored bands. FisherRF differentiates these bands only.
+        solid_mask: [N] bool, the Gaussians of given Gaussians where their solid is thin or open
+            (:func:`nbv.physics.thin.thin_or_open_gaussians`: the solid only, no probe), or None; needed by the
+            ``+thin-area`` planners.
     """
 
     gaussians: GaussianSet
@@ -87,6 +90,7 @@ class PlanningContext:
     occlusion: bool = False
     probe_fields: Callable[[GaussianSet], ProbeFields] | None = None
     sh_degree: int | None = None
+    solid_mask: Callable[[GaussianSet], torch.Tensor] | None = None
 
     def __post_init__(self) -> None:
         if len(self.candidates) != len(self.candidate_ids):

@@ -104,8 +104,8 @@ class FusedPlanner:
 
     The rule (:class:`nbv.plan.rules.FusedRule`) says which per-Gaussian values re-rank the shortlist ("fluid" the
     probes' D_g, "area" ones, "shuffled" :func:`shuffled_divergence`, "excess" :func:`excess_divergence`, "perprobe"
-    :func:`per_probe_normalised`), whether the coarse depth test is forced on, and how the scores are combined
-    ("sum": S(T); "balanced": :func:`balanced_scores`).
+    :func:`per_probe_normalised`, "thin-area" the thin-or-open mask), whether the coarse depth test is forced on,
+    and how the scores are combined ("sum": S(T); "balanced": :func:`balanced_scores`).
 
     Args:
         rule: a :class:`~nbv.plan.rules.FusedRule` or a registered fused name (``"fisher+fluid"``).
@@ -143,6 +143,19 @@ class FusedPlanner:
         """[N] the values S(T) sums with the view weights: D_g (1/s), ones, or D_g permuted."""
         if self.control == "area":
             return torch.ones(context.gaussians.num, dtype=torch.float64)
+        if self.control == "thin-area":
+            if context.solid_mask is None:
+                raise ValueError(
+                    f"planner {self.name!r} needs PlanningContext.solid_mask (nbv.physics.thin.thin_or_open_gaussians "
+                    "under the selection physics); the active loop passes it, other callers must too"
+                )
+            mask = torch.as_tensor(context.solid_mask(context.gaussians))
+            if mask.shape != (context.gaussians.num,):
+                raise ValueError(
+                    f"solid_mask returned shape {tuple(mask.shape)} for {context.gaussians.num} Gaussians; it must "
+                    "mark the Gaussians it is given"
+                )
+            return mask.to(torch.float64)
         divergence = run_physics(context, self.name)
         if self.control == "shuffled":
             return shuffled_divergence(divergence, self.config.seed, context.round)

@@ -19,7 +19,7 @@ BASE_PLANNERS = ("random", "fisher", "variance", "physics", "fvs")
 # The planners that propose a fused planner's shortlist.
 VISUAL_PLANNERS = ("fisher", "variance", "random", "fvs")
 # Which per-Gaussian values re-rank the shortlist (nbv.plan.fused.FusedPlanner.per_gaussian).
-CONTROLS = ("fluid", "area", "shuffled", "excess", "perprobe")
+CONTROLS = ("fluid", "area", "shuffled", "excess", "perprobe", "thin-area")
 # How the shortlist's scores are formed: S(T) of those values, or z(coverage) + z(S / coverage).
 COMBINES = ("sum", "balanced")
 
@@ -33,7 +33,8 @@ class FusedRule:
         visual: the visual planner of the shortlist (:data:`VISUAL_PLANNERS`); the fused planner takes its config.
         control: the per-Gaussian values S(T) sums: "fluid" the probes' D_g, "area" ones (the coverage control; no
             probe runs), "shuffled" D_g permuted across the Gaussians, "excess" D_g minus the empty-scene D_g,
-            "perprobe" each probe normalised to its own scale before the max.
+            "perprobe" each probe normalised to its own scale before the max, "thin-area" ones on the Gaussians where
+            the solid is thin or open and zeros elsewhere (:mod:`nbv.physics.thin`; the solid only, no probe).
         depth_test: always apply the coarse depth test (else ``PlanningContext.occlusion`` decides).
         combine: "sum" (S(T)) or "balanced" (z(coverage) + z(S / coverage)).
         summary: one line for the command-line help.
@@ -56,8 +57,8 @@ class FusedRule:
 
     @property
     def uses_physics(self) -> bool:
-        """Whether the pick runs the probes (False for the coverage controls)."""
-        return self.control != "area"
+        """Whether the pick runs the probes (False for the coverage controls and the thin-or-open coverage)."""
+        return self.control not in ("area", "thin-area")
 
     @property
     def reads_empty_scene(self) -> bool:
@@ -82,6 +83,14 @@ FUSED_RULES = (
     FusedRule("fisher+perprobe", "fisher", "perprobe", summary="candidate: each probe normalised"),
     FusedRule("fisher+balanced", "fisher", combine="balanced", summary="candidate: z(coverage) + z(S / coverage)"),
     FusedRule("fisher+balanced-occ", "fisher", depth_test=True, combine="balanced", summary="the same, depth-tested"),
+    FusedRule(
+        "fisher+thin-area-occ",
+        "fisher",
+        "thin-area",
+        depth_test=True,
+        summary="candidate: depth-tested coverage of the Gaussians where the solid is thin or open (no probe)",
+    ),
+    FusedRule("fisher+thin-area", "fisher", "thin-area", summary="the same, frustum"),
 )
 FUSED = {r.name: r for r in FUSED_RULES}
 # Every registered planner name.

@@ -50,6 +50,8 @@ PICKS = {
     "perprobe": "D_g normalised per probe",
     "balanced": "z(coverage) + z(S / coverage)",
     "balanced-occ": "z(coverage) + z(S / coverage), depth-tested",
+    "thin-area": "no: coverage of the Gaussians where the solid is thin or open",
+    "thin-area-occ": "no: the same, depth-tested",
 }
 
 

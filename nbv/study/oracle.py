@@ -45,6 +45,7 @@ from nbv.active import ActiveConfig, dataset_up, is_empty_solid
 from nbv.active.loop import biased_initial_views, load_active_dataset, planner_seed
 from nbv.io import json_safe, write_json_atomic, write_text_atomic
 from nbv.physics import PhysicsConfig, simulate_gaussians
+from nbv.physics.thin import thin_or_open
 from nbv.plan import PlanningContext, ProbeFields, fused_k, make_planner, uses_physics
 from nbv.plan.fisher import FisherPlanner
 from nbv.plan.fisher_info import FisherConfig, view_fisher
@@ -57,7 +58,6 @@ from nbv.study import calibration as cal
 from nbv.study.convergence import spearman
 from nbv.study.oracle_config import RULES, OracleConfig, rule_of
 from nbv.study.oracle_summary import format_summary, summarise
-from nbv.study.thin import thin_or_open
 from recon.datasets import load_dataset
 from recon.gaussians import GaussianSet
 from recon.mesh_render import load_mesh
@@ -168,7 +168,7 @@ def _stored(path: Path, config: dict) -> dict | None:
 # ---- probes and rules --------------------------------------------------------------------------------
 class ProbeRun(NamedTuple):
     """One probe run at a state: D_g [N] (float64, 1/s), the per-probe fields, and [N] bool where the solid is
-    thin or open (:func:`nbv.study.thin.thin_or_open`; every Gaussian when they form no solid)."""
+    thin or open (:func:`nbv.physics.thin.thin_or_open`; every Gaussian when they form no solid)."""
 
     divergence: torch.Tensor
     fields: ProbeFields

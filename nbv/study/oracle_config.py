@@ -81,7 +81,7 @@ class Rule:
             "ones" (the coverage A(T)), "transparency" (1 - opacity: a coverage of the Gaussians the model is
             unsure of, with no probes), "divergence" (D_g), "shuffled" (D_g permuted), "excess" (over the empty
             scene), "perprobe" (each probe normalised before the max), "thin" (D_g where the solid is thin or
-            open, 0 elsewhere: :mod:`nbv.study.thin`), "thinmask" (1 there, 0 elsewhere: the thin rules' own
+            open, 0 elsewhere: :mod:`nbv.physics.thin`), "thinmask" (1 there, 0 elsewhere: the thin rules' own
             coverage control, which needs the probes' solid but not their fluid).
         depth_test: S(T) counts only the Gaussians the coarse depth test finds unhidden.
         combine: "sum" (S(T)), "balanced" (z(A) + z(S/A) over the candidates) or "ratio" (the physics part

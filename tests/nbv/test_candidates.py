@@ -55,7 +55,7 @@ def _two_groups() -> GaussianSet:
     return GaussianSet.from_points(points, torch.rand(8, 3, generator=gen), scale=0.1, opacity=0.8)
 
 
-def _context(g, cams, physics=None, fields=None, occlusion=False) -> PlanningContext:
+def _context(g, cams, physics=None, fields=None, occlusion=False, solid_mask=None) -> PlanningContext:
     return PlanningContext(
         gaussians=g,
         train_views=[],
@@ -67,6 +67,7 @@ def _context(g, cams, physics=None, fields=None, occlusion=False) -> PlanningCon
         physics=physics,
         occlusion=occlusion,
         probe_fields=None if fields is None else (lambda _: fields),
+        solid_mask=solid_mask,
     )
 
 
@@ -145,7 +146,7 @@ def test_candidates_are_registered_and_say_whether_they_simulate():
     for name in CANDIDATES:
         p = make_planner(name, seed=3)
         assert p.name == name and p.config.seed == 3 and type(p.visual).__name__ == "FisherPlanner"
-        assert uses_physics(name) == (name != "fisher+area-occ") == p.uses_physics
+        assert uses_physics(name) == (name not in ("fisher+area-occ", "fisher+thin-area-occ")) == p.uses_physics
     assert make_planner("fisher+fluid-occ").depth_test and make_planner("fisher+area-occ").depth_test
     assert not make_planner("fisher+excess").depth_test and make_planner("fisher+balanced").combine == "balanced"
     both = make_planner("fisher+balanced-occ")
@@ -235,6 +236,31 @@ def test_balanced_candidate_weighs_the_mean_divergence_against_coverage():
 # ---- the loop, the experiment tables and M@D --------------------------------------------------------------
 
 
+def test_thin_area_candidates_score_the_coverage_of_the_masked_gaussians_without_probes():
+    gen = torch.Generator().manual_seed(2)
+    centres = torch.tensor([[0.0, 0.0, z] for z in (-0.4, 0.4) for _ in range(30)])
+    g = GaussianSet.from_points(centres + 0.08 * torch.randn(60, 3, generator=gen), scale=0.12, opacity=0.95)
+    cams = [_cam(0.0), _cam(0.0, z_sign=1.0), _cam(0.3, distance=3.0)]
+    mask = g.means[:, 2] > 0  # the +z group is thin or open
+
+    def no_probes(_):
+        raise AssertionError("a thin-area planner must not run the probes")
+
+    for name, occ in (("fisher+thin-area-occ", True), ("fisher+thin-area", False)):
+        ctx = _context(g, cams, physics=no_probes, solid_mask=lambda _: mask)
+        sel = _planner(name, [0, 1, 2]).select(ctx)
+        want = physics_view_scores(g, cams, mask.double(), occlusion=occ)
+        assert sel.scores["physics"] == pytest.approx(want, rel=1e-12)
+        assert sel.pick == max(range(3), key=lambda i: (want[i], -i))
+    # the camera behind the +z group sees more of it than the one in front, whose view the -z group hides
+    occ = physics_view_scores(g, cams, mask.double(), occlusion=True)
+    assert occ[1] > occ[0]
+    with pytest.raises(ValueError, match="solid_mask"):
+        _planner("fisher+thin-area-occ", [0, 1, 2]).select(_context(g, cams))
+    with pytest.raises(ValueError, match="shape"):
+        _planner("fisher+thin-area-occ", [0, 1, 2]).select(_context(g, cams, solid_mask=lambda _: mask[:5]))
+
+
 def test_active_loop_hands_the_probe_fields_to_the_planner(tmp_path):
     from nbv.active import ActiveConfig, run_active
     from nbv.physics import PhysicsConfig
@@ -284,3 +310,38 @@ def test_paired_table_and_single_directions_know_the_candidates():
     with pytest.raises(ValueError, match="run no probe"):
         split_method("fisher+area-occ@-x")
     assert {m.partition("+")[2] for m in CANDIDATES} <= set(PICKS)
+
+
+def test_active_loop_hands_the_solid_mask_to_a_thin_area_planner_and_runs_no_probe(tmp_path):
+    from nbv.active import ActiveConfig, run_active
+    from nbv.physics import PhysicsConfig
+    from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
+
+    from helpers.paths import TORUS
+    from helpers.training import TINY_TRAIN
+
+    ds = render_mesh_dataset(
+        TORUS, tmp_path / "torus", MeshDatasetConfig(n_train=6, n_test=2, resolution=16, supersample=1), progress=False
+    )
+
+    def no_probes(gaussians):
+        raise AssertionError("fisher+thin-area-occ must not run the probes")
+
+    cfg = ActiveConfig(
+        method="fisher+thin-area-occ",
+        budget=4,
+        iterations_per_view=1,
+        total_iterations=6,
+        resolution=16,
+        train=TINY_TRAIN,
+        backend="torch",
+        mode="reset",
+        physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004),
+    )
+    rounds = run_active(ds, tmp_path / "run", cfg, physics_fn=no_probes, progress=False)
+    for rec in rounds["rounds"]:
+        assert "physics" not in rec and 0.0 <= rec["solid_mask"]["share"] <= 1.0
+        scores = {int(i): v for i, v in rec["scores"]["physics"].items() if v is not None}
+        order = rec["shortlist"]  # ties go to the earlier shortlist entry
+        assert set(scores) == set(order)
+        assert rec["pick"] == max(order, key=lambda i: (scores[i], -order.index(i)))

@@ -135,7 +135,7 @@ def test_registry_names_and_make_planner():
                 "fvs": "FVSPlanner",
             }[rule.visual]
         )
-        assert uses_physics(rule.name) == (rule.control != "area") == planner.uses_physics
+        assert uses_physics(rule.name) == (rule.control not in ("area", "thin-area")) == planner.uses_physics
     with pytest.raises(ValueError, match="control must be one of"):
         FusedRule("fisher+x", "fisher", control="x")
     with pytest.raises(ValueError, match="visual must be one of"):

@@ -1,9 +1,14 @@
-"""The thin-or-open mask of the oracle study (nbv.study.thin) on solids whose thickness is known."""
+"""The thin-or-open mask of the oracle study (nbv.physics.thin) on solids whose thickness is known."""
+
+import math
 
 import numpy as np
 import pytest
+import torch
 
-from nbv.study.thin import lattice_volume, thin_or_open
+from nbv.physics import PhysicsConfig
+from nbv.physics.thin import lattice_volume, thin_or_open, thin_or_open_gaussians
+from recon.gaussians import GaussianSet
 
 S = 0.1  # lattice spacing, m
 
@@ -46,3 +51,20 @@ def test_no_solid_is_all_open_and_off_lattice_points_are_refused():
     assert vol.shape == (5, 6, 7) and vol.sum() == 3 * 4 * 5 and (idx.min(axis=0) == 1).all()
     with pytest.raises(ValueError, match="lattice of spacing"):
         lattice_volume(np.array([[0.0, 0, 0], [0.05, 0, 0]]), S)
+
+
+def test_the_gaussians_of_a_filled_shell_are_thick_and_far_floaters_open():
+    # 600 surface Gaussians on a sphere (filled by the solidification: thick) and four small floaters well outside
+    n = 600
+    i = np.arange(n) + 0.5
+    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
+    shell = 0.5 * np.stack([np.cos(th) * np.sin(phi), np.sin(th) * np.sin(phi), np.cos(phi)], -1)
+    floaters = np.array([[1.5, 0, 0], [-1.5, 0, 0], [0, 0, 1.5], [0, 0, -1.5]])
+    g = GaussianSet.from_points(torch.tensor(np.concatenate([shell, floaters]), dtype=torch.float32), scale=0.06)
+    cfg = PhysicsConfig(particle_radius=0.05, crop=(-0.7, -0.7, -0.7, 0.7, 0.7, 0.7))
+    mask = thin_or_open_gaussians(g, cfg).numpy()
+    assert mask.shape == (n + 4,) and mask.dtype == bool
+    assert not mask[:n].any()  # every shell Gaussian touches the thick filled ball
+    assert not mask[n:].any()  # cropped out: not simulated, so not marked
+    uncropped = thin_or_open_gaussians(g, PhysicsConfig(particle_radius=0.05)).numpy()
+    assert uncropped[n:].all() and not uncropped[:n].any()  # the floaters make no solid near them: open

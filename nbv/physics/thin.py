@@ -1,4 +1,5 @@
-"""Where the solid is thin or open: a per-Gaussian mask for the oracle study's ``thin`` rules.
+"""Where the solid is thin or open: a per-Gaussian mask (the oracle study's ``thin`` rules, the ``+thin-area``
+planners).
 
 The fluid sees a thick, closed part of the solid only at its surface, where the reconstruction is usually right. A
 hole, a gap or a thin sheet is where the flow would go through or around, and where the paper's physics should
@@ -10,12 +11,16 @@ matter. This module marks the Gaussians near such places, from the probe run's s
   (``depth`` erosions, then as many dilations, 6-connected): the solid there is too thin for a (2 ``depth`` + 1)
   spacing probe to fit.
 
-Everything else is "thick". The mask is a study variant (docs/results.md), not a default of any planner.
+Everything else is "thick". In the oracle study (docs/results.md) the coverage of the thin-or-open Gaussians
+predicted a view's gain better than the coverage and FisherRF, and D_g restricted to them did worse than the mask
+alone: the signal is the solid's geometry, not the fluid. :func:`thin_or_open_gaussians` needs the solid only, no
+probe. It is no planner's default.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
@@ -62,3 +67,29 @@ def thin_or_open(solid: np.ndarray, spacing: float, means: np.ndarray, reach: np
         d, _ = tree.query(means, k=1)
         mask = d > radius  # no thick point within reach: thin or open
     return mask
+
+
+def thin_or_open_gaussians(gaussians, config) -> torch.Tensor:
+    """[N] bool: :func:`thin_or_open` of every Gaussian of ``gaussians`` (a ``recon.gaussians.GaussianSet``, scene
+    units), with the solid, the reach and the frame of a probe run under ``config`` (a
+    :class:`nbv.physics.PhysicsConfig`), and no fluid. Gaussians outside ``config.crop`` are False (not simulated);
+    Gaussians that form no solid at all are all True (open).
+
+    Raises:
+        ValueError: bad Gaussians or settings (as :func:`nbv.physics.simulate_gaussians` would, before any probe).
+    """
+    from nbv.physics.plan import RunFrame  # noqa: PLC0415 - the plan imports the solidification, which loads Taichi
+
+    frame = RunFrame.of(gaussians, config)
+    try:
+        solid = frame.solidify().points
+    except ValueError as exc:
+        if "the solid is " not in str(exc):  # solidify's message for no (or a degenerate) solid
+            raise
+        solid = np.zeros((0, 3))
+    kept = thin_or_open(solid, 2.0 * config.particle_radius, frame.means, frame.reach)
+    if frame.kept is None:
+        return torch.from_numpy(kept)
+    out = np.zeros(len(frame.kept), bool)
+    out[frame.kept] = kept
+    return torch.from_numpy(out)
