@@ -41,6 +41,11 @@ Every planner is built from a small frozen config dataclass with an explicit see
   - ``fisher+balanced``: z(A(T)) + z(S(T) / A(T)) over the shortlist (:func:`balanced_scores`), the coverage
     and the area-weighted mean D_g of the view with equal weight; S/A is the part of S that coverage does not
     explain. ``fisher+balanced-occ``: the same with the depth test.
+  - ``fisher+thin-area-occ``: the depth-tested coverage of the Gaussians where the solid is thin or open
+    (``PlanningContext.solid_mask``, :func:`nbv.physics.thin.thin_or_open_gaussians`): the solid only, no fluid,
+    no probe. ``fisher+thin-area``: the same with frustum visibility. In the oracle study (docs/results.md) this
+    coverage predicted the gain better than coverage and FisherRF on the six shapes, and not on two held-out
+    shapes made of thin parts.
 
 S(T) needs only the screen-space radii and visibility of the Gaussians in each candidate, which are the
 projection's (``recon.render.render`` returns exactly ``project_gaussians(...).radii``), so no candidate
