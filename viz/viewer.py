@@ -724,8 +724,8 @@ def serve(viewer: FluidViewer, announce=log.info) -> int:
         raise KeyboardInterrupt
 
     previous = signal.signal(signal.SIGTERM, on_term) if threading.current_thread() is threading.main_thread() else None
-    announce(f"fluidgs view: {viewer.url} (Ctrl-C stops)")
-    try:
+    try:  # the URL is announced inside: a Ctrl-C right after it (on a loaded machine) also stops cleanly
+        announce(f"fluidgs view: {viewer.url} (Ctrl-C stops)")
         viewer.wait()
     except KeyboardInterrupt:
         pass
