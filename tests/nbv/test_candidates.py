@@ -261,7 +261,8 @@ def test_thin_area_candidates_score_the_coverage_of_the_masked_gaussians_without
         _planner("fisher+thin-area-occ", [0, 1, 2]).select(_context(g, cams, solid_mask=lambda _: mask[:5]))
 
 
-def test_active_loop_hands_the_probe_fields_to_the_planner(tmp_path):
+def _tiny_loop(tmp_path, method: str, physics_fn) -> dict:
+    """rounds.json of a 4-view loop of ``method`` on a 16 px torus, the probes replaced by ``physics_fn``."""
     from nbv.active import ActiveConfig, run_active
     from nbv.physics import PhysicsConfig
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
@@ -272,14 +273,8 @@ def test_active_loop_hands_the_probe_fields_to_the_planner(tmp_path):
     ds = render_mesh_dataset(
         TORUS, tmp_path / "torus", MeshDatasetConfig(n_train=6, n_test=2, resolution=16, supersample=1), progress=False
     )
-    calls = []
-
-    def fake_physics(gaussians):
-        calls.append(gaussians.num)
-        return gaussians.means.detach()[:, 0].abs().double()
-
     cfg = ActiveConfig(
-        method="fisher+perprobe",
+        method=method,
         budget=4,
         iterations_per_view=1,
         total_iterations=6,
@@ -289,7 +284,17 @@ def test_active_loop_hands_the_probe_fields_to_the_planner(tmp_path):
         mode="reset",
         physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004),
     )
-    rounds = run_active(ds, tmp_path / "run", cfg, physics_fn=fake_physics, progress=False)
+    return run_active(ds, tmp_path / "run", cfg, physics_fn=physics_fn, progress=False)
+
+
+def test_active_loop_hands_the_probe_fields_to_the_planner(tmp_path):
+    calls = []
+
+    def fake_physics(gaussians):
+        calls.append(gaussians.num)
+        return gaussians.means.detach()[:, 0].abs().double()
+
+    rounds = _tiny_loop(tmp_path, "fisher+perprobe", fake_physics)
     assert len(calls) == 2  # the probes ran once per selection, for both the D_g and the per-probe fields
     for rec in rounds["rounds"]:
         scores = {int(i): v for i, v in rec["scores"]["physics"].items() if v is not None}
@@ -313,32 +318,10 @@ def test_paired_table_and_single_directions_know_the_candidates():
 
 
 def test_active_loop_hands_the_solid_mask_to_a_thin_area_planner_and_runs_no_probe(tmp_path):
-    from nbv.active import ActiveConfig, run_active
-    from nbv.physics import PhysicsConfig
-    from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
-
-    from helpers.paths import TORUS
-    from helpers.training import TINY_TRAIN
-
-    ds = render_mesh_dataset(
-        TORUS, tmp_path / "torus", MeshDatasetConfig(n_train=6, n_test=2, resolution=16, supersample=1), progress=False
-    )
-
     def no_probes(gaussians):
         raise AssertionError("fisher+thin-area-occ must not run the probes")
 
-    cfg = ActiveConfig(
-        method="fisher+thin-area-occ",
-        budget=4,
-        iterations_per_view=1,
-        total_iterations=6,
-        resolution=16,
-        train=TINY_TRAIN,
-        backend="torch",
-        mode="reset",
-        physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004),
-    )
-    rounds = run_active(ds, tmp_path / "run", cfg, physics_fn=no_probes, progress=False)
+    rounds = _tiny_loop(tmp_path, "fisher+thin-area-occ", no_probes)
     for rec in rounds["rounds"]:
         assert "physics" not in rec and 0.0 <= rec["solid_mask"]["share"] <= 1.0
         scores = {int(i): v for i, v in rec["scores"]["physics"].items() if v is not None}
