@@ -69,6 +69,7 @@ from nbv.coverage import coverage_line, ranking_agreement, view_parts
 from nbv.io import json_safe, write_atomic, write_json_atomic
 from nbv.physics import simulate_gaussians
 from nbv.physics.scene_frame import describe_auto_up
+from nbv.physics.solidify import is_empty_solid
 from nbv.physics.thin import thin_or_open_gaussians
 from nbv.plan import PLANNERS, PlanningContext, ProbeFields, make_planner, reads_empty_scene
 from recon.datasets import load_dataset
@@ -118,12 +119,6 @@ def biased_initial_views(
     dist = (centres - centres[first]).norm(dim=-1)
     order = torch.argsort(dist, stable=True).tolist()
     return [first] + [i for i in order if i != first][: count - 1]
-
-
-def is_empty_solid(exc: ValueError) -> bool:
-    """Whether a probe run failed because the Gaussians form no (or a degenerate) solid (the solidify
-    message)."""
-    return "the solid is " in str(exc)
 
 
 def planner_seed(seed: int, round_index: int) -> int:

@@ -508,3 +508,9 @@ def combined_opacity_reference(
             term = np.where(np.all(np.abs(d) <= ext[g], axis=1), term, 0.0)
         log_t += term
     return 1.0 - np.exp(log_t)
+
+
+def is_empty_solid(exc: ValueError) -> bool:
+    """Whether ``exc`` is the solidification's refusal of no (or a degenerate) solid (its "the solid is ..."
+    message), as a barely trained reconstruction gives."""
+    return "the solid is " in str(exc)

@@ -79,12 +79,13 @@ def thin_or_open_gaussians(gaussians, config) -> torch.Tensor:
         ValueError: bad Gaussians or settings (as :func:`nbv.physics.simulate_gaussians` would, before any probe).
     """
     from nbv.physics.plan import RunFrame  # noqa: PLC0415 - the plan imports the solidification, which loads Taichi
+    from nbv.physics.solidify import is_empty_solid  # noqa: PLC0415 - loads Taichi, as above
 
     frame = RunFrame.of(gaussians, config)
     try:
         solid = frame.solidify().points
     except ValueError as exc:
-        if "the solid is " not in str(exc):  # solidify's message for no (or a degenerate) solid
+        if not is_empty_solid(exc):
             raise
         solid = np.zeros((0, 3))
     kept = thin_or_open(solid, 2.0 * config.particle_radius, frame.means, frame.reach)
