@@ -45,7 +45,7 @@ from nbv.active import ActiveConfig, dataset_up, is_empty_solid
 from nbv.active.loop import biased_initial_views, load_active_dataset, planner_seed
 from nbv.io import json_safe, write_json_atomic, write_text_atomic
 from nbv.physics import PhysicsConfig, simulate_gaussians
-from nbv.physics.thin import thin_or_open
+from nbv.physics.thin import thin_or_open, thin_or_open_gaussians
 from nbv.plan import PlanningContext, ProbeFields, fused_k, make_planner, uses_physics
 from nbv.plan.fisher import FisherPlanner
 from nbv.plan.fisher_info import FisherConfig, view_fisher
@@ -168,10 +168,11 @@ def _stored(path: Path, config: dict) -> dict | None:
 # ---- probes and rules --------------------------------------------------------------------------------
 class ProbeRun(NamedTuple):
     """One probe run at a state: D_g [N] (float64, 1/s), the per-probe fields, and [N] bool where the solid is
-    thin or open (:func:`nbv.physics.thin.thin_or_open`; every Gaussian when they form no solid)."""
+    thin or open (:func:`nbv.physics.thin.thin_or_open`; every Gaussian when they form no solid). A run of the
+    solid only (:func:`solid_run`, for rules that read only the thin mask) has no D_g and no fields (None)."""
 
-    divergence: torch.Tensor
-    fields: ProbeFields
+    divergence: torch.Tensor | None
+    fields: ProbeFields | None
     thin: torch.Tensor
 
 
@@ -196,8 +197,19 @@ def probe_run(gaussians: GaussianSet, physics: PhysicsConfig, source: str = "") 
     return ProbeRun(torch.from_numpy(res.divergence).to(torch.float64), fields, torch.from_numpy(thin))
 
 
+def solid_run(gaussians: GaussianSet, physics: PhysicsConfig) -> ProbeRun:
+    """The solid of one setting on ``gaussians`` and its thin-or-open mask, without the fluid: all that the rules
+    reading only the mask (``thinmask``) need (:func:`nbv.physics.thin.thin_or_open_gaussians`, as the
+    ``+thin-area`` planners do)."""
+    return ProbeRun(None, None, thin_or_open_gaussians(gaussians, physics))
+
+
 def rule_values(values: str, run: ProbeRun, seed: int, round_index: int) -> torch.Tensor:
     """The per-Gaussian values v_g of a physics rule (``RULES[...].values``)."""
+    if values == "thinmask":
+        return run.thin.to(torch.float64)
+    if run.divergence is None:
+        raise ValueError(f"rule_values: {values!r} needs the probes; this run has the solid only")
     if values == "divergence":
         return run.divergence
     if values == "shuffled":
@@ -208,8 +220,6 @@ def rule_values(values: str, run: ProbeRun, seed: int, round_index: int) -> torc
         return per_probe_normalised(run.fields.per_probe)
     if values == "thin":
         return torch.where(run.thin, run.divergence, torch.zeros_like(run.divergence))
-    if values == "thinmask":
-        return run.thin.to(torch.float64)
     raise ValueError(f"rule_values: {values!r} is not a physics value")
 
 
@@ -262,7 +272,10 @@ def score_rules(
         if not labels:
             continue
         t0 = time.perf_counter()
-        run = probe_run(g, pcfg, source=f"probe setting {setting}")
+        if all(rule_of(label).values == "thinmask" for label in labels):
+            run = solid_run(g, pcfg)
+        else:
+            run = probe_run(g, pcfg, source=f"probe setting {setting}")
         t1 = time.perf_counter()
         fields_out[setting] = run
         cache: dict[tuple[str, bool], list[float]] = {}
@@ -516,6 +529,8 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
         t0 = time.perf_counter()
         signals = {}
         for setting, run in extra["fields"].items():
+            if run.divergence is None:
+                continue
             signals[f"D_g:{setting}"] = run.divergence
             signals[f"perprobe:{setting}"] = per_probe_normalised(run.fields.per_probe)
             if run.fields.empty_per_probe is not None:

@@ -336,6 +336,32 @@ def test_summary_spearman_agrees_with_an_independent_computation(study):
     assert own["control"] == "thin-area-occ:coarse" and own["rule"] == "thin-occ:coarse"
 
 
+def test_the_thin_mask_rules_alone_run_the_solid_without_the_probes(study, tmp_path, monkeypatch):
+    import nbv.study.oracle as oracle
+
+    def no_probes(*args, **kwargs):
+        raise AssertionError("the thin-area rules need the solid only")
+
+    monkeypatch.setattr(oracle, "probe_run", no_probes)
+    config, _, _ = study
+    alone = OracleConfig(**{**config.to_dict(), "output": str(tmp_path / "alone"), "seeds": [0], "states": [2]})
+    alone = OracleConfig(**{**alone.to_dict(), "rules": ["fisher", "coverage-occ", "thin-area-occ"]})
+    run_oracle(alone, InProcess(), progress=False)
+    (path,) = (tmp_path / "alone" / "states").rglob("state*.json")
+    st = json.loads(path.read_text())
+    (full,) = [
+        json.loads(p.read_text())
+        for p in (Path(config.output) / "states").rglob("state*.json")
+        if json.loads(p.read_text())["seed"] == 0 and json.loads(p.read_text())["n_selected"] == 2
+    ]
+    assert st["selected"] == full["selected"]
+    # the same mask as the probe run's: the same scores, and no D_g to calibrate
+    np.testing.assert_array_equal(st["scores"]["thin-area-occ:coarse"], full["scores"]["thin-area-occ:coarse"])
+    assert st["thin_share"] == full["thin_share"]
+    assert "fisher diagonal" in st["calibration"]["signals"]
+    assert not any(k.startswith(("D_g", "thin")) for k in st["calibration"]["signals"])
+
+
 def test_a_finished_study_resumes_without_training(study):
     config, out, _ = study
     ex = InProcess()
