@@ -106,7 +106,7 @@ def summarise(config: OracleConfig, states: list[dict]) -> dict[str, Any]:
         if rule.own_control is not None:  # D_g against the coverage of its own mask
             own = f"{rule.own_control}:{label.partition(':')[2]}"
             paired[f"{label} vs {own}"] = versus(label, own)
-    calib = _summarise_calibration(groups, keys, b)
+    calib = _summarise_calibration(groups, keys, b, labels)
     gains = [st["oracle"]["gain_psnr"] for st in states]
     return {
         "states": len(states),
@@ -122,7 +122,9 @@ def summarise(config: OracleConfig, states: list[dict]) -> dict[str, Any]:
     }
 
 
-def _summarise_calibration(groups: dict, keys: list, resamples: int) -> dict[str, Any]:
+def _summarise_calibration(groups: dict, keys: list, resamples: int, labels: Sequence[str]) -> dict[str, Any]:
+    """The calibration means over the states that hold one; a signal over the states that computed it; the rules'
+    agreement with the missing geometry for the summarised rules ``labels`` only."""
     with_cal = [k for k in keys if any("calibration" in st for st in groups[k])]
     if not with_cal:
         return {}
@@ -155,6 +157,7 @@ def _summarise_calibration(groups: dict, keys: list, resamples: int) -> dict[str
             for st in groups[k]
             if "calibration" in st
             for r in st["calibration"]["rules_vs_missing"]
+            if r in labels
         )
     )
     missing = {

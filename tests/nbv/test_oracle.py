@@ -336,30 +336,92 @@ def test_summary_spearman_agrees_with_an_independent_computation(study):
     assert own["control"] == "thin-area-occ:coarse" and own["rule"] == "thin-occ:coarse"
 
 
-def test_the_thin_mask_rules_alone_run_the_solid_without_the_probes(study, tmp_path, monkeypatch):
+@pytest.fixture(scope="module")
+def thin_alone(study, tmp_path_factory):
+    """A second study of the same scene: seed 0, state 2, only the rules that read the thin mask (no probes)."""
     import nbv.study.oracle as oracle
 
     def no_probes(*args, **kwargs):
         raise AssertionError("the thin-area rules need the solid only")
 
-    monkeypatch.setattr(oracle, "probe_run", no_probes)
     config, _, _ = study
-    alone = OracleConfig(**{**config.to_dict(), "output": str(tmp_path / "alone"), "seeds": [0], "states": [2]})
-    alone = OracleConfig(**{**alone.to_dict(), "rules": ["fisher", "coverage-occ", "thin-area-occ"]})
-    run_oracle(alone, InProcess(), progress=False)
-    (path,) = (tmp_path / "alone" / "states").rglob("state*.json")
-    st = json.loads(path.read_text())
-    (full,) = [
-        json.loads(p.read_text())
-        for p in (Path(config.output) / "states").rglob("state*.json")
-        if json.loads(p.read_text())["seed"] == 0 and json.loads(p.read_text())["n_selected"] == 2
+    out = tmp_path_factory.mktemp("oracle-alone") / "alone"
+    alone = OracleConfig(
+        **{
+            **config.to_dict(),
+            "output": str(out),
+            "seeds": [0],
+            "states": [2],
+            "rules": ["fisher", "coverage-occ", "thin-area-occ"],
+        }
+    )
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(oracle, "probe_run", no_probes)
+        run_oracle(alone, InProcess(), progress=False)
+    return alone
+
+
+def _state(output, seed: int, n: int) -> dict:
+    (path,) = [
+        p
+        for p in (Path(output) / "states").rglob("state*.json")
+        if (json.loads(p.read_text())["seed"], json.loads(p.read_text())["n_selected"]) == (seed, n)
     ]
+    return json.loads(path.read_text())
+
+
+def test_the_thin_mask_rules_alone_run_the_solid_without_the_probes(study, thin_alone):
+    config, _, _ = study
+    st, full = _state(thin_alone.output, 0, 2), _state(config.output, 0, 2)
     assert st["selected"] == full["selected"]
     # the same mask as the probe run's: the same scores, and no D_g to calibrate
     np.testing.assert_array_equal(st["scores"]["thin-area-occ:coarse"], full["scores"]["thin-area-occ:coarse"])
     assert st["thin_share"] == full["thin_share"]
     assert "fisher diagonal" in st["calibration"]["signals"]
     assert not any(k.startswith(("D_g", "thin")) for k in st["calibration"]["signals"])
+
+
+def test_pooled_studies_summarise_the_rules_every_state_scored(study, thin_alone, tmp_path):
+    from nbv.study.oracle_pool import pool_studies
+
+    config, _, _ = study
+    pool = pool_studies([thin_alone.output, config.output])
+    # the alone study's state is kept, the full study's copy of it counted as a duplicate
+    assert len(pool.states) == 4 and len(pool.duplicates) == 1 and "seed 0 state 2" in pool.duplicates[0]
+    assert [s["states"] for s in pool.sources] == [1, 3]
+    assert set(pool.config.scored_rules()) == {"fisher", "coverage-occ", "thin-area-occ:coarse"}
+    assert "fluid-occ:coarse" in pool.dropped_rules and "fvs" in pool.dropped_rules
+    summary = summarise(pool.config, pool.states)
+    assert summary["states"] == 4 and set(summary["rules"]) == set(pool.config.scored_rules())
+    # the pooled Spearman of a rule is the mean over the pooled states
+    from scipy.stats import spearmanr
+
+    rhos = [spearmanr(st["scores"]["fisher"], st["oracle"]["gain_psnr"])[0] for st in pool.states]
+    rhos = [r for r in rhos if np.isfinite(r)]
+    assert summary["rules"]["fisher"]["spearman"][0] == pytest.approx(np.mean(rhos), abs=1e-9)
+    # a study reached with another horizon is refused, naming the key
+    other = tmp_path / "other"
+    other.mkdir()
+    meta = json.loads((Path(config.output) / "oracle-config.json").read_text())
+    meta["config"]["horizon"] = 7
+    (other / "oracle-config.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="'horizon'"):
+        pool_studies([config.output, other])
+    with pytest.raises(ValueError, match="not an oracle study folder"):
+        pool_studies([config.output, tmp_path])
+
+
+def test_oracle_pool_cli_writes_the_pooled_summary_and_refuses_an_input_as_output(study, thin_alone, tmp_path, caplog):
+    from apps.cli import main
+
+    config, _, _ = study
+    out = tmp_path / "pooled"
+    assert main(["study", "oracle-pool", str(config.output), thin_alone.output, "--output", str(out)]) == 0
+    text = (out / "oracle.md").read_text()
+    assert text.startswith("Pooled from ") and "| fisher |" in text and "States found twice" in text
+    assert json.loads((out / "oracle.json").read_text())["pool"]["duplicates"]
+    assert main(["study", "oracle-pool", str(config.output), "--output", str(config.output)]) == 2
+    assert "is one of the pooled folders" in caplog.text
 
 
 def test_a_finished_study_resumes_without_training(study):

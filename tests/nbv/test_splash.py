@@ -164,3 +164,11 @@ def test_bench_sim_smoke(tmp_path, capsys):
 def test_peer_scene_is_validated(change, message):
     with pytest.raises(ValueError, match=message):
         replace(PeerScene(), **change)
+
+
+def test_bench_sim_states_the_release_target():
+    from apps.bench.sim import RATIO_TARGET, target_verdict
+
+    assert RATIO_TARGET == 0.25  # a quarter of SPlisHSPlasH's step time: about 3 M fluid particle-steps/s on 2 cores
+    assert target_verdict(0.25) == "(target <= 0.25: met)"
+    assert target_verdict(0.41) == "(target <= 0.25: not met)"
