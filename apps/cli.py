@@ -1,41 +1,27 @@
 """The `fluidgs` command: one entry point, one subcommand per job.
 
-Exit codes (also in docs/exit-codes.md):
-
-====  ==========================================================================================================
-code  meaning
-====  ==========================================================================================================
-0     success
-1     an unexpected error (a traceback): a bug, please report it
-2     bad input: a file, an option or a combination of them is invalid, or an output would overwrite an input;
-      nothing was computed, and the message names the file or option and the fix
-3     a simulation diverged: the message names the probe (or `sim`'s scene) and the step; what was computed
-      before it is saved (RESULT.h5 with status "diverged", OUT.h5 with the fault as status; `score` only
-      with --save-result)
-4     an output cannot be written: full disk (ENOSPC) or quota, read-only file system (EROFS), no permission,
-      a name too long (ENAMETOOLONG), a parent that is a file, a folder where a file is wanted; the message names
-      the outputs written before the failure (complete), or says that none was
-130   interrupted by Ctrl-C (SIGINT); `sim` first saves its frames so far (status "interrupted"); every command
-      removes its unfinished temporary files and stops its worker processes (apps.signals)
-143   stopped by SIGTERM (kill, timeout, a batch scheduler), with the same clean-up as 130; also any command whose
-      Taichi start-up did not end within FLUIDGS_TAICHI_START_TIMEOUT (120 s), after one line saying so
-====  ==========================================================================================================
+The exit codes, and the exceptions that give them, are in :mod:`apps.exit_codes` (and docs/exit-codes.md).
 """
 
 from __future__ import annotations
 
 import argparse
-import errno
 import logging
-import os
 import signal
 import sys
 
-from fluidsim.files import OutputError, remove_unfinished, written_outputs
+from fluidsim.files import remove_unfinished, written_outputs
 
+from .exit_codes import (
+    EXIT_BAD_INPUT,
+    EXIT_DIVERGED,
+    EXIT_INTERRUPTED,
+    EXIT_OUTPUT,
+    interrupted_import,
+    is_output_error,
+)
 from .signals import Stopped, exit_after_commands, first_signal, signal_name, stop_signals
 
-EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
 try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets one line too, not a traceback
     from . import (
         active,
@@ -63,17 +49,7 @@ except KeyboardInterrupt:
     sys.stderr.write("ERROR fluidgs: interrupted\n")
     raise SystemExit(EXIT_INTERRUPTED) from None
 from .help_format import HelpFormatter  # noqa: E402 (after the guarded imports above)
-
-EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT = 2, 3, 4
-# errno values that only writing causes: full disk or quota, file too large, read-only file system, name too long
-OUTPUT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.ENAMETOOLONG})
-
-
-def is_output_error(exc: BaseException) -> bool:
-    """Whether ``exc`` means that an output could not be written (exit 4): an ``fluidsim.files.OutputError`` (from the
-    checks before the work and from every atomic writer), or an ``OSError`` of :data:`OUTPUT_ERRNOS`."""
-    return isinstance(exc, OutputError) or (isinstance(exc, OSError) and exc.errno in OUTPUT_ERRNOS)
-
+from .options.argv import non_utf8_argument, value_options  # noqa: E402 (after the guarded imports above)
 
 COMMANDS = {
     "inspect": (inspect_gaussians, "what the fluid will see: format, boxes, frame, solid count; PNG of three views"),
@@ -122,52 +98,6 @@ def command_of(argv: list[str]) -> str | None:
             return tok
         if not tok.startswith("-"):
             return None
-    return None
-
-
-def value_options(parser: argparse.ArgumentParser) -> tuple[frozenset[str], frozenset[str]]:
-    """(the option strings that take one value, every option string) of ``parser`` and of all its subparsers, read
-    from the argparse actions (the options themselves are the one list)."""
-    takes, every = set(), set()
-    stack = [parser]
-    while stack:
-        p = stack.pop()
-        for action in p._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                stack.extend(action.choices.values())
-                continue
-            every.update(action.option_strings)
-            if action.option_strings and action.nargs in (None, "?"):
-                takes.update(action.option_strings)
-    return frozenset(takes), frozenset(every)
-
-
-def non_utf8_argument(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str | None:
-    """The message for the first argument of the command line that is not valid UTF-8 (a file name of other bytes,
-    which Python keeps as surrogates), naming its option; None when every argument is. The results record file
-    names as text (RESULT.h5's source, scores.json), which such a name cannot be written into."""
-    stack = [parser]
-    while stack:
-        p = stack.pop()
-        for action in p._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                stack.extend(c for name, c in action.choices.items() if name == getattr(args, "command", None))
-                continue
-            value = getattr(args, action.dest, None)
-            for v in value if isinstance(value, (list, tuple)) else [value]:
-                if not isinstance(v, (str, os.PathLike)):
-                    continue
-                try:
-                    os.fspath(v).encode("utf-8")
-                except UnicodeEncodeError:
-                    name = (
-                        action.option_strings[-1] if action.option_strings else (action.metavar or action.dest.upper())
-                    )
-                    raw = os.fsencode(v)
-                    return (
-                        f"{name} {raw!r}: the name is not valid UTF-8, and the outputs record file names as UTF-8 "
-                        "text; rename the file (or folder) to a UTF-8 name and run again"
-                    )
     return None
 
 
@@ -273,18 +203,6 @@ def run_module(args: argparse.Namespace) -> int:
             raise
         logging.getLogger("fluidgs").error("interrupted")
         return EXIT_INTERRUPTED
-
-
-def interrupted_import(exc: ImportError) -> bool:
-    """Whether an ImportError was caused by a Ctrl-C (its ``__cause__`` or ``__context__`` chain holds one)."""
-    seen: BaseException | None = exc
-    for _ in range(16):
-        seen = seen.__cause__ or seen.__context__
-        if seen is None:
-            return False
-        if isinstance(seen, KeyboardInterrupt):
-            return True
-    return False
 
 
 def entry() -> None:

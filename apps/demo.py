@@ -35,7 +35,12 @@ from .options import (
     add_gaussian_file_arguments,
     add_orbit_arguments,
     add_runtime_arguments,
+    camera_file_from_args,
+    load_gaussians_checked,
+    orbit_cameras_logged,
+    orbit_from_args,
     physics_config_from_args,
+    warn_frame,
 )
 
 log = logging.getLogger("fluidgs")
@@ -117,13 +122,6 @@ def run_command(args: argparse.Namespace) -> int:
     from recon.ahmed import ahmed_surface_gaussians
     from recon.camera_files import transforms_json
 
-    from .options import (
-        camera_file_from_args,
-        load_gaussians_checked,
-        orbit_cameras_logged,
-        orbit_from_args,
-        warn_frame,
-    )
     from .runtime import init_taichi
 
     t0 = time.perf_counter()
@@ -228,26 +226,19 @@ def run_mesh_demo(args: argparse.Namespace) -> int:
     init_taichi(args.device, "f32", args.threads)
     steps = args.steps or MESH_STEPS
     from fluidsim import ProbeConfig, SolverConfig
-    from fluidsim.recording import probe_file_summary, probe_to_h5
+    from fluidsim.recording import probes_to_h5
     from fluidsim.sources import mesh_particles
 
-    cfg = SolverConfig(particle_radius=args.particle_radius or MESH_RADIUS)
-    solid = mesh_particles(args.solid, cfg.spacing, fill=True)
-    probe = ProbeConfig(**({} if args.speed is None else {"speed": args.speed}))
-    summary = {
-        "solid": str(args.solid),
-        "solid_particles": len(solid),
-        "particle_radius": cfg.particle_radius,
-        "steps": steps,
-        "dt": cfg.dt,
-        "probes": {},
-    }
-    for d in probe.directions:
-        s = summary["probes"][d] = probe_file_summary(*probe_to_h5(solid, d, cfg, probe, steps, out / f"probe_{d}.h5"))
+    def report(d: str, s: dict) -> None:
         print(
             f"probe {d}: {s['fluid_particles']} fluid particles, mean D_i {s['mean_particle_divergence']:.3f} 1/s "
             f"(p95 {s['p95_particle_divergence']:.3f}), {s['retired']} retired -> {out / s['file']}"
         )
+
+    cfg = SolverConfig(particle_radius=args.particle_radius or MESH_RADIUS)
+    solid = mesh_particles(args.solid, cfg.spacing, fill=True)
+    probe = ProbeConfig(**({} if args.speed is None else {"speed": args.speed}))
+    summary = probes_to_h5(solid, cfg, probe, steps, out, str(args.solid), on_probe=report)
     write_json_atomic(out / "summary.json", summary)
     if not args.no_video:
         from viz.frames import FrameStyle, render_frames

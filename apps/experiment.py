@@ -65,7 +65,7 @@ def job_exit_code(cause: BaseException | None) -> int:
     """`fluidgs`'s exit code for a job that raised ``cause``: 4 an output, 2 bad input, 3 a divergence, else 1."""
     from fluidsim.simulation import SimulationDiverged
 
-    from .cli import EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, is_output_error
+    from .exit_codes import EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, is_output_error
 
     if cause is not None and is_output_error(cause):
         return EXIT_OUTPUT

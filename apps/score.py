@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
-import re
 from pathlib import Path
 
 from fluidsim.directions import DIRECTIONS
@@ -153,27 +151,23 @@ def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
     from nbv.coverage import agreement_lines, one_run_line
     from nbv.physics import ProbeDiverged
-    from nbv.scores import rank
     from nbv.view_scoring import (
+        ScoreSettings,
         check_cameras_see,
         check_some_divergence,
         format_table,
         parse_candidates,
         probe_lines,
-        project_scores,
-        ranked_rows,
+        rank_views,
         reach_warning,
         render_size,
-        replicas_view_agreement,
-        rows_agreement,
-        write_uncertainty_images,
-        write_view_pngs,
+        scores_record,
+        write_views_folder,
     )
     from recon.camera_files import transforms_json
-    from recon.device import torch_device
 
     check_arguments(args)
-    occlusion = not args.frustum_only
+    settings = ScoreSettings(args.metric, not args.unweighted, not args.frustum_only, args.device)
     orbit = orbit_from_args(args, args.render_width)
     file_cams = None if orbit is not None else camera_file_from_args(args)
     config = physics_config_from_args(args, cameras=file_cams)
@@ -225,23 +219,7 @@ def run_command(args: argparse.Namespace) -> int:
         except ProbeDiverged as exc:
             return save_diverged(exc, args.save_result)
     values = check_some_divergence(result, args.metric, args.result or args.gaussians)
-    scored = project_scores(
-        gaussians, cams, values, weighted=not args.unweighted, occlusion=occlusion, device=args.device
-    )
-    rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
-    agreement = rows_agreement(rows)
-    if result.replicas is not None:  # each replica's own ranking, against the others
-        per_replica = result.replicas.metric_values(args.metric, result.directions)
-        agreement["replicas"] = replicas_view_agreement(
-            result.replicas,
-            per_replica,
-            gaussians,
-            cams,
-            idx,
-            weighted=not args.unweighted,
-            occlusion=occlusion,
-            device=args.device,
-        )
+    scored, rows, agreement = rank_views(gaussians, cams, idx, result, values, settings, visible_centres)
     print("\n".join(probe_lines(result)))
     warning = reach_warning(values, scored.seen, result.config)
     if warning is not None:
@@ -250,35 +228,15 @@ def run_command(args: argparse.Namespace) -> int:
     print("\n".join(agreement_lines(agreement)))
     if result.replicas is None:
         print(one_run_line())
-    images = {}
-    if png_dir is not None:
-        earlier = view_files(png_dir)
-        order = rank(scored.scores).tolist()
-        shown = order if args.png_all else order[: args.png_top]
-        device = torch_device(args.device)
-        write_view_pngs(gaussians, cams, shown, rows, values, args.metric, png_dir, device, True)
-        if args.uncertainty_images:
-            images = write_uncertainty_images(gaussians, cams, shown, rows, values, args.metric, png_dir, device)
-        remove_stale(earlier)
-    for row in rows:
-        if row["index"] in images:
-            row["uncertainty_image"] = {k: str(png_dir / v) for k, v in images[row["index"]].items()}
-    cameras = str(orbit_file if orbit_file is not None else args.cameras)
-    write_json_atomic(
-        output,
-        {
-            "cameras": cameras,
-            "gaussians": str(args.gaussians),
-            "metric": args.metric,
-            "weighted": not args.unweighted,
-            "occlusion": occlusion,
-            "dbar_m4_s": result.dbar,
-            "dbar_empty_m4_s": result.dbar_empty,
-            "agreement": agreement,
-            "views": rows,
-            "config": result.config.to_dict(),
-        },
+    top = None if args.png_all else args.png_top
+    images, stale = write_views_folder(
+        gaussians, cams, scored, rows, values, settings, png_dir, top=top, uncertainty=args.uncertainty_images
     )
+    if stale:
+        log.info("removed %d view images of an earlier run from %s", len(stale), stale[0].parent)
+    cameras = orbit_file if orbit_file is not None else args.cameras
+    scores = scores_record(rows, agreement, result, settings, cameras, args.gaussians, images, png_dir)
+    write_json_atomic(output, scores)
     print(
         f"scores: {output}"
         + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file is not None else "")
@@ -289,25 +247,3 @@ def run_command(args: argparse.Namespace) -> int:
     if h5 is not None:
         print(f"see them in a browser: fluidgs view {h5} --gaussians {args.gaussians} --scores {output}")
     return 0
-
-
-# the files `score` writes into its views folder (nbv.view_scoring): rank001_004_name.png, and with
-# --uncertainty-images rank001_004_name_uncertainty.png / .npy
-VIEW_FILE = re.compile(r"^rank\d{3,}_\d{3,}_.*(\.png|_uncertainty\.npy)$")
-
-
-def view_files(folder: Path) -> dict[Path, int]:
-    """{file: inode} of the files of ``score``'s own naming pattern (:data:`VIEW_FILE`) in ``folder``."""
-    if not folder.is_dir():
-        return {}
-    return {p: p.stat().st_ino for p in folder.iterdir() if VIEW_FILE.match(p.name) and p.is_file()}
-
-
-def remove_stale(earlier: dict[Path, int]) -> None:
-    """Remove the view files an earlier run wrote that this run did not write again (the same inode: every writer
-    replaces its file atomically, so a rewritten file has a new one); nothing else in the folder is touched."""
-    stale = [p for p, inode in earlier.items() if p.is_file() and os.stat(p).st_ino == inode]
-    for p in stale:
-        p.unlink()
-    if stale:
-        log.info("removed %d view images of an earlier run from %s", len(stale), stale[0].parent)

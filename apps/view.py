@@ -53,7 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the candidates' cameras file (transforms.json, COLMAP model, graphdeco cameras.json), "
         "scene units (default: the file --scores names)",
     )
-    from viz.viewer import ViewerOptions
+    from viz.serving import ViewerOptions
 
     from .options import add_config_options
 
@@ -61,7 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from viz.viewer import ViewerOptions, open_viewer, serve
+    from viz.serving import ViewerOptions, serve
+    from viz.viewer import open_viewer
 
     from .options import config_from_args
 

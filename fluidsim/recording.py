@@ -1,5 +1,6 @@
 """A built solver stepped to an OUT.h5 file (the format of :class:`fluidsim.output.SimulationWriter`): frames every
-K steps, per-step statistics and the divergence sums, written whatever ends the run.
+K steps, per-step statistics and the divergence sums, written whatever ends the run; a probe against a static solid
+(:func:`probe_to_h5`), or every probe, one file each, with their summary (:func:`probes_to_h5`).
 
 A diverging run still writes its file (frames so far, statistics, status naming the step) and re-raises. A stop
 request (an object whose ``signum`` becomes a signal number, such as the SIGINT/SIGTERM handler of ``fluidgs sim``)
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import signal
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -165,3 +167,41 @@ def probe_file_summary(path: Path, history: list, solver) -> dict:
         "mean_particle_divergence": float(mean_d.mean()),
         "p95_particle_divergence": float(np.percentile(mean_d, 95)),
     }
+
+
+def probes_to_h5(
+    solid: np.ndarray,
+    config: SolverConfig,
+    probe: ProbeConfig,
+    steps: int,
+    folder: str | Path,
+    source: str = "",
+    on_probe: Callable[[str, dict], None] | None = None,
+) -> dict:
+    """Every probe of ``probe`` against the static ``solid`` [N, 3] (m), each stepped to ``folder/probe_<d>.h5`` by
+    :func:`probe_to_h5`, in the probe's order.
+
+    Args:
+        solid, config, probe, steps: as for :func:`probe_to_h5`. folder: the output folder (it must exist).
+        source: what the solid was sampled from (a mesh file), recorded as ``solid``.
+        on_probe: called with (direction, that probe's :func:`probe_file_summary`) as each probe ends.
+    Returns:
+        A JSON-able summary: ``solid`` (``source``), ``solid_particles``, ``particle_radius`` (m), ``steps``, ``dt``
+        (s) and ``probes``: per direction its :func:`probe_file_summary`.
+    """
+    folder = Path(folder)
+    summary = {
+        "solid": source,
+        "solid_particles": len(solid),
+        "particle_radius": config.particle_radius,
+        "steps": steps,
+        "dt": config.dt,
+        "probes": {},
+    }
+    for d in probe.directions:
+        s = summary["probes"][d] = probe_file_summary(
+            *probe_to_h5(solid, d, config, probe, steps, folder / f"probe_{d}.h5")
+        )
+        if on_probe is not None:
+            on_probe(d, s)
+    return summary

@@ -5,13 +5,17 @@ screen-space radii R_g. The radii and visibility come from the projection alone
 (:func:`nbv.scores.projected_view_scores`, equal to the renderer's bit for bit), so no candidate is rendered to score
 it; full renders are made only for the PNGs (the render beside a D_g heat-map of the same view: the Gaussians
 re-coloured by D_g on the TURBO map, rendered with the same camera). This is the library side of `fluidgs score`
-and of the demo; `fluidgs critical` and `bench views` use the checks.
+(:class:`ScoreSettings`, :func:`rank_views`, the views folder of :func:`write_views_folder` and the scores.json of
+:func:`scores_record`) and of the demo (:func:`score_views`); `fluidgs critical` and `bench views` use the checks.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import re
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -29,6 +33,27 @@ from recon.render import render
 from viz.annotate import label, to_bgr
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ScoreSettings:
+    """How the candidates are scored (recorded in scores.json).
+
+    Attributes:
+        metric: the per-Gaussian metric: D_g max or mean over the probes, or one probe's (:func:`metric_values`).
+        weighted: Eq. 5 weights w_g (False: the plain sum of D_g over the counted Gaussians).
+        occlusion: the coarse depth test (:class:`nbv.scores.DepthBuffer`); False: the paper's frustum culling.
+        device: torch device of the projection and the renders.
+    """
+
+    metric: str = "max"
+    weighted: bool = True
+    occlusion: bool = True
+    device: str = "cpu"
+
+    def record(self) -> dict:
+        """The settings as scores.json records them: ``metric``, ``weighted``, ``occlusion``."""
+        return {"metric": self.metric, "weighted": self.weighted, "occlusion": self.occlusion}
 
 
 def parse_candidates(text: str | None, count: int) -> list[int]:
@@ -167,6 +192,29 @@ def ranked_rows(scored, cams, idx: list[int], value: str = "score", visible_cent
 def rows_agreement(rows: list[dict], value: str = "score") -> dict:
     """:func:`nbv.coverage.ranking_agreement` of ranked rows (their ``value`` against their coverage)."""
     return ranking_agreement([r[value] for r in rows], [r["coverage"] for r in rows])
+
+
+def rank_views(gaussians, cams, idx: list[int], result, values, settings: ScoreSettings, visible_centres=None):
+    """Score the candidates from the projection alone and rank them, with how far coverage decides the ranking.
+
+    Args:
+        gaussians: the GaussianSet (scene units). cams: the candidate cameras; idx: their indices in the file.
+        result: the PhysicsResult ``values`` come from. values: [G] the settings' metric (:func:`metric_values`);
+            with replica runs in ``result``, each replica's own metric is ranked too.
+        settings: metric, weights, visibility test, device. visible_centres: [C] projected-centre counts for the rows.
+    Returns:
+        (the :class:`nbv.scores.ProjectedScores`, the rows best first (:func:`ranked_rows`), their agreement
+        (:func:`rows_agreement`; with replica runs also ``replicas``: each replica's ranking against the others,
+        :func:`replicas_view_agreement`)).
+    """
+    how = {"weighted": settings.weighted, "occlusion": settings.occlusion, "device": settings.device}
+    scored = project_scores(gaussians, cams, values, **how)
+    rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
+    agreement = rows_agreement(rows)
+    if result.replicas is not None:  # each replica's own ranking, against the others
+        per_replica = result.replicas.metric_values(settings.metric, result.directions)
+        agreement["replicas"] = replicas_view_agreement(result.replicas, per_replica, gaussians, cams, idx, **how)
+    return scored, rows, agreement
 
 
 def score_views(
@@ -313,6 +361,94 @@ def write_uncertainty_images(
         write_png_atomic(png_dir / f"{stem}.png", picture)
         written[row["index"]] = {"npy": f"{stem}.npy", "png": f"{stem}.png"}
     return written
+
+
+# the files of a views folder (:func:`write_view_pngs`, :func:`write_uncertainty_images`): rank001_004_name.png, and
+# with the uncertainty images rank001_004_name_uncertainty.png / .npy
+VIEW_FILE = re.compile(r"^rank\d{3,}_\d{3,}_.*(\.png|_uncertainty\.npy)$")
+
+
+def view_files(folder: Path) -> dict[Path, int]:
+    """{file: inode} of the files of the views folder's own naming pattern (:data:`VIEW_FILE`) in ``folder``."""
+    if not folder.is_dir():
+        return {}
+    return {p: p.stat().st_ino for p in folder.iterdir() if VIEW_FILE.match(p.name) and p.is_file()}
+
+
+def remove_stale(earlier: dict[Path, int]) -> list[Path]:
+    """Remove the view files an earlier run wrote that this run did not write again (the same inode: every writer
+    replaces its file atomically, so a rewritten file has a new one); nothing else in the folder is touched. Returns
+    the files removed."""
+    stale = [p for p, inode in earlier.items() if p.is_file() and os.stat(p).st_ino == inode]
+    for p in stale:
+        p.unlink()
+    return stale
+
+
+def write_views_folder(
+    gaussians,
+    cams,
+    scored,
+    rows: list[dict],
+    values,
+    settings: ScoreSettings,
+    png_dir: Path | None,
+    *,
+    top: int | None = None,
+    uncertainty: bool = False,
+) -> tuple[dict[int, dict], list[Path]]:
+    """The views folder of a ranking: the render | D_g heat-map PNGs (:func:`write_view_pngs`) of the best ``top``
+    views (None: every view), with ``uncertainty`` also their physics-uncertainty images
+    (:func:`write_uncertainty_images`); then the view files of an earlier run that this one did not write again are
+    removed (:func:`remove_stale`). ``png_dir`` None: no views folder, nothing written.
+
+    Returns:
+        (the uncertainty images, as :func:`write_uncertainty_images` returns them (empty without ``uncertainty``),
+        the stale files removed).
+    """
+    if png_dir is None:
+        return {}, []
+    earlier = view_files(png_dir)
+    order = rank(scored.scores).tolist()
+    shown = order if top is None else order[:top]
+    device = torch_device(settings.device)
+    write_view_pngs(gaussians, cams, shown, rows, values, settings.metric, png_dir, device, True)
+    images = {}
+    if uncertainty:
+        images = write_uncertainty_images(gaussians, cams, shown, rows, values, settings.metric, png_dir, device)
+    return images, remove_stale(earlier)
+
+
+def scores_record(
+    rows: list[dict],
+    agreement: dict,
+    result,
+    settings: ScoreSettings,
+    cameras: str | Path,
+    gaussians: str | Path,
+    images: dict[int, dict] | None = None,
+    png_dir: Path | None = None,
+) -> dict:
+    """scores.json of `fluidgs score` (docs/formats.md): the cameras and Gaussians files, the settings, D-bar and
+    D-bar_empty, the agreement, the views (``rows``, best first; a view with an uncertainty image of ``images``
+    gets its files under ``png_dir`` as ``uncertainty_image``) and the result's config."""
+    images = images or {}
+    views = [
+        {**r, "uncertainty_image": {k: str(png_dir / v) for k, v in images[r["index"]].items()}}
+        if r["index"] in images
+        else r
+        for r in rows
+    ]
+    return {
+        "cameras": str(cameras),
+        "gaussians": str(gaussians),
+        **settings.record(),
+        "dbar_m4_s": result.dbar,
+        "dbar_empty_m4_s": result.dbar_empty,
+        "agreement": agreement,
+        "views": views,
+        "config": result.config.to_dict(),
+    }
 
 
 REACHED_WARNING = 0.5  # warn when fewer than this share of the counted Gaussians got any D_g

@@ -8,21 +8,25 @@ paper Eq. 1 or by speed), the candidate cameras coloured by their view score S(T
 and the probes' leak counts. It reads files only (h5py, JSON, the Gaussian formats of :mod:`recon.formats`):
 no Taichi, never a simulation. Every file is written atomically through :mod:`fluidsim.files`.
 
-=================  ==========================================  ========================================
-module             what                                        main entry
-=================  ==========================================  ========================================
-:mod:`.data`       RESULT.h5 for the viewer, trajectories      :func:`load_view_data`, :func:`load_trajectory`
-:mod:`.splats`     own colours and opacities, match check      :func:`splat_looks`
-:mod:`.cameras`    candidate cameras in the sim frame, S(T)    :func:`candidate_views`
-:mod:`.colors`     TURBO map and colour bars (nbv.heatmap's)   :func:`turbo`, :func:`colorbar_image`
-:mod:`.viewer`     the viser server                            :func:`open_viewer`, :func:`serve`
-:mod:`.frames`     OUT.h5 as orthographic depth-sorted dots    :func:`render_frames`, :class:`FrameStyle`
-:mod:`.video`      H.264 MP4 (yuv420p, faststart), atomic      :func:`write_mp4`, :func:`video_info`
-:mod:`.plots`      sweep plot, bar charts (matplotlib, Agg)    :func:`plot_sweep`, :func:`bar_chart`
-=================  ==========================================  ========================================
+======================  ==========================================  ========================================
+module                  what                                        main entry
+======================  ==========================================  ========================================
+:mod:`.data`            RESULT.h5 for the viewer, trajectories      :func:`load_view_data`, :func:`load_trajectory`
+:mod:`.splats`          own colours and opacities, match check      :func:`splat_looks`
+:mod:`.cameras`         candidate cameras in the sim frame, S(T)    :func:`candidate_views`
+:mod:`.colors`          TURBO map and colour bars (nbv.heatmap's)   :func:`turbo`, :func:`colorbar_image`
+:mod:`.viewer`          the viser page: Gaussians, probe table      :func:`open_viewer`, :class:`FluidViewer`
+:mod:`.fluid_panel`     solid, leaks, the probe's fluid replayed    :class:`FluidPanel`
+:mod:`.camera_panel`    candidate cameras, top views, go to one     :class:`CameraPanel`
+:mod:`.serving`         options, address check, serve until Ctrl-C  :class:`ViewerOptions`, :func:`serve`
+:mod:`.frames`          OUT.h5 as orthographic depth-sorted dots    :func:`render_frames`, :class:`FrameStyle`
+:mod:`.video`           H.264 MP4 (yuv420p, faststart), atomic      :func:`write_mp4`, :func:`video_info`
+:mod:`.plots`           sweep plot, bar charts (matplotlib, Agg)    :func:`plot_sweep`, :func:`bar_chart`
+======================  ==========================================  ========================================
 """
 
 from .data import ViewData, load_trajectory, load_view_data
-from .viewer import FluidViewer, ViewerOptions, open_viewer, serve
+from .serving import ViewerOptions, serve
+from .viewer import FluidViewer, open_viewer
 
 __all__ = ["FluidViewer", "ViewData", "ViewerOptions", "load_trajectory", "load_view_data", "open_viewer", "serve"]

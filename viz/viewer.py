@@ -7,6 +7,10 @@ Everything is drawn in the simulation frame (metres, Y-up). viser sends a splat'
 6e-5 m^2 (sigma 8 mm) its values are subnormal, in steps of 6e-8 m^2, which still leaves a Gaussian of sigma 1 mm
 within a few per cent of its size (and under a pixel at the usual distances).
 
+:class:`FluidViewer` builds the page from its parts: the Gaussians and the probe table here, the solid, the leaks and
+the fluid replay in :mod:`viz.fluid_panel`, the cameras and the list of the top views in :mod:`viz.camera_panel`;
+:mod:`viz.serving` holds the options, the address check and the serve loop.
+
 Example:
     >>> viewer = open_viewer("out/demo/result.h5", scores="out/demo/scores.json")  # doctest: +SKIP
     >>> print(viewer.url)  # doctest: +SKIP
@@ -17,31 +21,27 @@ Example:
 from __future__ import annotations
 
 import contextlib
-import errno
 import io
-import ipaddress
 import logging
-import signal
-import socket
 import threading
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from fluidsim.files import check_input_file
 
+from .camera_panel import CameraPanel
 from .cameras import CandidateView, cameras_path_of, candidate_views, read_scores, view_png
-from .colors import color_scale, colorbar_image, score_colors, turbo
-from .data import Trajectory, ViewData, load_trajectory, load_view_data, no_trajectory_message
+from .colors import color_scale, colorbar_image, turbo
+from .data import Trajectory, ViewData, load_view_data
+from .fluid_panel import FluidPanel
+from .serving import ViewerOptions, check_address, import_viser, is_loopback
 from .splats import SplatLooks, splat_looks
-from .thumbnails import view_thumbnail
 
 log = logging.getLogger(__name__)
 
 OWN_COLORS = "own colours"
-FLUID_VALUES = {"D_i, 1/s": "divergence", "speed, m/s": "speed"}
-SOLID_RGB = (150, 150, 150)
 # the direction each probe's fluid flows (fluidsim.probes.flow_vector, restated: fluidsim loads Taichi)
 PROBE_FLOWS = {
     "-x": (-1.0, 0.0, 0.0),
@@ -50,114 +50,10 @@ PROBE_FLOWS = {
     "+z": (0.0, 0.0, 1.0),
     "-y": (0.0, -1.0, 0.0),
 }
-LEAK_RGB = (255, 0, 255)
 BACKGROUND = "white"
-# values sampled to pick a trajectory's colour scale (the 99th percentile over all its frames)
-SCALE_SAMPLES = 2_000_000
-TOP_VIEWS = 10  # views in the list of the side panel
-INSTALL_HINT = "`fluidgs view` needs viser: pip install -e .[view] (or pip install 'viser>=1.0')"
 
 
-def _two_digits(value: float) -> str:
-    """``value`` rounded to two significant digits, as ``fluidgs score`` prints it (360, 4.9)."""
-    return f"{float(f'{value:.2g}'):g}"
-
-
-@dataclass(frozen=True)
-class ViewerOptions:
-    """Where to serve and what to show first.
-
-    Attributes:
-        host: the address to bind (127.0.0.1: this machine only; 0.0.0.0: every interface).
-        port: the port (0: any free one); a port in use moves to the next free one, logged.
-        probe: the probe whose fluid is replayed (None: the first recorded one, else the first probe).
-        fps: replay frames per second.
-    """
-
-    host: str = "127.0.0.1"
-    port: int = 8080
-    probe: str | None = None
-    fps: float = 10.0
-
-    def __post_init__(self) -> None:
-        if isinstance(self.port, bool) or not isinstance(self.port, int) or not 0 <= self.port <= 65535:
-            raise ValueError(f"--port must be an integer in 0..65535 (0: any free port), got {self.port!r}")
-        if not isinstance(self.host, str) or not self.host.strip():
-            raise ValueError(f"--host must be an address such as 127.0.0.1, got {self.host!r}")
-        if not self.fps > 0:
-            raise ValueError(f"--fps must be > 0 frames per second, got {self.fps}")
-
-
-def import_viser():
-    """viser, or a ValueError saying how to install it."""
-    try:
-        import viser  # noqa: PLC0415 - the optional 'view' extra
-    except ImportError as exc:
-        raise ValueError(f"{INSTALL_HINT} ({exc})") from None
-    return viser
-
-
-PORT_TRIES = 64  # a port in use moves up to this many ports on
-
-
-def check_address(host: str, port: int) -> int:
-    """The port to serve on: ``port`` when it is free on ``host``, else the next free one of :data:`PORT_TRIES`
-    (logged), or 0 for 0 (any free port). Tried with a plain socket before the server starts, so that a bad address
-    or a full range is a clear error at once (viser would wait forever or print a traceback).
-
-    Raises:
-        ValueError: ``host`` does not resolve or is not an address of this machine; no port is free; a port below
-            1024 needs privileges.
-    """
-    try:
-        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
-    except (socket.gaierror, UnicodeError) as exc:
-        raise ValueError(
-            f"--host {host}: not a name or address this machine can resolve ({exc}); use 127.0.0.1, "
-            "0.0.0.0 or an address of this machine"
-        ) from None
-    family, _, _, _, addr = infos[0]
-    last = 65535 if port == 0 else min(port + PORT_TRIES - 1, 65535)
-    for candidate in range(port, last + 1):
-        with socket.socket(family, socket.SOCK_STREAM) as sock:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a server binds
-            try:
-                sock.bind((addr[0], candidate, *addr[2:]))
-            except OSError as exc:
-                if exc.errno == errno.EADDRINUSE:
-                    continue
-                if exc.errno == errno.EADDRNOTAVAIL:
-                    raise ValueError(
-                        f"--host {host} is not an address of this machine; use 127.0.0.1 (this machine "
-                        "only), 0.0.0.0 (every interface) or one of its own addresses"
-                    ) from None
-                if exc.errno == errno.EACCES:
-                    raise ValueError(
-                        f"--port {candidate} needs administrator privileges (ports below 1024); choose "
-                        "a port from 1024 up, or 0 for any free port"
-                    ) from None
-                raise ValueError(
-                    f"--host {host} --port {candidate}: cannot serve there ({exc.strerror}); choose "
-                    "another --host or --port"
-                ) from None
-        if candidate != port and port != 0:
-            log.warning("port %d is in use; serving on port %d instead", port, candidate)
-        return 0 if port == 0 else candidate
-    raise ValueError(
-        f"--port {port} is in use, and so is every port up to {last}; choose another --port (0: any free port)"
-    )
-
-
-def _is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-class FluidViewer:
+class FluidViewer(FluidPanel, CameraPanel):
     """A running viser server showing one RESULT.h5 (see the module docstring).
 
     Args:
@@ -333,305 +229,7 @@ class FluidViewer:
         with self.server.gui.add_folder("Probes: reach and the empty scene", expand_by_default=False):
             self._probe_table = self.server.gui.add_markdown(self.probe_markdown())
 
-    # ---- solid and leaks -------------------------------------------------------------------------
-    def _add_solid(self) -> None:
-        gui, d = self.server.gui, self.data
-        r = d.particle_radius
-        with gui.add_folder("Solid"):
-            show = gui.add_checkbox(
-                f"solid particles ({len(d.solid):,})",
-                False,
-                hint="the boundary particles the probes flowed against (sim metres)",
-            )
-        self._solid = self.server.scene.add_point_cloud(
-            "/solid",
-            points=d.solid.astype(np.float32),
-            colors=SOLID_RGB,
-            point_size=r,
-            point_shape="circle",
-            visible=False,
-        )
-        show.on_update(lambda _: setattr(self._solid, "visible", show.value))
-
-    def _leak_markdown(self) -> str:
-        if not self.data.leaks:
-            return "leaks: not recorded in this file (re-run `fluidgs simulate` to count them)"
-        rows = [
-            f"| {d} | {lk.final:,} | {lk.max:,}" + (f" (step {lk.max_step + 1})" if lk.max else "") + " |"
-            for d, lk in self.data.leaks.items()
-        ]
-        return "\n".join(["fluid inside the filled solid", "", "| probe | at the end | most |", "|---|---|---|", *rows])
-
-    # ---- fluid -----------------------------------------------------------------------------------
-    def _first_probe(self) -> str:
-        d = self.data
-        probe = self.options.probe or (d.recorded[0] if d.recorded else d.directions[0])
-        if probe not in d.directions:
-            raise ValueError(f"--probe {probe}: {d.path} has the probes {', '.join(d.directions)}")
-        return probe
-
-    def _add_fluid(self) -> None:
-        gui, d = self.server.gui, self.data
-        probe = self._first_probe()
-        with gui.add_folder("Fluid"):
-            self._probe = gui.add_dropdown("probe", list(d.directions), initial_value=probe)
-            self._fluid_note = gui.add_markdown("")
-            self._fluid_by = gui.add_dropdown("colour by", list(FLUID_VALUES), initial_value="D_i, 1/s")
-            self._play = gui.add_button("Play", hint="play / pause the replay")
-            self._slider = gui.add_slider("frame", 0, 1, 1, 0)
-            self._fluid_bar = gui.add_image(colorbar_image(1.0, "D_i, 1/s"), format="png")
-            self._show_leaks = gui.add_checkbox(
-                "leaked particles (end)", True, hint="fluid particles inside the filled solid at the probe's end"
-            )
-            gui.add_markdown(self._leak_markdown())
-        self._fluid = self.server.scene.add_point_cloud(
-            "/fluid",
-            points=np.zeros((1, 3), np.float32),
-            colors=(0, 0, 255),
-            point_size=0.8 * d.particle_radius,
-            point_shape="circle",
-            visible=False,
-        )
-        self._leaked = self.server.scene.add_point_cloud(
-            "/leaked",
-            points=np.zeros((1, 3), np.float32),
-            colors=LEAK_RGB,
-            point_size=1.5 * d.particle_radius,
-            point_shape="circle",
-            visible=False,
-        )
-        self._probe.on_update(lambda _: self.set_probe(self._probe.value))
-        self._fluid_by.on_update(lambda _: self.show_frame(self._frame))
-        self._slider.on_update(lambda _: self.show_frame(int(self._slider.value)))
-        self._play.on_click(lambda _: self.set_playing(not self._playing))
-        self._show_leaks.on_update(lambda _: self._update_leaks())
-        self.set_probe(probe)
-
-    def set_probe(self, probe: str) -> None:
-        """Replay ``probe``'s fluid (or say how to record it when it has no trajectory)."""
-        d = self.data
-        with self._lock:
-            if probe == self._shown_probe:  # the dropdown's own update, when set from here
-                return
-            self._shown_probe = probe
-            self.set_playing(False)
-            if probe in d.recorded:
-                self._trajectory = load_trajectory(d, probe)
-                t = self._trajectory
-                for key in FLUID_VALUES.values():
-                    values = getattr(t, key).reshape(-1)
-                    stride = max(1, values.size // SCALE_SAMPLES)
-                    self._fluid_vmax[key] = color_scale(values[::stride].astype(np.float32))
-                self._slider.max = max(t.num_frames - 1, 1)
-                self._slider.disabled = self._play.disabled = self._fluid_by.disabled = False
-            else:
-                self._trajectory = None
-                message = no_trajectory_message(d, probe)
-                log.warning("%s", message)
-                self._fluid_note.content = message.replace("re-run `", "re-run\n\n`", 1)
-                self._slider.disabled = self._play.disabled = self._fluid_by.disabled = True
-            self._fluid_bar.visible = self._trajectory is not None
-            self._fluid.visible = self._trajectory is not None
-            if self._probe.value != probe:
-                self._probe.value = probe
-            self._update_leaks()
-            self._frame, self._fluid_bar_of = -1, None
-            # mid-run: the fluid around the object (the last frame shows it pooled on the floor)
-            self.show_frame(0 if self._trajectory is None else self._trajectory.num_frames // 2)
-
-    def _update_leaks(self) -> None:
-        lk = self.data.leaks.get(self._probe.value)
-        has = lk is not None and len(lk.x_leaked) > 0
-        with self.server.atomic():
-            if has:
-                self._leaked.points = lk.x_leaked.astype(np.float32)
-                self._leaked.colors = np.tile(np.asarray(LEAK_RGB, np.uint8), (len(lk.x_leaked), 1))
-            self._leaked.visible = has and self._show_leaks.value
-
-    def fluid_colors(self, values: np.ndarray, key: str) -> np.ndarray:
-        """[K, 3] uint8 colours of D_i or speed values on the trajectory's fixed scale."""
-        return np.round(turbo(values, self._fluid_vmax[key]) * 255).astype(np.uint8)
-
-    def show_frame(self, index: int) -> None:
-        """Draw frame ``index`` of the replayed probe (no-op without a trajectory)."""
-        t = self._trajectory
-        if t is None:
-            return
-        index = int(np.clip(index, 0, t.num_frames - 1))
-        key = FLUID_VALUES[self._fluid_by.value]
-        with self._lock:
-            x, values = t.frame(index, key)
-            self._frame = index
-            with self.server.atomic():
-                if len(x):
-                    self._fluid.points = x
-                    self._fluid.colors = self.fluid_colors(values, key)
-                self._fluid.visible = len(x) > 0  # hidden when every particle has left the domain
-            if int(self._slider.value) != index:
-                self._slider.value = index
-            bar = (t.direction, key)
-            if self._fluid_bar_of != bar:  # the scale changes with the probe and the quantity only
-                self._fluid_bar.image = colorbar_image(
-                    self._fluid_vmax[key], f"probe {t.direction}: {self._fluid_by.value}"
-                )
-                self._fluid_bar_of = bar
-            self._fluid_note.content = (
-                f"probe {t.direction}: t = {t.steps[index] * t.dt:.3f} s (step "
-                f"{t.steps[index]} of {self.data.steps}), {len(x):,} particles"
-            )
-
-    def set_playing(self, playing: bool) -> None:
-        """Start or pause the replay."""
-        self._playing = bool(playing) and self._trajectory is not None
-        self._play.label = "Pause" if self._playing else "Play"
-
-    def _play_loop(self) -> None:
-        while not self._stop.wait(1.0 / self.options.fps):
-            if self._playing and self._trajectory is not None:
-                self.show_frame((self._frame + 1) % self._trajectory.num_frames)
-
-    # ---- cameras ---------------------------------------------------------------------------------
-    def _add_cameras(self) -> None:
-        if not self.views:
-            return
-        gui, scene = self.server.gui, self.server.scene
-        scored = [v for v in self.views if v.score is not None]
-        values = np.array([v.score for v in scored])
-        colors = score_colors(values) if scored else np.zeros((0, 3), np.uint8)
-        color_of = {v.index: tuple(int(c) for c in col) for v, col in zip(scored, colors, strict=True)}
-        size = 0.05 * self._extent
-        for v in self.views:
-            frustum = scene.add_camera_frustum(
-                f"/cameras/{v.index:03d}",
-                fov=v.fov_y,
-                aspect=v.aspect,
-                scale=size,
-                thickness=0.06 * size,
-                color=color_of.get(v.index, (60, 60, 60)),
-                wxyz=v.wxyz,
-                position=v.position,
-            )
-            frustum.on_click(lambda event, v=v: self.go_to(event.client, v))
-            self._frustums.append(frustum)
-            if v.rank is not None:
-                scene.add_label(f"/cameras/{v.index:03d}/rank", f"#{v.rank}", position=(0.0, 0.0, 0.0))
-        ranked = sorted(scored, key=lambda v: v.rank)
-        with gui.add_folder("Cameras"):
-            show = gui.add_checkbox(f"cameras ({len(self.views)})", True)
-            options = ["-", *(self._view_label(v) for v in (ranked or self.views))]
-            goto = gui.add_dropdown(
-                "go to view",
-                options,
-                initial_value="-",
-                hint="move the viewport to a candidate camera (or click its frustum)",
-            )
-            if ranked:
-                gui.add_image(
-                    colorbar_image(float(values.max()), "view score S(T) of the frustums", vmin=float(values.min())),
-                    format="png",
-                )
-            if any(v.uncertainty_png is not None for v in self.views):
-                self._uncertainty = gui.add_image(
-                    np.full((8, 8, 3), 255, np.uint8), format="png", label="composited D_g of the view", visible=False
-                )
-        by_label = {self._view_label(v): v for v in self.views}
-
-        def show_cameras(_) -> None:
-            for frustum in self._frustums:
-                frustum.visible = show.value
-
-        def go_to_chosen(event) -> None:
-            view = by_label.get(goto.value)
-            if view is not None and event.client is not None:
-                self.go_to(event.client, view)
-                goto.value = "-"  # so that choosing the same view again moves there again
-
-        show.on_update(show_cameras)
-        goto.on_update(go_to_chosen)
-
-    def ranked_views(self) -> list[CandidateView]:
-        """The scored views, best first, at most TOP_VIEWS."""
-        return sorted((v for v in self.views if v.rank is not None), key=lambda v: v.rank)[:TOP_VIEWS]
-
-    @staticmethod
-    def view_caption(v: CandidateView) -> str:
-        """``S = ...`` and, when scores.json has them, the coverage ``A`` and ``S/A`` (physics_mean), to two
-        significant digits as ``fluidgs score`` prints them."""
-        parts = [f"S = {_two_digits(v.score)}"]
-        if v.coverage is not None:
-            parts.append(f"A = {_two_digits(v.coverage)}")
-        if v.physics_mean is not None:
-            parts.append(f"S/A = {_two_digits(v.physics_mean)}")
-        return ", ".join(parts)
-
-    def _add_view_list(self) -> None:
-        """The side panel's list of the top views: per view a button (rank and name; a click moves the viewport
-        there), its numbers and a thumbnail."""
-        ranked = self.ranked_views()
-        self._view_buttons: list = []
-        self._view_images: list = []
-        if not ranked:
-            return
-        gui = self.server.gui
-        rgb, _ = self.splat_colors("D_g max")
-        with gui.add_folder(f"Top views ({len(ranked)} of {len(self.views)})"):
-            gui.add_markdown("ranked by S(T); a click moves the view there")
-            for v in ranked:
-                button = gui.add_button(f"#{v.rank} {v.name}", hint=f"camera {v.index}: {self.view_caption(v)}")
-                button.on_click(lambda event, v=v: self._clicked(event, v))
-                image = gui.add_image(
-                    view_thumbnail(v, self.data.means, rgb), label=self.view_caption(v), format="jpeg", jpeg_quality=85
-                )
-                self._view_buttons.append(button)
-                self._view_images.append(image)
-
-    def _clicked(self, event, view: CandidateView) -> None:
-        if event.client is not None:  # a click from a browser (not from the server's own code)
-            self.go_to(event.client, view)
-
-    @staticmethod
-    def _view_label(v: CandidateView) -> str:
-        """'#rank name (S = .., A = .., S/A = ..)': the score and its parts, to two significant digits."""
-        if v.rank is None:
-            return f"{v.index}: {v.name}"
-        parts = "".join(
-            f", {k} = {_two_digits(x)}" for k, x in (("A", v.coverage), ("S/A", v.physics_mean)) if x is not None
-        )
-        return f"#{v.rank} {v.name} (S = {_two_digits(v.score)}{parts})"
-
-    def go_to(self, client, view: CandidateView) -> None:
-        """Move ``client``'s viewport to ``view``: its centre, direction and vertical field of view."""
-        distance = max(float(np.linalg.norm(self._centre - view.position)), 1e-3)
-        with client.atomic():
-            client.camera.fov = view.fov_y
-            client.camera.wxyz = view.wxyz
-            client.camera.position = view.position
-            client.camera.look_at = view.position + view.forward * distance
-        log.info(
-            "view moved to camera %d %s%s",
-            view.index,
-            view.name,
-            "" if view.rank is None else f" (rank {view.rank}, S = {_two_digits(view.score)})",
-        )
-        self._show_uncertainty(view)
-
-    def _show_uncertainty(self, view: CandidateView) -> None:
-        """Show the view's physics-uncertainty picture (composited D_g, with its scale bar) in the Cameras panel."""
-        handle = self._uncertainty
-        if handle is None:
-            return
-        if view.uncertainty_png is None:
-            handle.visible = False
-            return
-        import cv2  # noqa: PLC0415 - only when a picture is shown
-
-        picture = cv2.imread(str(view.uncertainty_png), cv2.IMREAD_COLOR)
-        if picture is None:
-            handle.visible = False
-            return
-        handle.image = picture[:, :, ::-1].copy()
-        handle.visible = True
-
+    # ---- the first view --------------------------------------------------------------------------
     def _set_initial_camera(self) -> None:
         """A view from a little above, downstream of the replayed probe and to its side (the fluid comes towards the
         object from behind it), outside the candidate cameras (at most 5 object sizes away)."""
@@ -707,31 +305,10 @@ def open_viewer(
     views = candidate_views(cameras, data.scene_to_sim, score_data, str(data.path)) if cameras is not None else []
     if scores is not None:
         views = [replace(v, png=view_png(scores, v)) for v in views]
-    if not _is_loopback(options.host):
+    if not is_loopback(options.host):
         log.warning(
             "serving on %s: anyone who can reach this machine on port %d can open the viewer",
             options.host,
             options.port,
         )
     return FluidViewer(data, looks, views, options)
-
-
-def serve(viewer: FluidViewer, announce=log.info) -> int:
-    """Announce the URL (``announce(line)``; `fluidgs view` prints it), serve until Ctrl-C (or SIGTERM), stop
-    cleanly; returns 0."""
-
-    def on_term(signum, frame):
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, on_term) if threading.current_thread() is threading.main_thread() else None
-    try:  # the URL is announced inside: a Ctrl-C right after it (on a loaded machine) also stops cleanly
-        announce(f"fluidgs view: {viewer.url} (Ctrl-C stops)")
-        viewer.wait()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        viewer.close()
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-    log.info("viewer stopped")
-    return 0

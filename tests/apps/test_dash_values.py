@@ -1,5 +1,6 @@
 """One rule for values that start with '-': every option of every `fluidgs` parser that takes a value reads
-`--opt -x` exactly as `--opt=-x` (the set of options comes from the parsers themselves, apps.cli.value_options)."""
+`--opt -x` exactly as `--opt=-x` (the set of options comes from the parsers themselves,
+apps.options.argv.value_options)."""
 
 import argparse
 import contextlib
@@ -8,6 +9,7 @@ import io
 import pytest
 
 from apps import cli
+from apps.options.argv import value_options
 
 
 def _parsers(parser: argparse.ArgumentParser, path=()):
@@ -42,7 +44,7 @@ def test_every_value_option_of_every_parser_takes_a_dash_value_both_ways():
     root = cli.build_parser()
     checked = 0
     for path, parser in _parsers(root):
-        takes, every = cli.value_options(parser)
+        takes, every = value_options(parser)
         assert takes <= every
         parser = _relaxed(parser)
         for action in parser._actions:

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import torch
 
-from apps import cli
+from apps import cli, exit_codes
 from fluidsim import SolverConfig
 from fluidsim.output import (
     OutputError,
@@ -538,12 +538,12 @@ def test_sim_keeps_its_frames_when_interrupted(tmp_path, sig, code):
 
 # ---- 9. output errors get exit code 4 ---------------------------------------------------------------------------
 def test_output_errors_map_to_exit_4_and_bad_input_to_2(tmp_path, monkeypatch, caplog):
-    assert cli.is_output_error(OSError(errno.ENOSPC, "No space left on device"))
-    assert cli.is_output_error(OSError(errno.ENAMETOOLONG, "File name too long"))
-    assert cli.is_output_error(OSError(errno.EROFS, "Read-only file system"))
-    assert cli.is_output_error(OutputError("cannot write x"))
-    assert not cli.is_output_error(OSError(errno.ENOENT, "No such file"))
-    assert not cli.is_output_error(ValueError("bad option"))
+    assert exit_codes.is_output_error(OSError(errno.ENOSPC, "No space left on device"))
+    assert exit_codes.is_output_error(OSError(errno.ENAMETOOLONG, "File name too long"))
+    assert exit_codes.is_output_error(OSError(errno.EROFS, "Read-only file system"))
+    assert exit_codes.is_output_error(OutputError("cannot write x"))
+    assert not exit_codes.is_output_error(OSError(errno.ENOENT, "No such file"))
+    assert not exit_codes.is_output_error(ValueError("bad option"))
     (tmp_path / "scene.json").write_text(json.dumps(_scene()))
     real_replace = os.replace
 
@@ -561,6 +561,6 @@ def test_output_errors_map_to_exit_4_and_bad_input_to_2(tmp_path, monkeypatch, c
 
 def test_exit_code_table_is_documented_in_both_places():
     doc = (ROOT / "docs" / "exit-codes.md").read_text()
-    for code in (0, 1, cli.EXIT_BAD_INPUT, cli.EXIT_DIVERGED, cli.EXIT_OUTPUT, 130, 143):
+    for code in (0, 1, exit_codes.EXIT_BAD_INPUT, exit_codes.EXIT_DIVERGED, exit_codes.EXIT_OUTPUT, 130, 143):
         assert re.search(rf"^\| *{code} *\|", doc, re.M), code
-        assert re.search(rf"^{code} +\S", cli.__doc__, re.M), code
+        assert re.search(rf"^{code} +\S", exit_codes.__doc__, re.M), code

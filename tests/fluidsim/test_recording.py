@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fluidsim import ProbeConfig, SolverConfig
-from fluidsim.recording import Interrupted, probe_file_summary, probe_to_h5, simulate_to_h5
+from fluidsim.recording import Interrupted, probe_file_summary, probe_to_h5, probes_to_h5, simulate_to_h5
 from fluidsim.sources import sphere_particles
 
 STEPS = 12
@@ -49,6 +49,20 @@ def test_probe_summary_is_computed_from_the_run(probe_run):
     assert s["mean_particle_divergence"] == pytest.approx(float(mean_d.mean()))
     assert s["p95_particle_divergence"] == pytest.approx(float(np.percentile(mean_d, 95)))
     assert s["mean_density_iterations"] == pytest.approx(np.mean([h.density_iterations for h in history]))
+
+
+def test_every_probe_gets_its_file_and_its_summary(probe_run, tmp_path):
+    path, history, solver, cfg = probe_run
+    solid = sphere_particles([0, 0, 0], 0.3, cfg.spacing, fill=True)
+    probe = ProbeConfig(slab_thickness=0.2, margin=0.1, padding=0.2, directions=("-x",))
+    seen = []
+    summary = probes_to_h5(solid, cfg, probe, STEPS, tmp_path, "sphere", on_probe=lambda d, s: seen.append((d, s)))
+    assert summary["solid"] == "sphere" and summary["solid_particles"] == len(solid) and summary["steps"] == STEPS
+    assert (summary["particle_radius"], summary["dt"]) == (cfg.particle_radius, cfg.dt)
+    assert seen == list(summary["probes"].items()) and list(summary["probes"]) == ["-x"]
+    assert (tmp_path / "probe_-x.h5").is_file()
+    # the same run as the fixture's single probe: the same summary
+    assert summary["probes"]["-x"] == probe_file_summary(path, history, solver)
 
 
 class _Stop:

@@ -1,10 +1,11 @@
 """The library side of `fluidgs score` and `bench views`: nbv.view_scoring (metric choice, checks, camera width,
-ranked rows), nbv.bench.score_agreement (projection scores against full renders),
-nbv.bench.dense_sets.jittered_to_count and viz.annotate (the labelled PNG panels)."""
+ranked rows, the scores.json record, the stale files of a views folder), nbv.bench.score_agreement (projection
+scores against full renders), nbv.bench.dense_sets.jittered_to_count and viz.annotate (the labelled PNG panels)."""
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -15,12 +16,18 @@ from nbv import scores
 from nbv.bench.dense_sets import jittered_to_count
 from nbv.bench.score_agreement import compare_with_renders, load_divergence, spearman, stand_in_divergence
 from nbv.view_scoring import (
+    ScoreSettings,
     check_cameras_see,
     check_some_divergence,
     format_table,
     metric_values,
+    rank_views,
+    remove_stale,
     render_size,
     score_views,
+    scores_record,
+    view_files,
+    write_views_folder,
 )
 from recon.camera import Camera
 from recon.gaussians import GaussianSet
@@ -111,6 +118,48 @@ def test_score_rows_are_the_projected_scores_best_first():
     )
     paper = scores.projected_view_scores(torch.from_numpy(metric), g, cams)
     assert sorted(r["score"] for r in frustum) == pytest.approx(sorted(paper.scores.tolist()), rel=1e-12)
+
+
+def test_rank_views_ranks_as_score_views_and_records_its_settings():
+    g, cams = _scene()
+    metric = np.random.default_rng(4).uniform(0, 5, g.num)
+    result = SimpleNamespace(**vars(_result(np.stack([metric, metric / 2]))), replicas=None, dbar=1.5, dbar_empty=0.5)
+    result.config = SimpleNamespace(to_dict=lambda: {"steps": 3})
+    settings = ScoreSettings("-x", weighted=True, occlusion=False)
+    scored, rows, agreement = rank_views(g, cams, [7, 8, 9, 10], result, metric, settings, [1, 2, 3, 4])
+    expected = score_views(g, cams, [7, 8, 9, 10], result, "-x", None, occlusion=False, visible_centres=[1, 2, 3, 4])
+    assert rows == expected and scored.scores.shape == (4,) and "replicas" not in agreement
+    assert write_views_folder(g, cams, scored, rows, metric, settings, None) == ({}, [])  # no views folder
+    images = {rows[0]["index"]: {"npy": "a.npy", "png": "a.png"}}
+    record = scores_record(rows, agreement, result, settings, "c.json", "g.ply", images, Path("v"))
+    assert list(record) == [
+        "cameras",
+        "gaussians",
+        "metric",
+        "weighted",
+        "occlusion",
+        "dbar_m4_s",
+        "dbar_empty_m4_s",
+        "agreement",
+        "views",
+        "config",
+    ]
+    assert (record["metric"], record["weighted"], record["occlusion"]) == ("-x", True, False)
+    assert record["views"][0]["uncertainty_image"] == {"npy": str(Path("v") / "a.npy"), "png": str(Path("v") / "a.png")}
+    assert all("uncertainty_image" not in r for r in rows + record["views"][1:])  # the rows themselves are unchanged
+
+
+def test_stale_view_files_are_the_unrewritten_ones_of_the_naming_pattern(tmp_path):
+    for name in ("rank001_002_a.png", "rank002_000_b_uncertainty.npy", "notes.png", "rank1_2_c.png"):
+        (tmp_path / name).write_bytes(b"x")
+    earlier = view_files(tmp_path)
+    assert sorted(p.name for p in earlier) == ["rank001_002_a.png", "rank002_000_b_uncertainty.npy"]
+    fresh = tmp_path / "new.png"
+    fresh.write_bytes(b"y")
+    fresh.replace(tmp_path / "rank001_002_a.png")  # rewritten atomically: a new inode
+    assert [p.name for p in remove_stale(earlier)] == ["rank002_000_b_uncertainty.npy"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.png", "rank001_002_a.png", "rank1_2_c.png"]
+    assert view_files(tmp_path / "missing") == {}
 
 
 def test_projection_scores_agree_with_full_renders():

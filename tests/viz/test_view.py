@@ -316,7 +316,8 @@ def test_the_viewer_knows_the_probes_flows():
 @pytest.fixture()
 def viewer_of(scene):
     pytest.importorskip("viser")
-    from viz.viewer import ViewerOptions, open_viewer
+    from viz.serving import ViewerOptions
+    from viz.viewer import open_viewer
 
     opened = []
 
