@@ -12,7 +12,7 @@ matter. This module marks the Gaussians near such places, from the probe run's s
   spacing probe to fit.
 
 Everything else is "thick". In the oracle study (docs/results.md) the coverage of the thin-or-open Gaussians
-predicted a view's gain better than the coverage at seed 0 on six shapes, and not at seed 1 nor on two held-out
+predicted a view's gain better than the coverage at seed 0 on six shapes, and not at seeds 1-4 nor on two held-out
 shapes; D_g restricted to them did no better than the mask alone. :func:`thin_or_open_gaussians` needs the solid
 only, no probe. It is no planner's default.
 """

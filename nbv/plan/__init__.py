@@ -44,7 +44,7 @@ Every planner is built from a small frozen config dataclass with an explicit see
   - ``fisher+thin-area-occ``: the depth-tested coverage of the Gaussians where the solid is thin or open
     (``PlanningContext.solid_mask``, :func:`nbv.physics.thin.thin_or_open_gaussians`): the solid only, no fluid,
     no probe. ``fisher+thin-area``: the same with frustum visibility. In the oracle study (docs/results.md) this
-    coverage predicted the gain better than coverage on the six shapes at seed 0, but not at seed 1 nor on two
+    coverage predicted the gain better than coverage on the six shapes at seed 0, but not at seeds 1-4 nor on two
     held-out shapes made of thin parts: a candidate, not a finding.
 
 S(T) needs only the screen-space radii and visibility of the Gaussians in each candidate, which are the
