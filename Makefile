@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test bench lint clean
+.PHONY: venv demo test bench gpu-check lint clean
 
 venv: $(STAMP)
 
@@ -29,6 +29,17 @@ test: venv lint
 
 bench: venv
 	$(VENV)/bin/fluidgs bench sim
+
+# The CUDA checks (docs/testing.md), prepared for a lent GPU machine whose time is short: stop at once when Taichi
+# finds no CUDA device, then the Taichi tests (fluidsim, nbv) on CUDA, the engine and the probes at the paper setting timed on the device.
+# Each step is bounded (about 9 minutes in all); the figures land in out/gpu-check/.
+gpu-check: venv
+	$(PY) -c "import taichi as ti; ti.init(arch=ti.cuda, log_level=ti.ERROR); \
+	  a = ti.lang.impl.current_cfg().arch; assert a == ti.cuda, f'no CUDA device: Taichi started on {a}'"
+	mkdir -p out/gpu-check
+	-FLUIDGS_TEST_ARCH=cuda timeout 300 $(PY) -m pytest -q -p no:dash tests/fluidsim tests/nbv 2>&1 | tail -n 30
+	timeout 90 $(VENV)/bin/fluidgs bench sim --device cuda --no-peer --json out/gpu-check/sim.json
+	timeout 150 $(VENV)/bin/fluidgs bench score --device cuda --paper --json out/gpu-check/score.json
 
 lint: venv
 	$(VENV)/bin/ruff check fluidsim recon nbv apps viz tests
