@@ -31,7 +31,8 @@ bench: venv
 	$(VENV)/bin/fluidgs bench sim
 
 # The CUDA checks (docs/testing.md), prepared for a lent GPU machine whose time is short: stop at once when Taichi
-# finds no CUDA device, then the Taichi tests (fluidsim, nbv) on CUDA, the engine and the probes at the paper setting timed on the device.
+# finds no CUDA device, then the Taichi tests (fluidsim, nbv) on CUDA, and the engine and the probes at the paper
+# setting timed on the device.
 # Each step is bounded (about 9 minutes in all); the figures land in out/gpu-check/.
 gpu-check: venv
 	$(PY) -c "import taichi as ti; ti.init(arch=ti.cuda, log_level=ti.ERROR); \

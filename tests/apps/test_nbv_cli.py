@@ -290,6 +290,9 @@ def test_bench_score_prints_share(scene, capsys):
     assert "(target < 10 % at " in text  # a small set: the 10 % target, not the million-Gaussian one
     assert "view ranking at r = 0.08 m x 20 steps: NOT converged (needs >= 750 steps)" in text
     assert "one physics pick at this setting costs" in text
+    # one probe: the per-probe time is the whole probe time; the GPU target is stated only at the paper setting
+    total = float(text.split("quick total for 1 probes: ")[1].split(" s")[0])
+    assert f"per probe: {total:.1f} s\n" in text and "H200" not in text
 
 
 def test_bench_score_share_target_by_set_size():
