@@ -117,9 +117,9 @@ def code_digest() -> str:
     """SHA-256 of the source that makes the empty scene's fluid: the ``fluidsim`` package, the probe runner and this
     module (an engine change gives new keys)."""
     import fluidsim  # noqa: PLC0415 - its path only
-    from nbv.physics import run  # noqa: PLC0415 - run imports this module
 
-    return _source_digest(sorted(Path(fluidsim.__file__).parent.rglob("*.py")) + [Path(run.__file__), Path(__file__)])
+    runner = Path(__file__).with_name("run.py")  # by path: run imports this module
+    return _source_digest(sorted(Path(fluidsim.__file__).parent.rglob("*.py")) + [runner, Path(__file__)])
 
 
 @functools.cache

@@ -12,7 +12,9 @@ run's D_g is the lattice position, not the geometry.
   Halton point k (phi_b the radical inverse in base b): replica 0 is the unshifted run, replica 1 moves the lattice
   by (1/2, 1/3, 1/5) s, replica 2 by (1/4, 2/3, 2/5) s, ... A low-discrepancy sequence covers the cell evenly for
   any N, and the first N points are the same whatever N, so N replicas extend N - 1. The slabs move with the solid.
-- **Combination.** Intensive quantities are averaged over the replicas, extensive ones add up:
+- **Combination** (:func:`nbv.physics.result.combine_replicas`; the replicas run in
+  :func:`nbv.physics.run.simulate_replicas`). Intensive quantities are averaged over the replicas, extensive ones
+  add up:
 
   - D_g^(IC) of each probe and of the empty scene: the mean over the replicas (0 where a replica's fluid did not
     reach g, as in one run). D_g = max over the probes of those means (Eq. 3) and D_mean their mean, so every
@@ -40,18 +42,10 @@ import itertools
 import json
 import logging
 import math
-import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
-import torch
-
-from nbv import scores
-
-if TYPE_CHECKING:
-    from nbv.physics.result import PhysicsResult
 
 log = logging.getLogger(__name__)
 
@@ -211,132 +205,6 @@ def replica_agreement(replicas: ReplicaRuns, view_scores: np.ndarray, candidates
 
 
 # ---- the run ------------------------------------------------------------------------------------------------------
-def simulate_replicas(
-    frame,
-    progress: bool = True,
-    source: str = "",
-    record=None,
-    *,
-    exact_memory: bool = True,
-    started: float | None = None,
-) -> PhysicsResult:
-    """The probes of ``frame`` (:class:`nbv.physics.plan.RunFrame`) once per replica of ``frame.config.replicas``,
-    each against its own solid on the shifted lattice (:func:`replica_offsets`), combined (:func:`combine_replicas`).
-
-    Args:
-        frame: the run's frame. progress, source: as :func:`nbv.physics.simulate_gaussians`.
-        record: the probes to record (:class:`nbv.physics.trajectory.RecordConfig`), in replica 0 only.
-        exact_memory: check each replica's probes around its solid (as :func:`nbv.physics.simulate_solid`).
-        started: the run's start (``time.perf_counter()``).
-    Returns:
-        PhysicsResult, one row per Gaussian of ``frame.gaussians``, with ``replicas`` set (None for one replica).
-    Raises:
-        ValueError: as :func:`nbv.physics.simulate_gaussians`, before the replica's probes run.
-        ProbeDiverged: a probe of some replica diverged; its ``result`` holds that replica's completed probes, and
-            its probe names the replica.
-    """
-    from nbv.physics.result import ProbeDiverged  # noqa: PLC0415 - the result holds ReplicaRuns: a cycle at import
-    from nbv.physics.run import simulate_solid  # noqa: PLC0415 - run.simulate_gaussians hands its replicas here
-
-    started = time.perf_counter() if started is None else started
-    offsets = replica_offsets(frame.config.replicas)
-    results = []
-    for k, offset in enumerate(offsets):
-        t0 = time.perf_counter()
-        if len(offsets) > 1:
-            log.info(
-                "replica %d (of 0-%d): lattice shifted by (%.3f, %.3f, %.3f) spacings", k, len(offsets) - 1, *offset
-            )
-        solid = frame.solidify(tuple(offset))
-        try:
-            results.append(
-                simulate_solid(
-                    frame,
-                    solid,
-                    progress,
-                    source,
-                    record if k == 0 else None,
-                    exact_memory=exact_memory,
-                    solidify_s=time.perf_counter() - t0,
-                    started=t0,
-                )
-            )
-        except ProbeDiverged as exc:
-            if k == 0:
-                raise
-            label = f"{exc.probe} of replica {k} (lattice shifted by {np.round(offset, 3).tolist()} spacings)"
-            failure = {**(exc.result.failure or {}), "probe": label}
-            raise ProbeDiverged(label, exc.step, exc.reason, replace(exc.result, failure=failure)) from exc
-    return combine_replicas(results, offsets, started)
-
-
-def _dbar(covariances: np.ndarray, divergence: np.ndarray, kept: np.ndarray | None) -> float:
-    """D-bar of ``divergence`` [G] over the simulated Gaussians (the kept ones with a crop, as one run reports)."""
-    if kept is not None:
-        covariances, divergence = covariances[kept], divergence[kept]
-    return scores.geometry_divergence(
-        torch.from_numpy(np.asarray(covariances, np.float64)), torch.from_numpy(np.asarray(divergence, np.float64))
-    )
-
-
-def combine_replicas(
-    results: Sequence[PhysicsResult], offsets: np.ndarray, started: float | None = None
-) -> PhysicsResult:
-    """One PhysicsResult from the complete results of the replicas (module docstring: intensive quantities
-    averaged, extensive ones summed, the rest replica 0's). One result is returned unchanged.
-
-    Args:
-        results: N complete results of the same Gaussians and probes, replica 0 first.
-        offsets: [N, 3] their lattice offsets, spacings.
-        started: the run's start (``time.perf_counter()``), for ``timings["total"]``; None: the sum of theirs.
-    """
-    if len(results) != len(offsets) or not results:
-        raise ValueError(f"combine_replicas: {len(results)} results for {len(offsets)} offsets")
-    first = results[0]
-    if len(results) == 1:
-        return first
-    if any(r.directions != first.directions or r.num_gaussians != first.num_gaussians for r in results):
-        raise ValueError("combine_replicas: the replicas ran different probes or Gaussians")
-    per = np.stack([r.per_probe for r in results])  # [N, P, G]
-    per_probe = per.mean(0)
-    counts = np.sum([r.per_probe_counts for r in results], axis=0)
-    distinct = None if first.per_probe_distinct is None else np.stack([r.per_probe_distinct for r in results])
-    empty = None if first.empty_per_probe is None else np.mean([r.empty_per_probe for r in results], axis=0)
-    d_max, d_mean = per_probe.max(0), per_probe.mean(0)
-    covs, kept = first.covariances, first.kept
-    timings = {key: float(sum(r.timings.get(key, 0.0) for r in results)) for key in first.timings}
-    timings["total"] = time.perf_counter() - started if started is not None else timings.get("total", 0.0)
-    warnings = {
-        d: list(first.warnings.get(d, []))
-        + [f"replica {k}: {w}" for k, r in enumerate(results[1:], 1) for w in r.warnings.get(d, [])]
-        for d in first.directions
-    }
-    runs = ReplicaRuns(
-        offsets=np.asarray(offsets, np.float64).copy(),
-        per_probe=per,
-        per_probe_distinct=distinct,
-        reached=np.stack([r.per_probe_counts.sum(0) > 0 for r in results]),
-        solid_points=np.array([len(r.solid) for r in results], np.int64),
-        seconds=np.array([r.timings.get("total", 0.0) for r in results], np.float64),
-    )
-    return replace(
-        first,
-        per_probe=per_probe,
-        per_probe_counts=counts,
-        per_probe_distinct=None if distinct is None else distinct.sum(0),
-        divergence=d_max,
-        divergence_mean=d_mean,
-        dbar=_dbar(covs, d_max, kept),
-        dbar_mean=_dbar(covs, d_mean, kept),
-        empty_per_probe=empty,
-        dbar_empty=None if empty is None else _dbar(covs, empty.max(0), kept),
-        dbar_empty_mean=None if empty is None else _dbar(covs, empty.mean(0), kept),
-        timings=timings,
-        warnings=warnings,
-        replicas=runs,
-    )
-
-
 # ---- HDF5 ---------------------------------------------------------------------------------------------------------
 def write_replicas(f, runs: ReplicaRuns) -> None:
     """The group /replicas of RESULT.h5 (``f`` an open h5py file): offsets (N, 3) spacings, D (N, P, G) each

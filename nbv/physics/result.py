@@ -6,7 +6,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from dataclasses import dataclass, field
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +18,7 @@ import torch
 
 from fluidsim import SimulationDiverged
 from fluidsim.files import check_input_file
+from nbv import scores
 from nbv.io import atomic_h5
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.leaks import read_probe_leaks, write_probe_leaks
@@ -357,3 +360,71 @@ def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> 
             "away from the stored ones); pass the result of these Gaussians or drop --result to "
             "simulate again"
         )
+
+
+# ---- replicas ------------------------------------------------------------------------------------------------
+def _dbar(covariances: np.ndarray, divergence: np.ndarray, kept: np.ndarray | None) -> float:
+    """D-bar of ``divergence`` [G] over the simulated Gaussians (the kept ones with a crop, as one run reports)."""
+    if kept is not None:
+        covariances, divergence = covariances[kept], divergence[kept]
+    return scores.geometry_divergence(
+        torch.from_numpy(np.asarray(covariances, np.float64)), torch.from_numpy(np.asarray(divergence, np.float64))
+    )
+
+
+def combine_replicas(
+    results: Sequence[PhysicsResult], offsets: np.ndarray, started: float | None = None
+) -> PhysicsResult:
+    """One PhysicsResult from the complete results of the replicas (:mod:`nbv.physics.replicas`: intensive quantities
+    averaged, extensive ones summed, the rest replica 0's). One result is returned unchanged.
+
+    Args:
+        results: N complete results of the same Gaussians and probes, replica 0 first.
+        offsets: [N, 3] their lattice offsets, spacings.
+        started: the run's start (``time.perf_counter()``), for ``timings["total"]``; None: the sum of theirs.
+    """
+    if len(results) != len(offsets) or not results:
+        raise ValueError(f"combine_replicas: {len(results)} results for {len(offsets)} offsets")
+    first = results[0]
+    if len(results) == 1:
+        return first
+    if any(r.directions != first.directions or r.num_gaussians != first.num_gaussians for r in results):
+        raise ValueError("combine_replicas: the replicas ran different probes or Gaussians")
+    per = np.stack([r.per_probe for r in results])  # [N, P, G]
+    per_probe = per.mean(0)
+    counts = np.sum([r.per_probe_counts for r in results], axis=0)
+    distinct = None if first.per_probe_distinct is None else np.stack([r.per_probe_distinct for r in results])
+    empty = None if first.empty_per_probe is None else np.mean([r.empty_per_probe for r in results], axis=0)
+    d_max, d_mean = per_probe.max(0), per_probe.mean(0)
+    covs, kept = first.covariances, first.kept
+    timings = {key: float(sum(r.timings.get(key, 0.0) for r in results)) for key in first.timings}
+    timings["total"] = time.perf_counter() - started if started is not None else timings.get("total", 0.0)
+    warnings = {
+        d: list(first.warnings.get(d, []))
+        + [f"replica {k}: {w}" for k, r in enumerate(results[1:], 1) for w in r.warnings.get(d, [])]
+        for d in first.directions
+    }
+    runs = ReplicaRuns(
+        offsets=np.asarray(offsets, np.float64).copy(),
+        per_probe=per,
+        per_probe_distinct=distinct,
+        reached=np.stack([r.per_probe_counts.sum(0) > 0 for r in results]),
+        solid_points=np.array([len(r.solid) for r in results], np.int64),
+        seconds=np.array([r.timings.get("total", 0.0) for r in results], np.float64),
+    )
+    return replace(
+        first,
+        per_probe=per_probe,
+        per_probe_counts=counts,
+        per_probe_distinct=None if distinct is None else distinct.sum(0),
+        divergence=d_max,
+        divergence_mean=d_mean,
+        dbar=_dbar(covs, d_max, kept),
+        dbar_mean=_dbar(covs, d_mean, kept),
+        empty_per_probe=empty,
+        dbar_empty=None if empty is None else _dbar(covs, empty.max(0), kept),
+        dbar_empty_mean=None if empty is None else _dbar(covs, empty.mean(0), kept),
+        timings=timings,
+        warnings=warnings,
+        replicas=runs,
+    )

@@ -46,8 +46,8 @@ from nbv.physics.leaks import LeakCounter
 from nbv.physics.memory import check_memory, check_memory_bound
 from nbv.physics.plan import ProbePlan, RunFrame
 from nbv.physics.progress import RunProgress
-from nbv.physics.replicas import simulate_replicas
-from nbv.physics.result import PhysicsResult, ProbeDiverged, _t
+from nbv.physics.replicas import replica_offsets
+from nbv.physics.result import PhysicsResult, ProbeDiverged, _t, combine_replicas
 from nbv.physics.solidify import SolidLattice
 from nbv.physics.trajectory import RecordConfig, TrajectoryRecorder, check_record_size
 
@@ -317,6 +317,63 @@ def empty_scene_probes(
 _EMPTY_CACHE: dict = {}
 
 
+def simulate_replicas(
+    frame,
+    progress: bool = True,
+    source: str = "",
+    record=None,
+    *,
+    exact_memory: bool = True,
+    started: float | None = None,
+) -> PhysicsResult:
+    """The probes of ``frame`` (:class:`nbv.physics.plan.RunFrame`) once per replica of ``frame.config.replicas``,
+    each against its own solid on the shifted lattice (:func:`nbv.physics.replicas.replica_offsets`), combined
+    (:func:`nbv.physics.result.combine_replicas`).
+
+    Args:
+        frame: the run's frame. progress, source: as :func:`nbv.physics.simulate_gaussians`.
+        record: the probes to record (:class:`nbv.physics.trajectory.RecordConfig`), in replica 0 only.
+        exact_memory: check each replica's probes around its solid (as :func:`simulate_solid`).
+        started: the run's start (``time.perf_counter()``).
+    Returns:
+        PhysicsResult, one row per Gaussian of ``frame.gaussians``, with ``replicas`` set (None for one replica).
+    Raises:
+        ValueError: as :func:`nbv.physics.simulate_gaussians`, before the replica's probes run.
+        ProbeDiverged: a probe of some replica diverged; its ``result`` holds that replica's completed probes, and
+            its probe names the replica.
+    """
+    started = time.perf_counter() if started is None else started
+    offsets = replica_offsets(frame.config.replicas)
+    results = []
+    for k, offset in enumerate(offsets):
+        t0 = time.perf_counter()
+        if len(offsets) > 1:
+            log.info(
+                "replica %d (of 0-%d): lattice shifted by (%.3f, %.3f, %.3f) spacings", k, len(offsets) - 1, *offset
+            )
+        solid = frame.solidify(tuple(offset))
+        try:
+            results.append(
+                simulate_solid(
+                    frame,
+                    solid,
+                    progress,
+                    source,
+                    record if k == 0 else None,
+                    exact_memory=exact_memory,
+                    solidify_s=time.perf_counter() - t0,
+                    started=t0,
+                )
+            )
+        except ProbeDiverged as exc:
+            if k == 0:
+                raise
+            label = f"{exc.probe} of replica {k} (lattice shifted by {np.round(offset, 3).tolist()} spacings)"
+            failure = {**(exc.result.failure or {}), "probe": label}
+            raise ProbeDiverged(label, exc.step, exc.reason, replace(exc.result, failure=failure)) from exc
+    return combine_replicas(results, offsets, started)
+
+
 def simulate_gaussians(
     gaussians,
     config: PhysicsConfig,
@@ -341,7 +398,7 @@ def simulate_gaussians(
             ``PhysicsResult.trajectories`` (None: nothing recorded).
     Returns:
         PhysicsResult; with ``config.replicas`` > 1, the replicas combined
-        (:func:`nbv.physics.replicas.simulate_replicas`).
+        (:func:`simulate_replicas`).
     Raises:
         ValueError: bad Gaussians, an empty solid, a run too large for memory, a time step too large for the
             particle spacing (CFL), or a recording too large or of a probe not run, before any simulation.

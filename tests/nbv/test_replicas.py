@@ -15,12 +15,12 @@ from nbv.physics import PhysicsConfig, estimate_memory, load_result, save_result
 from nbv.physics.plan import ProbePlan, RunFrame
 from nbv.physics.replicas import (
     ReplicaRuns,
-    combine_replicas,
     pairwise_spearman,
     radical_inverse,
     replica_agreement,
     replica_offsets,
 )
+from nbv.physics.result import combine_replicas
 from nbv.physics.scene_frame import SceneTransform
 from nbv.physics.solidify import SolidifyConfig, gaussians_to_solid
 from recon.gaussians import GaussianSet
