@@ -75,6 +75,12 @@ def summarise(config: OracleConfig, states: list[dict]) -> dict[str, Any]:
             "regret": bootstrap_interval(reg, b),
             "states": sum(len(g) for g in rho),
             "per_state": [x for g in rho for x in g],
+            # per seed, over that seed's scenes: a seed's initial views make its own states, and the spread between
+            # seeds can be as large as a rule's effect
+            "per_seed": {
+                str(seed): bootstrap_interval([g for key, g in zip(keys, rho, strict=True) if key[1] == seed], b)
+                for seed in sorted({key[1] for key in keys})
+            },
         }
 
     def versus(label: str, control: str) -> dict[str, Any]:
@@ -220,6 +226,18 @@ def format_summary(summary: dict[str, Any]) -> str:
             f"| {label} | {_ci(row['spearman'])} | {_ci(row['spearman_ssim'])} | "
             f"{_ci(row['regret'], '.3f')} | {row['states']} |"
         )
+    seeds = next(iter(summary["rules"].values()))["per_seed"] if summary["rules"] else {}
+    if len(seeds) > 1:
+        lines += [
+            "",
+            "By seed (intervals over that seed's scenes):",
+            "",
+            "| rule | " + " | ".join(f"seed {seed}" for seed in seeds) + " |",
+            "| --- |" + " --- |" * len(seeds),
+        ]
+        for label in order:
+            per = summary["rules"][label]["per_seed"]
+            lines.append(f"| {label} | " + " | ".join(_ci(per[seed]) for seed in seeds) + " |")
     if summary["paired"]:
         lines += [
             "",

@@ -323,6 +323,15 @@ def test_summary_spearman_agrees_with_an_independent_computation(study):
         out["summary"]["rules"]["fisher"]["spearman"], nan_ok=True
     )
     assert "fluid-occ:coarse" in out["summary"]["paired"] and "| fisher |" in out["markdown"]
+    # per seed: the mean over that seed's states, and a table of it (two seeds here)
+    for seed in (0, 1):
+        rhos = [spearmanr(st["scores"]["fisher"], st["oracle"]["gain_psnr"])[0] for st in states if st["seed"] == seed]
+        rhos = [r for r in rhos if np.isfinite(r)]
+        got = out["summary"]["rules"]["fisher"]["per_seed"][str(seed)][0]
+        assert (got == pytest.approx(np.mean(rhos), abs=1e-9)) if rhos else math.isnan(got)
+    assert (
+        "By seed (intervals over that seed's scenes):" in out["markdown"] and "| seed 0 | seed 1 |" in out["markdown"]
+    )
     # the thin rule also against the coverage of its own mask
     own = out["summary"]["paired"]["thin-occ:coarse vs thin-area-occ:coarse"]
     diffs = [
