@@ -103,6 +103,8 @@ def pool_studies(folders: list[str | Path], bootstrap: int | None = None) -> Poo
     # the listed rules of the pooled config: the base names of the common labels (in the first study's order)
     order = [label.partition(":")[0] for label in states[0]["scores"]]
     rules = list(dict.fromkeys(name for name in order if any(lb.partition(":")[0] == name for lb in common)))
+    if not rules:
+        raise ValueError(f"the studies share no rule: {sorted(everywhere)}")
     over: dict[str, Any] = {k: v for k, v in first_cfg.items() if k not in ("scenes", "seeds", "states", "rules")}
     config = OracleConfig(
         **{
