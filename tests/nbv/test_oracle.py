@@ -418,6 +418,20 @@ def test_pooled_studies_summarise_the_rules_every_state_scored(study, thin_alone
         pool_studies([config.output, other])
     with pytest.raises(ValueError, match="not an oracle study folder"):
         pool_studies([config.output, tmp_path])
+    # a study that scored only a rule the other did not: nothing in common
+    import shutil
+
+    lone = tmp_path / "lone"
+    shutil.copytree(thin_alone.output, lone)
+    meta = json.loads((lone / "oracle-config.json").read_text())
+    meta["config"]["rules"] = ["variance"]
+    (lone / "oracle-config.json").write_text(json.dumps(meta))
+    for path in (lone / "states").rglob("state*.json"):
+        st = json.loads(path.read_text())
+        st["config"]["rules"], st["scores"] = ["variance"], {"variance": st["scores"]["fisher"]}
+        path.write_text(json.dumps(st))
+    with pytest.raises(ValueError, match="share no rule"):
+        pool_studies([lone, config.output])  # the states other than the one both hold
 
 
 def test_oracle_pool_cli_writes_the_pooled_summary_and_refuses_an_input_as_output(study, thin_alone, tmp_path, caplog):
