@@ -92,7 +92,6 @@ def run_command(args: argparse.Namespace) -> int:
 
 
 def run_pool(args: argparse.Namespace) -> int:
-    from fluidsim.files import check_not_input
     from nbv.io import json_safe, write_json_atomic, write_text_atomic
     from nbv.study.oracle_pool import pool_studies
     from nbv.study.oracle_summary import format_summary, summarise
@@ -107,7 +106,6 @@ def run_pool(args: argparse.Namespace) -> int:
                 "that study's own summary)"
             )
     check_output_folder(out, "--output")
-    check_not_input([("output file", out / name) for name in ("oracle.json", "oracle.md")], {})
     pool = pool_studies(args.folders, args.bootstrap)
     summary = summarise(pool.config, pool.states)
     summary["pool"] = {

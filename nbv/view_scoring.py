@@ -217,6 +217,13 @@ def rank_views(gaussians, cams, idx: list[int], result, values, settings: ScoreS
     return scored, rows, agreement
 
 
+def best_views(scored, top: int | None) -> list[int]:
+    """Positions of the best ``top`` candidates by S(T) (None: every candidate), best first: the views a views
+    folder shows."""
+    order = rank(scored.scores).tolist()
+    return order if top is None else order[:top]
+
+
 def score_views(
     gaussians,
     cams,
@@ -254,8 +261,7 @@ def score_views(
     scored = project_scores(gaussians, cams, values, weighted=weighted, occlusion=occlusion, device=device)
     rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
     if png_dir is not None:
-        order = rank(scored.scores).tolist()
-        shown = order if png_top is None else order[:png_top]
+        shown = best_views(scored, png_top)
         write_view_pngs(gaussians, cams, shown, rows, values, metric, png_dir, torch_device(device), progress)
     return rows
 
@@ -409,8 +415,7 @@ def write_views_folder(
     if png_dir is None:
         return {}, []
     earlier = view_files(png_dir)
-    order = rank(scored.scores).tolist()
-    shown = order if top is None else order[:top]
+    shown = best_views(scored, top)
     device = torch_device(settings.device)
     write_view_pngs(gaussians, cams, shown, rows, values, settings.metric, png_dir, device, True)
     images = {}
