@@ -17,7 +17,7 @@ name                           what
 :func:`write_bytes_atomic`     bytes, text and strict JSON (:func:`json_safe`) in one call
 :func:`atomic_folder`          a whole folder under a temporary name, swapped in at the end
 :func:`check_writable`         before any work: folders, name lengths, the temporary name tried in the folder
-:func:`check_not_input`        before any work: no output is an input (links included)
+:func:`check_not_input`        before any work: no output is an input or another output (links included)
 :func:`check_input_file`       before reading: an input is a regular file (a FIFO, /dev/zero, a link loop named)
 :class:`OutputError`           an output cannot be written (exit code 4 of `fluidgs`)
 :func:`remove_unfinished`      at a signal or an error: this process's temporary files and empty new folders go
@@ -48,7 +48,14 @@ from .atomic import (
     write_text_atomic,
     written_outputs,
 )
-from .checks import check_input_file, check_not_input, check_writable, input_problem, same_file
+from .checks import (
+    check_distinct_outputs,
+    check_input_file,
+    check_not_input,
+    check_writable,
+    input_problem,
+    same_file,
+)
 
 __all__ = [
     "TEMP_NAME",
@@ -57,6 +64,7 @@ __all__ = [
     "PendingFile",
     "atomic_folder",
     "atomic_output",
+    "check_distinct_outputs",
     "check_input_file",
     "check_not_input",
     "check_writable",

@@ -3,8 +3,8 @@
 :func:`check_writable` creates the missing folders, checks the name lengths and tries the very temporary name of
 the atomic writers (:func:`fluidsim.files.atomic.temp_path`), so a read-only, full or unwritable folder is found
 before a simulation, not after it (:class:`~fluidsim.files.atomic.OutputError`, exit code 4).
-Then :func:`check_not_input` refuses an output that would overwrite an input, also through a symbolic or a hard
-link (``ValueError``, exit code 2).
+Then :func:`check_not_input` refuses an output that would overwrite an input or another output, also through a
+symbolic or a hard link (``ValueError``, exit code 2).
 """
 
 from __future__ import annotations
@@ -149,8 +149,27 @@ def _pairs(paths: Labelled | None) -> list[tuple[str, Path]]:
     return [(k, Path(v)) for k, v in items if v is not None]
 
 
+def check_distinct_outputs(outputs: Labelled) -> None:
+    """Refuse, before any work, two outputs that are one file (the same path, a symbolic or a hard link): the one
+    written last would replace the other without a word (``-o r.h5 --export-solid r.h5``).
+
+    Raises:
+        ValueError: naming both options and paths, and the fix.
+    """
+    seen: list[tuple[str, Path]] = []
+    for label, out in _pairs(outputs):
+        for first_label, first in seen:
+            if same_file(out, first):
+                raise ValueError(
+                    f"{label} {out} is the same file as {first_label} {first}: one output would overwrite the "
+                    f"other; choose a different path for {label}"
+                )
+        seen.append((label, out))
+
+
 def check_not_input(outputs: Labelled, inputs: Labelled, replaced: Labelled | None = None) -> None:
-    """Refuse, before any work, an output that would overwrite an input.
+    """Refuse, before any work, an output that would overwrite an input or another output
+    (:func:`check_distinct_outputs`).
 
     Each argument is a mapping label -> path or (label, path) pairs (several paths may share a label); None
     paths are skipped.
@@ -161,9 +180,10 @@ def check_not_input(outputs: Labelled, inputs: Labelled, replaced: Labelled | No
         replaced: label -> an output folder the command replaces or empties as a whole (``--overwrite``): no
             input may lie inside it.
     Raises:
-        ValueError: naming both paths and the fix (the outputs resolve to an input: same real path, a
-            symbolic link or a hard link to it).
+        ValueError: naming both paths and the fix (an output resolves to an input or to another output: same
+            real path, a symbolic link or a hard link to it).
     """
+    check_distinct_outputs(outputs)
     ins = _pairs(inputs)
     for olabel, out in _pairs(outputs):
         for ilabel, inp in ins:

@@ -218,6 +218,42 @@ def test_check_not_input_sees_links_and_labels():
             check_not_input({}, {"IN": a}, replaced={"-o": d})
 
 
+@pytest.mark.parametrize(
+    "outputs",
+    [
+        ["-o", "r.h5", "--export-solid", "r.h5"],
+        ["-o", "r.h5", "--export-solid", "r_divergence.ply"],
+        ["-o", "v.voxels.h5", "--export-solid", "v.ply"],
+    ],
+)
+def test_simulate_refuses_outputs_that_are_each_other(data, tmp_path, caplog, outputs, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["simulate", str(data["ply"]), *outputs, *FAST]) == 2
+    assert "one output would overwrite the other" in caplog.text and "--export-solid" in caplog.text
+    assert list(tmp_path.iterdir()) == []  # refused before any work
+
+
+def test_score_refuses_a_saved_result_that_is_the_solid_export(data, tmp_path, caplog):
+    s = tmp_path / "s.h5"
+    args = ["score", str(data["ply"]), "--cameras", str(data["cameras"]), "-o", str(tmp_path / "s.json")]
+    assert cli.main([*args, "--save-result", str(s), "--export-solid", str(s), "--no-png", *FAST]) == 2
+    assert "--save-result" in caplog.text and not s.exists()
+
+
+def test_check_distinct_outputs_sees_links():
+    import tempfile
+
+    from fluidsim.files import check_distinct_outputs
+
+    with tempfile.TemporaryDirectory() as d:
+        a = Path(d) / "a.h5"
+        a.write_text("x")
+        (Path(d) / "link.h5").symlink_to(a)
+        check_distinct_outputs({"-o": a, "--ply": Path(d) / "b.ply", "--video": None})
+        with pytest.raises(ValueError, match=r"--ply .*link\.h5 is the same file as -o .*a\.h5"):
+            check_not_input({"-o": a, "--ply": Path(d) / "link.h5"}, {})
+
+
 # ---- 2. a time step too large, probes that reach nothing, an all-zero D_g --------------------------------------
 def test_speed_bound_is_the_free_fall_speed():
     """A particle launched horizontally at v0 from the top of a box of height H (the numpy twin: the ballistic
