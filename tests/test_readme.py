@@ -1,7 +1,8 @@
 """The README cannot rot: its Python example runs, and every package name it and the docs mention exists.
 
-- The ```python block of README.md runs in a fresh interpreter (its own Taichi runtime, as a user's script has),
-  in a scratch folder that sees the bundled ``assets/``, with the quick preset shortened to a few steps.
+- The ```python blocks of README.md run one after the other, as a user types them, in a fresh interpreter (its
+  own Taichi runtime, as a user's script has), in a scratch folder that sees the bundled ``assets/``, with the
+  quick preset shortened to a few steps.
 - Every ``recon.X`` / ``nbv.X`` / ``fluidsim.X`` that README.md names is a submodule or a public name (in the
   package's ``__all__``), and every dotted name under those packages in README.md and docs/*.md resolves.
 """
@@ -59,13 +60,15 @@ def resolve(name: str):
 
 def test_readme_has_one_python_example():
     blocks = python_blocks(README.read_text())
-    assert len(blocks) == 1, "README.md should hold exactly one ```python example (the one this test runs)"
+    assert len(blocks) == 2, "README.md should hold the ```python example and its follow-up (the two this test runs)"
     lines = [ln for ln in blocks[0].splitlines() if ln.strip()]
     assert 10 <= len(lines) <= 15, f"the README example has {len(lines)} lines; keep it to 10-15"
+    assert len([ln for ln in blocks[1].splitlines() if ln.strip()]) <= 6, "keep the README's follow-up short"
 
 
 def test_readme_example_runs(tmp_path):
-    code = python_blocks(README.read_text())[0]
+    # every name of code the README shows in its Python section runs: both blocks, in order, in one script
+    code = "".join(python_blocks(README.read_text()))
     (tmp_path / "assets").symlink_to(ROOT / "assets", target_is_directory=True)
     script = tmp_path / "example.py"
     script.write_text(PRELUDE + code)
@@ -81,6 +84,9 @@ def test_readme_example_runs(tmp_path):
     assert int(dbar.group(2)) == 17952 and int(dbar.group(3)) > 0
     best = re.search(r"best views: \[(.*)\]", out)
     assert best and len(best.group(1).split(",")) == 5, out
+    renders = re.search(r"S\(T\) from renders: \[(.*)\]", out)
+    assert renders and len(renders.group(1).split(",")) == 8, out
+    assert re.findall(r"D-bar = (\S+)", out)[1] == re.findall(r"D-bar = (\S+)", out)[0].rstrip(), out
     with h5py.File(tmp_path / "result.h5", "r") as f:
         assert f["gaussians/D"].shape == (17952,)
         assert f.attrs["status"] == "complete"

@@ -30,3 +30,14 @@ def test_the_packages_import_without_taichi_or_torch():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO).stdout
     assert out.strip().splitlines()[-1] == "[]"
+
+
+def test_an_export_is_not_shadowed_by_its_submodule():
+    # recon.render (the function) lives in recon/render.py; importing that submodule (nbv.heatmap does) must not
+    # replace the function by the module on the package
+    code = (
+        "import sys, recon, nbv.heatmap, recon.render; "
+        "print(callable(recon.render), recon.render.__module__, sys.modules['recon.render'].__name__)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO).stdout
+    assert out.strip().splitlines()[-1] == "True recon.render recon.render"
