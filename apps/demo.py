@@ -171,7 +171,9 @@ def run_command(args: argparse.Namespace) -> int:
         source_frame=getattr(args, "source_frame", ""),
     )
     save_result(out / "result.h5", result)
-    save_colored_gaussians(gaussians, result.divergence, out / "gaussians_divergence.ply", divergence_columns(result))
+    save_colored_gaussians(
+        gaussians, result.divergence, out / "gaussians_divergence.ply", divergence_columns(result), result.reached
+    )
     rows = score_views(
         gaussians,
         cams,

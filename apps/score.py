@@ -230,7 +230,16 @@ def run_command(args: argparse.Namespace) -> int:
         print(one_run_line())
     top = None if args.png_all else args.png_top
     images, stale = write_views_folder(
-        gaussians, cams, scored, rows, values, settings, png_dir, top=top, uncertainty=args.uncertainty_images
+        gaussians,
+        cams,
+        scored,
+        rows,
+        values,
+        settings,
+        png_dir,
+        top=top,
+        uncertainty=args.uncertainty_images,
+        reached=result.reached,
     )
     if stale:
         log.info("removed %d view images of an earlier run from %s", len(stale), stale[0].parent)

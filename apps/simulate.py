@@ -115,7 +115,7 @@ def run_command(args: argparse.Namespace) -> int:
     except ProbeDiverged as exc:
         return save_diverged(exc, output)
     save_result(output, result)
-    save_colored_gaussians(gaussians, result.divergence, ply, divergence_columns(result))
+    save_colored_gaussians(gaussians, result.divergence, ply, divergence_columns(result), result.reached)
     s = result_summary(result)
     print(
         f"{result.num_gaussians} Gaussians, {len(result.solid)} solid particles, scale {result.transform.scale:.4g} "

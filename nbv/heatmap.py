@@ -3,14 +3,16 @@ per-pixel images of them (the physics-uncertainty image of a view).
 
 The colour map and its scale have one owner, :mod:`viz.colors` (Taichi- and torch-free, for the viewer): a value v
 maps to a colour of OpenCV's TURBO map at v / v_max, with v_max a high percentile (99th by default) of the values,
-so that a few extreme Gaussians do not wash out the rest. The recoloured set
+so that a few extreme Gaussians do not wash out the rest. Gaussians no probe's fluid reached (``reached`` False:
+D_g = 0 unmeasured) are grey (:data:`viz.colors.UNREACHED_RGB`), apart from calm ones, and v_max is taken over the
+reached ones. The recoloured set
 keeps the geometry (means, rotations, scales, opacities) and has SH degree 0 with the DC coefficient
 set so that the 3DGS colour (SH_C0 * f_dc + 0.5) is the map's colour.
 
 The uncertainty image of a view (:func:`uncertainty_image`) composites the values themselves, not their colours:
 U(p) = sum_i D_i alpha_i T_i over the Gaussians covering pixel p, front to back (3DGS Eq. 3 with the colour
 replaced by D_g), as FisherRF renders its per-Gaussian uncertainty. Its picture (:func:`uncertainty_png`) marks
-with "+" where U lies above the colour range.
+with "+" where U lies above the colour range, and paints grey the pixels drawn mostly by unreached Gaussians.
 """
 
 from __future__ import annotations
@@ -23,32 +25,50 @@ from recon.gaussians import GaussianSet, rgb_to_sh0
 from recon.render import render
 from viz.colors import PERCENTILE, TURBO_BGR, color_scale, turbo
 
-__all__ = ["color_scale", "colored_gaussians", "colormap", "over_range_marks", "uncertainty_image", "uncertainty_png"]
+__all__ = [
+    "color_scale",
+    "colored_gaussians",
+    "colormap",
+    "over_range_marks",
+    "uncertainty_image",
+    "uncertainty_png",
+    "unreached_pixels",
+]
 
 
-def colormap(values: np.ndarray, vmax: float | None = None, percentile: float = PERCENTILE) -> np.ndarray:
+def colormap(
+    values: np.ndarray, vmax: float | None = None, percentile: float = PERCENTILE, reached: np.ndarray | None = None
+) -> np.ndarray:
     """RGB colours in [0, 1] of ``values`` [N] on the TURBO map (:func:`viz.colors.turbo`), 0 -> dark blue, >= vmax ->
     dark red.
 
     Args:
         values: [N] non-negative values (e.g. D_g in 1/s).
-        vmax: the value mapped to the top of the scale (None: the ``percentile`` of ``values``,
-            :func:`viz.colors.color_scale`).
+        vmax: the value mapped to the top of the scale (None: the ``percentile`` of ``values``, of the reached ones
+            when ``reached`` is given, :func:`viz.colors.color_scale`).
+        reached: [N] bool, the Gaussians some probe's fluid reached; the others are grey. None: all reached.
     Returns:
         [N, 3] float32 RGB.
     """
     v = np.nan_to_num(np.asarray(values, np.float64).reshape(-1), nan=0.0, posinf=0.0, neginf=0.0)
-    return turbo(v, color_scale(v, percentile) if vmax is None else float(vmax))
+    if vmax is None:
+        vmax = color_scale(v if reached is None else v[np.asarray(reached, bool).reshape(-1)], percentile)
+    return turbo(v, float(vmax), reached)
 
 
 def colored_gaussians(
-    gaussians: GaussianSet, values, vmax: float | None = None, percentile: float = PERCENTILE
+    gaussians: GaussianSet,
+    values,
+    vmax: float | None = None,
+    percentile: float = PERCENTILE,
+    reached: np.ndarray | None = None,
 ) -> GaussianSet:
-    """The same Gaussians with SH degree 0 and colours from :func:`colormap` of ``values`` [N]."""
+    """The same Gaussians with SH degree 0 and colours from :func:`colormap` of ``values`` [N] (``reached`` [N] bool:
+    the others grey)."""
     vals = values.detach().cpu().numpy() if isinstance(values, torch.Tensor) else np.asarray(values)
     if vals.reshape(-1).shape[0] != gaussians.num:
         raise ValueError(f"{vals.size} values for {gaussians.num} Gaussians; pass one value per Gaussian")
-    rgb = torch.from_numpy(colormap(vals, vmax, percentile)).to(gaussians.means)
+    rgb = torch.from_numpy(colormap(vals, vmax, percentile, reached)).to(gaussians.means)
     sh = rgb_to_sh0(rgb)[:, None, :].contiguous()
     g = gaussians.detach()
     return GaussianSet(g.means.clone(), g.quats.clone(), g.log_scales.clone(), g.opacity_logits.clone(), sh)
@@ -103,6 +123,15 @@ def uncertainty_image(gaussians: GaussianSet, camera, values, device: str = "cpu
     return image.astype(np.float32), out.alpha.detach().cpu().numpy().astype(np.float32)
 
 
+def unreached_pixels(gaussians: GaussianSet, camera, reached, device: str = "cpu", share: float = 0.5) -> np.ndarray:
+    """[H, W] bool: the pixels of ``camera`` where the Gaussians not ``reached`` ([N] bool) make up more than
+    ``share`` of what is drawn (their composited alpha over the pixel's alpha), so that the pixel's composited D_g
+    is mostly unmeasured."""
+    missing = ~np.asarray(reached, bool).reshape(-1)
+    part, alpha = uncertainty_image(gaussians, camera, missing.astype(np.float64), device)
+    return (part > share * alpha) & (alpha > 1.0 / 255.0)
+
+
 def over_range_marks(image_bgr: np.ndarray, above: np.ndarray, step: int = 8) -> np.ndarray:
     """``image_bgr`` [H, W, 3] uint8 with a white "+" on a grid of ``step`` pixels wherever ``above`` [H, W] (the
     values over the colour range) holds, so that clipped regions read as clipped; a copy."""
@@ -119,13 +148,19 @@ def over_range_marks(image_bgr: np.ndarray, above: np.ndarray, step: int = 8) ->
     return out
 
 
-def uncertainty_png(image: np.ndarray, vmax: float, label: str) -> np.ndarray:
+def uncertainty_png(image: np.ndarray, vmax: float, label: str, unreached: np.ndarray | None = None) -> np.ndarray:
     """The colour picture of an :func:`uncertainty_image`: TURBO from 0 to ``vmax`` with "+" marks where the value is
-    above ``vmax``, and a colour bar (its top tick ends with "+") at the right. BGR uint8 [H, W + bar, 3]."""
+    above ``vmax``, and a colour bar (its top tick ends with "+") at the right. BGR uint8 [H, W + bar, 3].
+
+    ``unreached`` [H, W] bool: the pixels drawn mostly by Gaussians no probe's fluid reached (their D_g is
+    unmeasured, not 0), painted :data:`viz.colors.UNREACHED_RGB` grey (:func:`unreached_pixels`)."""
     u = np.asarray(image, np.float64)
     if not vmax > 0:
         raise ValueError(f"vmax must be > 0, got {vmax}")
-    rgb = turbo(u.reshape(-1), vmax).reshape(*u.shape, 3)
+    if unreached is not None and np.shape(unreached) != u.shape:
+        raise ValueError(f"uncertainty_png: unreached {np.shape(unreached)} must match the image {u.shape}")
+    hit = None if unreached is None else ~np.asarray(unreached, bool).reshape(-1)
+    rgb = turbo(u.reshape(-1), vmax, hit).reshape(*u.shape, 3)
     bgr = np.ascontiguousarray(np.round(rgb[..., ::-1] * 255.0).astype(np.uint8))
     bgr = over_range_marks(bgr, u > vmax)
     bar = _side_colorbar(u.shape[0], 90, vmax, label, over=True)

@@ -72,19 +72,29 @@ def column_name(direction: str) -> str:
 
 def divergence_columns(result) -> dict[str, np.ndarray]:
     """Per-Gaussian D_g of a PhysicsResult as .ply vertex properties (1/s): ``D_max`` (the max over the probes, the
-    D_g of the paper), ``D_mean`` and one ``D_neg_x`` ... ``D_pos_z`` per probe, in run order."""
-    columns = {"D_max": result.divergence, "D_mean": result.divergence_mean}
+    D_g of the paper), ``D_mean``, ``reached`` (1: some probe's fluid reached the Gaussian; 0: its D_g = 0 is
+    unmeasured, not calm) and one ``D_neg_x`` ... ``D_pos_z`` per probe, in run order."""
+    columns = {
+        "D_max": result.divergence,
+        "D_mean": result.divergence_mean,
+        "reached": result.reached.astype(np.float32),
+    }
     for i, d in enumerate(result.directions):
         columns[column_name(d)] = result.per_probe[i]
     return columns
 
 
 def save_colored_gaussians(
-    gaussians, divergence: np.ndarray, path: str | Path, columns: dict[str, np.ndarray] | None = None
+    gaussians,
+    divergence: np.ndarray,
+    path: str | Path,
+    columns: dict[str, np.ndarray] | None = None,
+    reached: np.ndarray | None = None,
 ) -> Path:
-    """The Gaussians coloured by D_g [N] (TURBO map, 99th percentile at the top) as a 3DGS .ply, atomically, with
-    ``columns`` (:func:`divergence_columns`) as extra float vertex properties after the standard ones."""
-    return save_gaussians(colored_gaussians(gaussians, divergence), path, extra=columns)
+    """The Gaussians coloured by D_g [N] (TURBO map, 99th percentile of the reached ones at the top; ``reached`` [N]
+    bool: the others grey) as a 3DGS .ply, atomically, with ``columns`` (:func:`divergence_columns`) as extra float
+    vertex properties after the standard ones."""
+    return save_gaussians(colored_gaussians(gaussians, divergence, reached=reached), path, extra=columns)
 
 
 def probe_video(

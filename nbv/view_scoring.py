@@ -24,7 +24,14 @@ import torch
 from tqdm import tqdm
 
 from nbv.coverage import format_number, ranking_agreement, view_parts
-from nbv.heatmap import color_scale, colored_gaussians, over_range_marks, uncertainty_image, uncertainty_png
+from nbv.heatmap import (
+    color_scale,
+    colored_gaussians,
+    over_range_marks,
+    uncertainty_image,
+    uncertainty_png,
+    unreached_pixels,
+)
 from nbv.io import write_atomic, write_png_atomic
 from nbv.lists import parse_list
 from nbv.scores import DepthBuffer, geometry_divergence, projected_counts, projected_view_scores, rank
@@ -262,7 +269,9 @@ def score_views(
     rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
     if png_dir is not None:
         shown = best_views(scored, png_top)
-        write_view_pngs(gaussians, cams, shown, rows, values, metric, png_dir, torch_device(device), progress)
+        write_view_pngs(
+            gaussians, cams, shown, rows, values, metric, png_dir, torch_device(device), progress, result.reached
+        )
     return rows
 
 
@@ -303,14 +312,25 @@ def _bgr(image: torch.Tensor) -> np.ndarray:
 
 
 def write_view_pngs(
-    gaussians, cams, shown: list[int], rows: list[dict], values, metric: str, png_dir: Path, device: str, progress: bool
+    gaussians,
+    cams,
+    shown: list[int],
+    rows: list[dict],
+    values,
+    metric: str,
+    png_dir: Path,
+    device: str,
+    progress: bool,
+    reached: np.ndarray | None = None,
 ) -> None:
     """Render the views ``shown`` (positions in ``cams``, best first) and write render | D_g heat-map PNGs.
 
-    The heat-map colours each Gaussian up to the 99th percentile v_max of the values; where the Gaussians above it
-    make up most of a pixel (their composited share > 1/2), the panel is marked "+": its colour is clipped there."""
-    vmax = color_scale(values)
-    heat = colored_gaussians(gaussians, values, vmax=vmax)
+    The heat-map colours each Gaussian up to the 99th percentile v_max of the values (of the ``reached`` ones [N]
+    bool; the others are grey: no fluid measured them); where the Gaussians above it make up most of a pixel (their
+    composited share > 1/2), the panel is marked "+": its colour is clipped there."""
+    v = np.asarray(values, np.float64)
+    vmax = color_scale(v if reached is None else v[np.asarray(reached, bool)])
+    heat = colored_gaussians(gaussians, values, vmax=vmax, reached=reached)
     over = (np.asarray(values, np.float64) > vmax).astype(np.float64)
     png_dir.mkdir(parents=True, exist_ok=True)
     renders = render_candidates(gaussians, [cams[k] for k in shown], heat, device, progress)
@@ -331,7 +351,10 @@ def write_view_pngs(
                 (share > 0.5).astype(np.uint8), (heat_bgr.shape[1], heat_bgr.shape[0]), interpolation=cv2.INTER_NEAREST
             ).astype(bool)
             heat_bgr = over_range_marks(heat_bgr, mask)
-        right = label(heat_bgr, [f"D_g ({metric}), 0..{vmax:.3g}+ 1/s (+: above)"])
+        right = label(
+            heat_bgr,
+            [f"D_g ({metric}), 0..{vmax:.3g}+ 1/s", "+: above" + ("" if reached is None else ", grey: not reached")],
+        )
         path = png_dir / f"rank{row['rank']:03d}_{row['index']:03d}_{cams[k].name}.png"
         write_png_atomic(path, np.hstack([left, right]))
 
@@ -343,11 +366,20 @@ def uncertainty_scale(images: list[np.ndarray], percentile: float = 99.0) -> flo
 
 
 def write_uncertainty_images(
-    gaussians, cams, shown: list[int], rows: list[dict], values, metric: str, png_dir: Path, device: str
+    gaussians,
+    cams,
+    shown: list[int],
+    rows: list[dict],
+    values,
+    metric: str,
+    png_dir: Path,
+    device: str,
+    reached: np.ndarray | None = None,
 ) -> dict[int, dict]:
     """Per view ``shown`` (positions in ``cams``, best first): its physics-uncertainty image
     (:func:`nbv.heatmap.uncertainty_image` of the per-Gaussian metric), as float32 ``.npy`` (1/s per pixel) and a
-    colour PNG with its scale bar (one range for all views: the 99th percentile of their covered pixels; "+" above).
+    colour PNG with its scale bar (one range for all views: the 99th percentile of their covered pixels; "+" above;
+    grey where Gaussians not ``reached`` ([N] bool) draw most of the pixel, :func:`nbv.heatmap.unreached_pixels`).
 
     Returns:
         {view index in the cameras file: {"npy": file name, "png": file name}} (names relative to ``png_dir``).
@@ -360,9 +392,13 @@ def write_uncertainty_images(
         row = rows[r]
         stem = f"rank{row['rank']:03d}_{row['index']:03d}_{cams[k].name}_uncertainty"
         write_atomic(png_dir / f"{stem}.npy", lambda tmp, img=img: np.save(tmp, img), suffix=".npy")
+        grey = None if reached is None else unreached_pixels(gaussians, cams[k], reached, device)
         picture = label(
-            uncertainty_png(img, vmax, "1/s"),
-            [f"#{row['rank']} {cams[k].name}: composited D_g ({metric})", f"0..{vmax:.3g}+ 1/s"],
+            uncertainty_png(img, vmax, "1/s", grey),
+            [
+                f"#{row['rank']} {cams[k].name}: composited D_g ({metric})",
+                f"0..{vmax:.3g}+ 1/s" + ("" if grey is None else "; grey: not reached"),
+            ],
         )
         write_png_atomic(png_dir / f"{stem}.png", picture)
         written[row["index"]] = {"npy": f"{stem}.npy", "png": f"{stem}.png"}
@@ -402,11 +438,13 @@ def write_views_folder(
     *,
     top: int | None = None,
     uncertainty: bool = False,
+    reached: np.ndarray | None = None,
 ) -> tuple[dict[int, dict], list[Path]]:
     """The views folder of a ranking: the render | D_g heat-map PNGs (:func:`write_view_pngs`) of the best ``top``
     views (None: every view), with ``uncertainty`` also their physics-uncertainty images
     (:func:`write_uncertainty_images`); then the view files of an earlier run that this one did not write again are
-    removed (:func:`remove_stale`). ``png_dir`` None: no views folder, nothing written.
+    removed (:func:`remove_stale`). ``png_dir`` None: no views folder, nothing written. ``reached`` [N] bool: the
+    Gaussians some probe's fluid reached (the others are drawn grey).
 
     Returns:
         (the uncertainty images, as :func:`write_uncertainty_images` returns them (empty without ``uncertainty``),
@@ -417,10 +455,12 @@ def write_views_folder(
     earlier = view_files(png_dir)
     shown = best_views(scored, top)
     device = torch_device(settings.device)
-    write_view_pngs(gaussians, cams, shown, rows, values, settings.metric, png_dir, device, True)
+    write_view_pngs(gaussians, cams, shown, rows, values, settings.metric, png_dir, device, True, reached)
     images = {}
     if uncertainty:
-        images = write_uncertainty_images(gaussians, cams, shown, rows, values, settings.metric, png_dir, device)
+        images = write_uncertainty_images(
+            gaussians, cams, shown, rows, values, settings.metric, png_dir, device, reached
+        )
     return images, remove_stale(earlier)
 
 

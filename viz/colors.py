@@ -15,6 +15,9 @@ PERCENTILE = 99.0
 # OpenCV's TURBO map as a lookup table: row k is the BGR colour of k / 255 (uint8, shape (256, 3)).
 TURBO_BGR = cv2.applyColorMap(np.arange(256, dtype=np.uint8).reshape(-1, 1), cv2.COLORMAP_TURBO).reshape(256, 3)
 TURBO_BGR.setflags(write=False)
+# A Gaussian no probe's fluid reached has D_g = 0 for want of a measurement, not because the flow is calm there (dark
+# blue): it is drawn in this grey, which TURBO never takes.
+UNREACHED_RGB = (0.62, 0.62, 0.62)
 
 
 def color_scale(values: np.ndarray, percentile: float = PERCENTILE) -> float:
@@ -27,15 +30,20 @@ def color_scale(values: np.ndarray, percentile: float = PERCENTILE) -> float:
     return vmax if vmax > 0 else 1.0
 
 
-def turbo(values: np.ndarray, vmax: float) -> np.ndarray:
+def turbo(values: np.ndarray, vmax: float, reached: np.ndarray | None = None) -> np.ndarray:
     """[N, 3] float32 RGB in [0, 1] of ``values`` [N] on the TURBO map: 0 -> dark blue, >= vmax -> dark red
-    (NaN and infinities read 0)."""
+    (NaN and infinities read 0); with ``reached`` [N] bool, the values not reached are :data:`UNREACHED_RGB` grey."""
     if not vmax > 0:
         raise ValueError(f"vmax must be > 0, got {vmax}")
     v = np.nan_to_num(np.asarray(values, np.float64).reshape(-1), nan=0.0, posinf=0.0, neginf=0.0)
     idx = np.clip(np.round(v / vmax * 255.0), 0, 255).astype(np.intp)
-    bgr = TURBO_BGR[idx]
-    return (bgr[:, ::-1].astype(np.float32) / 255.0).copy()
+    rgb = (TURBO_BGR[idx][:, ::-1].astype(np.float32) / 255.0).copy()
+    if reached is not None:
+        hit = np.asarray(reached, bool).reshape(-1)
+        if hit.shape != v.shape:
+            raise ValueError(f"turbo: reached {hit.shape} must match the values {v.shape}")
+        rgb[~hit] = UNREACHED_RGB
+    return rgb
 
 
 def _tick(value: float) -> str:

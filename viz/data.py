@@ -108,6 +108,8 @@ class ViewData:
         reached: per direction, the Gaussians its fluid reached (a sample within n r_g), of num_gaussians.
         dbar_empty: D-bar of the empty scene (no solid), m^4/s; NaN when it was not run.
         empty_per_probe: per direction, [G] the empty scene's D_g^(IC), 1/s (only with the empty reference).
+        reached_gaussians: [G] bool, the Gaussians some probe's fluid reached (the others' D_g = 0 is unmeasured:
+            drawn grey); None in a file without per-probe counts.
     """
 
     path: Path
@@ -131,6 +133,7 @@ class ViewData:
     reached: dict[str, int] = field(default_factory=dict)
     dbar_empty: float = math.nan
     empty_per_probe: dict[str, np.ndarray] = field(default_factory=dict)
+    reached_gaussians: np.ndarray | None = None
 
     @property
     def num_gaussians(self) -> int:
@@ -211,6 +214,15 @@ def _leaks(group: h5py.Group) -> LeakSummary | None:
     )
 
 
+def _reached_gaussians(f: h5py.File, probes: dict[str, h5py.Group]) -> np.ndarray | None:
+    """[G] bool /gaussians/reached, else (files written before it) some probe's counts > 0; None without counts."""
+    if "gaussians/reached" in f:
+        return f["gaussians/reached"][()].astype(bool)
+    if probes and all("counts" in pg for pg in probes.values()):
+        return np.sum([pg["counts"][()] for pg in probes.values()], axis=0) > 0
+    return None
+
+
 def load_view_data(path: str | Path) -> ViewData:
     """Read RESULT.h5 for the viewer (trajectories stay on disk: :func:`load_trajectory`).
 
@@ -278,6 +290,7 @@ def load_view_data(path: str | Path) -> ViewData:
             reached={d: int((pg["counts"][()] > 0).sum()) for d, pg in probes.items() if "counts" in pg},
             dbar_empty=float(f.attrs.get("dbar_empty", math.nan)),
             empty_per_probe={d: pg["D_empty"][()] for d, pg in probes.items() if "D_empty" in pg},
+            reached_gaussians=_reached_gaussians(f, probes),
         )
 
 

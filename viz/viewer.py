@@ -141,7 +141,8 @@ class FluidViewer(FluidPanel, CameraPanel):
                 "colour",
                 self._color_modes(),
                 initial_value="D_g max",
-                hint="their own colours (SH DC) or D_g, max or mean over the probes or one probe's, on the TURBO map",
+                hint="their own colours (SH DC) or D_g, max or mean over the probes or one probe's, on the TURBO map; "
+                "grey: no probe's fluid reached the Gaussian (its D_g = 0 is unmeasured, not calm)",
             )
             self._colorbar = gui.add_image(colorbar_image(1.0, "D_g (max), 1/s"), format="png")
             self._show_splats = gui.add_checkbox("show Gaussians", True)
@@ -173,9 +174,11 @@ class FluidViewer(FluidPanel, CameraPanel):
         if not mode.startswith("D_g "):
             raise ValueError(f"unknown colour mode {mode!r}; one of {self._color_modes()}")
         values = self.data.metric(mode[4:])
-        shown = values if self.data.kept is None else values[self.data.kept]
-        vmax = color_scale(shown)
-        return turbo(values, vmax), vmax
+        counted = np.ones(len(values), bool) if self.data.kept is None else self.data.kept.copy()
+        if self.data.reached_gaussians is not None:
+            counted &= self.data.reached_gaussians
+        vmax = color_scale(values[counted])
+        return turbo(values, vmax, self.data.reached_gaussians), vmax
 
     def set_color_mode(self, mode: str) -> None:
         """Colour the splats by ``mode`` (an entry of the dropdown) and redraw the colour bar."""
@@ -190,7 +193,8 @@ class FluidViewer(FluidPanel, CameraPanel):
                 opacities=self.looks.opacity[keep].reshape(-1, 1),
             )
             if vmax is not None:
-                self._colorbar.image = colorbar_image(vmax, f"{mode}, 1/s")
+                grey = "" if d.reached_gaussians is None or d.reached_gaussians.all() else " (grey: not reached)"
+                self._colorbar.image = colorbar_image(vmax, f"{mode}, 1/s{grey}")
             self._colorbar.visible = vmax is not None
             if self._color_mode.value != mode:
                 self._color_mode.value = mode

@@ -103,6 +103,12 @@ class PhysicsResult:
     def num_gaussians(self) -> int:
         return int(self.divergence.shape[0])
 
+    @property
+    def reached(self) -> np.ndarray:
+        """[G] bool, the Gaussians some probe's fluid reached (a (particle, step) sample within n r_g). The others
+        have D_g = 0 because no fluid came near them, not because the flow is calm there: show them apart."""
+        return np.asarray(self.per_probe_counts).sum(0) > 0
+
     def distinct_counts(self) -> np.ndarray:
         """[G] |P_g| summed over the probes (each probe has its own fluid particles); needs track_distinct."""
         if self.per_probe_distinct is None:
@@ -145,6 +151,7 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         /gaussians/means        (G, 3) centres, sim metres
         /gaussians/covariances  (G, 3, 3) sim metres^2
         /gaussians/reach        (G,) n r_g, sim metres
+        /gaussians/reached      (G,) bool, some probe's fluid reached the Gaussian (D_g = 0 otherwise: unmeasured)
         /probes/<dir>/D         (G,) D_g^(IC), 1/s
         /probes/<dir>/counts    (G,) (particle, step) samples
         /probes/<dir>/distinct  (G,) |P_g| (only with track_distinct)
@@ -180,7 +187,7 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
     with atomic_h5(p) as f:
         g = f.create_group("gaussians")
         g["D"], g["D_mean"], g["means"] = result.divergence, result.divergence_mean, result.means
-        g["covariances"], g["reach"] = result.covariances, result.reach
+        g["covariances"], g["reach"], g["reached"] = result.covariances, result.reach, result.reached
         for i, d in enumerate(result.directions):
             pg = f.create_group(f"probes/{d}")
             pg["D"], pg["counts"] = result.per_probe[i], result.per_probe_counts[i]

@@ -12,8 +12,9 @@ import pytest
 import torch
 
 from apps import cli
-from recon.gaussians import GaussianSet
+from recon.gaussians import SH_C0, GaussianSet
 from recon.ply import read_ply_vertices, save_gaussians
+from viz.colors import UNREACHED_RGB
 
 from helpers.vtk_files import read_pvd, read_vtu
 
@@ -74,6 +75,17 @@ def test_simulate_exports_a_watertight_solid_and_the_d_columns(run):
     np.testing.assert_allclose(cols["D_max"], d_max.astype(np.float32))
     np.testing.assert_allclose(cols["D_neg_x"], per_probe["-x"].astype(np.float32))
     np.testing.assert_allclose(cols["D_pos_z"], per_probe["+z"].astype(np.float32))
+    # the reached column: some probe's fluid came within reach (else D_g = 0 is unmeasured), in the .ply and the .h5
+    with h5py.File(h5) as f:
+        reached = f["gaussians/reached"][()]
+        counts = f["probes/-x/counts"][()] + f["probes/+z/counts"][()]
+    np.testing.assert_array_equal(reached, counts > 0)
+    np.testing.assert_array_equal(cols["reached"], reached.astype(np.float32))
+    assert (d_max[~reached] == 0).all()
+    grey = (np.float32(UNREACHED_RGB) - 0.5) / SH_C0  # SH DC of the grey
+    dc = np.stack([cols[f"f_dc_{k}"] for k in range(3)], axis=1)
+    np.testing.assert_allclose(dc[~reached], np.tile(grey, ((~reached).sum(), 1)), atol=1e-5)
+    assert not np.isclose(dc[reached], grey, atol=1e-3).all(axis=1).any()
 
 
 def test_export_result_vtk_equals_the_trajectory(run, tmp_path):

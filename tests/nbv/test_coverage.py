@@ -17,9 +17,10 @@ from nbv.coverage import (
     ranking_agreement,
     view_parts,
 )
-from nbv.heatmap import over_range_marks, uncertainty_image, uncertainty_png
+from nbv.heatmap import over_range_marks, uncertainty_image, uncertainty_png, unreached_pixels
 from recon.camera import Camera
 from recon.gaussians import GaussianSet
+from viz.colors import UNREACHED_RGB
 
 
 def _scene(n: int = 300, seed: int = 0):
@@ -159,6 +160,28 @@ def test_uncertainty_png_marks_what_lies_above_the_range():
     assert (marked == 255).any()
     with pytest.raises(ValueError, match="differ"):
         over_range_marks(np.zeros((16, 16, 3), np.uint8), np.ones((8, 8), bool))
+
+
+def test_uncertainty_pictures_draw_the_unreached_grey():
+    # U is 0 under an unreached Gaussian as under a calm one; the picture tells them apart
+    cam = Camera.look_at((0, 0, -3.0), (0, 0, 0), (0, -1, 0), 64, 48, 0.9)
+    left, right = _blob(1.0, -0.6), _blob(1.0, 0.6)
+    both = GaussianSet(
+        *(
+            torch.cat([getattr(left, f), getattr(right, f)])
+            for f in ("means", "quats", "log_scales", "opacity_logits", "sh")
+        )
+    )
+    grey = unreached_pixels(both, cam, np.array([True, False]))  # the right one was never reached
+    u_r, v_r = (int(t) for t in cam.project(right.means)[0][0].floor())
+    u_l, v_l = (int(t) for t in cam.project(left.means)[0][0].floor())
+    assert grey[v_r, u_r] and not grey[v_l, u_l] and not grey[0, 0]  # the background is not grey
+    img, _ = uncertainty_image(both, cam, np.array([0.0, 0.0]))
+    png = uncertainty_png(img, 2.0, "1/s", grey)
+    np.testing.assert_array_equal(png[v_r, u_r], np.round(np.float32(UNREACHED_RGB)[::-1] * 255).astype(np.uint8))
+    assert (png[v_l, u_l] != png[v_r, u_r]).any()  # calm: dark blue
+    with pytest.raises(ValueError, match="unreached"):
+        uncertainty_png(img, 2.0, "1/s", grey[:4])
 
 
 @pytest.mark.parametrize(

@@ -37,7 +37,7 @@ from recon.formats import load_gaussians
 from recon.gaussians import GaussianSet, sh0_to_rgb
 from recon.ply import save_gaussians
 from viz.cameras import candidate_views, read_scores, rotation_to_wxyz, view_png
-from viz.colors import color_scale, colorbar_image, turbo
+from viz.colors import UNREACHED_RGB, color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data
 from viz.splats import splat_looks
 from viz.thumbnails import project_to_view, view_thumbnail
@@ -297,6 +297,16 @@ def test_colours_are_those_of_nbv_heatmap():
     v[:3] = [np.nan, np.inf, 0.0]
     assert color_scale(v) == nbv_scale(v) and color_scale(np.zeros(5)) == 1.0
     np.testing.assert_array_equal(turbo(v, 4.0), colormap(v, 4.0))
+    # Gaussians no fluid reached are grey, apart from the calm (dark blue) ones, and the scale is of the reached
+    reached = np.arange(1000) % 3 > 0
+    v[~reached] = 0.0
+    rgb = colormap(v, reached=reached)
+    np.testing.assert_array_equal(rgb[~reached], np.tile(np.float32(UNREACHED_RGB), ((~reached).sum(), 1)))
+    w = np.nan_to_num(v, nan=0.0, posinf=0.0)  # NaN and inf read 0
+    np.testing.assert_array_equal(rgb[reached], turbo(w, color_scale(w[reached]))[reached])
+    assert not np.isclose(turbo(np.zeros(1), 1.0), UNREACHED_RGB).all()
+    with pytest.raises(ValueError, match="reached"):
+        turbo(v, 4.0, reached[:10])
     bar = colorbar_image(4.0, "D_g (max), 1/s")
     row = bar[bar.shape[0] // 6]
     left, right = row[12].astype(int), row[-12].astype(int)
@@ -354,14 +364,18 @@ def test_viewer_colours_frames_and_cameras(scene, viewer_of):
     assert v.url.startswith("http://127.0.0.1:")
     d = v.data
     rgb, vmax = v.splat_colors("D_g max")
-    assert vmax == color_scale(d.divergence)
+    reached = d.reached_gaussians
+    assert reached is not None and reached.shape == d.divergence.shape
+    assert vmax == color_scale(d.divergence[reached])  # the scale is of the measured D_g
+    np.testing.assert_array_equal(rgb[~reached], np.tile(np.float32(UNREACHED_RGB), ((~reached).sum(), 1)))
     np.testing.assert_array_equal(v._splats.rgbs, np.round(rgb * 255).astype(np.uint8))
     v.set_color_mode("own colours")
     np.testing.assert_allclose(v._splats.rgbs, v.looks.rgb * 255, atol=1.0)  # viser truncates to uint8
     assert not v._colorbar.visible
     v.set_color_mode("D_g +z")
     np.testing.assert_array_equal(
-        v._splats.rgbs, np.round(turbo(d.per_probe["+z"], color_scale(d.per_probe["+z"])) * 255).astype(np.uint8)
+        v._splats.rgbs,
+        np.round(turbo(d.per_probe["+z"], color_scale(d.per_probe["+z"][reached]), reached) * 255).astype(np.uint8),
     )
     assert v._colorbar.visible
     # the replay: frame 3 is drawn, then play advances it
