@@ -42,6 +42,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fluidsim.files import check_input_file
+
 from .gaussians import SH_C0, GaussianSet
 from .inflate import check_budget
 from .ply import gaussians_from_arrays
@@ -53,6 +55,7 @@ GSPLAT_RANK = re.compile(r"^(?P<stem>.*_)rank(?P<rank>\d+)$")
 GSPLAT_KEYS = ("means", "quats", "scales", "opacities")
 NERFSTUDIO_KEYS = ("means", "quats", "scales", "opacities", "features_dc")
 CHECKPOINT_SUFFIXES = (".pt", ".pth", ".ckpt")
+MAX_JSON_BYTES = 1 << 20  # a dataparser_transforms.json is a few hundred bytes
 NO_GAUSSIANS_FIX = (
     "pass the checkpoint that holds the trained Gaussians (gsplat: results/<run>/ckpts/ckpt_<step>_"
     "rank0.pt; nerfstudio: outputs/<run>/splatfacto/<time>/nerfstudio_models/step-<step>.ckpt), or "
@@ -128,7 +131,9 @@ def _gsplat_ranks(path: Path) -> list[Path]:
     for f in path.parent.glob(f"{match['stem']}rank*{path.suffix}"):
         m = GSPLAT_RANK.match(f.stem)
         if m is not None and m["stem"] == match["stem"]:
-            ranks[int(m["rank"])] = f
+            ranks[int(m["rank"])] = check_input_file(
+                f, "the gsplat rank", f"every {match['stem']}rank*{path.suffix} beside {path.name} is read; move it"
+            )
     return [ranks[r] for r in sorted(ranks)]
 
 
@@ -137,6 +142,13 @@ def _array(value, name: str, source: str) -> np.ndarray:
         raise ValueError(f"{source}: {name} is not a tensor ({type(value).__name__}); {NO_GAUSSIANS_FIX}")
     if not (value.dtype.is_floating_point):
         raise ValueError(f"{source}: {name} has dtype {value.dtype}, expected floating point")
+    stored = value.untyped_storage().nbytes()
+    if value.numel() * value.element_size() > stored:  # a zero-stride (expand) view: tiny on disk, huge when copied
+        raise ValueError(
+            f"{source}: {name} declares {tuple(value.shape)} = {value.numel()} values but stores only "
+            f"{stored} bytes (a zero-stride or overlapping view, as torch's expand makes): not a trained model; "
+            f"{NO_GAUSSIANS_FIX}"
+        )
     return value.detach().to("cpu", torch.float32).numpy()
 
 
@@ -217,6 +229,9 @@ def find_dataparser_transforms(checkpoint: Path) -> Path | None:
 
 def nerfstudio_normalization(path: Path) -> np.ndarray:
     """The 4x4 similarity data -> nerfstudio frame of a ``dataparser_transforms.json``: ``s [R | t]``."""
+    check_input_file(path, "--dataparser-transforms", "pass the dataparser_transforms.json beside config.yml")
+    if Path(path).stat().st_size > MAX_JSON_BYTES:
+        raise ValueError(f"{path}: {Path(path).stat().st_size} bytes, not a dataparser_transforms.json; pass that file")
     try:
         doc = json.loads(Path(path).read_text())
         transform = np.asarray(doc["transform"], np.float64)

@@ -27,6 +27,7 @@ import zlib
 
 BUDGET_ENV = "FLUIDGS_MAX_DECODE_GB"
 BUDGET_FRACTION = 0.5  # of the memory available now: the decoded arrays are converted once more afterwards
+BUDGET_CEILING_GB = 16.0  # without FLUIDGS_MAX_DECODE_GB, never more than this (about 60M Gaussians of SH degree 3)
 CHUNK_BYTES = 1 << 24
 
 
@@ -62,14 +63,15 @@ def _virtual_size_bytes() -> int:
 
 def memory_budget_bytes() -> int:
     """The most bytes one Gaussian file may decode to: ``FLUIDGS_MAX_DECODE_GB`` GiB when set, else half of the
-    memory available now."""
+    memory available now and at most ``BUDGET_CEILING_GB`` GiB (a fixed ceiling, so a machine with much free memory
+    does not let a small hostile file take it)."""
     text = os.environ.get(BUDGET_ENV)
     if text:
         try:
             return int(float(text) * 2**30)
         except ValueError:
             raise ValueError(f"{BUDGET_ENV}={text!r} is not a number of GiB") from None
-    return int(available_memory_bytes() * BUDGET_FRACTION)
+    return int(min(available_memory_bytes() * BUDGET_FRACTION, BUDGET_CEILING_GB * 2**30))
 
 
 def check_budget(source: str, what: str, declared: int) -> None:
@@ -78,7 +80,8 @@ def check_budget(source: str, what: str, declared: int) -> None:
     if declared > budget:
         raise ValueError(
             f"{source}: {what} would decode to {declared / 2**30:.2f} GiB, more than the memory budget "
-            f"of {budget / 2**30:.2f} GiB (half the memory available now; {BUDGET_ENV} sets it): a "
+            f"of {budget / 2**30:.2f} GiB (half the memory available now, at most {BUDGET_CEILING_GB:g} GiB; "
+            f"{BUDGET_ENV} sets it): a "
             f"corrupt or hostile file, or a capture too large for this machine"
         )
 

@@ -512,7 +512,7 @@ def load_npz(path: str | Path) -> GaussianSet:
     arrays = _read_npz_arrays(Path(path), source)
     if all(k in arrays for k in NPZ_KEYS):
         tensors = {k: arrays[k] for k in NPZ_KEYS}
-    elif all(k in arrays for k in GSPLAT_KEYS):
+    else:  # _read_npz_arrays returns one of the two key sets, or refuses the file
         sh0, shn = arrays["sh0"], arrays["shN"]
         if sh0.ndim != 3 or shn.ndim != 3:
             raise ValueError(
@@ -525,12 +525,6 @@ def load_npz(path: str | Path) -> GaussianSet:
             "opacity_logits": arrays["opacities"],
             "sh": np.concatenate([sh0, shn], 1),
         }
-    else:
-        missing = [k for k in NPZ_KEYS if k not in arrays]
-        raise ValueError(
-            f"{source}: the .npz lacks the Gaussian arrays {missing} (it has {sorted(arrays)}); "
-            f"save it with save_gaussians or use the keys {list(NPZ_KEYS)}"
-        )
     for key, value in tensors.items():
         if not np.issubdtype(value.dtype, np.number) or np.issubdtype(value.dtype, np.complexfloating):
             raise ValueError(f"{source}: array {key!r} has non-numeric dtype {value.dtype}")
@@ -541,7 +535,8 @@ NPZ_MAX_DEFLATE_RATIO = 1100  # deflate cannot expand data more than ~1032:1; a 
 
 
 def _read_npz_arrays(path: Path, source: str) -> dict[str, np.ndarray]:
-    """All members of an .npz as arrays, checking each .npy header against the member size before reading."""
+    """The Gaussian arrays of an .npz (the ``NPZ_KEYS`` or the ``GSPLAT_KEYS`` members, nothing else), checking the
+    member names before any member is inflated and each .npy header against the member size before reading."""
     fix = "save it again with save_gaussians (or numpy.savez)"
     try:
         archive = zipfile.ZipFile(path)
@@ -555,8 +550,7 @@ def _read_npz_arrays(path: Path, source: str) -> dict[str, np.ndarray]:
                 f"{source}: not a readable .npz archive (its directory lists more data than the file "
                 f"holds: truncated or corrupt); {fix}"
             )
-        check_budget(source, f"the {len(infos)} arrays of the .npz", sum(i.file_size for i in infos))
-        for info in infos:
+        for info in infos:  # the directory alone: nothing is inflated before the keys are known
             if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
                 raise ValueError(
                     f"{source}: not a readable .npz archive (member {info.filename!r} uses zip "
@@ -572,6 +566,17 @@ def _read_npz_arrays(path: Path, source: str) -> dict[str, np.ndarray]:
                     f"{source}: not a readable .npz archive (member {info.filename!r} claims "
                     f"{info.file_size} bytes from {info.compress_size}: corrupt); {fix}"
                 )
+        members = {i.filename[:-4]: i for i in infos if i.filename.endswith(".npy")}
+        keys = next((keys for keys in (NPZ_KEYS, GSPLAT_KEYS) if all(k in members for k in keys)), None)
+        if keys is None:  # decided from the names alone: nothing has been inflated yet
+            missing = [k for k in NPZ_KEYS if k not in members]
+            raise ValueError(
+                f"{source}: the .npz lacks the Gaussian arrays {missing} (it has {sorted(members)[:12]}); "
+                f"save it with save_gaussians or use the keys {list(NPZ_KEYS)}"
+            )
+        infos = [members[k] for k in keys]
+        check_budget(source, f"the {len(infos)} arrays of the .npz", sum(i.file_size for i in infos))
+        for info in infos:
             arrays[info.filename[:-4]] = _read_npy_member(archive, info, source, fix)
     return arrays
 
@@ -596,17 +601,17 @@ def _read_npy_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: st
                     f"the header declares {shape} {dtype} ({declared} bytes) but only {available} "
                     f"bytes follow: truncated or corrupt"
                 )
-            parts, got = [], 0
-            while got < declared:  # bounded chunks: a member never yields more than its header declared
-                part = fp.read(min(CHUNK_BYTES, declared - got))
-                if not part:
+            data, got = bytearray(declared), 0  # one buffer, filled in bounded chunks: peak = the array itself
+            view = memoryview(data)
+            while got < declared:  # a member never yields more than its header declared
+                n = fp.readinto(view[got : got + min(CHUNK_BYTES, declared - got)])
+                if not n:
                     break
-                parts.append(part)
-                got += len(part)
-            data = b"".join(parts)
+                got += n
+            view.release()
     except (zipfile.BadZipFile, OSError, EOFError, ValueError, zlib.error) as exc:
         raise ValueError(f"{source}: not a readable .npz archive (array {name!r}: {exc}); {fix}") from None
-    if len(data) != declared:
+    if got != declared:
         raise ValueError(f"{source}: not a readable .npz archive (array {name!r} is truncated); {fix}")
     return np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
 

@@ -25,8 +25,10 @@ the band count follows from the centroid image's width (192, 512 or 960 pixels).
 Version 3 is refused with a message (its definition was not public when this reader was written).
 
 **Frame.** SOG stores the 3DGS .ply frame (the specification and splat-transform both say so); nothing is turned.
-**Bounds.** Image sizes are read from the image headers and checked against ``count`` and the memory budget
-(:mod:`recon.inflate`) before any image is decoded; zip members are inflated in bounded chunks.
+**Bounds.** Image sizes are read from the image headers and checked against ``count`` (at least ``count``, at most
+:func:`max_image_pixels`) and the memory budget (:mod:`recon.inflate`) before any image is decoded; an image file
+larger than its pixels can need (:func:`image_byte_limit`) is refused before it is inflated, and zip members are
+inflated in bounded chunks.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ SUPPORTED_VERSIONS = (1, 2)
 SH_COEFFS = {1: 3, 2: 8, 3: 15}  # bands -> coefficients per channel beyond DC
 V1_BANDS_BY_WIDTH = {64 * c: b for b, c in SH_COEFFS.items()}
 MAX_META_BYTES = 1 << 22
+CENTROID_MAX_PIXELS = 64 * SH_COEFFS[3] * (65536 // 64 + 4)  # 65536 palette entries of 3 bands, rows padded
 DECODED_BYTES_PER_GAUSSIAN = 4 * (3 + 4 + 3 + 1 + 16 * 3) + 7 * 4  # float32 set + the RGBA pixels in flight
 FIX = "re-export it with splat-transform or SuperSplat"
 
@@ -178,17 +181,37 @@ def _files(meta: dict, key: str, count: int, source: str) -> list[str]:
     return names[:count]
 
 
-def _image(files, name: str, source: str, need: int, what: str) -> tuple[np.ndarray, int]:
+def max_image_pixels(count: int) -> int:
+    """The most pixels a per-Gaussian image of ``count`` Gaussians may have: splat-transform lays them out in
+    ``ceil(sqrt(count) / 4) * 4`` columns and rows rounded up to 4, so twice the count plus a margin is generous."""
+    return 2 * count + 4096
+
+
+def image_byte_limit(pixels: int) -> int:
+    """The most bytes the file of an image of ``pixels`` pixels may hold: lossless WebP never needs much more than
+    the raw RGBA, so a larger member (a zip bomb, a padded file) is refused before it is inflated."""
+    return 8 * pixels + (1 << 20)
+
+
+def _image(
+    files, name: str, source: str, need: int, what: str, max_pixels: int | None = None
+) -> tuple[np.ndarray, int]:
     """[H * W, 4] uint8 RGBA pixels of one image, after checking its declared size (header only) against ``need``
-    Gaussians and the memory budget."""
+    Gaussians, ``max_pixels`` (default :func:`max_image_pixels` of ``need``) and the memory budget."""
     from PIL import Image  # noqa: PLC0415 - only SOG needs Pillow
 
-    data = files.read(name, source, memory_budget_bytes())
+    max_pixels = max_image_pixels(need) if max_pixels is None else max_pixels
+    data = files.read(name, source, min(image_byte_limit(max_pixels), memory_budget_bytes()))
     try:
         image = Image.open(io.BytesIO(data))
         width, height = image.size
     except Exception as exc:  # noqa: BLE001 - Pillow raises many types for a bad image
         raise ValueError(f"{source}: the SOG image {name!r} cannot be read ({exc}); {FIX}") from None
+    if width * height > max_pixels:
+        raise ValueError(
+            f"{source}: the SOG {what} image {name!r} is {width} x {height} = {width * height} pixels, more than "
+            f"the {max_pixels} that {need} Gaussians need (a corrupt or hostile file, refused before decoding); {FIX}"
+        )
     if width * height < need:
         raise ValueError(
             f"{source}: the SOG {what} image {name!r} is {width} x {height} = {width * height} pixels, "
@@ -296,7 +319,7 @@ def _sh_rest(files, meta: dict, version: int, n: int, source: str) -> np.ndarray
     labels = labels_px[:n, 0].astype(np.int64) + 256 * labels_px[:n, 1].astype(np.int64)
     from PIL import Image  # noqa: PLC0415
 
-    data = files.read(centroid_name, source, memory_budget_bytes())
+    data = files.read(centroid_name, source, image_byte_limit(CENTROID_MAX_PIXELS))
     try:
         width, height = Image.open(io.BytesIO(data)).size
     except Exception as exc:  # noqa: BLE001
@@ -317,7 +340,7 @@ def _sh_rest(files, meta: dict, version: int, n: int, source: str) -> np.ndarray
             )
         palette = 64 * height
     coeffs = SH_COEFFS[bands]
-    if width != 64 * coeffs or 64 * height < palette:
+    if width != 64 * coeffs or 64 * height < palette or height > math.ceil(palette / 64) + 4:
         raise ValueError(
             f"{source}: the SOG SH centroid image {centroid_name!r} is {width} x {height} pixels; "
             f"{palette} palette entries of {bands} band(s) need {64 * coeffs} x {math.ceil(palette / 64)}"
@@ -329,7 +352,7 @@ def _sh_rest(files, meta: dict, version: int, n: int, source: str) -> np.ndarray
             f"{source}: {len(rows)} SOG SH labels point past the {palette}-entry palette (first "
             f"Gaussians {rows[:5].tolist()}); {FIX}"
         )
-    centroids, _ = _image(files, centroid_name, source, 0, "shN_centroids")
+    centroids, _ = _image(files, centroid_name, source, 0, "shN_centroids", width * height)
     pixel = (labels // 64)[:, None] * width + (labels % 64)[:, None] * coeffs + np.arange(coeffs)[None, :]
     codes = centroids[pixel][..., :3]  # [N, C, 3]
     if version == 2:

@@ -7,6 +7,7 @@ same Gaussians.
 """
 
 import gzip
+import io
 import math
 import os
 import struct
@@ -468,6 +469,7 @@ def test_huge_declared_sizes_fail_fast_without_allocating(tmp_path):
         header = b"\x93NUMPY\x01\x00" + struct.pack("<H", 118)
         meta = f"{{'descr': '<f4', 'fortran_order': False, 'shape': ({n}, 3), }}".encode()
         zf.writestr("means.npy", header + meta.ljust(118 - 1) + b"\n" + b"\0" * 1024)
+        _other_keys(zf)
     start = time.perf_counter()
     for path in (std, compressed, spz4, spz3, npz):
         with pytest.raises(ValueError) as info:
@@ -476,17 +478,30 @@ def test_huge_declared_sizes_fail_fast_without_allocating(tmp_path):
     assert time.perf_counter() - start < 5.0
 
 
+OTHER_NPZ_KEYS = ("quats", "log_scales", "opacity_logits", "sh")
+
+
+def _other_keys(zf: zipfile.ZipFile) -> None:
+    """Small valid members for every Gaussian key but ``means``."""
+    for key in OTHER_NPZ_KEYS:
+        buffer = io.BytesIO()
+        np.save(buffer, np.zeros(1, np.float32))
+        zf.writestr(f"{key}.npy", buffer.getvalue())
+
+
 def test_garbage_npz_is_never_called_pickled(tmp_path):
     garbage = tmp_path / "garbage.npz"
     garbage.write_bytes(os.urandom(2000))
     objects = tmp_path / "objects.npz"
-    np.savez(objects, means=np.array([{"a": 1}, None], dtype=object))
+    others = {k: np.zeros(1, np.float32) for k in OTHER_NPZ_KEYS}  # the keys are checked before any member is read
+    np.savez(objects, means=np.array([{"a": 1}, None], dtype=object), **others)
     not_npy = tmp_path / "text.npz"
     with zipfile.ZipFile(not_npy, "w") as zf:
         zf.writestr("means.txt", "1 2 3")
     bad_member = tmp_path / "badmember.npz"
     with zipfile.ZipFile(bad_member, "w") as zf:
         zf.writestr("means.npy", os.urandom(300))
+        _other_keys(zf)
     for path, fragment in [
         (garbage, ".npz"),
         (objects, "Python objects"),

@@ -431,11 +431,14 @@ def test_npz_bomb_is_refused_before_inflating(tmp_path, monkeypatch):
             zero = bytes(1 << 20)
             for _ in range(12 * n // len(zero)):
                 fp.write(zero)
+        for key in ("quats", "log_scales", "opacity_logits", "sh"):  # the keys are checked first
+            zf.writestr(f"{key}.npy", buffer.getvalue())
     assert path.stat().st_size < 200_000
     _raises(path, "memory budget")
     lzma = tmp_path / "lzma.npz"
     with zipfile.ZipFile(lzma, "w", zipfile.ZIP_LZMA) as zf:
-        zf.writestr("means.npy", buffer.getvalue())
+        for key in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+            zf.writestr(f"{key}.npy", buffer.getvalue())
     _raises(lzma, "compression method")
 
 
@@ -452,6 +455,83 @@ def test_spz_bomb_is_refused_before_inflating(tmp_path, monkeypatch):
 def test_sog_count_bomb_is_refused(tmp_path, monkeypatch):
     monkeypatch.setenv("FLUIDGS_MAX_DECODE_GB", "0.05")
     _raises(_sog_one(tmp_path, _sog_pixels(), _sog_meta(count=10**9), "huge.sog"), "memory budget")
+
+
+def test_the_decode_budget_has_a_fixed_ceiling(monkeypatch):
+    from recon import inflate
+
+    monkeypatch.delenv("FLUIDGS_MAX_DECODE_GB", raising=False)
+    monkeypatch.setattr(inflate, "available_memory_bytes", lambda: 2**40)  # a machine with 1 TiB free
+    assert inflate.memory_budget_bytes() == inflate.BUDGET_CEILING_GB * 2**30
+    monkeypatch.setenv("FLUIDGS_MAX_DECODE_GB", "64")  # an explicit budget may go beyond it
+    assert inflate.memory_budget_bytes() == 64 * 2**30
+
+
+def test_sog_images_larger_than_the_count_are_refused_before_decoding(tmp_path):
+    from PIL import Image
+
+    buffer = io.BytesIO()  # 4096 x 4096 pixels for one Gaussian: a few KB of WebP, 64 MiB decoded
+    Image.new("RGBA", (4096, 4096), (0, 0, 0, 255)).save(buffer, "WEBP", lossless=True)
+    path = tmp_path / "wide.sog"
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("l.webp", buffer.getvalue())
+        zf.writestr("meta.json", json.dumps(_sog_meta()))
+    assert path.stat().st_size < 100_000
+    _raises(path, "4096 x 4096", "refused before decoding")
+
+
+def test_sog_zip_bomb_member_is_refused_before_inflating(tmp_path):
+    path = tmp_path / "bomb.sog"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("l.webp", "w", force_zip64=True) as fp:  # 64 MiB of zeros in ~64 KB
+            zero = bytes(1 << 20)
+            for _ in range(64):
+                fp.write(zero)
+        zf.writestr("meta.json", json.dumps(_sog_meta()))
+    assert path.stat().st_size < 200_000
+    _raises(path, "'l.webp' declares 67108864 bytes")
+
+
+def test_zero_stride_checkpoint_tensors_are_refused_before_copying(tmp_path):
+    n = 50_000_000  # 600 MB of means from a 4-byte storage
+    splats = {
+        "means": torch.zeros(1).expand(n, 3),
+        "quats": torch.zeros(1).expand(n, 4),
+        "scales": torch.zeros(1).expand(n, 3),
+        "opacities": torch.zeros(1).expand(n),
+        "sh0": torch.zeros(1).expand(n, 1, 3),
+    }
+    torch.save({"step": 1, "splats": splats}, tmp_path / "ckpt_1_rank0.pt")
+    assert (tmp_path / "ckpt_1_rank0.pt").stat().st_size < 10_000
+    _raises(tmp_path / "ckpt_1_rank0.pt", "stores only 4 bytes", "zero-stride")
+
+
+def test_npz_keys_are_checked_before_any_member_is_inflated(tmp_path, monkeypatch):
+    monkeypatch.setenv("FLUIDGS_MAX_DECODE_GB", "0.05")
+    path = tmp_path / "junk.npz"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("junk.npy", "w", force_zip64=True) as fp:  # 96 MB of zeros, over the budget
+            np.lib.format.write_array_header_1_0(fp, {"descr": "<f4", "fortran_order": False, "shape": (24 << 20,)})
+            zero = bytes(1 << 20)
+            for _ in range(96):
+                fp.write(zero)
+    _raises(path, "lacks the Gaussian arrays", "'junk'")  # not "memory budget": nothing was inflated
+
+
+def test_fifo_beside_a_checkpoint_is_named_not_read(tmp_path):
+    import os
+
+    g = _set(10, 0)
+    splats = {"means": g.means, "quats": g.quats, "scales": g.log_scales, "opacities": g.opacity_logits}
+    torch.save({"step": 1, "splats": {**splats, "sh0": g.sh[:, :1]}}, tmp_path / "ckpt_1_rank0.pt")
+    os.mkfifo(tmp_path / "ckpt_1_rank1.pt")
+    with pytest.raises(ValueError, match="ckpt_1_rank1.pt is a FIFO"):
+        formats.load_gaussians(tmp_path / "ckpt_1_rank0.pt")
+    os.mkfifo(tmp_path / "dataparser.json")
+    from recon.checkpoints import nerfstudio_normalization
+
+    with pytest.raises(ValueError, match="--dataparser-transforms .*is a FIFO"):
+        nerfstudio_normalization(tmp_path / "dataparser.json")
 
 
 # ---- the real captures (measured data, skipped when absent) -----------------------------------------------------
