@@ -139,19 +139,34 @@ def coverage_line(agreement: dict, physics: str = "physics", symbol: str = "S") 
 
 def replicas_line(replicas: dict, symbol: str = "S") -> str:
     """The printed line on how far the replicas of a probe run agree (``agreement["replicas"]``,
-    :func:`nbv.physics.replicas.replica_agreement`)."""
-    n, views, gaussians = replicas["count"], replicas["spearman_views_mean"], replicas["spearman_gaussians_mean"]
-    ranking = (
-        f"their view rankings agree at Spearman {views:.2f} (pairwise mean; min {replicas['spearman_views_min']:.2f})"
-        if views is not None
-        else "their view rankings cannot be compared (fewer than 3 views)"
+    :func:`nbv.physics.replicas.replica_agreement`): the Spearman correlation between replicas (pairwise mean, and
+    min) of the view ranking ``symbol``(T), of its physics part ``symbol``/A, and of D_g per Gaussian, each named,
+    with what a gap between the first two means and what a low D_g agreement means."""
+
+    def figure(name: str, key: str) -> str | None:
+        mean = replicas.get(f"spearman_{key}_mean")
+        return None if mean is None else f"{name} {mean:.2f} (min {replicas[f'spearman_{key}_min']:.2f})"
+
+    n = replicas["count"]
+    parts = [
+        figure(f"the view ranking {symbol}(T)", "views"),
+        figure(f"its physics part {symbol}/A", "physics"),
+        figure("D_g per Gaussian", "gaussians"),
+    ]
+    shown = [p for p in parts if p is not None]
+    line = f"replicas: {n} shifted lattices, {symbol}(T) from their mean; between them (Spearman, pairwise mean) " + (
+        "; ".join(shown) if shown else "nothing can be compared (fewer than 3 views or Gaussians)"
     )
-    per_gaussian = (
-        f", their D_g at {gaussians:.2f} per Gaussian (min {replicas['spearman_gaussians_min']:.2f})"
-        if gaussians is not None
-        else ""
-    )
-    return f"replicas: {n} shifted lattices, {symbol}(T) from their mean; {ranking}{per_gaussian}"
+    views, physics = replicas.get("spearman_views_mean"), replicas.get("spearman_physics_mean")
+    if views is not None and physics is not None and views > physics + 0.05:
+        line += (
+            f". {symbol}(T) agrees more than {symbol}/A because the coverage A(T), the same in every replica, "
+            "carries part of it"
+        )
+    gaussians = replicas.get("spearman_gaussians_mean")
+    if gaussians is not None and gaussians < 0.5:
+        line += "; one Gaussian's D_g is mostly lattice noise: read it over regions, not Gaussian by Gaussian"
+    return line
 
 
 def one_run_line(symbol: str = "S") -> str:

@@ -159,16 +159,16 @@ def replicas_view_agreement(
 ) -> dict:
     """``agreement["replicas"]`` of a ranking: each replica's view scores from its own per-Gaussian metric
     (``values`` [N, G], e.g. :meth:`nbv.physics.replicas.ReplicaRuns.metric_values`), then
-    :func:`nbv.physics.replicas.replica_agreement` (their view rankings and D_g, pairwise)."""
+    :func:`nbv.physics.replicas.replica_agreement` (their view rankings, physics parts S/A and D_g, pairwise; the
+    coverage A(T) does not depend on the metric, so replica 0's is every replica's)."""
     from nbv.physics.replicas import replica_agreement  # noqa: PLC0415 - loads the physics (Taichi) only when used
 
-    per = np.stack(
-        [
-            project_scores(gaussians, cams, v, weighted=weighted, occlusion=occlusion, device=device).scores.numpy()
-            for v in np.asarray(values, np.float64)
-        ]
-    )
-    return replica_agreement(replicas, per, idx)
+    scored = [
+        project_scores(gaussians, cams, v, weighted=weighted, occlusion=occlusion, device=device)
+        for v in np.asarray(values, np.float64)
+    ]
+    per = np.stack([sc.scores.numpy() for sc in scored])
+    return replica_agreement(replicas, per, idx, coverage=scored[0].coverage.numpy())
 
 
 def ranked_rows(scored, cams, idx: list[int], value: str = "score", visible_centres=None) -> list[dict]:

@@ -29,7 +29,9 @@ run's D_g is the lattice position, not the geometry.
 - **Agreement.** Per pair of replicas, the Spearman correlation of D_g over the Gaussians both reached (as
   :mod:`nbv.study.convergence` compares settings), summarised by its mean and minimum over the pairs; the callers
   that rank views (``fluidgs score``, ``fluidgs critical``) add the Spearman correlation between the replicas' view
-  rankings (:func:`replica_agreement`).
+  rankings S(T) and between their physics parts S/A (:func:`replica_agreement`). The two differ: the coverage
+  A(T) is the same in every replica, so S(T) agrees more than the physics does whenever coverage carries the
+  ranking; S/A says how reproducible the physics' own say is.
 
 Example:
     >>> replica_offsets(3).tolist()
@@ -173,17 +175,22 @@ def _pairs_summary(pairs: list[tuple[int, int, float]]) -> dict:
     }
 
 
-def replica_agreement(replicas: ReplicaRuns, view_scores: np.ndarray, candidates: Sequence[int]) -> dict:
+def replica_agreement(
+    replicas: ReplicaRuns, view_scores: np.ndarray, candidates: Sequence[int], coverage: np.ndarray | None = None
+) -> dict:
     """How far the replicas agree, for a ranking's JSON (``agreement["replicas"]`` of scores.json, critical.json).
 
     Args:
         replicas: the run's :class:`ReplicaRuns`.
         view_scores: [N, C] each replica's view scores (S(T) or C(T) from its own per-Gaussian metric).
         candidates: the C candidates' camera indices (for the top view of each replica).
+        coverage: [C] the coverage A(T) of the candidates (the same for every replica), or None.
     Returns:
         {"count", "offsets" (spacings), "spearman_views_mean", "spearman_views_min" (the view rankings, pairwise),
-        "spearman_gaussians_mean", "spearman_gaussians_min" (D_g, pairwise over the Gaussians both reached),
-        "top_views" (each replica's best candidate)}; a Spearman is None where undefined (fewer than 3 views).
+        "spearman_physics_mean", "spearman_physics_min" (the physics parts S/A, pairwise over the views with
+        A > 0; only with ``coverage``), "spearman_gaussians_mean", "spearman_gaussians_min" (D_g, pairwise over
+        the Gaussians both reached), "top_views" (each replica's best candidate)}; a Spearman is None where
+        undefined (fewer than 3 views).
     """
     s = np.asarray(view_scores, np.float64)
     if s.shape[0] != replicas.count or s.shape[1] != len(candidates):
@@ -193,11 +200,21 @@ def replica_agreement(replicas: ReplicaRuns, view_scores: np.ndarray, candidates
         )
     views = _pairs_summary(pairwise_spearman(s))
     gaussians = replicas.gaussian_agreement()
-    return {
+    out = {
         "count": replicas.count,
         "offsets": np.round(replicas.offsets, 6).tolist(),
         "spearman_views_mean": views["mean"],
         "spearman_views_min": views["min"],
+    }
+    if coverage is not None:
+        a = np.asarray(coverage, np.float64).reshape(-1)
+        if a.shape[0] != s.shape[1]:
+            raise ValueError(f"replica_agreement: coverage of {a.shape[0]} views for {s.shape[1]} candidates")
+        seen = np.broadcast_to(a > 0, s.shape)
+        physics = _pairs_summary(pairwise_spearman(np.divide(s, a, out=np.zeros_like(s), where=a > 0), seen))
+        out["spearman_physics_mean"], out["spearman_physics_min"] = physics["mean"], physics["min"]
+    return {
+        **out,
         "spearman_gaussians_mean": gaussians["mean"],
         "spearman_gaussians_min": gaussians["min"],
         "top_views": [int(candidates[int(np.argmax(row))]) for row in s],

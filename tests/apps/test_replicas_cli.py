@@ -33,7 +33,10 @@ def test_score_reports_the_replicas_agreement(ply, tmp_path, capsys):
     rep = json.loads(out.read_text())["agreement"]["replicas"]
     assert rep["count"] == 2 and rep["offsets"][0] == [0.0, 0.0, 0.0]
     line = next(x for x in printed.splitlines() if x.startswith("replicas: 2 shifted lattices"))
-    assert f"Spearman {rep['spearman_views_mean']:.2f}" in line  # the printed line is the JSON's
+    # the printed line is the JSON's, each figure named: the ranking S(T), its physics part S/A, D_g per Gaussian
+    assert f"the view ranking S(T) {rep['spearman_views_mean']:.2f}" in line
+    assert f"its physics part S/A {rep['spearman_physics_mean']:.2f}" in line
+    assert f"D_g per Gaussian {rep['spearman_gaussians_mean']:.2f}" in line
     assert -1.0 <= rep["spearman_gaussians_min"] <= rep["spearman_gaussians_mean"] <= 1.0
     with h5py.File(h5, "r") as f:
         assert f["replicas/D"].shape == (2, 2, 300)

@@ -11,6 +11,7 @@ import torch
 
 from fluidsim.scene import lattice_in_box
 from nbv import scores
+from nbv.coverage import replicas_line
 from nbv.physics import PhysicsConfig, estimate_memory, load_result, save_result, simulate_gaussians
 from nbv.physics.plan import ProbePlan, RunFrame
 from nbv.physics.replicas import (
@@ -198,6 +199,20 @@ def test_agreement_figures_match_a_numpy_twin():
     assert out["top_views"] == [10 + int(np.argmax(v)) for v in views]
     with pytest.raises(ValueError, match="one row per replica"):
         replica_agreement(runs, views[:2], candidates=list(range(7)))
+    # with the coverage A(T): the physics parts S/A too, over the views with A > 0
+    coverage = np.array([1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 0.0])
+    scores = coverage * (1.0 + 0.3 * rng.random((3, 7)))
+    out = replica_agreement(runs, scores, list(range(7)), coverage=coverage)
+    ratios = scores[:, :6] / coverage[:6]
+    rho_p = [_spearman_twin(ratios[i], ratios[j]) for i, j in ((0, 1), (0, 2), (1, 2))]
+    assert out["spearman_physics_mean"] == pytest.approx(np.mean(rho_p), abs=1e-4)
+    assert out["spearman_views_mean"] > 0.9 > out["spearman_physics_mean"]  # coverage carries S(T), not S/A
+    line = replicas_line(out)
+    assert f"the view ranking S(T) {out['spearman_views_mean']:.2f}" in line
+    assert f"its physics part S/A {out['spearman_physics_mean']:.2f}" in line
+    assert "S(T) agrees more than S/A because the coverage A(T)" in line
+    assert "D_g per Gaussian" in line and "mostly lattice noise" in line  # random D_g: no agreement
+    assert "spearman_physics_mean" not in replica_agreement(runs, scores, list(range(7)))
 
 
 def test_memory_check_counts_the_replicas(sphere):
