@@ -106,8 +106,10 @@ def _solid_of_file(path: Path) -> tuple:
     import numpy as np
 
     from nbv.export.particles import split_boundary
+    from recon.inflate import check_hdf5_sizes
 
     with h5py.File(path, "r") as f:
+        check_hdf5_sizes(f, str(path))
         if "solid/x" in f:
             cfg = json.loads(f.attrs["config"])
             m = np.asarray(f.attrs["scene_to_sim"], np.float64) if "scene_to_sim" in f.attrs else np.eye(4)

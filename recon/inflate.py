@@ -171,3 +171,34 @@ def read_zip_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: str
             f"{info.file_size} (corrupt archive)"
         )
     return b"".join(parts)
+
+
+H5_MAX_RATIO = 1100  # deflate cannot expand data more than ~1032:1: a larger claim is unwritten chunks or a bomb
+H5_SLACK_BYTES = 1 << 20  # a dataset smaller than this is never refused (fill values of small arrays are fine)
+
+
+def check_hdf5_sizes(file, source: str) -> None:
+    """Refuse an open ``h5py.File`` whose datasets declare more than they can hold, before any is read.
+
+    Every dataset's declared size (shape x item size) must be at most :data:`H5_MAX_RATIO` times the bytes it stores
+    plus :data:`H5_SLACK_BYTES` (a dataset declared with unwritten chunks stores nothing, and would be read as
+    gigabytes of fill values), and at most the memory budget (:func:`check_budget`). Only metadata is read.
+
+    Raises:
+        ValueError: naming ``source``, the dataset, its shape and the bytes it stores.
+    """
+    import h5py  # noqa: PLC0415 - only the HDF5 readers need it
+
+    def visit(name: str, obj) -> None:
+        if not isinstance(obj, h5py.Dataset):
+            return
+        declared = int(obj.size or 0) * int(obj.dtype.itemsize)
+        stored = int(obj.id.get_storage_size())
+        if declared > stored * H5_MAX_RATIO + H5_SLACK_BYTES:
+            raise ValueError(
+                f"{source}: /{name} declares {obj.shape} {obj.dtype} ({declared} bytes) but stores only {stored} "
+                f"bytes (unwritten chunks or a corrupt file); write the file again with fluidgs"
+            )
+        check_budget(source, f"/{name} {obj.shape}", declared)
+
+    file.visititems(visit)

@@ -237,6 +237,9 @@ def load_view_data(path: str | Path) -> ViewData:
     except OSError as exc:
         raise ValueError(f"{p} is not an HDF5 file ({exc}); pass the RESULT.h5 of `fluidgs simulate`") from None
     with f:
+        from recon.inflate import check_hdf5_sizes  # noqa: PLC0415 - standard library and h5py only
+
+        check_hdf5_sizes(f, str(p))
         source = str(f.attrs.get("source", ""))
         redo = f"re-run `fluidgs simulate {source or 'GAUSSIANS.ply'} -o {p}`"
         if "gaussians/D" not in f or "config" not in f.attrs or "directions" not in f.attrs:

@@ -266,6 +266,9 @@ def render_frames(
     is_video = output_is_video(out, png)
     check_frames_file(h5_path)
     with h5py.File(h5_path, "r") as f:
+        from recon.inflate import check_hdf5_sizes  # noqa: PLC0415 - standard library and h5py only
+
+        check_hdf5_sizes(f, str(h5_path))
         source = FrameSource.inspect(f, h5_path, style)
         _prepare_output(out, is_video)
         vmax = style.vmax if style.vmax is not None else source.percentile_vmax()

@@ -38,6 +38,7 @@ import numpy as np
 from tqdm import tqdm
 
 from fluidsim.files import atomic_folder
+from recon.inflate import check_hdf5_sizes
 
 log = logging.getLogger(__name__)
 
@@ -179,6 +180,7 @@ def check_vtk_source(path: str | Path) -> str:
     if not h5py.is_hdf5(path):
         raise ValueError(f"{path} is not an HDF5 file; pass an OUT.h5 of `fluidgs sim` or a RESULT.h5")
     with h5py.File(path, "r") as f:
+        check_hdf5_sizes(f, str(path))
         return file_kind(f, path)
 
 

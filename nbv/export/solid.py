@@ -40,6 +40,10 @@ MESH_SUFFIXES = (".ply", ".obj", ".glb", ".stl")
 GRID_SUFFIXES = (".h5", ".hdf5")
 FRAMES = ("sim", "scene")
 LATTICE_TOLERANCE = 1e-3  # of the spacing: how far a solid point may sit from the lattice
+# the grid over the points' box: a filled solid fills most of its box, a thin diagonal sheet n cells across spans n^3
+# cells for n^2 points; the mesh then needs about 32 bytes per cell (k = 2), so 2^26 cells stay near 2 GiB
+MAX_CELLS_PER_POINT = 1000
+MAX_CELLS = 2**26
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,15 @@ def voxel_grid(points: np.ndarray, spacing: float) -> VoxelGrid:
             f"solid points are off the lattice of spacing {spacing} m (by up to {off:.3g} spacings); "
             "pass the spacing the solid was built with (2 x particle_radius)"
         )
-    occupancy = np.zeros(tuple(index.max(axis=0) + 1), dtype=bool)
+    shape = index.max(axis=0) + 1
+    cells, most = float(np.prod(shape.astype(np.float64))), min(MAX_CELLS, MAX_CELLS_PER_POINT * len(p) + 2**20)
+    if cells > most:  # the grid spans the points' box: two points far apart would ask for terabytes
+        raise ValueError(
+            f"the solid's {len(p)} points span {' x '.join(str(int(n)) for n in shape)} = {cells:.3g} cells of "
+            f"{spacing:g} m, more than the {most:.3g} a solid of {len(p)} points may span (points far apart: a "
+            "corrupt file, or a spacing too small); pass the RESULT.h5 of one `fluidgs simulate` run"
+        )
+    occupancy = np.zeros(tuple(shape), dtype=bool)
     occupancy[index[:, 0], index[:, 1], index[:, 2]] = True
     return VoxelGrid(occupancy, origin, float(spacing))
 

@@ -139,3 +139,23 @@ def test_bad_exports_exit_2_before_any_work(run, tmp_path, caplog):
     assert "nothing to write" in caplog.text
     assert time.perf_counter() - t0 < 30
     assert not (tmp_path / "r.h5").exists() and not (tmp_path / "v").exists()
+
+
+def test_hostile_hdf5_files_are_refused_before_any_allocation(tmp_path, caplog):
+    config = json.dumps({"particle_radius": 0.025})
+    with h5py.File(tmp_path / "far.h5", "w") as f:  # two solid points 1 km apart: 8e12 cells
+        f["solid/x"] = np.array([[0, 0, 0], [1000, 1000, 1000]], np.float32)
+        f.attrs["config"] = config
+    with h5py.File(tmp_path / "chunks.h5", "w") as f:  # 12 TB declared, no chunk written
+        f.create_dataset("solid/x", shape=(10**12, 3), dtype="f4", chunks=(1024, 3))
+        f.attrs["config"] = config
+    assert cli.main(["export", str(tmp_path / "far.h5"), "--solid", str(tmp_path / "s.ply")]) == 2
+    assert "points far apart" in caplog.text
+    assert cli.main(["export", str(tmp_path / "chunks.h5"), "--solid", str(tmp_path / "s.ply")]) == 2
+    assert "stores only 0 bytes" in caplog.text
+    assert cli.main(["export", str(tmp_path / "chunks.h5"), "--vtk", str(tmp_path / "v")]) == 2
+    from viz.data import load_view_data
+
+    with pytest.raises(ValueError, match="unwritten chunks"):
+        load_view_data(tmp_path / "chunks.h5")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["chunks.h5", "far.h5"]
