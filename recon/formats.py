@@ -17,7 +17,9 @@
 
 The content decides, not the suffix (a compressed .ply is a .ply too); the suffix only names the format of a file
 whose content is recognised as none of them, for a sharper message. Every reader returns the 3DGS .ply frame
-(an .spz, stored right-up-back, is turned to it unless ``LoadOptions.spz_frame`` is "ply") and compares the sizes a
+(an .spz, stored right-up-back by Niantic's definition but in the .ply frame by SuperSplat, is turned to it or not
+as ``LoadOptions.spz_frame`` says; "auto", the default, decides from a file of the same capture in another format
+beside it, :func:`spz_frame_evidence`, and warns when nothing decides) and compares the sizes a
 header declares with the file size and the memory budget (:mod:`recon.inflate`) before allocating anything.
 :func:`load_gaussians_framed` also says which frame it assumed (:class:`SourceFrame`), for the log and
 RESULT.h5. Writing stays the standard .ply or .npz (:func:`recon.ply.save_gaussians`).
@@ -145,12 +147,15 @@ class LoadOptions:
     ``--dataparser-transforms``).
 
     Attributes:
-        spz_frame: "rub" (Niantic's definition: turned half a turn about x) or "ply" (splat-transform's: kept).
+        spz_frame: "rub" (Niantic's definition: turned half a turn about x), "ply" (splat-transform's: kept) or
+            "auto" (decided from a sibling file of the capture in another format, :func:`spz_frame_evidence`;
+            Niantic's, with a warning, when there is none). A frame that the evidence contradicts is kept, with a
+            warning naming the other.
         colmap: the COLMAP model a gsplat checkpoint was trained on (its normalisation is recomputed and undone).
         dataparser_transforms: nerfstudio's dataparser_transforms.json (default: found beside config.yml).
     """
 
-    spz_frame: str = "rub"
+    spz_frame: str = "auto"
     colmap: Path | None = None
     dataparser_transforms: Path | None = None
 
@@ -196,15 +201,8 @@ def load_gaussians_framed(path: str | Path, options: LoadOptions | None = None) 
     path = Path(path)
     identity = np.eye(4)
     if fmt == "spz":
-        gaussians = spz.load_spz(path, options.spz_frame)
-        turned = options.spz_frame == "rub"
-        other = "ply" if turned else "rub"
-        frame = SourceFrame(
-            fmt,
-            f"{path}: .spz read as {spz.SPZ_FRAMES[options.spz_frame]}; if it looks upside "
-            f"down, pass --spz-frame {other} (see docs/formats.md)",
-            np.diag([1.0, -1.0, -1.0, 1.0]) if turned else identity,
-        )
+        gaussians, chosen, description = _load_spz_decided(path, options.spz_frame)
+        frame = SourceFrame(fmt, description, np.diag([1.0, -1.0, -1.0, 1.0]) if chosen == "rub" else identity)
     elif fmt == "checkpoint":
         from .checkpoints import load_checkpoint, restore_metric_frame  # noqa: PLC0415 - torch.load only here
 
@@ -221,6 +219,103 @@ def load_gaussians_framed(path: str | Path, options: LoadOptions | None = None) 
         frame = SourceFrame(fmt, f"{path}: {FORMATS[fmt]} read in the file's own frame (the 3DGS .ply frame)", identity)
     log.debug("%s: %d Gaussians read as %s", path, gaussians.num, FORMATS[fmt])
     return gaussians, fmt, frame
+
+
+# ---- the .spz frame, from the data -------------------------------------------------------------------------
+SPZ_FRAME_CHOICES = ("auto", *spz.SPZ_FRAMES)
+# the formats that keep the .ply frame of a capture (docs/formats.md), tried as evidence for an .spz's frame
+PLY_FRAME_FORMATS = ("ply", "compressed_ply", "splat", "ksplat", "sog")
+BOX_QUANTILES = (0.02, 0.98)  # the robust box compared: floaters do not count
+SAME_CAPTURE = 0.05  # a sibling's box within this share of its size of one reading: the same capture
+DECISIVE = 4.0  # the other reading must be this many times farther off for the evidence to decide
+
+
+def _robust_box(means: np.ndarray) -> np.ndarray:
+    return np.quantile(np.asarray(means, np.float64), BOX_QUANTILES, axis=0)
+
+
+def _flip_box(box: np.ndarray) -> np.ndarray:
+    """The robust box of the other .spz reading: (x, y, z) -> (x, -y, -z), so y's and z's bounds swap sides."""
+    out = box.copy()
+    out[:, 1:] = -box[::-1, 1:]
+    return out
+
+
+def spz_siblings(path: Path) -> list[Path]:
+    """Files beside an .spz that may hold the same capture in a format that keeps the .ply frame: the same name
+    up to its first dot (``guitar.v3.spz`` -> ``guitar.*``), smallest first."""
+    root = path.name.split(".")[0]
+    found = []
+    for p in path.parent.glob(f"{root}.*"):
+        if p == path or not p.is_file() or p.suffix.lower() not in (".ply", ".splat", ".ksplat", ".sog"):
+            continue
+        found.append(p)
+    return sorted(found, key=lambda p: p.stat().st_size)
+
+
+def spz_frame_evidence(path: str | Path, means_rub: np.ndarray) -> tuple[str | None, str]:
+    """Which frame an .spz is stored in, decided from a sibling file of the same capture (:func:`spz_siblings`):
+    the robust boxes (2-98 % quantiles of the centres) of the two readings against the sibling's.
+
+    Args:
+        path: the .spz. means_rub: [N, 3] its centres read as "rub" (Niantic's, turned to the .ply frame).
+    Returns:
+        ("rub" or "ply", the evidence in words), or (None, why nothing decides: no sibling, another capture, or a
+        box symmetric about the origin, which both readings fit).
+    """
+    path = Path(path)
+    rub = _robust_box(means_rub)
+    for sibling in spz_siblings(path):
+        try:
+            fmt = detect_format(sibling)
+            if fmt not in PLY_FRAME_FORMATS:
+                continue
+            ref = _robust_box(READERS[fmt](sibling).means.detach().cpu().numpy())
+        except (ValueError, OSError):
+            continue
+        size = float((ref[1] - ref[0]).max()) or 1.0
+        off = {"rub": float(np.abs(rub - ref).max()) / size, "ply": float(np.abs(_flip_box(rub) - ref).max()) / size}
+        best, worse = sorted(off, key=off.get)
+        if off[best] > SAME_CAPTURE:
+            continue  # not the same capture (or cropped otherwise)
+        if off[worse] < DECISIVE * max(off[best], 1e-3):
+            return None, (
+                f"{sibling.name} fits both readings (boxes off by {off['rub']:.1%} and {off['ply']:.1%}): the "
+                "capture is symmetric about the origin"
+            )
+        return best, (
+            f"{sibling.name} ({FORMATS[fmt]}, the .ply frame) has the box of the {best!r} reading (off by "
+            f"{off[best]:.2%} of its size; the {worse!r} reading is off by {off[worse]:.0%})"
+        )
+    return None, "no file of the same capture in another format beside it"
+
+
+def _load_spz_decided(path: Path, asked: str) -> tuple[GaussianSet, str, str]:
+    """An .spz read in the frame ``asked`` ("auto": the one the evidence shows, else "rub"), with the description
+    of what was assumed and why; a WARNING when the evidence contradicts an asked frame or nothing decides."""
+    if asked not in SPZ_FRAME_CHOICES:
+        raise ValueError(f"the .spz frame must be one of {list(SPZ_FRAME_CHOICES)}, got {asked!r}")
+    gaussians = spz.load_spz(path, "rub" if asked == "auto" else asked)
+    means = gaussians.means.detach().cpu().numpy()
+    evidence, why = spz_frame_evidence(path, means if asked != "ply" else means * np.array([1.0, -1.0, -1.0]))
+    chosen = evidence if asked == "auto" and evidence is not None else ("rub" if asked == "auto" else asked)
+    if chosen != ("rub" if asked == "auto" else asked):
+        gaussians = spz.load_spz(path, chosen)
+    other = "ply" if chosen == "rub" else "rub"
+    read = f"{path}: .spz read as {spz.SPZ_FRAMES[chosen]}"
+    if evidence is None:
+        description = (
+            f"{read}; nothing tells this file's frame ({why}): SuperSplat and splat-transform write .spz in the .ply "
+            f"frame, so if `fluidgs inspect --png` shows the capture upside down, pass --spz-frame {other}"
+        )
+        log.warning("%s", description)
+    elif evidence != chosen:
+        description = f"{read} as asked, but {why}: it likely stands upside down; pass --spz-frame {evidence}"
+        log.warning("%s", description)
+    else:
+        how = "decided from the data" if asked == "auto" else "as asked, and the data agree"
+        description = f"{read}, {how}: {why}"
+    return gaussians, chosen, description
 
 
 def load_gaussians_with_format(path: str | Path) -> tuple[GaussianSet, str]:

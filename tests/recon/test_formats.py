@@ -117,6 +117,40 @@ def test_splat_round_trip_within_quantisation(tmp_path):
     _assert_within(_unit_aligned(back.quats, g.quats), g.quats, 1.5 / 128, "rotation")
 
 
+def test_spz_frame_is_decided_from_a_sibling_of_the_same_capture(tmp_path, caplog):
+    """SuperSplat writes .spz in the .ply frame: beside the capture's .ply, "auto" reads it upright; an asked frame
+    the sibling contradicts is kept with a WARNING naming the other; with nothing beside it, a WARNING."""
+    g = _set(400, 0, seed=4)
+    g = GaussianSet(g.means * 0.5 + torch.tensor([0.0, 1.5, 0.7]), g.quats, g.log_scales, g.opacity_logits, g.sh)
+    spz_path = encode_spz(g, tmp_path / "guitar.v3.spz", version=3, frame="rub")  # stored as given: the .ply frame
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    (alone / "x.spz").write_bytes(spz_path.read_bytes())
+    with caplog.at_level("WARNING", logger="recon.formats"):
+        lone, _, frame = formats.load_gaussians_framed(alone / "x.spz")
+    assert "--spz-frame ply" in caplog.text and "nothing tells" in frame.description
+    _assert_within(lone.means, g.means * torch.tensor([1.0, -1.0, -1.0]), 0.5 / 4096, "means")  # Niantic's turn
+    ply.save_gaussians(g, tmp_path / "guitar.ply")
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="recon.formats"):
+        auto, _, frame = formats.load_gaussians_framed(spz_path)
+        assert not caplog.text
+        _assert_within(auto.means, g.means, 0.5 / 4096, "means")  # upright: as the .ply
+        assert "decided from the data: guitar.ply" in frame.description and np.allclose(frame.to_loaded, np.eye(4))
+        asked, _, frame = formats.load_gaussians_framed(spz_path, formats.LoadOptions(spz_frame="rub"))
+    assert "upside down; pass --spz-frame ply" in caplog.text  # the asked frame is kept, never flipped silently
+    _assert_within(asked.means, lone.means, 1e-6, "means")
+    assert formats.spz_frame_evidence(spz_path, asked.means.numpy())[0] == "ply"
+    with pytest.raises(ValueError, match="frame must be one of"):
+        formats.load_gaussians_framed(spz_path, formats.LoadOptions(spz_frame="up"))
+
+
+@pytest.mark.skipif(not BIKER_SPZ.is_file(), reason="the real captures are not on this machine")
+def test_real_spz_frame_from_its_siblings():
+    frame, why = formats.spz_frame_evidence(BIKER_SPZ, formats.load_gaussians(BIKER_SPZ).means.numpy())
+    assert frame == "rub" and "biker." in why  # Niantic's frame: the .ply, .sog and .ksplat agree
+
+
 def test_spz_frame_is_the_ply_frame(tmp_path):
     """Data stored as given (RUB) comes back turned half about x: means F mu, covariances F Sigma F, colours
     seen from F d equal to the stored ones seen from d."""
