@@ -20,7 +20,7 @@ from .exit_codes import (
     interrupted_import,
     is_output_error,
 )
-from .signals import Stopped, exit_after_commands, first_signal, signal_name, stop_signals
+from .signals import STOP_SIGNALS, Stopped, exit_after_commands, first_signal, signal_name, stop_signals
 
 try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets one line too, not a traceback
     from . import (
@@ -75,6 +75,16 @@ COMMANDS = {
 }
 
 
+def package_version() -> str:
+    """The installed distribution's version (setup.cfg), or "unknown" when run from a tree that is not installed."""
+    from importlib.metadata import PackageNotFoundError, version  # noqa: PLC0415 - only for --version
+
+    try:
+        return version("fluidgaussian")
+    except PackageNotFoundError:
+        return "unknown (not installed: pip install -e .)"
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The ``fluidgs`` parser. With ``command``, only that subcommand's options are built (the others are listed
     by name and help): options come from the config dataclasses, whose modules load torch or Taichi, so
@@ -82,6 +92,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     (the tests and the CLI reference walk them all)."""
     parser = argparse.ArgumentParser(prog="fluidgs", description="FluidGaussian: fluid probes for 3DGS geometry.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log more (default: warnings and info)")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=HelpFormatter)
@@ -173,7 +184,7 @@ def run_module(args: argparse.Namespace) -> int:
     before = len(written_outputs())
     try:
         return int(runner(args) or 0)
-    except Stopped as exc:  # SIGINT or SIGTERM (apps.signals): one line, what is already written stays written
+    except Stopped as exc:  # SIGINT, SIGTERM or SIGHUP (apps.signals): one line, what is already written stays written
         logging.getLogger("fluidgs").error("interrupted by %s", signal_name(exc.signum))
         return exc.exit_code
     except (ValueError, OSError, FileNotFoundError) as exc:
@@ -213,7 +224,7 @@ def entry() -> None:
     where Python restores the default handlers, it is ignored (the outputs are complete or removed by then)."""
     exit_after_commands()
     code = main()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         signal.signal(sig, signal.SIG_IGN)
     sys.exit(code)
 

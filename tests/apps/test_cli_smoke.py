@@ -80,6 +80,13 @@ def _run(argv: list[str]) -> int:
         return exc.code if isinstance(exc.code, int) else 2
 
 
+def test_version_prints_the_installed_version(capsys):
+    from importlib.metadata import version
+
+    assert _run(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"fluidgs {version('fluidgaussian')}"
+
+
 def test_the_walk_reaches_every_registered_command():
     assert {path[0] for path in PARSERS if path} == set(cli.COMMANDS)
     assert len(COMMANDS) >= len(cli.COMMANDS)  # bench counts once per benchmark
