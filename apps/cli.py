@@ -20,6 +20,7 @@ from .exit_codes import (
     interrupted_import,
     is_output_error,
 )
+from .progress_log import line_progress
 from .signals import STOP_SIGNALS, Stopped, exit_after_commands, first_signal, signal_name, stop_signals
 
 try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets one line too, not a traceback
@@ -170,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     code = EXIT_INTERRUPTED
     try:
-        with stop_signals():
+        with stop_signals(), line_progress():  # in a log (no terminal): progress as lines, one per few seconds
             code = run_module(args)
     finally:  # whatever ended the command: no temporary file, and no empty new folder of a failed run, stays
         remove_unfinished(created_folders=code != 0)

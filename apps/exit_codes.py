@@ -13,6 +13,8 @@ code  meaning
 4     an output cannot be written: full disk (ENOSPC) or quota, read-only file system (EROFS), no permission,
       a name too long (ENAMETOOLONG), a parent that is a file, a folder where a file is wanted; the message names
       the outputs written before the failure (complete), or says that none was
+129   stopped by SIGHUP (a closed terminal, a dropped ssh session), with the same clean-up as 130; under nohup
+      (SIGHUP ignored when the command starts) the command goes on
 130   interrupted by Ctrl-C (SIGINT); `sim` first saves its frames so far (status "interrupted"); every command
       removes its unfinished temporary files and stops its worker processes (apps.signals)
 143   stopped by SIGTERM (kill, timeout, a batch scheduler), with the same clean-up as 130; also any command whose

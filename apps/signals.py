@@ -1,9 +1,11 @@
-"""One policy for SIGINT and SIGTERM in every `fluidgs` command: what a signal stops, and what it leaves behind.
+"""One policy for SIGINT, SIGTERM and SIGHUP in every `fluidgs` command: what a signal stops, and what it leaves behind.
 
-- The first SIGINT (Ctrl-C) or SIGTERM (``kill``, ``timeout``, a batch scheduler) raises :class:`Stopped` in the main
-  thread, a ``KeyboardInterrupt`` that remembers the signal: every ``finally`` block of the command runs (temporary
-  files are dropped, worker processes terminated), and `fluidgs` exits 128 + the signal number (130 for SIGINT, 143
-  for SIGTERM) with one line, no traceback. `fluidgs sim` first saves its frames so far (:class:`apps.sim.StopRequest`).
+- The first SIGINT (Ctrl-C), SIGTERM (``kill``, ``timeout``, a batch scheduler) or SIGHUP (a closed terminal, a dropped
+  ssh session) raises :class:`Stopped` in the main thread, a ``KeyboardInterrupt`` that remembers the signal: every
+  ``finally`` block of the command runs (temporary files are dropped, worker processes terminated), and `fluidgs` exits
+  128 + the signal number (130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP) with one line, no traceback. A SIGHUP that
+  was ignored when the command started (``nohup``) stays ignored (:func:`handled_signals`). `fluidgs sim` first saves
+  its frames so far (:class:`apps.sim.StopRequest`).
 - A second signal while that clean-up runs is noted and ignored, so that it cannot interrupt the clean-up halfway and
   leave a half-written file; the exit code stays that of the first signal.
 - A third signal removes this process's unfinished temporary files (:func:`fluidsim.files.remove_unfinished`) and
@@ -11,7 +13,8 @@
 
 Whatever ends a command, `fluidgs` then removes the temporary files of this process that were never renamed into place
 and the output folders it created that stayed empty. Worker processes (:func:`worker_signals`) leave SIGINT to their
-parent and, on SIGTERM (their parent terminating them), remove their unfinished files and exit at once.
+parent (SIGHUP too: a closed terminal reaches the whole process group) and, on SIGTERM (their parent terminating them),
+remove their unfinished files and exit at once.
 """
 
 from __future__ import annotations
@@ -25,11 +28,17 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 log = logging.getLogger("fluidgs")
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+def handled_signals() -> tuple[int, ...]:
+    """The stop signals a command handles now: :data:`STOP_SIGNALS`, less SIGHUP when it is ignored (``nohup``: the
+    user asked the command to outlive its terminal)."""
+    return tuple(s for s in STOP_SIGNALS if not (s == signal.SIGHUP and signal.getsignal(s) == signal.SIG_IGN))
 
 
 class Stopped(KeyboardInterrupt):
-    """The command was stopped by ``signum`` (SIGINT or SIGTERM); :attr:`exit_code` is 128 + ``signum``."""
+    """The command was stopped by ``signum`` (SIGINT, SIGTERM or SIGHUP); :attr:`exit_code` is 128 + ``signum``."""
 
     def __init__(self, signum: int) -> None:
         self.signum = int(signum)
@@ -37,7 +46,7 @@ class Stopped(KeyboardInterrupt):
 
     @property
     def exit_code(self) -> int:
-        """130 for SIGINT, 143 for SIGTERM (the shell's convention)."""
+        """130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP (the shell's convention)."""
         return 128 + self.signum
 
 
@@ -108,12 +117,13 @@ def handle(signum: int, frame) -> None:
 
 @contextmanager
 def stop_signals() -> Iterator[None]:
-    """While entered (in the main thread; elsewhere it does nothing), SIGINT and SIGTERM follow :func:`handle`."""
+    """While entered (in the main thread; elsewhere it does nothing), SIGINT, SIGTERM and SIGHUP (unless ignored, as
+    under ``nohup``) follow :func:`handle`."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     _State.first, _State.count = None, 0
-    old = {sig: signal.signal(sig, handle) for sig in STOP_SIGNALS}
+    old = {sig: signal.signal(sig, handle) for sig in handled_signals()}
     try:
         yield
     finally:
@@ -122,8 +132,9 @@ def stop_signals() -> Iterator[None]:
 
 
 def worker_signals() -> None:
-    """In a worker process: ignore SIGINT (a Ctrl-C reaches the whole process group; the parent decides and
-    terminates its workers), and on SIGTERM remove this process's unfinished files and exit at once (143)."""
+    """In a worker process: ignore SIGINT and SIGHUP (a Ctrl-C or a closed terminal reaches the whole process group;
+    the parent decides and terminates its workers), and on SIGTERM remove this process's unfinished files and exit at
+    once (143)."""
 
     def on_term(signum: int, frame) -> None:
         note_signal(signum)
@@ -131,4 +142,5 @@ def worker_signals() -> None:
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, on_term)

@@ -16,7 +16,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from .runtime import thread_count
-from .signals import STOP_SIGNALS, Stopped, note_signal
+from .signals import Stopped, handled_signals, note_signal
 
 log = logging.getLogger("fluidgs")
 
@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 class StopRequest:
-    """While entered (main thread only), SIGINT and SIGTERM set ``signum`` instead of stopping the process, so
+    """While entered (main thread only), SIGINT, SIGTERM and SIGHUP set ``signum`` instead of stopping the process, so
     the step loop can stop at a step boundary with a readable file. A second signal raises
     :class:`apps.signals.Stopped` with the first signal (exit 130 or 143); the unfinished file is then removed."""
 
@@ -77,7 +77,7 @@ class StopRequest:
 
     def __enter__(self) -> StopRequest:
         if threading.current_thread() is threading.main_thread():
-            self._old = {sig: signal.signal(sig, self._handle) for sig in STOP_SIGNALS}
+            self._old = {sig: signal.signal(sig, self._handle) for sig in handled_signals()}
         return self
 
     def __exit__(self, *exc) -> None:
@@ -142,4 +142,15 @@ def run_command(args: argparse.Namespace) -> int:
         f"wrote {path}: {len(history)} steps, t = {last.time:.3f} s, {last.active} fluid particles active, "
         f"{sum(s.retired for s in history)} retired, {solver.removed_inside_solid} removed inside solids"
     )
+    if solver.boundary.solid_count:
+        from fluidsim.forces import force_history
+
+        f = force_history(history)["solid"]
+        mean, imp = f["mean"], f["impulse"]
+        print(
+            f"force on the solids (N, simulation frame, time mean over steps {len(history) // 2}-{len(history)}): "
+            f"({mean[0]:.3g}, {mean[1]:.3g}, {mean[2]:.3g}); impulse ({imp[0]:.3g}, {imp[1]:.3g}, {imp[2]:.3g}) N s"
+        )
+        if not f["series"].any():
+            print("  WARNING: the fluid never reached the solids: their force is 0")
     return 0

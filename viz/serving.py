@@ -128,7 +128,8 @@ def serve(viewer: FluidViewer, announce=log.info) -> int:
     def on_term(signum, frame):
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, on_term) if threading.current_thread() is threading.main_thread() else None
+    main = threading.current_thread() is threading.main_thread()
+    previous = {s: signal.signal(s, on_term) for s in (signal.SIGTERM, signal.SIGHUP)} if main else {}
     try:  # the URL is announced inside: a Ctrl-C right after it (on a loaded machine) also stops cleanly
         announce(f"fluidgs view: {viewer.url} (Ctrl-C stops)")
         viewer.wait()
@@ -136,7 +137,7 @@ def serve(viewer: FluidViewer, announce=log.info) -> int:
         pass
     finally:
         viewer.close()
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
     log.info("viewer stopped")
     return 0

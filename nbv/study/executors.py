@@ -23,6 +23,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from typing import Any
 
 log = logging.getLogger(__name__)
@@ -61,14 +62,17 @@ class LocalExecutor:
         if not jobs:
             return
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(
-            max_workers=min(self.workers, len(jobs)),
-            mp_context=ctx,
-            initializer=self.initializer,
-            initargs=self.initargs,
-        ) as pool:
+        with hangup_shielded():  # the resource tracker starts here
+            pool = ProcessPoolExecutor(
+                max_workers=min(self.workers, len(jobs)),
+                mp_context=ctx,
+                initializer=self.initializer,
+                initargs=self.initargs,
+            )
+        with pool:
             try:
-                futures = {pool.submit(fn, job): job for job in jobs}
+                with hangup_shielded():  # the workers start here
+                    futures = {pool.submit(fn, job): job for job in jobs}
                 for fut in as_completed(futures):
                     try:
                         result = fut.result()
@@ -80,6 +84,22 @@ class LocalExecutor:
             except (KeyboardInterrupt, SystemExit, GeneratorExit):
                 terminate_workers(pool)  # a signal or an abandoned map: no worker may outlive it
                 raise
+
+
+@contextmanager
+def hangup_shielded() -> Iterator[None]:
+    """While entered, SIGHUP is blocked in this thread, so the processes it starts inherit the block: a closed terminal
+    sends SIGHUP to the whole process group, and the workers and the resource tracker (which ignores only SIGINT and
+    SIGTERM) must be stopped by their parent, not killed halfway. A SIGHUP that arrives meanwhile is delivered to this
+    process when the block ends."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def terminate_workers(pool: ProcessPoolExecutor, grace_s: float = 10.0) -> None:
@@ -195,7 +215,7 @@ class RayExecutor:
             # its own SIGTERM handler in the driver; the caller's handlers are put back, so that a signal ends the
             # tasks through the clean-up below instead of aborting the driver.
             handlers = (
-                {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+                {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
                 if threading.current_thread() is threading.main_thread()
                 else {}
             )

@@ -530,7 +530,7 @@ def _run_until_steps(cmd: list[str], log: Path, steps: int, timeout: float = 240
     raise AssertionError("sim did not reach the steps in time")
 
 
-@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
 def test_sim_keeps_its_frames_when_interrupted(tmp_path, sig, code):
     block = {"min": [0.1, 0.1, 0.1], "max": [0.6, 0.6, 0.6], "velocity": [1, 0, 0]}
     (tmp_path / "scene.json").write_text(json.dumps(_scene(steps=100000, particle_radius=0.02, fluid_blocks=[block])))
@@ -597,6 +597,6 @@ def test_output_errors_map_to_exit_4_and_bad_input_to_2(tmp_path, monkeypatch, c
 
 def test_exit_code_table_is_documented_in_both_places():
     doc = (ROOT / "docs" / "exit-codes.md").read_text()
-    for code in (0, 1, exit_codes.EXIT_BAD_INPUT, exit_codes.EXIT_DIVERGED, exit_codes.EXIT_OUTPUT, 130, 143):
+    for code in (0, 1, exit_codes.EXIT_BAD_INPUT, exit_codes.EXIT_DIVERGED, exit_codes.EXIT_OUTPUT, 129, 130, 143):
         assert re.search(rf"^\| *{code} *\|", doc, re.M), code
         assert re.search(rf"^{code} +\S", exit_codes.__doc__, re.M), code

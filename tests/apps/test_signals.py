@@ -95,6 +95,24 @@ def test_sigterm_in_the_final_write_of_simulate(sphere, tmp_path, kill_at_commit
     assert not list(tmp_path.iterdir())
 
 
+def test_sighup_is_handled_like_sigterm_unless_ignored(sphere, tmp_path, kill_at_commit, caplog):
+    """A closed terminal (SIGHUP) in the final write: exit 129, nothing left; under nohup (SIGHUP ignored when the
+    command starts) it stays ignored and the command completes."""
+    from apps.signals import handled_signals
+
+    kill_at_commit("r.h5", 1, signal.SIGHUP)
+    assert cli.main(["simulate", str(sphere), "-o", str(tmp_path / "r.h5"), "--directions=-x", *FAST]) == 129
+    assert "interrupted by SIGHUP" in caplog.text and not list(tmp_path.iterdir())
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        assert signal.SIGHUP not in handled_signals()
+        assert cli.main(["simulate", str(sphere), "-o", str(tmp_path / "r.h5"), "--directions=-x", *FAST]) == 0
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+    assert (tmp_path / "r.h5").is_file()
+
+
 def test_sigterm_between_two_outputs_keeps_the_first_complete(sphere, tmp_path, kill_at_commit):
     from nbv.physics import load_result
 
@@ -284,8 +302,8 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-@pytest.mark.parametrize("workers", [1, 2, "ray"])
-def test_sigterm_on_experiment_ends_its_workers(tmp_path, workers):
+@pytest.mark.parametrize("workers, sig", [(1, "term"), (2, "term"), ("ray", "term"), (2, "hup")])
+def test_sigterm_on_experiment_ends_its_workers(tmp_path, workers, sig):
     """SIGTERM to `fluidgs experiment` (workers busy with their jobs): exit 143, and no worker process, resource
     tracker, Ray process or other child outlives the parent, nor keeps writing into the run folders."""
     if workers == "ray" and importlib.util.find_spec("ray") is None:
@@ -324,9 +342,12 @@ def test_sigterm_on_experiment_ends_its_workers(tmp_path, workers):
     time.sleep(1.0)
     children = _descendants(proc.pid)
     assert len(children) >= (workers if workers != "ray" else 2)
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(timeout=60) == 143, log.read_text()[-3000:]
-    assert "Traceback" not in log.read_text()
+    if sig == "hup":  # a closed terminal: SIGHUP to the whole process group, workers included
+        os.killpg(proc.pid, signal.SIGHUP)
+    else:
+        proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == (129 if sig == "hup" else 143), log.read_text()[-3000:]
+    assert "Traceback" not in log.read_text(), log.read_text()[-6000:]
     deadline = time.monotonic() + 10
     while any(_alive(c) for c in children) and time.monotonic() < deadline:
         time.sleep(0.2)
