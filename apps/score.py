@@ -151,6 +151,7 @@ def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
     from nbv.coverage import agreement_lines, one_run_line
     from nbv.physics import ProbeDiverged
+    from nbv.physics.forces import force_lines
     from nbv.view_scoring import (
         ScoreSettings,
         check_cameras_see,
@@ -220,7 +221,7 @@ def run_command(args: argparse.Namespace) -> int:
             return save_diverged(exc, args.save_result)
     values = check_some_divergence(result, args.metric, args.result or args.gaussians)
     scored, rows, agreement = rank_views(gaussians, cams, idx, result, values, settings, visible_centres)
-    print("\n".join(probe_lines(result)))
+    print("\n".join(probe_lines(result) + force_lines(result.forces)))
     warning = reach_warning(values, scored.seen, result.config)
     if warning is not None:
         log.warning("%s", warning)

@@ -72,6 +72,7 @@ def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, check_writable
     from nbv.outputs import divergence_columns, probe_video, result_summary, save_colored_gaussians
     from nbv.physics import ProbeDiverged, save_result, simulate_gaussians
+    from nbv.physics.forces import force_lines
     from nbv.physics.replicas import replicas_gaussian_line
 
     from .runtime import init_taichi
@@ -134,6 +135,7 @@ def run_command(args: argparse.Namespace) -> int:
         )
         for w in result.warnings.get(d, []):
             print(f"    WARNING: {w}")
+    print("\n".join(force_lines(result.forces)))
     empty = "n/a" if result.dbar_empty is None else f"{result.dbar_empty:.4g}"
     print(f"D-bar {result.dbar:.4g} m^4/s (mean-combined {result.dbar_mean:.4g}; empty scene {empty})")
     if result.replicas is not None:

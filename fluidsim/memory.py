@@ -31,8 +31,10 @@ from .grid import Z_SPLIT
 from .scene import Domain, Scene, SceneError, lattice_counts
 from .sources import load_mesh, wall_particle_count
 
-BYTES_PER_FLUID = 1024
-BYTES_PER_BOUNDARY = 160
+# measured peaks, plus the arrays of the force on the solid (fluidsim.forces): three vec3 per fluid particle at f64
+# at most (the solid's gradient sum and the two viscous accelerations) and the i32 solid flag per boundary particle
+BYTES_PER_FLUID = 1024 + 72
+BYTES_PER_BOUNDARY = 160 + 4
 BYTES_PER_CELL = 40
 # sources.mesh_particles: per surface particle 3 candidates (indices, barycentrics, float64 positions, gathered
 # corners); per point of a filled mesh's bounding-box lattice, float64 positions and the occupancy query

@@ -253,6 +253,7 @@ class _Gather(NamedTuple):
     coef_scale: object
     too_far: object
     bvolume: object
+    bsolid: object
     boundary_pairs: object
     cap_b: object
     store_boundary: bool
@@ -263,6 +264,7 @@ class _Gather(NamedTuple):
     push_v: object
     nf: object
     grad_sum_b: object
+    grad_sum_s: object
     nb: object
 
 
@@ -298,6 +300,8 @@ def _gather_pair(s: ti.template(), j, r, ctx: ti.template()):
             ctx.rho += vb * w
             cg *= vb
             ctx.grad_sum_b += cg * r
+            if ctx.bsolid[j]:
+                ctx.grad_sum_s += cg * r
             if ti.static(ctx.store_boundary):
                 if ctx.nb < ctx.cap_b:
                     ctx.boundary_pairs[ctx.i, ctx.nb] = pack_pair(j, cg)
@@ -311,6 +315,7 @@ def build_neighborhoods(
     fluid_starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
     bx: ti.types.ndarray(ndim=1),
     bvolume: ti.types.ndarray(ndim=1),
+    bsolid: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
     origin: vec3d,
     inv_cell: vec3d,
@@ -322,6 +327,7 @@ def build_neighborhoods(
     boundary_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     boundary_pairs: ti.types.ndarray(ndim=2),
     boundary_grad_sum: ti.types.ndarray(ndim=1),
+    solid_grad_sum: ti.types.ndarray(ndim=1),
     grad_sum_out: ti.types.ndarray(ndim=1),
     density: ti.types.ndarray(ndim=1),
     factor: ti.types.ndarray(ndim=1),
@@ -373,6 +379,7 @@ def build_neighborhoods(
         div = 0.0 * rho
         grad_sum = xi * 0.0
         grad_sum_b = xi * 0.0
+        grad_sum_s = xi * 0.0
         sq_sum = 0.0
         nf = 0
         nb = 0
@@ -402,6 +409,7 @@ def build_neighborhoods(
                     coef_scale,
                     too_far,
                     bvolume,
+                    bsolid,
                     boundary_pairs,
                     cap_b,
                     store_boundary,
@@ -412,12 +420,14 @@ def build_neighborhoods(
                     push_v,
                     nf,
                     grad_sum_b,
+                    grad_sum_s,
                     nb,
                 )
             ),
         )
         density[i] = rho
         boundary_grad_sum[i] = grad_sum_b
+        solid_grad_sum[i] = grad_sum_s
         div += vi.dot(grad_sum_b)
         if div < 0.0 or nf + nb < FREE_SURFACE_NEIGHBORS:
             div = 0.0

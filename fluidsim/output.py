@@ -14,6 +14,9 @@ Layout::
     /frames/<k>/density               (K,) rho_i / rho_0 of that step
                                       attributes: time (s), step
     /stats                            one row per step (see fluidsim.solver.StepStats)
+    /forces/solid, /forces/walls      (S, 3) the fluid's force on the scene's solids (all together) and on the domain
+                                      walls per step, N (fluidsim.forces); attributes: mean (3,) N, the time mean
+                                      over the second half of the run; impulse (3,) N s
     /divergence_sum, /divergence_count (N,) per initial fluid particle, over the whole run
     /boundary/x                       (M, 3) static boundary particles, m
     attributes: scene (the scene JSON), status ("complete", the fault, or "interrupted"), removed_inside_solid
@@ -41,6 +44,7 @@ from fluidsim.files import (
 )
 from fluidsim.files.atomic import PathLike
 
+from .forces import force_history
 from .solver import STATS_FIELDS, StepStats
 
 __all__ = [
@@ -143,6 +147,9 @@ class SimulationWriter:
         try:
             with output_errors(self._pending.path):
                 self.file.create_dataset("stats", data=stats_table(history))
+                for part, f in force_history(history).items():
+                    ds = self.file.create_dataset(f"forces/{part}", data=f["series"])
+                    ds.attrs["mean"], ds.attrs["impulse"] = f["mean"], f["impulse"]
                 self.file.create_dataset("divergence_sum", data=divergence_sum)
                 self.file.create_dataset("divergence_count", data=divergence_count)
                 self.file.attrs["status"] = status

@@ -38,6 +38,8 @@ class FluidParticles:
             solver's warm-start stiffness w_i (:func:`fluidsim.dfsph.density_warm_record`), read by the
             non-pressure pass. stiffness_sum, source: solver scratch.
         divergence: D_i of the current step (1/s).
+        boundary_viscous, solid_viscous: the viscous acceleration of this step from all the boundary and from the
+            solid alone (vec3, m/s^2; :func:`fluidsim.viscosity.predict_velocities`), read by :mod:`fluidsim.forces`.
         push_divergence: the divergence solver's warm-start push P_i of this step (vec3, 1/m times the units of
             kappa; :func:`fluidsim.neighbors.build_neighborhoods`).
         cell_ids, ranks, order: counting-sort scratch.
@@ -70,6 +72,8 @@ class FluidParticles:
         self.position_stiffness = ti.Vector.ndarray(4, fp, shape=max(n, 1))
         self.density_record = ti.Vector.ndarray(4, fp, shape=max(n, 1))
         self.push_divergence = _vec_ndarray(fp, n)
+        self.boundary_viscous = _vec_ndarray(fp, n)
+        self.solid_viscous = _vec_ndarray(fp, n)
         for name in ("cell_ids", "ranks", "order"):
             setattr(self, name, ti.ndarray(ti.i32, shape=max(n, 1)))
         self._spare = {name: _like(getattr(self, name)) for name in self.PERSISTENT}
@@ -110,15 +114,31 @@ class BoundaryParticles:
         x: (M,) vec3 positions, metres, in cell order.
         volume: (M,) Akinci volumes V_b = 1 / sum_k W(x_b - x_k), m^3 (filled by the solver setup).
         cell_starts: (num_cells + 1,) first slot of each cell.
+        solid: (M,) i32, 1 for a particle of the solid (whose force :mod:`fluidsim.forces` reports), 0 for a wall.
+        solid_count: how many are solid.
     """
 
-    def __init__(self, positions_sorted: np.ndarray, cell_starts: np.ndarray, precision: str):
+    def __init__(
+        self,
+        positions_sorted: np.ndarray,
+        cell_starts: np.ndarray,
+        precision: str,
+        solid_sorted: np.ndarray | None = None,
+    ):
         fp = float_dtype(precision)
         m = positions_sorted.shape[0]
         self.count = m
         self.x = _vec_ndarray(fp, m)
         self.volume = ti.ndarray(fp, shape=max(m, 1))
         self.cell_starts = ti.ndarray(ti.i32, shape=cell_starts.shape[0])
+        self.solid = ti.ndarray(ti.i32, shape=max(m, 1))
+        flags = np.zeros(max(m, 1), np.int32)
+        if solid_sorted is not None:
+            if len(solid_sorted) != m:
+                raise ValueError(f"solid flags ({len(solid_sorted)},) differ from the boundary particles ({m},)")
+            flags[:m] = np.asarray(solid_sorted, bool)
+        self.solid.from_numpy(flags)
+        self.solid_count = int(flags[:m].sum())
         if m:
             self.x.from_numpy(positions_sorted.astype(_np_dtype(fp)))
         self.cell_starts.from_numpy(cell_starts.astype(np.int32))
@@ -133,7 +153,8 @@ class Neighborhoods:
     so the pressure forces stay antisymmetric), or WIDE, an integer 2-vector of the index and the bits of
     c_ij (f64 runs, and f32 runs whose offsets outgrow 16 bits: the solver switches once and logs it).
     Boundary pairs are always WIDE (b, V_b-weighted c_ib). ``boundary_grad_sum`` (vec3 per particle) holds
-    sum_b V_b grad W_ib, all the pressure solvers need of the boundary, and ``grad_sum`` the whole
+    sum_b V_b grad W_ib, all the pressure solvers need of the boundary, ``solid_grad_sum`` the same sum over the
+    solid's particles alone (for the force on the solid, :mod:`fluidsim.forces`), and ``grad_sum`` the whole
     sum_j V_j grad W_ij + sum_b V_b grad W_ib.
 
     Attributes:
@@ -159,6 +180,7 @@ class Neighborhoods:
         self.boundary_count = ti.ndarray(ti.i32, shape=self.n)
         self.boundary_grad_sum = ti.Vector.ndarray(3, self.fp, shape=self.n)
         self.grad_sum = ti.Vector.ndarray(3, self.fp, shape=self.n)
+        self.solid_grad_sum = ti.Vector.ndarray(3, self.fp, shape=self.n)
         self.fluid_capacity = 0
         self.boundary_capacity = 0
         self.resize(capacity, capacity)

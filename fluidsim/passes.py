@@ -126,6 +126,7 @@ def neighborhood_pass(
         g.starts,
         boundary.x,
         boundary.volume,
+        boundary.solid,
         boundary.cell_starts,
         g.origin,
         g.inv_cell,
@@ -137,6 +138,7 @@ def neighborhood_pass(
         lists.boundary_count,
         lists.boundary_pairs,
         lists.boundary_grad_sum,
+        lists.solid_grad_sum,
         lists.grad_sum,
         fluid.density,
         fluid.factor,
@@ -314,6 +316,7 @@ def predict_velocities(
         fluid.density,
         fluid.density_record,
         boundary.x,
+        boundary.solid,
         lists.fluid_count,
         lists.fluid_pairs,
         lists.format,
@@ -329,6 +332,8 @@ def predict_velocities(
         int(warm),
         fluid.stiffness_sum,
         fluid.velocity_scratch(),
+        fluid.boundary_viscous,
+        fluid.solid_viscous,
     )
     fluid.swap_velocity()
 

@@ -220,14 +220,16 @@ def probe_setups(
 def build_probe_solver(
     solid_points: np.ndarray, setup: ProbeSetup, config: SolverConfig, probe: ProbeConfig
 ) -> DFSPHSolver:
-    """A solver for one probe: solid plus optional walls as boundary, the slab as fluid."""
+    """A solver for one probe: solid plus optional walls as boundary (the solid flagged, so each step reports the
+    force on it apart from the walls), the slab as fluid."""
     spacing = config.spacing
     boundary = [np.asarray(solid_points, np.float64).reshape(-1, 3)]
     if probe.walls:
         boundary.append(sources.wall_particles(setup.domain_min, setup.domain_max, spacing, probe.wall_layers))
     fluid = lattice_in_box(setup.fluid_min, setup.fluid_max, spacing)
     vel = np.broadcast_to(np.asarray(setup.velocity), fluid.shape)
-    return DFSPHSolver(config, setup.domain_min, setup.domain_max, fluid, vel, np.concatenate(boundary))
+    solid = np.arange(sum(len(b) for b in boundary)) < len(boundary[0])  # the solid first, then the walls
+    return DFSPHSolver(config, setup.domain_min, setup.domain_max, fluid, vel, np.concatenate(boundary), solid)
 
 
 def run_probes(

@@ -34,15 +34,21 @@ class SimulationDiverged(RuntimeError):
         self.history: list[StepStats] = []
 
 
-def boundary_points_for_scene(scene: Scene) -> np.ndarray:
-    """All static boundary particles of a scene: domain walls and every solid, (M, 3) m."""
+def boundary_points_for_scene(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """All static boundary particles of a scene: domain walls and every solid.
+
+    Returns:
+        (points (M, 3) m, solid (M,) bool: the points of the solids, whose summed force the steps report).
+    """
     spacing = scene.config.spacing
     parts = []
     if scene.domain.walls:
         parts.append(sources.wall_particles(scene.domain.min, scene.domain.max, spacing, scene.domain.wall_layers))
+    walls = sum(len(p) for p in parts)
     for solid in scene.solids:
         parts.append(solid_points(solid, scene.base_dir, spacing))
-    return np.concatenate(parts) if parts else np.zeros((0, 3))
+    points = np.concatenate(parts) if parts else np.zeros((0, 3))
+    return points, np.arange(len(points)) >= walls
 
 
 def solid_points(solid, base_dir: str, spacing: float) -> np.ndarray:
@@ -80,9 +86,9 @@ def build_solver(scene: Scene) -> DFSPHSolver:
     Raises:
         ValueError: when no fluid particle is left.
     """
-    boundary = boundary_points_for_scene(scene)
+    boundary, solid = boundary_points_for_scene(scene)
     x, v, removed = fluid_for_scene(scene)
-    solver = DFSPHSolver(scene.config, scene.domain.min, scene.domain.max, x, v, boundary)
+    solver = DFSPHSolver(scene.config, scene.domain.min, scene.domain.max, x, v, boundary, solid)
     removed += solver.removed_inside_solid
     solver.removed_inside_solid = removed
     if removed:

@@ -84,7 +84,7 @@ from typing import NamedTuple
 import numpy as np
 import taichi as ti
 
-from . import estimator, neighbors, passes
+from . import estimator, forces, neighbors, passes
 from .config import RETIRE_MARGIN_MAX, SolverConfig
 from .grid import Z_SPLIT, GridSpec, cell_index_np, grid_for_box
 from .kernels import CUBIC_TABLE_SIZE, cubic_table_np, cubic_w_np
@@ -108,6 +108,9 @@ class StepStats:
         retired: fluid particles that left the domain (past the retire margin) in this step.
         active: fluid particles left.
         max_fluid_neighbors / max_boundary_neighbors: largest neighbour counts.
+        solid_force_x/y/z: the step's mean force of the fluid on the solid, N, simulation frame
+            (:mod:`fluidsim.forces`; pressure and boundary viscosity).
+        wall_force_x/y/z: the same on the walls (every boundary particle not of the solid), N.
     """
 
     step: int
@@ -123,6 +126,22 @@ class StepStats:
     active: int
     max_fluid_neighbors: int
     max_boundary_neighbors: int
+    solid_force_x: float = 0.0
+    solid_force_y: float = 0.0
+    solid_force_z: float = 0.0
+    wall_force_x: float = 0.0
+    wall_force_y: float = 0.0
+    wall_force_z: float = 0.0
+
+    @property
+    def solid_force(self) -> np.ndarray:
+        """(3,) N, the force on the solid."""
+        return np.array([self.solid_force_x, self.solid_force_y, self.solid_force_z])
+
+    @property
+    def wall_force(self) -> np.ndarray:
+        """(3,) N, the force on the walls."""
+        return np.array([self.wall_force_x, self.wall_force_y, self.wall_force_z])
 
 
 STATS_FIELDS = tuple(StepStats.__dataclass_fields__)
@@ -187,11 +206,16 @@ def fluid_particle_volume(spacing: float, h: float) -> float:
     return float(1.0 / cubic_w_np(np.linalg.norm(pts, axis=1), h).sum())
 
 
-def sort_points_by_cell(points: np.ndarray, spec: GridSpec) -> tuple[np.ndarray, np.ndarray, int]:
+def sort_points_by_cell(
+    points: np.ndarray, spec: GridSpec, labels: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray | None]:
     """Stable numpy sort of static points by grid cell.
 
+    Args:
+        points: (M, 3) m. spec: the grid. labels: (M,) per-point values carried along (e.g. the solid flags).
     Returns:
-        (points inside the grid in cell order (M,3), cell starts (num_cells + 1,), dropped count).
+        (points inside the grid in cell order (M',3), cell starts (num_cells + 1,), dropped count, their labels
+        (M',) or None).
     """
     cells = cell_index_np(points, spec)
     keep = cells < spec.num_cells
@@ -199,7 +223,8 @@ def sort_points_by_cell(points: np.ndarray, spec: GridSpec) -> tuple[np.ndarray,
     pts = points[keep][order]
     counts = np.bincount(cells[keep], minlength=spec.num_cells)
     starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return pts, starts, int((~keep).sum())
+    sorted_labels = None if labels is None else np.asarray(labels)[keep][order]
+    return pts, starts, int((~keep).sum()), sorted_labels
 
 
 class DFSPHSolver:
@@ -211,6 +236,8 @@ class DFSPHSolver:
             box is retired.
         fluid_positions, fluid_velocities: (N, 3) m and m/s.
         boundary_points: (M, 3) m, static (walls and solids).
+        solid: (M,) bool, which boundary points are the solid whose force :class:`StepStats` reports (the rest are
+            walls); None: none.
 
     The stages of :meth:`step` are public (:meth:`sort`, :meth:`find_neighborhoods`, :meth:`divergence_solve`,
     :meth:`divergence_estimate`, :meth:`non_pressure_forces`, :meth:`density_solve`), so tests can run and check
@@ -225,6 +252,7 @@ class DFSPHSolver:
         fluid_positions: np.ndarray,
         fluid_velocities: np.ndarray,
         boundary_points: np.ndarray,
+        solid: np.ndarray | None = None,
     ):
         runtime_fp = ti.lang.impl.get_runtime().default_fp
         if runtime_fp != float_dtype(config.precision):
@@ -248,10 +276,13 @@ class DFSPHSolver:
         self._retire_max = ti.Vector(list(self.domain_max + margin), ti.f64)
         self.fluid_volume = fluid_particle_volume(config.spacing, h)
 
-        bpts, bstarts, dropped = sort_points_by_cell(np.asarray(boundary_points, np.float64).reshape(-1, 3), self.grid)
+        bpts = np.asarray(boundary_points, np.float64).reshape(-1, 3)
+        if solid is not None and np.shape(solid) != (len(bpts),):
+            raise ValueError(f"solid flags {np.shape(solid)} differ from the boundary points ({len(bpts)}, 3)")
+        bpts, bstarts, dropped, solid_sorted = sort_points_by_cell(bpts, self.grid, solid)
         if dropped:
             log.info("dropped %d boundary particles outside the simulation grid", dropped)
-        self.boundary = BoundaryParticles(bpts, bstarts, config.precision)
+        self.boundary = BoundaryParticles(bpts, bstarts, config.precision, solid_sorted)
         passes.boundary_volumes(self.boundary, self.cells, h)
 
         fx = np.asarray(fluid_positions, np.float64).reshape(-1, 3)
@@ -265,6 +296,8 @@ class DFSPHSolver:
         self._kernel_table = ti.Vector.ndarray(2, float_dtype(config.precision), shape=CUBIC_TABLE_SIZE + 2)
         self._kernel_table.from_numpy(cubic_table_np(h).astype(np.float64 if config.precision == "f64" else np.float32))
         self.fluid = FluidParticles(fx, fv, config.precision)
+        self.fluid_mass = config.rest_density * self.fluid_volume  # m = rho_0 V_f, kg
+        self._forces = forces.BoundaryForces(self.fluid.capacity)
         capacity = config.max_neighbors
         if capacity is None:
             capacity = neighbors.list_capacity(neighbors.lattice_neighbor_count(config.spacing, h))
@@ -299,6 +332,7 @@ class DFSPHSolver:
         )  # [D_i, Eq. 1]; (W2) records written?
         dens = stage("density_solve", self.density_solve, dt)  # correctDensityError: (E6), (E4), (E5),
         self._max_speed = dens.max_speed  # (W3); x += dt v (E9)
+        on_solid, on_walls = stage("forces", self.boundary_forces, dt, div.iterations > 0)  # reactions
         self.time += dt
         stats = StepStats(
             step=self.step_index,
@@ -314,6 +348,12 @@ class DFSPHSolver:
             active=self.fluid.active,
             max_fluid_neighbors=counts.fluid,
             max_boundary_neighbors=counts.boundary,
+            solid_force_x=float(on_solid[0]),
+            solid_force_y=float(on_solid[1]),
+            solid_force_z=float(on_solid[2]),
+            wall_force_x=float(on_walls[0]),
+            wall_force_y=float(on_walls[1]),
+            wall_force_z=float(on_walls[2]),
         )
         self.step_index += 1
         return stats
@@ -478,6 +518,11 @@ class DFSPHSolver:
             self.config.min_iterations,
             advect=True,
         )
+
+    def boundary_forces(self, dt: float, divergence_ran: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The step's force of the fluid on the solid and on the walls, N ((3,), (3,); :mod:`fluidsim.forces`),
+        from the stiffness both solvers stored this step and the non-pressure pass's boundary viscosity."""
+        return forces.boundary_forces(self.fluid, self.neighborhoods, self._forces, dt, self.fluid_mass, divergence_ran)
 
     def divergence_estimate(self) -> None:
         """Paper Eq. 1 as a pass of its own (:func:`fluidsim.passes.divergence_estimate`; the step fuses the

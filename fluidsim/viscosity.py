@@ -46,6 +46,7 @@ def predict_velocities(
     density: ti.types.ndarray(ndim=1),
     density_record: ti.types.ndarray(ndim=1),
     bx: ti.types.ndarray(ndim=1),
+    bsolid: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_count: ti.types.ndarray(dtype=ti.i32, ndim=1),
     fluid_pairs: ti.types.ndarray(ndim=2),
     fmt: ti.template(),
@@ -61,6 +62,8 @@ def predict_velocities(
     warm: ti.i32,
     stiffness_sum: ti.types.ndarray(ndim=1),
     v_out: ti.types.ndarray(ndim=1),
+    boundary_viscous: ti.types.ndarray(ndim=1),
+    solid_viscous: ti.types.ndarray(ndim=1),
 ):
     """Non-pressure forces and the constant-density solver's start, in one sweep over the lists
     (B&K 2017, Alg. 1 and 2):
@@ -71,6 +74,9 @@ def predict_velocities(
     - the predicted velocity v*_i = v_i + dt a_i - P_i / dt, written to ``v_out`` (the sweep reads the
       neighbours' v, so it cannot update v in place; the caller swaps the buffers), and the stiffness sum
       started at k_i (0 without ``warm``);
+    - the viscous acceleration from the boundary, a_b,i = (mu_b / (rho_0 rho_i)) 2 (d + 2) sum_b (...), written to
+      ``boundary_viscous``, and its part from the solid's particles (``bsolid``) to ``solid_viscous`` (the
+      reaction -m a is the viscous force on the boundary, :mod:`fluidsim.forces`);
     - with ``estimate`` = 1, paper Eq. 1 from the stored gradients,
       D_i = |sum_j (v_j - v_i) . V_f grad W_ij / rho_j - v_i . sum_b V_b grad W_ib| (1/s), stored and added to
       the run sum and count.
@@ -96,13 +102,20 @@ def predict_velocities(
             if warm:
                 pushed += (q[3] * c) * xij
         lap_b = vi * 0.0
+        lap_s = vi * 0.0
         if mu_boundary != 0.0:  # free-slip boundaries (mu_b = 0) skip the boundary list
             for k in range(boundary_count[i]):
                 b, c = unpack_pair(boundary_pairs[i, k])
                 xib = xi - bx[b]
-                lap_b += (vi.dot(xib) * c / (xib.dot(xib) + eps)) * xib
+                term = (vi.dot(xib) * c / (xib.dot(xib) + eps)) * xib
+                lap_b += term
+                if bsolid[b]:
+                    lap_s += term
         rho_i = density[i]
         a = gravity + LAPLACIAN_FACTOR * (mu * lap_f + mu_boundary * lap_b) / (rest_density * rho_i)
+        to_acceleration = mu_boundary * LAPLACIAN_FACTOR / (rest_density * rho_i)  # the boundary's share of a
+        boundary_viscous[i] = to_acceleration * lap_b
+        solid_viscous[i] = to_acceleration * lap_s
         dv = dt * a
         ki = 0.0 * rho_i
         if warm:

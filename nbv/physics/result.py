@@ -21,6 +21,7 @@ from fluidsim.files import check_input_file
 from nbv import scores
 from nbv.io import atomic_h5
 from nbv.physics.config import PhysicsConfig
+from nbv.physics.forces import ProbeForces, result_forces
 from nbv.physics.leaks import read_probe_leaks, write_probe_leaks
 from nbv.physics.replicas import ReplicaRuns, read_replicas, write_replicas
 from nbv.physics.scene_frame import SceneTransform, gaussian_arrays_in_sim
@@ -109,6 +110,13 @@ class PhysicsResult:
         have D_g = 0 because no fluid came near them, not because the flow is calm there: show them apart."""
         return np.asarray(self.per_probe_counts).sum(0) > 0
 
+    @property
+    def forces(self) -> dict[str, ProbeForces]:
+        """Per probe, the force of its fluid on the solid (:class:`nbv.physics.forces.ProbeForces`: the series per
+        step, N, simulation frame; the time mean over the second half; the impulse; drag, lift, side and their
+        coefficients). Probes whose statistics predate the forces are left out."""
+        return result_forces(self)
+
     def distinct_counts(self) -> np.ndarray:
         """[G] |P_g| summed over the probes (each probe has its own fluid particles); needs track_distinct."""
         if self.per_probe_distinct is None:
@@ -156,7 +164,12 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         /probes/<dir>/counts    (G,) (particle, step) samples
         /probes/<dir>/distinct  (G,) |P_g| (only with track_distinct)
         /probes/<dir>/D_empty   (G,) the empty-scene D_g^(IC) (only with the empty reference)
-        /probes/<dir>/stats     one row per step (fluidsim StepStats fields)
+        /probes/<dir>/stats     one row per step (fluidsim StepStats fields, the forces on the solid and the walls
+                                among them)
+        /probes/<dir>/force     (S, 3) the force of the fluid on the solid per step, N, simulation frame (Y up)
+                                attributes: mean (3,) N, the time mean over the second half of the run; impulse (3,)
+                                N s; drag, lift, side (N, of the mean; NaN where undefined); C_d, C_l, C_s (NaN without
+                                an inflow speed); area (m^2, projected normal to the flow); speed (m/s)
                                 attributes: domain_min, domain_max (sim metres), warnings (JSON list of text)
         /probes/<dir>/leaked    (K,) int32 ids of the fluid particles inside the filled solid at the end (leaks.py:
                                 the nearest lattice point and its 6 neighbours are solid; contact is not a leak)
@@ -184,6 +197,7 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         the path written.
     """
     p = Path(path)
+    forces = result.forces
     with atomic_h5(p) as f:
         g = f.create_group("gaussians")
         g["D"], g["D_mean"], g["means"] = result.divergence, result.divergence_mean, result.means
@@ -196,6 +210,8 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
             if result.empty_per_probe is not None:
                 pg["D_empty"] = result.empty_per_probe[i]
             pg["stats"] = result.stats[d]
+            if d in forces:
+                write_probe_force(pg, forces[d])
             if d in result.domains:
                 pg.attrs["domain_min"], pg.attrs["domain_max"] = result.domains[d]
             pg.attrs["warnings"] = json.dumps(list(result.warnings.get(d, [])))
@@ -223,6 +239,19 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         if result.replicas is not None:
             write_replicas(f, result.replicas)
     return p
+
+
+def write_probe_force(group, pf: ProbeForces) -> None:
+    """The /probes/<dir>/force dataset and its attributes (:func:`save_result`)."""
+    ds = group.create_dataset("force", data=pf.series)
+    ds.attrs["mean"], ds.attrs["impulse"] = pf.mean, pf.impulse
+    ds.attrs["area"], ds.attrs["speed"] = pf.area, pf.speed
+    for key, v in pf.parts().items():
+        ds.attrs[key] = float("nan") if v is None else v
+    coefficients = pf.coefficients() if pf.area > 0 else None
+    for key, name in (("drag", "C_d"), ("lift", "C_l"), ("side", "C_s")):
+        v = None if coefficients is None else coefficients[key]
+        ds.attrs[name] = float("nan") if v is None else v
 
 
 def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:

@@ -126,10 +126,14 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
     bvol.fill(1.0e-4)
     bst = ti.ndarray(ti.i32, shape=len(bstarts))
     bst.from_numpy(bstarts.astype(np.int32))
+    solid = (np.arange(len(bx)) % 3 == 0).astype(np.int32)  # a third of the boundary is "the solid"
+    bsolid = ti.ndarray(ti.i32, shape=len(bx))
+    bsolid.from_numpy(solid)
     st = ti.ndarray(ti.i32, shape=len(starts))
     st.from_numpy(starts.astype(np.int32))
     dens, fac = ti.ndarray(ti.f32, shape=n), ti.ndarray(ti.f32, shape=n)
     bsum, gsum = ti.Vector.ndarray(3, ti.f32, shape=n), ti.Vector.ndarray(3, ti.f32, shape=n)
+    solid_sum = ti.Vector.ndarray(3, ti.f32, shape=n)
     vel = rng.normal(0.0, 1.0, (n, 3)).astype(np.float32)
     v_nd, src = _to_nd(vel), ti.ndarray(ti.f32, shape=n)
     args = (
@@ -153,6 +157,7 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
             st,
             bx_nd,
             bvol,
+            bsolid,
             bst,
             *args,
             nb.fluid_count,
@@ -160,6 +165,7 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
             nb.boundary_count,
             nb.boundary_pairs,
             bsum,
+            solid_sum,
             gsum,
             dens,
             fac,
@@ -206,6 +212,12 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
     ref_sum = np.array([1.0e-4 * cubic_grad_w_np(x32[i] - b32[ref_b[i]], h).sum(0) for i in range(n)])
     assert np.abs(ref_sum).max() > 0  # some particles do see the boundary
     np.testing.assert_allclose(bsum.to_numpy(), ref_sum, rtol=1e-4, atol=1e-5 * np.abs(ref_sum).max())
+    # ... and over the solid's particles alone (the force on the solid, fluidsim.forces)
+    ref_solid = np.array(
+        [1.0e-4 * cubic_grad_w_np(x32[i] - b32[ref_b[i][solid[ref_b[i]] == 1]], h).sum(0) for i in range(n)]
+    )
+    assert 0 < np.abs(ref_solid).max() and np.abs(ref_solid - ref_sum).max() > 0
+    np.testing.assert_allclose(solid_sum.to_numpy(), ref_solid, rtol=1e-4, atol=1e-5 * np.abs(ref_sum).max())
     # the divergence source: sum_j (v_i - v_j) . V_f grad W_ij + v_i . sum_b V_b grad W_ib, zero where
     # negative or with fewer than FREE_SURFACE_NEIGHBORS neighbours
     v64 = vel.astype(np.float64)
@@ -226,6 +238,7 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
         st,
         bx_nd,
         bvol,
+        bsolid,
         bst,
         *args,
         nb.fluid_count,
@@ -233,6 +246,7 @@ def test_neighbour_lists_equal_brute_force_with_corner_cells(fmt, z_split):
         nb.boundary_count,
         nb.boundary_pairs,
         bsum,
+        solid_sum,
         gsum,
         dens,
         fac,
@@ -344,8 +358,8 @@ def test_neighbour_walk_visits_each_candidate_once(radius_cells):
         [0.3, 0.25, 0.2001],
     ]
     bpts = rng.uniform([0, 0, 0], [0.6, 0.5, 0.4], (300, 3))
-    fx, fstarts, dropped = sort_points_by_cell(pts, spec)
-    bx, bstarts, bdropped = sort_points_by_cell(bpts, spec)
+    fx, fstarts, dropped, _ = sort_points_by_cell(pts, spec)
+    bx, bstarts, bdropped, _ = sort_points_by_cell(bpts, spec)
     assert dropped == bdropped == 0
     st, bst = ti.ndarray(ti.i32, shape=len(fstarts)), ti.ndarray(ti.i32, shape=len(bstarts))
     st.from_numpy(fstarts.astype(np.int32))
