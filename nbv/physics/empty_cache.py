@@ -24,6 +24,11 @@ D_g from the cache is the same bits as the one accumulated during the simulation
   key, the size and the SHA-256 of the payload, and an entry that fails (corrupt, truncated, foreign) is logged,
   removed and rebuilt, never read.
 - **An unwritable folder** turns the cache off for the rest of the run with one warning.
+- **Trust**: the folder is untrusted input. An entry is read only as a regular file (``O_NOFOLLOW | O_NONBLOCK``,
+  checked by its descriptor: no link to /dev/zero, no FIFO) of at most the cache's bound (a means entry: 8 bytes per
+  Gaussian and its header). The hash finds damage, not forgery (a writer of the folder can recompute it), so the
+  reader also checks plausibility: finite samples, and means that name the samples this process keyed them on and
+  are no larger than those samples' largest |D_i| (a mean is an average of them). docs/cli.md says what is left.
 
 A second kind of entry keeps the means of those samples accumulated onto one set of Gaussians (:func:`means_key`:
 the samples' key, the Gaussians' centres and reach, the accumulator's source; 8 bytes per Gaussian), so that a run
@@ -36,12 +41,14 @@ per step [S] int64, the positions [N, 3] and the values [N] of the solver's floa
 
 from __future__ import annotations
 
+import errno
 import functools
 import hashlib
 import json
 import logging
 import math
 import os
+import stat
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -136,7 +143,14 @@ def means_key(samples_key: str, centers: np.ndarray, reach: np.ndarray) -> str:
         a = np.ascontiguousarray(a, np.float64)
         h.update(str(a.shape).encode())
         h.update(a.tobytes())
-    return h.hexdigest()
+    key = h.hexdigest()
+    _MEANS_SOURCES[key] = samples_key  # the reader checks the means against these samples (EmptyCache.load_means)
+    return key
+
+
+# means key -> the samples key it was made from, in this process (means_key): a means entry names its samples in its
+# header, and the reader checks that name against what it computed itself, never against the file alone
+_MEANS_SOURCES: dict[str, str] = {}
 
 
 def cache_key(setup, solver_config, wall_layers: int, steps: int, accumulate_every: int) -> str:
@@ -242,17 +256,24 @@ class EmptyCache:
         if self.disabled:
             return None
         p = self.path(key)
+        limit = self.max_bytes if num_gaussians is None else 16 + _HEADER_LIMIT + 8 * int(num_gaussians)
         try:
-            data = p.read_bytes()
+            data = _read_entry(p, limit)
         except (FileNotFoundError, NotADirectoryError):
             return None  # not stored (or no folder yet)
+        except ValueError as exc:  # a link, a FIFO, a device, an entry larger than any the cache writes
+            log.warning("empty-scene cache entry %s %s; removed, the empty scene is simulated", p, exc)
+            p.unlink(missing_ok=True)
+            return None
         except OSError as exc:
             log.warning("empty-scene cache entry %s cannot be read (%s); the empty scene is simulated", p, exc)
             return None
         try:
             arrays = _decode(data, key, names)
-            if num_gaussians is not None and arrays["means"].shape != (num_gaussians,):
-                raise ValueError(f"{arrays['means'].shape[0]} means for {num_gaussians} Gaussians")
+            if num_gaussians is not None:
+                if arrays["means"].shape != (num_gaussians,):
+                    raise ValueError(f"{arrays['means'].shape[0]} means for {num_gaussians} Gaussians")
+                self._check_means(key, arrays["means"], arrays.get("samples_key"))
         except ValueError as exc:
             log.warning(
                 "empty-scene cache entry %s is damaged (%s); ignored, the empty scene is simulated again", p, exc
@@ -265,6 +286,26 @@ class EmptyCache:
             pass
         return arrays
 
+    def _check_means(self, key: str, means: np.ndarray, named: str | None) -> None:
+        """The means of an entry are plausible: finite, made from the samples this process keyed them on (the header
+        names them) and, as averages of those samples' D_i, no larger than the largest |D_i| among them."""
+        if not np.isfinite(means).all():
+            raise ValueError("non-finite means")
+        source = _MEANS_SOURCES.get(key)
+        if source is None:
+            return  # a key not made by means_key here: nothing to check the means against
+        if named != source:
+            raise ValueError(f"it names the samples {str(named)[:12]}..., not {source[:12]}...")
+        samples = self.load(source)
+        if samples is None:
+            raise ValueError("its samples are not in the cache (the means cannot be checked)")
+        largest = float(np.abs(samples.values).max()) if len(samples.values) else 0.0
+        if float(np.abs(means).max(initial=0.0)) > largest * (1 + 1e-6) + 1e-6:
+            raise ValueError(
+                f"a mean of {float(np.abs(means).max()):.4g} 1/s exceeds the largest |D_i| of its samples, "
+                f"{largest:.4g} 1/s (not an average of them)"
+            )
+
     # -- writing -----------------------------------------------------------------------------------
     def save(self, key: str, samples: EmptySamples) -> bool:
         """Store ``samples`` under ``key`` (atomically), then keep the folder within the bound. An unwritable folder
@@ -275,12 +316,12 @@ class EmptyCache:
 
     def save_means(self, key: str, means: np.ndarray) -> bool:
         """Store [G] float64 means under ``key`` (:func:`means_key`), as :meth:`save`."""
-        return self._write(key, {"means": np.asarray(means, np.float64)})
+        return self._write(key, {"means": np.asarray(means, np.float64)}, _MEANS_SOURCES.get(key))
 
-    def _write(self, key: str, arrays: dict[str, np.ndarray]) -> bool:
+    def _write(self, key: str, arrays: dict[str, np.ndarray], samples_key: str | None = None) -> bool:
         if self.disabled:
             return False
-        header, payload_parts = _encode(arrays, key)
+        header, payload_parts = _encode(arrays, key, samples_key)
         size = len(header) + sum(len(b) for b in payload_parts)
         if size > self.max_bytes:
             log.info("empty-scene entry of %.3g GB exceeds the cache bound (%s); not stored", size / 1e9, CACHE_MAX_ENV)
@@ -356,7 +397,28 @@ class EmptyCache:
 _DTYPES = ("<f4", "<f8", "<i8")
 
 
-def _encode(arrays: dict[str, np.ndarray], key: str) -> tuple[bytes, list[bytes]]:
+def _read_entry(path: Path, limit: int) -> bytes:
+    """The bytes of an entry: a regular file (never through a symbolic link, never a FIFO or a device: opened without
+    blocking and checked by its descriptor) of at most ``limit`` bytes. ValueError says what else it is."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ValueError("is a symbolic link (entries are regular files)") from None
+        raise
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError("is not a regular file (a FIFO, a device or a socket)")
+        if st.st_size > limit:
+            raise ValueError(f"holds {st.st_size} bytes, more than the {limit} an entry may hold")
+        data = fh.read(st.st_size + 1)
+    if len(data) != st.st_size:
+        raise ValueError("changed size while it was read")
+    return data
+
+
+def _encode(arrays: dict[str, np.ndarray], key: str, samples_key: str | None = None) -> tuple[bytes, list[bytes]]:
     """(header, payload parts) of an entry holding ``arrays`` (little-endian f4, f8 or i8)."""
     parts, layout = [], []
     h = hashlib.sha256()
@@ -376,6 +438,8 @@ def _encode(arrays: dict[str, np.ndarray], key: str) -> tuple[bytes, list[bytes]
         "payload_bytes": sum(len(p) for p in parts),
         "sha256": h.hexdigest(),
     }
+    if samples_key is not None:
+        head["samples_key"] = samples_key
     text = json.dumps(head, sort_keys=True).encode()
     return MAGIC + len(text).to_bytes(8, "little") + text, parts
 
@@ -413,6 +477,8 @@ def _decode(data: bytes, key: str, names: tuple[str, ...]) -> dict[str, np.ndarr
     for (name, d, shape), size in zip(layout, sizes, strict=True):
         out[name] = np.frombuffer(payload, d, math.prod(shape), offset).reshape(shape)
         offset += size
+    if "samples_key" in head:
+        out["samples_key"] = str(head["samples_key"])
     if "step_counts" in out:
         counts, pos, vals = out["step_counts"], out["positions"], out["values"]
         n = len(vals)
@@ -420,4 +486,6 @@ def _decode(data: bytes, key: str, names: tuple[str, ...]) -> dict[str, np.ndarr
             raise ValueError(f"samples of shapes {pos.shape} and {vals.shape}")
         if pos.dtype.str not in ("<f4", "<f8") or (counts < 0).any() or int(counts.sum()) != n:
             raise ValueError(f"the steps' particle counts sum to {int(counts.sum())}, not {n}")
+        if not (np.isfinite(pos).all() and np.isfinite(vals).all()):
+            raise ValueError("non-finite positions or D_i")
     return out

@@ -141,6 +141,47 @@ def test_a_damaged_entry_is_refused_and_rebuilt(scene, tmp_path, monkeypatch, ca
     assert not built
 
 
+@pytest.mark.parametrize("kind", ["zero", "fifo", "huge"])
+def test_an_entry_that_is_not_a_bounded_regular_file_is_never_read(scene, tmp_path, monkeypatch, caplog, kind):
+    """A link to /dev/zero (would exhaust memory), a FIFO (would hang every later run), a file larger than any entry
+    the cache writes: refused by type and size before a byte is read, removed, and rebuilt."""
+    plan, sets = scene
+    store, cfg, expected, samples, means = _entries(plan, sets, tmp_path)
+    means.unlink()
+    samples.unlink()
+    if kind == "zero":
+        samples.symlink_to("/dev/zero")
+    elif kind == "fifo":
+        os.mkfifo(samples)
+    else:
+        with open(samples, "wb") as fh:
+            fh.truncate(store.max_bytes + 1)  # sparse: nothing is written
+    built = _count_solvers(monkeypatch)
+    with caplog.at_level(logging.WARNING, logger="nbv.physics.empty_cache"):
+        again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)
+    assert len(built) == 1
+    np.testing.assert_array_equal(again, expected)
+    assert any(str(samples) in r.getMessage() and "removed" in r.getMessage() for r in caplog.records)
+    assert samples.is_file() and not samples.is_symlink()  # rebuilt as a regular entry
+
+
+def test_a_poisoned_means_entry_with_a_recomputed_hash_is_refused(scene, tmp_path, monkeypatch, caplog):
+    """Means x 1000 with a valid SHA-256 (anyone who can write the folder can recompute it): larger than any |D_i| of
+    the samples they claim to average, so refused and accumulated again."""
+    plan, sets = scene
+    store, cfg, expected, samples, means = _entries(plan, sets, tmp_path)
+    key = means.name[: -len(empty_cache.SUFFIX)]
+    stored = store.load_means(key, len(sets[1][0]))
+    assert stored is not None
+    store._write(key, {"means": stored * 1000.0}, empty_cache._MEANS_SOURCES[key])  # a consistent forgery
+    built = _count_solvers(monkeypatch)
+    with caplog.at_level(logging.WARNING, logger="nbv.physics.empty_cache"):
+        again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)
+    assert not built  # accumulated again from the samples, not simulated
+    np.testing.assert_array_equal(again, expected)
+    assert any("exceeds the largest |D_i|" in r.getMessage() for r in caplog.records)
+
+
 def test_an_unwritable_folder_runs_without_the_cache_with_one_line(scene, tmp_path, caplog):
     plan, sets = scene
     blocker = tmp_path / "a-file"
