@@ -61,6 +61,17 @@ def sign_test_p(wins: int, losses: int) -> float:
     return min(1.0, 2.0 * tail / 2.0**n)
 
 
+def min_pairs_for_sign_test(alpha: float = ALPHA) -> int:
+    """The fewest non-tied pairs with which the exact two-sided sign test can give p < ``alpha`` at all (every pair
+    on one side: p = 2 / 2^n); 6 for alpha = 0.05."""
+    if not 0 < alpha <= 1:
+        raise ValueError(f"alpha must be in (0, 1], got {alpha}")
+    n = 1
+    while sign_test_p(n, 0) >= alpha:
+        n += 1
+    return n
+
+
 def scipy_available() -> bool:
     try:
         import scipy.stats  # noqa: F401, PLC0415 - scipy.stats takes ~2 s to import; only the tables need it
@@ -207,6 +218,20 @@ def format_p(p: float | None, note: str = "") -> str:
     return f"{p:.1e}" if p < 1e-4 else f"{p:.4f}"
 
 
+def sign_test_power_line(pairs: int, alpha: float = ALPHA) -> str:
+    """The line that says how many pairs a sign test needs to reach p < ``alpha`` at all, against the ``pairs``
+    the table has (its largest comparison)."""
+    need = min_pairs_for_sign_test(alpha)
+    best = sign_test_p(pairs, 0) if pairs else 1.0
+    verdict = (
+        f"with {pairs} pair{'s' if pairs != 1 else ''} the best possible sign-test p is {format_p(best)}, so no "
+        f"sign test here can clear p < {alpha:g}: add scenes or seeds"
+        if pairs < need
+        else f"this table has up to {pairs} pairs (best possible sign-test p {format_p(best)})"
+    )
+    return f"The sign test needs at least {need} pairs, all on one side, to reach p < {alpha:g}; {verdict}."
+
+
 def paired_table(
     rows: Sequence[dict], methods: Sequence[str] | None = None, alpha: float = ALPHA
 ) -> tuple[list[str], list[list[str]], list[str]] | None:
@@ -287,6 +312,8 @@ def paired_table(
         f"{'scipy.stats.wilcoxon' if scipy_available() else 'n/a (scipy not installed)'}. No correction for "
         f"the {len(body)} comparisons: about {alpha * len(body):.1f} of them clear p < {alpha:g} by chance "
         "alone.",
+        "",
+        sign_test_power_line(max((int(r[2]) for r in body), default=0), alpha),
         "",
         f"**Clear p < {alpha:g}** (by at least one test):",
         "",

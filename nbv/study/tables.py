@@ -28,10 +28,13 @@ def mean_std(values: Sequence[Any]) -> tuple[float | None, float | None, int]:
 
 
 def _cell(values: Sequence[Any]) -> str:
+    """ "mean ± sample std"; the spread of one run is "n/a" (it is unmeasured, not 0)."""
     m, s, n = mean_std(values)
     if m is None:
         return "n/a"
     big = abs(m) >= 1e4 or (m != 0 and abs(m) < 1e-2)
+    if n == 1:
+        return f"{m:.3e} ± n/a" if big else f"{m:.4f} ± n/a"
     return f"{m:.3e} ± {s:.1e}" if big else f"{m:.4f} ± {s:.4f}"
 
 
@@ -194,7 +197,7 @@ def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[
     head = (
         f"# Experiment\n\nscenes: {', '.join(scene_names(config.scenes))}; methods: {', '.join(config.methods)}; "
         f"seeds: {list(config.seeds)}; preset: {config.preset}. Cells: mean ± sample std over scenes x seeds "
-        "(n runs).\n\n"
+        "(n runs; n/a: one run has no spread).\n\n"
     )
     combined = head + "\n".join(md for md, _ in tables.values())
     files.append(write_text_atomic(out / "tables.md", combined))

@@ -6,6 +6,7 @@ import importlib.util
 import json
 import math
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -171,15 +172,40 @@ def test_mean_std_and_tables():
     assert set(tables) == {"visual", "physics", "ablation_random", "ablation_direction"}
     vis = list(csv.reader(tables["visual"][1].splitlines()))
     assert vis[0][:3] == ["method", "n", "PSNR (dB)"]
-    assert vis[1][:3] == ["random", "2", "21.0000 ± 1.4142"] and vis[2][:3] == ["fisher+fluid", "1", "21.0000 ± 0.0000"]
+    # one run has no spread: n/a, not 0
+    assert vis[1][:3] == ["random", "2", "21.0000 ± 1.4142"] and vis[2][:3] == ["fisher+fluid", "1", "21.0000 ± n/a"]
     assert vis[3][0] == "reference-20views"
     phys = {r[0]: r for r in csv.reader(tables["physics"][1].splitlines())}
     assert phys["empty scene (reference)"][2] == "2.0000 ± 0.0000"
-    assert phys["many-view: reference-20views"][2] == "0.1000 ± 0.0000"
+    assert phys["many-view: reference-20views"][2] == "0.1000 ± n/a"
     abl = [r[0] for r in csv.reader(tables["ablation_random"][1].splitlines())][1:]
     assert abl == ["random", "fisher+fluid"]
     dirs = list(csv.reader(tables["ablation_direction"][1].splitlines()))
     assert dirs[0][2:4] == ["D-bar -x (m^4/s)", "D-bar +x (m^4/s)"] and dirs[1][3] == "0.1500 ± 0.0354"
+
+
+def test_the_time_estimate_comes_from_the_measured_job_costs(tmp_path):
+    from nbv.study.experiment import JOB_MINUTES, plan_jobs, time_estimate
+    from nbv.study.experiment_config import ExperimentConfig
+
+    config = ExperimentConfig(
+        scenes=(str(tmp_path / "scene"),),
+        methods=("fisher", "fisher+fluid"),
+        seeds=(0, 1),
+        output=str(tmp_path / "o"),
+        reference_views=None,
+    )
+    jobs = plan_jobs(config)
+    line = time_estimate(jobs, "cpu-small", workers=1)
+    minutes = 2 * JOB_MINUTES[("cpu-small", False)] + 2 * JOB_MINUTES[("cpu-small", True)]
+    assert line.startswith("estimate: 4 jobs to run, 2 of them with the fluid's probes")
+    assert f"{minutes / 60:.1f} h" in line
+    done = Path(jobs[0]["run_dir"])  # a resumed experiment does not count its finished jobs
+    done.mkdir(parents=True)
+    (done / "eval.json").write_text("{}")
+    (done / "gaussians.ply").write_text("")
+    assert "3 jobs to run (1 already done)" in time_estimate(jobs, "cpu-small")
+    assert "no measured job cost for preset 'paper'" in time_estimate(jobs, "paper")
 
 
 def test_single_direction_methods_and_their_table():
@@ -216,7 +242,7 @@ def test_single_direction_methods_and_their_table():
     body = list(csv.reader(tables["ablation_selection_direction"][1].splitlines()))
     assert [r[0] for r in body[1:]] == ["fisher", "fisher+fluid", "fisher+fluid@-x", "fisher+fluid@-z"]
     assert [r[1] for r in body[1:]] == ["none", "all five probes", "-x", "-z"]
-    assert body[3][3] == "21.5000 ± 0.0000"
+    assert body[3][3] == "21.5000 ± n/a"
     assert "@" not in "".join(r[0] for r in csv.reader(tables["ablation_random"][1].splitlines()))
     # the evaluation of a single-direction run still measures D-bar over all five probes
     from nbv.study.evaluate import EvalConfig, eval_physics_config

@@ -11,6 +11,7 @@ import pytest
 from nbv.study.experiment_config import split_method
 from nbv.study.paired import (
     comparisons,
+    min_pairs_for_sign_test,
     paired_stats,
     paired_table,
     paired_values,
@@ -170,6 +171,15 @@ def test_experiment_paired_table_states_what_clears_p_005():
     assert "fisher+fluid vs fisher: PSNR (dB) (better, 8/8 pairs better" in clear
     assert "fisher+fluid vs fisher+area: PSNR (dB), SSIM" in unclear
     assert "reference" not in text
+    assert "The sign test needs at least 6 pairs, all on one side, to reach p < 0.05; this table has up to 8" in md
+
+
+def test_the_paired_table_says_when_too_few_pairs_can_never_clear_p_005():
+    assert min_pairs_for_sign_test(0.05) == 6 and sign_test_p(5, 0) >= 0.05 > sign_test_p(6, 0)
+    assert min_pairs_for_sign_test(0.01) == 8
+    rows = [_row("fisher", "a", 0, 20.0, 1e-3), _row("fisher+fluid", "a", 0, 23.0957, 1e-3)]  # one pair
+    md = build_tables(rows)["paired"][0]
+    assert "with 1 pair the best possible sign-test p is 1.0000, so no sign test here can clear p < 0.05" in md
     # without a comparable pair there is no paired table
     assert "paired" not in build_tables([_row("fisher", "a", 0, 20.0, 1e-3), _row("random", "a", 0, 20.0, 1e-3)])
     assert paired_table([_row("fisher", "a", 0, 20.0, 1e-3)]) is None
