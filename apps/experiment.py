@@ -89,7 +89,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.output is not None:
         config = replace(config, output=str(args.output))
     check_output_folder(
-        config.output, "--output" if args.output is not None else f"the 'output' of {args.config}"
+        config.output,
+        "--output" if args.output is not None else f"the 'output' of {args.config}",
+        ("experiment.json", "results.json", "tables.md", "tables", "runs"),
     )  # before any work: a folder that is a file, or cannot be made, is named as the option or key that gave it
     check_not_input(
         [("output file", Path(config.output) / name) for name in ("experiment.json", "results.json", "tables.md")],

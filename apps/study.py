@@ -78,7 +78,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.output is not None:
         config = replace(config, output=str(args.output))
     check_output_folder(
-        config.output, "--output" if args.output is not None else f"the 'output' of {args.config}"
+        config.output,
+        "--output" if args.output is not None else f"the 'output' of {args.config}",
+        ("oracle-config.json", "oracle.json", "oracle.md", "states"),
     )  # before any work: a folder that is a file, or cannot be made, is named as the option or key that gave it
     check_not_input(
         [("output file", Path(config.output) / name) for name in ("oracle.json", "oracle.md")], {"CONFIG": args.config}
@@ -105,7 +107,7 @@ def run_pool(args: argparse.Namespace) -> int:
                 f"--output {out} is one of the pooled folders; give a new folder (it would overwrite "
                 "that study's own summary)"
             )
-    check_output_folder(out, "--output")
+    check_output_folder(out, "--output", ("oracle.json", "oracle.md"))
     pool = pool_studies(args.folders, args.bootstrap)
     summary = summarise(pool.config, pool.states)
     summary["pool"] = {

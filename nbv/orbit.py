@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 # robust box leaves out 0.5 % of them per side.
 FRAME_MARGIN = 1.15
 _ORBIT = re.compile(r"^orbit:(.*)$", re.IGNORECASE)
+MAX_ORBIT_CAMERAS = 10_000  # a camera file may hold more; an orbit of more is a typo (orbit:10000000)
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,11 @@ class Orbit:
             raise ValueError(
                 f"--cameras orbit:{self.count}: an orbit needs at least 1 camera; pass orbit:N with "
                 "N >= 1, e.g. --cameras orbit:24"
+            )
+        if self.count > MAX_ORBIT_CAMERAS:  # each camera is rendered or projected: bounded before any work
+            raise ValueError(
+                f"--cameras orbit:{self.count}: at most {MAX_ORBIT_CAMERAS} cameras may be scored; pass orbit:N "
+                "with fewer, e.g. --cameras orbit:24"
             )
         if not self.elevations_deg or not all(-90.0 < e < 90.0 for e in self.elevations_deg):
             raise ValueError(

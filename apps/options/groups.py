@@ -499,15 +499,25 @@ def check_output_file(path, suffixes: tuple[str, ...]):
     return check_writable(path)
 
 
-def check_output_folder(folder, where: str) -> Path:
+def check_output_folder(folder, where: str, own: tuple[str, ...] = ()) -> Path:
     """Fail before any work when the results folder ``folder`` cannot be made or written: an
     :class:`~fluidsim.files.OutputError` (exit 4) that starts with ``where`` (the option or config key that gave
-    it), never the file system's bare errno text."""
+    it), never the file system's bare errno text. With ``own`` (the names this command writes at the folder's top),
+    an existing folder that holds other files and none of those (``"output": "/etc"``) is refused (ValueError, exit
+    2): the command would write its results among someone else's files."""
     from fluidsim.files import OutputError, check_writable
 
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise OutputError(f"{where} {folder} is a file, not a folder; give a results folder that is not a file")
+    if own and folder.is_dir():
+        names = sorted(p.name for p in folder.iterdir())
+        if names and not set(names) & set(own):
+            shown = ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+            raise ValueError(
+                f"{where} {folder} already holds other files ({shown}) and no results of an earlier run; give a new "
+                "or empty results folder"
+            )
     try:
         check_writable(folder / "results.json")
     except OutputError as exc:

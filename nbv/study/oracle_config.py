@@ -33,8 +33,10 @@ from pathlib import Path
 from typing import Any
 
 from nbv.active import ActiveConfig
+from nbv.active.config import MAX_SEED
 from nbv.physics import PhysicsConfig
 from nbv.plan import PLANNERS
+from nbv.study.experiment_config import MAX_JOBS
 
 CONFIG_KEYS = (
     "scenes",
@@ -210,8 +212,18 @@ class OracleConfig:
             if len(set(v)) != len(v):
                 raise ValueError(f"oracle config: {name!r} must not repeat entries, got {list(v)}")
             object.__setattr__(self, name, tuple(v))
-        if not all(_is_int(s, 0) for s in self.seeds):
-            raise ValueError(f"oracle config: 'seeds' must be integers >= 0, got {list(self.seeds)}")
+        if not all(_is_int(s, 0) and s <= MAX_SEED for s in self.seeds):
+            raise ValueError(
+                f"oracle config: 'seeds' must be integers from 0 to {MAX_SEED}, got {list(self.seeds)[:5]}"
+            )
+        settings = len(self.probes) if isinstance(self.probes, dict) and self.probes else 1
+        states = len(self.scenes) * len(self.seeds) * len(self.states) * settings
+        if states > MAX_JOBS:  # as the experiment's: checked before any work, not after days of it
+            raise ValueError(
+                f"oracle config: {len(self.scenes)} 'scenes' x {len(self.seeds)} 'seeds' x {len(self.states)} "
+                f"'states' x {settings} 'probes' settings make {states:,} oracle states, more than the {MAX_JOBS:,} "
+                "a study may plan; list fewer seeds or states (or split the study into several configs)"
+            )
         for rule in self.rules:
             if rule not in RULES:
                 close = difflib.get_close_matches(str(rule), list(RULES), n=1)

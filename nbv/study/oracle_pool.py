@@ -19,7 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fluidsim.files import check_input_file
 from nbv.study.oracle_config import OracleConfig
+
+MAX_STATE_BYTES = 64 << 20  # a state file is a few hundred KB (its rules' scores per candidate)
 
 # The config keys that do not change a state's content (nbv.study.oracle.STUDY_ONLY_KEYS), and the rule list, which
 # changes only which scores a state holds: pooled folders may differ in these and nothing else.
@@ -43,12 +46,18 @@ def _read_folder(folder: Path) -> tuple[dict, list[dict]]:
     meta = folder / "oracle-config.json"
     if not meta.is_file():
         raise ValueError(f"{folder} is not an oracle study folder (no oracle-config.json); give the 'output' folder")
+    check_input_file(meta, "the study file", "it must be the regular file that `fluidgs study oracle` writes")
     try:
         config = json.loads(meta.read_text())["config"]
     except (json.JSONDecodeError, KeyError, TypeError) as exc:
         raise ValueError(f"{meta} is not an oracle-config.json written by `fluidgs study oracle` ({exc})") from exc
     states = []
     for path in sorted((folder / "states").rglob("state*.json")):
+        check_input_file(path, "the state file", "delete it (a FIFO or a link is never a state) and resume that study")
+        if path.stat().st_size > MAX_STATE_BYTES:
+            raise ValueError(
+                f"the state file {path} holds {path.stat().st_size} bytes; delete it and resume that study"
+            )
         try:
             st = json.loads(path.read_text())
         except json.JSONDecodeError as exc:

@@ -219,6 +219,8 @@ def tiny(tmp_path, dataset, **over) -> dict:
         ({"states": [1]}, "states"),
         ({"planner": "fisherrf"}, "planner"),
         ({"probes": {"a": {"steps": -1}}}, "probes"),
+        ({"seeds": list(range(1_000_000))}, "seeds"),  # about 46 days of work: refused before any
+        ({"seeds": [2**62]}, "seeds"),
     ],
 )
 def test_bad_config_names_the_key(tmp_path, over, key):
@@ -249,6 +251,12 @@ def test_cli_exits_2_before_any_training(tmp_path, tiny_dataset):
     cfg.write_text(json.dumps(tiny(tmp_path, tiny_dataset, states=[6])))
     assert main(["study", "oracle", str(cfg), "--no-progress"]) == 2
     assert not (tmp_path / "out" / "states").exists()
+    foreign = tmp_path / "etc"  # "output": "/etc": a folder of other files is never written into
+    foreign.mkdir()
+    (foreign / "passwd").write_text("root:x:0:0")
+    cfg.write_text(json.dumps({**tiny(tmp_path, tiny_dataset), "output": str(foreign)}))
+    assert main(["study", "oracle", str(cfg), "--no-progress"]) == 2
+    assert sorted(p.name for p in foreign.iterdir()) == ["passwd"]
 
 
 # ---- the study end to end -------------------------------------------------------------------------------
@@ -445,6 +453,22 @@ def test_oracle_pool_cli_writes_the_pooled_summary_and_refuses_an_input_as_outpu
     assert json.loads((out / "oracle.json").read_text())["pool"]["duplicates"]
     assert main(["study", "oracle-pool", str(config.output), "--output", str(config.output)]) == 2
     assert "is one of the pooled folders" in caplog.text
+
+
+def test_oracle_pool_names_a_fifo_state_file_instead_of_hanging(study, tmp_path, caplog):
+    import os
+    import shutil
+
+    from apps.cli import main
+
+    config, _, _ = study
+    copy = tmp_path / "copy"
+    shutil.copytree(config.output, copy)
+    state = next((copy / "states").rglob("state*.json"))
+    state.unlink()
+    os.mkfifo(state)
+    assert main(["study", "oracle-pool", str(copy), "--output", str(tmp_path / "pooled")]) == 2
+    assert "is a FIFO" in caplog.text and str(state) in caplog.text
 
 
 def test_a_finished_study_resumes_without_training(study):

@@ -97,6 +97,10 @@ def test_bad_orbits_name_the_option_and_the_fix():
     assert orbit_count("orbit:24") == 24 and orbit_count("cams.json") is None and orbit_count("ORBIT:3") == 3
     with pytest.raises(ValueError, match=r"orbit:0.*at least 1 camera.*orbit:24"):
         Orbit(orbit_count("orbit:0"))
+    with pytest.raises(ValueError, match=r"orbit:10000000: at most 10000 cameras"):  # minutes of silence before
+        Orbit(orbit_count("orbit:10000000"))
+    with pytest.raises(ValueError, match=r"orbit:10\^30.*whole number"):
+        orbit_count("orbit:10^30")
     with pytest.raises(ValueError, match=r"--cameras orbit:x: orbit:N takes a whole number"):
         orbit_count("orbit:x")
     with pytest.raises(ValueError, match=r"--elevations .*\(-90, 90\)"):
