@@ -38,6 +38,7 @@ from nbv.scores import DepthBuffer, geometry_divergence, projected_counts, proje
 from recon.device import torch_device
 from recon.render import render
 from viz.annotate import label, to_bgr
+from viz.cameras import view_file_stem
 
 log = logging.getLogger(__name__)
 
@@ -355,7 +356,7 @@ def write_view_pngs(
             heat_bgr,
             [f"D_g ({metric}), 0..{vmax:.3g}+ 1/s", "+: above" + ("" if reached is None else ", grey: not reached")],
         )
-        path = png_dir / f"rank{row['rank']:03d}_{row['index']:03d}_{cams[k].name}.png"
+        path = png_dir / f"{view_file_stem(row['rank'], row['index'], cams[k].name)}.png"
         write_png_atomic(path, np.hstack([left, right]))
 
 
@@ -390,7 +391,7 @@ def write_uncertainty_images(
     written = {}
     for r, (k, img) in enumerate(zip(shown, images, strict=True)):
         row = rows[r]
-        stem = f"rank{row['rank']:03d}_{row['index']:03d}_{cams[k].name}_uncertainty"
+        stem = f"{view_file_stem(row['rank'], row['index'], cams[k].name)}_uncertainty"
         write_atomic(png_dir / f"{stem}.npy", lambda tmp, img=img: np.save(tmp, img), suffix=".npy")
         grey = None if reached is None else unreached_pixels(gaussians, cams[k], reached, device)
         picture = label(

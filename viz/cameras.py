@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -198,11 +199,24 @@ def candidate_views(
     return out
 
 
+UNSAFE_NAME = re.compile(r"[^A-Za-z0-9._+-]+")
+MAX_NAME_CHARS = 80  # of a camera's name in its file name: the name is the camera's, the file stays short
+
+
+def view_file_stem(rank: int, index: int, name: str) -> str:
+    """``rank001_004_<name>``, the stem of a view's files in a views folder (`fluidgs score` writes them, the viewer
+    reads them): the camera's name (graphdeco's ``img_name`` may hold ``/`` or 300 characters) with every run of
+    characters other than letters, digits and ``._+-`` turned into ``_`` and cut to :data:`MAX_NAME_CHARS`, so the
+    file lands in the views folder whatever the name (the rank and the index keep it unique)."""
+    safe = UNSAFE_NAME.sub("_", str(name)).strip("._")[:MAX_NAME_CHARS] or "view"
+    return f"rank{rank:03d}_{index:03d}_{safe}"
+
+
 def view_png(scores_path: str | Path, view: CandidateView) -> Path | None:
     """The picture `fluidgs score` wrote of ``view`` in its default folder ``<scores stem>_views`` (named
     ``rank<r>_<index>_<name>.png``), or None."""
     if view.rank is None:
         return None
     p = Path(scores_path)
-    png = p.with_name(p.stem + "_views") / f"rank{view.rank:03d}_{view.index:03d}_{view.name}.png"
+    png = p.with_name(p.stem + "_views") / f"{view_file_stem(view.rank, view.index, view.name)}.png"
     return png if png.is_file() else None

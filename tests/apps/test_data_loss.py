@@ -240,6 +240,32 @@ def test_score_refuses_a_saved_result_that_is_the_solid_export(data, tmp_path, c
     assert "--save-result" in caplog.text and not s.exists()
 
 
+def test_score_keeps_its_work_whatever_the_camera_names(data, tmp_path):
+    """graphdeco's img_name with '/' or 300 characters: the views land in the views folder under a safe name and
+    scores.json is written (it used to end in exit 4 after all the scoring)."""
+    from viz.cameras import view_file_stem
+
+    names = ["sub/dir/a", "b" * 300, "../c", "d"]
+    entries = []
+    for k, a in enumerate(np.arange(4) * math.pi / 2):
+        eye = (2.5 * math.cos(a), 0.3, 2.5 * math.sin(a))
+        cam = Camera.look_at(eye, (0, 0, 0), (0, 1, 0), 48, 40, math.radians(50))
+        c2w = cam.camera_to_world.numpy()
+        f = float(cam.fx)
+        entry = {"id": k, "img_name": names[k], "width": 48, "height": 40, "fx": f, "fy": f}
+        entries.append({**entry, "position": c2w[:3, 3].tolist(), "rotation": c2w[:3, :3].tolist()})
+    cams = tmp_path / "cameras.json"
+    cams.write_text(json.dumps(entries))
+    out = tmp_path / "s.json"
+    args = ["score", str(data["ply"]), "--cameras", str(cams), "--result", str(data["h5"]), "-o", str(out)]
+    assert cli.main([*args, "--png-all"]) == 0
+    assert json.loads(out.read_text())
+    pngs = sorted(p.name for p in (tmp_path / "s_views").iterdir())
+    assert len(pngs) == 4 and all(len(p) < 120 for p in pngs), pngs
+    assert view_file_stem(1, 0, "sub/dir/a") == "rank001_000_sub_dir_a"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cameras.json", "s.json", "s_views"]
+
+
 def test_check_distinct_outputs_sees_links():
     import tempfile
 
