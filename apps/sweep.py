@@ -7,8 +7,11 @@ L of Re is the object's extent along the flow by default (``--re-length object|d
 stored). Before the first speed it prints the probe-steps per speed and an estimate in minutes from a short
 calibration (:func:`nbv.study.sweep.calibrate`); its progress bar counts probe-steps. Writes a CSV (U, Re, L,
 Delta t, steps, D-bar, the empty scene's D-bar, and with ``--compare OTHER.ply`` D-bar of OTHER and the gap
-D-bar(OTHER) - D-bar) and a PNG plot drawn with matplotlib (:mod:`viz.plots`): D-bar against U (log x) and a
-table of Re, Delta t and steps.
+D-bar(OTHER) - D-bar, then C_d, the drag in N and the probe they belong to) and a PNG plot drawn with matplotlib
+(:mod:`viz.plots`): D-bar against U (log x) and a table of Re, Delta t and steps. C_d = 2 F / (rho U^2 A) is the
+flow probe's (-x, else the first probe run: the probe L is measured along), from its time-mean drag over the second
+half of each run; with C_d at every speed a second PNG, ``OUTPUT_cd.png``, draws C_d against Re (log x), each point
+labelled by U.
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--output",
         type=Path,
         default=Path("sweep.csv"),
-        help="CSV file (written atomically); the plot goes next to it as .png",
+        help="CSV file (written atomically); the plots go next to it: D-bar as .png, C_d against Re as _cd.png",
     )
     p.add_argument(
         "--re-length",
@@ -81,6 +84,25 @@ def plot_sweep(points, path: Path, title: str = "") -> Path:
         dts=[p.dt for p in points],
         steps=[p.steps for p in points],
         title=title,
+    )
+
+
+def drag_plot_path(output: Path) -> Path:
+    """Where the C_d-Re plot of the sweep written to ``output`` (CSV) goes: OUTPUT_cd.png beside it."""
+    return output.with_name(output.stem + "_cd.png")
+
+
+def plot_drag(points, path: Path, title: str = "") -> Path | None:
+    """Draw C_d against Re (log x), points labelled by U (:func:`viz.plots.plot_drag_coefficient`), PNG written
+    atomically; None (nothing drawn) when a speed has no C_d or no finite Re."""
+    import math
+
+    from viz.plots import plot_drag_coefficient
+
+    if not all(p.drag_coefficient is not None and math.isfinite(p.reynolds) and p.reynolds > 0 for p in points):
+        return None
+    return plot_drag_coefficient(
+        path, [p.reynolds for p in points], [p.drag_coefficient for p in points], [p.speed for p in points], title=title
     )
 
 
@@ -124,9 +146,11 @@ def run_command(args: argparse.Namespace) -> int:
     re_length = parse_re_length(args.re_length)
     output = check_output_file(args.output, (".csv",))
     check_not_input(
-        {"-o": output, "plot": output.with_suffix(".png")}, {"GAUSSIANS": args.gaussians, "--compare": args.compare}
+        {"-o": output, "plot": output.with_suffix(".png"), "C_d plot": drag_plot_path(output)},
+        {"GAUSSIANS": args.gaussians, "--compare": args.compare},
     )
     check_writable(output.with_suffix(".png"))
+    check_writable(drag_plot_path(output))
     gaussians = load_gaussians_checked(args.gaussians, args)
     other = load_gaussians_checked(args.compare, args) if args.compare is not None else None
     init_taichi(args.device, config.precision, args.threads)
@@ -141,29 +165,54 @@ def run_command(args: argparse.Namespace) -> int:
     took = time.perf_counter() - t0
     write_csv(output, points)
     plot = plot_sweep(points, output.with_suffix(".png"), title=f"D-bar vs U: {args.gaussians.name}")
-    print(
-        f"Re = rho U L / mu with L = {points[0].re_length:.4g} m ({_length_words(points[0].re_length_from)}), "
-        f"rho = {config.rest_density:g} kg/m^3, mu = {config.viscosity:g} Pa s"
+    first = points[0]
+    cd_plot = plot_drag(
+        points,
+        drag_plot_path(output),
+        title=f"C_d vs Re: {args.gaussians.name} (probe {first.drag_probe}, L = {first.re_length:.3g} m)",
     )
     print(
-        f"{'U m/s':>7} {'Re':>10} {'dt s':>10} {'steps':>6} {'D-bar':>12} {'D-bar empty':>12}"
-        + ("  D-bar OTHER         gap" if other is not None else "")
+        f"Re = rho U L / mu with L = {first.re_length:.4g} m "
+        f"({_length_words(first.re_length_from, first.drag_probe)}), "
+        f"rho = {config.rest_density:g} kg/m^3, mu = {config.viscosity:g} Pa s"
+    )
+    print(_drag_words(first))
+    print(
+        f"{'U m/s':>7} {'Re':>10} {'dt s':>10} {'steps':>6} {'D-bar':>12} {'D-bar empty':>12} {'C_d':>6} "
+        f"{'drag N':>9}" + ("  D-bar OTHER         gap" if other is not None else "")
     )
     for p in points:
         extra = f" {p.dbar_other:>12.4g} {p.gap:>11.4g}" if p.dbar_other is not None else ""
         empty = "n/a" if p.dbar_empty is None else f"{p.dbar_empty:.4g}"
-        print(f"{p.speed:>7g} {p.reynolds:>10.4g} {p.dt:>10.3g} {p.steps:>6} {p.dbar:>12.4g} {empty:>12}{extra}")
+        cd = "n/a" if p.drag_coefficient is None else f"{p.drag_coefficient:.3g}"
+        drag = "n/a" if p.drag is None else f"{p.drag:.3g}"
+        print(
+            f"{p.speed:>7g} {p.reynolds:>10.4g} {p.dt:>10.3g} {p.steps:>6} {p.dbar:>12.4g} {empty:>12} {cd:>6} "
+            f"{drag:>9}{extra}"
+        )
     print(
         f"took {took:.0f} s = {took / 60:.1f} min (estimated {sum(seconds):.0f} s = {sum(seconds) / 60:.1f} min, "
         f"x{took / max(sum(seconds), 1e-9):.2f})"
     )
     print(f"csv: {output}\nplot: {plot}")
+    print(f"C_d plot: {cd_plot}" if cd_plot is not None else "C_d plot: not drawn (a speed has no C_d or no finite Re)")
     return 0
 
 
-def _length_words(source: str) -> str:
+def _length_words(source: str, probe: str) -> str:
     return {
-        "object": "the object's extent along the flow",
-        "domain": "the probe domain's largest extent",
+        "object": f"the object's extent along the flow of probe {probe}",
+        "domain": f"the largest extent of probe {probe}'s domain",
         "given": "given by --re-length",
     }[source]
+
+
+def _drag_words(point) -> str:
+    if point.drag_coefficient is None:
+        why = "it reported no force" if point.drag is None else "it has no inflow speed"
+        return f"C_d: none for probe {point.drag_probe} ({why})"
+    return (
+        f"C_d = 2 F / (rho U^2 A) of probe {point.drag_probe}, the flow probe: F its time-mean drag over the second "
+        f"half of each run, A = {point.area:.3g} m^2 the solid's area projected along the flow (3 digits: a step's "
+        "force is noisy)"
+    )

@@ -3,6 +3,8 @@
 - :func:`plot_sweep`: the flow-speed study (paper Sec. 4): D-bar (paper Eq. 3 averaged over the Gaussians, m^4/s)
   against the inflow speed U (m/s, log axis), for one Gaussian set and optionally a second one, with a table of
   the Reynolds number, the CFL-constant time step and the step count per speed (``fluidgs sweep``).
+- :func:`plot_drag_coefficient`: the same study's drag coefficient C_d against the Reynolds number (log axis), each
+  point labelled by its inflow speed (``fluidgs sweep``).
 - :func:`bar_chart`: one bar per method, mean with +-1 sample standard deviation (``fluidgs experiment``'s
   ``plots/psnr.png``, ``plots/dbar.png``, ``plots/dbar_direction.png``).
 
@@ -135,6 +137,72 @@ def plot_sweep(
     )
     table.auto_set_font_size(False)
     table.set_fontsize(8)
+    return _save(fig, path)
+
+
+def plot_drag_coefficient(
+    path: str | os.PathLike,
+    reynolds: Sequence[float],
+    drag_coefficients: Sequence[float],
+    speeds: Sequence[float],
+    *,
+    title: str = "",
+    width: int = 900,
+    height: int = 560,
+) -> Path:
+    """The drag coefficient C_d = 2 F / (rho U^2 A) against Re = rho U L / mu on a log-x axis, each point labelled
+    by its inflow speed U; a PNG.
+
+    Args:
+        path: the .png file (written atomically).
+        reynolds: [S] Reynolds numbers, finite and > 0 (log axis).
+        drag_coefficients: [S] C_d, unitless, finite.
+        speeds: [S] inflow speeds U, m/s (the point labels).
+        title: figure title (default "drag coefficient vs Reynolds number").
+        width, height: PNG size in pixels.
+
+    Returns:
+        ``Path(path)``.
+
+    Example:
+        >>> plot_drag_coefficient("cd.png", [9e2, 1.8e3], [1.1, 0.9], [3, 6])  # doctest: +SKIP
+    """
+    what = f"drag coefficient plot {path}"
+    res = _floats(reynolds, "reynolds", len(reynolds), what)
+    if not len(res) or not (res > 0).all():
+        raise ValueError(f"{what}: needs at least one Reynolds number, all > 0 (log axis), got {res.tolist()}")
+    cds = _floats(drag_coefficients, "drag_coefficients", len(res), what)
+    us = _floats(speeds, "speeds", len(res), what)
+    fig = _figure(width, height, what)
+    ax = fig.add_axes((0.11, 0.12, 0.85, 0.78))
+    order = np.argsort(res)
+    ax.plot(res[order], cds[order], marker="o", markersize=5, linewidth=2, color=PALETTE[0])
+    for k, i in enumerate(order):  # U in m/s, above and below in turn, so that neighbours on a log axis do not touch
+        ax.annotate(
+            f"{us[i]:g}",
+            (res[i], cds[i]),
+            textcoords="offset points",
+            xytext=(0, 7 if k % 2 == 0 else -14),
+            ha="center",
+            fontsize=8,
+        )
+    ax.set_xscale("log")
+    ax.margins(x=0.08)
+    # the sweep's Reynolds numbers themselves, to 3 digits, leaving out those too close to the last one labelled
+    span = max(math.log10(res.max() / res.min()), 1e-12)
+    ticks: list[float] = []
+    for r in res[order]:
+        if not ticks or math.log10(r / ticks[-1]) >= span / 10:
+            ticks.append(float(r))
+    ax.set_xticks(ticks, [f"{float(f'{r:.3g}'):,.0f}" if 1 <= r < 1e6 else f"{r:.3g}" for r in ticks])
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel("Reynolds number Re = \N{GREEK SMALL LETTER RHO} U L / \N{GREEK SMALL LETTER MU} (log scale)")
+    ax.set_ylabel("drag coefficient C_d = 2F / (\N{GREEK SMALL LETTER RHO} U\N{SUPERSCRIPT TWO} A)")
+    ax.set_title(title or "drag coefficient vs Reynolds number")
+    ax.text(0.99, 0.98, "points labelled by U (m/s)", transform=ax.transAxes, ha="right", va="top", fontsize=8)
+    if (cds >= 0).all():
+        ax.set_ylim(bottom=0, top=1.15 * float(cds.max()) if cds.max() > 0 else None)
+    ax.grid(True, which="both", color="#dddddd", linewidth=0.8)
     return _save(fig, path)
 
 

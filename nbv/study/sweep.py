@@ -11,6 +11,9 @@ For each inflow speed U the probes run with a CFL-constant time step over the sa
   the -x probe, or of the first probe, plus one lattice spacing, since each solid point stands for a cell), or
   the largest extent of that probe's domain (``"domain"``, what the paper's L = "the domain size" reads as), or a
   given length in metres.
+- C_d = 2 F_drag / (rho U^2 A) of that same probe (:func:`probe_drag`): its time-mean drag force on the solid over
+  the second half of the run (:mod:`nbv.physics.forces`; a single step's force is noise) and A the solid's area
+  projected along its flow, so C_d and Re belong to one probe.
 
 With a second Gaussian set ("OTHER") the gap Delta = D-bar(OTHER) - D-bar is reported per U. Both sets use
 the same scene -> metre scale (with ``scale="auto"`` it is resolved on the first set), because D-bar grows
@@ -68,7 +71,10 @@ class SweepStep:
 @dataclass(frozen=True)
 class SweepPoint:
     """A sweep result row: U m/s, Re, Delta t s, steps, D-bar m^4/s, D-bar of OTHER and the gap (or None), the
-    length L of Re (m) and where it came from ("object", "domain", "given"), D-bar of the empty scene (or None)."""
+    length L of Re (m) and where it came from ("object", "domain", "given"), D-bar of the empty scene (or None), and
+    the drag of the probe ``drag_probe`` (the -x probe, else the first probe run: the one L is measured along): the
+    time-mean drag force ``drag`` N, its coefficient ``drag_coefficient`` C_d = 2 F / (rho U^2 A) and the projected
+    area ``area`` A m^2 (None where the probe reported no force, or has no inflow speed: the -y probe)."""
 
     speed: float
     reynolds: float
@@ -79,6 +85,10 @@ class SweepPoint:
     re_length: float = float("nan")
     re_length_from: str = ""
     dbar_empty: float | None = None
+    drag_coefficient: float | None = None
+    drag: float | None = None
+    drag_probe: str = ""
+    area: float | None = None
 
     @property
     def gap(self) -> float | None:
@@ -156,6 +166,21 @@ def reynolds_length(result: PhysicsResult, spec: str | float) -> tuple[float, st
     if spec == "domain":
         return domain_length(result), "domain"
     return float(spec), "given"
+
+
+def probe_drag(result: PhysicsResult) -> tuple[str, float | None, float | None, float | None]:
+    """(probe, C_d, drag N, A m^2) of the flow probe (the -x probe, else the first; the one L of Re is measured
+    along): its time-mean drag over the second half of the run (:class:`nbv.physics.forces.ProbeForces`) and
+    C_d = 2 F / (rho_0 U^2 A). C_d is None for the -y probe (no inflow speed); all three None when the probe's
+    statistics hold no forces."""
+    probe = _flow_probe(result)
+    pf = result.forces.get(probe)
+    if pf is None:
+        return probe, None, None, None
+    if not pf.reached:
+        log.warning("probe %s: the fluid never reached the solid, so its drag and C_d are 0", probe)
+    c = pf.coefficients()
+    return probe, None if c is None else c["drag"], pf.parts()["drag"], pf.area
 
 
 @dataclass(frozen=True)
@@ -268,12 +293,27 @@ def run_sweep(
             )
             length, source = reynolds_length(res, re_length)
             re = reynolds(st.speed, length, config.rest_density, config.viscosity)
+            probe, cd, drag, area = probe_drag(res)
             points.append(
-                SweepPoint(st.speed, re, st.dt, st.steps, res.dbar, other_dbar, length, source, res.dbar_empty)
+                SweepPoint(
+                    st.speed,
+                    re,
+                    st.dt,
+                    st.steps,
+                    res.dbar,
+                    other_dbar,
+                    length,
+                    source,
+                    res.dbar_empty,
+                    drag_coefficient=cd,
+                    drag=drag,
+                    drag_probe=probe,
+                    area=area,
+                )
             )
             bar.update(n)
             log.info(
-                "U = %g m/s: Re = %.4g (L = %.4g m, %s), dt = %.3g s, %d steps, D-bar = %.4g",
+                "U = %g m/s: Re = %.4g (L = %.4g m, %s), dt = %.3g s, %d steps, D-bar = %.4g, C_d (%s) = %s",
                 st.speed,
                 re,
                 length,
@@ -281,6 +321,8 @@ def run_sweep(
                 st.dt,
                 st.steps,
                 res.dbar,
+                probe,
+                "n/a" if cd is None else f"{cd:.3g}",
             )
     return points
 
@@ -296,12 +338,15 @@ CSV_FIELDS = (
     "dbar_empty_m4_s",
     "dbar_other_m4_s",
     "gap_m4_s",
+    "C_d",
+    "drag_N",
+    "drag_probe",
 )
 
 
 def write_csv(path: str | Path, points: Sequence[SweepPoint]) -> Path:
-    """Write the sweep as CSV atomically (columns: :data:`CSV_FIELDS`; empty cells where no OTHER or no empty
-    scene)."""
+    """Write the sweep as CSV atomically (columns: :data:`CSV_FIELDS`, the drag's last so that readers of the older
+    columns keep working; empty cells where no OTHER, no empty scene or no drag coefficient)."""
     p = Path(path)
     with atomic_output(p) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
@@ -319,6 +364,9 @@ def write_csv(path: str | Path, points: Sequence[SweepPoint]) -> Path:
                     "" if pt.dbar_empty is None else f"{pt.dbar_empty:.6g}",
                     "" if pt.dbar_other is None else f"{pt.dbar_other:.6g}",
                     "" if pt.gap is None else f"{pt.gap:.6g}",
+                    "" if pt.drag_coefficient is None else f"{pt.drag_coefficient:.3g}",
+                    "" if pt.drag is None else f"{pt.drag:.3g}",
+                    pt.drag_probe,
                 ]
             )
     return p

@@ -262,7 +262,11 @@ def test_sweep_csv_and_plot(scene, tmp_path, capsys, caplog):
     text = capsys.readouterr().out
     # the upfront estimate: -x and its empty scene and OTHER: 3 x 40 probe-steps at 3 m/s, 3 x 80 at 6 m/s
     assert "360 probe-steps" in text and text.index("estimate:") < text.index("took ", text.index("estimate:"))
-    assert f"L = {float(rows[0]['re_length_m']):.4g} m (the object's extent along the flow)" in text
+    assert f"L = {float(rows[0]['re_length_m']):.4g} m (the object's extent along the flow of probe -x)" in text
+    # C_d of the flow probe: a column, a table column, and its plot against Re beside the CSV
+    assert all(r["drag_probe"] == "-x" and math.isfinite(float(r["C_d"])) and float(r["C_d"]) > 0 for r in rows)
+    assert "C_d = 2 F / (rho U^2 A) of probe -x" in text and " C_d " in text
+    assert (tmp_path / "sweep_cd.png").stat().st_size > 0 and f"C_d plot: {tmp_path / 'sweep_cd.png'}" in text
     t0 = time.perf_counter()
     assert cli.main(["sweep", str(scene["ply"]), "--re-length", "0", "-o", str(tmp_path / "x.csv"), *FAST]) == 2
     assert "--re-length" in caplog.text and time.perf_counter() - t0 < 20

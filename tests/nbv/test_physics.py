@@ -1,5 +1,6 @@
 """Probe runs on Gaussians (paper Eq. 2-3): orchestration vs a brute-force twin, D-bar, HDF5, guards, sweep."""
 
+import csv
 import math
 from dataclasses import replace
 from types import SimpleNamespace
@@ -212,8 +213,15 @@ def test_sweep_runs_and_writes_csv(sphere, tmp_path):
     # L is the object's extent along the flow (-x: along x): the sphere's solid is about 2 m across at "auto"
     assert pts[0].re_length_from == "object" and 1.5 < pts[0].re_length < 2.6
     assert pts[0].reynolds == pytest.approx(cfg.rest_density * 3.0 * pts[0].re_length / cfg.viscosity)
+    # C_d of the flow probe (-x, the probe L is measured along), from its time-mean drag: finite and positive
+    assert all(p.drag_probe == "-x" and p.drag > 0 and p.area > 0 for p in pts)
+    assert all(math.isfinite(p.drag_coefficient) and p.drag_coefficient > 0 for p in pts)
+    assert pts[0].drag_coefficient == pytest.approx(2 * pts[0].drag / (cfg.rest_density * 3.0**2 * pts[0].area))
     text = (sweep.write_csv(tmp_path / "s.csv", pts)).read_text().splitlines()
     assert text[0].split(",") == list(sweep.CSV_FIELDS) and len(text) == 3
+    assert list(sweep.CSV_FIELDS[-3:]) == ["C_d", "drag_N", "drag_probe"]  # appended: old readers keep working
+    rows = list(csv.DictReader(text))
+    assert float(rows[1]["C_d"]) == pytest.approx(pts[1].drag_coefficient, rel=5e-3) and rows[1]["drag_probe"] == "-x"
 
 
 def test_sweep_pins_one_scale_and_uses_the_config_speed_as_base(sphere, monkeypatch):
@@ -222,7 +230,7 @@ def test_sweep_pins_one_scale_and_uses_the_config_speed_as_base(sphere, monkeypa
 
     def fake(gaussians, config, progress=True):
         seen.append((len(gaussians.means), config.scale, config.speed, config.dt, config.steps))
-        return SimpleNamespace(dbar=1.0, dbar_empty=None)
+        return SimpleNamespace(dbar=1.0, dbar_empty=None, directions=("-x",), domains={}, forces={})
 
     monkeypatch.setattr(sweep, "simulate_gaussians", fake)
     monkeypatch.setattr(sweep, "reynolds_length", lambda res, spec: (3.0, "given"))

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from viz.plots import PALETTE, bar_chart, plot_sweep
+from viz.plots import PALETTE, bar_chart, plot_drag_coefficient, plot_sweep
 
 
 def _pixels_near(image_bgr: np.ndarray, hex_rgb: str, tol: int = 30) -> int:
@@ -56,6 +56,17 @@ def test_sweep_plot_rejects_bad_input(tmp_path):
     with pytest.raises(ValueError, match="dbar must be finite"):
         plot_sweep(tmp_path / "one.png", [1.0, 3.0], [1.0, float("nan")])
     assert list(tmp_path.iterdir()) == []
+
+
+def test_drag_coefficient_plot_draws_the_points_and_rejects_bad_input(tmp_path):
+    out = plot_drag_coefficient(tmp_path / "cd.png", [9e2, 1.8e3, 3.6e3], [1.2, 1.0, 0.9], [3, 6, 12], title="C_d")
+    image = _check_png(out, 900, 560)
+    assert _pixels_near(image, PALETTE[0]) > 200
+    with pytest.raises(ValueError, match="Reynolds.*> 0"):
+        plot_drag_coefficient(tmp_path / "bad.png", [0.0, 1e3], [1.0, 1.0], [3, 6])
+    with pytest.raises(ValueError, match="drag_coefficients must be finite"):
+        plot_drag_coefficient(tmp_path / "bad.png", [1e2, 1e3], [1.0, float("nan")], [3, 6])
+    assert not (tmp_path / "bad.png").exists()
 
 
 def test_bar_chart_bars_whiskers_and_missing_values(tmp_path):
