@@ -30,7 +30,9 @@ FORMATS = ("transforms", "graphdeco", "colmap")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gaussians", type=Path, help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz), scene units")
+    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
+
+    p.add_argument("gaussians", type=Path, help=gaussians_help())
     p.add_argument(
         "--orbit", type=int, required=True, metavar="N", help="number of cameras (>= 1), split over the rings"
     )

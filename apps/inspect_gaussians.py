@@ -27,11 +27,12 @@ from .runtime import thread_count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
+
     p.add_argument(
         "gaussians",
         type=Path,
-        help="Gaussians: 3DGS .ply, SuperSplat compressed .ply, .spz, .splat, .npz, .sog (or a meta.json "
-        "folder), .ksplat, or a gsplat or nerfstudio checkpoint (scene units)",
+        help=gaussians_help(),
     )
     add_gaussian_file_arguments(p)
     g = p.add_argument_group("frame and solid")

@@ -32,11 +32,12 @@ log = logging.getLogger("fluidgs")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
+
     p.add_argument(
         "gaussians",
         type=Path,
-        help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
-        "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units",
+        help=gaussians_help(),
     )
     add_gaussian_file_arguments(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="result HDF5 file (written atomically)")

@@ -29,11 +29,12 @@ from .options import (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
+
     p.add_argument(
         "gaussians",
         type=Path,
-        help="Gaussians (.ply, .compressed.ply, .spz, .splat, .npz, .sog or "
-        "meta.json folder, .ksplat, a gsplat or nerfstudio checkpoint), scene units",
+        help=gaussians_help(),
     )
     add_gaussian_file_arguments(p)
     from nbv.study.sweep import PAPER_VELOCITIES

@@ -57,6 +57,14 @@ FORMATS: dict[str, str] = {
     "checkpoint": "gsplat ckpt_*.pt or nerfstudio splatfacto step-*.ckpt",
 }
 SUPPORTED = "supported formats: " + "; ".join(FORMATS.values())
+
+
+def gaussians_help(what: str = "Gaussians") -> str:
+    """The help text of a command's Gaussian file argument: every format of :data:`FORMATS`, so that no command's
+    list falls behind the readers."""
+    return f"{what} in scene units; the formats read: {'; '.join(FORMATS.values())}"
+
+
 READERS: dict[str, Callable[[Path], GaussianSet]] = {
     "ply": ply.load_standard_ply,
     "compressed_ply": compressed_ply.load_compressed_ply,

@@ -93,6 +93,17 @@ def test_readme_example_runs(tmp_path):
         assert f["gaussians/D"][()].max() > 0
 
 
+def test_readme_format_list_is_the_formats_table():
+    from recon.formats import FORMATS, gaussians_help
+
+    text = README.read_text()
+    listed = re.search(r"It reads \(the list is `recon\.formats\.FORMATS`[^\n]*\n[^\n]*\n\n((?:- [^\n]*\n)+)", text)
+    assert listed, "README.md: no format list after 'It reads'"
+    items = [line[2:].rstrip(";.") for line in listed.group(1).splitlines()]
+    assert items == list(FORMATS.values()), "README.md's format list differs from recon.formats.FORMATS"
+    assert all(v in gaussians_help() for v in FORMATS.values())  # the commands' help prints the same table
+
+
 def test_readme_names_are_public():
     names = dotted_names(README.read_text())
     assert names, "README.md names no package member"
