@@ -104,6 +104,30 @@ def test_readme_format_list_is_the_formats_table():
     assert all(v in gaussians_help() for v in FORMATS.values())  # the commands' help prints the same table
 
 
+def test_docs_quote_the_one_quick_preset():
+    # --quick is defined once (nbv.physics.config.QUICK); every text that gives its values gives those
+    from nbv.physics.config import QUICK
+
+    said = re.compile(r"(\S+) (?:quick preset|`--quick`)[^.;]{0,60}?r = ([\d.]+) m(?:,| and| x| ×) (\d+) steps")
+    wrong = []
+    for path in [README, *DOCS, ROOT / "nbv" / "physics" / "config.py"]:
+        text = re.sub(r"\s+", " ", path.read_text())
+        for m in said.finditer(text):
+            if m.group(1) in ("earlier", "former"):  # a record of the preset before it changed
+                continue
+            if (float(m.group(2)), int(m.group(3))) != (QUICK["particle_radius"], QUICK["steps"]):
+                wrong.append(f"{path.name}: {m.group(0)!r}")
+    assert not wrong, f"these texts give other --quick values than nbv.physics.config.QUICK {QUICK}: {wrong}"
+
+
+def test_make_test_quick_names_existing_tests():
+    makefile = (ROOT / "Makefile").read_text()
+    quick = re.search(r"^QUICK_TESTS := (.+)$", makefile, flags=re.M)
+    assert quick and "test-quick:" in makefile, "the Makefile has no test-quick target"
+    missing = [p for p in quick.group(1).split() if not (ROOT / p).exists()]
+    assert not missing, f"make test-quick names tests that do not exist: {missing}"
+
+
 def test_readme_names_are_public():
     names = dotted_names(README.read_text())
     assert names, "README.md names no package member"

@@ -161,7 +161,7 @@ class PhysicsConfig:
 
     @classmethod
     def quick(cls, **overrides: Any) -> PhysicsConfig:
-        """The quick preset (r = 0.05 m, 300 steps per probe) with optional overrides."""
+        """The quick preset (:data:`QUICK`: r = 0.035 m, 750 steps per probe) with optional overrides."""
         return cls(**{**QUICK, **overrides})
 
     def reach(self, radii: np.ndarray) -> np.ndarray:
