@@ -8,6 +8,7 @@ Each benchmark lives in its own module of this package with ``add_arguments(pars
 - ``render`` (:mod:`apps.bench.render`): forward + backward time of the torch rasterizer;
 - ``views`` (:mod:`apps.bench.views`): view scores from the projection alone, and their ranking against renders.
 - ``hole`` (:mod:`apps.bench.hole`): a hole punched in a capture's surface, its solid and its rim's D_g.
+- ``forces`` (:mod:`apps.bench.forces`): the time-mean drag on the solid, this engine against SPlisHSPlasH.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ BENCHMARKS = {
     "render": ("apps.bench.render", "forward + backward time of the torch 3DGS rasterizer (5k@100x100, 20k@200x200)"),
     "views": ("apps.bench.views", "view scores without renders: 200 cameras x 1M Gaussians; ranking vs full renders"),
     "hole": ("apps.bench.hole", "a hole punched in a capture's surface: solid points removed, rim D_g holed / intact"),
+    "forces": ("apps.bench.forces", "time-mean drag on a sphere and the Ahmed body: this engine vs SPlisHSPlasH"),
 }
 
 

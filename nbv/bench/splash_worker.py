@@ -162,9 +162,69 @@ def _end_state(sph) -> dict:
     }
 
 
+def _force_worker(sph, base, job: dict) -> dict:
+    """Step a scene whose rigid body ``job["force_body"]`` is dynamic and read the fluid's force on it per step.
+
+    SPlisHSPlasH accumulates a boundary's force only on a dynamic body, hands it to the rigid-body solver after the
+    fluid step and clears it; the binding of ``getForceAndTorque`` cannot return it. So after each fluid step the
+    rigid-body step runs once, the force is read from the body's velocity change, F = m (dv / dt - g) (it starts
+    each step at rest), and the body is put back where it started, at rest, with its boundary particles: the fluid
+    always sees a static solid. Returns ``{"forces": [[Fx, Fy, Fz] per step] (N), "steps_s"}`` and the counts.
+    """
+    import numpy as np  # noqa: PLC0415 - child side only (pysplishsplash needs numpy)
+
+    sim = sph.Simulation.getCurrent()
+    tm = sph.TimeManager.getCurrent()
+    dt = float(job["dt"])
+    tm.setTimeStepSize(dt)
+    # runSimulation() does the deferred boundary initialisation, then steps until stopAt: with the clock past
+    # stopAt it steps nothing; the steps below are driven one by one
+    tm.setTime(1.0)
+    base.setValueFloat(base.STOP_AT, 0.5)
+    base.runSimulation()
+    tm.setTime(0.0)
+    ts = sim.getTimeStep()
+    body = sim.getBoundaryModel(int(job["force_body"])).getRigidBodyObject()
+    if not body.isDynamic():
+        raise RuntimeError(f"rigid body {job['force_body']} is not dynamic: SPlisHSPlasH records no force on it")
+    boundary = base.getBoundarySimulator()
+    mass = float(body.getMass())
+    gravity = np.asarray(job["gravity"], np.float64)
+    x0 = np.array(body.getPosition(), np.float32)
+    r0 = np.array(body.getRotation(), np.float32)
+    rest = np.zeros(3, np.float32)
+    forces = []
+    t0 = time.perf_counter()
+    for _ in range(int(job["steps"])):
+        ts.step()  # the fluid step: the boundary accumulates the reactions of its pressure and viscosity terms
+        boundary.timeStep()  # hands them to the body: dv = dt (F / m + g)
+        dv = np.asarray(body.getVelocity(), np.float64)
+        forces.append((mass * (dv / dt - gravity)).tolist())
+        body.setVelocity(rest)
+        body.setAngularVelocity(rest)
+        body.setPosition(x0)
+        body.setRotation(r0)
+        base.updateBoundaryParticles(True)
+    steps_s = time.perf_counter() - t0
+    fluid = sim.getFluidModel(0)
+    return {"forces": forces, "steps_s": steps_s, "fluid_particles": int(fluid.numActiveParticles()), "mass": mass}
+
+
 def _worker(job_file: str) -> int:
-    """Child process: set up the scene, step it, write the result JSON (keys: :func:`nbv.bench.splash.run_splash`)."""
+    """Child process: set up the scene, step it, write the result JSON (keys: :func:`nbv.bench.splash.run_splash`;
+    with ``force_body`` in the job: :func:`_force_worker`)."""
     job = json.loads(Path(job_file).read_text())
+    if job.get("force_body") is not None:
+        sph = _import_splash()
+        base = sph.Exec.SimulatorBase()
+        base.init(
+            sceneFile=job["scene_file"], useCache=False, outputDir=job["output_dir"], initialPause=False, useGui=False
+        )
+        base.initSimulation()
+        result = _force_worker(sph, base, job)
+        Path(job["result_file"]).write_text(json.dumps(result, default=_to_builtin))
+        sys.stdout.flush()
+        os._exit(0)
     steps = int(job["steps"])
     dt = float(job["dt"])
     sph = _import_splash()

@@ -1,0 +1,125 @@
+"""`fluidgs bench forces`: the force on the solid, this engine against SPlisHSPlasH, on the same probe scene.
+
+Cases: a sphere (a filled lattice ball, the -x probe) and the bundled Ahmed body Gaussians (the -x probe of
+``PhysicsConfig.quick``'s setup at the chosen r). Each probe runs in this engine and in SPlisHSPlasH (pysplishsplash,
+the ``bench`` extra) with the same r, dt, viscosity and boundary viscosity, tolerances, slab and walls
+(:mod:`nbv.bench.splash_probe`); it prints both time-mean drags over the second half of the run, their ratio and the
+settings. The default run length is the slab front's passage past the solid
+(:func:`nbv.bench.splash_probe.passage_steps`): later the fluid rebounds off the downstream wall, a sloshing neither
+engine pins down.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ..runtime import thread_count
+
+CASES = ("sphere", "ahmed")
+AHMED = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--case", choices=(*CASES, "both"), default="both", help="which solid (default: both)")
+    p.add_argument(
+        "--radius", type=float, default=0.035, help="particle radius r, m (default: 0.035, the --quick setting)"
+    )
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="time steps per probe (default: the slab front's passage past the solid at the inflow speed)",
+    )
+    p.add_argument("--dt", type=float, default=0.002, help="fixed time step of both engines, s (default: 0.002)")
+    p.add_argument("--sphere-radius", type=float, default=0.5, help="the sphere case's radius, m (default: 0.5)")
+    p.add_argument(
+        "--gaussians", type=Path, default=AHMED, help="the ahmed case's Gaussians (default: assets/ahmed_gaussians.ply)"
+    )
+    p.add_argument("--up", default="+y", help="the ahmed case's up axis in the Gaussians' frame (default: +y)")
+    p.add_argument("--threads", type=thread_count, default=2, help="CPU threads for both engines (default: 2)")
+    p.add_argument("--keep", type=Path, default=None, help="write the peer's scenes into this folder (default: none)")
+    p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file (default: none)")
+
+
+def _cases(args: argparse.Namespace):
+    """(name, solid points [M, 3] m, ProbeSetup, SolverConfig, ProbeConfig) per case asked for."""
+    import numpy as np
+
+    import nbv
+    import recon
+    from fluidsim.probes import ProbeConfig, probe_setup
+    from fluidsim.sources import sphere_particles
+    from nbv.physics.plan import ProbePlan, RunFrame
+
+    names = CASES if args.case == "both" else (args.case,)
+    for name in names:
+        config = nbv.PhysicsConfig.quick(
+            up=args.up, empty_reference=False, particle_radius=args.radius, dt=args.dt, directions=("-x",)
+        )
+        scfg = config.solver_config()
+        if name == "sphere":
+            probe = ProbeConfig(speed=config.speed, directions=("-x",))
+            solid = sphere_particles((0.0, 0.0, 0.0), args.sphere_radius, scfg.spacing, fill=True)
+            yield name, solid, probe_setup(solid, "-x", probe, scfg.spacing), scfg, probe
+        else:
+            frame = RunFrame.of(recon.load_gaussians(args.gaussians), config, source=str(args.gaussians))
+            solid = np.asarray(frame.solidify().points, np.float64)
+            yield name, solid, ProbePlan.of(solid, config).setups["-x"], scfg, config.probe_config()
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from nbv.bench.splash import INSTALL_HINT, splash_available
+    from nbv.bench.splash_probe import force_check, passage_steps
+
+    from ..runtime import init_taichi
+
+    if not (args.radius > 0 and args.dt > 0 and args.sphere_radius > 0):
+        raise ValueError("--radius, --dt and --sphere-radius must be > 0")
+    if args.steps is not None and args.steps < 2:
+        raise ValueError(f"--steps must be >= 2, got {args.steps}")
+    if not splash_available():
+        raise RuntimeError(f"bench forces needs SPlisHSPlasH. {INSTALL_HINT}")
+    init_taichi("cpu", "f32", args.threads)
+    figures = []
+    for name, solid, setup, scfg, probe in _cases(args):
+        steps = args.steps if args.steps is not None else passage_steps(solid, setup, scfg.dt)
+        keep = None if args.keep is None else args.keep / name
+        check = force_check(solid, setup, scfg, probe, steps, args.threads, keep)
+        row = {
+            "case": name,
+            "probe": setup.direction,
+            "solid_particles": len(solid),
+            "fluid_particles": check.ours.fluid_particles,
+            "fluid_particles_splash": check.splash.fluid_particles,
+            "particle_radius_m": scfg.particle_radius,
+            "dt_s": scfg.dt,
+            "steps": steps,
+            "window_steps": [steps // 2, steps],
+            "viscosity_Pa_s": scfg.viscosity,
+            "boundary_viscosity_Pa_s": scfg.wall_viscosity,
+            "speed_m_s": float(max(abs(c) for c in setup.velocity)),
+            "drag_ours_N": check.drag_ours,
+            "drag_splash_N": check.drag_splash,
+            "ratio": check.ratio,
+            "mean_ours_N": check.mean_ours.tolist(),
+            "mean_splash_N": check.mean_splash.tolist(),
+            "seconds_ours": check.ours.seconds,
+            "seconds_splash": check.splash.seconds,
+        }
+        figures.append(row)
+        print(
+            f"{name} (probe {setup.direction}): {len(solid)} solid, {check.ours.fluid_particles} fluid particles "
+            f"(SPlisHSPlasH {check.splash.fluid_particles}); r {scfg.particle_radius:g} m, dt {scfg.dt:g} s, "
+            f"{steps} steps (mean over steps {steps // 2}-{steps}), mu {scfg.viscosity:g} Pa s, mu_b "
+            f"{scfg.wall_viscosity:g} Pa s, U {row['speed_m_s']:g} m/s"
+        )
+        print(
+            f"  time-mean drag: ours {check.drag_ours:.4g} N, SPlisHSPlasH {check.drag_splash:.4g} N, ratio "
+            f"{check.ratio:.3f}; mean force ours {check.mean_ours.round(1).tolist()} N, SPlisHSPlasH "
+            f"{check.mean_splash.round(1).tolist()} N ({check.ours.seconds:.0f} s / {check.splash.seconds:.0f} s)"
+        )
+    if args.json is not None:
+        args.json.write_text(json.dumps(figures, indent=1) + "\n")
+    return 0

@@ -1,0 +1,400 @@
+"""A probe scene in SPlisHSPlasH's scene format, and the force on the solid in both engines.
+
+A probe (:mod:`fluidsim.probes`, paper Sec. 3.2) is a static solid, a fluid slab moving at the inflow speed and the
+closed walls of its domain. :func:`write_probe_scene` writes it as a SPlisHSPlasH scene (JSON) with its meshes, so
+that the reference engine (Bender & Koschier 2017 DFSPH, pysplishsplash) can rerun it:
+
+- the **walls**: a static inverted box (``isWall``) spanning the probe's domain (our walls are two particle layers
+  just outside it);
+- the **fluid slab**: a ``FluidBlock`` (``denseMode 0``) whose lattice is ours particle for particle (its box widened
+  by r per side and cut at our lattice's count, as in :func:`nbv.bench.splash.splash_scene_json`), with the
+  probe's initial velocity;
+- the **solid**: the union of the solid particles' cubes (side = one spacing, centred on the particles: the body the
+  lattice stands for) as a closed voxel surface mesh (:func:`voxel_surface`, written as ``solid.obj``), a rigid
+  body with ``isWall: false``;
+- the **settings**: particle radius r, rho_0, fixed dt (CFL off), DFSPH (simulationMethod 4) with our density and
+  divergence tolerances (%) and iteration bounds, "Standard" viscosity (viscosityMethod 1, the Laplacian of
+  :mod:`fluidsim.viscosity`) with the kinematic nu = mu / rho_0 and the boundary's nu_b = mu_b / rho_0, and the
+  Akinci et al. 2012 boundary (boundaryHandlingMethod 0), whose particles SPlisHSPlasH samples on the meshes.
+
+The force check (:func:`force_check`, ``fluidgs bench forces``) runs one probe in both engines and compares the
+time-mean drag over the second half of the run (:func:`nbv.physics.forces.second_half_mean`). SPlisHSPlasH records a
+boundary's force only for a dynamic body (``BoundaryModel::addForce``), and its Python binding cannot hand
+``getForceAndTorque`` back, so the peer's copy of the scene makes the solid dynamic and its worker
+(:mod:`nbv.bench.splash_worker`) reads the force from the body's velocity change over each rigid-body step,
+F = m (dv / dt - g), then puts the body back at rest where it started: the fluid always sees a static solid.
+
+Units: metres, seconds, m/s, kg/m^3, Pa s (dynamic viscosity; SPlisHSPlasH's coefficients are kinematic, m^2/s),
+newtons.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fluidsim.config import SolverConfig
+from fluidsim.probes import ProbeConfig, ProbeSetup
+from fluidsim.scene import lattice_counts
+
+from .splash import INSTALL_HINT, _worker_cmd, unit_box, write_obj
+from .splash_worker import EXIT_NO_SPLASH
+
+SOLID_MESH = "solid.obj"
+BOX_MESH = "box.obj"
+SOLID_BODY = 1  # the solid's index among the scene's rigid bodies (the walls' box is 0)
+
+
+def voxel_surface(points: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """The surface of the union of the cubes of side ``spacing`` centred on lattice points.
+
+    Every cube face that no other cube covers becomes two triangles, wound counter-clockwise seen from outside;
+    vertices are the lattice's cell corners, shared between faces, so the mesh is closed (every edge lies on an even
+    number of faces; two cubes touching only along an edge give four). Its volume is M spacing^3.
+
+    Args:
+        points: (M, 3) points on one lattice of spacing ``spacing``, m (the solid of a probe run).
+        spacing: the lattice spacing, m.
+    Returns:
+        (vertices (V, 3) float64 m, faces (F, 3) int64).
+    Raises:
+        ValueError: no points, non-finite points or spacing, or points off the lattice (more than 1e-3 spacings).
+    Example:
+        >>> v, f = voxel_surface(np.zeros((1, 3)), 0.1)
+        >>> len(v), len(f)
+        (8, 12)
+    """
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(p) == 0 or not np.isfinite(p).all():
+        raise ValueError(f"the solid needs finite points, got {len(p)} points")
+    if not (math.isfinite(spacing) and spacing > 0):
+        raise ValueError(f"the spacing must be > 0 m, got {spacing!r}")
+    origin = p.min(0)
+    steps = (p - origin) / spacing
+    cells = np.rint(steps).astype(np.int64)
+    if np.abs(steps - cells).max() > 1e-3:
+        raise ValueError("the solid's points are not on one lattice of the given spacing (2 r)")
+    cells = np.unique(cells, axis=0) + 1  # one empty cell of margin on each side
+    occupied = np.zeros(tuple(cells.max(0) + 2), bool)
+    occupied[tuple(cells.T)] = True
+    quads = []
+    for axis in range(3):
+        u, w = (axis + 1) % 3, (axis + 2) % 3  # (axis, u, w) is right-handed
+        for side in (1, -1):
+            neighbour = np.roll(occupied, -side, axis=axis)
+            faces = np.argwhere(occupied & ~neighbour)
+            lo = faces.copy()
+            lo[:, axis] += 1 if side > 0 else 0  # the corner plane of the face
+            du, dw = np.zeros(3, np.int64), np.zeros(3, np.int64)
+            du[u], dw[w] = 1, 1
+            ring = [lo, lo + du, lo + du + dw, lo + dw]  # counter-clockwise about +axis
+            quads.append(np.stack(ring if side > 0 else ring[::-1], axis=1))
+    corners = np.concatenate(quads)  # (Q, 4, 3) corner indices
+    keys, inverse = np.unique(corners.reshape(-1, 3), axis=0, return_inverse=True)
+    q = inverse.reshape(-1, 4)
+    faces = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    vertices = origin + (keys - 1.5) * spacing  # corner k of cell c sits at origin + (k - 1/2 - 1) spacing
+    return vertices, faces.astype(np.int64)
+
+
+def fluid_block(setup: ProbeSetup, particle_radius: float) -> tuple[list[float], list[float]]:
+    """(start, end) of SPlisHSPlasH's ``denseMode 0`` block that holds our slab's lattice particle for particle: its
+    first particle 2r inside ``start``, ``round((end - start) / 2r) - 1`` per axis; ours ``floor(L / 2r)`` from
+    ``fluid_min + r``."""
+    spacing = 2.0 * particle_radius
+    counts = lattice_counts(setup.fluid_min, setup.fluid_max, spacing)
+    start = np.asarray(setup.fluid_min, np.float64) - particle_radius
+    return start.tolist(), (start + (counts + 1) * spacing).tolist()
+
+
+def probe_scene_json(
+    setup: ProbeSetup, config: SolverConfig, steps: int, solid_mesh: str = SOLID_MESH, dynamic: bool = False
+) -> dict:
+    """SPlisHSPlasH's scene (its JSON format) for one probe (module docstring).
+
+    Args:
+        setup: the probe's domain, slab and inflow. config: this engine's solver settings of the probe.
+        steps: time steps (the scene's ``stopAt`` is steps x dt). solid_mesh: the solid's OBJ, relative to the scene.
+        dynamic: make the solid a dynamic rigid body (the force check's copy; SPlisHSPlasH records forces only on
+            dynamic bodies, and the worker keeps it at rest).
+    """
+    nu = config.viscosity / config.rest_density
+    nu_b = config.wall_viscosity / config.rest_density
+    start, end = fluid_block(setup, config.particle_radius)
+    lo, hi = np.asarray(setup.domain_min, np.float64), np.asarray(setup.domain_max, np.float64)
+    iterations = {
+        "minIterations": config.min_iterations,
+        "maxIterations": config.max_iterations,
+        "maxError": config.max_density_error,
+        "maxIterationsV": config.max_iterations,
+        "maxErrorV": config.max_divergence_error,
+        "enableDivergenceSolver": config.divergence_solver,
+    }
+    solid = {
+        "geometryFile": solid_mesh,
+        "translation": [0.0, 0.0, 0.0],
+        "rotationAxis": [1, 0, 0],
+        "rotationAngle": 0,
+        "scale": [1.0, 1.0, 1.0],
+        "isDynamic": bool(dynamic),
+        "isWall": False,
+        "samplingMode": 1,  # regular triangle sampling
+    }
+    if dynamic:  # no collision geometry (the rigid-body solver never moves it: the worker keeps it at rest)
+        solid.update({"density": float(config.rest_density), "collisionObjectType": 0})
+    return {
+        "Configuration": {
+            "particleRadius": config.particle_radius,
+            "sim2D": False,
+            "simulationMethod": 4,  # DFSPH
+            "boundaryHandlingMethod": 0,  # Akinci et al. 2012 boundary particles
+            "gravitation": list(config.gravity),
+            "timeStepSize": config.dt,
+            "cflMethod": 0,  # fixed dt, as this engine's probes
+            "stopAt": steps * config.dt,
+            "pause": False,
+            "numberOfStepsPerRenderUpdate": 1,
+            "enablePartioExport": False,
+            "enableVTKExport": False,
+            "enableRigidBodyExport": False,
+            "enableRigidBodyVTKExport": False,
+            "enableStateExport": False,
+            "enableAsyncExport": False,
+            **iterations,
+            "DFSPH": dict(iterations),
+        },
+        "Materials": [
+            {
+                "id": "Fluid",
+                "density0": config.rest_density,
+                "viscosityMethod": 1,  # "Standard"
+                "viscosity": nu,
+                "viscosityBoundary": nu_b,
+                "Standard viscosity": {"viscosity": nu, "viscosityBoundary": nu_b},
+                "surfaceTensionMethod": 0,
+                "vorticityMethod": 0,
+                "dragMethod": 0,
+                "elasticityMethod": 0,
+            }
+        ],
+        "RigidBodies": [
+            {
+                "geometryFile": BOX_MESH,
+                "translation": ((lo + hi) / 2).tolist(),
+                "rotationAxis": [1, 0, 0],
+                "rotationAngle": 0,
+                "scale": (hi - lo).tolist(),
+                "isDynamic": False,
+                "isWall": True,
+                "mapInvert": True,
+                "samplingMode": 1,
+            },
+            solid,
+        ],
+        "FluidBlocks": [
+            {"id": "Fluid", "denseMode": 0, "start": start, "end": end, "initialVelocity": list(setup.velocity)}
+        ],
+    }
+
+
+def scene_name(direction: str) -> str:
+    """The scene file of a probe, e.g. ``probe_-x.json``."""
+    return f"probe_{direction}.json"
+
+
+def write_probe_scenes(
+    folder: Path,
+    solid_points: np.ndarray,
+    setups: dict[str, ProbeSetup],
+    config: SolverConfig,
+    steps: int,
+    dynamic: bool = False,
+) -> dict[str, Path]:
+    """Write one SPlisHSPlasH scene per probe into ``folder``, with ``solid.obj`` (:func:`voxel_surface`) and
+    ``box.obj`` (the unit box the walls scale) beside them.
+
+    Args:
+        folder: created when missing. solid_points: (M, 3) the solid, m. setups: {direction: ProbeSetup}.
+        config: the probes' solver settings. steps: time steps per probe. dynamic: see :func:`probe_scene_json`.
+    Returns:
+        {direction: path of its scene}.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_obj(folder / SOLID_MESH, *voxel_surface(solid_points, config.spacing))
+    write_obj(folder / BOX_MESH, *unit_box())
+    out = {}
+    for d, setup in setups.items():
+        path = folder / scene_name(d)
+        path.write_text(json.dumps(probe_scene_json(setup, config, steps, dynamic=dynamic), indent=1) + "\n")
+        out[d] = path
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------
+# the force check
+# ----------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ForceRun:
+    """One engine's run of a probe: the force on the solid per step.
+
+    Attributes:
+        series: (S, 3) N per step. dt: (S,) s. fluid_particles: the slab's particles. seconds: wall time of the steps.
+    """
+
+    series: np.ndarray
+    dt: np.ndarray
+    fluid_particles: int
+    seconds: float
+
+
+def run_splash_forces(scene: Path, steps: int, threads: int = 2, timeout_s: float = 1800) -> ForceRun:
+    """Run a dynamic-solid probe scene (:func:`write_probe_scenes` with ``dynamic=True``) in SPlisHSPlasH (a child
+    process, :mod:`nbv.bench.splash_worker`) and read the force on its solid per step.
+
+    Raises:
+        RuntimeError: pysplishsplash is missing, crashes or times out (the message says how to install it).
+    """
+    with tempfile.TemporaryDirectory(prefix="splash_forces_") as tmp:
+        tmpdir = Path(tmp)
+        config = json.loads(Path(scene).read_text())["Configuration"]
+        job = {
+            "scene_file": str(Path(scene).resolve()),
+            "output_dir": str(tmpdir / "output"),
+            "result_file": str(tmpdir / "result.json"),
+            "steps": int(steps),
+            "dt": float(config["timeStepSize"]),
+            "force_body": SOLID_BODY,
+            "gravity": list(config["gravitation"]),
+        }
+        (tmpdir / "job.json").write_text(json.dumps(job))
+        env = dict(os.environ, OMP_NUM_THREADS=str(threads))
+        if env.pop("FLUIDGS_OMP_POLICY_SET", None):
+            env.pop("OMP_WAIT_POLICY", None)
+        try:
+            proc = subprocess.run(
+                _worker_cmd("--worker", str(tmpdir / "job.json")),
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=timeout_s,
+            )
+        except subprocess.TimeoutExpired as exc:
+            raise RuntimeError(f"SPlisHSPlasH run timed out after {timeout_s} s") from exc
+        if proc.returncode == EXIT_NO_SPLASH:
+            raise RuntimeError(f"pysplishsplash is not importable: {proc.stderr.strip()[-800:]}\n{INSTALL_HINT}")
+        result_file = tmpdir / "result.json"
+        if proc.returncode != 0 or not result_file.exists():
+            tail = (proc.stdout[-1500:] + "\n" + proc.stderr[-1500:]).strip()
+            raise RuntimeError(f"SPlisHSPlasH worker failed (exit code {proc.returncode}).\n{tail}\n{INSTALL_HINT}")
+        result = json.loads(result_file.read_text())
+    series = np.asarray(result["forces"], np.float64).reshape(-1, 3)
+    return ForceRun(series, np.full(len(series), job["dt"]), int(result["fluid_particles"]), result["steps_s"])
+
+
+def run_our_forces(
+    solid_points: np.ndarray, setup: ProbeSetup, config: SolverConfig, probe: ProbeConfig, steps: int
+) -> ForceRun:
+    """Run one probe in this engine (Taichi must be initialised) and return the force on the solid per step."""
+    import time  # noqa: PLC0415
+
+    from fluidsim.probes import build_probe_solver  # noqa: PLC0415
+    from fluidsim.simulation import run  # noqa: PLC0415
+
+    solver = build_probe_solver(solid_points, setup, config, probe)
+    fluid = int(solver.fluid.active) if hasattr(solver, "fluid") else 0
+    t0 = time.perf_counter()
+    stats = run(solver, steps)
+    seconds = time.perf_counter() - t0
+    return ForceRun(
+        np.array([s.solid_force for s in stats], np.float64).reshape(-1, 3),
+        np.array([s.dt for s in stats], np.float64),
+        fluid,
+        seconds,
+    )
+
+
+def passage_steps(solid_points: np.ndarray, setup: ProbeSetup, dt: float) -> int:
+    """Time steps for the slab's front to travel, at the inflow speed, from where it starts to the downstream side of
+    the solid's box (particle centres): the run whose second half is the flow past the solid. Later, the fluid
+    piles up against the downstream wall and rebounds onto the solid's back, a sloshing whose timing neither
+    engine pins down (measured on a sphere: the two drags agree within 5 % on windows that end before it, and
+    differ in sign once it dominates the window).
+
+    Raises:
+        ValueError: the probe has no inflow (the -y probe falls from rest).
+    """
+    v = np.asarray(setup.velocity, np.float64)
+    speed = float(np.linalg.norm(v))
+    if speed <= 0:
+        raise ValueError(f"probe {setup.direction} has no inflow speed: the force check needs a horizontal probe")
+    flow = v / speed
+    pts = np.asarray(solid_points, np.float64).reshape(-1, 3)
+    lo = np.asarray(setup.fluid_min, np.float64)
+    hi = np.asarray(setup.fluid_max, np.float64)
+    front = float(np.maximum(lo * flow, hi * flow).sum())  # the slab's downstream face, along the flow
+    far = float((pts @ flow).max())  # the solid's downstream side, along the flow
+    return max(2, round((far - front) / (speed * dt)))
+
+
+@dataclass(frozen=True)
+class ForceCheck:
+    """One probe's force on the solid in both engines.
+
+    Attributes:
+        direction: the probe. ours, splash: the two runs. mean_ours, mean_splash: (3,) N, the time means over the
+        second half of the run. drag_ours, drag_splash: their parts along the flow, N.
+    """
+
+    direction: str
+    ours: ForceRun
+    splash: ForceRun
+    mean_ours: np.ndarray
+    mean_splash: np.ndarray
+    drag_ours: float
+    drag_splash: float
+
+    @property
+    def ratio(self) -> float:
+        """drag_ours / drag_splash (nan when the peer's drag is 0)."""
+        return self.drag_ours / self.drag_splash if self.drag_splash != 0 else float("nan")
+
+
+def force_check(
+    solid_points: np.ndarray,
+    setup: ProbeSetup,
+    config: SolverConfig,
+    probe: ProbeConfig,
+    steps: int,
+    threads: int = 2,
+    keep: Path | None = None,
+) -> ForceCheck:
+    """Run one probe in this engine (Taichi must be initialised) and in SPlisHSPlasH, and compare the time-mean
+    drag on the solid over the second half of the run.
+
+    Args:
+        solid_points: (M, 3) the solid, m. setup: the probe. config: its solver settings (both engines).
+        probe: slab and wall parameters (this engine's walls). steps: time steps. threads: the peer's OpenMP threads.
+        keep: write the peer's scene here (default: a temporary folder, deleted).
+    """
+    from nbv.physics.forces import flow_axis, second_half_mean  # noqa: PLC0415
+
+    ours = run_our_forces(solid_points, setup, config, probe, steps)
+    with tempfile.TemporaryDirectory(prefix="splash_probe_") as tmp:
+        folder = Path(keep) if keep is not None else Path(tmp)
+        scene = write_probe_scenes(folder, solid_points, {setup.direction: setup}, config, steps, dynamic=True)
+        splash = run_splash_forces(scene[setup.direction], steps, threads)
+    flow = flow_axis(setup.direction)
+    mean_ours, mean_splash = second_half_mean(ours.series, ours.dt), second_half_mean(splash.series, splash.dt)
+    return ForceCheck(
+        setup.direction, ours, splash, mean_ours, mean_splash, float(mean_ours @ flow), float(mean_splash @ flow)
+    )
