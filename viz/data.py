@@ -98,7 +98,8 @@ class ViewData:
     """The part of RESULT.h5 the viewer shows.
 
     Attributes:
-        path: the file. source: the Gaussian file it was computed from (as given to simulate).
+        path: the file. source: the Gaussian file it was computed from (its absolute path; as given to simulate
+            in files written before). source_relative: the same relative to RESULT.h5's folder ("" when unknown).
         directions: the probes (P). per_probe: per direction, [G] D_g^(IC), 1/s.
         divergence, divergence_mean: [G] D_g max and mean over the probes, 1/s.
         means: [G, 3] sim metres. covariances: [G, 3, 3] sim metres^2. kept: [G] bool inside the crop, or None.
@@ -134,6 +135,7 @@ class ViewData:
     dbar_empty: float = math.nan
     empty_per_probe: dict[str, np.ndarray] = field(default_factory=dict)
     reached_gaussians: np.ndarray | None = None
+    source_relative: str = ""
 
     @property
     def num_gaussians(self) -> int:
@@ -294,6 +296,7 @@ def load_view_data(path: str | Path) -> ViewData:
             dbar_empty=float(f.attrs.get("dbar_empty", math.nan)),
             empty_per_probe={d: pg["D_empty"][()] for d, pg in probes.items() if "D_empty" in pg},
             reached_gaussians=_reached_gaussians(f, probes),
+            source_relative=str(f.attrs.get("source_relative", "")),
         )
 
 

@@ -71,13 +71,15 @@ def check_gaussians_match(means_scene: np.ndarray, data: ViewData, where: str) -
 
 
 def resolve_gaussians(path: str | Path | None, data: ViewData) -> Path | None:
-    """The Gaussian file to colour the splats with: ``path``, else RESULT.h5's ``source`` when that file exists (as
-    written, or beside RESULT.h5), else None."""
+    """The Gaussian file to colour the splats with: ``path``, else RESULT.h5's ``source`` when that file exists (its
+    absolute path, else its path relative to RESULT.h5's folder, for files moved together, else beside RESULT.h5),
+    else None."""
     if path is not None:
         return Path(path)
     if not data.source:
         return None
-    for candidate in (Path(data.source), data.path.parent / Path(data.source).name):
+    relative = [data.path.parent / data.source_relative] if data.source_relative else []
+    for candidate in (Path(data.source), *relative, data.path.parent / Path(data.source).name):
         if candidate.is_file():
             log.info("Gaussians: %s (the source recorded in %s)", candidate, data.path.name)
             return candidate

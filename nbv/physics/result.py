@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -182,7 +183,8 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         /solid/x                (M, 3) solid particles, sim metres
         attributes: config (PhysicsConfig JSON), directions, dbar, dbar_mean, dbar_empty, dbar_empty_mean
                     (m^4/s; NaN when not computed), up (the scene's up vector, 3 floats), up_label ("-y", ...),
-                    scale (m per scene unit), scene_to_sim (4x4: x_sim = M [x_scene, 1]), source, timings (JSON)
+                    scale (m per scene unit), scene_to_sim (4x4: x_sim = M [x_scene, 1]), source (the Gaussian
+                    file's absolute path), source_relative (the same relative to RESULT.h5's folder), timings (JSON)
         /gaussians/kept         (G,) bool, the Gaussians inside the crop (only with a crop)
         attributes too: gaussians_sha256 (:func:`gaussians_sha256`), status ("complete" or "diverged": then
                     /probes holds the probes completed before it, and diverged_probe, diverged_step,
@@ -229,7 +231,7 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         f.attrs["scale"], f.attrs["scene_to_sim"] = float(result.transform.scale), result.transform.matrix
         if result.kept is not None:
             g["kept"] = np.asarray(result.kept, bool)
-        f.attrs["source"] = str(result.source)
+        f.attrs["source"], f.attrs["source_relative"] = _source_paths(result.source, p)
         f.attrs["source_frame"] = str(result.source_frame)
         f.attrs["timings"] = json.dumps(result.timings)
         f.attrs["gaussians_sha256"], f.attrs["status"] = result.gaussians_sha256, result.status
@@ -252,6 +254,20 @@ def write_probe_force(group, pf: ProbeForces) -> None:
     for key, name in (("drag", "C_d"), ("lift", "C_l"), ("side", "C_s")):
         v = None if coefficients is None else coefficients[key]
         ds.attrs[name] = float("nan") if v is None else v
+
+
+def _source_paths(source: str, result_path: Path) -> tuple[str, str]:
+    """(source, source_relative) of RESULT.h5: an existing Gaussian file as its absolute path and as a path relative
+    to RESULT.h5's folder (so ``fluidgs view`` finds it from any working folder, and after both files move together);
+    anything else as given, with no relative form."""
+    if not source or not Path(source).exists():
+        return str(source), ""
+    absolute = Path(source).resolve()
+    try:
+        relative = os.path.relpath(absolute, result_path.resolve().parent)
+    except ValueError:  # another drive (Windows)
+        relative = ""
+    return str(absolute), relative
 
 
 def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:

@@ -792,3 +792,24 @@ def test_browser_shows_the_list_of_views(scene, viewer_of, tmp_path):
         shots.close()
     cv2.imwrite(str(tmp_path / "panel.png"), img[..., ::-1])
     assert img.shape[:2] == (1400, 1280)
+
+
+def test_view_finds_the_source_from_any_folder(scene, tmp_path, monkeypatch):
+    # RESULT.h5 stores the source's absolute path and its path relative to RESULT.h5's folder
+    from nbv.physics import load_result, save_result
+    from viz.splats import resolve_gaussians
+
+    work = tmp_path / "work"
+    work.mkdir()
+    shutil.copy(scene.ply, work / "g.ply")
+    monkeypatch.chdir(work)
+    result = load_result(scene.h5)
+    save_result(work / "out" / "r.h5", replace(result, source="g.ply"))  # as a user types it, relative
+    with h5py.File(work / "out" / "r.h5", "r") as f:
+        assert f.attrs["source"] == str((work / "g.ply").resolve()) and f.attrs["source_relative"] == "../g.ply"
+    monkeypatch.chdir(tmp_path)  # view from another folder
+    assert resolve_gaussians(None, load_view_data(work / "out" / "r.h5")) == (work / "g.ply").resolve()
+    moved = tmp_path / "moved"  # both files moved together: the relative path still finds it
+    shutil.move(str(work), str(moved))
+    found = resolve_gaussians(None, load_view_data(moved / "out" / "r.h5"))
+    assert found is not None and found.resolve() == (moved / "g.ply").resolve()
