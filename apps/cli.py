@@ -28,6 +28,7 @@ try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets o
         active,
         bench,
         cameras,
+        compare,
         critical,
         demo,
         evaluate,
@@ -65,6 +66,10 @@ COMMANDS = {
     "score": (score, "rank candidate cameras by the view score S(T) of D_g (paper Eq. 4-5); JSON, table, PNGs"),
     "sweep": (sweep, "D-bar against inflow speed U and Reynolds number (CFL-constant dt): CSV and PNG plot"),
     "cameras": (cameras, "candidate cameras for a capture without any: rings around the object -> transforms.json"),
+    "compare": (
+        compare,
+        "the functional error: reconstruction vs reference in the same probes, with its noise floor",
+    ),
     "critical": (critical, "function-critical views: C(T) from distinct particle counts, top-20 subset"),
     "ahmed": (make_ahmed, "write the procedural Ahmed body (Ahmed et al. 1984, slant 0-40 deg) as .obj/.stl/.ply"),
     "active": (active, "active reconstruction: biased initial views, one planner pick per round up to the budget"),
