@@ -107,3 +107,27 @@ def test_sphere_drag_matches_splishsplash():
     assert check.ours.fluid_particles == check.splash.fluid_particles
     assert check.drag_ours > 0 and check.drag_splash > 0  # both push the sphere along the flow
     assert check.ratio == pytest.approx(1.0, abs=0.10)
+
+
+def test_export_splishsplash_writes_a_scene_per_probe(tmp_path):
+    """`fluidgs export RESULT.h5 --splishsplash DIR`: the probes laid out around the stored solid, one scene each."""
+    import h5py
+
+    from apps import cli
+    from nbv.physics.config import PhysicsConfig
+    from nbv.physics.plan import ProbePlan
+
+    config = PhysicsConfig.quick(particle_radius=0.05, directions=("-x", "+z"))
+    solid = sphere_particles((0.0, 0.2, 0.0), 0.3, 0.1, fill=True)
+    h5 = tmp_path / "result.h5"
+    with h5py.File(h5, "w") as f:
+        f["solid/x"] = solid
+        f.attrs["config"] = json.dumps(config.to_dict())
+    out = tmp_path / "scenes"
+    assert cli.main(["export", str(h5), "--splishsplash", str(out), "--probe=+z", "--steps", "40"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["box.obj", "probe_+z.json", "solid.obj"]
+    scene = json.loads((out / "probe_+z.json").read_text())
+    setup = ProbePlan.of(solid, config).setups["+z"]
+    assert scene["FluidBlocks"][0]["initialVelocity"] == list(setup.velocity)
+    assert scene["Configuration"]["stopAt"] == pytest.approx(40 * config.dt)
+    assert cli.main(["export", str(h5), "--splishsplash", str(out), "--probe=-y"]) == 2  # not a probe of the run
