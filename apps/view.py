@@ -53,6 +53,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the candidates' cameras file (transforms.json, COLMAP model, graphdeco cameras.json), "
         "scene units (default: the file --scores names)",
     )
+    p.add_argument(
+        "--screenshot",
+        type=Path,
+        default=None,
+        metavar="PNG",
+        help="write a PNG of the page as headless Chromium draws it, then exit instead of serving (needs chromium on "
+        "PATH; default: serve until Ctrl-C)",
+    )
     from viz.serving import ViewerOptions
 
     from .options import add_config_options
@@ -68,7 +76,27 @@ def run_command(args: argparse.Namespace) -> int:
 
     logging.getLogger("websockets").setLevel(logging.WARNING)  # one line per connection otherwise
     options = config_from_args(ViewerOptions, args, FIELDS, OVERRIDES)
+    if args.screenshot is not None:
+        from viz.screenshot import ScreenshotUnavailable, find_browser
+
+        from .options import check_output_file
+
+        check_output_file(args.screenshot, (".png",))
+        if find_browser() is None:  # before the viewer loads anything
+            raise ScreenshotUnavailable(
+                "--screenshot needs Chromium (chromium, chromium-browser or google-chrome on PATH), and none is "
+                "installed; install it (Debian/Ubuntu: apt-get install chromium), or run `fluidgs view` without "
+                "--screenshot, open its address in a browser and save the picture from there"
+            )
     viewer = open_viewer(
         args.result, gaussians=args.gaussians, scores=args.scores, cameras=args.cameras, options=options
     )
+    if args.screenshot is not None:
+        from viz.screenshot import screenshot
+
+        try:
+            print(f"screenshot: {screenshot(viewer.url, args.screenshot)}")
+        finally:
+            viewer.close()
+        return 0
     return serve(viewer, announce=lambda line: print(line, flush=True))

@@ -813,3 +813,25 @@ def test_view_finds_the_source_from_any_folder(scene, tmp_path, monkeypatch):
     shutil.move(str(work), str(moved))
     found = resolve_gaussians(None, load_view_data(moved / "out" / "r.h5"))
     assert found is not None and found.resolve() == (moved / "g.ply").resolve()
+
+
+def test_view_screenshot_without_chromium_is_a_clear_error(scene, tmp_path, monkeypatch, caplog):
+    import viz.screenshot
+
+    monkeypatch.setattr(viz.screenshot, "find_browser", lambda: None)
+    out = tmp_path / "view.png"
+    assert cli.main(["view", str(scene.h5), "--screenshot", str(out), "--port", "0"]) == 2
+    assert "--screenshot needs Chromium" in caplog.text and "apt-get install chromium" in caplog.text
+    assert not out.exists()
+
+
+def test_view_screenshot_writes_the_page(scene, tmp_path):
+    if _browser() is None:
+        pytest.skip("no Chromium on this machine (install Debian's: apt-get install chromium; .ci/run does as root)")
+    import cv2
+
+    out = tmp_path / "view.png"
+    argv = ["view", str(scene.h5), "--gaussians", str(scene.ply), "--screenshot", str(out), "--port", "0"]
+    assert cli.main(argv) == 0
+    img = cv2.imread(str(out))
+    assert img is not None and img.shape[:2] == (800, 1280) and img.std() > 5  # a drawn page, not a blank one
