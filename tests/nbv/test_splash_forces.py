@@ -101,7 +101,7 @@ def _splash_installed() -> bool:
 @pytest.mark.skipif(not _splash_installed(), reason="pysplishsplash is not installed (pip install -e .[bench])")
 def test_sphere_drag_matches_splishsplash():
     """The -x probe on a filled sphere (R = 0.5 m, r = 0.05 m, ~1k fluid particles), over the slab's passage: the
-    time-mean drag of the two engines within 10 % (measured 1.02; at r = 0.035 m, 1.04)."""
+    time-mean drag of the two engines within 10 % (measured 1.03; at r = 0.035 m, 1.04)."""
     solid, setup, config, probe = _sphere_probe()
     check = force_check(solid, setup, config, probe, passage_steps(solid, setup, config.dt), threads=2)
     assert check.ours.fluid_particles == check.splash.fluid_particles
