@@ -20,6 +20,10 @@ For ``RUN/gaussians.ply`` against the run's dataset (the test split, at the run'
   ranks the test views and the top ``critical_views`` (20) form the subset. Reported: mean PSNR on the subset, and
   D-bar restricted to the Gaussians seen in those views: visible in at least one critical view *and* not hidden
   behind the rendered surface (:func:`nbv.scores.unoccluded`, depth tolerance 3 r_g).
+- **Functional error** (with a reference mesh; :mod:`nbv.functional`): the same probes (``functional_directions``,
+  -x) against the mesh's solid and the reconstruction's, in the mesh's frame at the pinned scale: the relative error
+  of the time-mean force on the solid, beside its noise floor (the mesh on a shifted lattice). The mesh's flows are
+  cached, so the runs of one dataset pay for them once.
 
 Writes ``RUN/eval.json`` (all of the above, per view and per direction) and ``RUN/eval.md`` (one Markdown table).
 """
@@ -51,7 +55,18 @@ from recon.train import view_to
 
 log = logging.getLogger(__name__)
 
-SUMMARY_KEYS = ("psnr", "ssim", "lpips", "dbar", "dbar_empty", "chamfer", "critical_psnr", "critical_dbar")
+SUMMARY_KEYS = (
+    "psnr",
+    "ssim",
+    "lpips",
+    "dbar",
+    "dbar_empty",
+    "chamfer",
+    "critical_psnr",
+    "critical_dbar",
+    "functional_error",
+    "functional_floor",
+)
 
 
 @dataclass(frozen=True)
@@ -67,6 +82,9 @@ class EvalConfig:
         chamfer_opacity: Gaussians above this opacity enter the Chamfer distance.
         lpips: compute LPIPS when available.
         seed: seed of the mesh samples.
+        functional: with a reference mesh, the functional error (:mod:`nbv.functional`): the same probes against
+            the mesh's solid and the reconstruction's, in the mesh's frame; its headline and noise floor.
+        functional_directions: its probes (default -x, head-on, the paper's functional direction).
     """
 
     physics: PhysicsConfig | None = None
@@ -76,6 +94,8 @@ class EvalConfig:
     chamfer_opacity: float = 0.5
     lpips: bool = True
     seed: int = 0
+    functional: bool = True
+    functional_directions: tuple[str, ...] = ("-x",)
 
     def __post_init__(self) -> None:
         for name in ("critical_views", "chamfer_samples"):
@@ -87,6 +107,13 @@ class EvalConfig:
         if self.critical_direction not in DIRECTIONS:
             raise ValueError(
                 f"EvalConfig.critical_direction must be one of {','.join(DIRECTIONS)}, got {self.critical_direction!r}"
+            )
+        object.__setattr__(self, "functional_directions", tuple(self.functional_directions))
+        bad = [d for d in self.functional_directions if d not in DIRECTIONS] or not self.functional_directions
+        if bad:
+            raise ValueError(
+                f"EvalConfig.functional_directions must be a non-empty subset of {','.join(DIRECTIONS)}, got "
+                f"{self.functional_directions!r}"
             )
         if self.physics is not None and not isinstance(self.physics, PhysicsConfig):
             raise ValueError(f"EvalConfig.physics must be a PhysicsConfig or None, got {type(self.physics).__name__}")
@@ -186,6 +213,29 @@ def chamfer_to_mesh(gaussians, mesh_path: Path, config: EvalConfig) -> dict[str,
 
 
 @torch.no_grad()
+def functional_metrics(gaussians, mesh_path: Path, physics: PhysicsConfig, config: EvalConfig) -> dict[str, Any]:
+    """The functional error of the reconstruction against the dataset's mesh (:func:`nbv.functional.compare`, its
+    headline beside its floor; the reference's flows come from the cache after the first run of a dataset)."""
+    from nbv.functional import HEADLINE, FlowCache, compare  # noqa: PLC0415
+    from nbv.functional.solids import reconstruction_source, reference_source  # noqa: PLC0415
+
+    cfg = replace(physics, empty_reference=False, track_distinct=False, directions=config.functional_directions)
+    reference = reference_source(Path(mesh_path), cfg, None, None)
+    recon = reconstruction_source(Path("gaussians.ply"), cfg, reference.transform, lambda _p: gaussians)
+    try:
+        c = compare(reference, recon, cfg, cfg.directions, progress=False, cache=FlowCache.from_environment())
+    except ValueError as exc:  # no overlap, an empty solid: the run has no functional error, and says why
+        return {"functional_error": None, "functional_floor": None, "reason_functional": str(exc)}
+    return {
+        "functional_error": c.error,
+        "functional_floor": c.floor,
+        "functional": {
+            "metric": HEADLINE,
+            **{k: v for k, v in c.record().items() if k in ("overall", "probes", "overlap", "grids", "warnings")},
+        },
+    }
+
+
 def render_test_views(gaussians, views, background, backend: str = "auto") -> tuple[list, list[dict]]:
     """Render every test view; returns (RenderOutputs, per-view {"name", "psnr", "ssim"})."""
     bg = torch.tensor([float(c) for c in background], dtype=torch.float32, device=gaussians.means.device)
@@ -324,6 +374,10 @@ def evaluate_run(
         out.update(physics_metrics(result))
         out["scale_m_per_unit"] = float(result.transform.scale)
         out.update(critical_metrics(gaussians.to("cpu"), result, renders, rows, views, config))
+    if ds.mesh_path is not None and config.functional:
+        out.update(functional_metrics(gaussians.to("cpu"), ds.mesh_path, pcfg, config))
+    elif config.functional:
+        out.update({"functional_error": None, "reason_functional": "the dataset has no reference mesh"})
     out["seconds"] = time.perf_counter() - t0
     out["summary"] = {k: (out.get(k) if isinstance(out.get(k), (int, float)) else None) for k in SUMMARY_KEYS}
     out["summary"]["dbar_per_direction"] = out.get("dbar_per_direction")
@@ -354,6 +408,8 @@ def markdown_line(out: dict[str, Any]) -> str:
         "chamfer",
         "critical_psnr",
         "critical_dbar",
+        "functional_error",
+        "functional_floor",
     )
     head = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
     return (

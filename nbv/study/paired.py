@@ -34,6 +34,7 @@ PAIRED_METRICS = (
     ("dbar", "D-bar (m^4/s)", False),
     ("critical_psnr", "critical PSNR (dB)", True),
     ("critical_dbar", "critical D-bar (m^4/s)", False),
+    ("functional_error", "functional error (time-mean force, relative)", False),
 )
 
 

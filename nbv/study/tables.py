@@ -78,7 +78,15 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
     ]
     tables["visual"] = _table("Visual metrics (test views)", vis_cols, body)
 
-    phys_cols = ["method", "n", "D-bar (m^4/s)", "critical PSNR (dB)", "critical D-bar (m^4/s)"]
+    phys_cols = [
+        "method",
+        "n",
+        "D-bar (m^4/s)",
+        "critical PSNR (dB)",
+        "critical D-bar (m^4/s)",
+        "functional error",
+        "its noise floor",
+    ]
     body = [
         [
             m,
@@ -86,11 +94,15 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
             _cell([r["dbar"] for r in rs]),
             _cell([r["critical_psnr"] for r in rs]),
             _cell([r["critical_dbar"] for r in rs]),
+            _cell([r.get("functional_error") for r in rs]),
+            _cell([r.get("functional_floor") for r in rs]),
         ]
         for m, rs in methods.items()
     ]
     all_runs = [r for rs in methods.values() for r in rs]
-    body.append(["empty scene (reference)", n_col(all_runs), _cell([r["dbar_empty"] for r in all_runs]), "", ""])
+    body.append(
+        ["empty scene (reference)", n_col(all_runs), _cell([r["dbar_empty"] for r in all_runs]), "", "", "", ""]
+    )
     for m, rs in refs.items():
         body.append(
             [
@@ -99,6 +111,8 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
                 _cell([r["dbar"] for r in rs]),
                 _cell([r["critical_psnr"] for r in rs]),
                 _cell([r["critical_dbar"] for r in rs]),
+                _cell([r.get("functional_error") for r in rs]),
+                _cell([r.get("functional_floor") for r in rs]),
             ]
         )
     tables["physics"] = _table("Geometry divergence D-bar (lower is better) with the references", phys_cols, body)

@@ -85,6 +85,10 @@ def test_eval_json_keys_and_finite_metrics(finished_run):
     assert stored == out
     for key in ("psnr", "ssim", "dbar", "dbar_empty", "chamfer", "critical_psnr", "critical_dbar"):
         assert isinstance(out[key], float) and math.isfinite(out[key]), key
+    # the functional error against the torus mesh, beside its floor (nbv.functional), in the summary too
+    assert math.isfinite(out["functional_error"]) and out["functional_error"] >= 0, out.get("reason_functional")
+    assert math.isfinite(out["functional_floor"]) and out["summary"]["functional_error"] == out["functional_error"]
+    assert out["functional"]["metric"] == "mean_force" and "-x" in out["functional"]["probes"]
     assert out["lpips"] == "unavailable" or math.isfinite(out["lpips"])
     assert set(out["dbar_per_direction"]) == {"-x", "+z"}
     # D_g is the max over the probes, so D-bar lies between the largest and the sum of the per-direction D-bars
