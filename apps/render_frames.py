@@ -1,4 +1,4 @@
-"""`fluidgs render-frames OUT.h5 -o frames.mp4`: the frames of a simulation output file as an MP4 video or PNGs.
+"""`fluidgs render-frames OUT.h5 -o frames.mp4`: the frames of a simulation (or a RESULT.h5 probe) as MP4 or PNGs.
 
 The command line only: the renderer (orthographic views, depth-sorted dots, colour bar, H.264 video that browsers
 play) is :mod:`viz.frames`, whose docstring gives the file layout, the views and the drawing model.
@@ -92,7 +92,11 @@ def style_values(args: argparse.Namespace) -> dict:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``render-frames`` arguments to a parser; :func:`run` consumes the parsed namespace."""
-    parser.add_argument("h5", type=Path, help="simulation output file (OUT.h5)")
+    parser.add_argument(
+        "h5",
+        type=Path,
+        help="simulation output file (OUT.h5), or a RESULT.h5 with a recorded probe (simulate or score --record-probe)",
+    )
     parser.add_argument(
         "-o",
         "--output",
@@ -106,6 +110,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="write PNG frames into the directory -o whatever its name (e.g. a folder named run.v2)",
     )
+    probe_help = "for a RESULT.h5: the recorded probe to draw, -x, +x, -z, +z or -y (default: the first recorded)"
+    parser.add_argument("--probe", default=None, metavar="DIR", help=probe_help)
     add_config_options(parser, FrameStyle, STYLE_FIELDS, style_overrides())
 
 
@@ -115,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
 
     check_not_input({"-o": args.output}, {"H5": args.h5})
-    paths = render_frames(args.h5, args.output, style, png=args.png)
+    paths = render_frames(args.h5, args.output, style, png=args.png, probe=args.probe)
     where = paths[0] if len(paths) == 1 else args.output
     print(f"wrote {len(paths)} file(s) to {where}")
     return 0

@@ -1,5 +1,7 @@
 """Reading a simulation file for :mod:`viz.frames`: the frame keys in order, the domain box (from the scene, or
 fitted to the particles), the walls and the solid, and the colour scale's v_max, all checked before a frame is drawn.
+An OUT.h5 of `fluidgs sim` gives its ``/frames``; a RESULT.h5 of `fluidgs simulate --record-probe` the recorded
+trajectory of one probe (:class:`TrajectorySource`).
 """
 
 from __future__ import annotations
@@ -45,8 +47,14 @@ class FrameSource:
         self.dropped = 0  # particles skipped so far because their position was NaN or inf
 
     @staticmethod
-    def inspect(f: h5py.File, path: Path, style: FrameStyle) -> FrameSource:
+    def inspect(f: h5py.File, path: Path, style: FrameStyle, probe: str | None = None) -> FrameSource:
+        """The frames of an OUT.h5 (``/frames``), or of a probe's recorded trajectory in a RESULT.h5
+        (:class:`TrajectorySource`; ``probe``: which, default the first recorded)."""
         frames = f.get("/frames")
+        if not isinstance(frames, h5py.Group) and isinstance(f.get("/probes"), h5py.Group):
+            return TrajectorySource.inspect_result(f, path, style, probe)
+        if probe is not None:
+            raise ValueError(f"{path} is a simulation output file (OUT.h5): --probe {probe} is for a RESULT.h5")
         if not isinstance(frames, h5py.Group):
             raise ValueError(f"{path} has no /frames group; is it a simulation output file (OUT.h5)?")
         bad = [k for k in frames if not k.isdigit()]
@@ -127,13 +135,100 @@ class FrameSource:
         return vmax
 
 
+# color_by -> the dataset of a RESULT.h5 trajectory (nbv.physics.trajectory: D and speed per recorded step)
+TRAJECTORY_VALUES = {"divergence": "D", "speed": "speed"}
+
+
+class TrajectorySource(FrameSource):
+    """The recorded fluid of one probe of a RESULT.h5 (``fluidgs simulate --record-probe``): the frames are the
+    recorded steps of ``/probes/<dir>/trajectory`` (x (T, F, 3), D and speed (T, F); NaN rows: retired), the box is
+    the probe's domain, the solid is ``/solid/x``, the time is step x the run's dt."""
+
+    def __init__(self, file, path, keys, counts, value_name, domain, boundary, group, dt, spacing) -> None:
+        super().__init__(file, path, keys, counts, value_name, domain, boundary)
+        self.group, self.dt, self._spacing = group, dt, spacing
+
+    @staticmethod
+    def inspect_result(f: h5py.File, path: Path, style: FrameStyle, probe: str | None) -> TrajectorySource:
+        probes = f["probes"]
+        recorded = [d for d in probes if isinstance(probes[d], h5py.Group) and "trajectory" in probes[d]]
+        if not recorded:
+            raise ValueError(
+                f"{path} is a RESULT.h5 without a recorded probe; re-run `fluidgs simulate` (or score --save-result) "
+                "with --record-probe -x"
+            )
+        chosen = recorded[0] if probe is None else probe
+        if chosen not in recorded:
+            raise ValueError(f"{path} has no trajectory of probe {chosen} (recorded: {', '.join(recorded)})")
+        if probe is None and len(recorded) > 1:
+            logger.info("%s: probe %s (recorded: %s; --probe picks another)", path, chosen, ", ".join(recorded))
+        group = probes[chosen]["trajectory"]
+        where = f"{path}:/probes/{chosen}/trajectory"
+        name = TRAJECTORY_VALUES[style.color_by]
+        x, values = _dataset(group, "x", where), _dataset(group, name, where)
+        steps = np.asarray(_dataset(group, "steps", where)[()], np.int64)
+        if x.ndim != 3 or x.shape[2] != 3 or values.shape != x.shape[:2] or len(steps) != x.shape[0]:
+            raise ValueError(f"{where}: x {x.shape}, {name} {values.shape} and steps {steps.shape} do not match")
+        if not len(steps):
+            raise ValueError(f"{where} holds no frame; record with a smaller --record-every")
+        pg = probes[chosen]
+        if "domain_min" in pg.attrs and "domain_max" in pg.attrs:
+            domain = (np.asarray(pg.attrs["domain_min"], np.float64), np.asarray(pg.attrs["domain_max"], np.float64))
+        else:
+            domain = None
+        config = json.loads(str(f.attrs.get("config", "{}")))
+        solid = None
+        if style.show_boundary and "solid" in f and "x" in f["solid"]:
+            solid = np.asarray(f["solid"]["x"][()], np.float64).reshape(-1, 3)
+            solid = _subset(solid[np.isfinite(solid).all(axis=1)], MAX_SOLID_POINTS, path, "solid")
+        source = TrajectorySource(
+            f,
+            path,
+            tuple(str(int(s)) for s in steps),
+            tuple([int(x.shape[1])] * len(steps)),
+            name,
+            domain if domain is not None else (np.zeros(3), np.ones(3)),
+            solid,
+            group,
+            float(config.get("dt", 0.002)),
+            2.0 * float(config.get("particle_radius", 0.025)),
+        )
+        if domain is None:
+            lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+            for i in range(len(steps)):
+                pts, _, _, _ = source.frame(i)
+                if len(pts):
+                    lo, hi = np.minimum(lo, pts.min(0)), np.maximum(hi, pts.max(0))
+            source.domain_min, source.domain_max = (lo, hi) if np.isfinite(lo).all() else (np.zeros(3), np.ones(3))
+            source.dropped = 0
+        return source
+
+    def frame(self, i: int) -> tuple[np.ndarray, np.ndarray, float, int]:
+        x = np.asarray(self.group["x"][i], np.float64)
+        values = _magnitudes(self.group[self.value_name][i])
+        ok = np.isfinite(x).all(axis=1)  # NaN rows: particles retired before this step
+        step = int(self.keys[i])
+        return x[ok], values[ok], step * self.dt, step
+
+    def spacing(self, solid: np.ndarray) -> float | None:
+        return self._spacing
+
+    def percentile_vmax(self) -> float:
+        values = np.asarray(self.group[self.value_name][()], np.float64).reshape(-1)
+        values = np.abs(values[np.isfinite(values)])
+        stride = max(1, math.ceil(values.size / VMAX_MAX_SAMPLES))
+        values = values[::stride]
+        vmax = float(np.percentile(values, VMAX_PERCENTILE)) if values.size else 0.0
+        return vmax if vmax > 0 else 1.0
+
+
 def check_frames_file(path: Path) -> None:
     if not path.exists():
-        raise FileNotFoundError(f"{path} does not exist; pass the OUT.h5 written by the simulation")
+        raise FileNotFoundError(f"{path} does not exist; pass the OUT.h5 written by the simulation or a RESULT.h5")
     if not path.is_file():
-        raise ValueError(f"{path} is not a file; pass the OUT.h5 written by the simulation")
+        raise ValueError(f"{path} is not a file; pass the OUT.h5 written by the simulation or a RESULT.h5")
     if not h5py.is_hdf5(path):
-        raise ValueError(f"{path} is not an HDF5 file; pass the OUT.h5 written by the simulation")
+        raise ValueError(f"{path} is not an HDF5 file; pass the OUT.h5 written by the simulation or a RESULT.h5")
 
 
 def _dataset(group: h5py.Group, name: str, where: str, hint: str = "") -> h5py.Dataset:

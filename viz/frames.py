@@ -234,7 +234,7 @@ def scene_viewport(width: int, height: int) -> tuple[int, int, int, int]:
 
 
 def render_frames(
-    h5_path, out, style: FrameStyle = FrameStyle(), progress: bool = True, png: bool = False
+    h5_path, out, style: FrameStyle = FrameStyle(), progress: bool = True, png: bool = False, probe: str | None = None
 ) -> list[Path]:
     """Render every frame of a simulation output file.
 
@@ -242,13 +242,14 @@ def render_frames(
     before the first frame is drawn.
 
     Args:
-        h5_path: simulation output file (``OUT.h5``).
+        h5_path: simulation output file (``OUT.h5``), or a RESULT.h5 with a recorded probe (``--record-probe``).
         out: a path ending in ``.mp4`` writes one video (H.264, yuv420p: plays in browsers); a path without a
             suffix (or an existing directory) is a directory that receives ``frame_000000.png``,
             ``frame_000001.png``, ... numbered by frame order; any other suffix is an error (:func:`output_is_video`).
         style: drawing options.
         progress: show a tqdm progress bar on stderr.
         png: write PNG frames into the directory ``out`` whatever its name (a folder named ``run.v2``).
+        probe: the recorded probe of a RESULT.h5 to draw (None: the first recorded).
 
     Returns:
         The written paths: ``[video]`` or the PNGs in frame order.
@@ -269,7 +270,7 @@ def render_frames(
         from recon.inflate import check_hdf5_sizes  # noqa: PLC0415 - standard library and h5py only
 
         check_hdf5_sizes(f, str(h5_path))
-        source = FrameSource.inspect(f, h5_path, style)
+        source = FrameSource.inspect(f, h5_path, style, probe)
         _prepare_output(out, is_video)
         vmax = style.vmax if style.vmax is not None else source.percentile_vmax()
         logger.info(

@@ -533,8 +533,8 @@ def test_cli_is_thin_and_reexports_the_renderer():
     assert cli.FrameStyle is FrameStyle and cli.render_frames is render_frames
     assert cli.output_is_video is rf.output_is_video
     source = open(cli.__file__).read()
-    # 150 lines before ruff format's layout (one argument per line in long calls), which added 7
-    assert len(source.splitlines()) <= 160 and "cv2" not in source and "h5py" not in source
+    # 150 lines before ruff format's layout (one argument per line in long calls), which added 7; --probe 3 more
+    assert len(source.splitlines()) <= 163 and "cv2" not in source and "h5py" not in source
 
 
 def test_viz_frames_needs_neither_taichi_nor_torch():
@@ -558,3 +558,39 @@ def test_viz_and_fluidsim_write_through_the_one_atomic_module():
     assert frames.write_bytes_atomic is plots.write_bytes_atomic is fgsio_files.write_bytes_atomic
     a = fgsio_files.temp_path("/x/out.mp4", ".mp4")
     assert str(a.parent) == "/x" and a.name.startswith(".fgs-") and a.name.endswith(".tmp.mp4") and len(a.name) == 21
+
+
+def _write_result_h5(path, probes=("-x", "+z"), recorded=("+z",), t=3, f=200):
+    """A RESULT.h5 with what render-frames reads: a probe's trajectory (x, D, speed, steps), its domain, the solid."""
+    rng = np.random.default_rng(4)
+    with h5py.File(path, "w") as h:
+        h.attrs["config"] = json.dumps({"dt": 0.004, "particle_radius": 0.05})
+        h["solid/x"] = rng.uniform(-0.2, 0.2, (400, 3))
+        for d in probes:
+            g = h.create_group(f"probes/{d}")
+            g["D"] = np.zeros(10)
+            g.attrs["domain_min"], g.attrs["domain_max"] = np.full(3, -1.0), np.full(3, 1.0)
+            if d in recorded:
+                x = rng.uniform(-0.9, 0.9, (t, f, 3))
+                x[1, :20] = np.nan  # retired particles
+                g["trajectory/x"] = x
+                g["trajectory/D"] = rng.gamma(2.0, 1.0, (t, f))
+                g["trajectory/speed"] = rng.uniform(0, 3, (t, f))
+                g["trajectory/steps"] = np.arange(t, dtype=np.int32) * 25
+    return path
+
+
+def test_render_frames_draws_a_recorded_probe_of_a_result_h5(tmp_path, capsys):
+    # the README's flow records a probe into RESULT.h5 (--record-probe -x): render-frames draws it
+    h5 = _write_result_h5(tmp_path / "result.h5")
+    out = tmp_path / "frames"
+    assert cli.main([str(h5), "-o", str(out), "--width", "160", "--height", "120"]) == 0
+    pngs = sorted(out.glob("frame_*.png"))
+    assert len(pngs) == 3 and cv2.imread(str(pngs[1])).shape == (120, 160, 3)
+    with h5py.File(h5, "r") as f:
+        source = frame_source.FrameSource.inspect(f, h5, FrameStyle(color_by="speed"), None)
+        x, values, time, step = source.frame(1)
+        assert len(x) == 180 and step == 25 and time == pytest.approx(0.1) and source.value_name == "speed"
+        np.testing.assert_array_equal(source.domain_min, [-1, -1, -1])
+    with h5py.File(h5, "r") as f, pytest.raises(ValueError, match="no trajectory of probe -x \\(recorded: \\+z\\)"):
+        frame_source.FrameSource.inspect(f, h5, FrameStyle(), "-x")
