@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from nbv.study.convergence import TOP_K, spearman
+from nbv.ranking import TOP_K, spearman
 
 COVERAGE_DECIDES = 0.9  # Spearman(S, A) from which coverage is said to decide the ranking
 SCORE_DIGITS = 2  # significant digits of S(T), A(T) and S/A in printed tables (see docs/results.md)

@@ -25,6 +25,7 @@ from nbv.bench.dense_sets import jittered_to_count
 from nbv.orbit import Orbit, orbit_cameras
 from nbv.physics import check_result_matches, load_result
 from nbv.physics.config import PhysicsConfig
+from nbv.ranking import spearman
 from nbv.scores import (
     DepthBuffer,
     coarse_unoccluded,
@@ -34,7 +35,6 @@ from nbv.scores import (
     unoccluded,
     view_scores,
 )
-from nbv.study.convergence import spearman
 from recon.projection import project_visibility
 from recon.render import render
 

@@ -15,8 +15,8 @@ change between settings, and how much of the view score is coverage:
   and the coefficient of variation (std / mean) of S(T) / A(T) over the views, the part of S that coverage does not
   explain.
 
-Ranks are average ranks (ties share the mean rank), so Spearman = Pearson of the average ranks, as in
-``scipy.stats.spearmanr``. :func:`study` runs everything; :func:`format_study` gives Markdown tables.
+Ranks, Pearson and Spearman are those of :mod:`nbv.ranking`. :func:`study` runs everything; :func:`format_study`
+gives Markdown tables.
 """
 
 from __future__ import annotations
@@ -31,39 +31,9 @@ import numpy as np
 import torch
 
 from nbv.physics import load_result
+from nbv.ranking import TOP_K, pearson, spearman
 from nbv.scores import unoccluded, view_weights
 from recon.render import render
-
-TOP_K = 5
-
-
-def average_ranks(x: Sequence[float]) -> np.ndarray:
-    """1-based ranks of ``x`` ascending, ties given their mean rank ([n] float64)."""
-    a = np.asarray(x, np.float64).reshape(-1)
-    order = np.argsort(a, kind="mergesort")
-    sorted_a = a[order]
-    starts = np.r_[0, np.flatnonzero(np.diff(sorted_a) != 0) + 1]
-    ends = np.r_[starts[1:], len(a)]
-    ranks = np.empty(len(a))
-    ranks[order] = np.repeat(0.5 * (starts + ends - 1) + 1.0, ends - starts)
-    return ranks
-
-
-def pearson(a: Sequence[float], b: Sequence[float]) -> float:
-    """Pearson correlation; NaN when either side is constant or has fewer than 2 values."""
-    x, y = np.asarray(a, np.float64).reshape(-1), np.asarray(b, np.float64).reshape(-1)
-    if x.shape != y.shape:
-        raise ValueError(f"pearson: {x.size} values against {y.size}")
-    if x.size < 2:
-        return math.nan
-    x, y = x - x.mean(), y - y.mean()
-    den = math.sqrt(float(x @ x) * float(y @ y))
-    return float(x @ y) / den if den > 0 else math.nan
-
-
-def spearman(a: Sequence[float], b: Sequence[float]) -> float:
-    """Spearman rank correlation (Pearson of the average ranks); NaN when either side is constant."""
-    return pearson(average_ranks(a), average_ranks(b))
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from nbv.study.convergence import spearman
+from nbv.ranking import spearman
 from nbv.study.oracle_config import OracleConfig, rule_of
 from nbv.study.paired import format_p, paired_stats
 

@@ -8,15 +8,13 @@ import numpy as np
 import pytest
 import torch
 
+from nbv.ranking import average_ranks, pearson, spearman
 from nbv.scores import view_scores
 from nbv.study.convergence import (
     ProbeSetting,
-    average_ranks,
     compare_settings,
     format_study,
     load_setting,
-    pearson,
-    spearman,
     study,
     view_terms,
     view_weight_matrix,

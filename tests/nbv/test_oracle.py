@@ -13,8 +13,8 @@ import torch
 
 from nbv.plan import PLANNERS, PlanningContext, make_planner
 from nbv.plan.fvs import farthest_view_distances, farthest_view_order
+from nbv.ranking import spearman
 from nbv.study import calibration as cal
-from nbv.study.convergence import spearman
 from nbv.study.oracle import check_scenes, run_oracle
 from nbv.study.oracle_config import RULES, OracleConfig
 from nbv.study.oracle_summary import bootstrap_interval, regret, summarise
