@@ -88,7 +88,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             "steps": {"default_text": f"{QUICK['steps']}, the quick preset; {MESH_STEPS} for --solid"},
         },
     )
-    p.add_argument("--render-width", type=int, default=240, help="width of the scored views in pixels")
+    p.add_argument(
+        "--render-width",
+        type=int,
+        default=240,
+        help="width of the scored views in pixels (the cameras of a file are scaled to it, up as well as down, "
+        "so the bundled 64 px cameras give sharp PNGs)",
+    )
     p.add_argument("--no-video", action="store_true", help="skip the MP4 of the -x probe")
     add_runtime_arguments(p)
 
@@ -118,7 +124,7 @@ def run_command(args: argparse.Namespace) -> int:
     from nbv.coverage import agreement_lines
     from nbv.outputs import divergence_columns, probe_video, result_summary, save_colored_gaussians
     from nbv.physics import QUICK, save_result, simulate_gaussians
-    from nbv.view_scoring import check_cameras_see, format_table, render_size, rows_agreement, score_views
+    from nbv.view_scoring import check_cameras_see, format_table, rows_agreement, score_views
     from recon.ahmed import ahmed_surface_gaussians
     from recon.camera_files import transforms_json
 
@@ -150,7 +156,7 @@ def run_command(args: argparse.Namespace) -> int:
         gaussians, source = ahmed_surface_gaussians(), "Ahmed body surface samples (recon.ahmed)"
     warn_frame(cfg, file_cams, up_given=args.up is not None or bundled)
     cams = (
-        [render_size(c, args.render_width) for c in file_cams]
+        [c.scaled(args.render_width / c.width) for c in file_cams]
         if orbit is None
         else orbit_cameras_logged(gaussians, cfg, orbit)
     )

@@ -76,16 +76,17 @@ def colored_gaussians(
 
 def _side_colorbar(height: int, width: int, vmax: float, label: str, over: bool = False) -> np.ndarray:
     """A vertical colour bar image (BGR uint8, [height, width, 3]) on :data:`viz.colors.TURBO_BGR` from 0 (bottom) to
-    ``vmax`` (top); ``over``: the top tick ends with "+" (values above ``vmax`` read as it)."""
+    ``vmax`` (top), with ticks at 0, vmax / 2 and vmax; the top one carries ``label`` (the unit) and, with
+    ``over``, a "+" (values above ``vmax`` read as it)."""
     ramp = np.linspace(255, 0, height).round().astype(np.intp)
     bar = np.repeat(TURBO_BGR[ramp][:, None, :], max(4, width // 4), axis=1)
     img = np.full((height, width, 3), 255, np.uint8)
     img[:, : bar.shape[1]] = bar
     font = cv2.FONT_HERSHEY_SIMPLEX
-    top = f"{vmax:.3g}" + ("+" if over else "")
+    top = f"{vmax:.3g}" + ("+" if over else "") + f" {label}"  # the unit with the top value: every tick is a value
     cv2.putText(img, top, (bar.shape[1] + 2, 12), font, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(img, f"{vmax / 2:.3g}", (bar.shape[1] + 2, height // 2 + 4), font, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(img, "0", (bar.shape[1] + 2, height - 4), font, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(img, label, (bar.shape[1] + 2, height // 2), font, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
     return img
 
 

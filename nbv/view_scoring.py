@@ -360,6 +360,14 @@ def write_view_pngs(
         write_png_atomic(path, np.hstack([left, right]))
 
 
+def enlarged(image: np.ndarray, min_width: int = 320) -> np.ndarray:
+    """``image`` [H, W] enlarged by the smallest integer factor (nearest neighbour: every pixel stays one value)
+    that makes it at least ``min_width`` wide, so that a small view's labels are not clipped."""
+    a = np.asarray(image)
+    f = max(1, -(-min_width // max(a.shape[1], 1)))
+    return np.repeat(np.repeat(a, f, axis=0), f, axis=1) if f > 1 else a
+
+
 def uncertainty_scale(images: list[np.ndarray], percentile: float = 99.0) -> float:
     """One colour range for a set of uncertainty images: the ``percentile`` of their covered pixels (> 0)."""
     covered = np.concatenate([np.asarray(i, np.float64).reshape(-1) for i in images]) if images else np.zeros(0)
@@ -394,8 +402,9 @@ def write_uncertainty_images(
         stem = f"{view_file_stem(row['rank'], row['index'], cams[k].name)}_uncertainty"
         write_atomic(png_dir / f"{stem}.npy", lambda tmp, img=img: np.save(tmp, img), suffix=".npy")
         grey = None if reached is None else unreached_pixels(gaussians, cams[k], reached, device)
+        big, grey = enlarged(img), None if grey is None else enlarged(grey)  # room for the labels: >= 320 px wide
         picture = label(
-            uncertainty_png(img, vmax, "1/s", grey),
+            uncertainty_png(big, vmax, "1/s", grey),
             [
                 f"#{row['rank']} {cams[k].name}: composited D_g ({metric})",
                 f"0..{vmax:.3g}+ 1/s" + ("" if grey is None else "; grey: not reached"),

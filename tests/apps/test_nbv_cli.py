@@ -388,3 +388,9 @@ def test_demo_runs_on_given_gaussians(scene, tmp_path):
     assert summary["gaussians"] == 300 and set(summary["probes"]) == {"-x", "+x", "-z", "+z", "-y"}
     assert len(json.loads((out / "scores.json").read_text())["views"]) == 6
     assert (out / "gaussians_divergence.ply").is_file() and len(list((out / "views").glob("*.png"))) == 5  # top 5
+    import cv2
+
+    view = cv2.imread(str(sorted((out / "views").glob("*.png"))[0]))
+    # the 64 px cameras are rendered at --render-width (240; each panel then doubled to >= 320 px), not at 64 px
+    # enlarged 5x into a blur
+    assert view.shape[1] == 2 * 2 * 240

@@ -162,6 +162,35 @@ def test_uncertainty_png_marks_what_lies_above_the_range():
         over_range_marks(np.zeros((16, 16, 3), np.uint8), np.ones((8, 8), bool))
 
 
+def test_the_uncertainty_colour_bar_reads_values_at_every_tick():
+    import cv2
+
+    from nbv.heatmap import _side_colorbar
+
+    def text_rows(img):  # the rows of the tick column with dark text pixels
+        ink = (img[:, 30:] < 100).all(axis=2)
+        return np.flatnonzero(ink.any(axis=1))
+
+    bar = _side_colorbar(200, 110, 8.0, "1/s", over=True)
+    rows = text_rows(bar)
+    assert rows.min() < 15 and rows.max() > 185 and ((rows > 90) & (rows < 110)).any()  # top, middle, bottom ticks
+    middle = np.full((20, 80, 3), 255, np.uint8)
+    cv2.putText(middle, "4", (0, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
+    unit = np.full((20, 80, 3), 255, np.uint8)
+    cv2.putText(unit, "1/s", (0, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
+    tick = bar[100 - 10 : 100 + 10, 29:109]  # the middle tick is the value vmax / 2, not the unit
+    assert np.abs(tick.astype(int) - middle).mean() < np.abs(tick.astype(int) - unit).mean()
+
+
+def test_small_views_are_enlarged_for_their_labels():
+    from nbv.view_scoring import enlarged
+
+    small = np.arange(64 * 48, dtype=np.float32).reshape(48, 64)
+    big = enlarged(small)
+    assert big.shape == (48 * 5, 64 * 5) and (big[::5, ::5] == small).all()  # nearest: every pixel one value
+    assert enlarged(np.zeros((10, 400))).shape == (10, 400)
+
+
 def test_uncertainty_pictures_draw_the_unreached_grey():
     # U is 0 under an unreached Gaussian as under a calm one; the picture tells them apart
     cam = Camera.look_at((0, 0, -3.0), (0, 0, 0), (0, -1, 0), 64, 48, 0.9)
