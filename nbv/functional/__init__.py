@@ -435,3 +435,43 @@ def plot_forces(c: Comparison, path: Path) -> Path:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
     return Path(path)
+
+
+class FunctionalTarget:
+    """The functional error of many reconstructions of one object (the oracle's candidates, an evaluation's runs):
+    the object's solid, frame and flows made once, then one probe run per reconstruction and direction.
+
+    Args:
+        reference: the object's :class:`~nbv.functional.solids.SolidSource` (its frame is used for every
+            reconstruction). config: probe settings; ``directions`` the probes. cache: the object's flows (None: kept
+            in memory only, for this object).
+
+    Example:
+        >>> target = FunctionalTarget(reference_source(Path("mesh.ply"), cfg, None, None), cfg)  # doctest: +SKIP
+        >>> target.error(gaussians).error  # the headline, relative                             # doctest: +SKIP
+    """
+
+    def __init__(self, reference: SolidSource, config: PhysicsConfig, cache: FlowCache | None = None):
+        self.reference, self.config = reference, config
+        self.cache = cache if cache is not None else _MemoryCache()
+
+    def error(self, gaussians, label: str = "reconstruction") -> Comparison:
+        """The :class:`Comparison` of ``gaussians`` (a GaussianSet in the object's scene frame) with the object."""
+        from nbv.functional.solids import reconstruction_source  # noqa: PLC0415
+
+        recon = reconstruction_source(Path(label), self.config, self.reference.transform, lambda _p: gaussians)
+        return compare(self.reference, recon, self.config, self.config.directions, progress=False, cache=self.cache)
+
+
+class _MemoryCache(FlowCache):
+    """A :class:`FlowCache` in memory, for the life of one :class:`FunctionalTarget` (no disk)."""
+
+    def __init__(self):
+        super().__init__(None)
+        self._flows: dict[str, FlowRecord] = {}
+
+    def get(self, key: str, steps: int, points: int) -> FlowRecord | None:
+        return self._flows.get(key)
+
+    def put(self, key: str, rec: FlowRecord) -> None:
+        self._flows[key] = rec

@@ -216,14 +216,13 @@ def chamfer_to_mesh(gaussians, mesh_path: Path, config: EvalConfig) -> dict[str,
 def functional_metrics(gaussians, mesh_path: Path, physics: PhysicsConfig, config: EvalConfig) -> dict[str, Any]:
     """The functional error of the reconstruction against the dataset's mesh (:func:`nbv.functional.compare`, its
     headline beside its floor; the reference's flows come from the cache after the first run of a dataset)."""
-    from nbv.functional import HEADLINE, FlowCache, compare  # noqa: PLC0415
-    from nbv.functional.solids import reconstruction_source, reference_source  # noqa: PLC0415
+    from nbv.functional import HEADLINE, FlowCache, FunctionalTarget  # noqa: PLC0415
+    from nbv.functional.solids import reference_source  # noqa: PLC0415
 
     cfg = replace(physics, empty_reference=False, track_distinct=False, directions=config.functional_directions)
-    reference = reference_source(Path(mesh_path), cfg, None, None)
-    recon = reconstruction_source(Path("gaussians.ply"), cfg, reference.transform, lambda _p: gaussians)
+    target = FunctionalTarget(reference_source(Path(mesh_path), cfg, None, None), cfg, FlowCache.from_environment())
     try:
-        c = compare(reference, recon, cfg, cfg.directions, progress=False, cache=FlowCache.from_environment())
+        c = target.error(gaussians)
     except ValueError as exc:  # no overlap, an empty solid: the run has no functional error, and says why
         return {"functional_error": None, "functional_floor": None, "reason_functional": str(exc)}
     return {

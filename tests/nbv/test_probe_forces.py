@@ -3,13 +3,24 @@
 import h5py
 import numpy as np
 import pytest
-from test_physics import COARSE, sphere_gaussians
+import torch
 
 from fluidsim.output import stats_table
 from fluidsim.scene import lattice_in_box
 from fluidsim.solver import StepStats
 from nbv.physics import PhysicsConfig, load_result, save_result, simulate_gaussians
 from nbv.physics.forces import force_lines, probe_forces, projected_area, second_half_mean
+from recon.gaussians import GaussianSet
+
+COARSE = dict(particle_radius=0.08, steps=40, dt=0.004, empty_reference=False)  # a 2 m sphere at 0.16 m spacing
+
+
+def sphere_gaussians(n: int = 300, radius: float = 0.5) -> GaussianSet:
+    """Gaussians on a Fibonacci sphere (as tests/nbv/test_physics.py makes them)."""
+    i = np.arange(n) + 0.5
+    phi, th = np.arccos(1 - 2 * i / n), np.pi * (1 + 5**0.5) * i
+    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * radius
+    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
 
 
 def _stats(forces, dt=0.002):
