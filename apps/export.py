@@ -213,6 +213,8 @@ def run_command(args: argparse.Namespace) -> int:
 
     check_input_file(args.h5, "H5", "pass an OUT.h5 (fluidgs sim) or a RESULT.h5 (fluidgs simulate)")
     is_hdf5 = h5py.is_hdf5(args.h5)
+    if not is_hdf5 and args.splishsplash is None:  # the input first: a wrong file is named before a missing option
+        raise ValueError(f"H5 {args.h5} is not an HDF5 file; pass an OUT.h5 (fluidgs sim) or a RESULT.h5")
     if args.vtk is None and args.solid is None and args.splishsplash is None:
         raise ValueError(
             "export: nothing to write; pass --vtk DIR (particle frames), --solid PATH (the solid) and/or "

@@ -79,6 +79,10 @@ def run_command(args: argparse.Namespace) -> int:
         raise ValueError("--radius, --dt and --sphere-radius must be > 0")
     if args.steps is not None and args.steps < 2:
         raise ValueError(f"--steps must be >= 2, got {args.steps}")
+    if args.case != "sphere":  # the Ahmed case's Gaussians are read before any engine runs
+        from ..options import load_gaussians_checked
+
+        load_gaussians_checked(args.gaussians)
     if not splash_available():
         raise RuntimeError(f"bench forces needs SPlisHSPlasH. {INSTALL_HINT}")
     init_taichi("cpu", "f32", args.threads)
