@@ -16,7 +16,7 @@ from nbv.plan.fisher import FisherPlanner
 from nbv.plan.fvs import FVSPlanner
 from nbv.plan.physics import physics_view_scores, run_physics, shuffled_divergence
 from nbv.plan.random import RandomPlanner
-from nbv.plan.rules import FUSED, FusedRule
+from nbv.plan.rules import FUSED, VALUES, FusedRule
 from nbv.plan.variance import VariancePlanner
 
 log = logging.getLogger(__name__)
@@ -99,13 +99,82 @@ def balanced_scores(coverage: list[float], physics: list[float]) -> list[float]:
     return (_standardised(a) + _standardised(mean_d)).tolist()
 
 
+# ---- the per-Gaussian values (the table nbv.plan.rules.VALUES names) ----------------------------------------
+def _mask(context: PlanningContext, who: str) -> torch.Tensor:
+    if context.solid_mask is None:
+        raise ValueError(
+            f"planner {who!r} needs PlanningContext.solid_mask (nbv.physics.thin.thin_or_open_gaussians under the "
+            "selection physics); the active loop passes it, other callers must too"
+        )
+    mask = torch.as_tensor(context.solid_mask(context.gaussians))
+    if mask.shape != (context.gaussians.num,):
+        raise ValueError(
+            f"solid_mask returned shape {tuple(mask.shape)} for {context.gaussians.num} Gaussians; it must mark the "
+            "Gaussians it is given"
+        )
+    return mask
+
+
+def _fields(context: PlanningContext, who: str) -> ProbeFields:
+    if context.probe_fields is None:
+        raise ValueError(
+            f"planner {who!r} needs PlanningContext.probe_fields (the per-probe D_g of the probe run); the active "
+            "loop passes it, other callers must too"
+        )
+    fields = context.probe_fields(context.gaussians)
+    if fields.per_probe.shape[1] != context.gaussians.num:
+        raise ValueError(
+            f"probe_fields returned {fields.per_probe.shape[1]} Gaussians' values for {context.gaussians.num} "
+            "Gaussians; it must score the Gaussians it is given"
+        )
+    return fields
+
+
+def _thin(context: PlanningContext, seed: int, who: str) -> torch.Tensor:
+    divergence = run_physics(context, who)
+    return torch.where(_mask(context, who), divergence, torch.zeros_like(divergence))
+
+
+# name -> (context, planner seed, who asks) -> [N] float64 v_g on context.gaussians
+PER_GAUSSIAN = {
+    "fluid": lambda context, seed, who: run_physics(context, who),
+    "area": lambda context, seed, who: torch.ones(context.gaussians.num, dtype=torch.float64),
+    "shuffled": lambda context, seed, who: shuffled_divergence(run_physics(context, who), seed, context.round),
+    "excess": lambda context, seed, who: excess_divergence(_fields(context, who)),
+    "perprobe": lambda context, seed, who: per_probe_normalised(_fields(context, who).per_probe),
+    "thin": _thin,
+    "thin-area": lambda context, seed, who: _mask(context, who).to(torch.float64),
+    "transparency": lambda context, seed, who: 1.0 - context.gaussians.opacities.detach().to(torch.float64),
+}
+if tuple(PER_GAUSSIAN) != tuple(VALUES):
+    raise RuntimeError(f"nbv.plan.fused computes {tuple(PER_GAUSSIAN)}, nbv.plan.rules names {tuple(VALUES)}")
+
+
+def per_gaussian_values(name: str, context: PlanningContext, seed: int, who: str = "") -> torch.Tensor:
+    """The per-Gaussian values v_g ``name`` (:data:`nbv.plan.rules.VALUES`) of ``context.gaussians``.
+
+    Args:
+        name: a key of :data:`nbv.plan.rules.VALUES` ("fluid", "area", "thin-area", ...).
+        context: the round; the values that read the probes call ``context.physics`` / ``probe_fields``, those that
+            read the solid ``context.solid_mask``.
+        seed: the planner seed ("shuffled" draws its permutation from (seed, ``context.round``)).
+        who: the planner or rule asking, named by the errors.
+    Returns:
+        [N] float64 (1/s for the divergences; dimensionless for the masks, ones and 1 - opacity).
+    Raises:
+        ValueError: an unknown name, or a context without the callable the values read.
+    """
+    if name not in PER_GAUSSIAN:
+        raise ValueError(f"unknown per-Gaussian values {name!r}; choose one of {', '.join(PER_GAUSSIAN)}")
+    return PER_GAUSSIAN[name](context, seed, who or name)
+
+
 class FusedPlanner:
     """A visual planner's top-K, re-ranked by a physics rule (FluidGaussian and its controls and candidates).
 
-    The rule (:class:`nbv.plan.rules.FusedRule`) says which per-Gaussian values re-rank the shortlist ("fluid" the
-    probes' D_g, "area" ones, "shuffled" :func:`shuffled_divergence`, "excess" :func:`excess_divergence`, "perprobe"
-    :func:`per_probe_normalised`, "thin-area" the thin-or-open mask), whether the coarse depth test is forced on,
-    and how the scores are combined ("sum": S(T); "balanced": :func:`balanced_scores`).
+    The rule (:class:`nbv.plan.rules.FusedRule`) says which per-Gaussian values re-rank the shortlist (a name of
+    :data:`nbv.plan.rules.VALUES`, computed by :func:`per_gaussian_values`), whether the coarse depth test is forced
+    on, and how the scores are combined ("sum": S(T); "balanced": :func:`balanced_scores`).
 
     Args:
         rule: a :class:`~nbv.plan.rules.FusedRule` or a registered fused name (``"fisher+fluid"``).
@@ -140,39 +209,8 @@ class FusedPlanner:
         return self.rule.uses_physics
 
     def per_gaussian(self, context: PlanningContext) -> torch.Tensor:
-        """[N] the values S(T) sums with the view weights: D_g (1/s), ones, or D_g permuted."""
-        if self.control == "area":
-            return torch.ones(context.gaussians.num, dtype=torch.float64)
-        if self.control == "thin-area":
-            if context.solid_mask is None:
-                raise ValueError(
-                    f"planner {self.name!r} needs PlanningContext.solid_mask (nbv.physics.thin.thin_or_open_gaussians "
-                    "under the selection physics); the active loop passes it, other callers must too"
-                )
-            mask = torch.as_tensor(context.solid_mask(context.gaussians))
-            if mask.shape != (context.gaussians.num,):
-                raise ValueError(
-                    f"solid_mask returned shape {tuple(mask.shape)} for {context.gaussians.num} Gaussians; it must "
-                    "mark the Gaussians it is given"
-                )
-            return mask.to(torch.float64)
-        divergence = run_physics(context, self.name)
-        if self.control == "shuffled":
-            return shuffled_divergence(divergence, self.config.seed, context.round)
-        if self.control in ("excess", "perprobe"):
-            if context.probe_fields is None:
-                raise ValueError(
-                    f"planner {self.name!r} needs PlanningContext.probe_fields (the per-probe D_g of "
-                    "the probe run); the active loop passes it, other callers must too"
-                )
-            fields = context.probe_fields(context.gaussians)
-            if fields.per_probe.shape[1] != context.gaussians.num:
-                raise ValueError(
-                    f"probe_fields returned {fields.per_probe.shape[1]} Gaussians' values for "
-                    f"{context.gaussians.num} Gaussians; it must score the Gaussians it is given"
-                )
-            return excess_divergence(fields) if self.control == "excess" else per_probe_normalised(fields.per_probe)
-        return divergence
+        """[N] the values S(T) sums with the view weights (:func:`per_gaussian_values` of the rule's control)."""
+        return per_gaussian_values(self.control, context, self.config.seed, self.name)
 
     def select(self, context: PlanningContext) -> Selection:
         check_candidates(context, self.name)

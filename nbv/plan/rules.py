@@ -18,10 +18,44 @@ from dataclasses import dataclass
 BASE_PLANNERS = ("random", "fisher", "variance", "physics", "fvs")
 # The planners that propose a fused planner's shortlist.
 VISUAL_PLANNERS = ("fisher", "variance", "random", "fvs")
-# Which per-Gaussian values re-rank the shortlist (nbv.plan.fused.FusedPlanner.per_gaussian).
-CONTROLS = ("fluid", "area", "shuffled", "excess", "perprobe", "thin-area")
 # How the shortlist's scores are formed: S(T) of those values, or z(coverage) + z(S / coverage).
 COMBINES = ("sum", "balanced")
+
+
+@dataclass(frozen=True)
+class Values:
+    """One kind of per-Gaussian values v_g that S(T) = sum_g w_g(T) v_g sums (computed by
+    :data:`nbv.plan.fused.PER_GAUSSIAN`).
+
+    Attributes:
+        name: its name in the fused rules (``control``) and the oracle's rules (``values``).
+        probes: it reads the probe run (``PlanningContext.physics`` or ``probe_fields``).
+        solid: it reads the thin-or-open mask of the solid (``PlanningContext.solid_mask``; no fluid).
+        summary: what v_g is.
+    """
+
+    name: str
+    probes: bool = False
+    solid: bool = False
+    summary: str = ""
+
+
+# The one table of per-Gaussian values, read by the fused planners and the oracle study.
+VALUES = {
+    v.name: v
+    for v in (
+        Values("fluid", probes=True, summary="the probes' D_g (1/s)"),
+        Values("area", summary="ones: S(T) is the coverage A(T), no probe"),
+        Values("shuffled", probes=True, summary="D_g permuted across the Gaussians"),
+        Values("excess", probes=True, summary="D_g minus the empty-scene D_g, per probe, before the max"),
+        Values("perprobe", probes=True, summary="each probe normalised to its own scale before the max"),
+        Values("thin", probes=True, solid=True, summary="D_g where the solid is thin or open, 0 elsewhere"),
+        Values("thin-area", solid=True, summary="1 where the solid is thin or open, 0 elsewhere (no probe)"),
+        Values("transparency", summary="1 - opacity: a coverage of the Gaussians the model is unsure of"),
+    )
+}
+# Which per-Gaussian values may re-rank a fused planner's shortlist.
+CONTROLS = tuple(VALUES)
 
 
 @dataclass(frozen=True)
@@ -31,10 +65,8 @@ class FusedRule:
     Attributes:
         name: the planner's registered name, ``<visual>+<rule>``.
         visual: the visual planner of the shortlist (:data:`VISUAL_PLANNERS`); the fused planner takes its config.
-        control: the per-Gaussian values S(T) sums: "fluid" the probes' D_g, "area" ones (the coverage control; no
-            probe runs), "shuffled" D_g permuted across the Gaussians, "excess" D_g minus the empty-scene D_g,
-            "perprobe" each probe normalised to its own scale before the max, "thin-area" ones on the Gaussians where
-            the solid is thin or open and zeros elsewhere (:mod:`nbv.physics.thin`; the solid only, no probe).
+        control: the per-Gaussian values S(T) sums, a name of :data:`VALUES` ("fluid" the probes' D_g, "area" the
+            coverage control, "thin-area" the coverage of the thin-or-open Gaussians, ...).
         depth_test: always apply the coarse depth test (else ``PlanningContext.occlusion`` decides).
         combine: "sum" (S(T)) or "balanced" (z(coverage) + z(S / coverage)).
         summary: one line for the command-line help.
@@ -58,7 +90,7 @@ class FusedRule:
     @property
     def uses_physics(self) -> bool:
         """Whether the pick runs the probes (False for the coverage controls and the thin-or-open coverage)."""
-        return self.control not in ("area", "thin-area")
+        return VALUES[self.control].probes
 
     @property
     def reads_empty_scene(self) -> bool:
