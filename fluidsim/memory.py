@@ -20,7 +20,6 @@ the lattice over its bounding box (:func:`fluidsim.sources.mesh_particles`).
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +27,7 @@ import numpy as np
 
 from .config import RETIRE_MARGIN_MAX
 from .grid import Z_SPLIT
+from .host import available_memory_bytes
 from .scene import Domain, Scene, SceneError, lattice_counts
 from .sources import load_mesh, wall_particle_count
 
@@ -77,18 +77,6 @@ class SceneMemory:
             "grid": self.grid_cells * BYTES_PER_CELL,
             "lists": self.list_bytes,
         }
-
-
-def available_memory_bytes() -> int:
-    """The memory available now (``MemAvailable`` of /proc/meminfo), else the physical memory, bytes."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
 def grid_cell_count(scene: Scene) -> float:

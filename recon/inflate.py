@@ -21,44 +21,15 @@ from __future__ import annotations
 
 import io
 import os
-import resource
 import zipfile
 import zlib
+
+from fluidsim.host import available_memory_bytes
 
 BUDGET_ENV = "FLUIDGS_MAX_DECODE_GB"
 BUDGET_FRACTION = 0.5  # of the memory available now: the decoded arrays are converted once more afterwards
 BUDGET_CEILING_GB = 16.0  # without FLUIDGS_MAX_DECODE_GB, never more than this (about 60M Gaussians of SH degree 3)
 CHUNK_BYTES = 1 << 24
-
-
-def available_memory_bytes() -> int:
-    """The memory this process may still allocate, bytes: ``MemAvailable`` of /proc/meminfo (else the physical
-    memory), lowered to what an address-space limit (``ulimit -v``) leaves above the process's current size."""
-    available = None
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    available = int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    if available is None:
-        available = int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
-    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
-    if limit != resource.RLIM_INFINITY:
-        available = min(available, max(0, limit - _virtual_size_bytes()))
-    return available
-
-
-def _virtual_size_bytes() -> int:
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("VmSize:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return 0
 
 
 def memory_budget_bytes() -> int:

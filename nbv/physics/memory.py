@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fluidsim.memory import available_memory_bytes
+from fluidsim.host import available_memory_bytes
 from fluidsim.probes import probe_setups
 from nbv.physics import floaters
 from nbv.physics.aggregate import GaussianAccumulator, reach_classes

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fluidsim.memory import available_memory_bytes
+from fluidsim.host import available_memory_bytes
 
 log = logging.getLogger(__name__)
 
@@ -167,8 +167,8 @@ def check_record_size(fluid_counts: dict[str, int], steps: int, record: RecordCo
 
 
 class TrajectoryRecorder:
-    """Callbacks, driven by :class:`nbv.physics._ProbeRecorder`, that fill one :class:`ProbeTrajectory` per recorded
-    probe. ``results`` holds the probes completed."""
+    """Callbacks, driven by :class:`nbv.physics.recorder.ProbeRecorder`, that fill one :class:`ProbeTrajectory` per
+    recorded probe. ``results`` holds the probes completed."""
 
     def __init__(self, record: RecordConfig, steps: int):
         self.record, self.steps = record, int(steps)
