@@ -22,6 +22,7 @@ _EXPORTS = {
         "memory",
     ),
     **dict.fromkeys(("ProbePlan", "RunFrame", "expand_to_all", "probe_domains_union"), "plan"),
+    "empty_scene_probes": "empty_scene",
     **dict.fromkeys(
         ("PhysicsResult", "ProbeDiverged", "check_result_matches", "gaussians_sha256", "load_result", "save_result"),
         "result",
@@ -30,7 +31,6 @@ _EXPORTS = {
         (
             "RETIRED_WARNING_FRACTION",
             "check_probe_time_steps",
-            "empty_scene_probes",
             "probe_warnings",
             "simulate_gaussians",
             "simulate_solid",

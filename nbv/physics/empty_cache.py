@@ -10,8 +10,10 @@ D_g from the cache is the same bits as the one accumulated during the simulation
 
 - **Key**: SHA-256 of the setup (slab, domain, inflow velocity), every ``fluidsim.SolverConfig`` field (precision
   included), the wall layers, the steps and the accumulation stride, the Taichi arch and version, the format
-  version and a digest of the engine's source (the ``fluidsim`` package and the probe runner), so that an engine
-  change never reads an old trajectory. One entry per probe: the -y probe, which starts at rest, is shared by runs
+  version and a digest of the source that makes the fluid (:func:`runner_sources`: the runner
+  :mod:`nbv.physics.empty_scene`, this module and the ``fluidsim`` modules the runner imports), so that an engine
+  change never reads an old trajectory, and an edit elsewhere (the probe run around it) keeps the entries. One entry
+  per probe: the -y probe, which starts at rest, is shared by runs
   at different inflow speeds.
 - **Folder**: ``$FLUIDGS_CACHE_DIR``, else ``$XDG_CACHE_HOME/fluidgs``, else ``~/.cache/fluidgs``
   (:func:`cache_folder`).
@@ -32,7 +34,8 @@ D_g from the cache is the same bits as the one accumulated during the simulation
 
 A second kind of entry keeps the means of those samples accumulated onto one set of Gaussians (:func:`means_key`:
 the samples' key, the Gaussians' centres and reach, the accumulator's source; 8 bytes per Gaussian), so that a run
-on the same Gaussians skips the accumulation too.
+on the same Gaussians skips the accumulation too. :class:`EmptyReference` is the one owner of both kinds and of a
+run's memo of means, behind one lookup.
 
 File layout of an entry ``<key>.empty``: 8 bytes :data:`MAGIC`, a little-endian u64 header length, a JSON header
 (format, key, the arrays' names, types and shapes, payload bytes, payload SHA-256), then the arrays: the particles
@@ -41,8 +44,8 @@ per step [S] int64, the positions [N, 3] and the values [N] of the solver's floa
 
 from __future__ import annotations
 
+import ast
 import errno
-import functools
 import hashlib
 import json
 import logging
@@ -111,55 +114,104 @@ class SampleRecorder:
         return EmptySamples(np.ascontiguousarray(x), np.ascontiguousarray(v), counts)
 
 
-def _source_digest(files) -> str:
+def _source_digest(files: list[tuple[str, Path]]) -> str:
+    """SHA-256 of (name, bytes) pairs: a file is named relative to its package, so a copy of the tree digests alike."""
     h = hashlib.sha256()
-    for f in files:
-        h.update(f.name.encode())
+    for name, f in files:
+        h.update(name.encode())
         h.update(f.read_bytes())
     return h.hexdigest()
 
 
-@functools.cache
-def code_digest() -> str:
-    """SHA-256 of the source that makes the empty scene's fluid: the ``fluidsim`` package, the probe runner and this
-    module (an engine change gives new keys)."""
+def _fluidsim_imports(path: Path, fluidsim_root: Path) -> set[Path]:
+    """The ``fluidsim`` modules that the file ``path`` imports (every import statement, function-level ones included),
+    with the ``__init__.py`` of each package on the way."""
+    inside = path.is_relative_to(fluidsim_root)
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            targets = [(a.name.split("."), []) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level and inside:  # relative, within fluidsim
+                package = list(path.parent.relative_to(fluidsim_root.parent).parts)
+                parts = package[: len(package) + 1 - node.level] + (node.module.split(".") if node.module else [])
+            else:
+                parts = (node.module or "").split(".")
+            targets = [(parts, [a.name for a in node.names])]
+        else:
+            continue
+        for parts, names in targets:
+            if parts[0] != "fluidsim":
+                continue
+            folder = fluidsim_root.parent.joinpath(*parts)
+            for k in range(1, len(parts) + 1):  # the packages on the way run their __init__
+                init = fluidsim_root.parent.joinpath(*parts[:k], "__init__.py")
+                if init.is_file():
+                    found.add(init)
+            module = folder.with_suffix(".py")
+            found.update(m for m in (module,) if m.is_file())
+            found.update(m for n in names for m in (folder / f"{n}.py", folder / n / "__init__.py") if m.is_file())
+    return found
+
+
+def runner_sources(physics: Path | None = None, fluidsim_root: Path | None = None) -> list[tuple[str, Path]]:
+    """The source files that make the empty scene's fluid, as (name, path): the runner (``empty_scene.py``), this
+    module (the samples and their format) and the ``fluidsim`` modules the runner imports, directly or through each
+    other (by their import statements, :mod:`ast`). Other modules of ``nbv`` (the probe run around them) and of
+    ``fluidsim`` (the recording, the memory estimate) leave the keys as they are.
+
+    Args:
+        physics: the folder of this module and the runner (default: this module's). fluidsim_root: the ``fluidsim``
+            package folder (default: the imported one's); a copy of both trees gives the same names.
+    """
     import fluidsim  # noqa: PLC0415 - its path only
 
-    runner = Path(__file__).with_name("run.py")  # by path: run imports this module
-    return _source_digest(sorted(Path(fluidsim.__file__).parent.rglob("*.py")) + [runner, Path(__file__)])
+    physics = Path(__file__).parent if physics is None else Path(physics)
+    root = Path(fluidsim.__file__).parent if fluidsim_root is None else Path(fluidsim_root)
+    mine = [physics / "empty_scene.py", physics / "empty_cache.py"]  # by path: the runner imports this module
+    todo, seen = list(mine), set()
+    while todo:
+        for m in _fluidsim_imports(todo.pop(), root) - seen:
+            seen.add(m)
+            todo.append(m)
+    named = [(f"nbv/physics/{m.name}", m) for m in mine]
+    return named + [(m.relative_to(root.parent).as_posix(), m) for m in sorted(seen)]
 
 
-@functools.cache
+def code_digest(sources: list[tuple[str, Path]] | None = None) -> str:
+    """SHA-256 of the source that makes the empty scene's fluid (:func:`runner_sources`; an engine change gives new
+    keys, an edit elsewhere does not)."""
+    return _source_digest(runner_sources() if sources is None else sources)
+
+
 def accumulator_digest() -> str:
     """SHA-256 of the accumulator's source (``nbv/physics/aggregate*.py``): what turns samples into means."""
-    return _source_digest(sorted(Path(__file__).parent.glob("aggregate*.py")))
+    return _source_digest([(f.name, f) for f in sorted(Path(__file__).parent.glob("aggregate*.py"))])
 
 
-def means_key(samples_key: str, centers: np.ndarray, reach: np.ndarray) -> str:
+def means_key(samples_key: str, centers: np.ndarray, reach: np.ndarray, accumulator: str | None = None) -> str:
     """The entry of the means of the samples under ``samples_key`` accumulated onto these Gaussians ([G, 3] centres
-    and [G] reach, sim metres): a run on the same Gaussians skips the accumulation too."""
-    h = hashlib.sha256(f"{samples_key}:{accumulator_digest()}:means".encode())
+    and [G] reach, sim metres): a run on the same Gaussians skips the accumulation too. ``accumulator``: the
+    :func:`accumulator_digest` (None: computed)."""
+    accumulator = accumulator_digest() if accumulator is None else accumulator
+    h = hashlib.sha256(f"{samples_key}:{accumulator}:means".encode())
     for a in (centers, reach):
         a = np.ascontiguousarray(a, np.float64)
         h.update(str(a.shape).encode())
         h.update(a.tobytes())
-    key = h.hexdigest()
-    _MEANS_SOURCES[key] = samples_key  # the reader checks the means against these samples (EmptyCache.load_means)
-    return key
+    return h.hexdigest()
 
 
-# means key -> the samples key it was made from, in this process (means_key): a means entry names its samples in its
-# header, and the reader checks that name against what it computed itself, never against the file alone
-_MEANS_SOURCES: dict[str, str] = {}
-
-
-def cache_key(setup, solver_config, wall_layers: int, steps: int, accumulate_every: int) -> str:
+def cache_key(
+    setup, solver_config, wall_layers: int, steps: int, accumulate_every: int, code: str | None = None
+) -> str:
     """The entry of one empty-scene probe: SHA-256 hex of everything its fluid depends on.
 
     Args:
         setup: the probe's ``fluidsim.probes.ProbeSetup`` (its direction name is left out: only the geometry counts).
         solver_config: ``fluidsim.SolverConfig`` (all fields, precision included).
         wall_layers: layers of wall particles. steps: solver steps. accumulate_every: the accumulated stride.
+        code: the :func:`code_digest` (None: computed).
     Returns:
         64 hex digits.
     """
@@ -168,7 +220,7 @@ def cache_key(setup, solver_config, wall_layers: int, steps: int, accumulate_eve
     geometry = {k: v for k, v in asdict(setup).items() if k != "direction"}
     record = {
         "format": FORMAT_VERSION,
-        "code": code_digest(),
+        "code": code_digest() if code is None else code,
         "taichi": ".".join(str(p) for p in ti.__version__),
         "arch": ti.lang.impl.current_cfg().arch.name,
         "setup": geometry,
@@ -246,13 +298,16 @@ class EmptyCache:
         arrays = self._read(key, ("step_counts", "positions", "values"))
         return None if arrays is None else EmptySamples(arrays["positions"], arrays["values"], arrays["step_counts"])
 
-    def load_means(self, key: str, num_gaussians: int) -> np.ndarray | None:
-        """The [G] float64 means accumulated under ``key`` (:func:`means_key`: these samples onto these Gaussians),
-        or None as :meth:`load`."""
-        arrays = self._read(key, ("means",), num_gaussians)
+    def load_means(self, key: str, num_gaussians: int, samples_key: str) -> np.ndarray | None:
+        """The [G] float64 means accumulated under ``key`` (:func:`means_key`: the samples under ``samples_key`` onto
+        these Gaussians), or None as :meth:`load`. The entry must name ``samples_key``, and those samples must be
+        stored and bound its means (:meth:`_check_means`)."""
+        arrays = self._read(key, ("means",), num_gaussians, samples_key)
         return None if arrays is None else arrays["means"]
 
-    def _read(self, key: str, names: tuple[str, ...], num_gaussians: int | None = None) -> dict | None:
+    def _read(
+        self, key: str, names: tuple[str, ...], num_gaussians: int | None = None, samples_key: str | None = None
+    ) -> dict | None:
         if self.disabled:
             return None
         p = self.path(key)
@@ -273,7 +328,7 @@ class EmptyCache:
             if num_gaussians is not None:
                 if arrays["means"].shape != (num_gaussians,):
                     raise ValueError(f"{arrays['means'].shape[0]} means for {num_gaussians} Gaussians")
-                self._check_means(key, arrays["means"], arrays.get("samples_key"))
+                self._check_means(samples_key, arrays["means"], arrays.get("samples_key"))
         except ValueError as exc:
             log.warning(
                 "empty-scene cache entry %s is damaged (%s); ignored, the empty scene is simulated again", p, exc
@@ -286,14 +341,12 @@ class EmptyCache:
             pass
         return arrays
 
-    def _check_means(self, key: str, means: np.ndarray, named: str | None) -> None:
-        """The means of an entry are plausible: finite, made from the samples this process keyed them on (the header
-        names them) and, as averages of those samples' D_i, no larger than the largest |D_i| among them."""
+    def _check_means(self, source: str, means: np.ndarray, named: str | None) -> None:
+        """The means of an entry are plausible: finite, made from the samples ``source`` the reader keyed them on (the
+        header names them; checked against what the reader computed, never against the file alone) and, as averages
+        of those samples' D_i, no larger than the largest |D_i| among them."""
         if not np.isfinite(means).all():
             raise ValueError("non-finite means")
-        source = _MEANS_SOURCES.get(key)
-        if source is None:
-            return  # a key not made by means_key here: nothing to check the means against
         if named != source:
             raise ValueError(f"it names the samples {str(named)[:12]}..., not {source[:12]}...")
         samples = self.load(source)
@@ -314,9 +367,10 @@ class EmptyCache:
             key, {"step_counts": samples.step_counts, "positions": samples.positions, "values": samples.values}
         )
 
-    def save_means(self, key: str, means: np.ndarray) -> bool:
-        """Store [G] float64 means under ``key`` (:func:`means_key`), as :meth:`save`."""
-        return self._write(key, {"means": np.asarray(means, np.float64)}, _MEANS_SOURCES.get(key))
+    def save_means(self, key: str, means: np.ndarray, samples_key: str) -> bool:
+        """Store [G] float64 means under ``key`` (:func:`means_key` of the samples under ``samples_key``, which the
+        entry names), as :meth:`save`."""
+        return self._write(key, {"means": np.asarray(means, np.float64)}, samples_key)
 
     def _write(self, key: str, arrays: dict[str, np.ndarray], samples_key: str | None = None) -> bool:
         if self.disabled:
@@ -392,6 +446,96 @@ class EmptyCache:
                 "empty-scene cache: %d least recently used entries removed (bound %s)", len(removed), CACHE_MAX_ENV
             )
         return removed
+
+
+@dataclass(frozen=True)
+class EmptyFound:
+    """What :meth:`EmptyReference.lookup` found for one probe on one set of Gaussians.
+
+    Attributes:
+        samples_key, means_key: the entries' keys (:func:`cache_key`, :func:`means_key`; None: nothing is stored).
+        means: [G] float64, the reference itself (None: not found).
+        samples: the probe's fluid, to accumulate onto the Gaussians (None: not found; simulate it).
+        where: the entry the samples came from.
+    """
+
+    samples_key: str | None = None
+    means_key: str | None = None
+    means: np.ndarray | None = None
+    samples: EmptySamples | None = None
+    where: str = ""
+
+
+class EmptyReference:
+    """The one owner of the empty scene's reference: a probe's D_g^empty on a set of Gaussians, looked up in this run's
+    memo of means, then the disk's means, then the disk's fluid samples (:class:`EmptyCache`), and put back into all
+    of them once accumulated or simulated. One key scheme: the fluid's :func:`cache_key` (over
+    :func:`runner_sources`' digest, computed once here), and the means' :func:`means_key` of it, which also keys the
+    memo.
+
+    Args:
+        store: the disk cache (None: nothing is looked up or stored; every probe is simulated).
+        memo_entries: the most means the memo keeps (least recently used go first).
+
+    Example:
+        >>> ref = EmptyReference.of(config)                                      # doctest: +SKIP
+        >>> found = ref.lookup(plan.setups["-x"], config, centers, reach)        # doctest: +SKIP
+    """
+
+    MEMO_ENTRIES = 16
+
+    def __init__(self, store: EmptyCache | None, memo_entries: int = MEMO_ENTRIES):
+        self.store = store
+        self.memo_entries = int(memo_entries)
+        self._memo: dict[str, np.ndarray] = {}
+        self._code = None if store is None else code_digest()
+        self._accumulator = None if store is None else accumulator_digest()
+
+    @classmethod
+    def of(cls, config) -> EmptyReference:
+        """The reference of a run of ``config`` (:class:`nbv.physics.config.PhysicsConfig`): the user's cache
+        (:meth:`EmptyCache.from_environment`, its bound read now: ValueError on a bad one) when the run has an empty
+        scene and ``config.empty_cache``, else none."""
+        use = config.empty_reference and config.empty_cache
+        return cls(EmptyCache.from_environment() if use else None)
+
+    @property
+    def stores(self) -> bool:
+        """Whether a simulated probe's fluid is kept to be stored."""
+        return self.store is not None
+
+    def lookup(self, setup, config, centers: np.ndarray, reach: np.ndarray) -> EmptyFound:
+        """The reference of the probe ``setup`` (``fluidsim.probes.ProbeSetup``) of ``config`` on these Gaussians
+        ([G, 3] centres, [G] reach, sim metres): its means, else its fluid, else only its keys."""
+        if self.store is None:
+            return EmptyFound()
+        wall_layers = config.probe_config().wall_layers
+        solver = config.solver_config()
+        samples_key = cache_key(setup, solver, wall_layers, config.steps, config.accumulate_every, self._code)
+        key = means_key(samples_key, centers, reach, self._accumulator)
+        means = self._memo.pop(key, None)
+        if means is None:
+            means = self.store.load_means(key, len(centers), samples_key)
+        if means is not None:
+            self._remember(key, means)
+            return EmptyFound(samples_key, key, means=means, where=str(self.store.path(key)))
+        found = self.store.load(samples_key)
+        return EmptyFound(samples_key, key, samples=found, where=str(self.store.path(samples_key)))
+
+    def put(self, found: EmptyFound, means: np.ndarray, samples: EmptySamples | None = None) -> None:
+        """Store the ``means`` of a probe looked up as ``found`` (and its simulated fluid ``samples``)."""
+        if self.store is None or found.means_key is None:
+            return
+        if samples is not None:
+            self.store.save(found.samples_key, samples)
+        self.store.save_means(found.means_key, means, found.samples_key)
+        self._remember(found.means_key, means)
+
+    def _remember(self, key: str, means: np.ndarray) -> None:
+        self._memo.pop(key, None)
+        self._memo[key] = means  # the most recently used last
+        while len(self._memo) > self.memo_entries:
+            self._memo.pop(next(iter(self._memo)))
 
 
 _DTYPES = ("<f4", "<f8", "<i8")

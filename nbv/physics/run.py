@@ -22,7 +22,6 @@ about [-1.5, 1.5]^3 domain at r = 0.025 m.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Sequence
@@ -30,26 +29,22 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-import taichi as ti
 
-from fluidsim import DFSPHSolver, SimulationDiverged, SolverConfig, StepStats, run_probes
+from fluidsim import SimulationDiverged, SolverConfig, StepStats, run_probes
 from fluidsim.output import stats_table
-from fluidsim.scene import lattice_in_box
 from fluidsim.simulation import check_time_step
-from fluidsim.simulation import run as run_solver
-from fluidsim.sources import wall_particles
 from nbv import scores
-from nbv.physics.aggregate import GaussianAccumulator, GaussianLists
 from nbv.physics.config import PhysicsConfig
-from nbv.physics.empty_cache import EmptyCache, EmptySamples, SampleRecorder, cache_key, means_key
-from nbv.physics.leaks import LeakCounter
+from nbv.physics.empty_cache import EmptyReference
+from nbv.physics.empty_scene import empty_scene_probes
 from nbv.physics.memory import check_memory, check_memory_bound
 from nbv.physics.plan import ProbePlan, RunFrame
 from nbv.physics.progress import RunProgress
+from nbv.physics.recorder import ProbeRecorder
 from nbv.physics.replicas import replica_offsets
 from nbv.physics.result import PhysicsResult, ProbeDiverged, _t, combine_replicas
 from nbv.physics.solidify import SolidLattice
-from nbv.physics.trajectory import RecordConfig, TrajectoryRecorder, check_record_size
+from nbv.physics.trajectory import RecordConfig, check_record_size
 
 log = logging.getLogger(__name__)
 
@@ -79,122 +74,8 @@ def probe_warnings(direction: str, counts: np.ndarray, history: list[StepStats])
     return out
 
 
-# ---- the probe runs --------------------------------------------------------------------------------
-class _ProbeRecorder:
-    """Callbacks for ``fluidsim.run_probes``: the Gaussians' cell lists built once (over the union of the probes'
-    domains), fresh sums per probe, timings, and the steps shown on the run's bar (``progress``)."""
-
-    def __init__(
-        self,
-        centers: np.ndarray,
-        reach: np.ndarray,
-        config: PhysicsConfig,
-        progress: RunProgress,
-        label: str = "",
-        grid_bounds: tuple[np.ndarray, np.ndarray] | None = None,
-        solid=None,
-        record=None,
-        lists: GaussianLists | None = None,
-    ):
-        self.centers, self.reach, self.config, self.progress, self.label = centers, reach, config, progress, label
-        self.lists = lists
-        # fluid particles deep inside the (filled) solid lattice, counted at every step (nbv.physics.leaks)
-        self.leak_counter = None if solid is None else LeakCounter(solid.occupancy, solid.lattice_min, solid.spacing)
-        # the fluid of the recorded probes every k steps (nbv.physics.trajectory; None: nothing recorded)
-        self.trajectory = None if record is None else TrajectoryRecorder(record, config.steps)
-        self.leaks: dict[str, Any] = {}
-        self.grid_bounds = grid_bounds
-        self.acc = None
-        self.means: dict[str, np.ndarray] = {}
-        self.counts: dict[str, np.ndarray] = {}
-        self.distinct: dict[str, np.ndarray] = {}
-        self.domains: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        self.histories: dict[str, list[StepStats]] = {}
-        self.current: str | None = None  # the probe running now (the one that diverged, on a divergence)
-        self.aggregation_s = 0.0
-        self.build_s = 0.0
-        self._t_start = 0.0
-        self.probe_s = 0.0
-
-    def start(self, direction: str, solver: DFSPHSolver) -> None:
-        t0 = time.perf_counter()
-        # The lists cover the union of the probes' domains, so every probe reuses them; its sums are its own.
-        if self.lists is None:
-            self.lists = GaussianLists(self.centers, self.reach, *self.grid_bounds)
-        self.acc = None  # the last probe's sums go before this one's are allocated
-        self.acc = GaussianAccumulator(
-            self.lists,
-            solver.domain_min,
-            solver.domain_max,
-            track_distinct=self.config.track_distinct,
-            max_fluid=solver.fluid.capacity,
-        )
-        self.build_s += time.perf_counter() - t0
-        self.domains[direction] = (solver.domain_min.copy(), solver.domain_max.copy())
-        self.current = direction
-        if self.leak_counter is not None:
-            self.leak_counter.start(self.config.steps)
-        if self.trajectory is not None:
-            self.trajectory.start(direction, solver)
-        self.progress.start(direction, self.label)
-        self._t_start = time.perf_counter()
-
-    def step(self, direction: str, solver: DFSPHSolver, stats: StepStats) -> None:
-        if self.leak_counter is not None:
-            self.leak_counter.count(solver, stats.step)
-        if self.trajectory is not None:
-            self.trajectory.step(direction, solver, stats.step)
-        if (stats.step + 1) % self.config.accumulate_every == 0:
-            ti.sync()  # on a GPU, wait for the solver's step so that only the aggregation is timed
-            t0 = time.perf_counter()
-            self.acc.add_from_solver(solver)
-            ti.sync()
-            self.aggregation_s += time.perf_counter() - t0
-
-    def tick(self, stats: StepStats) -> None:
-        self.progress.tick(stats)
-
-    def stop(self) -> None:
-        """The current probe ended early (it diverged): its time so far counts as probe time, as its aggregation
-        time already does."""
-        if self.current is not None and self.current not in self.histories:
-            self.probe_s += time.perf_counter() - self._t_start
-
-    def end(self, direction: str, solver: DFSPHSolver, history: list[StepStats]) -> None:
-        t0 = time.perf_counter()
-        self.acc.flush()  # the last staged steps count as aggregation time
-        ti.sync()
-        self.aggregation_s += time.perf_counter() - t0
-        self.probe_s += time.perf_counter() - self._t_start
-        self.means[direction] = np.asarray(self.acc.means(), np.float64)
-        self.counts[direction] = np.asarray(self.acc.counts, np.int64)
-        if self.config.track_distinct:
-            self.distinct[direction] = np.asarray(self.acc.distinct_counts, np.int64)
-        self.acc = None  # read: its sums go (the lists stay for the next probe)
-        if self.leak_counter is not None:
-            self.leaks[direction] = self.leak_counter.finish(solver)
-        self.histories[direction] = history
-        if self.trajectory is not None:
-            self.trajectory.end(direction)
-
-    def replay(self, direction: str, domain_min, domain_max, samples: EmptySamples) -> None:
-        """A probe's recorded steps (the empty-scene cache) onto the Gaussians: the means and counts that
-        :meth:`start`, :meth:`step` and :meth:`end` give while its solver runs, bit for bit."""
-        t0 = time.perf_counter()
-        if self.lists is None:
-            self.lists = GaussianLists(self.centers, self.reach, *self.grid_bounds)
-        acc = GaussianAccumulator(self.lists, domain_min, domain_max)
-        t1 = time.perf_counter()
-        acc.add_samples(samples.positions, samples.values, samples.step_counts)
-        self.means[direction] = np.asarray(acc.means(), np.float64)
-        self.counts[direction] = np.asarray(acc.counts, np.int64)
-        self.domains[direction] = (np.asarray(domain_min, np.float64), np.asarray(domain_max, np.float64))
-        self.build_s += t1 - t0
-        self.aggregation_s += time.perf_counter() - t1
-
-
 def _run_with(
-    recorder: _ProbeRecorder, solid: np.ndarray, plan: ProbePlan, config: PhysicsConfig, scfg: SolverConfig
+    recorder: ProbeRecorder, solid: np.ndarray, plan: ProbePlan, config: PhysicsConfig, scfg: SolverConfig
 ) -> dict[str, list[StepStats]]:
     return run_probes(
         solid,
@@ -207,114 +88,6 @@ def _run_with(
         progress=lambda d, st: recorder.tick(st),
         setups=plan.setups,
     )
-
-
-def empty_scene_probes(
-    plan: ProbePlan,
-    centers: np.ndarray,
-    reach: np.ndarray,
-    config: PhysicsConfig,
-    progress: bool | RunProgress = True,
-    cache: dict | None = None,
-    lists: GaussianLists | None = None,
-    store: EmptyCache | None = None,
-) -> tuple[np.ndarray, float]:
-    """D_g^(IC) of the empty scene: each probe's slab in its walled domain with no solid, onto the same Gaussians.
-
-    Args:
-        plan: the probes laid out around the solid (which is not simulated).
-        centers, reach: [G, 3], [G] sim metres.
-        config: the probe settings.
-        progress: show a bar over these probes (True), or move the run's bar (a :class:`RunProgress` that counts
-            them; it stays open).
-        cache: a dict to reuse results within a process, keyed by domain, settings and Gaussians.
-        lists: the cell lists of these Gaussians (:class:`nbv.physics.aggregate.GaussianLists`; the probe run's,
-            which cover the same domains). None: built over the union of the probes' domains, for every probe.
-        store: the disk cache of the empty scene's fluid (:class:`nbv.physics.empty_cache.EmptyCache`): a probe found
-            there is accumulated from it, one simulated is stored. None: simulate every probe.
-    Returns:
-        ([P, G] float64 per-probe means, seconds spent).
-    """
-    t0 = time.perf_counter()
-    scfg = config.solver_config()
-    probe = config.probe_config()
-    key_cfg = json.dumps(config.to_dict(), sort_keys=True, default=str)
-    key_g = hash((centers.tobytes(), reach.tobytes()))
-    out = []
-    bar = progress if isinstance(progress, RunProgress) else None
-    if bar is None:
-        bar = RunProgress(plan, replace(config, empty_reference=False), enabled=bool(progress))
-    rec = _ProbeRecorder(
-        centers,
-        reach,
-        replace(config, track_distinct=False),
-        bar,
-        label="empty ",
-        grid_bounds=plan.bounds,
-        lists=lists,
-    )
-    try:
-        for d in config.directions:
-            setup = plan.setups[d]
-            key = (setup, key_cfg, key_g)
-            if cache is not None and key in cache:
-                bar.skip(d, "empty ")
-                out.append(cache[key])
-                continue
-            stored = (
-                None
-                if store is None
-                else cache_key(setup, scfg, probe.wall_layers, config.steps, config.accumulate_every)
-            )
-            reused = None if stored is None else store.load_means(means_key(stored, centers, reach), len(centers))
-            if reused is not None:  # these Gaussians' means of the stored fluid
-                log.info("empty-scene probe %s: D_g from the cache", d)
-                bar.skip(d, "empty ")
-                out.append(reused)
-                if cache is not None:
-                    cache[key] = reused
-                continue
-            samples = None if stored is None else store.load(stored)
-            if samples is not None:
-                log.info("empty-scene probe %s: the fluid from the cache %s", d, store.path(stored))
-                bar.skip(d, "empty ")
-                rec.replay(d, setup.domain_min, setup.domain_max, samples)
-                store.save_means(means_key(stored, centers, reach), rec.means[d])
-                out.append(rec.means[d])
-                if cache is not None:
-                    cache[key] = rec.means[d]
-                continue
-            sampler = None if stored is None else SampleRecorder(config.accumulate_every)
-            fluid = lattice_in_box(setup.fluid_min, setup.fluid_max, scfg.spacing)
-            vel = np.broadcast_to(np.asarray(setup.velocity), fluid.shape)
-            walls = wall_particles(setup.domain_min, setup.domain_max, scfg.spacing, probe.wall_layers)
-            solver = DFSPHSolver(scfg, setup.domain_min, setup.domain_max, fluid, vel, walls)
-            rec.start(d, solver)
-
-            def on_step(s, st, d=d, r=rec, k=sampler):
-                r.step(d, s, st)
-                if k is not None:  # the fluid kept for the cache
-                    k.step(s, st)
-
-            try:
-                history = run_solver(solver, config.steps, on_step=on_step, progress=rec.tick)
-            except SimulationDiverged as exc:
-                exc.probe = f"empty-scene {d}"  # which run diverged, for ProbeDiverged
-                raise
-            rec.end(d, solver, history)
-            if sampler is not None:
-                store.save(stored, sampler.samples())
-                store.save_means(means_key(stored, centers, reach), rec.means[d])
-            out.append(rec.means[d])
-            if cache is not None:
-                cache[key] = rec.means[d]
-    finally:
-        if bar is not progress:  # a bar of its own: closed here; the run's bar is closed by the run
-            bar.close()
-    return np.stack(out), time.perf_counter() - t0
-
-
-_EMPTY_CACHE: dict = {}
 
 
 def simulate_replicas(
@@ -473,10 +246,10 @@ def simulate_solid(
     check_probe_time_steps(plan, config, scfg)  # CFL: inflow plus free fall through each domain
     if record is not None:
         check_record_size(plan.fluid_counts(record.directions), config.steps, record)
-    # the empty scene's cache, its bound read now (a bad FLUIDGS_CACHE_MAX_GB is refused before any probe)
-    store = EmptyCache.from_environment() if config.empty_reference and config.empty_cache else None
+    # the empty scene's reference, its cache's bound read now (a bad FLUIDGS_CACHE_MAX_GB is refused before any probe)
+    reference = EmptyReference.of(config)
     try:  # Eq. 1-3: D_i of every step onto the Gaussians within n r_g
-        result = _probe(frame, solid, plan, progress, source, record, solidify_s, started, store)
+        result = _probe(frame, solid, plan, progress, source, record, solidify_s, started, reference)
     except ProbeDiverged as exc:
         exc.result = frame.expand(exc.result)
         raise
@@ -492,13 +265,13 @@ def _probe(
     record: RecordConfig | None,
     solidify_s: float,
     started: float,
-    store: EmptyCache | None = None,
+    reference: EmptyReference | None = None,
 ) -> PhysicsResult:
-    """The probes and, with ``config.empty_reference``, the empty scene (its fluid from ``store`` where there): the
-    result on the simulated Gaussians."""
+    """The probes and, with ``config.empty_reference``, the empty scene (from ``reference`` where there): the result on
+    the simulated Gaussians."""
     bar = RunProgress(plan, frame.config, progress)  # "probe k of n", one ETA over the probes and the empty scene
     try:
-        return _probe_with(frame, solid, plan, bar, source, record, solidify_s, started, store)
+        return _probe_with(frame, solid, plan, bar, source, record, solidify_s, started, reference)
     finally:
         bar.close()
 
@@ -512,11 +285,11 @@ def _probe_with(
     record: RecordConfig | None,
     solidify_s: float,
     started: float,
-    store: EmptyCache | None = None,
+    reference: EmptyReference | None = None,
 ) -> PhysicsResult:
     config, scfg = frame.config, frame.config.solver_config()
     means, covs, reach = frame.means, frame.covariances, frame.reach
-    recorder = _ProbeRecorder(means, reach, config, bar, solid=solid, record=record, grid_bounds=plan.bounds)
+    recorder = ProbeRecorder(means, reach, config, bar, solid=solid, record=record, grid_bounds=plan.bounds)
     base = dict(
         solid=np.asarray(solid.points, np.float64),
         transform=frame.transform,
@@ -550,8 +323,7 @@ def _probe_with(
     if not config.empty_reference:
         return result
     try:
-        memo = _EMPTY_CACHE if config.empty_cache else None
-        empty, empty_s = empty_scene_probes(plan, means, reach, config, bar, memo, recorder.lists, store)
+        empty, empty_s = empty_scene_probes(plan, means, reach, config, bar, recorder.lists, reference)
     except SimulationDiverged as exc:
         probe = getattr(exc, "probe", "empty-scene")
         failure = {"probe": probe, "step": int(exc.step), "reason": exc.reason}
@@ -580,7 +352,7 @@ def check_probe_time_steps(plan: ProbePlan, config: PhysicsConfig, scfg: SolverC
 
 
 def _assemble(
-    recorder: _ProbeRecorder, dirs: Sequence[str], base: dict[str, Any], timings: dict[str, float], **extra: Any
+    recorder: ProbeRecorder, dirs: Sequence[str], base: dict[str, Any], timings: dict[str, float], **extra: Any
 ) -> PhysicsResult:
     """The PhysicsResult of the probes ``dirs`` that ``recorder`` completed (none: D_g = 0, D-bar NaN)."""
     covs = base["covariances"]

@@ -5,6 +5,7 @@ the folder stays within its bound."""
 import logging
 import os
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,10 +13,10 @@ import torch
 
 from fluidsim.probes import probe_setups
 from nbv import physics
-from nbv.physics import PhysicsConfig, ProbePlan, empty_cache, empty_scene_probes, run, simulate_gaussians
+from nbv.physics import PhysicsConfig, ProbePlan, empty_cache, empty_scene, empty_scene_probes, simulate_gaussians
 from nbv.physics.aggregate import GaussianAccumulator
 from nbv.physics.aggregate_reference import accumulate_reference
-from nbv.physics.empty_cache import EmptyCache, EmptySamples, cache_key
+from nbv.physics.empty_cache import EmptyCache, EmptyReference, EmptySamples, cache_key
 from nbv.physics.scene_frame import gaussian_arrays_in_sim
 from nbv.physics.solidify import SolidifyConfig, gaussians_to_solid
 from recon.gaussians import GaussianSet
@@ -46,13 +47,13 @@ def scene():
 
 def _count_solvers(monkeypatch) -> list:
     built = []
-    real = run.DFSPHSolver
+    real = empty_scene.build_probe_solver
 
     def counted(*args, **kwargs):
         built.append(1)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(run, "DFSPHSolver", counted)
+    monkeypatch.setattr(empty_scene, "build_probe_solver", counted)
     return built
 
 
@@ -62,12 +63,12 @@ def test_cached_reference_equals_the_simulated_one_on_any_gaussians(scene, tmp_p
     plan, sets = scene
     store = EmptyCache(tmp_path, 2**30)
     built = _count_solvers(monkeypatch)
-    first, _ = empty_scene_probes(plan, *sets[0], CFG, progress=False, store=store)
+    first, _ = empty_scene_probes(plan, *sets[0], CFG, progress=False, reference=EmptyReference(store))
     assert len(built) == 2 and len(store.entries()) == 4  # per probe: the fluid, and its means on these Gaussians
     for means, reach in sets:
         fresh, _ = empty_scene_probes(plan, means, reach, CFG, progress=False)
         assert len(built) == 4
-        cached, _ = empty_scene_probes(plan, means, reach, CFG, progress=False, store=store)
+        cached, _ = empty_scene_probes(plan, means, reach, CFG, progress=False, reference=EmptyReference(store))
         assert len(built) == 4  # no solver ran
         np.testing.assert_array_equal(cached, fresh)
         assert (fresh != 0).any()
@@ -99,7 +100,7 @@ def _entries(plan, sets, tmp_path):
     """One probe simulated and stored: its fluid samples' entry and its means' entry (the smaller)."""
     store = EmptyCache(tmp_path, 2**30)
     cfg = PhysicsConfig(**{**CFG.to_dict(), "directions": ("-x",)})
-    expected, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)
+    expected, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, reference=EmptyReference(store))
     means, samples = [p for _, p in sorted((size, p) for _, size, p in store.entries())]
     return store, cfg, expected, samples, means
 
@@ -131,13 +132,14 @@ def test_a_damaged_entry_is_refused_and_rebuilt(scene, tmp_path, monkeypatch, ca
     entry.write_bytes(bytes(data))
     built = _count_solvers(monkeypatch)
     with caplog.at_level(logging.WARNING, logger="nbv.physics.empty_cache"):
-        again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)
+        again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, reference=EmptyReference(store))
     assert len(built) == (1 if kind == "samples" else 0)  # simulated again, or accumulated again
     np.testing.assert_array_equal(again, expected)
     assert any("damaged" in r.getMessage() and str(entry) in r.getMessage() for r in caplog.records)
     assert len(store.entries()) == 2 and entry.read_bytes() != bytes(data)  # rebuilt whole
     built.clear()
-    np.testing.assert_array_equal(empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)[0], expected)
+    again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, reference=EmptyReference(store))
+    np.testing.assert_array_equal(again, expected)
     assert not built
 
 
@@ -158,7 +160,7 @@ def test_an_entry_that_is_not_a_bounded_regular_file_is_never_read(scene, tmp_pa
             fh.truncate(store.max_bytes + 1)  # sparse: nothing is written
     built = _count_solvers(monkeypatch)
     with caplog.at_level(logging.WARNING, logger="nbv.physics.empty_cache"):
-        again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)
+        again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, reference=EmptyReference(store))
     assert len(built) == 1
     np.testing.assert_array_equal(again, expected)
     assert any(str(samples) in r.getMessage() and "removed" in r.getMessage() for r in caplog.records)
@@ -170,13 +172,13 @@ def test_a_poisoned_means_entry_with_a_recomputed_hash_is_refused(scene, tmp_pat
     the samples they claim to average, so refused and accumulated again."""
     plan, sets = scene
     store, cfg, expected, samples, means = _entries(plan, sets, tmp_path)
-    key = means.name[: -len(empty_cache.SUFFIX)]
-    stored = store.load_means(key, len(sets[1][0]))
+    key, samples_key = (p.name[: -len(empty_cache.SUFFIX)] for p in (means, samples))
+    stored = store.load_means(key, len(sets[1][0]), samples_key)
     assert stored is not None
-    store._write(key, {"means": stored * 1000.0}, empty_cache._MEANS_SOURCES[key])  # a consistent forgery
+    store._write(key, {"means": stored * 1000.0}, samples_key)  # a consistent forgery
     built = _count_solvers(monkeypatch)
     with caplog.at_level(logging.WARNING, logger="nbv.physics.empty_cache"):
-        again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, store=store)
+        again, _ = empty_scene_probes(plan, *sets[1], cfg, progress=False, reference=EmptyReference(store))
     assert not built  # accumulated again from the samples, not simulated
     np.testing.assert_array_equal(again, expected)
     assert any("exceeds the largest |D_i|" in r.getMessage() for r in caplog.records)
@@ -188,7 +190,7 @@ def test_an_unwritable_folder_runs_without_the_cache_with_one_line(scene, tmp_pa
     blocker.write_text("not a folder")
     store = EmptyCache(blocker / "cache", 2**30)
     with caplog.at_level(logging.WARNING, logger="nbv.physics.empty_cache"):
-        out, _ = empty_scene_probes(plan, *sets[0], CFG, progress=False, store=store)
+        out, _ = empty_scene_probes(plan, *sets[0], CFG, progress=False, reference=EmptyReference(store))
     lines = [r for r in caplog.records if r.name == "nbv.physics.empty_cache"]
     assert (
         len(lines) == 1
@@ -263,7 +265,6 @@ def test_simulate_uses_the_cache_unless_told_not_to(monkeypatch, tmp_path):
     assert not (tmp_path / "cache").exists()
     on = simulate_gaussians(g, cfg, progress=False)
     assert len(list((tmp_path / "cache").glob("*.empty"))) == 2  # the fluid and its means
-    run._EMPTY_CACHE.clear()
     built = _count_solvers(monkeypatch)
     again = simulate_gaussians(g, cfg, progress=False)
     assert not built  # the empty scene came from the cache (the probe builds its solver in fluidsim)
@@ -302,10 +303,9 @@ def test_slightly_moved_gaussians_reuse_the_empty_scene(monkeypatch, tmp_path, c
     to the probes' grid, the same setups: the second run accumulates the first run's empty-scene fluid (counted as
     solver runs, not timed)."""
     monkeypatch.setenv("FLUIDGS_CACHE_DIR", str(tmp_path / "cache"))
-    monkeypatch.setattr(run, "_EMPTY_CACHE", {})
     runs = []
-    real = run.run_solver
-    monkeypatch.setattr(run, "run_solver", lambda *a, **k: runs.append(1) or real(*a, **k))
+    real = empty_scene.run_solver
+    monkeypatch.setattr(empty_scene, "run_solver", lambda *a, **k: runs.append(1) or real(*a, **k))
     cfg = PhysicsConfig(
         particle_radius=0.05, steps=20, dt=0.002, directions=("-x",), scale=1.0, empty_reference=True, probe_snap=4
     )
@@ -320,8 +320,36 @@ def test_slightly_moved_gaussians_reuse_the_empty_scene(monkeypatch, tmp_path, c
         PhysicsConfig(probe_snap=-1)
     a = simulate_gaussians(first, cfg, progress=False)
     assert len(runs) == 1  # the empty scene ran once (the probe with the solid runs in fluidsim.probes)
-    with caplog.at_level(logging.INFO, logger="nbv.physics.run"):
+    with caplog.at_level(logging.INFO, logger="nbv.physics.empty_scene"):
         b = simulate_gaussians(moved, cfg, progress=False)
     assert len(runs) == 1  # ... and the moved Gaussians' run took it from the cache
     assert "empty-scene probe -x: the fluid from the cache" in caplog.text
     assert a.empty_per_probe.shape == b.empty_per_probe.shape == (1, len(b.means))  # accumulated onto its own
+
+
+def test_the_code_key_digests_the_runner_not_the_probe_run(tmp_path):
+    """A copy of the sources digests as the originals; a comment edited in the probe run (run.py) or in a fluidsim
+    module the runner does not import leaves the key, one in the runner or in the solver changes it."""
+    import shutil
+
+    import fluidsim
+
+    physics_dir = Path(empty_cache.__file__).parent
+    shutil.copytree(physics_dir, tmp_path / "physics")
+    shutil.copytree(Path(fluidsim.__file__).parent, tmp_path / "fluidsim")
+    names = [n for n, _ in empty_cache.runner_sources()]
+    assert "nbv/physics/empty_scene.py" in names and "fluidsim/solver.py" in names and "nbv/physics/run.py" not in names
+
+    def copied() -> str:
+        return empty_cache.code_digest(empty_cache.runner_sources(tmp_path / "physics", tmp_path / "fluidsim"))
+
+    assert copied() == empty_cache.code_digest()
+    for kept in ("physics/run.py", "physics/recorder.py", "fluidsim/recording.py", "fluidsim/memory.py"):
+        with open(tmp_path / kept, "a") as fh:
+            fh.write("# a comment\n")
+        assert copied() == empty_cache.code_digest(), kept
+    for changed in ("physics/empty_scene.py", "fluidsim/solver.py", "fluidsim/files/atomic.py"):
+        before = copied()
+        with open(tmp_path / changed, "a") as fh:
+            fh.write("# a comment\n")
+        assert copied() != before, changed

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-import nbv.physics.run as physics_run
+import nbv.physics.empty_scene as empty_scene
 from fluidsim.probes import build_probe_solver, probe_setup
 from nbv import physics, scores
 from nbv.physics import PhysicsConfig, load_result, save_result, simulate_gaussians
@@ -115,17 +115,16 @@ def test_result_roundtrip_and_empty_reference(sphere, tmp_path, tmp_path_factory
     # a fresh cache on disk and in the process, and a count of the solver runs (not a timing: other tests may
     # have filled the caches, and a cache hit is a question of which runs happen, not of how long they take)
     monkeypatch.setenv("FLUIDGS_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
-    monkeypatch.setattr(physics_run, "_EMPTY_CACHE", {})
     runs = []
-    real = physics_run.run_solver
-    monkeypatch.setattr(physics_run, "run_solver", lambda *a, **k: runs.append(1) or real(*a, **k))
+    real = empty_scene.run_solver
+    monkeypatch.setattr(empty_scene, "run_solver", lambda *a, **k: runs.append(1) or real(*a, **k))
     cfg = PhysicsConfig(**{**COARSE, "empty_reference": True}, directions=("-x",))
     res = simulate_gaussians(sphere, cfg, progress=False, source="sphere")
     assert len(runs) == 1  # the empty scene ran (the probe with the solid runs in fluidsim.probes)
     assert res.dbar_empty is not None and math.isfinite(res.dbar_empty)
     # the solid disturbs the flow: D-bar with the sphere is far above the walls-only reference
     assert res.dbar > 10 * res.dbar_empty
-    again = simulate_gaussians(sphere, cfg, progress=False)  # the empty-scene runs are cached in-process
+    again = simulate_gaussians(sphere, cfg, progress=False)  # the empty-scene runs are cached on disk
     assert again.dbar_empty == res.dbar_empty
     assert len(runs) == 1  # ... so the empty scene did not run again
     path = save_result(tmp_path / "r.h5", res)

@@ -206,7 +206,7 @@ def test_the_empty_reference_reuses_the_lists(monkeypatch):
     """The empty-scene probes build no lists of their own when given the probe run's, and one set for all probes
     otherwise; each probe's sums are fresh, and the means are the same bits either way."""
     from nbv import physics
-    from nbv.physics import PhysicsConfig, ProbePlan, aggregate, empty_scene_probes, run
+    from nbv.physics import PhysicsConfig, ProbePlan, aggregate, empty_scene_probes, recorder
 
     g = _sphere_set()
     cfg = PhysicsConfig(particle_radius=0.08, steps=6, dt=0.004, directions=("-x", "+z"), scale=1.0)
@@ -226,8 +226,8 @@ def test_the_empty_reference_reuses_the_lists(monkeypatch):
             super().__init__(*args, **kwargs)
             sums.append(self)
 
-    monkeypatch.setattr(run, "GaussianLists", CountedLists)
-    monkeypatch.setattr(run, "GaussianAccumulator", CountedSums)
+    monkeypatch.setattr(recorder, "GaussianLists", CountedLists)
+    monkeypatch.setattr(recorder, "GaussianAccumulator", CountedSums)
     fresh, _ = empty_scene_probes(plan, means, reach, cfg, progress=False)
     assert len(built) == 1 and len(sums) == 2 and sums[0]._acc is not sums[1]._acc  # one set of lists, two sums
     lists = aggregate.GaussianLists(means, reach, *plan.bounds)
