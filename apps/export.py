@@ -43,8 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--probe",
         default=None,
         metavar="DIRS",
-        help="RESULT.h5: comma list of the recorded probes to write (default: every recorded probe); with "
-        "--splishsplash: the probes to write scenes for (default: every probe of the run)",
+        help="RESULT.h5: comma list of the recorded probes to write, or with --splishsplash the probes to write "
+        "scenes for (default: every recorded probe; with --splishsplash every probe of the run)",
     )
     p.add_argument(
         "--splishsplash",

@@ -443,10 +443,11 @@ def add_gaussian_file_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("Gaussian file")
     g.add_argument(
         "--spz-frame",
-        choices=("rub", "ply"),
-        default="rub",
-        help="what an .spz stores: 'rub', Niantic's right-up-back, turned half a turn about x to the .ply "
-        "frame, or 'ply', the .ply frame as splat-transform and SuperSplat write it (default: rub)",
+        choices=("auto", "rub", "ply"),
+        default="auto",
+        help="what an .spz stores: 'auto', decided from a file of the same capture in a .ply-frame format beside it "
+        "(else 'rub', with a warning); 'rub', Niantic's right-up-back, turned half a turn about x to the .ply "
+        "frame; or 'ply', the .ply frame as splat-transform and SuperSplat write it (default: auto)",
     )
     g.add_argument(
         "--colmap",
@@ -478,7 +479,7 @@ def load_gaussians_checked(path, args=None):
     # a folder passes: recon.formats says it is a folder
     check_input_file(path, "Gaussian file", f"pass a Gaussian file ({SUPPORTED})", folder_ok=True)
     options = LoadOptions(
-        spz_frame=getattr(args, "spz_frame", None) or "rub",
+        spz_frame=getattr(args, "spz_frame", None) or "auto",
         colmap=getattr(args, "colmap", None),
         dataparser_transforms=getattr(args, "dataparser_transforms", None),
     )
