@@ -11,17 +11,8 @@ import logging
 import math
 from pathlib import Path
 
-from viz.frames import (
-    COLOR_BY,
-    FRAMES,
-    MIN_HEIGHT,
-    MIN_WIDTH,
-    VIEWS,
-    WALLS,
-    FrameStyle,
-    output_is_video,
-    render_frames,
-)
+from viz.frame_style import COLOR_BY, FRAMES, MIN_HEIGHT, MIN_WIDTH, VIEWS, WALLS, FrameStyle
+from viz.frames import output_is_video, render_frames
 
 from .options import add_config_options, config_from_args, config_values
 

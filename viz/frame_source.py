@@ -10,22 +10,15 @@ import json
 import logging
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
 from scipy.spatial import cKDTree
 
-if TYPE_CHECKING:
-    from .frames import FrameStyle
+from .frame_style import COLOR_BY, FrameStyle
 
 logger = logging.getLogger(__name__)
 
-# color_by -> (dataset in each frame group, colour-bar title, unit)
-COLOR_BY = {
-    "divergence": ("divergence", "|div v|", "1/s"),
-    "speed": ("v", "speed |v|", "m/s"),
-}
 MAX_BOUNDARY_POINTS = 50_000  # walls drawn at most
 MAX_SOLID_POINTS = 400_000
 VMAX_PERCENTILE = 99.0

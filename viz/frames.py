@@ -61,17 +61,14 @@ from tqdm import tqdm
 from fluidsim.files import write_bytes_atomic
 
 from .colors import TURBO_BGR
-from .frame_source import COLOR_BY, FrameSource, box_corners, check_domain, check_frames_file
+from .frame_source import FrameSource, box_corners, check_domain, check_frames_file
+from .frame_style import COLOR_BY, VIEWS, FrameStyle
 from .video import check_encoder, write_mp4
 
 logger = logging.getLogger(__name__)
 
-VIEWS = ("front", "side", "top", "iso")
-WALLS = ("hidden", "faint", "shown")
-FRAMES = ("object", "domain")
 OBJECT_MARGIN = 0.35  # the object's box grows by this fraction of its largest extent on every side
 MAX_SOLID_RADIUS = 24  # px
-MIN_WIDTH, MIN_HEIGHT = 160, 120
 
 _SQRT2, _SQRT3, _SQRT6 = math.sqrt(2.0), math.sqrt(3.0), math.sqrt(6.0)
 # rows: right, up, forward (viewing direction); right x up = -forward, so no view is mirrored.
@@ -98,55 +95,7 @@ SOLID_BGR = np.array([200, 228, 240], dtype=np.float64)  # ivory; the far side o
 _SOLID_FAR = 0.45
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 _COLORMAP_LUT = TURBO_BGR  # (256, 3) uint8 BGR
-
-
-@dataclass(frozen=True)
-class FrameStyle:
-    """How frames are drawn. Validated on construction.
-
-    Attributes:
-        color_by: "divergence" (|div v| [1/s]) or "speed" (|v| [m/s]).
-        view: "front", "side", "top" or "iso"; see the module docstring for the axes.
-        width, height: frame size [px], at least 160 x 120; an .mp4 pads an odd size by one edge pixel.
-        point_size: dot radius [px]; 0 draws single pixels.
-        vmax: top of the colour scale [1/s or m/s]; None takes the 99th percentile over all frames.
-        show_boundary: draw ``/boundary/x`` (the solid, and the walls as ``walls`` says) when the file has it.
-        fps: frames per second of the .mp4 video (ignored for PNG output).
-        walls: "hidden", "faint" (dark grey, behind everything) or "shown" (grey).
-        frame: "object" (the camera frames the solid, grown by 35 % of its size per side) or "domain" (the box).
-    """
-
-    color_by: str = "divergence"
-    view: str = "front"
-    width: int = 960
-    height: int = 720
-    point_size: int = 2
-    vmax: float | None = None
-    show_boundary: bool = True
-    fps: int = 30
-    walls: str = "hidden"
-    frame: str = "object"
-
-    def __post_init__(self) -> None:
-        if self.color_by not in COLOR_BY:
-            raise ValueError(f"FrameStyle.color_by={self.color_by!r} is unknown; use one of {sorted(COLOR_BY)}")
-        if self.view not in VIEWS:
-            raise ValueError(f"FrameStyle.view={self.view!r} is unknown; use one of {list(VIEWS)}")
-        if self.walls not in WALLS:
-            raise ValueError(f"FrameStyle.walls={self.walls!r} is unknown; use one of {list(WALLS)}")
-        if self.frame not in FRAMES:
-            raise ValueError(f"FrameStyle.frame={self.frame!r} is unknown; use one of {list(FRAMES)}")
-        for name, low in (("width", MIN_WIDTH), ("height", MIN_HEIGHT), ("point_size", 0), ("fps", 1)):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < low:
-                raise ValueError(f"FrameStyle.{name}={value!r} must be an int >= {low}")
-        if self.vmax is not None:
-            if isinstance(self.vmax, bool) or not isinstance(self.vmax, (int, float)):
-                raise ValueError(f"FrameStyle.vmax={self.vmax!r} must be a float or None")
-            if not (math.isfinite(self.vmax) and self.vmax > 0):
-                raise ValueError(f"FrameStyle.vmax={self.vmax!r} must be finite and > 0")
-        if not isinstance(self.show_boundary, bool):
-            raise ValueError(f"FrameStyle.show_boundary={self.show_boundary!r} must be a bool")
+DEFAULT_STYLE = FrameStyle()  # frozen: one default for every call
 
 
 def view_basis(view: str) -> np.ndarray:
@@ -234,7 +183,7 @@ def scene_viewport(width: int, height: int) -> tuple[int, int, int, int]:
 
 
 def render_frames(
-    h5_path, out, style: FrameStyle = FrameStyle(), progress: bool = True, png: bool = False, probe: str | None = None
+    h5_path, out, style: FrameStyle = DEFAULT_STYLE, progress: bool = True, png: bool = False, probe: str | None = None
 ) -> list[Path]:
     """Render every frame of a simulation output file.
 

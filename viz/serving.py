@@ -17,10 +17,7 @@ import signal
 import socket
 import threading
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from .viewer import FluidViewer
+from typing import Protocol
 
 log = logging.getLogger("viz.viewer")  # the viewer's one logger, whichever of its modules writes the line
 
@@ -121,7 +118,19 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-def serve(viewer: FluidViewer, announce=log.info) -> int:
+class Served(Protocol):
+    """What :func:`serve` needs of a page (:class:`viz.viewer.FluidViewer` is one): its URL, a wait until it is
+    stopped, and a clean stop."""
+
+    @property
+    def url(self) -> str: ...
+
+    def wait(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def serve(viewer: Served, announce=log.info) -> int:
     """Announce the URL (``announce(line)``; `fluidgs view` prints it), serve until Ctrl-C (or SIGTERM), stop
     cleanly; returns 0."""
 

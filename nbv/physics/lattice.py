@@ -8,16 +8,12 @@ multiple of the spacing and clipped to ``SolidifyConfig.bounds``. A work item is
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from nbv.physics import floaters
 from nbv.physics.scene_frame import SceneTransform, SimGaussians, as_sim
+from nbv.physics.solidify_config import SolidifyConfig
 from recon.gaussians import GaussianSet
-
-if TYPE_CHECKING:
-    from nbv.physics.solidify import SolidifyConfig
 
 # Peak bytes per lattice point during solidification: f32 log-transmittance of the point and of its three edges,
 # a comparison's f64 copy, three edge flags, the occupancy, and the fill's masks, int32 run labels and links.
