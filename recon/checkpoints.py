@@ -83,7 +83,7 @@ def is_torch_checkpoint(names: list[str]) -> bool:
     return any(n.endswith("/data.pkl") or n == "data.pkl" for n in names)
 
 
-def load_checkpoint(path: str | Path) -> TrainedModel:
+def load_trained_model(path: str | Path) -> TrainedModel:
     """Read the Gaussians of a gsplat or nerfstudio checkpoint (module docstring), activations kept raw
     (log-scales, opacity logits, unnormalised quaternions), in the trainer's normalised frame.
 

@@ -212,9 +212,9 @@ def load_gaussians_framed(path: str | Path, options: LoadOptions | None = None) 
         gaussians, chosen, description = _load_spz_decided(path, options.spz_frame)
         frame = SourceFrame(fmt, description, np.diag([1.0, -1.0, -1.0, 1.0]) if chosen == "rub" else identity)
     elif fmt == "checkpoint":
-        from .checkpoints import load_checkpoint, restore_metric_frame  # noqa: PLC0415 - torch.load only here
+        from .checkpoints import load_trained_model, restore_metric_frame  # noqa: PLC0415 - torch.load only here
 
-        model = load_checkpoint(path)
+        model = load_trained_model(path)
         gaussians, undo, note = restore_metric_frame(model, options.colmap, options.dataparser_transforms)
         frame = SourceFrame(
             fmt,

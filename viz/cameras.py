@@ -75,7 +75,7 @@ def rotation_to_wxyz(rotation: np.ndarray) -> np.ndarray:
     return out if out[0] >= 0 else -out
 
 
-def split_similarity(matrix: np.ndarray, where: str) -> tuple[float, np.ndarray, np.ndarray]:
+def split_scene_to_sim(matrix: np.ndarray, where: str) -> tuple[float, np.ndarray, np.ndarray]:
     """M = [s R | t] -> (s, R [3, 3], t [3]); ValueError naming ``where`` when the 3 x 3 part is no scaled rotation."""
     m = np.asarray(matrix, np.float64)
     lin = m[:3, :3]
@@ -159,7 +159,7 @@ def candidate_views(
     from recon.camera_files import load_camera_file  # noqa: PLC0415 - torch: imported here so viz.cameras stays light
 
     cams = load_camera_file(cameras)
-    s, rot, t = split_similarity(scene_to_sim, where)
+    s, rot, t = split_scene_to_sim(scene_to_sim, where)
     by_index: dict[int, dict] = {}
     if scores is not None:
         for v in scores["views"]:

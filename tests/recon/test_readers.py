@@ -20,7 +20,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from recon import formats
-from recon.checkpoints import gsplat_normalization, load_checkpoint
+from recon.checkpoints import gsplat_normalization, load_trained_model
 from recon.gaussians import SH_C0, GaussianSet
 from recon.sh import eval_sh
 from recon.similarity import invert_similarity, transform_gaussians
@@ -308,7 +308,7 @@ def test_gsplat_ranks_restored_to_the_metric_frame(tmp_path):
             "shN": sub.sh[:, 1:],
         }
         torch.save({"step": 6999, "splats": splats}, ckpts / f"ckpt_6999_rank{rank}.pt")
-    raw = load_checkpoint(ckpts / "ckpt_6999_rank1.pt")
+    raw = load_trained_model(ckpts / "ckpt_6999_rank1.pt")
     assert raw.trainer == "gsplat" and raw.gaussians.num == 200 and len(raw.files) == 2
     back, fmt, frame = formats.load_gaussians_framed(
         ckpts / "ckpt_6999_rank0.pt", formats.LoadOptions(colmap=tmp_path / "data")
@@ -375,7 +375,7 @@ def test_splatfacto_degree_zero_colour_is_a_logit(tmp_path):
     }
     pipeline = {f"_model.gauss_params.{k}": v for k, v in params.items()}
     torch.save({"pipeline": pipeline}, tmp_path / "step-1.ckpt")
-    g = load_checkpoint(tmp_path / "step-1.ckpt").gaussians
+    g = load_trained_model(tmp_path / "step-1.ckpt").gaussians
     torch.testing.assert_close(g.sh[0, 0] * SH_C0 + 0.5, rgb[0])
     assert g.sh_degree == 0 and g.quats[0, 0].item() == 2.0  # unnormalised quaternions kept raw
 
