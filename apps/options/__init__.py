@@ -27,48 +27,45 @@ with their own positional arguments would each need tyro's markers or a second p
 (:func:`field_docs` to :func:`config_from_args`) is about 150 lines over the standard library and changes no option.
 """
 
+from .attributes import field_docs, help_and_default
+from .cameras import (
+    CAMERAS_HELP,
+    add_camera_arguments,
+    add_orbit_arguments,
+    add_visibility_arguments,
+    camera_file_from_args,
+    check_visibility_arguments,
+    orbit_cameras_logged,
+    orbit_from_args,
+)
 from .fields import (
     add_config_options,
     config_from_args,
     config_values,
-    field_docs,
     float_list,
-    help_and_default,
     index_list,
     option_dest,
     option_names,
     options_named,
     parse_list,
 )
-from .groups import (
-    CAMERAS_HELP,
-    add_camera_arguments,
-    add_frame_arguments,
+from .files import (
     add_gaussian_file_arguments,
-    add_orbit_arguments,
-    add_physics_arguments,
-    add_record_arguments,
-    add_runtime_arguments,
-    add_visibility_arguments,
-    camera_file_from_args,
     check_output_file,
     check_output_folder,
-    check_up_against_cameras,
-    check_visibility_arguments,
     dataset_inputs,
-    frame_hint,
     load_gaussians_checked,
-    orbit_cameras_logged,
-    orbit_from_args,
+)
+from .frame import check_up_against_cameras, frame_hint, up_from_args, warn_frame
+from .groups import (
+    add_frame_arguments,
+    add_physics_arguments,
+    add_runtime_arguments,
     physics_config_class,
     physics_config_from_args,
     probe_overrides,
-    record_config_from_args,
-    result_overridden_options,
-    save_diverged,
-    up_from_args,
-    warn_frame,
 )
+from .results import add_record_arguments, record_config_from_args, result_overridden_options, save_diverged
 
 __all__ = [
     "CAMERAS_HELP",
