@@ -7,12 +7,12 @@ _EXPORTS = {
     **dict.fromkeys(
         (
             "ActiveRun",
+            "Reached",
             "RunState",
             "anchor_direction",
             "biased_initial_views",
             "config_differences",
             "dataset_up",
-            "is_empty_solid",
             "load_active_dataset",
             "planner_seed",
             "prepare_run_dir",
@@ -20,6 +20,7 @@ _EXPORTS = {
         ),
         "loop",
     ),
+    **dict.fromkeys(("ProbeRun", "is_empty_solid", "probe_run"), "probes"),
     **dict.fromkeys(("PARTS", "round_timing", "run_timing", "timing_line", "visual_name"), "timing"),
 }
 __all__ = sorted(_EXPORTS)

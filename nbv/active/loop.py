@@ -64,14 +64,13 @@ from tqdm import tqdm
 from fluidsim.files import remove_stale_temps
 from nbv import scores
 from nbv.active.config import CHECKPOINT_VERSION, RUN_FILES, ActiveConfig
+from nbv.active.probes import probe_run
 from nbv.active.timing import round_timing, run_timing
 from nbv.coverage import coverage_line, ranking_agreement, view_parts
 from nbv.io import json_safe, write_atomic, write_json_atomic
-from nbv.physics import simulate_gaussians
 from nbv.physics.scene_frame import describe_auto_up
-from nbv.physics.solidify import is_empty_solid
 from nbv.physics.thin import thin_or_open_gaussians
-from nbv.plan import PLANNERS, PlanningContext, ProbeFields, make_planner, reads_empty_scene
+from nbv.plan import PLANNERS, Planner, PlanningContext, ProbeFields, make_planner, reads_empty_scene
 from recon.datasets import load_dataset
 from recon.frames import up_from_cameras
 from recon.gaussians import GaussianSet
@@ -164,6 +163,26 @@ def parts_summary(parts: dict) -> str:
     if "agreement" in parts:
         text += f", physics-part rank {parts['pick_physics_rank']}; {coverage_line(parts['agreement'])}"
     return text
+
+
+@dataclass
+class Reached:
+    """A state of a run (:meth:`ActiveRun.reach`): the model trained before the pick of round ``round``.
+
+    Attributes:
+        trainer: trained as the loop trains before that pick (its ``state_dict`` is the state's model).
+        selected: the ``n_selected`` views selected so far (ids of the train split).
+        round: the round whose pick is next (0-based; :func:`planner_seed` of the run's seed and it seeds it).
+        context: that round's planning context, as the loop builds it (the probes, their fields and the solid's
+            mask of the selection physics, run when read).
+        record: what the context's callables noted (probe and mask times).
+    """
+
+    trainer: Trainer
+    selected: list[int]
+    round: int
+    context: PlanningContext
+    record: dict
 
 
 @dataclass
@@ -262,11 +281,13 @@ def dataset_up(spec: str | tuple[float, float, float] | None, dataset) -> str | 
 
 
 class ActiveRun:
-    """One active-reconstruction run in a folder: :meth:`run` executes or resumes it.
+    """One active-reconstruction run in a folder: :meth:`run` executes or resumes it; :meth:`reach` replays its
+    rounds in memory up to a state (the oracle study measures there).
 
     Args:
         dataset_path: Blender or COLMAP dataset (its train split is the candidate set).
-        run_dir: output folder (see the module docstring).
+        run_dir: output folder (see the module docstring); None for a run that only reaches states (:meth:`reach`) and
+            writes nothing.
         config: the run's settings.
         physics_fn: per-Gaussian D_g [N] of a Gaussian set; default: the five probes of ``config.physics``
             (needs an initialised Taichi runtime). Tests pass a cheap stand-in.
@@ -281,7 +302,7 @@ class ActiveRun:
     def __init__(
         self,
         dataset_path: str | Path,
-        run_dir: str | Path,
+        run_dir: str | Path | None,
         config: ActiveConfig,
         *,
         physics_fn: Callable[[GaussianSet], torch.Tensor] | None = None,
@@ -304,7 +325,7 @@ class ActiveRun:
         if config.method not in PLANNERS:
             raise ValueError(f"unknown method {config.method!r}; use one of {sorted(PLANNERS)}")
         self.config = config
-        self.run_dir = Path(run_dir)
+        self.run_dir = None if run_dir is None else Path(run_dir)
         self.dataset_path = Path(dataset_path)
         self.device = device
         self.on_round = on_round
@@ -317,7 +338,9 @@ class ActiveRun:
             log.info("%s does not read the empty-scene probes: the rounds run without them", config.method)
             self.physics_config = replace(self.physics_config, empty_reference=False)
         self.physics_fn = physics_fn
-        self.resumable = prepare_run_dir(self.run_dir, _dataset_run_config(self.dataset_path, config), overwrite)
+        self.resumable = self.run_dir is not None and prepare_run_dir(
+            self.run_dir, _dataset_run_config(self.dataset_path, config), overwrite
+        )
         self.views = [view_to(v, device) for v in self.dataset.train]
         self.cameras = [v.camera for v in self.dataset.train]
         self.extent = scene_extent(self.cameras)
@@ -357,25 +380,12 @@ class ActiveRun:
                 store["fields"] = ProbeFields(("custom",), d.reshape(1, -1))
                 return d
 
-            try:
-                res = simulate_gaussians(
-                    gaussians, self.physics_config, progress=self.progress, source=f"round {record['round']}"
-                )
-            except ValueError as exc:
-                if not is_empty_solid(exc):
-                    raise
-                # A barely trained reconstruction can be too transparent to form any solid: no divergence
-                # anywhere, so the fused pick falls back to the visual ranking (all S(T) = 0).
-                log.warning("round %d: %s; D_g = 0 for this selection", record["round"], exc)
-                record["physics"] = {"seconds": time.perf_counter() - t0, "error": str(exc)}
-                zeros = torch.zeros(gaussians.num, dtype=torch.float64)
-                store["fields"] = ProbeFields(("none",), zeros.reshape(1, -1), zeros.reshape(1, -1))
-                return zeros
-            store["fields"] = ProbeFields(
-                tuple(res.directions),
-                torch.from_numpy(res.per_probe),
-                None if res.empty_per_probe is None else torch.from_numpy(res.empty_per_probe),
-            )
+            probes = probe_run(gaussians, self.physics_config, f"round {record['round']}", self.progress)
+            store["fields"] = probes.fields
+            res = probes.result
+            if res is None:
+                record["physics"] = {"seconds": time.perf_counter() - t0, "error": probes.error}
+                return probes.divergence
             covs = torch.from_numpy(res.covariances)
             record["physics"] = {
                 "seconds": time.perf_counter() - t0,
@@ -387,7 +397,7 @@ class ActiveRun:
                     for i, d in enumerate(res.directions)
                 },
             }
-            return torch.from_numpy(res.divergence)
+            return probes.divergence
 
         return run
 
@@ -413,6 +423,67 @@ class ActiveRun:
             return fields["fields"]
 
         return get
+
+    def _train_round(self, trainer: Trainer | None, selected: list[int], r: int, n: int) -> tuple[Trainer, dict]:
+        """Step 1 of round ``r``: train ``n x iterations_per_view`` iterations on the ``n`` selected views (a fresh
+        trainer in reset mode). Returns the trainer and the training record."""
+        iters = n * self.config.iterations_per_view
+        if self.config.mode == "reset":
+            trainer = self.new_trainer(max(iters, 1))
+        return trainer, self._train(trainer, [self.views[i] for i in selected], iters, f"round {r + 1} train")
+
+    def _context(self, trainer: Trainer, selected: list[int], r: int, n: int, record: dict, fields: dict):
+        """Step 2 of round ``r``: what the planner sees (the probes, their fields and the solid's mask run only when
+        the planner asks for them, noting their times in ``record``; the fields go to ``fields["fields"]``)."""
+        remaining = [i for i in range(len(self.views)) if i not in set(selected)]
+        physics = self._physics(record, fields)
+        return PlanningContext(
+            gaussians=trainer.gaussians,
+            train_views=[self.views[i] for i in selected],
+            candidates=[self.cameras[i] for i in remaining],
+            candidate_ids=remaining,
+            n_selected=n,
+            budget=self.config.budget,
+            background=self.background,
+            physics=physics,
+            round=r,
+            occlusion=self.config.occlusion,
+            probe_fields=self._probe_fields(physics, fields),
+            sh_degree=trainer.active_sh_degree,
+            solid_mask=self._solid_mask(record),
+        )
+
+    def _planner(self, r: int) -> Planner:
+        c = self.config
+        return make_planner(c.method, **{**dict(c.planner), "seed": planner_seed(c.seed, r)})
+
+    def reach(self, n_selected: int, picks: Sequence[int] = ()) -> Reached:
+        """Replay the rounds in memory (no file is written) up to the state of ``n_selected`` views: the rounds
+        before it train and pick as :meth:`run` does, the state's round trains and stops before its pick.
+
+        Args:
+            n_selected: the state, a round's ``n_selected`` (``config.rounds()``).
+            picks: known picks of this run (the selected ids in order, initial views first): where they reach, the
+                planner is not asked, its pick is taken from them (the training is replayed all the same).
+        Returns:
+            :class:`Reached`.
+        """
+        c = self.config
+        if n_selected not in c.rounds():
+            raise ValueError(f"reach: {n_selected} selected views is not a round of this run (rounds {c.rounds()})")
+        selected = self.initial_ids()
+        trainer = self.new_trainer(c.total_iterations) if c.mode == "continue" else None
+        for r, n in enumerate(c.rounds()):
+            trainer, _ = self._train_round(trainer, selected, r, n)
+            record: dict[str, Any] = {"round": r, "n_selected": n}
+            context = self._context(trainer, selected, r, n, record, {})
+            if n == n_selected:
+                return Reached(trainer, selected, r, context, record)
+            if len(picks) > n:
+                selected.append(int(picks[n]))
+                continue
+            selected.append(context.candidate_ids[self._planner(r).select(context).pick])
+        raise AssertionError("unreachable: n_selected is a round")
 
     def _train(self, trainer: Trainer, views: list, iterations: int, label: str) -> dict:
         if iterations <= 0:
@@ -504,6 +575,8 @@ class ActiveRun:
     def run(self) -> dict:
         """Run (or resume) the loop; returns the rounds.json content."""
         c = self.config
+        if self.run_dir is None:
+            raise ValueError("ActiveRun.run needs a run folder (run_dir); a run without one can only reach states")
         t_start = time.perf_counter()
         stale = remove_stale_temps(self.run_dir)  # left by a run killed at once (SIGKILL): this run owns the folder
         if stale:
@@ -524,32 +597,13 @@ class ActiveRun:
             if r < len(state.rounds):
                 continue
             t0, cpu0 = time.perf_counter(), time.process_time()
-            train_views = [self.views[i] for i in state.selected]
-            iters = n * c.iterations_per_view
-            if c.mode == "reset":
-                trainer = self.new_trainer(max(iters, 1))
-            training = self._train(trainer, train_views, iters, f"round {r + 1} train")
+            trainer, training = self._train_round(trainer, state.selected, r, n)
             training_seconds = time.perf_counter() - t0
-            remaining = [i for i in range(len(self.views)) if i not in set(state.selected)]
             record: dict[str, Any] = {"round": r, "n_selected": n, "training": training}
             fields: dict = {}
-            physics = self._physics(record, fields)
-            context = PlanningContext(
-                gaussians=trainer.gaussians,
-                train_views=train_views,
-                candidates=[self.cameras[i] for i in remaining],
-                candidate_ids=remaining,
-                n_selected=n,
-                budget=c.budget,
-                background=self.background,
-                physics=physics,
-                round=r,
-                occlusion=c.occlusion,
-                probe_fields=self._probe_fields(physics, fields),
-                sh_degree=trainer.active_sh_degree,
-                solid_mask=self._solid_mask(record),
-            )
-            planner = make_planner(c.method, **{**dict(c.planner), "seed": planner_seed(c.seed, r)})
+            context = self._context(trainer, state.selected, r, n, record, fields)
+            remaining = context.candidate_ids
+            planner = self._planner(r)
             t_plan = time.perf_counter()
             sel = planner.select(context)
             if not 0 <= sel.pick < len(remaining):

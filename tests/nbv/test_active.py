@@ -97,6 +97,25 @@ def straight_run(tiny_dataset, tmp_path_factory):
     return cfg, run, run_active(tiny_dataset, run, cfg, progress=False)
 
 
+def test_reach_replays_the_rounds_in_memory(straight_run, tiny_dataset, tmp_path, monkeypatch):
+    """ActiveRun.reach, without a run folder: the run's picks up to a state, and that round's context."""
+    from nbv.active import ActiveRun
+
+    cfg, _, rounds = straight_run
+    monkeypatch.chdir(tmp_path)
+    active = ActiveRun(tiny_dataset, None, cfg, progress=False)
+    reached = active.reach(4)
+    assert reached.round == 2 and reached.selected == rounds["selected"][:4]
+    assert reached.context.candidate_ids == rounds["rounds"][2]["candidates"]
+    assert reached.trainer.iteration == (2 + 3 + 4) * cfg.iterations_per_view  # continue mode
+    assert active.reach(3, picks=rounds["selected"]).selected == rounds["selected"][:3]  # known picks
+    assert list(tmp_path.iterdir()) == []  # nothing written
+    with pytest.raises(ValueError, match="needs a run folder"):
+        active.run()
+    with pytest.raises(ValueError, match="not a round"):
+        active.reach(5)
+
+
 def test_round_log_and_outputs(straight_run):
     cfg, run, rounds = straight_run
     logged = json.loads((run / "rounds.json").read_text())
