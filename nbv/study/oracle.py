@@ -1,15 +1,18 @@
 """The oracle: what every view-scoring rule is worth against the view that actually helps.
 
 A *state* of the active loop (:mod:`nbv.active`) is the set of views selected so far and the model trained on them:
-the biased initial views plus the picks of a planner (FisherRF by default), trained exactly as the loop trains before
-its selection round with that many views. At a state the study
+the biased initial views plus the picks of a planner (FisherRF by default, any registered planner), reached by the
+loop itself (:meth:`nbv.active.ActiveRun.reach`: its training, its planners and their contexts) before its selection
+round with that many views. At a state the study
 
 1. trains a copy of the model once per remaining candidate, for M iterations (``horizon``) with that candidate added
-   to the selected views, and once without. Every copy starts from the same trainer state (parameters, Adam moments,
-   iteration, RNG), so they share the seed and the schedule. The candidate's **oracle gain** is the difference in
-   mean test PSNR (dB) with and without it; the SSIM gain is recorded too;
+   to the selected views, and once without (:func:`copy_gains`). Every copy starts from the same trainer state
+   (parameters, Adam moments, iteration, RNG), so they share the seed and the schedule. The candidate's **oracle
+   gain** is the difference in mean test PSNR (dB) with and without it (the image target, :func:`image_target`); the
+   SSIM gain is recorded too;
 2. scores every remaining candidate with every rule of :data:`nbv.study.oracle_config.RULES` (the physics rules once
-   per probe setting);
+   per probe setting, through the probe run and the per-Gaussian values the planners use:
+   :func:`nbv.active.probes.probe_run`, :func:`nbv.plan.fused.per_gaussian_values`);
 3. with a mesh, computes the per-Gaussian calibration (:mod:`nbv.study.calibration`).
 
 Each state is written to ``OUTPUT/states/<scene>/seed<k>/state<n>.json`` (atomically), so an interrupted study
@@ -34,6 +37,8 @@ import logging
 import time
 from collections import defaultdict
 from collections.abc import Callable, Sequence
+from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -41,27 +46,28 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from nbv.active import ActiveConfig, dataset_up, is_empty_solid
-from nbv.active.loop import biased_initial_views, load_active_dataset, planner_seed
+from nbv.active import ActiveRun, planner_seed
+from nbv.active.probes import ProbeRun, probe_run
 from nbv.io import json_safe, write_json_atomic, write_text_atomic
-from nbv.physics import PhysicsConfig, simulate_gaussians
+from nbv.physics import PhysicsConfig
 from nbv.physics.thin import thin_or_open, thin_or_open_gaussians
-from nbv.plan import PlanningContext, ProbeFields, fused_k, make_planner, uses_physics
+from nbv.plan import PlanningContext, fused_k
 from nbv.plan.fisher import FisherPlanner
 from nbv.plan.fisher_info import FisherConfig, view_fisher
-from nbv.plan.fused import balanced_scores, excess_divergence, per_probe_normalised
+from nbv.plan.fused import balanced_scores, per_gaussian_values
 from nbv.plan.fvs import farthest_view_distances
-from nbv.plan.physics import physics_view_scores, shuffled_divergence
+from nbv.plan.physics import physics_view_scores
+from nbv.plan.rules import VALUES
 from nbv.plan.variance import VariancePlanner
 from nbv.plan.variance_model import VarianceConfig
+from nbv.ranking import spearman
 from nbv.study import calibration as cal
-from nbv.study.convergence import spearman
 from nbv.study.oracle_config import RULES, OracleConfig, rule_of
 from nbv.study.oracle_summary import format_summary, summarise
 from recon.datasets import load_dataset
 from recon.gaussians import GaussianSet
 from recon.mesh_render import load_mesh
-from recon.train import Trainer, evaluate, initial_gaussians, scene_extent, view_to
+from recon.train import Trainer, evaluate, view_to
 
 log = logging.getLogger(__name__)
 
@@ -166,61 +172,37 @@ def _stored(path: Path, config: dict) -> dict | None:
 
 
 # ---- probes and rules --------------------------------------------------------------------------------
-class ProbeRun(NamedTuple):
-    """One probe run at a state: D_g [N] (float64, 1/s), the per-probe fields, and [N] bool where the solid is
-    thin or open (:func:`nbv.physics.thin.thin_or_open`; every Gaussian when they form no solid). A run of the
-    solid only (:func:`solid_run`, for rules that read only the thin mask) has no D_g and no fields (None)."""
+class SettingRun(NamedTuple):
+    """One probe setting at a state: its probe run (:func:`nbv.active.probes.probe_run`; None where the setting's
+    rules read the solid only) and [N] bool where the solid is thin or open (:func:`nbv.physics.thin.thin_or_open`;
+    every Gaussian when they form no solid)."""
 
-    divergence: torch.Tensor | None
-    fields: ProbeFields | None
+    probes: ProbeRun | None
     thin: torch.Tensor
 
 
-def probe_run(gaussians: GaussianSet, physics: PhysicsConfig, source: str = "") -> ProbeRun:
-    """The probes of one setting on ``gaussians``; D_g = 0 when the Gaussians form no solid (as the active loop
-    does for a barely trained reconstruction)."""
-    try:
-        res = simulate_gaussians(gaussians, physics, progress=False, source=source)
-    except ValueError as exc:
-        if not is_empty_solid(exc):
-            raise
-        log.warning("%s: %s; D_g = 0", source, exc)
-        zeros = torch.zeros(gaussians.num, dtype=torch.float64)
-        fields = ProbeFields(("none",), zeros.reshape(1, -1), zeros.reshape(1, -1))
-        return ProbeRun(zeros, fields, torch.ones(gaussians.num, dtype=torch.bool))
-    fields = ProbeFields(
-        tuple(res.directions),
-        torch.from_numpy(res.per_probe),
-        None if res.empty_per_probe is None else torch.from_numpy(res.empty_per_probe),
-    )
+def setting_run(gaussians: GaussianSet, physics: PhysicsConfig, probes: bool, source: str) -> SettingRun:
+    """The probes of one setting on ``gaussians`` and the thin-or-open mask of their solid; with ``probes`` False
+    the solid alone (:func:`nbv.physics.thin.thin_or_open_gaussians`, as the ``+thin-area`` planners read it)."""
+    if not probes:
+        return SettingRun(None, thin_or_open_gaussians(gaussians, physics))
+    run = probe_run(gaussians, physics, source)
+    res = run.result
+    if res is None:
+        return SettingRun(run, torch.ones(gaussians.num, dtype=torch.bool))
     thin = thin_or_open(res.solid, 2.0 * physics.particle_radius, res.means, res.reach)
-    return ProbeRun(torch.from_numpy(res.divergence).to(torch.float64), fields, torch.from_numpy(thin))
+    return SettingRun(run, torch.from_numpy(thin))
 
 
-def solid_run(gaussians: GaussianSet, physics: PhysicsConfig) -> ProbeRun:
-    """The solid of one setting on ``gaussians`` and its thin-or-open mask, without the fluid: all that the rules
-    reading only the mask (``thinmask``) need (:func:`nbv.physics.thin.thin_or_open_gaussians`, as the
-    ``+thin-area`` planners do)."""
-    return ProbeRun(None, None, thin_or_open_gaussians(gaussians, physics))
-
-
-def rule_values(values: str, run: ProbeRun, seed: int, round_index: int) -> torch.Tensor:
-    """The per-Gaussian values v_g of a physics rule (``RULES[...].values``)."""
-    if values == "thinmask":
-        return run.thin.to(torch.float64)
-    if run.divergence is None:
-        raise ValueError(f"rule_values: {values!r} needs the probes; this run has the solid only")
-    if values == "divergence":
-        return run.divergence
-    if values == "shuffled":
-        return shuffled_divergence(run.divergence, seed, round_index)
-    if values == "excess":
-        return excess_divergence(run.fields)
-    if values == "perprobe":
-        return per_probe_normalised(run.fields.per_probe)
-    if values == "thin":
-        return torch.where(run.thin, run.divergence, torch.zeros_like(run.divergence))
-    raise ValueError(f"rule_values: {values!r} is not a physics value")
+def setting_context(context: PlanningContext, run: SettingRun) -> PlanningContext:
+    """``context`` reading one setting's run: its D_g, its per-probe fields and its thin-or-open mask."""
+    probes = run.probes
+    return replace(
+        context,
+        physics=None if probes is None else lambda gaussians: probes.divergence,
+        probe_fields=None if probes is None else lambda gaussians: probes.fields,
+        solid_mask=lambda gaussians: run.thin,
+    )
 
 
 def score_rules(
@@ -235,8 +217,8 @@ def score_rules(
         seed: the planner seed of this round.
         shortlist_k: K of FisherRF's greedy shortlist.
     Returns:
-        (rule label -> [C] scores, FisherRF's greedy shortlist (positions), extras: the per-setting D_g and fields,
-        the Fisher train diagonal, seconds per rule family).
+        (rule label -> [C] scores, FisherRF's greedy shortlist (positions), extras: the per-setting runs
+        (:class:`SettingRun`), seconds per rule family).
     """
     g, cams = context.gaussians, context.candidates
     count = len(cams)
@@ -256,34 +238,33 @@ def score_rules(
     if "random" in wanted:
         scores["random"] = np.random.default_rng([seed, 7]).random(count).tolist()
     t0 = time.perf_counter()
-    ones = torch.ones(g.num, dtype=torch.float64)
+    ones = per_gaussian_values("area", context, seed)
     coverage = {occ: physics_view_scores(g, cams, ones, occlusion=occ) for occ in (False, True)}
-    for name in ("coverage", "coverage-occ"):
-        if name in wanted:
-            scores[name] = coverage[RULES[name].depth_test]
-    clear = 1.0 - g.opacities.detach().to(torch.float64)
-    for name in ("transparent", "transparent-occ"):
-        if name in wanted:
-            scores[name] = physics_view_scores(g, cams, clear, occlusion=RULES[name].depth_test)
+    for name, rule in RULES.items():  # the per-Gaussian rules without probes: the coverages, the transparencies
+        if name not in wanted or not rule.per_gaussian or rule.physics:
+            continue
+        if rule.values == "area":
+            scores[name] = coverage[rule.depth_test]
+        else:
+            v = per_gaussian_values(rule.values, context, seed, name)
+            scores[name] = physics_view_scores(g, cams, v, occlusion=rule.depth_test)
     seconds["coverage"] = time.perf_counter() - t0
-    fields_out = {}
+    runs = {}
     for setting, pcfg in physics.items():
         labels = [label for label in config.physics_rules() if label.endswith(f":{setting}")]
         if not labels:
             continue
         t0 = time.perf_counter()
-        if all(rule_of(label).values == "thinmask" for label in labels):
-            run = solid_run(g, pcfg)
-        else:
-            run = probe_run(g, pcfg, source=f"probe setting {setting}")
+        probes = any(VALUES[rule_of(label).values].probes for label in labels)
+        runs[setting] = run = setting_run(g, pcfg, probes, f"probe setting {setting}")
         t1 = time.perf_counter()
-        fields_out[setting] = run
+        at = setting_context(context, run)
         cache: dict[tuple[str, bool], list[float]] = {}
         for label in labels:
             rule = rule_of(label)
             key = (rule.values, rule.depth_test)
             if key not in cache:
-                v = rule_values(rule.values, run, seed, context.round)
+                v = per_gaussian_values(rule.values, at, seed, label)
                 cache[key] = physics_view_scores(g, cams, v, occlusion=rule.depth_test)
             s, a = cache[key], coverage[rule.depth_test]
             if rule.combine == "balanced":
@@ -293,10 +274,62 @@ def score_rules(
             scores[label] = list(s)
         seconds[f"probes:{setting}"] = t1 - t0
         seconds[f"scores:{setting}"] = time.perf_counter() - t1
-    return scores, list(shortlist), {"fields": fields_out, "seconds": seconds}
+    return scores, list(shortlist), {"runs": runs, "seconds": seconds}
 
 
 # ---- the oracle --------------------------------------------------------------------------------------
+def copy_gains(
+    new_trainer: Callable[[], Trainer],
+    state: dict,
+    train_views: list,
+    candidate_views: list,
+    horizon: int,
+    measure: Callable[[Trainer], dict[str, float]],
+    progress: Callable[[], None] | None = None,
+) -> dict[str, Any]:
+    """Train one copy per candidate (and one without) for ``horizon`` iterations from ``state``; measure each.
+
+    Every copy starts from the same trainer state (parameters, Adam moments, iteration, RNG), so they share the seed
+    and the schedule. A candidate's gain in a metric is the copy's value with it minus the value without.
+
+    Args:
+        new_trainer: builds a Trainer of the run's config (its state is replaced by ``state``).
+        state: :meth:`recon.train.Trainer.state_dict` of the state's model.
+        train_views: the selected views. candidate_views: the C remaining views (their images are used here only).
+        horizon: M iterations per copy.
+        measure: a trained copy -> {metric: value} (a target: :func:`image_target`).
+        progress: called after each copy.
+    Returns:
+        per metric m: ``m_base`` (the copy without a candidate), ``m`` [C] and ``gain_m`` [C].
+    """
+
+    def run(views: list) -> dict[str, float]:
+        trainer = new_trainer()
+        trainer.load_state_dict(copy.deepcopy(state))
+        trainer.train(views, horizon)
+        metrics = measure(trainer)
+        if progress is not None:
+            progress()
+        return metrics
+
+    base = run(list(train_views))
+    per = [run(list(train_views) + [view]) for view in candidate_views]
+    out: dict[str, Any] = {f"{m}_base": base[m] for m in base}
+    out.update({m: [p[m] for p in per] for m in base})
+    out.update({f"gain_{m}": [p[m] - base[m] for p in per] for m in base})
+    return out
+
+
+def image_target(test_views: list, background: Sequence[float]) -> Callable[[Trainer], dict[str, float]]:
+    """The image target of a copy: its mean test PSNR (dB) and SSIM over the held-out views."""
+
+    def measure(trainer: Trainer) -> dict[str, float]:
+        metrics = evaluate(trainer.gaussians, test_views, background, backend=trainer.backend)
+        return {"psnr": metrics["psnr"], "ssim": metrics["ssim"]}
+
+    return measure
+
+
 def oracle_gains(
     new_trainer: Callable[[], Trainer],
     state: dict,
@@ -307,42 +340,13 @@ def oracle_gains(
     horizon: int,
     progress: Callable[[], None] | None = None,
 ) -> dict[str, Any]:
-    """Train one copy per candidate (and one without) for ``horizon`` iterations from ``state``; their test metrics.
+    """The oracle gains of the image target (:func:`copy_gains` measured by :func:`image_target`).
 
-    Args:
-        new_trainer: builds a Trainer of the run's config (its state is replaced by ``state``).
-        state: :meth:`recon.train.Trainer.state_dict` of the state's model.
-        train_views: the selected views. candidate_views: the C remaining views (their images are used here only).
-        test_views: held-out views. background: the dataset background.
-        horizon: M iterations per copy.
-        progress: called after each copy.
     Returns:
         {"psnr_base", "ssim_base", "psnr": [C], "ssim": [C], "gain_psnr": [C] dB, "gain_ssim": [C]}.
     """
-
-    def run(views: list) -> dict:
-        trainer = new_trainer()
-        trainer.load_state_dict(copy.deepcopy(state))
-        trainer.train(views, horizon)
-        metrics = evaluate(trainer.gaussians, test_views, background, backend=trainer.backend)
-        if progress is not None:
-            progress()
-        return metrics
-
-    base = run(list(train_views))
-    psnrs, ssims = [], []
-    for view in candidate_views:
-        m = run(list(train_views) + [view])
-        psnrs.append(m["psnr"])
-        ssims.append(m["ssim"])
-    return {
-        "psnr_base": base["psnr"],
-        "ssim_base": base["ssim"],
-        "psnr": psnrs,
-        "ssim": ssims,
-        "gain_psnr": [p - base["psnr"] for p in psnrs],
-        "gain_ssim": [s - base["ssim"] for s in ssims],
-    }
+    target = image_target(test_views, background)
+    return copy_gains(new_trainer, state, train_views, candidate_views, horizon, target, progress)
 
 
 def fisher_diagonal(gaussians: GaussianSet, cameras: list, background: torch.Tensor) -> torch.Tensor:
@@ -403,6 +407,21 @@ def calibrate(
 
 
 # ---- one state ---------------------------------------------------------------------------------------
+def calibration_signals(runs: dict[str, SettingRun], context: PlanningContext, seed: int) -> dict[str, torch.Tensor]:
+    """The per-Gaussian physics signals of the calibration, per probe setting that ran the probes: D_g, each probe
+    normalised, the excess over the empty scene (when run) and D_g where the solid is thin or open."""
+    signals = {}
+    for setting, run in runs.items():
+        if run.probes is None:
+            continue
+        at = setting_context(context, run)
+        names = {"D_g": "fluid", "perprobe": "perprobe", "excess": "excess", "thin": "thin"}
+        if run.probes.fields.empty_per_probe is None:
+            del names["excess"]
+        signals.update({f"{k}:{setting}": per_gaussian_values(v, at, seed) for k, v in names.items()})
+    return signals
+
+
 def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
     """Reach one state, measure its oracle gains, score the rules, calibrate; write and return the state record.
 
@@ -415,97 +434,26 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
         return stored
     config = OracleConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in job["config"].items()})
     seed, target = int(job["seed"]), int(job["n"])
-    acfg: ActiveConfig = config.active_config(seed)
-    ds = load_active_dataset(job["dataset"], acfg)
-    up = dataset_up(acfg.up, ds)
-    views = [view_to(v, "cpu") for v in ds.train]
-    tests = [view_to(v, "cpu") for v in ds.test]
-    cameras = [v.camera for v in views]
-    background = torch.tensor(ds.background, dtype=torch.float32)
-    extent = scene_extent(cameras)
-    initial = initial_gaussians(acfg.train_config(acfg.total_iterations), cameras, ds.points, ds.point_colors)
-
-    def new_trainer(iterations: int = acfg.total_iterations) -> Trainer:
-        return Trainer(
-            initial, acfg.train_config(iterations), extent=extent, data_background=ds.background, backend=acfg.backend
-        )
-
-    selected = (
-        list(acfg.initial_ids)
-        if acfg.initial_ids is not None
-        else biased_initial_views(cameras, acfg.initial_count, acfg.seed, acfg.initial_direction)
-    )
-    known = _known_picks(job, config)
-    loop_physics = PhysicsConfig.from_dict({**acfg.physics.to_dict(), "up": up})
-    t_start = time.perf_counter()
-    trainer = new_trainer() if acfg.mode == "continue" else None
-    round_index = 0
-    for round_index, n in enumerate(acfg.rounds()):
-        if acfg.mode == "reset":
-            trainer = new_trainer(max(n * acfg.iterations_per_view, 1))
-        iters = n * acfg.iterations_per_view
-        if iters:
-            trainer.train([views[i] for i in selected], iters)
-        if n == target:
-            break
-        if len(known) > n:
-            selected.append(known[n])
-            continue
-        remaining = [i for i in range(len(views)) if i not in set(selected)]
-        ps = planner_seed(seed, round_index)
-        context = PlanningContext(
-            gaussians=trainer.gaussians,
-            train_views=[views[i] for i in selected],
-            candidates=[cameras[i] for i in remaining],
-            candidate_ids=remaining,
-            n_selected=n,
-            budget=acfg.budget,
-            background=background,
-            round=round_index,
-            occlusion=acfg.occlusion,
-            physics=(lambda gs: probe_run(gs, loop_physics, "reaching planner").divergence)
-            if uses_physics(config.planner)
-            else None,
-            probe_fields=(lambda gs: probe_run(gs, loop_physics, "reaching planner").fields)
-            if uses_physics(config.planner)
-            else None,
-            sh_degree=trainer.active_sh_degree,
-        )
-        pick = make_planner(config.planner, **{**dict(acfg.planner), "seed": ps}).select(context).pick
-        selected.append(remaining[pick])
-    t_reach = time.perf_counter() - t_start
-
-    remaining = [i for i in range(len(views)) if i not in set(selected)]
-    ps = planner_seed(seed, round_index)
-    g = trainer.gaussians
-    context = PlanningContext(
-        gaussians=g,
-        train_views=[views[i] for i in selected],
-        candidates=[cameras[i] for i in remaining],
-        candidate_ids=remaining,
-        n_selected=target,
-        budget=acfg.budget,
-        background=background,
-        round=round_index,
-        occlusion=acfg.occlusion,
-        sh_degree=trainer.active_sh_degree,
-    )
-    k = config.top_k if config.top_k is not None else fused_k(acfg.budget, target)
-    physics = {
-        name: PhysicsConfig.from_dict({**config.probe_config(name).to_dict(), "up": up}) for name in config.probes
-    }
     t0 = time.perf_counter()
-    scores, shortlist, extra = score_rules(config, context, physics, ps, k)
+    active = ActiveRun(job["dataset"], None, config.active_config(seed), progress=False)
+    reached = active.reach(target, _known_picks(job, config))
+    t_reach = time.perf_counter() - t0
+    ds, views, context, selected = active.dataset, active.views, reached.context, reached.selected
+    remaining = context.candidate_ids
+    k = config.top_k if config.top_k is not None else fused_k(active.config.budget, target)
+    t0 = time.perf_counter()
+    ps = planner_seed(seed, reached.round)
+    scores, shortlist, extra = score_rules(config, context, config.probe_configs(active.physics_config.up), ps, k)
     t_rules = time.perf_counter() - t0
     t0 = time.perf_counter()
-    oracle = oracle_gains(
-        new_trainer,
-        trainer.state_dict(),
+    measure = image_target([view_to(v, active.device) for v in ds.test], ds.background)  # what a copy is worth
+    oracle = copy_gains(
+        partial(active.new_trainer, active.config.total_iterations),
+        reached.trainer.state_dict(),
         [views[i] for i in selected],
         [views[i] for i in remaining],
-        tests,
-        ds.background,
         config.horizon,
+        measure,
         progress,
     )
     t_oracle = time.perf_counter() - t0
@@ -518,31 +466,22 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
         "selected": selected,
         "candidates": remaining,
         "candidate_names": [views[i].name for i in remaining],
-        "num_gaussians": g.num,
+        "num_gaussians": context.gaussians.num,
         "shortlist": shortlist,
         "k": k,
         "oracle": oracle,
         "scores": scores,
-        "thin_share": {name: float(run.thin.double().mean()) for name, run in extra["fields"].items()},
+        "thin_share": {name: float(run.thin.double().mean()) for name, run in extra["runs"].items()},
     }
     if config.calibration and ds.mesh_path is not None:
         t0 = time.perf_counter()
-        signals = {}
-        for setting, run in extra["fields"].items():
-            if run.divergence is None:
-                continue
-            signals[f"D_g:{setting}"] = run.divergence
-            signals[f"perprobe:{setting}"] = per_probe_normalised(run.fields.per_probe)
-            if run.fields.empty_per_probe is not None:
-                signals[f"excess:{setting}"] = excess_divergence(run.fields)
-            signals[f"thin:{setting}"] = rule_values("thin", run, seed, 0)
         record["calibration"] = calibrate(
-            g,
+            context.gaussians,
             str(ds.mesh_path),
-            [cameras[i] for i in selected],
-            [cameras[i] for i in remaining],
-            background,
-            signals,
+            [v.camera for v in context.train_views],
+            context.candidates,
+            active.background,
+            calibration_signals(extra["runs"], context, ps),
             scores,
             oracle["gain_psnr"],
             seed,

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import difflib
 import json
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +37,10 @@ from nbv.active import ActiveConfig
 from nbv.active.config import MAX_SEED
 from nbv.physics import PhysicsConfig
 from nbv.plan import PLANNERS
+from nbv.plan.rules import VALUES
 from nbv.study.experiment_config import MAX_JOBS
+
+log = logging.getLogger(__name__)
 
 CONFIG_KEYS = (
     "scenes",
@@ -54,21 +58,15 @@ CONFIG_KEYS = (
     "output",
 )
 
-VALUES = (
-    "fisher",
-    "variance",
-    "fvs",
-    "random",
-    "ones",
-    "transparency",
-    "divergence",
-    "shuffled",
-    "excess",
-    "perprobe",
-    "thin",
-    "thinmask",
-)
-PHYSICS_VALUES = ("divergence", "shuffled", "excess", "perprobe", "thin", "thinmask")
+# The rules that score the candidates themselves; every other rule sums per-Gaussian values v_g over a view
+# (S(T) = sum_g w_g(T) v_g) and names them as the fused planners do (nbv.plan.rules.VALUES).
+VIEW_SCORES = ("fisher", "variance", "fvs", "random")
+# Rule names of the values vocabulary the study once used, still read with a note: old name -> rule.
+OLD_RULE_NAMES = {
+    old + occ: new + occ
+    for old, new in (("divergence", "fluid"), ("ones", "coverage"), ("thinmask", "thin-area"))
+    for occ in ("", "-occ")
+}
 COMBINES = ("sum", "balanced", "ratio")
 
 
@@ -79,12 +77,11 @@ class Rule:
     Attributes:
         name: the rule's name in configs and tables.
         values: what it scores: a visual planner's per-candidate score ("fisher", "variance"), the farthest-view
-            distance ("fvs"), uniform noise ("random"), or S(T) = sum_g w_g(T) v_g of per-Gaussian values v_g:
-            "ones" (the coverage A(T)), "transparency" (1 - opacity: a coverage of the Gaussians the model is
-            unsure of, with no probes), "divergence" (D_g), "shuffled" (D_g permuted), "excess" (over the empty
-            scene), "perprobe" (each probe normalised before the max), "thin" (D_g where the solid is thin or
-            open, 0 elsewhere: :mod:`nbv.physics.thin`), "thinmask" (1 there, 0 elsewhere: the thin rules' own
-            coverage control, which needs the probes' solid but not their fluid).
+            distance ("fvs"), uniform noise ("random") (:data:`VIEW_SCORES`), or S(T) = sum_g w_g(T) v_g of the
+            per-Gaussian values v_g named in :data:`nbv.plan.rules.VALUES`, the fused planners' names: "area" (the
+            coverage A(T)), "transparency" (1 - opacity), "fluid" (D_g), "shuffled", "excess", "perprobe", "thin"
+            (D_g where the solid is thin or open: :mod:`nbv.physics.thin`) and "thin-area" (1 there: the thin
+            rules' own coverage control, which needs the probes' solid but not their fluid).
         depth_test: S(T) counts only the Gaussians the coarse depth test finds unhidden.
         combine: "sum" (S(T)), "balanced" (z(A) + z(S/A) over the candidates) or "ratio" (the physics part
             P(T) = S/A).
@@ -98,13 +95,19 @@ class Rule:
     description: str = ""
 
     def __post_init__(self) -> None:
-        if self.values not in VALUES or self.combine not in COMBINES:
-            raise ValueError(f"Rule {self.name!r}: values must be one of {VALUES} and combine one of {COMBINES}")
+        values = VIEW_SCORES + tuple(VALUES)
+        if self.values not in values or self.combine not in COMBINES:
+            raise ValueError(f"Rule {self.name!r}: values must be one of {values} and combine one of {COMBINES}")
+
+    @property
+    def per_gaussian(self) -> bool:
+        """Whether the rule sums per-Gaussian values (:data:`nbv.plan.rules.VALUES`) over each view."""
+        return self.values in VALUES
 
     @property
     def physics(self) -> bool:
-        """Whether the rule needs the probes."""
-        return self.values in PHYSICS_VALUES
+        """Whether the rule needs a probe setting's run (its fluid, or its solid alone)."""
+        return self.per_gaussian and (VALUES[self.values].probes or VALUES[self.values].solid)
 
     @property
     def control(self) -> str | None:
@@ -126,21 +129,20 @@ class Rule:
 def _physics_rules() -> list[Rule]:
     out = []
     for values, label in (
-        ("divergence", "S(T) of D_g"),
+        ("fluid", "S(T) of D_g"),
         ("shuffled", "S(T) of D_g permuted across the Gaussians"),
         ("excess", "S(T) of the excess over the empty scene"),
         ("perprobe", "S(T) of D_g with every probe normalised"),
         ("thin", "S(T) of D_g where the solid is thin or open"),
-        ("thinmask", "the coverage of the Gaussians where the solid is thin or open (the thin rules' control)"),
+        ("thin-area", "the coverage of the Gaussians where the solid is thin or open (the thin rules' control)"),
     ):
-        base = {"divergence": "fluid", "thinmask": "thin-area"}.get(values, values)
         for occ in (False, True):
             suffix, vis = ("-occ", "depth-tested") if occ else ("", "frustum")
-            out.append(Rule(base + suffix, values, occ, "sum", f"{label}, {vis}"))
+            out.append(Rule(values + suffix, values, occ, "sum", f"{label}, {vis}"))
     for occ in (False, True):
         suffix, vis = ("-occ", "depth-tested") if occ else ("", "frustum")
-        out.append(Rule("balanced" + suffix, "divergence", occ, "balanced", f"z(A) + z(S/A), {vis}"))
-        out.append(Rule("ratio" + suffix, "divergence", occ, "ratio", f"the physics part P(T) = S/A, {vis}"))
+        out.append(Rule("balanced" + suffix, "fluid", occ, "balanced", f"z(A) + z(S/A), {vis}"))
+        out.append(Rule("ratio" + suffix, "fluid", occ, "ratio", f"the physics part P(T) = S/A, {vis}"))
     return out
 
 
@@ -151,8 +153,8 @@ RULES: dict[str, Rule] = {
         Rule("variance", "variance", description="ActiveNeRF variance reduction"),
         Rule("fvs", "fvs", description="farthest view sampling: distance to the nearest selected camera"),
         Rule("random", "random", description="uniform noise (a rule that knows nothing)"),
-        Rule("coverage", "ones", False, description="coverage A(T) = sum w_g, frustum"),
-        Rule("coverage-occ", "ones", True, description="coverage A(T) of the unhidden Gaussians"),
+        Rule("coverage", "area", False, description="coverage A(T) = sum w_g, frustum"),
+        Rule("coverage-occ", "area", True, description="coverage A(T) of the unhidden Gaussians"),
         Rule("transparent", "transparency", False, description="S(T) of 1 - opacity (no probes), frustum"),
         Rule("transparent-occ", "transparency", True, description="S(T) of 1 - opacity (no probes), depth-tested"),
         *_physics_rules(),
@@ -163,6 +165,18 @@ RULES: dict[str, Rule] = {
 def rule_of(label: str) -> Rule:
     """The rule of a reported label (``fluid-occ:s750`` -> ``RULES["fluid-occ"]``)."""
     return RULES[label.partition(":")[0]]
+
+
+def _renamed(rules: Any) -> Any:
+    """``rules`` with the old names (:data:`OLD_RULE_NAMES`) read as the rules they name, with a note in the log."""
+    if isinstance(rules, (str, bytes)) or not isinstance(rules, Sequence):
+        return rules
+    old = [r for r in rules if isinstance(r, str) and r in OLD_RULE_NAMES]
+    if not old:
+        return rules
+    new = [OLD_RULE_NAMES[r] for r in old]
+    log.warning("oracle config: 'rules' %s are old names, read as %s; write the new names", old, new)
+    return [OLD_RULE_NAMES.get(r, r) if isinstance(r, str) else r for r in rules]
 
 
 def _is_int(v: Any, low: int) -> bool:
@@ -205,6 +219,7 @@ class OracleConfig:
     output: str = "out/oracle"
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "rules", _renamed(self.rules))
         for name in ("scenes", "seeds", "states", "rules"):
             v = getattr(self, name)
             if isinstance(v, (str, bytes)) or not isinstance(v, Sequence) or len(v) == 0:
@@ -320,6 +335,10 @@ class OracleConfig:
             return PhysicsConfig.from_dict({**base, **over})
         except (TypeError, ValueError) as exc:
             raise ValueError(f"oracle config: 'probes' setting {name!r}: {exc}") from exc
+
+    def probe_configs(self, up: str | tuple[float, float, float]) -> dict[str, PhysicsConfig]:
+        """Every probe setting's PhysicsConfig (:meth:`probe_config`) with the up direction ``up``."""
+        return {name: PhysicsConfig.from_dict({**self.probe_config(name).to_dict(), "up": up}) for name in self.probes}
 
     def physics_rules(self) -> list[str]:
         """The reported labels of the physics rules, ``RULE:SETTING``, and their coverage controls."""

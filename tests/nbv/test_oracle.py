@@ -211,6 +211,16 @@ def tiny(tmp_path, dataset, **over) -> dict:
     return {**base, **over}
 
 
+def test_old_rule_names_still_load_with_a_note(tmp_path, caplog):
+    """Configs written with the values' old names (divergence, ones, thinmask) read as the rules they name."""
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(tiny(tmp_path, "x", rules=["fisher", "divergence-occ", "ones", "thinmask-occ"])))
+    with caplog.at_level("WARNING", logger="nbv.study.oracle_config"):
+        cfg = OracleConfig.load(path)
+    assert cfg.rules == ("fisher", "fluid-occ", "coverage", "thin-area-occ")
+    assert "old names" in caplog.text and "thinmask-occ" in caplog.text
+
+
 @pytest.mark.parametrize(
     ("over", "key"),
     [
@@ -476,6 +486,25 @@ def test_a_finished_study_resumes_without_training(study):
     ex = InProcess()
     again = run_oracle(config, ex, progress=False)
     assert ex.calls == 0 and again["markdown"] == out["markdown"]
+
+
+def test_a_thin_area_planner_reaches_a_state_with_the_loops_context(tmp_path, tiny_dataset):
+    """The oracle reaches its states through the loop (ActiveRun.reach), whose contexts carry the solid's mask: a
+    +thin-area planner makes the picks, the same pick as on the loop's own context."""
+    from nbv.active import ActiveRun, planner_seed
+    from nbv.study.oracle import plan_jobs, run_state
+
+    over = {"planner": "fisher+thin-area", "states": [3], "rules": ["fisher", "coverage"], "calibration": False}
+    config = OracleConfig(**tiny(tmp_path, tiny_dataset, **over))
+    (job,) = plan_jobs(config)
+    st = run_state(job)
+    acfg = config.active_config(0)
+    reached = ActiveRun(tiny_dataset, None, acfg, progress=False).reach(2)
+    sel = make_planner(acfg.method, **{**dict(acfg.planner), "seed": planner_seed(0, reached.round)}).select(
+        reached.context
+    )
+    assert "solid_mask" in reached.record  # the loop's context ran the mask for the pick
+    assert st["selected"] == reached.selected + [reached.context.candidate_ids[sel.pick]]
 
 
 def test_the_oracle_copies_share_the_schedule(tiny_dataset):

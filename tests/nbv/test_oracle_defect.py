@@ -33,12 +33,13 @@ import numpy as np
 import pytest
 import torch
 
+from nbv.active.probes import probe_run
 from nbv.physics import PhysicsConfig
 from nbv.plan import PlanningContext
 from nbv.plan.fisher import FisherPlanner
 from nbv.plan.fvs import farthest_view_distances
 from nbv.plan.physics import physics_view_scores
-from nbv.study.oracle import oracle_gains, probe_run
+from nbv.study.oracle import oracle_gains
 from recon.camera import Camera
 from recon.datasets import View
 from recon.gaussians import GaussianSet
@@ -145,7 +146,7 @@ def case():
         budget=4,
         background=bg,
     )
-    divergence = probe_run(holed, PROBES).divergence
+    divergence = probe_run(holed, PROBES, "the holed cube").divergence
     ones = torch.ones(holed.num, dtype=torch.float64)
     scores = {
         "fisher": FisherPlanner().rank(ctx, 1)[1],
