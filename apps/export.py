@@ -8,8 +8,6 @@ filled solid of a RESULT.h5 (or the solid of an OUT.h5) as a closed mesh and a v
 RESULT.h5 (or of a Gaussian file, through the same solid and probe setup) as SPlisHSPlasH scenes, one per probe, with
 the solid as a voxel mesh (:mod:`nbv.bench.splash_probe`), so that the reference engine can rerun a probe. Nothing
 is simulated.
-
-This module also holds the ``--export-solid`` options that ``simulate`` and ``score`` share.
 """
 
 from __future__ import annotations
@@ -18,10 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
-FRAME_HELP = (
-    "frame of the solid mesh: sim (simulation metres, Y-up, as RESULT.h5 and glTF) or scene (the "
-    "Gaussians' own frame and units, to overlay the splat); the voxel grid is always in sim metres"
-)
+from .options.solid_export import FRAME_HELP, print_solid_export, solid_export_outputs
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -82,81 +77,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--export-frame", choices=("sim", "scene"), default="sim", help=f"{FRAME_HELP} (default: sim)")
 
 
-def add_solid_export_arguments(p: argparse.ArgumentParser) -> None:
-    """``--export-solid PATH`` and ``--export-frame`` of simulate and score."""
-    g = p.add_argument_group("solid export")
-    g.add_argument(
-        "--export-solid",
-        type=Path,
-        default=None,
-        metavar="PATH",
-        help="also write the filled solid the probes used: a mesh by marching cubes (.ply, .obj, .glb or "
-        ".stl; the voxel grid beside it as <stem>.voxels.h5) or a voxel grid only (.h5): origin, "
-        "spacing (m), occupancy (default: none)",
-    )
-    g.add_argument("--export-frame", choices=("sim", "scene"), default="sim", help=f"{FRAME_HELP} (default: sim)")
-
-
-def solid_export_outputs(path: Path | None) -> dict[str, Path]:
-    """The files ``--export-solid path`` writes, labelled for :func:`fluidsim.files.check_not_input`, after checking
-    the suffix (a ValueError names the option and the suffixes) and that each can be written."""
-    if path is None:
-        return {}
-    from fluidsim.files import check_writable
-    from nbv.export.solid import check_export_path, export_paths
-
-    mesh, grid = export_paths(check_export_path(path))
-    out = {"--export-solid": mesh, "--export-solid voxels": grid} if mesh is not None else {"--export-solid": grid}
-    for p in out.values():
-        check_writable(p)
-    return out
-
-
-def write_solid_export(path: Path | None, result, frame: str = "sim") -> None:
-    """Write the solid of a PhysicsResult to ``path`` (nothing when None) and print what was written."""
-    if path is None:
-        return
-    from nbv.export.solid import export_solid
-
-    info = export_solid(path, result.solid, 2.0 * result.config.particle_radius, result.transform.matrix, frame)
-    print_solid_export(info)
-
-
-def print_solid_export(info: dict) -> None:
-    mesh = (
-        ""
-        if info["mesh"] is None
-        else (
-            f"mesh {info['mesh']} ({'watertight' if info['watertight'] else 'NOT watertight'}, "
-            f"{info['mesh_volume_m3']:.4g} m^3), "
-        )
-    )
-    print(f"solid: {mesh}voxels {info['voxels']} ({info['cells']} cells, {info['volume_m3']:.4g} m^3)")
-
-
-def _solid_of_file(path: Path) -> tuple:
-    """(points m, spacing m, scene_to_sim) of the solid in a RESULT.h5 or an OUT.h5."""
-    import h5py
-    import numpy as np
-
-    from nbv.export.particles import split_boundary
-    from recon.inflate import check_hdf5_sizes
-
-    with h5py.File(path, "r") as f:
-        check_hdf5_sizes(f, str(path))
-        if "solid/x" in f:
-            cfg = json.loads(f.attrs["config"])
-            m = np.asarray(f.attrs["scene_to_sim"], np.float64) if "scene_to_sim" in f.attrs else np.eye(4)
-            return np.asarray(f["solid/x"][()], np.float64), 2.0 * float(cfg["particle_radius"]), m
-        if "boundary/x" in f:
-            scene = json.loads(f.attrs.get("scene", "{}"))
-            solid, _ = split_boundary(f["boundary/x"][()], scene)
-            if "particle_radius" not in scene or not len(solid):
-                raise ValueError(f"--solid: {path} names no particle_radius or has no solid inside its domain")
-            return np.asarray(solid, np.float64), 2.0 * float(scene["particle_radius"]), np.eye(4)
-    raise ValueError(f"--solid: {path} has neither /solid/x (RESULT.h5) nor /boundary/x (OUT.h5)")
-
-
 def _probe_source(path: Path, is_hdf5: bool, quick: bool, up: str) -> tuple:
     """(solid points [M, 3] m, PhysicsConfig) of a RESULT.h5, or of a Gaussian file solidified as ``simulate`` does."""
     import numpy as np
@@ -210,6 +130,7 @@ def run_command(args: argparse.Namespace) -> int:
 
     from fluidsim.files import check_input_file, check_not_input, check_writable
     from nbv.export.particles import check_recorded, check_vtk_source, export_vtk
+    from nbv.export.solid import solid_of_file
 
     check_input_file(args.h5, "H5", "pass an OUT.h5 (fluidgs sim) or a RESULT.h5 (fluidgs simulate)")
     is_hdf5 = h5py.is_hdf5(args.h5)
@@ -249,7 +170,7 @@ def run_command(args: argparse.Namespace) -> int:
         if args.splishsplash.exists() and not args.splishsplash.is_dir():
             raise ValueError(f"--splishsplash {args.splishsplash} exists and is not a folder; name a folder")
         write_splash_scenes(args, is_hdf5, probes)
-    solid = _solid_of_file(args.h5) if args.solid is not None else None
+    solid = solid_of_file(args.h5) if args.solid is not None else None
     if args.vtk is not None:
         info = export_vtk(args.h5, args.vtk, probes, progress=True)
         for name, n in info["series"].items():

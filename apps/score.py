@@ -28,7 +28,6 @@ from pathlib import Path
 from fluidsim.directions import DIRECTIONS
 from fluidsim.files import write_json_atomic
 
-from .export import add_solid_export_arguments, solid_export_outputs, write_solid_export
 from .options import (
     add_camera_arguments,
     add_gaussian_file_arguments,
@@ -47,6 +46,7 @@ from .options import (
     save_diverged,
     warn_frame,
 )
+from .options.solid_export import add_solid_export_arguments, solid_export_outputs, write_solid_export
 
 log = logging.getLogger("fluidgs")
 METRICS = ("max", "mean", *DIRECTIONS)  # --metric: nbv.view_scoring.metric_values

@@ -14,7 +14,6 @@ import argparse
 import logging
 from pathlib import Path
 
-from .export import add_solid_export_arguments, solid_export_outputs, write_solid_export
 from .options import (
     add_gaussian_file_arguments,
     add_physics_arguments,
@@ -26,7 +25,8 @@ from .options import (
     save_diverged,
     warn_frame,
 )
-from .render_frames import add_style_arguments, style_values
+from .options.drawing import add_style_arguments, style_values
+from .options.solid_export import add_solid_export_arguments, solid_export_outputs, write_solid_export
 
 log = logging.getLogger("fluidgs")
 

@@ -26,15 +26,20 @@ Gaussians' frame and units through the inverse of ``scene_to_sim``, so that it o
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import h5py
 import numpy as np
 import trimesh
 from skimage.measure import marching_cubes
 
 from fluidsim.files import write_bytes_atomic
 from nbv.io import atomic_h5
+from recon.inflate import check_hdf5_sizes
+
+from .particles import split_boundary
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".stl")
 GRID_SUFFIXES = (".h5", ".hdf5")
@@ -213,3 +218,28 @@ def export_solid(
         write_mesh(mesh_path, mesh)
     write_voxel_grid(grid_path, grid, scene_to_sim)
     return info
+
+
+def solid_of_file(path: Path, option: str = "--solid") -> tuple[np.ndarray, float, np.ndarray]:
+    """The solid stored in a RESULT.h5 (``/solid/x``) or in an OUT.h5 (the boundary particles inside the domain).
+
+    Args:
+        path: a RESULT.h5 of a probe run or an OUT.h5 of a scene run.
+        option: the option that named the file, for the errors.
+    Returns:
+        (points [M, 3] simulation metres, their lattice spacing 2 r in m, scene_to_sim [4, 4]; the identity for an
+        OUT.h5 or a RESULT.h5 without one).
+    """
+    with h5py.File(path, "r") as f:
+        check_hdf5_sizes(f, str(path))
+        if "solid/x" in f:
+            cfg = json.loads(f.attrs["config"])
+            m = np.asarray(f.attrs["scene_to_sim"], np.float64) if "scene_to_sim" in f.attrs else np.eye(4)
+            return np.asarray(f["solid/x"][()], np.float64), 2.0 * float(cfg["particle_radius"]), m
+        if "boundary/x" in f:
+            scene = json.loads(f.attrs.get("scene", "{}"))
+            solid, _ = split_boundary(f["boundary/x"][()], scene)
+            if "particle_radius" not in scene or not len(solid):
+                raise ValueError(f"{option}: {path} names no particle_radius or has no solid inside its domain")
+            return np.asarray(solid, np.float64), 2.0 * float(scene["particle_radius"]), np.eye(4)
+    raise ValueError(f"{option}: {path} has neither /solid/x (RESULT.h5) nor /boundary/x (OUT.h5)")
