@@ -71,8 +71,8 @@ def run_command(args: argparse.Namespace) -> int:
     from nbv.study.oracle import run_oracle
     from nbv.study.oracle_config import OracleConfig
 
-    from .experiment import make_executor
     from .options import check_output_folder
+    from .options.executor import make_executor
 
     config = OracleConfig.load(args.config)
     if args.output is not None:
