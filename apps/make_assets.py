@@ -88,8 +88,8 @@ def run_command(args: argparse.Namespace) -> int:
 
     from recon.ahmed import write_ahmed
     from recon.datasets import load_dataset
+    from recon.formats.ply import save_gaussians
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
-    from recon.ply import save_gaussians
     from recon.train import TrainConfig, evaluate, train
 
     out = args.output

@@ -93,7 +93,7 @@ def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, check_writable
     from recon.datasets import load_dataset
     from recon.device import torch_device
-    from recon.ply import save_gaussians
+    from recon.formats.ply import save_gaussians
     from recon.train import TrainConfig, evaluate, train, view_to
 
     check_output(args.output)

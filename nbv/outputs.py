@@ -19,7 +19,7 @@ import numpy as np
 from fluidsim.directions import DIRECTIONS
 from fluidsim.recording import probe_to_h5
 from nbv.heatmap import colored_gaussians
-from recon.ply import save_gaussians
+from recon.formats.ply import save_gaussians
 from viz.frames import FrameStyle, render_frames
 
 __all__ = ["divergence_columns", "probe_video", "result_summary", "save_colored_gaussians"]

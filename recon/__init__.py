@@ -27,7 +27,7 @@ _EXPORTS = {
     "detect_format": "formats",
     "load_gaussians": "formats",
     "GaussianSet": "gaussians",
-    "save_gaussians": "ply",
+    "save_gaussians": "formats.ply",
     "RenderOutput": "render",
     "render": "render",
 }

@@ -72,9 +72,9 @@ from nbv.physics.scene_frame import describe_auto_up
 from nbv.physics.thin import thin_or_open_gaussians
 from nbv.plan import PLANNERS, Planner, PlanningContext, ProbeFields, make_planner, reads_empty_scene
 from recon.datasets import load_dataset
+from recon.formats.ply import save_gaussians
 from recon.frames import up_from_cameras
 from recon.gaussians import GaussianSet
-from recon.ply import save_gaussians
 from recon.train import Trainer, initial_gaussians, look_at_point, scene_extent, view_to
 
 log = logging.getLogger(__name__)

@@ -17,8 +17,8 @@ from nbv.orbit import Orbit, orbit_cameras
 from nbv.physics import PhysicsConfig
 from recon.camera_files import load_camera_file
 from recon.formats import load_gaussians
+from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import save_gaussians
 
 
 def _ply(tmp_path, n=400):

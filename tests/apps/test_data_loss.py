@@ -44,8 +44,8 @@ from nbv.physics import (
 )
 from recon.camera import Camera
 from recon.formats import load_gaussians
+from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import save_gaussians
 
 from helpers.paths import REPO as ROOT
 

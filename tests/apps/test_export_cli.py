@@ -12,8 +12,8 @@ import pytest
 import torch
 
 from apps import cli
+from recon.formats.ply import read_ply_vertices, save_gaussians
 from recon.gaussians import SH_C0, GaussianSet
-from recon.ply import read_ply_vertices, save_gaussians
 from viz.colors import UNREACHED_RGB
 
 from helpers.vtk_files import read_pvd, read_vtu

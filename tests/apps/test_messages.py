@@ -32,8 +32,8 @@ from nbv.physics.solidify import (
 )
 from nbv.study.experiment_config import ExperimentConfig
 from nbv.view_scoring import parse_candidates
+from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet, concat
-from recon.ply import save_gaussians
 
 from helpers.paths import TORUS
 

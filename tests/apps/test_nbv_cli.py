@@ -14,8 +14,8 @@ from apps import cli
 from nbv.physics import load_result
 from recon.camera import Camera
 from recon.formats import load_gaussians
+from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import save_gaussians
 from viz.video import video_info
 
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]

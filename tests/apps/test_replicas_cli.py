@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from apps import cli
+from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import save_gaussians
 
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 

@@ -23,8 +23,8 @@ import torch
 
 from apps import cli
 from fluidsim.files import TEMP_NAME, PendingFile, check_writable, remove_stale_temps, remove_unfinished
+from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import save_gaussians
 
 from helpers.paths import REPO
 

@@ -14,8 +14,8 @@ import pytest
 import torch
 
 from recon import formats
+from recon.formats.ply import ply_property_names, save_gaussians
 from recon.gaussians import SH_C0, GaussianSet
-from recon.ply import ply_property_names, save_gaussians
 
 from helpers.format_encoders import encode_compressed_ply, encode_splat, encode_spz
 from helpers.paths import REPO

@@ -337,7 +337,7 @@ def _ksplat_sh_values(rest: np.ndarray, degree: int) -> np.ndarray:
     """[N, 3 (K-1)] SH values in the .ksplat record order (band, then channel, then coefficient)."""
     n = rest.shape[0]
     channel_major = rest.transpose(0, 2, 1).reshape(n, -1)  # f_rest order
-    from recon.ksplat import sh_component_order
+    from recon.formats.ksplat import sh_component_order
 
     return np.ascontiguousarray(channel_major[:, sh_component_order(degree)])
 

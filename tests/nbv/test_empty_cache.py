@@ -280,7 +280,7 @@ def test_simulate_uses_the_cache_unless_told_not_to(monkeypatch, tmp_path):
 
 def test_a_bad_bound_is_refused_by_the_command_line(monkeypatch, tmp_path, caplog):
     from apps import cli
-    from recon.ply import save_gaussians
+    from recon.formats.ply import save_gaussians
 
     ply = save_gaussians(_sphere(), tmp_path / "g.ply")
     monkeypatch.setenv("FLUIDGS_CACHE_MAX_GB", "lots")

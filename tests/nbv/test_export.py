@@ -21,8 +21,8 @@ from fluidsim.sources import sphere_particles
 from nbv.export.particles import check_vtk_source, export_vtk, split_boundary
 from nbv.export.solid import check_export_path, export_paths, export_solid, solid_mesh, voxel_grid
 from recon.formats import load_gaussians
+from recon.formats.ply import read_ply_vertices, save_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import read_ply_vertices, save_gaussians
 
 from helpers.vtk_files import read_pvd, read_vtu
 

@@ -306,7 +306,7 @@ def test_bench_hole_command_prints_and_writes_the_figures(tmp_path, capsys):
     import json
 
     from apps import cli
-    from recon.ply import save_gaussians
+    from recon.formats.ply import save_gaussians
 
     ply = save_gaussians(capture_like(), tmp_path / "sphere.ply")
     out = tmp_path / "hole.json"
@@ -397,7 +397,7 @@ def test_bench_hole_command_prints_and_writes_the_figures(tmp_path, capsys):
 
 def test_bench_hole_refuses_bad_options(tmp_path):
     from apps import cli
-    from recon.ply import save_gaussians
+    from recon.formats.ply import save_gaussians
 
     ply = save_gaussians(capture_like(with_tails=False), tmp_path / "sphere.ply")
     base = ["bench", "hole", str(ply), "--scale", "1", "--point", "0.6,0,0", "--solid-only"]

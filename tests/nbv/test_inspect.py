@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from apps.cli import main
+from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import save_gaussians
 
 from helpers.paths import BIKER_COMPRESSED_PLY as REAL
 

@@ -309,7 +309,7 @@ def test_bench_views_smoke(tmp_path, capsys):
     import json
 
     from apps import cli
-    from recon.ply import save_gaussians
+    from recon.formats.ply import save_gaussians
 
     g, cams, _ = _scene(300, seed=7)
     ply = save_gaussians(g, tmp_path / "set.ply")

@@ -19,10 +19,11 @@ import numpy as np
 import pytest
 import torch
 
-from recon import formats, ply
+from recon import formats
+from recon.formats import ply
+from recon.formats.spz import RUB_TO_RDF_SH_SIGNS
 from recon.gaussians import SH_C0, GaussianSet
 from recon.sh import eval_sh
-from recon.spz import RUB_TO_RDF_SH_SIGNS
 
 from helpers.format_encoders import encode_compressed_ply, encode_splat, encode_spz
 from helpers.paths import BIKER_COMPRESSED_PLY, BIKER_SPZ, REAL_SPLATS

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from recon.formats import load_gaussians
+from recon.formats.ply import ply_property_names, save_gaussians
 from recon.gaussians import GaussianSet
-from recon.ply import ply_property_names, save_gaussians
 
 
 def _random_set(n: int, degree: int, seed: int = 0) -> GaussianSet:

@@ -20,7 +20,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from recon import formats
-from recon.checkpoints import gsplat_normalization, load_trained_model
+from recon.formats.checkpoints import gsplat_normalization, load_trained_model
 from recon.gaussians import SH_C0, GaussianSet
 from recon.sh import eval_sh
 from recon.similarity import invert_similarity, transform_gaussians
@@ -528,7 +528,7 @@ def test_fifo_beside_a_checkpoint_is_named_not_read(tmp_path):
     with pytest.raises(ValueError, match="ckpt_1_rank1.pt is a FIFO"):
         formats.load_gaussians(tmp_path / "ckpt_1_rank0.pt")
     os.mkfifo(tmp_path / "dataparser.json")
-    from recon.checkpoints import nerfstudio_normalization
+    from recon.formats.checkpoints import nerfstudio_normalization
 
     with pytest.raises(ValueError, match="--dataparser-transforms .*is a FIFO"):
         nerfstudio_normalization(tmp_path / "dataparser.json")

@@ -34,8 +34,8 @@ from nbv.physics.aggregate_reference import within_reach_reference
 from recon.camera import Camera
 from recon.datasets import load_cameras
 from recon.formats import load_gaussians
+from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet, sh0_to_rgb
-from recon.ply import save_gaussians
 from viz.cameras import candidate_views, read_scores, rotation_to_wxyz, view_png
 from viz.colors import UNREACHED_RGB, color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data

@@ -33,8 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .gaussians import SH_C0, GaussianSet
-from .ply import PlyLayout, gaussians_from_arrays, opacity_logits_from_unit, parse_ply_header, read_binary_elements
+from ..gaussians import SH_C0, GaussianSet
+from .arrays import gaussians_from_arrays, opacity_logits_from_unit
+from .ply import PlyLayout, parse_ply_header, read_binary_elements
 
 CHUNK_SIZE = 256
 CHUNK_BOUNDS = (

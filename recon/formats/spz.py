@@ -45,9 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .gaussians import GaussianSet
-from .inflate import check_budget, inflate_zstd
-from .ply import check_declared_size, gaussians_from_arrays, opacity_logits_from_unit
+from ..gaussians import GaussianSet
+from ..inflate import check_budget, inflate_zstd
+from .arrays import check_declared_size, gaussians_from_arrays, opacity_logits_from_unit
 
 log = logging.getLogger(__name__)
 

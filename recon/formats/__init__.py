@@ -1,17 +1,17 @@
-"""One loader for the Gaussian-splat file formats people share, recognised by content.
+"""One loader for the Gaussian-splat file formats people share, recognised by content; one module per format.
 
-- ``ply``: the standard 3DGS .ply (:mod:`recon.ply`): a ``ply`` first line and no ``chunk`` element;
-- ``compressed_ply``: the SuperSplat / PlayCanvas compressed .ply (:mod:`recon.compressed_ply`): a ``ply`` first
+- ``ply``: the standard 3DGS .ply (:mod:`.ply`): a ``ply`` first line and no ``chunk`` element;
+- ``compressed_ply``: the SuperSplat / PlayCanvas compressed .ply (:mod:`.compressed_ply`): a ``ply`` first
   line, a ``chunk`` element and ``packed_*`` vertex properties;
-- ``spz``: Niantic .spz, versions 2-4 (:mod:`recon.spz`): the gzip magic ``1f 8b`` or ``NGSP``;
-- ``splat``: antimatter15 .splat (:mod:`recon.dotsplat`): no header, so the ``.splat`` suffix (its reader checks
+- ``spz``: Niantic .spz, versions 2-4 (:mod:`.spz`): the gzip magic ``1f 8b`` or ``NGSP``;
+- ``splat``: antimatter15 .splat (:mod:`.dotsplat`): no header, so the ``.splat`` suffix (its reader checks
   that the size is a whole number of 32-byte records);
-- ``npz``: the arrays of a GaussianSet or a gsplat checkpoint's arrays (:mod:`recon.ply`): the zip magic ``PK``;
-- ``sog``: PlayCanvas SOG versions 1-2 (:mod:`recon.sog`): a zip holding ``meta.json`` (a ``.sog`` bundle), a
+- ``npz``: the arrays of a GaussianSet or a gsplat checkpoint's arrays (:mod:`.npz`): the zip magic ``PK``;
+- ``sog``: PlayCanvas SOG versions 1-2 (:mod:`.sog`): a zip holding ``meta.json`` (a ``.sog`` bundle), a
   ``meta.json`` file or a folder holding one;
-- ``ksplat``: mkkellogg GaussianSplats3D .ksplat, compression modes 0-2 (:mod:`recon.ksplat`): no magic, so the
+- ``ksplat``: mkkellogg GaussianSplats3D .ksplat, compression modes 0-2 (:mod:`.ksplat`): no magic, so the
   ``.ksplat`` suffix and a header of version 0.x;
-- ``checkpoint``: a gsplat ``ckpt_*.pt`` or nerfstudio splatfacto ``step-*.ckpt`` (:mod:`recon.checkpoints`): a
+- ``checkpoint``: a gsplat ``ckpt_*.pt`` or nerfstudio splatfacto ``step-*.ckpt`` (:mod:`.checkpoints`): a
   ``torch.save`` zip (a ``data.pkl`` member), read with ``weights_only=True``; the trainer's normalisation is
   undone when its transform is known (:class:`LoadOptions`).
 
@@ -22,7 +22,7 @@ as ``LoadOptions.spz_frame`` says; "auto", the default, decides from a file of t
 beside it, :func:`spz_frame_evidence`, and warns when nothing decides) and compares the sizes a
 header declares with the file size and the memory budget (:mod:`recon.inflate`) before allocating anything.
 :func:`load_gaussians_framed` also says which frame it assumed (:class:`SourceFrame`), for the log and
-RESULT.h5. Writing stays the standard .ply or .npz (:func:`recon.ply.save_gaussians`).
+RESULT.h5. Writing stays the standard .ply or .npz (:func:`.ply.save_gaussians`).
 
 Example:
     >>> g, fmt = load_gaussians_with_format("biker.spz")  # doctest: +SKIP
@@ -41,8 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import compressed_ply, dotsplat, ksplat, ply, sog, spz
-from .gaussians import GaussianSet
+from ..gaussians import GaussianSet
+from . import compressed_ply, dotsplat, ksplat, npz, ply, sog, spz
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +70,7 @@ READERS: dict[str, Callable[[Path], GaussianSet]] = {
     "compressed_ply": compressed_ply.load_compressed_ply,
     "spz": spz.load_spz,
     "splat": dotsplat.load_splat,
-    "npz": ply.load_npz,
+    "npz": npz.load_npz,
     "sog": sog.load_sog,
     "ksplat": ksplat.load_ksplat,
 }

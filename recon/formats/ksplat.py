@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .gaussians import SH_C0, GaussianSet
-from .inflate import check_budget
-from .ply import gaussians_from_arrays, opacity_logits_from_unit
+from ..gaussians import SH_C0, GaussianSet
+from ..inflate import check_budget
+from .arrays import gaussians_from_arrays, opacity_logits_from_unit
 
 MAIN_HEADER_BYTES = 4096
 SECTION_HEADER_BYTES = 1024

@@ -44,10 +44,10 @@ import torch
 
 from fluidsim.files import check_input_file
 
-from .gaussians import SH_C0, GaussianSet
-from .inflate import check_budget
-from .ply import gaussians_from_arrays
-from .similarity import invert_similarity, transform_gaussians
+from ..gaussians import SH_C0, GaussianSet
+from ..inflate import check_budget
+from ..similarity import invert_similarity, transform_gaussians
+from .arrays import gaussians_from_arrays
 
 log = logging.getLogger(__name__)
 
@@ -313,7 +313,7 @@ def _principal_axes(points: np.ndarray) -> np.ndarray:
 
 def colmap_normalization(folder: Path) -> np.ndarray:
     """:func:`gsplat_normalization` of the COLMAP model in ``folder`` (``sparse/0``, ``sparse`` or the model)."""
-    from .colmap import find_colmap_sparse, read_colmap_model  # noqa: PLC0415 - only gsplat restores need it
+    from ..colmap import find_colmap_sparse, read_colmap_model  # noqa: PLC0415 - only gsplat restores need it
 
     sparse = find_colmap_sparse(Path(folder))
     if sparse is None:

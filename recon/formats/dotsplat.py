@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .gaussians import SH_C0, GaussianSet
-from .ply import gaussians_from_arrays, opacity_logits_from_unit
+from ..gaussians import SH_C0, GaussianSet
+from .arrays import gaussians_from_arrays, opacity_logits_from_unit
 
 RECORD = np.dtype([("position", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rotation", "u1", (4,))])
 RECORD_BYTES = 32

@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .gaussians import GaussianSet
-from .inflate import check_budget, memory_budget_bytes, read_zip_member
-from .ply import gaussians_from_arrays, opacity_logits_from_unit
+from ..gaussians import GaussianSet
+from ..inflate import check_budget, memory_budget_bytes, read_zip_member
+from .arrays import gaussians_from_arrays, opacity_logits_from_unit
 
 SUPPORTED_VERSIONS = (1, 2)
 SH_COEFFS = {1: 3, 2: 8, 3: 15}  # bands -> coefficients per channel beyond DC

@@ -1,4 +1,4 @@
-"""Reading and writing Gaussian sets: the standard 3DGS ``.ply`` and a plain ``.npz``.
+"""Reading and writing Gaussian sets as the standard 3DGS ``.ply`` (writing also a plain ``.npz``, :mod:`.npz`).
 
 The ``.ply`` layout is the one of the reference 3DGS trainer (Kerbl et al. 2023, ``GaussianModel.save_ply``), so
 files move both ways between this project and the common viewers and trainers. One ``vertex`` element holds,
@@ -19,21 +19,13 @@ properties of any PLY type (char, uchar, short, ushort, int, uint, float, double
 converted to float32; extra vertex properties are ignored, and so are elements after ``vertex``. Writing is
 always binary little-endian float32, atomically (:func:`fluidsim.files.write_bytes_atomic`).
 
-The ``.npz`` layout holds the five tensors of a GaussianSet under their field names, as float32 arrays::
-
-    means [N, 3]   quats [N, 4] (w, x, y, z)   log_scales [N, 3]   opacity_logits [N]   sh [N, K, 3]
-
-and, on reading only, the naming of gsplat's trainer checkpoints is accepted too: ``means``, ``quats``,
-``scales`` (log), ``opacities`` (logits), ``sh0`` [N, 1, 3] and ``shN`` [N, K-1, 3].
-
 Every problem (not a PLY, unsupported format, missing properties, unsupported f_rest count, truncated data,
 NaN or Inf, zero quaternions, no Gaussians) raises ``ValueError`` whose message starts with the file name.
-Declared sizes (PLY element rows, ``.npy`` shapes) are compared with the file size before anything is allocated,
-and an ``.npz`` is read member by member without ever unpickling.
+Declared PLY element rows are compared with the file size before anything is allocated.
 
-This is the low-level module: :func:`load_standard_ply` and :func:`load_npz` read one layout each. The loader
-to call is :func:`recon.formats.load_gaussians`, which recognises a file by its content (also the compressed
-.ply, .spz and .splat formats of :mod:`recon.compressed_ply`, :mod:`recon.spz` and :mod:`recon.dotsplat`).
+This is the low-level module: :func:`load_standard_ply` reads one layout. The loader to call is
+:func:`recon.formats.load_gaussians`, which recognises a file by its content (also the compressed .ply, .spz and
+.splat formats of :mod:`recon.formats.compressed_ply`, :mod:`recon.formats.spz` and :mod:`recon.formats.dotsplat`).
 
 Example:
     >>> g = GaussianSet.from_points(torch.rand(10, 3), sh_degree=3)
@@ -47,8 +39,6 @@ from __future__ import annotations
 import io
 import os
 import re
-import zipfile
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,8 +47,9 @@ import torch
 
 from fluidsim.files import write_bytes_atomic
 
-from .gaussians import GaussianSet, sh_coefficient_count
-from .inflate import CHUNK_BYTES, check_budget
+from ..gaussians import GaussianSet, sh_coefficient_count
+from .arrays import check_declared_size
+from .npz import NPZ_KEYS
 
 PLY_TYPES = {
     "char": "i1",
@@ -96,8 +87,6 @@ REQUIRED_PROPERTIES = (
     "rot_3",
 )
 F_REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}  # number of f_rest properties -> SH degree
-NPZ_KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
-GSPLAT_KEYS = ("means", "quats", "scales", "opacities", "sh0", "shN")
 MAX_HEADER_LINES = 10_000
 MAX_HEADER_LINE_BYTES = 4096
 
@@ -292,22 +281,6 @@ def _skip_element(fh, element: PlyElement, fmt: str, offset: int, source: str) -
     return fh.tell()
 
 
-def check_declared_size(source: str, what: str, declared: int, available: int) -> None:
-    """Raise ``ValueError`` when a header declares more bytes than the file holds (checked before allocating).
-
-    Args:
-        source: the file name, for the message.
-        what: what the bytes are, e.g. "152746 vertices of 16 bytes".
-        declared: bytes the header implies.
-        available: bytes actually present after the header.
-    """
-    if declared > available:
-        raise ValueError(
-            f"{source}: truncated or corrupt file: the header declares {what} ({declared} bytes) but "
-            f"only {available} bytes follow; re-export or re-download the file"
-        )
-
-
 def read_binary_elements(path: str | Path, names: tuple[str, ...]) -> tuple[PlyLayout, dict[str, np.ndarray]]:
     """The rows of the binary PLY elements ``names`` as structured numpy arrays, in one pass over the file.
 
@@ -441,50 +414,6 @@ def gaussians_from_ply_columns(columns: dict[str, np.ndarray], source: str) -> G
     return gaussians.check(source)
 
 
-def gaussians_from_arrays(
-    source: str,
-    means: np.ndarray,
-    quats: np.ndarray,
-    log_scales: np.ndarray,
-    opacity_logits: np.ndarray,
-    sh: np.ndarray,
-) -> GaussianSet:
-    """A checked float32 :class:`GaussianSet` from decoded numpy arrays (the shared last step of every reader).
-
-    Args:
-        source: the file name, for error messages.
-        means: [N, 3]; quats: [N, 4] (w, x, y, z); log_scales: [N, 3]; opacity_logits: [N]; sh: [N, K, 3].
-    Raises:
-        ValueError: wrong shapes, an empty set, NaN or Inf, or a zero quaternion (the message names ``source``).
-    """
-    try:
-        gaussians = GaussianSet(
-            *(
-                torch.from_numpy(np.require(a, np.float32, ("C_CONTIGUOUS", "WRITEABLE")))
-                for a in (means, quats, log_scales, opacity_logits, sh)
-            )
-        )
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
-    return gaussians.check(source)
-
-
-def opacity_logits_from_unit(opacity: np.ndarray, step: float = 1.0 / 255.0) -> np.ndarray:
-    """Logits of quantised opacities in [0, 1], kept half a quantisation step off 0 and 1 so they stay finite.
-
-    A stored 0 or 1 is the nearest code of an opacity within half a step of it, so clamping there changes no
-    rendered value by more than the quantisation itself.
-
-    Args:
-        opacity: opacities in [0, 1], any shape.
-        step: the quantisation step (1/255 for 8-bit codes).
-    Returns:
-        float32 logits, same shape.
-    """
-    p = np.clip(opacity.astype(np.float64), 0.5 * step, 1.0 - 0.5 * step)
-    return np.log(p / (1.0 - p)).astype(np.float32)
-
-
 def load_standard_ply(path: str | Path) -> GaussianSet:
     """Read Gaussians from a standard 3DGS ``.ply`` (layout in the module docstring).
 
@@ -496,124 +425,6 @@ def load_standard_ply(path: str | Path) -> GaussianSet:
         ValueError: any problem with the content; the message starts with the file name.
     """
     return gaussians_from_ply_columns(read_ply_vertices(path), str(path))
-
-
-def load_npz(path: str | Path) -> GaussianSet:
-    """Read Gaussians from an ``.npz`` (layout in the module docstring), never unpickling anything.
-
-    Every member's ``.npy`` header is read first: object arrays are refused, and each declared array size is
-    compared with the member's size before any array is allocated.
-
-    Raises:
-        ValueError: not a zip archive, a member that is not a plain numeric ``.npy`` array, truncated members,
-            missing keys, wrong shapes, or values that fail :meth:`GaussianSet.check`.
-    """
-    source = str(path)
-    arrays = _read_npz_arrays(Path(path), source)
-    if all(k in arrays for k in NPZ_KEYS):
-        tensors = {k: arrays[k] for k in NPZ_KEYS}
-    else:  # _read_npz_arrays returns one of the two key sets, or refuses the file
-        sh0, shn = arrays["sh0"], arrays["shN"]
-        if sh0.ndim != 3 or shn.ndim != 3:
-            raise ValueError(
-                f"{source}: sh0 and shN must be [N, 1, 3] and [N, K-1, 3], got {sh0.shape} and {shn.shape}"
-            )
-        tensors = {
-            "means": arrays["means"],
-            "quats": arrays["quats"],
-            "log_scales": arrays["scales"],
-            "opacity_logits": arrays["opacities"],
-            "sh": np.concatenate([sh0, shn], 1),
-        }
-    for key, value in tensors.items():
-        if not np.issubdtype(value.dtype, np.number) or np.issubdtype(value.dtype, np.complexfloating):
-            raise ValueError(f"{source}: array {key!r} has non-numeric dtype {value.dtype}")
-    return gaussians_from_arrays(source, *(tensors[k] for k in NPZ_KEYS))
-
-
-NPZ_MAX_DEFLATE_RATIO = 1100  # deflate cannot expand data more than ~1032:1; a larger claim is a corrupt directory
-
-
-def _read_npz_arrays(path: Path, source: str) -> dict[str, np.ndarray]:
-    """The Gaussian arrays of an .npz (the ``NPZ_KEYS`` or the ``GSPLAT_KEYS`` members, nothing else), checking the
-    member names before any member is inflated and each .npy header against the member size before reading."""
-    fix = "save it again with save_gaussians (or numpy.savez)"
-    try:
-        archive = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, OSError, EOFError) as exc:
-        raise ValueError(f"{source}: not a readable .npz archive ({exc}); {fix}") from None
-    arrays = {}
-    with archive:
-        infos = archive.infolist()
-        if sum(i.compress_size for i in infos) > path.stat().st_size:
-            raise ValueError(
-                f"{source}: not a readable .npz archive (its directory lists more data than the file "
-                f"holds: truncated or corrupt); {fix}"
-            )
-        for info in infos:  # the directory alone: nothing is inflated before the keys are known
-            if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
-                raise ValueError(
-                    f"{source}: not a readable .npz archive (member {info.filename!r} uses zip "
-                    f"compression method {info.compress_type}; numpy writes only stored or deflated "
-                    f"members); {fix}"
-                )
-            if not info.filename.endswith(".npy"):
-                raise ValueError(
-                    f"{source}: not a readable .npz archive (member {info.filename!r} is not a .npy array); {fix}"
-                )
-            if info.file_size > max(info.compress_size, 1) * NPZ_MAX_DEFLATE_RATIO:
-                raise ValueError(
-                    f"{source}: not a readable .npz archive (member {info.filename!r} claims "
-                    f"{info.file_size} bytes from {info.compress_size}: corrupt); {fix}"
-                )
-        members = {i.filename[:-4]: i for i in infos if i.filename.endswith(".npy")}
-        keys = next((keys for keys in (NPZ_KEYS, GSPLAT_KEYS) if all(k in members for k in keys)), None)
-        if keys is None:  # decided from the names alone: nothing has been inflated yet
-            missing = [k for k in NPZ_KEYS if k not in members]
-            raise ValueError(
-                f"{source}: the .npz lacks the Gaussian arrays {missing} (it has {sorted(members)[:12]}); "
-                f"save it with save_gaussians or use the keys {list(NPZ_KEYS)}"
-            )
-        infos = [members[k] for k in keys]
-        check_budget(source, f"the {len(infos)} arrays of the .npz", sum(i.file_size for i in infos))
-        for info in infos:
-            arrays[info.filename[:-4]] = _read_npy_member(archive, info, source, fix)
-    return arrays
-
-
-def _read_npy_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, source: str, fix: str) -> np.ndarray:
-    name = info.filename[:-4]
-    try:
-        with archive.open(info) as fp:
-            version = np.lib.format.read_magic(fp)
-            if version == (1, 0):
-                shape, fortran, dtype = np.lib.format.read_array_header_1_0(fp)
-            elif version == (2, 0):
-                shape, fortran, dtype = np.lib.format.read_array_header_2_0(fp)
-            else:
-                raise ValueError(f".npy format version {version} is not supported")
-            if dtype.hasobject:
-                raise ValueError("it holds Python objects, which are never loaded from a Gaussian file")
-            declared = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
-            available = info.file_size - fp.tell()
-            if declared > available:
-                raise ValueError(
-                    f"the header declares {shape} {dtype} ({declared} bytes) but only {available} "
-                    f"bytes follow: truncated or corrupt"
-                )
-            data, got = bytearray(declared), 0  # one buffer, filled in bounded chunks: peak = the array itself
-            view = memoryview(data)
-            while got < declared:  # a member never yields more than its header declared
-                n = fp.readinto(view[got : got + min(CHUNK_BYTES, declared - got)])
-                if not n:
-                    break
-                got += n
-            view.release()
-    except (zipfile.BadZipFile, OSError, EOFError, ValueError, zlib.error) as exc:
-        raise ValueError(f"{source}: not a readable .npz archive (array {name!r}: {exc}); {fix}") from None
-    if got != declared:
-        raise ValueError(f"{source}: not a readable .npz archive (array {name!r} is truncated); {fix}")
-    return np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
 
 
 def save_gaussians(gaussians: GaussianSet, path: str | Path, extra: dict[str, np.ndarray] | None = None) -> Path:
