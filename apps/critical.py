@@ -17,8 +17,6 @@ import argparse
 import logging
 from pathlib import Path
 
-import numpy as np
-
 from .options import (
     add_camera_arguments,
     add_gaussian_file_arguments,
@@ -33,6 +31,7 @@ from .options import (
     physics_config_from_args,
     warn_frame,
 )
+from .options.scoring import obtain_result, write_orbit_cameras
 
 log = logging.getLogger("fluidgs")
 
@@ -70,40 +69,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_physics_arguments(p, track_distinct=True, cameras=True, replicas=True)
 
 
-log = logging.getLogger("fluidgs")
-
-
-def subset_warning(subset: int, candidates: int) -> str | None:
-    """The warning for a critical subset of ``subset`` views out of ``candidates``: None below half of them."""
-    if 2 * subset < candidates:
-        return None
-    return (
-        f"the critical subset holds {subset} of the {candidates} candidate views (half or more), so it selects "
-        f"little; pass a smaller --subset (e.g. {max(1, candidates // 4)}) or more candidates"
-    )
-
-
 def run_command(args: argparse.Namespace) -> int:
-    import torch
-
     from fluidsim.files import check_not_input, write_json_atomic
-    from nbv.coverage import agreement_lines, one_run_line
-    from nbv.physics import check_result_matches, load_result, save_result, simulate_gaussians
-    from nbv.scores import DepthBuffer, critical_subset, projected_view_scores
-    from nbv.view_scoring import (
-        check_cameras_see,
-        format_table,
-        parse_candidates,
-        probe_lines,
-        ranked_rows,
-        reach_warning,
-        render_size,
-        replicas_view_agreement,
-        rows_agreement,
-    )
-    from recon.device import torch_device
-
-    from .runtime import init_taichi
+    from nbv.critical_views import critical_record, rank_critical_views, subset_warning
+    from nbv.view_scoring import check_cameras_see, parse_candidates, render_size
 
     check_visibility_arguments(args)
     if args.subset < 1:
@@ -122,34 +91,17 @@ def run_command(args: argparse.Namespace) -> int:
             raise ValueError("--save-result writes the RESULT.h5 of a fresh simulation; drop it with --result")
         check_output_file(args.save_result, (".h5", ".hdf5"))
     gaussians = load_gaussians_checked(args.gaussians, args)
-    result = None
-    if args.result is not None:  # the result fixes the frame (up, crop) that the cameras use
-        result = load_result(args.result)
-        check_result_matches(result, gaussians, args.result)
-        if result.per_probe_distinct is None:
-            raise ValueError(
-                f"--result {args.result} has no distinct-particle counts |P_g| (a simulate or score "
-                "result); write one with `fluidgs critical ... --save-result RESULT.h5`, or drop --result"
-            )
+    result = None if args.result is None else counted_result(args, gaussians)
+    if result is not None:  # the result fixes the frame (up, crop) that the cameras use
         config = result.config
     warn_frame(config, file_cams, up_given=args.up is not None or args.result is not None)
     all_cams = file_cams if orbit is None else orbit_cameras_logged(gaussians, config, orbit)
-    if orbit_file is not None:
-        from recon.camera_files import transforms_json
-
-        write_json_atomic(
-            orbit_file, transforms_json(all_cams, f"fluidgs critical --cameras {args.cameras}: {orbit.describe()}")
-        )
+    write_orbit_cameras(orbit_file, all_cams, "critical", args.cameras, orbit)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     check_cameras_see(gaussians, cams, [c.name for c in cams])
     if result is None:
-        init_taichi(args.device, config.precision, args.threads)
-        result = simulate_gaussians(
-            gaussians, config, progress=True, source=str(args.gaussians), source_frame=getattr(args, "source_frame", "")
-        )
-        if args.save_result is not None:
-            save_result(args.save_result, result)
+        result = obtain_result(args, gaussians, config)
     distinct = result.distinct_counts()
     if not distinct.any():
         raise ValueError(
@@ -159,58 +111,43 @@ def run_command(args: argparse.Namespace) -> int:
         )
     # C(T) = sum_g w_g |P_g| needs only the projection's radii and visibility (no render)
     occlusion = not args.frustum_only
-    scored = projected_view_scores(
-        torch.from_numpy(distinct).to(torch.float64),
-        gaussians.to(torch_device(args.device)),
-        cams,
-        depth_buffer=DepthBuffer() if occlusion else None,
-    )
-    subset = critical_subset(scored.scores, args.subset).tolist()
-    rows = ranked_rows(scored, cams, idx, value="critical_score")
-    agreement = rows_agreement(rows, "critical_score")
-    if result.replicas is not None:  # each replica's own ranking by its |P_g|, against the others
-        agreement["replicas"] = replicas_view_agreement(
-            result.replicas,
-            result.replicas.distinct_counts(),
-            gaussians,
-            cams,
-            idx,
-            occlusion=occlusion,
-            device=args.device,
-        )
-    print("\n".join(probe_lines(result)))
-    warning = reach_warning(distinct, scored.seen, result.config, "fluid particle", "C")
-    if warning is not None:
-        log.warning("%s", warning)
-    print(format_table(rows, args.top_k, value="critical_score"))
-    print("\n".join(agreement_lines(agreement, "fluid-particle count", "C")))
-    if result.replicas is None:
-        print(one_run_line("C"))
-    print(f"critical subset ({len(subset)} views): {[idx[k] for k in subset]}")
-    too_many = subset_warning(len(subset), len(idx))
+    views = rank_critical_views(distinct, gaussians, cams, idx, result, args.subset, occlusion, args.device)
+    print_critical(result, distinct, views, idx, args.top_k)
+    too_many = subset_warning(len(views.subset), len(idx))
     if too_many is not None:
         log.warning("%s", too_many)
-    write_json_atomic(
-        output,
-        {
-            "cameras": str(orbit_file or args.cameras),
-            "gaussians": str(args.gaussians),
-            "directions": list(result.directions),
-            "occlusion": occlusion,
-            "dbar_m4_s": result.dbar,
-            "dbar_empty_m4_s": result.dbar_empty,
-            "distinct_particles": {
-                "total_over_gaussians": int(distinct.sum()),
-                "gaussians_reached": int((distinct > 0).sum()),
-                "max": int(np.max(distinct)),
-            },
-            "agreement": agreement,
-            "views": rows,
-            "critical_subset": [idx[k] for k in subset],
-            "subset_warning": too_many,
-            "result": None if args.result is None else str(args.result),
-            "config": result.config.to_dict(),
-        },
-    )
+    cameras = orbit_file or args.cameras
+    record = critical_record(views, distinct, idx, result, cameras, args.gaussians, occlusion, args.result, too_many)
+    write_json_atomic(output, record)
     print(f"critical views: {output}" + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file else ""))
     return 0
+
+
+def counted_result(args: argparse.Namespace, gaussians):
+    """The RESULT.h5 of --result, checked against the Gaussians and for its distinct-particle counts |P_g|."""
+    from nbv.physics import check_result_matches, load_result
+
+    result = load_result(args.result)
+    check_result_matches(result, gaussians, args.result)
+    if result.per_probe_distinct is None:
+        raise ValueError(
+            f"--result {args.result} has no distinct-particle counts |P_g| (a simulate or score "
+            "result); write one with `fluidgs critical ... --save-result RESULT.h5`, or drop --result"
+        )
+    return result
+
+
+def print_critical(result, distinct, views, idx: list[int], top_k: int | None) -> None:
+    """What the probe reached, the ranking by C(T), how far coverage decides it, and the critical subset."""
+    from nbv.coverage import agreement_lines, one_run_line
+    from nbv.view_scoring import format_table, probe_lines, reach_warning
+
+    print("\n".join(probe_lines(result)))
+    warning = reach_warning(distinct, views.scored.seen, result.config, "fluid particle", "C")
+    if warning is not None:
+        log.warning("%s", warning)
+    print(format_table(views.rows, top_k, value="critical_score"))
+    print("\n".join(agreement_lines(views.agreement, "fluid-particle count", "C")))
+    if result.replicas is None:
+        print(one_run_line("C"))
+    print(f"critical subset ({len(views.subset)} views): {[idx[k] for k in views.subset]}")

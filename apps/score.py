@@ -35,22 +35,25 @@ from .options import (
     add_record_arguments,
     add_visibility_arguments,
     camera_file_from_args,
-    check_output_file,
-    check_visibility_arguments,
     load_gaussians_checked,
     orbit_cameras_logged,
     orbit_from_args,
     physics_config_from_args,
-    record_config_from_args,
     result_overridden_options,
     save_diverged,
     warn_frame,
 )
-from .options.solid_export import add_solid_export_arguments, solid_export_outputs, write_solid_export
+from .options.scoring import (
+    add_view_image_arguments,
+    check_score_arguments,
+    obtain_result,
+    score_outputs,
+    write_orbit_cameras,
+)
+from .options.solid_export import add_solid_export_arguments, write_solid_export
 
 log = logging.getLogger("fluidgs")
 METRICS = ("max", "mean", *DIRECTIONS)  # --metric: nbv.view_scoring.metric_values
-PNG_TOP = 5  # views rendered to PNG by default (the scores themselves need no render)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -80,124 +83,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--unweighted", action="store_true", help="sum D_g over visible Gaussians without Eq. 5 weights")
     add_visibility_arguments(p)
-    p.add_argument(
-        "--png-dir",
-        type=Path,
-        default=None,
-        help="folder for the per-view PNGs (default: next to the output, <stem>_views)",
-    )
-    p.add_argument("--no-png", action="store_true", help="skip the per-view PNGs")
-    p.add_argument(
-        "--png-top",
-        type=int,
-        default=PNG_TOP,
-        help="render PNGs of the best N views only (scores need no render; default: %(default)s)",
-    )
-    p.add_argument("--png-all", action="store_true", help="render a PNG of every candidate view")
-    p.add_argument(
-        "--uncertainty-images",
-        action="store_true",
-        help="also write, per PNG view, its physics-uncertainty image: D_g alpha-composited per pixel "
-        "(1/s), as <view>_uncertainty.npy (float32) and a colour .png with its scale bar ('+': above "
-        "the range) (default: off)",
-    )
+    add_view_image_arguments(p)
     add_record_arguments(p)
     add_solid_export_arguments(p)
     add_physics_arguments(p, cameras=True, replicas=True)
 
 
-def obtain_result(args, gaussians, config, record=None):
-    """PhysicsResult from --result, or a fresh simulation (then saved to --save-result when given; ``record``: the
-    probes to record, :class:`nbv.physics.trajectory.RecordConfig`)."""
-    from nbv.physics import check_result_matches, load_result, save_result, simulate_gaussians
-
-    from .runtime import init_taichi
-
-    if args.result is not None:
-        result = load_result(args.result)
-        check_result_matches(result, gaussians, args.result)
-        for d, notes in result.warnings.items():  # a fresh simulation logs them as its probes end
-            for note in notes:
-                log.warning("%s, probe %s: %s", args.result, d, note)
-        return result
-    init_taichi(args.device, config.precision, args.threads)
-    result = simulate_gaussians(
-        gaussians,
-        config,
-        progress=True,
-        source=str(args.gaussians),
-        source_frame=getattr(args, "source_frame", ""),
-        record=record,
-    )
-    if args.save_result is not None:
-        save_result(args.save_result, result)
-    return result
-
-
-def check_arguments(args: argparse.Namespace) -> None:
-    """The option combinations that cannot work, refused before any file is read or any probe runs."""
-    check_visibility_arguments(args)
-    if args.uncertainty_images and args.no_png:
-        raise ValueError(
-            "--uncertainty-images writes its images beside the view PNGs and --no-png turns those off; "
-            "drop --no-png (--png-top N or --png-all choose the views)"
-        )
-    if args.top_k is not None and args.top_k < 1:
-        raise ValueError(f"--top-k must be >= 1, got {args.top_k}")
-    if args.png_top < 1:
-        raise ValueError(f"--png-top must be >= 1 view, got {args.png_top}; use --no-png for no PNGs")
-
-
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.files import check_not_input
-    from nbv.coverage import agreement_lines, one_run_line
     from nbv.physics import ProbeDiverged
-    from nbv.physics.forces import force_lines
     from nbv.view_scoring import (
         ScoreSettings,
         check_cameras_see,
         check_some_divergence,
-        format_table,
         parse_candidates,
-        probe_lines,
         rank_views,
-        reach_warning,
         render_size,
         scores_record,
         write_views_folder,
     )
-    from recon.camera_files import transforms_json
 
-    check_arguments(args)
+    check_score_arguments(args)
     settings = ScoreSettings(args.metric, not args.unweighted, not args.frustum_only, args.device)
     orbit = orbit_from_args(args, args.render_width)
     file_cams = None if orbit is not None else camera_file_from_args(args)
     config = physics_config_from_args(args, cameras=file_cams)
-    output = check_output_file(args.output, (".json",))
-    png_dir = None if args.no_png else (args.png_dir or output.with_name(output.stem + "_views"))
-    orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
-    check_not_input(
-        {
-            "-o": output,
-            "--save-result": args.save_result,
-            "--png-dir": png_dir,
-            "-o (orbit cameras)": orbit_file,
-            **solid_export_outputs(args.export_solid),
-        },
-        {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras, "--result": args.result},
-    )
-    if png_dir is not None:
-        check_output_file(png_dir / "view.png", (".png",))
-    if args.save_result is not None:
-        check_output_file(args.save_result, (".h5", ".hdf5"))
-    if args.result is None and args.metric not in ("max", "mean") and args.metric not in config.directions:
-        raise ValueError(f"--metric {args.metric} needs that probe in --directions ({','.join(config.directions)})")
-    record = record_config_from_args(args, config)
-    if record is not None and (args.result is not None or args.save_result is None):
-        raise ValueError(
-            "--record-probe records into the RESULT.h5 of a fresh simulation: pass --save-result "
-            "RESULT.h5" + (" and drop --result" if args.result is not None else "")
-        )
+    output, png_dir, orbit_file, record = score_outputs(args, config, orbit)
     gaussians = load_gaussians_checked(args.gaussians, args)
     result = None
     if args.result is not None:  # the result fixes the frame (up, crop) that the cameras and the scores use
@@ -211,10 +121,7 @@ def run_command(args: argparse.Namespace) -> int:
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     visible_centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
-    if orbit_file is not None:
-        write_json_atomic(
-            orbit_file, transforms_json(all_cams, f"fluidgs score --cameras {args.cameras}: {orbit.describe()}")
-        )
+    write_orbit_cameras(orbit_file, all_cams, "score", args.cameras, orbit)
     if result is None:
         try:
             result = obtain_result(args, gaussians, config, record)
@@ -222,14 +129,7 @@ def run_command(args: argparse.Namespace) -> int:
             return save_diverged(exc, args.save_result)
     values = check_some_divergence(result, args.metric, args.result or args.gaussians)
     scored, rows, agreement = rank_views(gaussians, cams, idx, result, values, settings, visible_centres)
-    print("\n".join(probe_lines(result) + force_lines(result.forces)))
-    warning = reach_warning(values, scored.seen, result.config)
-    if warning is not None:
-        log.warning("%s", warning)
-    print(format_table(rows, args.top_k))
-    print("\n".join(agreement_lines(agreement)))
-    if result.replicas is None:
-        print(one_run_line())
+    print_ranking(result, values, scored.seen, rows, agreement, args.top_k)
     top = None if args.png_all else args.png_top
     images, stale = write_views_folder(
         gaussians,
@@ -258,3 +158,19 @@ def run_command(args: argparse.Namespace) -> int:
     if h5 is not None:
         print(f"see them in a browser: fluidgs view {h5} --gaussians {args.gaussians} --scores {output}")
     return 0
+
+
+def print_ranking(result, values, seen, rows: list[dict], agreement: dict, top_k: int | None) -> None:
+    """What the probes reached, the ranked table and how far coverage decides the ranking."""
+    from nbv.coverage import agreement_lines, one_run_line
+    from nbv.physics.forces import force_lines
+    from nbv.view_scoring import format_table, probe_lines, reach_warning
+
+    print("\n".join(probe_lines(result) + force_lines(result.forces)))
+    warning = reach_warning(values, seen, result.config)
+    if warning is not None:
+        log.warning("%s", warning)
+    print(format_table(rows, top_k))
+    print("\n".join(agreement_lines(agreement)))
+    if result.replicas is None:
+        print(one_run_line())
