@@ -26,6 +26,7 @@ from .options import (
     load_gaussians_checked,
     physics_config_from_args,
 )
+from .options.sweep_report import drag_words, length_words, print_estimate, print_points
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -107,23 +108,6 @@ def plot_drag(points, path: Path, title: str = "") -> Path | None:
     )
 
 
-def print_estimate(plan, work, seconds, calibration) -> None:
-    """The upfront estimate: probe-steps and minutes per speed, and the total."""
-    empty = "" if calibration.empty_step_s is None else f" ({calibration.empty_step_s:.3g} s in the empty scene)"
-    print(
-        f"calibration: {calibration.steps} steps of one probe took {calibration.step_s:.3g} s per probe-step{empty}, "
-        f"plus {calibration.run_s:.1f} s per simulation (the solid, the setup)"
-    )
-    print(f"{'U m/s':>7} {'dt s':>10} {'steps':>7} {'probe-steps':>12} {'est. min':>9}")
-    for st, n, sec in zip(plan, work, seconds, strict=True):
-        print(f"{st.speed:>7g} {st.dt:>10.3g} {st.steps:>7} {n:>12,} {sec / 60:>9.1f}")
-    print(
-        f"estimate: {sum(work):,} probe-steps, about {sum(seconds) / 60:.1f} min ({sum(seconds):.0f} s) on this "
-        "machine",
-        flush=True,
-    )
-
-
 def run_command(args: argparse.Namespace) -> int:
     import time
 
@@ -174,23 +158,11 @@ def run_command(args: argparse.Namespace) -> int:
     )
     print(
         f"Re = rho U L / mu with L = {first.re_length:.4g} m "
-        f"({_length_words(first.re_length_from, first.drag_probe)}), "
+        f"({length_words(first.re_length_from, first.drag_probe)}), "
         f"rho = {config.rest_density:g} kg/m^3, mu = {config.viscosity:g} Pa s"
     )
-    print(_drag_words(first))
-    print(
-        f"{'U m/s':>7} {'Re':>10} {'dt s':>10} {'steps':>6} {'D-bar':>12} {'D-bar empty':>12} {'C_d':>6} "
-        f"{'drag N':>9}" + ("  D-bar OTHER         gap" if other is not None else "")
-    )
-    for p in points:
-        extra = f" {p.dbar_other:>12.4g} {p.gap:>11.4g}" if p.dbar_other is not None else ""
-        empty = "n/a" if p.dbar_empty is None else f"{p.dbar_empty:.4g}"
-        cd = "n/a" if p.drag_coefficient is None else f"{p.drag_coefficient:.3g}"
-        drag = "n/a" if p.drag is None else f"{p.drag:.3g}"
-        print(
-            f"{p.speed:>7g} {p.reynolds:>10.4g} {p.dt:>10.3g} {p.steps:>6} {p.dbar:>12.4g} {empty:>12} {cd:>6} "
-            f"{drag:>9}{extra}"
-        )
+    print(drag_words(first))
+    print_points(points, other is not None)
     print(
         f"took {took:.0f} s = {took / 60:.1f} min (estimated {sum(seconds):.0f} s = {sum(seconds) / 60:.1f} min, "
         f"x{took / max(sum(seconds), 1e-9):.2f})"
@@ -198,22 +170,3 @@ def run_command(args: argparse.Namespace) -> int:
     print(f"csv: {output}\nplot: {plot}")
     print(f"C_d plot: {cd_plot}" if cd_plot is not None else "C_d plot: not drawn (a speed has no C_d or no finite Re)")
     return 0
-
-
-def _length_words(source: str, probe: str) -> str:
-    return {
-        "object": f"the object's extent along the flow of probe {probe}",
-        "domain": f"the largest extent of probe {probe}'s domain",
-        "given": "given by --re-length",
-    }[source]
-
-
-def _drag_words(point) -> str:
-    if point.drag_coefficient is None:
-        why = "it reported no force" if point.drag is None else "it has no inflow speed"
-        return f"C_d: none for probe {point.drag_probe} ({why})"
-    return (
-        f"C_d = 2 F / (rho U^2 A) of probe {point.drag_probe}, the flow probe: F its time-mean drag over the second "
-        f"half of each run, A = {point.area:.3g} m^2 the solid's area projected along the flow (3 digits: a step's "
-        "force is noisy)"
-    )
