@@ -62,7 +62,7 @@ def test_reinit_with_old_arrays_in_a_cycle_keeps_new_arrays_alive(taichi_setting
 
 
 HANG = (
-    "import time\nfrom apps.taichi_runtime import startup_watchdog\nwith startup_watchdog(1.0):\n"
+    "import time\nfrom apps.startup_watchdog import startup_watchdog\nwith startup_watchdog(1.0):\n"
     "    time.sleep(60)\nprint('not reached')\n"
 )
 
@@ -90,7 +90,7 @@ def test_startup_watchdog_says_so_and_stops_a_hang():
 def test_startup_watchdog_is_quiet_when_the_start_ends_and_reads_its_limit(monkeypatch, capfd):
     import pytest
 
-    from apps.taichi_runtime import STARTUP_TIMEOUT_S, TIMEOUT_ENV, startup_timeout, startup_watchdog
+    from apps.startup_watchdog import STARTUP_TIMEOUT_S, TIMEOUT_ENV, startup_timeout, startup_watchdog
 
     with startup_watchdog(30.0):
         pass
