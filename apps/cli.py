@@ -10,18 +10,17 @@ import logging
 import signal
 import sys
 
-from fluidsim.files import remove_unfinished, written_outputs
+from fluidsim.files import remove_unfinished
 
 from .exit_codes import (
     EXIT_BAD_INPUT,
-    EXIT_DIVERGED,
     EXIT_INTERRUPTED,
-    EXIT_OUTPUT,
+    EXIT_OUTPUT,  # noqa: F401 (a name of apps.cli that callers read)
     interrupted_import,
-    is_output_error,
+    run_module,
 )
 from .progress_log import line_progress
-from .signals import STOP_SIGNALS, Stopped, exit_after_commands, first_signal, signal_name, stop_signals
+from .signals import STOP_SIGNALS, exit_after_commands, stop_signals
 
 try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets one line too, not a traceback
     from . import (
@@ -51,7 +50,7 @@ except KeyboardInterrupt:
     sys.stderr.write("ERROR fluidgs: interrupted\n")
     raise SystemExit(EXIT_INTERRUPTED) from None
 from .help_format import HelpFormatter  # noqa: E402 (after the guarded imports above)
-from .options.argv import non_utf8_argument, value_options  # noqa: E402 (after the guarded imports above)
+from .options.argv import join_dash_tokens, non_utf8_argument  # noqa: E402 (after the guarded imports above)
 
 COMMANDS = {
     "inspect": (inspect_gaussians, "what the fluid will see: format, boxes, frame, solid count; PNG of three views"),
@@ -119,39 +118,9 @@ def command_of(argv: list[str]) -> str | None:
 
 
 def join_dash_values(argv: list[str], parser: argparse.ArgumentParser | None = None) -> list[str]:
-    """One rule for values that start with '-' (a probe "-x", a probe list "-x,+x", an up "-y", a box
-    "-1,-1,-1,1,1,1", a vector "-0.1,1,0"): argparse would read such a value as an option, so ``--opt -x`` becomes
-    ``--opt=-x`` for every option of ``parser`` that takes one value, unless the next token is itself an option of
-    the parser (``--cameras -o out.json`` still says that --cameras lacks its value) or starts with ``--``. Tokens
-    after a bare ``--`` are left alone.
-
-    Args:
-        argv: the command line without the program name.
-        parser: the parser the line is for (default: :func:`build_parser` of the command ``argv`` names).
-    """
-    takes, every = value_options(parser if parser is not None else build_parser(command_of(argv) or ""))
-    out: list[str] = []
-    i = 0
-    while i < len(argv):
-        tok = argv[i]
-        if tok == "--":
-            return out + argv[i:]
-        nxt = argv[i + 1] if i + 1 < len(argv) else None
-        if (
-            tok in takes
-            and nxt is not None
-            and nxt.startswith("-")
-            and len(nxt) > 1
-            and not nxt.startswith("--")
-            and nxt not in every
-            and nxt[:2] not in every
-        ):
-            out.append(f"{tok}={nxt}")
-            i += 2
-            continue
-        out.append(tok)
-        i += 1
-    return out
+    """:func:`apps.options.argv.join_dash_tokens` (``--opt -x`` read as ``--opt=-x``) with ``parser`` by default
+    :func:`build_parser` of the command ``argv`` names."""
+    return join_dash_tokens(argv, parser if parser is not None else build_parser(command_of(argv) or ""))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -181,45 +150,6 @@ def main(argv: list[str] | None = None) -> int:
     finally:  # whatever ended the command: no temporary file, and no empty new folder of a failed run, stays
         remove_unfinished(created_folders=code != 0)
     return code
-
-
-def run_module(args: argparse.Namespace) -> int:
-    """Run the parsed command; returns its exit code (one logged line for every expected failure)."""
-    module = args._module
-    runner = getattr(module, "run_command", None) or module.run
-    before = len(written_outputs())
-    try:
-        return int(runner(args) or 0)
-    except Stopped as exc:  # SIGINT, SIGTERM or SIGHUP (apps.signals): one line, what is already written stays written
-        logging.getLogger("fluidgs").error("interrupted by %s", signal_name(exc.signum))
-        return exc.exit_code
-    except (ValueError, OSError, FileNotFoundError) as exc:
-        if not is_output_error(exc):
-            logging.getLogger("fluidgs").error("%s", exc)
-            return EXIT_BAD_INPUT
-        done = written_outputs()[before:]
-        kept = f"; written before it, complete: {', '.join(map(str, done))}" if done else "; no output was written"
-        logging.getLogger("fluidgs").error("%s%s", exc, kept)
-        return EXIT_OUTPUT
-    except RuntimeError as exc:
-        from fluidsim.simulation import SimulationDiverged
-
-        if not isinstance(exc, SimulationDiverged):
-            raise
-        logging.getLogger("fluidgs").error("%s", exc)
-        return EXIT_DIVERGED
-    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (what is already written stays written)
-        first = first_signal()  # an extension (Ray) may turn the handler's Stopped into a plain KeyboardInterrupt
-        if first is not None:
-            logging.getLogger("fluidgs").error("interrupted by %s", signal_name(first))
-            return 128 + first
-        logging.getLogger("fluidgs").error("interrupted")
-        return EXIT_INTERRUPTED
-    except ImportError as exc:  # a Ctrl-C inside a C extension's import (open3d, torch) surfaces as an ImportError
-        if not interrupted_import(exc):
-            raise
-        logging.getLogger("fluidgs").error("interrupted")
-        return EXIT_INTERRUPTED
 
 
 def entry() -> None:

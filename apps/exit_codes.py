@@ -24,9 +24,13 @@ code  meaning
 
 from __future__ import annotations
 
+import argparse
 import errno
+import logging
 
-from fluidsim.files import OutputError
+from fluidsim.files import OutputError, written_outputs
+
+from .signals import Stopped, first_signal, signal_name
 
 EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT = 2, 3, 4
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
@@ -50,3 +54,42 @@ def interrupted_import(exc: ImportError) -> bool:
         if isinstance(seen, KeyboardInterrupt):
             return True
     return False
+
+
+def run_module(args: argparse.Namespace) -> int:
+    """Run the parsed command; returns its exit code (one logged line for every expected failure)."""
+    module = args._module
+    runner = getattr(module, "run_command", None) or module.run
+    before = len(written_outputs())
+    try:
+        return int(runner(args) or 0)
+    except Stopped as exc:  # SIGINT, SIGTERM or SIGHUP (apps.signals): one line, what is already written stays written
+        logging.getLogger("fluidgs").error("interrupted by %s", signal_name(exc.signum))
+        return exc.exit_code
+    except (ValueError, OSError, FileNotFoundError) as exc:
+        if not is_output_error(exc):
+            logging.getLogger("fluidgs").error("%s", exc)
+            return EXIT_BAD_INPUT
+        done = written_outputs()[before:]
+        kept = f"; written before it, complete: {', '.join(map(str, done))}" if done else "; no output was written"
+        logging.getLogger("fluidgs").error("%s%s", exc, kept)
+        return EXIT_OUTPUT
+    except RuntimeError as exc:
+        from fluidsim.simulation import SimulationDiverged
+
+        if not isinstance(exc, SimulationDiverged):
+            raise
+        logging.getLogger("fluidgs").error("%s", exc)
+        return EXIT_DIVERGED
+    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (what is already written stays written)
+        first = first_signal()  # an extension (Ray) may turn the handler's Stopped into a plain KeyboardInterrupt
+        if first is not None:
+            logging.getLogger("fluidgs").error("interrupted by %s", signal_name(first))
+            return 128 + first
+        logging.getLogger("fluidgs").error("interrupted")
+        return EXIT_INTERRUPTED
+    except ImportError as exc:  # a Ctrl-C inside a C extension's import (open3d, torch) surfaces as an ImportError
+        if not interrupted_import(exc):
+            raise
+        logging.getLogger("fluidgs").error("interrupted")
+        return EXIT_INTERRUPTED

@@ -51,3 +51,39 @@ def non_utf8_argument(parser: argparse.ArgumentParser, args: argparse.Namespace)
                         "text; rename the file (or folder) to a UTF-8 name and run again"
                     )
     return None
+
+
+def join_dash_tokens(argv: list[str], parser: argparse.ArgumentParser) -> list[str]:
+    """One rule for values that start with '-' (a probe "-x", a probe list "-x,+x", an up "-y", a box
+    "-1,-1,-1,1,1,1", a vector "-0.1,1,0"): argparse would read such a value as an option, so ``--opt -x`` becomes
+    ``--opt=-x`` for every option of ``parser`` that takes one value, unless the next token is itself an option of
+    the parser (``--cameras -o out.json`` still says that --cameras lacks its value) or starts with ``--``. Tokens
+    after a bare ``--`` are left alone.
+
+    Args:
+        argv: the command line without the program name.
+        parser: the parser the line is for.
+    """
+    takes, every = value_options(parser)
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        tok = argv[i]
+        if tok == "--":
+            return out + argv[i:]
+        nxt = argv[i + 1] if i + 1 < len(argv) else None
+        if (
+            tok in takes
+            and nxt is not None
+            and nxt.startswith("-")
+            and len(nxt) > 1
+            and not nxt.startswith("--")
+            and nxt not in every
+            and nxt[:2] not in every
+        ):
+            out.append(f"{tok}={nxt}")
+            i += 2
+            continue
+        out.append(tok)
+        i += 1
+    return out
