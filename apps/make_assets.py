@@ -90,16 +90,10 @@ def run_command(args: argparse.Namespace) -> int:
     from recon.datasets import load_dataset
     from recon.formats.ply import save_gaussians
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
-    from recon.train import TrainConfig, evaluate, train
+    from recon.train import TrainConfig, evaluate
 
     out = args.output
-    for name in ("res", "candidates", "iters", "max_gaussians", "threads", "train_views"):
-        if getattr(args, name) < 1:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    if args.train_views > args.candidates:
-        raise ValueError(f"--train-views {args.train_views} exceeds --candidates {args.candidates}")
-    if args.test < 1:
-        raise ValueError(f"--test must be >= 1 to report a held-out PSNR, got {args.test}")
+    check_arguments(args)
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
@@ -125,19 +119,7 @@ def run_command(args: argparse.Namespace) -> int:
             render_s,
         )
 
-        from tqdm import tqdm
-
-        with tqdm(total=config.iterations, desc="make-assets train", unit="it") as bar:
-
-            def on_step(st) -> None:
-                bar.update(1)
-                if st.iteration % 10 == 0:
-                    bar.set_postfix(
-                        loss=f"{st.loss:.4f}", psnr=f"{st.psnr:.2f}", gaussians=st.num_gaussians, refresh=False
-                    )
-
-            with deterministic_torch():
-                gaussians, train_log = train(dataset, config, callback=on_step)
+        gaussians, train_log = train_assets(dataset, config)
         metrics = evaluate(gaussians, dataset.test, dataset.background)
     ply_path = save_gaussians(gaussians, out / GAUSSIANS_FILE)
     write_json_atomic(out / CAMERAS_FILE, cameras_json(candidates, math.radians(mesh_cfg.fov_x)))
@@ -173,3 +155,32 @@ def run_command(args: argparse.Namespace) -> int:
         report["timings_s"]["total"],
     )
     return 0
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """The counts and sizes of the command line, refused before anything is rendered."""
+    for name in ("res", "candidates", "iters", "max_gaussians", "threads", "train_views"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.train_views > args.candidates:
+        raise ValueError(f"--train-views {args.train_views} exceeds --candidates {args.candidates}")
+    if args.test < 1:
+        raise ValueError(f"--test must be >= 1 to report a held-out PSNR, got {args.test}")
+
+
+def train_assets(dataset, config) -> tuple:
+    """(Gaussians, TrainLog) of :func:`recon.train.train` on the rendered views, deterministic, with a progress bar."""
+    from tqdm import tqdm
+
+    from recon.train import train
+
+    with tqdm(total=config.iterations, desc="make-assets train", unit="it") as bar:
+
+        def on_step(st) -> None:
+            bar.update(1)
+            if st.iteration % 10 == 0:
+                bar.set_postfix(loss=f"{st.loss:.4f}", psnr=f"{st.psnr:.2f}", gaussians=st.num_gaussians, refresh=False)
+
+        with deterministic_torch():
+            gaussians, train_log = train(dataset, config, callback=on_step)
+    return gaussians, train_log

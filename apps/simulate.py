@@ -71,10 +71,8 @@ def default_ply_path(output: Path) -> Path:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, check_writable
-    from nbv.outputs import divergence_columns, probe_video, result_summary, save_colored_gaussians
+    from nbv.outputs import divergence_columns, probe_video, save_colored_gaussians
     from nbv.physics import ProbeDiverged, save_result, simulate_gaussians
-    from nbv.physics.forces import force_lines
-    from nbv.physics.replicas import replicas_gaussian_line
 
     from .runtime import init_taichi
 
@@ -118,6 +116,31 @@ def run_command(args: argparse.Namespace) -> int:
         return save_diverged(exc, output)
     save_result(output, result)
     save_colored_gaussians(gaussians, result.divergence, ply, divergence_columns(result), result.reached)
+    print_result(result)
+    print(
+        f"result: {output}\ncoloured Gaussians: {ply} (D_g as the vertex properties "
+        f"{', '.join(divergence_columns(result))})"
+    )
+    write_solid_export(args.export_solid, result, args.export_frame)
+    if video is not None:
+        from dataclasses import replace
+
+        from nbv.outputs import VIDEO_STYLE
+
+        style = replace(VIDEO_STYLE, **style_options)
+        probe_video(result, args.video, video, args.video_every, style=style, fps=style_options.get("fps"))
+        print(f"video: {video}")
+    print(f"see it in a browser: fluidgs view {output} --gaussians {args.gaussians}")
+    return 0
+
+
+def print_result(result) -> None:
+    """Per probe: mean and max D_g, the Gaussians reached, retired and leaked particles, warnings; the forces, D-bar,
+    the replicas' agreement and the timings."""
+    from nbv.outputs import result_summary
+    from nbv.physics.forces import force_lines
+    from nbv.physics.replicas import replicas_gaussian_line
+
     s = result_summary(result)
     print(
         f"{result.num_gaussians} Gaussians, {len(result.solid)} solid particles, scale {result.transform.scale:.4g} "
@@ -146,18 +169,3 @@ def run_command(args: argparse.Namespace) -> int:
         f"time: simulation {t['simulation']:.1f} s, aggregation {t['aggregation']:.2f} s, "
         f"empty reference {t['empty_reference']:.1f} s, total {t['total']:.1f} s"
     )
-    print(
-        f"result: {output}\ncoloured Gaussians: {ply} (D_g as the vertex properties "
-        f"{', '.join(divergence_columns(result))})"
-    )
-    write_solid_export(args.export_solid, result, args.export_frame)
-    if video is not None:
-        from dataclasses import replace
-
-        from nbv.outputs import VIDEO_STYLE
-
-        style = replace(VIDEO_STYLE, **style_options)
-        probe_video(result, args.video, video, args.video_every, style=style, fps=style_options.get("fps"))
-        print(f"video: {video}")
-    print(f"see it in a browser: fluidgs view {output} --gaussians {args.gaussians}")
-    return 0

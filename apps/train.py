@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import time
 from pathlib import Path
 
 from fluidsim.files import write_json_atomic
 
 from .options import add_config_options, config_values, dataset_inputs, index_list
+from .options.files import check_ply_output
 from .runtime import deterministic_torch, thread_count
 
 log = logging.getLogger("fluidgs")
@@ -73,30 +73,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def check_output(path: Path) -> None:
-    """Raise before any training when ``path`` is not a writable .ply destination."""
-    if path.suffix.lower() != ".ply":
-        raise ValueError(f"{path}: the output must be a .ply file (e.g. -o out/scene.ply)")
-    parent = path.absolute().parent
-    if not parent.is_dir():
-        raise ValueError(f"{parent}: the output folder does not exist; create it first")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"{parent}: the output folder is not writable; choose another -o")
-    if path.is_dir():
-        raise ValueError(f"{path}: is a folder; give a .ply file name")
-
-
 def run_command(args: argparse.Namespace) -> int:
     import torch
-    from tqdm import tqdm
 
     from fluidsim.files import check_not_input, check_writable
-    from recon.datasets import load_dataset
     from recon.device import torch_device
     from recon.formats.ply import save_gaussians
-    from recon.train import TrainConfig, evaluate, train, view_to
+    from recon.train import TrainConfig, evaluate, view_to
 
-    check_output(args.output)
+    check_ply_output(args.output)
     check_not_input({"-o": args.output, "report": args.output.with_suffix(".json")}, dataset_inputs(args.dataset))
     check_writable(args.output)
     check_writable(args.output.with_suffix(".json"))
@@ -113,44 +98,8 @@ def run_command(args: argparse.Namespace) -> int:
     device = torch_device(args.device)
     torch.manual_seed(seed)
 
-    start = time.perf_counter()
-    dataset = load_dataset(args.dataset, resolution=args.res or None)
-    n = len(dataset.train)
-    chosen = (
-        None
-        if args.views is None
-        else index_list(args.views, "--views", n, what="view", range_hint=f"the train split has {n} views (0..{n - 1})")
-    )
-    if chosen is not None:
-        dataset.train = [dataset.train[i] for i in chosen]
-    load_s = time.perf_counter() - start
-    log.info(
-        "%s: %d train views (%d x %d px), %d test views",
-        args.dataset,
-        len(dataset.train),
-        dataset.train[0].camera.width,
-        dataset.train[0].camera.height,
-        len(dataset.test),
-    )
-    if args.eval_every and not dataset.test:
-        raise ValueError(f"--eval-every {args.eval_every} needs test views, but {args.dataset} has no test split")
-
-    with tqdm(total=config.iterations, desc="train", unit="it") as bar:
-
-        def on_step(st) -> None:
-            bar.update(1)
-            if st.iteration % 10 == 0 or st.iteration == config.iterations:
-                bar.set_postfix(loss=f"{st.loss:.4f}", psnr=f"{st.psnr:.2f}", gaussians=st.num_gaussians, refresh=False)
-
-        with deterministic_torch():
-            gaussians, train_log = train(
-                dataset,
-                config,
-                callback=on_step,
-                eval_views=dataset.test,
-                evaluate_every=args.eval_every,
-                device=device,
-            )
+    dataset, load_s = load_views(args)
+    gaussians, train_log = train_with_progress(dataset, config, args.eval_every, device)
     metrics = None
     eval_s = 0.0
     if dataset.test:
@@ -188,3 +137,56 @@ def run_command(args: argparse.Namespace) -> int:
         train_log.wall_time_s,
     )
     return 0
+
+
+def load_views(args: argparse.Namespace) -> tuple:
+    """(dataset with the --views of its train split, seconds the loading took)."""
+    from recon.datasets import load_dataset
+
+    start = time.perf_counter()
+    dataset = load_dataset(args.dataset, resolution=args.res or None)
+    n = len(dataset.train)
+    chosen = (
+        None
+        if args.views is None
+        else index_list(args.views, "--views", n, what="view", range_hint=f"the train split has {n} views (0..{n - 1})")
+    )
+    if chosen is not None:
+        dataset.train = [dataset.train[i] for i in chosen]
+    load_s = time.perf_counter() - start
+    log.info(
+        "%s: %d train views (%d x %d px), %d test views",
+        args.dataset,
+        len(dataset.train),
+        dataset.train[0].camera.width,
+        dataset.train[0].camera.height,
+        len(dataset.test),
+    )
+    if args.eval_every and not dataset.test:
+        raise ValueError(f"--eval-every {args.eval_every} needs test views, but {args.dataset} has no test split")
+    return dataset, load_s
+
+
+def train_with_progress(dataset, config, eval_every: int, device: str) -> tuple:
+    """(Gaussians, TrainLog) of :func:`recon.train.train`, deterministic, with a progress bar."""
+    from tqdm import tqdm
+
+    from recon.train import train
+
+    with tqdm(total=config.iterations, desc="train", unit="it") as bar:
+
+        def on_step(st) -> None:
+            bar.update(1)
+            if st.iteration % 10 == 0 or st.iteration == config.iterations:
+                bar.set_postfix(loss=f"{st.loss:.4f}", psnr=f"{st.psnr:.2f}", gaussians=st.num_gaussians, refresh=False)
+
+        with deterministic_torch():
+            gaussians, train_log = train(
+                dataset,
+                config,
+                callback=on_step,
+                eval_views=dataset.test,
+                evaluate_every=eval_every,
+                device=device,
+            )
+    return gaussians, train_log

@@ -4,6 +4,7 @@ checked before any work, and the files of a dataset folder that no output may ov
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from fluidsim.files import check_input_file
@@ -127,3 +128,16 @@ def dataset_inputs(dataset) -> list[tuple[str, Path]]:
         for pattern in DATASET_FILES
         for f in sorted(folder.glob(pattern))
     ]
+
+
+def check_ply_output(path: Path) -> None:
+    """Raise before any training when ``path`` is not a writable .ply destination."""
+    if path.suffix.lower() != ".ply":
+        raise ValueError(f"{path}: the output must be a .ply file (e.g. -o out/scene.ply)")
+    parent = path.absolute().parent
+    if not parent.is_dir():
+        raise ValueError(f"{parent}: the output folder does not exist; create it first")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{parent}: the output folder is not writable; choose another -o")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder; give a .ply file name")
