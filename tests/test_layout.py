@@ -56,3 +56,55 @@ def test_no_subfolder_of_tests_is_a_package_and_names_are_unique():
     assert not inits, f"no __init__.py in test folders (they would shadow the packages): {inits}"
     names = [p.name for p in _test_modules() if p.name.startswith("test_")]
     assert len(names) == len(set(names)), sorted(n for n in names if names.count(n) > 1)
+
+
+# ---- apps stay thin: short modules, short functions, and commands that do not lean on each other ----------------
+APPS = REPO / "apps"
+APP_MODULE_LINES = 200
+APP_FUNCTION_LINES = 80
+# What a command may import from apps: the shared option groups (apps/options/) and the modules that are no command
+# but what every command runs on: the runtime (devices, threads, Taichi's start), the exit codes, the stop signals,
+# the progress lines and the help layout. apps/cli.py, the dispatcher, imports every command.
+APP_SHARED = {"options", "runtime", "taichi_runtime", "startup_watchdog", "exit_codes", "signals", "progress_log"}
+APP_SHARED |= {"help_format"}
+
+
+def _app_modules() -> list[Path]:
+    return sorted([*APPS.glob("*.py"), *(APPS / "options").glob("*.py")])
+
+
+def test_app_modules_are_short():
+    long = {
+        str(p.relative_to(REPO)): n for p in _app_modules() if (n := len(p.read_text().splitlines())) > APP_MODULE_LINES
+    }
+    assert not long, f"app modules over {APP_MODULE_LINES} lines (move the logic to its library module): {long}"
+
+
+def test_app_functions_are_short():
+    long = [
+        f"{p.relative_to(REPO)}:{node.name} {node.end_lineno - node.lineno + 1}"
+        for p in _app_modules()
+        for node in ast.walk(ast.parse(p.read_text()))
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+        and node.end_lineno - node.lineno + 1 > APP_FUNCTION_LINES
+    ]
+    assert not long, f"app functions over {APP_FUNCTION_LINES} lines: {long}"
+
+
+def test_no_app_imports_another():
+    offenders = []
+    for p in APPS.glob("*.py"):
+        if p.name in ("cli.py", "__init__.py"):
+            continue
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.level == 1 or (node.module or "").startswith("apps.")):
+                names = [node.module] if node.module else [a.name for a in node.names]
+                first = [(n.removeprefix("apps.") if node.level == 0 else n).split(".")[0] for n in names]
+                offenders += [f"{p.relative_to(REPO)}: {n}" for n in first if n not in APP_SHARED]
+            elif isinstance(node, ast.Import):
+                offenders += [
+                    f"{p.relative_to(REPO)}: {a.name}"
+                    for a in node.names
+                    if a.name.startswith("apps.") and a.name.split(".")[1] not in APP_SHARED
+                ]
+    assert not offenders, f"shared CLI pieces go to apps/options/ or the library: {offenders}"
