@@ -150,7 +150,7 @@ def replicas_gaussian_line(runs: ReplicaRuns) -> str:
 def pairwise_spearman(rows: np.ndarray, masks: np.ndarray | None = None) -> list[tuple[int, int, float]]:
     """(i, j, Spearman of rows i and j) for every pair i < j of ``rows`` [N, K]; with ``masks`` [N, K] bool, over the
     entries both rows keep (NaN for fewer than 3 of them or a constant side)."""
-    from nbv.study.convergence import spearman  # noqa: PLC0415 - nbv.study reads results: a cycle at import time
+    from nbv.ranking import spearman  # noqa: PLC0415 - nbv.study reads results: a cycle at import time
 
     x = np.asarray(rows, np.float64)
     out = []

@@ -34,6 +34,7 @@ from __future__ import annotations
 import copy
 import json
 import logging
+import math
 import time
 from collections import defaultdict
 from collections.abc import Callable, Sequence
@@ -320,6 +321,16 @@ def copy_gains(
     return out
 
 
+def object_target(mesh_path: Path, physics: PhysicsConfig):
+    """The dataset's object as a functional target (:class:`nbv.functional.FunctionalTarget`, its flows cached)."""
+    from nbv.functional import FlowCache, FunctionalTarget  # noqa: PLC0415
+    from nbv.functional.solids import reference_source  # noqa: PLC0415
+
+    return FunctionalTarget(
+        reference_source(Path(mesh_path), physics, None, None), physics, FlowCache.from_environment()
+    )
+
+
 def image_target(test_views: list, background: Sequence[float]) -> Callable[[Trainer], dict[str, float]]:
     """The image target of a copy: its mean test PSNR (dB) and SSIM over the held-out views."""
 
@@ -328,6 +339,42 @@ def image_target(test_views: list, background: Sequence[float]) -> Callable[[Tra
         return {"psnr": metrics["psnr"], "ssim": metrics["ssim"]}
 
     return measure
+
+
+def functional_target(target) -> Callable[[Trainer], dict[str, float]]:
+    """The functional target of a copy: its functional error against the object (``target``, a
+    :class:`nbv.functional.FunctionalTarget`: the headline, the relative error of the time-mean force), and that
+    error's noise floor (the same for every copy: the object against itself on a shifted lattice)."""
+
+    def measure(trainer: Trainer) -> dict[str, float]:
+        try:
+            c = target.error(trainer.gaussians.detach().to("cpu"))
+        except ValueError as exc:  # no solid, or none overlapping the object: the copy behaves like nothing
+            log.warning("functional target: %s", exc)
+            return {"functional_error": math.nan, "functional_floor": math.nan}
+        return {"functional_error": c.error, "functional_floor": c.floor}
+
+    return measure
+
+
+def both_targets(*targets: Callable[[Trainer], dict[str, float]]) -> Callable[[Trainer], dict[str, float]]:
+    """One measure from several targets (their metrics merged)."""
+
+    def measure(trainer: Trainer) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for t in targets:
+            out.update(t(trainer))
+        return out
+
+    return measure
+
+
+def functional_gains(oracle: dict[str, Any]) -> None:
+    """The functional gain of each candidate, in place: the copy without it minus the copy with it
+    (``gain_functional``, positive where the candidate lowers the functional error)."""
+    if "functional_error" in oracle:
+        oracle["gain_functional"] = [-g for g in oracle.pop("gain_functional_error")]
+        oracle.pop("gain_functional_floor", None)
 
 
 def oracle_gains(
@@ -447,6 +494,9 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
     t_rules = time.perf_counter() - t0
     t0 = time.perf_counter()
     measure = image_target([view_to(v, active.device) for v in ds.test], ds.background)  # what a copy is worth
+    functional = config.functional_config(active.physics_config.up)
+    if functional is not None and ds.mesh_path is not None:  # ... and how it behaves in the fluid
+        measure = both_targets(measure, functional_target(object_target(ds.mesh_path, functional)))
     oracle = copy_gains(
         partial(active.new_trainer, active.config.total_iterations),
         reached.trainer.state_dict(),
@@ -456,6 +506,7 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
         measure,
         progress,
     )
+    functional_gains(oracle)
     t_oracle = time.perf_counter() - t0
     record: dict[str, Any] = {
         "config": state_key(config),

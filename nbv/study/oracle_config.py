@@ -56,6 +56,7 @@ CONFIG_KEYS = (
     "calibration",
     "bootstrap",
     "output",
+    "functional",
 )
 
 # The rules that score the candidates themselves; every other rule sums per-Gaussian values v_g over a view
@@ -202,6 +203,12 @@ class OracleConfig:
         calibration: compute the per-Gaussian calibration against the dataset's mesh (where it has one).
         bootstrap: bootstrap resamples of the intervals (>= 100).
         output: results folder.
+        functional: the functional target's probe settings (PhysicsConfig overrides on the selection physics, e.g.
+            {"particle_radius": 0.05, "steps": 300, "directions": ["-x"]}), or None (default): no functional target.
+            With it, each copy is also measured by its functional error against the dataset's mesh
+            (:mod:`nbv.functional`, one probe run per copy and direction) and each candidate gets a functional gain,
+            the copy without it minus the copy with it (positive: the candidate makes the model behave more like the
+            object).
     """
 
     scenes: tuple[str, ...]
@@ -217,6 +224,7 @@ class OracleConfig:
     calibration: bool = True
     bootstrap: int = 2000
     output: str = "out/oracle"
+    functional: dict | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rules", _renamed(self.rules))
@@ -277,6 +285,13 @@ class OracleConfig:
                     f"oracle config: 'probes' entry {name!r} must be a name without ':' mapped to an "
                     "object of PhysicsConfig overrides"
                 )
+        if self.functional is not None:
+            if not isinstance(self.functional, dict):
+                raise ValueError(
+                    "oracle config: 'functional' must be null or an object of PhysicsConfig overrides for the "
+                    'functional target, e.g. {"particle_radius": 0.05, "steps": 300, "directions": ["-x"]}'
+                )
+            self.functional_config()
         base = self.active_config(self.seeds[0])  # validates the preset and the overrides
         for name in self.probes:
             self.probe_config(name)
@@ -336,6 +351,20 @@ class OracleConfig:
         except (TypeError, ValueError) as exc:
             raise ValueError(f"oracle config: 'probes' setting {name!r}: {exc}") from exc
 
+    def functional_config(self, up: str | tuple[float, float, float] | None = None) -> PhysicsConfig | None:
+        """The functional target's PhysicsConfig (the selection physics with ``functional``'s overrides, no empty
+        scene; default direction -x, head-on), or None without a functional target."""
+        if self.functional is None:
+            return None
+        base = self.active_config(self.seeds[0]).physics.to_dict()
+        over = {"directions": ["-x"], **self.functional, "empty_reference": False, "track_distinct": False}
+        if up is not None:
+            over["up"] = up
+        try:
+            return PhysicsConfig.from_dict({**base, **over})
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"oracle config: 'functional': {exc}") from exc
+
     def probe_configs(self, up: str | tuple[float, float, float]) -> dict[str, PhysicsConfig]:
         """Every probe setting's PhysicsConfig (:meth:`probe_config`) with the up direction ``up``."""
         return {name: PhysicsConfig.from_dict({**self.probe_config(name).to_dict(), "up": up}) for name in self.probes}
@@ -359,4 +388,8 @@ class OracleConfig:
         return names + self.physics_rules()
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in ((k, getattr(self, k)) for k in CONFIG_KEYS)}
+        """JSON-able; ``functional`` is left out when None, so the states of a study without it keep their key."""
+        d = {k: list(v) if isinstance(v, tuple) else v for k, v in ((k, getattr(self, k)) for k in CONFIG_KEYS)}
+        if d["functional"] is None:
+            del d["functional"]
+        return d

@@ -529,3 +529,26 @@ def test_the_oracle_copies_share_the_schedule(tiny_dataset):
     b = oracle_gains(new_trainer, state, ds.train[:2], ds.train[2:4], ds.test, ds.background, 3)
     assert a == b
     assert spearman(a["gain_psnr"], a["gain_psnr"]) == pytest.approx(1.0)
+
+
+def test_the_functional_target_gives_each_candidate_a_gain_and_its_summary(tmp_path, tiny_dataset):
+    """With 'functional', each copy is also measured against the torus mesh (nbv.functional): a functional gain per
+    candidate (the copy without it minus with it), the base copy's error beside its floor, and the rules' Spearman
+    with the gain in the summary; a study without it keeps its states' key."""
+    functional = {"particle_radius": 0.08, "steps": 40, "dt": 0.004, "directions": ["-x"]}
+    config = OracleConfig(
+        **tiny(tmp_path, tiny_dataset, rules=["fisher", "coverage", "fluid-occ"], functional=functional)
+    )
+    out = run_oracle(config, InProcess(), progress=False)
+    st = json.loads(next((Path(config.output) / "states").rglob("state*.json")).read_text())
+    o = st["oracle"]
+    assert len(o["gain_functional"]) == len(st["candidates"]) == len(o["gain_psnr"])
+    assert np.isfinite(o["functional_error_base"]) and o["functional_error_base"] >= 0
+    assert np.isfinite(o["functional_floor_base"])
+    errors = np.asarray(o["functional_error"], float)
+    np.testing.assert_allclose(o["gain_functional"], o["functional_error_base"] - errors)
+    f = out["functional"] if "functional" in out else out["summary"]["functional"]
+    assert set(f["rules"]) >= {"fisher", "coverage"} and "fluid-occ:coarse" in f["paired"]
+    assert "Functional target" in (Path(config.output) / "oracle.md").read_text()
+    plain = OracleConfig(**tiny(tmp_path, tiny_dataset))
+    assert "functional" not in plain.to_dict()  # the states of studies without it keep their key
