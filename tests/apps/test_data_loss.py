@@ -47,7 +47,9 @@ from recon.formats import load_gaussians
 from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
 
+from helpers.cameras import ring_cameras, write_transforms
 from helpers.paths import REPO as ROOT
+from helpers.scenes import small_scene
 
 FAST = ["--particle-radius", "0.08", "--steps", "20", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 
@@ -60,31 +62,16 @@ def _sphere(n: int = 300) -> GaussianSet:
 
 
 def _cameras(path: Path) -> Path:
-    cams = [
-        Camera.look_at(
-            (2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, math.radians(50), name=f"cam{k}"
-        )
-        for k, a in enumerate(np.arange(4) * math.pi / 2)
-    ]
-    frames = [{"file_path": f"./{c.name}", "transform_matrix": c.opengl_c2w().tolist()} for c in cams]
-    path.write_text(json.dumps({"camera_angle_x": math.radians(50), "w": 48, "h": 40, "frames": frames}))
-    return path
+    return write_transforms(path, ring_cameras(4))
+
+
+def _score(data: dict, gaussians: str, *args: str) -> int:
+    """``fluidgs score GAUSSIANS`` on the module's cameras, with ``args``; the exit code."""
+    return cli.main(["score", gaussians, "--cameras", str(data["cameras"]), *args])
 
 
 def _scene(**over) -> dict:
-    s = {
-        "particle_radius": 0.05,
-        "rest_density": 1000.0,
-        "viscosity": 10.0,
-        "gravity": [0, -9.81, 0],
-        "dt": 0.002,
-        "steps": 5,
-        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
-        "solids": [],
-    }
-    s.update(over)
-    return s
+    return small_scene(**over)
 
 
 @pytest.fixture(scope="module")
@@ -360,18 +347,8 @@ def test_probe_that_loses_its_fluid_is_recorded_and_score_refuses_zero_divergenc
     save_result(tmp_path / "zero.h5", zero)
     caplog.clear()
     assert (
-        cli.main(
-            [
-                "score",
-                str(data["ply"]),
-                "--cameras",
-                str(data["cameras"]),
-                "--result",
-                str(tmp_path / "zero.h5"),
-                "-o",
-                str(tmp_path / "s.json"),
-                "--no-png",
-            ]
+        _score(
+            data, str(data["ply"]), "--result", str(tmp_path / "zero.h5"), "-o", str(tmp_path / "s.json"), "--no-png"
         )
         == 2
     )
@@ -385,18 +362,8 @@ def test_score_refuses_the_result_of_other_gaussians_with_the_same_count(data, t
     other = GaussianSet(g.means + 0.01, g.quats, g.log_scales, g.opacity_logits, g.sh)
     save_gaussians(other, tmp_path / "other.ply")
     assert (
-        cli.main(
-            [
-                "score",
-                str(tmp_path / "other.ply"),
-                "--cameras",
-                str(data["cameras"]),
-                "--result",
-                str(data["h5"]),
-                "-o",
-                str(tmp_path / "s.json"),
-                "--no-png",
-            ]
+        _score(
+            data, str(tmp_path / "other.ply"), "--result", str(data["h5"]), "-o", str(tmp_path / "s.json"), "--no-png"
         )
         == 2
     )
@@ -406,18 +373,14 @@ def test_score_refuses_the_result_of_other_gaussians_with_the_same_count(data, t
     assert gaussians_sha256(recolored) == load_result(data["h5"]).gaussians_sha256
     save_gaussians(recolored, tmp_path / "recolored.ply")
     assert (
-        cli.main(
-            [
-                "score",
-                str(tmp_path / "recolored.ply"),
-                "--cameras",
-                str(data["cameras"]),
-                "--result",
-                str(data["h5"]),
-                "-o",
-                str(tmp_path / "s.json"),
-                "--no-png",
-            ]
+        _score(
+            data,
+            str(tmp_path / "recolored.ply"),
+            "--result",
+            str(data["h5"]),
+            "-o",
+            str(tmp_path / "s.json"),
+            "--no-png",
         )
         == 0
     )
@@ -467,19 +430,8 @@ def test_simulate_keeps_the_completed_probes_of_a_diverging_run(data, tmp_path, 
     caplog.clear()
     saved = tmp_path / "saved.h5"
     assert (
-        cli.main(
-            [
-                "score",
-                str(data["ply"]),
-                "--cameras",
-                str(data["cameras"]),
-                "-o",
-                str(tmp_path / "s.json"),
-                "--no-png",
-                "--save-result",
-                str(saved),
-                *DIVERGE,
-            ]
+        _score(
+            data, str(data["ply"]), "-o", str(tmp_path / "s.json"), "--no-png", "--save-result", str(saved), *DIVERGE
         )
         == 3
     )

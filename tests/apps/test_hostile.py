@@ -8,6 +8,8 @@ import pytest
 
 from apps import cli
 
+from helpers.scenes import small_scene
+
 
 def _errors(caplog) -> str:
     return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
@@ -144,17 +146,7 @@ def test_deeply_nested_json_is_a_clear_error(tmp_path, caplog):
 def test_sim_disk_full_at_close_is_exit_4(tmp_path, monkeypatch, caplog, capsys):
     import h5py
 
-    scene = {
-        "particle_radius": 0.05,
-        "rest_density": 1000.0,
-        "viscosity": 10.0,
-        "gravity": [0, -9.81, 0],
-        "dt": 0.002,
-        "steps": 2,
-        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
-        "solids": [],
-    }
+    scene = small_scene(steps=2)
     (tmp_path / "scene.json").write_text(json.dumps(scene))
     real_close = h5py.File.close
 

@@ -36,23 +36,13 @@ from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet, concat
 
 from helpers.paths import TORUS
+from helpers.scenes import small_scene
 
 COARSE = dict(particle_radius=0.08, steps=5, dt=0.004, empty_reference=False, directions=("-x",))
 
 
 def _scene(**over) -> dict:
-    s = {
-        "particle_radius": 0.05,
-        "rest_density": 1000.0,
-        "viscosity": 10.0,
-        "gravity": [0, -9.81, 0],
-        "dt": 0.002,
-        "steps": 2,
-        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [0, 0, 0]}],
-    }
-    s.update(over)
-    return s
+    return small_scene(**{"steps": 2, "velocity": (0, 0, 0), **over})
 
 
 def _write_scene(path, **over):

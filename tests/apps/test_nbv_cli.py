@@ -18,6 +18,8 @@ from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
 from viz.video import video_info
 
+from helpers.cameras import ring_cameras, write_transforms
+
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 
 
@@ -31,22 +33,20 @@ def _sphere(n: int = 300) -> GaussianSet:
 FOV = math.radians(50)
 
 
+def _run_on(scene: dict, command: str, *args: str) -> int:
+    """``fluidgs COMMAND`` on the module's Gaussians and cameras, with ``args``; the exit code."""
+    return cli.main([command, str(scene["ply"]), "--cameras", str(scene["cameras"]), *args])
+
+
 def _write_cameras(path, cams, width=48, height=40, fov=FOV):
-    frames = [{"file_path": f"./{c.name}", "transform_matrix": c.opengl_c2w().tolist()} for c in cams]
-    path.write_text(json.dumps({"camera_angle_x": fov, "w": width, "h": height, "frames": frames}))
-    return path
+    return write_transforms(path, cams, width, height, fov)
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     root = tmp_path_factory.mktemp("nbv_cli")
     ply = save_gaussians(_sphere(), root / "sphere.ply")
-    cams = [
-        Camera.look_at(
-            (2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, math.radians(50), name=f"cam{k}"
-        )
-        for k, a in enumerate(np.arange(6) * math.pi / 3)
-    ]
+    cams = ring_cameras(6)
     cameras = _write_cameras(root / "transforms.json", cams)
     h5 = root / "result.h5"
     assert (
@@ -88,23 +88,7 @@ def test_simulate_outputs(scene):
 
 def test_score_ranks_views(scene, tmp_path):
     out = tmp_path / "scores.json"
-    assert (
-        cli.main(
-            [
-                "score",
-                str(scene["ply"]),
-                "--cameras",
-                str(scene["cameras"]),
-                "--result",
-                str(scene["h5"]),
-                "-o",
-                str(out),
-                "--top-k",
-                "3",
-            ]
-        )
-        == 0
-    )
+    assert _run_on(scene, "score", "--result", str(scene["h5"]), "-o", str(out), "--top-k", "3") == 0
     data = json.loads(out.read_text())
     views = data["views"]
     assert [v["rank"] for v in views] == list(range(1, 7))
@@ -115,22 +99,18 @@ def test_score_ranks_views(scene, tmp_path):
     # a subset keeps the camera indices of the file, and the same scores
     out2 = tmp_path / "subset.json"
     assert (
-        cli.main(
-            [
-                "score",
-                str(scene["ply"]),
-                "--cameras",
-                str(scene["cameras"]),
-                "--result",
-                str(scene["h5"]),
-                "-o",
-                str(out2),
-                "--candidates",
-                "1,4",
-                "--no-png",
-                "--export-solid",
-                str(tmp_path / "solid.h5"),
-            ]
+        _run_on(
+            scene,
+            "score",
+            "--result",
+            str(scene["h5"]),
+            "-o",
+            str(out2),
+            "--candidates",
+            "1,4",
+            "--no-png",
+            "--export-solid",
+            str(tmp_path / "solid.h5"),
         )
         == 0
     )
@@ -144,21 +124,17 @@ def test_score_ranks_views(scene, tmp_path):
 def test_score_simulates_without_result(scene, tmp_path):
     out = tmp_path / "s.json"
     assert (
-        cli.main(
-            [
-                "score",
-                str(scene["ply"]),
-                "--cameras",
-                str(scene["cameras"]),
-                "-o",
-                str(out),
-                "--no-png",
-                "--directions=-x",
-                "--occlusion",
-                "--save-result",
-                str(tmp_path / "r.h5"),
-                *FAST,
-            ]
+        _run_on(
+            scene,
+            "score",
+            "-o",
+            str(out),
+            "--no-png",
+            "--directions=-x",
+            "--occlusion",
+            "--save-result",
+            str(tmp_path / "r.h5"),
+            *FAST,
         )
         == 0
     )
@@ -169,22 +145,7 @@ def test_score_simulates_without_result(scene, tmp_path):
 def test_critical_subset(scene, tmp_path, caplog):
     out = tmp_path / "critical.json"
     assert (
-        cli.main(
-            [
-                "critical",
-                str(scene["ply"]),
-                "--cameras",
-                str(scene["cameras"]),
-                "-o",
-                str(out),
-                "--subset",
-                "4",
-                "--save-result",
-                str(tmp_path / "c.h5"),
-                *FAST,
-            ]
-        )
-        == 0
+        _run_on(scene, "critical", "-o", str(out), "--subset", "4", "--save-result", str(tmp_path / "c.h5"), *FAST) == 0
     )
     data = json.loads(out.read_text())
     assert data["directions"] == ["-x"] and data["distinct_particles"]["gaussians_reached"] > 0
@@ -195,42 +156,12 @@ def test_critical_subset(scene, tmp_path, caplog):
     # --result reuses the saved run: the same C(T), and 2 of 6 warns of nothing
     again = tmp_path / "again.json"
     caplog.clear()
-    assert (
-        cli.main(
-            [
-                "critical",
-                str(scene["ply"]),
-                "--cameras",
-                str(scene["cameras"]),
-                "-o",
-                str(again),
-                "--subset",
-                "2",
-                "--result",
-                str(tmp_path / "c.h5"),
-            ]
-        )
-        == 0
-    )
+    assert _run_on(scene, "critical", "-o", str(again), "--subset", "2", "--result", str(tmp_path / "c.h5")) == 0
     second = json.loads(again.read_text())
     assert [v["critical_score"] for v in second["views"]] == [v["critical_score"] for v in data["views"]]
     assert second["subset_warning"] is None and "candidate views" not in caplog.text
     # a RESULT.h5 without distinct counts (simulate's) is exit 2, naming the fix
-    assert (
-        cli.main(
-            [
-                "critical",
-                str(scene["ply"]),
-                "--cameras",
-                str(scene["cameras"]),
-                "-o",
-                str(again),
-                "--result",
-                str(scene["h5"]),
-            ]
-        )
-        == 2
-    )
+    assert _run_on(scene, "critical", "-o", str(again), "--result", str(scene["h5"])) == 2
     assert "--save-result" in caplog.text
 
 
@@ -343,21 +274,7 @@ def test_bad_inputs_fail_early(scene, tmp_path, caplog):
     assert "GiB" in caplog.text and "particle radius" in caplog.text
     assert not (tmp_path / "big.h5").exists()
     assert (
-        cli.main(
-            [
-                "score",
-                str(scene["ply"]),
-                "--cameras",
-                str(scene["cameras"]),
-                "--result",
-                str(scene["h5"]),
-                "-o",
-                str(tmp_path / "x.json"),
-                "--candidates",
-                "9",
-            ]
-        )
-        == 2
+        _run_on(scene, "score", "--result", str(scene["h5"]), "-o", str(tmp_path / "x.json"), "--candidates", "9") == 2
     )
 
 

@@ -17,6 +17,9 @@ from recon.camera import Camera
 from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
 
+from helpers.cameras import ring_cameras, write_transforms
+from helpers.scenes import small_scene
+
 FAST = ["--particle-radius", "0.08", "--steps", "5", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 
 
@@ -29,18 +32,7 @@ def _warnings(caplog) -> str:
 
 
 def _scene(**over) -> dict:
-    s = {
-        "particle_radius": 0.05,
-        "rest_density": 1000.0,
-        "viscosity": 10.0,
-        "gravity": [0, -9.81, 0],
-        "dt": 0.002,
-        "steps": 2,
-        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
-    }
-    s.update(over)
-    return s
+    return small_scene(**{"steps": 2, **over})
 
 
 def _sphere(n: int = 300) -> GaussianSet:
@@ -51,15 +43,7 @@ def _sphere(n: int = 300) -> GaussianSet:
 
 
 def _cameras(path, w: int = 48, h: int = 40):
-    cams = [
-        Camera.look_at(
-            (2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, math.radians(50), name=f"cam{k}"
-        )
-        for k, a in enumerate(np.arange(4) * math.pi / 2)
-    ]
-    frames = [{"file_path": f"./{c.name}", "transform_matrix": c.opengl_c2w().tolist()} for c in cams]
-    path.write_text(json.dumps({"camera_angle_x": math.radians(50), "w": w, "h": h, "frames": frames}))
-    return path
+    return write_transforms(path, ring_cameras(4), w, h)
 
 
 @pytest.fixture(scope="module")

@@ -9,21 +9,11 @@ import pytest
 from apps import cli
 from fluidsim.scene import SceneError, load_scene, parse_scene
 
+from helpers.scenes import small_scene
 
-def _scene(**over):
-    s = {
-        "particle_radius": 0.05,
-        "rest_density": 1000.0,
-        "viscosity": 10.0,
-        "gravity": [0, -9.81, 0],
-        "dt": 0.002,
-        "steps": 5,
-        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
-        "solids": [],
-    }
-    s.update(over)
-    return s
+
+def _scene(**over) -> dict:
+    return small_scene(**over)
 
 
 @pytest.mark.parametrize(

@@ -27,6 +27,7 @@ from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
 
 from helpers.paths import REPO
+from helpers.scenes import small_scene
 
 FAST = ["--particle-radius", "0.08", "--steps", "12", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 
@@ -39,19 +40,7 @@ def _sphere(n: int = 300) -> GaussianSet:
 
 
 def _scene(**over) -> dict:
-    s = {
-        "particle_radius": 0.05,
-        "rest_density": 1000.0,
-        "viscosity": 10.0,
-        "gravity": [0, -9.81, 0],
-        "dt": 0.002,
-        "steps": 4,
-        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "walls": True},
-        "fluid_blocks": [{"min": [0.1, 0.1, 0.1], "max": [0.5, 0.5, 0.5], "velocity": [1, 0, 0]}],
-        "solids": [],
-    }
-    s.update(over)
-    return s
+    return small_scene(**{"steps": 4, **over})
 
 
 def leftovers(folder: Path) -> list[Path]:

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 import zstandard
 
+from recon.formats.compressed_ply import CHUNK_BOUNDS, CHUNK_COLORS
 from recon.gaussians import SH_C0, GaussianSet
 
 RUB_FLIP_POSITION = np.array([1.0, -1.0, -1.0], np.float32)  # RDF <-> RUB, a half turn about x
@@ -104,21 +105,8 @@ def encode_compressed_ply(g: GaussianSet, path: Path, chunk_colors: bool = True,
     ).astype("<u4")
     chunk_cols = [plo, phi, slo, shi] + ([clo, chi] if chunk_colors else [])
     chunk = np.concatenate(chunk_cols, 1).astype("<f4")
-    names = [
-        "min_x",
-        "min_y",
-        "min_z",
-        "max_x",
-        "max_y",
-        "max_z",
-        "min_scale_x",
-        "min_scale_y",
-        "min_scale_z",
-        "max_scale_x",
-        "max_scale_y",
-        "max_scale_z",
-    ]
-    names += ["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"] if chunk_colors else []
+    names = list(CHUNK_BOUNDS)
+    names += list(CHUNK_COLORS) if chunk_colors else []
     header = ["ply", "format binary_little_endian 1.0", "comment test encoder", f"element chunk {chunks}"]
     header += [f"property float {p}" for p in names]
     header += [f"element vertex {n}"] + [

@@ -21,41 +21,16 @@ import torch
 
 from recon import formats
 from recon.formats import ply
+from recon.formats.compressed_ply import CHUNK_BOUNDS, CHUNK_COLORS
 from recon.formats.spz import RUB_TO_RDF_SH_SIGNS
 from recon.gaussians import SH_C0, GaussianSet
 from recon.sh import eval_sh
 
 from helpers.format_encoders import encode_compressed_ply, encode_splat, encode_spz
 from helpers.paths import BIKER_COMPRESSED_PLY, BIKER_SPZ, REAL_SPLATS
+from helpers.splat_sets import assert_within, random_splats, sign_aligned
 
 SQRT2 = math.sqrt(2.0)
-
-
-def _set(n: int, degree: int, seed: int = 0, min_w: float = 0.0) -> GaussianSet:
-    """Random Gaussians inside every format's range (colours in [0.02, 0.98], |SH rest| < 0.9)."""
-    gen = torch.Generator().manual_seed(seed)
-    quats = torch.randn(n, 4, generator=gen)
-    quats = quats / quats.norm(dim=1, keepdim=True)
-    if min_w > 0:  # version-2 .spz derives w from x, y, z: keep it away from 0
-        quats[:, 0] = quats[:, 0].abs().clamp_min(min_w)
-        quats = quats / quats.norm(dim=1, keepdim=True)
-    k = (degree + 1) ** 2
-    rgb = 0.02 + 0.96 * torch.rand(n, 3, generator=gen)
-    sh = torch.cat([((rgb - 0.5) / SH_C0)[:, None], 1.8 * torch.rand(n, k - 1, 3, generator=gen) - 0.9], 1)
-    return GaussianSet(
-        means=4 * torch.rand(n, 3, generator=gen) - 2,
-        quats=quats,
-        log_scales=7 * torch.rand(n, 3, generator=gen) - 6,
-        opacity_logits=10 * torch.rand(n, generator=gen) - 5,
-        sh=sh,
-    )
-
-
-def _unit_aligned(q: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
-    """``q`` normalised and sign-aligned with ``ref`` (q and -q are the same rotation)."""
-    q = q / q.norm(dim=1, keepdim=True)
-    ref = ref / ref.norm(dim=1, keepdim=True)
-    return torch.where((q * ref).sum(1, keepdim=True) < 0, -q, q)
 
 
 def _chunk_span(x: torch.Tensor) -> torch.Tensor:
@@ -68,60 +43,54 @@ def _chunk_span(x: torch.Tensor) -> torch.Tensor:
     return span
 
 
-def _assert_within(got: torch.Tensor, want: torch.Tensor, tol, what: str) -> None:
-    err = (got - want).abs()
-    excess = (err - tol).max().item()
-    assert excess <= 1e-5, f"{what}: error exceeds the quantisation by {excess}"
-
-
 # ---- round trips -----------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("degree,chunk_colors", [(0, True), (1, False), (3, True)])
 def test_compressed_ply_round_trip_within_quantisation(tmp_path, degree, chunk_colors):
-    g = _set(700, degree)  # 3 chunks, the last one partial
+    g = random_splats(700, degree)  # 3 chunks, the last one partial
     path = encode_compressed_ply(g, tmp_path / "g.compressed.ply", chunk_colors=chunk_colors)
     back, fmt = formats.load_gaussians_with_format(path)
     assert fmt == "compressed_ply" and back.num == g.num and back.sh_degree == degree
     steps = torch.tensor([2047.0, 1023.0, 2047.0])
-    _assert_within(back.means, g.means, _chunk_span(g.means) / steps / 2, "means")
-    _assert_within(back.log_scales, g.log_scales, _chunk_span(g.log_scales) / steps / 2, "log-scales")
+    assert_within(back.means, g.means, _chunk_span(g.means) / steps / 2, "means")
+    assert_within(back.log_scales, g.log_scales, _chunk_span(g.log_scales) / steps / 2, "log-scales")
     rgb = g.sh[:, 0] * SH_C0 + 0.5
     rgb_tol = (_chunk_span(rgb) if chunk_colors else torch.ones_like(rgb)) / 255 / 2
-    _assert_within(back.sh[:, 0] * SH_C0 + 0.5, rgb, rgb_tol, "colour")
-    _assert_within(back.opacities, g.opacities, 0.5 / 255, "opacity")
-    _assert_within(_unit_aligned(back.quats, g.quats), g.quats, 3e-3, "rotation")
+    assert_within(back.sh[:, 0] * SH_C0 + 0.5, rgb, rgb_tol, "colour")
+    assert_within(back.opacities, g.opacities, 0.5 / 255, "opacity")
+    assert_within(sign_aligned(back.quats, g.quats), g.quats, 3e-3, "rotation")
     if degree:
-        _assert_within(back.sh[:, 1:], g.sh[:, 1:], 8 / 256 / 2, "SH rest")
+        assert_within(back.sh[:, 1:], g.sh[:, 1:], 8 / 256 / 2, "SH rest")
 
 
 @pytest.mark.parametrize("version,degree", [(2, 1), (3, 0), (3, 2), (4, 0), (4, 3)])
 def test_spz_round_trip_within_quantisation(tmp_path, version, degree):
-    g = _set(500, degree, seed=version, min_w=0.5 if version == 2 else 0.0)
+    g = random_splats(500, degree, seed=version, min_w=0.5 if version == 2 else 0.0)
     back, fmt = formats.load_gaussians_with_format(encode_spz(g, tmp_path / "g.spz", version=version))
     assert fmt == "spz" and back.num == g.num and back.sh_degree == degree
-    _assert_within(back.means, g.means, 0.5 / 4096, "means")
-    _assert_within(back.log_scales, g.log_scales, 0.5 / 16, "log-scales")
-    _assert_within(back.opacities, g.opacities, 0.5 / 255, "opacity")
-    _assert_within(back.sh[:, 0], g.sh[:, 0], 0.5 / (0.15 * 255), "SH DC")
-    _assert_within(_unit_aligned(back.quats, g.quats), g.quats, 3e-3 if version >= 3 else 2e-2, "rotation")
+    assert_within(back.means, g.means, 0.5 / 4096, "means")
+    assert_within(back.log_scales, g.log_scales, 0.5 / 16, "log-scales")
+    assert_within(back.opacities, g.opacities, 0.5 / 255, "opacity")
+    assert_within(back.sh[:, 0], g.sh[:, 0], 0.5 / (0.15 * 255), "SH DC")
+    assert_within(sign_aligned(back.quats, g.quats), g.quats, 3e-3 if version >= 3 else 2e-2, "rotation")
     if degree:
-        _assert_within(back.sh[:, 1:], g.sh[:, 1:], 0.5 / 128, "SH rest")
+        assert_within(back.sh[:, 1:], g.sh[:, 1:], 0.5 / 128, "SH rest")
 
 
 def test_splat_round_trip_within_quantisation(tmp_path):
-    g = _set(300, 0, seed=5)
+    g = random_splats(300, 0, seed=5)
     back, fmt = formats.load_gaussians_with_format(encode_splat(g, tmp_path / "g.splat"))
     assert fmt == "splat" and back.num == g.num and back.sh_degree == 0
     assert torch.equal(back.means, g.means)
-    _assert_within(back.log_scales, g.log_scales, 1e-5, "log-scales")
-    _assert_within(back.sh[:, 0] * SH_C0 + 0.5, g.sh[:, 0] * SH_C0 + 0.5, 0.5 / 255, "colour")
-    _assert_within(back.opacities, g.opacities, 0.5 / 255, "opacity")
-    _assert_within(_unit_aligned(back.quats, g.quats), g.quats, 1.5 / 128, "rotation")
+    assert_within(back.log_scales, g.log_scales, 1e-5, "log-scales")
+    assert_within(back.sh[:, 0] * SH_C0 + 0.5, g.sh[:, 0] * SH_C0 + 0.5, 0.5 / 255, "colour")
+    assert_within(back.opacities, g.opacities, 0.5 / 255, "opacity")
+    assert_within(sign_aligned(back.quats, g.quats), g.quats, 1.5 / 128, "rotation")
 
 
 def test_spz_frame_is_decided_from_a_sibling_of_the_same_capture(tmp_path, caplog):
     """SuperSplat writes .spz in the .ply frame: beside the capture's .ply, "auto" reads it upright; an asked frame
     the sibling contradicts is kept with a WARNING naming the other; with nothing beside it, a WARNING."""
-    g = _set(400, 0, seed=4)
+    g = random_splats(400, 0, seed=4)
     g = GaussianSet(g.means * 0.5 + torch.tensor([0.0, 1.5, 0.7]), g.quats, g.log_scales, g.opacity_logits, g.sh)
     spz_path = encode_spz(g, tmp_path / "guitar.v3.spz", version=3, frame="rub")  # stored as given: the .ply frame
     alone = tmp_path / "alone"
@@ -130,17 +99,17 @@ def test_spz_frame_is_decided_from_a_sibling_of_the_same_capture(tmp_path, caplo
     with caplog.at_level("WARNING", logger="recon.formats"):
         lone, _, frame = formats.load_gaussians_framed(alone / "x.spz")
     assert "--spz-frame ply" in caplog.text and "nothing tells" in frame.description
-    _assert_within(lone.means, g.means * torch.tensor([1.0, -1.0, -1.0]), 0.5 / 4096, "means")  # Niantic's turn
+    assert_within(lone.means, g.means * torch.tensor([1.0, -1.0, -1.0]), 0.5 / 4096, "means")  # Niantic's turn
     ply.save_gaussians(g, tmp_path / "guitar.ply")
     caplog.clear()
     with caplog.at_level("WARNING", logger="recon.formats"):
         auto, _, frame = formats.load_gaussians_framed(spz_path)
         assert not caplog.text
-        _assert_within(auto.means, g.means, 0.5 / 4096, "means")  # upright: as the .ply
+        assert_within(auto.means, g.means, 0.5 / 4096, "means")  # upright: as the .ply
         assert "decided from the data: guitar.ply" in frame.description and np.allclose(frame.to_loaded, np.eye(4))
         asked, _, frame = formats.load_gaussians_framed(spz_path, formats.LoadOptions(spz_frame="rub"))
     assert "upside down; pass --spz-frame ply" in caplog.text  # the asked frame is kept, never flipped silently
-    _assert_within(asked.means, lone.means, 1e-6, "means")
+    assert_within(asked.means, lone.means, 1e-6, "means")
     assert formats.spz_frame_evidence(spz_path, asked.means.numpy())[0] == "ply"
     with pytest.raises(ValueError, match="frame must be one of"):
         formats.load_gaussians_framed(spz_path, formats.LoadOptions(spz_frame="up"))
@@ -155,17 +124,17 @@ def test_real_spz_frame_from_its_siblings():
 def test_spz_frame_is_the_ply_frame(tmp_path):
     """Data stored as given (RUB) comes back turned half about x: means F mu, covariances F Sigma F, colours
     seen from F d equal to the stored ones seen from d."""
-    g = _set(400, 3, seed=9)
+    g = random_splats(400, 3, seed=9)
     back = formats.load_gaussians(encode_spz(g, tmp_path / "rub.spz", frame="rub"))
     flip = torch.tensor([1.0, -1.0, -1.0])
-    _assert_within(back.means, g.means * flip, 0.5 / 4096, "means")
+    assert_within(back.means, g.means * flip, 0.5 / 4096, "means")
     turned = g.quats * torch.tensor([1.0, 1.0, -1.0, -1.0])  # F R F: w and x kept, y and z negated
-    _assert_within(_unit_aligned(back.quats, turned), turned, 3e-3, "rotation")
+    assert_within(sign_aligned(back.quats, turned), turned, 3e-3, "rotation")
     cov = g.covariances() * flip[:, None] * flip[None, :]
     scale = cov.flatten(1).norm(dim=1)[:, None, None]
-    _assert_within(back.covariances() / scale, cov / scale, 0.08, "covariances")  # log-scale steps of 1/16
+    assert_within(back.covariances() / scale, cov / scale, 0.08, "covariances")  # log-scale steps of 1/16
     dirs = torch.nn.functional.normalize(torch.randn(g.num, 3), dim=1)
-    _assert_within(eval_sh(back.sh, dirs * flip), eval_sh(g.sh, dirs), 0.05, "view-dependent colour")
+    assert_within(eval_sh(back.sh, dirs * flip), eval_sh(g.sh, dirs), 0.05, "view-dependent colour")
 
 
 def test_rub_to_rdf_sh_signs_follow_the_basis():
@@ -182,20 +151,7 @@ def test_rub_to_rdf_sh_signs_follow_the_basis():
 def _compressed_header(
     chunks: int, n: int, sh_props: int = 0, sh_rows: int | None = None, colors: bool = True
 ) -> bytes:
-    names = [
-        "min_x",
-        "min_y",
-        "min_z",
-        "max_x",
-        "max_y",
-        "max_z",
-        "min_scale_x",
-        "min_scale_y",
-        "min_scale_z",
-        "max_scale_x",
-        "max_scale_y",
-        "max_scale_z",
-    ] + (["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"] if colors else [])
+    names = list(CHUNK_BOUNDS) + (list(CHUNK_COLORS) if colors else [])
     lines = ["ply", "format binary_little_endian 1.0", f"element chunk {chunks}"]
     lines += [f"property float {p}" for p in names] + [f"element vertex {n}"]
     lines += [f"property uint packed_{p}" for p in ("position", "rotation", "scale", "color")]
@@ -296,7 +252,7 @@ def test_spz_version4_record_by_hand(tmp_path):
 
 
 def test_spz_version2_rotation_by_hand(tmp_path):
-    g = _set(1, 0)
+    g = random_splats(1, 0)
     path = encode_spz(g, tmp_path / "v2.spz", version=2)
     raw = bytearray(gzip.decompress(path.read_bytes()))
     raw[16 + 16 : 16 + 19] = bytes([191, 127, 64])  # after 9 + 1 + 3 + 3 bytes: x, y, z = c / 127.5 - 1
@@ -322,7 +278,7 @@ def test_splat_record_by_hand(tmp_path):
 
 # ---- detection and dispatch --------------------------------------------------------------------------------
 def test_detection_is_by_content(tmp_path):
-    g = _set(10, 1)
+    g = random_splats(10, 1)
     std = ply.save_gaussians(g, tmp_path / "g.ply")
     assert formats.detect_format(std) == "ply"
     assert formats.detect_format(ply.save_gaussians(g, tmp_path / "g.npz")) == "npz"
@@ -338,7 +294,7 @@ def test_detection_is_by_content(tmp_path):
 
 def test_the_dispatcher_reads_every_format(tmp_path):
     assert not hasattr(ply, "load_gaussians")  # one name: recon.formats.load_gaussians (recon.load_gaussians)
-    g = _set(20, 0)
+    g = random_splats(20, 0)
     assert formats.load_gaussians(encode_spz(g, tmp_path / "a.spz")).num == 20
 
 
@@ -382,7 +338,7 @@ def _raises(path: Path, *fragments: str) -> str:
 
 
 def test_truncated_files(tmp_path):
-    g = _set(600, 1)
+    g = random_splats(600, 1)
     for name, path in [
         ("compressed", encode_compressed_ply(g, tmp_path / "c.ply")),
         ("spz4", encode_spz(g, tmp_path / "g4.spz", version=4)),
@@ -401,7 +357,7 @@ def test_truncated_files(tmp_path):
 
 
 def test_corrupt_streams(tmp_path):
-    g = _set(300, 0)
+    g = random_splats(300, 0)
     data = bytearray(encode_spz(g, tmp_path / "g3.spz", version=3).read_bytes())
     data[-8] ^= 0xFF  # the CRC-32 of the gzip trailer
     (tmp_path / "crc.spz").write_bytes(bytes(data))
@@ -422,7 +378,7 @@ def test_corrupt_streams(tmp_path):
 
 
 def test_spz_header_problems(tmp_path):
-    g = _set(50, 0)
+    g = random_splats(50, 0)
     good = encode_spz(g, tmp_path / "g4.spz", version=4).read_bytes()
     v9 = tmp_path / "v9.spz"
     v9.write_bytes(good[:4] + struct.pack("<I", 9) + good[8:])
@@ -436,7 +392,7 @@ def test_spz_header_problems(tmp_path):
 
 
 def test_spz_extensions_are_skipped(tmp_path):
-    g = _set(40, 1)
+    g = random_splats(40, 1)
     ext = struct.pack("<II", 0xADBE0002, 12) + struct.pack("<3f", 0.0, 1.0, 2.0)
     plain = formats.load_gaussians(encode_spz(g, tmp_path / "plain.spz", version=3))
     for name, kwargs in [
@@ -577,5 +533,5 @@ def test_real_capture_decodes_the_same_from_both_formats():
     inside = ((c.log_scales > -10 + 1 / 32) & (c.log_scales < 255 / 16 - 10 - 1 / 32)).all(1)
     assert inside.float().mean() > 0.99  # spz clamps log-scales to [-10, 5.94]
     assert (c.log_scales[inside] - s.log_scales[inside]).abs().max().item() < 1 / 32 + 1e-3
-    assert (_unit_aligned(s.quats, c.quats) - c.quats / c.quats.norm(dim=1, keepdim=True)).abs().max() < 5e-3
+    assert (sign_aligned(s.quats, c.quats) - c.quats / c.quats.norm(dim=1, keepdim=True)).abs().max() < 5e-3
     assert (c.sh[:, 0] - s.sh[:, 0]).abs().max().item() < 0.5 / (0.15 * 255) + 1e-3

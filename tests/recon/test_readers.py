@@ -27,34 +27,9 @@ from recon.similarity import invert_similarity, transform_gaussians
 
 from helpers.format_encoders import _webp, encode_ksplat, encode_sog, encode_spz
 from helpers.paths import BIKER_COMPRESSED_PLY, REAL_SPLATS
+from helpers.splat_sets import assert_within, random_splats, sign_aligned
 
 SQRT2 = math.sqrt(2.0)
-
-
-def _set(n: int, degree: int, seed: int = 0) -> GaussianSet:
-    gen = torch.Generator().manual_seed(seed)
-    quats = torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=1)
-    k = (degree + 1) ** 2
-    rgb = 0.02 + 0.96 * torch.rand(n, 3, generator=gen)
-    sh = torch.cat([((rgb - 0.5) / SH_C0)[:, None], 1.8 * torch.rand(n, k - 1, 3, generator=gen) - 0.9], 1)
-    return GaussianSet(
-        means=4 * torch.rand(n, 3, generator=gen) - 2,
-        quats=quats,
-        log_scales=7 * torch.rand(n, 3, generator=gen) - 6,
-        opacity_logits=10 * torch.rand(n, generator=gen) - 5,
-        sh=sh,
-    )
-
-
-def _aligned(q: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
-    q = q / q.norm(dim=1, keepdim=True)
-    ref = ref / ref.norm(dim=1, keepdim=True)
-    return torch.where((q * ref).sum(1, keepdim=True) < 0, -q, q)
-
-
-def _within(got, want, tol, what):
-    excess = ((got - want).abs() - tol).max().item()
-    assert excess <= 1e-5, f"{what}: error exceeds the quantisation by {excess}"
 
 
 def _raises(path, *fragments, **options):
@@ -70,7 +45,7 @@ def _raises(path, *fragments, **options):
 # ---- SOG ---------------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("version,degree,bundle", [(2, 0, True), (2, 3, False), (1, 0, False), (1, 2, True)])
 def test_sog_round_trip_within_quantisation(tmp_path, version, degree, bundle):
-    g = _set(300, degree, seed=version + degree)
+    g = random_splats(300, degree, seed=version + degree)
     path = encode_sog(g, tmp_path / ("g.sog" if bundle else "g"), version=version, bundle=bundle)
     for target in [path] if bundle else [path, path / "meta.json"]:
         back, fmt, frame = formats.load_gaussians_framed(target)
@@ -78,10 +53,10 @@ def test_sog_round_trip_within_quantisation(tmp_path, version, degree, bundle):
         logs = torch.sign(g.means) * torch.log1p(g.means.abs())
         span = logs.max(0).values - logs.min(0).values
         got = torch.sign(back.means) * torch.log1p(back.means.abs())
-        _within(got, logs, span / 65535 / 2 + 1e-6, "means (log domain)")
+        assert_within(got, logs, span / 65535 / 2 + 1e-6, "means (log domain)")
         step = (g.log_scales.max() - g.log_scales.min()) / 255
         tol = step / 2 if version == 2 else (g.log_scales.max(0).values - g.log_scales.min(0).values) / 255 / 2
-        _within(back.log_scales, g.log_scales, tol, "log-scales")
+        assert_within(back.log_scales, g.log_scales, tol, "log-scales")
         dc_tol = (
             (
                 (g.sh[:, 0].max() - g.sh[:, 0].min())
@@ -91,16 +66,16 @@ def test_sog_round_trip_within_quantisation(tmp_path, version, degree, bundle):
             / 255
             / 2
         )
-        _within(back.sh[:, 0], g.sh[:, 0], dc_tol, "SH DC")
+        assert_within(back.sh[:, 0], g.sh[:, 0], dc_tol, "SH DC")
         if version == 2:
-            _within(back.opacities, g.opacities, 0.5 / 255, "opacity")
+            assert_within(back.opacities, g.opacities, 0.5 / 255, "opacity")
         else:  # the logit is quantised linearly
             logit_tol = (g.opacity_logits.max() - g.opacity_logits.min()) / 255 / 2
-            _within(back.opacity_logits, g.opacity_logits, logit_tol, "opacity logits")
-        _within(_aligned(back.quats, g.quats), g.quats / g.quats.norm(dim=1, keepdim=True), 6e-3, "rotation")
+            assert_within(back.opacity_logits, g.opacity_logits, logit_tol, "opacity logits")
+        assert_within(sign_aligned(back.quats, g.quats), g.quats / g.quats.norm(dim=1, keepdim=True), 6e-3, "rotation")
         if degree:
             rest_tol = (g.sh[:, 1:].max() - g.sh[:, 1:].min()) / 255 / 2
-            _within(back.sh[:, 1:], g.sh[:, 1:], rest_tol, "SH rest")
+            assert_within(back.sh[:, 1:], g.sh[:, 1:], rest_tol, "SH rest")
 
 
 def _sog_one(tmp_path, pixels: dict, meta: dict, name="one.sog"):
@@ -161,7 +136,7 @@ def test_sog_bad_input(tmp_path):
     )
     _raises(_sog_one(tmp_path, _sog_pixels(), _sog_meta(version=3), "v3.sog"), "SOG version 3 is not supported")
     _raises(_sog_one(tmp_path, _sog_pixels(quat_tag=17), _sog_meta(), "tag.sog"), "reserved mode byte")
-    folder = encode_sog(_set(20, 1), tmp_path / "folder", bundle=False)
+    folder = encode_sog(random_splats(20, 1), tmp_path / "folder", bundle=False)
     (folder / "shN_labels.webp").unlink()
     _raises(folder, "'shN_labels.webp'", "missing")
 
@@ -169,22 +144,22 @@ def test_sog_bad_input(tmp_path):
 # ---- .ksplat -----------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("mode,degree,sections", [(0, 0, 1), (0, 2, 2), (1, 1, 2), (2, 2, 1), (2, 0, 3)])
 def test_ksplat_round_trip_within_quantisation(tmp_path, mode, degree, sections):
-    g = _set(500, degree, seed=mode)
+    g = random_splats(500, degree, seed=mode)
     path = encode_ksplat(g, tmp_path / "g.ksplat", mode=mode, sections=sections)
     back, fmt, _ = formats.load_gaussians_framed(path)
     assert fmt == "ksplat" and back.num == g.num and back.sh_degree == degree
     if mode == 0:
         assert torch.equal(back.means, g.means)
-        _within(back.log_scales, g.log_scales, 1e-5, "log-scales")
+        assert_within(back.log_scales, g.log_scales, 1e-5, "log-scales")
     else:
-        _within(back.means, g.means, 3e-4, "means (u16 in buckets)")  # block / 2 / 32767 / 2 with block < 4
-        _within(back.log_scales, g.log_scales, 2.0**-11 + 1e-4, "log-scales (f16: relative 2^-11)")
-    _within(back.sh[:, 0] * SH_C0 + 0.5, g.sh[:, 0] * SH_C0 + 0.5, 0.5 / 255, "colour")
-    _within(back.opacities, g.opacities, 0.5 / 255, "opacity")
-    _within(_aligned(back.quats, g.quats), g.quats, 1e-6 if mode == 0 else 1e-3, "rotation")
+        assert_within(back.means, g.means, 3e-4, "means (u16 in buckets)")  # block / 2 / 32767 / 2 with block < 4
+        assert_within(back.log_scales, g.log_scales, 2.0**-11 + 1e-4, "log-scales (f16: relative 2^-11)")
+    assert_within(back.sh[:, 0] * SH_C0 + 0.5, g.sh[:, 0] * SH_C0 + 0.5, 0.5 / 255, "colour")
+    assert_within(back.opacities, g.opacities, 0.5 / 255, "opacity")
+    assert_within(sign_aligned(back.quats, g.quats), g.quats, 1e-6 if mode == 0 else 1e-3, "rotation")
     if degree:
         tol = {0: 1e-6, 1: 1e-3, 2: 3.0 / 255 / 2}[mode]
-        _within(back.sh[:, 1:], g.sh[:, 1:], tol, "SH rest")
+        assert_within(back.sh[:, 1:], g.sh[:, 1:], tol, "SH rest")
 
 
 def _ksplat_one(path, mode=1, version=(0, 1), records=None, count=1):
@@ -222,7 +197,7 @@ def test_ksplat_record_by_hand(tmp_path):
 def test_ksplat_bad_input(tmp_path):
     _raises(_ksplat_one(tmp_path / "v.ksplat", version=(1, 0)), "version 1.0 is not supported")
     _raises(_ksplat_one(tmp_path / "m.ksplat", mode=7), "compression mode 7 is unknown")
-    whole = encode_ksplat(_set(100, 1), tmp_path / "whole.ksplat", mode=1)
+    whole = encode_ksplat(random_splats(100, 1), tmp_path / "whole.ksplat", mode=1)
     cut = tmp_path / "cut.ksplat"
     cut.write_bytes(whole.read_bytes()[:-10])
     _raises(cut, "truncated .ksplat", "section 0")
@@ -240,7 +215,7 @@ def _similarity(seed: int, scale: float) -> np.ndarray:
 
 
 def test_transform_gaussians_moves_covariance_and_colour():
-    g = _set(64, 3, seed=4).to(dtype=torch.float64)
+    g = random_splats(64, 3, seed=4).to(dtype=torch.float64)
     m = _similarity(3, 2.5)
     moved = transform_gaussians(g, m)
     a = torch.as_tensor(m[:3, :3])
@@ -293,7 +268,7 @@ def test_gsplat_ranks_restored_to_the_metric_frame(tmp_path):
     normalization = gsplat_normalization(np.linalg.inv(np.stack([w for _, w, _, _ in model.images])), model.points)
     # gsplat's scale: 1 / the median distance of the cameras from the focus point (the centre of this ring)
     assert np.cbrt(np.linalg.det(normalization[:3, :3])) == pytest.approx(1 / 4.0, rel=0.05)
-    metric = _set(200, 1, seed=7)
+    metric = random_splats(200, 1, seed=7)
     trained = _to_trainer(metric, normalization)
     ckpts = tmp_path / "results" / "ckpts"
     ckpts.mkdir(parents=True)
@@ -323,7 +298,7 @@ def test_gsplat_ranks_restored_to_the_metric_frame(tmp_path):
 
 @pytest.mark.parametrize("layout", ["gauss_params", "ddp", "old"])
 def test_nerfstudio_restored_with_dataparser_transforms(tmp_path, layout, caplog):
-    metric = _set(150, 2, seed=2)
+    metric = random_splats(150, 2, seed=2)
     m = _similarity(5, 0.3)
     s = 0.3
     doc = {"transform": (m[:3] / s).tolist(), "scale": s}
@@ -403,15 +378,15 @@ def test_checkpoints_without_gaussians_and_unsafe_pickles(tmp_path):
 
 # ---- the .spz frame ---------------------------------------------------------------------------------------------
 def test_spz_frame_choice_keeps_the_ply_frame(tmp_path):
-    g = _set(200, 2, seed=11)
+    g = random_splats(200, 2, seed=11)
     path = encode_spz(g, tmp_path / "kept.spz", version=3, frame="rub")  # stored exactly as given
     kept, _, frame = formats.load_gaussians_framed(path, formats.LoadOptions(spz_frame="ply"))
-    _within(kept.means, g.means, 0.5 / 4096, "means")
-    _within(_aligned(kept.quats, g.quats), g.quats, 3e-3, "rotation")
-    _within(kept.sh[:, 1:], g.sh[:, 1:], 0.5 / 128, "SH rest")
+    assert_within(kept.means, g.means, 0.5 / 4096, "means")
+    assert_within(sign_aligned(kept.quats, g.quats), g.quats, 3e-3, "rotation")
+    assert_within(kept.sh[:, 1:], g.sh[:, 1:], 0.5 / 128, "SH rest")
     assert "kept as stored" in frame.description and "--spz-frame rub" in frame.description
     turned, _, frame = formats.load_gaussians_framed(path)
-    _within(turned.means, g.means * torch.tensor([1.0, -1.0, -1.0]), 0.5 / 4096, "turned means")
+    assert_within(turned.means, g.means * torch.tensor([1.0, -1.0, -1.0]), 0.5 / 4096, "turned means")
     assert "right-up-back" in frame.description and "--spz-frame ply" in frame.description
     np.testing.assert_array_equal(frame.to_loaded, np.diag([1.0, -1.0, -1.0, 1.0]))
 
@@ -521,7 +496,7 @@ def test_npz_keys_are_checked_before_any_member_is_inflated(tmp_path, monkeypatc
 def test_fifo_beside_a_checkpoint_is_named_not_read(tmp_path):
     import os
 
-    g = _set(10, 0)
+    g = random_splats(10, 0)
     splats = {"means": g.means, "quats": g.quats, "scales": g.log_scales, "opacities": g.opacity_logits}
     torch.save({"step": 1, "splats": {**splats, "sh0": g.sh[:, :1]}}, tmp_path / "ckpt_1_rank0.pt")
     os.mkfifo(tmp_path / "ckpt_1_rank1.pt")

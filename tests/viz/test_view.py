@@ -43,6 +43,7 @@ from viz.splats import splat_looks
 from viz.thumbnails import project_to_view, view_thumbnail
 from viz.viewer import FluidViewer
 
+from helpers.cameras import ring_cameras, write_transforms
 from helpers.paths import REPO as ROOT
 
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
@@ -64,13 +65,7 @@ def _sphere(n: int = 300) -> GaussianSet:
 
 
 def _cameras(path: Path) -> Path:
-    cams = [
-        Camera.look_at((2.5 * math.cos(a), 0.3, 2.5 * math.sin(a)), (0, 0, 0), (0, 1, 0), 48, 40, FOV, name=f"cam{k}")
-        for k, a in enumerate(np.arange(6) * math.pi / 3)
-    ]
-    frames = [{"file_path": f"./{c.name}", "transform_matrix": c.opengl_c2w().tolist()} for c in cams]
-    path.write_text(json.dumps({"camera_angle_x": FOV, "w": 48, "h": 40, "frames": frames}))
-    return path
+    return write_transforms(path, ring_cameras(6))
 
 
 @pytest.fixture(scope="module")
