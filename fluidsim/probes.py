@@ -243,6 +243,7 @@ def run_probes(
     progress: Callable[[str, StepStats], None] | None = None,
     directions: Sequence[str] | None = None,
     setups: Mapping[str, ProbeSetup] | None = None,
+    stop: Callable[[str, DFSPHSolver, StepStats], bool] | None = None,
 ) -> dict[str, list[StepStats]]:
     """Run the probes one after another in the current Taichi runtime.
 
@@ -257,8 +258,10 @@ def run_probes(
         directions: override ``probe.directions``.
         setups: the probes' setups already laid out around ``solid_points`` (:func:`probe_setups`); None: laid out
             here.
+        stop(direction, solver, stats): after ``on_step``; True ends that probe after this step
+            (:func:`fluidsim.simulation.run`). None: every probe runs ``steps``.
     Returns:
-        the step statistics per direction.
+        the step statistics per direction (each as long as its probe ran).
     """
     dirs = tuple(directions) if directions is not None else probe.directions
     if setups is None:
@@ -273,6 +276,7 @@ def run_probes(
             steps,
             on_step=None if on_step is None else (lambda s, st, d=d: on_step(d, s, st)),
             progress=None if progress is None else (lambda st, d=d: progress(d, st)),
+            stop=None if stop is None else (lambda s, st, d=d: stop(d, s, st)),
         )
         out[d] = history
         if on_probe_end is not None:

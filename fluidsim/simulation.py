@@ -255,16 +255,19 @@ def run(
     steps: int,
     on_step: Callable[[DFSPHSolver, StepStats], None] | None = None,
     progress: Callable[[StepStats], None] | None = None,
+    stop: Callable[[DFSPHSolver, StepStats], bool] | None = None,
 ) -> list[StepStats]:
-    """Step ``solver`` ``steps`` times, checking each step for faults.
+    """Step ``solver`` at most ``steps`` times, checking each step for faults.
 
     Args:
         solver: a built solver.
-        steps: number of steps.
+        steps: the most steps to run.
         on_step: called after each checked step (save frames, accumulate metrics).
         progress: called after each step with its stats (a progress bar).
+        stop: called after ``on_step``; True ends the run after that step (a converged metric, e.g.
+            ``nbv.physics.early_stop``). None: run all ``steps``.
     Returns:
-        the stats of every step.
+        the stats of every step run (fewer than ``steps`` when ``stop`` ended the run).
     Raises:
         ValueError: before the first step, when the time step is too large (:func:`check_solver_time_step`).
         SimulationDiverged: on a fault; ``on_step`` has seen every step before it.
@@ -284,4 +287,6 @@ def run(
             raise
         if on_step is not None:
             on_step(solver, stats)
+        if stop is not None and stop(solver, stats):
+            break
     return history

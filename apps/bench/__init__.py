@@ -9,6 +9,8 @@ Each benchmark lives in its own module of this package with ``add_arguments(pars
 - ``views`` (:mod:`apps.bench.views`): view scores from the projection alone, and their ranking against renders.
 - ``hole`` (:mod:`apps.bench.hole`): a hole punched in a capture's surface, its solid and its rim's D_g.
 - ``forces`` (:mod:`apps.bench.forces`): the time-mean drag on the solid, this engine against SPlisHSPlasH.
+- ``probes`` (:mod:`apps.bench.probes`): one probe run profiled (per probe and solver stage, when D_g converges, how
+  much of the slab reaches a Gaussian) and early stops judged against the uncut run.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ BENCHMARKS = {
     "views": ("apps.bench.views", "view scores without renders: 200 cameras x 1M Gaussians; ranking vs full renders"),
     "hole": ("apps.bench.hole", "a hole punched in a capture's surface: solid points removed, rim D_g holed / intact"),
     "forces": ("apps.bench.forces", "time-mean drag on a sphere and the Ahmed body: this engine vs SPlisHSPlasH"),
+    "probes": ("apps.bench.probes", "one probe run profiled per probe and stage; stop rules judged against it"),
 }
 
 

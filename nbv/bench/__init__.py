@@ -11,6 +11,7 @@ module                     what                                                 
 :mod:`.holes`              a hole punched in a capture; the solid and rim's D_g    ``bench hole``
 :mod:`.score_agreement`    projection scores against full renders                 ``bench views``
 :mod:`.dense_sets`         denser copies of a Gaussian set (jittered)             ``bench score``, ``bench views``
+:mod:`.probe_profile`      a probe run profiled; stop rules judged against it     ``bench probes``
 =========================  =====================================================  ===============================
 
 Importing the package loads nothing; each module is imported on its own.

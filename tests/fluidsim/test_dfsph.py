@@ -192,3 +192,19 @@ def test_neighbour_offsets_beyond_16_bits_switch_the_fluid_lists_to_wide():
         np.testing.assert_array_equal(np.sort(index[i, : count[i]]), near[near != i])
     stats = solver.step()
     assert stats.active == len(x) and stats.max_speed < 0.5
+
+
+def test_a_stop_predicate_ends_each_probe_after_the_step_it_returns_true():
+    cfg = SolverConfig(particle_radius=0.05, viscosity=10.0)
+    solid = sphere_particles([0, 0, 0], 0.3, cfg.spacing, fill=True)
+    probe = ProbeConfig(speed=3.0, slab_thickness=0.2, margin=0.1, padding=0.2, directions=("-x", "+z"))
+    seen = []
+
+    def stop(d, s, st):
+        seen.append((d, st.step))
+        return st.step + 1 == (7 if d == "-x" else 12)
+
+    ended = {}
+    out = run_probes(solid, cfg, probe, 20, stop=stop, on_probe_end=lambda d, s, h: ended.setdefault(d, len(h)))
+    assert [len(out["-x"]), len(out["+z"])] == [7, 12] and ended == {"-x": 7, "+z": 12}
+    assert seen[-1] == ("+z", 11) and seen[6] == ("-x", 6)

@@ -1,0 +1,270 @@
+"""Where a probe run's time goes, and what a shorter run would change (``fluidgs bench probes``).
+
+No paper equation is implemented here. :func:`trace_probes` runs the probes of a Gaussian set (and, optionally, the
+empty scene's) as :func:`nbv.physics.simulate_gaussians` does (the same frame, solid, plan, solvers and accumulator),
+with the solver's stages timed, and records per probe:
+
+- the fluid particles, the steps, the mean solver iterations, and the seconds of each solver stage (the
+  neighbourhood pass, the two solves, D_i, the forces, ...) and of the per-Gaussian aggregation;
+- the running D_g^(IC) every ``every`` steps (the means a probe stopped there would give: the accumulation is a
+  running mean whose integer sums do not depend on when they are read), so that any stop rule can be judged from one
+  uncut run (:func:`judge_rule`);
+- the share of the slab's particles that ever came within reach of a Gaussian (:func:`reach_mask`: a cell of half a
+  spacing counts as within reach when its centre lies within a Gaussian's reach plus the cell's half diagonal, so the
+  share is an upper bound), checked every ``reach_every`` steps.
+
+:func:`judge_rule` applies a :class:`nbv.physics.early_stop.StopRule` to the recorded means (the empty-scene probe
+stops where its solid probe did) and compares the stopped answer with the uncut one: the view ranking (Spearman of
+S(T) over orbit cameras, depth-tested), the per-Gaussian D_g (Spearman) and D-bar / D-bar_empty (relative move).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from fluidsim import DFSPHSolver
+from fluidsim.probes import build_probe_solver
+from fluidsim.scene import lattice_in_box
+from fluidsim.simulation import run as run_solver
+from fluidsim.sources import wall_particles
+from nbv import scores
+from nbv.physics.aggregate import GaussianAccumulator, GaussianLists
+from nbv.physics.early_stop import StopRule, relative_change
+from nbv.physics.plan import ProbePlan, RunFrame
+from nbv.ranking import spearman
+
+# A cut is kept when, on every capture, the stopped run agrees with the uncut one at least this well.
+VIEW_SPEARMAN_MIN = 0.97
+DG_SPEARMAN_MIN = 0.9
+RATIO_MOVE_MAX = 0.05
+
+
+@dataclass
+class ProbeTrace:
+    """One probe's run: sizes, times and the running means (see the module docstring)."""
+
+    direction: str
+    empty: bool
+    fluid: int
+    steps: int = 0
+    density_iterations: float = 0.0
+    divergence_iterations: float = 0.0
+    stage_s: dict[str, float] = field(default_factory=dict)
+    aggregation_s: float = 0.0
+    wall_s: float = 0.0  # the probe's whole time, less the recording of this trace
+    checkpoints: list[int] = field(default_factory=list)  # steps run at each recorded mean
+    means: list[np.ndarray] = field(default_factory=list)  # [G] float32 running D_g^(IC) at each checkpoint
+    reached: float = float("nan")  # share of the slab's particles ever within reach of a Gaussian
+    reached_by: list[tuple[int, float]] = field(default_factory=list)  # (steps run, share reached so far)
+    touched: list[int] = field(default_factory=list)  # Gaussians with a sample at each checkpoint
+
+    def means_at(self, steps_run: int) -> np.ndarray:
+        """The running means after ``steps_run`` steps (a checkpoint)."""
+        return self.means[self.checkpoints.index(steps_run)].astype(np.float64)
+
+
+def reach_mask(centers: np.ndarray, reach: np.ndarray, lo, hi, cell: float) -> np.ndarray:
+    """[nx, ny, nz] bool over the box (lo, hi) in cells of ``cell`` m: True where the cell's centre lies within a
+    Gaussian's reach plus the cell's half diagonal (a superset of the cells a particle within reach can sit in)."""
+    lo = np.asarray(lo, np.float64)
+    shape = np.maximum(np.ceil((np.asarray(hi, np.float64) - lo) / cell).astype(int), 1)
+    mask = np.zeros(shape, bool)
+    grow = cell * math.sqrt(3.0) / 2.0
+    centers = np.asarray(centers, np.float64)
+    radius = np.asarray(reach, np.float64) + grow
+    span = np.ceil(radius / cell).astype(int)
+    base = np.floor((centers - lo) / cell).astype(int)
+    for k in np.unique(span):
+        sel = np.nonzero(span == k)[0]
+        for chunk in np.array_split(sel, max(1, len(sel) // 65536)):
+            b, c, r = base[chunk], centers[chunk], radius[chunk]
+            for dx in range(-k, k + 1):
+                for dy in range(-k, k + 1):
+                    for dz in range(-k, k + 1):
+                        idx = b + np.array([dx, dy, dz])
+                        centre = lo + (idx + 0.5) * cell
+                        ok = (np.linalg.norm(centre - c, axis=1) <= r) & (idx >= 0).all(1) & (idx < shape).all(1)
+                        if ok.any():
+                            i = idx[ok]
+                            mask[i[:, 0], i[:, 1], i[:, 2]] = True
+    return mask
+
+
+def _empty_solver(setup, scfg, wall_layers: int) -> DFSPHSolver:
+    fluid = lattice_in_box(setup.fluid_min, setup.fluid_max, scfg.spacing)
+    vel = np.broadcast_to(np.asarray(setup.velocity), fluid.shape)
+    walls = wall_particles(setup.domain_min, setup.domain_max, scfg.spacing, wall_layers)
+    return DFSPHSolver(scfg, setup.domain_min, setup.domain_max, fluid, vel, walls)
+
+
+def trace_probes(
+    frame: RunFrame,
+    plan: ProbePlan,
+    solid_points: np.ndarray,
+    *,
+    every: int = 25,
+    reach_every: int = 5,
+    empty: bool = True,
+    progress: bool = True,
+) -> tuple[list[ProbeTrace], dict[str, float]]:
+    """Run the probes of ``plan`` (and the empty scene's, with ``empty``) for ``frame.config.steps`` steps each,
+    recording a :class:`ProbeTrace` per probe.
+
+    Returns:
+        (the traces, solid probes first; {"lists": s, "mask": s} the set-up times).
+    """
+    config = frame.config
+    scfg, probe = config.solver_config(), config.probe_config()
+    centers, reach = frame.means, frame.reach
+    t0 = time.perf_counter()
+    lists = GaussianLists(centers, reach, *plan.bounds)
+    setup_s = {"lists": time.perf_counter() - t0}
+    t0 = time.perf_counter()
+    lo, hi = plan.bounds
+    cell = 0.5 * scfg.spacing
+    mask = reach_mask(centers, reach, lo, hi, cell)
+    setup_s["mask"] = time.perf_counter() - t0
+    runs = [(d, False) for d in config.directions] + ([(d, True) for d in config.directions] if empty else [])
+    counts = plan.fluid_counts(config.directions)
+    bar = tqdm(
+        total=sum(counts[d] for d, _ in runs) * config.steps,
+        desc="probes",
+        bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}",
+        disable=not progress,
+        leave=False,
+    )
+    traces = []
+    for d, is_empty in runs:
+        setup = plan.setups[d]
+        bar.set_description_str(f"{'empty ' if is_empty else ''}{d}", refresh=False)
+        solver = _empty_solver(setup, scfg, probe.wall_layers) if is_empty else None
+        if solver is None:
+            solver = build_probe_solver(solid_points, setup, scfg, probe)
+        trace = ProbeTrace(d, is_empty, int(solver.fluid.capacity))
+        solver.stage_times = {}
+        acc = GaussianAccumulator(lists, setup.domain_min, setup.domain_max, max_fluid=solver.fluid.capacity)
+        ever = np.zeros(solver.fluid.capacity, bool)
+        side = np.asarray(mask.shape)
+        extra = [0.0]  # seconds spent recording the trace, left out of the probe's time
+
+        def on_step(s, st, acc=acc, trace=trace, ever=ever, side=side, extra=extra):
+            t = time.perf_counter()
+            acc.add_from_solver(s)
+            trace.aggregation_s += time.perf_counter() - t
+            n = st.step + 1
+            t = time.perf_counter()
+            if n % reach_every == 0 or n == 1:
+                x, ids = s.fluid.numpy("x"), s.fluid.numpy("ids")
+                c = np.floor((x - lo) / cell).astype(int)
+                ok = (c >= 0).all(1) & (c < side).all(1)
+                hit = np.zeros(len(x), bool)
+                hit[ok] = mask[c[ok, 0], c[ok, 1], c[ok, 2]]
+                ever[ids[hit]] = True
+            if n % every == 0:
+                m = acc.means()
+                trace.checkpoints.append(n)
+                trace.means.append(m.astype(np.float32))
+                trace.touched.append(int(np.count_nonzero(acc.counts)))
+                trace.reached_by.append((n, float(ever.mean())))
+            extra[0] += time.perf_counter() - t
+            bar.update(trace.fluid)
+
+        t0 = time.perf_counter()
+        history = run_solver(solver, config.steps, on_step=on_step)
+        t = time.perf_counter()
+        acc.flush()
+        trace.aggregation_s += time.perf_counter() - t
+        trace.wall_s = time.perf_counter() - t0 - extra[0]
+        trace.steps = len(history)
+        trace.density_iterations = float(np.mean([h.density_iterations for h in history]))
+        trace.divergence_iterations = float(np.mean([h.divergence_iterations for h in history]))
+        trace.stage_s = dict(solver.stage_times)
+        trace.reached = float(ever.mean())
+        traces.append(trace)
+        del solver, acc
+    bar.close()
+    return traces, setup_s
+
+
+def converged_step(trace: ProbeTrace, tolerance: float) -> int:
+    """The first checkpoint from which the running means stay within ``tolerance`` (relative L1,
+    :func:`nbv.physics.early_stop.relative_change`) of the final ones: when D_g^(IC) stopped changing."""
+    final = trace.means[-1].astype(np.float64)
+    step = trace.checkpoints[-1]
+    for n, m in zip(reversed(trace.checkpoints), reversed(trace.means), strict=True):
+        if relative_change(final, m.astype(np.float64)) > tolerance:
+            break
+        step = n
+    return step
+
+
+def rule_stop(trace: ProbeTrace, rule: StopRule) -> int:
+    """The steps a probe would run under ``rule`` (its checks at the recorded checkpoints; the full run when no
+    check passes). The checkpoints must include every multiple of ``rule.window``."""
+    if not rule.enabled:
+        return trace.checkpoints[-1]
+    for n in trace.checkpoints:
+        if not rule.checks_at(n) or n - rule.window not in trace.checkpoints:
+            continue
+        if relative_change(trace.means_at(n - rule.window), trace.means_at(n)) <= rule.tolerance:
+            return n
+    return trace.checkpoints[-1]
+
+
+@dataclass(frozen=True)
+class Judged:
+    """A stop rule's answer against the uncut run's, on one capture."""
+
+    stops: dict[str, int]
+    view_spearman: float
+    dg_spearman: float
+    ratio_move: float  # |ratio_cut / ratio_uncut - 1| of D-bar / D-bar_empty (NaN without the empty scene)
+    step_share: float  # fluid particle-steps run, of the uncut run's (solid and empty probes)
+
+    @property
+    def kept(self) -> bool:
+        ratio_ok = math.isnan(self.ratio_move) or self.ratio_move <= RATIO_MOVE_MAX
+        return self.view_spearman >= VIEW_SPEARMAN_MIN and self.dg_spearman >= DG_SPEARMAN_MIN and ratio_ok
+
+
+def answer(traces: list[ProbeTrace], stops: dict[str, int], covariances: np.ndarray):
+    """(D_g = max over the probes, D-bar / D-bar_empty or NaN) with each probe (and its empty scene) stopped at
+    ``stops[direction]`` steps."""
+    solid = [t for t in traces if not t.empty]
+    empties = [t for t in traces if t.empty]
+    d_g = np.max([t.means_at(stops[t.direction]) for t in solid], axis=0)
+    dbar = scores.geometry_divergence(torch.from_numpy(covariances), torch.from_numpy(d_g))
+    if not empties:
+        return d_g, float("nan")
+    d_e = np.max([t.means_at(stops[t.direction]) for t in empties], axis=0)
+    dbar_e = scores.geometry_divergence(torch.from_numpy(covariances), torch.from_numpy(d_e))
+    return d_g, dbar / dbar_e if dbar_e > 0 else float("nan")
+
+
+def judge_stops(traces: list[ProbeTrace], stops: dict[str, int], covariances: np.ndarray, view_scores) -> Judged:
+    """Compare the answer with the probes stopped at ``stops`` against the uncut one (``view_scores(values [G]) ->
+    [C]`` scores the candidate views)."""
+    full = {t.direction: t.checkpoints[-1] for t in traces}
+    d_cut, r_cut = answer(traces, stops, covariances)
+    d_full, r_full = answer(traces, full, covariances)
+    run = sum(t.fluid * stops[t.direction] for t in traces)
+    whole = sum(t.fluid * full[t.direction] for t in traces)
+    return Judged(
+        stops=dict(stops),
+        view_spearman=spearman(view_scores(d_cut), view_scores(d_full)),
+        dg_spearman=spearman(d_cut, d_full),
+        ratio_move=abs(r_cut / r_full - 1.0) if r_full and not math.isnan(r_full) else float("nan"),
+        step_share=run / whole,
+    )
+
+
+def judge_rule(traces: list[ProbeTrace], rule: StopRule, covariances: np.ndarray, view_scores) -> Judged:
+    """:func:`judge_stops` with each probe stopped by ``rule`` (its empty scene at the same step)."""
+    stops = {t.direction: rule_stop(t, rule) for t in traces if not t.empty}
+    return judge_stops(traces, stops, covariances, view_scores)
