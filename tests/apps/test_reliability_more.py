@@ -419,7 +419,7 @@ def test_a_second_output_that_fails_says_which_survived(data, tmp_path, monkeypa
     import nbv.outputs
     from fluidsim.files import output_errors
 
-    def full(gaussians, values, path, columns):
+    def full(gaussians, values, path, columns, *reached):
         with output_errors(path):
             raise OSError(H5_FULL)
 
