@@ -107,6 +107,15 @@ def uncertainty_image(gaussians: GaussianSet, camera, values, device: str = "cpu
     Example:
         >>> img, alpha = uncertainty_image(gaussians, cam, result.divergence)  # doctest: +SKIP
     """
+    tinted, top = value_layer(gaussians.detach().to(torch.device(device)), values)
+    with torch.no_grad():
+        out = render(tinted, camera, background=0.0)
+    return composited_values(out, top)
+
+
+def value_layer(gaussians: GaussianSet, values) -> tuple[GaussianSet, float]:
+    """(the Gaussians with SH degree 0 and the grey level v_i / max v as colour, max v): what
+    :func:`uncertainty_image` renders; ``values`` [N] finite and >= 0."""
     vals = values.detach().cpu().numpy() if isinstance(values, torch.Tensor) else np.asarray(values)
     vals = np.asarray(vals, np.float64).reshape(-1)
     if vals.shape[0] != gaussians.num:
@@ -114,12 +123,14 @@ def uncertainty_image(gaussians: GaussianSet, camera, values, device: str = "cpu
     if not np.isfinite(vals).all() or (vals < 0).any():
         raise ValueError("uncertainty_image: the values must be finite and >= 0 (D_g in 1/s)")
     top = float(vals.max()) if vals.size and vals.max() > 0 else 1.0
-    g = gaussians.detach().to(torch.device(device))
+    g = gaussians.detach()
     grey = torch.from_numpy(vals / top).to(g.means)[:, None].expand(-1, 3)
     sh = rgb_to_sh0(grey)[:, None, :].contiguous()
-    tinted = GaussianSet(g.means, g.quats, g.log_scales, g.opacity_logits, sh)
-    with torch.no_grad():
-        out = render(tinted, camera, background=0.0)
+    return GaussianSet(g.means, g.quats, g.log_scales, g.opacity_logits, sh), top
+
+
+def composited_values(out, top: float) -> tuple[np.ndarray, np.ndarray]:
+    """(U [H, W], alpha [H, W]) float32 of a render of :func:`value_layer`'s Gaussians (its ``top``)."""
     image = out.image[..., 0].double().cpu().numpy() * top
     return image.astype(np.float32), out.alpha.detach().cpu().numpy().astype(np.float32)
 

@@ -27,16 +27,18 @@ from nbv.coverage import format_number, ranking_agreement, view_parts
 from nbv.heatmap import (
     color_scale,
     colored_gaussians,
+    composited_values,
     over_range_marks,
     uncertainty_image,
     uncertainty_png,
     unreached_pixels,
+    value_layer,
 )
 from nbv.io import write_atomic, write_png_atomic
 from nbv.lists import parse_list
 from nbv.scores import DepthBuffer, geometry_divergence, projected_counts, projected_view_scores, rank
 from recon.device import torch_device
-from recon.render import render
+from recon.render import render, render_layers
 from viz.annotate import label, to_bgr
 from viz.cameras import view_file_stem
 
@@ -334,8 +336,18 @@ def write_view_pngs(
     heat = colored_gaussians(gaussians, values, vmax=vmax, reached=reached)
     over = (np.asarray(values, np.float64) > vmax).astype(np.float64)
     png_dir.mkdir(parents=True, exist_ok=True)
-    renders = render_candidates(gaussians, [cams[k] for k in shown], heat, device, progress)
-    for r, (k, (out, himg)) in enumerate(zip(shown, renders, strict=True)):
+    dev = torch.device(device)
+    layers = [gaussians.detach().to(dev), heat.detach().to(dev)]
+    backgrounds = [1.0, 0.0]
+    top = None
+    if over.any():  # the "+" marks: the composited share of the Gaussians above v_max, in the same pass
+        over_layer, top = value_layer(layers[0], over)
+        layers.append(over_layer)
+        backgrounds.append(0.0)
+    for r, k in enumerate(tqdm(shown, desc="render", unit="view", disable=not progress)):
+        with torch.no_grad():  # the three images share one projection and one pairing (recon.render.render_layers)
+            outs = render_layers(layers, cams[k], backgrounds)
+        out, himg = outs[0], outs[1].image
         row = rows[r]
         left = label(
             _bgr(out.image),
@@ -346,8 +358,8 @@ def write_view_pngs(
             ],
         )
         heat_bgr = _bgr(himg)
-        if over.any():
-            share, _ = uncertainty_image(gaussians, cams[k], over, device)
+        if top is not None:
+            share, _ = composited_values(outs[2], top)
             mask = cv2.resize(
                 (share > 0.5).astype(np.uint8), (heat_bgr.shape[1], heat_bgr.shape[0]), interpolation=cv2.INTER_NEAREST
             ).astype(bool)

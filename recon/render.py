@@ -48,6 +48,7 @@ __all__ = [
     "gaussian_colors",
     "pair_statistics",
     "render",
+    "render_layers",
 ]
 
 BACKENDS = ("auto", "torch", "gsplat")
@@ -156,3 +157,53 @@ def render(
         visible=proj.radii > 0,
         means2d=means2d,
     )
+
+
+def render_layers(layers, camera: Camera, backgrounds) -> list[RenderOutput]:
+    """Gaussian sets that differ only in colour (the same means, rotations, scales and opacities; e.g. a capture and
+    its heat-map copy), rendered into one view: projected and paired once, composited once per set. Each output is
+    ``render(layer, camera, background)``'s, bit for bit (the same projection, pairs and compositing); the pairing,
+    which is most of a render of a large set, is done once instead of once per set. On CUDA (gsplat) each set is
+    rendered on its own.
+
+    Args:
+        layers: K GaussianSets on one device, with equal geometry tensors. camera: the view.
+        backgrounds: K backgrounds, as :func:`render`'s.
+    Returns:
+        K :class:`RenderOutput`.
+    Raises:
+        ValueError: the sets' geometry differs, or the counts of layers and backgrounds differ.
+    """
+    layers, backgrounds = list(layers), list(backgrounds)
+    if not layers or len(layers) != len(backgrounds):
+        raise ValueError(f"render_layers: {len(layers)} layers and {len(backgrounds)} backgrounds; give one per layer")
+    first = layers[0]
+    degrees = [_check_inputs(g, camera, None, "auto") for g in layers]
+    for g in layers[1:]:
+        if any(
+            not torch.equal(getattr(g, n), getattr(first, n))
+            for n in ("means", "quats", "log_scales", "opacity_logits")
+        ):
+            raise ValueError("render_layers: the layers must share means, rotations, scales and opacities")
+    if first.device.type == "cuda" and gsplat_available():
+        return [render(g, camera, bg) for g, bg in zip(layers, backgrounds, strict=True)]
+    proj = project_gaussians(first, camera)
+    w, h = camera.width, camera.height
+    pairs = build_pairs(proj, first.opacities, w, h)
+    outs = []
+    for g, bg, degree in zip(layers, backgrounds, degrees, strict=True):
+        colors = gaussian_colors(g, camera, degree)
+        image, alpha, depth = Composite.apply(
+            proj.means2d, proj.conics, g.opacities, colors, proj.depths, background_tensor(bg, g.means), pairs, w * h
+        )
+        outs.append(
+            RenderOutput(
+                image=image.reshape(h, w, 3),
+                alpha=alpha.reshape(h, w),
+                depth=depth.reshape(h, w),
+                radii=proj.radii,
+                visible=proj.radii > 0,
+                means2d=proj.means2d,
+            )
+        )
+    return outs

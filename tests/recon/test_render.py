@@ -286,3 +286,33 @@ def test_bench_scene_and_time_case():
     assert r["pixels"] == 1200 and r["target_ms"] == 5.0 and 0 < r["visible"] <= 200
     assert 0 < r["forward_ms"] <= r["forward_backward_ms"] and r["pairs"] <= r["candidate_pairs"]
     assert r["mean_radius_px"] > 0
+
+
+def test_render_layers_equal_separate_renders_bit_for_bit():
+    from nbv.heatmap import colored_gaussians, composited_values, uncertainty_image, value_layer
+    from recon.render import render_layers
+
+    gen = torch.Generator().manual_seed(3)
+    n = 400
+    g = GaussianSet(
+        torch.randn(n, 3, generator=gen) * 0.4,
+        torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=1),
+        torch.randn(n, 3, generator=gen) * 0.3 - 3.0,
+        torch.randn(n, 1, generator=gen).squeeze(1),
+        torch.randn(n, 16, 3, generator=gen) * 0.2,
+    )
+    cam = Camera.look_at((0.3, 0.2, -3.0), (0, 0, 0), (0, -1, 0), 48, 40, math.radians(50))
+    values = torch.rand(n, generator=gen).double()
+    heat = colored_gaussians(g, values)
+    over, top = value_layer(g, (values > 0.7).double())
+    outs = render_layers([g, heat, over], cam, [1.0, 0.0, 0.0])
+    for out, (layer, bg) in zip(outs, [(g, 1.0), (heat, 0.0), (over, 0.0)], strict=True):
+        ref = render(layer, cam, bg)
+        for name in ("image", "alpha", "depth", "radii"):
+            assert torch.equal(getattr(out, name), getattr(ref, name)), name
+    share, alpha = composited_values(outs[2], top)
+    ref_share, ref_alpha = uncertainty_image(g, cam, (values > 0.7).double())
+    assert (share == ref_share).all() and (alpha == ref_alpha).all()
+    moved = GaussianSet(g.means + 0.01, g.quats, g.log_scales, g.opacity_logits, g.sh)
+    with pytest.raises(ValueError, match="share means"):
+        render_layers([g, moved], cam, [1.0, 1.0])
