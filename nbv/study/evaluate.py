@@ -396,20 +396,7 @@ def _fmt(v: Any, digits: int = 4) -> str:
 
 def markdown_line(out: dict[str, Any]) -> str:
     """A Markdown table (header and one row) of the headline metrics."""
-    cols = (
-        "method",
-        "seed",
-        "psnr",
-        "ssim",
-        "lpips",
-        "dbar",
-        "dbar_empty",
-        "chamfer",
-        "critical_psnr",
-        "critical_dbar",
-        "functional_error",
-        "functional_floor",
-    )
+    cols = ("method", "seed", *SUMMARY_KEYS)
     head = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
     return (
         head
