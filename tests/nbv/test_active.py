@@ -425,7 +425,7 @@ def test_planted_checkpoint_is_refused_and_not_executed(tiny_dataset, straight_r
     the payload never runs (torch.load with weights_only=True); a real checkpoint still resumes."""
     import shutil
 
-    from nbv.active.loop import load_checkpoint
+    from nbv.active.run_dir import load_checkpoint
 
     cfg, straight_dir, _ = straight_run
     run = tmp_path / "run"
