@@ -19,6 +19,7 @@ import argparse
 import logging
 import resource
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +55,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "the uncut run, the noise floor of the criteria (the same physics on a lattice shifted by a fraction of a "
         "spacing)",
     )
+    p.add_argument(
+        "--margin",
+        type=float,
+        default=None,
+        help="how far the slabs span past the solid across the flow, as a fraction of the solid's largest extent "
+        "(default: the probes' 0.15); with --against the uncut run, what trimming the slab changes",
+    )
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
     p.add_argument(
@@ -78,6 +86,7 @@ def _cpu() -> float:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import write_json_atomic
+    from fluidsim.probes import probe_setups
     from nbv.bench.probe_profile import answer, judge_rule, judge_stops, trace_probes
     from nbv.orbit import Orbit, orbit_cameras
     from nbv.physics import QUICK, PhysicsConfig
@@ -104,6 +113,10 @@ def run_command(args: argparse.Namespace) -> int:
     solid = frame.solidify(tuple(replica_offsets(args.replica + 1)[args.replica]) if args.replica else None)
     solidify_s = time.perf_counter() - t0
     plan = ProbePlan.of(solid.points, cfg)
+    if args.margin is not None:  # the slabs trimmed (or grown) across the flow
+        extent = float(np.ptp(solid.points, axis=0).max() + 2 * cfg.particle_radius)
+        probe = replace(cfg.probe_config(), margin=args.margin * extent)
+        plan = ProbePlan(probe_setups(solid.points, probe, plan.spacing, cfg.directions), plan.spacing)
     traces, setup_s = trace_probes(frame, plan, solid.points, every=args.every, empty=not args.no_empty)
     print(
         f"{args.gaussians.name} (up {args.up}): {frame.sim.num:,} Gaussians, solid {len(solid.points):,} particles, "

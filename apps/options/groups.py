@@ -15,6 +15,7 @@ from .frame import scale_value, up_from_args
 PROBE_FIELDS = (
     "particle_radius",
     "steps",
+    "stop_tolerance",
     "dt",
     "speed",
     "viscosity",
@@ -129,8 +130,9 @@ def add_physics_arguments(
     g.add_argument(
         "--quick",
         action="store_true",
-        help=f"quick preset: r = {quick['particle_radius']} m and {quick['steps']} steps per probe (unless "
-        "given explicitly; default: the paper's)",
+        help=f"quick preset: r = {quick['particle_radius']} m and {quick['steps']} steps per probe, each probe "
+        f"stopped once 50 steps move its D_g by <= {quick['stop_tolerance']:g} (unless given explicitly; default: the "
+        "paper's)",
     )
     add_config_options(g, config, PROBE_FIELDS, over, presets={"--quick": quick})
     add_config_options(g, config, FRAME_FIELDS + SOLID_FIELDS, over)

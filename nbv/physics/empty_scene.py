@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Mapping
 from dataclasses import replace
 
 import numpy as np
@@ -37,6 +38,7 @@ def empty_scene_probes(
     progress: bool | RunProgress = True,
     lists: GaussianLists | None = None,
     reference: EmptyReference | None = None,
+    steps: Mapping[str, int] | None = None,
 ) -> tuple[np.ndarray, float]:
     """D_g^(IC) of the empty scene: each probe's slab in its walled domain with no solid, onto the same Gaussians.
 
@@ -50,6 +52,9 @@ def empty_scene_probes(
             which cover the same domains). None: built over the union of the probes' domains, for every probe.
         reference: where a probe's reference is looked up and stored (:class:`EmptyReference`: this run's means, the
             disk cache's means and fluid). None: simulate every probe and store nothing.
+        steps: the steps each probe's empty scene runs: those its probe with the solid ran, so that D-bar / D-bar_empty
+            compares the same time window when the probe stopped early (``config.stop_tolerance``); the cache keys
+            hold them. None: ``config.steps``.
     Returns:
         ([P, G] float64 per-probe means, seconds spent).
     """
@@ -62,11 +67,21 @@ def empty_scene_probes(
         centers, reach, replace(config, track_distinct=False), bar, "empty ", grid_bounds=plan.bounds, lists=lists
     )
     try:
-        out = [_empty_probe(d, plan.setups[d], config, rec, reference) for d in config.directions]
+        out = [
+            _empty_probe(d, plan.setups[d], _probe_config(config, steps, d), rec, reference) for d in config.directions
+        ]
     finally:
         if bar is not progress:  # a bar of its own: closed here; the run's bar is closed by the run
             bar.close()
     return np.stack(out), time.perf_counter() - t0
+
+
+def _probe_config(config: PhysicsConfig, steps: Mapping[str, int] | None, direction: str) -> PhysicsConfig:
+    """The settings of one empty-scene probe: ``config`` run for ``steps[direction]`` steps (no early stop of its own:
+    it stops where its probe with the solid did)."""
+    if steps is None or steps[direction] == config.steps:
+        return config
+    return replace(config, steps=int(steps[direction]))
 
 
 def _empty_probe(
@@ -86,6 +101,7 @@ def _empty_probe(
     else:
         sampler = SampleRecorder(config.accumulate_every) if reference.stores else None
         run_empty_probe(direction, setup, config, rec, sampler)
+        rec.progress.stopped(config.steps)  # a probe shorter than the run's steps: the bar moves past the rest
     reference.put(found, rec.means[direction], None if sampler is None else sampler.samples())
     return rec.means[direction]
 

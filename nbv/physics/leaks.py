@@ -106,11 +106,12 @@ class LeakCounter:
         self._origin = ti.Vector(self.lattice_min.tolist(), ti.f64)
         self._flags = None
         self._counts = None
-        self._steps = 0
+        self._steps = self._run = 0
 
     def start(self, steps: int) -> None:
         """Zero the per-step counters of a probe of ``steps`` steps."""
         self._steps = int(steps)
+        self._run = 0  # the steps counted: fewer than ``steps`` when the probe stopped early (nbv.physics.early_stop)
         self._counts = ti.ndarray(ti.i32, shape=max(self._steps, 1))
         self._counts.fill(0)
 
@@ -121,6 +122,8 @@ class LeakCounter:
     def count(self, solver, step: int) -> None:
         """Count the active fluid particles of ``solver`` inside the solid after step ``step`` (0-based)."""
         f = solver.fluid
+        if 0 <= step < self._steps:
+            self._run = max(self._run, int(step) + 1)
         if f.active == 0 or not 0 <= step < self._steps:
             return
         self._ensure_flags(f.capacity)
@@ -144,7 +147,7 @@ class LeakCounter:
             )
             flags = self._flags.to_numpy()[: f.active].astype(bool)
             leaked = np.sort(f.numpy("ids")[flags]).astype(np.int32)
-        per_step = self._counts.to_numpy()[: self._steps].astype(np.int32)
+        per_step = self._counts.to_numpy()[: self._run].astype(np.int32)  # the steps the probe ran
         return ProbeLeaks(x_final=x, ids_final=ids, leaked_ids=leaked, per_step=per_step)
 
 

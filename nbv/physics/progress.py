@@ -53,6 +53,11 @@ class RunProgress:
         self.start(direction, label)
         self.bar.update(self.steps * self.weight)
 
+    def stopped(self, steps_run: int) -> None:
+        """The current probe stopped early after ``steps_run`` steps (:mod:`nbv.physics.early_stop`): the bar moves
+        past the steps it will not run, so the ETA stays one over what is left."""
+        self.bar.update(max(self.steps - steps_run, 0) * self.weight)
+
     def tick(self, stats: StepStats) -> None:
         """One step of the current probe ran."""
         self.bar.update(self.weight)

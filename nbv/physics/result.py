@@ -212,6 +212,9 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
             if result.empty_per_probe is not None:
                 pg["D_empty"] = result.empty_per_probe[i]
             pg["stats"] = result.stats[d]
+            # the early stop (nbv.physics.early_stop): the steps this probe (and its empty scene) ran
+            pg.attrs["steps_run"] = len(result.stats[d])
+            pg.attrs["stopped_early"] = len(result.stats[d]) < result.config.steps
             if d in forces:
                 write_probe_force(pg, forces[d])
             if d in result.domains:

@@ -35,6 +35,7 @@ from fluidsim.output import stats_table
 from fluidsim.simulation import check_time_step
 from nbv import scores
 from nbv.physics.config import PhysicsConfig
+from nbv.physics.early_stop import ConvergenceCheck
 from nbv.physics.empty_cache import EmptyReference
 from nbv.physics.empty_scene import empty_scene_probes
 from nbv.physics.memory import check_memory, check_memory_bound
@@ -87,7 +88,35 @@ def _run_with(
         on_probe_end=recorder.end,
         progress=lambda d, st: recorder.tick(st),
         setups=plan.setups,
+        stop=early_stop(recorder, config),
     )
+
+
+def early_stop(recorder: ProbeRecorder, config: PhysicsConfig):
+    """The stop predicate of the probes (``config.stop_tolerance``, :mod:`nbv.physics.early_stop`: a probe stops once
+    its running D_g^(IC) has converged; None when off). A stopped probe moves the run's bar past its unrun steps."""
+    rule = config.stop_rule()
+    if not rule.enabled:
+        return None
+    checks: dict[str, ConvergenceCheck] = {}
+
+    def stop(direction: str, solver, stats: StepStats) -> bool:
+        check = checks.setdefault(direction, ConvergenceCheck(rule, lambda: recorder.acc.means()))
+        run = stats.step + 1
+        if not check(run):
+            return False
+        log.info(
+            "probe %s: stopped after %d of %d steps (its D_g moved by %.2g %% in the last %d steps)",
+            direction,
+            run,
+            config.steps,
+            100.0 * check.changes[-1][1],
+            rule.window,
+        )
+        recorder.progress.stopped(run)
+        return True
+
+    return stop
 
 
 def simulate_replicas(
@@ -323,7 +352,8 @@ def _probe_with(
     if not config.empty_reference:
         return result
     try:
-        empty, empty_s = empty_scene_probes(plan, means, reach, config, bar, recorder.lists, reference)
+        steps = {d: len(recorder.histories[d]) for d in config.directions}  # each as long as its probe ran
+        empty, empty_s = empty_scene_probes(plan, means, reach, config, bar, recorder.lists, reference, steps)
     except SimulationDiverged as exc:
         probe = getattr(exc, "probe", "empty-scene")
         failure = {"probe": probe, "step": int(exc.step), "reason": exc.reason}

@@ -174,6 +174,7 @@ class TrajectoryRecorder:
         self.record, self.steps = record, int(steps)
         self.results: dict[str, ProbeTrajectory] = {}
         self._direction: str | None = None
+        self._run = 0  # the steps the recorded probe ran
         self._buffers: tuple[np.ndarray, ...] | None = None
 
     def start(self, direction: str, solver) -> None:
@@ -182,7 +183,7 @@ class TrajectoryRecorder:
             self._direction, self._buffers = None, None
             return
         frames, fluid = self.record.frames(self.steps), int(solver.fluid.capacity)
-        self._direction = direction
+        self._direction, self._run = direction, 0
         self._buffers = (
             np.full((frames, fluid, 3), np.nan, np.float32),
             np.full((frames, fluid), np.nan, np.float16),
@@ -194,6 +195,8 @@ class TrajectoryRecorder:
 
     def step(self, direction: str, solver, step: int) -> None:
         """After step ``step`` (0-based): take a frame when ``step + 1`` is a multiple of k."""
+        if direction == self._direction:
+            self._run = max(self._run, step + 1)
         if direction != self._direction or self._buffers is None or (step + 1) % self.record.every:
             return
         frame = (step + 1) // self.record.every - 1
@@ -215,7 +218,9 @@ class TrajectoryRecorder:
         """Keep the frames of ``direction`` in ``results``."""
         if direction != self._direction or self._buffers is None:
             return
-        x, divergence, speed, steps, velocity, density = self._buffers
+        # a probe stopped early (nbv.physics.early_stop) keeps the frames of the steps it ran
+        kept = int(np.searchsorted(self._buffers[3], self._run, side="right"))
+        x, divergence, speed, steps, velocity, density = (b[:kept] for b in self._buffers)
         self.results[direction] = ProbeTrajectory(
             steps=steps,
             x=x,
