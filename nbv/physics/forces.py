@@ -194,10 +194,12 @@ def force_lines(forces: dict[str, ProbeForces]) -> list[str]:
     with how A was taken, and a warning for a probe whose fluid never reached the solid."""
     if not forces:
         return []
-    first = next(iter(forces.values()))
-    steps = len(first.series)
+    lengths = {len(pf.series) for pf in forces.values()}
+    steps = max(lengths)
+    # probes stopped early (nbv.physics.early_stop) ran fewer steps: each mean is over the second half of its own
+    window = f"steps {steps // 2}-{steps}" if len(lengths) == 1 else "the second half of each probe's steps"
     lines = [
-        f"forces on the solid (N, time mean over steps {steps // 2}-{steps}; C = 2F / (rho0 U^2 A), A = the solid "
+        f"forces on the solid (N, time mean over {window}; C = 2F / (rho0 U^2 A), A = the solid "
         "particles' projected area normal to the flow, in cells of one spacing):"
     ]
     for d, pf in forces.items():
@@ -211,9 +213,10 @@ def force_lines(forces: dict[str, ProbeForces]) -> list[str]:
                 f"U {pf.speed:g} m/s"
             )
         )
+        ran = "" if len(lengths) == 1 else f" (steps {len(pf.series) // 2}-{len(pf.series)})"
         lines.append(
-            f"  probe {d:>3}: drag {_n(p['drag'])}, lift {_n(p['lift'])}, side {_n(p['side'])} N; {coef}; impulse "
-            f"{np.linalg.norm(pf.impulse):.3g} N s"
+            f"  probe {d:>3}{ran}: drag {_n(p['drag'])}, lift {_n(p['lift'])}, side {_n(p['side'])} N; {coef}; "
+            f"impulse {np.linalg.norm(pf.impulse):.3g} N s"
         )
         if not pf.reached:
             lines.append(f"    WARNING: the fluid of probe {d} never reached the solid: its force is 0")
