@@ -118,17 +118,19 @@ def probe_video(
         raise ValueError(f"--video: unknown probe {direction!r}; use one of {','.join(DIRECTIONS)}")
     out = Path(out)
     cfg = result.config
+    # the steps the probe ran: fewer than cfg.steps when it stopped early (nbv.physics.early_stop)
+    steps = len(result.stats[direction]) if direction in result.stats else cfg.steps
     with tempfile.TemporaryDirectory(dir=out.parent) as tmp:
         h5, _, _ = probe_to_h5(
             result.solid,
             direction,
             cfg.solver_config(),
             cfg.probe_config(),
-            cfg.steps,
+            steps,
             Path(tmp) / "probe.h5",
             every,
             progress=progress,
         )
-        frames = cfg.steps // every + 1 + (cfg.steps % every > 0)
+        frames = steps // every + 1 + (steps % every > 0)
         render_frames(h5, out, replace(style, fps=fps or video_fps(frames)), progress=progress)
     return out
