@@ -260,7 +260,7 @@ def test_score_views_renders_only_the_top_views(tmp_path):
     from nbv.view_scoring import score_views
 
     g, cams, metric = _scene(200, seed=5)
-    result = SimpleNamespace(divergence=metric.numpy())
+    result = SimpleNamespace(divergence=metric.numpy(), reached=metric.numpy() > 0)
     idx = [10 + k for k in range(len(cams))]
     rows = score_views(g, cams, idx, result, "max", tmp_path / "top", progress=False, png_top=2, occlusion=False)
     expected = scores.projected_view_scores(metric, g, cams)
