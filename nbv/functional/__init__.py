@@ -147,12 +147,13 @@ class FlowCache:
     def put(self, key: str, rec: FlowRecord) -> None:
         if self.folder is None:
             return
+        from fluidsim.files import OutputError, atomic_output  # noqa: PLC0415
+
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
-            tmp = self.folder / f".{key}.{os.getpid()}.tmp.npz"
-            np.savez(tmp, forces=rec.forces, dt=rec.dt, velocities=rec.velocities.astype(np.float32))
-            os.replace(tmp, self.folder / f"{key}.npz")
-        except OSError as exc:  # a cache that cannot be written costs time, never the result
+            with atomic_output(self.folder / f"{key}.npz") as tmp, open(tmp, "wb") as fh:
+                np.savez(fh, forces=rec.forces, dt=rec.dt, velocities=rec.velocities.astype(np.float32))
+        except (OSError, OutputError) as exc:  # a cache that cannot be written costs time, never the result
             log.warning("could not cache the reference flow in %s: %s", self.folder, exc)
 
 

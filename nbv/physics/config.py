@@ -71,7 +71,7 @@ class PhysicsConfig:
             spacing each time, and average D_g over the runs (1: one run; :mod:`nbv.physics.replicas`).
         stop_tolerance: stop a probe once a window of 50 steps moved its running D_g^(IC) by at most this fraction
             (relative L1 change, checked from step 150; :mod:`nbv.physics.early_stop`); its empty-scene probe stops at
-            the same step. 0 (default, the paper): every probe runs ``steps``.
+            the same step. 0, the paper's setting: every probe runs ``steps``.
         solver: extra ``fluidsim.SolverConfig`` fields (tolerances, iteration bounds), as (key, value) pairs.
             The estimator radii h_r, h_k default to 4 r (the paper's 0.1 m at r = 0.025 m) unless given here.
     """
