@@ -139,7 +139,10 @@ def demo_gaussians(gpath, args: argparse.Namespace) -> tuple:
 
 
 def print_outputs(out: Path, result, source: str, rows: list[dict], summary: dict, gpath, no_video: bool) -> None:
-    """The closing lines: D-bar and the best view, the outputs written, and the `fluidgs view` command."""
+    """The closing lines: the forces on the solid, D-bar and the best view, the outputs, the `fluidgs view` command."""
+    from nbv.physics.forces import force_lines
+
+    print("\n".join(force_lines(result.forces)))
     print(f"{result.num_gaussians} Gaussians ({source}); D-bar {result.dbar:.2g} m^4/s; best view {rows[0]['name']}")
     print(
         f"outputs in {out}: result.h5, gaussians_divergence.ply, scores.json, views/, summary.json"
