@@ -29,9 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from nbv.functional.flow import FORCE_WINDOW_S, FlowRecord, SampleGrid, flow_errors, run_flow
+from nbv.functional.flow import FlowRecord, SampleGrid, flow_errors, run_flow
 from nbv.functional.solids import SolidSource, resample_cubes
 from nbv.physics.config import PhysicsConfig
+from nbv.physics.forces import FORCE_WINDOW_S, flow_axis, moving_mean
 from nbv.physics.replicas import replica_offsets
 
 log = logging.getLogger(__name__)
@@ -217,7 +218,7 @@ class Comparison:
 
 def overall_errors(flows: dict[str, dict[str, FlowRecord]], which: str, per_probe: dict) -> dict[str, float]:
     """The errors over all probes: the L2 ones over every probe's samples stacked, the time-mean ones averaged."""
-    from nbv.functional.flow import moving_mean, relative_l2  # noqa: PLC0415
+    from nbv.functional.flow import relative_l2  # noqa: PLC0415
 
     a = [flows[d][which] for d in flows]
     b = [flows[d]["reference"] for d in flows]
@@ -415,8 +416,6 @@ def plot_forces(c: Comparison, path: Path) -> Path:
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     from fluidsim.files import atomic_output  # noqa: PLC0415
-    from nbv.functional.flow import moving_mean  # noqa: PLC0415
-    from nbv.physics.forces import flow_axis  # noqa: PLC0415
 
     fig, axes = plt.subplots(len(c.flows), 1, figsize=(7, 2.6 * len(c.flows)), squeeze=False)
     for ax, (d, flows) in zip(axes[:, 0], c.flows.items(), strict=True):

@@ -27,9 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fluidsim.kernels import cubic_w_np
-from nbv.physics.forces import UP, flow_axis, second_half_mean
+from nbv.physics.forces import UP, flow_axis, moving_mean, second_half_mean
 
-FORCE_WINDOW_S = 0.05  # s: the moving mean of the force series (longer than the 20-step DFSPH pressure oscillation)
 SAMPLE_TIMES = 8  # K
 GRID_SPACINGS = 2  # grid step, in particle spacings
 GRID_MARGIN = 0.25  # the grid's margin around the reference solid, in its largest extent
@@ -107,16 +106,6 @@ def sph_velocity_np(points: np.ndarray, x: np.ndarray, v: np.ndarray, h: float, 
     """O(P N) twin of :func:`sph_velocity`."""
     r = np.linalg.norm(np.asarray(points)[:, None, :] - np.asarray(x)[None, :, :], axis=2)
     return volume * cubic_w_np(r, h) @ np.asarray(v, np.float64)
-
-
-def moving_mean(series: np.ndarray, dt: np.ndarray, window_s: float = FORCE_WINDOW_S) -> np.ndarray:
-    """(S - w + 1, 3) the moving mean of ``series`` (S, 3) over w = window_s / median dt steps."""
-    series = np.asarray(series, np.float64)
-    if len(series) == 0:
-        return series
-    w = int(min(max(1, round(window_s / float(np.median(dt)))), len(series)))
-    c = np.cumsum(np.vstack([np.zeros((1, 3)), series]), axis=0)
-    return (c[w:] - c[:-w]) / w
 
 
 def relative_l2(a: np.ndarray, ref: np.ndarray) -> float:

@@ -28,6 +28,7 @@ import numpy as np
 from fluidsim.directions import DIRECTIONS
 
 FORCE_COLUMNS = ("solid_force_x", "solid_force_y", "solid_force_z")
+FORCE_WINDOW_S = 0.05  # s: the moving mean of a force series (longer than the 20-step DFSPH pressure oscillation)
 UP = np.array([0.0, 1.0, 0.0])
 
 
@@ -94,6 +95,16 @@ class ProbeForces:
     rest_density: float
     flow: np.ndarray
 
+    def peak_drag(self) -> tuple[float, float]:
+        """(the largest drag of the :data:`FORCE_WINDOW_S` moving mean, N; the time it ends at, s): the impact's drag,
+        while the slab passes the solid (the second half of a long run holds the water left in the closed box)."""
+        if len(self.series) == 0:
+            return 0.0, 0.0
+        drag = moving_mean(self.series, self.dt) @ self.flow
+        k = int(np.argmax(drag))
+        t = np.cumsum(self.dt)[len(self.dt) - len(drag) + k]
+        return float(drag[k]), float(t)
+
     @property
     def reached(self) -> bool:
         """Whether the fluid ever pushed on the solid (a probe whose fluid never reaches it has a zero force)."""
@@ -135,6 +146,16 @@ class ProbeForces:
             "steps": int(len(self.series)),
             "reached": self.reached,
         }
+
+
+def moving_mean(series: np.ndarray, dt: np.ndarray, window_s: float = FORCE_WINDOW_S) -> np.ndarray:
+    """(S - w + 1, 3) the moving mean of ``series`` (S, 3) over w = window_s / median dt steps."""
+    series = np.asarray(series, np.float64)
+    if len(series) == 0:
+        return series
+    w = int(min(max(1, round(window_s / float(np.median(dt)))), len(series)))
+    c = np.cumsum(np.vstack([np.zeros((1, 3)), series]), axis=0)
+    return (c[w:] - c[:-w]) / w
 
 
 def second_half_mean(series: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -200,7 +221,9 @@ def force_lines(forces: dict[str, ProbeForces]) -> list[str]:
     window = f"steps {steps // 2}-{steps}" if len(lengths) == 1 else "the second half of each probe's steps"
     lines = [
         f"forces on the solid (N, time mean over {window}; C = 2F / (rho0 U^2 A), A = the solid "
-        "particles' projected area normal to the flow, in cells of one spacing):"
+        "particles' projected area normal to the flow, in cells of one spacing; the peak drag is the largest of a "
+        f"{FORCE_WINDOW_S:g} s moving mean, the impact: by the second half of a long run the slab has passed and the "
+        "mean holds the water left in the closed box, its weight and its buoyancy):"
     ]
     for d, pf in forces.items():
         p = pf.parts()
@@ -214,9 +237,11 @@ def force_lines(forces: dict[str, ProbeForces]) -> list[str]:
             )
         )
         ran = "" if len(lengths) == 1 else f" (steps {len(pf.series) // 2}-{len(pf.series)})"
+        peak, at = pf.peak_drag()
+        c_peak = "" if c is None else f", C_d {peak / (0.5 * pf.rest_density * pf.speed**2 * pf.area):.3g}"
         lines.append(
             f"  probe {d:>3}{ran}: drag {_n(p['drag'])}, lift {_n(p['lift'])}, side {_n(p['side'])} N; {coef}; "
-            f"impulse {np.linalg.norm(pf.impulse):.3g} N s"
+            f"impulse {np.linalg.norm(pf.impulse):.3g} N s; peak drag {peak:.3g} N{c_peak} at t = {at:.2f} s"
         )
         if not pf.reached:
             lines.append(f"    WARNING: the fluid of probe {d} never reached the solid: its force is 0")

@@ -10,9 +10,10 @@ import pytest
 
 from fluidsim.scene import lattice_in_box
 from nbv.functional import METRICS, FlowCache, compare, solid_overlap
-from nbv.functional.flow import SampleGrid, moving_mean, relative_l2, sph_velocity, sph_velocity_np
+from nbv.functional.flow import SampleGrid, relative_l2, sph_velocity, sph_velocity_np
 from nbv.functional.solids import SolidSource, lattice_points, resample_cubes
 from nbv.physics import PhysicsConfig
+from nbv.physics.forces import moving_mean
 from nbv.physics.scene_frame import SceneTransform
 
 SPACING = 0.1
