@@ -38,7 +38,7 @@ from nbv.io import write_atomic, write_png_atomic
 from nbv.lists import parse_list
 from nbv.scores import DepthBuffer, geometry_divergence, projected_counts, projected_view_scores, rank
 from recon.device import torch_device
-from recon.render import render, render_layers
+from recon.render import render_layers
 from viz.annotate import label, to_bgr
 from viz.cameras import view_file_stem
 
@@ -296,18 +296,6 @@ def format_table(rows: list[dict], top_k: int | None = None, value: str = "score
             f"{r['visible']:>8}"
         )
     return "\n".join(lines)
-
-
-def render_candidates(gaussians, cameras, heat_gaussians=None, device: str = "cpu", progress: bool = True):
-    """Render every camera; yields (RenderOutput with radii/visible on the CPU, heat-map image or None)."""
-    dev = torch.device(device)
-    g = gaussians.detach().to(dev)
-    heat = heat_gaussians.detach().to(dev) if heat_gaussians is not None else None
-    with torch.no_grad():
-        for cam in tqdm(cameras, desc="render", unit="view", disable=not progress):
-            out = render(g, cam, background=1.0)
-            himg = render(heat, cam, background=0.0).image if heat is not None else None
-            yield out, himg
 
 
 def _bgr(image: torch.Tensor) -> np.ndarray:
