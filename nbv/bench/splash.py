@@ -171,6 +171,19 @@ class PeerParticles:
     walls: np.ndarray
 
 
+# A SPlisHSPlasH scene run without its GUI and without any export (its own files are not read back).
+HEADLESS = {
+    "pause": False,
+    "numberOfStepsPerRenderUpdate": 1,
+    "enablePartioExport": False,
+    "enableVTKExport": False,
+    "enableRigidBodyExport": False,
+    "enableRigidBodyVTKExport": False,
+    "enableStateExport": False,
+    "enableAsyncExport": False,
+}
+
+
 def peer_config(scene: PeerScene, divergence_warm_start: bool = True) -> SolverConfig:
     """This engine's solver settings for ``scene``: the same r, dt, mu, rho0, gravity, tolerances (in %) and
     iteration bounds as SPlisHSPlasH gets, and free slip at the walls (``boundary_viscosity = 0``, as the peer's
@@ -329,14 +342,7 @@ def splash_scene_json(scene: PeerScene, sphere_obj: str, box_obj: str) -> dict:
             "gravitation": list(scene.gravity),
             "timeStepSize": scene.dt,
             "cflMethod": 0,  # no CFL adaptivity: fixed dt
-            "pause": False,
-            "numberOfStepsPerRenderUpdate": 1,
-            "enablePartioExport": False,
-            "enableVTKExport": False,
-            "enableRigidBodyExport": False,
-            "enableRigidBodyVTKExport": False,
-            "enableStateExport": False,
-            "enableAsyncExport": False,
+            **HEADLESS,
             **iterations,
             "DFSPH": dict(iterations),
         },

@@ -44,7 +44,7 @@ from fluidsim.config import SolverConfig
 from fluidsim.probes import ProbeConfig, ProbeSetup
 from fluidsim.scene import lattice_counts
 
-from .splash import INSTALL_HINT, _worker_cmd, unit_box, write_obj
+from .splash import HEADLESS, INSTALL_HINT, _worker_cmd, unit_box, write_obj
 from .splash_worker import EXIT_NO_SPLASH
 
 SOLID_MESH = "solid.obj"
@@ -159,14 +159,7 @@ def probe_scene_json(
             "timeStepSize": config.dt,
             "cflMethod": 0,  # fixed dt, as this engine's probes
             "stopAt": steps * config.dt,
-            "pause": False,
-            "numberOfStepsPerRenderUpdate": 1,
-            "enablePartioExport": False,
-            "enableVTKExport": False,
-            "enableRigidBodyExport": False,
-            "enableRigidBodyVTKExport": False,
-            "enableStateExport": False,
-            "enableAsyncExport": False,
+            **HEADLESS,
             **iterations,
             "DFSPH": dict(iterations),
         },
