@@ -281,14 +281,7 @@ def compare(
     if on_overlap is not None:
         on_overlap(overlap, overlap_floor)
     setups = probe_setups(ref, cfg.probe_config(), spacing, cfg.directions)  # laid out once, around the reference
-    warnings = list(reference.warnings) + list(recon.warnings)
-    for d, st in setups.items():
-        outside = ((rec < np.asarray(st.domain_min)) | (rec > np.asarray(st.domain_max))).any(1).sum()
-        if outside:
-            warnings.append(
-                f"probe {d}: {outside} of the reconstruction's {len(rec)} solid particles lie outside the "
-                "domain laid out around the reference and are left out"
-            )
+    warnings = list(reference.warnings) + list(recon.warnings) + outside_warnings(rec, setups)
     cache = cache or FlowCache(None)
     runs = _Runs(len(cfg.directions) * 3, cfg.steps, progress)
     flows, grids, probes, floors = {}, {}, {}, {}
@@ -309,16 +302,7 @@ def compare(
     finally:
         runs.close()
     settings = {
-        "particle_radius_m": cfg.particle_radius,
-        "steps": cfg.steps,
-        "dt": cfg.dt,
-        "speed_m_s": cfg.speed,
-        "directions": list(cfg.directions),
-        "floor_lattice_offset": np.round(shift, 6).tolist(),
-        "reference": str(reference.path),
-        "reconstruction": str(recon.path),
-        "up": list(reference.transform.up),
-        "scale_m_per_unit": reference.transform.scale,
+        **run_settings(cfg, shift, reference, recon),
         "solid_particles": {"reference": len(ref), "shifted": len(ref_shifted), "reconstruction": len(rec)},
         "probe_runs": runs.done,
         "cached_runs": runs.hits,
@@ -336,6 +320,35 @@ def compare(
         settings=settings,
         warnings=warnings,
     )
+
+
+def outside_warnings(rec: np.ndarray, setups: dict) -> list[str]:
+    """One warning per probe whose domain (laid out around the reference) leaves out reconstruction particles."""
+    out = []
+    for d, st in setups.items():
+        outside = int(((rec < np.asarray(st.domain_min)) | (rec > np.asarray(st.domain_max))).any(1).sum())
+        if outside:
+            out.append(
+                f"probe {d}: {outside} of the reconstruction's {len(rec)} solid particles lie outside the "
+                "domain laid out around the reference and are left out"
+            )
+    return out
+
+
+def run_settings(cfg: PhysicsConfig, shift, reference: SolidSource, recon: SolidSource) -> dict:
+    """The JSON record of what a comparison ran: the probe settings, the floor's offset, the inputs and the frame."""
+    return {
+        "particle_radius_m": cfg.particle_radius,
+        "steps": cfg.steps,
+        "dt": cfg.dt,
+        "speed_m_s": cfg.speed,
+        "directions": list(cfg.directions),
+        "floor_lattice_offset": np.round(shift, 6).tolist(),
+        "reference": str(reference.path),
+        "reconstruction": str(recon.path),
+        "up": list(reference.transform.up),
+        "scale_m_per_unit": reference.transform.scale,
+    }
 
 
 class _Runs:
