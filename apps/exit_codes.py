@@ -62,7 +62,14 @@ def run_module(args: argparse.Namespace) -> int:
     runner = getattr(module, "run_command", None) or module.run
     before = len(written_outputs())
     try:
-        return int(runner(args) or 0)
+        code = int(runner(args) or 0)
+        late = first_signal()
+        if code == 0 and late is not None:  # a Stopped lost where Python ignores exceptions (h5py's weakref callbacks)
+            logging.getLogger("fluidgs").error(
+                "interrupted by %s (the command's outputs were complete when it was noticed)", signal_name(late)
+            )
+            return 128 + late
+        return code
     except Stopped as exc:  # SIGINT, SIGTERM or SIGHUP (apps.signals): one line, what is already written stays written
         logging.getLogger("fluidgs").error("interrupted by %s", signal_name(exc.signum))
         return exc.exit_code
