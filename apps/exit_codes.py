@@ -30,7 +30,7 @@ import logging
 
 from fluidsim.files import OutputError, written_outputs
 
-from .signals import Stopped, first_signal, signal_name
+from .signals import Stopped, first_signal, lost_signal, signal_name
 
 EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT = 2, 3, 4
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
@@ -63,7 +63,7 @@ def run_module(args: argparse.Namespace) -> int:
     before = len(written_outputs())
     try:
         code = int(runner(args) or 0)
-        late = first_signal()
+        late = lost_signal()
         if code == 0 and late is not None:  # a Stopped lost where Python ignores exceptions (h5py's weakref callbacks)
             logging.getLogger("fluidgs").error(
                 "interrupted by %s (the command's outputs were complete when it was noticed)", signal_name(late)

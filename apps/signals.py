@@ -57,6 +57,7 @@ def signal_name(signum: int) -> str:
 
 class _State:
     first: int | None = None  # the first stop signal received
+    lost: int | None = None  # a stop signal whose Stopped Python ignored (raised in a finalizer or weakref callback)
     count = 0
     exit_after = False  # set by the executable (apps.cli.entry): the process exits when the command returns
 
@@ -72,6 +73,20 @@ def exit_after_commands() -> None:
 def first_signal() -> int | None:
     """The first stop signal this process received (None: none yet)."""
     return _State.first
+
+
+def lost_signal() -> int | None:
+    """The stop signal whose :class:`Stopped` was raised where Python only reports an exception and goes on (a
+    finalizer or weakref callback: h5py frees its objects there, so a Ctrl-C during HDF5 I/O can land in one), None
+    when none was; the command then ends with that signal's code, not 0 (:func:`apps.exit_codes.run_module`)."""
+    return _State.lost
+
+
+def _note_unraisable(hook, unraisable) -> None:
+    """sys.unraisablehook while a command runs: remember a lost :class:`Stopped`, then report as before."""
+    if isinstance(unraisable.exc_value, Stopped) and _State.lost is None:
+        _State.lost = unraisable.exc_value.signum
+    hook(unraisable)
 
 
 def note_signal(signum: int) -> int:
@@ -122,11 +137,14 @@ def stop_signals() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    _State.first, _State.count = None, 0
+    _State.first, _State.lost, _State.count = None, None, 0
     old = {sig: signal.signal(sig, handle) for sig in handled_signals()}
+    hook = sys.unraisablehook
+    sys.unraisablehook = lambda unraisable: _note_unraisable(hook, unraisable)
     try:
         yield
     finally:
+        sys.unraisablehook = hook
         for sig, previous in old.items():  # in the executable, the process is ending: a late signal ends it now
             signal.signal(sig, _exit_at_once if _State.exit_after else previous)
 
