@@ -55,7 +55,7 @@ def find_browser() -> str | None:
     return None
 
 
-class _DevTools:
+class DevTools:
     """The smallest DevTools protocol client: one page, calls answered in order."""
 
     def __init__(self, ws):
@@ -119,7 +119,7 @@ def screenshot(
             targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=30))
             page = next(t for t in targets if t.get("type") == "page")
             with websockets.sync.client.connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=30) as ws:
-                tools = _DevTools(ws)
+                tools = DevTools(ws)
                 w, h = size
                 tools.call("Emulation.setDeviceMetricsOverride", width=w, height=h, deviceScaleFactor=1, mobile=False)
                 tools.call("Page.navigate", url=url)

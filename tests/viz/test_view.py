@@ -39,6 +39,7 @@ from recon.gaussians import GaussianSet, sh0_to_rgb
 from viz.cameras import candidate_views, read_scores, rotation_to_wxyz, view_png
 from viz.colors import UNREACHED_RGB, color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data
+from viz.screenshot import DevTools, find_browser
 from viz.splats import splat_looks
 from viz.thumbnails import project_to_view, view_thumbnail
 from viz.viewer import FluidViewer
@@ -539,35 +540,8 @@ def test_view_command_stops_cleanly(scene, stop):
 
 
 # ---- a real browser --------------------------------------------------------------------------------------------
-def _browser() -> str | None:
-    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
-        if shutil.which(name):
-            return shutil.which(name)
-    return None
-
-
 class BrowserUnavailable(RuntimeError):
     """Chromium is installed but does not start (no DevTools port)."""
-
-
-class _DevTools:
-    """The smallest Chrome DevTools protocol client: one page, calls answered in order."""
-
-    def __init__(self, ws):
-        self.ws, self.next_id = ws, 0
-
-    def call(self, method: str, **params):
-        self.next_id += 1
-        self.ws.send(json.dumps({"id": self.next_id, "method": method, "params": params}))
-        while True:
-            msg = json.loads(self.ws.recv(timeout=60))
-            if msg.get("id") == self.next_id:
-                if "error" in msg:
-                    raise RuntimeError(f"{method}: {msg['error']}")
-                return msg["result"]
-
-    def eval(self, expression: str):
-        return self.call("Runtime.evaluate", expression=expression, returnByValue=True)["result"].get("value")
 
 
 # flags for WebGL in software: Chromium 1xx renders WebGL through ANGLE on SwiftShader (Vulkan) headless
@@ -603,7 +577,7 @@ def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dism
 
     with tempfile.TemporaryDirectory() as profile:
         proc = subprocess.Popen(
-            [_browser(), *BROWSER_FLAGS, "--remote-debugging-port=0", f"--user-data-dir={profile}", "about:blank"],
+            [find_browser(), *BROWSER_FLAGS, "--remote-debugging-port=0", f"--user-data-dir={profile}", "about:blank"],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
         )
@@ -613,13 +587,13 @@ def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dism
             started = time.time()
             while not (port_file.exists() and len(port_file.read_text().split()) >= 2):
                 if time.time() > started + 60 or proc.poll() is not None:
-                    raise BrowserUnavailable(f"{_browser()} did not start (exit status {proc.poll()})")
+                    raise BrowserUnavailable(f"{find_browser()} did not start (exit status {proc.poll()})")
                 time.sleep(0.1)
             port = port_file.read_text().split()[0]
             targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=30))
             page = next(t for t in targets if t.get("type") == "page")
             with websockets.sync.client.connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=30) as ws:
-                tools = _DevTools(ws)
+                tools = DevTools(ws)
                 tools.call(
                     "Emulation.setDeviceMetricsOverride",
                     width=size[0],
@@ -672,7 +646,7 @@ def colorbar_drawn(img: np.ndarray, rect) -> bool:
 
 
 def test_browser_shows_the_splat_and_its_colour_bar(scene, viewer_of, tmp_path):
-    if _browser() is None:
+    if find_browser() is None:
         pytest.skip("no Chromium on this machine (install Debian's: apt-get install chromium; .ci/run does as root)")
     pytest.importorskip("websockets.sync.client")
     import cv2
@@ -772,7 +746,7 @@ PANEL_READY = (
 def test_browser_shows_the_list_of_views(scene, viewer_of, tmp_path):
     """The side panel in a real browser: the 'Top views' folder with the ranked entries, their S(T) and their
     thumbnails loaded (the screenshot is kept in the test's folder)."""
-    if _browser() is None:
+    if find_browser() is None:
         pytest.skip("no Chromium on this machine (install Debian's: apt-get install chromium; .ci/run does as root)")
     pytest.importorskip("websockets.sync.client")
     import cv2
@@ -821,7 +795,7 @@ def test_view_screenshot_without_chromium_is_a_clear_error(scene, tmp_path, monk
 
 
 def test_view_screenshot_writes_the_page(scene, tmp_path):
-    if _browser() is None:
+    if find_browser() is None:
         pytest.skip("no Chromium on this machine (install Debian's: apt-get install chromium; .ci/run does as root)")
     import cv2
 
