@@ -84,49 +84,13 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.files import write_json_atomic
-    from fluidsim.probes import probe_setups
-    from nbv.bench.probe_profile import answer, judge_rule, judge_stops, trace_probes
-    from nbv.orbit import Orbit, orbit_cameras
-    from nbv.physics import QUICK, PhysicsConfig
-    from nbv.physics.early_stop import StopRule
-    from nbv.physics.plan import ProbePlan, RunFrame
-    from nbv.physics.replicas import replica_offsets
-    from nbv.ranking import spearman
-    from nbv.view_scoring import project_scores
-
-    from ..options import load_gaussians_checked
-    from ..runtime import init_taichi
-
-    wall0, cpu0 = time.perf_counter(), _cpu()
-    gaussians = load_gaussians_checked(args.gaussians)
-    cfg = PhysicsConfig(
-        particle_radius=args.particle_radius or QUICK["particle_radius"],
-        steps=args.steps or QUICK["steps"],
-        dt=args.dt,
-        up=args.up,
-    )
-    init_taichi("cpu", cfg.precision, args.threads)
-    frame = RunFrame.of(gaussians, cfg, str(args.gaussians))
-    t0 = time.perf_counter()
-    solid = frame.solidify(tuple(replica_offsets(args.replica + 1)[args.replica]) if args.replica else None)
-    solidify_s = time.perf_counter() - t0
-    plan = ProbePlan.of(solid.points, cfg)
-    if args.margin is not None:  # the slabs trimmed (or grown) across the flow
-        extent = float(np.ptp(solid.points, axis=0).max() + 2 * cfg.particle_radius)
-        probe = replace(cfg.probe_config(), margin=args.margin * extent)
-        plan = ProbePlan(probe_setups(solid.points, probe, plan.spacing, cfg.directions), plan.spacing)
-    traces, setup_s = trace_probes(frame, plan, solid.points, every=args.every, empty=not args.no_empty)
-    print(
-        f"{args.gaussians.name} (up {args.up}): {frame.sim.num:,} Gaussians, solid {len(solid.points):,} particles, "
-        f"r = {cfg.particle_radius} m, dt = {cfg.dt} s, {cfg.steps} steps; solidify {solidify_s:.1f} s, lists "
-        f"{setup_s['lists']:.2f} s"
-    )
-    head = "probe       fluid steps  it d/v   nbhd  divS  densS  D_i  force  rest  aggr  total  D_g 1%/5%  reached"
-    print(head)
+def print_profile(traces) -> list[dict]:
+    """Print one line per probe (fluid, steps, iterations, seconds per stage, convergence, reach) and the shares of
+    all probes; returns the rows for the JSON."""
     from nbv.bench.probe_profile import converged_step
 
+    head = "probe       fluid steps  it d/v   nbhd  divS  densS  D_i  force  rest  aggr  total  D_g 1%/5%  reached"
+    print(head)
     rows = []
     for t in traces:
         st = t.stage_s
@@ -164,15 +128,13 @@ def run_command(args: argparse.Namespace) -> int:
         + f", aggregation {100 * agg / total:.0f} %"
     )
 
-    logging.getLogger("nbv.view_scoring").setLevel(logging.WARNING)  # one line per judged cut, not per scoring
-    cams = orbit_cameras(gaussians, cfg, Orbit(args.cameras))
-    kept = frame.kept
+    return rows
 
-    def view_scores(values: np.ndarray) -> np.ndarray:
-        full = values if kept is None else np.zeros(len(kept))
-        if kept is not None:
-            full[kept] = values
-        return project_scores(gaussians, cams, full, occlusion=True).scores.numpy()
+
+def print_cuts(args: argparse.Namespace, traces, cov, view_scores) -> list[dict]:
+    """Judge each stop rule and fixed length against the uncut run; print one line per cut and return the rows."""
+    from nbv.bench.probe_profile import judge_rule, judge_stops
+    from nbv.physics.early_stop import StopRule
 
     print(
         f"judged against the uncut run on {args.cameras} orbit cameras (depth test); kept when views >= 0.97, "
@@ -180,7 +142,6 @@ def run_command(args: argparse.Namespace) -> int:
     )
     print("cut                      stops (per probe)               steps run  views  D_g    ratio   kept")
     judged = []
-    cov = frame.covariances
     cuts = [
         (f"rule tol {tol:g}", judge_rule(traces, StopRule(tol, args.window, args.min_steps), cov, view_scores))
         for tol in (float(x) for x in args.tolerances.split(","))
@@ -205,9 +166,13 @@ def run_command(args: argparse.Namespace) -> int:
                 "kept": j.kept,
             }
         )
-    final = {t.direction: t.checkpoints[-1] for t in traces}
-    d_g, ratio = answer(traces, final, cov)
-    views = view_scores(d_g)
+    return judged
+
+
+def save_and_compare(args: argparse.Namespace, traces, cov, d_g, ratio, views) -> None:
+    """``--save``: this run's answer and running means as .npz; ``--against``: its agreement with a saved one."""
+    from nbv.ranking import spearman
+
     if args.save is not None:
         np.savez(
             args.save,
@@ -225,6 +190,62 @@ def run_command(args: argparse.Namespace) -> int:
             f"{spearman(d_g, other['d_g']):.3f}, D-bar / D-bar_empty {ratio:.4g} against {float(other['ratio']):.4g} "
             f"(moved {100 * abs(ratio / float(other['ratio']) - 1):.2f} %)"
         )
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.files import write_json_atomic
+    from fluidsim.probes import probe_setups
+    from nbv.bench.probe_profile import answer, trace_probes
+    from nbv.orbit import Orbit, orbit_cameras
+    from nbv.physics import QUICK, PhysicsConfig
+    from nbv.physics.plan import ProbePlan, RunFrame
+    from nbv.physics.replicas import replica_offsets
+    from nbv.view_scoring import project_scores
+
+    from ..options import load_gaussians_checked
+    from ..runtime import init_taichi
+
+    wall0, cpu0 = time.perf_counter(), _cpu()
+    gaussians = load_gaussians_checked(args.gaussians)
+    cfg = PhysicsConfig(
+        particle_radius=args.particle_radius or QUICK["particle_radius"],
+        steps=args.steps or QUICK["steps"],
+        dt=args.dt,
+        up=args.up,
+    )
+    init_taichi("cpu", cfg.precision, args.threads)
+    frame = RunFrame.of(gaussians, cfg, str(args.gaussians))
+    t0 = time.perf_counter()
+    solid = frame.solidify(tuple(replica_offsets(args.replica + 1)[args.replica]) if args.replica else None)
+    solidify_s = time.perf_counter() - t0
+    plan = ProbePlan.of(solid.points, cfg)
+    if args.margin is not None:  # the slabs trimmed (or grown) across the flow
+        extent = float(np.ptp(solid.points, axis=0).max() + 2 * cfg.particle_radius)
+        probe = replace(cfg.probe_config(), margin=args.margin * extent)
+        plan = ProbePlan(probe_setups(solid.points, probe, plan.spacing, cfg.directions), plan.spacing)
+    traces, setup_s = trace_probes(frame, plan, solid.points, every=args.every, empty=not args.no_empty)
+    print(
+        f"{args.gaussians.name} (up {args.up}): {frame.sim.num:,} Gaussians, solid {len(solid.points):,} particles, "
+        f"r = {cfg.particle_radius} m, dt = {cfg.dt} s, {cfg.steps} steps; solidify {solidify_s:.1f} s, lists "
+        f"{setup_s['lists']:.2f} s"
+    )
+    rows = print_profile(traces)
+    logging.getLogger("nbv.view_scoring").setLevel(logging.WARNING)  # one line per judged cut, not per scoring
+    cams = orbit_cameras(gaussians, cfg, Orbit(args.cameras))
+    kept = frame.kept
+
+    def view_scores(values: np.ndarray) -> np.ndarray:
+        full = values if kept is None else np.zeros(len(kept))
+        if kept is not None:
+            full[kept] = values
+        return project_scores(gaussians, cams, full, occlusion=True).scores.numpy()
+
+    judged = print_cuts(args, traces, frame.covariances, view_scores)
+    final = {t.direction: t.checkpoints[-1] for t in traces}
+    cov = frame.covariances
+    d_g, ratio = answer(traces, final, cov)
+    views = view_scores(d_g)
+    save_and_compare(args, traces, cov, d_g, ratio, views)
     print(f"whole command {time.perf_counter() - wall0:.1f} s wall, {_cpu() - cpu0:.1f} s CPU")
     if args.json is not None:
         write_json_atomic(
