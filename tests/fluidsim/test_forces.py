@@ -11,7 +11,7 @@ from fluidsim import SolverConfig
 from fluidsim.forces import boundary_forces_np, force_history
 from fluidsim.scene import lattice_in_box
 from fluidsim.solver import DFSPHSolver
-from fluidsim.sources import sphere_particles, wall_particles
+from fluidsim.sources import mesh_particles, sphere_particles, wall_particles
 
 G = 9.81
 RHO = 1000.0
@@ -133,6 +133,27 @@ def test_archimedes_sphere():
     solid = sphere_particles([0.4, 0.4, 0.4], 0.2, 0.05)
     ratio, mean = _buoyancy(solid, 4.0 / 3.0 * np.pi * 0.2**3)
     assert abs(ratio - 1.0) < 0.07, ratio
+    assert np.hypot(mean[0], mean[2]) < 0.05 * mean[1]
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["sphere", "rotated box"],
+)
+def test_archimedes_mesh_solids(name):
+    """A closed mesh's solid (``mesh_particles``, its surface particles inset by INSET spacings) is pushed up with
+    rho_0 g V of the mesh within 3 %: the sphere of radius 0.2 m (4 spacings) and a box of 0.3 x 0.2 x 0.25 m turned
+    off every axis (measured 1.01 and 0.98; without the inset 1.37 and 1.65)."""
+    import open3d as o3d  # noqa: PLC0415
+
+    if name == "sphere":
+        mesh = o3d.geometry.TriangleMesh.create_sphere(0.2, 40)
+    else:
+        mesh = o3d.geometry.TriangleMesh.create_box(0.35, 0.3, 0.3)
+        mesh.rotate(mesh.get_rotation_matrix_from_xyz((0.3, 0.5, 0.2)), center=mesh.get_center())
+    mesh.translate(np.array([0.4, 0.4, 0.4]) - mesh.get_center())
+    ratio, mean = _buoyancy(mesh_particles(mesh, 0.05, fill=True), mesh.get_volume())
+    assert abs(ratio - 1.0) < 0.03, ratio
     assert np.hypot(mean[0], mean[2]) < 0.05 * mean[1]
 
 
