@@ -3,7 +3,8 @@
 The file is complete whatever ends the run: a divergence (status names the step, exit 3), SIGINT (Ctrl-C, exit
 130) or SIGTERM (``kill``, ``timeout``, batch schedulers; exit 143) close it at the next step boundary with the
 frames so far, a last frame of the current state and status "interrupted", then rename it into place. A second
-signal stops at once and drops the unfinished file.
+signal stops at once and drops the unfinished file. A full disk keeps the frames written before it: the file is
+finished with them and status "disk full", and the command ends with one line naming it and the fix (exit 4).
 """
 
 from __future__ import annotations
@@ -96,9 +97,10 @@ def scene_inputs(scene, scene_path: Path) -> dict[str, Path]:
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, check_writable
     from fluidsim.memory import check_scene_memory
-    from fluidsim.recording import Interrupted, simulate_to_h5
+    from fluidsim.recording import FramesKept, Interrupted, simulate_to_h5
     from fluidsim.scene import load_scene
 
+    from .exit_codes import EXIT_OUTPUT
     from .runtime import init_taichi
 
     scene = load_scene(args.scene)  # validated before any kernel runs
@@ -134,6 +136,9 @@ def run_command(args: argparse.Namespace) -> int:
     except Interrupted as exc:
         log.error("stopped by %s", exc)
         return exc.exit_code
+    except FramesKept as exc:
+        log.error("%s", exc)
+        return EXIT_OUTPUT
     if stop.signum is not None:  # the signal came during the last step or the final write: the file is complete
         log.error("stopped by %s after the last step; %s is complete", signal.Signals(stop.signum).name, path)
         return 128 + stop.signum

@@ -5,12 +5,16 @@ K steps, per-step statistics and the divergence sums, written whatever ends the 
 A diverging run still writes its file (frames so far, statistics, status naming the step) and re-raises. A stop
 request (an object whose ``signum`` becomes a signal number, such as the SIGINT/SIGTERM handler of ``fluidgs sim``)
 ends the run at the next step boundary: the file gets the current state as a last frame and status "interrupted",
-and :class:`Interrupted` is raised. Never prints; the progress bar is tqdm's, off with ``progress=False``.
+and :class:`Interrupted` is raised. A full disk (a frame the file system refuses, or no room left for the next
+one: :class:`fluidsim.output.DiskFull`) finishes the file with the frames written so far and status "disk full", then
+raises :class:`FramesKept`, an :class:`~fluidsim.files.OutputError` (exit code 4). Never prints; the progress bar is
+tqdm's, off with ``progress=False``.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import signal
 from collections.abc import Callable
 from pathlib import Path
@@ -19,7 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .config import SolverConfig
-from .output import SimulationWriter
+from .output import DiskFull, OutputError, SimulationWriter, summary_bytes
 from .probes import ProbeConfig, build_probe_solver, probe_setups
 from .simulation import SimulationDiverged, run
 
@@ -43,6 +47,24 @@ class Interrupted(Exception):
         return 128 + int(self.signum)
 
 
+class FramesKept(OutputError):
+    """The disk refused a frame after ``step`` completed steps; the file at ``path`` holds the frames written before
+    it (the last after step ``last_frame``) with status "disk full"; ``errno`` is that of the refused write."""
+
+    def __init__(self, cause: OutputError, step: int, last_frame: int, frames: int, path: Path):
+        self.step, self.last_frame, self.path = step, last_frame, path
+        if isinstance(cause, DiskFull):
+            reason = f"{cause.free / 2**20:.1f} MiB free, {cause.needed / 2**20:.1f} MiB needed"
+        else:
+            reason = os.strerror(cause.errno) if cause.errno else str(cause.__cause__ or cause)
+        super().__init__(
+            f"cannot write the frame of step {step} to {path}: its disk is full ({reason}); the {frames} frames up "
+            f"to step {last_frame} are saved there (status 'disk full'): free disk space or choose another -o, "
+            "then run again"
+        )
+        self.errno = cause.errno
+
+
 def simulate_to_h5(
     solver, scene_dict: dict, output: Path, steps: int, save_every: int, desc: str, progress: bool = True, stop=None
 ) -> tuple[Path, list]:
@@ -58,15 +80,20 @@ def simulate_to_h5(
     Raises:
         SimulationDiverged: after the file is written with the diverged status.
         Interrupted: after the file is written with status "interrupted".
+        FramesKept: a full disk, after the file is written with the frames so far and status "disk full".
+        OutputError: the file could not be written at all (nothing kept).
     """
-    writer = SimulationWriter(output, scene_dict)
+    writer = SimulationWriter(output, scene_dict, reserve_bytes=summary_bytes(steps, solver.fluid.capacity))
     history: list = []
+    frames = 0
     bar = tqdm(total=steps, desc=desc, unit="step", disable=not progress, leave=False)
 
     def on_step(s, st) -> None:
         last = st.step + 1 == steps
+        nonlocal frames
         if (save_every and (st.step + 1) % save_every == 0) or last:
             writer.write_frame(st.step + 1, st.time, s.fluid_state())
+            frames += 1
         if stop is not None and stop.signum is not None and not last:
             raise Interrupted(stop.signum, st.step + 1, writer.path)
 
@@ -84,6 +111,7 @@ def simulate_to_h5(
     try:
         writer.write_boundary(solver.boundary.x.to_numpy()[: solver.boundary.count])
         writer.write_frame(0, 0.0, solver.fluid_state())
+        frames = 1
         history = run(solver, steps, on_step=on_step, progress=on_progress)
     except SimulationDiverged as exc:
         bar.close()
@@ -110,6 +138,21 @@ def simulate_to_h5(
         if path != exc.path:
             raise Interrupted(exc.signum, exc.step, path, kept=exc.path) from None
         raise
+    except OutputError as exc:
+        bar.close()
+        if not frames:  # nothing simulated yet: nothing to keep
+            writer.abort()
+            raise
+        sums, counts = solver.divergence_accumulation()
+        path = writer.finish(  # an OutputError here (the disk still full for the summary) drops the file
+            history,
+            sums,
+            counts,
+            status="disk full",
+            removed_inside_solid=solver.removed_inside_solid,
+            disk_full_after_step=len(history),
+        )
+        raise FramesKept(exc, len(history), writer.last_frame_step, frames, path) from exc
     except BaseException:
         bar.close()
         writer.abort()

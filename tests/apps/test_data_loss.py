@@ -8,6 +8,7 @@ accepts always work, `sim` keeps its frames on SIGINT / SIGTERM, and output erro
 
 import errno
 import json
+import logging
 import math
 import os
 import re
@@ -571,6 +572,66 @@ def test_output_errors_map_to_exit_4_and_bad_input_to_2(tmp_path, monkeypatch, c
     assert "No space left on device" in caplog.text and "out.h5" in caplog.text
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.json"]  # no half file, no temporary left
     assert cli.main(["sim", str(tmp_path / "missing.json"), "-o", str(tmp_path / "o.h5")]) == 2
+
+
+def _sim_with_full_disk(tmp_path, caplog) -> tuple[int, Path]:
+    (tmp_path / "scene.json").write_text(json.dumps(_scene(steps=8)))
+    out = tmp_path / "out.h5"
+    code = cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(out), "--save-every", "2", "--threads", "2"])
+    errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    assert len(errors) == 1 and "\n" not in errors[0], errors
+    assert str(out) in errors[0] and "free disk space or choose another -o" in errors[0], errors[0]
+    assert "Traceback" not in caplog.text
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.h5", "scene.json"]  # no .fgs-*.tmp, no reserve
+    return code, out
+
+
+def test_sim_keeps_its_frames_when_the_disk_has_no_room_for_the_next(tmp_path, monkeypatch, caplog):
+    import fluidsim.output
+
+    checks = []
+
+    def free_bytes(folder):  # room for three frames (steps 0, 2, 4), then 10 kB left
+        checks.append(folder)
+        return 10**12 if len(checks) <= 3 else 10**4
+
+    monkeypatch.setattr(fluidsim.output, "free_bytes", free_bytes)
+    code, out = _sim_with_full_disk(tmp_path, caplog)
+    assert code == exit_codes.EXIT_OUTPUT
+    assert "frame of step 6" in caplog.text and "3 frames up to step 4" in caplog.text
+    with h5py.File(out) as f:
+        assert f.attrs["status"] == "disk full" and f.attrs["disk_full_after_step"] == 6
+        assert sorted(f["frames"]) == ["000000", "000002", "000004"] and len(f["stats"]) == 6
+        assert f["frames/000004/x"][:].shape == (64, 3) and np.isfinite(f["frames/000004/v"][:]).all()
+
+
+def test_sim_keeps_its_frames_when_the_disk_refuses_a_write(tmp_path, monkeypatch, caplog):
+    real = h5py.Group.create_dataset
+
+    def create_dataset(self, name, *args, **kwargs):  # ENOSPC halfway through the frame of step 4
+        if self.name == "/frames/000004" and name == "v":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, name, *args, **kwargs)
+
+    monkeypatch.setattr(h5py.Group, "create_dataset", create_dataset)
+    code, out = _sim_with_full_disk(tmp_path, caplog)
+    assert code == exit_codes.EXIT_OUTPUT and "No space left on device" in caplog.text
+    with h5py.File(out) as f:
+        assert f.attrs["status"] == "disk full" and f.attrs["disk_full_after_step"] == 4
+        assert sorted(f["frames"]) == ["000000", "000002"]  # the half-written frame is gone
+        assert len(f["stats"]) == 4 and f["divergence_sum"].shape == f["divergence_count"].shape
+        assert f["frames/000002/x"][:].shape == f["frames/000002/v"][:].shape
+
+
+def test_sim_with_no_room_for_its_reserve_writes_nothing(tmp_path, monkeypatch, caplog):
+    def no_room(fd, offset, size):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "posix_fallocate", no_room, raising=False)
+    (tmp_path / "scene.json").write_text(json.dumps(_scene(steps=2)))
+    assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "out.h5"), "--threads", "2"]) == 4
+    assert "No space left on device" in caplog.text and "no output was written" in caplog.text
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.json"]
 
 
 def test_exit_code_table_is_documented_in_both_places():
