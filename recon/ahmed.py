@@ -214,12 +214,10 @@ def _zip_loops(outer: np.ndarray, inner: np.ndarray, points: np.ndarray, centre:
     return np.array(tris, dtype=np.int64)
 
 
-def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices [V, 3] (m, in the module's frame) and outward-oriented triangles [T, 3] of ``body``."""
+def _stations(body: AhmedBody, hole: float) -> np.ndarray:
+    """Sections along the length [m]: the slant, the straight part (with breaks at the stilt openings, ``hole`` the
+    half-size of each), and the nose arc at equal angles (tip exact)."""
     res, r, length = body.resolution, body.front_radius, body.length
-    stilt_r = body.stilt_diameter / 2
-    hole = 1.6 * stilt_r  # half-size of the square opening in the underside around each stilt
-    # ---- stations along the length: slant, straight part (with stilt openings), nose arc ----------------
     breaks = [0.0, body.slant_run]
     if body.stilts:
         for x in sorted({x for x, _ in body.stilt_axes()}):
@@ -228,7 +226,38 @@ def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
     straight = np.concatenate([_spaced(a, b, res)[:-1] for a, b in zip(breaks[:-1], breaks[1:], strict=True)])
     n_arc = max(8, math.ceil(0.5 * math.pi * r / res))
     nose = length - r * (1.0 - np.sin(np.linspace(0.0, 0.5 * math.pi, n_arc + 1)))  # equal angles, tip exact
-    stations = np.concatenate([straight, nose])
+    return np.concatenate([straight, nose])
+
+
+def _add_stilts(mb: _MeshBuilder, body: AhmedBody, openings: list) -> None:
+    """Each stilt: the annulus between its underside opening ``ring`` and its circle, the cylinder wall and the foot."""
+    res, stilt_r = body.resolution, body.stilt_diameter / 2
+    n_circle = max(24, math.ceil(2 * math.pi * stilt_r / res))
+    phi = np.linspace(0.0, 2 * math.pi, n_circle, endpoint=False)
+    down = np.array([0.0, -1.0, 0.0])
+    for xc, zc, ring in openings:
+        circle = np.stack([xc + stilt_r * np.cos(phi), np.zeros(n_circle), zc + stilt_r * np.sin(phi)], 1)
+        top = mb.add_vertices(circle)
+        foot = mb.add_vertices(circle - [0.0, body.clearance, 0.0])
+        centre_id = mb.add_vertices([xc, -body.clearance, zc])[0]
+        verts = np.concatenate(mb.vertices)
+        annulus = _zip_loops(ring, top, verts, np.array([xc, zc]))
+        mb.add_triangles(_orient(verts, annulus, np.broadcast_to(down, annulus.shape)))
+        nxt = np.roll(np.arange(n_circle), -1)
+        wall = np.concatenate([np.stack([top, top[nxt], foot[nxt]], 1), np.stack([top, foot[nxt], foot], 1)])
+        radial = verts[wall].mean(1) - [xc, 0.0, zc]
+        radial[:, 1] = 0.0
+        mb.add_triangles(_orient(verts, wall, radial))
+        fan = np.stack([np.full(n_circle, centre_id), foot, foot[nxt]], 1)
+        mb.add_triangles(_orient(verts, fan, np.broadcast_to(down, fan.shape)))
+
+
+def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices [V, 3] (m, in the module's frame) and outward-oriented triangles [T, 3] of ``body``."""
+    res, length = body.resolution, body.length
+    stilt_r = body.stilt_diameter / 2
+    hole = 1.6 * stilt_r  # half-size of the square opening in the underside around each stilt
+    stations = _stations(body, hole)
     y_lo, y_hi, z_half = body.section(stations)
     # ---- section loops: bottom edge (z up), right side (y up), top edge (z down), left side (y down) ---------
     kz = max(4, math.ceil(body.width / res))
@@ -284,25 +313,7 @@ def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
     centre = np.array([length / 2, body.height / 2, 0.0])  # the body is convex: faces look away from its centre
     body_tris = _orient(verts, body_tris, verts[body_tris].mean(1) - centre)
     mb.add_triangles(body_tris)
-    # ---- stilts: annulus in the underside, cylinder wall, foot ----------------------------------------------
-    n_circle = max(24, math.ceil(2 * math.pi * stilt_r / res))
-    phi = np.linspace(0.0, 2 * math.pi, n_circle, endpoint=False)
-    down = np.array([0.0, -1.0, 0.0])
-    for xc, zc, ring in openings:
-        circle = np.stack([xc + stilt_r * np.cos(phi), np.zeros(n_circle), zc + stilt_r * np.sin(phi)], 1)
-        top = mb.add_vertices(circle)
-        foot = mb.add_vertices(circle - [0.0, body.clearance, 0.0])
-        centre_id = mb.add_vertices([xc, -body.clearance, zc])[0]
-        verts = np.concatenate(mb.vertices)
-        annulus = _zip_loops(ring, top, verts, np.array([xc, zc]))
-        mb.add_triangles(_orient(verts, annulus, np.broadcast_to(down, annulus.shape)))
-        nxt = np.roll(np.arange(n_circle), -1)
-        wall = np.concatenate([np.stack([top, top[nxt], foot[nxt]], 1), np.stack([top, foot[nxt], foot], 1)])
-        radial = verts[wall].mean(1) - [xc, 0.0, zc]
-        radial[:, 1] = 0.0
-        mb.add_triangles(_orient(verts, wall, radial))
-        fan = np.stack([np.full(n_circle, centre_id), foot, foot[nxt]], 1)
-        mb.add_triangles(_orient(verts, fan, np.broadcast_to(down, fan.shape)))
+    _add_stilts(mb, body, openings)
     verts, tris = mb.arrays()
     verts = verts + [-length / 2, body.clearance, 0.0]
     return verts, tris

@@ -386,22 +386,7 @@ def render_mesh_dataset(
     vertices, triangles = load_mesh(mesh_path)
     _check_output(out_dir, overwrite)
     vertices, scale, offset = normalize_vertices(vertices, triangles, config.box_size)
-    bounding_radius = float(np.linalg.norm(vertices[np.unique(triangles)], axis=1).max())
-    if bounding_radius >= config.radius:
-        raise ValueError(
-            f"{mesh_path}: the normalised object reaches {bounding_radius:.3f} from its centre, "
-            f"beyond the camera radius {config.radius}; increase --radius or decrease --box"
-        )
-    if bounding_radius > config.radius * math.sin(0.5 * config.fov_x_rad):
-        logger.warning(
-            "%s: the normalised object's bounding sphere (radius %.2f) does not fit a %.0f-degree view "
-            "at distance %.1f; some silhouettes may be cut by the image border (increase --fov or "
-            "--radius)",
-            mesh_path,
-            bounding_radius,
-            config.fov_x,
-            config.radius,
-        )
+    bounding_radius = _check_camera_distance(mesh_path, vertices, triangles, config)
     cameras = random_sphere(
         config.n_train + config.n_test,
         config.radius,
@@ -418,42 +403,12 @@ def render_mesh_dataset(
 
     out_dir = out_dir.absolute()
     with atomic_folder(out_dir) as tmp:
-        with tqdm(total=len(cameras), desc="render-dataset", unit="view", disable=not progress, leave=False) as bar:
-            for split, cams in splits.items():
-                (tmp / split).mkdir()
-                for i, cam in enumerate(cams):
-                    rgba = render_view(caster, normals, cam, config)
-                    target = tmp / split / f"r_{i:03d}.png"
-                    if not cv2.imwrite(str(target), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA)):
-                        raise OSError(f"{target}: cv2 could not write the image")
-                    bar.update(1)
+        _render_splits(tmp, splits, caster, normals, config, progress)
         for split, cams in splits.items():
             _write_json(tmp / f"transforms_{split}.json", _transforms(cams, split, config.fov_x_rad))
         _write_json(tmp / "transforms_val.json", _transforms(splits["test"], "test", config.fov_x_rad))
         _write_mesh(tmp / "mesh.ply", vertices, triangles)
-        key, fill = light_directions(config.up_axis)
-        _write_json(
-            tmp / "dataset.json",
-            {
-                "source_mesh": str(mesh_path.absolute()),
-                "mesh_path": "mesh.ply",
-                "normalization": "mesh.ply vertices = scale * source vertices + offset",
-                "scale": scale,
-                "offset": offset.tolist(),
-                "bounding_radius": bounding_radius,
-                "up_axis": config.up_axis,
-                "seed": config.seed,
-                "config": asdict(config),
-                "lights": {
-                    "key": key.tolist(),
-                    "key_weight": KEY_WEIGHT,
-                    "fill": fill.tolist(),
-                    "fill_weight": FILL_WEIGHT,
-                    "ambient": config.ambient,
-                },
-                "splits": {"train": len(splits["train"]), "test": len(splits["test"]), "val": "copy of test"},
-            },
-        )
+        _write_json(tmp / "dataset.json", _dataset_record(mesh_path, scale, offset, bounding_radius, splits, config))
     logger.info(
         "wrote %s: %d train and %d test views at %d px, mesh scale %.4g",
         out_dir,
@@ -463,6 +418,72 @@ def render_mesh_dataset(
         scale,
     )
     return out_dir
+
+
+def _check_camera_distance(
+    mesh_path: Path, vertices: np.ndarray, triangles: np.ndarray, config: MeshDatasetConfig
+) -> float:
+    """The normalised object's bounding radius: it must lie inside the camera sphere (else ValueError), and should fit
+    the field of view (else a warning)."""
+    bounding_radius = float(np.linalg.norm(vertices[np.unique(triangles)], axis=1).max())
+    if bounding_radius >= config.radius:
+        raise ValueError(
+            f"{mesh_path}: the normalised object reaches {bounding_radius:.3f} from its centre, "
+            f"beyond the camera radius {config.radius}; increase --radius or decrease --box"
+        )
+    if bounding_radius > config.radius * math.sin(0.5 * config.fov_x_rad):
+        logger.warning(
+            "%s: the normalised object's bounding sphere (radius %.2f) does not fit a %.0f-degree view "
+            "at distance %.1f; some silhouettes may be cut by the image border (increase --fov or "
+            "--radius)",
+            mesh_path,
+            bounding_radius,
+            config.fov_x,
+            config.radius,
+        )
+    return bounding_radius
+
+
+def _render_splits(
+    tmp: Path, splits: dict, caster: MeshRaycaster, normals: np.ndarray, config: MeshDatasetConfig, progress: bool
+) -> None:
+    """Each split's views as tmp/<split>/r_<i>.png (RGBA)."""
+    total = sum(len(cams) for cams in splits.values())
+    with tqdm(total=total, desc="render-dataset", unit="view", disable=not progress, leave=False) as bar:
+        for split, cams in splits.items():
+            (tmp / split).mkdir()
+            for i, cam in enumerate(cams):
+                rgba = render_view(caster, normals, cam, config)
+                target = tmp / split / f"r_{i:03d}.png"
+                if not cv2.imwrite(str(target), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA)):
+                    raise OSError(f"{target}: cv2 could not write the image")
+                bar.update(1)
+
+
+def _dataset_record(
+    mesh_path: Path, scale: float, offset: np.ndarray, bounding_radius: float, splits: dict, config: MeshDatasetConfig
+) -> dict:
+    """dataset.json: the source mesh, its normalisation, the lights and the splits."""
+    key, fill = light_directions(config.up_axis)
+    return {
+        "source_mesh": str(mesh_path.absolute()),
+        "mesh_path": "mesh.ply",
+        "normalization": "mesh.ply vertices = scale * source vertices + offset",
+        "scale": scale,
+        "offset": offset.tolist(),
+        "bounding_radius": bounding_radius,
+        "up_axis": config.up_axis,
+        "seed": config.seed,
+        "config": asdict(config),
+        "lights": {
+            "key": key.tolist(),
+            "key_weight": KEY_WEIGHT,
+            "fill": fill.tolist(),
+            "fill_weight": FILL_WEIGHT,
+            "ambient": config.ambient,
+        },
+        "splits": {"train": len(splits["train"]), "test": len(splits["test"]), "val": "copy of test"},
+    }
 
 
 def _write_mesh(path: Path, vertices: np.ndarray, triangles: np.ndarray) -> None:

@@ -108,3 +108,26 @@ def test_no_app_imports_another():
                     if a.name.startswith("apps.") and a.name.split(".")[1] not in APP_SHARED
                 ]
     assert not offenders, f"shared CLI pieces go to apps/options/ or the library: {offenders}"
+
+
+# ---- library functions stay readable: a long one splits into named steps -----------------------------------------
+LIBRARY_PACKAGES = ("fluidsim", "recon", "nbv", "viz")
+LIBRARY_FUNCTION_LINES = 80
+# Most library functions over LIBRARY_FUNCTION_LINES lines. Long Taichi kernels count too: splitting one into several
+# kernels costs launches and compiles, so a kernel may stay long, within this bound.
+LIBRARY_LONG_FUNCTIONS = 10
+
+
+def test_library_functions_are_short():
+    long = [
+        f"{p.relative_to(REPO)}:{node.lineno} {node.name} {node.end_lineno - node.lineno + 1}"
+        for package in LIBRARY_PACKAGES
+        for p in sorted((REPO / package).rglob("*.py"))
+        for node in ast.walk(ast.parse(p.read_text()))
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+        and node.end_lineno - node.lineno + 1 > LIBRARY_FUNCTION_LINES
+    ]
+    assert len(long) <= LIBRARY_LONG_FUNCTIONS, (
+        f"{len(long)} library functions over {LIBRARY_FUNCTION_LINES} lines (at most {LIBRARY_LONG_FUNCTIONS}; split "
+        f"them into named steps): {long}"
+    )

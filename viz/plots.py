@@ -206,6 +206,65 @@ def plot_drag_coefficient(
     return _save(fig, path)
 
 
+def _bars_with_whiskers(ax, x: np.ndarray, m: np.ndarray, s: np.ndarray, have: np.ndarray) -> list:
+    """The bars with a value (and their +-1 std whiskers where a std is > 0) and the zero line; the legend handles."""
+    colors = [PALETTE[i % len(PALETTE)] for i in range(len(x))]
+    ax.bar(x[have], m[have], width=0.6, color=[c for c, h in zip(colors, have, strict=True) if h])
+    handles = [Patch(facecolor="#bbbbbb", label="mean over runs")]
+    if (s[have] > 0).any():
+        handles.append(
+            ax.errorbar(
+                x[have],
+                m[have],
+                yerr=s[have],
+                fmt="none",
+                ecolor="black",
+                capsize=4,
+                linewidth=1,
+                label="\N{PLUS-MINUS SIGN} 1 sample std",
+            )
+        )
+    ax.axhline(0.0, color="black", linewidth=0.8)
+    return handles
+
+
+def _bar_values(ax, x: np.ndarray, m: np.ndarray, s: np.ndarray, have: np.ndarray) -> None:
+    """Each bar's value above its whisker, and "n/a" at the foot of a bar with no value."""
+    top = float(np.nanmax(np.where(have, m + s, np.nan))) if have.any() else 1.0
+    for i in range(len(x)):
+        if have[i]:
+            ax.annotate(
+                f"{m[i]:.3g}", (x[i], m[i] + s[i]), textcoords="offset points", xytext=(0, 3), ha="center", fontsize=8
+            )
+        else:
+            ax.text(
+                x[i],
+                0.02 * (top if math.isfinite(top) and top > 0 else 1.0),
+                "n/a",
+                ha="center",
+                va="bottom",
+                fontsize=9,
+            )
+
+
+def _bar_axes(ax, x: np.ndarray, labels: Sequence[str], *, title: str, ylabel: str, xlabel: str) -> None:
+    """Slanted (shortened) bar labels, the axis texts and the grid behind the bars."""
+    ax.set_xticks(
+        x,
+        [lab if len(lab) <= 18 else lab[:17] + "\N{HORIZONTAL ELLIPSIS}" for lab in labels],
+        rotation=30,
+        ha="right",
+        fontsize=8,
+    )
+    ax.set_xlim(-0.6, max(len(x), 1) - 0.4)
+    ax.margins(y=0.1)  # room above the tallest bar for its value (bars stick to 0 below)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, loc="left")
+    ax.grid(True, axis="y", color="#dddddd", linewidth=0.8)
+    ax.set_axisbelow(True)
+
+
 def bar_chart(
     path: str | os.PathLike,
     labels: Sequence[str],
@@ -239,52 +298,9 @@ def bar_chart(
     ax = fig.add_axes((0.12, 0.3, 0.84, 0.6))  # room below for slanted labels, above for title and legend
     x = np.arange(n)
     have = np.isfinite(m)
-    colors = [PALETTE[i % len(PALETTE)] for i in range(n)]
-    ax.bar(x[have], m[have], width=0.6, color=[c for c, h in zip(colors, have, strict=True) if h])
-    handles = [Patch(facecolor="#bbbbbb", label="mean over runs")]
-    if (s[have] > 0).any():
-        handles.append(
-            ax.errorbar(
-                x[have],
-                m[have],
-                yerr=s[have],
-                fmt="none",
-                ecolor="black",
-                capsize=4,
-                linewidth=1,
-                label="\N{PLUS-MINUS SIGN} 1 sample std",
-            )
-        )
-    ax.axhline(0.0, color="black", linewidth=0.8)
-    top = float(np.nanmax(np.where(have, m + s, np.nan))) if have.any() else 1.0
-    for i in range(n):
-        if have[i]:
-            ax.annotate(
-                f"{m[i]:.3g}", (x[i], m[i] + s[i]), textcoords="offset points", xytext=(0, 3), ha="center", fontsize=8
-            )
-        else:
-            ax.text(
-                x[i],
-                0.02 * (top if math.isfinite(top) and top > 0 else 1.0),
-                "n/a",
-                ha="center",
-                va="bottom",
-                fontsize=9,
-            )
-    ax.set_xticks(
-        x,
-        [lab if len(lab) <= 18 else lab[:17] + "\N{HORIZONTAL ELLIPSIS}" for lab in labels],
-        rotation=30,
-        ha="right",
-        fontsize=8,
-    )
-    ax.set_xlim(-0.6, max(n, 1) - 0.4)
-    ax.margins(y=0.1)  # room above the tallest bar for its value (bars stick to 0 below)
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
-    ax.set_title(title, loc="left")
-    ax.grid(True, axis="y", color="#dddddd", linewidth=0.8)
-    ax.set_axisbelow(True)
+    handles = _bars_with_whiskers(ax, x, m, s, have)
+    _bar_values(ax, x, m, s, have)
+    _bar_axes(ax, x, labels, title=title, ylabel=ylabel, xlabel=xlabel)
     ax.legend(
         handles=handles,
         loc="lower right",

@@ -69,7 +69,7 @@ from nbv.coverage import coverage_line, ranking_agreement, view_parts
 from nbv.io import write_atomic, write_json_atomic
 from nbv.physics.scene_frame import describe_auto_up
 from nbv.physics.thin import thin_or_open_gaussians
-from nbv.plan import PLANNERS, Planner, PlanningContext, ProbeFields, make_planner, reads_empty_scene
+from nbv.plan import PLANNERS, Planner, PlanningContext, ProbeFields, Selection, make_planner, reads_empty_scene
 from recon.datasets import load_dataset
 from recon.formats.ply import save_gaussians
 from recon.frames import up_from_cameras
@@ -531,7 +531,6 @@ class ActiveRun:
     # ---- driver --------------------------------------------------------------------------------
     def run(self) -> dict:
         """Run (or resume) the loop; returns the rounds.json content."""
-        c = self.config
         if self.run_dir is None:
             raise ValueError("ActiveRun.run needs a run folder (run_dir); a run without one can only reach states")
         t_start = time.perf_counter()
@@ -540,82 +539,94 @@ class ActiveRun:
             log.info(
                 "%s: removed %d temporary file(s) of an earlier run killed while writing", self.run_dir, len(stale)
             )
+        state, trainer = self._start()
+        if state.phase == "done":
+            return json.loads((self.run_dir / "rounds.json").read_text())
+        for r, n in enumerate(self.config.rounds()):
+            if r >= len(state.rounds):
+                trainer = self._run_round(state, trainer, r, n)
+        return self._finish(state, trainer, t_start)
+
+    def _start(self) -> tuple[RunState, Trainer | None]:
+        """The state to go on from: the checkpoint's when resuming, else the initial views (rounds.json written)."""
+        c = self.config
         if self.resumable:
             state, trainer = self._load()
             log.info("%s: resuming after %d of %d selections", self.run_dir, len(state.rounds), len(c.rounds()))
-            if state.phase == "done":
-                return json.loads((self.run_dir / "rounds.json").read_text())
-        else:
-            state, trainer = RunState(self.initial_ids(), []), None
-            if c.mode == "continue":
-                trainer = self.new_trainer(c.total_iterations)
-            self._write_rounds(state)
-        for r, n in enumerate(c.rounds()):
-            if r < len(state.rounds):
-                continue
-            t0, cpu0 = time.perf_counter(), time.process_time()
-            trainer, training = self._train_round(trainer, state.selected, r, n)
-            training_seconds = time.perf_counter() - t0
-            record: dict[str, Any] = {"round": r, "n_selected": n, "training": training}
-            fields: dict = {}
-            context = self._context(trainer, state.selected, r, n, record, fields)
-            remaining = context.candidate_ids
-            planner = self._planner(r)
-            t_plan = time.perf_counter()
-            sel = planner.select(context)
-            if not 0 <= sel.pick < len(remaining):
-                raise ValueError(f"planner {c.method!r} picked position {sel.pick} of {len(remaining)} candidates")
-            pick = remaining[sel.pick]
-            record.update(
-                {
-                    "candidates": remaining,
-                    "candidate_names": [self.views[i].name for i in remaining],
-                    "shortlist": [remaining[p] for p in sel.shortlist],
-                    "k": sel.k,
-                    "scores": {
-                        name: {str(remaining[p]): float(v) for p, v in enumerate(vals)}
-                        for name, vals in sel.scores.items()
-                    },
-                    "pick": pick,
-                    "pick_name": self.views[pick].name,
-                    "planner_seconds": dict(sel.seconds),
-                    "selection_seconds": time.perf_counter() - t_plan,
-                }
-            )
-            t_parts = time.perf_counter()
-            record["parts"] = pick_parts(context, sel.pick, fields.get("fields"))
-            end = time.perf_counter()
-            record["round_seconds"] = end - t0
-            record["cpu_seconds"] = time.process_time() - cpu0
-            record["timing"] = round_timing(
-                round_seconds=record["round_seconds"],
-                training=training_seconds,
-                selection=record["selection_seconds"],
-                visual=float(sel.seconds.get("visual", 0.0)),
-                probes=float(record.get("physics", {}).get("seconds", 0.0))
-                + float(record.get("solid_mask", {}).get("seconds", 0.0)),
-                parts=end - t_parts,
-            )
-            state.selected.append(pick)
-            state.rounds.append(record)
-            # rounds.json first: a crash between the two files leaves a checkpoint that is one round behind, and
-            # _load trims rounds.json to the checkpoint.
-            self._write_rounds(state)
-            self._save_checkpoint(state, trainer if c.mode == "continue" else None)
-            self._write_seconds += time.perf_counter() - end
-            log.info(
-                "round %d/%d: picked %s (%d) from %d candidates in %.1f s; %s",
-                r + 1,
-                len(c.rounds()),
-                self.views[pick].name,
-                pick,
-                len(remaining),
-                record["round_seconds"],
-                parts_summary(record["parts"]),
-            )
-            if self.on_round is not None:
-                self.on_round(record)
-        return self._finish(state, trainer, t_start)
+            return state, trainer
+        state, trainer = RunState(self.initial_ids(), []), None
+        if c.mode == "continue":
+            trainer = self.new_trainer(c.total_iterations)
+        self._write_rounds(state)
+        return state, trainer
+
+    def _run_round(self, state: RunState, trainer: Trainer | None, r: int, n: int) -> Trainer | None:
+        """Round ``r`` (``n`` views selected): train, plan, pick; the round's record, rounds.json and checkpoint
+        written. Returns the trainer the next round goes on with."""
+        c = self.config
+        t0, cpu0 = time.perf_counter(), time.process_time()
+        trainer, training = self._train_round(trainer, state.selected, r, n)
+        training_seconds = time.perf_counter() - t0
+        record: dict[str, Any] = {"round": r, "n_selected": n, "training": training}
+        fields: dict = {}
+        context = self._context(trainer, state.selected, r, n, record, fields)
+        remaining = context.candidate_ids
+        t_plan = time.perf_counter()
+        sel = self._planner(r).select(context)
+        if not 0 <= sel.pick < len(remaining):
+            raise ValueError(f"planner {c.method!r} picked position {sel.pick} of {len(remaining)} candidates")
+        pick = remaining[sel.pick]
+        record.update(self._selection_record(remaining, sel, pick, t_plan))
+        t_parts = time.perf_counter()
+        record["parts"] = pick_parts(context, sel.pick, fields.get("fields"))
+        end = time.perf_counter()
+        record["round_seconds"] = end - t0
+        record["cpu_seconds"] = time.process_time() - cpu0
+        record["timing"] = round_timing(
+            round_seconds=record["round_seconds"],
+            training=training_seconds,
+            selection=record["selection_seconds"],
+            visual=float(sel.seconds.get("visual", 0.0)),
+            probes=float(record.get("physics", {}).get("seconds", 0.0))
+            + float(record.get("solid_mask", {}).get("seconds", 0.0)),
+            parts=end - t_parts,
+        )
+        state.selected.append(pick)
+        state.rounds.append(record)
+        # rounds.json first: a crash between the two files leaves a checkpoint that is one round behind, and
+        # _load trims rounds.json to the checkpoint.
+        self._write_rounds(state)
+        self._save_checkpoint(state, trainer if c.mode == "continue" else None)
+        self._write_seconds += time.perf_counter() - end
+        log.info(
+            "round %d/%d: picked %s (%d) from %d candidates in %.1f s; %s",
+            r + 1,
+            len(c.rounds()),
+            self.views[pick].name,
+            pick,
+            len(remaining),
+            record["round_seconds"],
+            parts_summary(record["parts"]),
+        )
+        if self.on_round is not None:
+            self.on_round(record)
+        return trainer
+
+    def _selection_record(self, remaining: list[int], sel: Selection, pick: int, t_plan: float) -> dict[str, Any]:
+        """What a round records of its selection: the candidates, the shortlist, every score and the pick."""
+        return {
+            "candidates": remaining,
+            "candidate_names": [self.views[i].name for i in remaining],
+            "shortlist": [remaining[p] for p in sel.shortlist],
+            "k": sel.k,
+            "scores": {
+                name: {str(remaining[p]): float(v) for p, v in enumerate(vals)} for name, vals in sel.scores.items()
+            },
+            "pick": pick,
+            "pick_name": self.views[pick].name,
+            "planner_seconds": dict(sel.seconds),
+            "selection_seconds": time.perf_counter() - t_plan,
+        }
 
     def _finish(self, state: RunState, trainer: Trainer | None, t_start: float) -> dict:
         c = self.config

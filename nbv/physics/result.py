@@ -199,51 +199,60 @@ def save_result(path: str | Path, result: PhysicsResult) -> Path:
         the path written.
     """
     p = Path(path)
-    forces = result.forces
     with atomic_h5(p) as f:
         g = f.create_group("gaussians")
         g["D"], g["D_mean"], g["means"] = result.divergence, result.divergence_mean, result.means
         g["covariances"], g["reach"], g["reached"] = result.covariances, result.reach, result.reached
         for i, d in enumerate(result.directions):
-            pg = f.create_group(f"probes/{d}")
-            pg["D"], pg["counts"] = result.per_probe[i], result.per_probe_counts[i]
-            if result.per_probe_distinct is not None:
-                pg["distinct"] = result.per_probe_distinct[i]
-            if result.empty_per_probe is not None:
-                pg["D_empty"] = result.empty_per_probe[i]
-            pg["stats"] = result.stats[d]
-            # the early stop (nbv.physics.early_stop): the steps this probe (and its empty scene) ran
-            pg.attrs["steps_run"] = len(result.stats[d])
-            pg.attrs["stopped_early"] = len(result.stats[d]) < result.config.steps
-            if d in forces:
-                write_probe_force(pg, forces[d])
-            if d in result.domains:
-                pg.attrs["domain_min"], pg.attrs["domain_max"] = result.domains[d]
-            pg.attrs["warnings"] = json.dumps(list(result.warnings.get(d, [])))
-            if d in result.leaks:
-                write_probe_leaks(pg, result.leaks[d])
-            if d in result.trajectories:
-                write_trajectory(pg, result.trajectories[d])
+            _write_probe(f.create_group(f"probes/{d}"), result, i)
         f.create_dataset("solid/x", data=result.solid, compression="gzip", compression_opts=1)
-        f.attrs["config"] = json.dumps(result.config.to_dict())
-        f.attrs["directions"] = json.dumps(list(result.directions))
-        for key in ("dbar", "dbar_mean", "dbar_empty", "dbar_empty_mean"):
-            v = getattr(result, key)
-            f.attrs[key] = float("nan") if v is None else float(v)
-        f.attrs["up"], f.attrs["up_label"] = np.asarray(result.transform.up), result.transform.up_label
-        f.attrs["scale"], f.attrs["scene_to_sim"] = float(result.transform.scale), result.transform.matrix
-        if result.kept is not None:
-            g["kept"] = np.asarray(result.kept, bool)
-        f.attrs["source"], f.attrs["source_relative"] = _source_paths(result.source, p)
-        f.attrs["source_frame"] = str(result.source_frame)
-        f.attrs["timings"] = json.dumps(result.timings)
-        f.attrs["gaussians_sha256"], f.attrs["status"] = result.gaussians_sha256, result.status
-        if result.failure is not None:
-            for key in ("probe", "step", "reason"):
-                f.attrs[f"diverged_{key}"] = result.failure[key]
+        _write_run_attributes(f, result, p)
         if result.replicas is not None:
             write_replicas(f, result.replicas)
     return p
+
+
+def _write_probe(pg, result: PhysicsResult, i: int) -> None:
+    """/probes/<dir> of probe ``i`` (:func:`save_result`)."""
+    d = result.directions[i]
+    pg["D"], pg["counts"] = result.per_probe[i], result.per_probe_counts[i]
+    if result.per_probe_distinct is not None:
+        pg["distinct"] = result.per_probe_distinct[i]
+    if result.empty_per_probe is not None:
+        pg["D_empty"] = result.empty_per_probe[i]
+    pg["stats"] = result.stats[d]
+    # the early stop (nbv.physics.early_stop): the steps this probe (and its empty scene) ran
+    pg.attrs["steps_run"] = len(result.stats[d])
+    pg.attrs["stopped_early"] = len(result.stats[d]) < result.config.steps
+    if d in result.forces:
+        write_probe_force(pg, result.forces[d])
+    if d in result.domains:
+        pg.attrs["domain_min"], pg.attrs["domain_max"] = result.domains[d]
+    pg.attrs["warnings"] = json.dumps(list(result.warnings.get(d, [])))
+    if d in result.leaks:
+        write_probe_leaks(pg, result.leaks[d])
+    if d in result.trajectories:
+        write_trajectory(pg, result.trajectories[d])
+
+
+def _write_run_attributes(f, result: PhysicsResult, p: Path) -> None:
+    """The file's attributes (and /gaussians/kept, written among them) (:func:`save_result`)."""
+    f.attrs["config"] = json.dumps(result.config.to_dict())
+    f.attrs["directions"] = json.dumps(list(result.directions))
+    for key in ("dbar", "dbar_mean", "dbar_empty", "dbar_empty_mean"):
+        v = getattr(result, key)
+        f.attrs[key] = float("nan") if v is None else float(v)
+    f.attrs["up"], f.attrs["up_label"] = np.asarray(result.transform.up), result.transform.up_label
+    f.attrs["scale"], f.attrs["scene_to_sim"] = float(result.transform.scale), result.transform.matrix
+    if result.kept is not None:
+        f["gaussians"]["kept"] = np.asarray(result.kept, bool)
+    f.attrs["source"], f.attrs["source_relative"] = _source_paths(result.source, p)
+    f.attrs["source_frame"] = str(result.source_frame)
+    f.attrs["timings"] = json.dumps(result.timings)
+    f.attrs["gaussians_sha256"], f.attrs["status"] = result.gaussians_sha256, result.status
+    if result.failure is not None:
+        for key in ("probe", "step", "reason"):
+            f.attrs[f"diverged_{key}"] = result.failure[key]
 
 
 def write_probe_force(group, pf: ProbeForces) -> None:
@@ -286,84 +295,84 @@ def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
         with h5py.File(p, "r") as f:
             if "gaussians/D" not in f or "config" not in f.attrs:
                 raise ValueError(f"{p} is not a `fluidgs simulate` result (no /gaussians/D); re-run `fluidgs simulate`")
-            dirs = tuple(json.loads(f.attrs["directions"]))
-            probes = [f[f"probes/{d}"] for d in dirs]
-            g = f["gaussians/D"].shape[0]
-            per_probe = np.stack([pg["D"][()] for pg in probes]) if probes else np.zeros((0, g))
-            counts = np.stack([pg["counts"][()] for pg in probes]) if probes else np.zeros((0, g), np.int64)
-            distinct = (
-                np.stack([pg["distinct"][()] for pg in probes])
-                if probes and all("distinct" in pg for pg in probes)
-                else None
-            )
-            empty = (
-                np.stack([pg["D_empty"][()] for pg in probes])
-                if probes and all("D_empty" in pg for pg in probes)
-                else None
-            )
-            domains = {
-                d: (np.asarray(pg.attrs["domain_min"]), np.asarray(pg.attrs["domain_max"]))
-                for d, pg in zip(dirs, probes, strict=True)
-                if "domain_min" in pg.attrs
-            }
-            warnings = {
-                d: list(json.loads(pg.attrs["warnings"])) if "warnings" in pg.attrs else []
-                for d, pg in zip(dirs, probes, strict=True)
-            }
-            failure = (
-                {
-                    "probe": str(f.attrs["diverged_probe"]),
-                    "step": int(f.attrs["diverged_step"]),
-                    "reason": str(f.attrs["diverged_reason"]),
-                }
-                if "diverged_probe" in f.attrs
-                else None
-            )
-
-            def opt(key: str) -> float | None:
-                v = float(f.attrs[key])
-                return None if math.isnan(v) else v
-
-            return PhysicsResult(
-                directions=dirs,
-                per_probe=per_probe,
-                per_probe_counts=counts,
-                per_probe_distinct=distinct,
-                divergence=f["gaussians/D"][()],
-                divergence_mean=f["gaussians/D_mean"][()],
-                dbar=float(f.attrs["dbar"]),
-                dbar_mean=float(f.attrs["dbar_mean"]),
-                dbar_empty=opt("dbar_empty"),
-                dbar_empty_mean=opt("dbar_empty_mean"),
-                empty_per_probe=empty,
-                solid=f["solid/x"][()],
-                transform=SceneTransform(
-                    tuple(f.attrs["up"]) if "up" in f.attrs else str(f.attrs["up_axis"]), float(f.attrs["scale"])
-                ),
-                kept=f["gaussians/kept"][()] if "gaussians/kept" in f else None,
-                means=f["gaussians/means"][()],
-                covariances=f["gaussians/covariances"][()],
-                reach=f["gaussians/reach"][()],
-                stats={d: pg["stats"][()] for d, pg in zip(dirs, probes, strict=True)},
-                domains=domains,
-                timings=json.loads(f.attrs["timings"]),
-                config=PhysicsConfig.from_dict(json.loads(f.attrs["config"])),
-                source=str(f.attrs["source"]),
-                source_frame=str(f.attrs.get("source_frame", "")),
-                warnings=warnings,
-                gaussians_sha256=str(f.attrs.get("gaussians_sha256", "")),
-                status=str(f.attrs.get("status", "complete")),
-                failure=failure,
-                leaks={d: read_probe_leaks(pg) for d, pg in zip(dirs, probes, strict=True) if "leaked" in pg},
-                trajectories={
-                    d: read_trajectory(pg)
-                    for d, pg in zip(dirs, probes, strict=True)
-                    if trajectories and "trajectory" in pg
-                },
-                replicas=read_replicas(f),
-            )
+            return _read_result(f, trajectories)
     except (OSError, KeyError) as exc:
         raise ValueError(f"cannot read the result file {p}: {exc}; re-run `fluidgs simulate`") from exc
+
+
+def _read_result(f, trajectories: bool) -> PhysicsResult:
+    """The result in an open RESULT.h5 (:func:`load_result`)."""
+    dirs = tuple(json.loads(f.attrs["directions"]))
+    probes = [f[f"probes/{d}"] for d in dirs]
+    g = f["gaussians/D"].shape[0]
+    by_direction = list(zip(dirs, probes, strict=True))
+    return PhysicsResult(
+        directions=dirs,
+        per_probe=_stack_probes(probes, "D", g, np.float64),
+        per_probe_counts=_stack_probes(probes, "counts", g, np.int64),
+        per_probe_distinct=_stack_probes_if_all(probes, "distinct"),
+        divergence=f["gaussians/D"][()],
+        divergence_mean=f["gaussians/D_mean"][()],
+        dbar=float(f.attrs["dbar"]),
+        dbar_mean=float(f.attrs["dbar_mean"]),
+        dbar_empty=_optional_float(f.attrs, "dbar_empty"),
+        dbar_empty_mean=_optional_float(f.attrs, "dbar_empty_mean"),
+        empty_per_probe=_stack_probes_if_all(probes, "D_empty"),
+        solid=f["solid/x"][()],
+        transform=SceneTransform(
+            tuple(f.attrs["up"]) if "up" in f.attrs else str(f.attrs["up_axis"]), float(f.attrs["scale"])
+        ),
+        kept=f["gaussians/kept"][()] if "gaussians/kept" in f else None,
+        means=f["gaussians/means"][()],
+        covariances=f["gaussians/covariances"][()],
+        reach=f["gaussians/reach"][()],
+        stats={d: pg["stats"][()] for d, pg in by_direction},
+        domains={
+            d: (np.asarray(pg.attrs["domain_min"]), np.asarray(pg.attrs["domain_max"]))
+            for d, pg in by_direction
+            if "domain_min" in pg.attrs
+        },
+        timings=json.loads(f.attrs["timings"]),
+        config=PhysicsConfig.from_dict(json.loads(f.attrs["config"])),
+        source=str(f.attrs["source"]),
+        source_frame=str(f.attrs.get("source_frame", "")),
+        warnings={
+            d: list(json.loads(pg.attrs["warnings"])) if "warnings" in pg.attrs else [] for d, pg in by_direction
+        },
+        gaussians_sha256=str(f.attrs.get("gaussians_sha256", "")),
+        status=str(f.attrs.get("status", "complete")),
+        failure=_read_failure(f.attrs),
+        leaks={d: read_probe_leaks(pg) for d, pg in by_direction if "leaked" in pg},
+        trajectories={d: read_trajectory(pg) for d, pg in by_direction if trajectories and "trajectory" in pg},
+        replicas=read_replicas(f),
+    )
+
+
+def _stack_probes(probes: list, key: str, g: int, dtype) -> np.ndarray:
+    """(P, G) of each probe's ``key`` dataset; (0, G) of ``dtype`` without probes."""
+    return np.stack([pg[key][()] for pg in probes]) if probes else np.zeros((0, g), dtype)
+
+
+def _stack_probes_if_all(probes: list, key: str) -> np.ndarray | None:
+    """(P, G) of each probe's optional ``key`` dataset; None unless every probe has it (or there is no probe)."""
+    return np.stack([pg[key][()] for pg in probes]) if probes and all(key in pg for pg in probes) else None
+
+
+def _optional_float(attrs, key: str) -> float | None:
+    """An attribute written as NaN when not computed."""
+    v = float(attrs[key])
+    return None if math.isnan(v) else v
+
+
+def _read_failure(attrs) -> dict | None:
+    """Which probe diverged at which step and why; None for a complete run."""
+    if "diverged_probe" not in attrs:
+        return None
+    return {
+        "probe": str(attrs["diverged_probe"]),
+        "step": int(attrs["diverged_step"]),
+        "reason": str(attrs["diverged_reason"]),
+    }
 
 
 def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> None:

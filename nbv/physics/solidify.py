@@ -342,22 +342,10 @@ def gaussians_to_solid(
         counts["specks"] = int(specks.sum())
         occupancy |= specks
     if cameras is not None:
-        if depths is None:
-            depths = surface_depths(sim.gaussians, cameras)
-        before = int(occupancy.sum())
-        occupancy = carve_outside(
-            occupancy, lattice_min, config.spacing, cameras, depths, transform, margin=config.carve_margin
-        )
-        counts["carved"] = int(occupancy.sum()) - before
+        occupancy, counts["carved"] = _carve(occupancy, sim, lattice_min, config, transform, cameras, depths)
     count = int(occupancy.sum())
     counts["total"] = count
-    if count < config.min_points:
-        what = "empty" if count == 0 else f"degenerate ({count} points < min_points = {config.min_points})"
-        raise ValueError(
-            f"the solid is {what}: too few lattice points reach the combined opacity tau = "
-            f"{config.opacity_threshold} at spacing {config.spacing} m over {gaussians.num} Gaussians; use a lower "
-            f"opacity_threshold (tau), a smaller spacing, or check the scene scale ({transform.scale} m per unit)"
-        )
+    _check_enough_points(count, gaussians.num, config, transform)
     points = lattice_min + config.spacing * np.argwhere(occupancy).astype(np.float64)
     log.info(
         "solid: %d of %d lattice points (%s at %.4g m): %s",
@@ -375,6 +363,36 @@ def gaussians_to_solid(
         spacing=float(config.spacing),
         counts=counts,
     )
+
+
+def _carve(
+    occupancy: np.ndarray,
+    sim: SimGaussians,
+    lattice_min: np.ndarray,
+    config: SolidifyConfig,
+    transform: SceneTransform,
+    cameras,
+    depths,
+) -> tuple[np.ndarray, int]:
+    """The occupancy with the space the cameras see empty carved out, and the change in its point count (<= 0)."""
+    if depths is None:
+        depths = surface_depths(sim.gaussians, cameras)
+    before = int(occupancy.sum())
+    occupancy = carve_outside(
+        occupancy, lattice_min, config.spacing, cameras, depths, transform, margin=config.carve_margin
+    )
+    return occupancy, int(occupancy.sum()) - before
+
+
+def _check_enough_points(count: int, num_gaussians: int, config: SolidifyConfig, transform: SceneTransform) -> None:
+    """Raise ValueError, with the fixes, when the solid has fewer than ``config.min_points`` points."""
+    if count < config.min_points:
+        what = "empty" if count == 0 else f"degenerate ({count} points < min_points = {config.min_points})"
+        raise ValueError(
+            f"the solid is {what}: too few lattice points reach the combined opacity tau = "
+            f"{config.opacity_threshold} at spacing {config.spacing} m over {num_gaussians} Gaussians; use a lower "
+            f"opacity_threshold (tau), a smaller spacing, or check the scene scale ({transform.scale} m per unit)"
+        )
 
 
 def _ndarrays(**arrays) -> dict:

@@ -156,6 +156,62 @@ class VarianceFit:
         return torch.exp(self.log_variances)
 
 
+def _check_fit_inputs(views: Sequence, init_log_variances: torch.Tensor | None, n: int) -> None:
+    """Every view has its image, and a warm start has one value per Gaussian."""
+    for i, view in enumerate(views):
+        if getattr(view, "image", None) is None:
+            raise ValueError(
+                f"fit_variances: train view {i} ({getattr(view, 'name', '?')}) has no image; "
+                "the variance fit needs the captured images of the selected views"
+            )
+    if init_log_variances is not None and tuple(init_log_variances.shape) != (n,):
+        raise ValueError(
+            f"fit_variances: init_log_variances has shape {tuple(init_log_variances.shape)}, "
+            f"expected ({n},); start afresh with None when the Gaussians changed"
+        )
+
+
+def _pairs_and_errors(
+    g: GaussianSet, views: Sequence, background: torch.Tensor | float | None, config: VarianceConfig
+) -> tuple[list, list]:
+    """Per view: its (pixel, Gaussian) pairs and its per-pixel squared colour error [H W] (float64) of the frozen
+    render against the captured image."""
+    all_pairs, errors = [], []
+    with torch.no_grad():
+        for view in views:
+            cam = view.camera
+            image = render(g, cam, background, sh_degree=config.sh_degree).image
+            gt = view.image.to(device=image.device, dtype=image.dtype)
+            if gt.shape != image.shape:
+                raise ValueError(
+                    f"fit_variances: view {getattr(view, 'name', '?')} image {tuple(gt.shape)} does "
+                    f"not match its camera {tuple(image.shape)}; load images at the camera's size"
+                )
+            all_pairs.append(view_pairs(g, cam))
+            errors.append(((image - gt) ** 2).sum(-1).reshape(-1).to(torch.float64))
+    return all_pairs, errors
+
+
+def _as_one_strip(all_pairs: list, errors: list) -> tuple[list, list]:
+    """All views as one strip of pixels: one gather and one scatter per iteration."""
+    offsets = [0]
+    for vp in all_pairs:
+        offsets.append(offsets[-1] + vp.num_pixels)
+    merged = [
+        ViewPairs(
+            torch.cat([vp.pixels + off for vp, off in zip(all_pairs, offsets, strict=False)]),
+            torch.cat([vp.gaussians for vp in all_pairs]),
+            torch.cat([vp.alpha for vp in all_pairs]),
+            torch.cat([vp.transmittance for vp in all_pairs]),
+            torch.cat([vp.live for vp in all_pairs]),
+            torch.cat([vp.weights for vp in all_pairs]).to(torch.float64),
+            offsets[-1],
+            1,
+        )
+    ]
+    return merged, [torch.cat(errors)]
+
+
 def fit_variances(
     gaussians: GaussianSet,
     views: Sequence,
@@ -175,31 +231,9 @@ def fit_variances(
         :class:`VarianceFit`.
     """
     n = gaussians.num
-    for i, view in enumerate(views):
-        if getattr(view, "image", None) is None:
-            raise ValueError(
-                f"fit_variances: train view {i} ({getattr(view, 'name', '?')}) has no image; "
-                "the variance fit needs the captured images of the selected views"
-            )
-    if init_log_variances is not None and tuple(init_log_variances.shape) != (n,):
-        raise ValueError(
-            f"fit_variances: init_log_variances has shape {tuple(init_log_variances.shape)}, "
-            f"expected ({n},); start afresh with None when the Gaussians changed"
-        )
+    _check_fit_inputs(views, init_log_variances, n)
     g = gaussians.detach()
-    all_pairs, errors = [], []
-    with torch.no_grad():
-        for view in views:
-            cam = view.camera
-            image = render(g, cam, background, sh_degree=config.sh_degree).image
-            gt = view.image.to(device=image.device, dtype=image.dtype)
-            if gt.shape != image.shape:
-                raise ValueError(
-                    f"fit_variances: view {getattr(view, 'name', '?')} image {tuple(gt.shape)} does "
-                    f"not match its camera {tuple(image.shape)}; load images at the camera's size"
-                )
-            all_pairs.append(view_pairs(g, cam))
-            errors.append(((image - gt) ** 2).sum(-1).reshape(-1).to(torch.float64))
+    all_pairs, errors = _pairs_and_errors(g, views, background, config)
     start = (
         torch.full((n,), math.log(config.initial_variance), dtype=torch.float64, device=g.device)
         if init_log_variances is None
@@ -208,23 +242,7 @@ def fit_variances(
     log_v = start.clone().requires_grad_(True)
     if not views:
         return VarianceFit(log_v.detach(), math.nan, math.nan)
-    # all views as one strip of pixels: one gather and one scatter per iteration
-    offsets = [0]
-    for vp in all_pairs:
-        offsets.append(offsets[-1] + vp.num_pixels)
-    merged = [
-        ViewPairs(
-            torch.cat([vp.pixels + off for vp, off in zip(all_pairs, offsets, strict=False)]),
-            torch.cat([vp.gaussians for vp in all_pairs]),
-            torch.cat([vp.alpha for vp in all_pairs]),
-            torch.cat([vp.transmittance for vp in all_pairs]),
-            torch.cat([vp.live for vp in all_pairs]),
-            torch.cat([vp.weights for vp in all_pairs]).to(torch.float64),
-            offsets[-1],
-            1,
-        )
-    ]
-    merged_errors = [torch.cat(errors)]
+    merged, merged_errors = _as_one_strip(all_pairs, errors)
     with torch.enable_grad():
         optimizer = torch.optim.Adam([log_v], lr=config.learning_rate)
         before = float(nll_loss(log_v.detach(), merged, merged_errors, config.variance_floor))

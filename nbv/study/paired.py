@@ -233,6 +233,67 @@ def sign_test_power_line(pairs: int, alpha: float = ALPHA) -> str:
     return f"The sign test needs at least {need} pairs, all on one side, to reach p < {alpha:g}; {verdict}."
 
 
+def _paired_comparison(
+    rows: Sequence[dict], first: str, second: str, alpha: float
+) -> tuple[list[list[str]], list[str], list[str]]:
+    """One comparison of :func:`paired_table`: its body rows (one per metric with pairs), the metrics that clear
+    ``alpha`` (with their direction and p values) and the names of those that do not."""
+    label = f"{first} vs {second}"
+    body, passed, failed = [], [], []
+    for key, metric, higher in PAIRED_METRICS:
+        a, b = paired_values(rows, first, second, key)
+        if not a:
+            continue
+        st = paired_stats(a, b, higher)
+        verdict = st.significant(alpha)
+        body.append(
+            [
+                label,
+                metric,
+                str(st.n),
+                str(st.wins),
+                str(st.losses),
+                str(st.ties),
+                format_diff(st.mean_diff),
+                format_diff(st.median_diff),
+                format_p(st.sign_p),
+                format_p(st.wilcoxon_p, st.wilcoxon_note),
+                verdict,
+            ]
+        )
+        if verdict == "neither":
+            failed.append(metric)
+        else:
+            better = (
+                "better" if st.wins > st.losses or (st.wins == st.losses and (st.mean_diff > 0) == higher) else "worse"
+            )
+            passed.append(
+                f"{metric} ({better}, {st.wins}/{st.n} pairs better; {verdict}: sign p = "
+                f"{format_p(st.sign_p)}, Wilcoxon p = {format_p(st.wilcoxon_p, st.wilcoxon_note)})"
+            )
+    return body, passed, failed
+
+
+def _paired_summary(body: list[list[str]], clear: list[str], unclear: list[str], alpha: float) -> list[str]:
+    """The Markdown lines under the paired table: how the tests were made, the sign test's power, and which
+    comparisons clear ``alpha``."""
+    summary = [
+        f"Δ = first − second. Two-sided tests; ties and zero differences dropped; the Wilcoxon test is "
+        f"{'scipy.stats.wilcoxon' if scipy_available() else 'n/a (scipy not installed)'}. No correction for "
+        f"the {len(body)} comparisons: about {alpha * len(body):.1f} of them clear p < {alpha:g} by chance "
+        "alone.",
+        "",
+        sign_test_power_line(max((int(r[2]) for r in body), default=0), alpha),
+        "",
+        f"**Clear p < {alpha:g}** (by at least one test):",
+        "",
+    ]
+    summary += clear or ["- none"]
+    summary += ["", f"**Do not clear p < {alpha:g}** (neither test):", ""]
+    summary += unclear or ["- none"]
+    return summary
+
+
 def paired_table(
     rows: Sequence[dict], methods: Sequence[str] | None = None, alpha: float = ALPHA
 ) -> tuple[list[str], list[list[str]], list[str]] | None:
@@ -270,56 +331,11 @@ def paired_table(
     body, clear, unclear = [], [], []
     for first, second in pairs:
         label = f"{first} vs {second}"
-        passed, failed = [], []
-        for key, metric, higher in PAIRED_METRICS:
-            a, b = paired_values(rows, first, second, key)
-            if not a:
-                continue
-            st = paired_stats(a, b, higher)
-            verdict = st.significant(alpha)
-            body.append(
-                [
-                    label,
-                    metric,
-                    str(st.n),
-                    str(st.wins),
-                    str(st.losses),
-                    str(st.ties),
-                    format_diff(st.mean_diff),
-                    format_diff(st.median_diff),
-                    format_p(st.sign_p),
-                    format_p(st.wilcoxon_p, st.wilcoxon_note),
-                    verdict,
-                ]
-            )
-            if verdict == "neither":
-                failed.append(metric)
-            else:
-                better = (
-                    "better"
-                    if st.wins > st.losses or (st.wins == st.losses and (st.mean_diff > 0) == higher)
-                    else "worse"
-                )
-                passed.append(
-                    f"{metric} ({better}, {st.wins}/{st.n} pairs better; {verdict}: sign p = "
-                    f"{format_p(st.sign_p)}, Wilcoxon p = {format_p(st.wilcoxon_p, st.wilcoxon_note)})"
-                )
+        rows_of_pair, passed, failed = _paired_comparison(rows, first, second, alpha)
+        body += rows_of_pair
         if passed:
             clear.append(f"- {label}: {'; '.join(passed)}")
         if failed:
             unclear.append(f"- {label}: {', '.join(failed)}")
-    summary = [
-        f"Δ = first − second. Two-sided tests; ties and zero differences dropped; the Wilcoxon test is "
-        f"{'scipy.stats.wilcoxon' if scipy_available() else 'n/a (scipy not installed)'}. No correction for "
-        f"the {len(body)} comparisons: about {alpha * len(body):.1f} of them clear p < {alpha:g} by chance "
-        "alone.",
-        "",
-        sign_test_power_line(max((int(r[2]) for r in body), default=0), alpha),
-        "",
-        f"**Clear p < {alpha:g}** (by at least one test):",
-        "",
-    ]
-    summary += clear or ["- none"]
-    summary += ["", f"**Do not clear p < {alpha:g}** (neither test):", ""]
-    summary += unclear or ["- none"]
+    summary = _paired_summary(body, clear, unclear, alpha)
     return header, body, summary

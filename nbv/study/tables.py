@@ -59,16 +59,35 @@ def _by_method(rows: list[dict], kind: str | None = "method") -> dict[str, list[
 def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
     """The four tables as {name: (Markdown, CSV)} from the job rows (see the module docstring)."""
     methods, refs = _by_method(rows), _by_method(rows, "reference")
+    tables = {
+        "visual": _visual_table(methods, refs),
+        "physics": _physics_table(methods, refs),
+        "ablation_random": _ablation_random_table(methods),
+    }
+    paired = paired_table(rows)
+    if paired is not None:
+        header, body, summary = paired
+        md, text = _table(
+            "Paired: each physics pick against its planner and its controls (same scene and seed)", header, body
+        )
+        tables["paired"] = (md + "\n" + "\n".join(summary) + "\n", text)
+    tables["ablation_direction"] = _direction_table(rows, methods, refs)
+    single = {m: rs for m, rs in methods.items() if "@" in m}
+    if single:
+        tables["ablation_selection_direction"] = _selection_direction_table(methods, single)
+    return tables
 
-    def n_col(rs: list[dict]) -> str:
-        return str(len(rs))
 
-    tables = {}
+def _n(rs: list[dict]) -> str:
+    return str(len(rs))
+
+
+def _visual_table(methods: dict[str, list[dict]], refs: dict[str, list[dict]]) -> tuple[str, str]:
     vis_cols = ["method", "n", "PSNR (dB)", "SSIM", "LPIPS", "Chamfer (scene units)"]
     body = [
         [
             m,
-            n_col(rs),
+            _n(rs),
             _cell([r["psnr"] for r in rs]),
             _cell([r["ssim"] for r in rs]),
             _cell([r["lpips"] for r in rs]),
@@ -76,8 +95,22 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
         ]
         for m, rs in {**methods, **refs}.items()
     ]
-    tables["visual"] = _table("Visual metrics (test views)", vis_cols, body)
+    return _table("Visual metrics (test views)", vis_cols, body)
 
+
+def _physics_row(name: str, rs: list[dict]) -> list[str]:
+    return [
+        name,
+        _n(rs),
+        _cell([r["dbar"] for r in rs]),
+        _cell([r["critical_psnr"] for r in rs]),
+        _cell([r["critical_dbar"] for r in rs]),
+        _cell([r.get("functional_error") for r in rs]),
+        _cell([r.get("functional_floor") for r in rs]),
+    ]
+
+
+def _physics_table(methods: dict[str, list[dict]], refs: dict[str, list[dict]]) -> tuple[str, str]:
     phys_cols = [
         "method",
         "n",
@@ -87,36 +120,14 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
         "functional error",
         "its noise floor",
     ]
-    body = [
-        [
-            m,
-            n_col(rs),
-            _cell([r["dbar"] for r in rs]),
-            _cell([r["critical_psnr"] for r in rs]),
-            _cell([r["critical_dbar"] for r in rs]),
-            _cell([r.get("functional_error") for r in rs]),
-            _cell([r.get("functional_floor") for r in rs]),
-        ]
-        for m, rs in methods.items()
-    ]
+    body = [_physics_row(m, rs) for m, rs in methods.items()]
     all_runs = [r for rs in methods.values() for r in rs]
-    body.append(
-        ["empty scene (reference)", n_col(all_runs), _cell([r["dbar_empty"] for r in all_runs]), "", "", "", ""]
-    )
-    for m, rs in refs.items():
-        body.append(
-            [
-                f"many-view: {m}",
-                n_col(rs),
-                _cell([r["dbar"] for r in rs]),
-                _cell([r["critical_psnr"] for r in rs]),
-                _cell([r["critical_dbar"] for r in rs]),
-                _cell([r.get("functional_error") for r in rs]),
-                _cell([r.get("functional_floor") for r in rs]),
-            ]
-        )
-    tables["physics"] = _table("Geometry divergence D-bar (lower is better) with the references", phys_cols, body)
+    body.append(["empty scene (reference)", _n(all_runs), _cell([r["dbar_empty"] for r in all_runs]), "", "", "", ""])
+    body += [_physics_row(f"many-view: {m}", rs) for m, rs in refs.items()]
+    return _table("Geometry divergence D-bar (lower is better) with the references", phys_cols, body)
 
+
+def _ablation_random_table(methods: dict[str, list[dict]]) -> tuple[str, str]:
     abl_cols = ["method", "shortlist", "physics pick", "n", "PSNR (dB)", "D-bar (m^4/s)", "critical D-bar (m^4/s)"]
     body = []
     for m in [m for m in ABLATION_ORDER if m in methods] + [
@@ -136,64 +147,56 @@ def build_tables(rows: list[dict]) -> dict[str, tuple[str, str]]:
                 m,
                 shortlist,
                 physics_pick,
-                n_col(rs),
+                _n(rs),
                 _cell([r["psnr"] for r in rs]),
                 _cell([r["dbar"] for r in rs]),
                 _cell([r["critical_dbar"] for r in rs]),
             ]
         )
-    tables["ablation_random"] = _table(
-        "Selection ablation: random vs visual shortlist, with / without physics", abl_cols, body
-    )
-    paired = paired_table(rows)
-    if paired is not None:
-        header, body, summary = paired
-        md, text = _table(
-            "Paired: each physics pick against its planner and its controls (same scene and seed)", header, body
-        )
-        tables["paired"] = (md + "\n" + "\n".join(summary) + "\n", text)
+    return _table("Selection ablation: random vs visual shortlist, with / without physics", abl_cols, body)
 
+
+def _direction_table(rows: list[dict], methods: dict[str, list[dict]], refs: dict[str, list[dict]]) -> tuple[str, str]:
     dirs = [d for d in DIRECTIONS if any((r.get("dbar_per_direction") or {}).get(d) is not None for r in rows)]
     dir_cols = ["method", "n"] + [f"D-bar {d} (m^4/s)" for d in dirs] + ["D-bar max (m^4/s)"]
     body = [
-        [m, n_col(rs)]
+        [m, _n(rs)]
         + [_cell([(r.get("dbar_per_direction") or {}).get(d) for r in rs]) for d in dirs]
         + [_cell([r["dbar"] for r in rs])]
         for m, rs in {**methods, **refs}.items()
     ]
-    tables["ablation_direction"] = _table("Per-direction ablation: D-bar of each probe's own D_g", dir_cols, body)
+    return _table("Per-direction ablation: D-bar of each probe's own D_g", dir_cols, body)
 
-    single = {m: rs for m, rs in methods.items() if "@" in m}
-    if single:
-        bases = list(dict.fromkeys(split_method(m)[0] for m in single))
-        names = []
-        for base in bases:
-            visual = base.split("+")[0]
-            names += [m for m in (visual, base) if m in methods]
-            names += sorted(
-                (m for m in single if split_method(m)[0] == base), key=lambda m: DIRECTIONS.index(split_method(m)[1])
-            )
-        cols = ["method", "selection physics", "n", "PSNR (dB)", "SSIM", "D-bar (m^4/s)", "critical D-bar (m^4/s)"]
-        body = []
-        for m in dict.fromkeys(names):
-            base, direction = split_method(m)
-            driven = direction or ("all five probes" if base.endswith("+fluid") or base == "physics" else "none")
-            rs = methods[m]
-            body.append(
-                [
-                    m,
-                    driven,
-                    n_col(rs),
-                    _cell([r["psnr"] for r in rs]),
-                    _cell([r["ssim"] for r in rs]),
-                    _cell([r["dbar"] for r in rs]),
-                    _cell([r["critical_dbar"] for r in rs]),
-                ]
-            )
-        tables["ablation_selection_direction"] = _table(
-            "Per-direction ablation of the selection: physics from one probe direction", cols, body
+
+def _selection_direction_table(methods: dict[str, list[dict]], single: dict[str, list[dict]]) -> tuple[str, str]:
+    """The methods whose selection reads one probe direction (``method@dir``), each after its visual planner and its
+    all-probe base."""
+    bases = list(dict.fromkeys(split_method(m)[0] for m in single))
+    names = []
+    for base in bases:
+        visual = base.split("+")[0]
+        names += [m for m in (visual, base) if m in methods]
+        names += sorted(
+            (m for m in single if split_method(m)[0] == base), key=lambda m: DIRECTIONS.index(split_method(m)[1])
         )
-    return tables
+    cols = ["method", "selection physics", "n", "PSNR (dB)", "SSIM", "D-bar (m^4/s)", "critical D-bar (m^4/s)"]
+    body = []
+    for m in dict.fromkeys(names):
+        base, direction = split_method(m)
+        driven = direction or ("all five probes" if base.endswith("+fluid") or base == "physics" else "none")
+        rs = methods[m]
+        body.append(
+            [
+                m,
+                driven,
+                _n(rs),
+                _cell([r["psnr"] for r in rs]),
+                _cell([r["ssim"] for r in rs]),
+                _cell([r["dbar"] for r in rs]),
+                _cell([r["critical_dbar"] for r in rs]),
+            ]
+        )
+    return _table("Per-direction ablation of the selection: physics from one probe direction", cols, body)
 
 
 def write_tables(rows: list[dict], config: ExperimentConfig, out: Path) -> dict[str, Any]:
