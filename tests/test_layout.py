@@ -131,3 +131,10 @@ def test_library_functions_are_short():
         f"{len(long)} library functions over {LIBRARY_FUNCTION_LINES} lines (at most {LIBRARY_LONG_FUNCTIONS}; split "
         f"them into named steps): {long}"
     )
+
+
+def test_nbv_tests_mirror_the_subpackages():
+    """tests/nbv/<sub>/ holds the tests of nbv/<sub>/; tests of nbv's top-level modules sit in tests/nbv/ itself."""
+    folders = {p.name for p in (TESTS / "nbv").iterdir() if p.is_dir() and p.name != "__pycache__"}
+    packages = {p.parent.name for p in (REPO / "nbv").glob("*/__init__.py")}
+    assert folders <= packages, f"folders of tests/nbv/ that name no subpackage of nbv/: {sorted(folders - packages)}"

@@ -11,7 +11,7 @@ previous sample was not within reach of g. The listed pairs go into one of two s
   ``atomic_max``), at most half full: 16-32 bytes per distinct pair, doubled by rehashing before it would fill beyond
   half (a 1.07M-Gaussian capture's -x probe has 5.0M pairs, 4.7 per Gaussian).
 
-The counts are exact with either store; the numpy twin is the set of pairs in ``tests/nbv/test_aggregate.py``.
+The counts are exact with either store; the numpy twin is the set of pairs in ``tests/nbv/physics/test_aggregate.py``.
 """
 
 from __future__ import annotations

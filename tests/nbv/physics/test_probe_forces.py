@@ -16,7 +16,7 @@ COARSE = dict(particle_radius=0.08, steps=40, dt=0.004, empty_reference=False)  
 
 
 def sphere_gaussians(n: int = 300, radius: float = 0.5) -> GaussianSet:
-    """Gaussians on a Fibonacci sphere (as tests/nbv/test_physics.py makes them)."""
+    """Gaussians on a Fibonacci sphere (as tests/nbv/physics/test_physics.py makes them)."""
     i = np.arange(n) + 0.5
     phi, th = np.arccos(1 - 2 * i / n), np.pi * (1 + 5**0.5) * i
     pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * radius

@@ -1,0 +1,113 @@
+"""`fluidgs experiment`: a bad config names its key, an output that is a file is named as the key, and a job that fails
+ends the command in one line naming the job (no traceback)."""
+
+import json
+import logging
+
+import pytest
+
+from apps import cli
+
+
+def _errors(caplog) -> str:
+    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
+
+
+@pytest.fixture(scope="module")
+def blender_scene(tmp_path_factory):
+    """A Blender dataset folder with 8 train frames (cameras only: no job here reads an image)."""
+    root = tmp_path_factory.mktemp("scene") / "scene"
+    root.mkdir()
+    frame = {"file_path": "./train/r_0", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}
+    for split in ("train", "test"):
+        (root / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": [frame] * 8}))
+    return root
+
+
+class _InProcess:
+    """An executor that runs the jobs here, attaching the job to its error as the real executors do."""
+
+    def map(self, fn, jobs):
+        for job in jobs:
+            try:
+                result = fn(job)
+            except Exception as exc:
+                exc.job = job
+                raise
+            yield job, result
+
+
+@pytest.mark.parametrize(
+    "active, key",
+    [({"budget": 0}, "'active.budget' must be"), ({"budget": 4, "physics": {"steps": 0}}, "'active.physics.steps'")],
+)
+def test_experiment_config_errors_name_the_key(blender_scene, tmp_path, caplog, active, key):
+    path = tmp_path / "exp.json"
+    path.write_text(json.dumps({"scenes": [str(blender_scene)], "methods": ["random"], "active": active}))
+    assert cli.main(["experiment", str(path), "--no-progress"]) == 2
+    assert key in _errors(caplog) and "Config." not in _errors(caplog)
+
+
+def test_experiment_output_that_is_a_file_is_named_as_the_key(blender_scene, tmp_path, caplog):
+    """`"output": "../A.ply"` (an existing file) printed "[Errno 17] File exists: ..."."""
+    (tmp_path / "A.ply").write_text("not a folder")
+    (tmp_path / "sub").mkdir()
+    path = tmp_path / "sub" / "exp.json"
+    path.write_text(
+        json.dumps(
+            {
+                "scenes": [str(blender_scene)],
+                "methods": ["random"],
+                "reference_views": None,
+                "output": "../A.ply",
+                "active": {"budget": 4},
+            }
+        )
+    )
+    assert cli.main(["experiment", str(path), "--no-progress"]) == 4
+    msg = _errors(caplog)
+    assert f"the 'output' of {path}" in msg and "is a file, not a folder" in msg and "Errno" not in msg
+    assert (tmp_path / "A.ply").read_text() == "not a folder"
+
+
+def test_speed_0_in_an_experiment_names_the_key(blender_scene, tmp_path, caplog):
+    path = tmp_path / "exp.json"
+    active = {"budget": 4, "physics": {"speed": 0.0}}
+    path.write_text(json.dumps({"scenes": [str(blender_scene)], "methods": ["random+fluid"], "active": active}))
+    assert cli.main(["experiment", str(path), "--no-progress"]) == 2
+    assert "'active.physics.speed' is 0 m/s" in _errors(caplog)
+
+
+@pytest.mark.parametrize(
+    "error, code",
+    [
+        (RuntimeError("boom inside the job"), 1),
+        (ValueError("bad frame"), 2),
+        (OSError(28, "No space left on device"), 4),
+    ],
+)
+def test_a_failing_experiment_job_is_one_line(blender_scene, tmp_path, monkeypatch, caplog, capsys, error, code):
+    import apps.experiment
+    import nbv.study.experiment
+
+    def fail(job):
+        raise error
+
+    monkeypatch.setattr(nbv.study.experiment, "run_job", fail)
+    monkeypatch.setattr(apps.experiment, "make_executor", lambda *a, **k: _InProcess())
+    path = tmp_path / "exp.json"
+    path.write_text(
+        json.dumps(
+            {
+                "scenes": [str(blender_scene)],
+                "methods": ["random"],
+                "reference_views": None,
+                "output": "out",
+                "active": {"budget": 4},
+            }
+        )
+    )
+    assert cli.main(["experiment", str(path), "--no-progress"]) == code
+    msg = _errors(caplog)
+    assert "experiment job scene random seed 0" in msg and str(error) in msg and "run the same command again" in msg
+    assert "Traceback" not in capsys.readouterr().err

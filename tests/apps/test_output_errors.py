@@ -1,0 +1,51 @@
+"""Outputs that cannot be written: a read-only folder and a disk that fills at close end with exit 4 and one line naming
+the file, leaving no partial output."""
+
+import json
+import logging
+
+import h5py
+
+from apps import cli
+
+from helpers.scenes import small_scene
+
+
+def _errors(caplog) -> str:
+    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
+
+
+def test_render_dataset_into_an_unwritable_folder_is_exit_4(tmp_path, monkeypatch, caplog):
+    """render-dataset exited 2 on a read-only output where the other commands exit 4 (root ignores the mode bits,
+    so the check is made to see an unwritable folder)."""
+    import os
+
+    import recon.mesh_render
+
+    from helpers.paths import TORUS
+
+    real = os.access
+    monkeypatch.setattr(recon.mesh_render.os, "access", lambda path, mode, **k: not mode & os.W_OK and real(path, mode))
+    assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "ds"), "--no-progress"]) == 4
+    assert "is not writable" in _errors(caplog) and not (tmp_path / "ds").exists()
+    monkeypatch.undo()
+    (tmp_path / "file").write_text("x")
+    assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "file"), "--no-progress"]) == 4
+
+
+def test_sim_disk_full_at_close_is_exit_4(tmp_path, monkeypatch, caplog, capsys):
+
+    scene = small_scene(steps=2)
+    (tmp_path / "scene.json").write_text(json.dumps(scene))
+    real_close = h5py.File.close
+
+    def full_at_close(self):
+        real_close(self)
+        raise RuntimeError("Can't decrement id ref count (unable to flush file: No space left on device)")
+
+    monkeypatch.setattr(h5py.File, "close", full_at_close)
+    assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "out.h5"), "--threads", "2"]) == 4
+    monkeypatch.setattr(h5py.File, "close", real_close)
+    assert "cannot write" in _errors(caplog) and "out.h5" in _errors(caplog)
+    assert "Traceback" not in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.json"]
