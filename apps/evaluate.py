@@ -46,9 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    import json
-
     from nbv.active import ActiveConfig
+    from nbv.active.run_dir import read_run_config
     from nbv.physics import parse_directions
     from nbv.study.evaluate import EvalConfig, evaluate_run
 
@@ -63,7 +62,7 @@ def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_writable
 
     check_writable(args.run / "eval.json")  # fail before the probes run, not after
-    physics = ActiveConfig.from_dict(json.loads(cfg_path.read_text())["active"]).physics
+    physics = ActiveConfig.from_dict(read_run_config(args.run)["active"]).physics
     if args.particle_radius is not None:
         physics = replace(physics, particle_radius=args.particle_radius)
     if args.probe_steps is not None:

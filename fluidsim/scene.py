@@ -20,7 +20,6 @@ Paths in ``solids`` are relative to the scene file.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -28,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from fluidsim.files import input_problem
+from fluidsim.files import read_json
 
 from .config import SolverConfig
 
@@ -241,18 +240,10 @@ def load_scene(path: str | Path) -> Scene:
         SceneError: the file is missing, not JSON, or has a bad key (named in the message).
     """
     p = Path(path)
-    problem = input_problem(p)
-    if problem is not None:
-        raise SceneError(f"scene file {p} {problem}")
     try:
-        data = json.loads(p.read_text())
-    except json.JSONDecodeError as exc:
-        raise SceneError(f"scene file {p} is not valid JSON: {exc}") from exc
-    except RecursionError:
-        raise SceneError(
-            f"scene file {p} nests its JSON too deeply to be a scene (thousands of levels); a scene "
-            "is an object of a few levels (format in README.md)"
-        ) from None
+        data = read_json(p, "scene file", "a scene is a JSON object of a few levels (format in README.md)")
+    except ValueError as exc:
+        raise SceneError(str(exc)) from None
     try:
         return parse_scene(data, p.parent)
     except SceneError as exc:

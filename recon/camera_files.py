@@ -28,7 +28,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from dataclasses import dataclass
@@ -36,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+from fluidsim.files import read_json
 
 from .camera import Camera
 from .colmap import (
@@ -81,10 +82,7 @@ def colmap_camera_files(folder: Path) -> tuple[Path, Path] | None:
 
 def _json_kind(path: Path) -> str:
     """ "transforms" or "graphdeco" from a json file's content; ValueError listing what is accepted."""
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc}); pass {ACCEPTED}") from exc
+    data = read_json(path, "camera file", f"pass {ACCEPTED}")
     if isinstance(data, dict) and "frames" in data:
         return "transforms"
     if (
@@ -190,7 +188,7 @@ def read_graphdeco_cameras(path) -> list[Camera]:
         ValueError: naming the file, the entry and the key that is missing or wrong.
     """
     path = Path(path)
-    entries = json.loads(path.read_text())
+    entries = read_json(path, "camera file", f"pass {ACCEPTED}")
     if not isinstance(entries, list) or not entries:
         raise ValueError(f"{path}: a graphdeco cameras.json is a non-empty list of cameras; pass {ACCEPTED}")
     cams = []

@@ -42,7 +42,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from dataclasses import dataclass
@@ -51,6 +50,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+
+from fluidsim.files import read_json
 
 from .camera import MAX_IMAGE_SIDE, Camera
 from .colmap import BINARY_FILES, TEXT_FILES, find_colmap_sparse, read_colmap_model
@@ -211,12 +212,9 @@ def _read_dataset_json(root: Path) -> tuple[Path | None, str | None]:
     path = root / "dataset.json"
     if not path.is_file():
         return None, None
-    try:
-        meta = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc}); fix or delete the file") from exc
-    except RecursionError:
-        raise ValueError(f"{path}: its JSON nests too deeply (thousands of levels); fix or delete the file") from None
+    meta = read_json(path, "the dataset's", "fix or delete the file")
+    if not isinstance(meta, dict):
+        raise ValueError(f"the dataset's {path} holds a JSON {type(meta).__name__}, not an object; fix or delete it")
     mesh_path = meta.get("mesh_path")
     if mesh_path is not None:
         mesh_path = root / mesh_path
@@ -366,17 +364,7 @@ def _blender_camera(keys: dict, w2c: np.ndarray, where: str, name: str, image_wi
 
 def _read_transforms(json_path: Path) -> tuple[dict, list[dict]]:
     """(the file's top-level dict, its frames) of a transforms json, checked to be a dict with a list of dicts."""
-    if not json_path.is_file():
-        kind = "is not a regular file" if json_path.exists() else "no such file"
-        raise ValueError(f"{json_path}: {kind}; pass a Blender / NeRF transforms.json")
-    try:
-        meta = json.loads(json_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{json_path}: not valid JSON ({exc}); pass a Blender / NeRF transforms.json") from exc
-    except RecursionError:
-        raise ValueError(
-            f"{json_path}: its JSON nests too deeply (thousands of levels); pass a Blender / NeRF transforms.json"
-        ) from None
+    meta = read_json(json_path, "the camera file", "pass a Blender / NeRF transforms.json")
     frames = meta.get("frames") if isinstance(meta, dict) else None
     if not isinstance(frames, list):
         raise ValueError(
@@ -655,7 +643,7 @@ def count_train_views(path) -> int | None:
     root = root.parent if root.is_file() else root
     try:
         if dataset_format(root) == "blender":
-            frames = json.loads((root / "transforms_train.json").read_text()).get("frames")
+            frames = read_json(root / "transforms_train.json", "the camera file", "").get("frames")
             return len(frames) if isinstance(frames, list) else None
         images = len(read_colmap_model(find_colmap_sparse(root)).images)
         return images - math.ceil(images / COLMAP_TEST_EVERY)

@@ -9,7 +9,6 @@ the same OpenCV axes, so the pose is handed to them as it is. Scores come from `
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from dataclasses import dataclass
@@ -17,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fluidsim.files import check_input_file
+from fluidsim.files import read_json
 
 
 @dataclass(frozen=True)
@@ -92,21 +91,8 @@ def split_scene_to_sim(matrix: np.ndarray, where: str) -> tuple[float, np.ndarra
 def read_scores(path: str | Path) -> dict:
     """scores.json of `fluidgs score` (or the demo): ValueError naming the file when it is not one."""
     p = Path(path)
-    check_input_file(
-        p,
-        "--scores",
-        f"write it with `fluidgs score GAUSSIANS.ply --cameras transforms.json --result RESULT.h5 -o {p}`",
-    )
-    try:
-        data = json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(
-            f"--scores {p} is not readable JSON ({exc}); pass the scores.json of `fluidgs score`"
-        ) from None
-    except RecursionError:
-        raise ValueError(
-            f"--scores {p} nests its JSON too deeply (thousands of levels); pass the scores.json of `fluidgs score`"
-        ) from None
+    fix = f"write it with `fluidgs score GAUSSIANS.ply --cameras transforms.json --result RESULT.h5 -o {p}`"
+    data = read_json(p, "--scores", fix)
     views = data.get("views") if isinstance(data, dict) else None
     if not isinstance(views, list) or not all(
         isinstance(v, dict) and {"index", "score", "rank"} <= set(v) for v in views

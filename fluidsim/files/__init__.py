@@ -19,6 +19,7 @@ name                           what
 :func:`check_writable`         before any work: folders, name lengths, the temporary name tried in the folder
 :func:`check_not_input`        before any work: no output is an input or another output (links included)
 :func:`check_input_file`       before reading: an input is a regular file (a FIFO, /dev/zero, a link loop named)
+:func:`read_json`              a user's JSON file (cameras, scene, config), each way it can be bad in one message
 :class:`OutputError`           an output cannot be written (exit code 4 of `fluidgs`)
 :func:`remove_unfinished`      at a signal or an error: this process's temporary files and empty new folders go
 :func:`remove_stale_temps`     a run folder's ``.fgs-*.tmp`` left by a process killed at once (SIGKILL)
@@ -54,6 +55,7 @@ from .checks import (
     check_not_input,
     check_writable,
     input_problem,
+    read_json,
     same_file,
 )
 
@@ -72,6 +74,7 @@ __all__ = [
     "json_safe",
     "note_created_folder",
     "output_errors",
+    "read_json",
     "remove_stale_temps",
     "remove_unfinished",
     "same_file",

@@ -5,15 +5,19 @@ the atomic writers (:func:`fluidsim.files.atomic.temp_path`), so a read-only, fu
 before a simulation, not after it (:class:`~fluidsim.files.atomic.OutputError`, exit code 4).
 Then :func:`check_not_input` refuses an output that would overwrite an input or another output, also through a
 symbolic or a hard link (``ValueError``, exit code 2).
+Inputs: :func:`check_input_file` refuses what is not a regular file before it is opened, and :func:`read_json` reads
+every JSON file a user hands in (cameras, scenes, configs, transforms) with one message for each way it can be bad.
 """
 
 from __future__ import annotations
 
 import errno
+import json
 import os
 import stat
 from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 from .atomic import OutputError, PathLike, note_created_folder, temp_path, track_temp, untrack_temp
 
@@ -124,6 +128,43 @@ def check_input_file(path: PathLike, label: str, fix: str = "", folder_ok: bool 
     if problem is not None:
         raise ValueError(f"{label} {path} {problem}" + (f"; {fix}" if fix else ""))
     return Path(path)
+
+
+MAX_JSON_BYTES = 64 * 2**20  # a transforms.json of 10,000 frames is about 5 MB
+
+
+def read_json(path: PathLike, label: str, fix: str, max_bytes: int = MAX_JSON_BYTES) -> Any:
+    """The JSON value of the input file ``path``, or ValueError "``label`` ``path`` <the problem>; ``fix``".
+
+    The one reader of the JSON files users hand in: the file must be a regular file (:func:`input_problem`) of at
+    most ``max_bytes``, UTF-8 text and JSON, nested less deeply than Python's recursion limit (a file of
+    ``[[[[...`` 100,000 deep) and without integers of more than 4,300 digits. Exit code 2 of `fluidgs`.
+
+    Example:
+        >>> read_json("scene.json", "scene file", "see the format in README.md")  # doctest: +SKIP
+    """
+    p = Path(path)
+    problem = input_problem(p)
+    if problem is None:
+        size = p.stat().st_size
+        if size == 0:
+            problem = "is empty (0 bytes), not JSON"
+        elif size > max_bytes:
+            problem = f"is {size / 2**20:.0f} MiB, more than the {max_bytes / 2**20:.0f} MiB such a JSON file may be"
+    if problem is None:
+        try:
+            return json.loads(p.read_bytes().decode("utf-8"))
+        except UnicodeDecodeError as exc:
+            problem = f"is not UTF-8 text (byte {exc.start}), so not JSON"
+        except json.JSONDecodeError as exc:
+            problem = f"is not valid JSON ({exc})"
+        except RecursionError:
+            problem = "nests its JSON too deeply (thousands of levels)"
+        except ValueError:  # Python refuses to convert an integer of more than 4,300 digits
+            problem = "holds an integer of more than 4,300 digits"
+        except OSError as exc:
+            problem = f"cannot be read ({exc.strerror or exc})"
+    raise ValueError(f"{label} {p} {problem}; {fix}")
 
 
 # ---- outputs must not be inputs -------------------------------------------------------------------------

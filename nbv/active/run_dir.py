@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 import pickle
 import re
 from pathlib import Path
@@ -11,6 +10,7 @@ from typing import Any
 
 import torch
 
+from fluidsim.files import read_json
 from nbv.active.config import RUN_FILES
 from nbv.io import json_safe, write_json_atomic
 
@@ -37,11 +37,13 @@ def prepare_run_dir(run_dir: Path, run_config: dict, overwrite: bool) -> bool:
     if run_dir.exists() and not run_dir.is_dir():
         raise ValueError(f"{run_dir} is a file; -o must be a run folder")
     cfg_path = run_dir / "config.json"
-    if cfg_path.is_file() and not overwrite:
-        try:
-            old = json.loads(cfg_path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{cfg_path} is not valid JSON ({exc}); pass --overwrite to start again") from exc
+    if cfg_path.exists() and not overwrite:
+        old = read_json(cfg_path, "the run's config", "pass --overwrite to start again")
+        if not isinstance(old, dict):
+            raise ValueError(
+                f"the run's config {cfg_path} holds a JSON {type(old).__name__}, not the object `fluidgs active` "
+                "writes; pass --overwrite to start again"
+            )
         diff = config_differences(old, json_safe(run_config))
         if diff:
             raise ValueError(
@@ -58,6 +60,21 @@ def prepare_run_dir(run_dir: Path, run_config: dict, overwrite: bool) -> bool:
 
 
 CHECKPOINT_KEYS = frozenset({"version", "config", "selected", "rounds", "phase", "trainer", "torch_rng"})
+
+
+def read_run_config(run_dir: str | Path) -> dict:
+    """The config.json of a finished active run in ``run_dir``: an object with the ``active`` config (an object)
+    and the ``dataset`` path; ValueError naming the file and the fix otherwise."""
+    path = Path(run_dir) / "config.json"
+    fix = "run `fluidgs active DATASET -o RUN` again to write it"
+    data = read_json(path, "the run's config", fix)
+    if (
+        not isinstance(data, dict)
+        or not isinstance(data.get("active"), dict)
+        or not isinstance(data.get("dataset"), str)
+    ):
+        raise ValueError(f"the run's config {path} has no 'active' object and 'dataset' path; {fix}")
+    return data
 
 
 def load_checkpoint(path: str | Path) -> dict:

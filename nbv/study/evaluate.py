@@ -30,7 +30,6 @@ Writes ``RUN/eval.json`` (all of the above, per view and per direction) and ``RU
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -43,6 +42,7 @@ import torch
 
 from fluidsim.directions import DIRECTIONS
 from nbv.active import ActiveConfig, dataset_up, is_empty_solid
+from nbv.active.run_dir import read_run_config
 from nbv.io import json_safe, write_json_atomic, write_text_atomic
 from nbv.physics import PhysicsConfig, simulate_gaussians
 from nbv.scores import critical_scores, critical_subset, geometry_divergence, unoccluded
@@ -330,7 +330,7 @@ def evaluate_run(
             f"{run_dir} is not a finished active run (needs config.json and gaussians.ply); "
             "run `fluidgs active DATASET -o RUN` first"
         )
-    run_cfg = json.loads(cfg_path.read_text())
+    run_cfg = read_run_config(run_dir)
     active = ActiveConfig.from_dict(run_cfg["active"])
     ds = load_dataset(run_cfg["dataset"], resolution=active.resolution)
     if not ds.test:

@@ -47,6 +47,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from fluidsim.files import read_json
 from nbv.active import ActiveRun, planner_seed
 from nbv.active.probes import ProbeRun, probe_run
 from nbv.io import json_safe, write_json_atomic, write_text_atomic
@@ -165,11 +166,11 @@ def _stored(path: Path, config: dict) -> dict | None:
     if not path.is_file():
         return None
     try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError:
+        data = read_json(path, "the state file", "it is computed again")
+    except ValueError:  # not a finished state (cut short, garbage, nested too deeply): the state is computed again
         return None
     key = {k: v for k, v in config.items() if k not in STUDY_ONLY_KEYS}
-    return data if data.get("config") == key else None
+    return data if isinstance(data, dict) and data.get("config") == key else None
 
 
 # ---- probes and rules --------------------------------------------------------------------------------

@@ -26,13 +26,13 @@ A rule scores every remaining candidate. The physics rules run once per probe se
 from __future__ import annotations
 
 import difflib
-import json
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fluidsim.files import read_json
 from nbv.active import ActiveConfig
 from nbv.active.config import MAX_SEED
 from nbv.physics import PhysicsConfig
@@ -307,12 +307,7 @@ class OracleConfig:
     def load(cls, path: str | Path) -> OracleConfig:
         """Read a JSON config; relative scene and output paths are taken relative to the file."""
         path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"oracle config {path} does not exist")
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"oracle config {path} is not valid JSON: {exc}") from exc
+        data = read_json(path, "oracle config", f"an oracle config is a JSON object with the keys {list(CONFIG_KEYS)}")
         if not isinstance(data, dict):
             raise ValueError(f"oracle config {path} must hold a JSON object")
         bad = sorted(set(data) - set(CONFIG_KEYS))

@@ -14,12 +14,11 @@ under three rules:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from fluidsim.files import check_input_file
+from fluidsim.files import check_input_file, read_json
 from nbv.study.oracle_config import OracleConfig
 
 MAX_STATE_BYTES = 64 << 20  # a state file is a few hundred KB (its rules' scores per candidate)
@@ -46,23 +45,14 @@ def _read_folder(folder: Path) -> tuple[dict, list[dict]]:
     meta = folder / "oracle-config.json"
     if not meta.is_file():
         raise ValueError(f"{folder} is not an oracle study folder (no oracle-config.json); give the 'output' folder")
-    check_input_file(meta, "the study file", "it must be the regular file that `fluidgs study oracle` writes")
-    try:
-        config = json.loads(meta.read_text())["config"]
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise ValueError(f"{meta} is not an oracle-config.json written by `fluidgs study oracle` ({exc})") from exc
+    config = read_json(meta, "the study file", "it must be the oracle-config.json that `fluidgs study oracle` writes")
+    if not isinstance(config, dict) or not isinstance(config.get("config"), dict):
+        raise ValueError(f"{meta} is not an oracle-config.json written by `fluidgs study oracle` (no 'config' object)")
+    config = config["config"]
     states = []
     for path in sorted((folder / "states").rglob("state*.json")):
         check_input_file(path, "the state file", "delete it (a FIFO or a link is never a state) and resume that study")
-        if path.stat().st_size > MAX_STATE_BYTES:
-            raise ValueError(
-                f"the state file {path} holds {path.stat().st_size} bytes; delete it and resume that study"
-            )
-        try:
-            st = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path} is not valid JSON ({exc}); delete it and resume that study") from exc
-        states.append(st)
+        states.append(read_json(path, "the state file", "delete it and resume that study", MAX_STATE_BYTES))
     return config, states
 
 

@@ -34,8 +34,9 @@ from nbv.study.experiment_config import ExperimentConfig
 from nbv.view_scoring import parse_candidates
 from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet, concat
+from viz.cameras import read_scores
 
-from helpers.paths import TORUS
+from helpers.paths import ASSETS, TORUS
 from helpers.scenes import small_scene
 
 COARSE = dict(particle_radius=0.08, steps=5, dt=0.004, empty_reference=False, directions=("-x",))
@@ -377,3 +378,41 @@ def test_render_dataset_creates_the_parents(tmp_path, caplog):
     (tmp_path / "file").write_text("x")
     assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "file" / "c" / "d"), *args]) == cli.EXIT_OUTPUT
     assert "is a file" in _errors(caplog)
+
+
+# ---- JSON files a user hands in: one reader, one line each ------------------------------------------------------
+BAD_JSON = {
+    "deep": b"[" * 100000 + b"]" * 100000,  # RecursionError inside json
+    "deep object": b'{"a": ' * 100000 + b"1" + b"}" * 100000,
+    "empty": b"",
+    "not UTF-8": b"\xff\xfe\x00{",
+    "huge integer": b"1" * 5000,  # ValueError: more than 4,300 digits
+    "truncated": b'{"frames": [{"transform_matrix": ',
+}
+
+
+@pytest.mark.parametrize("kind", sorted(BAD_JSON))
+def test_every_json_input_gives_one_line_naming_the_file(tmp_path, caplog, kind):
+    bad = tmp_path / "bad.json"
+    bad.write_bytes(BAD_JSON[kind])
+    dataset, run = tmp_path / "dataset", tmp_path / "run"
+    dataset.mkdir()
+    run.mkdir()
+    (dataset / "transforms_train.json").write_bytes(BAD_JSON[kind])
+    (run / "config.json").write_bytes(BAD_JSON[kind])
+    (run / "gaussians.ply").write_bytes((ASSETS / "ahmed_gaussians.ply").read_bytes())
+    cases = [
+        (["sim", str(bad), "-o", str(tmp_path / "o.h5")], bad),
+        (["score", str(ASSETS / "ahmed_gaussians.ply"), "--cameras", str(bad), "-o", str(tmp_path / "s.json")], bad),
+        (["study", "oracle", str(bad)], bad),
+        (["train", str(dataset), "-o", str(tmp_path / "t.ply")], dataset / "transforms_train.json"),
+        (["eval", str(run)], run / "config.json"),
+    ]
+    for argv, named in cases:
+        caplog.clear()
+        assert cli.main(argv) == 2, argv
+        errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+        assert len(errors) == 1 and "\n" not in errors[0] and str(named) in errors[0], (argv, errors)
+        assert "Traceback" not in caplog.text and "Error:" not in errors[0], errors[0]
+    with pytest.raises(ValueError, match=r"--scores \S*bad\.json .*; write it with `fluidgs score"):
+        read_scores(bad)

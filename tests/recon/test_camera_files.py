@@ -162,10 +162,10 @@ def test_errors_name_file_frame_and_key(tmp_path, keys, frames, res, message):
 
 
 def test_file_level_errors(tmp_path):
-    with pytest.raises(ValueError, match=r"nope\.json: no such file; pass a Blender / NeRF transforms\.json"):
+    with pytest.raises(ValueError, match=r"nope\.json does not exist; pass a Blender / NeRF transforms\.json"):
         load_cameras(tmp_path / "nope.json")
     (tmp_path / "x.json").write_text("{frames")
-    with pytest.raises(ValueError, match=r"x\.json: not valid JSON"):
+    with pytest.raises(ValueError, match=r"x\.json is not valid JSON"):
         load_cameras(tmp_path / "x.json")
     (tmp_path / "x.json").write_text("[1, 2]")
     with pytest.raises(ValueError, match=r"x\.json: missing 'frames' list"):
