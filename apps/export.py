@@ -134,6 +134,14 @@ def run_command(args: argparse.Namespace) -> int:
 
     check_input_file(args.h5, "H5", "pass an OUT.h5 (fluidgs sim) or a RESULT.h5 (fluidgs simulate)")
     is_hdf5 = h5py.is_hdf5(args.h5)
+    if is_hdf5:  # an HDF5 signature on a truncated or damaged file: h5py says so only when it opens it
+        try:
+            h5py.File(args.h5, "r").close()
+        except (OSError, RuntimeError) as exc:
+            raise ValueError(
+                f"H5 {args.h5} is a truncated or damaged HDF5 file ({exc}); pass a complete OUT.h5 or RESULT.h5, "
+                "or write it again"
+            ) from None
     if not is_hdf5 and args.splishsplash is None:  # the input first: a wrong file is named before a missing option
         raise ValueError(f"H5 {args.h5} is not an HDF5 file; pass an OUT.h5 (fluidgs sim) or a RESULT.h5")
     if args.vtk is None and args.solid is None and args.splishsplash is None:

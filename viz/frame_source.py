@@ -222,6 +222,13 @@ def check_frames_file(path: Path) -> None:
         raise ValueError(f"{path} is not a file; pass the OUT.h5 written by the simulation or a RESULT.h5")
     if not h5py.is_hdf5(path):
         raise ValueError(f"{path} is not an HDF5 file; pass the OUT.h5 written by the simulation or a RESULT.h5")
+    try:  # an HDF5 signature on a truncated or damaged file: h5py says so only when it opens it
+        h5py.File(path, "r").close()
+    except (OSError, RuntimeError) as exc:
+        raise ValueError(
+            f"{path} is a truncated or damaged HDF5 file ({exc}); pass a complete OUT.h5 or RESULT.h5, "
+            "or write it again"
+        ) from None
 
 
 def _dataset(group: h5py.Group, name: str, where: str, hint: str = "") -> h5py.Dataset:

@@ -9,6 +9,7 @@ import os
 import signal
 import time
 
+import h5py
 import numpy as np
 import pytest
 import torch
@@ -416,3 +417,20 @@ def test_every_json_input_gives_one_line_naming_the_file(tmp_path, caplog, kind)
         assert "Traceback" not in caplog.text and "Error:" not in errors[0], errors[0]
     with pytest.raises(ValueError, match=r"--scores \S*bad\.json .*; write it with `fluidgs score"):
         read_scores(bad)
+
+
+def test_a_truncated_hdf5_file_is_named_by_render_frames_and_export(tmp_path, caplog):
+    whole, cut = tmp_path / "whole.h5", tmp_path / "OUT.h5"
+    with h5py.File(whole, "w") as f:
+        f.create_dataset("frames/000000/x", data=np.zeros((20000, 3), np.float32))
+    cut.write_bytes(whole.read_bytes()[:5000])  # the HDF5 signature is there; the rest is cut off
+    assert h5py.is_hdf5(cut)
+    for argv in (
+        ["render-frames", str(cut), "-o", str(tmp_path / "f.mp4")],
+        ["export", str(cut), "--vtk", str(tmp_path / "vtk")],
+    ):
+        caplog.clear()
+        assert cli.main(argv) == 2, argv
+        errors = _errors(caplog)
+        assert f"{cut} is a truncated or damaged HDF5 file" in errors and "write it again" in errors, errors
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["OUT.h5", "whole.h5"]
