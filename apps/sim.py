@@ -95,6 +95,7 @@ def scene_inputs(scene, scene_path: Path) -> dict[str, Path]:
 
 
 def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.config import MAX_STEPS
     from fluidsim.files import check_not_input, check_writable
     from fluidsim.memory import check_scene_memory
     from fluidsim.recording import FramesKept, Interrupted, simulate_to_h5
@@ -107,6 +108,8 @@ def run_command(args: argparse.Namespace) -> int:
     if args.steps is not None:
         if args.steps < 1:  # the option, not the scene key it overrides
             raise ValueError(f"--steps must be an integer >= 1 time step, got {args.steps}")
+        if args.steps > MAX_STEPS:
+            raise ValueError(f"--steps must be at most {MAX_STEPS:,} time steps (the paper's 750), got {args.steps}")
         scene = scene.with_steps(args.steps)
     if args.save_every < 0:
         raise ValueError(f"--save-every must be >= 0, got {args.save_every}")

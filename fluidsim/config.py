@@ -19,6 +19,9 @@ RETIRE_MARGIN_MAX = 4.0
 # the smallest time step, s: below it a run needs over 1e8 steps per simulated second and the pressure solver's
 # 1 / dt^2 factors reach the float32 range's end (1 / dt^2 overflows below 5e-20 s)
 MIN_DT = 1.0e-8
+# the most time steps of one run: the paper's probes run 750; a million keeps a run's per-step statistics (a few
+# hundred bytes a step, in memory and in its file) and its time within reach
+MAX_STEPS = 1_000_000
 
 
 def _finite(name: str, value: Any) -> float:

@@ -29,7 +29,7 @@ import numpy as np
 
 from fluidsim.files import read_json
 
-from .config import SolverConfig
+from .config import MAX_STEPS, SolverConfig
 
 TOP_KEYS = {
     "particle_radius",
@@ -112,7 +112,17 @@ class Scene:
         }
 
     def with_steps(self, steps: int) -> Scene:
-        return replace(self, steps=_int(steps, "steps", 1))
+        return replace(self, steps=_steps(steps))
+
+
+def _steps(value: Any) -> int:
+    steps = _int(value, "steps", 1)
+    if steps > MAX_STEPS:
+        raise SceneError(
+            f"scene key 'steps' = {steps} is more than the {MAX_STEPS:,} time steps a run may have (the paper's "
+            "probes run 750); run fewer steps"
+        )
+    return steps
 
 
 def _num(value: Any, key: str) -> float:
@@ -187,7 +197,7 @@ def parse_scene(data: dict, base_dir: str | Path = ".") -> Scene:
         raise
     except (ValueError, TypeError) as exc:
         raise SceneError(f"invalid solver setting: {exc}") from exc
-    steps = _int(data["steps"], "steps", 1)
+    steps = _steps(data["steps"])
     dom = _keys(data["domain"], "domain", {"min", "max", "walls", "wall_layers"}, {"min", "max"})
     dmin, dmax = _box(dom, "domain")
     walls = dom.get("walls", True)

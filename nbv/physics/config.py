@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from fluidsim.config import SolverConfig
+from fluidsim.config import MAX_STEPS, SolverConfig
 from fluidsim.directions import DIRECTIONS
 from nbv.lists import parse_list
 from nbv.physics.early_stop import StopRule
@@ -115,6 +115,11 @@ class PhysicsConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"PhysicsConfig.{name} must be an integer >= 1, got {v!r}")
+        if self.steps > MAX_STEPS:
+            raise ValueError(
+                f"PhysicsConfig.steps must be at most {MAX_STEPS:,} time steps per probe (the paper's run 750), "
+                f"got {self.steps}"
+            )
         if isinstance(self.probe_snap, bool) or not isinstance(self.probe_snap, int) or self.probe_snap < 0:
             raise ValueError(
                 f"PhysicsConfig.probe_snap must be an integer >= 0 (particle spacings), got {self.probe_snap!r}"

@@ -434,3 +434,25 @@ def test_a_truncated_hdf5_file_is_named_by_render_frames_and_export(tmp_path, ca
         errors = _errors(caplog)
         assert f"{cut} is a truncated or damaged HDF5 file" in errors and "write it again" in errors, errors
     assert sorted(p.name for p in tmp_path.iterdir()) == ["OUT.h5", "whole.h5"]
+
+
+def test_steps_are_bounded_before_any_allocation(tmp_path, caplog):
+    """`simulate --steps 99999999999` was a Taichi traceback (no ndarray of that shape); `sim` failed late with
+    "File too large" for the room its statistics needed."""
+    from fluidsim.config import MAX_STEPS
+
+    scene = _write_scene(tmp_path / "scene.json")
+    big = str(MAX_STEPS + 1)
+    assert cli.main(["sim", str(scene), "-o", str(tmp_path / "o.h5"), "--steps", big]) == 2
+    assert f"--steps must be at most {MAX_STEPS:,} time steps" in _errors(caplog)
+    caplog.clear()
+    _write_scene(scene, steps=99999999999)
+    assert cli.main(["sim", str(scene), "-o", str(tmp_path / "o.h5")]) == 2
+    assert "scene key 'steps' = 99999999999 is more than the 1,000,000" in _errors(caplog)
+    caplog.clear()
+    ply = save_gaussians(_sphere(), tmp_path / "g.ply")
+    assert cli.main(["simulate", str(ply), "-o", str(tmp_path / "r.h5"), "--quick", "--steps", "99999999999"]) == 2
+    assert "--steps must be at most 1,000,000 time steps per probe" in _errors(caplog)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["g.ply", "scene.json"]
+    with pytest.raises(ValueError, match="at most 1,000,000"):
+        PhysicsConfig(steps=MAX_STEPS + 1)
