@@ -75,7 +75,7 @@ def run_command(args: argparse.Namespace) -> int:
     precision = config.active_config(config.methods[0], config.seeds[0]).physics.precision
     executor = make_executor(args.executor, args.workers, args.threads, args.address, precision)
     try:
-        out = run_experiment(config, executor, progress=not args.no_progress)
+        out = run_experiment(config, executor, progress=not args.no_progress, threads=args.threads)
     except JobFailed as exc:  # one line naming the job and its error, with the exit code of that error
         logging.getLogger("fluidgs").error("%s", exc)
         return job_exit_code(exc.__cause__)

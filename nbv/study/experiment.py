@@ -49,6 +49,8 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -57,17 +59,18 @@ from tqdm import tqdm
 from fluidsim.files import remove_stale_temps
 from nbv.active import ActiveConfig, config_differences, run_active
 from nbv.io import json_safe, write_json_atomic
-from nbv.study.evaluate import EvalConfig, evaluate_run
+from nbv.study.cost import MEASURED, Costs, Estimate, Scene, cpu_slowdown, estimate, job_seconds, minutes
+from nbv.study.evaluate import EvalConfig, eval_physics_config, evaluate_run
 from nbv.study.experiment_config import (
     CONFIG_KEYS,
     ExperimentConfig,
     method_folder,
     reference_label,
     scene_names,
-    split_method,
 )
 from nbv.study.tables import write_tables
-from recon.datasets import count_train_views, dataset_format
+from recon.colmap import find_colmap_sparse, read_colmap_model
+from recon.datasets import count_train_views, dataset_format, load_cameras
 
 log = logging.getLogger(__name__)
 
@@ -116,47 +119,97 @@ def plan_jobs(config: ExperimentConfig) -> list[dict]:
     return jobs
 
 
-# Measured wall time of one job (its active run and its evaluation), minutes, on the shared 2-core CPU, by preset
-# and by whether the planner runs the probes at each selection: the cpu-small loop took 3.4 min for fisher and
-# 11 min for fisher+fluid (8 selections x 5 probes), the evaluation's probes included. A job of a preset not listed
-# has no estimate.
-JOB_MINUTES: dict[tuple[str, bool], float] = {("cpu-small", False): 3.4, ("cpu-small", True): 11.0}
-
-
 def job_done(job: dict) -> bool:
     """Whether a job's evaluation is already on disk (a resumed experiment skips it: it costs about nothing)."""
     run_dir = Path(job["run_dir"])
     return (run_dir / "eval.json").is_file() and (run_dir / "gaussians.ply").is_file()
 
 
-def job_uses_physics(job: dict) -> bool:
-    """Whether a job's planner runs the probes at each selection (the references never do)."""
-    from nbv.plan import uses_physics  # noqa: PLC0415 - the planner registry loads torch
+def scene_facts(dataset: str, resolution: int | None) -> Scene | None:
+    """A dataset's candidate views and the pixels of one train image at ``resolution`` (its width, the aspect
+    kept), read from its cameras without loading an image; None when they cannot be read that way."""
+    views = count_train_views(dataset)
+    if views is None:
+        return None
+    try:
+        if dataset_format(dataset) == "blender":
+            cam = load_cameras(Path(dataset) / "transforms_train.json")[0]
+            width, height = cam.width, cam.height
+        else:
+            width, height = next(iter(read_colmap_model(find_colmap_sparse(Path(dataset))).cameras.values()))[:2]
+    except (ValueError, OSError, StopIteration):
+        return None
+    if resolution is not None:
+        width, height = resolution, max(1, round(height * resolution / width))
+    return Scene(views=views, pixels=width * height)
 
-    return job["kind"] == "method" and uses_physics(split_method(job["method"])[0])
+
+def job_estimate(job: dict, scene: Scene, costs: Costs = MEASURED) -> dict[str, float]:
+    """One job's seconds per part on one thread from its own config (:func:`nbv.study.cost.job_seconds`)."""
+    active = ActiveConfig.from_dict(job["active"])
+    probes = eval_physics_config(active.physics, EvalConfig.from_dict(job["eval"]), active.physics.up)
+    return job_seconds(active, probes, scene, costs)
 
 
-def time_estimate(jobs: list[dict], preset: str, workers: int = 1) -> str:
-    """One line, before the experiment starts: how many jobs are left and about how long they take on the 2-core
-    CPU from the measured :data:`JOB_MINUTES` (the workers share its cores: more of them do not make the probes
-    faster there), or that the preset's job cost was never measured."""
+def time_estimate(
+    jobs: list[dict],
+    workers: int = 1,
+    threads: int = 1,
+    cores: int | None = None,
+    slowdown: float | None = None,
+    costs: Costs = MEASURED,
+) -> tuple[str, Estimate | None]:
+    """One line, before the experiment starts, and its :class:`Estimate`: the jobs left and about how long they
+    take from their own protocol (:mod:`nbv.study.cost`), with what the figure assumes; None when a scene's
+    views or image size cannot be read. ``cores`` defaults to this machine's and ``slowdown`` to
+    :func:`nbv.study.cost.cpu_slowdown` measured now."""
     todo = [j for j in jobs if not job_done(j)]
     done = len(jobs) - len(todo)
     resumed = f" ({done} already done)" if done else ""
     if not todo:
-        return f"estimate: all {len(jobs)} jobs are done{resumed}; only the tables are written"
-    if (preset, True) not in JOB_MINUTES or (preset, False) not in JOB_MINUTES:
-        return (
-            f"estimate: {len(todo)} jobs to run{resumed}; no measured job cost for preset {preset!r} (measured: "
-            f"{', '.join(sorted({p for p, _ in JOB_MINUTES}))}), so no time estimate"
-        )
-    physics = sum(job_uses_physics(j) for j in todo)
-    fast, slow = JOB_MINUTES[(preset, False)], JOB_MINUTES[(preset, True)]
-    total = physics * slow + (len(todo) - physics) * fast
+        return f"estimate: all {len(jobs)} jobs are done{resumed}; only the tables are written", None
+    left = f"{len(todo)} job{'s' if len(todo) != 1 else ''} to run{resumed}"
+    scenes: dict[tuple[str, int | None], Scene | None] = {}
+    per_job = []
+    for job in todo:
+        key = (job["dataset"], job["active"]["resolution"])
+        if key not in scenes:
+            scenes[key] = scene_facts(*key)
+        if scenes[key] is None:
+            return (
+                f"estimate: {left}; the views or image size of {key[0]} cannot be read "
+                "from its cameras, so no time estimate",
+                None,
+            )
+        per_job.append(job_estimate(job, scenes[key], costs))
+    cores = cores or os.cpu_count() or 1
+    slowdown = cpu_slowdown() if slowdown is None else slowdown
+    est = estimate(per_job, workers, threads, cores, slowdown, costs)
+    parts = ", ".join(f"{p} {minutes(s)}" for p, s in est.seconds.items() if s >= 0.5)
+    sizes = sorted({(s.views, s.pixels) for s in scenes.values() if s is not None})
+    active = ActiveConfig.from_dict(todo[0]["active"])
+    evaluation = eval_physics_config(active.physics, EvalConfig.from_dict(todo[0]["eval"]), active.physics.up)
     return (
-        f"estimate: {len(todo)} jobs to run{resumed}, {physics} of them with the fluid's probes: about "
-        f"{total / 60:.1f} h on a 2-core CPU (measured per job at {preset}: {fast:g} min without the fluid, "
-        f"{slow:g} min with it; {workers} worker{'s' if workers != 1 else ''})"
+        f"estimate: {left}: about {minutes(est.wall_s)} ({parts} on one thread, shared by "
+        f"{est.parallel} thread{'s' if est.parallel != 1 else ''}: {workers} worker{'s' if workers != 1 else ''} x "
+        f"{threads}, {cores} cores, x {slowdown:.1f}: a thread gets 1/{slowdown:.1f} of a core now). Assumes "
+        f"{', '.join(f'{v} views of {p:,} px' for v, p in sizes)}, {active.total_iterations} iterations, budget "
+        f"{active.budget}, probes r = {active.physics.particle_radius:g} m x {active.physics.steps} steps, eval "
+        f"{len(evaluation.directions)} probe{'s' if len(evaluation.directions) != 1 else ''} x "
+        f"{evaluation.steps} steps at r = {evaluation.particle_radius:g} m, at "
+        "the costs measured on the 2-core CPU (docs/performance.md)",
+        est,
+    )
+
+
+def actual_line(estimate: Estimate | None, seconds: float, jobs: int) -> str:
+    """The line at the end: the wall time of the jobs that ran against their estimate."""
+    if estimate is None or not jobs:
+        return f"took {minutes(seconds)} for {jobs} job{'s' if jobs != 1 else ''} (no estimate)"
+    ratio = seconds / estimate.wall_s if estimate.wall_s > 0 else float("inf")
+    return (
+        f"took {minutes(seconds)} for {jobs} job{'s' if jobs != 1 else ''}, estimated {minutes(estimate.wall_s)} "
+        f"(actual / estimate = {ratio:.2f})"
     )
 
 
@@ -239,8 +292,11 @@ def collect_rows(results, out: Path, bar) -> list[dict]:
         )
 
 
-def run_experiment(config: ExperimentConfig, executor, progress: bool = True) -> dict[str, Any]:
+def run_experiment(config: ExperimentConfig, executor, progress: bool = True, threads: int = 1) -> dict[str, Any]:
     """Run every job through ``executor`` (``nbv.study.executors``), then write results.json, the tables and plots.
+
+    Logs the time estimate before the first job (``threads``: CPU threads per worker) and the actual time beside
+    it after the last.
 
     Returns:
         {"rows": per-job result rows, "tables": {name: Markdown}, "files": written paths}.
@@ -248,7 +304,10 @@ def run_experiment(config: ExperimentConfig, executor, progress: bool = True) ->
     check_scenes(config)
     jobs = plan_jobs(config)  # every job's ActiveConfig is validated here, before the output folder exists
     out = Path(config.output)
-    log.info("%s", time_estimate(jobs, config.preset, getattr(executor, "workers", 1)))
+    left = sum(not job_done(j) for j in jobs)
+    line, est = time_estimate(jobs, getattr(executor, "workers", 1), threads)
+    log.info("%s", line)
+    started = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "experiment.json", {"config": {k: getattr(config, k) for k in CONFIG_KEYS}})
     remove_stale_temps(out)
@@ -260,6 +319,7 @@ def run_experiment(config: ExperimentConfig, executor, progress: bool = True) ->
             close = getattr(results, "close", None)
             if close is not None:
                 close()
+    log.info("%s", actual_line(est, time.perf_counter() - started, left))
     order = {(j["scene"], j["method"], j["seed"]): i for i, j in enumerate(jobs)}
     rows.sort(key=lambda r: order[(r["scene"], r["method"], r["seed"])])
     write_json_atomic(out / "results.json", {"rows": rows})

@@ -188,28 +188,70 @@ def test_mean_std_and_tables():
     assert dirs[0][2:4] == ["D-bar -x (m^4/s)", "D-bar +x (m^4/s)"] and dirs[1][3] == "0.1500 ± 0.0354"
 
 
-def test_the_time_estimate_comes_from_the_measured_job_costs(tmp_path):
-    from nbv.study.experiment import JOB_MINUTES, plan_jobs, time_estimate
+def cameras_only_scene(root: Path, views: int, width: int, height: int) -> str:
+    """A Blender folder with cameras and no images: what the estimate reads (views, image size)."""
+    root.mkdir(parents=True)
+    frames = [{"file_path": f"train/r_{i:03d}", "transform_matrix": np.eye(4).tolist()} for i in range(views)]
+    meta = {"camera_angle_x": 0.7, "w": width, "h": height, "frames": frames}
+    (root / "transforms_train.json").write_text(json.dumps(meta))
+    return str(root)
+
+
+def test_the_time_estimate_comes_from_the_configs_own_protocol(tmp_path):
+    from nbv.study.cost import MEASURED, parallel
+    from nbv.study.experiment import actual_line, job_estimate, plan_jobs, scene_facts, time_estimate
     from nbv.study.experiment_config import ExperimentConfig
 
-    config = ExperimentConfig(
-        scenes=(str(tmp_path / "scene"),),
-        methods=("fisher", "fisher+fluid"),
-        seeds=(0, 1),
-        output=str(tmp_path / "o"),
-        reference_views=None,
+    scene = cameras_only_scene(tmp_path / "scene", views=12, width=80, height=60)
+    assert scene_facts(scene, 32).pixels == 32 * 24 and scene_facts(scene, None).pixels == 80 * 60
+    assert scene_facts(scene, 32).views == 12 and scene_facts(str(tmp_path / "missing"), 32) is None
+
+    def config(seeds, **active):
+        return ExperimentConfig(
+            scenes=(scene,),
+            methods=("fisher", "fisher+fluid"),
+            seeds=seeds,
+            output=str(tmp_path / "o"),
+            reference_views=None,
+            active={"resolution": 32, "budget": 4, **active},
+            eval={"physics": {"particle_radius": 0.1, "steps": 40, "directions": ["-x"]}},
+        )
+
+    jobs = plan_jobs(config((0,)))
+    one = job_estimate(jobs[1], scene_facts(scene, 32))
+    a = ActiveConfig.from_dict(jobs[1]["active"])
+    assert one["training"] == pytest.approx(MEASURED.train_s * a.total_iterations * 32 * 24)
+    eval_steps = 40 * 2 * (0.05 / 0.1) ** 3  # one probe and its empty scene, at r = 0.1 m
+    assert one["eval"] == pytest.approx(
+        eval_steps * MEASURED.eval_step_s + 4000 * MEASURED.probe_gaussian_s + MEASURED.eval_s
     )
-    jobs = plan_jobs(config)
-    line = time_estimate(jobs, "cpu-small", workers=1)
-    minutes = 2 * JOB_MINUTES[("cpu-small", False)] + 2 * JOB_MINUTES[("cpu-small", True)]
-    assert line.startswith("estimate: 4 jobs to run, 2 of them with the fluid's probes")
-    assert f"{minutes / 60:.1f} h" in line
+    line, est = time_estimate(jobs, workers=1, threads=1, cores=2, slowdown=1.0)
+    assert line.startswith("estimate: 2 jobs to run: about ")
+    assert "12 views of 768 px" in line and "budget 4" in line
+    # N seeds cost N times one seed; the start-up is paid once per worker
+    _, three = time_estimate(plan_jobs(config((0, 1, 2))), workers=1, threads=1, cores=2, slowdown=1.0)
+    assert three.wall_s - MEASURED.start_s == pytest.approx(3 * (est.wall_s - MEASURED.start_s))
+    # two threads on two cores halve the work; a third worker finds no free core
+    _, two = time_estimate(jobs, workers=2, threads=1, cores=2, slowdown=1.0)
+    assert two.wall_s == pytest.approx(est.wall_s / 2 - MEASURED.start_s / 2 + 2 * MEASURED.start_s)
+    assert parallel(3, 1, 2) == 2 and parallel(1, 4, 16) == 4
+    # other processes: a thread that gets a third of a core takes three times as long
+    line, loaded = time_estimate(jobs, workers=1, threads=1, cores=2, slowdown=3.0)
+    assert loaded.wall_s == pytest.approx(3 * est.wall_s) and "x 3.0: a thread gets 1/3.0 of a core now" in line
+    assert "actual / estimate = 2.00" in actual_line(est, 2 * est.wall_s, 2)
     done = Path(jobs[0]["run_dir"])  # a resumed experiment does not count its finished jobs
     done.mkdir(parents=True)
     (done / "eval.json").write_text("{}")
     (done / "gaussians.ply").write_text("")
-    assert "3 jobs to run (1 already done)" in time_estimate(jobs, "cpu-small")
-    assert "no measured job cost for preset 'paper'" in time_estimate(jobs, "paper")
+    assert time_estimate(jobs, slowdown=1.0)[0].startswith("estimate: 1 job to run (1 already done)")
+    unread = plan_jobs(replace_scenes(config((0,)), str(tmp_path / "missing")))
+    assert "cannot be read" in time_estimate(unread)[0] and time_estimate(unread)[1] is None
+
+
+def replace_scenes(config, scene):
+    from dataclasses import replace
+
+    return replace(config, scenes=(scene,))
 
 
 def test_single_direction_methods_and_their_table():
