@@ -61,15 +61,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, write_json_atomic, write_text_atomic
-    from nbv.orbit import object_sphere
+    from nbv.orbit import MAX_ORBIT_CAMERAS, object_sphere
     from nbv.physics.scene_frame import parse_up, up_label
+    from recon.camera import MAX_IMAGE_SIDE
     from recon.camera_files import colmap_text, graphdeco_json, transforms_json
     from recon.camera_paths import framing_distance
 
     from .options import orbit_cameras_logged, orbit_from_args
 
-    if args.width < 1:
-        raise ValueError(f"--width must be a positive number of pixels, got {args.width}")
+    if not 1 <= args.orbit <= MAX_ORBIT_CAMERAS:  # this command's option, not the --cameras orbit:N it stands for
+        raise ValueError(f"--orbit must be a number of cameras from 1 to {MAX_ORBIT_CAMERAS:,}, got {args.orbit}")
+    if not 1 <= args.width <= MAX_IMAGE_SIDE:
+        raise ValueError(f"--width must be a positive number of pixels, at most {MAX_IMAGE_SIDE:,}, got {args.width}")
     orbit = orbit_from_args(argparse.Namespace(**{**vars(args), "cameras": f"orbit:{args.orbit}"}), args.width)
     config = physics_config_from_args(args, steps=1)
     out = Path(args.output)

@@ -128,6 +128,21 @@ def test_bad_cameras_exit_2_naming_the_option_and_the_fix(command, extra, names,
         assert name in log, (name, log)
 
 
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--orbit", "0"], "--orbit must be a number of cameras from 1 to 10,000, got 0"),
+        (["--orbit", "100000000"], "--orbit must be a number of cameras from 1 to 10,000, got 100000000"),
+        (["--orbit", "4", "--width", "100000000"], "--width must be a positive number of pixels, at most 65,536"),
+    ],
+)
+def test_cameras_command_names_its_own_options(extra, message, tmp_path, caplog):
+    """`cameras --orbit 0` spoke of `--cameras orbit:0`, an option this command does not have."""
+    code, log = _run(["cameras", str(_ply(tmp_path)), *extra, "-o", str(tmp_path / "c.json")], caplog)
+    assert code == 2 and message in log and "--cameras" not in log, log
+    assert not (tmp_path / "c.json").exists()
+
+
 def test_score_orbit_runs_up_to_the_probes_and_says_what_it_built(tmp_path, caplog, stop_before_probes):
     ply = _ply(tmp_path)
     with pytest.raises(_Stop):
