@@ -72,6 +72,10 @@ MESH_SUFFIXES = (".obj", ".stl", ".ply")
 KEY_WEIGHT, FILL_WEIGHT = 0.7, 0.3
 
 
+MAX_VIEWS = 10_000  # views of one dataset (train + test)
+MAX_RAY_SIDE = 4096  # rays per image side (resolution x supersample): 2^24 rays, about 2.5 GB in memory per view
+
+
 @dataclass(frozen=True)
 class MeshDatasetConfig:
     """Settings of a rendered mesh dataset (defaults: the paper's appendix, at 256 px).
@@ -111,6 +115,17 @@ class MeshDatasetConfig:
                 raise ValueError(f"MeshDatasetConfig.{key} must be an integer >= {low}, got {val!r}")
         if self.supersample > 8:
             raise ValueError(f"MeshDatasetConfig.supersample must be <= 8 rays per side, got {self.supersample}")
+        if self.n_train + self.n_test > MAX_VIEWS:  # bounded before any work: 10^8 views ran silent for hours
+            raise ValueError(
+                f"MeshDatasetConfig.n_train + MeshDatasetConfig.n_test must be at most {MAX_VIEWS:,} views (the "
+                f"paper's 200 + 100), got {self.n_train} + {self.n_test}"
+            )
+        if self.resolution * self.supersample > MAX_RAY_SIDE:
+            raise ValueError(
+                f"MeshDatasetConfig.resolution must be at most {MAX_RAY_SIDE // self.supersample} pixels at "
+                f"MeshDatasetConfig.supersample {self.supersample} (at most {MAX_RAY_SIDE}^2 rays a view, about 150 "
+                f"bytes each in memory), got {self.resolution}"
+            )
         if not 1.0 <= self.fov_x <= 170.0:
             raise ValueError(f"MeshDatasetConfig.fov_x must be in [1, 170] degrees, got {self.fov_x}")
         for key in ("box_size", "radius"):

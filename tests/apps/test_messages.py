@@ -381,6 +381,21 @@ def test_render_dataset_creates_the_parents(tmp_path, caplog):
     assert "is a file" in _errors(caplog)
 
 
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--train", "100000000", "--test", "1"], "--train + --test must be at most 10,000 views"),
+        (["--res", "1000000"], "--res must be at most 2048 pixels at --supersample 2"),
+        (["--res", "2048", "--supersample", "4"], "--res must be at most 1024 pixels at --supersample 4"),
+    ],
+)
+def test_render_dataset_bounds_views_and_resolution_naming_the_options(tmp_path, caplog, args, message):
+    """10^8 views ran silent for hours; --res 1000000 spoke of "the camera view_000's image size"."""
+    assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "ds"), *args]) == 2
+    assert message in _errors(caplog) and "view_000" not in _errors(caplog)
+    assert list(tmp_path.iterdir()) == []
+
+
 # ---- JSON files a user hands in: one reader, one line each ------------------------------------------------------
 BAD_JSON = {
     "deep": b"[" * 100000 + b"]" * 100000,  # RecursionError inside json
