@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,7 +57,7 @@ import h5py
 import numpy as np
 from tqdm import tqdm
 
-from fluidsim.files import write_bytes_atomic
+from fluidsim.files import check_writable, write_bytes_atomic
 
 from .colors import TURBO_BGR
 from .frame_source import FrameSource, box_corners, check_domain, check_frames_file
@@ -273,7 +272,6 @@ def output_is_video(out: Path, png: bool = False) -> bool:
 
 
 def _prepare_output(out: Path, is_video: bool) -> None:
-    directory = out.parent if is_video else out
     if is_video:
         check_encoder(out)
         if out.is_dir():
@@ -286,21 +284,12 @@ def _prepare_output(out: Path, is_video: bool) -> None:
             f"{out} exists and is not a directory; PNG frames need a directory "
             "(or give a path ending in .mp4 for a video)"
         )
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OSError(
-            f"cannot create the output directory {directory} for {out}: {e}; choose a writable location with -o"
-        ) from e
-    if not os.access(directory, os.W_OK | os.X_OK):
-        raise OSError(f"output directory {directory} is not writable; choose a writable location with -o")
+    check_writable(out if is_video else out / "frame_000000.png")  # creates the folders, tries a file: exit 4
     if not is_video:
-        stale = sorted(directory.glob("frame_*.png"))
+        stale = sorted(out.glob("frame_*.png"))
         if stale:
             logger.warning(
-                "%s already holds %d frame_*.png files; those beyond this render stay as they are",
-                directory,
-                len(stale),
+                "%s already holds %d frame_*.png files; those beyond this render stay as they are", out, len(stale)
             )
 
 

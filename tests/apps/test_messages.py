@@ -396,6 +396,18 @@ def test_render_dataset_bounds_views_and_resolution_naming_the_options(tmp_path,
     assert list(tmp_path.iterdir()) == []
 
 
+def test_render_frames_output_that_cannot_be_written_is_exit_4(tmp_path, caplog):
+    """A parent that is a file (or a read-only folder) was a plain OSError without errno: exit 2, "bad input"."""
+    _write_scene(tmp_path / "scene.json")
+    assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "OUT.h5"), "--threads", "1"]) == 0
+    (tmp_path / "file").write_text("x")
+    for out in (tmp_path / "file" / "f.mp4", tmp_path / "file" / "pngs"):
+        caplog.clear()
+        assert cli.main(["render-frames", str(tmp_path / "OUT.h5"), "-o", str(out)]) == cli.EXIT_OUTPUT, out
+        assert f"{tmp_path / 'file'} is a file, not a folder" in _errors(caplog)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["OUT.h5", "file", "scene.json"]
+
+
 # ---- JSON files a user hands in: one reader, one line each ------------------------------------------------------
 BAD_JSON = {
     "deep": b"[" * 100000 + b"]" * 100000,  # RecursionError inside json
