@@ -6,8 +6,8 @@ solid (and the walls), and a ParaView ``.pvd`` series (:mod:`nbv.export.particle
 filled solid of a RESULT.h5 (or the solid of an OUT.h5) as a closed mesh and a voxel grid
 (:mod:`nbv.export.solid`), as ``simulate --export-solid`` does. ``--splishsplash DIR`` writes the probe scenes of a
 RESULT.h5 (or of a Gaussian file, through the same solid and probe setup) as SPlisHSPlasH scenes, one per probe, with
-the solid as a voxel mesh (:mod:`nbv.bench.splash_probe`), so that the reference engine can rerun a probe. Nothing
-is simulated.
+the solid as the surface through its outer particles' centres (:mod:`nbv.bench.splash_probe`), so that the
+reference engine can rerun a probe. Nothing is simulated.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="DIR",
         help="write the probe scenes as SPlisHSPlasH scene files into this folder: probe_<dir>.json per probe, the "
-        "solid as solid.obj (the union of its particles' cubes), the walls' box.obj (default: none)",
+        "solid as solid.obj (the surface through its outer particles' centres), the walls' box.obj (default: none)",
     )
     p.add_argument(
         "--steps",

@@ -1,12 +1,14 @@
 """`fluidgs bench forces`: the force on the solid, this engine against SPlisHSPlasH, on the same probe scene.
 
 Cases: a sphere (a filled lattice ball, the -x probe) and the bundled Ahmed body Gaussians (the -x probe of
-``PhysicsConfig.quick``'s setup at the chosen r). Each probe runs in this engine and in SPlisHSPlasH (pysplishsplash,
+``PhysicsConfig.quick``'s setup at the chosen r); or, with ``--solid FILE``, your own mesh, Gaussian file or RESULT.h5,
+whose solid is made as ``fluidgs compare`` makes its reference (a mesh: the lattice points inside it, scaled to the
+probe domain's target extent). Each probe runs in this engine and in SPlisHSPlasH (pysplishsplash,
 the ``bench`` extra) with the same r, dt, viscosity and boundary viscosity, tolerances, slab and walls
 (:mod:`nbv.bench.splash_probe`); it prints both time-mean drags over the second half of the run, their ratio and the
-settings. The default run length is the slab front's passage past the solid
-(:func:`nbv.bench.splash_probe.passage_steps`): later the fluid rebounds off the downstream wall, a sloshing neither
-engine pins down.
+settings. The default run length is the slab's passage over the solid
+(:func:`nbv.bench.splash_probe.passage_steps`): later the fluid wraps round the solid's back and rebounds off the
+downstream wall, a sloshing neither engine pins down.
 """
 
 from __future__ import annotations
@@ -30,14 +32,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--steps",
         type=int,
         default=None,
-        help="time steps per probe (default: the slab front's passage past the solid at the inflow speed)",
+        help="time steps per probe (default: the slab's passage over the solid at the inflow speed: its front to the "
+        "solid's far side or its tail to the near side, whichever comes first)",
     )
     p.add_argument("--dt", type=float, default=0.002, help="fixed time step of both engines, s (default: 0.002)")
     p.add_argument("--sphere-radius", type=float, default=0.5, help="the sphere case's radius, m (default: 0.5)")
     p.add_argument(
         "--gaussians", type=Path, default=AHMED, help="the ahmed case's Gaussians (default: assets/ahmed_gaussians.ply)"
     )
-    p.add_argument("--up", default="+y", help="the ahmed case's up axis in the Gaussians' frame (default: +y)")
+    p.add_argument(
+        "--solid",
+        type=Path,
+        default=None,
+        help="check this mesh (.obj/.stl/.ply/.glb), Gaussian file or RESULT.h5 instead of the built-in cases, scaled "
+        "as `fluidgs compare` scales its reference (default: none)",
+    )
+    p.add_argument("--up", default="+y", help="the ahmed case's (or --solid's) up axis in its own frame (default: +y)")
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads for both engines (default: 2)")
     p.add_argument("--keep", type=Path, default=None, help="write the peer's scenes into this folder (default: none)")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file (default: none)")
@@ -54,6 +64,8 @@ def _cases(args: argparse.Namespace):
     from nbv.physics.plan import ProbePlan, RunFrame
 
     names = CASES if args.case == "both" else (args.case,)
+    if args.solid is not None:
+        names = ("file",)
     for name in names:
         config = nbv.PhysicsConfig.quick(
             up=args.up, empty_reference=False, particle_radius=args.radius, dt=args.dt, directions=("-x",)
@@ -63,6 +75,12 @@ def _cases(args: argparse.Namespace):
             probe = ProbeConfig(speed=config.speed, directions=("-x",))
             solid = sphere_particles((0.0, 0.0, 0.0), args.sphere_radius, scfg.spacing, fill=True)
             yield name, solid, probe_setup(solid, "-x", probe, scfg.spacing), scfg, probe
+        elif name == "file":
+            from nbv.functional.solids import reference_source
+
+            source = reference_source(args.solid, config, None, recon.load_gaussians)
+            solid = source.solid(scfg.spacing)
+            yield args.solid.name, solid, ProbePlan.of(solid, config).setups["-x"], scfg, config.probe_config()
         else:
             frame = RunFrame.of(recon.load_gaussians(args.gaussians), config, source=str(args.gaussians))
             solid = np.asarray(frame.solidify().points, np.float64)
@@ -79,7 +97,9 @@ def run_command(args: argparse.Namespace) -> int:
         raise ValueError("--radius, --dt and --sphere-radius must be > 0")
     if args.steps is not None and args.steps < 2:
         raise ValueError(f"--steps must be >= 2, got {args.steps}")
-    if args.case != "sphere":  # the Ahmed case's Gaussians are read before any engine runs
+    if args.solid is not None and not args.solid.is_file():
+        raise ValueError(f"--solid {args.solid}: no such file; pass a mesh, a Gaussian file or a RESULT.h5")
+    if args.solid is None and args.case != "sphere":  # the Ahmed case's Gaussians are read before any engine runs
         from ..options import load_gaussians_checked
 
         load_gaussians_checked(args.gaussians)
