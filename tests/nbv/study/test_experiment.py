@@ -397,7 +397,7 @@ def test_ray_executor_on_a_local_instance(tmp_path, monkeypatch):
 
     from nbv.study.executors import RayExecutor
 
-    # a single-machine instance on the loopback address (tests/nbv/test_ray_cluster.py runs a two-node cluster)
+    # a single-machine instance on the loopback address (tests/nbv/study/test_ray_cluster.py runs a two-node cluster)
     monkeypatch.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
     monkeypatch.setattr(ray._private.ray_constants, "ENABLE_RAY_CLUSTER", False)
 
