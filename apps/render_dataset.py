@@ -113,4 +113,6 @@ def run_command(args: argparse.Namespace) -> int:
         make_parents(args.output)
     out = render_mesh_dataset(args.mesh, args.output, config, overwrite=args.overwrite, progress=not args.no_progress)
     print(f"wrote {out} ({config.n_train} train, {config.n_test} test views at {config.resolution} px)")
+    if config.n_test == 0:
+        print("note: no test views; `fluidgs eval` and `experiment` measure on them (pass --test N to render some)")
     return 0

@@ -187,6 +187,8 @@ def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     import open3d as o3d  # noqa: PLC0415 - open3d takes ~1.8 s to import
 
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder; pass a mesh file ({', '.join(MESH_SUFFIXES)})")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise ValueError(f"{path}: mesh must be one of {', '.join(MESH_SUFFIXES)}, got {path.suffix or 'no suffix'!r}")
     if not path.is_file():
@@ -374,7 +376,7 @@ def _check_output(out_dir: Path, overwrite: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"{out_dir}: output exists and is not a folder; choose another -o")
     if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
-        raise ValueError(f"{out_dir}: output folder is not empty; pass --overwrite (overwrite=True) to replace it")
+        raise ValueError(f"{out_dir}: output folder is not empty; pass --overwrite to replace it, or another -o")
     parent = out_dir.parent
     if not parent.is_dir():
         raise ValueError(f"{parent}: parent folder of the output does not exist; create it first")

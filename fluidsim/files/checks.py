@@ -82,9 +82,8 @@ def check_writable(path: PathLike) -> Path:
         fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     except OSError as exc:
         untrack_temp(probe)
-        raise OutputError(
-            f"output folder {parent} is not writable ({exc.strerror}); choose another output path"
-        ) from exc
+        what = "is not writable" if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS) else "takes no new files"
+        raise OutputError(f"output folder {parent} {what} ({exc.strerror}); choose another output path") from exc
     os.close(fd)
     probe.unlink()
     untrack_temp(probe)

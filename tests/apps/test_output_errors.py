@@ -49,3 +49,39 @@ def test_sim_disk_full_at_close_is_exit_4(tmp_path, monkeypatch, caplog, capsys)
     assert "cannot write" in _errors(caplog) and "out.h5" in _errors(caplog)
     assert "Traceback" not in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.json"]
+
+
+def test_an_output_folder_that_takes_no_files_says_so(tmp_path, monkeypatch):
+    """A folder where a new file cannot be made for another reason than permissions (procfs: ENOENT) is not called
+    unwritable: the message says it takes no new files, with the system's reason."""
+    import errno
+    import os
+
+    import pytest
+
+    from fluidsim.files import OutputError, check_writable
+
+    real = os.open
+
+    def refuse(path, flags, *a, **k):
+        if str(path).startswith(str(tmp_path)):
+            raise FileNotFoundError(errno.ENOENT, "No such file or directory")
+        return real(path, flags, *a, **k)
+
+    monkeypatch.setattr(os, "open", refuse)
+    with pytest.raises(OutputError, match="takes no new files .No such file or directory"):
+        check_writable(tmp_path / "out.h5")
+
+
+def test_render_dataset_without_test_views_says_what_needs_them(tmp_path, capsys):
+    from helpers.paths import TORUS
+
+    out = tmp_path / "ds"
+    args = ["render-dataset", str(TORUS), "-o", str(out), "--train", "1", "--test", "0", "--res", "16", "--no-progress"]
+    assert cli.main(args) == 0
+    assert "no test views" in capsys.readouterr().out and (out / "transforms_train.json").exists()
+
+
+def test_render_dataset_given_a_folder_as_the_mesh_says_it_is_a_folder(tmp_path, caplog):
+    assert cli.main(["render-dataset", str(tmp_path), "-o", str(tmp_path / "ds"), "--no-progress"]) == 2
+    assert "is a folder; pass a mesh file" in _errors(caplog)
