@@ -51,15 +51,9 @@ from recon.gaussians import GaussianSet
 from helpers.cameras import ring_cameras, write_transforms
 from helpers.paths import REPO as ROOT
 from helpers.scenes import small_scene
+from helpers.spheres import sphere_gaussians
 
 FAST = ["--particle-radius", "0.08", "--steps", "20", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
-
-
-def _sphere(n: int = 300) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
-    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
 
 
 def _cameras(path: Path) -> Path:
@@ -78,7 +72,7 @@ def _scene(**over) -> dict:
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     root = tmp_path_factory.mktemp("data_loss")
-    ply = save_gaussians(_sphere(), root / "mine.ply")
+    ply = save_gaussians(sphere_gaussians(), root / "mine.ply")
     cams = _cameras(root / "transforms.json")
     h5 = root / "r.h5"
     assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x", *FAST]) == 0
@@ -112,43 +106,13 @@ def test_other_commands_refuse_outputs_that_are_inputs(data, tmp_path, caplog):
     cams = tmp_path / "cams.json"
     cams.write_text(data["cameras"].read_text())
     cams_before = cams.read_text()
-    assert (
-        cli.main(
-            [
-                "score",
-                str(data["ply"]),
-                "--cameras",
-                str(cams),
-                "--result",
-                str(data["h5"]),
-                "-o",
-                str(cams),
-                "--no-png",
-            ]
-        )
-        == 2
-    )
+    score = ["score", str(data["ply"]), "--cameras", str(cams), "--result"]
+    assert cli.main([*score, str(data["h5"]), "-o", str(cams), "--no-png"]) == 2
     assert cams.read_text() == cams_before and "--cameras" in caplog.text
     result_copy = tmp_path / "r.h5"
     result_copy.write_bytes(data["h5"].read_bytes())
-    assert (
-        cli.main(
-            [
-                "score",
-                str(data["ply"]),
-                "--cameras",
-                str(cams),
-                "--result",
-                str(result_copy),
-                "--save-result",
-                str(result_copy),
-                "-o",
-                str(tmp_path / "s.json"),
-                "--no-png",
-            ]
-        )
-        == 2
-    )
+    save = ["--save-result", str(result_copy), "-o", str(tmp_path / "s.json"), "--no-png"]
+    assert cli.main([*score, str(result_copy), *save]) == 2
     # sim: the scene and each solid's points file
     np.save(tmp_path / "cube.npy", np.full((8, 3), 0.7))
     (tmp_path / "scene.json").write_text(json.dumps(_scene(solids=[{"points": "cube.npy"}])))
@@ -485,7 +449,7 @@ def test_every_writer_uses_the_short_temporary_name(tmp_path):
     with SimulationWriter(tmp_path / (long + ".h5"), {"a": 1}) as w:
         w.finish([], np.zeros(0), np.zeros(0))
     assert h5py.File(tmp_path / (long + ".h5")).attrs["status"] == "complete"
-    save_gaussians(_sphere(10), tmp_path / (long + ".ply"))
+    save_gaussians(sphere_gaussians(10), tmp_path / (long + ".ply"))
     assert load_gaussians(tmp_path / (long + ".ply")).num == 10
     with atomic_output(tmp_path / (long + ".json")) as tmp:
         tmp.write_text("{}")
@@ -514,19 +478,8 @@ def test_sim_keeps_its_frames_when_interrupted(tmp_path, sig, code):
     block = {"min": [0.1, 0.1, 0.1], "max": [0.6, 0.6, 0.6], "velocity": [1, 0, 0]}
     (tmp_path / "scene.json").write_text(json.dumps(_scene(steps=100000, particle_radius=0.02, fluid_blocks=[block])))
     out = tmp_path / "out.h5"
-    cmd = [
-        sys.executable,
-        "-m",
-        "apps.cli",
-        "sim",
-        str(tmp_path / "scene.json"),
-        "-o",
-        str(out),
-        "--save-every",
-        "3",
-        "--threads",
-        "2",
-    ]
+    cmd = [sys.executable, "-m", "apps.cli", "sim", str(tmp_path / "scene.json"), "-o", str(out)]
+    cmd += ["--save-every", "3", "--threads", "2"]
     proc = _run_until_steps(cmd, tmp_path / "log.txt", 7)
     proc.send_signal(sig)
     assert proc.wait(timeout=120) == code, (tmp_path / "log.txt").read_text()[-2000:]

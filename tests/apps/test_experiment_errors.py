@@ -2,15 +2,12 @@
 ends the command in one line naming the job (no traceback)."""
 
 import json
-import logging
 
 import pytest
 
 from apps import cli
 
-
-def _errors(caplog) -> str:
-    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
+from helpers.logs import error_text
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +42,13 @@ def test_experiment_config_errors_name_the_key(blender_scene, tmp_path, caplog, 
     path = tmp_path / "exp.json"
     path.write_text(json.dumps({"scenes": [str(blender_scene)], "methods": ["random"], "active": active}))
     assert cli.main(["experiment", str(path), "--no-progress"]) == 2
-    assert key in _errors(caplog) and "Config." not in _errors(caplog)
+    assert key in error_text(caplog) and "Config." not in error_text(caplog)
+
+
+def _write_experiment(path, scene, output: str) -> None:
+    """An experiment of the random method on ``scene`` with a budget of 4 views and no reference, into ``output``."""
+    doc = {"scenes": [str(scene)], "methods": ["random"], "reference_views": None, "output": output}
+    path.write_text(json.dumps({**doc, "active": {"budget": 4}}))
 
 
 def test_experiment_output_that_is_a_file_is_named_as_the_key(blender_scene, tmp_path, caplog):
@@ -53,19 +56,9 @@ def test_experiment_output_that_is_a_file_is_named_as_the_key(blender_scene, tmp
     (tmp_path / "A.ply").write_text("not a folder")
     (tmp_path / "sub").mkdir()
     path = tmp_path / "sub" / "exp.json"
-    path.write_text(
-        json.dumps(
-            {
-                "scenes": [str(blender_scene)],
-                "methods": ["random"],
-                "reference_views": None,
-                "output": "../A.ply",
-                "active": {"budget": 4},
-            }
-        )
-    )
+    _write_experiment(path, blender_scene, "../A.ply")
     assert cli.main(["experiment", str(path), "--no-progress"]) == 4
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert f"the 'output' of {path}" in msg and "is a file, not a folder" in msg and "Errno" not in msg
     assert (tmp_path / "A.ply").read_text() == "not a folder"
 
@@ -75,7 +68,7 @@ def test_speed_0_in_an_experiment_names_the_key(blender_scene, tmp_path, caplog)
     active = {"budget": 4, "physics": {"speed": 0.0}}
     path.write_text(json.dumps({"scenes": [str(blender_scene)], "methods": ["random+fluid"], "active": active}))
     assert cli.main(["experiment", str(path), "--no-progress"]) == 2
-    assert "'active.physics.speed' is 0 m/s" in _errors(caplog)
+    assert "'active.physics.speed' is 0 m/s" in error_text(caplog)
 
 
 @pytest.mark.parametrize(
@@ -96,18 +89,8 @@ def test_a_failing_experiment_job_is_one_line(blender_scene, tmp_path, monkeypat
     monkeypatch.setattr(nbv.study.experiment, "run_job", fail)
     monkeypatch.setattr(apps.experiment, "make_executor", lambda *a, **k: _InProcess())
     path = tmp_path / "exp.json"
-    path.write_text(
-        json.dumps(
-            {
-                "scenes": [str(blender_scene)],
-                "methods": ["random"],
-                "reference_views": None,
-                "output": "out",
-                "active": {"budget": 4},
-            }
-        )
-    )
+    _write_experiment(path, blender_scene, "out")
     assert cli.main(["experiment", str(path), "--no-progress"]) == code
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "experiment job scene random seed 0" in msg and str(error) in msg and "run the same command again" in msg
     assert "Traceback" not in capsys.readouterr().err

@@ -3,59 +3,31 @@ sphere through the CLI: the mesh is watertight with the cells' volume, the .ply 
 VTK frames read back by VTK's own reader equal the recorded trajectory; bad input exits 2 before any simulation."""
 
 import json
-import math
 import time
 
 import h5py
 import numpy as np
 import pytest
-import torch
 
 from apps import cli
 from recon.formats.ply import read_ply_vertices, save_gaussians
-from recon.gaussians import SH_C0, GaussianSet
+from recon.gaussians import SH_C0
 from viz.colors import UNREACHED_RGB
 
+from helpers.spheres import sphere_gaussians
 from helpers.vtk_files import read_pvd, read_vtu
 
 FAST = ["--particle-radius", "0.08", "--steps", "20", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 
 
-def _sphere(n: int = 300) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
-    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    return GaussianSet.from_points(
-        torch.tensor(pts, dtype=torch.float32), torch.full((n, 3), 0.5), scale=0.06, opacity=0.9
-    )
-
-
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     root = tmp_path_factory.mktemp("export")
-    ply = save_gaussians(_sphere(), root / "sphere.ply")
+    ply = save_gaussians(sphere_gaussians(), root / "sphere.ply")
     h5 = root / "result.h5"
-    assert (
-        cli.main(
-            [
-                "simulate",
-                str(ply),
-                "-o",
-                str(h5),
-                "--directions=-x,+z",
-                "--record-probe",
-                "-x",
-                "--record-every",
-                "5",
-                "--export-solid",
-                str(root / "solid.glb"),
-                "--export-frame",
-                "sim",
-                *FAST,
-            ]
-        )
-        == 0
-    )
+    record = ["--record-probe", "-x", "--record-every", "5"]
+    export = ["--export-solid", str(root / "solid.glb"), "--export-frame", "sim"]
+    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", *record, *export, *FAST]) == 0
     return root, ply, h5
 
 

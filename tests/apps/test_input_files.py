@@ -7,9 +7,7 @@ import pytest
 
 from apps import cli
 
-
-def _errors(caplog) -> str:
-    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
+from helpers.logs import error_text
 
 
 @pytest.fixture
@@ -40,7 +38,7 @@ def test_fifo_dev_zero_and_link_loop_are_named_not_read(tmp_path, odd_inputs, ca
     (tmp_path / "scene.json").unlink(missing_ok=True)
     assert cli.main(["sim", str(path), "-o", str(tmp_path / "o.h5")]) == 2
     assert time.monotonic() - t0 < 30
-    assert _errors(caplog).count(what) == 3
+    assert error_text(caplog).count(what) == 3
     assert not (tmp_path / "r.h5").exists() and not (tmp_path / "o.h5").exists()
 
 
@@ -68,7 +66,7 @@ def test_deeply_nested_json_is_a_clear_error(tmp_path, caplog):
     for name in ("scene.json", "exp.json", "transforms.json", "scores.json"):
         (tmp_path / name).write_text(deep if name != "transforms.json" else '{"frames": ' + deep + "}")
     assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "o.h5")]) == 2
-    assert "nests its JSON too deeply" in _errors(caplog)
+    assert "nests its JSON too deeply" in error_text(caplog)
     for read, name in (
         (ExperimentConfig.load, "exp.json"),
         (load_cameras, "transforms.json"),

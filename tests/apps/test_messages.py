@@ -37,8 +37,10 @@ from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet, concat
 from viz.cameras import read_scores
 
+from helpers.logs import error_text
 from helpers.paths import ASSETS, TORUS
 from helpers.scenes import small_scene
+from helpers.spheres import sphere_gaussians
 
 COARSE = dict(particle_radius=0.08, steps=5, dt=0.004, empty_reference=False, directions=("-x",))
 
@@ -50,17 +52,6 @@ def _scene(**over) -> dict:
 def _write_scene(path, **over):
     path.write_text(json.dumps(_scene(**over)))
     return path
-
-
-def _errors(caplog) -> str:
-    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
-
-
-def _sphere(n: int = 300) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
-    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
 
 
 def _with_gaussian(base: GaussianSet, mean, log_scale: float, opacity: float) -> GaussianSet:
@@ -80,7 +71,7 @@ def test_ctrl_c_prints_one_line_and_exits_130(monkeypatch, tmp_path, caplog, cap
 
     monkeypatch.setattr(sim, "run_command", interrupted)
     assert cli.main(["sim", str(tmp_path / "s.json"), "-o", str(tmp_path / "o.h5")]) == 130
-    assert "interrupted" in _errors(caplog)
+    assert "interrupted" in error_text(caplog)
     assert "Traceback" not in capsys.readouterr().err
 
 
@@ -94,7 +85,7 @@ def test_sim_refuses_a_20_km_domain_before_allocating(tmp_path, caplog):
     t0 = time.perf_counter()
     assert cli.main(["sim", str(scene), "-o", str(tmp_path / "new" / "out.h5")]) == 2
     assert time.perf_counter() - t0 < 20
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "would need about" in msg and "domain" in msg and "--max-memory-gb" in msg
     assert "20000 x 10 x 10 m domain" in msg
     assert not (tmp_path / "new").exists()  # refused before the output folder is made
@@ -103,7 +94,7 @@ def test_sim_refuses_a_20_km_domain_before_allocating(tmp_path, caplog):
 def test_sim_max_memory_gb_is_the_limit(tmp_path, caplog):
     scene = _write_scene(tmp_path / "s.json")
     assert cli.main(["sim", str(scene), "-o", str(tmp_path / "a.h5"), "--max-memory-gb", "1e-4"]) == 2
-    assert "the limit is" in _errors(caplog) and "--max-memory-gb" in _errors(caplog)
+    assert "the limit is" in error_text(caplog) and "--max-memory-gb" in error_text(caplog)
     assert cli.main(["sim", str(scene), "-o", str(tmp_path / "b.h5"), "--max-memory-gb", "8"]) == 0
 
 
@@ -135,7 +126,7 @@ def test_mesh_solid_estimate_is_an_upper_bound(tmp_path):
 
 # ---- floaters do not size the solid lattice -----------------------------------------------------------------------
 def test_a_faint_huge_floater_does_not_size_the_lattice():
-    sphere = _sphere()
+    sphere = sphere_gaussians()
     cfg = SolidifyConfig(spacing=0.16)
     tr = SceneTransform()
     floater = _with_gaussian(sphere, [0.1, 0.0, 0.0], 10.0, 0.1)  # o = 0.1 < tau = 0.3, 3 sigma = 66 km
@@ -150,7 +141,7 @@ def test_a_faint_huge_floater_does_not_size_the_lattice():
 
 
 def test_simulate_runs_with_one_faint_floater(tmp_path):
-    ply = save_gaussians(_with_gaussian(_sphere(), [0.1, 0.0, 0.0], 10.0, 0.1), tmp_path / "floater.ply")
+    ply = save_gaussians(_with_gaussian(sphere_gaussians(), [0.1, 0.0, 0.0], 10.0, 0.1), tmp_path / "floater.ply")
     assert (
         cli.main(
             [
@@ -175,7 +166,7 @@ def test_simulate_runs_with_one_faint_floater(tmp_path):
 
 
 def test_an_opaque_huge_gaussian_is_named():
-    sphere = _sphere()
+    sphere = sphere_gaussians()
     huge = _with_gaussian(sphere, [0.1, 0.0, 0.0], 10.0, 0.9)
     with pytest.raises(ValueError, match="Gaussian 300 .*centre .*opacity 0.9") as err:
         gaussians_to_solid(huge, SolidifyConfig(spacing=0.16), SceneTransform())
@@ -186,7 +177,7 @@ def test_an_opaque_huge_gaussian_is_named():
 
 
 def test_a_far_opaque_speck_is_named_with_crop():
-    sphere = _sphere()
+    sphere = sphere_gaussians()
     far = _with_gaussian(sphere, [60.0, 0.0, 0.0], math.log(0.06), 0.9)
     near = physics.estimate_memory(sphere, PhysicsConfig(**COARSE, scale=1.0))["bytes"]
     cfg = PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=2 * near / 2**30)
@@ -275,7 +266,7 @@ def test_a_block_thinner_than_the_spacing_is_not_said_to_lie_in_a_solid(tmp_path
     assert (
         cli.main(["sim", str(_write_scene(tmp_path / "s.json", fluid_blocks=thin)), "-o", str(tmp_path / "o.h5")]) == 2
     )
-    assert "solid" not in _errors(caplog) and "particle spacing" in _errors(caplog)
+    assert "solid" not in error_text(caplog) and "particle spacing" in error_text(caplog)
 
 
 def test_fluid_removed_by_a_solid_says_how_many_and_why(tmp_path):
@@ -304,21 +295,21 @@ def _fake_dataset(folder, frames: int):
 def test_active_budget_above_the_candidates(tmp_path, caplog):
     ds = _fake_dataset(tmp_path / "ds", 12)
     assert cli.main(["active", str(ds), "-o", str(tmp_path / "run"), "--budget", "50"]) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "--budget 50 is more than the 12 candidate (train) views" in msg and "iteration" not in msg
 
 
 def test_active_schedule_speaks_of_the_options(tmp_path, caplog):
     ds = _fake_dataset(tmp_path / "ds", 100)
     assert cli.main(["active", str(ds), "-o", str(tmp_path / "run"), "--budget", "30"]) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "--iterations 43400 or more" in msg and "--iters-per-view" in msg and "ActiveConfig" not in msg
 
 
 def test_active_unknown_method(tmp_path, caplog):
     ds = _fake_dataset(tmp_path / "ds", 12)
     assert cli.main(["active", str(ds), "-o", str(tmp_path / "run"), "--method", "fishr+fluid"]) == 2
-    assert "--method 'fishr+fluid' is not a planner" in _errors(caplog)
+    assert "--method 'fishr+fluid' is not a planner" in error_text(caplog)
 
 
 def test_experiment_config_checks_method_names_when_it_loads(tmp_path):
@@ -365,7 +356,7 @@ def test_render_frames_refuses_avi_and_writes_pngs_with_png(tmp_path, caplog):
     h5 = tmp_path / "sim.h5"
     assert cli.main(["sim", str(_write_scene(tmp_path / "s.json")), "-o", str(h5), "--save-every", "1"]) == 0
     assert cli.main(["render-frames", str(h5), "-o", str(tmp_path / "x.avi")]) == 2
-    assert ".mp4" in _errors(caplog) and not (tmp_path / "x.avi").exists()
+    assert ".mp4" in error_text(caplog) and not (tmp_path / "x.avi").exists()
     out = tmp_path / "run.v2"
     assert cli.main(["render-frames", str(h5), "-o", str(out), "--png", "--width", "160", "--height", "120"]) == 0
     assert len(list(out.glob("frame_*.png"))) == 3
@@ -378,7 +369,7 @@ def test_render_dataset_creates_the_parents(tmp_path, caplog):
     assert (out / "transforms_train.json").is_file()
     (tmp_path / "file").write_text("x")
     assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "file" / "c" / "d"), *args]) == cli.EXIT_OUTPUT
-    assert "is a file" in _errors(caplog)
+    assert "is a file" in error_text(caplog)
 
 
 @pytest.mark.parametrize(
@@ -392,7 +383,7 @@ def test_render_dataset_creates_the_parents(tmp_path, caplog):
 def test_render_dataset_bounds_views_and_resolution_naming_the_options(tmp_path, caplog, args, message):
     """10^8 views ran silent for hours; --res 1000000 spoke of "the camera view_000's image size"."""
     assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "ds"), *args]) == 2
-    assert message in _errors(caplog) and "view_000" not in _errors(caplog)
+    assert message in error_text(caplog) and "view_000" not in error_text(caplog)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -404,7 +395,7 @@ def test_render_frames_output_that_cannot_be_written_is_exit_4(tmp_path, caplog)
     for out in (tmp_path / "file" / "f.mp4", tmp_path / "file" / "pngs"):
         caplog.clear()
         assert cli.main(["render-frames", str(tmp_path / "OUT.h5"), "-o", str(out)]) == cli.EXIT_OUTPUT, out
-        assert f"{tmp_path / 'file'} is a file, not a folder" in _errors(caplog)
+        assert f"{tmp_path / 'file'} is a file, not a folder" in error_text(caplog)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["OUT.h5", "file", "scene.json"]
 
 
@@ -458,7 +449,7 @@ def test_a_truncated_hdf5_file_is_named_by_render_frames_and_export(tmp_path, ca
     ):
         caplog.clear()
         assert cli.main(argv) == 2, argv
-        errors = _errors(caplog)
+        errors = error_text(caplog)
         assert f"{cut} is a truncated or damaged HDF5 file" in errors and "write it again" in errors, errors
     assert sorted(p.name for p in tmp_path.iterdir()) == ["OUT.h5", "whole.h5"]
 
@@ -471,15 +462,15 @@ def test_steps_are_bounded_before_any_allocation(tmp_path, caplog):
     scene = _write_scene(tmp_path / "scene.json")
     big = str(MAX_STEPS + 1)
     assert cli.main(["sim", str(scene), "-o", str(tmp_path / "o.h5"), "--steps", big]) == 2
-    assert f"--steps must be at most {MAX_STEPS:,} time steps" in _errors(caplog)
+    assert f"--steps must be at most {MAX_STEPS:,} time steps" in error_text(caplog)
     caplog.clear()
     _write_scene(scene, steps=99999999999)
     assert cli.main(["sim", str(scene), "-o", str(tmp_path / "o.h5")]) == 2
-    assert "scene key 'steps' = 99999999999 is more than the 1,000,000" in _errors(caplog)
+    assert "scene key 'steps' = 99999999999 is more than the 1,000,000" in error_text(caplog)
     caplog.clear()
-    ply = save_gaussians(_sphere(), tmp_path / "g.ply")
+    ply = save_gaussians(sphere_gaussians(), tmp_path / "g.ply")
     assert cli.main(["simulate", str(ply), "-o", str(tmp_path / "r.h5"), "--quick", "--steps", "99999999999"]) == 2
-    assert "--steps must be at most 1,000,000 time steps per probe" in _errors(caplog)
+    assert "--steps must be at most 1,000,000 time steps per probe" in error_text(caplog)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["g.ply", "scene.json"]
     with pytest.raises(ValueError, match="at most 1,000,000"):
         PhysicsConfig(steps=MAX_STEPS + 1)

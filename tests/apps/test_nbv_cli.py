@@ -15,19 +15,12 @@ from nbv.physics import load_result
 from recon.camera import Camera
 from recon.formats import load_gaussians
 from recon.formats.ply import save_gaussians
-from recon.gaussians import GaussianSet
 from viz.video import video_info
 
 from helpers.cameras import ring_cameras, write_transforms
+from helpers.spheres import sphere_gaussians
 
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
-
-
-def _sphere(n: int = 300) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
-    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
 
 
 FOV = math.radians(50)
@@ -45,30 +38,12 @@ def _write_cameras(path, cams, width=48, height=40, fov=FOV):
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     root = tmp_path_factory.mktemp("nbv_cli")
-    ply = save_gaussians(_sphere(), root / "sphere.ply")
+    ply = save_gaussians(sphere_gaussians(), root / "sphere.ply")
     cams = ring_cameras(6)
     cameras = _write_cameras(root / "transforms.json", cams)
     h5 = root / "result.h5"
-    assert (
-        cli.main(
-            [
-                "simulate",
-                str(ply),
-                "-o",
-                str(h5),
-                "--directions=-x,+z",
-                "--video=-x",
-                "--walls",
-                "faint",
-                "--width",
-                "320",
-                "--height",
-                "240",
-                *FAST,
-            ]
-        )
-        == 0
-    )
+    video = ["--video=-x", "--walls", "faint", "--width", "320", "--height", "240"]
+    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", *video, *FAST]) == 0
     return dict(root=root, ply=ply, cameras=cameras, h5=h5)
 
 
@@ -78,7 +53,7 @@ def test_simulate_outputs(scene):
     assert res.divergence.max() > 0
     colored = load_gaussians(scene["root"] / "result_divergence.ply")
     assert colored.sh_degree == 0 and colored.num == 300
-    torch.testing.assert_close(colored.means, _sphere().means)
+    torch.testing.assert_close(colored.means, sphere_gaussians().means)
     # colours follow D_g: the Gaussian with the largest D_g is not coloured like one with D_g = 0
     hi, lo = int(np.argmax(res.divergence)), int(np.argmin(res.divergence))
     assert (colored.sh[hi, 0] - colored.sh[lo, 0]).abs().max() > 0.5

@@ -1,13 +1,9 @@
 """Config errors speak of the command-line options the user wrote (--scale, --budget), never of the config classes'
 fields."""
 
-import logging
-
 from apps import cli
 
-
-def _errors(caplog) -> str:
-    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
+from helpers.logs import error_text
 
 
 def test_config_errors_name_the_option_not_the_class(tmp_path, caplog):
@@ -16,7 +12,7 @@ def test_config_errors_name_the_option_not_the_class(tmp_path, caplog):
     assert cli.main(["simulate", "g.ply", "-o", str(tmp_path / "r.h5"), "--scale", "0"]) == 2
     assert cli.main(["active", str(tmp_path / "ds"), "-o", str(tmp_path / "run"), "--budget", "0"]) == 2
     assert cli.main(["active", str(tmp_path / "ds"), "-o", str(tmp_path / "run"), "--probe-steps", "0"]) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "--scale must be 'auto' or a number > 0" in msg and "--budget must be an integer >= 1" in msg
     assert "--probe-steps must be an integer >= 1" in msg and "Config." not in msg
 

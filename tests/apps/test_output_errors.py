@@ -2,17 +2,13 @@
 the file, leaving no partial output."""
 
 import json
-import logging
 
 import h5py
 
 from apps import cli
 
+from helpers.logs import error_text
 from helpers.scenes import small_scene
-
-
-def _errors(caplog) -> str:
-    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
 
 
 def test_render_dataset_into_an_unwritable_folder_is_exit_4(tmp_path, monkeypatch, caplog):
@@ -27,7 +23,7 @@ def test_render_dataset_into_an_unwritable_folder_is_exit_4(tmp_path, monkeypatc
     real = os.access
     monkeypatch.setattr(recon.mesh_render.os, "access", lambda path, mode, **k: not mode & os.W_OK and real(path, mode))
     assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "ds"), "--no-progress"]) == 4
-    assert "is not writable" in _errors(caplog) and not (tmp_path / "ds").exists()
+    assert "is not writable" in error_text(caplog) and not (tmp_path / "ds").exists()
     monkeypatch.undo()
     (tmp_path / "file").write_text("x")
     assert cli.main(["render-dataset", str(TORUS), "-o", str(tmp_path / "file"), "--no-progress"]) == 4
@@ -46,7 +42,7 @@ def test_sim_disk_full_at_close_is_exit_4(tmp_path, monkeypatch, caplog, capsys)
     monkeypatch.setattr(h5py.File, "close", full_at_close)
     assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "out.h5"), "--threads", "2"]) == 4
     monkeypatch.setattr(h5py.File, "close", real_close)
-    assert "cannot write" in _errors(caplog) and "out.h5" in _errors(caplog)
+    assert "cannot write" in error_text(caplog) and "out.h5" in error_text(caplog)
     assert "Traceback" not in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.json"]
 
@@ -84,4 +80,4 @@ def test_render_dataset_without_test_views_says_what_needs_them(tmp_path, capsys
 
 def test_render_dataset_given_a_folder_as_the_mesh_says_it_is_a_folder(tmp_path, caplog):
     assert cli.main(["render-dataset", str(tmp_path), "-o", str(tmp_path / "ds"), "--no-progress"]) == 2
-    assert "is a folder; pass a mesh file" in _errors(caplog)
+    assert "is a folder; pass a mesh file" in error_text(caplog)

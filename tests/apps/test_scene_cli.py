@@ -101,23 +101,8 @@ def test_f64_run_agrees_with_f32(tmp_path):
     finals = {}
     for precision in ("f32", "f64"):
         out = tmp_path / f"{precision}.h5"
-        subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "apps.cli",
-                "sim",
-                str(tmp_path / "scene.json"),
-                "-o",
-                str(out),
-                "--precision",
-                precision,
-                "--save-every",
-                "25",
-            ],
-            check=True,
-            capture_output=True,
-        )
+        sim = [sys.executable, "-m", "apps.cli", "sim", str(tmp_path / "scene.json"), "-o", str(out)]
+        subprocess.run([*sim, "--precision", precision, "--save-every", "25"], check=True, capture_output=True)
         with h5py.File(out) as f:
             finals[precision] = (f["frames/000025/x"][:].astype(np.float64), f["stats"][:])
     (x32, s32), (x64, s64) = finals["f32"], finals["f64"]

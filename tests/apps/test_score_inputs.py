@@ -1,49 +1,23 @@
 """`fluidgs score` and `fluidgs view` on hostile inputs: a result with no completed probe, absurd image sizes, and the
 views folder of an earlier run."""
 
-import logging
-import math
 import shutil
 
 import h5py
-import numpy as np
 import pytest
 import torch
 
 from apps import cli
 from recon.camera import Camera
-from recon.formats.ply import save_gaussians
-from recon.gaussians import GaussianSet
 
-from helpers.cameras import ring_cameras, write_transforms
-
-FAST = ["--particle-radius", "0.08", "--steps", "5", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
-
-
-def _errors(caplog) -> str:
-    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
-
-
-def _sphere(n: int = 300) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
-    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
-
-
-def _cameras(path, w: int = 48, h: int = 40):
-    return write_transforms(path, ring_cameras(4), w, h)
+from helpers.logs import error_text
+from helpers.sphere_run import ring_transforms, simulate_sphere
 
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     """A 300-Gaussian sphere, four cameras and its -x RESULT.h5 (simulate, 20 coarse steps)."""
-    root = tmp_path_factory.mktemp("more")
-    ply = save_gaussians(_sphere(), root / "mine.ply")
-    cams = _cameras(root / "transforms.json")
-    h5 = root / "r.h5"
-    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x", *FAST, "--steps", "20"]) == 0
-    return dict(root=root, ply=ply, cameras=cams, h5=h5)
+    return simulate_sphere(tmp_path_factory.mktemp("more"))
 
 
 @pytest.fixture
@@ -61,7 +35,7 @@ def no_probe(data, tmp_path):
 def test_view_of_a_result_with_no_completed_probe_is_one_line(no_probe, caplog, capsys):
     pytest.importorskip("viser")
     assert cli.main(["view", str(no_probe), "--port", "0"]) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "has no D_g to show" in msg and "diverged in probe -x at step 0" in msg and "before completing" in msg
     assert "IndexError" not in capsys.readouterr().err
 
@@ -70,18 +44,18 @@ def test_score_of_a_result_with_no_completed_probe_says_none_completed(data, no_
     out = tmp_path / "s.json"
     args = ["score", str(data["ply"]), "--cameras", str(data["cameras"]), "--result", str(no_probe), "-o", str(out)]
     assert cli.main([*args, "--no-png"]) == 2
-    assert "no probe completed" in _errors(caplog) and not out.exists()
+    assert "no probe completed" in error_text(caplog) and not out.exists()
 
 
 def test_absurd_image_sizes_are_refused_naming_the_camera(data, tmp_path, caplog):
     """Cameras with w = h = 1e9 tied every view with no warning."""
     from recon.camera import MAX_IMAGE_SIDE
 
-    huge = _cameras(tmp_path / "huge.json", w=10**9, h=10**9)
+    huge = ring_transforms(tmp_path / "huge.json", w=10**9, h=10**9)
     out = tmp_path / "s.json"
     args = ["score", str(data["ply"]), "--cameras", str(huge), "--result", str(data["h5"]), "-o", str(out), "--no-png"]
     assert cli.main(args) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "frame 0 (file_path './cam0'): key 'w' (top level) is 1,000,000,000 pixels" in msg
     assert f"more than {MAX_IMAGE_SIDE:,}" in msg and not out.exists()
     with pytest.raises(ValueError, match="Camera 'c': height 70,000 pixels is more than 65,536"):

@@ -7,7 +7,6 @@ this process, and at random moments in subprocesses; every output is then comple
 
 import importlib.util
 import json
-import math
 import os
 import random
 import signal
@@ -17,7 +16,6 @@ import time
 from pathlib import Path
 
 import h5py
-import numpy as np
 import pytest
 import torch
 
@@ -28,15 +26,9 @@ from recon.gaussians import GaussianSet
 
 from helpers.paths import REPO
 from helpers.scenes import small_scene
+from helpers.spheres import sphere_gaussians
 
 FAST = ["--particle-radius", "0.08", "--steps", "12", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
-
-
-def _sphere(n: int = 300) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
-    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
 
 
 def _scene(**over) -> dict:
@@ -49,7 +41,7 @@ def leftovers(folder: Path) -> list[Path]:
 
 @pytest.fixture(scope="module")
 def sphere(tmp_path_factory):
-    return save_gaussians(_sphere(), tmp_path_factory.mktemp("signals") / "sphere.ply")
+    return save_gaussians(sphere_gaussians(), tmp_path_factory.mktemp("signals") / "sphere.ply")
 
 
 @pytest.fixture

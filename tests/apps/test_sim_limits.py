@@ -2,18 +2,14 @@
 the key or option and the fix (no traceback): neighbour lists, wall layers, the viscous time step, steps."""
 
 import json
-import logging
 import math
 
 import pytest
 
 from apps import cli
 
+from helpers.logs import error_text
 from helpers.scenes import small_scene
-
-
-def _errors(caplog) -> str:
-    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
 
 
 def _scene(**over) -> dict:
@@ -25,7 +21,7 @@ def test_max_neighbors_1e9_is_refused_before_allocating_naming_the_key(tmp_path,
     scene = tmp_path / "scene.json"
     scene.write_text(json.dumps(_scene(solver={"max_neighbors": 1_000_000_000})))
     assert cli.main(["sim", str(scene), "-o", str(tmp_path / "o.h5"), "--threads", "1"]) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "'solver.max_neighbors' = 1000000000" in msg and "remove 'max_neighbors'" in msg
     assert "Traceback" not in capsys.readouterr().err and not (tmp_path / "o.h5").exists()
 
@@ -45,7 +41,7 @@ def test_a_million_wall_layers_blame_the_wall_layers_not_the_domain(tmp_path, ca
     scene = tmp_path / "scene.json"
     scene.write_text(json.dumps(_scene(domain={"min": [0, 0, 0], "max": [1, 1, 1], "wall_layers": 1_000_000})))
     assert cli.main(["sim", str(scene), "-o", str(tmp_path / "o.h5"), "--threads", "1"]) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "'domain.wall_layers' = 1000000" in msg and "set 'domain.wall_layers' to 2" in msg
     assert "shrink 'domain'" not in msg
 
@@ -81,4 +77,4 @@ def test_sim_steps_0_names_the_option(tmp_path, caplog):
         )
     )
     assert cli.main(["sim", str(tmp_path / "scene.json"), "-o", str(tmp_path / "o.h5"), "--steps", "0"]) == 2
-    assert "--steps must be an integer >= 1" in _errors(caplog) and "scene key" not in _errors(caplog)
+    assert "--steps must be an integer >= 1" in error_text(caplog) and "scene key" not in error_text(caplog)

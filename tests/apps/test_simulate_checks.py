@@ -1,53 +1,26 @@
 """`fluidgs simulate`: inputs refused in one line naming the option and its limit (dt, viscosity, speed, a non-UTF-8
 file name), a diverged result's timings, and outputs that fail on a full disk named in words."""
 
-import logging
-import math
 import shutil
 
-import numpy as np
 import pytest
-import torch
 
 from apps import cli
-from recon.formats.ply import save_gaussians
-from recon.gaussians import GaussianSet
 
-from helpers.cameras import ring_cameras, write_transforms
-
-FAST = ["--particle-radius", "0.08", "--steps", "5", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
-
-
-def _errors(caplog) -> str:
-    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
-
-
-def _sphere(n: int = 300) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
-    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
-
-
-def _cameras(path, w: int = 48, h: int = 40):
-    return write_transforms(path, ring_cameras(4), w, h)
+from helpers.logs import error_text
+from helpers.sphere_run import FAST, simulate_sphere
 
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     """A 300-Gaussian sphere, four cameras and its -x RESULT.h5 (simulate, 20 coarse steps)."""
-    root = tmp_path_factory.mktemp("more")
-    ply = save_gaussians(_sphere(), root / "mine.ply")
-    cams = _cameras(root / "transforms.json")
-    h5 = root / "r.h5"
-    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x", *FAST, "--steps", "20"]) == 0
-    return dict(root=root, ply=ply, cameras=cams, h5=h5)
+    return simulate_sphere(tmp_path_factory.mktemp("more"))
 
 
 def test_a_tiny_dt_is_called_too_small_not_too_large(data, tmp_path, caplog):
     out = tmp_path / "r.h5"
     assert cli.main(["simulate", str(data["ply"]), "-o", str(out), "--directions=-x", *FAST, "--dt", "1e-300"]) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "--dt must be at least 1e-08 s" in msg and "too small, not too large" in msg and "reduce dt" not in msg
     assert not out.exists()
 
@@ -57,7 +30,7 @@ def test_a_huge_viscosity_is_refused_naming_the_viscosity_and_its_limit(data, tm
     out = tmp_path / "r.h5"
     args = ["simulate", str(data["ply"]), "-o", str(out), "--directions=-x", *FAST, "--viscosity", "1e6"]
     assert cli.main(args) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "viscosity 1e+06 Pa s is above the stability limit of the explicit viscosity step" in msg
     assert "lower viscosity to 800 Pa s or less" in msg and not out.exists()
 
@@ -66,7 +39,7 @@ def test_speed_0_is_refused_naming_the_option(data, tmp_path, caplog):
     """`--speed 0` completed with D-bar = 0 and no warning."""
     out = tmp_path / "r.h5"
     assert cli.main(["simulate", str(data["ply"]), "-o", str(out), "--directions=-x,-y", *FAST, "--speed", "0"]) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "--speed is 0 m/s: the probes -x would have no inflow and measure nothing" in msg and not out.exists()
     from nbv.physics import PhysicsConfig
 
@@ -106,7 +79,7 @@ def test_a_non_utf8_file_name_is_refused_before_the_run(data, tmp_path, caplog):
     assert cli.main(["simulate", odd, "-o", str(tmp_path / "r.h5"), "--directions=-x", *FAST]) == 2
     assert cli.main(["simulate", str(data["ply"]), "-o", odd[:-4] + ".h5", "--directions=-x", *FAST]) == 2
     assert time.monotonic() - t0 < 5
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert "GAUSSIANS b'" in msg and "--output b'" in msg and "m\\xff" in msg and "is not valid UTF-8" in msg
     assert not (tmp_path / "r.h5").exists()
 
@@ -128,7 +101,7 @@ def test_a_full_disk_in_h5py_is_named_in_words(data, tmp_path, monkeypatch, capl
     monkeypatch.setattr(nbv.io.h5py.File, "create_dataset", full)
     out = tmp_path / "r.h5"
     assert cli.main(["simulate", str(data["ply"]), "-o", str(out), "--directions=-x", *FAST]) == 4
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert f"cannot write {out}: No space left on device (errno 28)" in msg and "file descriptor" not in msg
     assert "no output was written" in msg and sorted(p.name for p in tmp_path.iterdir()) == []
 
@@ -145,6 +118,6 @@ def test_a_second_output_that_fails_says_which_survived(data, tmp_path, monkeypa
     monkeypatch.setattr(nbv.outputs, "save_colored_gaussians", full)
     out, ply = tmp_path / "r.h5", tmp_path / "c.ply"
     assert cli.main(["simulate", str(data["ply"]), "-o", str(out), "--ply", str(ply), "--directions=-x", *FAST]) == 4
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert f"cannot write {ply}: No space left on device" in msg and f"written before it, complete: {out}" in msg
     assert out.exists() and not ply.exists()

@@ -19,6 +19,7 @@ from recon.gaussians import SH_C0, GaussianSet
 
 from helpers.format_encoders import encode_compressed_ply, encode_splat, encode_spz
 from helpers.paths import REPO
+from helpers.splat_sets import refused_load
 
 
 def _set(n: int, degree: int, seed: int = 0) -> GaussianSet:
@@ -34,16 +35,6 @@ def _set(n: int, degree: int, seed: int = 0) -> GaussianSet:
         opacity_logits=torch.randn(n, generator=gen),
         sh=sh,
     )
-
-
-def _raises(path, *fragments: str) -> str:
-    with pytest.raises(ValueError) as info:
-        formats.load_gaussians(path)
-    message = str(info.value)
-    assert str(path) in message, message
-    for fragment in fragments:
-        assert fragment in message, message
-    return message
 
 
 def _standard_ply(g: GaussianSet, fmt: str, before: list[str], before_bytes: bytes) -> bytes:
@@ -93,10 +84,10 @@ def test_element_before_vertex_that_cannot_be_skipped(tmp_path):
         bytes([3]) + struct.pack("<3i", 0, 1, 2),
     )
     (tmp_path / "list.ply").write_bytes(lists)
-    _raises(tmp_path / "list.ply", "'face'", "comes before 'vertex'", "list properties", "re-export")
+    refused_load(tmp_path / "list.ply", "'face'", "comes before 'vertex'", "list properties", "re-export")
     cut = _standard_ply(g, "binary_little_endian", ["element camera 1000", "property double fx"], b"")
     (tmp_path / "cut.ply").write_bytes(cut)
-    _raises(tmp_path / "cut.ply", "'camera'", "truncated or corrupt")
+    refused_load(tmp_path / "cut.ply", "'camera'", "truncated or corrupt")
 
 
 @pytest.mark.parametrize("version", [2, 3])
@@ -109,14 +100,14 @@ def test_spz_sh_degree_not_matching_the_data_is_named(tmp_path, version, declare
     raw[12] = declared
     bad = tmp_path / f"sh{declared}.spz"
     bad.write_bytes(gzip.compress(bytes(raw)))
-    _raises(bad, "SH data does not match the header", f"declares SH degree {declared}", f"SH degree {actual};")
+    refused_load(bad, "SH data does not match the header", f"declares SH degree {declared}", f"SH degree {actual};")
 
 
 def test_spz_missing_gzip_trailer_says_so(tmp_path):
     path = encode_spz(_set(30, 1), tmp_path / "g.spz", version=3)
     cut = tmp_path / "cut.spz"
     cut.write_bytes(path.read_bytes()[:-4])  # the CRC32 and length trailer incomplete, all data there
-    message = _raises(cut, "truncated .spz", "trailer", "re-download")
+    message = refused_load(cut, "truncated .spz", "trailer", "re-download")
     assert " of " not in message.split("(")[-1], message  # no "N of N bytes" that reads as complete
 
 
@@ -124,17 +115,17 @@ def test_spz_v4_truncated_names_the_fix(tmp_path):
     path = encode_spz(_set(30, 1), tmp_path / "g.spz", version=4)
     cut = tmp_path / "cut.spz"
     cut.write_bytes(path.read_bytes()[:-7])
-    _raises(cut, "truncated .spz", "re-download")
+    refused_load(cut, "truncated .spz", "re-download")
 
 
 def test_splat_with_another_suffix_suggests_renaming(tmp_path):
     path = encode_splat(_set(2, 0), tmp_path / "g.splat")
     wrong = tmp_path / "g.ply"
     wrong.write_bytes(path.read_bytes())
-    _raises(wrong, "antimatter15 .splat", "rename it to g.splat")
+    refused_load(wrong, "antimatter15 .splat", "rename it to g.splat")
     odd = tmp_path / "h.ply"
     odd.write_bytes(path.read_bytes()[:-1])
-    assert "rename" not in _raises(odd, "not a PLY file")
+    assert "rename" not in refused_load(odd, "not a PLY file")
 
 
 def test_non_finite_chunk_bounds_warn_nothing(tmp_path):
@@ -147,7 +138,7 @@ def test_non_finite_chunk_bounds_warn_nothing(tmp_path):
     bad.write_bytes(bytes(data))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        _raises(bad, "NaN or Inf in means")
+        refused_load(bad, "NaN or Inf in means")
 
 
 def test_formats_agree_on_count_and_box(tmp_path):

@@ -23,13 +23,18 @@ def test_names_load_on_first_use_and_are_cached():
     assert "SolverConfig" in dir_()
 
 
+def _last_line(code: str) -> str:
+    """The last line a fresh interpreter prints when it runs ``code`` in the repository."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO).stdout
+    return out.strip().splitlines()[-1]
+
+
 def test_the_packages_import_without_taichi_or_torch():
     code = (
         "import sys, fluidsim, recon, nbv, nbv.physics, nbv.active; "
         "print(sorted(m for m in ('taichi', 'torch') if m in sys.modules))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO).stdout
-    assert out.strip().splitlines()[-1] == "[]"
+    assert _last_line(code) == "[]"
 
 
 def test_an_export_is_not_shadowed_by_its_submodule():
@@ -39,5 +44,4 @@ def test_an_export_is_not_shadowed_by_its_submodule():
         "import sys, recon, nbv.heatmap, recon.render; "
         "print(callable(recon.render), recon.render.__module__, sys.modules['recon.render'].__name__)"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO).stdout
-    assert out.strip().splitlines()[-1] == "True recon.render recon.render"
+    assert _last_line(code) == "True recon.render recon.render"

@@ -8,19 +8,18 @@ import numpy as np
 import pytest
 
 from fluidsim import ProbeConfig, SolverConfig
-from fluidsim.recording import Interrupted, probe_file_summary, probe_to_h5, probes_to_h5, simulate_to_h5
+from fluidsim.recording import Interrupted, probe_file_summary, probes_to_h5, simulate_to_h5
 from fluidsim.sources import sphere_particles
+
+from helpers.probe_files import sphere_probe_file
 
 STEPS = 12
 
 
 @pytest.fixture(scope="module")
 def probe_run(tmp_path_factory):
-    cfg = SolverConfig(particle_radius=0.05)
-    solid = sphere_particles([0, 0, 0], 0.3, cfg.spacing, fill=True)
-    probe = ProbeConfig(slab_thickness=0.2, margin=0.1, padding=0.2, directions=("-x",))
-    path = tmp_path_factory.mktemp("rec") / "probe_-x.h5"
-    return (*probe_to_h5(solid, "-x", cfg, probe, STEPS, path, save_every=5, progress=False), cfg)
+    run, _, cfg = sphere_probe_file(tmp_path_factory.mktemp("rec") / "probe_-x.h5", STEPS)
+    return (*run, cfg)
 
 
 def test_probe_file_holds_the_frames_the_scene_and_the_sums(probe_run):

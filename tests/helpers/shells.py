@@ -10,6 +10,8 @@ import torch
 
 from recon.gaussians import GaussianSet
 
+from helpers.spheres import fibonacci_sphere
+
 SPACING = 0.05
 SIGMA_N = SPACING / 10.0  # the shells' normal standard deviation
 SIGMA_T = 0.02  # in-plane standard deviation
@@ -32,13 +34,6 @@ def flat_gaussians(
         torch.full((len(n),), logit, dtype=torch.float64),
         torch.zeros(len(n), 1, 3, dtype=torch.float64),
     )
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    k = np.arange(n) + 0.5
-    phi = np.arccos(1 - 2 * k / n)
-    theta = math.pi * (1 + 5**0.5) * k
-    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
 
 
 def sphere_shell(radius: float, centre=(0.0, 0.0, 0.0), sigma_t: float = SIGMA_T, sigma_n: float = SIGMA_N):

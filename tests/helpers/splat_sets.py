@@ -1,10 +1,12 @@
 """Random Gaussian sets inside every splat format's range, and the comparisons the reader tests make on what a
-format gives back (within its quantisation step, quaternions up to sign)."""
+format gives back (within its quantisation step, quaternions up to sign) or refuses."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
+from recon import formats
 from recon.gaussians import SH_C0, GaussianSet
 
 
@@ -40,3 +42,15 @@ def assert_within(got: torch.Tensor, want: torch.Tensor, tol, what: str) -> None
     """Every |got - want| at most ``tol`` (a number or a tensor broadcasting to them), up to 1e-5."""
     excess = ((got - want).abs() - tol).max().item()
     assert excess <= 1e-5, f"{what}: error exceeds the quantisation by {excess}"
+
+
+def refused_load(path, *fragments: str) -> str:
+    """The message of the ``ValueError`` with which :func:`recon.formats.load_gaussians` refuses ``path``; asserts
+    that it names the path and holds every one of ``fragments``."""
+    with pytest.raises(ValueError) as info:
+        formats.load_gaussians(path)
+    message = str(info.value)
+    assert str(path) in message, message
+    for fragment in fragments:
+        assert fragment in message, message
+    return message

@@ -3,8 +3,6 @@ the S and A rankings and its one printed line; the physics-uncertainty image of 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 import torch
@@ -19,33 +17,14 @@ from nbv.coverage import (
 )
 from nbv.heatmap import over_range_marks, uncertainty_image, uncertainty_png, unreached_pixels
 from recon.camera import Camera
-from recon.gaussians import GaussianSet
+from recon.gaussians import GaussianSet, concat
 from viz.colors import UNREACHED_RGB
+
+from helpers.random_scenes import random_scene
 
 
 def _scene(n: int = 300, seed: int = 0):
-    gen = torch.Generator().manual_seed(seed)
-    means = (torch.rand(n, 3, generator=gen, dtype=torch.float64) - 0.5) * 1.5
-    g = GaussianSet(
-        means,
-        torch.randn(n, 4, generator=gen, dtype=torch.float64),
-        torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4 - 2.8,
-        torch.randn(n, generator=gen, dtype=torch.float64) + 0.5,
-        0.3 * torch.randn(n, 1, 3, generator=gen, dtype=torch.float64),
-    ).to(dtype=torch.float32)
-    cams = [
-        Camera.look_at(
-            (3 * math.cos(a), 0.4, 3 * math.sin(a)),
-            (0, 0, 0),
-            (0, 1, 0),
-            36 + 4 * k,
-            28 + 2 * k,
-            math.radians(55),
-            name=f"c{k}",
-        )
-        for k, a in enumerate((0.0, 1.3, 2.9, 4.4))
-    ]
-    return g, cams, torch.rand(n, generator=gen, dtype=torch.float64) * 5
+    return random_scene(n, seed)
 
 
 @pytest.mark.parametrize("occlusion", [False, True])
@@ -127,15 +106,15 @@ def test_uncertainty_image_of_a_constant_is_that_constant_times_alpha():
         np.testing.assert_allclose(img, 3.7 * alpha, rtol=1e-5, atol=1e-6)
 
 
-def test_uncertainty_image_shows_a_gaussians_own_value_where_it_is_drawn():
+def _two_blobs():
+    """A 64x48 camera 3 m out on -z, upside down, and two opaque blobs left and right of its axis."""
     cam = Camera.look_at((0, 0, -3.0), (0, 0, 0), (0, -1, 0), 64, 48, 0.9)
-    left, right = _blob(1.0, -0.6), _blob(1.0, 0.6)
-    both = GaussianSet(
-        *(
-            torch.cat([getattr(left, f), getattr(right, f)])
-            for f in ("means", "quats", "log_scales", "opacity_logits", "sh")
-        )
-    )
+    return cam, _blob(1.0, -0.6), _blob(1.0, 0.6)
+
+
+def test_uncertainty_image_shows_a_gaussians_own_value_where_it_is_drawn():
+    cam, left, right = _two_blobs()
+    both = concat([left, right])
     img, alpha = uncertainty_image(both, cam, np.array([0.0, 8.0]))
     _, alpha_right = uncertainty_image(right, cam, np.array([1.0]))
     np.testing.assert_allclose(img, 8.0 * alpha_right, rtol=1e-5, atol=1e-6)  # only the right blob's pixels
@@ -193,14 +172,8 @@ def test_small_views_are_enlarged_for_their_labels():
 
 def test_uncertainty_pictures_draw_the_unreached_grey():
     # U is 0 under an unreached Gaussian as under a calm one; the picture tells them apart
-    cam = Camera.look_at((0, 0, -3.0), (0, 0, 0), (0, -1, 0), 64, 48, 0.9)
-    left, right = _blob(1.0, -0.6), _blob(1.0, 0.6)
-    both = GaussianSet(
-        *(
-            torch.cat([getattr(left, f), getattr(right, f)])
-            for f in ("means", "quats", "log_scales", "opacity_logits", "sh")
-        )
-    )
+    cam, left, right = _two_blobs()
+    both = concat([left, right])
     grey = unreached_pixels(both, cam, np.array([True, False]))  # the right one was never reached
     u_r, v_r = (int(t) for t in cam.project(right.means)[0][0].floor())
     u_l, v_l = (int(t) for t in cam.project(left.means)[0][0].floor())

@@ -10,6 +10,8 @@ from nbv import scores
 from recon.camera import Camera
 from recon.projection import project_visibility_reference
 
+from helpers.random_scenes import random_scene
+
 
 @dataclass
 class FakeRender:
@@ -117,31 +119,9 @@ def test_unoccluded_hides_what_is_behind_the_surface():
 
 # ---- scores from the projection alone ---------------------------------------------------------------------
 def _scene(n: int = 400, seed: int = 0, dtype=torch.float32):
-    from recon.gaussians import GaussianSet
-
-    gen = torch.Generator().manual_seed(seed)
-    means = (torch.rand(n, 3, generator=gen, dtype=torch.float64) - 0.5) * 1.5
-    g = GaussianSet(
-        means,
-        torch.randn(n, 4, generator=gen, dtype=torch.float64),
-        torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4 - 2.8,
-        torch.randn(n, generator=gen, dtype=torch.float64) + 0.5,
-        0.3 * torch.randn(n, 1, 3, generator=gen, dtype=torch.float64),
-    ).to(dtype=dtype)
-    cams = [
-        Camera.look_at(
-            (3 * math.cos(a), 0.4, 3 * math.sin(a)),
-            (0, 0, 0),
-            (0, 1, 0),
-            36 + 4 * k,
-            28 + 2 * k,
-            math.radians(55),
-            name=f"c{k}",
-        )
-        for k, a in enumerate((0.0, 1.3, 2.9, 4.4))
-    ]
+    g, cams, values = random_scene(n, seed, dtype)
     cams.append(Camera.look_at((0, 0, 0.4), (0, 0, 3), (0, 1, 0), 30, 30, math.radians(60), name="inside"))
-    return g, cams, torch.rand(n, generator=gen, dtype=torch.float64) * 5
+    return g, cams, values
 
 
 def test_view_scores_take_projected_radii_and_per_view_sizes():

@@ -30,24 +30,18 @@ from nbv.view_scoring import (
     write_views_folder,
 )
 from recon.camera import Camera
-from recon.gaussians import GaussianSet
 from viz.annotate import label, to_bgr
+
+from helpers.random_scenes import RING_ANGLES, random_gaussians
 
 
 def _scene(n: int = 300, seed: int = 0):
-    gen = torch.Generator().manual_seed(seed)
-    g = GaussianSet(
-        (torch.rand(n, 3, generator=gen, dtype=torch.float64) - 0.5) * 1.5,
-        torch.randn(n, 4, generator=gen, dtype=torch.float64),
-        torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4 - 2.8,
-        torch.randn(n, generator=gen, dtype=torch.float64) + 0.5,
-        0.3 * torch.randn(n, 1, 3, generator=gen, dtype=torch.float64),
-    ).to(dtype=torch.float32)
+    g = random_gaussians(n, torch.Generator().manual_seed(seed))
     cams = [
         Camera.look_at(
             (3 * math.cos(a), 0.4, 3 * math.sin(a)), (0, 0, 0), (0, 1, 0), 40, 32, math.radians(55), name=f"c{k}"
         )
-        for k, a in enumerate((0.0, 1.3, 2.9, 4.4))
+        for k, a in enumerate(RING_ANGLES)
     ]
     return g, cams
 

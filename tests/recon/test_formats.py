@@ -28,7 +28,7 @@ from recon.sh import eval_sh
 
 from helpers.format_encoders import encode_compressed_ply, encode_splat, encode_spz
 from helpers.paths import BIKER_COMPRESSED_PLY, BIKER_SPZ, REAL_SPLATS
-from helpers.splat_sets import assert_within, random_splats, sign_aligned
+from helpers.splat_sets import assert_within, random_splats, refused_load, sign_aligned
 
 SQRT2 = math.sqrt(2.0)
 
@@ -327,16 +327,6 @@ def test_cli_loader_says_folder_and_missing(tmp_path):
 
 
 # ---- bad input -------------------------------------------------------------------------------------------------
-def _raises(path: Path, *fragments: str) -> str:
-    with pytest.raises(ValueError) as info:
-        formats.load_gaussians(path)
-    message = str(info.value)
-    assert str(path) in message, message
-    for fragment in fragments:
-        assert fragment in message, message
-    return message
-
-
 def test_truncated_files(tmp_path):
     g = random_splats(600, 1)
     for name, path in [
@@ -346,14 +336,14 @@ def test_truncated_files(tmp_path):
     ]:
         cut = tmp_path / f"cut_{name}{path.suffix}"
         cut.write_bytes(path.read_bytes()[:-7])
-        _raises(cut, "truncated")
+        refused_load(cut, "truncated")
     raw = gzip.decompress(encode_spz(g, tmp_path / "g3.spz", version=3).read_bytes())
     short = tmp_path / "short3.spz"
     short.write_bytes(gzip.compress(raw[:-100]))
-    _raises(short, "truncated")
+    refused_load(short, "truncated")
     cut_stream = tmp_path / "cut3.spz"
     cut_stream.write_bytes((tmp_path / "g3.spz").read_bytes()[:-400])
-    _raises(cut_stream, "truncated", "ends early")
+    refused_load(cut_stream, "truncated", "ends early")
 
 
 def test_corrupt_streams(tmp_path):
@@ -361,7 +351,7 @@ def test_corrupt_streams(tmp_path):
     data = bytearray(encode_spz(g, tmp_path / "g3.spz", version=3).read_bytes())
     data[-8] ^= 0xFF  # the CRC-32 of the gzip trailer
     (tmp_path / "crc.spz").write_bytes(bytes(data))
-    _raises(tmp_path / "crc.spz", "corrupt gzip stream")
+    refused_load(tmp_path / "crc.spz", "corrupt gzip stream")
     data = bytearray((tmp_path / "g3.spz").read_bytes())
     data[30:60] = b"\xff" * 30  # the middle of the deflate data
     (tmp_path / "mid.spz").write_bytes(bytes(data))
@@ -371,10 +361,10 @@ def test_corrupt_streams(tmp_path):
     first_stream = 32 + 5 * 16
     data[first_stream : first_stream + 4] = b"\x00\x00\x00\x00"  # the zstd frame magic of the positions
     (tmp_path / "z.spz").write_bytes(bytes(data))
-    _raises(tmp_path / "z.spz", "corrupt zstd stream", "positions")
+    refused_load(tmp_path / "z.spz", "corrupt zstd stream", "positions")
     gz = tmp_path / "notspz.spz"
     gz.write_bytes(gzip.compress(b"ply\nformat ascii 1.0\n" * 4))
-    _raises(gz, "not an .spz")
+    refused_load(gz, "not an .spz")
 
 
 def test_spz_header_problems(tmp_path):
@@ -382,13 +372,13 @@ def test_spz_header_problems(tmp_path):
     good = encode_spz(g, tmp_path / "g4.spz", version=4).read_bytes()
     v9 = tmp_path / "v9.spz"
     v9.write_bytes(good[:4] + struct.pack("<I", 9) + good[8:])
-    _raises(v9, "version 9 is not supported")
+    refused_load(v9, "version 9 is not supported")
     v1 = tmp_path / "v1.spz"
     v1.write_bytes(gzip.compress(struct.pack("<4sIIBBBB", b"NGSP", 1, 1, 0, 12, 0, 0) + b"\0" * 20))
-    _raises(v1, "version 1 is not supported")
+    refused_load(v1, "version 1 is not supported")
     streams = tmp_path / "streams.spz"
     streams.write_bytes(good[:15] + bytes([6]) + good[16:])
-    _raises(streams, "6 streams")
+    refused_load(streams, "6 streams")
 
 
 def test_spz_extensions_are_skipped(tmp_path):
@@ -421,22 +411,22 @@ def test_compressed_ply_header_problems(tmp_path):
     }
     for name, (content, fragment) in cases.items():
         (tmp_path / name).write_bytes(content)
-        _raises(tmp_path / name, fragment)
+        refused_load(tmp_path / name, fragment)
     nan = struct.pack("<18f", *([float("nan")] + [0.0] * 5 + [-1.0] * 3 + [0.0] * 3 + [0.0] * 3 + [1.0] * 3))
     (tmp_path / "nan.ply").write_bytes(_compressed_header(1, 1) + nan + words)
-    _raises(tmp_path / "nan.ply", "NaN or Inf in means")
+    refused_load(tmp_path / "nan.ply", "NaN or Inf in means")
 
 
 def test_decoded_nan_and_bad_scales_in_splat(tmp_path):
     record = struct.pack("<6f", 0.0, 0.0, 0.0, 1.0, 1.0, 1.0) + bytes([128, 128, 128, 255, 255, 128, 128, 128])
     bad_pos = struct.pack("<6f", float("nan"), 0.0, 0.0, 1.0, 1.0, 1.0) + record[24:]
     (tmp_path / "nan.splat").write_bytes(record + bad_pos)
-    _raises(tmp_path / "nan.splat", "NaN or Inf in means")
+    refused_load(tmp_path / "nan.splat", "NaN or Inf in means")
     zero = struct.pack("<6f", 0.0, 0.0, 0.0, 1.0, 0.0, 1.0) + record[24:]
     (tmp_path / "zero.splat").write_bytes(record * 2 + zero)
-    _raises(tmp_path / "zero.splat", "zero, negative or non-finite scale", "[2]")
+    refused_load(tmp_path / "zero.splat", "zero, negative or non-finite scale", "[2]")
     (tmp_path / "empty.splat").write_bytes(b"")
-    _raises(tmp_path / "empty.splat", "empty")
+    refused_load(tmp_path / "empty.splat", "empty")
 
 
 def test_huge_declared_sizes_fail_fast_without_allocating(tmp_path):
@@ -499,7 +489,7 @@ def test_garbage_npz_is_never_called_pickled(tmp_path):
         (not_npy, "not a .npy array"),
         (bad_member, "not a readable .npz archive"),
     ]:
-        message = _raises(path, fragment)
+        message = refused_load(path, fragment)
         assert "pickle" not in message.lower(), message
 
 

@@ -1,9 +1,6 @@
 """Gaussian files with extreme numbers or broken headers: each refused in one line naming the Gaussians or the header
 (no overflowed count, no traceback)."""
 
-import logging
-import math
-
 import numpy as np
 import pytest
 import torch
@@ -12,16 +9,8 @@ from apps import cli
 from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
 
-
-def _errors(caplog) -> str:
-    return " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR)
-
-
-def _sphere(n: int = 300) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
-    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=0.06, opacity=0.9)
+from helpers.logs import error_text
+from helpers.spheres import sphere_gaussians
 
 
 @pytest.mark.parametrize(
@@ -35,9 +24,9 @@ def _sphere(n: int = 300) -> GaussianSet:
 def test_extreme_means_and_scales_name_the_gaussians(tmp_path, caplog, capsys, field, value, what):
     """Means of 1e38 and log-scales of +-88 printed 113-digit counts from an int64 overflow (or passed silently)."""
     props = ("x", "y", "z") if field == "means" else ("scale_0", "scale_1", "scale_2")
-    path = _patched_ply(save_gaussians(_sphere(), tmp_path / "x.ply"), [3, 7], props, value)
+    path = _patched_ply(save_gaussians(sphere_gaussians(), tmp_path / "x.ply"), [3, 7], props, value)
     assert cli.main(["inspect", str(path), "--threads", "1"]) == 2
-    msg = _errors(caplog)
+    msg = error_text(caplog)
     assert f"2 Gaussians have {what}" in msg and "first rows [3, 7]" in msg and f"{value:.3g}" in msg
     assert ",000,000" not in msg and "Traceback" not in capsys.readouterr().err
 
@@ -55,15 +44,15 @@ def _patched_ply(path, rows, props, value):
 
 
 def test_subnormal_centres_are_named_as_such_by_scale_auto(tmp_path, caplog):
-    path = save_gaussians(_sphere(), tmp_path / "tiny.ply")
+    path = save_gaussians(sphere_gaussians(), tmp_path / "tiny.ply")
     raw = path.read_bytes()
     end = raw.index(b"end_header\n") + len(b"end_header\n")
     names = [line.split()[-1].decode() for line in raw[:end].splitlines() if line.startswith(b"property")]
     table = np.frombuffer(raw[end:], np.float32).reshape(-1, len(names)).copy()
-    table[:, :3] = _sphere().means.numpy() * 1e-39  # subnormal float32 centres (0 where Taichi flushes them)
+    table[:, :3] = sphere_gaussians().means.numpy() * 1e-39  # subnormal float32 centres (0 where Taichi flushes them)
     path.write_bytes(raw[:end] + table.tobytes())
     assert cli.main(["inspect", str(path), "--threads", "1"]) == 2
-    assert "centres coincide or nearly" in _errors(caplog) and "pass --scale" in _errors(caplog)
+    assert "centres coincide or nearly" in error_text(caplog) and "pass --scale" in error_text(caplog)
 
 
 @pytest.mark.parametrize(

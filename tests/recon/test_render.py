@@ -17,6 +17,8 @@ from recon.render import pair_statistics, render
 from recon.render_gsplat import gsplat_available
 from recon.render_reference import project_gaussians_reference, render_dense_reference
 
+from helpers.random_scenes import random_blobs
+
 F64 = torch.float64
 
 
@@ -40,14 +42,8 @@ def _isotropic(points, sigma, opacity=0.5, rgb=(0.2, 0.6, 0.9), dtype=F64) -> Ga
 
 
 def _random_scene(n, seed, dtype=F64, sh_degree=1, logit_mean=0.0, scale=0.08) -> tuple[GaussianSet, Camera]:
-    gen = torch.Generator().manual_seed(seed)
-    means = (torch.rand(n, 3, generator=gen, dtype=F64) * 2 - 1) * torch.tensor([0.8, 0.6, 0.5], dtype=F64)
-    quats = torch.randn(n, 4, generator=gen, dtype=F64)
-    log_scales = math.log(scale) + 0.4 * torch.randn(n, 3, generator=gen, dtype=F64)
-    logits = logit_mean + torch.randn(n, generator=gen, dtype=F64)
-    sh = 0.4 * torch.randn(n, (sh_degree + 1) ** 2, 3, generator=gen, dtype=F64)
     cam = Camera.look_at((0.3, -0.2, -3.0), (0.0, 0.0, 0.0), (0.0, -1.0, 0.0), 28, 22, math.radians(50))
-    return GaussianSet(means, quats, log_scales, logits, sh).to(dtype=dtype), cam
+    return random_blobs(n, seed, (0.8, 0.6, 0.5), scale, 0.4, sh_degree, logit_mean, dtype), cam
 
 
 # ---- projection ---------------------------------------------------------------------------------------

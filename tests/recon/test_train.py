@@ -119,11 +119,10 @@ def hand_made_stats() -> DensityStats:
     )
 
 
-def test_densify_clone_split_prune_counts():
-    g, stats = hand_made_set(), hand_made_stats()
-    res = densify_and_prune(
-        g,
-        stats,
+def densify_hand_made(**over):
+    """:func:`densify_and_prune` of the hand-made set and statistics: threshold 2e-4, percent_dense 0.01, extent 10,
+    minimum opacity 0.005, no screen-size rule, big beyond 0.1 x extent, seed 0; ``over`` replaces any of these."""
+    settings = dict(
         grad_threshold=2e-4,
         percent_dense=0.01,
         extent=10.0,
@@ -132,6 +131,11 @@ def test_densify_clone_split_prune_counts():
         big_world_fraction=0.1,
         generator=torch.Generator().manual_seed(0),
     )
+    return densify_and_prune(hand_made_set(), hand_made_stats(), **{**settings, **over})
+
+
+def test_densify_clone_split_prune_counts():
+    g, res = hand_made_set(), densify_hand_made()
     # clone: 0 (small, hot) and 4 (small, hot, then pruned with its clone for opacity); split: 2.
     assert (res.cloned, res.split) == (2, 1)
     # old: 0, 1, 3, 5 survive (2 replaced by its children, 4 pruned); new: clones of 0 and 4 (4's pruned), 2 children
@@ -146,38 +150,14 @@ def test_densify_clone_split_prune_counts():
 
 
 def test_prune_by_size_after_reset():
-    g, stats = hand_made_set(), hand_made_stats()
-    res = densify_and_prune(
-        g,
-        stats,
-        grad_threshold=2e-4,
-        percent_dense=0.01,
-        extent=10.0,
-        min_opacity=0.005,
-        max_screen_size=20.0,
-        big_world_fraction=0.1,
-        generator=torch.Generator().manual_seed(0),
-        densify=False,
-    )
+    res = densify_hand_made(max_screen_size=20.0, densify=False)
     # 2 is 30 px on screen, 4 is transparent, 5 has scale 2.0 > 0.1 x 10
     assert res.origin.tolist() == [0, 1, 3]
     assert (res.cloned, res.split, res.pruned) == (0, 0, 3)
 
 
 def test_densify_respects_the_cap_by_gradient():
-    g, stats = hand_made_set(), hand_made_stats()
-    res = densify_and_prune(
-        g,
-        stats,
-        grad_threshold=2e-4,
-        percent_dense=0.01,
-        extent=10.0,
-        min_opacity=1e-6,
-        max_screen_size=None,
-        big_world_fraction=None,
-        generator=torch.Generator().manual_seed(0),
-        max_gaussians=8,
-    )
+    res = densify_hand_made(min_opacity=1e-6, big_world_fraction=None, max_gaussians=8)
     # budget 2 among candidates 0 (3e-4), 2 (5e-4), 4 (1e-3): the two largest gradients win
     assert (res.cloned, res.split) == (1, 1)
     assert res.gaussians.num == 8

@@ -39,13 +39,15 @@ from recon.gaussians import GaussianSet, sh0_to_rgb
 from viz.cameras import candidate_views, read_scores, rotation_to_wxyz, view_png
 from viz.colors import UNREACHED_RGB, color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data
-from viz.screenshot import DevTools, find_browser
+from viz.screenshot import BROWSER_FLAGS as SCREENSHOT_FLAGS
+from viz.screenshot import READY, DevTools, find_browser
 from viz.splats import splat_looks
 from viz.thumbnails import project_to_view, view_thumbnail
 from viz.viewer import FluidViewer
 
 from helpers.cameras import ring_cameras, write_transforms
 from helpers.paths import REPO as ROOT
+from helpers.spheres import sphere_gaussians, sphere_points
 
 FAST = ["--particle-radius", "0.08", "--steps", "40", "--dt", "0.004", "--no-empty-reference", "--threads", "2"]
 EVERY = 5
@@ -58,11 +60,8 @@ def _two(value: float) -> str:
 
 
 def _sphere(n: int = 300) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, th = np.arccos(1 - 2 * i / n), math.pi * (1 + 5**0.5) * i
-    pts = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1) * 0.5
-    colours = torch.tensor(np.clip(pts + 0.5, 0, 1), dtype=torch.float32)  # a colour that varies over the sphere
-    return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), colours, scale=0.06, opacity=0.9)
+    colours = torch.tensor(np.clip(sphere_points(n) + 0.5, 0, 1), dtype=torch.float32)  # varies over the sphere
+    return sphere_gaussians(n, colours=colours)
 
 
 def _cameras(path: Path) -> Path:
@@ -76,25 +75,8 @@ def scene(tmp_path_factory):
     ply = save_gaussians(_sphere(), root / "sphere.ply")
     cameras = _cameras(root / "transforms.json")
     h5, scores = root / "result.h5", root / "scores.json"
-    assert (
-        cli.main(
-            [
-                "simulate",
-                str(ply),
-                "-o",
-                str(h5),
-                "--directions=-x,+z",
-                "--record-probe",
-                "-x",
-                "--record-every",
-                str(EVERY),
-                "--accumulate-every",
-                str(EVERY),
-                *FAST,
-            ]
-        )
-        == 0
-    )
+    record = ["--record-probe", "-x", "--record-every", str(EVERY), "--accumulate-every", str(EVERY)]
+    assert cli.main(["simulate", str(ply), "-o", str(h5), "--directions=-x,+z", *record, *FAST]) == 0
     assert (
         cli.main(["score", str(ply), "--cameras", str(cameras), "--result", str(h5), "-o", str(scores), "--no-png"])
         == 0
@@ -544,22 +526,8 @@ class BrowserUnavailable(RuntimeError):
     """Chromium is installed but does not start (no DevTools port)."""
 
 
-# flags for WebGL in software: Chromium 1xx renders WebGL through ANGLE on SwiftShader (Vulkan) headless
-BROWSER_FLAGS = (
-    "--headless",
-    "--no-sandbox",
-    "--use-angle=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--no-first-run",
-    "--disable-gpu-sandbox",
-    "--window-size=1024,768",
-    "--hide-scrollbars",
-)
-READY = (
-    "(() => { const im = [...document.images].filter(i => i.getBoundingClientRect().width > 150); "
-    "return !!document.querySelector('canvas') && im.length > 0 && im.every(i => i.complete && "
-    "i.naturalWidth > 0); })()"
-)
+# viz.screenshot's flags (WebGL in software) at the window size the expected pictures were measured at
+BROWSER_FLAGS = (*SCREENSHOT_FLAGS, "--window-size=1024,768")
 BARS = (
     "JSON.stringify([...document.images].map(i => i.getBoundingClientRect()).filter(r => r.width > 150)"
     ".map(r => [r.left, r.top, r.width, r.height]))"

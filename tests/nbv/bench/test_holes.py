@@ -37,7 +37,10 @@ from nbv.physics.solidify import (
     SolidLattice,
     gaussians_to_solid,
 )
-from recon.gaussians import GaussianSet
+from recon.gaussians import GaussianSet, concat
+
+from helpers.shells import flat_gaussians
+from helpers.spheres import fibonacci_sphere
 
 RADIUS = 0.6  # sphere, m (scale 1: scene units are simulation metres, +y up)
 SPACING = 0.1  # lattice spacing of the probes below (r = 0.05 m)
@@ -48,35 +51,6 @@ TAIL_SIGMA, TAIL_DEPTH, TAIL_GAP = (0.12, 0.05), 0.05, 1.0  # the sub-surface Ga
 CFG = PhysicsConfig(particle_radius=0.05, steps=75, dt=0.004, scale=1.0, empty_reference=False, directions=("-x",))
 
 
-def flat_gaussians(
-    means: np.ndarray, normals: np.ndarray, sigma_t: float, sigma_n: float, opacity: float
-) -> GaussianSet:
-    """Discs: local z (the smallest scale) along ``normals``; quaternion (1 + n_z, -n_y, n_x, 0) turns z to n."""
-    n = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-    q = np.stack([1.0 + n[:, 2], -n[:, 1], n[:, 0], np.zeros(len(n))], 1)
-    q[q[:, 0] < 1e-9] = [0.0, 1.0, 0.0, 0.0]
-    logit = math.log(opacity / (1.0 - opacity))
-    return GaussianSet(
-        torch.tensor(means, dtype=torch.float64),
-        torch.tensor(q),
-        torch.tensor(np.tile(np.log([sigma_t, sigma_t, sigma_n]), (len(n), 1))),
-        torch.full((len(n),), logit, dtype=torch.float64),
-        torch.zeros(len(n), 1, 3, dtype=torch.float64),
-    )
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    k = np.arange(n) + 0.5
-    phi, theta = np.arccos(1 - 2 * k / n), math.pi * (1 + 5**0.5) * k
-    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
-
-
-def concat(*sets: GaussianSet) -> GaussianSet:
-    return GaussianSet(
-        *(torch.cat([getattr(s, f) for s in sets]) for f in ("means", "quats", "log_scales", "opacity_logits", "sh"))
-    )
-
-
 def capture_like(with_tails: bool = True) -> GaussianSet:
     """The hollow sphere's surface (sigma 4 cm in the plane, 1 cm along the normal, o = 0.9), plus, 5 cm under it,
     flat Gaussians of sigma 12 cm in the plane and 5 cm along the normal (o = 0.9), one sigma apart."""
@@ -85,7 +59,7 @@ def capture_like(with_tails: bool = True) -> GaussianSet:
     if not with_tails:
         return surface
     e = fibonacci_sphere(int(4 * math.pi * RADIUS**2 / (TAIL_GAP * TAIL_SIGMA[0]) ** 2))
-    return concat(surface, flat_gaussians((RADIUS - TAIL_DEPTH) * e, e, *TAIL_SIGMA, 0.9))
+    return concat([surface, flat_gaussians((RADIUS - TAIL_DEPTH) * e, e, *TAIL_SIGMA, 0.9)])
 
 
 def arrays(g: GaussianSet):
@@ -310,84 +284,21 @@ def test_bench_hole_command_prints_and_writes_the_figures(tmp_path, capsys):
 
     ply = save_gaussians(capture_like(), tmp_path / "sphere.ply")
     out = tmp_path / "hole.json"
-    args = [
-        "bench",
-        "hole",
-        str(ply),
-        "--scale",
-        "1",
-        "--point",
-        "0.6,0,0",
-        "--radius",
-        "0.2",
-        "--depth",
-        "0.1",
-        "--band",
-        "0.1",
-        "--particle-radius",
-        "0.05",
-        "--steps",
-        "20",
-        "--directions=-x",
-        "--json",
-        str(out),
-    ]
-    assert cli.main(args) == 0
+    hole = ["bench", "hole", str(ply), "--scale", "1", "--point", "0.6,0,0", "--radius", "0.2"]
+    probe = ["--depth", "0.1", "--band", "0.1", "--particle-radius", "0.05", "--steps", "20", "--directions=-x"]
+    assert cli.main([*hole, *probe, "--json", str(out)]) == 0
     text = capsys.readouterr().out
     assert "solid 1357 -> 1357 (0 removed, 0 added)" in text and "-x*" in text and "x1.000" in text
     doc = json.loads(out.read_text())
     assert doc["shifts"][0]["solid_removed"] == 0 and doc["shifts"][0]["head_on"] == "-x"
     assert doc["shifts"][0]["probes"]["-x"]["ratio"] == pytest.approx(1.0, abs=1e-12)
-    assert (
-        cli.main(
-            [
-                "bench",
-                "hole",
-                str(ply),
-                "--scale",
-                "1",
-                "--point",
-                "0.6,0,0",
-                "--radius",
-                "0.2",
-                "--see-through",
-                "0.02",
-                "--particle-radius",
-                "0.05",
-                "--solid-only",
-                "--shifts",
-                "0,0.5",
-            ]
-        )
-        == 0
-    )
+    see_through = ["--see-through", "0.02", "--particle-radius", "0.05", "--solid-only", "--shifts", "0,0.5"]
+    assert cli.main([*hole, *see_through]) == 0
     text = capsys.readouterr().out
     assert text.count("open to a render: 100 % of the disc") == 2
     # --ideal: the same covered hole, its cylinder cut out of the holed solid (the centres-only hole removed none)
-    assert (
-        cli.main(
-            [
-                "bench",
-                "hole",
-                str(ply),
-                "--scale",
-                "1",
-                "--point",
-                "0.6,0,0",
-                "--radius",
-                "0.2",
-                "--depth",
-                "0.1",
-                "--particle-radius",
-                "0.05",
-                "--solid-only",
-                "--ideal",
-                "--json",
-                str(out),
-            ]
-        )
-        == 0
-    )
+    ideal = ["--depth", "0.1", "--particle-radius", "0.05", "--solid-only", "--ideal", "--json", str(out)]
+    assert cli.main([*hole, *ideal]) == 0
     assert "ideal hole, " in capsys.readouterr().out
     doc = json.loads(out.read_text())
     shift = doc["shifts"][0]

@@ -15,15 +15,13 @@ import numpy as np
 import pytest
 import torch
 
-from fluidsim import ProbeConfig, SolverConfig
-from fluidsim.recording import probe_to_h5
-from fluidsim.sources import sphere_particles
 from nbv.export.particles import check_vtk_source, export_vtk, split_boundary
 from nbv.export.solid import check_export_path, export_paths, export_solid, solid_mesh, voxel_grid
 from recon.formats import load_gaussians
 from recon.formats.ply import read_ply_vertices, save_gaussians
 from recon.gaussians import GaussianSet
 
+from helpers.probe_files import sphere_probe_file
 from helpers.vtk_files import read_pvd, read_vtu
 
 S = 0.05
@@ -141,11 +139,8 @@ def test_extra_ply_properties_read_back(tmp_path):
 # ---- VTK -------------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def probe_file(tmp_path_factory):
-    cfg = SolverConfig(particle_radius=0.05)
-    solid = sphere_particles([0, 0, 0], 0.3, cfg.spacing, fill=True)
-    probe = ProbeConfig(slab_thickness=0.2, margin=0.1, padding=0.2, directions=("-x",))
     path = tmp_path_factory.mktemp("vtk") / "OUT.h5"
-    probe_to_h5(solid, "-x", cfg, probe, 10, path, save_every=5, progress=False)
+    _, solid, _ = sphere_probe_file(path, 10)
     return path, solid
 
 

@@ -21,14 +21,13 @@ from nbv.physics.scene_frame import gaussian_arrays_in_sim
 from nbv.physics.solidify import SolidifyConfig, gaussians_to_solid
 from recon.gaussians import GaussianSet
 
+from helpers.spheres import fibonacci_sphere
+
 CFG = PhysicsConfig(particle_radius=0.08, steps=8, dt=0.004, directions=("-x", "-y"), scale=1.0)
 
 
 def _sphere(n: int = 300, radius: float = 0.5, scale: float = 0.06, shift=(0.0, 0.0, 0.0)) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, theta = np.arccos(1 - 2 * i / n), np.pi * (1 + 5**0.5) * i
-    pts = radius * np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
-    pts = pts + np.asarray(shift)
+    pts = radius * fibonacci_sphere(n) + np.asarray(shift)
     return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=scale, opacity=0.9)
 
 

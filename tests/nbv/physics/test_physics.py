@@ -17,21 +17,10 @@ from nbv.physics.aggregate_reference import accumulate_reference
 from nbv.study import sweep
 from recon.gaussians import GaussianSet
 
+from helpers.spheres import sphere_gaussians
+
 # coarse settings: a unit sphere (after auto scaling) probed with 0.16 m particle spacing
 COARSE = dict(particle_radius=0.08, steps=40, dt=0.004, empty_reference=False)
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    i = np.arange(n) + 0.5
-    phi = np.arccos(1 - 2 * i / n)
-    th = math.pi * (1 + 5**0.5) * i
-    return np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], 1)
-
-
-def sphere_gaussians(n: int = 300, radius: float = 0.5, scale: float = 0.06) -> GaussianSet:
-    return GaussianSet.from_points(
-        torch.tensor(fibonacci_sphere(n) * radius, dtype=torch.float32), scale=scale, opacity=0.9
-    )
 
 
 @pytest.fixture(scope="module")

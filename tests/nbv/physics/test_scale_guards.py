@@ -14,6 +14,8 @@ from nbv.physics.scene_frame import SceneTransform
 from nbv.physics.solidify import SolidifyConfig, gaussians_to_solid
 from recon.gaussians import GaussianSet
 
+from helpers.spheres import fibonacci_sphere
+
 BIKER = Path("/work/shared/real-splats/biker.compressed.ply")
 
 
@@ -148,9 +150,7 @@ def test_guard_settings_are_validated(kwargs, field):
 
 # ---- the probes' memory estimate and the empty-scene reference ---------------------------------------------------
 def _sphere_set(n: int = 300, scale: float = 0.06) -> GaussianSet:
-    i = np.arange(n) + 0.5
-    phi, theta = np.arccos(1 - 2 * i / n), np.pi * (1 + 5**0.5) * i
-    pts = 0.5 * np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
+    pts = 0.5 * fibonacci_sphere(n)
     return GaussianSet.from_points(torch.tensor(pts, dtype=torch.float32), scale=scale, opacity=0.9)
 
 

@@ -26,6 +26,8 @@ from nbv.physics.solidify import (
 )
 from recon.gaussians import GaussianSet
 
+from helpers.spheres import fibonacci_sphere
+
 
 def random_gaussians(n: int, seed: int, extent: float = 0.3, scale_range=(0.02, 0.12)) -> GaussianSet:
     rng = np.random.default_rng(seed)
@@ -127,14 +129,6 @@ def test_single_gaussian_gives_ball_of_predicted_radius_and_scale_applies():
         assert r.max() <= scale * radius + sp**2 / (8 * scale * radius) + 1e-9
         assert 0 <= len(solid.points) - len(centre.points) < 0.01 * expected
         assert solid.counts["thin"] == len(solid.points) - len(centre.points)
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """[n, 3] nearly uniform unit vectors."""
-    k = np.arange(n) + 0.5
-    phi = np.arccos(1 - 2 * k / n)
-    theta = math.pi * (1 + 5**0.5) * k
-    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
 
 
 def shell_gaussians(radius: float, sigma: float, opacity: float) -> GaussianSet:

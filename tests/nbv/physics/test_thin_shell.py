@@ -23,7 +23,8 @@ from nbv.physics.solidify import (
 )
 from recon.gaussians import GaussianSet
 
-from helpers.shells import OPACITY, SIGMA_N, SIGMA_T, SPACING, fibonacci_sphere, flat_gaussians, sphere_shell
+from helpers.shells import OPACITY, SIGMA_N, SIGMA_T, SPACING, flat_gaussians, sphere_shell
+from helpers.spheres import fibonacci_sphere
 
 
 def rotation(ax: float, ay: float) -> np.ndarray:

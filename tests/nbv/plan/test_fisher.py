@@ -31,17 +31,13 @@ from recon.pairs import pair_attribute_gradients, pair_attribute_gradients_refer
 from recon.projection import project_gaussians
 from recon.render import gaussian_colors, render
 
+from helpers.random_scenes import random_blobs
+
 F64 = torch.float64
 
 
 def _scene(n=6, seed=0, sh_degree=1, logit_mean=0.0, scale=0.25, dtype=F64) -> GaussianSet:
-    gen = torch.Generator().manual_seed(seed)
-    means = (torch.rand(n, 3, generator=gen, dtype=F64) * 2 - 1) * torch.tensor([0.5, 0.5, 0.3], dtype=F64)
-    quats = torch.randn(n, 4, generator=gen, dtype=F64)
-    log_scales = math.log(scale) + 0.3 * torch.randn(n, 3, generator=gen, dtype=F64)
-    logits = logit_mean + torch.randn(n, generator=gen, dtype=F64)
-    sh = 0.4 * torch.randn(n, (sh_degree + 1) ** 2, 3, generator=gen, dtype=F64)
-    return GaussianSet(means, quats, log_scales, logits, sh).to(dtype=dtype)
+    return random_blobs(n, seed, (0.5, 0.5, 0.3), scale, 0.3, sh_degree, logit_mean, dtype)
 
 
 def _camera(eye=(0.3, -0.2, -3.0), size=6, fov_deg=50.0) -> Camera:

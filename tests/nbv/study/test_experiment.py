@@ -18,6 +18,7 @@ from nbv.study.evaluate import EvalConfig, evaluate_run, sample_mesh_surface
 from nbv.study.tables import build_tables, mean_std
 
 from helpers.paths import TORUS
+from helpers.study_rows import result_row
 
 COARSE = {"particle_radius": 0.08, "steps": 20, "dt": 0.004, "directions": ["-x", "+z"]}
 TINY_ACTIVE = {
@@ -146,21 +147,10 @@ def test_eval_cli_smoke_and_bad_input(finished_run, tmp_path):
 
 
 def row(method, seed, psnr, dbar, kind="method"):
-    return {
-        "kind": kind,
-        "scene": "s",
-        "method": method,
-        "seed": seed,
-        "psnr": psnr,
-        "ssim": 0.9,
-        "lpips": None,
-        "chamfer": 0.1,
-        "dbar": dbar,
-        "dbar_empty": 2.0,
-        "critical_psnr": psnr - 1,
-        "critical_dbar": dbar / 2,
-        "dbar_per_direction": {"-x": dbar, "+x": dbar / 4},
-    }
+    per_direction = {"-x": dbar, "+x": dbar / 4}
+    return result_row(
+        method, "s", seed, psnr, dbar, kind, dbar_empty=2.0, critical_dbar=dbar / 2, dbar_per_direction=per_direction
+    )
 
 
 def test_mean_std_and_tables():

@@ -27,18 +27,8 @@ from helpers.training import TINY_TRAIN
 
 def ring(count: int, radius: float = 3.0) -> list[Camera]:
     angles = np.arange(count) * 2 * math.pi / count
-    return [
-        Camera.look_at(
-            (radius * math.cos(a), 0.0, radius * math.sin(a)),
-            (0, 0, 0),
-            (0, 1, 0),
-            16,
-            16,
-            math.radians(50),
-            name=f"c{k}",
-        )
-        for k, a in enumerate(angles)
-    ]
+    eyes = [(radius * math.cos(a), 0.0, radius * math.sin(a)) for a in angles]
+    return [Camera.look_at(e, (0, 0, 0), (0, 1, 0), 16, 16, math.radians(50), name=f"c{k}") for k, e in enumerate(eyes)]
 
 
 # ---- farthest view sampling ----------------------------------------------------------------------------

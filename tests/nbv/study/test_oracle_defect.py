@@ -91,17 +91,11 @@ def _gaussians(points: np.ndarray, colours: np.ndarray) -> GaussianSet:
 
 
 def _ring(count: int, height: float, offset: float, prefix: str) -> list[Camera]:
+    angles = (np.arange(count) + offset) * 2 * math.pi / count
+    eyes = [(2.5 * math.cos(x), height, 2.5 * math.sin(x)) for x in angles]
     return [
-        Camera.look_at(
-            (2.5 * math.cos(x), height, 2.5 * math.sin(x)),
-            (0, 0, 0),
-            (0, 1, 0),
-            48,
-            48,
-            math.radians(45),
-            name=f"{prefix}{k}",
-        )
-        for k, x in enumerate((np.arange(count) + offset) * 2 * math.pi / count)
+        Camera.look_at(e, (0, 0, 0), (0, 1, 0), 48, 48, math.radians(45), name=f"{prefix}{k}")
+        for k, e in enumerate(eyes)
     ]
 
 

@@ -21,6 +21,8 @@ from nbv.study.paired import (
 )
 from nbv.study.tables import build_tables
 
+from helpers.study_rows import result_row as row
+
 
 def test_sign_test_known_values():
     assert sign_test_p(11, 1) == pytest.approx(2 * (1 + 12) / 2**12)  # 0.00635: the README's 11 of 12
@@ -88,36 +90,18 @@ def test_paired_stats_wins_follow_the_metric_direction():
         paired_stats([1.0], [1.0, 2.0], True)
 
 
-def _row(method, scene, seed, psnr, dbar, kind="method"):
-    return {
-        "kind": kind,
-        "scene": scene,
-        "method": method,
-        "seed": seed,
-        "psnr": psnr,
-        "ssim": 0.9,
-        "lpips": None,
-        "chamfer": 0.1,
-        "dbar": dbar,
-        "dbar_empty": 1e-5,
-        "critical_psnr": psnr - 1.0,
-        "critical_dbar": dbar,
-        "dbar_per_direction": {"-x": dbar},
-    }
-
-
 def _experiment_rows() -> list[dict]:
     """fisher+fluid beats fisher on PSNR in all 8 pairs; fisher+area matches fisher+fluid (+-0.1 dB)."""
     rows = []
     for i, (scene, seed) in enumerate(itertools.product(("a", "b"), range(4))):
         base = 20.0 + i
         rows += [
-            _row("fisher", scene, seed, base, 4e-3),
-            _row("fisher+fluid", scene, seed, base + 1.0 + 0.01 * i, 3e-3),
-            _row("fisher+area", scene, seed, base + 1.0 + (0.1 if i % 2 else -0.1), 3e-3),
+            row("fisher", scene, seed, base, 4e-3),
+            row("fisher+fluid", scene, seed, base + 1.0 + 0.01 * i, 3e-3),
+            row("fisher+area", scene, seed, base + 1.0 + (0.1 if i % 2 else -0.1), 3e-3),
         ]
-    rows.append(_row("fisher+fluid", "c", 0, 30.0, 1e-3))  # no partner: not paired
-    rows.append(_row("reference-20views", "a", 0, 40.0, 1e-3, kind="reference"))
+    rows.append(row("fisher+fluid", "c", 0, 30.0, 1e-3))  # no partner: not paired
+    rows.append(row("reference-20views", "a", 0, 40.0, 1e-3, kind="reference"))
     return rows
 
 
@@ -141,17 +125,8 @@ def test_experiment_paired_table_states_what_clears_p_005():
     md, text = tables["paired"]
     body = {(r[0], r[1]): r for r in csv.reader(text.splitlines())}
     head = body[("comparison", "metric")]
-    assert head[2:] == [
-        "pairs",
-        "better",
-        "worse",
-        "ties",
-        "mean Δ",
-        "median Δ",
-        "sign-test p",
-        "Wilcoxon p",
-        "p < 0.05",
-    ]
+    tests = ["mean Δ", "median Δ", "sign-test p", "Wilcoxon p", "p < 0.05"]
+    assert head[2:] == ["pairs", "better", "worse", "ties", *tests]
     vs_fisher = body[("fisher+fluid vs fisher", "PSNR (dB)")]
     assert vs_fisher[2:6] == ["8", "8", "0", "0"]
     assert vs_fisher[6] == "+1.035" and float(vs_fisher[8]) == pytest.approx(2 / 256, abs=1e-4)
@@ -177,12 +152,12 @@ def test_experiment_paired_table_states_what_clears_p_005():
 def test_the_paired_table_says_when_too_few_pairs_can_never_clear_p_005():
     assert min_pairs_for_sign_test(0.05) == 6 and sign_test_p(5, 0) >= 0.05 > sign_test_p(6, 0)
     assert min_pairs_for_sign_test(0.01) == 8
-    rows = [_row("fisher", "a", 0, 20.0, 1e-3), _row("fisher+fluid", "a", 0, 23.0957, 1e-3)]  # one pair
+    rows = [row("fisher", "a", 0, 20.0, 1e-3), row("fisher+fluid", "a", 0, 23.0957, 1e-3)]  # one pair
     md = build_tables(rows)["paired"][0]
     assert "with 1 pair the best possible sign-test p is 1.0000, so no sign test here can clear p < 0.05" in md
     # without a comparable pair there is no paired table
-    assert "paired" not in build_tables([_row("fisher", "a", 0, 20.0, 1e-3), _row("random", "a", 0, 20.0, 1e-3)])
-    assert paired_table([_row("fisher", "a", 0, 20.0, 1e-3)]) is None
+    assert "paired" not in build_tables([row("fisher", "a", 0, 20.0, 1e-3), row("random", "a", 0, 20.0, 1e-3)])
+    assert paired_table([row("fisher", "a", 0, 20.0, 1e-3)]) is None
 
 
 def test_shuffled_controls_have_single_direction_variants_and_area_ones_do_not():
@@ -193,7 +168,7 @@ def test_shuffled_controls_have_single_direction_variants_and_area_ones_do_not()
 
 def test_ablation_table_names_what_re_ranks_the_shortlist():
     rows = [
-        _row(m, "a", 0, 20.0, 1e-3) for m in ("random+area", "fisher", "fisher+shuffled", "fisher+area", "fisher+fluid")
+        row(m, "a", 0, 20.0, 1e-3) for m in ("random+area", "fisher", "fisher+shuffled", "fisher+area", "fisher+fluid")
     ]
     body = {r[0]: r for r in csv.reader(build_tables(rows)["ablation_random"][1].splitlines())}
     assert list(body)[1:] == ["random+area", "fisher", "fisher+fluid", "fisher+area", "fisher+shuffled"]
