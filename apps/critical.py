@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .options import (
     add_camera_arguments,
-    add_gaussian_file_arguments,
+    add_gaussians_input,
     add_physics_arguments,
     add_visibility_arguments,
     camera_file_from_args,
@@ -37,14 +37,7 @@ log = logging.getLogger("fluidgs")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
-
-    p.add_argument(
-        "gaussians",
-        type=Path,
-        help=gaussians_help(),
-    )
-    add_gaussian_file_arguments(p)
+    add_gaussians_input(p)
     add_camera_arguments(p)
     p.add_argument(
         "-o",

@@ -16,7 +16,7 @@ from fluidsim.files import check_input_file
 from .options import (
     add_config_options,
     add_frame_arguments,
-    add_gaussian_file_arguments,
+    add_gaussians_input,
     check_output_file,
     physics_config_class,
     physics_config_from_args,
@@ -27,14 +27,7 @@ from .runtime import thread_count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
-
-    p.add_argument(
-        "gaussians",
-        type=Path,
-        help=gaussians_help(),
-    )
-    add_gaussian_file_arguments(p)
+    add_gaussians_input(p)
     g = p.add_argument_group("frame and solid")
     add_frame_arguments(g)
     config, quick = physics_config_class()

@@ -30,7 +30,7 @@ from fluidsim.files import write_json_atomic
 
 from .options import (
     add_camera_arguments,
-    add_gaussian_file_arguments,
+    add_gaussians_input,
     add_physics_arguments,
     add_record_arguments,
     add_visibility_arguments,
@@ -57,14 +57,7 @@ METRICS = ("max", "mean", *DIRECTIONS)  # --metric: nbv.view_scoring.metric_valu
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
-
-    p.add_argument(
-        "gaussians",
-        type=Path,
-        help=gaussians_help(),
-    )
-    add_gaussian_file_arguments(p)
+    add_gaussians_input(p)
     add_camera_arguments(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="scores JSON file (written atomically)")
     p.add_argument(

@@ -15,7 +15,7 @@ import logging
 from pathlib import Path
 
 from .options import (
-    add_gaussian_file_arguments,
+    add_gaussians_input,
     add_physics_arguments,
     add_record_arguments,
     check_output_file,
@@ -26,20 +26,14 @@ from .options import (
     warn_frame,
 )
 from .options.drawing import add_style_arguments, style_values
+from .options.scoring import simulate_from_args
 from .options.solid_export import add_solid_export_arguments, solid_export_outputs, write_solid_export
 
 log = logging.getLogger("fluidgs")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
-
-    p.add_argument(
-        "gaussians",
-        type=Path,
-        help=gaussians_help(),
-    )
-    add_gaussian_file_arguments(p)
+    add_gaussians_input(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="result HDF5 file (written atomically)")
     p.add_argument(
         "--ply",
@@ -72,9 +66,7 @@ def default_ply_path(output: Path) -> Path:
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, check_writable
     from nbv.outputs import divergence_columns, probe_video, save_colored_gaussians
-    from nbv.physics import ProbeDiverged, save_result, simulate_gaussians
-
-    from .runtime import init_taichi
+    from nbv.physics import ProbeDiverged, save_result
 
     config = physics_config_from_args(args)
     output = check_output_file(args.output, (".h5", ".hdf5"))
@@ -102,16 +94,8 @@ def run_command(args: argparse.Namespace) -> int:
         )
     gaussians = load_gaussians_checked(args.gaussians, args)
     warn_frame(config, up_given=args.up is not None)
-    init_taichi(args.device, config.precision, args.threads)
     try:
-        result = simulate_gaussians(
-            gaussians,
-            config,
-            progress=True,
-            source=str(args.gaussians),
-            source_frame=getattr(args, "source_frame", ""),
-            record=record,
-        )
+        result = simulate_from_args(args, gaussians, config, record)
     except ProbeDiverged as exc:
         return save_diverged(exc, output)
     save_result(output, result)

@@ -20,7 +20,7 @@ import argparse
 from pathlib import Path
 
 from .options import (
-    add_gaussian_file_arguments,
+    add_gaussians_input,
     add_physics_arguments,
     check_output_file,
     load_gaussians_checked,
@@ -30,14 +30,7 @@ from .options.sweep_report import drag_words, length_words, print_estimate, prin
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
-
-    p.add_argument(
-        "gaussians",
-        type=Path,
-        help=gaussians_help(),
-    )
-    add_gaussian_file_arguments(p)
+    add_gaussians_input(p)
     from nbv.study.sweep import PAPER_VELOCITIES
 
     p.add_argument(

@@ -51,6 +51,7 @@ from .fields import (
 )
 from .files import (
     add_gaussian_file_arguments,
+    add_gaussians_input,
     check_output_file,
     check_output_folder,
     dataset_inputs,
@@ -97,6 +98,7 @@ __all__ = [
     "index_list",
     "load_gaussians_checked",
     "add_gaussian_file_arguments",
+    "add_gaussians_input",
     "option_dest",
     "option_names",
     "options_named",

@@ -10,6 +10,15 @@ from pathlib import Path
 from fluidsim.files import check_input_file
 
 
+def add_gaussians_input(p: argparse.ArgumentParser) -> None:
+    """The positional GAUSSIANS file (its help lists the formats the readers know), then
+    :func:`add_gaussian_file_arguments`."""
+    from recon.formats import gaussians_help  # noqa: PLC0415 - the readers load torch: only when building the options
+
+    p.add_argument("gaussians", type=Path, help=gaussians_help())
+    add_gaussian_file_arguments(p)
+
+
 def add_gaussian_file_arguments(p: argparse.ArgumentParser) -> None:
     """--spz-frame, --colmap and --dataparser-transforms: what a Gaussian file's content cannot say
     (:class:`recon.formats.LoadOptions`)."""

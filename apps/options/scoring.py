@@ -99,12 +99,29 @@ def write_orbit_cameras(path: Path | None, cameras, command: str, spec: str, orb
     write_json_atomic(path, transforms_json(cameras, f"fluidgs {command} --cameras {spec}: {orbit.describe()}"))
 
 
+def simulate_from_args(args, gaussians, config, record=None):
+    """:func:`nbv.physics.simulate_gaussians` with a progress bar, on the device, precision and threads of ``args``,
+    its source named as ``args.gaussians`` (and ``args.source_frame`` where given); ``record`` as in
+    :func:`obtain_result`."""
+    from nbv.physics import simulate_gaussians
+
+    from ..runtime import init_taichi
+
+    init_taichi(args.device, config.precision, args.threads)
+    return simulate_gaussians(
+        gaussians,
+        config,
+        progress=True,
+        source=str(args.gaussians),
+        source_frame=getattr(args, "source_frame", ""),
+        record=record,
+    )
+
+
 def obtain_result(args, gaussians, config, record=None):
     """PhysicsResult from --result, or a fresh simulation (then saved to --save-result when given; ``record``: the
     probes to record, :class:`nbv.physics.trajectory.RecordConfig`)."""
-    from nbv.physics import check_result_matches, load_result, save_result, simulate_gaussians
-
-    from ..runtime import init_taichi
+    from nbv.physics import check_result_matches, load_result, save_result
 
     if args.result is not None:
         result = load_result(args.result)
@@ -113,15 +130,7 @@ def obtain_result(args, gaussians, config, record=None):
             for note in notes:
                 log.warning("%s, probe %s: %s", args.result, d, note)
         return result
-    init_taichi(args.device, config.precision, args.threads)
-    result = simulate_gaussians(
-        gaussians,
-        config,
-        progress=True,
-        source=str(args.gaussians),
-        source_frame=getattr(args, "source_frame", ""),
-        record=record,
-    )
+    result = simulate_from_args(args, gaussians, config, record)
     if args.save_result is not None:
         save_result(args.save_result, result)
     return result
