@@ -108,36 +108,34 @@ def _flat_work(first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndar
     return keep, offsets, int(offsets[-1])
 
 
+def _splat_boxes(splat, lead: tuple, first, last, means, inv_covs, opacities, lattice_min, spacing: float, out) -> None:
+    """Run the Taichi kernel ``splat`` over every lattice point (or edge) of each Gaussian's box [first, last],
+    ``_WORK_CHUNK`` work items per launch, adding into ``out``; ``lead``: the kernel's arguments between the chunk
+    and the boxes (the edge axis)."""
+    keep, offsets, total = _flat_work(first, last)
+    if not total:
+        return
+    args = _ndarrays(
+        offsets=(offsets, ti.i64),
+        box_lo=(first[keep].astype(np.int32), ti.i32),
+        box_dims=((last[keep] - first[keep] + 1).astype(np.int32), ti.i32),
+        means=(means[keep], ti.f64),
+        inv_covs=(inv_covs[keep], ti.f64),
+        opacities=(opacities[keep], ti.f64),
+    )
+    boxes = [args[k] for k in ("offsets", "box_lo", "box_dims", "means", "inv_covs", "opacities")]
+    origin = ti.Vector(lattice_min.tolist(), ti.f64)
+    for start in range(0, total, _WORK_CHUNK):
+        splat(start, min(_WORK_CHUNK, total - start), *lead, *boxes, origin, float(spacing), MAX_ALPHA, out)
+
+
 def _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config) -> np.ndarray:
     """Test 1's field: [X, Y, Z] float32 sum_g log(1 - o_g exp(-d_g^2 / 2)) (Taichi)."""
     first, last = box_index_ranges(means, covs, lattice_min, dims, config)
-    keep, offsets, total = _flat_work(first, last)
     log_t = ti.ndarray(ti.f32, shape=tuple(int(d) for d in dims))
     log_t.fill(0.0)
-    if total:
-        args = _ndarrays(
-            offsets=(offsets, ti.i64),
-            box_lo=(first[keep].astype(np.int32), ti.i32),
-            box_dims=((last[keep] - first[keep] + 1).astype(np.int32), ti.i32),
-            means=(means[keep], ti.f64),
-            inv_covs=(inv_covs[keep], ti.f64),
-            opacities=(opacities[keep], ti.f64),
-        )
-        for start in range(0, total, _WORK_CHUNK):
-            solid_kernels.splat_log_transmittance(
-                start,
-                min(_WORK_CHUNK, total - start),
-                args["offsets"],
-                args["box_lo"],
-                args["box_dims"],
-                args["means"],
-                args["inv_covs"],
-                args["opacities"],
-                ti.Vector(lattice_min.tolist(), ti.f64),
-                float(config.spacing),
-                MAX_ALPHA,
-                log_t,
-            )
+    splat = solid_kernels.splat_log_transmittance
+    _splat_boxes(splat, (), first, last, means, inv_covs, opacities, lattice_min, config.spacing, log_t)
     return log_t.to_numpy()
 
 
@@ -189,33 +187,8 @@ def _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims,
         if dims[axis] < 2:
             continue
         first, last = _edge_boxes(means, covs, lattice_min, dims, config, axis)
-        keep, offsets, total = _flat_work(first, last)
-        if not total:
-            continue
-        args = _ndarrays(
-            offsets=(offsets, ti.i64),
-            box_lo=(first[keep].astype(np.int32), ti.i32),
-            box_dims=((last[keep] - first[keep] + 1).astype(np.int32), ti.i32),
-            means=(means[keep], ti.f64),
-            inv_covs=(inv_covs[keep], ti.f64),
-            opacities=(opacities[keep], ti.f64),
-        )
-        for start in range(0, total, _WORK_CHUNK):
-            solid_kernels.splat_edge_log_transmittance(
-                start,
-                min(_WORK_CHUNK, total - start),
-                axis,
-                args["offsets"],
-                args["box_lo"],
-                args["box_dims"],
-                args["means"],
-                args["inv_covs"],
-                args["opacities"],
-                ti.Vector(lattice_min.tolist(), ti.f64),
-                float(config.spacing),
-                MAX_ALPHA,
-                edges,
-            )
+        splat = solid_kernels.splat_edge_log_transmittance
+        _splat_boxes(splat, (axis,), first, last, means, inv_covs, opacities, lattice_min, config.spacing, edges)
     return edges.to_numpy()
 
 

@@ -105,6 +105,19 @@ def surface_distance_reference(points, vertices, triangles) -> np.ndarray:
     return np.array([float(np.linalg.norm(_closest_on_triangles(x, a, b, c) - x, axis=1).min()) for x in p])
 
 
+def area_weighted_corners(
+    v: np.ndarray, t: np.ndarray, count: int, rng: np.random.Generator, what: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The corners a, b, c ([count, 3] each) of ``count`` triangles of the mesh (``v`` [V, 3], ``t`` [T, 3]) drawn
+    from ``rng`` with probability proportional to their area; a mesh of zero area raises ValueError, named ``what``."""
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    if not area.sum() > 0:
+        raise ValueError(f"{what}: the mesh has zero area")
+    tri = rng.choice(len(t), size=count, p=area / area.sum())
+    return a[tri], b[tri], c[tri]
+
+
 def sample_surface(vertices, triangles, count: int, seed: int = 0) -> np.ndarray:
     """``count`` points uniform by area on the mesh surface (a numpy Generator seeded with ``seed``).
 
@@ -114,15 +127,11 @@ def sample_surface(vertices, triangles, count: int, seed: int = 0) -> np.ndarray
     v, t = _check_mesh(vertices, triangles)
     if count < 1:
         raise ValueError(f"sample_surface: count must be >= 1, got {count}")
-    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    if not area.sum() > 0:
-        raise ValueError("sample_surface: the mesh has zero area")
     rng = np.random.default_rng(seed)
-    tri = rng.choice(len(t), size=count, p=area / area.sum())
+    a, b, c = area_weighted_corners(v, t, count, rng, "sample_surface")
     r1, r2 = rng.random(count), rng.random(count)
     s = np.sqrt(r1)
-    return (1 - s)[:, None] * a[tri] + (s * (1 - r2))[:, None] * b[tri] + (s * r2)[:, None] * c[tri]
+    return (1 - s)[:, None] * a + (s * (1 - r2))[:, None] * b + (s * r2)[:, None] * c
 
 
 def missing_samples(

@@ -46,6 +46,7 @@ from nbv.active.run_dir import read_run_config
 from nbv.io import json_safe, write_json_atomic, write_text_atomic
 from nbv.physics import PhysicsConfig, simulate_gaussians
 from nbv.scores import critical_scores, critical_subset, geometry_divergence, unoccluded
+from nbv.study.calibration import area_weighted_corners
 from recon.datasets import load_dataset
 from recon.formats import load_gaussians
 from recon.mesh_render import load_mesh
@@ -184,16 +185,12 @@ def sample_mesh_surface(vertices: np.ndarray, triangles: np.ndarray, count: int,
     t = np.asarray(triangles, np.int64)
     if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0:
         raise ValueError(f"sample_mesh_surface: triangles must be [T, 3] with T >= 1, got {t.shape}")
-    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    if not area.sum() > 0:
-        raise ValueError("sample_mesh_surface: the mesh has zero area")
     rng = np.random.default_rng(seed)
-    tri = rng.choice(len(t), size=count, p=area / area.sum())
+    a, b, c = area_weighted_corners(v, t, count, rng, "sample_mesh_surface")
     u, w = rng.random(count), rng.random(count)
     flip = u + w > 1.0
     u[flip], w[flip] = 1.0 - u[flip], 1.0 - w[flip]
-    return a[tri] + u[:, None] * (b[tri] - a[tri]) + w[:, None] * (c[tri] - a[tri])
+    return a + u[:, None] * (b - a) + w[:, None] * (c - a)
 
 
 def chamfer_to_mesh(gaussians, mesh_path: Path, config: EvalConfig) -> dict[str, Any]:
