@@ -92,16 +92,29 @@ def run_command(args: argparse.Namespace) -> int:
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
     from recon.train import TrainConfig, evaluate
 
+    from .options.fields import options_named
+
     out = args.output
     check_arguments(args)
+    names = {
+        "TrainConfig.iterations": "--iters",
+        "TrainConfig.seed": "--seed",
+        "TrainConfig.max_gaussians": "--max-gaussians",
+        "MeshDatasetConfig.n_train": "--candidates",
+        "MeshDatasetConfig.n_test": "--test",
+        "MeshDatasetConfig.resolution": "--res",
+        "MeshDatasetConfig.seed": "--seed",
+        "MeshDatasetConfig.supersample": "supersampling",
+    }
+    with options_named(names):  # checked before the output folder is made or the seed is set
+        mesh_cfg = MeshDatasetConfig(n_train=args.candidates, n_test=args.test, resolution=args.res, seed=args.seed)
+        config = TrainConfig.for_iterations(
+            args.iters, sh_degree=args.sh_degree, seed=args.seed, max_gaussians=args.max_gaussians
+        )
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     start = time.perf_counter()
-    mesh_cfg = MeshDatasetConfig(n_train=args.candidates, n_test=args.test, resolution=args.res, seed=args.seed)
-    config = TrainConfig.for_iterations(
-        args.iters, sh_degree=args.sh_degree, seed=args.seed, max_gaussians=args.max_gaussians
-    )
     with tempfile.TemporaryDirectory(prefix="fluidgs-assets-") as tmp:
         mesh_path = Path(tmp) / "ahmed.obj"
         write_ahmed(mesh_path)

@@ -10,6 +10,7 @@ from pathlib import Path
 from fluidsim.files import write_json_atomic
 
 from .options import add_config_options, config_values, dataset_inputs, index_list
+from .options.fields import option_names, options_named
 from .options.files import check_ply_output
 from .runtime import deterministic_torch, thread_count
 
@@ -77,6 +78,7 @@ def run_command(args: argparse.Namespace) -> int:
     import torch
 
     from fluidsim.files import check_not_input, check_writable
+    from recon.camera import MAX_IMAGE_SIDE
     from recon.device import torch_device
     from recon.formats.ply import save_gaussians
     from recon.train import TrainConfig, evaluate, view_to
@@ -85,15 +87,21 @@ def run_command(args: argparse.Namespace) -> int:
     check_not_input({"-o": args.output, "report": args.output.with_suffix(".json")}, dataset_inputs(args.dataset))
     check_writable(args.output)
     check_writable(args.output.with_suffix(".json"))
-    if args.res < 0:
-        raise ValueError(f"--res must be a width in pixels >= 1 (or 0 for native), got {args.res}")
+    if not 0 <= args.res <= MAX_IMAGE_SIDE:
+        raise ValueError(
+            f"--res must be a width in pixels from 1 to {MAX_IMAGE_SIDE:,} (or 0 for native), got {args.res}"
+        )
     if args.eval_every < 0:
         raise ValueError(f"--eval-every must be >= 0, got {args.eval_every}")
     if args.threads is not None:
         if args.threads < 1:
             raise ValueError(f"--threads must be >= 1, got {args.threads}")
         torch.set_num_threads(args.threads)
-    config = TrainConfig.for_iterations(args.iters, **config_values(TrainConfig, args, TRAIN_FIELDS, TRAIN_OVERRIDES))
+    names = {**option_names(TrainConfig, TRAIN_FIELDS, TRAIN_OVERRIDES), "TrainConfig.iterations": "--iters"}
+    with options_named(names):
+        config = TrainConfig.for_iterations(
+            args.iters, **config_values(TrainConfig, args, TRAIN_FIELDS, TRAIN_OVERRIDES)
+        )
     seed = config.seed
     device = torch_device(args.device)
     torch.manual_seed(seed)

@@ -22,6 +22,12 @@ SCHEDULE_FIELDS = (
 )
 # A density step averages the gradient over the views seen since the last one: keep at least this many.
 MIN_DENSIFICATION_INTERVAL = 10
+# Upper bounds checked before any work: far above any real run (the reference trains 30,000 iterations from 100,000
+# SfM points at most), low enough that a mistyped number is refused at once instead of running for weeks or asking
+# for terabytes (init_points x 59 floats are allocated at the start).
+MAX_ITERATIONS = 1_000_000
+MAX_INIT_POINTS = 10_000_000
+MAX_SEED = 2**32 - 1
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 
 
@@ -106,6 +112,12 @@ class TrainConfig:
             val = getattr(self, name)
             if isinstance(val, bool) or not isinstance(val, int) or val < 1:
                 raise ValueError(f"TrainConfig.{name} must be an integer >= 1, got {val!r}")
+        for name, high, what in (
+            ("iterations", MAX_ITERATIONS, f"iterations (the reference trains {REFERENCE_ITERATIONS:,})"),
+            ("init_points", MAX_INIT_POINTS, "initial points (each holds 59 floats from the start)"),
+        ):
+            if getattr(self, name) > high:
+                raise ValueError(f"TrainConfig.{name} must be at most {high:,} {what}, got {getattr(self, name):,}")
         for name in ("densify_from_iter", "densify_until_iter", "position_lr_delay_steps", "seed"):
             val = getattr(self, name)
             if isinstance(val, bool) or not isinstance(val, int) or val < 0:
@@ -133,6 +145,8 @@ class TrainConfig:
             val = getattr(self, name)
             if isinstance(val, bool) or not isinstance(val, (int, float)) or not 0.0 < val < 1.0:
                 raise ValueError(f"TrainConfig.{name} must be in (0, 1), got {val!r}")
+        if self.seed > MAX_SEED:
+            raise ValueError(f"TrainConfig.seed must be at most {MAX_SEED:,} (a 32-bit seed), got {self.seed:,}")
         if not isinstance(self.adam_eps, (int, float)) or not self.adam_eps >= 0:
             raise ValueError(f"TrainConfig.adam_eps must be >= 0, got {self.adam_eps!r}")
         if self.sh_degree not in (0, 1, 2, 3) or isinstance(self.sh_degree, bool):
@@ -169,7 +183,12 @@ class TrainConfig:
             1500
         """
         if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-            raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
+            raise ValueError(f"TrainConfig.iterations must be an integer >= 1, got {iterations!r}")
+        if iterations > MAX_ITERATIONS:
+            raise ValueError(
+                f"TrainConfig.iterations must be at most {MAX_ITERATIONS:,} iterations (the reference trains "
+                f"{REFERENCE_ITERATIONS:,}), got {iterations:,}"
+            )
         ref = cls()
         f = iterations / REFERENCE_ITERATIONS
         scaled = {name: max(1, round(getattr(ref, name) * f)) if getattr(ref, name) else 0 for name in SCHEDULE_FIELDS}

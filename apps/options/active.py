@@ -141,6 +141,8 @@ def config_from_args(args: argparse.Namespace):
         **option_names(ActiveConfig, (*ACTIVE_FIELDS, "backend"), over),
         **option_names(TrainConfig, TRAIN_FIELDS, over),
         **option_names(PhysicsConfig, PHYSICS_FIELDS, over),
+        "TrainConfig.iterations": "--iterations",
+        "ActiveConfig.up": "--up",
     }
     active, train, physics = option_values(args)
     with options_named(names):

@@ -8,7 +8,8 @@ from typing import Any
 
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.scene_frame import parse_up
-from recon.train_config import TrainConfig
+from recon.camera import MAX_IMAGE_SIDE
+from recon.train_config import MAX_SEED, TrainConfig
 
 MODES = ("continue", "reset")
 
@@ -17,7 +18,6 @@ CHECKPOINT_VERSION = 1
 # Upper bounds of the counts that allocate (a list of rounds, a tuple of initial ids, one job per seed): far above
 # any dataset or study, low enough that a mistyped number is refused at once instead of filling the memory.
 MAX_VIEWS = 100_000
-MAX_SEED = 2**32 - 1
 
 RUN_FILES = ("config.json", "rounds.json", "checkpoint.pt", "gaussians.ply", "eval.json", "eval.md")
 
@@ -116,12 +116,13 @@ class ActiveConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:
                 raise ValueError(f"ActiveConfig.{name} must be an integer >= {low}, got {v!r}")
-        for name, high in (("budget", MAX_VIEWS), ("initial_count", MAX_VIEWS), ("seed", MAX_SEED)):
+        for name, high, note in (
+            ("budget", MAX_VIEWS, "a view count is at most the dataset's candidate views"),
+            ("initial_count", MAX_VIEWS, "a view count is at most the dataset's candidate views"),
+            ("seed", MAX_SEED, "a seed is a 32-bit integer"),
+        ):
             if getattr(self, name) > high:
-                raise ValueError(
-                    f"ActiveConfig.{name} must be at most {high:,}, got {getattr(self, name):,}; "
-                    "a view count is at most the dataset's candidate views"
-                )
+                raise ValueError(f"ActiveConfig.{name} must be at most {high:,}, got {getattr(self, name):,}; {note}")
         if self.initial_ids is not None:
             if isinstance(self.initial_ids, (str, bytes)) or len(self.initial_ids) > MAX_VIEWS:
                 raise ValueError(f"ActiveConfig.initial_ids must be a list of at most {MAX_VIEWS:,} view indices")
@@ -147,6 +148,11 @@ class ActiveConfig:
             isinstance(self.resolution, bool) or not isinstance(self.resolution, int) or self.resolution < 8
         ):
             raise ValueError(f"ActiveConfig.resolution must be None or a width >= 8 pixels, got {self.resolution!r}")
+        if self.resolution is not None and self.resolution > MAX_IMAGE_SIDE:
+            raise ValueError(
+                f"ActiveConfig.resolution must be at most {MAX_IMAGE_SIDE:,} pixels (the largest image side a camera "
+                f"may have), got {self.resolution:,}"
+            )
         if not isinstance(self.physics, PhysicsConfig):
             raise ValueError(f"ActiveConfig.physics must be a PhysicsConfig, got {type(self.physics).__name__}")
         for name in ("train", "planner"):

@@ -183,17 +183,21 @@ class ExperimentConfig:
 
 
 @contextmanager
-def _config_keys(keys: dict[str, str]) -> Iterator[None]:
-    """Re-raise a ValueError of a nested config with its ``Class.field`` names as the experiment config's keys
-    (``ActiveConfig.budget`` -> ``'active.budget'``): the user wrote the keys, not the classes."""
+def _config_keys(keys: dict[str, str], what: str = "experiment config") -> Iterator[None]:
+    """Re-raise a ValueError of a nested config with its ``Class.field`` names as the ``what`` config's keys
+    (``ActiveConfig.budget`` -> ``'active.budget'``): the user wrote the keys, not the classes. The training
+    iterations of an active run are its ``total_iterations`` (the TrainConfig's are derived from it)."""
     try:
         yield
     except ValueError as exc:
+        message = str(exc)
+        if "ActiveConfig" in keys:
+            message = re.sub(r"\bTrainConfig\.iterations\b", "ActiveConfig.total_iterations", message)
         pattern = re.compile(rf"\b({'|'.join(keys)})\.(\w+)")
-        message = pattern.sub(lambda m: f"'{keys[m.group(1)]}{m.group(2)}'", str(exc))
+        message = pattern.sub(lambda m: f"'{keys[m.group(1)]}{m.group(2)}'", message)
         if message == str(exc):
             raise
-        raise ValueError(f"experiment config: {message}") from None
+        raise ValueError(f"{what}: {message}") from None
 
 
 def check_method(method: str) -> str:

@@ -38,9 +38,14 @@ from nbv.active.config import MAX_SEED
 from nbv.physics import PhysicsConfig
 from nbv.plan import PLANNERS
 from nbv.plan.rules import VALUES
-from nbv.study.experiment_config import MAX_JOBS
+from nbv.study.experiment_config import MAX_JOBS, _config_keys
+from recon.train_config import MAX_ITERATIONS
 
 log = logging.getLogger(__name__)
+
+# Bootstrap resamples of an interval: 2000 is the default; each resample re-ranks every state, so a mistyped count is
+# refused before the study runs rather than after its states.
+MAX_BOOTSTRAP = 1_000_000
 
 CONFIG_KEYS = (
     "scenes",
@@ -259,17 +264,19 @@ class OracleConfig:
                 f"oracle config: 'planner' {self.planner!r} is not a planner; choose one of "
                 f"{', '.join(sorted(PLANNERS))}"
             )
-        if not _is_int(self.horizon, 1):
+        if not _is_int(self.horizon, 1) or self.horizon > MAX_ITERATIONS:
             raise ValueError(
-                f"oracle config: 'horizon' (M, iterations per oracle copy) must be an integer >= 1, "
-                f"got {self.horizon!r}; the study's default is 100"
+                f"oracle config: 'horizon' (M, iterations per oracle copy) must be an integer from 1 to "
+                f"{MAX_ITERATIONS:,}, got {self.horizon!r}; the study's default is 100"
             )
         if self.top_k is not None and not _is_int(self.top_k, 1):
             raise ValueError(
                 f"oracle config: 'top_k' must be null (the loop's K) or an integer >= 1, got {self.top_k!r}"
             )
-        if not _is_int(self.bootstrap, 100):
-            raise ValueError(f"oracle config: 'bootstrap' must be an integer >= 100, got {self.bootstrap!r}")
+        if not _is_int(self.bootstrap, 100) or self.bootstrap > MAX_BOOTSTRAP:
+            raise ValueError(
+                f"oracle config: 'bootstrap' must be an integer from 100 to {MAX_BOOTSTRAP:,}, got {self.bootstrap!r}"
+            )
         if not isinstance(self.calibration, bool):
             raise ValueError(f"oracle config: 'calibration' must be true or false, got {self.calibration!r}")
         if not isinstance(self.active, dict):
@@ -292,7 +299,9 @@ class OracleConfig:
                     'functional target, e.g. {"particle_radius": 0.05, "steps": 300, "directions": ["-x"]}'
                 )
             self.functional_config()
-        base = self.active_config(self.seeds[0])  # validates the preset and the overrides
+        keys = {"ActiveConfig": "active.", "TrainConfig": "active.train.", "PhysicsConfig": "active.physics."}
+        with _config_keys(keys, "oracle config"):
+            base = self.active_config(self.seeds[0])  # validates the preset and the overrides
         for name in self.probes:
             self.probe_config(name)
         low = base.initial_count

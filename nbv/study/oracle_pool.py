@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from fluidsim.files import check_input_file, read_json
-from nbv.study.oracle_config import OracleConfig
+from nbv.study.oracle_config import MAX_BOOTSTRAP, OracleConfig
 
 MAX_STATE_BYTES = 64 << 20  # a state file is a few hundred KB (its rules' scores per candidate)
 
@@ -65,6 +65,8 @@ def pool_studies(folders: list[str | Path], bootstrap: int | None = None) -> Poo
     """
     if not folders:
         raise ValueError("give at least one oracle study folder")
+    if bootstrap is not None and not 1 <= bootstrap <= MAX_BOOTSTRAP:
+        raise ValueError(f"--bootstrap must be from 1 to {MAX_BOOTSTRAP:,} resamples, got {bootstrap:,}")
     first_cfg: dict | None = None
     first_folder = None
     states: list[dict] = []

@@ -36,7 +36,12 @@ class _InProcess:
 
 @pytest.mark.parametrize(
     "active, key",
-    [({"budget": 0}, "'active.budget' must be"), ({"budget": 4, "physics": {"steps": 0}}, "'active.physics.steps'")],
+    [
+        ({"budget": 0}, "'active.budget' must be"),
+        ({"budget": 4, "physics": {"steps": 0}}, "'active.physics.steps'"),
+        ({"budget": 4, "total_iterations": 10**14}, "'active.total_iterations' must be at most 1,000,000"),  # ran
+        ({"budget": 4, "resolution": 10**8}, "'active.resolution' must be at most 65,536"),  # failed in the job
+    ],
 )
 def test_experiment_config_errors_name_the_key(blender_scene, tmp_path, caplog, active, key):
     path = tmp_path / "exp.json"

@@ -25,3 +25,28 @@ def test_rename_fields_replaces_whole_names_only():
     names = option_names(PhysicsConfig, ("steps", "fill_cavities"), {"fill_cavities": {"flags": ("--no-fill",)}})
     assert names == {"PhysicsConfig.steps": "--steps", "PhysicsConfig.fill_cavities": "--no-fill"}
     assert rename_fields("PhysicsConfig.steps and PhysicsConfig.steps_x", names) == "--steps and PhysicsConfig.steps_x"
+
+
+def test_training_counts_are_bounded_and_named_as_options(tmp_path, caplog):
+    """train --init-points 10^12 was a torch allocation traceback, --iters 10^14 and active --iterations 10^14 ran
+    for ever, --seed 10^20 said 'Overflow when unpacking long long', --up 0,0,0 spoke of ActiveConfig.up, and
+    make-assets spoke of TrainConfig and MeshDatasetConfig; each is refused up front, naming the option."""
+    ds, ply = str(tmp_path / "ds"), str(tmp_path / "o.ply")
+    cases = [
+        (["train", ds, "-o", ply, "--iters", "99999999999999"], "--iters must be at most 1,000,000"),
+        (["train", ds, "-o", ply, "--init-points", "1000000000000"], "--init-points must be at most 10,000,000"),
+        (["train", ds, "-o", ply, "--seed", "99999999999999999999"], "--seed must be at most 4,294,967,295"),
+        (["train", ds, "-o", ply, "--res", "10000000"], "--res must be a width in pixels from 1 to 65,536"),
+        (["active", ds, "-o", str(tmp_path / "run"), "--iterations", "99999999999999"], "--iterations must be at most"),
+        (["active", ds, "-o", str(tmp_path / "run"), "--res", "100000000"], "--res must be at most 65,536"),
+        (["active", ds, "-o", str(tmp_path / "run"), "--seed", "99999999999999999999"], "a seed is a 32-bit"),
+        (["active", ds, "-o", str(tmp_path / "run"), "--up", "0,0,0"], "--up '0,0,0' is the zero vector"),
+        (["make-assets", "-o", str(tmp_path / "a"), "--iters", "999999999999"], "--iters must be at most"),
+        (["make-assets", "-o", str(tmp_path / "a"), "--seed", "99999999999999999999"], "--seed must be at most"),
+        (["make-assets", "-o", str(tmp_path / "a"), "--candidates", "100000000"], "--candidates + --test must be"),
+    ]
+    for argv, expected in cases:
+        caplog.clear()
+        assert cli.main(argv) == 2, argv
+        assert expected in error_text(caplog) and "Config" not in error_text(caplog), (argv, error_text(caplog))
+    assert not (tmp_path / "a").exists()  # make-assets checks before it makes its folder

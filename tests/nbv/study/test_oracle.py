@@ -221,6 +221,11 @@ def test_old_rule_names_still_load_with_a_note(tmp_path, caplog):
         ({"probes": {"a": {"steps": -1}}}, "probes"),
         ({"seeds": list(range(1_000_000))}, "seeds"),  # about 46 days of work: refused before any
         ({"seeds": [2**62]}, "seeds"),
+        ({"horizon": 10**14}, "horizon"),  # ran for ever: no upper bound
+        ({"bootstrap": 10**12}, "bootstrap"),
+        ({"active": {"total_iterations": 10**14}}, "active.total_iterations"),  # ran; then spoke of TrainConfig
+        ({"active": {"resolution": 10**8}}, "active.resolution"),  # spoke of "Camera 'r_000'" after loading
+        ({"active": {"iterations_per_view": 10**4}}, "active.total_iterations"),  # spoke of ActiveConfig
     ],
 )
 def test_bad_config_names_the_key(tmp_path, over, key):
