@@ -477,6 +477,11 @@ def load_blender(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, re
     for split in SPLITS:
         json_path = root / f"transforms_{split}.json"
         splits[split] = _load_blender_split(json_path, bg, downscale, resolution, cache) if json_path.is_file() else []
+    if not splits["train"]:
+        raise ValueError(
+            f"{root / 'transforms_train.json'}: 'frames' is empty; a dataset needs at least one train view (a frame "
+            "with 'file_path' and 'transform_matrix')"
+        )
     logger.info(
         "loaded Blender dataset %s: %d train, %d val, %d test views",
         root,
@@ -632,7 +637,10 @@ def load_dataset(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, re
     if root.is_file() and root.name.startswith("transforms_") and root.suffix == ".json":
         root = root.parent
     loader = load_blender if dataset_format(root) == "blender" else load_colmap
-    return loader(root, background=background, downscale=downscale, resolution=resolution)
+    dataset = loader(root, background=background, downscale=downscale, resolution=resolution)
+    if not dataset.train:
+        raise ValueError(f"{root}: the dataset has no train views; add images to it (every 8th is held out for test)")
+    return dataset
 
 
 def count_train_views(path) -> int | None:

@@ -109,6 +109,8 @@ def check_plan(args: argparse.Namespace) -> None:
         raise ValueError(f"--method {v['method']!r} is not a planner; choose one of {', '.join(sorted(PLANNERS))}")
     budget = v["budget"]
     candidates = count_train_views(args.dataset)
+    if candidates == 0:
+        raise ValueError(f"{args.dataset} has no train (candidate) views; add train views to the dataset")
     if candidates is not None and budget > candidates:
         raise ValueError(
             f"--budget {budget} is more than the {candidates} candidate (train) views of "

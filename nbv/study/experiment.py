@@ -256,6 +256,11 @@ def check_scenes(config: ExperimentConfig) -> None:
             raise ValueError(f"experiment config 'scenes': {exc}") from exc
     for scene in config.scenes:
         views = count_train_views(scene)
+        if views == 0:
+            raise ValueError(
+                f"experiment config 'scenes': {scene} has no train (candidate) views; add train views to it or "
+                "drop the scene"
+            )
         if views is not None:
             config.check_scene_views(scene, views)
 

@@ -74,3 +74,24 @@ def test_deeply_nested_json_is_a_clear_error(tmp_path, caplog):
     ):
         with pytest.raises(ValueError, match="too deeply"):
             read(tmp_path / name)
+
+
+def test_a_dataset_without_train_views_is_named(tmp_path, caplog):
+    """A transforms_train.json with an empty 'frames' list was an IndexError traceback in train, and active, the
+    experiment and the oracle said to lower the budget or the states 'to at most 0'."""
+    import json
+
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    (ds / "transforms_train.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": []}))
+    assert cli.main(["train", str(ds), "-o", str(tmp_path / "o.ply"), "--iters", "2"]) == 2
+    assert "transforms_train.json: 'frames' is empty; a dataset needs at least one train view" in error_text(caplog)
+    caplog.clear()
+    assert cli.main(["active", str(ds), "-o", str(tmp_path / "run"), "--budget", "3"]) == 2
+    assert "has no train (candidate) views" in error_text(caplog) and not (tmp_path / "run").exists()
+    caplog.clear()
+    exp = tmp_path / "exp.json"
+    exp.write_text(json.dumps({"scenes": [str(ds)], "methods": ["random"], "output": str(tmp_path / "out")}))
+    assert cli.main(["experiment", str(exp), "--no-progress"]) == 2
+    assert "'scenes': " in error_text(caplog) and "has no train (candidate) views" in error_text(caplog)
+    assert not (tmp_path / "out").exists()
