@@ -51,6 +51,7 @@ def run_command(args: argparse.Namespace) -> int:
     from recon.ahmed import MESH_SUFFIXES, AhmedBody, ahmed_body, enclosed_volume, save_mesh
 
     from .options import config_values
+    from .options.fields import option_names, options_named
 
     if args.output.suffix.lower() not in MESH_SUFFIXES:  # refuse before building anything
         raise ValueError(
@@ -60,7 +61,9 @@ def run_command(args: argparse.Namespace) -> int:
         **{f: getattr(AhmedBody, f) for f in ("slant_deg", "stilts", "resolution")},
         **config_values(AhmedBody, args, ("slant_deg", "stilts", "resolution"), OVERRIDES),
     }
-    mesh = ahmed_body(body["slant_deg"], body["resolution"], stilts=body["stilts"], up=args.up, scale=args.scale)
+    names = {**option_names(AhmedBody, ("slant_deg", "stilts", "resolution"), OVERRIDES), "scale": "--scale"}
+    with options_named(names):
+        mesh = ahmed_body(body["slant_deg"], body["resolution"], stilts=body["stilts"], up=args.up, scale=args.scale)
     path = save_mesh(mesh, args.output)
     extent = mesh.get_axis_aligned_bounding_box().get_extent()
     print(

@@ -43,6 +43,11 @@ from .gaussians import GaussianSet
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".gltf", ".glb")
 
 
+# The finest mesh edge: the triangle count grows as 1 / resolution^2 (35,492 at 0.01 m), and 1e-9 m asked for 10^20
+# triangles, so the machine ran out of memory before any message.
+MIN_RESOLUTION = 0.001
+
+
 @dataclass(frozen=True)
 class AhmedBody:
     """Geometry of the Ahmed body, metres and degrees (defaults: Ahmed et al. 1984).
@@ -103,6 +108,11 @@ class AhmedBody:
             raise ValueError(
                 f"AhmedBody.slant_length {self.slant_length} at {self.slant_deg} deg cuts through "
                 f"the whole height {self.height}"
+            )
+        if self.resolution < MIN_RESOLUTION:  # about 35,000 x (0.01 / resolution)^2 triangles: 3.5 million here
+            raise ValueError(
+                f"AhmedBody.resolution {self.resolution} m is finer than {MIN_RESOLUTION} m, which already makes "
+                "about 3.5 million triangles; use a coarser resolution (default 0.01)"
             )
         if self.resolution > min(self.width, self.height) / 4:
             raise ValueError(

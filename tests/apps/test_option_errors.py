@@ -50,3 +50,18 @@ def test_training_counts_are_bounded_and_named_as_options(tmp_path, caplog):
         assert cli.main(argv) == 2, argv
         assert expected in error_text(caplog) and "Config" not in error_text(caplog), (argv, error_text(caplog))
     assert not (tmp_path / "a").exists()  # make-assets checks before it makes its folder
+
+
+def test_ahmed_resolution_is_bounded_below_and_options_are_named(tmp_path, caplog):
+    """ahmed --resolution 1e-9 asked for about 10^20 triangles: the process was killed for memory (rc 137) with no
+    message; AhmedBody.slant_deg and a bare 'scale' stood for --slant and --scale."""
+    out = str(tmp_path / "a.obj")
+    for argv, expected in (
+        (["--resolution", "1e-9"], "--resolution 1e-09 m is finer than 0.001 m"),
+        (["--slant", "50"], "--slant must be in [0, 40] degrees"),
+        (["--scale", "0"], "--scale must be a finite number > 0"),
+    ):
+        caplog.clear()
+        assert cli.main(["ahmed", "-o", out, *argv]) == 2
+        assert expected in error_text(caplog) and "AhmedBody" not in error_text(caplog)
+    assert not (tmp_path / "a.obj").exists()
