@@ -54,6 +54,7 @@ from .files import (
     add_gaussians_input,
     check_output_file,
     check_output_folder,
+    check_outside_dataset,
     dataset_inputs,
     load_gaussians_checked,
 )
@@ -91,6 +92,7 @@ __all__ = [
     "check_visibility_arguments",
     "config_from_args",
     "config_values",
+    "check_outside_dataset",
     "dataset_inputs",
     "field_docs",
     "float_list",

@@ -139,6 +139,19 @@ def dataset_inputs(dataset) -> list[tuple[str, Path]]:
     ]
 
 
+def check_outside_dataset(output: Path, dataset: Path) -> None:
+    """Refuse an output folder that is the dataset folder or lies inside it: the run would write its files among the
+    dataset's (a later `render-dataset --overwrite` or a copy of the dataset would take them along)."""
+    root = Path(dataset).resolve()
+    root = root.parent if root.is_file() else root
+    out = Path(output).resolve()
+    if out == root or root in out.parents:
+        raise ValueError(
+            f"-o {output} lies inside the dataset {dataset}: the run would write among the dataset's files; "
+            "choose a run folder outside the dataset"
+        )
+
+
 def check_ply_output(path: Path) -> None:
     """Raise before any training when ``path`` is not a writable .ply destination."""
     if path.suffix.lower() != ".ply":

@@ -81,3 +81,20 @@ def test_render_dataset_without_test_views_says_what_needs_them(tmp_path, capsys
 def test_render_dataset_given_a_folder_as_the_mesh_says_it_is_a_folder(tmp_path, caplog):
     assert cli.main(["render-dataset", str(tmp_path), "-o", str(tmp_path / "ds"), "--no-progress"]) == 2
     assert "is a folder; pass a mesh file" in error_text(caplog)
+
+
+def test_active_refuses_a_run_folder_inside_its_dataset(tmp_path, caplog):
+    """`active -o DATASET` (or a folder inside it) wrote config.json, rounds.json and checkpoint.pt among the dataset's
+    files: refused before any work, the dataset untouched."""
+    from helpers.paths import TORUS
+
+    ds = tmp_path / "ds"
+    args = ["render-dataset", str(TORUS), "-o", str(ds), "--train", "2", "--test", "1", "--res", "16", "--no-progress"]
+    assert cli.main(args) == 0
+    before = sorted(p.name for p in ds.iterdir())
+    for out in (ds, ds / "run"):
+        caplog.clear()
+        run = ["active", str(ds), "-o", str(out), "--preset", "cpu-small", "--budget", "2", "--no-progress"]
+        assert cli.main(run) == 2
+        assert "lies inside the dataset" in error_text(caplog)
+    assert sorted(p.name for p in ds.iterdir()) == before
