@@ -32,6 +32,7 @@ from .options import (
     warn_frame,
 )
 from .options.scoring import obtain_result, write_orbit_cameras
+from .runtime import positive_int
 
 log = logging.getLogger("fluidgs")
 
@@ -47,7 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="JSON with C(T) per camera and the critical subset (written atomically)",
     )
     p.add_argument("--subset", type=int, default=20, help="size of the critical subset (views)")
-    p.add_argument("--top-k", type=int, default=None, help="print only the best K views (default: all)")
+    p.add_argument("--top-k", type=positive_int, default=None, help="print only the best K views (default: all)")
     add_visibility_arguments(p)
     p.add_argument(
         "--result",

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..runtime import thread_count
+from ..runtime import positive_int, thread_count
 
 ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
 STAGES = ("neighbors", "divergence_solve", "density_solve", "divergence_estimate", "forces")
@@ -37,14 +37,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=None, help="steps per probe (default: the --quick preset's)")
     p.add_argument("--dt", type=float, default=0.002, help="time step, s (default: 0.002)")
     p.add_argument("--no-empty", action="store_true", help="leave out the empty-scene probes")
-    p.add_argument("--every", type=int, default=25, help="record the running D_g every this many steps")
-    p.add_argument("--cameras", type=int, default=24, help="orbit cameras the view ranking is judged on")
+    p.add_argument("--every", type=positive_int, default=25, help="record the running D_g every this many steps")
+    p.add_argument("--cameras", type=positive_int, default=24, help="orbit cameras the view ranking is judged on")
     p.add_argument(
         "--tolerances",
         default="0.005,0.01,0.02,0.03,0.05",
         help="stop-rule tolerances to judge (relative L1 change of the running D_g per window)",
     )
-    p.add_argument("--window", type=int, default=50, help="stop rule: steps between checks")
+    p.add_argument("--window", type=positive_int, default=50, help="stop rule: steps between checks")
     p.add_argument("--min-steps", type=int, default=150, help="stop rule: no stop before this many steps")
     p.add_argument("--fixed", default="300,400,500,600", help="fixed shorter runs to judge (steps)")
     p.add_argument(

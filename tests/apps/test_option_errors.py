@@ -1,6 +1,8 @@
 """Config errors speak of the command-line options the user wrote (--scale, --budget), never of the config classes'
 fields."""
 
+import pytest
+
 from apps import cli
 
 from helpers.logs import error_text
@@ -65,3 +67,19 @@ def test_ahmed_resolution_is_bounded_below_and_options_are_named(tmp_path, caplo
         assert cli.main(["ahmed", "-o", out, *argv]) == 2
         assert expected in error_text(caplog) and "AhmedBody" not in error_text(caplog)
     assert not (tmp_path / "a.obj").exists()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["critical", "assets/ahmed_gaussians.ply", "--top-k", "0"],
+        ["bench", "probes", "--every", "0"],
+        ["bench", "probes", "--window", "-5"],
+        ["bench", "probes", "--cameras", "0"],
+    ],
+)
+def test_counts_that_must_be_positive_are_usage_errors(argv, capsys):
+    """`critical --top-k 0` ran and printed nothing; `bench probes --every 0` was a ZeroDivisionError traceback."""
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2 and "must be an integer >= 1" in capsys.readouterr().err
