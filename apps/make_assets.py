@@ -89,28 +89,12 @@ def run_command(args: argparse.Namespace) -> int:
     from recon.ahmed import write_ahmed
     from recon.datasets import load_dataset
     from recon.formats.ply import save_gaussians
-    from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
-    from recon.train import TrainConfig, evaluate
-
-    from .options.fields import options_named
+    from recon.mesh_render import render_mesh_dataset
+    from recon.train import evaluate
 
     out = args.output
     check_arguments(args)
-    names = {
-        "TrainConfig.iterations": "--iters",
-        "TrainConfig.seed": "--seed",
-        "TrainConfig.max_gaussians": "--max-gaussians",
-        "MeshDatasetConfig.n_train": "--candidates",
-        "MeshDatasetConfig.n_test": "--test",
-        "MeshDatasetConfig.resolution": "--res",
-        "MeshDatasetConfig.seed": "--seed",
-        "MeshDatasetConfig.supersample": "supersampling",
-    }
-    with options_named(names):  # checked before the output folder is made or the seed is set
-        mesh_cfg = MeshDatasetConfig(n_train=args.candidates, n_test=args.test, resolution=args.res, seed=args.seed)
-        config = TrainConfig.for_iterations(
-            args.iters, sh_degree=args.sh_degree, seed=args.seed, max_gaussians=args.max_gaussians
-        )
+    mesh_cfg, config = asset_configs(args)  # checked before the output folder is made or the seed is set
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
@@ -124,13 +108,8 @@ def run_command(args: argparse.Namespace) -> int:
         candidates = [v.camera for v in dataset.train]
         dataset.train = dataset.train[: args.train_views]
         render_s = time.perf_counter() - start
-        log.info(
-            "rendered %d candidate and %d test views at %d px in %.1f s",
-            len(candidates),
-            len(dataset.test),
-            args.res,
-            render_s,
-        )
+        shown = (len(candidates), len(dataset.test), args.res, render_s)
+        log.info("rendered %d candidate and %d test views at %d px in %.1f s", *shown)
 
         gaussians, train_log = train_assets(dataset, config)
         metrics = evaluate(gaussians, dataset.test, dataset.background)
@@ -168,6 +147,24 @@ def run_command(args: argparse.Namespace) -> int:
         report["timings_s"]["total"],
     )
     return 0
+
+
+def asset_configs(args: argparse.Namespace):
+    """(MeshDatasetConfig, TrainConfig) of the command line; their errors name the options."""
+    from recon.mesh_render import MeshDatasetConfig
+    from recon.train import TrainConfig
+
+    from .options.fields import options_named
+
+    train = {"iterations": "--iters", "seed": "--seed", "max_gaussians": "--max-gaussians"}
+    mesh = {"n_train": "--candidates", "n_test": "--test", "resolution": "--res", "seed": "--seed"}
+    names = {f"TrainConfig.{k}": v for k, v in train.items()} | {f"MeshDatasetConfig.{k}": v for k, v in mesh.items()}
+    with options_named(names | {"MeshDatasetConfig.supersample": "supersampling"}):
+        mesh_cfg = MeshDatasetConfig(n_train=args.candidates, n_test=args.test, resolution=args.res, seed=args.seed)
+        config = TrainConfig.for_iterations(
+            args.iters, sh_degree=args.sh_degree, seed=args.seed, max_gaussians=args.max_gaussians
+        )
+    return mesh_cfg, config
 
 
 def check_arguments(args: argparse.Namespace) -> None:
