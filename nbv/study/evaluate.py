@@ -70,6 +70,12 @@ SUMMARY_KEYS = (
 )
 
 
+# Upper bounds, checked before any work: a test split holds far fewer views, and 10 M mesh samples are 240 MB of
+# points (10^14 asked for petabytes).
+MAX_CRITICAL_VIEWS = 100_000
+MAX_CHAMFER_SAMPLES = 10_000_000
+
+
 @dataclass(frozen=True)
 class EvalConfig:
     """Evaluation settings.
@@ -99,10 +105,10 @@ class EvalConfig:
     functional_directions: tuple[str, ...] = ("-x",)
 
     def __post_init__(self) -> None:
-        for name in ("critical_views", "chamfer_samples"):
+        for name, top in (("critical_views", MAX_CRITICAL_VIEWS), ("chamfer_samples", MAX_CHAMFER_SAMPLES)):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"EvalConfig.{name} must be an integer >= 1, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= top:
+                raise ValueError(f"EvalConfig.{name} must be an integer from 1 to {top:,}, got {v!r}")
         if not 0.0 <= self.chamfer_opacity < 1.0:
             raise ValueError(f"EvalConfig.chamfer_opacity must be in [0, 1), got {self.chamfer_opacity!r}")
         if self.critical_direction not in DIRECTIONS:

@@ -145,6 +145,10 @@ class ExperimentConfig:
             if key not in data:
                 raise ValueError(f"experiment config {path}: missing {key!r}")
         base = path.parent
+        if not isinstance(data["scenes"], list) or not all(isinstance(s, str) for s in data["scenes"]):
+            raise ValueError(
+                f"experiment config {path}: 'scenes' must be a list of dataset folders, got {data['scenes']!r}"
+            )
         data["scenes"] = [str((base / s).resolve()) for s in data["scenes"]]
         if "output" in data:
             data["output"] = str((base / data["output"]).resolve())

@@ -449,3 +449,19 @@ def test_experiment_counts_that_allocate_are_refused_quickly(tiny_dataset, tmp_p
         assert time.perf_counter() - t0 < 10, extra
         assert not (tmp_path / f"out{i}").exists()  # a refused run leaves no empty folder
     assert main(["experiment", str(tmp_path / "exp0.json"), "--no-progress"]) == 2
+
+
+def test_eval_counts_are_bounded_and_scenes_must_be_a_list(tmp_path):
+    """`eval --chamfer-samples 10^14` and `--critical-views 10^11` were accepted (petabytes of mesh samples); a config
+    whose "scenes" is a string walked its characters as scene folders."""
+    from nbv.study.evaluate import MAX_CHAMFER_SAMPLES, MAX_CRITICAL_VIEWS
+    from nbv.study.experiment_config import ExperimentConfig
+
+    for key, top in (("chamfer_samples", MAX_CHAMFER_SAMPLES), ("critical_views", MAX_CRITICAL_VIEWS)):
+        assert getattr(EvalConfig(**{key: top}), key) == top
+        with pytest.raises(ValueError, match=f"{key} must be an integer from 1 to"):
+            EvalConfig(**{key: top + 1})
+    path = tmp_path / "exp.json"
+    path.write_text(json.dumps({"scenes": "/data/torus", "methods": ["fisher"], "seeds": [0]}))
+    with pytest.raises(ValueError, match="'scenes' must be a list of dataset folders"):
+        ExperimentConfig.load(path)
