@@ -345,8 +345,8 @@ def ahmed_body(
     """
     if up not in ("y", "z"):
         raise ValueError(f"up must be 'y' or 'z', got {up!r}")
-    if not (math.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale must be a finite number > 0, got {scale!r}")
+    if not (math.isfinite(scale) and 1e-6 <= scale <= 1e6):  # 1e300 overflowed the volume to NaN
+        raise ValueError(f"scale must be a number from 1e-06 to 1e+06 (1000 gives millimetres), got {scale!r}")
     verts, tris = ahmed_mesh_arrays(AhmedBody(slant_deg=slant_deg, stilts=stilts, resolution=resolution))
     if up == "z":
         verts = np.stack([verts[:, 0], -verts[:, 2], verts[:, 1]], 1)

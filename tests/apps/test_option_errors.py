@@ -61,7 +61,8 @@ def test_ahmed_resolution_is_bounded_below_and_options_are_named(tmp_path, caplo
     for argv, expected in (
         (["--resolution", "1e-9"], "--resolution 1e-09 m is finer than 0.001 m"),
         (["--slant", "50"], "--slant must be in [0, 40] degrees"),
-        (["--scale", "0"], "--scale must be a finite number > 0"),
+        (["--scale", "0"], "--scale must be a number from 1e-06 to 1e+06"),
+        (["--scale", "1e300"], "--scale must be a number from 1e-06 to 1e+06"),
     ):
         caplog.clear()
         assert cli.main(["ahmed", "-o", out, *argv]) == 2
