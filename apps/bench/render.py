@@ -80,6 +80,8 @@ def parse_sizes(text: str) -> list[tuple[int, int, int]]:
             raise ValueError(f"--sizes item {item!r} is not N@WxH (e.g. 5000@100x100)") from exc
         if min(case) <= 0:
             raise ValueError(f"--sizes item {item!r}: N, W and H must be positive")
+        if case[0] > 10_000_000 or max(case[1:]) > 8192:  # 10^9 Gaussians at 10^5 px was killed for memory
+            raise ValueError(f"--sizes item {item!r}: at most 10,000,000 Gaussians and 8192 pixels a side")
         cases.append(case)
     if not cases:
         raise ValueError(f"--sizes {text!r} holds no case; give e.g. 5000@100x100")

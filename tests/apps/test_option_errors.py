@@ -84,3 +84,9 @@ def test_counts_that_must_be_positive_are_usage_errors(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         cli.main(argv)
     assert exc.value.code == 2 and "must be an integer >= 1" in capsys.readouterr().err
+
+
+def test_bench_render_sizes_are_bounded(caplog):
+    """`bench render --sizes 1000000000@100000x100000` was killed for memory (rc 137) with no message."""
+    assert cli.main(["bench", "render", "--sizes", "1000000000@100000x100000"]) == 2
+    assert "at most 10,000,000 Gaussians and 8192 pixels a side" in error_text(caplog)
