@@ -10,6 +10,7 @@ viser's notifications and captures the page. Without Chromium, :func:`find_brows
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import shutil
 import subprocess
@@ -101,7 +102,7 @@ def screenshot(
         raise ScreenshotUnavailable(
             f"--screenshot needs the websockets package ({exc}); pip install websockets"
         ) from None
-    with tempfile.TemporaryDirectory() as profile:
+    with browser_profile() as profile:
         flags = [*BROWSER_FLAGS, f"--window-size={size[0]},{size[1]}", "--remote-debugging-port=0"]
         proc = subprocess.Popen(
             [browser, *flags, f"--user-data-dir={profile}", "about:blank"],
@@ -132,9 +133,32 @@ def screenshot(
                 time.sleep(0.5)
                 png = base64.b64decode(tools.call("Page.captureScreenshot", format="png")["data"])
         finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+            stop_browser(proc)
     return write_bytes_atomic(Path(out), png)
+
+
+@contextlib.contextmanager
+def browser_profile():
+    """A temporary Chromium profile folder, removed after the browser: its helper processes outlive the main one by a
+    moment and may still write there, so the removal is retried for up to 2 s and never raises (a cleanup error
+    ended a finished screenshot with a traceback)."""
+    with tempfile.TemporaryDirectory(prefix="fluidgs-chromium-", ignore_cleanup_errors=True) as profile:
+        try:
+            yield profile
+        finally:
+            for _ in range(10):
+                shutil.rmtree(profile, ignore_errors=True)
+                if not Path(profile).exists():
+                    break
+                time.sleep(0.2)
+            Path(profile).mkdir(exist_ok=True)  # TemporaryDirectory removes it (and whatever came back)
+
+
+def stop_browser(proc: subprocess.Popen) -> None:
+    """Terminate Chromium, killing it after 10 s."""
+    proc.terminate()
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()

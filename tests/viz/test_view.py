@@ -17,7 +17,6 @@ import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import time
 import urllib.request
 from dataclasses import replace
@@ -40,7 +39,7 @@ from viz.cameras import candidate_views, read_scores, rotation_to_wxyz, view_png
 from viz.colors import UNREACHED_RGB, color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data
 from viz.screenshot import BROWSER_FLAGS as SCREENSHOT_FLAGS
-from viz.screenshot import READY, DevTools, find_browser
+from viz.screenshot import READY, DevTools, browser_profile, find_browser, stop_browser
 from viz.splats import splat_looks
 from viz.thumbnails import project_to_view, view_thumbnail
 from viz.viewer import FluidViewer
@@ -543,7 +542,7 @@ def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dism
     import cv2
     import websockets.sync.client
 
-    with tempfile.TemporaryDirectory() as profile:
+    with browser_profile() as profile:
         proc = subprocess.Popen(
             [find_browser(), *BROWSER_FLAGS, "--remote-debugging-port=0", f"--user-data-dir={profile}", "about:blank"],
             stdout=subprocess.DEVNULL,
@@ -587,11 +586,7 @@ def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dism
                     bgr = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
                     yield bgr[..., ::-1].copy(), json.loads(tools.eval(BARS))
         finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+            stop_browser(proc)
 
 
 def splat_drawn(img: np.ndarray) -> bool:
