@@ -115,26 +115,15 @@ def simulate_to_h5(
         history = run(solver, steps, on_step=on_step, progress=on_progress)
     except SimulationDiverged as exc:
         bar.close()
-        sums, counts = solver.divergence_accumulation()
-        path = writer.finish(
-            exc.history, sums, counts, status=str(exc), removed_inside_solid=solver.removed_inside_solid
-        )
+        path = _finish(writer, solver, exc.history, status=str(exc))
         log.error("%s; frames so far saved to %s", exc, path)
         raise
     except Interrupted as exc:
         bar.close()
         if writer.last_frame_step != exc.step:
             writer.write_frame(exc.step, history[-1].time, solver.fluid_state())
-        sums, counts = solver.divergence_accumulation()
-        path = writer.finish(
-            history,
-            sums,
-            counts,
-            status="interrupted",
-            removed_inside_solid=solver.removed_inside_solid,
-            interrupted_by=signal.Signals(exc.signum).name,
-            interrupted_after_step=exc.step,
-        )
+        name = signal.Signals(exc.signum).name
+        path = _finish(writer, solver, history, "interrupted", interrupted_by=name, interrupted_after_step=exc.step)
         if path != exc.path:
             raise Interrupted(exc.signum, exc.step, path, kept=exc.path) from None
         raise
@@ -143,24 +132,21 @@ def simulate_to_h5(
         if not frames:  # nothing simulated yet: nothing to keep
             writer.abort()
             raise
-        sums, counts = solver.divergence_accumulation()
-        path = writer.finish(  # an OutputError here (the disk still full for the summary) drops the file
-            history,
-            sums,
-            counts,
-            status="disk full",
-            removed_inside_solid=solver.removed_inside_solid,
-            disk_full_after_step=len(history),
-        )
+        # an OutputError here (the disk still full for the summary) drops the file
+        path = _finish(writer, solver, history, "disk full", disk_full_after_step=len(history))
         raise FramesKept(exc, len(history), writer.last_frame_step, frames, path) from exc
     except BaseException:
         bar.close()
         writer.abort()
         raise
     bar.close()
+    return _finish(writer, solver, history), history
+
+
+def _finish(writer, solver, history: list, status: str = "complete", **attributes) -> Path:
+    """Write the run's summary (statistics, D_i accumulation, status) and move the file into place."""
     sums, counts = solver.divergence_accumulation()
-    path = writer.finish(history, sums, counts, removed_inside_solid=solver.removed_inside_solid)
-    return path, history
+    return writer.finish(history, sums, counts, status, removed_inside_solid=solver.removed_inside_solid, **attributes)
 
 
 def probe_to_h5(
