@@ -5,6 +5,7 @@ from __future__ import annotations
 import difflib
 import json
 import re
+from collections import Counter
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -257,9 +258,14 @@ def method_folder(method: str) -> str:
 
 
 def scene_names(scenes: Sequence[str]) -> list[str]:
-    """Folder names of the scenes, made unique with an index suffix."""
-    names = [Path(s).name or "scene" for s in scenes]
-    return [n if names.count(n) == 1 else f"{n}-{i}" for i, n in enumerate(names)]
+    """Folder names of the scenes (experiment and oracle), made unique with a counter where two share one: the
+    first keeps its plain name, so adding a scene never renames an earlier one's folder."""
+    names, seen = [], Counter()
+    for s in scenes:
+        base = Path(s).name or "scene"
+        seen[base] += 1
+        names.append(base if seen[base] == 1 else f"{base}-{seen[base]}")
+    return names
 
 
 def reference_label(views: int) -> str:

@@ -36,7 +36,6 @@ import json
 import logging
 import math
 import time
-from collections import defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from functools import partial
@@ -64,6 +63,7 @@ from nbv.plan.variance import VariancePlanner
 from nbv.plan.variance_model import VarianceConfig
 from nbv.ranking import spearman
 from nbv.study import calibration as cal
+from nbv.study.experiment_config import scene_names
 from nbv.study.oracle_config import RULES, OracleConfig, rule_of
 from nbv.study.oracle_summary import format_summary, summarise
 from recon.datasets import load_dataset
@@ -78,16 +78,6 @@ MISSING_OPACITY = 0.05  # Gaussians below it cover nothing (the authors' solid t
 
 
 # ---- planning ----------------------------------------------------------------------------------------
-def scene_names(scenes: Sequence[str]) -> list[str]:
-    """Folder names, made unique with a counter where two scenes share one."""
-    names, seen = [], defaultdict(int)
-    for s in scenes:
-        base = Path(s).name or "scene"
-        seen[base] += 1
-        names.append(base if seen[base] == 1 else f"{base}-{seen[base]}")
-    return names
-
-
 def state_path(output: str | Path, scene: str, seed: int, n: int) -> Path:
     return Path(output) / "states" / scene / f"seed{seed}" / f"state{n}.json"
 

@@ -465,3 +465,14 @@ def test_eval_counts_are_bounded_and_scenes_must_be_a_list(tmp_path):
     path.write_text(json.dumps({"scenes": "/data/torus", "methods": ["fisher"], "seeds": [0]}))
     with pytest.raises(ValueError, match="'scenes' must be a list of dataset folders"):
         ExperimentConfig.load(path)
+
+
+def test_scene_folder_names_are_unique_and_the_first_keeps_its_name():
+    """One naming for the experiment's and the oracle's scene folders: a second scene of the same folder name gets
+    '-2', and adding it leaves the first one's folder as it was."""
+    from nbv.study import oracle
+    from nbv.study.experiment_config import scene_names
+
+    assert scene_names(["a/chair", "b/chair", "c/torus", "d/chair"]) == ["chair", "chair-2", "torus", "chair-3"]
+    assert scene_names(["a/chair"]) == ["chair"]
+    assert oracle.scene_names is scene_names
