@@ -24,6 +24,19 @@ MIN_DT = 1.0e-8
 MAX_STEPS = 1_000_000
 
 
+def check_known_keys(config_type: type, keys, where: str = "") -> None:
+    """Raises ValueError naming the ``keys`` that are no field of the dataclass ``config_type``, and the valid keys;
+    ``where`` starts the message (the field that holds a nested dict, say). Pure Python, for every package's configs.
+
+    Example:
+        >>> check_known_keys(SolverConfig, ["dt", "viscosity"])
+    """
+    known = {f.name for f in fields(config_type)}
+    bad = sorted(set(keys) - known)
+    if bad:
+        raise ValueError(f"{where}unknown {config_type.__name__} keys {bad}; valid keys: {sorted(known)}")
+
+
 def _finite(name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ValueError(f"{name} must be a finite number, got {value!r}")

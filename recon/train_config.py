@@ -6,7 +6,9 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
+
+from fluidsim.config import check_known_keys
 
 BACKGROUNDS = ("white", "black", "random")
 INITS = ("random", "points")
@@ -193,9 +195,7 @@ class TrainConfig:
         f = iterations / REFERENCE_ITERATIONS
         scaled = {name: max(1, round(getattr(ref, name) * f)) if getattr(ref, name) else 0 for name in SCHEDULE_FIELDS}
         scaled["densification_interval"] = max(MIN_DENSIFICATION_INTERVAL, scaled["densification_interval"])
-        unknown = set(overrides) - {f_.name for f_ in fields(cls)}
-        if unknown:
-            raise ValueError(f"TrainConfig has no field(s) {sorted(unknown)}")
+        check_known_keys(cls, overrides)
         return cls(**{**scaled, "iterations": iterations, **overrides})
 
     def to_dict(self) -> dict:

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from fluidsim.config import check_known_keys
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.scene_frame import parse_up
 from recon.camera import MAX_IMAGE_SIDE
@@ -159,9 +160,7 @@ class ActiveConfig:
             raw = getattr(self, name)
             pairs = tuple((str(k), v) for k, v in (raw.items() if isinstance(raw, dict) else raw))
             object.__setattr__(self, name, pairs)
-        bad = sorted({k for k, _ in self.train} - {f.name for f in fields(TrainConfig)})
-        if bad:
-            raise ValueError(f"ActiveConfig.train: unknown TrainConfig keys {bad}")
+        check_known_keys(TrainConfig, (k for k, _ in self.train), "ActiveConfig.train: ")
         if self.mode == "continue" and self.schedule_iterations() > self.total_iterations:
             raise ValueError(
                 f"ActiveConfig.total_iterations ({self.total_iterations}) is below the iterations of the "
@@ -180,10 +179,7 @@ class ActiveConfig:
         physics = overrides.pop("physics", None)
         if not isinstance(physics, PhysicsConfig):
             physics = PhysicsConfig.from_dict({**PRESETS[preset]["physics"], **dict(physics or {})})
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(overrides) - known)
-        if bad:
-            raise ValueError(f"unknown ActiveConfig keys {bad}; valid keys: {sorted(known)}")
+        check_known_keys(cls, overrides)
         return cls(**{**base, **overrides, "train": train, "physics": physics, "preset": preset})
 
     def rounds(self) -> list[int]:
@@ -211,10 +207,7 @@ class ActiveConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ActiveConfig:
         """Inverse of :meth:`to_dict`; unknown keys are errors naming the key."""
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(data) - known)
-        if bad:
-            raise ValueError(f"unknown ActiveConfig keys {bad}; valid keys: {sorted(known)}")
+        check_known_keys(cls, data)
         d = dict(data)
         if "physics" in d and not isinstance(d["physics"], PhysicsConfig):
             d["physics"] = PhysicsConfig.from_dict(d["physics"])

@@ -6,8 +6,7 @@ fused rules of :data:`nbv.plan.rules.FUSED_RULES`, all run by :class:`nbv.plan.f
 
 from __future__ import annotations
 
-from dataclasses import fields
-
+from fluidsim.config import check_known_keys
 from nbv.plan.base import Planner
 from nbv.plan.fisher import FisherPlanner
 from nbv.plan.fused import VISUAL_TYPES, FusedPlanner
@@ -70,9 +69,6 @@ def make_planner(name: str, **overrides) -> Planner:
         'fisher+fluid'
     """
     entry, cfg_type = _entry(name), config_type(name)
-    known = {f.name for f in fields(cfg_type)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"planner {name!r}: unknown config fields {unknown}; {cfg_type.__name__} has {sorted(known)}")
+    check_known_keys(cfg_type, overrides, f"planner {name!r}: ")
     config = cfg_type(**overrides)
     return FusedPlanner(entry, config) if isinstance(entry, FusedRule) else entry(config)

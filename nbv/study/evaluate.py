@@ -33,13 +33,14 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from fluidsim.config import check_known_keys
 from fluidsim.directions import DIRECTIONS
 from nbv.active import ActiveConfig, dataset_up, is_empty_solid
 from nbv.active.run_dir import read_run_config
@@ -132,10 +133,7 @@ class EvalConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EvalConfig:
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(data) - known)
-        if bad:
-            raise ValueError(f"unknown EvalConfig keys {bad}; valid keys: {sorted(known)}")
+        check_known_keys(cls, data)
         d = dict(data)
         if d.get("physics") is not None and not isinstance(d["physics"], PhysicsConfig):
             d["physics"] = PhysicsConfig.from_dict(d["physics"])
