@@ -484,17 +484,13 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
     scores, shortlist, extra = score_rules(config, context, config.probe_configs(active.physics_config.up), ps, k)
     t_rules = time.perf_counter() - t0
     t0 = time.perf_counter()
-    measure = image_target([view_to(v, active.device) for v in ds.test], ds.background)  # what a copy is worth
-    functional = config.functional_config(active.physics_config.up)
-    if functional is not None and ds.mesh_path is not None:  # ... and how it behaves in the fluid
-        measure = both_targets(measure, functional_target(object_target(ds.mesh_path, functional)))
     oracle = copy_gains(
         partial(active.new_trainer, active.config.total_iterations),
         reached.trainer.state_dict(),
         [views[i] for i in selected],
         [views[i] for i in remaining],
         config.horizon,
-        measure,
+        state_measure(config, active),
         progress,
     )
     functional_gains(oracle)
@@ -533,6 +529,17 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, json_safe(record))
     return record
+
+
+def state_measure(config: OracleConfig, active: ActiveRun) -> Callable[[Trainer], dict[str, float]]:
+    """What a copy of the model is worth: its test images, and with a functional target in the config and a mesh in
+    the dataset, also how it behaves in the fluid."""
+    ds = active.dataset
+    measure = image_target([view_to(v, active.device) for v in ds.test], ds.background)
+    functional = config.functional_config(active.physics_config.up)
+    if functional is not None and ds.mesh_path is not None:
+        measure = both_targets(measure, functional_target(object_target(ds.mesh_path, functional)))
+    return measure
 
 
 def _known_picks(job: dict, config: OracleConfig) -> list[int]:
