@@ -89,6 +89,31 @@ def screenshot(
     Raises:
         ScreenshotUnavailable: no Chromium, it does not start, or the page never became ready in time.
     """
+    deadline = time.monotonic() + timeout_s
+    with devtools_page(size, deadline) as tools:
+        tools.call("Page.navigate", url=url)
+        while not tools.eval(READY):
+            if time.monotonic() > deadline:
+                raise ScreenshotUnavailable(f"the viewer page at {url} never became ready in {timeout_s:g} s")
+            time.sleep(0.5)
+        time.sleep(settle_s)
+        tools.eval(CLOSE_NOTIFICATIONS)
+        time.sleep(0.5)
+        png = base64.b64decode(tools.call("Page.captureScreenshot", format="png")["data"])
+    return write_bytes_atomic(Path(out), png)
+
+
+@contextlib.contextmanager
+def devtools_page(size: tuple[int, int], deadline: float):
+    """Headless Chromium with one blank page of ``size`` (width, height) pixels, driven through :class:`DevTools`
+    for the ``with`` block, then stopped.
+
+    Args:
+        size: (width, height) of the window and the page, pixels. deadline: the ``time.monotonic()`` by which the
+            browser must have started.
+    Raises:
+        ScreenshotUnavailable: no Chromium or no websockets package, or the browser did not start in time.
+    """
     browser = find_browser()
     if browser is None:
         raise ScreenshotUnavailable(
@@ -110,7 +135,6 @@ def screenshot(
             stderr=subprocess.DEVNULL,
         )
         try:
-            deadline = time.monotonic() + timeout_s
             port_file = Path(profile) / "DevToolsActivePort"
             while not (port_file.exists() and len(port_file.read_text().split()) >= 2):
                 if time.monotonic() > deadline or proc.poll() is not None:
@@ -123,18 +147,9 @@ def screenshot(
                 tools = DevTools(ws)
                 w, h = size
                 tools.call("Emulation.setDeviceMetricsOverride", width=w, height=h, deviceScaleFactor=1, mobile=False)
-                tools.call("Page.navigate", url=url)
-                while not tools.eval(READY):
-                    if time.monotonic() > deadline:
-                        raise ScreenshotUnavailable(f"the viewer page at {url} never became ready in {timeout_s:g} s")
-                    time.sleep(0.5)
-                time.sleep(settle_s)
-                tools.eval(CLOSE_NOTIFICATIONS)
-                time.sleep(0.5)
-                png = base64.b64decode(tools.call("Page.captureScreenshot", format="png")["data"])
+                yield tools
         finally:
             stop_browser(proc)
-    return write_bytes_atomic(Path(out), png)
 
 
 @contextlib.contextmanager

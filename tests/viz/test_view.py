@@ -9,6 +9,7 @@
 """
 
 import base64
+import contextlib
 import json
 import math
 import shlex
@@ -38,8 +39,7 @@ from recon.gaussians import GaussianSet, sh0_to_rgb
 from viz.cameras import candidate_views, read_scores, rotation_to_wxyz, view_png
 from viz.colors import UNREACHED_RGB, color_scale, colorbar_image, turbo
 from viz.data import load_trajectory, load_view_data
-from viz.screenshot import BROWSER_FLAGS as SCREENSHOT_FLAGS
-from viz.screenshot import READY, DevTools, browser_profile, find_browser, stop_browser
+from viz.screenshot import CLOSE_NOTIFICATIONS, READY, ScreenshotUnavailable, devtools_page, find_browser
 from viz.splats import splat_looks
 from viz.thumbnails import project_to_view, view_thumbnail
 from viz.viewer import FluidViewer
@@ -329,8 +329,6 @@ class _FakeClient:
         self.camera = _FakeCamera()
 
     def atomic(self):
-        import contextlib
-
         return contextlib.nullcontext()
 
 
@@ -525,8 +523,6 @@ class BrowserUnavailable(RuntimeError):
     """Chromium is installed but does not start (no DevTools port)."""
 
 
-# viz.screenshot's flags (WebGL in software) at the window size the expected pictures were measured at
-BROWSER_FLAGS = (*SCREENSHOT_FLAGS, "--window-size=1024,768")
 BARS = (
     "JSON.stringify([...document.images].map(i => i.getBoundingClientRect()).filter(r => r.width > 150)"
     ".map(r => [r.left, r.top, r.width, r.height]))"
@@ -540,53 +536,27 @@ def browser_screenshots(url: str, size=(1024, 768), timeout: float = 150.0, dism
     ``dismiss``: close viser's notifications (the software-WebGL note) before each screenshot. ``ready``: the
     JavaScript condition to wait for."""
     import cv2
-    import websockets.sync.client
 
-    with browser_profile() as profile:
-        proc = subprocess.Popen(
-            [find_browser(), *BROWSER_FLAGS, "--remote-debugging-port=0", f"--user-data-dir={profile}", "about:blank"],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        try:
-            deadline = time.time() + timeout
-            port_file = Path(profile) / "DevToolsActivePort"
-            started = time.time()
-            while not (port_file.exists() and len(port_file.read_text().split()) >= 2):
-                if time.time() > started + 60 or proc.poll() is not None:
-                    raise BrowserUnavailable(f"{find_browser()} did not start (exit status {proc.poll()})")
-                time.sleep(0.1)
-            port = port_file.read_text().split()[0]
-            targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=30))
-            page = next(t for t in targets if t.get("type") == "page")
-            with websockets.sync.client.connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=30) as ws:
-                tools = DevTools(ws)
-                tools.call(
-                    "Emulation.setDeviceMetricsOverride",
-                    width=size[0],
-                    height=size[1],
-                    deviceScaleFactor=1,
-                    mobile=False,
-                )
-                tools.call("Page.navigate", url=url)
-                while not tools.eval(ready):
-                    if time.time() > deadline:
-                        text = tools.eval("document.body.innerText")
-                        raise RuntimeError(f"the page never showed its colour bar: {text!r}")
-                    time.sleep(0.5)
-                while time.time() < deadline:
-                    time.sleep(1.0)
-                    if dismiss:
-                        tools.eval(
-                            "[...document.querySelectorAll('.mantine-Notification-closeButton')]"
-                            ".forEach(b => b.click())"
-                        )
-                        time.sleep(0.5)
-                    png = base64.b64decode(tools.call("Page.captureScreenshot", format="png")["data"])
-                    bgr = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
-                    yield bgr[..., ::-1].copy(), json.loads(tools.eval(BARS))
-        finally:
-            stop_browser(proc)
+    deadline = time.time() + timeout
+    with contextlib.ExitStack() as stack:
+        try:  # the browser's start: a machine where it cannot start skips
+            tools = stack.enter_context(devtools_page(size, time.monotonic() + 60))
+        except ScreenshotUnavailable as exc:
+            raise BrowserUnavailable(str(exc)) from None
+        tools.call("Page.navigate", url=url)
+        while not tools.eval(ready):
+            if time.time() > deadline:
+                text = tools.eval("document.body.innerText")
+                raise RuntimeError(f"the page never showed its colour bar: {text!r}")
+            time.sleep(0.5)
+        while time.time() < deadline:
+            time.sleep(1.0)
+            if dismiss:
+                tools.eval(CLOSE_NOTIFICATIONS)
+                time.sleep(0.5)
+            png = base64.b64decode(tools.call("Page.captureScreenshot", format="png")["data"])
+            bgr = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+            yield bgr[..., ::-1].copy(), json.loads(tools.eval(BARS))
 
 
 def splat_drawn(img: np.ndarray) -> bool:
