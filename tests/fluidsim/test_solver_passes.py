@@ -209,38 +209,33 @@ def _divergence_np(solver):
     return s, (2.0**-11 * bound if narrow else 0.0 * bound)
 
 
-def _set_stiffness(f, k):
-    """The records (x_i, k_i) the velocity update reads, and a stiffness sum of 1 to add to."""
+def _velocity_update_case(seed):
+    """A solver whose records (x_i, k_i) hold a random stiffness k (sorted order) and whose stiffness sum is 1, with
+    the numpy twin's updated velocities and their scale (the largest change): (solver, dt, k, expected, scale)."""
+    cfg, solver = _solver(0.0)
+    f = solver.fluid
+    k = np.random.default_rng(seed).uniform(-50.0, 200.0, f.capacity)
+    expected = _apply_with(solver, k, cfg.dt)
+    scale = np.abs(expected - f.numpy("v")).max()
+    assert scale > 1e-2
     xk = np.concatenate([f.numpy("x", active_only=False), k[:, None]], axis=1)
     f.position_stiffness.from_numpy(xk.astype(np.float32))
     f.stiffness_sum.fill(1.0)
+    return solver, cfg.dt, k, expected, scale
 
 
 def test_velocity_update_pass_matches_numpy_twin():
-    cfg, solver = _solver(0.0)
-    f, nb = solver.fluid, solver.neighborhoods
-    n, dt = f.active, cfg.dt
-    k = np.random.default_rng(17).uniform(-50.0, 200.0, f.capacity)
-    expected = _apply_with(solver, k, dt)
-    v0 = f.numpy("v")
-    _set_stiffness(f, k)
-    passes.velocity_update(f, nb, dt)
-    scale = np.abs(expected - v0).max()
-    assert scale > 1e-2
+    solver, dt, k, expected, scale = _velocity_update_case(17)
+    f = solver.fluid
+    passes.velocity_update(f, solver.neighborhoods, dt)
     np.testing.assert_allclose(f.numpy("v"), expected, atol=1e-3 * scale)
-    np.testing.assert_allclose(f.numpy("stiffness_sum"), 1.0 + k[:n], rtol=1e-6)
+    np.testing.assert_allclose(f.numpy("stiffness_sum"), 1.0 + k[: f.active], rtol=1e-6)
 
 
 def test_last_velocity_update_stores_the_warm_start_memory_and_advects():
-    cfg, solver = _solver(0.0)
-    f, nb = solver.fluid, solver.neighborhoods
-    n, dt = f.active, cfg.dt
-    k = np.random.default_rng(19).uniform(-50.0, 200.0, f.capacity)
-    expected = _apply_with(solver, k, dt)
-    scale = np.abs(expected - f.numpy("v")).max()
-    assert scale > 1e-2
+    solver, dt, k, expected, scale = _velocity_update_case(19)
+    f, nb, n = solver.fluid, solver.neighborhoods, solver.fluid.active
     x0 = f.numpy("x").astype(np.float64)
-    _set_stiffness(f, k)
     out = passes.finish_solve(f, nb, dt, 0.5, f.kappa_density, advect=True)
     v = f.numpy("v").astype(np.float64)
     np.testing.assert_allclose(v, expected, atol=1e-3 * scale)

@@ -15,7 +15,7 @@ from recon.camera import Camera
 from recon.formats import load_gaussians
 
 from helpers.paths import TORUS
-from helpers.training import TINY_TRAIN
+from helpers.training import tiny_active_config
 
 
 @pytest.fixture(scope="module")
@@ -27,20 +27,6 @@ def tiny_dataset(tmp_path_factory):
     return render_mesh_dataset(
         TORUS, out, MeshDatasetConfig(n_train=8, n_test=3, resolution=24, supersample=1), progress=False
     )
-
-
-def tiny_config(**overrides) -> ActiveConfig:
-    base = dict(
-        method="random",
-        budget=4,
-        iterations_per_view=2,
-        total_iterations=30,
-        resolution=16,
-        train=TINY_TRAIN,
-        backend="torch",
-        physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004),
-    )
-    return ActiveConfig(**{**base, **overrides})
 
 
 def leftover_temp_files(folder: Path) -> list[Path]:
@@ -93,7 +79,7 @@ def test_config_differences_names_nested_keys():
 def straight_run(tiny_dataset, tmp_path_factory):
     """An uninterrupted random-planner run: budget 5 from views 0 and 1 (three selections)."""
     run = tmp_path_factory.mktemp("straight") / "run"
-    cfg = tiny_config(budget=5, initial_ids=(0, 1))
+    cfg = tiny_active_config(budget=5, initial_ids=(0, 1))
     return cfg, run, run_active(tiny_dataset, run, cfg, progress=False)
 
 
@@ -175,7 +161,7 @@ def test_resume_after_interruption_equals_uninterrupted_run(tiny_dataset, straig
 def test_resume_inside_the_final_training(tiny_dataset, tmp_path, mode):
     """The final training is checkpointed in chunks: an interruption there resumes from the last chunk, and
     chunked or not, interrupted or not, the final Gaussians are bit-identical."""
-    cfg = tiny_config(mode=mode, total_iterations=24)
+    cfg = tiny_active_config(mode=mode, total_iterations=24)
     straight = run_active(tiny_dataset, tmp_path / "straight", cfg, progress=False)
 
     class Interrupt(Exception):
@@ -226,10 +212,10 @@ def test_resume_inside_the_final_training(tiny_dataset, tmp_path, mode):
 def test_mismatched_config_is_refused_unless_overwrite(tiny_dataset, tmp_path):
     run = tmp_path / "run"
     short = dict(total_iterations=8, iterations_per_view=1)
-    run_active(tiny_dataset, run, tiny_config(budget=3, **short), progress=False)
+    run_active(tiny_dataset, run, tiny_active_config(budget=3, **short), progress=False)
     with pytest.raises(ValueError, match=r"differing keys: active\.budget, active\.seed"):
-        run_active(tiny_dataset, run, tiny_config(budget=4, seed=1, **short), progress=False)
-    out = run_active(tiny_dataset, run, tiny_config(budget=4, seed=1, **short), overwrite=True, progress=False)
+        run_active(tiny_dataset, run, tiny_active_config(budget=4, seed=1, **short), progress=False)
+    out = run_active(tiny_dataset, run, tiny_active_config(budget=4, seed=1, **short), overwrite=True, progress=False)
     assert len(out["selected"]) == 4
 
 
@@ -241,7 +227,7 @@ def test_fused_method_logs_k_and_physics_scores(tiny_dataset, tmp_path):
         calls.append(gaussians.num)
         return gaussians.means.detach().norm(dim=-1).double()
 
-    cfg = tiny_config(method="fisher+fluid", budget=4, mode="reset", total_iterations=12)
+    cfg = tiny_active_config(method="fisher+fluid", budget=4, mode="reset", total_iterations=12)
     rounds = run_active(tiny_dataset, tmp_path / "run", cfg, physics_fn=fake_physics, progress=False)
     assert len(calls) == 2  # the probes run once per selection
     for rec in rounds["rounds"]:
@@ -299,7 +285,7 @@ def test_real_probes_inside_the_loop(tiny_dataset, tmp_path):
         particle_radius=0.1, steps=8, dt=0.004, directions=("-x",), empty_reference=False, opacity_threshold=0.05
     )
     rounds = run_active(
-        tiny_dataset, tmp_path / "run", tiny_config(method="physics", budget=3, physics=physics), progress=False
+        tiny_dataset, tmp_path / "run", tiny_active_config(method="physics", budget=3, physics=physics), progress=False
     )
     rec = rounds["rounds"][0]
     phys = rec["physics"]
@@ -321,7 +307,7 @@ def test_the_rounds_run_the_empty_scene_only_for_a_planner_that_reads_it(tiny_da
 
     assert [m for m in PLANNERS if reads_empty_scene(m)] == ["fisher+excess"]
     for method, runs_empty in (("fisher+fluid", False), ("physics", False), ("fisher+excess", True)):
-        cfg = tiny_config(method=method)
+        cfg = tiny_active_config(method=method)
         assert cfg.physics.empty_reference  # the default
         run = ActiveRun(tiny_dataset, tmp_path / method, cfg, progress=False)
         assert run.physics_config.empty_reference is runs_empty
@@ -397,7 +383,7 @@ def test_coverage_control_runs_in_the_loop_without_probes(tiny_dataset, tmp_path
     def no_physics(gaussians):
         raise AssertionError("fisher+area must not run the probes")
 
-    cfg = tiny_config(method="fisher+area", budget=4, mode="reset", total_iterations=12)
+    cfg = tiny_active_config(method="fisher+area", budget=4, mode="reset", total_iterations=12)
     rounds = run_active(tiny_dataset, tmp_path / "run", cfg, physics_fn=no_physics, progress=False)
     assert len(rounds["selected"]) == 4
     for rec in rounds["rounds"]:

@@ -263,27 +263,16 @@ def test_thin_area_candidates_score_the_coverage_of_the_masked_gaussians_without
 
 def _tiny_loop(tmp_path, method: str, physics_fn) -> dict:
     """rounds.json of a 4-view loop of ``method`` on a 16 px torus, the probes replaced by ``physics_fn``."""
-    from nbv.active import ActiveConfig, run_active
-    from nbv.physics import PhysicsConfig
+    from nbv.active import run_active
     from recon.mesh_render import MeshDatasetConfig, render_mesh_dataset
 
     from helpers.paths import TORUS
-    from helpers.training import TINY_TRAIN
+    from helpers.training import tiny_active_config
 
     ds = render_mesh_dataset(
         TORUS, tmp_path / "torus", MeshDatasetConfig(n_train=6, n_test=2, resolution=16, supersample=1), progress=False
     )
-    cfg = ActiveConfig(
-        method=method,
-        budget=4,
-        iterations_per_view=1,
-        total_iterations=6,
-        resolution=16,
-        train=TINY_TRAIN,
-        backend="torch",
-        mode="reset",
-        physics=PhysicsConfig(particle_radius=0.08, steps=20, dt=0.004),
-    )
+    cfg = tiny_active_config(method=method, iterations_per_view=1, total_iterations=6, mode="reset")
     return run_active(ds, tmp_path / "run", cfg, physics_fn=physics_fn, progress=False)
 
 
