@@ -169,6 +169,11 @@ def per_gaussian_values(name: str, context: PlanningContext, seed: int, who: str
     return PER_GAUSSIAN[name](context, seed, who or name)
 
 
+def _rule_field(name: str, doc: str = "") -> property:
+    """A read-only property of a fused planner that reads its rule's ``name`` (the rule owns it)."""
+    return property(lambda planner: getattr(planner.rule, name), doc=doc or f"The rule's {name}.")
+
+
 class FusedPlanner:
     """A visual planner's top-K, re-ranked by a physics rule (FluidGaussian and its controls and candidates).
 
@@ -187,26 +192,11 @@ class FusedPlanner:
         self.config = config if config is not None else visual.config_type()
         self.visual = visual(self.config)
 
-    @property
-    def name(self) -> str:
-        return self.rule.name
-
-    @property
-    def control(self) -> str:
-        return self.rule.control
-
-    @property
-    def depth_test(self) -> bool:
-        return self.rule.depth_test
-
-    @property
-    def combine(self) -> str:
-        return self.rule.combine
-
-    @property
-    def uses_physics(self) -> bool:
-        """Whether the pick runs the probes (False for the coverage controls)."""
-        return self.rule.uses_physics
+    name = _rule_field("name")
+    control = _rule_field("control")
+    depth_test = _rule_field("depth_test")
+    combine = _rule_field("combine")
+    uses_physics = _rule_field("uses_physics", "Whether the pick runs the probes (False for the coverage controls).")
 
     def per_gaussian(self, context: PlanningContext) -> torch.Tensor:
         """[N] the values S(T) sums with the view weights (:func:`per_gaussian_values` of the rule's control)."""
