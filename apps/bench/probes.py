@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..options.numbers import positive_number, step_count, step_list, tolerance_list
 from ..runtime import positive_int, thread_count
 
 ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
@@ -33,20 +34,23 @@ STAGES = ("neighbors", "divergence_solve", "density_solve", "divergence_estimate
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gaussians", type=Path, default=ASSET, help=f"Gaussian set (default: {ASSET.name})")
     p.add_argument("--up", default="+y", help="the scene's up direction (COLMAP captures: -y)")
-    p.add_argument("--particle-radius", type=float, default=None, help="r in m (default: the --quick preset's)")
-    p.add_argument("--steps", type=int, default=None, help="steps per probe (default: the --quick preset's)")
-    p.add_argument("--dt", type=float, default=0.002, help="time step, s (default: 0.002)")
+    p.add_argument(
+        "--particle-radius", type=positive_number, default=None, help="r in m (default: the --quick preset's)"
+    )
+    p.add_argument("--steps", type=step_count, default=None, help="steps per probe (default: the --quick preset's)")
+    p.add_argument("--dt", type=positive_number, default=0.002, help="time step, s (default: 0.002)")
     p.add_argument("--no-empty", action="store_true", help="leave out the empty-scene probes")
     p.add_argument("--every", type=positive_int, default=25, help="record the running D_g every this many steps")
     p.add_argument("--cameras", type=positive_int, default=24, help="orbit cameras the view ranking is judged on")
     p.add_argument(
         "--tolerances",
+        type=tolerance_list,
         default="0.005,0.01,0.02,0.03,0.05",
         help="stop-rule tolerances to judge (relative L1 change of the running D_g per window)",
     )
     p.add_argument("--window", type=positive_int, default=50, help="stop rule: steps between checks")
     p.add_argument("--min-steps", type=int, default=150, help="stop rule: no stop before this many steps")
-    p.add_argument("--fixed", default="300,400,500,600", help="fixed shorter runs to judge (steps)")
+    p.add_argument("--fixed", type=step_list, default="300,400,500,600", help="fixed shorter runs to judge (steps)")
     p.add_argument(
         "--replica",
         type=int,
@@ -144,9 +148,9 @@ def print_cuts(args: argparse.Namespace, traces, cov, view_scores) -> list[dict]
     judged = []
     cuts = [
         (f"rule tol {tol:g}", judge_rule(traces, StopRule(tol, args.window, args.min_steps), cov, view_scores))
-        for tol in (float(x) for x in args.tolerances.split(","))
+        for tol in args.tolerances
     ]
-    for n in (int(x) for x in args.fixed.split(",") if x):
+    for n in args.fixed:
         stops = {t.direction: n for t in traces if not t.empty}
         cuts.append((f"fixed {n}", judge_stops(traces, stops, cov, view_scores)))
     for name, j in cuts:

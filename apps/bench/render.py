@@ -20,6 +20,7 @@ import torch
 
 from fluidsim.files import write_json_atomic
 
+from ..options.numbers import int_in, seed
 from ..runtime import thread_count
 from .yardsticks import reference_workload_ms
 
@@ -37,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--repeats",
-        type=int,
+        type=int_in(1, 100_000),
         default=10,
         help="timed forward+backward passes per case, after one warm-up pass (default: %(default)s)",
     )
@@ -59,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="torch",
         help="renderer backend (default: %(default)s)",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed of the scene (default: %(default)s)")
+    p.add_argument("--seed", type=seed, default=0, help="random seed of the scene (default: %(default)s)")
     p.add_argument(
         "--json",
         type=str,
@@ -94,10 +95,6 @@ def run_command(args: argparse.Namespace) -> int:
     from recon.device import torch_device
     from recon.render_bench import time_case
 
-    if args.threads < 1:
-        raise ValueError(f"--threads must be >= 1, got {args.threads}")
-    if args.repeats < 1:
-        raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
     cases = parse_sizes(args.sizes)
     device = torch.device(torch_device(args.device))
     previous_threads = torch.get_num_threads()

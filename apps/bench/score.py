@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..options.numbers import positive_number, seed, step_count
 from ..runtime import positive_int, thread_count
 
 ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
@@ -41,11 +42,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--paper", action="store_true", help="paper setting: r = 0.025 m, 750 steps (default: quick preset)")
     p.add_argument(
         "--particle-radius",
-        type=float,
+        type=positive_number,
         default=None,
         help="particle radius r in m (default: 0.05, or 0.025 with --paper)",
     )
-    p.add_argument("--steps", type=int, default=None, help="steps per probe (default: 300, or 750 with --paper)")
+    p.add_argument("--steps", type=step_count, default=None, help="steps per probe (default: 300, or 750 with --paper)")
     p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes")
     p.add_argument("--empty-reference", action="store_true", help="also time the empty-scene reference runs")
     p.add_argument("--no-fill", action="store_true", help="keep the solid hollow (filling is the default)")
@@ -83,7 +84,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--densify-only", action="store_true", help="--densify: time only the dense set (its peak memory alone)"
     )
-    p.add_argument("--seed", type=int, default=0, help="--densify: random seed of the jitter")
+    p.add_argument("--seed", type=seed, default=0, help="--densify: random seed of the jitter")
 
 
 def share_target(num_gaussians: int) -> float:

@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..options.numbers import int_in, step_count
 from ..runtime import thread_count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--steps", type=int, default=100, help="time steps to time (default: 100)")
+    p.add_argument("--steps", type=step_count, default=100, help="time steps to time (default: 100)")
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads for both engines (default: 2)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="compute device (default: cpu)")
     p.add_argument(
@@ -34,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--rounds",
-        type=int,
+        type=int_in(1, 1000),
         default=1,
         help="run the engines this many times, alternating, and also print each round's ratio and the "
         "ratio of each engine's fastest round (shared, noisy machines; default: 1)",
@@ -120,8 +121,6 @@ def run_command(args: argparse.Namespace) -> int:
         check_output_file(Path(args.json), (".json",))
     if args.steps < 2:
         raise ValueError(f"--steps must be >= 2, got {args.steps}")
-    if args.rounds < 1:
-        raise ValueError(f"--rounds must be >= 1, got {args.rounds}")
     device = init_taichi(args.device, "f32", args.threads)
     scene = PeerScene(steps=args.steps, threads=args.threads)
     ours = run_ours(scene, args.steps, divergence_warm_start=not args.no_divergence_warm_start)

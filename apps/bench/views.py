@@ -33,11 +33,15 @@ from pathlib import Path
 
 from fluidsim.files import write_json_atomic
 
+from ..options.numbers import camera_count, image_width, int_in, seed
+from ..runtime import thread_count
+
 ASSETS = Path(__file__).resolve().parents[2] / "assets"
 # targets for 200 cameras x 1M Gaussians, no PNGs, on a 2-core CPU: frustum culling, and the coarse depth test
 TARGET_S = 5.0
 TARGET_DEPTH_TEST_S = 15.0
 TARGET_PAIRS = 200 * 1_000_000
+MAX_COUNT = 10_000_000  # as bench render's sets: 10^11 asked torch for 800 GB and ended in a traceback
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -61,7 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--render-width",
-        type=int,
+        type=image_width,
         default=320,
         help="width of the ranking check's views, as `fluidgs score` (default: %(default)s)",
     )
@@ -73,23 +77,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-ranking", action="store_true", help="skip the ranking check (no full renders)")
     p.add_argument(
         "--count",
-        type=int,
+        type=int_in(1, MAX_COUNT),
         default=1_000_000,
         help="Gaussians of the timing set (jittered copies of --gaussians; default: %(default)s)",
     )
-    p.add_argument("--views", type=int, default=200, help="cameras of the timing run (default: %(default)s)")
+    p.add_argument("--views", type=camera_count, default=200, help="cameras of the timing run (default: %(default)s)")
     p.add_argument(
-        "--width", type=int, default=320, help="image width of the timing run's cameras, pixels (height 3/4 of it)"
+        "--width",
+        type=image_width,
+        default=320,
+        help="image width of the timing run's cameras, pixels (height 3/4 of it)",
     )
     p.add_argument(
         "--threads",
-        type=int,
+        type=thread_count,
         default=None,
         help="CPU threads scoring cameras side by side (default: torch's thread count, the cores)",
     )
     p.add_argument(
         "--reference-views",
-        type=int,
+        type=int_in(0, 10_000),
         default=20,
         help="cameras scored by the one-thread reference path too, for the speed-up and the score difference "
         "(0: none; default: %(default)s)",
@@ -100,7 +107,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="cpu",
         help="torch device; cuda falls back to cpu with a warning (default: %(default)s)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the jitter, the cameras and the stand-in D_g")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the jitter, the cameras and the stand-in D_g")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
 
 
@@ -175,13 +182,6 @@ def run_command(args: argparse.Namespace) -> int:
 
     if args.json is not None:
         check_output_file(args.json, (".json",))
-    for name, value in (("--count", args.count), ("--views", args.views), ("--width", args.width)):
-        if value < 1:
-            raise ValueError(f"{name} must be >= 1, got {value}")
-    if args.threads is not None and args.threads < 1:
-        raise ValueError(f"--threads must be >= 1, got {args.threads}")
-    if args.reference_views < 0:
-        raise ValueError(f"--reference-views must be >= 0 (0: no reference timing), got {args.reference_views}")
     device = torch.device(torch_device(args.device))
     gaussians = load_gaussians_checked(args.gaussians)
     d, source = load_divergence(args.result, gaussians, args.seed)

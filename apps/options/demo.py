@@ -15,6 +15,7 @@ from .cameras import CAMERAS_HELP, add_orbit_arguments
 from .fields import add_config_options
 from .files import add_gaussian_file_arguments
 from .groups import add_frame_arguments, add_runtime_arguments
+from .numbers import image_width
 
 MESH_RADIUS, MESH_STEPS = 0.04, 200  # the mesh demo (--solid): particle radius r in m, steps per probe
 ASSETS = Path(__file__).resolve().parents[2] / "assets"
@@ -63,7 +64,7 @@ def add_demo_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--render-width",
-        type=int,
+        type=image_width,
         default=240,
         help="width of the scored views in pixels (the cameras of a file are scaled to it, up as well as down, "
         "so the bundled 64 px cameras give sharp PNGs)",

@@ -1,0 +1,51 @@
+"""Counts, steps, seeds, image widths and number lists of `fluidgs bench WHAT` and `demo` are refused when the options
+are parsed (exit 2, one line naming the option), before a set is built, a seed overflows or a run starts."""
+
+import pytest
+
+from apps import cli
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["views", "--count", "100000000000"], "--count"),  # a MemoryError traceback (800 GB asked of torch)
+        (["views", "--views", "0"], "--views"),
+        (["views", "--width", "0"], "--width"),  # a Camera's message, not the option's
+        (["views", "--width", "100000000"], "--width"),
+        (["views", "--render-width", "0"], "--render-width"),
+        (["views", "--reference-views", "-1"], "--reference-views"),
+        (["score", "--steps", "0"], "--steps"),  # ran the default 300 steps silently
+        (["score", "--particle-radius", "0"], "--particle-radius"),
+        (["probes", "--tolerances", "x"], "--tolerances"),  # ran the whole profile, then failed
+        (["probes", "--tolerances", "nan"], "--tolerances"),
+        (["probes", "--fixed", "300,x"], "--fixed"),
+        (["probes", "--steps", "0"], "--steps"),
+        (["sim", "--steps", "10000000"], "--steps"),  # unbounded
+        (["sim", "--rounds", "100000000"], "--rounds"),  # unbounded
+        (["render", "--seed", "100000000000000000000"], "--seed"),  # "Overflow when unpacking long long"
+        (["render", "--seed", "-1"], "--seed"),
+    ],
+)
+def test_bench_numbers_are_bounded_when_parsed(argv, option, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["bench", *argv])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and f"argument {option}" in err and "must be" in err, err
+    assert "Traceback" not in err and "Camera" not in err
+
+
+def test_bench_number_types_keep_the_defaults():
+    args = cli.build_parser("bench").parse_args(["bench", "probes"])
+    assert args.tolerances == (0.005, 0.01, 0.02, 0.03, 0.05) and args.fixed == (300, 400, 500, 600)
+    assert cli.build_parser("bench").parse_args(["bench", "probes", "--fixed", ""]).fixed == ()
+
+
+def test_demo_render_width_is_named_when_out_of_range(tmp_path, capsys):
+    """`demo --render-width 0` said "scale factor must be > 0", 10^8 spoke of a Camera 'r_000'."""
+    for width in ("0", "100000000"):
+        with pytest.raises(SystemExit) as exc:
+            cli.main(["demo", "-o", str(tmp_path / "d"), "--render-width", width])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and "argument --render-width: must be an integer from 1 to 65,536" in err, err
+    assert not (tmp_path / "d").exists()
