@@ -150,9 +150,14 @@ def parse_matrix(text: str | None) -> np.ndarray | None:
 def _load_mesh(path: Path, matrix: np.ndarray | None):
     import open3d as o3d  # noqa: PLC0415
 
-    mesh = o3d.io.read_triangle_mesh(str(path))
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        mesh = o3d.io.read_triangle_mesh(str(path))
     if len(mesh.triangles) == 0:
         raise ValueError(f"{path}: no triangles read; pass a triangle mesh (.obj, .stl, .ply, .glb)")
+    if not np.isfinite(np.asarray(mesh.vertices)).all():
+        raise ValueError(f"{path}: the mesh has NaN or Inf vertex coordinates; fix the file")
+    # an STL stores each triangle's corners apart: merged, so that a closed mesh reads as watertight (has an inside)
+    mesh.remove_duplicated_vertices()
     if matrix is not None:
         mesh.transform(matrix)
     return mesh

@@ -142,3 +142,31 @@ def test_compare_command_on_a_mesh_against_itself_and_a_non_watertight_one(tmp_p
     shift = "1 0 0 50  0 1 0 0  0 0 1 0  0 0 0 1"
     assert main([*args, "--steps", "30", "-o", str(far), "--reference-transform", shift]) == 2
     assert not far.exists() and not (tmp_path / "far.png").exists()
+
+
+def test_the_verdict_needs_a_floor_that_leaves_room_to_judge():
+    """A floor of 50 % or more (too few steps for the fluid to pass the object) gives no verdict: a reconstruction
+    that made no force at all once read 'indistinguishable' beside a floor of 100 %."""
+    from nbv.functional import FLOOR_LIMIT, verdict_line
+
+    assert "indistinguishable" in verdict_line(0.05, 0.04) and "above" in verdict_line(0.5, 0.04)
+    for floor in (FLOOR_LIMIT, 1.0, float("nan")):
+        line = verdict_line(1.0, floor)
+        assert "cannot judge" in line and "--steps" in line and "indistinguishable" not in line
+    assert "100 %" in verdict_line(1.0, 1.0) and "2.8 %" in verdict_line(0.028, 0.001)
+
+
+def test_an_stl_reference_is_watertight_and_a_nan_mesh_is_named(tmp_path):
+    """An STL stores each triangle's corners apart; read as it is, a closed box had no inside (an open can)."""
+    import open3d as o3d
+
+    from nbv.functional.solids import reference_source
+
+    box = o3d.geometry.TriangleMesh.create_box(0.4, 0.4, 0.4)
+    box.compute_triangle_normals()
+    o3d.io.write_triangle_mesh(str(tmp_path / "box.stl"), box)
+    src = reference_source(tmp_path / "box.stl", PhysicsConfig.quick(up="+y"), None, None)
+    assert src.warnings == ()
+    (tmp_path / "nan.obj").write_text("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(ValueError, match="nan.obj: the mesh has NaN or Inf"):
+        reference_source(tmp_path / "nan.obj", PhysicsConfig.quick(up="+y"), None, None)
