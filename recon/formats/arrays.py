@@ -33,6 +33,18 @@ def check_declared_size(source: str, what: str, declared: int, available: int) -
         )
 
 
+def check_positive_scales(source: str, scales: np.ndarray, what: str, fix: str) -> None:
+    """Raise ``ValueError`` naming the rows of the [N, 3] standard deviations ``scales`` that are zero, negative or not
+    finite (a file that stores them linearly; their log would be -inf or NaN). ``what`` names the rows ("Gaussians"),
+    ``fix`` ends the message."""
+    bad = np.flatnonzero(~(np.isfinite(scales) & (scales > 0)).all(1))
+    if len(bad):
+        raise ValueError(
+            f"{source}: {len(bad)} {what} have a zero, negative or non-finite scale (first rows {bad[:5].tolist()}); "
+            f"{fix}"
+        )
+
+
 def gaussians_from_arrays(
     source: str,
     means: np.ndarray,

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..gaussians import SH_C0, GaussianSet
-from .arrays import gaussians_from_arrays, opacity_logits_from_unit
+from .arrays import check_positive_scales, gaussians_from_arrays, opacity_logits_from_unit
 
 RECORD = np.dtype([("position", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rotation", "u1", (4,))])
 RECORD_BYTES = 32
@@ -49,13 +49,7 @@ def load_splat(path: str | Path) -> GaussianSet:
         )
     records = np.fromfile(path, dtype=RECORD, count=size // RECORD_BYTES)
     scale = records["scale"]
-    bad = ~(np.isfinite(scale) & (scale > 0)).all(1)
-    if bad.any():
-        rows = np.flatnonzero(bad)
-        raise ValueError(
-            f"{source}: {len(rows)} Gaussians have a zero, negative or non-finite scale (first rows "
-            f"{rows[:5].tolist()}); a .splat stores positive standard deviations"
-        )
+    check_positive_scales(source, scale, "Gaussians", "a .splat stores positive standard deviations")
     rgba = records["rgba"].astype(np.float32) / 255.0
     dc = (rgba[:, :3] - 0.5) / np.float32(SH_C0)
     quats = (records["rotation"].astype(np.float32) - 128.0) / 128.0

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..gaussians import SH_C0, GaussianSet
 from ..inflate import check_budget
-from .arrays import gaussians_from_arrays, opacity_logits_from_unit
+from .arrays import check_positive_scales, gaussians_from_arrays, opacity_logits_from_unit
 
 MAIN_HEADER_BYTES = 4096
 SECTION_HEADER_BYTES = 1024
@@ -176,14 +176,8 @@ def _read_section(
     quats = floats(m["center"] + m["scale"], 4)
     colour_at = m["center"] + m["scale"] + m["rotation"]
     rgba = rows[:, colour_at : colour_at + 4].astype(np.float32) / 255.0
-    bad = ~(np.isfinite(scales) & (scales > 0)).all(1)
-    if bad.any():
-        rows_bad = np.flatnonzero(bad)
-        raise ValueError(
-            f"{source}: {len(rows_bad)} .ksplat splats of section {index} have a zero, negative or "
-            f"non-finite scale (first {rows_bad[:5].tolist()}); a .ksplat stores positive standard "
-            f"deviations; {FIX}"
-        )
+    what = f".ksplat splats of section {index}"
+    check_positive_scales(source, scales, what, f"a .ksplat stores positive standard deviations; {FIX}")
     dc = (rgba[:, :3] - 0.5) / np.float32(SH_C0)
     sh = np.zeros((n, (degree + 1) ** 2, 3), np.float32)
     sh[:, 0] = dc
