@@ -71,13 +71,14 @@ def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input
     from nbv.active import RUN_FILES, ActiveRun, timing_line, visual_name
 
-    from .options import check_outside_dataset, dataset_inputs
+    from .options import check_output_folder, check_outside_dataset, dataset_inputs
     from .runtime import setup_runtime
 
     check_plan(args)
     config = config_from_args(args)
     check_not_input([("-o (run file)", args.output / name) for name in RUN_FILES], dataset_inputs(args.dataset))
     check_outside_dataset(args.output, args.dataset)
+    check_output_folder(args.output, "-o")
     device = setup_runtime(args.device, args.threads, config.physics.precision)
     run = ActiveRun(
         args.dataset, args.output, config, device=device, overwrite=args.overwrite, progress=not args.no_progress

@@ -48,6 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.files import check_writable
     from recon.ahmed import MESH_SUFFIXES, AhmedBody, ahmed_body, enclosed_volume, save_mesh
 
     from .options import config_values
@@ -57,6 +58,7 @@ def run_command(args: argparse.Namespace) -> int:
         raise ValueError(
             f"{args.output}: unsupported mesh file type {args.output.suffix!r}; use one of {list(MESH_SUFFIXES)}"
         )
+    check_writable(args.output)
     body = {
         **{f: getattr(AhmedBody, f) for f in ("slant_deg", "stilts", "resolution")},
         **config_values(AhmedBody, args, ("slant_deg", "stilts", "resolution"), OVERRIDES),

@@ -92,9 +92,12 @@ def run_command(args: argparse.Namespace) -> int:
     from recon.mesh_render import render_mesh_dataset
     from recon.train import evaluate
 
+    from .options import check_output_folder
+
     out = args.output
     check_arguments(args)
     mesh_cfg, config = asset_configs(args)  # checked before the output folder is made or the seed is set
+    check_output_folder(out, "-o")
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)

@@ -5,7 +5,6 @@ both demos start from."""
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 from fluidsim.directions import DIRECTIONS
@@ -13,7 +12,7 @@ from fluidsim.files import write_json_atomic
 
 from .cameras import CAMERAS_HELP, add_orbit_arguments
 from .fields import add_config_options
-from .files import add_gaussian_file_arguments
+from .files import add_gaussian_file_arguments, check_output_folder
 from .groups import add_frame_arguments, add_runtime_arguments
 from .numbers import image_width
 
@@ -85,11 +84,9 @@ DEMO_FILES = (
 
 
 def output_folder(path) -> Path:
-    """The demo's output folder, made when missing; OSError naming -o when it cannot be written."""
-    out = Path(path)
+    """The demo's output folder, made when missing; an OutputError (exit 4) naming -o when it cannot be written."""
+    out = check_output_folder(path, "-o")
     out.mkdir(parents=True, exist_ok=True)
-    if not os.access(out, os.W_OK):
-        raise OSError(f"output folder {out} is not writable; pass another -o")
     return out
 
 

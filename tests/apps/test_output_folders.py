@@ -1,0 +1,30 @@
+"""An output that cannot be made (under /proc, or an existing regular file where a folder or a folder's parent is
+expected) ends `active`, `demo`, `make-assets` and `ahmed` with exit 4 and one line naming the output and the fix,
+before any work: they ended with exit 2 and a bare errno text ("[Errno 17] File exists: ...")."""
+
+import pytest
+
+from apps import cli
+
+from helpers.logs import error_text
+
+
+def _argv(command: str, out: str, tmp_path) -> list[str]:
+    if command == "active":
+        (tmp_path / "ds").mkdir(exist_ok=True)
+        return ["active", str(tmp_path / "ds"), "-o", out, "--threads", "1"]
+    if command == "ahmed":
+        return ["ahmed", "-o", f"{out}/body.obj"]
+    return [command, "-o", out, "--threads", "1"]
+
+
+@pytest.mark.parametrize("command", ["active", "demo", "make-assets", "ahmed"])
+@pytest.mark.parametrize("where", ["proc", "file"])
+def test_an_output_that_cannot_be_made_is_exit_4_naming_it(command, where, tmp_path, caplog, capsys):
+    (tmp_path / "plain").write_text("x")
+    out = "/proc/fluidgs-no-such-folder" if where == "proc" else str(tmp_path / "plain")
+    assert cli.main(_argv(command, out, tmp_path)) == 4
+    msg = error_text(caplog)
+    assert out in msg and ("choose" in msg or "give" in msg) and not msg.startswith("[Errno"), msg
+    assert "Traceback" not in capsys.readouterr().err
+    assert (tmp_path / "plain").read_text() == "x"
