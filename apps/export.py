@@ -16,6 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
+from .options.numbers import step_count
 from .options.solid_export import FRAME_HELP, print_solid_export, solid_export_outputs
 
 
@@ -51,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--steps",
-        type=int,
+        type=step_count,
         default=None,
         help="--splishsplash: time steps of each scene (stopAt = steps x dt, s) (default: the run's steps per probe)",
     )
@@ -149,8 +150,6 @@ def run_command(args: argparse.Namespace) -> int:
             "export: nothing to write; pass --vtk DIR (particle frames), --solid PATH (the solid) and/or "
             "--splishsplash DIR (SPlisHSPlasH scenes)"
         )
-    if args.steps is not None and args.steps < 1:
-        raise ValueError(f"--steps must be >= 1, got {args.steps}")
     if not is_hdf5 and (args.vtk is not None or args.solid is not None):
         raise ValueError(f"H5 {args.h5} is not an HDF5 file; pass an OUT.h5 (fluidgs sim) or a RESULT.h5")
     outputs = {"--vtk": args.vtk, "--splishsplash": args.splishsplash, **solid_export_outputs(args.solid)}
@@ -177,6 +176,7 @@ def run_command(args: argparse.Namespace) -> int:
     if args.splishsplash is not None:
         if args.splishsplash.exists() and not args.splishsplash.is_dir():
             raise ValueError(f"--splishsplash {args.splishsplash} exists and is not a folder; name a folder")
+        check_writable(args.splishsplash / "solid.obj")  # before the solid is made
         write_splash_scenes(args, is_hdf5, probes)
     solid = solid_of_file(args.h5) if args.solid is not None else None
     if args.vtk is not None:

@@ -109,6 +109,11 @@ def test_bad_exports_exit_2_before_any_work(run, tmp_path, caplog):
     assert "not recorded" in caplog.text
     assert cli.main(["export", str(h5)]) == 2
     assert "nothing to write" in caplog.text
+    with pytest.raises(SystemExit) as bad_steps:  # bounded at parse time, before the scenes' solid is made
+        cli.main(["export", str(ply), "--splishsplash", str(tmp_path / "s"), "--steps", "10000000000"])
+    assert bad_steps.value.code == 2
+    assert cli.main(["export", str(ply), "--splishsplash", "/proc/fluidgs-test/s", "--quick"]) == 4
+    assert "/proc/fluidgs-test" in caplog.text and "solid:" not in caplog.text
     assert time.perf_counter() - t0 < 30
     assert not (tmp_path / "r.h5").exists() and not (tmp_path / "v").exists()
 
