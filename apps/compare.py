@@ -70,7 +70,7 @@ def run_command(args: argparse.Namespace) -> int:
         overlap_line,
         plot_forces,
     )
-    from nbv.functional.solids import parse_matrix, reconstruction_source, reference_source
+    from nbv.functional.solids import matrix_file, parse_matrix, reconstruction_source, reference_source
 
     from .runtime import init_taichi
 
@@ -81,8 +81,11 @@ def run_command(args: argparse.Namespace) -> int:
     check_output_file(plot, (".png",))
     if args.output.resolve() == plot.resolve():
         raise ValueError(f"--plot {plot} is the JSON output too; give two different paths")
-    check_not_input({"-o": args.output, "--plot": plot}, {"RECON": args.recon, "--reference": args.reference})
-    for name, path in (("RECON", args.recon), ("--reference", args.reference)):
+    inputs = {"RECON": args.recon, "--reference": args.reference}
+    check_not_input(
+        {"-o": args.output, "--plot": plot}, {**inputs, "--reference-transform": matrix_file(args.reference_transform)}
+    )
+    for name, path in inputs.items():
         if not path.exists():
             raise ValueError(f"{name} {path} does not exist; pass a mesh, a Gaussian file or a RESULT.h5")
 

@@ -120,27 +120,48 @@ def _mesh_solid(mesh, spacing: float, offset, watertight: bool) -> np.ndarray:
     return (keys + np.asarray(offset, np.float64)) * spacing
 
 
+MATRIX_FILE_BYTES = 1 << 16  # a 4 x 4 matrix as text or .npy is a few hundred bytes
+
+
+def matrix_file(text: str | None) -> Path | None:
+    """The file ``--reference-transform`` names (a .npy/.txt/.json path), else None (numbers or no option)."""
+    return Path(text) if text is not None and Path(text).suffix in (".npy", ".txt", ".json") else None
+
+
 def parse_matrix(text: str | None) -> np.ndarray | None:
     """A 4 x 4 transform from 16 comma- or space-separated numbers (row-major) or a .npy/.txt/.json file; None: none.
 
     Raises:
-        ValueError: naming the option, when it is not 16 finite numbers with an invertible 3 x 3 part.
+        ValueError: naming the option, when the file is missing, not a regular file or too large, or when it is not
+            16 finite numbers with an invertible 3 x 3 part.
     """
     if text is None:
         return None
-    p = Path(text)
+    p = matrix_file(text)
+    if p is not None and not p.is_file():
+        what = "does not exist" if not p.exists() else "is not a regular file"
+        raise ValueError(f"--reference-transform {p} {what}; pass a .npy, .txt or .json file or 16 numbers")
+    if p is not None and p.stat().st_size > MATRIX_FILE_BYTES:
+        raise ValueError(
+            f"--reference-transform {p}: {p.stat().st_size:,} bytes, too large for a 4 x 4 matrix; pass its 16 numbers"
+        )
     try:
-        if p.suffix in (".npy",) and p.is_file():
+        if p is not None and p.suffix == ".npy":
             values = np.load(p, allow_pickle=False)
-        elif p.suffix in (".txt", ".json") and p.is_file():
+        elif p is not None:
             values = np.array(p.read_text().replace("[", " ").replace("]", " ").replace(",", " ").split(), float)
         else:
             values = np.array(str(text).replace(",", " ").split(), float)
     except (ValueError, OSError) as exc:
         raise ValueError(f"--reference-transform {text!r}: not 16 numbers ({exc}); give 16 numbers, row-major") from exc
     m = np.asarray(values, np.float64).reshape(-1)
-    if m.size != 16 or not np.isfinite(m).all():
+    if m.size != 16:
         raise ValueError(f"--reference-transform: {m.size} numbers given; give the 16 of a 4 x 4 matrix, row-major")
+    if not np.isfinite(m).all():
+        raise ValueError(
+            f"--reference-transform: {int((~np.isfinite(m)).sum())} of its 16 numbers are not finite (NaN or Inf); "
+            "give 16 finite numbers"
+        )
     m = m.reshape(4, 4)
     if abs(np.linalg.det(m[:3, :3])) < 1e-12 or not np.allclose(m[3], [0, 0, 0, 1]):
         raise ValueError("--reference-transform: its 3 x 3 part is singular or its last row is not 0 0 0 1")

@@ -170,3 +170,32 @@ def test_an_stl_reference_is_watertight_and_a_nan_mesh_is_named(tmp_path):
     (tmp_path / "nan.obj").write_text("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     with pytest.raises(ValueError, match="nan.obj: the mesh has NaN or Inf"):
         reference_source(tmp_path / "nan.obj", PhysicsConfig.quick(up="+y"), None, None)
+
+
+def test_the_reference_transform_file_is_checked_and_never_overwritten(tmp_path, caplog):
+    """--reference-transform m.json -o m.json replaced the matrix with the record; a FIFO, a missing file, a huge
+    file and a NaN are named before any work."""
+    from apps import cli
+    from nbv.functional.solids import MATRIX_FILE_BYTES, parse_matrix
+
+    m = tmp_path / "m.json"
+    m.write_text(json.dumps(np.eye(4).reshape(-1).tolist()))
+    np.testing.assert_array_equal(parse_matrix(str(m)), np.eye(4))
+    os.mkfifo(tmp_path / "fifo.txt")
+    (tmp_path / "big.txt").write_text("1 " * MATRIX_FILE_BYTES)
+    for text, what in (
+        (str(tmp_path / "fifo.txt"), "not a regular file"),
+        (str(tmp_path / "none.json"), "does not exist"),
+        (str(tmp_path / "big.txt"), "too large"),
+        ("1,0,0,0,0,nan,0,0,0,0,1,0,0,0,0,1", "not finite"),
+    ):
+        with pytest.raises(ValueError, match=what):
+            parse_matrix(text)
+    before = m.read_bytes()
+    mesh = tmp_path / "box.obj"
+    import open3d as o3d
+
+    o3d.io.write_triangle_mesh(str(mesh), o3d.geometry.TriangleMesh.create_box(0.4, 0.4, 0.4))
+    args = ["compare", str(mesh), "--reference", str(mesh), "--reference-transform", str(m), "-o", str(m)]
+    assert cli.main(args) == 2
+    assert "would destroy the input" in caplog.text and m.read_bytes() == before
