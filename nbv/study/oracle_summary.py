@@ -270,22 +270,30 @@ def _functional_lines(f: dict[str, Any] | None) -> list[str]:
         "| rule | Spearman with the functional gain | regret in FisherRF's top-K (relative error) |",
         "| --- | --- | --- |",
     ]
-    order = sorted(
-        f["rules"], key=lambda r: -(f["rules"][r]["spearman"][0] if math.isfinite(f["rules"][r]["spearman"][0]) else -9)
-    )
-    for label in order:
+    for label in _by_spearman(f["rules"]):
         lines.append(f"| {label} | {_ci(f['rules'][label]['spearman'])} | {_ci(f['rules'][label]['regret'], '.3f')} |")
-    if f["paired"]:
-        lines += [
-            "",
-            "| physics rule (functional gain) | against | Δ Spearman | better / worse states | sign-test p |",
-            "| --- | --- | --- | --- | --- |",
-        ]
-        for label, row in f["paired"].items():
-            lines.append(
-                f"| {label} | {row['control']} | {_ci(row['difference'])} | {row['better']} / {row['worse']} | "
-                f"{format_p(row['sign_p'])} |"
-            )
+    return lines + _paired_lines(f["paired"], "physics rule (functional gain)", wilcoxon=False)
+
+
+def _by_spearman(rules: dict[str, Any]) -> list[str]:
+    """The rule labels, the highest Spearman first (a NaN one last)."""
+    return sorted(rules, key=lambda r: -(rules[r]["spearman"][0] if math.isfinite(rules[r]["spearman"][0]) else -9))
+
+
+def _paired_lines(paired: dict[str, Any], title: str, wilcoxon: bool) -> list[str]:
+    """The table of each physics rule against its control (:func:`summarise`'s ``paired``), or nothing without one;
+    ``wilcoxon`` adds the Wilcoxon signed-rank p."""
+    if not paired:
+        return []
+    columns = [title, "against", "Δ Spearman", "better / worse states", "sign-test p"]
+    columns += ["Wilcoxon p"] if wilcoxon else []
+    lines = ["", "| " + " | ".join(columns) + " |", "|" + " --- |" * len(columns)]
+    for label, row in paired.items():
+        cells = [row.get("rule", label), row["control"], _ci(row["difference"]), f"{row['better']} / {row['worse']}"]
+        cells.append(format_p(row["sign_p"]))
+        if wilcoxon:
+            cells.append(format_p(row["wilcoxon_p"], row["wilcoxon_note"]))
+        lines.append("| " + " | ".join(cells) + " |")
     return lines
 
 
@@ -303,12 +311,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         "states |",
         "| --- | --- | --- | --- | --- |",
     ]
-    order = sorted(
-        summary["rules"],
-        key=lambda r: (
-            -(summary["rules"][r]["spearman"][0] if math.isfinite(summary["rules"][r]["spearman"][0]) else -9)
-        ),
-    )
+    order = _by_spearman(summary["rules"])
     for label in order:
         row = summary["rules"][label]
         lines.append(
@@ -327,18 +330,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         for label in order:
             per = summary["rules"][label]["per_seed"]
             lines.append(f"| {label} | " + " | ".join(_ci(per[seed]) for seed in seeds) + " |")
-    if summary["paired"]:
-        lines += [
-            "",
-            "| physics rule | against | Δ Spearman | better / worse states | sign-test p | Wilcoxon p |",
-            "| --- | --- | --- | --- | --- | --- |",
-        ]
-        for label, row in summary["paired"].items():
-            lines.append(
-                f"| {row.get('rule', label)} | {row['control']} | {_ci(row['difference'])} | "
-                f"{row['better']} / {row['worse']} "
-                f"| {format_p(row['sign_p'])} | {format_p(row['wilcoxon_p'], row['wilcoxon_note'])} |"
-            )
+    lines += _paired_lines(summary["paired"], "physics rule", wilcoxon=True)
     lines += _functional_lines(summary.get("functional"))
     cal_ = summary.get("calibration") or {}
     if cal_:
