@@ -9,6 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from .options import add_config_options, add_runtime_arguments, config_from_args
+from .options.numbers import positive_number, step_count
 
 EVAL_FIELDS = ("critical_views", "chamfer_samples", "chamfer_opacity", "lpips")
 EVAL_OVERRIDES = {
@@ -31,11 +32,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_config_options(p, EvalConfig, EVAL_FIELDS, EVAL_OVERRIDES)
     p.add_argument(
         "--particle-radius",
-        type=float,
+        type=positive_number,
         default=None,
         help="probe particle radius r in m (default: the run's physics config)",
     )
-    p.add_argument("--probe-steps", type=int, default=None, help="time steps per probe (default: the run's)")
+    p.add_argument("--probe-steps", type=step_count, default=None, help="time steps per probe (default: the run's)")
     p.add_argument(
         "--directions",
         default=None,
@@ -50,6 +51,7 @@ def run_command(args: argparse.Namespace) -> int:
     from nbv.active.run_dir import read_run_config
     from nbv.physics import parse_directions
     from nbv.study.evaluate import EvalConfig, evaluate_run
+    from nbv.study.experiment_config import config_keys
 
     from .runtime import setup_runtime
 
@@ -62,7 +64,9 @@ def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_writable
 
     check_writable(args.run / "eval.json")  # fail before the probes run, not after
-    physics = ActiveConfig.from_dict(read_run_config(args.run)["active"]).physics
+    keys = {"ActiveConfig": "active.", "TrainConfig": "active.train.", "PhysicsConfig": "active.physics."}
+    with config_keys(keys, f"the run's config {cfg_path}"):  # the keys the file holds, not the config classes
+        physics = ActiveConfig.from_dict(read_run_config(args.run)["active"]).physics
     if args.particle_radius is not None:
         physics = replace(physics, particle_radius=args.particle_radius)
     if args.probe_steps is not None:

@@ -15,7 +15,7 @@ from typing import Any
 from fluidsim.directions import DIRECTIONS
 from fluidsim.files import check_input_file
 from nbv.active import ActiveConfig
-from nbv.active.config import MAX_SEED, MAX_VIEWS
+from nbv.active.config import MAX_SEED, MAX_VIEWS, PRESETS
 from nbv.plan import PLANNERS, uses_physics
 from nbv.study.evaluate import EvalConfig
 
@@ -114,13 +114,14 @@ class ExperimentConfig:
         for name in ("active", "eval"):
             if not isinstance(getattr(self, name), dict):
                 raise ValueError(f"experiment config: {name!r} must be an object of overrides")
+        check_preset(self.preset)
         for method in self.methods:  # validates the names, the overrides and the preset before any job starts
             check_method(method)
-            with _config_keys(
+            with config_keys(
                 {"ActiveConfig": "active.", "TrainConfig": "active.train.", "PhysicsConfig": "active.physics."}
             ):
                 self.active_config(method, self.seeds[0]).physics.check_inflow()
-        with _config_keys({"EvalConfig": "eval.", "PhysicsConfig": "eval.physics."}):
+        with config_keys({"EvalConfig": "eval.", "PhysicsConfig": "eval.physics."}):
             self.eval_config()
 
     @classmethod
@@ -187,17 +188,26 @@ class ExperimentConfig:
         return EvalConfig.from_dict(self.eval)
 
 
+def check_preset(preset: Any, what: str = "experiment config") -> None:
+    """ValueError naming the ``'preset'`` key of the ``what`` config and the presets, unless ``preset`` is one."""
+    if not isinstance(preset, str) or preset not in PRESETS:
+        raise ValueError(f"{what}: 'preset' must be one of {', '.join(map(repr, PRESETS))}, got {preset!r}")
+
+
 @contextmanager
-def _config_keys(keys: dict[str, str], what: str = "experiment config") -> Iterator[None]:
+def config_keys(keys: dict[str, str], what: str = "experiment config") -> Iterator[None]:
     """Re-raise a ValueError of a nested config with its ``Class.field`` names as the ``what`` config's keys
     (``ActiveConfig.budget`` -> ``'active.budget'``): the user wrote the keys, not the classes. The training
-    iterations of an active run are its ``total_iterations`` (the TrainConfig's are derived from it)."""
+    iterations of an active run are its ``total_iterations`` (the TrainConfig's are derived from it). Unknown keys
+    are named by where they stand (``unknown ActiveConfig keys`` -> ``unknown keys in 'active'``)."""
     try:
         yield
     except ValueError as exc:
         message = str(exc)
         if "ActiveConfig" in keys:
             message = re.sub(r"\bTrainConfig\.iterations\b", "ActiveConfig.total_iterations", message)
+        unknown = re.compile(rf"\bunknown ({'|'.join(keys)}) keys\b")
+        message = unknown.sub(lambda m: f"unknown keys in '{keys[m.group(1)].rstrip('.')}'", message)
         pattern = re.compile(rf"\b({'|'.join(keys)})\.(\w+)")
         message = pattern.sub(lambda m: f"'{keys[m.group(1)]}{m.group(2)}'", message)
         if message == str(exc):

@@ -38,7 +38,7 @@ from nbv.active.config import MAX_SEED
 from nbv.physics import PhysicsConfig
 from nbv.plan import PLANNERS
 from nbv.plan.rules import VALUES
-from nbv.study.experiment_config import MAX_JOBS, _config_keys
+from nbv.study.experiment_config import MAX_JOBS, check_preset, config_keys
 from recon.train_config import MAX_ITERATIONS
 
 log = logging.getLogger(__name__)
@@ -244,6 +244,7 @@ class OracleConfig:
             raise ValueError(
                 f"oracle config: 'seeds' must be integers from 0 to {MAX_SEED}, got {list(self.seeds)[:5]}"
             )
+        check_preset(self.preset, "oracle config")
         settings = len(self.probes) if isinstance(self.probes, dict) and self.probes else 1
         states = len(self.scenes) * len(self.seeds) * len(self.states) * settings
         if states > MAX_JOBS:  # as the experiment's: checked before any work, not after days of it
@@ -300,7 +301,7 @@ class OracleConfig:
                 )
             self.functional_config()
         keys = {"ActiveConfig": "active.", "TrainConfig": "active.train.", "PhysicsConfig": "active.physics."}
-        with _config_keys(keys, "oracle config"):
+        with config_keys(keys, "oracle config"):
             base = self.active_config(self.seeds[0])  # validates the preset and the overrides
         for name in self.probes:
             self.probe_config(name)
