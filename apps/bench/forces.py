@@ -14,7 +14,6 @@ downstream wall, a sloshing neither engine pins down.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from ..runtime import thread_count
@@ -88,11 +87,17 @@ def _cases(args: argparse.Namespace):
 
 
 def run_command(args: argparse.Namespace) -> int:
+    from fluidsim.files import write_json_atomic
     from nbv.bench.splash import INSTALL_HINT, splash_available
     from nbv.bench.splash_probe import force_check, passage_steps
 
+    from ..options import check_output_file, check_output_folder
     from ..runtime import init_taichi
 
+    if args.keep is not None:  # before any engine runs: an existing file here failed late, in the peer's writer
+        check_output_folder(args.keep, "--keep")
+    if args.json is not None:
+        check_output_file(args.json, (".json",))
     if not (args.radius > 0 and args.dt > 0 and args.sphere_radius > 0):
         raise ValueError("--radius, --dt and --sphere-radius must be > 0")
     if args.steps is not None and args.steps < 2:
@@ -145,5 +150,5 @@ def run_command(args: argparse.Namespace) -> int:
             f"{check.mean_splash.round(1).tolist()} N ({check.ours.seconds:.0f} s / {check.splash.seconds:.0f} s)"
         )
     if args.json is not None:
-        args.json.write_text(json.dumps(figures, indent=1) + "\n")
+        write_json_atomic(args.json, figures)
     return 0

@@ -28,3 +28,14 @@ def test_an_output_that_cannot_be_made_is_exit_4_naming_it(command, where, tmp_p
     assert out in msg and ("choose" in msg or "give" in msg) and not msg.startswith("[Errno"), msg
     assert "Traceback" not in capsys.readouterr().err
     assert (tmp_path / "plain").read_text() == "x"
+
+
+@pytest.mark.parametrize("option", ["--keep", "--json"])
+def test_bench_forces_refuses_an_output_under_a_file_before_any_engine_runs(option, tmp_path, caplog):
+    """`bench forces --keep FILE` ran this engine's probe, then failed in the peer's writer with exit 2 and
+    "[Errno 20] Not a directory"; `--json` under a file failed after both engines had run."""
+    (tmp_path / "plain").write_text("x")
+    out = tmp_path / "plain" if option == "--keep" else tmp_path / "plain" / "f.json"
+    assert cli.main(["bench", "forces", "--case", "sphere", option, str(out)]) == 4
+    assert str(tmp_path / "plain") in error_text(caplog) and "Errno" not in error_text(caplog)
+    assert (tmp_path / "plain").read_text() == "x"
