@@ -9,6 +9,7 @@ solver), warm start on.
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -35,6 +36,19 @@ def check_known_keys(config_type: type, keys, where: str = "") -> None:
     bad = sorted(set(keys) - known)
     if bad:
         raise ValueError(f"{where}unknown {config_type.__name__} keys {bad}; valid keys: {sorted(known)}")
+
+
+def check_choices(config: Any, choices: dict[str, Collection], owner: str = "") -> None:
+    """Raises ValueError when a field of ``config`` holds a value that is not among its choices (``choices`` maps
+    field names to the allowed values); the message starts with ``owner`` ("TrainConfig.", say), then the field.
+
+    Example:
+        >>> check_choices(SolverConfig(), {"time_step": TIME_STEP_MODES, "precision": PRECISIONS})
+    """
+    for name, allowed in choices.items():
+        value = getattr(config, name)
+        if value not in allowed:
+            raise ValueError(f"{owner}{name} must be one of {list(allowed)}, got {value!r}")
 
 
 def _finite(name: str, value: Any) -> float:
@@ -150,8 +164,7 @@ class SolverConfig:
                     f"not too large (a step below {MIN_DT:g} s needs more than {1 / MIN_DT:.0e} steps per simulated "
                     "second, and the pressure solver's 1/dt^2 overflows); use a dt of 1e-4 to 5e-3 s"
                 )
-        if self.time_step not in TIME_STEP_MODES:
-            raise ValueError(f"time_step must be one of {TIME_STEP_MODES}, got {self.time_step!r}")
+        check_choices(self, {"time_step": TIME_STEP_MODES, "precision": PRECISIONS})
         _positive("cfl_factor", self.cfl_factor)
         if _positive("dt_min", self.dt_min) > _positive("dt_max", self.dt_max):
             raise ValueError(f"dt_min ({self.dt_min}) must be <= dt_max ({self.dt_max})")
@@ -178,8 +191,6 @@ class SolverConfig:
                 f"retire_margin must be in [0, {RETIRE_MARGIN_MAX}] particle spacings (the simulation "
                 f"grid reaches {RETIRE_MARGIN_MAX} spacings past the domain), got {self.retire_margin}"
             )
-        if self.precision not in PRECISIONS:
-            raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
 
     @property
     def spacing(self) -> float:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-from fluidsim.config import check_known_keys
+from fluidsim.config import check_choices, check_known_keys
 
 BACKGROUNDS = ("white", "black", "random")
 INITS = ("random", "points")
@@ -155,10 +155,7 @@ class TrainConfig:
             raise ValueError(f"TrainConfig.sh_degree must be 0, 1, 2 or 3, got {self.sh_degree!r}")
         if self.max_gaussians is not None and (not isinstance(self.max_gaussians, int) or self.max_gaussians < 1):
             raise ValueError(f"TrainConfig.max_gaussians must be None or an integer >= 1, got {self.max_gaussians!r}")
-        if self.background not in BACKGROUNDS:
-            raise ValueError(f"TrainConfig.background must be one of {BACKGROUNDS}, got {self.background!r}")
-        if self.init not in INITS:
-            raise ValueError(f"TrainConfig.init must be one of {INITS}, got {self.init!r}")
+        check_choices(self, {"background": BACKGROUNDS, "init": INITS}, "TrainConfig.")
         if self.init_box is not None:
             box = tuple(float(v) for v in self.init_box)
             ordered = len(box) == 6 and all(box[i] < box[i + 3] for i in range(3))

@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from fluidsim.config import check_choices
+
 # color_by -> (dataset in each frame group, colour-bar title, unit)
 COLOR_BY = {
     "divergence": ("divergence", "|div v|", "1/s"),
@@ -46,14 +48,8 @@ class FrameStyle:
     frame: str = "object"
 
     def __post_init__(self) -> None:
-        if self.color_by not in COLOR_BY:
-            raise ValueError(f"FrameStyle.color_by={self.color_by!r} is unknown; use one of {sorted(COLOR_BY)}")
-        if self.view not in VIEWS:
-            raise ValueError(f"FrameStyle.view={self.view!r} is unknown; use one of {list(VIEWS)}")
-        if self.walls not in WALLS:
-            raise ValueError(f"FrameStyle.walls={self.walls!r} is unknown; use one of {list(WALLS)}")
-        if self.frame not in FRAMES:
-            raise ValueError(f"FrameStyle.frame={self.frame!r} is unknown; use one of {list(FRAMES)}")
+        choices = {"color_by": sorted(COLOR_BY), "view": VIEWS, "walls": WALLS, "frame": FRAMES}
+        check_choices(self, choices, "FrameStyle.")
         for name, low in (("width", MIN_WIDTH), ("height", MIN_HEIGHT), ("point_size", 0), ("fps", 1)):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:

@@ -6,7 +6,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from fluidsim.config import check_known_keys
+from fluidsim.config import check_choices, check_known_keys
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.scene_frame import parse_up
 from recon.camera import MAX_IMAGE_SIDE
@@ -143,8 +143,7 @@ class ActiveConfig:
                     f"ActiveConfig.initial_direction must be a non-zero (x, y, z), got {self.initial_direction!r}"
                 )
             object.__setattr__(self, "initial_direction", d)
-        if self.mode not in MODES:
-            raise ValueError(f"ActiveConfig.mode must be one of {MODES}, got {self.mode!r}")
+        check_choices(self, {"mode": MODES}, "ActiveConfig.")
         if self.resolution is not None and (
             isinstance(self.resolution, bool) or not isinstance(self.resolution, int) or self.resolution < 8
         ):

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from fluidsim.config import check_choices
+
 # The planners that score views on their own (nbv.plan.random, fisher, variance, physics, fvs).
 BASE_PLANNERS = ("random", "fisher", "variance", "physics", "fvs")
 # The planners that propose a fused planner's shortlist.
@@ -80,12 +82,9 @@ class FusedRule:
     summary: str = ""
 
     def __post_init__(self) -> None:
-        if self.visual not in VISUAL_PLANNERS:
-            raise ValueError(f"FusedRule {self.name!r}: visual must be one of {VISUAL_PLANNERS}, got {self.visual!r}")
-        if self.control not in CONTROLS:
-            raise ValueError(f"FusedRule {self.name!r}: control must be one of {CONTROLS}, got {self.control!r}")
-        if self.combine not in COMBINES:
-            raise ValueError(f"FusedRule {self.name!r}: combine must be one of {COMBINES}, got {self.combine!r}")
+        check_choices(
+            self, {"visual": VISUAL_PLANNERS, "control": CONTROLS, "combine": COMBINES}, f"FusedRule {self.name!r}: "
+        )
 
     @property
     def uses_physics(self) -> bool:
