@@ -164,7 +164,7 @@ class SolverConfig:
                     f"not too large (a step below {MIN_DT:g} s needs more than {1 / MIN_DT:.0e} steps per simulated "
                     "second, and the pressure solver's 1/dt^2 overflows); use a dt of 1e-4 to 5e-3 s"
                 )
-        check_choices(self, {"time_step": TIME_STEP_MODES, "precision": PRECISIONS})
+        check_choices(self, {"time_step": TIME_STEP_MODES})
         _positive("cfl_factor", self.cfl_factor)
         if _positive("dt_min", self.dt_min) > _positive("dt_max", self.dt_max):
             raise ValueError(f"dt_min ({self.dt_min}) must be <= dt_max ({self.dt_max})")
@@ -191,6 +191,7 @@ class SolverConfig:
                 f"retire_margin must be in [0, {RETIRE_MARGIN_MAX}] particle spacings (the simulation "
                 f"grid reaches {RETIRE_MARGIN_MAX} spacings past the domain), got {self.retire_margin}"
             )
+        check_choices(self, {"precision": PRECISIONS})
 
     @property
     def spacing(self) -> float:
