@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from nbv.physics.plan import RunFrame
+from nbv.physics.plan import ProbeRunContext, RunFrame
 from nbv.physics.run import simulate_gaussians, simulate_solid
 from nbv.physics.scene_frame import gaussian_arrays_in_sim, inverse_covariances_in_sim
 from nbv.physics.solidify import (
@@ -377,7 +377,7 @@ def simulate_with_hole(gaussians, cfg, hole: Hole | None = None):
     if hole is None:
         return simulate_gaussians(gaussians, cfg, progress=False)
     frame = RunFrame.of(gaussians, cfg)
-    return simulate_solid(frame, cut_cylinder(frame.solidify(), hole), progress=False)
+    return simulate_solid(ProbeRunContext(frame, progress=False), cut_cylinder(frame.solidify(), hole))
 
 
 def measure_shift(

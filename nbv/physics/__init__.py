@@ -21,7 +21,7 @@ _EXPORTS = {
         ),
         "memory",
     ),
-    **dict.fromkeys(("ProbePlan", "RunFrame", "expand_to_all", "probe_domains_union"), "plan"),
+    **dict.fromkeys(("ProbePlan", "ProbeRunContext", "RunFrame", "expand_to_all", "probe_domains_union"), "plan"),
     "empty_scene_probes": "empty_scene",
     **dict.fromkeys(
         ("PhysicsResult", "ProbeDiverged", "check_result_matches", "gaussians_sha256", "load_result", "save_result"),

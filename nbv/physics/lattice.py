@@ -8,6 +8,8 @@ multiple of the spacing and clipped to ``SolidifyConfig.bounds``. A work item is
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
 from nbv.physics import floaters
@@ -42,28 +44,64 @@ def solid_boxes(means: np.ndarray, covs: np.ndarray, opacities: np.ndarray, conf
     return floaters.solid_capable_boxes(means - ext, means + ext, opacities, config.opacity_threshold)
 
 
-def lattice_geometry(
-    means: np.ndarray, covs: np.ndarray, config: SolidifyConfig, opacities: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Lattice origin (snapped to a multiple of the spacing, plus ``config.lattice_offset`` spacings) and point
-    counts per axis (float64, may be huge).
+@dataclass(frozen=True)
+class Lattice:
+    """The solid's lattice, sized from the Gaussians' boxes before anything large is allocated (once per run: the
+    memory estimate, the guards and the solidification read it; a replica shifts it, :meth:`shifted`).
 
     The lattice spans the boxes of the Gaussians that can make solid (:func:`solid_boxes`), so a faint floater,
-    however large, does not widen it."""
-    lo, hi = floaters.lattice_extent(*solid_boxes(means, covs, opacities, config))
-    if config.bounds is not None:
-        lo = np.maximum(lo, config.bounds[0])
-        hi = np.minimum(hi, config.bounds[1])
-        if (hi < lo).any():
-            raise ValueError(
-                f"SolidifyConfig.bounds {config.bounds} do not overlap the Gaussians' 3-sigma boxes "
-                f"[{lo.tolist()}, {hi.tolist()}] (sim metres); widen the bounds or check the scale"
-            )
-    s = config.spacing
-    offset = np.asarray(config.lattice_offset, np.float64)  # spacings; 0: exactly the multiples of s
-    lattice_min = (np.floor(lo / s - offset) + offset) * s
-    dims = np.floor((hi - lattice_min) / s + 1e-9) + 1.0
-    return lattice_min, np.maximum(dims, 1.0)
+    however large, does not widen it.
+
+    Attributes:
+        boxes: (lo [N, 3], hi [N, 3], keep [N]) of :func:`solid_boxes`, m.
+        extent: (min [3], max [3]) m, the kept boxes' corners clipped to ``SolidifyConfig.bounds``.
+        origin: [3] m, lattice point (0, 0, 0): a multiple of the spacing, plus ``lattice_offset`` spacings.
+        dims: [3] float64 lattice points per axis (may be huge).
+        spacing: m.
+    """
+
+    boxes: tuple[np.ndarray, np.ndarray, np.ndarray]
+    extent: tuple[np.ndarray, np.ndarray]
+    origin: np.ndarray
+    dims: np.ndarray
+    spacing: float
+
+    @classmethod
+    def of(cls, means: np.ndarray, covs: np.ndarray, opacities: np.ndarray, config: SolidifyConfig) -> Lattice:
+        """The lattice of ``config`` (spacing, sigma cut-off, tau, bounds, offset) around these Gaussians (sim m).
+
+        Raises:
+            ValueError: ``config.bounds`` do not overlap the boxes.
+        """
+        boxes = solid_boxes(means, covs, opacities, config)
+        lo, hi = floaters.lattice_extent(*boxes)
+        if config.bounds is not None:
+            lo = np.maximum(lo, config.bounds[0])
+            hi = np.minimum(hi, config.bounds[1])
+            if (hi < lo).any():
+                raise ValueError(
+                    f"SolidifyConfig.bounds {config.bounds} do not overlap the Gaussians' 3-sigma boxes "
+                    f"[{lo.tolist()}, {hi.tolist()}] (sim metres); widen the bounds or check the scale"
+                )
+        return cls(boxes, (lo, hi), *_placed(lo, hi, config.spacing, config.lattice_offset), config.spacing)
+
+    def shifted(self, lattice_offset) -> Lattice:
+        """The same extent with the origin at ``lattice_offset`` (3,) spacings past a multiple of the spacing."""
+        origin, dims = _placed(*self.extent, self.spacing, lattice_offset)
+        return replace(self, origin=origin, dims=dims)
+
+    @property
+    def points(self) -> float:
+        """X * Y * Z (float64: may exceed any integer type)."""
+        return float(np.prod(self.dims))
+
+
+def _placed(lo: np.ndarray, hi: np.ndarray, s: float, lattice_offset) -> tuple[np.ndarray, np.ndarray]:
+    """Origin and points per axis (float64, at least 1) of the lattice of spacing ``s`` over [lo, hi] whose points
+    lie ``lattice_offset`` spacings past the multiples of ``s``."""
+    offset = np.asarray(lattice_offset, np.float64)  # spacings; 0: exactly the multiples of s
+    origin = (np.floor(lo / s - offset) + offset) * s
+    return origin, np.maximum(np.floor((hi - origin) / s + 1e-9) + 1.0, 1.0)
 
 
 def estimate_lattice_points(
@@ -78,9 +116,7 @@ def estimate_lattice_points(
         X * Y * Z.
     """
     sim = as_sim(gaussians, transform)
-    means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    _, dims = lattice_geometry(means, covs, config, opacities)
-    return int(np.prod(dims))
+    return int(Lattice.of(sim.means, sim.covariances, sim.opacities, config).points)
 
 
 def box_index_ranges(means, covs, lattice_min, dims, config) -> tuple[np.ndarray, np.ndarray]:
@@ -130,12 +166,12 @@ def estimate_work(gaussians: GaussianSet | SimGaussians, config: SolidifyConfig,
     :func:`nbv.physics.solidify.gaussians_to_solid` would run, counted in numpy before anything is allocated
     (``config.max_work`` is the guard)."""
     sim = as_sim(gaussians, transform)
-    means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice_min, dims = lattice_geometry(means, covs, config, opacities)
-    return int(work_sizes(means, covs, lattice_min, dims.astype(np.int64), config).sum())
+    lattice = Lattice.of(sim.means, sim.covariances, sim.opacities, config)
+    return int(work_sizes(sim.means, sim.covariances, lattice.origin, lattice.dims.astype(np.int64), config).sum())
 
 
 def checked_lattice(
+    lattice: Lattice,
     means: np.ndarray,
     covs: np.ndarray,
     config: SolidifyConfig,
@@ -144,15 +180,13 @@ def checked_lattice(
     points: bool = True,
     edges: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Lattice origin, point counts per axis (int64) and their product, or the ValueError of a guard: the lattice
-    size (naming the Gaussian that alone widens the lattice, if one does), the memory (``config.max_bytes``) and
-    the work of the tests to run (``points``: test 1; ``edges``: test 2; ``config.max_work``)."""
-    lattice_min, dims_f = lattice_geometry(means, covs, config, opacities)
+    """``lattice``'s origin, point counts per axis (int64) and their product, or the ValueError of a guard: the
+    lattice size (naming the Gaussian that alone widens the lattice, if one does), the memory (``config.max_bytes``)
+    and the work of the tests to run (``points``: test 1; ``edges``: test 2; ``config.max_work``)."""
+    lattice_min, dims_f = lattice.origin, lattice.dims
     estimate = float(np.prod(dims_f))
     if estimate > config.max_points:
-        note = floaters.dominant_note(
-            *solid_boxes(means, covs, opacities, config), config.spacing, means, covs, opacities, transform
-        )
+        note = floaters.dominant_note(*lattice.boxes, config.spacing, means, covs, opacities, transform)
         raise ValueError(
             f"the solid lattice would have about {estimate:.3g} points ({' x '.join(f'{d:.3g}' for d in dims_f)}, "
             f"~{estimate * BYTES_PER_POINT / 2**20:.3g} MiB) > max_points = {config.max_points}{note}; otherwise use "

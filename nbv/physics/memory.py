@@ -6,17 +6,12 @@ from __future__ import annotations
 import numpy as np
 
 from fluidsim.host import available_memory_bytes
-from fluidsim.probes import probe_setups
 from nbv.physics import floaters
 from nbv.physics.aggregate import GaussianAccumulator, reach_classes
-from nbv.physics.config import QUICK, PhysicsConfig, scene_transform
+from nbv.physics.config import QUICK, PhysicsConfig
 from nbv.physics.lattice import BYTES_PER_GAUSSIAN as BYTES_PER_GAUSSIAN_SOLIDIFY
-from nbv.physics.lattice import (
-    estimate_lattice_points,
-    estimate_solidify_bytes,
-    solid_boxes,
-)
-from nbv.physics.scene_frame import SimGaussians, as_sim
+from nbv.physics.lattice import estimate_solidify_bytes
+from nbv.physics.plan import ProbePlan, RunFrame
 
 # Memory per fluid particle of one probe (solver state, pressure-solver arrays, fluid and boundary neighbour lists)
 # and per boundary particle (walls and solid), doubled for headroom: the peak resident memory of probes around a
@@ -45,23 +40,16 @@ BYTES_PER_GAUSSIAN_REPLICA = 128
 BYTES_PER_GAUSSIAN_REPLICA_PROBE = 48
 
 
-def estimate_memory(
-    gaussians,
-    config: PhysicsConfig,
-    transform=None,
-    solid_points: np.ndarray | None = None,
-    *,
-    sim: SimGaussians | None = None,
-    setups=None,
-) -> dict[str, float]:
-    """An upper estimate of the memory one probe needs, before any probe is allocated.
+def estimate_memory(frame: RunFrame, plan: ProbePlan | None = None) -> dict[str, float]:
+    """An upper estimate of the memory one probe of ``frame`` (:class:`nbv.physics.plan.RunFrame`) needs, before any
+    probe is allocated.
 
-    Without ``solid_points`` it is cheap: the box of the solid lattice stands for the solid's box (the
-    Gaussians' 3-sigma boxes where they can make solid: a Gaussian with opacity < tau clipped to the others'
-    box, those under tau / 10 left out, :mod:`nbv.physics.floaters`). With ``solid_points`` [P, 3] (sim metres, the
-    solidified Gaussians) the probes are laid out around the real solid, which is smaller when faint or
-    scattered Gaussians widen the box but make no solid. Uses the per-particle byte counts ``BYTES_PER_*``
-    and the solid lattice estimate of :func:`nbv.physics.lattice.estimate_lattice_points`.
+    Without ``plan`` it is cheap, before the solid exists: the probes are laid out around the frame's lattice
+    (:meth:`nbv.physics.plan.ProbePlan.bound`: the box of the Gaussians' 3-sigma boxes where they can make solid, a
+    Gaussian with opacity < tau clipped to the others' box, those under tau / 10 left out,
+    :mod:`nbv.physics.floaters`). With the ``plan`` around the real solid (:meth:`nbv.physics.plan.ProbePlan.of`) it
+    is exact, and smaller when faint or scattered Gaussians widen the box but make no solid. Uses the per-particle
+    byte counts ``BYTES_PER_*`` and the lattice's size (:attr:`nbv.physics.plan.RunFrame.lattice`).
 
     The bytes add the Gaussians held all run, and with ``config.replicas`` > 1 the replicas' per-Gaussian arrays, to
     the larger of the solidification's peak (:func:`nbv.physics.lattice.estimate_solidify_bytes`) and one probe's
@@ -71,42 +59,26 @@ def estimate_memory(
     Returns:
         dict: lattice_points, fluid_particles (largest probe), boundary_particles, and the bytes (floats):
         resident_bytes, replica_bytes, solidify_bytes, probe_bytes, accumulator_bytes and their total ``bytes``.
-
-    ``sim``: the Gaussians already in the simulation frame (:class:`~nbv.physics.scene_frame.SimGaussians`, with
-    ``transform``), so that they are not converted again. ``setups``: the probes already laid out around
-    ``solid_points`` (:attr:`nbv.physics.plan.ProbePlan.setups`), so that they are not laid out again.
+    Example:
+        >>> estimate_memory(RunFrame.of(gaussians, PhysicsConfig.quick()))["bytes"]  # doctest: +SKIP
     """
-    transform = (
-        sim.transform
-        if sim is not None
-        else (transform if transform is not None else scene_transform(gaussians, config))
-    )
-    sim = as_sim(sim if sim is not None else gaussians, transform)
-    spacing = 2.0 * config.particle_radius
-    scfg = config.solidify_config(max_points=2**62)
-    lattice = int(estimate_lattice_points(sim, scfg, transform))
-    if solid_points is not None and len(solid_points):
-        pts = np.asarray(solid_points, np.float64)
-        box, solid_count = np.stack([pts.min(0), pts.max(0)]), len(pts)
-    else:
-        means, covs, opacities = sim.means, sim.covariances, sim.opacities
-        box, solid_count = np.stack(floaters.lattice_extent(*solid_boxes(means, covs, opacities, scfg))), lattice
+    plan = ProbePlan.bound(frame) if plan is None else plan
+    config, spacing = frame.config, plan.spacing
     probe = config.probe_config()
-    if setups is None or solid_points is None:  # the probes laid out around the solid's box give the same setups
-        setups = probe_setups(box, probe, spacing, config.directions)
     fluid = boundary = 0
     for d in config.directions:
-        s = setups[d]
+        s = plan.setups[d]
         f = float(np.prod(np.floor((np.subtract(s.fluid_max, s.fluid_min)) / spacing)))
         ext = np.subtract(s.domain_max, s.domain_min)
         area = 2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2])
         walls = area * probe.wall_layers / spacing**2
-        fluid, boundary = max(fluid, int(f)), max(boundary, int(walls) + solid_count)
+        fluid, boundary = max(fluid, int(f)), max(boundary, int(walls) + plan.solid_count)
+    lattice = int(frame.lattice.points)
     return {
         "lattice_points": lattice,
         "fluid_particles": fluid,
         "boundary_particles": boundary,
-        **_memory_parts(gaussians, config, lattice, fluid, boundary),
+        **_memory_parts(frame.sim.gaussians, config, lattice, fluid, boundary),
     }
 
 
@@ -149,11 +121,11 @@ def replica_bytes(num_gaussians: int, config: PhysicsConfig) -> float:
     return float(config.replicas) * float(num_gaussians) * per_replica
 
 
-def check_memory_bound(frame) -> bool:
+def check_memory_bound(frame: RunFrame) -> bool:
     """The cheap memory check of a run (:class:`nbv.physics.plan.RunFrame`), before its solid exists.
 
     The bound from the Gaussians' box decides first; when it does not fit but the lattice does, the solid is
-    computed and the probes are checked around it (:func:`check_memory` with the solid), since scattered faint
+    computed and the probes are checked around it (:func:`check_memory` with the solid's plan), since scattered faint
     Gaussians widen the box without making solid.
 
     Returns:
@@ -161,14 +133,14 @@ def check_memory_bound(frame) -> bool:
     Raises:
         ValueError: the solid itself would not fit (its lattice or its computation), with the estimate and the fix.
     """
-    config, sim = frame.config, frame.sim
-    cheap = estimate_memory(sim.gaussians, config, frame.transform, sim=sim)
+    config = frame.config
+    cheap = estimate_memory(frame)
     exact = cheap["bytes"] > memory_limit_bytes(config)
     if exact and (
         cheap["lattice_points"] > config.solidify_config().max_points
         or cheap["resident_bytes"] + cheap["replica_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)
     ):
-        check_memory(sim.gaussians, config, frame.transform, sim=sim)  # the solid is too costly: raise
+        _refuse_over_limit(frame, cheap)  # the solid is too costly: raise
     return exact
 
 
@@ -177,42 +149,39 @@ def memory_limit_bytes(config: PhysicsConfig) -> float:
     return config.max_memory_gb * 2**30 if config.max_memory_gb is not None else float(available_memory_bytes())
 
 
-def check_memory(
-    gaussians,
-    config: PhysicsConfig,
-    transform=None,
-    solid_points: np.ndarray | None = None,
-    *,
-    sim: SimGaussians | None = None,
-    setups=None,
-) -> dict[str, float]:
-    """Raise ValueError, with the estimate and the fix, when a probe would not fit in memory.
-
-    See :func:`estimate_memory` for ``solid_points`` (the exact check once the solid is known), ``sim`` and
-    ``setups``."""
-    est = estimate_memory(gaussians, config, transform, solid_points, sim=sim, setups=setups)
-    limit = memory_limit_bytes(config)
-    if est["bytes"] > limit:
-        available = "allowed (--max-memory-gb)" if config.max_memory_gb is not None else "available"
-        gib = {
-            k: est[k] / 2**30
-            for k in ("resident_bytes", "replica_bytes", "solidify_bytes", "probe_bytes", "accumulator_bytes")
-        }
-        replicas = (
-            f", {gib['replica_bytes']:.3g} GiB for the {config.replicas} replicas' per-Gaussian arrays"
-            if est["replica_bytes"]
-            else ""
-        )
-        raise ValueError(
-            f"the probe would need about {est['bytes'] / 2**30:.4g} GiB ({_count(est['fluid_particles'])} fluid and "
-            f"{_count(est['boundary_particles'])} boundary particles at r = {config.particle_radius} m, a solid "
-            f"lattice of {_count(est['lattice_points'])} points, {gaussians.num:,} Gaussians: "
-            f"{gib['resident_bytes']:.3g} GiB for the Gaussians{replicas}, then {gib['solidify_bytes']:.3g} GiB to "
-            f"solidify, {gib['probe_bytes']:.3g} GiB per probe and "
-            f"{gib['accumulator_bytes']:.3g} GiB for its per-Gaussian accumulator) but {limit / 2**30:.3g} GiB are "
-            f"{available}{_memory_fix(gaussians, config, transform, est, limit, sim)}"
-        )
+def check_memory(frame: RunFrame, plan: ProbePlan | None = None) -> dict[str, float]:
+    """Raise ValueError, with the estimate and the fix, when a probe of ``frame`` would not fit in memory; else return
+    :func:`estimate_memory` (``plan``: the probes around the solid, for the exact check; None: the cheap bound)."""
+    est = estimate_memory(frame, plan)
+    _refuse_over_limit(frame, est)
     return est
+
+
+def _refuse_over_limit(frame: RunFrame, est: dict[str, float]) -> None:
+    """The ValueError of :func:`check_memory` when the estimate ``est`` exceeds the limit."""
+    config, num = frame.config, frame.sim.num
+    limit = memory_limit_bytes(config)
+    if est["bytes"] <= limit:
+        return
+    available = "allowed (--max-memory-gb)" if config.max_memory_gb is not None else "available"
+    gib = {
+        k: est[k] / 2**30
+        for k in ("resident_bytes", "replica_bytes", "solidify_bytes", "probe_bytes", "accumulator_bytes")
+    }
+    replicas = (
+        f", {gib['replica_bytes']:.3g} GiB for the {config.replicas} replicas' per-Gaussian arrays"
+        if est["replica_bytes"]
+        else ""
+    )
+    raise ValueError(
+        f"the probe would need about {est['bytes'] / 2**30:.4g} GiB ({_count(est['fluid_particles'])} fluid and "
+        f"{_count(est['boundary_particles'])} boundary particles at r = {config.particle_radius} m, a solid "
+        f"lattice of {_count(est['lattice_points'])} points, {num:,} Gaussians: "
+        f"{gib['resident_bytes']:.3g} GiB for the Gaussians{replicas}, then {gib['solidify_bytes']:.3g} GiB to "
+        f"solidify, {gib['probe_bytes']:.3g} GiB per probe and "
+        f"{gib['accumulator_bytes']:.3g} GiB for its per-Gaussian accumulator) but {limit / 2**30:.3g} GiB are "
+        f"{available}{_memory_fix(frame, est, limit)}"
+    )
 
 
 def _count(n: float) -> str:
@@ -220,12 +189,11 @@ def _count(n: float) -> str:
     return f"{int(n):,}" if n < 1e12 else f"{float(n):.3g}"
 
 
-def _memory_fix(
-    gaussians, config: PhysicsConfig, transform, est: dict[str, float], limit: float, sim: SimGaussians | None = None
-) -> str:
+def _memory_fix(frame: RunFrame, est: dict[str, float], limit: float) -> str:
     """The advice of :func:`check_memory`: fewer replicas when they alone make the difference, else the Gaussian
     that alone widens the lattice, if one does (a larger radius cannot help then), else the particle radius that
     would fit, if the object is still resolved."""
+    config, num = frame.config, frame.sim.num
     if est["replica_bytes"] and est["bytes"] - est["replica_bytes"] <= limit:
         per_replica = est["replica_bytes"] / config.replicas
         fits = max(1, int((limit - (est["bytes"] - est["replica_bytes"])) // per_replica))
@@ -234,20 +202,17 @@ def _memory_fix(
             f"{per_replica / 2**30:.3g} GiB of per-Gaussian arrays, so use --replicas {fits} or fewer, or allow more "
             "memory (--max-memory-gb)"
         )
-    transform = transform if transform is not None else scene_transform(gaussians, config)
-    spacing = 2.0 * config.particle_radius
-    scfg = config.solidify_config(max_points=2**62)
-    sim = as_sim(sim if sim is not None else gaussians, transform)
-    means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    boxes = solid_boxes(means, covs, opacities, scfg)
-    note = floaters.dominant_note(*boxes, spacing, means, covs, opacities, transform)
+    sim, lattice = frame.sim, frame.lattice
+    note = floaters.dominant_note(
+        *lattice.boxes, lattice.spacing, sim.means, sim.covariances, sim.opacities, sim.transform
+    )
     if note:
         return f"{note.replace('widens it', 'widens the solid lattice')}; a larger particle radius cannot help"
     # the Gaussians' own bytes do not shrink with a larger radius
-    fixed = est["resident_bytes"] + max(est["accumulator_bytes"], float(gaussians.num) * BYTES_PER_GAUSSIAN_SOLIDIFY)
+    fixed = est["resident_bytes"] + max(est["accumulator_bytes"], float(num) * BYTES_PER_GAUSSIAN_SOLIDIFY)
     if fixed >= limit:
         return (
-            f"; the {gaussians.num:,} Gaussians alone need about {fixed / 2**30:.3g} GiB (the set, the "
+            f"; the {num:,} Gaussians alone need about {fixed / 2**30:.3g} GiB (the set, the "
             "per-Gaussian accumulator or the solidification), so a larger particle radius cannot help: crop "
             "them to the object (--crop auto, or --crop xmin,ymin,zmin,xmax,ymax,zmax in scene units), prune "
             "them, or allow more memory (--max-memory-gb) on a larger machine"
@@ -255,7 +220,7 @@ def _memory_fix(
     # the fluid and the lattice (the rest of the bytes) scale as 1 / r^3: the radius that would fit, if the object
     # stays resolved
     radius = config.particle_radius * ((est["bytes"] - fixed) / (limit - fixed)) ** (1.0 / 3.0)
-    extent = float(np.max(np.subtract(*floaters.lattice_extent(*boxes)[::-1])))
+    extent = float(np.max(np.subtract(*lattice.extent[::-1])))
     if 2.0 * radius <= extent / 4.0:
         return (
             f"; use a particle radius of about {radius:.3g} m or more (--particle-radius; --quick is "

@@ -5,11 +5,14 @@ No paper equation is implemented here; this gathers what the steps of a probe ru
 derives it again (a step that recomputes what an earlier one derived is a second owner waiting to disagree):
 
 - :class:`RunFrame`, before any solid exists: the scene -> simulation transform (up and scale), the Gaussians that
-  the crop keeps, those Gaussians in simulation metres (:class:`nbv.physics.scene_frame.SimGaussians`) and their
-  reach n r_g (Eq. 2). The memory bound, the solidification, the accumulator and the result read it.
+  the crop keeps, those Gaussians in simulation metres (:class:`nbv.physics.scene_frame.SimGaussians`), their
+  reach n r_g (Eq. 2) and the solid's lattice (:class:`nbv.physics.lattice.Lattice`). The memory bound, the
+  solidification, the accumulator and the result read it.
 - :class:`ProbePlan`, once the solid exists: one :class:`fluidsim.probes.ProbeSetup` per probe (slab, domain,
   inflow; Fig. 3), laid out once. The exact memory check, the time-step check, the recording check, the
-  accumulator's bounds, the probes and the empty scene read it.
+  accumulator's bounds, the probes and the empty scene read it. Before the solid, :meth:`ProbePlan.bound` lays the
+  probes out around the lattice for the memory bound.
+- :class:`ProbeRunContext`: what the steps of one run read besides these (progress, source, recording, timings).
 
 Example:
     >>> frame = RunFrame.of(gaussians, PhysicsConfig.quick())  # doctest: +SKIP
@@ -19,7 +22,9 @@ Example:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import time
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -27,9 +32,13 @@ import torch
 from fluidsim.probes import ProbeSetup, probe_setups
 from fluidsim.scene import lattice_in_box
 from nbv.physics.config import PhysicsConfig, kept_gaussians, scene_transform
+from nbv.physics.lattice import Lattice
 from nbv.physics.result import PhysicsResult, gaussians_sha256
 from nbv.physics.scene_frame import SceneTransform, SimGaussians, gaussian_arrays_in_sim
-from nbv.physics.solidify import SolidLattice, gaussians_to_solid
+from nbv.physics.solidify import SolidLattice, solid_on_lattice
+
+if TYPE_CHECKING:
+    from nbv.physics.trajectory import RecordConfig
 
 
 @dataclass(frozen=True)
@@ -44,6 +53,7 @@ class RunFrame:
         sim: the simulated Gaussians (the kept ones) in simulation metres.
         reach: [K] float64 n r_g of the simulated Gaussians, m (Eq. 2).
         digest: SHA-256 of every Gaussian (:func:`nbv.physics.result.gaussians_sha256`).
+        lattice: the solid's lattice under ``config.solidify_config()`` (unshifted), sized once.
     """
 
     config: PhysicsConfig
@@ -53,6 +63,7 @@ class RunFrame:
     sim: SimGaussians
     reach: np.ndarray
     digest: str
+    lattice: Lattice
 
     @classmethod
     def of(cls, gaussians, config: PhysicsConfig, source: str = "") -> RunFrame:
@@ -68,7 +79,8 @@ class RunFrame:
         simulated = gaussians if kept is None else gaussians.subset(torch.from_numpy(np.nonzero(kept)[0]))
         sim = SimGaussians.of(simulated, transform)
         reach = config.reach(sim.radii)
-        return cls(config, gaussians, transform, kept, sim, reach, gaussians_sha256(gaussians))
+        lattice = Lattice.of(sim.means, sim.covariances, sim.opacities, config.solidify_config())
+        return cls(config, gaussians, transform, kept, sim, reach, gaussians_sha256(gaussians), lattice)
 
     @property
     def means(self) -> np.ndarray:
@@ -82,10 +94,12 @@ class RunFrame:
 
     def solidify(self, lattice_offset: tuple[float, float, float] | None = None) -> SolidLattice:
         """The solid of the simulated Gaussians (:func:`nbv.physics.solidify.gaussians_to_solid` under
-        ``config.solidify_config()``; ``lattice_offset``: the lattice shifted by these fractions of the spacing, as
-        a replica of the run is, :mod:`nbv.physics.replicas`)."""
-        extra = {} if lattice_offset is None else {"lattice_offset": tuple(lattice_offset)}
-        return gaussians_to_solid(self.sim, self.config.solidify_config(**extra), self.transform)
+        ``config.solidify_config()``, on :attr:`lattice`; ``lattice_offset``: the lattice shifted by these fractions
+        of the spacing, as a replica of the run is, :mod:`nbv.physics.replicas`)."""
+        scfg = self.config.solidify_config(
+            **({} if lattice_offset is None else {"lattice_offset": tuple(lattice_offset)})
+        )
+        return solid_on_lattice(self.sim, self.lattice.shifted(scfg.lattice_offset), scfg, self.transform)
 
     def expand(self, result: PhysicsResult) -> PhysicsResult:
         """A :class:`nbv.physics.PhysicsResult` on the simulated Gaussians -> one row per Gaussian of the run (the
@@ -135,16 +149,27 @@ class ProbePlan:
     Attributes:
         setups: {direction: ProbeSetup} in the order run (``config.directions``).
         spacing: particle spacing 2 r, m.
+        solid_count: the solid particles the probes hold (:meth:`bound`: every lattice point).
     """
 
     setups: dict[str, ProbeSetup]
     spacing: float
+    solid_count: int
 
     @classmethod
     def of(cls, solid_points: np.ndarray, config: PhysicsConfig) -> ProbePlan:
         """One setup per probe of ``config`` around ``solid_points`` [M, 3] (sim metres)."""
         spacing = 2.0 * config.particle_radius
-        return cls(probe_setups(solid_points, config.probe_config(), spacing, config.directions), spacing)
+        setups = probe_setups(solid_points, config.probe_config(), spacing, config.directions)
+        return cls(setups, spacing, len(solid_points))
+
+    @classmethod
+    def bound(cls, frame: RunFrame) -> ProbePlan:
+        """The probes around ``frame``'s lattice, before the solid exists: the lattice's box stands for the solid's
+        (the probes laid out around a box of points are those around its two corners) and every lattice point
+        counts as solid, so it bounds the plan of :meth:`of` from above."""
+        plan = cls.of(np.stack(frame.lattice.extent), frame.config)
+        return replace(plan, solid_count=int(frame.lattice.points))
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -165,3 +190,25 @@ def probe_domains_union(setups: dict[str, ProbeSetup]) -> tuple[np.ndarray, np.n
         np.min([np.asarray(s.domain_min, np.float64) for s in setups.values()], axis=0),
         np.max([np.asarray(s.domain_max, np.float64) for s in setups.values()], axis=0),
     )
+
+
+@dataclass(frozen=True)
+class ProbeRunContext:
+    """What the steps of one probe run (:func:`nbv.physics.simulate_gaussians`) read besides its solid and plan: set
+    at the top, handed down once (a replica gets its own, with its start and recording).
+
+    Attributes:
+        frame: the run's :class:`RunFrame`.
+        progress: one bar over the probes and the empty scene. source: a label for the result (the .ply path).
+        record: the probes to record (:class:`nbv.physics.trajectory.RecordConfig`), or None.
+        exact_memory: check the memory around the solid (False: the Gaussians' box was checked and fits).
+        started: the run's start (``time.perf_counter()``). solidify_s: the solidification's seconds.
+    """
+
+    frame: RunFrame
+    progress: bool = True
+    source: str = ""
+    record: RecordConfig | None = None
+    exact_memory: bool = True
+    started: float = field(default_factory=time.perf_counter)
+    solidify_s: float = 0.0

@@ -39,7 +39,7 @@ from nbv.physics.early_stop import ConvergenceCheck
 from nbv.physics.empty_cache import EmptyReference
 from nbv.physics.empty_scene import empty_scene_probes
 from nbv.physics.memory import check_memory, check_memory_bound
-from nbv.physics.plan import ProbePlan, RunFrame
+from nbv.physics.plan import ProbePlan, ProbeRunContext, RunFrame
 from nbv.physics.progress import RunProgress
 from nbv.physics.recorder import ProbeRecorder
 from nbv.physics.replicas import replica_offsets
@@ -119,24 +119,13 @@ def early_stop(recorder: ProbeRecorder, config: PhysicsConfig):
     return stop
 
 
-def simulate_replicas(
-    frame,
-    progress: bool = True,
-    source: str = "",
-    record=None,
-    *,
-    exact_memory: bool = True,
-    started: float | None = None,
-) -> PhysicsResult:
-    """The probes of ``frame`` (:class:`nbv.physics.plan.RunFrame`) once per replica of ``frame.config.replicas``,
+def simulate_replicas(run: ProbeRunContext) -> PhysicsResult:
+    """The probes of ``run.frame`` (:class:`nbv.physics.plan.RunFrame`) once per replica of ``frame.config.replicas``,
     each against its own solid on the shifted lattice (:func:`nbv.physics.replicas.replica_offsets`), combined
     (:func:`nbv.physics.result.combine_replicas`).
 
     Args:
-        frame: the run's frame. progress, source: as :func:`nbv.physics.simulate_gaussians`.
-        record: the probes to record (:class:`nbv.physics.trajectory.RecordConfig`), in replica 0 only.
-        exact_memory: check each replica's probes around its solid (as :func:`simulate_solid`).
-        started: the run's start (``time.perf_counter()``).
+        run: the run's context (:class:`nbv.physics.plan.ProbeRunContext`); its recording is made in replica 0 only.
     Returns:
         PhysicsResult, one row per Gaussian of ``frame.gaussians``, with ``replicas`` set (None for one replica).
     Raises:
@@ -144,8 +133,7 @@ def simulate_replicas(
         ProbeDiverged: a probe of some replica diverged; its ``result`` holds that replica's completed probes, and
             its probe names the replica.
     """
-    started = time.perf_counter() if started is None else started
-    offsets = replica_offsets(frame.config.replicas)
+    offsets = replica_offsets(run.frame.config.replicas)
     results = []
     for k, offset in enumerate(offsets):
         t0 = time.perf_counter()
@@ -153,27 +141,17 @@ def simulate_replicas(
             log.info(
                 "replica %d (of 0-%d): lattice shifted by (%.3f, %.3f, %.3f) spacings", k, len(offsets) - 1, *offset
             )
-        solid = frame.solidify(tuple(offset))
+        solid = run.frame.solidify(tuple(offset))
+        replica = replace(run, record=run.record if k == 0 else None, started=t0, solidify_s=time.perf_counter() - t0)
         try:
-            results.append(
-                simulate_solid(
-                    frame,
-                    solid,
-                    progress,
-                    source,
-                    record if k == 0 else None,
-                    exact_memory=exact_memory,
-                    solidify_s=time.perf_counter() - t0,
-                    started=t0,
-                )
-            )
+            results.append(simulate_solid(replica, solid))
         except ProbeDiverged as exc:
             if k == 0:
                 raise
             label = f"{exc.probe} of replica {k} (lattice shifted by {np.round(offset, 3).tolist()} spacings)"
             failure = {**(exc.result.failure or {}), "probe": label}
             raise ProbeDiverged(label, exc.step, exc.reason, replace(exc.result, failure=failure)) from exc
-    return combine_replicas(results, offsets, started)
+    return combine_replicas(results, offsets, run.started)
 
 
 def simulate_gaussians(
@@ -211,56 +189,37 @@ def simulate_gaussians(
         record.check_probes(config.directions, config.steps)
     frame = RunFrame.of(gaussians, config, source)  # Sec. 3.2: the kept Gaussians in simulation metres, Y-up
     exact_memory = check_memory_bound(frame)  # the Gaussians' box fits, or the solid will be checked
-    t0 = time.perf_counter()
+    run = ProbeRunContext(frame, progress, source, record, exact_memory, started)
     try:
         if config.replicas > 1:  # the probes once per shifted lattice, combined
-            result = simulate_replicas(frame, progress, source, record, exact_memory=exact_memory, started=started)
+            result = simulate_replicas(run)
         else:
+            t0 = time.perf_counter()
             solid = frame.solidify()  # Sec. 3.2: the static boundary (opacity >= tau, filled)
-            result = simulate_solid(
-                frame,
-                solid,
-                progress,
-                source,
-                record,
-                exact_memory=exact_memory,
-                solidify_s=time.perf_counter() - t0,
-                started=started,
-            )
+            result = simulate_solid(replace(run, solidify_s=time.perf_counter() - t0), solid)
     except ProbeDiverged as exc:
         exc.result = replace(exc.result, source_frame=source_frame)
         raise
     return replace(result, source_frame=source_frame)
 
 
-def simulate_solid(
-    frame: RunFrame,
-    solid: SolidLattice,
-    progress: bool = True,
-    source: str = "",
-    record: RecordConfig | None = None,
-    *,
-    exact_memory: bool = True,
-    solidify_s: float = 0.0,
-    started: float | None = None,
-) -> PhysicsResult:
-    """The probes of :func:`simulate_gaussians` against a given solid of ``frame``'s Gaussians (that function's
+def simulate_solid(run: ProbeRunContext, solid: SolidLattice) -> PhysicsResult:
+    """The probes of :func:`simulate_gaussians` against a given solid of ``run.frame``'s Gaussians (that function's
     ``frame.solidify()``, or an edited one: ``fluidgs bench hole --ideal`` cuts a hole into it).
 
     Args:
-        frame: the run's frame (:class:`nbv.physics.plan.RunFrame`).
+        run: the run's context (:class:`nbv.physics.plan.ProbeRunContext`: frame, progress, source, recording, the
+            exact memory check, timings).
         solid: [M, 3] sim metres in ``solid.points``.
-        progress, source, record: as :func:`simulate_gaussians`.
-        exact_memory: check the memory around the solid (False: the Gaussians' box was checked and fits).
-        solidify_s, started: the solidification's seconds and the run's start (``time.perf_counter()``), for the
-            timings.
     Returns:
         PhysicsResult, one row per Gaussian of ``frame.gaussians``.
     Raises:
         ValueError, ProbeDiverged: as :func:`simulate_gaussians`.
+    Example:
+        >>> simulate_solid(ProbeRunContext(frame, progress=False), frame.solidify())  # doctest: +SKIP
     """
-    started = time.perf_counter() if started is None else started
-    config, scfg = frame.config, frame.config.solver_config()
+    frame = run.frame
+    config = frame.config
     log.info(
         "solid: %d particles from %d Gaussians (scale %.4g m/unit)",
         len(solid.points),
@@ -268,57 +227,33 @@ def simulate_solid(
         frame.transform.scale,
     )
     plan = ProbePlan.of(solid.points, config)  # Sec. 3.2, Fig. 3: one slab and domain per probe
-    if exact_memory:  # the probes around the real solid
-        check_memory(
-            frame.sim.gaussians, config, frame.transform, solid_points=solid.points, sim=frame.sim, setups=plan.setups
-        )
-    check_probe_time_steps(plan, config, scfg)  # CFL: inflow plus free fall through each domain
-    if record is not None:
-        check_record_size(plan.fluid_counts(record.directions), config.steps, record)
+    if run.exact_memory:  # the probes around the real solid
+        check_memory(frame, plan)
+    check_probe_time_steps(plan, config, config.solver_config())  # CFL: inflow plus free fall through each domain
+    if run.record is not None:
+        check_record_size(plan.fluid_counts(run.record.directions), config.steps, run.record)
     # the empty scene's reference, its cache's bound read now (a bad FLUIDGS_CACHE_MAX_GB is refused before any probe)
     reference = EmptyReference.of(config)
+    bar = RunProgress(plan, config, run.progress)  # "probe k of n", one ETA over the probes and the empty scene
     try:  # Eq. 1-3: D_i of every step onto the Gaussians within n r_g
-        result = _probe(frame, solid, plan, progress, source, record, solidify_s, started, reference)
+        result = _probe(run, solid, plan, bar, reference)
     except ProbeDiverged as exc:
         exc.result = frame.expand(exc.result)
         raise
+    finally:
+        bar.close()
     return frame.expand(result)  # every Gaussian of the run gets its row
 
 
 def _probe(
-    frame: RunFrame,
-    solid: SolidLattice,
-    plan: ProbePlan,
-    progress: bool,
-    source: str,
-    record: RecordConfig | None,
-    solidify_s: float,
-    started: float,
-    reference: EmptyReference | None = None,
+    run: ProbeRunContext, solid: SolidLattice, plan: ProbePlan, bar: RunProgress, reference: EmptyReference
 ) -> PhysicsResult:
     """The probes and, with ``config.empty_reference``, the empty scene (from ``reference`` where there): the result on
     the simulated Gaussians."""
-    bar = RunProgress(plan, frame.config, progress)  # "probe k of n", one ETA over the probes and the empty scene
-    try:
-        return _probe_with(frame, solid, plan, bar, source, record, solidify_s, started, reference)
-    finally:
-        bar.close()
-
-
-def _probe_with(
-    frame: RunFrame,
-    solid: SolidLattice,
-    plan: ProbePlan,
-    bar: RunProgress,
-    source: str,
-    record: RecordConfig | None,
-    solidify_s: float,
-    started: float,
-    reference: EmptyReference | None = None,
-) -> PhysicsResult:
+    frame = run.frame
     config, scfg = frame.config, frame.config.solver_config()
     means, covs, reach = frame.means, frame.covariances, frame.reach
-    recorder = ProbeRecorder(means, reach, config, bar, solid=solid, record=record, grid_bounds=plan.bounds)
+    recorder = ProbeRecorder(means, reach, config, bar, solid=solid, record=run.record, grid_bounds=plan.bounds)
     base = dict(
         solid=np.asarray(solid.points, np.float64),
         transform=frame.transform,
@@ -326,18 +261,18 @@ def _probe_with(
         covariances=covs,
         reach=reach,
         config=config,
-        source=source,
+        source=run.source,
         gaussians_sha256=frame.digest,
     )
 
     def timings(empty_s: float = 0.0) -> dict[str, float]:
         return {
-            "solidify": solidify_s,
+            "solidify": run.solidify_s,
             "simulation": recorder.probe_s - recorder.aggregation_s,
             "aggregation": recorder.aggregation_s,
             "accumulator_setup": recorder.build_s,
             "empty_reference": empty_s,
-            "total": time.perf_counter() - started,
+            "total": time.perf_counter() - run.started,
         }
 
     try:

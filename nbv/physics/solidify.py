@@ -64,7 +64,7 @@ import taichi as ti
 from nbv.physics import solid_kernels
 from nbv.physics.carve import carve_outside, surface_depths
 from nbv.physics.fill import below, occupancy_from_fields, speck_points
-from nbv.physics.lattice import box_half_extents, box_index_ranges, checked_lattice
+from nbv.physics.lattice import Lattice, box_half_extents, box_index_ranges, checked_lattice
 from nbv.physics.scene_frame import SceneTransform, SimGaussians, as_sim
 from nbv.physics.solidify_config import SolidifyConfig
 from recon.gaussians import GaussianSet
@@ -156,7 +156,8 @@ def lattice_log_transmittance(
     """
     sim = as_sim(gaussians, transform)
     means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice_min, dims, _ = checked_lattice(means, covs, config, transform, opacities, edges=False)
+    lattice = Lattice.of(means, covs, opacities, config)
+    lattice_min, dims, _ = checked_lattice(lattice, means, covs, config, transform, opacities, edges=False)
     inv_covs = sim.inverse_covariances()
     return lattice_min, _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
 
@@ -207,7 +208,8 @@ def lattice_edge_log_transmittance(
     """
     sim = as_sim(gaussians, transform)
     means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice_min, dims, _ = checked_lattice(means, covs, config, transform, opacities, points=False)
+    lattice = Lattice.of(means, covs, opacities, config)
+    lattice_min, dims, _ = checked_lattice(lattice, means, covs, config, transform, opacities, points=False)
     inv_covs = sim.inverse_covariances()
     return lattice_min, _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
 
@@ -295,8 +297,17 @@ def gaussians_to_solid(
         >>> solid.points.shape  # (M, 3) metres, Y-up
     """
     sim = as_sim(gaussians, transform)
+    lattice = Lattice.of(sim.means, sim.covariances, sim.opacities, config)
+    return solid_on_lattice(sim, lattice, config, transform, cameras=cameras, depths=depths)
+
+
+def solid_on_lattice(
+    sim: SimGaussians, lattice: Lattice, config: SolidifyConfig, transform: SceneTransform, *, cameras=None, depths=None
+) -> SolidLattice:
+    """:func:`gaussians_to_solid` on a lattice already sized for ``sim`` under ``config`` (a run's, laid out once:
+    :attr:`nbv.physics.plan.RunFrame.lattice`)."""
     means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice_min, dims, _ = checked_lattice(means, covs, config, transform, opacities)
+    lattice_min, dims, _ = checked_lattice(lattice, means, covs, config, transform, opacities)
     inv_covs = sim.inverse_covariances()
     log_t = _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
     cuts = (
@@ -318,7 +329,7 @@ def gaussians_to_solid(
         occupancy, counts["carved"] = _carve(occupancy, sim, lattice_min, config, transform, cameras, depths)
     count = int(occupancy.sum())
     counts["total"] = count
-    _check_enough_points(count, gaussians.num, config, transform)
+    _check_enough_points(count, sim.num, config, transform)
     points = lattice_min + config.spacing * np.argwhere(occupancy).astype(np.float64)
     log.info(
         "solid: %d of %d lattice points (%s at %.4g m): %s",

@@ -135,8 +135,8 @@ def test_a_faint_huge_floater_does_not_size_the_lattice():
     assert solid.lattice_shape == gaussians_to_solid(sphere, cfg, tr).lattice_shape
     pcfg = PhysicsConfig(**COARSE, scale=1.0)
     assert (
-        physics.estimate_memory(floater, pcfg)["fluid_particles"]
-        == physics.estimate_memory(sphere, pcfg)["fluid_particles"]
+        physics.estimate_memory(physics.RunFrame.of(floater, pcfg))["fluid_particles"]
+        == physics.estimate_memory(physics.RunFrame.of(sphere, pcfg))["fluid_particles"]
     )
 
 
@@ -172,26 +172,27 @@ def test_an_opaque_huge_gaussian_is_named():
         gaussians_to_solid(huge, SolidifyConfig(spacing=0.16), SceneTransform())
     assert "a --crop box keeps it" in str(err.value)
     with pytest.raises(ValueError, match="Gaussian 300") as err:
-        physics.check_memory(huge, PhysicsConfig(**COARSE, scale=1.0))
+        physics.check_memory(physics.RunFrame.of(huge, PhysicsConfig(**COARSE, scale=1.0)))
     assert "cannot help" in str(err.value) and "use a particle radius" not in str(err.value)
 
 
 def test_a_far_opaque_speck_is_named_with_crop():
     sphere = sphere_gaussians()
     far = _with_gaussian(sphere, [60.0, 0.0, 0.0], math.log(0.06), 0.9)
-    near = physics.estimate_memory(sphere, PhysicsConfig(**COARSE, scale=1.0))["bytes"]
+    near = physics.estimate_memory(physics.RunFrame.of(sphere, PhysicsConfig(**COARSE, scale=1.0)))["bytes"]
     cfg = PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=2 * near / 2**30)
     with pytest.raises(ValueError, match="Gaussian 300 .*centre \\(60, 0, 0\\).*--crop"):
-        physics.check_memory(far, cfg)
+        physics.check_memory(physics.RunFrame.of(far, cfg))
     # without a dominant Gaussian the advice is the radius that fits (the fluid's bytes shrink with it, the
     # Gaussians' do not), or, when the Gaussians alone do not fit, cropping them
-    parts = physics.estimate_memory(sphere, PhysicsConfig(**COARSE, scale=1.0))
+    parts = physics.estimate_memory(physics.RunFrame.of(sphere, PhysicsConfig(**COARSE, scale=1.0)))
     with pytest.raises(ValueError, match="particle radius of about"):
-        physics.check_memory(
-            sphere, PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=(near - parts["probe_bytes"] / 2) / 2**30)
-        )
+        limit = (near - parts["probe_bytes"] / 2) / 2**30
+        physics.check_memory(physics.RunFrame.of(sphere, PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=limit)))
     with pytest.raises(ValueError, match="Gaussians alone need about .*cannot help: crop them"):
-        physics.check_memory(sphere, PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=near / 4 / 2**30))
+        physics.check_memory(
+            physics.RunFrame.of(sphere, PhysicsConfig(**COARSE, scale=1.0, max_memory_gb=near / 4 / 2**30))
+        )
 
 
 def test_others_box_matches_brute_force():

@@ -151,8 +151,8 @@ def test_bad_inputs_fail_before_simulating(sphere, tmp_path):
 
 
 def test_memory_estimate_grows_with_resolution(sphere):
-    coarse = physics.estimate_memory(sphere, PhysicsConfig(particle_radius=0.05))
-    fine = physics.estimate_memory(sphere, PhysicsConfig(particle_radius=0.025))
+    coarse = physics.estimate_memory(physics.RunFrame.of(sphere, PhysicsConfig(particle_radius=0.05)))
+    fine = physics.estimate_memory(physics.RunFrame.of(sphere, PhysicsConfig(particle_radius=0.025)))
     assert 6 < fine["fluid_particles"] / coarse["fluid_particles"] < 10  # ~ 2^3
     assert fine["probe_bytes"] > 6 * coarse["probe_bytes"]  # the solver's part; the Gaussians' parts stay
     assert fine["bytes"] > 4 * coarse["bytes"]
@@ -243,9 +243,8 @@ def test_memory_check_uses_the_real_solid_when_faint_gaussians_widen_the_box(sph
 
     scene = concat([sphere, faint])
     cfg = PhysicsConfig(**{**COARSE, "steps": 5}, directions=("-x",), scale=1.0)
-    transform = physics.scene_transform(scene, cfg)
-    cheap = physics.estimate_memory(scene, cfg, transform)
-    only_sphere = physics.estimate_memory(sphere, cfg, transform)
+    cheap = physics.estimate_memory(physics.RunFrame.of(scene, cfg))
+    only_sphere = physics.estimate_memory(physics.RunFrame.of(sphere, cfg))
     assert cheap["fluid_particles"] > 20 * only_sphere["fluid_particles"]
     limit_gb = (cheap["bytes"] + only_sphere["bytes"]) / 2 / 2**30  # between the real need and the cheap bound
     result = simulate_gaussians(

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from fluidsim import probes
-from nbv.physics import PhysicsConfig, ProbePlan, RunFrame, run, simulate_gaussians
+from nbv.physics import PhysicsConfig, ProbePlan, RunFrame, floaters, memory, run, simulate_gaussians
 from nbv.physics.trajectory import RecordConfig
 from recon.gaussians import GaussianSet
 
@@ -43,6 +43,24 @@ def test_a_run_lays_out_each_probe_once(monkeypatch, exact_memory):
     assert [d for n, d in calls if n == len(res.solid)] == list(CFG.directions)
     assert [d for n, d in calls if n == 2] == ([] if exact_memory else list(CFG.directions))
     assert len(calls) == (1 if exact_memory else 2) * len(CFG.directions)
+
+
+@pytest.mark.parametrize("replicas", [1, 2])
+def test_a_run_sizes_the_solid_lattice_once(monkeypatch, replicas):
+    """The lattice's extent (the boxes of the Gaussians that can make solid) is computed once per run, in its frame:
+    the memory bound, the exact check around the solid and the solid of every replica read it."""
+    calls = []
+    original = floaters.lattice_extent
+
+    def counted(lo, hi, keep):
+        calls.append(len(lo))
+        return original(lo, hi, keep)
+
+    monkeypatch.setattr(floaters, "lattice_extent", counted)
+    monkeypatch.setattr(run, "check_memory_bound", lambda frame: memory.check_memory_bound(frame) or True)
+    res = simulate_gaussians(shell(), PhysicsConfig(**{**CFG.to_dict(), "replicas": replicas}), progress=False)
+    assert len(res.solid) > 2 and (res.replicas is None) == (replicas == 1)
+    assert calls == [200]
 
 
 def test_the_crop_is_a_subset_of_one_run():

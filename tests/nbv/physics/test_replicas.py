@@ -216,8 +216,8 @@ def test_agreement_figures_match_a_numpy_twin():
 
 
 def test_memory_check_counts_the_replicas(sphere):
-    one = estimate_memory(sphere, PhysicsConfig(**COARSE))
-    three = estimate_memory(sphere, PhysicsConfig(**COARSE, replicas=3))
+    one = estimate_memory(RunFrame.of(sphere, PhysicsConfig(**COARSE)))
+    three = estimate_memory(RunFrame.of(sphere, PhysicsConfig(**COARSE, replicas=3)))
     assert one["replica_bytes"] == 0
     assert three["replica_bytes"] == 3 * sphere.num * (128 + 48 * 5)
     assert three["bytes"] == one["bytes"] + three["replica_bytes"]

@@ -64,8 +64,8 @@ def test_work_count_equals_the_kernels_boxes():
     ):
         tr = SceneTransform("z", 1.3)
         means, covs, opacities, _ = scene_frame.gaussian_arrays_in_sim(g, tr)
-        lattice_min, dims_f = lattice.lattice_geometry(means, covs, cfg, opacities)
-        dims = dims_f.astype(np.int64)
+        grid = lattice.Lattice.of(means, covs, opacities, cfg)
+        lattice_min, dims = grid.origin, grid.dims.astype(np.int64)
         first, last = lattice.box_index_ranges(means, covs, lattice_min, dims, cfg)
         expected = np.prod(np.maximum(last - first + 1, 0), axis=1)
         for axis in range(3 if cfg.thin else 0):
@@ -79,7 +79,8 @@ def test_work_count_equals_the_kernels_boxes():
 def _passes_the_guards(g: GaussianSet, cfg: SolidifyConfig, tr: SceneTransform) -> None:
     """The old fixed guard (64 work items per lattice point) refuses g; the time and memory guards let it run."""
     means, covs, opacities, _ = scene_frame.gaussian_arrays_in_sim(g, tr)
-    lattice_min, dims, points = lattice.checked_lattice(means, covs, cfg, tr, opacities)  # raises when refused
+    grid = lattice.Lattice.of(means, covs, opacities, cfg)
+    lattice_min, dims, points = lattice.checked_lattice(grid, means, covs, cfg, tr, opacities)  # raises when refused
     work = lattice.work_sizes(means, covs, lattice_min, dims, cfg).sum()
     assert 64 * points < work < cfg.max_work / 100
     assert lattice.estimate_solidify_bytes(len(means), points) < 2**30
@@ -162,7 +163,7 @@ def test_the_memory_estimate_covers_the_accumulator_and_the_gaussians():
     g = _sphere_set()
     for track in (False, True):
         cfg = PhysicsConfig(particle_radius=0.05, track_distinct=track)
-        est = physics.estimate_memory(g, cfg)
+        est = physics.estimate_memory(physics.RunFrame.of(g, cfg))
         acc = GaussianAccumulator.estimate_bytes(g.num, est["fluid_particles"], track, num_levels=1)
         assert est["accumulator_bytes"] == acc  # one reach class: all the Gaussians have the same scale
         assert est["bytes"] == est["resident_bytes"] + max(
@@ -170,11 +171,12 @@ def test_the_memory_estimate_covers_the_accumulator_and_the_gaussians():
         )
     # a million Gaussians: their own bytes dominate, and a larger radius does not shrink them
     big = GaussianSet.from_points(torch.rand(1_000_000, 3), scale=0.004, opacity=0.5)
-    coarse = physics.estimate_memory(big, PhysicsConfig(particle_radius=0.1, scale=1.0))
+    coarse = physics.estimate_memory(physics.RunFrame.of(big, PhysicsConfig(particle_radius=0.1, scale=1.0)))
     assert coarse["accumulator_bytes"] > 100 * 2**20 and coarse["resident_bytes"] > 50 * 2**20
     with pytest.raises(ValueError, match=r"1,000,000 Gaussians alone need about .*--crop"):
+        limit = 0.9 * coarse["accumulator_bytes"] / 2**30
         physics.check_memory(
-            big, PhysicsConfig(particle_radius=0.1, scale=1.0, max_memory_gb=0.9 * coarse["accumulator_bytes"] / 2**30)
+            physics.RunFrame.of(big, PhysicsConfig(particle_radius=0.1, scale=1.0, max_memory_gb=limit))
         )
     assert reach_classes(np.array([1.0, 0.6, 0.45])) == 2 and reach_classes(np.array([3.0, 3.0])) == 1
     assert reach_classes(np.geomspace(1e-6, 1.0, 50)) == 16
@@ -187,7 +189,7 @@ def test_a_set_too_large_for_the_memory_stops_before_the_solid(monkeypatch):
 
     g = _sphere_set()
     cfg = PhysicsConfig(particle_radius=0.05, steps=2, directions=("-x",), scale=1.0)
-    est = physics.estimate_memory(g, cfg)
+    est = physics.estimate_memory(physics.RunFrame.of(g, cfg))
     limit = 0.5 * (est["resident_bytes"] + est["solidify_bytes"])
 
     def no_solid(*args, **kwargs):
