@@ -105,15 +105,9 @@ def screenshot(
 
 @contextlib.contextmanager
 def devtools_page(size: tuple[int, int], deadline: float):
-    """Headless Chromium with one blank page of ``size`` (width, height) pixels, driven through :class:`DevTools`
-    for the ``with`` block, then stopped.
-
-    Args:
-        size: (width, height) of the window and the page, pixels. deadline: the ``time.monotonic()`` by which the
-            browser must have started.
-    Raises:
-        ScreenshotUnavailable: no Chromium or no websockets package, or the browser did not start in time.
-    """
+    """Headless Chromium showing a blank page of ``size`` (width, height) pixels, driven through :class:`DevTools` in
+    the ``with`` block and stopped after it. Raises :class:`ScreenshotUnavailable` without Chromium or websockets, or
+    when the browser has not started by ``deadline`` (a ``time.monotonic()``)."""
     browser = find_browser()
     if browser is None:
         raise ScreenshotUnavailable(
