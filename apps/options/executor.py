@@ -14,9 +14,22 @@ def init_worker(threads: int, precision: str) -> None:
     from ..signals import worker_signals
 
     worker_signals()  # Ctrl-C is the parent's to handle; its SIGTERM ends this worker without leftovers
+    quiet_progress_lock()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(threads)
     init_taichi("cpu", precision, threads)
+
+
+def quiet_progress_lock() -> None:
+    """Give tqdm a thread lock in this worker. Its default lock holds a multiprocessing semaphore, for bars shared with
+    processes this one would start (it starts none); a semaphore made in a spawned worker is registered with the
+    resource tracker and unlinked only at a normal exit, so a worker ended by SIGTERM (``os._exit``, see
+    :func:`apps.signals.worker_signals`) left it behind and the tracker printed a "leaked semaphore" warning."""
+    import threading
+
+    from tqdm import tqdm
+
+    tqdm.set_lock(threading.RLock())
 
 
 def make_executor(
