@@ -145,6 +145,16 @@ class Planner(Protocol):
     def select(self, context: PlanningContext) -> Selection: ...
 
 
+class ConfiguredPlanner:
+    """The constructor the planners share: ``config`` is an instance of the class's ``config_type``, its defaults
+    when None."""
+
+    config_type: type
+
+    def __init__(self, config=None) -> None:
+        self.config = config if config is not None else self.config_type()
+
+
 def fused_k(budget: int, n_selected: int) -> int:
     """K = max(B - n_selected, 2), the shortlist size of the fused planners."""
     return max(budget - n_selected, MIN_SHORTLIST)

@@ -6,20 +6,17 @@ import dataclasses
 import logging
 import time
 
-from nbv.plan.base import PlanningContext, Selection, check_candidates, descending, nan_scores
+from nbv.plan.base import ConfiguredPlanner, PlanningContext, Selection, check_candidates, descending, nan_scores
 from nbv.plan.fisher_info import FisherConfig, greedy_top_k
 
 log = logging.getLogger(__name__)
 
 
-class FisherPlanner:
+class FisherPlanner(ConfiguredPlanner):
     """FisherRF: the candidate with the largest expected information gain (:mod:`nbv.plan.fisher_info`)."""
 
     name = "fisher"
     config_type = FisherConfig
-
-    def __init__(self, config: FisherConfig | None = None) -> None:
-        self.config = config if config is not None else FisherConfig()
 
     def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
         """The greedy top-k positions and every candidate's score against the selected views.

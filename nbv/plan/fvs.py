@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import torch
 
-from nbv.plan.base import PlanningContext, Selection, check_candidates, nan_scores
+from nbv.plan.base import ConfiguredPlanner, PlanningContext, Selection, check_candidates, nan_scores
 from recon.camera import Camera
 
 
@@ -73,14 +73,11 @@ def farthest_view_order(candidates: Sequence[Camera], selected: Sequence[Camera]
     return order
 
 
-class FVSPlanner:
+class FVSPlanner(ConfiguredPlanner):
     """Farthest view sampling: the candidate farthest from the selected views (module docstring)."""
 
     name = "fvs"
     config_type = FVSConfig
-
-    def __init__(self, config: FVSConfig | None = None) -> None:
-        self.config = config if config is not None else FVSConfig()
 
     def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
         """The greedy farthest-point list of k positions and every candidate's distance d(c) to the selected."""

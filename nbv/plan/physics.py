@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from nbv.plan.base import PlanningContext, Selection, check_candidates, descending, nan_scores
+from nbv.plan.base import ConfiguredPlanner, PlanningContext, Selection, check_candidates, descending, nan_scores
 from nbv.scores import DepthBuffer, projected_view_scores
 from recon.camera import Camera
 from recon.gaussians import GaussianSet
@@ -93,14 +93,11 @@ def run_physics(context: PlanningContext, name: str) -> torch.Tensor:
     return context.physics(context.gaussians)
 
 
-class PhysicsPlanner:
+class PhysicsPlanner(ConfiguredPlanner):
     """The candidate with the largest physics score S(T) over all candidates."""
 
     name = "physics"
     config_type = PhysicsPlannerConfig
-
-    def __init__(self, config: PhysicsPlannerConfig = PhysicsPlannerConfig()) -> None:
-        self.config = config
 
     def select(self, context: PlanningContext) -> Selection:
         check_candidates(context, self.name)

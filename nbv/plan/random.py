@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nbv.plan.base import PlanningContext, Selection, check_candidates, nan_scores
+from nbv.plan.base import ConfiguredPlanner, PlanningContext, Selection, check_candidates, nan_scores
 
 
 @dataclass(frozen=True)
@@ -25,14 +25,11 @@ class RandomConfig:
             raise ValueError(f"RandomConfig.seed must be an int >= 0, got {self.seed!r}")
 
 
-class RandomPlanner:
+class RandomPlanner(ConfiguredPlanner):
     """A uniformly random candidate (reproducible from (seed, round))."""
 
     name = "random"
     config_type = RandomConfig
-
-    def __init__(self, config: RandomConfig = RandomConfig()) -> None:
-        self.config = config
 
     def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
         """k distinct positions drawn uniformly at random (from (seed, round)) and NaN scores."""

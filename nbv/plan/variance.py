@@ -6,11 +6,11 @@ import time
 
 import torch
 
-from nbv.plan.base import PlanningContext, Selection, check_candidates, descending, nan_scores
+from nbv.plan.base import ConfiguredPlanner, PlanningContext, Selection, check_candidates, descending, nan_scores
 from nbv.plan.variance_model import VarianceConfig, fit_variances, variance_scores
 
 
-class VariancePlanner:
+class VariancePlanner(ConfiguredPlanner):
     """ActiveNeRF on 3D Gaussians: the largest variance reduction (:mod:`nbv.plan.variance_model`).
 
     Keeps the fitted log-variances between rounds and warm-starts the next fit from them when the number
@@ -21,7 +21,7 @@ class VariancePlanner:
     config_type = VarianceConfig
 
     def __init__(self, config: VarianceConfig | None = None) -> None:
-        self.config = config if config is not None else VarianceConfig()
+        super().__init__(config)
         self.log_variances: torch.Tensor | None = None
 
     def rank(self, context: PlanningContext, k: int) -> tuple[list[int], list[float]]:
