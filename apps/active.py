@@ -12,6 +12,7 @@ import logging
 from pathlib import Path
 
 from .options.active import ACTIVE_FIELDS, PHYSICS_FIELDS, TRAIN_FIELDS, check_plan, config_from_args, overrides
+from .options.common import add_output_option
 
 log = logging.getLogger("fluidgs")
 
@@ -28,12 +29,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=Path,
         help="dataset folder (Blender transforms_*.json or COLMAP); its train split is the candidate set",
     )
-    p.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        required=True,
-        help="run folder (config.json, rounds.json, checkpoint.pt, gaussians.ply); an existing run with "
+    add_output_option(
+        p,
+        "run folder (config.json, rounds.json, checkpoint.pt, gaussians.ply); an existing run with "
         "the same options is resumed",
     )
     p.add_argument(

@@ -25,6 +25,7 @@ from .options import (
     probe_overrides,
     warn_frame,
 )
+from .options.common import add_output_option
 
 FORMATS = ("transforms", "graphdeco", "colmap")
 
@@ -36,13 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--orbit", type=int, required=True, metavar="N", help="number of cameras (>= 1), split over the rings"
     )
-    p.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        required=True,
-        help="the cameras file: a .json (transforms, graphdeco), or a folder (colmap); written atomically",
-    )
+    add_output_option(p, "the cameras file: a .json (transforms, graphdeco), or a folder (colmap); written atomically")
     p.add_argument(
         "--format",
         choices=FORMATS,

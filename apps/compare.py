@@ -24,6 +24,7 @@ from .options import (
     load_gaussians_checked,
     physics_config_from_args,
 )
+from .options.common import add_output_option
 
 log = logging.getLogger("fluidgs")
 
@@ -45,9 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         ".npy/.txt/.json file (default: none, the two share a frame, as a render-dataset mesh and Gaussians trained "
         "on it do)",
     )
-    p.add_argument(
-        "-o", "--output", type=Path, default=Path("compare.json"), help="JSON record (default: compare.json)"
-    )
+    add_output_option(p, "JSON record (default: compare.json)", default=Path("compare.json"))
     p.add_argument(
         "--plot", type=Path, default=None, help="PNG of the drag over time (default: the output with suffix .png)"
     )

@@ -31,6 +31,7 @@ from .options import (
     physics_config_from_args,
     warn_frame,
 )
+from .options.common import add_output_option
 from .options.scoring import obtain_result, write_orbit_cameras
 from .runtime import positive_int
 
@@ -40,12 +41,8 @@ log = logging.getLogger("fluidgs")
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_gaussians_input(p)
     add_camera_arguments(p)
-    p.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        default=Path("critical.json"),
-        help="JSON with C(T) per camera and the critical subset (written atomically)",
+    add_output_option(
+        p, "JSON with C(T) per camera and the critical subset (written atomically)", default=Path("critical.json")
     )
     p.add_argument("--subset", type=int, default=20, help="size of the critical subset (views)")
     p.add_argument("--top-k", type=positive_int, default=None, help="print only the best K views (default: all)")

@@ -9,7 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from .options import add_config_options, add_runtime_arguments, config_from_args
-from .options.numbers import positive_number, step_count
+from .options.common import add_probe_size_options
 
 EVAL_FIELDS = ("critical_views", "chamfer_samples", "chamfer_opacity", "lpips")
 EVAL_OVERRIDES = {
@@ -30,13 +30,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from nbv.study.evaluate import EvalConfig
 
     add_config_options(p, EvalConfig, EVAL_FIELDS, EVAL_OVERRIDES)
-    p.add_argument(
-        "--particle-radius",
-        type=positive_number,
-        default=None,
-        help="probe particle radius r in m (default: the run's physics config)",
+    add_probe_size_options(
+        p,
+        "probe particle radius r in m (default: the run's physics config)",
+        "time steps per probe (default: the run's)",
+        steps_flag="--probe-steps",
     )
-    p.add_argument("--probe-steps", type=step_count, default=None, help="time steps per probe (default: the run's)")
     p.add_argument(
         "--directions",
         default=None,

@@ -12,28 +12,13 @@ import argparse
 import logging
 from pathlib import Path
 
-from .options.executor import make_executor
-from .runtime import thread_count
+from .options.common import add_executor_arguments
+from .options.executor import make_executor, study_config_from_args
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", type=Path, help="experiment JSON (scenes, methods, seeds, preset, output, ...)")
-    p.add_argument(
-        "--executor",
-        choices=("local", "ray"),
-        default="local",
-        help="local: a process pool here; ray: tasks on a Ray cluster",
-    )
-    p.add_argument("--workers", type=int, default=1, help="local worker processes")
-    p.add_argument("--threads", type=thread_count, default=1, help="torch and Taichi CPU threads per worker")
-    p.add_argument(
-        "--address",
-        default=None,
-        help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
-        "(default: start a local Ray instance)",
-    )
-    p.add_argument("--output", type=Path, default=None, help="results folder (default: the config's 'output')")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_executor_arguments(p, "hide the progress bar")
 
 
 def job_exit_code(cause: BaseException | None) -> int:
@@ -52,26 +37,11 @@ def job_exit_code(cause: BaseException | None) -> int:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
-    from fluidsim.files import check_not_input
     from nbv.study.experiment import JobFailed, run_experiment
     from nbv.study.experiment_config import ExperimentConfig
 
-    from .options import check_output_folder
-
-    config = ExperimentConfig.load(args.config)
-    if args.output is not None:
-        config = replace(config, output=str(args.output))
-    check_output_folder(
-        config.output,
-        "--output" if args.output is not None else f"the 'output' of {args.config}",
-        ("experiment.json", "results.json", "tables.md", "tables", "runs"),
-    )  # before any work: a folder that is a file, or cannot be made, is named as the option or key that gave it
-    check_not_input(
-        [("output file", Path(config.output) / name) for name in ("experiment.json", "results.json", "tables.md")],
-        {"CONFIG": args.config},
-    )
+    written = ("experiment.json", "results.json", "tables.md")
+    config = study_config_from_args(args, ExperimentConfig, (*written, "tables", "runs"), written)
     precision = config.active_config(config.methods[0], config.seeds[0]).physics.precision
     executor = make_executor(args.executor, args.workers, args.threads, args.address, precision)
     try:

@@ -23,6 +23,7 @@ from .options import (
     probe_overrides,
     warn_frame,
 )
+from .options.common import add_device_option, add_json_option
 from .runtime import thread_count
 
 
@@ -46,13 +47,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         presets={"--quick": {"particle_radius": quick["particle_radius"]}},
     )
     p.add_argument("--png", type=Path, default=None, help="write the three orthographic views here (.png)")
-    p.add_argument("--json", type=Path, default=None, help="write the figures here (.json)")
-    p.add_argument(
-        "--device",
-        choices=("cpu", "cuda"),
-        default="cpu",
-        help="compute device for the solid; cuda falls back to cpu with a logged warning (default: cpu)",
-    )
+    add_json_option(p, "write the figures here (.json)")
+    add_device_option(p, "compute device for the solid; cuda falls back to cpu with a logged warning (default: cpu)")
     p.add_argument("--threads", type=thread_count, default=None, help="CPU threads (default: all cores)")
 
 

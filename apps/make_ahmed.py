@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-from pathlib import Path
+
+from .options.common import add_output_option
 
 log = logging.getLogger("fluidgs")
 
@@ -26,13 +27,7 @@ OVERRIDES = {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        required=True,
-        help="output mesh: .obj, .stl, .ply, .off, .gltf or .glb (written atomically)",
-    )
+    add_output_option(p, "output mesh: .obj, .stl, .ply, .off, .gltf or .glb (written atomically)")
     from recon.ahmed import AhmedBody
 
     from .options import add_config_options

@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .options.common import add_output_option
+
 FIELDS = (
     "n_train",
     "n_test",
@@ -46,13 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from .options import add_config_options
 
     p.add_argument("mesh", type=Path, help="input triangle mesh (.obj, .stl or .ply; any units, it is normalised)")
-    p.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        required=True,
-        help="dataset folder to create (written atomically; must be empty unless --overwrite)",
-    )
+    add_output_option(p, "dataset folder to create (written atomically; must be empty unless --overwrite)")
     add_config_options(p, MeshDatasetConfig, FIELDS, OVERRIDES)
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")

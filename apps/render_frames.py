@@ -14,6 +14,7 @@ from viz.frame_style import FrameStyle
 from viz.frames import output_is_video, render_frames
 
 from .options import add_config_options, config_from_args
+from .options.common import add_output_option
 from .options.drawing import STYLE_FIELDS, style_overrides
 
 __all__ = ["FrameStyle", "add_arguments", "main", "output_is_video", "render_frames", "run"]
@@ -26,12 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help="simulation output file (OUT.h5), or a RESULT.h5 with a recorded probe (simulate or score --record-probe)",
     )
-    parser.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        required=True,
-        help="a path ending in .mp4 writes one H.264 video (plays in browsers); a path without a suffix is a "
+    add_output_option(
+        parser,
+        "a path ending in .mp4 writes one H.264 video (plays in browsers); a path without a suffix is a "
         "directory of frame_NNNNNN.png (other suffixes are an error)",
     )
     parser.add_argument(

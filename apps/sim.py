@@ -16,6 +16,7 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
+from .options.common import add_device_option, add_output_option
 from .runtime import thread_count
 from .signals import Stopped, handled_signals, note_signal
 
@@ -24,17 +25,12 @@ log = logging.getLogger("fluidgs")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", type=Path, help="scene JSON file (format in README.md)")
-    p.add_argument("-o", "--output", type=Path, required=True, help="output HDF5 file (written atomically)")
+    add_output_option(p, "output HDF5 file (written atomically)")
     p.add_argument("--steps", type=int, default=None, help="number of time steps (default: the scene's 'steps')")
     p.add_argument(
         "--save-every", type=int, default=10, help="write a frame every K steps (default: 10; 0 = first and last only)"
     )
-    p.add_argument(
-        "--device",
-        choices=("cpu", "cuda"),
-        default="cpu",
-        help="compute device (default: cpu); cuda falls back to cpu with a notice",
-    )
+    add_device_option(p, "compute device (default: cpu); cuda falls back to cpu with a notice")
     p.add_argument(
         "--precision",
         choices=("f32", "f64"),

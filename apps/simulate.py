@@ -25,6 +25,7 @@ from .options import (
     save_diverged,
     warn_frame,
 )
+from .options.common import add_output_option
 from .options.drawing import add_style_arguments, style_values
 from .options.scoring import simulate_from_args
 from .options.solid_export import add_solid_export_arguments, solid_export_outputs, write_solid_export
@@ -34,7 +35,7 @@ log = logging.getLogger("fluidgs")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_gaussians_input(p)
-    p.add_argument("-o", "--output", type=Path, required=True, help="result HDF5 file (written atomically)")
+    add_output_option(p, "result HDF5 file (written atomically)")
     p.add_argument(
         "--ply",
         type=Path,

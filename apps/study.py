@@ -14,7 +14,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .runtime import positive_int, thread_count
+from .options.common import add_executor_arguments
+from .runtime import positive_int
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -25,24 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         description="oracle gains of the candidates against every rule's scores (and calibration)",
     )
     q.add_argument("config", type=Path, help="oracle study JSON (scenes, seeds, states, rules, probes, horizon, ...)")
-    q.add_argument(
-        "--executor",
-        choices=("local", "ray"),
-        default="local",
-        help="local: a process pool here; ray: tasks on a Ray cluster (default: %(default)s)",
-    )
-    q.add_argument("--workers", type=positive_int, default=1, help="local worker processes (default: %(default)s)")
-    q.add_argument(
-        "--threads", type=thread_count, default=1, help="torch and Taichi CPU threads per worker (default: %(default)s)"
-    )
-    q.add_argument(
-        "--address",
-        default=None,
-        help="Ray cluster address for ray.init(address=...), e.g. auto or ray://head:10001 "
-        "(default: start a local Ray instance)",
-    )
-    q.add_argument("--output", type=Path, default=None, help="results folder (default: the config's 'output')")
-    q.add_argument("--no-progress", action="store_true", help="hide the progress bar (default: shown)")
+    add_executor_arguments(q, "hide the progress bar (default: shown)")
     pool = sub.add_parser(
         "oracle-pool",
         help="summarise the states of several oracle studies together",
@@ -65,26 +49,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run_command(args: argparse.Namespace) -> int:
     if args.what == "oracle-pool":
         return run_pool(args)
-    from dataclasses import replace
-
-    from fluidsim.files import check_not_input
     from nbv.study.oracle import run_oracle
     from nbv.study.oracle_config import OracleConfig
 
-    from .options import check_output_folder
-    from .options.executor import make_executor
+    from .options.executor import make_executor, study_config_from_args
 
-    config = OracleConfig.load(args.config)
-    if args.output is not None:
-        config = replace(config, output=str(args.output))
-    check_output_folder(
-        config.output,
-        "--output" if args.output is not None else f"the 'output' of {args.config}",
-        ("oracle-config.json", "oracle.json", "oracle.md", "states"),
-    )  # before any work: a folder that is a file, or cannot be made, is named as the option or key that gave it
-    check_not_input(
-        [("output file", Path(config.output) / name) for name in ("oracle.json", "oracle.md")], {"CONFIG": args.config}
-    )
+    own = ("oracle-config.json", "oracle.json", "oracle.md", "states")
+    config = study_config_from_args(args, OracleConfig, own, ("oracle.json", "oracle.md"))
     precision = config.probe_config(next(iter(config.probes))).precision
     executor = make_executor(args.executor, args.workers, args.threads, args.address, precision)
     out = run_oracle(config, executor, progress=not args.no_progress)

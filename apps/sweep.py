@@ -26,6 +26,7 @@ from .options import (
     load_gaussians_checked,
     physics_config_from_args,
 )
+from .options.common import add_output_option
 from .options.sweep_report import drag_words, length_words, print_estimate, print_points
 
 
@@ -45,12 +46,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="a second Gaussian set OTHER (same frame, simulated at the first set's scale); reports "
         "D-bar(OTHER) - D-bar per U",
     )
-    p.add_argument(
-        "-o",
-        "--output",
-        type=Path,
+    add_output_option(
+        p,
+        "CSV file (written atomically); the plots go next to it: D-bar as .png, C_d against Re as _cd.png",
         default=Path("sweep.csv"),
-        help="CSV file (written atomically); the plots go next to it: D-bar as .png, C_d against Re as _cd.png",
     )
     p.add_argument(
         "--re-length",

@@ -10,6 +10,7 @@ from pathlib import Path
 from fluidsim.files import write_json_atomic
 
 from .options import add_config_options, config_values, dataset_inputs, index_list
+from .options.common import add_device_option, add_output_option
 from .options.fields import option_names, options_named
 from .options.files import check_ply_output
 from .runtime import deterministic_torch, thread_count
@@ -36,13 +37,7 @@ TRAIN_OVERRIDES = {
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", type=Path, help="dataset folder (Blender transforms_*.json or COLMAP text model)")
-    p.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        required=True,
-        help="output 3DGS .ply (written atomically; OUT.json gets the config, timings and metrics)",
-    )
+    add_output_option(p, "output 3DGS .ply (written atomically; OUT.json gets the config, timings and metrics)")
     p.add_argument(
         "--iters",
         type=int,
@@ -66,12 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="evaluate PSNR/SSIM on the test split every N iterations (0: only at the end), iterations",
     )
     p.add_argument("--threads", type=thread_count, default=None, help="torch CPU threads (default: torch's choice)")
-    p.add_argument(
-        "--device",
-        choices=("cpu", "cuda"),
-        default="cpu",
-        help="compute device; cuda falls back to cpu with a logged warning when unavailable (default: cpu)",
-    )
+    add_device_option(p, "compute device; cuda falls back to cpu with a logged warning when unavailable (default: cpu)")
 
 
 def run_command(args: argparse.Namespace) -> int:

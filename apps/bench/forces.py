@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..options.common import add_json_option, add_up_option
 from ..runtime import thread_count
 
 CASES = ("sphere", "ahmed")
@@ -46,10 +47,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="check this mesh (.obj/.stl/.ply/.glb), Gaussian file or RESULT.h5 instead of the built-in cases, scaled "
         "as `fluidgs compare` scales its reference (default: none)",
     )
-    p.add_argument("--up", default="+y", help="the ahmed case's (or --solid's) up axis in its own frame (default: +y)")
+    add_up_option(p, "the ahmed case's (or --solid's) up axis in its own frame (default: +y)", alias=False)
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads for both engines (default: 2)")
     p.add_argument("--keep", type=Path, default=None, help="write the peer's scenes into this folder (default: none)")
-    p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file (default: none)")
+    add_json_option(p, "also write the figures to this JSON file (default: none)")
 
 
 def _cases(args: argparse.Namespace):

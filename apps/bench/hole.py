@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..runtime import positive_int, thread_count
+from ..options.common import add_device_option, add_json_option, add_probe_size_options, add_up_option
+from ..runtime import thread_count
 
 SIDES = {"+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
 
@@ -54,14 +55,7 @@ def _shifts(text: str) -> tuple[float, ...]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("gaussians", type=Path, help="the capture (any supported Gaussian format)")
-    p.add_argument(
-        "--up",
-        "--up-axis",
-        dest="up",
-        default="+y",
-        metavar="UP",
-        help="the capture's up direction (axis or X,Y,Z vector; default: %(default)s)",
-    )
+    add_up_option(p, "the capture's up direction (axis or X,Y,Z vector; default: %(default)s)")
     p.add_argument("--scale", default="auto", help="metres per scene unit, or auto (2 m largest extent)")
     where = p.add_mutually_exclusive_group()
     where.add_argument(
@@ -128,13 +122,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="lattice shifts, fractions of the spacing along x, y and z (default: 0)",
     )
     p.add_argument("--paper", action="store_true", help="paper setting: r = 0.025 m, 750 steps (default: quick)")
-    p.add_argument("--particle-radius", type=float, default=None, help="particle radius r, m (overrides the preset)")
-    p.add_argument("--steps", type=positive_int, default=None, help="steps per probe (default: 300, 750 with --paper)")
+    add_probe_size_options(
+        p, "particle radius r, m (overrides the preset)", "steps per probe (default: 300, 750 with --paper)"
+    )
     p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes (default: all five)")
     p.add_argument("--solid-only", action="store_true", help="compare the solids only (no probes)")
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads (default: %(default)s)")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="Taichi device (default: %(default)s)")
-    p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
+    add_device_option(p, "Taichi device (default: %(default)s)")
+    add_json_option(p)
 
 
 def locate_hole(args: argparse.Namespace, means: np.ndarray, opacities: np.ndarray):

@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..options.numbers import positive_number, step_count, step_list, tolerance_list
+from ..options.common import add_json_option, add_probe_size_options, add_up_option
+from ..options.numbers import positive_number, step_list, tolerance_list
 from ..runtime import positive_int, thread_count
 
 ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
@@ -33,11 +34,10 @@ STAGES = ("neighbors", "divergence_solve", "density_solve", "divergence_estimate
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gaussians", type=Path, default=ASSET, help=f"Gaussian set (default: {ASSET.name})")
-    p.add_argument("--up", default="+y", help="the scene's up direction (COLMAP captures: -y)")
-    p.add_argument(
-        "--particle-radius", type=positive_number, default=None, help="r in m (default: the --quick preset's)"
+    add_up_option(p, "the scene's up direction (COLMAP captures: -y)", alias=False)
+    add_probe_size_options(
+        p, "r in m (default: the --quick preset's)", "steps per probe (default: the --quick preset's)"
     )
-    p.add_argument("--steps", type=step_count, default=None, help="steps per probe (default: the --quick preset's)")
     p.add_argument("--dt", type=positive_number, default=0.002, help="time step, s (default: 0.002)")
     p.add_argument("--no-empty", action="store_true", help="leave out the empty-scene probes")
     p.add_argument("--every", type=positive_int, default=25, help="record the running D_g every this many steps")
@@ -67,7 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(default: the probes' 0.15); with --against the uncut run, what trimming the slab changes",
     )
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads")
-    p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
+    add_json_option(p)
     p.add_argument(
         "--save",
         type=Path,

@@ -20,6 +20,7 @@ import torch
 
 from fluidsim.files import write_json_atomic
 
+from ..options.common import add_device_option, add_json_option
 from ..options.numbers import int_in, seed
 from ..runtime import thread_count
 from .yardsticks import reference_workload_ms
@@ -48,12 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="5000@100x100,20000@200x200",
         help="comma-separated N@WxH cases: N Gaussians, W x H pixels (default: %(default)s)",
     )
-    p.add_argument(
-        "--device",
-        choices=("cpu", "cuda"),
-        default="cpu",
-        help="compute device; cuda falls back to cpu with a warning (default: %(default)s)",
-    )
+    add_device_option(p, "compute device; cuda falls back to cpu with a warning (default: %(default)s)")
     p.add_argument(
         "--backend",
         choices=("torch", "gsplat", "auto"),
@@ -61,12 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="renderer backend (default: %(default)s)",
     )
     p.add_argument("--seed", type=seed, default=0, help="random seed of the scene (default: %(default)s)")
-    p.add_argument(
-        "--json",
-        type=str,
-        default=None,
-        help="also write the figures to this JSON file (default: %(default)s, no file)",
-    )
+    add_json_option(p, "also write the figures to this JSON file (default: %(default)s, no file)", type=str)
 
 
 def parse_sizes(text: str) -> list[tuple[int, int, int]]:

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..options.numbers import positive_number, seed, step_count
+from ..options.common import add_device_option, add_json_option, add_probe_size_options, add_up_option
+from ..options.numbers import seed
 from ..runtime import positive_int, thread_count
 
 ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
@@ -40,33 +41,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"Gaussian set (default: {ASSET.name} when present, else 4,000 Gaussians on the Ahmed body surface)",
     )
     p.add_argument("--paper", action="store_true", help="paper setting: r = 0.025 m, 750 steps (default: quick preset)")
-    p.add_argument(
-        "--particle-radius",
-        type=positive_number,
-        default=None,
-        help="particle radius r in m (default: 0.05, or 0.025 with --paper)",
+    add_probe_size_options(
+        p,
+        "particle radius r in m (default: 0.05, or 0.025 with --paper)",
+        "steps per probe (default: 300, or 750 with --paper)",
     )
-    p.add_argument("--steps", type=step_count, default=None, help="steps per probe (default: 300, or 750 with --paper)")
     p.add_argument("--directions", default="-x,+x,-z,+z,-y", help="comma list of probes")
     p.add_argument("--empty-reference", action="store_true", help="also time the empty-scene reference runs")
     p.add_argument("--no-fill", action="store_true", help="keep the solid hollow (filling is the default)")
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads")
-    p.add_argument(
-        "--device",
-        choices=("cpu", "cuda"),
-        default="cpu",
-        help="compute device; cuda falls back to cpu with a logged warning",
-    )
-    p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
-    p.add_argument(
-        "--up",
-        "--up-axis",
-        dest="up",
-        default="+y",
-        metavar="UP",
-        help="the scene's up direction, rotated to simulation +y: +x, -x, +y, -y, +z, -z or a vector "
-        "such as 0,-1,0 (COLMAP captures are often -y; default: +y)",
-    )
+    add_device_option(p)
+    add_json_option(p)
+    add_up_option(p)
     p.add_argument(
         "--densify",
         type=positive_int,

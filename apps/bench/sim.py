@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..options.common import add_device_option, add_json_option
 from ..options.numbers import int_in, step_count
 from ..runtime import thread_count
 
@@ -23,7 +24,7 @@ from ..runtime import thread_count
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=step_count, default=100, help="time steps to time (default: 100)")
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads for both engines (default: 2)")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="compute device (default: cpu)")
+    add_device_option(p, "compute device (default: cpu)")
     p.add_argument(
         "--no-peer", action="store_true", help="skip the SPlisHSPlasH comparison even when pysplishsplash is installed"
     )
@@ -40,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="run the engines this many times, alternating, and also print each round's ratio and the "
         "ratio of each engine's fastest round (shared, noisy machines; default: 1)",
     )
-    p.add_argument("--json", type=str, default=None, help="also write the figures to this JSON file")
+    add_json_option(p, type=str)
 
 
 def run_ours(scene, steps: int, divergence_warm_start: bool = True) -> dict:

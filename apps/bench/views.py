@@ -33,6 +33,7 @@ from pathlib import Path
 
 from fluidsim.files import write_json_atomic
 
+from ..options.common import add_device_option, add_json_option
 from ..options.numbers import camera_count, image_width, int_in, seed
 from ..runtime import thread_count
 
@@ -101,14 +102,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="cameras scored by the one-thread reference path too, for the speed-up and the score difference "
         "(0: none; default: %(default)s)",
     )
-    p.add_argument(
-        "--device",
-        choices=("cpu", "cuda"),
-        default="cpu",
-        help="torch device; cuda falls back to cpu with a warning (default: %(default)s)",
-    )
+    add_device_option(p, "torch device; cuda falls back to cpu with a warning (default: %(default)s)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the jitter, the cameras and the stand-in D_g")
-    p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
+    add_json_option(p)
 
 
 def print_ranking(r: dict, source: str) -> None:

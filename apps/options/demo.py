@@ -11,6 +11,7 @@ from fluidsim.directions import DIRECTIONS
 from fluidsim.files import write_json_atomic
 
 from .cameras import CAMERAS_HELP, add_orbit_arguments
+from .common import add_output_option
 from .fields import add_config_options
 from .files import add_gaussian_file_arguments, check_output_folder
 from .groups import add_frame_arguments, add_runtime_arguments
@@ -26,7 +27,7 @@ DEMO_ORBIT = 12  # cameras of the orbit scored on Gaussians other than the bundl
 
 def add_demo_arguments(p: argparse.ArgumentParser) -> None:
     """The options of `fluidgs demo`."""
-    p.add_argument("-o", "--output", type=Path, default=Path("out/demo"), help="output folder")
+    add_output_option(p, "output folder", default=Path("out/demo"))
     p.add_argument(
         "--solid",
         type=Path,

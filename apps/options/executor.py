@@ -43,3 +43,23 @@ def make_executor(
     if kind == "local":
         return LocalExecutor(workers, init_worker, (threads, precision))
     return RayExecutor(address, init_worker, (threads, precision), num_cpus=threads, local_cpus=local_cpus)
+
+
+def study_config_from_args(args, config_class, own: tuple[str, ...], written: tuple[str, ...]):
+    """The study config of ``args.config`` (``config_class.load``), its output replaced by ``--output`` when given,
+    with its results folder checked before any work: a folder that is a file, cannot be made or holds other files
+    (none of ``own``) is named as the option or key that gave it, and no file of ``written`` may be the config."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from fluidsim.files import check_not_input
+
+    from .files import check_output_folder
+
+    config = config_class.load(args.config)
+    if args.output is not None:
+        config = replace(config, output=str(args.output))
+    where = "--output" if args.output is not None else f"the 'output' of {args.config}"
+    check_output_folder(config.output, where, own)
+    check_not_input([("output file", Path(config.output) / name) for name in written], {"CONFIG": args.config})
+    return config

@@ -145,13 +145,9 @@ def add_physics_arguments(
 def add_runtime_arguments(p, threads_help: str = "CPU threads", device_help: str = "compute device") -> None:
     """--device (cpu or cuda; cuda falls back to cpu with a logged warning) and --threads (>= 1)."""
     from ..runtime import thread_count
+    from .common import add_device_option
 
-    p.add_argument(
-        "--device",
-        choices=("cpu", "cuda"),
-        default="cpu",
-        help=f"{device_help}; cuda falls back to cpu with a logged warning when unavailable (default: cpu)",
-    )
+    add_device_option(p, f"{device_help}; cuda falls back to cpu with a logged warning when unavailable (default: cpu)")
     p.add_argument("--threads", type=thread_count, default=None, help=f"{threads_help} (default: all cores)")
 
 
