@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 from pathlib import Path
 
 from .options import (
@@ -25,8 +24,6 @@ from .options import (
     physics_config_from_args,
 )
 from .options.common import add_output_option
-
-log = logging.getLogger("fluidgs")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

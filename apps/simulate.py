@@ -11,7 +11,6 @@ status "diverged" and the probe, step and reason (no coloured .ply). No output m
 from __future__ import annotations
 
 import argparse
-import logging
 from pathlib import Path
 
 from .options import (
@@ -29,8 +28,6 @@ from .options.common import add_output_option
 from .options.drawing import add_style_arguments, style_values
 from .options.scoring import simulate_from_args
 from .options.solid_export import add_solid_export_arguments, solid_export_outputs, write_solid_export
-
-log = logging.getLogger("fluidgs")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
