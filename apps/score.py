@@ -113,7 +113,7 @@ def run_command(args: argparse.Namespace) -> int:
     all_cams = file_cams if orbit is None else orbit_cameras_logged(gaussians, config, orbit)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
-    visible_centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
+    check_cameras_see(gaussians, cams, [c.name for c in cams], at_most=1)  # the counts come with the scores
     write_orbit_cameras(orbit_file, all_cams, "score", args.cameras, orbit)
     if result is None:
         try:
@@ -121,7 +121,7 @@ def run_command(args: argparse.Namespace) -> int:
         except ProbeDiverged as exc:
             return save_diverged(exc, args.save_result)
     values = check_some_divergence(result, args.metric, args.result or args.gaussians)
-    scored, rows, agreement = rank_views(gaussians, cams, idx, result, values, settings, visible_centres)
+    scored, rows, agreement = rank_views(gaussians, cams, idx, result, values, settings, centres=True)
     print_ranking(result, values, scored.seen, rows, agreement, args.top_k)
     top = None if args.png_all else args.png_top
     images, stale = write_views_folder(

@@ -25,14 +25,14 @@ from collections.abc import Sequence
 
 import torch
 
-from recon.projection import NEAR_PLANE
-
 from .projected_scores import (  # noqa: F401  (re-exported: nbv.scores is where callers look for them)
     DepthBuffer,
     ProjectedScores,
     coarse_unoccluded,
     coarse_unoccluded_reference,
     depth_test,
+    projected_counts,
+    projected_counts_reference,
     projected_view_scores,
     projected_view_scores_reference,
 )
@@ -228,27 +228,6 @@ def critical_subset(scores: torch.Tensor, k: int = 20) -> torch.Tensor:
     if k <= 0:
         raise ValueError(f"critical subset size k must be >= 1, got {k}")
     return rank(scores)[:k]
-
-
-def projected_counts(means: torch.Tensor, cameras: Sequence, near: float = NEAR_PLANE) -> torch.Tensor:
-    """How many Gaussian centres each camera sees (in front of the near plane and inside the image).
-
-    A cheap pre-check before any simulation or rendering: a camera with 0 cannot score.
-
-    Args:
-        means: [N, 3] Gaussian centres in the cameras' frame (scene units).
-        cameras: C ``recon.camera.Camera``.
-        near: near plane distance, scene units.
-    Returns:
-        [C] int64.
-    """
-    pts = torch.as_tensor(means).detach().to(torch.float64).cpu()
-    out = []
-    for cam in cameras:
-        uv, z = cam.project(pts)
-        inside = (z > near) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
-        out.append(int(inside.sum()))
-    return torch.tensor(out, dtype=torch.int64)
 
 
 def unoccluded(means: torch.Tensor, reach: torch.Tensor, camera, render_out, min_alpha: float = 0.5) -> torch.Tensor:

@@ -94,10 +94,11 @@ def render_size(cam, max_width: int):
     return cam.scaled(max_width / cam.width) if cam.width > max_width else cam
 
 
-def check_cameras_see(gaussians, cameras, names: list[str]) -> np.ndarray:
-    """[C] projected centre counts per camera; ValueError when no camera sees any Gaussian (checked before
-    simulating), a logged warning for each camera that sees none."""
-    counts = projected_counts(gaussians.means, cameras).numpy()
+def check_cameras_see(gaussians, cameras, names: list[str], at_most: int | None = None) -> np.ndarray:
+    """[C] projected centre counts per camera (:func:`nbv.scores.projected_counts`, each at most ``at_most``: 1 asks
+    only whether a camera sees any, usually from one block of centres); ValueError when no camera sees any Gaussian
+    (checked before simulating), a logged warning for each camera that sees none."""
+    counts = projected_counts(gaussians.means, cameras, at_most=at_most).numpy()
     if counts.max(initial=0) == 0:
         raise ValueError(
             f"none of the {len(cameras)} candidate cameras sees any Gaussian (all centres are behind "
@@ -136,9 +137,12 @@ def check_some_divergence(result, metric: str, where) -> np.ndarray:
     )
 
 
-def project_scores(gaussians, cams, values, *, weighted: bool = True, occlusion: bool = True, device: str = "cpu"):
+def project_scores(
+    gaussians, cams, values, *, weighted: bool = True, occlusion: bool = True, device: str = "cpu", centres=False
+):
     """S(T), the coverage A(T) and the counted Gaussians of every camera from the projection alone
-    (:func:`nbv.scores.projected_view_scores`; ``occlusion``: the coarse depth test, else frustum culling)."""
+    (:func:`nbv.scores.projected_view_scores`; ``occlusion``: the coarse depth test, else frustum culling; ``centres``:
+    also the centres inside each view, from the same projection)."""
     dev = torch.device(torch_device(device))
     start = time.perf_counter()
     scored = projected_view_scores(
@@ -147,6 +151,7 @@ def project_scores(gaussians, cams, values, *, weighted: bool = True, occlusion:
         cams,
         weighted=weighted,
         depth_buffer=DepthBuffer() if occlusion else None,
+        centres=centres,
     )
     log.info(
         "scored %d views of %d Gaussians from the projection in %.2f s",
@@ -204,7 +209,9 @@ def rows_agreement(rows: list[dict], value: str = "score") -> dict:
     return ranking_agreement([r[value] for r in rows], [r["coverage"] for r in rows])
 
 
-def rank_views(gaussians, cams, idx: list[int], result, values, settings: ScoreSettings, visible_centres=None):
+def rank_views(
+    gaussians, cams, idx: list[int], result, values, settings: ScoreSettings, visible_centres=None, centres=False
+):
     """Score the candidates from the projection alone and rank them, with how far coverage decides the ranking.
 
     Args:
@@ -212,13 +219,17 @@ def rank_views(gaussians, cams, idx: list[int], result, values, settings: ScoreS
         result: the PhysicsResult ``values`` come from. values: [G] the settings' metric (:func:`metric_values`);
             with replica runs in ``result``, each replica's own metric is ranked too.
         settings: metric, weights, visibility test, device. visible_centres: [C] projected-centre counts for the rows.
+        centres: without ``visible_centres``, count them while scoring (the same numbers as
+            :func:`nbv.scores.projected_counts`, from the projection the scores make anyway).
     Returns:
         (the :class:`nbv.scores.ProjectedScores`, the rows best first (:func:`ranked_rows`), their agreement
         (:func:`rows_agreement`; with replica runs also ``replicas``: each replica's ranking against the others,
         :func:`replicas_view_agreement`)).
     """
     how = {"weighted": settings.weighted, "occlusion": settings.occlusion, "device": settings.device}
-    scored = project_scores(gaussians, cams, values, **how)
+    scored = project_scores(gaussians, cams, values, **how, centres=centres and visible_centres is None)
+    if visible_centres is None:
+        visible_centres = scored.centres
     rows = ranked_rows(scored, cams, idx, visible_centres=visible_centres)
     agreement = rows_agreement(rows)
     if result.replicas is not None:  # each replica's own ranking, against the others

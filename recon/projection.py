@@ -189,13 +189,6 @@ def _screen_terms_in_place(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewCons
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = cam.rot
     s00, s01, s02, s11, s12, s22 = sigma
 
-    def row(a, b, c, t):  # x a + y b + z c + t
-        out = x * a
-        out += y * b
-        out += z * c
-        out += t
-        return out
-
     def dot(a0, b0, a1, b1, a2, b2):  # a0 b0 + a1 b1 + a2 b2
         out = a0 * b0
         out += a1 * b1
@@ -206,12 +199,7 @@ def _screen_terms_in_place(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewCons
         out = s * q
         return torch.sub(r, out, out=out)
 
-    tx, ty, tz = row(r00, r01, r02, cam.trans[0]), row(r10, r11, r12, cam.trans[1]), row(r20, r21, r22, cam.trans[2])
-    inv_z = tz.clamp_min(cam.near).reciprocal_()
-    xz, yz = tx.mul_(inv_z), ty.mul_(inv_z)
-    u, v = xz * cam.fx, yz * cam.fy
-    u += cam.cx
-    v += cam.cy
+    u, v, tz, xz, yz, inv_z = _centres_in_place(x, y, z, cam)
     sx, sy = xz.clamp_(-cam.lim_x, cam.lim_x), yz.clamp_(-cam.lim_y, cam.lim_y)
     e00, e01, e02 = edge(r00, sx, r20), edge(r01, sx, r21), edge(r02, sx, r22)
     e10, e11, e12 = edge(r10, sy, r20), edge(r11, sy, r21), edge(r12, sy, r22)
@@ -225,6 +213,30 @@ def _screen_terms_in_place(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewCons
     c *= inv_z2 * cam.fyy
     c += DILATION
     return u, v, tz, a, b, c
+
+
+def _centres_in_place(x, y, z, cam: ViewConstants):
+    """The projected centres of :func:`_screen_terms_in_place` (its first operations, the same bits): u, v
+    (pixels), the raw depth t_z, the ratios t_x / t_z and t_y / t_z and 1 / max(t_z, near), all [N] and new.
+
+    The ratios and the reciprocal are handed on to the rest of the core, which overwrites them.
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = cam.rot
+
+    def row(a, b, c, t):  # x a + y b + z c + t
+        out = x * a
+        out += y * b
+        out += z * c
+        out += t
+        return out
+
+    tx, ty, tz = row(r00, r01, r02, cam.trans[0]), row(r10, r11, r12, cam.trans[1]), row(r20, r21, r22, cam.trans[2])
+    inv_z = tz.clamp_min(cam.near).reciprocal_()
+    xz, yz = tx.mul_(inv_z), ty.mul_(inv_z)
+    u, v = xz * cam.fx, yz * cam.fy
+    u += cam.cx
+    v += cam.cy
+    return u, v, tz, xz, yz, inv_z
 
 
 def _footprint_radii(u, v, tz, a, c, det, cam: ViewConstants) -> torch.Tensor:
@@ -447,6 +459,25 @@ def view_blocks(
                 det -= b.mul_(b)
                 radii = _footprint_radii(u, v, tz, a, c, det, cam)
             yield VisibilityBlock(index, cols, radii, u, v, tz, det)
+
+
+def view_centres(
+    xyz: torch.Tensor, camera: Camera, block: int, near_plane: float = NEAR_PLANE
+) -> Iterator[tuple[slice, torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """The projected centres of one camera, block by block: (the block's Gaussians, u, v, t_z), each [n], the first
+    operations of :func:`view_blocks`'s core (the same bits), without the footprints; under :func:`inline_ops`.
+
+    Args:
+        xyz: [3, N] means, one contiguous row per axis (``GaussianTerms.xyz``). camera: the view.
+        block: Gaussians per block. near_plane: the culling depth, scene units.
+    """
+    cam = ViewConstants.of(camera, near_plane, xyz)
+    with torch.no_grad():
+        for n0 in range(0, xyz.shape[1], block):
+            cols = slice(n0, min(n0 + block, xyz.shape[1]))
+            with inline_ops(xyz.device):
+                u, v, tz = _centres_in_place(*xyz[:, cols], cam)[:3]
+            yield cols, u, v, tz
 
 
 def iter_visibility(

@@ -100,6 +100,49 @@ def test_projected_counts():
     assert counts.tolist() == [2, 1]
 
 
+def _points_at_pixels(camera: Camera, pixels: torch.Tensor, depths: torch.Tensor) -> torch.Tensor:
+    """[n, 3] float64 world points that ``camera`` projects to ``pixels`` [n, 2] at camera-frame ``depths`` [n]."""
+    x = (pixels[:, 0] - camera.cx) / camera.fx * depths
+    y = (pixels[:, 1] - camera.cy) / camera.fy * depths
+    local = torch.stack([x, y, depths], -1)
+    w2c = camera.world_to_camera
+    return (local - w2c[:3, 3]) @ w2c[:3, :3]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_projected_counts_equal_the_float64_twin_at_the_borders(dtype):
+    """The fast count decides most centres in the means' dtype and sends those within round-off of the image border
+    or the near plane to the float64 test: the counts equal the twin's exactly, on centres placed on the borders."""
+    gen = torch.Generator().manual_seed(3)
+    cams = [
+        Camera.look_at((0, 0, 3), (0, 0, 0), (0, 1, 0), 32, 24, math.radians(60)),
+        Camera.look_at((2.5, -1, 1), (0.2, 0, 0), (0, 0, 1), 17, 40, math.radians(35)),
+        Camera.look_at((-40, 3, 2), (0, 0, 0), (0, 1, 0), 64, 64, math.radians(90)),
+    ]
+    parts = [torch.rand(4000, 3, generator=gen, dtype=torch.float64) * 6 - 3]
+    for cam in cams:
+        w, h, n = cam.width, cam.height, 600
+        edge = torch.tensor([0.0, 1e-7, -1e-7, 1e-4, -1e-4, 0.5])
+        u = torch.cat([edge, w + edge, torch.rand(n - 12, generator=gen, dtype=torch.float64) * w])
+        v = torch.cat([torch.rand(12, generator=gen, dtype=torch.float64) * h, h * torch.rand(n - 12, generator=gen)])
+        v[12:300] = torch.cat([edge, h + edge]).repeat(24)[:288]
+        depth = torch.rand(n, generator=gen, dtype=torch.float64) * 5 + 0.1
+        depth[:50] = 0.2 + torch.linspace(-1e-6, 1e-6, 50, dtype=torch.float64)  # at the near plane
+        parts.append(_points_at_pixels(cam, torch.stack([u, v], -1).to(torch.float64), depth))
+    parts.append(torch.tensor([[1e4, -2e4, 3e3], [0.0, 0.0, -7.0]], dtype=torch.float64))
+    means = torch.cat(parts).to(dtype)
+    expected = scores.projected_counts_reference(means, cams)
+    assert expected.min() > 0 and expected.max() < means.shape[0]
+    for block, threads in ((None, 1), (333, 2), (7, 3)):
+        assert torch.equal(scores.projected_counts(means, cams, block=block, threads=threads), expected)
+    assert scores.projected_counts(means, cams, at_most=1).tolist() == [1, 1, 1]
+    capped = scores.projected_counts(means, cams, at_most=500, block=64)
+    assert torch.equal(capped, expected.clamp_max(500))
+    broken = means.clone()
+    broken[0, 0] = math.nan  # no bound holds: every centre takes the float64 test
+    assert torch.equal(scores.projected_counts(broken, cams), scores.projected_counts_reference(broken, cams))
+
+
 def test_unoccluded_hides_what_is_behind_the_surface():
     from recon.gaussians import GaussianSet
     from recon.render import render
@@ -371,13 +414,17 @@ def test_fast_path_equals_its_twin(dtype, occlusion, weighted):
         [scores.DepthBuffer(), scores.DepthBuffer(cell_radii=2.5, depth_bins=3, min_alpha=0.3)] if occlusion else [None]
     )
     for config in configs:
-        ref = scores.projected_view_scores_reference(metric, g, cams, weighted=weighted, depth_buffer=config, block=97)
+        ref = scores.projected_view_scores_reference(
+            metric, g, cams, weighted=weighted, depth_buffer=config, block=97, centres=True
+        )
         assert 0 < int(ref.counted.min()) and int(ref.counted.max()) <= g.num
+        assert torch.equal(ref.centres, scores.projected_counts_reference(g.means, cams))
         for threads in (1, 2, 3, 8):
             got = scores.projected_view_scores(
-                metric, g, cams, weighted=weighted, depth_buffer=config, block=97, threads=threads
+                metric, g, cams, weighted=weighted, depth_buffer=config, block=97, threads=threads, centres=True
             )
             assert got.counted.tolist() == ref.counted.tolist(), (config, threads)
+            assert torch.equal(got.centres, ref.centres), (config, threads)
             assert got.seen.dtype == torch.bool and torch.equal(got.seen, ref.seen)
             if config is None:
                 assert torch.equal(got.scores, ref.scores) and torch.equal(got.coverage, ref.coverage)
