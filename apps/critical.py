@@ -22,17 +22,15 @@ from .options import (
     add_gaussians_input,
     add_physics_arguments,
     add_visibility_arguments,
-    camera_file_from_args,
     check_output_file,
     check_visibility_arguments,
     load_gaussians_checked,
-    orbit_cameras_logged,
-    orbit_from_args,
     physics_config_from_args,
     warn_frame,
 )
+from .options.cameras import candidate_cameras_from_args, orbit_cameras_written
 from .options.common import add_output_option
-from .options.scoring import obtain_result, write_orbit_cameras
+from .options.scoring import obtain_result
 from .runtime import positive_int
 
 log = logging.getLogger("fluidgs")
@@ -68,8 +66,7 @@ def run_command(args: argparse.Namespace) -> int:
     check_visibility_arguments(args)
     if args.subset < 1:
         raise ValueError(f"--subset must be >= 1 view, got {args.subset}")
-    orbit = orbit_from_args(args, args.render_width)
-    file_cams = None if orbit is not None else camera_file_from_args(args)
+    orbit, file_cams = candidate_cameras_from_args(args, args.render_width)
     config = physics_config_from_args(args, track_distinct=True, default_directions=("-x",), cameras=file_cams)
     output = check_output_file(args.output, (".json",))
     orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
@@ -86,8 +83,10 @@ def run_command(args: argparse.Namespace) -> int:
     if result is not None:  # the result fixes the frame (up, crop) that the cameras use
         config = result.config
     warn_frame(config, file_cams, up_given=args.up is not None or args.result is not None)
-    all_cams = file_cams if orbit is None else orbit_cameras_logged(gaussians, config, orbit)
-    write_orbit_cameras(orbit_file, all_cams, "critical", args.cameras, orbit)
+    if orbit is None:
+        all_cams = file_cams
+    else:
+        all_cams = orbit_cameras_written(gaussians, config, orbit, orbit_file, "critical", args.cameras)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     check_cameras_see(gaussians, cams, [c.name for c in cams])

@@ -26,16 +26,9 @@ from pathlib import Path
 
 from fluidsim.files import write_json_atomic
 
-from .options import (
-    camera_file_from_args,
-    load_gaussians_checked,
-    orbit_cameras_logged,
-    orbit_from_args,
-    physics_config_from_args,
-    warn_frame,
-)
+from .options import load_gaussians_checked, physics_config_from_args, warn_frame
+from .options.cameras import candidate_cameras_from_args, orbit_cameras_written
 from .options.demo import CAMERAS, DEMO_FILES, DEMO_ORBIT, GAUSSIANS, add_demo_arguments, output_folder, run_mesh_demo
-from .options.scoring import write_orbit_cameras
 
 log = logging.getLogger("fluidgs")
 
@@ -65,18 +58,16 @@ def run_command(args: argparse.Namespace) -> int:
     gpath = args.gaussians or (GAUSSIANS if GAUSSIANS.is_file() else None)
     bundled = gpath is not None and Path(gpath).resolve() == GAUSSIANS.resolve()
     args = with_default_cameras(args, gpath, bundled)
-    orbit = orbit_from_args(args, args.render_width)
-    file_cams = None if orbit is not None else camera_file_from_args(args)
+    orbit, file_cams = candidate_cameras_from_args(args, args.render_width)
     cfg = physics_config_from_args(args, preset=QUICK, empty_reference=False, cameras=file_cams)
     gaussians, source = demo_gaussians(gpath, args)
     warn_frame(cfg, file_cams, up_given=args.up is not None or bundled)
+    cpath = None if orbit is None else Path(args.output) / "cameras.json"
     cams = (
         [c.scaled(args.render_width / c.width) for c in file_cams]
         if orbit is None
-        else orbit_cameras_logged(gaussians, cfg, orbit)
+        else orbit_cameras_written(gaussians, cfg, orbit, cpath, "demo", args.cameras)
     )
-    cpath = None if orbit is None else Path(args.output) / "cameras.json"
-    write_orbit_cameras(cpath, cams, "demo", args.cameras, orbit)
     cameras_label = str(args.cameras) if orbit is None else f"{args.cameras} ({cpath})"
     centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
     result = simulate_demo(gaussians, cfg, source, args, out)

@@ -86,6 +86,23 @@ def camera_file_from_args(args: argparse.Namespace):
     return load_camera_file(args.cameras, getattr(args, "res", None))
 
 
+def candidate_cameras_from_args(args: argparse.Namespace, width: int) -> tuple:
+    """``(orbit, file_cameras)`` of --cameras, checked before any work: the :class:`nbv.orbit.Orbit` of ``orbit:N``
+    and None (:func:`orbit_from_args`), or None and the cameras of the file (:func:`camera_file_from_args`)."""
+    orbit = orbit_from_args(args, width)
+    return orbit, (None if orbit is not None else camera_file_from_args(args))
+
+
+def orbit_cameras_written(gaussians, config, orbit, path, command: str, spec: str):
+    """:func:`orbit_cameras_logged`, also written to ``path`` as a transforms.json naming ``fluidgs command --cameras
+    spec`` (nothing written when ``path`` is None)."""
+    from .scoring import write_orbit_cameras
+
+    cams = orbit_cameras_logged(gaussians, config, orbit)
+    write_orbit_cameras(path, cams, command, spec, orbit)
+    return cams
+
+
 def orbit_cameras_logged(gaussians, config, orbit):
     """:func:`nbv.orbit.orbit_cameras`, with one log line saying what was built."""
     import logging
