@@ -12,6 +12,7 @@ every JSON file a user hands in (cameras, scenes, configs, transforms) with one 
 from __future__ import annotations
 
 import errno
+import itertools
 import json
 import os
 import stat
@@ -196,15 +197,12 @@ def check_distinct_outputs(outputs: Labelled) -> None:
     Raises:
         ValueError: naming both options and paths, and the fix.
     """
-    seen: list[tuple[str, Path]] = []
-    for label, out in _pairs(outputs):
-        for first_label, first in seen:
-            if same_file(out, first):
-                raise ValueError(
-                    f"{label} {out} is the same file as {first_label} {first}: one output would overwrite the "
-                    f"other; choose a different path for {label}"
-                )
-        seen.append((label, out))
+    for (first_label, first), (label, out) in itertools.combinations(_pairs(outputs), 2):
+        if same_file(out, first):
+            raise ValueError(
+                f"{label} {out} is the same file as {first_label} {first}: one output would overwrite the "
+                f"other; choose a different path for {label}"
+            )
 
 
 def check_not_input(outputs: Labelled, inputs: Labelled, replaced: Labelled | None = None) -> None:
