@@ -16,11 +16,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..options.common import add_json_option, add_up_option
+from ..options.common import add_gaussians_option, add_json_option, add_up_option
 from ..runtime import thread_count
 
 CASES = ("sphere", "ahmed")
-AHMED = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -37,9 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--dt", type=float, default=0.002, help="fixed time step of both engines, s (default: 0.002)")
     p.add_argument("--sphere-radius", type=float, default=0.5, help="the sphere case's radius, m (default: 0.5)")
-    p.add_argument(
-        "--gaussians", type=Path, default=AHMED, help="the ahmed case's Gaussians (default: assets/ahmed_gaussians.ply)"
-    )
+    add_gaussians_option(p, "the ahmed case's Gaussians (default: assets/ahmed_gaussians.ply)")
     p.add_argument(
         "--solid",
         type=Path,

@@ -24,16 +24,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ..options.common import add_json_option, add_probe_size_options, add_up_option
+from ..options.common import (
+    AHMED_GAUSSIANS,
+    add_gaussians_option,
+    add_json_option,
+    add_probe_size_options,
+    add_up_option,
+)
 from ..options.numbers import positive_number, step_list, tolerance_list
 from ..runtime import positive_int, thread_count
 
-ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
 STAGES = ("neighbors", "divergence_solve", "density_solve", "divergence_estimate", "forces")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--gaussians", type=Path, default=ASSET, help=f"Gaussian set (default: {ASSET.name})")
+    add_gaussians_option(p, f"Gaussian set (default: {AHMED_GAUSSIANS.name})")
     add_up_option(p, "the scene's up direction (COLMAP captures: -y)", alias=False)
     add_probe_size_options(
         p, "r in m (default: the --quick preset's)", "steps per probe (default: the --quick preset's)"

@@ -15,15 +15,20 @@ original's run, so that the peak memory is the dense set's alone; :func:`nbv.ben
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 
-from ..options.common import add_device_option, add_json_option, add_probe_size_options, add_up_option
+from ..options.common import (
+    AHMED_GAUSSIANS,
+    add_device_option,
+    add_gaussians_option,
+    add_json_option,
+    add_probe_size_options,
+    add_up_option,
+)
 from ..options.numbers import seed
 from ..runtime import positive_int, thread_count
 
-ASSET = Path(__file__).resolve().parents[2] / "assets" / "ahmed_gaussians.ply"
 # docs/results.md, "Convergence of D_g and of the view ranking": with the depth test, the candidate-view ranking
 # stops changing from 750 steps at every radius tried (0.05-0.025 m); shorter runs rank the physics part differently.
 CONVERGED_STEPS = 750
@@ -34,11 +39,10 @@ GPU_PROBE_TARGET_S = 7.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--gaussians",
-        type=Path,
+    add_gaussians_option(
+        p,
+        f"Gaussian set (default: {AHMED_GAUSSIANS.name} when present, else 4,000 Gaussians on the Ahmed body surface)",
         default=None,
-        help=f"Gaussian set (default: {ASSET.name} when present, else 4,000 Gaussians on the Ahmed body surface)",
     )
     p.add_argument("--paper", action="store_true", help="paper setting: r = 0.025 m, 750 steps (default: quick preset)")
     add_probe_size_options(
@@ -163,7 +167,7 @@ def run_command(args: argparse.Namespace) -> int:
         check_not_input({"--json": args.json}, {"--gaussians": args.gaussians})
     if args.densify_only and args.densify is None:
         raise ValueError("--densify-only needs --densify K")
-    path = args.gaussians or (ASSET if ASSET.is_file() else None)
+    path = args.gaussians or (AHMED_GAUSSIANS if AHMED_GAUSSIANS.is_file() else None)
     gaussians = load_gaussians_checked(path) if path is not None else ahmed_surface_gaussians()
     dense = None if args.densify is None else jittered_copies(gaussians, args.densify, args.jitter, args.seed)
     radius = args.particle_radius or (0.025 if args.paper else QUICK["particle_radius"])

@@ -33,11 +33,10 @@ from pathlib import Path
 
 from fluidsim.files import write_json_atomic
 
-from ..options.common import add_device_option, add_json_option
+from ..options.common import AHMED_CAMERAS, add_device_option, add_gaussians_option, add_json_option
 from ..options.numbers import camera_count, image_width, int_in, seed
 from ..runtime import thread_count
 
-ASSETS = Path(__file__).resolve().parents[2] / "assets"
 # targets for 200 cameras x 1M Gaussians, no PNGs, on a 2-core CPU: frustum culling, and the coarse depth test
 TARGET_S = 5.0
 TARGET_DEPTH_TEST_S = 15.0
@@ -46,16 +45,11 @@ MAX_COUNT = 10_000_000  # as bench render's sets: 10^11 asked torch for 800 GB a
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--gaussians",
-        type=Path,
-        default=ASSETS / "ahmed_gaussians.ply",
-        help="Gaussian set (default: the bundled asset)",
-    )
+    add_gaussians_option(p, "Gaussian set (default: the bundled asset)")
     p.add_argument(
         "--cameras",
         type=Path,
-        default=ASSETS / "ahmed_cameras.json",
+        default=AHMED_CAMERAS,
         help="candidate cameras of the ranking check (default: the bundled asset's)",
     )
     p.add_argument(

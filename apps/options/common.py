@@ -1,12 +1,15 @@
 """Options that many commands take with their own help text: the compute device, a figures JSON, the output,
 the scene's up direction, the probe's size and the executor of a study. Each is written once here; a command passes
-only what its help says differently."""
+only what its help says differently. The bundled assets' paths are here too, the default inputs of demo and bench."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+ASSETS = Path(__file__).resolve().parents[2] / "assets"  # the bundled files: the Ahmed body Gaussians and cameras
+AHMED_GAUSSIANS = ASSETS / "ahmed_gaussians.ply"
+AHMED_CAMERAS = ASSETS / "ahmed_cameras.json"
 DEVICES = ("cpu", "cuda")
 UP_HELP = (
     "the scene's up direction, rotated to simulation +y: +x, -x, +y, -y, +z, -z or a vector such as 0,-1,0 "
@@ -22,6 +25,11 @@ def add_device_option(p, help: str = "compute device; cuda falls back to cpu wit
 def add_json_option(p, help: str = "also write the figures to this JSON file", type=Path) -> None:
     """--json: the file a benchmark or a check also writes its figures to (default: none)."""
     p.add_argument("--json", type=type, default=None, help=help)
+
+
+def add_gaussians_option(p, help: str, default: Path | None = AHMED_GAUSSIANS) -> None:
+    """--gaussians: the Gaussian set a benchmark runs on (default: the bundled Ahmed body Gaussians)."""
+    p.add_argument("--gaussians", type=Path, default=default, help=help)
 
 
 def add_output_option(p, help: str, default: Path | None = None) -> None:

@@ -11,17 +11,16 @@ from fluidsim.directions import DIRECTIONS
 from fluidsim.files import write_json_atomic
 
 from .cameras import CAMERAS_HELP, add_orbit_arguments
-from .common import add_output_option
+from .common import AHMED_CAMERAS as CAMERAS
+from .common import AHMED_GAUSSIANS as GAUSSIANS
+from .common import ASSETS, add_output_option
 from .fields import add_config_options
 from .files import add_gaussian_file_arguments, check_output_folder
 from .groups import add_frame_arguments, add_runtime_arguments
 from .numbers import image_width
 
 MESH_RADIUS, MESH_STEPS = 0.04, 200  # the mesh demo (--solid): particle radius r in m, steps per probe
-ASSETS = Path(__file__).resolve().parents[2] / "assets"
 ASSET = ASSETS / "torus.obj"
-GAUSSIANS = ASSETS / "ahmed_gaussians.ply"
-CAMERAS = ASSETS / "ahmed_cameras.json"
 DEMO_ORBIT = 12  # cameras of the orbit scored on Gaussians other than the bundled ones
 
 
