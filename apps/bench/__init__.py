@@ -20,22 +20,22 @@ import importlib
 
 from ..help_format import HelpFormatter
 
-# name -> (module, help). Modules are imported when the parser is built.
+# name -> help; the benchmark is the module of that name in this package, imported when the parser is built.
 BENCHMARKS = {
-    "sim": ("apps.bench.sim", "the paper-scale DFSPH probe (and SPlisHSPlasH when installed)"),
-    "score": ("apps.bench.score", "probes on Gaussians: simulation vs aggregation time, quick five-probe total"),
-    "render": ("apps.bench.render", "forward + backward time of the torch 3DGS rasterizer (5k@100x100, 20k@200x200)"),
-    "views": ("apps.bench.views", "view scores without renders: 200 cameras x 1M Gaussians; ranking vs full renders"),
-    "hole": ("apps.bench.hole", "a hole punched in a capture's surface: solid points removed, rim D_g holed / intact"),
-    "forces": ("apps.bench.forces", "time-mean drag on a sphere and the Ahmed body: this engine vs SPlisHSPlasH"),
-    "probes": ("apps.bench.probes", "one probe run profiled per probe and stage; stop rules judged against it"),
+    "sim": "the paper-scale DFSPH probe (and SPlisHSPlasH when installed)",
+    "score": "probes on Gaussians: simulation vs aggregation time, quick five-probe total",
+    "render": "forward + backward time of the torch 3DGS rasterizer (5k@100x100, 20k@200x200)",
+    "views": "view scores without renders: 200 cameras x 1M Gaussians; ranking vs full renders",
+    "hole": "a hole punched in a capture's surface: solid points removed, rim D_g holed / intact",
+    "forces": "time-mean drag on a sphere and the Ahmed body: this engine vs SPlisHSPlasH",
+    "probes": "one probe run profiled per probe and stage; stop rules judged against it",
 }
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
-    for name, (module_name, help_text) in BENCHMARKS.items():
-        module = importlib.import_module(module_name)
+    for name, help_text in BENCHMARKS.items():
+        module = importlib.import_module(f"{__name__}.{name}")
         q = sub.add_parser(
             name,
             help=help_text,
