@@ -145,14 +145,15 @@ def _assign(
     cell_ids: ti.template(),
     ranks: ti.template(),
     counts: ti.template(),
-    clear: ti.template(),
-    ranked: ti.template() = True,
+    ranked: ti.template(),
 ):
-    """Cell of each particle and, with ``ranked``, its (atomic) rank within the cell."""
+    """Counting-sort pass 1: the cell of each particle and, with ``ranked``, its (atomic) rank within the cell.
+
+    Particles outside ``[box_min, box_max]`` (the simulation domain) go to the retired bucket ``num_cells``; they are
+    counted by the caller and never clamped into the grid. The counts are zero on entry (the previous sort's scan
+    consumed them).
+    """
     num_cells = dims[0] * dims[1] * dims[2]
-    if ti.static(clear):  # else the counts are zero already (the previous sort's scan consumed them)
-        for c in range(num_cells + 1):
-            counts[c] = 0
     for i in range(n):
         x = ti.cast(xs[i], ti.f64)
         cell = num_cells
@@ -167,27 +168,6 @@ def _assign(
         cell_ids[i] = cell
         if ti.static(ranked):
             ranks[i] = ti.atomic_add(counts[cell], 1)
-
-
-@ti.kernel
-def assign_cells(
-    xs: ti.types.ndarray(ndim=1),
-    n: ti.i32,
-    origin: ti.types.vector(3, ti.f64),
-    inv_cell: ti.types.vector(3, ti.f64),
-    dims: ivec3,
-    box_min: ti.types.vector(3, ti.f64),
-    box_max: ti.types.vector(3, ti.f64),
-    cell_ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    ranks: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-):
-    """Counting-sort pass 1: cell of each particle and its rank within the cell.
-
-    Particles outside ``[box_min, box_max]`` (the simulation domain) go to the retired bucket
-    ``num_cells``; they are counted by the caller and never clamped into the grid.
-    """
-    _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, True)
 
 
 @ti.func
@@ -219,27 +199,6 @@ def exclusive_scan(counts: ti.template(), starts: ti.template(), m: ti.i32, bloc
     starts[m] = total
 
 
-@ti.kernel
-def sort_by_cell(
-    n: ti.i32,
-    capacity: ti.i32,
-    num_buckets: ti.i32,
-    cell_ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    ranks: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    counts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    block_sums: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    order: ti.types.ndarray(dtype=ti.i32, ndim=1),
-) -> ti.i32:
-    """Counting-sort passes 2 and 3: prefix sum of the bucket counts, then the stable permutation.
-
-    ``order[k]`` is the old index of the particle that goes to slot ``k`` (identity for the slots
-    ``n <= k < capacity`` of particles retired earlier). ``starts[c]`` is the first slot of bucket
-    ``c``; the last bucket holds the particles retired now. Returns the number kept, ``starts[-2]``.
-    """
-    return _sort(n, capacity, num_buckets, cell_ids, ranks, counts, starts, block_sums, order)
-
-
 @ti.func
 def _sort(
     n,
@@ -252,6 +211,12 @@ def _sort(
     block_sums: ti.template(),
     order: ti.template(),
 ):
+    """Counting-sort passes 2 and 3: prefix sum of the bucket counts, then the stable permutation.
+
+    ``order[k]`` is the old index of the particle that goes to slot ``k`` (identity for the slots ``n <= k <
+    capacity`` of particles retired earlier). ``starts[c]`` is the first slot of bucket ``c``; the last bucket holds
+    the particles retired now. Returns the number kept, ``starts[-2]``.
+    """
     exclusive_scan(counts, starts, num_buckets, block_sums)
     for i in range(capacity):  # slots of particles retired earlier keep the identity
         if i < n:
@@ -329,17 +294,17 @@ def counting_sort(
     serial: ti.template(),
 ) -> ti.i32:
     """The counting sort in one launch (a launch costs tens of microseconds of thread-pool wake-up): with
-    ``serial`` = False, :func:`assign_cells` then :func:`sort_by_cell` (the GPU path); with ``serial`` = True (the
-    CPU path), the parallel assignment then :func:`_sort_serial`; the same permutation and starts either way.
+    ``serial`` = False, :func:`_assign` with atomic ranks then :func:`_sort` (the GPU path); with ``serial`` = True
+    (the CPU path), the parallel assignment then :func:`_sort_serial`; the same permutation and starts either way.
     Returns the number of particles kept. ``counts`` must be zero on entry (fill it once when allocated): the
     prefix sum leaves it zero, so no pass clears it."""
     num_buckets = dims[0] * dims[1] * dims[2] + 1
     kept = 0
     if ti.static(serial):
-        _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, False, False)
+        _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, False)
         kept = _sort_serial(n, capacity, num_buckets, cell_ids, ranks, counts, starts, order)
     else:
-        _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, False)
+        _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, True)
         kept = _sort(n, capacity, num_buckets, cell_ids, ranks, counts, starts, block_sums, order)
     return kept
 

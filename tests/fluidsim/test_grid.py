@@ -19,7 +19,7 @@ def _to_nd(a, dtype=ti.f32):
     return arr
 
 
-def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=None, serial=False):
+def _sorted_on_grid(points, spec, box_min, box_max, capacity=None, serial=False):
     n = len(points)
     capacity = n if capacity is None else capacity
     x = _to_nd(points)
@@ -39,15 +39,11 @@ def _sorted_on_grid(points, spec, box_min, box_max, one_launch=False, capacity=N
         counts,
     )
     blocks = ti.ndarray(ti.i32, shape=grid.SCAN_BLOCKS)
-    counts.fill(0)  # both sorts count into it from zero (their contract: zero on entry)
-    if one_launch:
-        kept = grid.counting_sort(x, n, capacity, *args, starts, blocks, order, serial)
-        assert not counts.to_numpy().any()  # consumed: ready for the next sort, which clears nothing
-        again = grid.counting_sort(x, n, capacity, *args, starts, blocks, order, serial)
-        assert again == kept and not counts.to_numpy().any()
-    else:
-        grid.assign_cells(x, n, *args)
-        kept = grid.sort_by_cell(n, capacity, spec.num_cells + 1, cell_ids, ranks, counts, starts, blocks, order)
+    counts.fill(0)  # the sort counts into it from zero (its contract: zero on entry)
+    kept = grid.counting_sort(x, n, capacity, *args, starts, blocks, order, serial)
+    assert not counts.to_numpy().any()  # consumed: ready for the next sort, which clears nothing
+    again = grid.counting_sort(x, n, capacity, *args, starts, blocks, order, serial)
+    assert again == kept and not counts.to_numpy().any()
     return int(kept), order.to_numpy(), starts.to_numpy(), cell_ids.to_numpy()
 
 
@@ -64,18 +60,18 @@ def test_counting_sort_is_a_stable_sort_by_cell(z_split):
     np.testing.assert_array_equal(order[:kept], expected[:kept])
     np.testing.assert_array_equal(np.diff(starts) >= 0, True)
     assert starts[-1] == len(pts)
-    # the one-launch sorts (GPU path; CPU path with its serial ranks, scan and scatter) give the same
-    # permutation of the kept particles and the same starts (slots past n: identity); the particles retired now
-    # are the same, in an order that depends on thread timing in the parallel sorts (nothing reads it)
-    two = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], capacity=3000)
-    for serial in (False, True):
-        one = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], one_launch=True, capacity=3000, serial=serial)
-        kept2 = one[0]
-        assert kept2 == two[0] and 0 < kept2 < 2900
-        np.testing.assert_array_equal(one[1][:kept2], two[1][:kept2])
-        np.testing.assert_array_equal(np.sort(one[1][kept2:2900]), np.sort(two[1][kept2:2900]))
-        np.testing.assert_array_equal(one[2], two[2])
-        np.testing.assert_array_equal(one[3], two[3])
+    # the CPU path (serial ranks, scan and scatter) gives the GPU path's permutation of the kept particles and its
+    # starts (slots past n: identity); the particles retired now are the same, in an order that depends on thread
+    # timing in the parallel sort (nothing reads it)
+    gpu = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], capacity=3000)
+    cpu = _sorted_on_grid(pts[:2900], spec, [0, 0, 0], [1, 0.7, 0.5], capacity=3000, serial=True)
+    kept2 = cpu[0]
+    assert kept2 == gpu[0] and 0 < kept2 < 2900
+    np.testing.assert_array_equal(cpu[1][:kept2], gpu[1][:kept2])
+    np.testing.assert_array_equal(np.sort(cpu[1][kept2:2900]), np.sort(gpu[1][kept2:2900]))
+    np.testing.assert_array_equal(cpu[2], gpu[2])
+    np.testing.assert_array_equal(cpu[3], gpu[3])
+    for one in (cpu, gpu):
         np.testing.assert_array_equal(one[1][2900:], np.arange(2900, 3000))
     assert grid.serial_sort()  # the tests run on a CPU backend
 
