@@ -57,8 +57,11 @@ def estimate_memory(frame: RunFrame, plan: ProbePlan | None = None) -> dict[str,
     the replicas run one after another, so the peak of one probe does not grow with them.
 
     Returns:
-        dict: lattice_points, fluid_particles (largest probe), boundary_particles, and the bytes (floats):
-        resident_bytes, replica_bytes, solidify_bytes, probe_bytes, accumulator_bytes and their total ``bytes``.
+        dict: lattice_points, fluid_particles (largest probe), boundary_particles, and the bytes (floats): the
+        Gaussian set and the per-Gaussian arrays held all run (``resident_bytes``), the replicas' arrays
+        (``replica_bytes``, 0 for one run), the solidification's peak (``solidify_bytes``), one probe's solver
+        (``probe_bytes``) and its accumulator (``accumulator_bytes``), and ``bytes`` = resident + replicas + the
+        larger of the two phases.
     Example:
         >>> estimate_memory(RunFrame.of(gaussians, PhysicsConfig.quick()))["bytes"]  # doctest: +SKIP
     """
@@ -73,28 +76,17 @@ def estimate_memory(frame: RunFrame, plan: ProbePlan | None = None) -> dict[str,
         area = 2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2])
         walls = area * probe.wall_layers / spacing**2
         fluid, boundary = max(fluid, int(f)), max(boundary, int(walls) + plan.solid_count)
-    lattice = int(frame.lattice.points)
-    return {
-        "lattice_points": lattice,
-        "fluid_particles": fluid,
-        "boundary_particles": boundary,
-        **_memory_parts(frame.sim.gaussians, config, lattice, fluid, boundary),
-    }
-
-
-def _memory_parts(gaussians, config: PhysicsConfig, lattice: int, fluid: int, boundary: int) -> dict[str, float]:
-    """The bytes of :func:`estimate_memory`: the Gaussian set and the per-Gaussian arrays held all run
-    (``resident_bytes``), the replicas' arrays (``replica_bytes``, 0 for one run), the solidification's peak
-    (``solidify_bytes``), one probe's solver (``probe_bytes``) and its accumulator (``accumulator_bytes``), and
-    ``bytes`` = resident + replicas + the larger of the two phases."""
+    lattice, gaussians = int(frame.lattice.points), frame.sim.gaussians
     g = int(gaussians.num)
     tensors = (gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh)
     resident = sum(t.numel() * t.element_size() for t in tensors) + g * (
         BYTES_PER_GAUSSIAN_RUN + BYTES_PER_GAUSSIAN_PROBE * len(config.directions)
     )
-    replicas = replica_bytes(g, config)
+    # each replica's result is held until they are combined (nbv.physics.replicas); one run keeps none
+    per_replica = BYTES_PER_GAUSSIAN_REPLICA + BYTES_PER_GAUSSIAN_REPLICA_PROBE * len(config.directions)
+    replicas = 0.0 if config.replicas == 1 else float(config.replicas) * float(g) * per_replica
     solidify = estimate_solidify_bytes(g, lattice)
-    probe = fluid * BYTES_PER_FLUID + boundary * BYTES_PER_BOUNDARY + lattice * BYTES_PER_LATTICE_POINT
+    probe_bytes = fluid * BYTES_PER_FLUID + boundary * BYTES_PER_BOUNDARY + lattice * BYTES_PER_LATTICE_POINT
     radii = gaussians.log_scales.detach().max(dim=1).values.double().exp().cpu().numpy()  # ratios: scale-free
     accumulator = GaussianAccumulator.estimate_bytes(
         g,
@@ -104,21 +96,16 @@ def _memory_parts(gaussians, config: PhysicsConfig, lattice: int, fluid: int, bo
         num_levels=reach_classes(radii),
     )
     return {
+        "lattice_points": lattice,
+        "fluid_particles": fluid,
+        "boundary_particles": boundary,
         "resident_bytes": float(resident),
         "replica_bytes": float(replicas),
         "solidify_bytes": float(solidify),
-        "probe_bytes": float(probe),
+        "probe_bytes": float(probe_bytes),
         "accumulator_bytes": float(accumulator),
-        "bytes": float(resident + replicas + max(solidify, probe + accumulator)),
+        "bytes": float(resident + replicas + max(solidify, probe_bytes + accumulator)),
     }
-
-
-def replica_bytes(num_gaussians: int, config: PhysicsConfig) -> float:
-    """Bytes the replicas of a run keep per Gaussian (:mod:`nbv.physics.replicas`): 0 for one run."""
-    if config.replicas == 1:
-        return 0.0
-    per_replica = BYTES_PER_GAUSSIAN_REPLICA + BYTES_PER_GAUSSIAN_REPLICA_PROBE * len(config.directions)
-    return float(config.replicas) * float(num_gaussians) * per_replica
 
 
 def check_memory_bound(frame: RunFrame) -> bool:
@@ -137,7 +124,7 @@ def check_memory_bound(frame: RunFrame) -> bool:
     cheap = estimate_memory(frame)
     exact = cheap["bytes"] > memory_limit_bytes(config)
     if exact and (
-        cheap["lattice_points"] > config.solidify_config().max_points
+        cheap["lattice_points"] > frame.solid_config.max_points
         or cheap["resident_bytes"] + cheap["replica_bytes"] + cheap["solidify_bytes"] > memory_limit_bytes(config)
     ):
         _refuse_over_limit(frame, cheap)  # the solid is too costly: raise

@@ -36,6 +36,7 @@ from nbv.physics.lattice import Lattice
 from nbv.physics.result import PhysicsResult, gaussians_sha256
 from nbv.physics.scene_frame import SceneTransform, SimGaussians, gaussian_arrays_in_sim
 from nbv.physics.solidify import SolidLattice, solid_on_lattice
+from nbv.physics.solidify_config import SolidifyConfig
 
 if TYPE_CHECKING:
     from nbv.physics.trajectory import RecordConfig
@@ -53,7 +54,8 @@ class RunFrame:
         sim: the simulated Gaussians (the kept ones) in simulation metres.
         reach: [K] float64 n r_g of the simulated Gaussians, m (Eq. 2).
         digest: SHA-256 of every Gaussian (:func:`nbv.physics.result.gaussians_sha256`).
-        lattice: the solid's lattice under ``config.solidify_config()`` (unshifted), sized once.
+        solid_config: ``config.solidify_config()``, how the Gaussians become solid (unshifted).
+        lattice: the solid's lattice under ``solid_config``, sized once.
     """
 
     config: PhysicsConfig
@@ -63,6 +65,7 @@ class RunFrame:
     sim: SimGaussians
     reach: np.ndarray
     digest: str
+    solid_config: SolidifyConfig
     lattice: Lattice
 
     @classmethod
@@ -79,8 +82,9 @@ class RunFrame:
         simulated = gaussians if kept is None else gaussians.subset(torch.from_numpy(np.nonzero(kept)[0]))
         sim = SimGaussians.of(simulated, transform)
         reach = config.reach(sim.radii)
-        lattice = Lattice.of(sim.means, sim.covariances, sim.opacities, config.solidify_config())
-        return cls(config, gaussians, transform, kept, sim, reach, gaussians_sha256(gaussians), lattice)
+        scfg = config.solidify_config()
+        lattice = Lattice.of(sim.means, sim.covariances, sim.opacities, scfg)
+        return cls(config, gaussians, transform, kept, sim, reach, gaussians_sha256(gaussians), scfg, lattice)
 
     @property
     def means(self) -> np.ndarray:
@@ -94,10 +98,10 @@ class RunFrame:
 
     def solidify(self, lattice_offset: tuple[float, float, float] | None = None) -> SolidLattice:
         """The solid of the simulated Gaussians (:func:`nbv.physics.solidify.gaussians_to_solid` under
-        ``config.solidify_config()``, on :attr:`lattice`; ``lattice_offset``: the lattice shifted by these fractions
+        :attr:`solid_config`, on :attr:`lattice`; ``lattice_offset``: the lattice shifted by these fractions
         of the spacing, as a replica of the run is, :mod:`nbv.physics.replicas`)."""
-        scfg = self.config.solidify_config(
-            **({} if lattice_offset is None else {"lattice_offset": tuple(lattice_offset)})
+        scfg = (
+            self.solid_config if lattice_offset is None else replace(self.solid_config, lattice_offset=lattice_offset)
         )
         return solid_on_lattice(self.sim, self.lattice.shifted(scfg.lattice_offset), scfg, self.transform)
 

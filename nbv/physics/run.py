@@ -75,23 +75,6 @@ def probe_warnings(direction: str, counts: np.ndarray, history: list[StepStats])
     return out
 
 
-def _run_with(
-    recorder: ProbeRecorder, solid: np.ndarray, plan: ProbePlan, config: PhysicsConfig, scfg: SolverConfig
-) -> dict[str, list[StepStats]]:
-    return run_probes(
-        solid,
-        scfg,
-        config.probe_config(),
-        config.steps,
-        on_step=recorder.step,
-        on_probe_start=recorder.start,
-        on_probe_end=recorder.end,
-        progress=lambda d, st: recorder.tick(st),
-        setups=plan.setups,
-        stop=early_stop(recorder, config),
-    )
-
-
 def early_stop(recorder: ProbeRecorder, config: PhysicsConfig):
     """The stop predicate of the probes (``config.stop_tolerance``, :mod:`nbv.physics.early_stop`: a probe stops once
     its running D_g^(IC) has converged; None when off). A stopped probe moves the run's bar past its unrun steps."""
@@ -276,7 +259,18 @@ def _probe(
         }
 
     try:
-        _run_with(recorder, solid.points, plan, config, scfg)
+        run_probes(
+            solid.points,
+            scfg,
+            config.probe_config(),
+            config.steps,
+            on_step=recorder.step,
+            on_probe_start=recorder.start,
+            on_probe_end=recorder.end,
+            progress=lambda d, st: recorder.tick(st),
+            setups=plan.setups,
+            stop=early_stop(recorder, config),
+        )
     except SimulationDiverged as exc:  # keep the probes completed before it, say which one diverged where
         done = tuple(d for d in config.directions if d in recorder.histories)
         recorder.stop()

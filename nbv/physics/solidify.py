@@ -298,14 +298,25 @@ def gaussians_to_solid(
     """
     sim = as_sim(gaussians, transform)
     lattice = Lattice.of(sim.means, sim.covariances, sim.opacities, config)
-    return solid_on_lattice(sim, lattice, config, transform, cameras=cameras, depths=depths)
+    lattice_min, occupancy, counts = _occupancy(sim, lattice, config, transform)
+    if cameras is not None:
+        occupancy, counts["carved"] = _carve(occupancy, sim, lattice_min, config, transform, cameras, depths)
+    return _solid_lattice(lattice_min, occupancy, counts, config, transform, sim.num)
 
 
 def solid_on_lattice(
-    sim: SimGaussians, lattice: Lattice, config: SolidifyConfig, transform: SceneTransform, *, cameras=None, depths=None
+    sim: SimGaussians, lattice: Lattice, config: SolidifyConfig, transform: SceneTransform
 ) -> SolidLattice:
-    """:func:`gaussians_to_solid` on a lattice already sized for ``sim`` under ``config`` (a run's, laid out once:
-    :attr:`nbv.physics.plan.RunFrame.lattice`)."""
+    """:func:`gaussians_to_solid` (with no carving) on a lattice already sized for ``sim`` under ``config`` (a run's,
+    sized once: :attr:`nbv.physics.plan.RunFrame.lattice`)."""
+    return _solid_lattice(*_occupancy(sim, lattice, config, transform), config, transform, sim.num)
+
+
+def _occupancy(
+    sim: SimGaussians, lattice: Lattice, config: SolidifyConfig, transform: SceneTransform
+) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """Tests 1-3 and the specks on ``lattice`` (its guards first): lattice_min [3] m, occupancy [X, Y, Z] bool, and
+    the lattice points per test (``carved`` 0)."""
     means, covs, opacities = sim.means, sim.covariances, sim.opacities
     lattice_min, dims, _ = checked_lattice(lattice, means, covs, config, transform, opacities)
     inv_covs = sim.inverse_covariances()
@@ -325,11 +336,21 @@ def solid_on_lattice(
         specks = speck_points(occupancy, means, opacities, lattice_min, config.spacing, config.opacity_threshold)
         counts["specks"] = int(specks.sum())
         occupancy |= specks
-    if cameras is not None:
-        occupancy, counts["carved"] = _carve(occupancy, sim, lattice_min, config, transform, cameras, depths)
+    return lattice_min, occupancy, counts
+
+
+def _solid_lattice(
+    lattice_min: np.ndarray,
+    occupancy: np.ndarray,
+    counts: dict[str, int],
+    config: SolidifyConfig,
+    transform: SceneTransform,
+    num_gaussians: int,
+) -> SolidLattice:
+    """The solid points of ``occupancy`` (ValueError when too few for ``num_gaussians`` Gaussians), logged."""
     count = int(occupancy.sum())
     counts["total"] = count
-    _check_enough_points(count, sim.num, config, transform)
+    _check_enough_points(count, num_gaussians, config, transform)
     points = lattice_min + config.spacing * np.argwhere(occupancy).astype(np.float64)
     log.info(
         "solid: %d of %d lattice points (%s at %.4g m): %s",
