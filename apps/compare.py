@@ -57,7 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.files import atomic_output, check_not_input
+    from fluidsim.files import atomic_output, check_input_file, check_not_input
     from nbv.functional import (
         DEFAULT_DIRECTIONS,
         FlowCache,
@@ -82,8 +82,7 @@ def run_command(args: argparse.Namespace) -> int:
         {"-o": args.output, "--plot": plot}, {**inputs, "--reference-transform": matrix_file(args.reference_transform)}
     )
     for name, path in inputs.items():
-        if not path.exists():
-            raise ValueError(f"{name} {path} does not exist; pass a mesh, a Gaussian file or a RESULT.h5")
+        check_input_file(path, name, "pass a mesh, a Gaussian file or a RESULT.h5", folder_ok=True)
 
     def load(path):
         return load_gaussians_checked(path, args)
