@@ -210,14 +210,33 @@ def _sort(
     starts: ti.template(),
     block_sums: ti.template(),
     order: ti.template(),
+    serial: ti.template(),
 ):
     """Counting-sort passes 2 and 3: prefix sum of the bucket counts, then the stable permutation.
 
     ``order[k]`` is the old index of the particle that goes to slot ``k`` (identity for the slots ``n <= k <
     capacity`` of particles retired earlier). ``starts[c]`` is the first slot of bucket ``c``; the last bucket holds
-    the particles retired now. Returns the number kept, ``starts[-2]``.
+    the particles retired now. Returns the number kept, ``starts[-2]``. With ``serial`` (the CPU) it runs on the
+    launching thread (no thread-pool wake-up): ranks counted in particle order, which are stable as they are, and a
+    serial prefix sum; else the atomic ranks of :func:`_assign` and the parallel :func:`exclusive_scan`, and each
+    cell's slots ordered afterwards. The prefix sum leaves the counts zero.
     """
-    exclusive_scan(counts, starts, num_buckets, block_sums)
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for i in range(n):
+            c = cell_ids[i]
+            ranks[i] = counts[c]
+            counts[c] += 1
+        total = 0
+        ti.loop_config(serialize=True)
+        for c in range(num_buckets):
+            starts[c] = total
+            total += counts[c]
+            counts[c] = 0
+        starts[num_buckets] = total
+    else:
+        exclusive_scan(counts, starts, num_buckets, block_sums)
+    ti.loop_config(serialize=serial)
     for i in range(capacity):  # slots of particles retired earlier keep the identity
         if i < n:
             order[starts[cell_ids[i]] + ranks[i]] = i
@@ -226,52 +245,19 @@ def _sort(
     # Atomic ranks depend on thread timing; sorting each (small) cell by old index makes the
     # permutation stable and deterministic. The retired bucket is left as it is: nothing reads it
     # in slot order.
-    for c in range(num_buckets - 1):
-        lo = starts[c]
-        hi = starts[c + 1]
-        for k in range(lo + 1, hi):
-            v = order[k]
-            j = k - 1
-            while j >= lo:  # Taichi's `and` does not short-circuit: test the bound first
-                if order[j] <= v:
-                    break
-                order[j + 1] = order[j]
-                j -= 1
-            order[j + 1] = v
-    return starts[num_buckets - 1]
-
-
-@ti.func
-def _sort_serial(
-    n,
-    capacity,
-    num_buckets,
-    cell_ids: ti.template(),
-    ranks: ti.template(),
-    counts: ti.template(),
-    starts: ti.template(),
-    order: ti.template(),
-):
-    """The CPU sort after the parallel cell assignment, on the launching thread (no thread-pool wake-up):
-    stable ranks in particle order, the exclusive prefix sum (leaving the counts zero) and the scatter."""
-    ti.loop_config(serialize=True)
-    for i in range(n):
-        c = cell_ids[i]
-        ranks[i] = counts[c]
-        counts[c] += 1
-    total = 0
-    ti.loop_config(serialize=True)
-    for c in range(num_buckets):
-        starts[c] = total
-        total += counts[c]
-        counts[c] = 0
-    starts[num_buckets] = total
-    ti.loop_config(serialize=True)
-    for i in range(capacity):  # slots of particles retired earlier keep the identity
-        if i < n:
-            order[starts[cell_ids[i]] + ranks[i]] = i
-        else:
-            order[i] = i
+    if ti.static(not serial):
+        for c in range(num_buckets - 1):
+            lo = starts[c]
+            hi = starts[c + 1]
+            for k in range(lo + 1, hi):
+                v = order[k]
+                j = k - 1
+                while j >= lo:  # Taichi's `and` does not short-circuit: test the bound first
+                    if order[j] <= v:
+                        break
+                    order[j + 1] = order[j]
+                    j -= 1
+                order[j + 1] = v
     return starts[num_buckets - 1]
 
 
@@ -293,20 +279,14 @@ def counting_sort(
     order: ti.types.ndarray(dtype=ti.i32, ndim=1),
     serial: ti.template(),
 ) -> ti.i32:
-    """The counting sort in one launch (a launch costs tens of microseconds of thread-pool wake-up): with
-    ``serial`` = False, :func:`_assign` with atomic ranks then :func:`_sort` (the GPU path); with ``serial`` = True
-    (the CPU path), the parallel assignment then :func:`_sort_serial`; the same permutation and starts either way.
-    Returns the number of particles kept. ``counts`` must be zero on entry (fill it once when allocated): the
-    prefix sum leaves it zero, so no pass clears it."""
+    """The counting sort in one launch (a launch costs tens of microseconds of thread-pool wake-up): the parallel
+    cell assignment (:func:`_assign`, with atomic ranks unless ``serial``) then :func:`_sort`, serial on the CPU
+    (``serial`` = True) and parallel on the GPU; the same permutation and starts either way. Returns the number of
+    particles kept. ``counts`` must be zero on entry (fill it once when allocated): the prefix sum leaves it zero, so
+    no pass clears it."""
     num_buckets = dims[0] * dims[1] * dims[2] + 1
-    kept = 0
-    if ti.static(serial):
-        _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, False)
-        kept = _sort_serial(n, capacity, num_buckets, cell_ids, ranks, counts, starts, order)
-    else:
-        _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, True)
-        kept = _sort(n, capacity, num_buckets, cell_ids, ranks, counts, starts, block_sums, order)
-    return kept
+    _assign(xs, n, origin, inv_cell, dims, box_min, box_max, cell_ids, ranks, counts, not serial)
+    return _sort(n, capacity, num_buckets, cell_ids, ranks, counts, starts, block_sums, order, serial)
 
 
 def serial_sort() -> bool:
