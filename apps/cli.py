@@ -6,6 +6,7 @@ The exit codes, and the exceptions that give them, are in :mod:`apps.exit_codes`
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import signal
 import sys
@@ -19,64 +20,41 @@ from .exit_codes import (
     interrupted_import,
     run_module,
 )
+from .help_format import HelpFormatter
+from .options.argv import join_dash_tokens, non_utf8_argument
 from .progress_log import line_progress
 from .signals import STOP_SIGNALS, exit_after_commands, stop_signals
 
-try:  # the subcommands import torch and Taichi: a Ctrl-C while they load gets one line too, not a traceback
-    from . import (
-        active,
-        bench,
-        cameras,
-        compare,
-        critical,
-        demo,
-        evaluate,
-        experiment,
-        export,
-        inspect_gaussians,
-        make_ahmed,
-        make_assets,
-        render_dataset,
-        render_frames,
-        score,
-        sim,
-        simulate,
-        study,
-        sweep,
-        train,
-        view,
-    )
-except KeyboardInterrupt:
-    sys.stderr.write("ERROR fluidgs: interrupted\n")
-    raise SystemExit(EXIT_INTERRUPTED) from None
-from .help_format import HelpFormatter  # noqa: E402 (after the guarded imports above)
-from .options.argv import join_dash_tokens, non_utf8_argument  # noqa: E402 (after the guarded imports above)
-
+# name -> (module of apps, help). A command's module (torch, Taichi, viz...) is imported only when its parser is
+# built: `fluidgs score` loads score's, not the viewer's or the trainer's
 COMMANDS = {
-    "inspect": (inspect_gaussians, "what the fluid will see: format, boxes, frame, solid count; PNG of three views"),
-    "sim": (sim, "run a scene JSON and write OUT.h5 (frames, per-step stats, divergence)"),
-    "render-frames": (render_frames, "draw the frames of OUT.h5 as an MP4 or PNGs, coloured by divergence or speed"),
-    "bench": (bench, "benchmarks: sim (DFSPH probe vs SPlisHSPlasH), and the others listed by `bench --help`"),
-    "demo": (demo, "the main job on the bundled Ahmed Gaussians: five quick probes, D_g, view scores, PNGs, video"),
-    "render-dataset": (render_dataset, "render an .obj/.stl/.ply mesh into a Blender-format dataset"),
-    "train": (train, "train 3D Gaussians on a dataset: OUT.ply plus OUT.json (config, timings, test PSNR/SSIM)"),
-    "make-assets": (make_assets, "regenerate the bundled trained Ahmed-body Gaussians and candidate cameras"),
-    "simulate": (simulate, "five probes against a Gaussian set: per-Gaussian D_g, D-bar -> RESULT.h5, coloured .ply"),
-    "score": (score, "rank candidate cameras by the view score S(T) of D_g (paper Eq. 4-5); JSON, table, PNGs"),
-    "sweep": (sweep, "D-bar against inflow speed U and Reynolds number (CFL-constant dt): CSV and PNG plot"),
-    "cameras": (cameras, "candidate cameras for a capture without any: rings around the object -> transforms.json"),
+    "inspect": ("inspect_gaussians", "what the fluid will see: format, boxes, frame, solid count; PNG of three views"),
+    "sim": ("sim", "run a scene JSON and write OUT.h5 (frames, per-step stats, divergence)"),
+    "render-frames": ("render_frames", "draw the frames of OUT.h5 as an MP4 or PNGs, coloured by divergence or speed"),
+    "bench": ("bench", "benchmarks: sim (DFSPH probe vs SPlisHSPlasH), and the others listed by `bench --help`"),
+    "demo": ("demo", "the main job on the bundled Ahmed Gaussians: five quick probes, D_g, view scores, PNGs, video"),
+    "render-dataset": ("render_dataset", "render an .obj/.stl/.ply mesh into a Blender-format dataset"),
+    "train": ("train", "train 3D Gaussians on a dataset: OUT.ply plus OUT.json (config, timings, test PSNR/SSIM)"),
+    "make-assets": ("make_assets", "regenerate the bundled trained Ahmed-body Gaussians and candidate cameras"),
+    "simulate": ("simulate", "five probes against a Gaussian set: per-Gaussian D_g, D-bar -> RESULT.h5, coloured .ply"),
+    "score": ("score", "rank candidate cameras by the view score S(T) of D_g (paper Eq. 4-5); JSON, table, PNGs"),
+    "sweep": ("sweep", "D-bar against inflow speed U and Reynolds number (CFL-constant dt): CSV and PNG plot"),
+    "cameras": ("cameras", "candidate cameras for a capture without any: rings around the object -> transforms.json"),
     "compare": (
-        compare,
+        "compare",
         "the functional error: reconstruction vs reference in the same probes, with its noise floor",
     ),
-    "critical": (critical, "function-critical views: C(T) from distinct particle counts, top-20 subset"),
-    "ahmed": (make_ahmed, "write the procedural Ahmed body (Ahmed et al. 1984, slant 0-40 deg) as .obj/.stl/.ply"),
-    "active": (active, "active reconstruction: biased initial views, one planner pick per round up to the budget"),
-    "eval": (evaluate, "evaluate an active run: test PSNR/SSIM/LPIPS, D-bar, Chamfer, critical-view PSNR and D-bar"),
-    "experiment": (experiment, "methods x scenes x seeds of active + eval; paper-shaped tables and plots"),
-    "export": (export, "particle frames as VTK (.vtu per frame, .pvd series) for ParaView; the solid as mesh + voxels"),
-    "study": (study, "measurement studies: oracle (every rule's scores against the candidates' real PSNR gain)"),
-    "view": (view, "see RESULT.h5 in a browser: splat coloured by D_g, solid, probe fluid over time, ranked cameras"),
+    "critical": ("critical", "function-critical views: C(T) from distinct particle counts, top-20 subset"),
+    "ahmed": ("make_ahmed", "write the procedural Ahmed body (Ahmed et al. 1984, slant 0-40 deg) as .obj/.stl/.ply"),
+    "active": ("active", "active reconstruction: biased initial views, one planner pick per round up to the budget"),
+    "eval": ("evaluate", "evaluate an active run: test PSNR/SSIM/LPIPS, D-bar, Chamfer, critical-view PSNR and D-bar"),
+    "experiment": ("experiment", "methods x scenes x seeds of active + eval; paper-shaped tables and plots"),
+    "export": (
+        "export",
+        "particle frames as VTK (.vtu per frame, .pvd series) for ParaView; the solid as mesh + voxels",
+    ),
+    "study": ("study", "measurement studies: oracle (every rule's scores against the candidates' real PSNR gain)"),
+    "view": ("view", "see RESULT.h5 in a browser: splat coloured by D_g, solid, probe fluid over time, ranked cameras"),
 }
 
 
@@ -99,11 +77,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log more (default: warnings and info)")
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (module, help_text) in COMMANDS.items():
+    for name, (module_name, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=HelpFormatter)
         if command is None or name == command:
+            module = importlib.import_module(f"apps.{module_name}")
             module.add_arguments(p)
-        p.set_defaults(_module=module)
+            p.set_defaults(_module=module)
     return parser
 
 

@@ -60,7 +60,7 @@ _EXPORTS = {
     "SceneError": "scene",
     "load_scene": "scene",
     "parse_scene": "scene",
-    "SimulationDiverged": "simulation",
+    "SimulationDiverged": "faults",
     "build_solver": "simulation",
     "run": "simulation",
     "DFSPHSolver": "solver",

@@ -18,20 +18,11 @@ import numpy as np
 
 from . import sources
 from .config import SolverConfig
+from .faults import SimulationDiverged
 from .scene import Scene, lattice_in_box
 from .solver import DFSPHSolver, StepStats
 
 log = logging.getLogger(__name__)
-
-
-class SimulationDiverged(RuntimeError):
-    """The simulation became unphysical at ``step``; the message says why and what to change."""
-
-    def __init__(self, step: int, reason: str):
-        super().__init__(f"simulation diverged at step {step}: {reason}")
-        self.step = step
-        self.reason = reason
-        self.history: list[StepStats] = []
 
 
 def boundary_points_for_scene(scene: Scene) -> tuple[np.ndarray, np.ndarray]:

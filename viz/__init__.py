@@ -25,8 +25,15 @@ module                  what                                        main entry
 ======================  ==========================================  ========================================
 """
 
-from .data import ViewData, load_trajectory, load_view_data
-from .serving import ViewerOptions, serve
-from .viewer import FluidViewer, open_viewer
+from fluidsim.lazy import lazy_exports
 
-__all__ = ["FluidViewer", "ViewData", "ViewerOptions", "load_trajectory", "load_view_data", "open_viewer", "serve"]
+# each name is imported from its module on first use (PEP 562): `import viz.colors` (the heat-maps of `fluidgs
+# score`) loads neither the viewer (viser, scipy) nor h5py
+_EXPORTS = {
+    **dict.fromkeys(("ViewData", "load_trajectory", "load_view_data"), "data"),
+    **dict.fromkeys(("ViewerOptions", "serve"), "serving"),
+    **dict.fromkeys(("FluidViewer", "open_viewer"), "viewer"),
+}
+__all__ = sorted(_EXPORTS)
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
