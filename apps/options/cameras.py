@@ -4,6 +4,7 @@ file), the orbit's rings, and the visibility of the Gaussians in a view (--frust
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 CAMERAS_HELP = (
     "candidate cameras, in the Gaussians' frame: orbit:N (N cameras on rings around the robust object "
@@ -96,11 +97,19 @@ def candidate_cameras_from_args(args: argparse.Namespace, width: int) -> tuple:
 def orbit_cameras_written(gaussians, config, orbit, path, command: str, spec: str):
     """:func:`orbit_cameras_logged`, also written to ``path`` as a transforms.json naming ``fluidgs command --cameras
     spec`` (nothing written when ``path`` is None)."""
-    from .scoring import write_orbit_cameras
-
     cams = orbit_cameras_logged(gaussians, config, orbit)
     write_orbit_cameras(path, cams, command, spec, orbit)
     return cams
+
+
+def write_orbit_cameras(path: Path | None, cameras, command: str, spec: str, orbit) -> None:
+    """Write the orbit cameras of ``--cameras orbit:N`` to ``path`` as a transforms.json (nothing when None)."""
+    if path is None:
+        return
+    from fluidsim.files import write_json_atomic
+    from recon.camera_files import transforms_json
+
+    write_json_atomic(path, transforms_json(cameras, f"fluidgs {command} --cameras {spec}: {orbit.describe()}"))
 
 
 def orbit_cameras_logged(gaussians, config, orbit):

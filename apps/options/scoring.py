@@ -7,6 +7,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from .cameras import check_visibility_arguments, write_orbit_cameras  # noqa: F401 - apps.score reads the second here
 from .files import check_output_file
 from .results import record_config_from_args
 from .solid_export import solid_export_outputs
@@ -42,7 +43,6 @@ def add_view_image_arguments(p: argparse.ArgumentParser) -> None:
 
 def check_score_arguments(args: argparse.Namespace) -> None:
     """The option combinations of score that cannot work, refused before any file is read or any probe runs."""
-    from .cameras import check_visibility_arguments
 
     check_visibility_arguments(args)
     if args.uncertainty_images and args.no_png:
@@ -87,16 +87,6 @@ def score_outputs(args: argparse.Namespace, config, orbit) -> tuple:
             "RESULT.h5" + (" and drop --result" if args.result is not None else "")
         )
     return output, png_dir, orbit_file, record
-
-
-def write_orbit_cameras(path: Path | None, cameras, command: str, spec: str, orbit) -> None:
-    """Write the orbit cameras of ``--cameras orbit:N`` to ``path`` as a transforms.json (nothing when None)."""
-    if path is None:
-        return
-    from fluidsim.files import write_json_atomic
-    from recon.camera_files import transforms_json
-
-    write_json_atomic(path, transforms_json(cameras, f"fluidgs {command} --cameras {spec}: {orbit.describe()}"))
 
 
 def simulate_from_args(args, gaussians, config, record=None):
