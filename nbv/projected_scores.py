@@ -287,7 +287,7 @@ def _median_radius(radii: torch.Tensor) -> int:
 
 def _radius_histogram(radii: torch.Tensor) -> torch.Tensor:
     """[RADIUS_HISTOGRAM + 1] int64 counts of the integer radii, capped at RADIUS_HISTOGRAM pixels (bin 0: culled)."""
-    return torch.bincount(radii.clamp_max(RADIUS_HISTOGRAM).to(torch.int64), minlength=RADIUS_HISTOGRAM + 1)
+    return torch.bincount(radii.clamp_max(RADIUS_HISTOGRAM).to(torch.int32), minlength=RADIUS_HISTOGRAM + 1)
 
 
 def _histogram_median(counts: torch.Tensor) -> int:
@@ -376,8 +376,12 @@ def depth_test(
     return visible & ~_hidden(accumulated, surface, index, depths, tolerance, config)
 
 
-def _depth_range(depths: torch.Tensor, radii: torch.Tensor) -> tuple[float, float]:
-    """(near, far): the smallest and largest depth of the visible (radii > 0) Gaussians (+-1e30 when none is)."""
+def _depth_range(depths: torch.Tensor, radii: torch.Tensor, all_visible: bool = False) -> tuple[float, float]:
+    """(near, far): the smallest and largest depth of the visible (radii > 0) Gaussians (+-1e30 when none is).
+    ``all_visible``: every radius is >= 1, so the culled add nothing (the same two numbers in one pass)."""
+    if all_visible:
+        lo, hi = torch.aminmax(depths)
+        return float(lo), float(hi)
     far_away = (1.0 - radii.clamp(0.0, 1.0)) * 1e30  # keeps the culled out of the depth range without inf * 0
     return float((depths + far_away).min()), float((depths - far_away).max())
 
@@ -388,6 +392,28 @@ def _slices_and_opacities(depths, radii, dets, opacities, near: float, far: floa
     alpha = (opacities * (dets.sqrt() * (2.0 * math.pi / cell**2)).clamp_max(1.0)).clamp_max(0.99) * shown
     bins = ((depths - near) * (config.depth_bins / max(far - near, 1e-12))).floor().clamp(0, config.depth_bins - 1)
     return bins.to(torch.int64), alpha
+
+
+def _cell_slots(u, v, depths, near: float, far: float, cell: int, width: int, height: int, config: DepthBuffer):
+    """(cell [n], slot [n]) int32 of each splat, the same integers as :func:`_cell_index` and the depth slice of
+    :func:`_slices_and_opacities` (slot = cell x depth_bins + slice), for a buffer of fewer than 2^24 slots.
+
+    The pixel column floor(clamp(u, 0, W - 1)) is exact in the centres' dtype, and so is its quotient by the cell side
+    rounded down: a quotient within round-off of the next integer would need a column >= 2^24 pixels. Slice and cell
+    are small integers, exact in float32, so the slot is summed there and converted once.
+    """
+    cols = -(-width // cell)
+    ix = u.clamp(0.0, width - 1).floor_().div_(cell).floor_()
+    index = v.clamp(0.0, height - 1).floor_().div_(cell).floor_().mul_(cols).add_(ix)
+    bins = ((depths - near) * (config.depth_bins / max(far - near, 1e-12))).floor_().clamp_(0, config.depth_bins - 1)
+    return index.to(torch.int32), index.mul_(config.depth_bins).add_(bins).to(torch.int32)
+
+
+def _cell_opacities(radii, dets, opacities, cell: int, all_visible: bool) -> torch.Tensor:
+    """alpha_g of :func:`_slices_and_opacities` (the same operations); ``all_visible`` (every radius >= 1) skips its
+    product with 1."""
+    alpha = (opacities * (dets.sqrt() * (2.0 * math.pi / cell**2)).clamp_max(1.0)).clamp_max(0.99)
+    return alpha if all_visible else alpha.mul_(radii.clamp(0.0, 1.0))
 
 
 def _hidden(accumulated, surface, index, depths, tolerance, config: DepthBuffer) -> torch.Tensor:
@@ -583,19 +609,23 @@ def _depth_tested_view(
 
     Three passes over the view's blocks, which are kept: project (and gather the radius histogram and the depth
     range), splat into the buffer, then look up each Gaussian's cell and sum. Per block these are the elementwise
-    operations of :func:`depth_test` on whole arrays, and the only reductions (histogram, min, max, the buffer's
-    sums in the Gaussians' order) come out the same, so the verdicts are :func:`depth_test`'s bit for bit.
+    operations of :func:`depth_test` on whole arrays (the integers of cell and slice computed in the centres' dtype,
+    :func:`_cell_slots`; a product with 1 skipped where no Gaussian of the block is culled), and the only reductions
+    (histogram, min, max, the buffer's sums in the Gaussians' order) come out the same, so the verdicts are
+    :func:`depth_test`'s bit for bit. The buffer keeps a slot's three sums side by side, so that the three scatters of
+    a splat meet one cache line.
     """
     opacities, tolerance = occlusion
-    blocks, histogram = [], None
+    blocks, histogram, whole = [], None, []
     near, far = math.inf, -math.inf
     for b in view_blocks(terms, cam, k, size):
         if count is not None:
             count.add(b)
         blocks.append(b)
         counts = _radius_histogram(b.radii)
+        whole.append(int(counts[0]) == 0)  # no Gaussian of the block is culled
         histogram = counts if histogram is None else histogram.add_(counts)
-        lo, hi = _depth_range(b.depths, b.radii)
+        lo, hi = _depth_range(b.depths, b.radii, whole[-1])
         near, far = min(near, lo), max(far, hi)
     median = _histogram_median(histogram)
     score, cover, counted = 0.0, 0.0, 0
@@ -603,15 +633,24 @@ def _depth_tested_view(
         return score, cover, counted
     cell = config.cell_pixels(float(median))
     cells = _cell_index(blocks[0].u[:1], blocks[0].v[:1], cam.width, cam.height, cell)[1]
-    sums = torch.zeros(3, cells * config.depth_bins, dtype=opacities.dtype, device=opacities.device)
+    slots = cells * config.depth_bins
+    sums = torch.zeros(slots, 4, dtype=opacities.dtype, device=opacities.device)  # log T, mass, moment; padding
+    log_t, mass, moment = sums.unbind(1)[:3]
     indices = []
-    for b in blocks:
-        index = _cell_index(b.u, b.v, cam.width, cam.height, cell)[0]
+    for b, all_visible in zip(blocks, whole, strict=True):
         rows = b.gaussians
-        bins, alpha = _slices_and_opacities(b.depths, b.radii, b.dets, opacities[rows], near, far, cell, config)
-        _add_to_slices(sums, index, bins, alpha, b.depths, config.depth_bins)
+        if slots < 1 << 24:
+            index, slot = _cell_slots(b.u, b.v, b.depths, near, far, cell, cam.width, cam.height, config)
+            alpha = _cell_opacities(b.radii, b.dets, opacities[rows], cell, all_visible)
+        else:  # slot numbers beyond float32's integers
+            index = _cell_index(b.u, b.v, cam.width, cam.height, cell)[0]
+            bins, alpha = _slices_and_opacities(b.depths, b.radii, b.dets, opacities[rows], near, far, cell, config)
+            slot = index * config.depth_bins + bins
+        log_t.index_add_(0, slot, torch.log1p(-alpha))
+        mass.index_add_(0, slot, alpha)
+        moment.index_add_(0, slot, alpha * b.depths)
         indices.append(index)
-    accumulated, surface = _composite(sums, cells, config.depth_bins)
+    accumulated, surface = _composite(sums.T[:3], cells, config.depth_bins)
     # Z where the cell hides (A >= min_alpha), else +inf: z_g > Z + tol_g is then _hidden's verdict in one lookup
     hides_beyond = torch.where(accumulated >= config.min_alpha, surface, math.inf)
     for b, index in zip(blocks, indices, strict=True):
