@@ -19,10 +19,7 @@ import argparse
 import logging
 import resource
 import time
-from dataclasses import replace
 from pathlib import Path
-
-import numpy as np
 
 from ..options.common import (
     AHMED_GAUSSIANS,
@@ -33,8 +30,6 @@ from ..options.common import (
 )
 from ..options.numbers import positive_number, step_list, tolerance_list
 from ..runtime import positive_int, thread_count
-
-STAGES = ("neighbors", "divergence_solve", "density_solve", "divergence_estimate", "forces")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -93,128 +88,49 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def print_profile(traces) -> list[dict]:
-    """Print one line per probe (fluid, steps, iterations, seconds per stage, convergence, reach) and the shares of
-    all probes; returns the rows for the JSON."""
-    from nbv.bench.probe_profile import converged_step
+def check_files(args: argparse.Namespace) -> None:
+    """The outputs (--json, --save) and the saved run (--against), checked before any work: an unwritable output is
+    exit 4, an output that is an input exit 2."""
+    from fluidsim.files import check_input_file, check_not_input, check_writable
+    from nbv.bench.probe_profile import npz_path
 
-    head = "probe       fluid steps  it d/v   nbhd  divS  densS  D_i  force  rest  aggr  total  D_g 1%/5%  reached"
-    print(head)
-    rows = []
-    for t in traces:
-        st = t.stage_s
-        rest = sum(st.values()) - sum(st.get(k, 0.0) for k in STAGES)
-        name = ("empty " if t.empty else "") + t.direction
-        c1, c5 = converged_step(t, 0.01), converged_step(t, 0.05)
-        print(
-            f"{name:<9} {t.fluid:>7} {t.steps:>5} {t.density_iterations:4.2f}/{t.divergence_iterations:4.2f} "
-            + " ".join(f"{st.get(k, 0.0):5.1f}" for k in STAGES)
-            + f" {rest:5.1f} {t.aggregation_s:5.1f} {t.wall_s:6.1f}  {c1:>4}/{c5:<4}  {100 * t.reached:5.1f} %"
-        )
-        rows.append(
-            {
-                "probe": name,
-                "fluid": t.fluid,
-                "steps": t.steps,
-                "density_iterations": t.density_iterations,
-                "divergence_iterations": t.divergence_iterations,
-                "stage_s": st,
-                "aggregation_s": t.aggregation_s,
-                "wall_s": t.wall_s,
-                "converged_1pct": c1,
-                "converged_5pct": c5,
-                "reached": t.reached,
-                "reached_by": t.reached_by,
-                "touched": t.touched,
-            }
-        )
-    total = sum(t.wall_s for t in traces)
-    agg = sum(t.aggregation_s for t in traces)
-    stage_tot = {k: sum(t.stage_s.get(k, 0.0) for t in traces) for k in STAGES}
-    print(
-        f"all probes {total:.1f} s: "
-        + ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in stage_tot.items())
-        + f", aggregation {100 * agg / total:.0f} %"
-    )
+    from ..options import check_output_file
 
-    return rows
-
-
-def print_cuts(args: argparse.Namespace, traces, cov, view_scores) -> list[dict]:
-    """Judge each stop rule and fixed length against the uncut run; print one line per cut and return the rows."""
-    from nbv.bench.probe_profile import judge_rule, judge_stops
-    from nbv.physics.early_stop import StopRule
-
-    print(
-        f"judged against the uncut run on {args.cameras} orbit cameras (depth test); kept when views >= 0.97, "
-        "D_g >= 0.9, ratio move <= 5 %"
-    )
-    print("cut                      stops (per probe)               steps run  views  D_g    ratio   kept")
-    judged = []
-    cuts = [
-        (f"rule tol {tol:g}", judge_rule(traces, StopRule(tol, args.window, args.min_steps), cov, view_scores))
-        for tol in args.tolerances
-    ]
-    for n in args.fixed:
-        stops = {t.direction: n for t in traces if not t.empty}
-        cuts.append((f"fixed {n}", judge_stops(traces, stops, cov, view_scores)))
-    for name, j in cuts:
-        stops = " ".join(f"{d}:{s}" for d, s in j.stops.items())
-        print(
-            f"{name:<18} {stops:<38} {100 * j.step_share:5.1f} %  {j.view_spearman:.3f}  {j.dg_spearman:.3f}  "
-            f"{100 * j.ratio_move:5.2f} %  {'yes' if j.kept else 'no'}"
-        )
-        judged.append(
-            {
-                "cut": name,
-                "stops": j.stops,
-                "step_share": j.step_share,
-                "view_spearman": j.view_spearman,
-                "dg_spearman": j.dg_spearman,
-                "ratio_move": j.ratio_move,
-                "kept": j.kept,
-            }
-        )
-    return judged
-
-
-def save_and_compare(args: argparse.Namespace, traces, cov, d_g, ratio, views) -> None:
-    """``--save``: this run's answer and running means as .npz; ``--against``: its agreement with a saved one."""
-    from nbv.ranking import spearman
-
+    if args.json is not None:
+        check_output_file(args.json, (".json",))
     if args.save is not None:
-        np.savez(
-            args.save,
-            covariances=cov,
-            d_g=d_g,
-            ratio=ratio,
-            views=views,
-            **{f"{'empty' if t.empty else 'solid'}{t.direction}": np.stack(t.means) for t in traces},
-            **{f"steps{'empty' if t.empty else 'solid'}{t.direction}": np.asarray(t.checkpoints) for t in traces},
-        )
+        check_writable(npz_path(args.save))
     if args.against is not None:
-        other = np.load(args.against)
-        print(
-            f"against {args.against.name}: views Spearman {spearman(views, other['views']):.3f}, D_g Spearman "
-            f"{spearman(d_g, other['d_g']):.3f}, D-bar / D-bar_empty {ratio:.4g} against {float(other['ratio']):.4g} "
-            f"(moved {100 * abs(ratio / float(other['ratio']) - 1):.2f} %)"
-        )
+        check_input_file(args.against, "--against", "pass the .npz that a --save run wrote")
+    outputs = {"--json": args.json, "--save": None if args.save is None else npz_path(args.save)}
+    check_not_input(outputs, {"--gaussians": args.gaussians, "--against": args.against})
 
 
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import write_json_atomic
-    from fluidsim.probes import probe_setups
-    from nbv.bench.probe_profile import answer, trace_probes
+    from nbv.bench.probe_profile import (
+        against_line,
+        answer,
+        cut_report,
+        judge_cuts,
+        profile_report,
+        save_traces,
+        trace_probes,
+        trimmed_plan,
+        view_scorer,
+    )
     from nbv.orbit import Orbit, orbit_cameras
     from nbv.physics import QUICK, PhysicsConfig
+    from nbv.physics.early_stop import StopRule
     from nbv.physics.plan import ProbePlan, RunFrame
     from nbv.physics.replicas import replica_offsets
-    from nbv.view_scoring import project_scores
 
     from ..options import load_gaussians_checked
     from ..runtime import init_taichi
 
     wall0, cpu0 = time.perf_counter(), _cpu()
+    check_files(args)
+    rules = [StopRule(tol, args.window, args.min_steps) for tol in args.tolerances]
     gaussians = load_gaussians_checked(args.gaussians)
     cfg = PhysicsConfig(
         particle_radius=args.particle_radius or QUICK["particle_radius"],
@@ -229,32 +145,25 @@ def run_command(args: argparse.Namespace) -> int:
     solidify_s = time.perf_counter() - t0
     plan = ProbePlan.of(solid.points, cfg)
     if args.margin is not None:  # the slabs trimmed (or grown) across the flow
-        extent = float(np.ptp(solid.points, axis=0).max() + 2 * cfg.particle_radius)
-        probe = replace(cfg.probe_config(), margin=args.margin * extent)
-        plan = ProbePlan(probe_setups(solid.points, probe, plan.spacing, cfg.directions), plan.spacing)
+        plan = trimmed_plan(plan, solid.points, cfg, args.margin)
     traces, setup_s = trace_probes(frame, plan, solid.points, every=args.every, empty=not args.no_empty)
     print(
         f"{args.gaussians.name} (up {args.up}): {frame.sim.num:,} Gaussians, solid {len(solid.points):,} particles, "
         f"r = {cfg.particle_radius} m, dt = {cfg.dt} s, {cfg.steps} steps; solidify {solidify_s:.1f} s, lists "
         f"{setup_s['lists']:.2f} s"
     )
-    rows = print_profile(traces)
+    lines, rows = profile_report(traces)
+    print("\n".join(lines))
     logging.getLogger("nbv.view_scoring").setLevel(logging.WARNING)  # one line per judged cut, not per scoring
-    cams = orbit_cameras(gaussians, cfg, Orbit(args.cameras))
-    kept = frame.kept
-
-    def view_scores(values: np.ndarray) -> np.ndarray:
-        full = values if kept is None else np.zeros(len(kept))
-        if kept is not None:
-            full[kept] = values
-        return project_scores(gaussians, cams, full, occlusion=True).scores.numpy()
-
-    judged = print_cuts(args, traces, frame.covariances, view_scores)
-    final = {t.direction: t.checkpoints[-1] for t in traces}
-    cov = frame.covariances
-    d_g, ratio = answer(traces, final, cov)
+    view_scores = view_scorer(gaussians, orbit_cameras(gaussians, cfg, Orbit(args.cameras)), frame.kept)
+    lines, judged = cut_report(judge_cuts(traces, rules, args.fixed, frame.covariances, view_scores), args.cameras)
+    print("\n".join(lines))
+    d_g, ratio = answer(traces, {t.direction: t.checkpoints[-1] for t in traces}, frame.covariances)
     views = view_scores(d_g)
-    save_and_compare(args, traces, cov, d_g, ratio, views)
+    if args.save is not None:
+        save_traces(args.save, traces, frame.covariances, d_g, ratio, views)
+    if args.against is not None:
+        print(against_line(args.against, d_g, ratio, views))
     print(f"whole command {time.perf_counter() - wall0:.1f} s wall, {_cpu() - cpu0:.1f} s CPU")
     if args.json is not None:
         write_json_atomic(

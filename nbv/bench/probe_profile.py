@@ -16,20 +16,26 @@ with the solver's stages timed, and records per probe:
 :func:`judge_rule` applies a :class:`nbv.physics.early_stop.StopRule` to the recorded means (the empty-scene probe
 stops where its solid probe did) and compares the stopped answer with the uncut one: the view ranking (Spearman of
 S(T) over orbit cameras, depth-tested), the per-Gaussian D_g (Spearman) and D-bar / D-bar_empty (relative move).
+
+The report of the command is made here too, as lines and JSON rows: :func:`profile_report` (per probe and stage),
+:func:`judge_cuts` and :func:`cut_report` (the stop rules and fixed lengths), :func:`save_traces` and
+:func:`against_line` (a run's answer saved, and compared with a saved one).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
 from fluidsim import DFSPHSolver
-from fluidsim.probes import build_probe_solver
+from fluidsim.probes import build_probe_solver, probe_setups
 from fluidsim.scene import lattice_in_box
 from fluidsim.simulation import run as run_solver
 from fluidsim.sources import wall_particles
@@ -38,11 +44,14 @@ from nbv.physics.aggregate import GaussianAccumulator, GaussianLists
 from nbv.physics.early_stop import StopRule, relative_change
 from nbv.physics.plan import ProbePlan, RunFrame
 from nbv.ranking import spearman
+from nbv.view_scoring import project_scores
 
 # A cut is kept when, on every capture, the stopped run agrees with the uncut one at least this well.
 VIEW_SPEARMAN_MIN = 0.97
 DG_SPEARMAN_MIN = 0.9
 RATIO_MOVE_MAX = 0.05
+# The solver stages timed apart, in the order of the profile's columns (the rest of the step is one more column).
+STAGES = ("neighbors", "divergence_solve", "density_solve", "divergence_estimate", "forces")
 
 
 @dataclass
@@ -268,3 +277,146 @@ def judge_rule(traces: list[ProbeTrace], rule: StopRule, covariances: np.ndarray
     """:func:`judge_stops` with each probe stopped by ``rule`` (its empty scene at the same step)."""
     stops = {t.direction: rule_stop(t, rule) for t in traces if not t.empty}
     return judge_stops(traces, stops, covariances, view_scores)
+
+
+# ---- the probe set-up of a run, and its report ------------------------------------------------------------------
+def trimmed_plan(plan: ProbePlan, solid_points: np.ndarray, config, margin: float) -> ProbePlan:
+    """``plan`` with its slabs spanning ``margin`` times the solid's largest extent (plus a spacing) past the solid
+    across the flow, instead of the probes' default (``ProbeConfig.margin``)."""
+    extent = float(np.ptp(solid_points, axis=0).max() + 2 * config.particle_radius)
+    probe = replace(config.probe_config(), margin=margin * extent)
+    return replace(plan, setups=probe_setups(solid_points, probe, plan.spacing, config.directions))
+
+
+def view_scorer(gaussians, cameras, kept: np.ndarray | None) -> Callable[[np.ndarray], np.ndarray]:
+    """``view_scores(values [G']) -> [C]``: S(T) of ``cameras`` from the projection with the coarse depth test, the
+    values of the kept Gaussians (``kept`` [G] bool, None: all) scattered over the whole set (0 elsewhere)."""
+
+    def view_scores(values: np.ndarray) -> np.ndarray:
+        full = values if kept is None else np.zeros(len(kept))
+        if kept is not None:
+            full[kept] = values
+        return project_scores(gaussians, cameras, full, occlusion=True).scores.numpy()
+
+    return view_scores
+
+
+def profile_report(traces: Sequence[ProbeTrace]) -> tuple[list[str], list[dict]]:
+    """(lines, rows): a table with one line per probe (fluid, steps, iterations, seconds per stage, convergence,
+    reach) and a line of the stages' shares of all probes; the rows are the JSON's, one per probe."""
+    lines = ["probe       fluid steps  it d/v   nbhd  divS  densS  D_i  force  rest  aggr  total  D_g 1%/5%  reached"]
+    rows = []
+    for t in traces:
+        st = t.stage_s
+        rest = sum(st.values()) - sum(st.get(k, 0.0) for k in STAGES)
+        name = ("empty " if t.empty else "") + t.direction
+        c1, c5 = converged_step(t, 0.01), converged_step(t, 0.05)
+        lines.append(
+            f"{name:<9} {t.fluid:>7} {t.steps:>5} {t.density_iterations:4.2f}/{t.divergence_iterations:4.2f} "
+            + " ".join(f"{st.get(k, 0.0):5.1f}" for k in STAGES)
+            + f" {rest:5.1f} {t.aggregation_s:5.1f} {t.wall_s:6.1f}  {c1:>4}/{c5:<4}  {100 * t.reached:5.1f} %"
+        )
+        rows.append(
+            {
+                "probe": name,
+                "fluid": t.fluid,
+                "steps": t.steps,
+                "density_iterations": t.density_iterations,
+                "divergence_iterations": t.divergence_iterations,
+                "stage_s": st,
+                "aggregation_s": t.aggregation_s,
+                "wall_s": t.wall_s,
+                "converged_1pct": c1,
+                "converged_5pct": c5,
+                "reached": t.reached,
+                "reached_by": t.reached_by,
+                "touched": t.touched,
+            }
+        )
+    total = sum(t.wall_s for t in traces)
+    agg = sum(t.aggregation_s for t in traces)
+    stage_tot = {k: sum(t.stage_s.get(k, 0.0) for t in traces) for k in STAGES}
+    lines.append(
+        f"all probes {total:.1f} s: "
+        + ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in stage_tot.items())
+        + f", aggregation {100 * agg / total:.0f} %"
+    )
+    return lines, rows
+
+
+def judge_cuts(
+    traces: list[ProbeTrace],
+    rules: Sequence[StopRule],
+    fixed: Sequence[int],
+    covariances: np.ndarray,
+    view_scores,
+) -> list[tuple[str, Judged]]:
+    """(name, :class:`Judged`) of each stop rule ("rule tol T") and each fixed run length ("fixed N"), against the
+    uncut run."""
+    cuts = [(f"rule tol {rule.tolerance:g}", judge_rule(traces, rule, covariances, view_scores)) for rule in rules]
+    for n in fixed:
+        stops = {t.direction: n for t in traces if not t.empty}
+        cuts.append((f"fixed {n}", judge_stops(traces, stops, covariances, view_scores)))
+    return cuts
+
+
+def cut_report(cuts: Sequence[tuple[str, Judged]], cameras: int) -> tuple[list[str], list[dict]]:
+    """(lines, rows) of :func:`judge_cuts`' answer judged on ``cameras`` orbit cameras: the criteria, then one line
+    (and one JSON row) per cut."""
+    lines = [
+        f"judged against the uncut run on {cameras} orbit cameras (depth test); kept when views >= "
+        f"{VIEW_SPEARMAN_MIN:g}, D_g >= {DG_SPEARMAN_MIN:g}, ratio move <= {100 * RATIO_MOVE_MAX:g} %",
+        "cut                      stops (per probe)               steps run  views  D_g    ratio   kept",
+    ]
+    rows = []
+    for name, j in cuts:
+        stops = " ".join(f"{d}:{s}" for d, s in j.stops.items())
+        lines.append(
+            f"{name:<18} {stops:<38} {100 * j.step_share:5.1f} %  {j.view_spearman:.3f}  {j.dg_spearman:.3f}  "
+            f"{100 * j.ratio_move:5.2f} %  {'yes' if j.kept else 'no'}"
+        )
+        rows.append(
+            {
+                "cut": name,
+                "stops": j.stops,
+                "step_share": j.step_share,
+                "view_spearman": j.view_spearman,
+                "dg_spearman": j.dg_spearman,
+                "ratio_move": j.ratio_move,
+                "kept": j.kept,
+            }
+        )
+    return lines, rows
+
+
+def npz_path(path: Path) -> Path:
+    """The file :func:`save_traces` writes for ``path``: ``path`` itself, with ``.npz`` appended unless it ends so
+    (as numpy's ``savez`` does)."""
+    return Path(path) if str(path).endswith(".npz") else Path(f"{path}.npz")
+
+
+def save_traces(path: Path, traces, covariances: np.ndarray, d_g: np.ndarray, ratio: float, views: np.ndarray) -> Path:
+    """Write a run's answer (covariances, D_g, D-bar / D-bar_empty, view scores) and every probe's running means and
+    checkpoints to :func:`npz_path` of ``path``; returns that path."""
+    out = npz_path(path)
+    np.savez(
+        out,
+        covariances=covariances,
+        d_g=d_g,
+        ratio=ratio,
+        views=views,
+        **{f"{'empty' if t.empty else 'solid'}{t.direction}": np.stack(t.means) for t in traces},
+        **{f"steps{'empty' if t.empty else 'solid'}{t.direction}": np.asarray(t.checkpoints) for t in traces},
+    )
+    return out
+
+
+def against_line(path: Path, d_g: np.ndarray, ratio: float, views: np.ndarray) -> str:
+    """How this run's answer agrees with the one :func:`save_traces` wrote to ``path``: the views' and D_g's
+    Spearman, and D-bar / D-bar_empty against the saved one."""
+    other = np.load(path)
+    return (
+        f"against {path.name}: views Spearman {spearman(views, other['views']):.3f}, D_g Spearman "
+        f"{spearman(d_g, other['d_g']):.3f}, D-bar / D-bar_empty {ratio:.4g} against {float(other['ratio']):.4g} "
+        f"(moved {100 * abs(ratio / float(other['ratio']) - 1):.2f} %)"
+    )

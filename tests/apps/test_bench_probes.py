@@ -1,8 +1,13 @@
 """Smoke test of `fluidgs bench probes` on the bundled asset at a coarse radius and few steps."""
 
 import json
+import re
+
+import pytest
 
 from apps import cli
+
+from helpers.logs import error_text
 
 
 def test_bench_probes_profiles_and_judges_cuts(assets_dir, tmp_path, capsys):
@@ -22,3 +27,56 @@ def test_bench_probes_profiles_and_judges_cuts(assets_dir, tmp_path, capsys):
     # the same run judged against its own saved answer agrees exactly (the sums are exact integers)
     assert cli.main([*args[:-4], "--against", str(tmp_path / "t.npz")]) == 0
     assert "views Spearman 1.000, D_g Spearman 1.000" in capsys.readouterr().out
+
+
+def _fail_if_probes_run(monkeypatch):
+    import nbv.bench.probe_profile as profile
+
+    def trace_probes(*args, **kwargs):
+        raise AssertionError("the probes ran before the outputs were checked")
+
+    monkeypatch.setattr(profile, "trace_probes", trace_probes)
+
+
+@pytest.mark.parametrize("option", ["--json", "--save"])
+@pytest.mark.parametrize("where", ["proc", "file"])
+def test_bench_probes_checks_its_outputs_before_any_work(option, where, tmp_path, monkeypatch, caplog):
+    """`--json` and `--save` were first written after the whole profile: an output under a file or in an unwritable
+    folder failed only then."""
+    _fail_if_probes_run(monkeypatch)
+    (tmp_path / "plain").write_text("x")
+    folder = "/proc/fluidgs-no-such-folder" if where == "proc" else str(tmp_path / "plain")
+    out = f"{folder}/out.json" if option == "--json" else f"{folder}/t.npz"
+    assert cli.main(["bench", "probes", option, out]) == 4
+    msg = error_text(caplog)
+    assert folder in msg and "choose" in msg and not msg.startswith("[Errno"), msg
+    assert (tmp_path / "plain").read_text() == "x"
+
+
+def test_bench_probes_refuses_an_output_that_is_an_input(assets_dir, tmp_path, monkeypatch, caplog):
+    """`--save` names the file numpy writes (``.npz`` appended): it may not be the saved run it is judged against."""
+    _fail_if_probes_run(monkeypatch)
+    saved = tmp_path / "t.npz"
+    saved.write_bytes(b"x")
+    assert cli.main(["bench", "probes", "--save", str(tmp_path / "t"), "--against", str(saved)]) == 2
+    assert "--save" in error_text(caplog) and "--against" in error_text(caplog) and saved.read_bytes() == b"x"
+    caplog.clear()
+    assert cli.main(["bench", "probes", "--against", str(tmp_path)]) == 2
+    assert f"--against {tmp_path} is a folder" in error_text(caplog)
+
+
+def _fluid_per_probe(text: str) -> dict[str, int]:
+    """{probe: fluid particles} of the profile's table."""
+    return {m[1]: int(m[2]) for m in re.finditer(r"^([-+][xyz]) +(\d+) ", text, re.MULTILINE)}
+
+
+def test_bench_probes_margin_trims_the_slabs(assets_dir, capsys):
+    """`--margin` built the probe plan without its solid count: a TypeError once the solid was made."""
+    args = ["bench", "probes", "--gaussians", str(assets_dir / "ahmed_gaussians.ply"), "--particle-radius", "0.08"]
+    args += ["--steps", "25", "--every", "25", "--fixed", "", "--tolerances", "0.5", "--cameras", "2", "--no-empty"]
+    assert cli.main([*args, "--margin", "0.05"]) == 0
+    trimmed = _fluid_per_probe(capsys.readouterr().out)
+    assert cli.main(args) == 0
+    full = _fluid_per_probe(capsys.readouterr().out)
+    assert set(trimmed) == set(full) == {"-x", "+x", "-z", "+z", "-y"}
+    assert all(trimmed[d] < full[d] for d in full), (trimmed, full)
