@@ -70,7 +70,8 @@ APP_SHARED |= {"help_format"}
 
 
 def _app_modules() -> list[Path]:
-    return sorted([*APPS.glob("*.py"), *(APPS / "options").glob("*.py")])
+    """Every module of apps/, its subpackages (apps/options/, apps/bench/, ...) included."""
+    return sorted(APPS.rglob("*.py"))
 
 
 def test_app_modules_are_short():

@@ -25,8 +25,6 @@ import dataclasses
 import math
 from pathlib import Path
 
-import numpy as np
-
 from ..options.common import add_device_option, add_json_option, add_probe_size_options, add_up_option
 from ..runtime import thread_count
 
@@ -132,47 +130,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_json_option(p)
 
 
-def locate_hole(args: argparse.Namespace, means: np.ndarray, opacities: np.ndarray):
-    """The :class:`nbv.bench.holes.Hole` of the options, in the unshifted capture's simulation frame."""
-    from nbv.bench.holes import Hole, surface_normal, surface_point
-
-    if args.point is not None:
-        point = np.asarray(args.point)
-        outward = point - np.median(means, axis=0)
-    else:
-        height = args.height if args.height is not None else float(np.median(means[:, 1]))
-        outward = np.asarray(SIDES[args.side])
-        point = surface_point(means, opacities, outward, height, args.lateral)
-    normal = np.asarray(args.normal) if args.normal is not None else surface_normal(means, point, outward)
-    return Hole(tuple(point), tuple(normal), radius=args.radius, depth=args.depth, band=args.band)
-
-
-def print_shift(r: dict) -> None:
-    ai, ah = r["axis_opacity_intact"], r["axis_opacity_holed"]
-    print(
-        f"shift {r['shift']:g} spacing: {'ideal hole, ' if r.get('ideal') else ''}{r['gaussians_removed']} "
-        f"Gaussians removed, rim {r['rim_gaussians']}; solid "
-        f"{r['solid_intact']} -> {r['solid_holed']} ({r['solid_removed']} removed, {r['solid_added']} added); axis "
-        f"opacity {ai[0]:.2f} -> {ah[0]:.2f} (largest single Gaussian {ai[1]:.2f} -> {ah[1]:.2f}); open to a "
-        f"render: {100 * r['open_fraction_holed'][0]:.0f} % of the disc (per Gaussian "
-        f"{100 * r['open_fraction_holed'][1]:.0f} %); {r['seconds']:.0f} s"
-    )
-    for d, p in r.get("probes", {}).items():
-        label = d + ("*" if d == r["head_on"] else "")
-        print(
-            f"  {label:>4}: rim D_g {p['intact']:.4g} -> {p['holed']:.4g} 1/s  x{p['ratio']:.3f}  (reached "
-            f"{p['reached_intact']:.2f} -> {p['reached_holed']:.2f}, leaked {p['leaked_holed']})"
-        )
-    if "max_ratio" in r:
-        print(
-            f"  max: rim D_g {r['max_intact']:.4g} -> {r['max_holed']:.4g} 1/s  x{r['max_ratio']:.3f}; D-bar "
-            f"{r['dbar_intact']:.4g} -> {r['dbar_holed']:.4g} (x{r['dbar_holed'] / r['dbar_intact']:.3f})"
-        )
-
-
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import write_json_atomic
-    from nbv.bench.holes import measure_shift
+    from nbv.bench.holes import locate_hole, measure_shift, shift_lines, shifts_line
     from nbv.physics import QUICK, PhysicsConfig, parse_directions, scene_transform
     from nbv.physics.scene_frame import gaussian_arrays_in_sim
 
@@ -203,36 +163,24 @@ def run_command(args: argparse.Namespace) -> int:
     transform = scene_transform(gaussians, cfg)  # fixed here: the holed set keeps the intact set's scale
     cfg = dataclasses.replace(cfg, scale=transform.scale)
     means, _, opacities, _ = gaussian_arrays_in_sim(gaussians, transform)
-    hole = locate_hole(args, means, opacities)
+    where = {"side": SIDES[args.side], "height": args.height, "lateral": args.lateral, "normal": args.normal}
+    hole = locate_hole(
+        means, opacities, point=args.point, **where, radius=args.radius, depth=args.depth, band=args.band
+    )
     print(
-        f"{args.gaussians}: {gaussians.num:,} Gaussians, {transform.scale:.4g} m per unit; hole at "
-        f"{np.round(hole.point, 3).tolist()} m, normal {np.round(hole.normal, 3).tolist()}, radius {hole.radius} m, "
-        f"half-depth {hole.depth} m, rim band {hole.band} m; r = {radius} m, {steps} steps, "
-        f"probes {','.join(cfg.directions)}"
+        f"{args.gaussians}: {gaussians.num:,} Gaussians, {transform.scale:.4g} m per unit; {hole.describe()}; "
+        f"r = {radius} m, {steps} steps, probes {','.join(cfg.directions)}"
     )
     results = []
     for shift in args.shifts:
         results.append(
             measure_shift(gaussians, cfg, transform, hole, shift, args.solid_only, args.see_through, ideal=args.ideal)
         )
-        print_shift(results[-1])
+        print("\n".join(shift_lines(results[-1])))
     if len(results) > 1 and not args.solid_only:
-        ratios = np.array([r["max_ratio"] for r in results])
-        head = np.array([r["probes"][r["head_on"]]["ratio"] for r in results])
-        print(
-            f"rim ratio over {len(results)} shifts: max-combined {ratios.min():.3f} - {ratios.max():.3f}, head-on "
-            f"probe ({results[0]['head_on']}) {head.min():.3f} - {head.max():.3f}"
-        )
+        print(shifts_line(results))
     if args.json is not None:
-        hole_doc = {
-            "point": hole.point,
-            "normal": hole.normal,
-            "radius": hole.radius,
-            "depth": hole.depth,
-            "band": hole.band,
-            "see_through": args.see_through,
-            "ideal": args.ideal,
-        }
+        hole_doc = {**dataclasses.asdict(hole), "see_through": args.see_through, "ideal": args.ideal}
         write_json_atomic(
             args.json,
             {

@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
 from ..options.common import (
     AHMED_GAUSSIANS,
     add_device_option,
@@ -28,14 +26,6 @@ from ..options.common import (
 )
 from ..options.numbers import seed
 from ..runtime import positive_int, thread_count
-
-# docs/results.md, "Convergence of D_g and of the view ranking": with the depth test, the candidate-view ranking
-# stops changing from 750 steps at every radius tried (0.05-0.025 m); shorter runs rank the physics part differently.
-CONVERGED_STEPS = 750
-# From this many Gaussians the aggregation's share target is 15 % instead of 10 % (a 7 x densified 152k capture).
-MILLION_GAUSSIANS = 1_000_000
-# The probe's time on a GPU, at the paper setting (r = 0.025 m, 750 steps): at most 7 s on one H200.
-GPU_PROBE_TARGET_S = 7.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -77,79 +67,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=seed, default=0, help="--densify: random seed of the jitter")
 
 
-def share_target(num_gaussians: int) -> float:
-    """The aggregation's target share of the simulation time: 10 %, or 15 % from ``MILLION_GAUSSIANS`` Gaussians
-    (from 1M Gaussians each particle has about as many Gaussians within reach as the set is dense)."""
-    return 0.15 if num_gaussians >= MILLION_GAUSSIANS else 0.10
-
-
 def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:
     """Run the probes on one set, print its figures and return them (timings, share, peak memory)."""
+    from nbv.bench.probe_timing import set_report
     from nbv.physics import simulate_gaussians
-    from nbv.physics.aggregate import GaussianAccumulator
 
     from .yardsticks import peak_rss_bytes
 
     res = simulate_gaussians(gaussians, cfg, progress=True, source=source)
-    t = res.timings
-    total_steps = cfg.steps * len(cfg.directions)
-    share = t["aggregation"] / max(t["simulation"], 1e-12)
-    print(
-        f"Gaussians: {res.num_gaussians} ({source}), solid particles {len(res.solid)}, "
-        f"r = {cfg.particle_radius} m, {cfg.steps} steps x {len(cfg.directions)} probes"
-    )
-    fluid = 0
-    for d in cfg.directions:
-        st = res.stats[d]
-        fluid = max(fluid, int(st["active"][0]))
-        print(
-            f"  probe {d:>3}: {int(st['active'][0])} fluid particles, density/divergence iterations "
-            f"{np.mean(st['density_iterations']):.2f}/{np.mean(st['divergence_iterations']):.2f}"
-        )
-    print(
-        f"simulation {t['simulation']:.2f} s ({total_steps / max(t['simulation'], 1e-12):.1f} steps/s), "
-        f"aggregation {t['aggregation']:.3f} s (+{t['accumulator_setup']:.3f} s grid set-up), "
-        f"solidify {t['solidify']:.2f} s"
-    )
-    target = share_target(res.num_gaussians)
-    print(
-        f"aggregation share of the step time: {100 * share:.1f} % (target < {100 * target:.0f} % at "
-        f"{res.num_gaussians:,} Gaussians; < 10 % below 1M, < 15 % from 1M): "
-        f"{'met' if share < target else 'NOT met'}"
-    )
-    total = t["total"] - t["empty_reference"]
-    label = "paper-setting" if paper else "quick"
-    print(
-        f"{label} total for {len(cfg.directions)} probes: {total:.1f} s"
-        + ("" if paper else f" (target < 60 s for five probes): {'met' if total < 60 else 'NOT met'}")
-    )
-    per_probe = total / len(cfg.directions)
-    print(
-        f"per probe: {per_probe:.1f} s"
-        + (f" (target on one H200 GPU: <= {GPU_PROBE_TARGET_S:.0f} s at the paper setting)" if paper else "")
-    )
-    if cfg.empty_reference:
-        print(f"empty-scene reference: {t['empty_reference']:.1f} s more")
-    verdict = "converged" if cfg.steps >= CONVERGED_STEPS else f"NOT converged (needs >= {CONVERGED_STEPS} steps)"
-    print(
-        f"view ranking at r = {cfg.particle_radius} m x {cfg.steps} steps: {verdict}, docs/results.md; one "
-        f"physics pick at this setting costs {total:.1f} s here"
-    )
-    estimate = GaussianAccumulator.estimate_bytes(res.num_gaussians, fluid, cfg.track_distinct)
-    rss = peak_rss_bytes()
-    print(f"peak resident memory so far {rss / 2**30:.2f} GiB (the accumulator's estimate {estimate / 2**30:.2f} GiB)")
-    return {
-        "timings": t,
-        "aggregation_share": share,
-        "per_probe_s": per_probe,
-        "aggregation_share_target": target,
-        "total": total,
-        "gaussians": res.num_gaussians,
-        "solid": len(res.solid),
-        "fluid_particles": fluid,
-        "peak_rss_bytes": rss,
-        "accumulator_estimate_bytes": estimate,
-    }
+    lines, figures = set_report(res, cfg, paper, source, peak_rss_bytes())
+    print("\n".join(lines))
+    return figures
 
 
 def run_command(args: argparse.Namespace) -> int:

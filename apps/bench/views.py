@@ -37,10 +37,6 @@ from ..options.common import AHMED_CAMERAS, add_device_option, add_gaussians_opt
 from ..options.numbers import camera_count, image_width, int_in, seed
 from ..runtime import thread_count
 
-# targets for 200 cameras x 1M Gaussians, no PNGs, on a 2-core CPU: frustum culling, and the coarse depth test
-TARGET_S = 5.0
-TARGET_DEPTH_TEST_S = 15.0
-TARGET_PAIRS = 200 * 1_000_000
 MAX_COUNT = 10_000_000  # as bench render's sets: 10^11 asked torch for 800 GB and ended in a traceback
 
 
@@ -101,68 +97,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_json_option(p)
 
 
-def print_ranking(r: dict, source: str) -> None:
-    print(f"ranking check: {r['views']} candidate views, {source}")
-    print(
-        f"  full renders {r['render_s']:.2f} s ({1e3 * r['render_s'] / r['views']:.0f} ms/view), projection "
-        f"{r['projection_s']:.3f} s ({1e3 * r['projection_s'] / r['views']:.1f} ms/view)"
-    )
-    print(
-        f"  radii equal to the renderer's in every view: {r['radii_equal']}; largest relative score difference "
-        f"{r['max_relative_difference']:.2e}"
-    )
-    print(f"  Spearman {r['spearman']:.6f}; identical order: {r['identical_order']}")
-    print(f"  order (best first): {r['order']}")
-    if "occlusion" in r:
-        o = r["occlusion"]
-        print(
-            f"  --occlusion: coarse depth buffer vs render-based depth test: {100 * o['verdict_agreement']:.1f} % of "
-            f"the visible (view, Gaussian) pairs agree (hidden: {100 * o['hidden_coarse']:.2f} % vs "
-            f"{100 * o['hidden_render']:.2f} %); S(T) Spearman {o['spearman']:.4f}, same best view: "
-            f"{o['same_best']}, top-5 overlap {o['top5_overlap']}/5"
-        )
-
-
-def _target_line(total_s: float, cpu_s: float, scale: float, target: float) -> str:
-    return (
-        f"target <= {target:.0f} s for 200 cameras x 1M Gaussians: {total_s * scale:.1f} s wall "
-        f"({'met' if total_s * scale <= target else 'NOT met'}; {cpu_s * scale:.1f} s of CPU time)"
-        + ("" if scale == 1 else ", scaled from this run")
-    )
-
-
-def print_timing(t: dict) -> None:
-    pairs = t["views"] * t["gaussians"]
-    scale = TARGET_PAIRS / pairs
-    print(
-        f"timing: {t['views']} orbit cameras x {t['gaussians']:,} Gaussians at {t['width']} x {t['height']} px on "
-        f"{t['threads']} thread(s), no PNGs ({100 * t['visible_fraction']:.0f} % of the pairs visible)"
-    )
-    print(
-        f"  frustum culling: {t['total_s']:.2f} s wall ({t['cpu_s']:.2f} s of CPU time), {t['per_view_ms']:.1f} "
-        f"ms/view, {t['gaussian_views_per_s'] / 1e6:.1f} M Gaussian-views/s; "
-        + _target_line(t["total_s"], t["cpu_s"], scale, TARGET_S)
-    )
-    if "occlusion_total_s" in t:
-        print(
-            f"  depth test (--occlusion): {t['occlusion_total_s']:.2f} s wall ({t['occlusion_cpu_s']:.2f} s of CPU "
-            f"time), {t['occlusion_gaussian_views_per_s'] / 1e6:.1f} M Gaussian-views/s, "
-            f"{100 * t['counted_fraction']:.0f} % of the pairs counted; "
-            + _target_line(t["occlusion_total_s"], t["occlusion_cpu_s"], scale, TARGET_DEPTH_TEST_S)
-        )
-    for r in t.get("reference", []):
-        print(
-            f"  reference path (one thread{', depth test on whole arrays' if r['depth_test'] else ''}) on the first "
-            f"{r['views']} cameras: {r['reference_s']:.2f} s vs {r['fast_s']:.2f} s, {r['speedup']:.2f}x faster; "
-            f"largest relative score difference {r['max_relative_difference']:.1e}, same counts: {r['counted_equal']}"
-        )
-    print(f"  peak RSS {t['peak_rss_mib']:.0f} MiB (before scoring {t['rss_before_mib']:.0f} MiB)")
-
-
 def run_command(args: argparse.Namespace) -> int:
     import torch
 
-    from nbv.bench.score_agreement import compare_with_renders, load_divergence, time_projected_scores
+    from nbv.bench.score_agreement import (
+        compare_with_renders,
+        load_divergence,
+        ranking_lines,
+        time_projected_scores,
+        timing_lines,
+    )
     from nbv.view_scoring import render_size
     from recon.datasets import load_cameras
     from recon.device import torch_device
@@ -181,7 +125,7 @@ def run_command(args: argparse.Namespace) -> int:
     if not args.no_ranking:
         cams = [render_size(c, args.render_width) for c in load_cameras(args.cameras, None)]
         report["ranking"] = compare_with_renders(gaussians, cams, d, args.occlusion, device)
-        print_ranking(report["ranking"], source)
+        print("\n".join(ranking_lines(report["ranking"], source)))
     report["timing"] = time_projected_scores(
         gaussians,
         d,
@@ -194,7 +138,7 @@ def run_command(args: argparse.Namespace) -> int:
         threads=args.threads,
         reference_views=args.reference_views,
     )
-    print_timing(report["timing"])
+    print("\n".join(timing_lines(report["timing"])))
     ref_after = reference_ms()
     print(
         f"machine load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; reference workload (512^2 matmul, "

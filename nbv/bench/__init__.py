@@ -12,6 +12,7 @@ module                     what                                                 
 :mod:`.score_agreement`    projection scores against full renders                 ``bench views``
 :mod:`.dense_sets`         denser copies of a Gaussian set (jittered)             ``bench score``, ``bench views``
 :mod:`.probe_profile`      a probe run profiled; stop rules judged against it     ``bench probes``
+:mod:`.probe_timing`       probes on a set timed: simulation vs aggregation       ``bench score``
 =========================  =====================================================  ===============================
 
 Importing the package loads nothing; each module is imported on its own.

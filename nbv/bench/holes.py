@@ -17,6 +17,9 @@ coordinate t = (x - p) . n and the radial distance r = |(x - p) - t n| from the 
 
 The rim ratio of a probe is the rim's mean D_g^(IC) on the holed set over the same Gaussians' mean on the intact set
 (matched by index); the max-combined ratio does the same with D_g = max over the probes (paper Eq. 3).
+
+:func:`locate_hole` places the hole from a point or a side of the object, :func:`measure_shift` measures it at one
+lattice shift, and :func:`shift_lines` and :func:`shifts_line` report the figures as text.
 """
 
 from __future__ import annotations
@@ -72,6 +75,13 @@ class Hole:
             raise ValueError(f"Hole.depth must be a length > 0 m (inf: through the object), got {self.depth!r}")
         object.__setattr__(self, "point", tuple(p.tolist()))
         object.__setattr__(self, "normal", tuple((n / np.linalg.norm(n)).tolist()))
+
+    def describe(self) -> str:
+        """The hole in words: its point and normal (to the millimetre), radius, half-depth and rim band."""
+        return (
+            f"hole at {np.round(self.point, 3).tolist()} m, normal {np.round(self.normal, 3).tolist()}, radius "
+            f"{self.radius} m, half-depth {self.depth} m, rim band {self.band} m"
+        )
 
     def coordinates(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """[N] axial t and radial r (m) of ``points`` [N, 3] m, about the hole's axis."""
@@ -444,3 +454,67 @@ def measure_shift(
         return out
     out.update(probe_figures(res[0], res[1], kept, h.rim(means, ~removed), h.normal))
     return out
+
+
+def locate_hole(
+    means: np.ndarray,
+    opacities: np.ndarray,
+    *,
+    point=None,
+    side=(1.0, 0.0, 0.0),
+    height: float | None = None,
+    lateral: float = 0.0,
+    normal=None,
+    radius: float = 0.055,
+    depth: float = 0.06,
+    band: float = 0.055,
+) -> Hole:
+    """The :class:`Hole` at ``point`` (3,) m, or, without it, at the surface point on ``side`` (the outward unit axis)
+    of the object at ``height`` (default: the centres' median y) and ``lateral`` m across the side
+    (:func:`surface_point`); along ``normal``, or the surface normal of the centres around the point, facing out
+    (:func:`surface_normal`). ``means`` [N, 3] m and ``opacities`` [N] are the set's, in the simulation frame."""
+    if point is not None:
+        point = np.asarray(point)
+        outward = point - np.median(means, axis=0)
+    else:
+        height = height if height is not None else float(np.median(means[:, 1]))
+        outward = np.asarray(side)
+        point = surface_point(means, opacities, outward, height, lateral)
+    normal = np.asarray(normal) if normal is not None else surface_normal(means, point, outward)
+    return Hole(tuple(point), tuple(normal), radius=radius, depth=depth, band=band)
+
+
+def shift_lines(r: dict) -> list[str]:
+    """The report of one :func:`measure_shift`: solids and axis opacity, then per probe (``*`` the head-on one) and
+    max-combined the rim's D_g intact -> holed."""
+    ai, ah = r["axis_opacity_intact"], r["axis_opacity_holed"]
+    lines = [
+        f"shift {r['shift']:g} spacing: {'ideal hole, ' if r.get('ideal') else ''}{r['gaussians_removed']} "
+        f"Gaussians removed, rim {r['rim_gaussians']}; solid "
+        f"{r['solid_intact']} -> {r['solid_holed']} ({r['solid_removed']} removed, {r['solid_added']} added); axis "
+        f"opacity {ai[0]:.2f} -> {ah[0]:.2f} (largest single Gaussian {ai[1]:.2f} -> {ah[1]:.2f}); open to a "
+        f"render: {100 * r['open_fraction_holed'][0]:.0f} % of the disc (per Gaussian "
+        f"{100 * r['open_fraction_holed'][1]:.0f} %); {r['seconds']:.0f} s"
+    ]
+    for d, p in r.get("probes", {}).items():
+        label = d + ("*" if d == r["head_on"] else "")
+        lines.append(
+            f"  {label:>4}: rim D_g {p['intact']:.4g} -> {p['holed']:.4g} 1/s  x{p['ratio']:.3f}  (reached "
+            f"{p['reached_intact']:.2f} -> {p['reached_holed']:.2f}, leaked {p['leaked_holed']})"
+        )
+    if "max_ratio" in r:
+        lines.append(
+            f"  max: rim D_g {r['max_intact']:.4g} -> {r['max_holed']:.4g} 1/s  x{r['max_ratio']:.3f}; D-bar "
+            f"{r['dbar_intact']:.4g} -> {r['dbar_holed']:.4g} (x{r['dbar_holed'] / r['dbar_intact']:.3f})"
+        )
+    return lines
+
+
+def shifts_line(results: list[dict]) -> str:
+    """The spread of the rim ratio over several shifts with probes: max-combined and the head-on probe's."""
+    ratios = np.array([r["max_ratio"] for r in results])
+    head = np.array([r["probes"][r["head_on"]]["ratio"] for r in results])
+    return (
+        f"rim ratio over {len(results)} shifts: max-combined {ratios.min():.3f} - {ratios.max():.3f}, head-on "
+        f"probe ({results[0]['head_on']}) {head.min():.3f} - {head.max():.3f}"
+    )

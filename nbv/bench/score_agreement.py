@@ -10,6 +10,10 @@ verdict, and the Spearman correlation of the two S(T).
 
 The per-Gaussian metric D_g (1/s) comes from a RESULT.h5 of the Gaussians (:func:`load_divergence`), or from a seeded
 log-normal stand-in (:func:`stand_in_divergence`): the check is about radii and visibility, not physics.
+
+:func:`time_projected_scores` times the projection on a densified set; :func:`ranking_lines` and :func:`timing_lines`
+report both as text, the timing against its targets (200 cameras x 1M Gaussians on a 2-core CPU, no PNGs:
+``TARGET_S`` with frustum culling, ``TARGET_DEPTH_TEST_S`` with the coarse depth test).
 """
 
 from __future__ import annotations
@@ -37,6 +41,11 @@ from nbv.scores import (
 )
 from recon.projection import project_visibility
 from recon.render import render
+
+# targets for 200 cameras x 1M Gaussians, no PNGs, on a 2-core CPU: frustum culling, and the coarse depth test
+TARGET_S = 5.0
+TARGET_DEPTH_TEST_S = 15.0
+TARGET_PAIRS = 200 * 1_000_000
 
 
 def stand_in_divergence(n: int, seed: int) -> np.ndarray:
@@ -209,3 +218,62 @@ def time_projected_scores(
     out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out["rss_before_mib"] = rss_before
     return out
+
+
+def ranking_lines(r: dict, source: str) -> list[str]:
+    """The report of :func:`compare_with_renders`' figures ``r`` (D_g from ``source``): times, radii, the largest
+    score difference, the rank agreement, and with ``occlusion`` the two depth tests' agreement."""
+    lines = [
+        f"ranking check: {r['views']} candidate views, {source}",
+        f"  full renders {r['render_s']:.2f} s ({1e3 * r['render_s'] / r['views']:.0f} ms/view), projection "
+        f"{r['projection_s']:.3f} s ({1e3 * r['projection_s'] / r['views']:.1f} ms/view)",
+        f"  radii equal to the renderer's in every view: {r['radii_equal']}; largest relative score difference "
+        f"{r['max_relative_difference']:.2e}",
+        f"  Spearman {r['spearman']:.6f}; identical order: {r['identical_order']}",
+        f"  order (best first): {r['order']}",
+    ]
+    if "occlusion" in r:
+        o = r["occlusion"]
+        lines.append(
+            f"  --occlusion: coarse depth buffer vs render-based depth test: {100 * o['verdict_agreement']:.1f} % of "
+            f"the visible (view, Gaussian) pairs agree (hidden: {100 * o['hidden_coarse']:.2f} % vs "
+            f"{100 * o['hidden_render']:.2f} %); S(T) Spearman {o['spearman']:.4f}, same best view: "
+            f"{o['same_best']}, top-5 overlap {o['top5_overlap']}/5"
+        )
+    return lines
+
+
+def _target_line(total_s: float, cpu_s: float, scale: float, target: float) -> str:
+    return (
+        f"target <= {target:.0f} s for 200 cameras x 1M Gaussians: {total_s * scale:.1f} s wall "
+        f"({'met' if total_s * scale <= target else 'NOT met'}; {cpu_s * scale:.1f} s of CPU time)"
+        + ("" if scale == 1 else ", scaled from this run")
+    )
+
+
+def timing_lines(t: dict) -> list[str]:
+    """The report of :func:`time_projected_scores`' figures ``t``: each scoring's times against its target (scaled
+    to 200 cameras x 1M Gaussians), the reference path's speed-up and score difference, and the peak memory."""
+    scale = TARGET_PAIRS / (t["views"] * t["gaussians"])
+    lines = [
+        f"timing: {t['views']} orbit cameras x {t['gaussians']:,} Gaussians at {t['width']} x {t['height']} px on "
+        f"{t['threads']} thread(s), no PNGs ({100 * t['visible_fraction']:.0f} % of the pairs visible)",
+        f"  frustum culling: {t['total_s']:.2f} s wall ({t['cpu_s']:.2f} s of CPU time), {t['per_view_ms']:.1f} "
+        f"ms/view, {t['gaussian_views_per_s'] / 1e6:.1f} M Gaussian-views/s; "
+        + _target_line(t["total_s"], t["cpu_s"], scale, TARGET_S),
+    ]
+    if "occlusion_total_s" in t:
+        lines.append(
+            f"  depth test (--occlusion): {t['occlusion_total_s']:.2f} s wall ({t['occlusion_cpu_s']:.2f} s of CPU "
+            f"time), {t['occlusion_gaussian_views_per_s'] / 1e6:.1f} M Gaussian-views/s, "
+            f"{100 * t['counted_fraction']:.0f} % of the pairs counted; "
+            + _target_line(t["occlusion_total_s"], t["occlusion_cpu_s"], scale, TARGET_DEPTH_TEST_S)
+        )
+    for r in t.get("reference", []):
+        lines.append(
+            f"  reference path (one thread{', depth test on whole arrays' if r['depth_test'] else ''}) on the first "
+            f"{r['views']} cameras: {r['reference_s']:.2f} s vs {r['fast_s']:.2f} s, {r['speedup']:.2f}x faster; "
+            f"largest relative score difference {r['max_relative_difference']:.1e}, same counts: {r['counted_equal']}"
+        )
+    lines.append(f"  peak RSS {t['peak_rss_mib']:.0f} MiB (before scoring {t['rss_before_mib']:.0f} MiB)")
+    return lines

@@ -206,7 +206,7 @@ def test_bench_score_prints_share(scene, capsys):
 
 
 def test_bench_score_share_target_by_set_size():
-    from apps.bench.score import MILLION_GAUSSIANS, share_target
+    from nbv.bench.probe_timing import MILLION_GAUSSIANS, share_target
 
     assert share_target(MILLION_GAUSSIANS - 1) == 0.10
     assert share_target(MILLION_GAUSSIANS) == share_target(5_000_000) == 0.15
