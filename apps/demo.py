@@ -96,7 +96,7 @@ def run_command(args: argparse.Namespace) -> int:
         },
     )
     if not args.no_video:
-        probe_video(result, "-x", out / "probe_-x.mp4")
+        probe_video(result, "-x", out / "probe_-x.mp4", saved=out / "result.h5")  # drawn from the recorded run
     summary = result_summary(result)
     summary.update(source=source, cameras=cameras_label, wall_time_s=time.perf_counter() - t0)
     write_json_atomic(out / "summary.json", summary)
@@ -148,22 +148,23 @@ def print_outputs(out: Path, result, source: str, rows: list[dict], summary: dic
 
 
 def simulate_demo(gaussians, cfg, source: str, args: argparse.Namespace, out: Path):
-    """The five probes (the -x probe's fluid recorded for `fluidgs view`), saved as result.h5 and the Gaussians
-    coloured by D_g."""
+    """The five probes (the -x probe's fluid recorded for `fluidgs view`, at the video's frame spacing unless
+    --no-video), saved as result.h5 and the Gaussians coloured by D_g."""
     from nbv.outputs import divergence_columns, save_colored_gaussians
     from nbv.physics import save_result, simulate_gaussians
 
     from .runtime import init_taichi
 
     init_taichi(args.device, cfg.precision, args.threads)
-    from nbv.physics.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view`
+    from nbv.outputs import VIDEO_EVERY
+    from nbv.physics.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view` and the video
 
     result = simulate_gaussians(
         gaussians,
         cfg,
         progress=True,
         source=source,
-        record=RecordConfig(("-x",), every=max(1, cfg.steps // 30)),
+        record=RecordConfig(("-x",), every=max(1, cfg.steps // 30) if args.no_video else VIDEO_EVERY),
         source_frame=getattr(args, "source_frame", ""),
     )
     save_result(out / "result.h5", result)

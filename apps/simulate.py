@@ -110,7 +110,8 @@ def run_command(args: argparse.Namespace) -> int:
         from nbv.outputs import VIDEO_STYLE
 
         style = replace(VIDEO_STYLE, **style_options)
-        probe_video(result, args.video, video, args.video_every, style=style, fps=style_options.get("fps"))
+        fps = style_options.get("fps")
+        probe_video(result, args.video, video, args.video_every, style=style, fps=fps, saved=output)
         print(f"video: {video}")
     print(f"see it in a browser: fluidgs view {output} --gaussians {args.gaussians}")
     return 0

@@ -25,6 +25,7 @@ from viz.frames import FrameStyle, render_frames
 __all__ = ["divergence_columns", "probe_video", "result_summary", "save_colored_gaussians"]
 VIDEO_STYLE = FrameStyle(view="iso", width=640, height=480)
 VIDEO_SECONDS = 8.0
+VIDEO_EVERY = 5  # steps between a probe video's frames
 VIDEO_FPS = (8, 30)  # the automatic frame rate stays within these
 
 
@@ -101,15 +102,19 @@ def probe_video(
     result,
     direction: str,
     out: str | Path,
-    every: int = 5,
+    every: int = VIDEO_EVERY,
     progress: bool = True,
     style: FrameStyle = VIDEO_STYLE,
     fps: int | None = None,
+    saved: str | Path | None = None,
 ) -> Path:
-    """Re-run probe ``direction`` of ``result`` against its solid with its settings and write an H.264 MP4 of it:
-    every step from 0 to the last, one frame every ``every`` steps, drawn with ``style`` (default: iso view,
-    640 x 480, coloured by divergence, the solid in ivory, the walls hidden, the camera on the object) at ``fps``
-    frames per second (None: :func:`video_fps`, about 8 s). Returns ``out``.
+    """An H.264 MP4 of probe ``direction`` of ``result``, one frame every ``every`` steps, drawn with ``style``
+    (default: iso view, 640 x 480, coloured by divergence, the solid in ivory, the walls hidden, the camera on the
+    object) at ``fps`` frames per second (None: :func:`video_fps`, about 8 s). Returns ``out``.
+
+    Where the run recorded that probe every ``every`` steps and ``saved`` is the RESULT.h5 it was saved to, the
+    frames are drawn from that recording (after steps k, 2k, ...: the run itself, no second one); otherwise the
+    probe is re-run against the solid with the result's settings, every step from 0 to the last.
 
     Raises:
         ValueError: ``direction`` is not a probe name (naming --video, the option that asks for it).
@@ -118,6 +123,10 @@ def probe_video(
         raise ValueError(f"--video: unknown probe {direction!r}; use one of {','.join(DIRECTIONS)}")
     out = Path(out)
     cfg = result.config
+    recorded = result.trajectories.get(direction)
+    if saved is not None and recorded is not None and recorded.every == every and len(recorded.steps):
+        render_frames(saved, out, replace(style, fps=fps or video_fps(len(recorded.steps))), progress, probe=direction)
+        return out
     # the steps the probe ran: fewer than cfg.steps when it stopped early (nbv.physics.early_stop)
     steps = len(result.stats[direction]) if direction in result.stats else cfg.steps
     with tempfile.TemporaryDirectory(dir=out.parent) as tmp:
