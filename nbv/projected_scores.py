@@ -195,6 +195,8 @@ def _count_centres(xyz, rows: slice, u, v, tz, band: CentreBand, camera: Camera,
     if not bool(tz.min() > band.front):  # some centre near or behind the near plane (or NaN): by t_z first
         unsure = torch.full_like(s, 1.0)
         s = torch.where(tz > band.front, s, torch.where(tz < band.behind, torch.full_like(s, math.inf), unsure))
+    if float(s.max()) < 1.0:  # every centre of the block surely inside (the usual block of an object's orbit)
+        return s.shape[0]
     sure = int(torch.count_nonzero(s < 1.0))
     if int(torch.count_nonzero(s <= band.ceiling)) == sure:
         return sure
@@ -412,7 +414,7 @@ def _cell_slots(u, v, depths, near: float, far: float, cell: int, width: int, he
 def _cell_opacities(radii, dets, opacities, cell: int, all_visible: bool) -> torch.Tensor:
     """alpha_g of :func:`_slices_and_opacities` (the same operations); ``all_visible`` (every radius >= 1) skips its
     product with 1."""
-    alpha = (opacities * (dets.sqrt() * (2.0 * math.pi / cell**2)).clamp_max(1.0)).clamp_max(0.99)
+    alpha = dets.sqrt().mul_(2.0 * math.pi / cell**2).clamp_max_(1.0).mul_(opacities).clamp_max_(0.99)
     return alpha if all_visible else alpha.mul_(radii.clamp(0.0, 1.0))
 
 
@@ -454,7 +456,7 @@ def _view_sum(
     w_g = min(pi R^2 / (H W), 1) = (pi / (H W)) min(R, sqrt(H W / pi))^2, so the sum is one float64 dot
     product (R^2 is exact in float64); it equals the sum of :func:`nbv.scores.view_weights` to float64 rounding.
     """
-    counted = int(torch.count_nonzero(radii))
+    counted = int(radii.sign().sum())  # radii >= 0: the count of the non-zero, exact below 2^24 per block
     if weighted:
         r = radii.to(torch.float64).clamp_max(math.sqrt(height * width / math.pi))
         w = r * r
@@ -655,12 +657,18 @@ def _depth_tested_view(
     hides_beyond = torch.where(accumulated >= config.min_alpha, surface, math.inf)
     for b, index in zip(blocks, indices, strict=True):
         rows = b.gaussians
-        hidden = b.depths > hides_beyond.index_select(0, index) + tolerance[rows]
-        counted_radii = b.radii.masked_fill(hidden, 0.0)
+        counted_radii = _unhidden_radii(b.radii, b.depths, hides_beyond.index_select(0, index) + tolerance[rows])
         s, a, c = _view_sum(counted_radii, m[rows], cam.height, cam.width, weighted)
         score, cover, counted = score + s, cover + a, counted + c
         _mark_seen(seen, rows, counted_radii)
     return score, cover, counted
+
+
+def _unhidden_radii(radii: torch.Tensor, depths: torch.Tensor, limits: torch.Tensor) -> torch.Tensor:
+    """``radii`` with 0 where depths > limits (hidden), as ``radii.masked_fill(depths > limits, 0)`` (a NaN hides
+    nothing), in arithmetic: the sign of depths - limits is exact, and a masked fill costs 4x these five operations."""
+    hidden = (depths - limits).sign_().nan_to_num_(0.0).clamp_min_(0.0)  # 1 where hidden, else 0
+    return radii * hidden.neg_().add_(1.0)
 
 
 def _mark_seen(seen: torch.Tensor, rows: slice, radii: torch.Tensor) -> None:

@@ -197,17 +197,31 @@ def geometry_divergence(covariances: torch.Tensor, divergence: torch.Tensor) -> 
     Returns:
         D-bar in m^4/s (0 for an empty set).
     """
+    return geometry_divergences(covariances, [divergence])[0]
+
+
+def geometry_divergences(covariances: torch.Tensor, divergences: Sequence[torch.Tensor]) -> list[float]:
+    """:func:`geometry_divergence` of one Gaussian set for several D_g (e.g. each probe's), the weights pi s_g^2
+    computed once: the same numbers as one call per D_g.
+
+    Args:
+        covariances: [N, 3, 3] Sigma_g in simulation metres^2. divergences: each [N] D_g in 1/s.
+    Returns:
+        one D-bar per D_g, m^4/s.
+    """
     cov = torch.as_tensor(covariances).to(torch.float64)
-    d = torch.as_tensor(divergence).to(torch.float64).reshape(-1)
-    if cov.shape[0] != d.shape[0] or tuple(cov.shape[1:]) != (3, 3):
-        raise ValueError(
-            f"geometry_divergence: covariances {tuple(cov.shape)} and divergence {tuple(d.shape)} "
-            "must be [N, 3, 3] and [N]"
-        )
-    if d.numel() == 0:
-        return 0.0
+    ds = [torch.as_tensor(d).to(torch.float64).reshape(-1) for d in divergences]
+    for d in ds:
+        if cov.shape[0] != d.shape[0] or tuple(cov.shape[1:]) != (3, 3):
+            raise ValueError(
+                f"geometry_divergence: covariances {tuple(cov.shape)} and divergence {tuple(d.shape)} "
+                "must be [N, 3, 3] and [N]"
+            )
+    if cov.shape[0] == 0:
+        return [0.0] * len(ds)
     s = cov.diagonal(dim1=-2, dim2=-1).sum(-1)
-    return float((math.pi * s * s * d).mean())
+    weights = math.pi * s * s
+    return [float((weights * d).mean()) for d in ds]
 
 
 def critical_scores(distinct_counts: torch.Tensor, views, *, image_size: tuple[int, int] | None = None) -> torch.Tensor:

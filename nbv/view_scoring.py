@@ -36,7 +36,7 @@ from nbv.heatmap import (
 )
 from nbv.io import write_atomic, write_png_atomic
 from nbv.lists import parse_list
-from nbv.scores import DepthBuffer, geometry_divergence, projected_counts, projected_view_scores, rank
+from nbv.scores import DepthBuffer, geometry_divergences, projected_counts, projected_view_scores, rank
 from recon.device import torch_device
 from recon.render import render_layers
 from viz.annotate import label, to_bgr
@@ -531,14 +531,15 @@ def probe_lines(result) -> list[str]:
     of the (kept) Gaussians it reached, and its leak counts; then the combined D-bar / D-bar_empty and D-bar."""
     covs = torch.from_numpy(np.asarray(result.covariances))
     kept = np.ones(result.num_gaussians, bool) if result.kept is None else np.asarray(result.kept, bool)
+    probes = [torch.from_numpy(np.asarray(p)) for p in result.per_probe]
+    empties = (
+        None if result.empty_per_probe is None else [torch.from_numpy(np.asarray(p)) for p in result.empty_per_probe]
+    )
+    dbars = geometry_divergences(covs, probes + (empties or []))  # the weights pi s_g^2 once for all the probes
     lines = []
     for i, d in enumerate(result.directions):
-        dbar = geometry_divergence(covs, torch.from_numpy(result.per_probe[i]))
-        empty = (
-            None
-            if result.empty_per_probe is None
-            else geometry_divergence(covs, torch.from_numpy(result.empty_per_probe[i]))
-        )
+        dbar = dbars[i]
+        empty = None if empties is None else dbars[len(probes) + i]
         reached = int((np.asarray(result.per_probe_counts[i])[kept] > 0).sum())
         leak = result.leaks.get(d)
         if leak is None:

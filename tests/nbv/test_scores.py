@@ -433,6 +433,20 @@ def test_fast_path_equals_its_twin(dtype, occlusion, weighted):
                 assert torch.allclose(got.coverage, ref.coverage, rtol=1e-12, atol=0)
 
 
+def test_unhidden_radii_equal_the_masked_fill():
+    """The arithmetic verdict of the depth-tested view is the comparison's, with NaN and infinite depths and limits."""
+    from nbv.projected_scores import _unhidden_radii
+
+    gen = torch.Generator().manual_seed(2)
+    radii = torch.randint(0, 9, (400,), generator=gen).float()
+    depths, limits = torch.rand(400, generator=gen) * 3, torch.rand(400, generator=gen) * 3
+    limits[::5] = depths[::5]  # equal: not hidden
+    depths[1::7], limits[2::11], limits[3::13], depths[4::17] = math.nan, math.nan, math.inf, -math.inf
+    expected = radii.masked_fill(depths > limits, 0.0)
+    assert torch.equal(_unhidden_radii(radii, depths, limits), expected)
+    assert 0 < int((expected == 0).sum() - (radii == 0).sum()) < 400
+
+
 def test_depth_tested_view_hides_what_the_whole_array_test_hides():
     """Per view, the Gaussians counted with the depth test are those of :func:`coarse_unoccluded` (the test on
     whole arrays), and some visible ones are hidden."""
