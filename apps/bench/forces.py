@@ -85,9 +85,10 @@ def _cases(args: argparse.Namespace):
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.files import write_json_atomic
+    from fluidsim.files import check_input_file, write_json_atomic
     from nbv.bench.splash import INSTALL_HINT, splash_available
     from nbv.bench.splash_probe import force_check, passage_steps
+    from recon.formats import detect_format
 
     from ..options import check_output_file, check_output_folder
     from ..runtime import init_taichi
@@ -100,8 +101,10 @@ def run_command(args: argparse.Namespace) -> int:
         raise ValueError("--radius, --dt and --sphere-radius must be > 0")
     if args.steps is not None and args.steps < 2:
         raise ValueError(f"--steps must be >= 2, got {args.steps}")
-    if args.solid is not None and not args.solid.is_file():
-        raise ValueError(f"--solid {args.solid}: no such file; pass a mesh, a Gaussian file or a RESULT.h5")
+    if args.solid is not None:  # what it is, before any engine runs: a device, a FIFO, a folder that holds no Gaussians
+        check_input_file(args.solid, "--solid", "pass a mesh, a Gaussian file or a RESULT.h5", folder_ok=True)
+        if args.solid.is_dir():  # a Gaussian folder (PlayCanvas SOG) or recon.formats says what the folder is
+            detect_format(args.solid)
     if args.solid is None and args.case != "sphere":  # the Ahmed case's Gaussians are read before any engine runs
         from ..options import load_gaussians_checked
 

@@ -95,3 +95,14 @@ def test_a_dataset_without_train_views_is_named(tmp_path, caplog):
     assert cli.main(["experiment", str(exp), "--no-progress"]) == 2
     assert "'scenes': " in error_text(caplog) and "has no train (candidate) views" in error_text(caplog)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("kind", ["fifo", "zero", "loop", "folder", "missing"])
+def test_bench_forces_solid_is_named_as_what_it_is(tmp_path, odd_inputs, caplog, kind):
+    """`bench forces --solid /dev/zero` (a FIFO, a folder, a link loop) said "no such file"; each is named as what it
+    is, before any engine runs, as the other commands name their inputs."""
+    odd_inputs["folder"] = (tmp_path, "is a folder, not a Gaussian file")
+    odd_inputs["missing"] = (tmp_path / "none.obj", "does not exist")
+    path, what = odd_inputs[kind]
+    assert cli.main(["bench", "forces", "--solid", str(path)]) == 2
+    assert what in error_text(caplog) and "no such file" not in error_text(caplog), error_text(caplog)
