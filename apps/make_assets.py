@@ -26,7 +26,7 @@ from pathlib import Path
 
 from fluidsim.files import write_json_atomic
 
-from .options.common import add_output_option
+from .options.common import add_output_option, add_seed_option
 from .runtime import deterministic_torch, thread_count
 
 log = logging.getLogger("fluidgs")
@@ -38,7 +38,7 @@ REPORT_FILE = "ahmed_asset.json"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_output_option(p, "folder of the asset files", default=Path("assets"))
-    p.add_argument("--seed", type=int, default=0, help="seed of the cameras and of training")
+    add_seed_option(p, "seed of the cameras and of training")
     p.add_argument("--res", type=int, default=64, help="image width = height, pixels")
     p.add_argument("--candidates", type=int, default=40, help="candidate (train-split) views written to the cameras")
     p.add_argument("--test", type=int, default=10, help="held-out views for the reported PSNR/SSIM")

@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 
 from .options.common import add_output_option
+from .options.numbers import seed
 
 FIELDS = (
     "n_train",
@@ -33,6 +34,7 @@ OVERRIDES = {
     "resolution": {"flags": ("--res",)},
     "fov_x": {"flags": ("--fov",)},
     "box_size": {"flags": ("--box",)},
+    "seed": {"type": seed},  # 0 to recon.train_config.MAX_SEED, refused when parsed
     "up_axis": {
         "flags": ("--up", "--up-axis"),
         "dest": "up",

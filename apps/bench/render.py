@@ -20,8 +20,8 @@ import torch
 
 from fluidsim.files import write_json_atomic
 
-from ..options.common import add_device_option, add_json_option
-from ..options.numbers import int_in, seed
+from ..options.common import add_device_option, add_json_option, add_seed_option
+from ..options.numbers import int_in
 from ..runtime import thread_count
 from .yardsticks import reference_workload_ms
 
@@ -56,7 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="torch",
         help="renderer backend (default: %(default)s)",
     )
-    p.add_argument("--seed", type=seed, default=0, help="random seed of the scene (default: %(default)s)")
+    add_seed_option(p, "random seed of the scene (default: %(default)s)")
     add_json_option(p, "also write the figures to this JSON file (default: %(default)s, no file)", type=str)
 
 

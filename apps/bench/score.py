@@ -22,9 +22,9 @@ from ..options.common import (
     add_gaussians_option,
     add_json_option,
     add_probe_size_options,
+    add_seed_option,
     add_up_option,
 )
-from ..options.numbers import seed
 from ..runtime import positive_int, thread_count
 
 
@@ -64,7 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--densify-only", action="store_true", help="--densify: time only the dense set (its peak memory alone)"
     )
-    p.add_argument("--seed", type=seed, default=0, help="--densify: random seed of the jitter")
+    add_seed_option(p, "--densify: random seed of the jitter")
 
 
 def _time_set(gaussians, cfg, paper: bool, source: str) -> dict:

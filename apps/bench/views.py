@@ -33,8 +33,14 @@ from pathlib import Path
 
 from fluidsim.files import write_json_atomic
 
-from ..options.common import AHMED_CAMERAS, add_device_option, add_gaussians_option, add_json_option
-from ..options.numbers import camera_count, image_width, int_in, seed
+from ..options.common import (
+    AHMED_CAMERAS,
+    add_device_option,
+    add_gaussians_option,
+    add_json_option,
+    add_seed_option,
+)
+from ..options.numbers import camera_count, image_width, int_in
 from ..runtime import thread_count
 
 MAX_COUNT = 10_000_000  # as bench render's sets: 10^11 asked torch for 800 GB and ended in a traceback
@@ -93,7 +99,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(0: none; default: %(default)s)",
     )
     add_device_option(p, "torch device; cuda falls back to cpu with a warning (default: %(default)s)")
-    p.add_argument("--seed", type=seed, default=0, help="seed of the jitter, the cameras and the stand-in D_g")
+    add_seed_option(p, "seed of the jitter, the cameras and the stand-in D_g")
     add_json_option(p)
 
 

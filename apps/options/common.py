@@ -1,6 +1,7 @@
 """Options that many commands take with their own help text: the compute device, a figures JSON, the output,
-the scene's up direction, the probe's size and the executor of a study. Each is written once here; a command passes
-only what its help says differently. The bundled assets' paths are here too, the default inputs of demo and bench."""
+the scene's up direction, the probe's size, a random seed and the executor of a study. Each is written once here; a
+command passes only what its help says differently. The bundled assets' paths are here too, the default inputs of
+demo and bench."""
 
 from __future__ import annotations
 
@@ -51,6 +52,13 @@ def add_probe_size_options(p, radius_help: str, steps_help: str, steps_flag: str
 
     p.add_argument("--particle-radius", type=positive_number, default=None, help=radius_help)
     p.add_argument(steps_flag, type=step_count, default=None, help=steps_help)
+
+
+def add_seed_option(p, help: str) -> None:
+    """--seed: a random seed from 0 to recon.train_config.MAX_SEED (refused when parsed, exit 2), default 0."""
+    from .numbers import seed
+
+    p.add_argument("--seed", type=seed, default=0, help=help)
 
 
 def add_executor_arguments(p: argparse.ArgumentParser, progress_help: str) -> None:

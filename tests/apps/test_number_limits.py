@@ -1,6 +1,8 @@
 """Counts, steps, seeds, image widths and number lists of `fluidgs bench WHAT` and `demo` are refused when the options
 are parsed (exit 2, one line naming the option), before a set is built, a seed overflows or a run starts."""
 
+import argparse
+
 import pytest
 
 from apps import cli
@@ -49,3 +51,27 @@ def test_demo_render_width_is_named_when_out_of_range(tmp_path, capsys):
         err = capsys.readouterr().err
         assert exc.value.code == 2 and "argument --render-width: must be an integer from 1 to 65,536" in err, err
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("command", ["make-assets", "render-dataset"])
+@pytest.mark.parametrize("value", ["100000000000000000000", "-1"])
+def test_seeds_are_bounded_when_parsed(command, value, tmp_path, capsys):
+    """`make-assets --seed` was a plain int (10^20 refused by the training config, after the option was taken);
+    `render-dataset --seed 10^20` rendered a whole dataset. Both are refused when parsed, as the bench seeds are."""
+    argv = [command, *([str(tmp_path / "mesh.obj")] if command == "render-dataset" else []), "-o", str(tmp_path / "a")]
+    with pytest.raises(SystemExit) as exc:
+        cli.main([*argv, "--seed", value])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "argument --seed: must be an integer from 0 to 4,294,967,295" in err, err
+    assert not (tmp_path / "a").exists()
+
+
+def test_every_seed_option_of_these_commands_has_the_bounded_type():
+    from apps.options.numbers import seed
+
+    for command in (("make-assets",), ("render-dataset",), ("bench", "render"), ("bench", "score"), ("bench", "views")):
+        parser = cli.build_parser(command[0])
+        for name in command:
+            parser = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[name]
+        (action,) = [a for a in parser._actions if "--seed" in a.option_strings]
+        assert action.type is seed, command
