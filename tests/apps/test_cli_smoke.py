@@ -134,6 +134,11 @@ def _is_output(action: argparse.Action) -> bool:
     return action.dest in ("output", "json") or "-o" in action.option_strings
 
 
+def _is_number_type(kind) -> bool:
+    """int, float, or a bounded number of apps.options.numbers (a step count, a seed, ``int_in(1, 10)``)."""
+    return kind in (int, float) or getattr(kind, "__module__", None) == "apps.options.numbers"
+
+
 def _bad_argv(path: tuple[str, ...], parser: argparse.ArgumentParser, folder: Path) -> tuple[list[str], list[str]]:
     """(argv, the names a refusal must mention). Every input (positional, or required option other than the output)
     is a small file of text; a command without such inputs gets one for its first optional input path; one without
@@ -162,7 +167,7 @@ def _bad_argv(path: tuple[str, ...], parser: argparse.ArgumentParser, folder: Pa
     if optional_paths:
         a = optional_paths[0]
         return argv + [a.option_strings[-1], bad_file(a)], names
-    numeric = [a for a in actions if a.option_strings and a.nargs is None and a.type in (int, float)]
+    numeric = [a for a in actions if a.option_strings and a.nargs is None and _is_number_type(a.type)]
     assert numeric, f"fluidgs {_id(path)}: no input to make bad; teach _bad_argv about this command"
     a = numeric[0]
     return argv + [f"{a.option_strings[-1]}={NOT_A_NUMBER}"], [a.option_strings[-1]]
