@@ -85,7 +85,7 @@ def _cases(args: argparse.Namespace):
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.files import check_input_file, write_json_atomic
+    from fluidsim.files import check_input_file, check_not_input, write_json_atomic
     from nbv.bench.splash import INSTALL_HINT, splash_available
     from nbv.bench.splash_probe import force_check, passage_steps
     from recon.formats import detect_format
@@ -105,6 +105,8 @@ def run_command(args: argparse.Namespace) -> int:
         check_input_file(args.solid, "--solid", "pass a mesh, a Gaussian file or a RESULT.h5", folder_ok=True)
         if args.solid.is_dir():  # a Gaussian folder (PlayCanvas SOG) or recon.formats says what the folder is
             detect_format(args.solid)
+    inputs = {"--solid": args.solid} if args.solid is not None else {"--gaussians": args.gaussians}
+    check_not_input({"--json": args.json}, inputs)
     if args.solid is None and args.case != "sphere":  # the Ahmed case's Gaussians are read before any engine runs
         from ..options import load_gaussians_checked
 

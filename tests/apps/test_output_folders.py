@@ -39,3 +39,10 @@ def test_bench_forces_refuses_an_output_under_a_file_before_any_engine_runs(opti
     assert cli.main(["bench", "forces", "--case", "sphere", option, str(out)]) == 4
     assert str(tmp_path / "plain") in error_text(caplog) and "Errno" not in error_text(caplog)
     assert (tmp_path / "plain").read_text() == "x"
+
+
+def test_bench_forces_json_is_never_its_solid(tmp_path, caplog):
+    solid = tmp_path / "solid.json"
+    solid.write_text("x")
+    assert cli.main(["bench", "forces", "--solid", str(solid), "--json", str(solid)]) == 2
+    assert "would destroy the input" in error_text(caplog) and solid.read_text() == "x"
