@@ -253,6 +253,23 @@ class OracleConfig:
                 f"'states' x {settings} 'probes' settings make {states:,} oracle states, more than the {MAX_JOBS:,} "
                 "a study may plan; list fewer seeds or states (or split the study into several configs)"
             )
+        self._check_rules_and_numbers()
+        self._check_overrides()
+        keys = {"ActiveConfig": "active.", "TrainConfig": "active.train.", "PhysicsConfig": "active.physics."}
+        with config_keys(keys, "oracle config"):
+            base = self.active_config(self.seeds[0])  # validates the preset and the overrides
+        for name in self.probes:
+            self.probe_config(name)
+        low = base.initial_count
+        for n in self.states:
+            if not _is_int(n, low):
+                raise ValueError(
+                    f"oracle config: 'states' entry {n!r} must be an integer >= the {low} initial "
+                    "views; lower it or set active.initial_count"
+                )
+
+    def _check_rules_and_numbers(self) -> None:
+        """The rules and the reaching planner are registered; horizon, top_k, bootstrap and calibration in range."""
         for rule in self.rules:
             if rule not in RULES:
                 close = difflib.get_close_matches(str(rule), list(RULES), n=1)
@@ -280,6 +297,9 @@ class OracleConfig:
             )
         if not isinstance(self.calibration, bool):
             raise ValueError(f"oracle config: 'calibration' must be true or false, got {self.calibration!r}")
+
+    def _check_overrides(self) -> None:
+        """'active', 'probes' and 'functional' are objects of overrides (checked against their configs after)."""
         if not isinstance(self.active, dict):
             raise ValueError("oracle config: 'active' must be an object of ActiveConfig overrides")
         if not isinstance(self.probes, dict) or not self.probes:
@@ -300,18 +320,6 @@ class OracleConfig:
                     'functional target, e.g. {"particle_radius": 0.05, "steps": 300, "directions": ["-x"]}'
                 )
             self.functional_config()
-        keys = {"ActiveConfig": "active.", "TrainConfig": "active.train.", "PhysicsConfig": "active.physics."}
-        with config_keys(keys, "oracle config"):
-            base = self.active_config(self.seeds[0])  # validates the preset and the overrides
-        for name in self.probes:
-            self.probe_config(name)
-        low = base.initial_count
-        for n in self.states:
-            if not _is_int(n, low):
-                raise ValueError(
-                    f"oracle config: 'states' entry {n!r} must be an integer >= the {low} initial "
-                    "views; lower it or set active.initial_count"
-                )
 
     @classmethod
     def load(cls, path: str | Path) -> OracleConfig:
