@@ -257,6 +257,8 @@ def _footprint_radii(u, v, tz, a, c, det, cam: ViewConstants) -> torch.Tensor:
     radii.sqrt_()
     radii *= EXTENT_SIGMAS
     radii.ceil_().clamp_max_(MAX_RADIUS)
+    if _all_kept(u, v, tz, radii, cam):  # the culling below would multiply every radius by 1
+        return radii
     margin = torch.minimum(_axis_margin(u, radii, cam.mid_x, cam.half_x), _axis_margin(v, radii, cam.mid_y, cam.half_y))
     below = radii - 1.0
     torch.minimum(below, tz - cam.near_up, out=below)
@@ -266,6 +268,20 @@ def _footprint_radii(u, v, tz, a, c, det, cam: ViewConstants) -> torch.Tensor:
     margin += 1.0
     radii *= margin.clamp_max_(1.0)
     return radii.nan_to_num_(0.0)
+
+
+def _all_kept(u, v, tz, radii, cam: ViewConstants) -> bool:
+    """Whether :func:`_footprint_radii` culls none of these footprints, from five reductions: every centre lies in
+    [0.5, W - 0.5] x [0.5, H - 0.5] (so |c - W / 2| <= (W - 1) / 2 and each :func:`_axis_margin` is >= r >= 0), every
+    t_z >= the next value above the near plane and every radius >= 1, none of them NaN. Then every margin is >= 0 and
+    the culling's factor is 1 exactly (the usual block of a view of an object in the middle of the image)."""
+    if u.numel() == 0:
+        return False
+    for centre, mid, half in ((u, cam.mid_x, cam.half_x), (v, cam.mid_y, cam.half_y)):
+        lo, hi = torch.aminmax(centre)
+        if not (float(lo) >= float(mid - half) and float(hi) <= float(mid + half)):
+            return False
+    return bool(tz.min() >= cam.near_up) and bool(radii.min() >= 1.0)
 
 
 def _axis_range(center: torch.Tensor, radii: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

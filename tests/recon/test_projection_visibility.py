@@ -228,3 +228,44 @@ def test_in_place_core_gives_the_same_bits(dtype):
             assert torch.equal(before.nan_to_num(7.0), after.nan_to_num(7.0))
         checked += int((expected > 0).sum())
     assert checked > 1000
+
+
+def test_footprints_of_a_view_with_nothing_culled_skip_the_culling():
+    """A block whose centres all lie in [0.5, W - 0.5] x [0.5, H - 0.5], in front, with radii >= 1 keeps every
+    radius (the culling's factor is 1); the shortcut is taken exactly then, and the radii equal the full formula."""
+    from recon.projection import (
+        EXTENT_SIGMAS,
+        ViewConstants,
+        _all_kept,
+        _footprint_radii,
+        _screen_terms_in_place,
+        covariance_terms,
+    )
+
+    cam = Camera.look_at((0.0, 0.0, -3.0), (0.0, 0.0, 0.0), (0.0, -1.0, 0.0), 40, 30, math.radians(60))
+    k = ViewConstants.of(cam, NEAR_PLANE, torch.zeros(1))
+    ones = torch.ones(4)
+    u, v = torch.tensor([0.5, 39.5, 20.0, 3.0]), torch.tensor([0.5, 29.5, 7.0, 12.0])
+    tz = torch.tensor([float(k.near_up), 1.0, 2.0, 3.0])
+    assert _all_kept(u, v, tz, ones, k)
+    below = torch.nextafter(torch.tensor(0.5), torch.tensor(0.0))
+    for changed in (
+        (torch.cat([below.reshape(1), u[1:]]), v, tz, ones),
+        (u, torch.tensor([0.5, 29.5 + 1e-5, 7.0, 12.0]), tz, ones),
+        (u, v, torch.tensor([NEAR_PLANE, 1.0, 2.0, 3.0]), ones),
+        (u, v, tz, torch.tensor([1.0, 0.0, 1.0, 1.0])),
+        (u, v, tz, torch.tensor([1.0, math.nan, 1.0, 1.0])),
+        (torch.tensor([0.5, math.nan, 2.0, 3.0]), v, tz, ones),
+    ):
+        assert not _all_kept(*changed, k)
+    assert not _all_kept(u[:0], v[:0], tz[:0], ones[:0], k)
+
+    gaussians = _random_set(2000, seed=5, spread=0.8)  # all in front of the camera, centres inside the image
+    sigma = [t.detach() for t in covariance_terms(gaussians)]
+    x, y, z = gaussians.means.detach().T
+    u, v, tz, a, b, c = _screen_terms_in_place(x, y, z, sigma, k)
+    det = a * c - b * b
+    mid = (a + c) * 0.5
+    radii = torch.ceil(torch.sqrt(torch.sqrt((mid * mid - det).clamp_min(0.0)) + mid) * EXTENT_SIGMAS)
+    assert _all_kept(u, v, tz, radii.clamp_max(MAX_RADIUS), k)
+    assert torch.equal(_footprint_radii(u, v, tz, a, c, det, k), radii.clamp_max(MAX_RADIUS))
