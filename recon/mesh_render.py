@@ -372,10 +372,25 @@ def _write_json(path: Path, data: dict) -> None:
     path.write_text(json.dumps(data, indent=2) + "\n")
 
 
+# What a dataset folder holds at its top (module docstring): the only names --overwrite may delete with it.
+DATASET_LAYOUT = frozenset(
+    ["train", "test", "mesh.ply", "dataset.json", *(f"transforms_{split}.json" for split in ("train", "test", "val"))]
+)
+
+
 def _check_output(out_dir: Path, overwrite: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"{out_dir}: output exists and is not a folder; choose another -o")
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+    names = sorted(p.name for p in out_dir.iterdir()) if out_dir.is_dir() else []
+    foreign = [name for name in names if name not in DATASET_LAYOUT] or ([] if "dataset.json" in names else names)
+    if foreign:
+        # --overwrite deletes the old folder as a whole once the new one is swapped in: only an earlier dataset.
+        shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+        raise ValueError(
+            f"-o {out_dir} holds files that are not a dataset of render-dataset ({shown}); --overwrite replaces "
+            "only such a dataset folder (its dataset.json, images and transforms); choose a new or empty -o"
+        )
+    if names and not overwrite:
         raise ValueError(f"{out_dir}: output folder is not empty; pass --overwrite to replace it, or another -o")
     parent = out_dir.parent
     if not parent.is_dir():

@@ -49,6 +49,7 @@ from recon.formats.ply import save_gaussians
 from recon.gaussians import GaussianSet
 
 from helpers.cameras import ring_cameras, write_transforms
+from helpers.logs import error_text
 from helpers.paths import REPO as ROOT
 from helpers.scenes import small_scene
 from helpers.spheres import sphere_gaussians
@@ -153,6 +154,21 @@ def test_render_dataset_overwrite_refuses_a_mesh_inside_the_folder_it_replaces(t
         == 2
     )
     assert mesh.is_file() and "MESH" in caplog.text
+
+
+@pytest.mark.parametrize("overwrite", [[], ["--overwrite"]])
+def test_render_dataset_replaces_only_a_dataset_folder(tmp_path, caplog, overwrite):
+    """`render-dataset -o /etc --overwrite` swapped the new dataset in and deleted all of /etc; a folder of
+    other files (here the current folder, as `-o .`) is refused, with or without --overwrite."""
+    mesh = tmp_path / "tetra.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    out = tmp_path / "home"
+    out.mkdir()
+    (out / "notes.txt").write_text("kept")
+    args = ["render-dataset", str(mesh), "-o", str(out), "--train", "1", "--test", "1", "--res", "16"]
+    assert cli.main([*args, "--supersample", "1", "--no-progress", *overwrite]) == 2
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    assert "-o " in error_text(caplog) and "notes.txt" in error_text(caplog)
 
 
 def test_check_not_input_sees_links_and_labels():

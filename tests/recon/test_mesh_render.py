@@ -247,15 +247,19 @@ def test_input_errors(tmp_path):
     with pytest.raises(ValueError, match=r"cloud\.ply.*no triangles"):
         render_mesh_dataset(tmp_path / "cloud.ply", tmp_path / "out", SMALL)
     (tmp_path / "full").mkdir()
-    (tmp_path / "full" / "keep.txt").write_text("x")
+    (tmp_path / "full" / "dataset.json").write_text("{}")
     with pytest.raises(ValueError, match="overwrite"):
         render_mesh_dataset(TORUS, tmp_path / "full", SMALL)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "keep.txt").write_text("x")
+    with pytest.raises(ValueError, match=r"not a dataset of render-dataset \(keep\.txt\)"):
+        render_mesh_dataset(TORUS, tmp_path / "other", SMALL, overwrite=True)
     with pytest.raises(ValueError, match="parent"):
         render_mesh_dataset(TORUS, tmp_path / "no" / "such" / "dir", SMALL)
-    assert not (tmp_path / "out").exists()
+    assert not (tmp_path / "out").exists() and (tmp_path / "other" / "keep.txt").is_file()
     tiny = MeshDatasetConfig(n_train=1, n_test=0, resolution=16)
     render_mesh_dataset(TORUS, tmp_path / "full", tiny, overwrite=True, progress=False)
-    assert not (tmp_path / "full" / "keep.txt").exists() and (tmp_path / "full" / "train" / "r_000.png").is_file()
+    assert (tmp_path / "full" / "train" / "r_000.png").is_file()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".full.")]
 
 
