@@ -190,19 +190,28 @@ def _centres_inside(points: torch.Tensor, camera: Camera, near: float) -> torch.
 def _count_centres(xyz, rows: slice, u, v, tz, band: CentreBand, camera: Camera, near: float) -> int:
     """How many of a block's centres (u, v, t_z [n] of the Gaussians ``rows`` of ``xyz`` [3, N]) lie inside the
     view: the sure ones from the band (:class:`CentreBand`), the others by the float64 test."""
+    in_front = bool(tz.min() > band.front)  # False: some centre near or behind the near plane (or NaN)
+    if in_front and _all_within(u, band.mid_u, band.scale_u) and _all_within(v, band.mid_v, band.scale_v):
+        return u.shape[0]  # every centre of the block surely inside (the usual block of an object's orbit)
     s = (u - band.mid_u).abs_().mul_(band.scale_u)
     torch.maximum(s, (v - band.mid_v).abs_().mul_(band.scale_v), out=s)
-    if not bool(tz.min() > band.front):  # some centre near or behind the near plane (or NaN): by t_z first
+    if not in_front:  # by t_z first
         unsure = torch.full_like(s, 1.0)
         s = torch.where(tz > band.front, s, torch.where(tz < band.behind, torch.full_like(s, math.inf), unsure))
-    if float(s.max()) < 1.0:  # every centre of the block surely inside (the usual block of an object's orbit)
-        return s.shape[0]
     sure = int(torch.count_nonzero(s < 1.0))
     if int(torch.count_nonzero(s <= band.ceiling)) == sure:
         return sure
     rest = torch.nonzero((s >= 1.0) & (s <= band.ceiling)).reshape(-1) + rows.start
     points = xyz.index_select(1, rest).T.to(torch.float64)
     return sure + int(_centres_inside(points, camera, near).sum())
+
+
+def _all_within(centres: torch.Tensor, mid: float, scale: float) -> bool:
+    """Whether every centre lies strictly within (mid - 1 / scale, mid + 1 / scale), the sure half-width of a
+    :class:`CentreBand` (narrowed by 1e-9 of itself for the float64 rounding of the bounds), from one aminmax."""
+    half = (1.0 - 1e-9) / scale
+    lo, hi = torch.aminmax(centres)
+    return float(lo) > mid - half and float(hi) < mid + half
 
 
 def _centre_count(xyz, camera: Camera, reach: float, block: int, near: float, at_most: int | None) -> int:

@@ -138,6 +138,8 @@ def test_projected_counts_equal_the_float64_twin_at_the_borders(dtype):
     assert scores.projected_counts(means, cams, at_most=1).tolist() == [1, 1, 1]
     capped = scores.projected_counts(means, cams, at_most=500, block=64)
     assert torch.equal(capped, expected.clamp_max(500))
+    cluster = (torch.rand(300, 3, generator=gen, dtype=torch.float64) * 0.2).to(dtype)  # all surely inside cams[0]
+    assert scores.projected_counts(cluster, cams[:1], block=64).tolist() == [300]
     broken = means.clone()
     broken[0, 0] = math.nan  # no bound holds: every centre takes the float64 test
     assert torch.equal(scores.projected_counts(broken, cams), scores.projected_counts_reference(broken, cams))
