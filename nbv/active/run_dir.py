@@ -37,13 +37,9 @@ def prepare_run_dir(run_dir: Path, run_config: dict, overwrite: bool) -> bool:
     if run_dir.exists() and not run_dir.is_dir():
         raise ValueError(f"{run_dir} is a file; -o must be a run folder")
     cfg_path = run_dir / "config.json"
+    _check_run_files(run_dir, cfg_path)
     if cfg_path.exists() and not overwrite:
         old = read_json(cfg_path, "the run's config", "pass --overwrite to start again")
-        if not isinstance(old, dict):
-            raise ValueError(
-                f"the run's config {cfg_path} holds a JSON {type(old).__name__}, not the object `fluidgs active` "
-                "writes; pass --overwrite to start again"
-            )
         diff = config_differences(old, json_safe(run_config))
         if diff:
             raise ValueError(
@@ -57,6 +53,24 @@ def prepare_run_dir(run_dir: Path, run_config: dict, overwrite: bool) -> bool:
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json_atomic(cfg_path, run_config)
     return False
+
+
+def _check_run_files(run_dir: Path, cfg_path: Path) -> None:
+    """Refuse, with or without --overwrite, a folder whose files of a run's names are someone else's: a config.json
+    that is JSON but not a run's config (an object with 'active' and 'dataset'), or a gaussians.ply, rounds.json,
+    ... beside no config.json (a run writes its config.json first). The run would replace or delete them."""
+    fix = "choose another -o folder (--overwrite discards only a run of `fluidgs active`)"
+    if cfg_path.exists():
+        try:
+            old = read_json(cfg_path, "the run's config", "")
+        except ValueError:
+            return  # unreadable: the resume check names it, and --overwrite may discard a damaged run
+        if not isinstance(old, dict) or not isinstance(old.get("active"), dict) or "dataset" not in old:
+            raise ValueError(f"{cfg_path} is not the config.json of a `fluidgs active` run; {fix}")
+    elif run_dir.is_dir():
+        found = [name for name in RUN_FILES if (run_dir / name).exists()]
+        if found:
+            raise ValueError(f"-o {run_dir} holds {', '.join(found)} but no run's config.json; {fix}")
 
 
 CHECKPOINT_KEYS = frozenset({"version", "config", "selected", "rounds", "phase", "trainer", "torch_rng"})

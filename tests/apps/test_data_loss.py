@@ -171,6 +171,30 @@ def test_render_dataset_replaces_only_a_dataset_folder(tmp_path, caplog, overwri
     assert "-o " in error_text(caplog) and "notes.txt" in error_text(caplog)
 
 
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_active_leaves_files_of_a_run_s_names_that_are_not_a_run(tmp_path, overwrite):
+    """`active -o FOLDER` wrote its gaussians.ply over a user's gaussians.ply in a folder without a run, and with
+    --overwrite deleted a config.json (and rounds.json) that was not a run's."""
+    from nbv.active.run_dir import prepare_run_dir
+
+    run = {"dataset": "ds", "active": {"budget": 4}}
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "gaussians.ply").write_text("kept")
+    with pytest.raises(ValueError, match="holds gaussians.ply but no run's config.json"):
+        prepare_run_dir(mine, run, overwrite)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "config.json").write_text('{"method": "splatfacto"}')
+    (other / "rounds.json").write_text("kept")
+    with pytest.raises(ValueError, match="is not the config.json of a `fluidgs active` run"):
+        prepare_run_dir(other, run, overwrite)
+    assert (mine / "gaussians.ply").read_text() == (other / "rounds.json").read_text() == "kept"
+    assert json.loads((other / "config.json").read_text()) == {"method": "splatfacto"}
+    assert prepare_run_dir(tmp_path / "new", run, overwrite) is False  # a new folder, and a run folder, still work
+    assert prepare_run_dir(tmp_path / "new", run, overwrite) is False
+
+
 def test_check_not_input_sees_links_and_labels():
     import tempfile
 
