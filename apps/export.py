@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from .options.numbers import step_count
@@ -126,6 +127,32 @@ def write_splash_scenes(args: argparse.Namespace, is_hdf5: bool, probes: tuple |
     )
 
 
+def check_vtk_folder(folder: Path, outputs: dict) -> None:
+    """Refuse, before any work, what replacing the --vtk folder as a whole would destroy: another output inside it,
+    and an existing folder holding anything but an earlier export's .vtu and .pvd files (ValueError, exit 2); and a
+    folder beside which no new one can be made, as the export is written under a temporary name beside it and
+    renamed into place (OutputError, exit 4)."""
+    from fluidsim.files import check_writable
+
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"--vtk {folder} exists and is not a folder; name a folder")
+    for label, path in outputs.items():
+        if label != "--vtk" and path is not None and Path(path).resolve().is_relative_to(folder.resolve()):
+            raise ValueError(
+                f"{label} {path} lies inside --vtk {folder}, which is replaced as a whole; write it elsewhere"
+            )
+    if folder.is_dir():
+        others = sorted(p.name for p in folder.iterdir() if not (p.is_file() and p.suffix in (".vtu", ".pvd")))
+        if others:
+            shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
+            raise ValueError(
+                f"--vtk {folder} holds more than an earlier VTK export ({shown}), and replacing the folder would "
+                "delete it; give a new or empty folder, or one an earlier --vtk wrote"
+            )
+    where = Path(os.path.abspath(folder))  # the parent of the folder as named: a link is replaced, not followed
+    check_writable(where.with_name(where.name + ".pvd") if where.is_dir() else where)
+
+
 def run_command(args: argparse.Namespace) -> int:
     import h5py
 
@@ -153,9 +180,8 @@ def run_command(args: argparse.Namespace) -> int:
     if not is_hdf5 and (args.vtk is not None or args.solid is not None):
         raise ValueError(f"H5 {args.h5} is not an HDF5 file; pass an OUT.h5 (fluidgs sim) or a RESULT.h5")
     outputs = {"--vtk": args.vtk, "--splishsplash": args.splishsplash, **solid_export_outputs(args.solid)}
-    if args.solid is not None:
-        outputs["--solid"] = outputs.pop("--export-solid")
-    check_not_input(outputs, {"H5": args.h5})
+    outputs = {label.replace("--export-solid", "--solid"): path for label, path in outputs.items()}
+    check_not_input(outputs, {"H5": args.h5}, replaced={"--vtk": args.vtk})
     probes = None
     if args.probe is not None:
         from fluidsim.directions import DIRECTIONS
@@ -166,13 +192,11 @@ def run_command(args: argparse.Namespace) -> int:
             raise ValueError(f"--probe {args.probe!r}: use a comma list of {','.join(DIRECTIONS)}")
     if args.vtk is not None:
         kind = check_vtk_source(args.h5)
-        if args.vtk.exists() and not args.vtk.is_dir():
-            raise ValueError(f"--vtk {args.vtk} exists and is not a folder; name a folder")
+        check_vtk_folder(args.vtk, outputs)
         if probes is not None and kind != "result":
             raise ValueError("--probe applies to a RESULT.h5 with recorded probes; drop it for an OUT.h5")
         if probes is not None:
             check_recorded(args.h5, probes)
-        check_writable(args.vtk)  # the folder is written under a temporary name beside it
     if args.splishsplash is not None:
         if args.splishsplash.exists() and not args.splishsplash.is_dir():
             raise ValueError(f"--splishsplash {args.splishsplash} exists and is not a folder; name a folder")

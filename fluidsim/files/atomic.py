@@ -192,7 +192,10 @@ def atomic_folder(path: PathLike) -> Iterator[Path]:
                 os.replace(path, old)
                 _LIVE.add(old)
                 os.replace(tmp, path)
-                shutil.rmtree(old, ignore_errors=True)
+                if old.is_symlink():  # a link to a folder is replaced as a file is; rmtree refuses links
+                    old.unlink()
+                else:
+                    shutil.rmtree(old, ignore_errors=True)
                 _LIVE.discard(old)
             else:
                 os.replace(tmp, path)

@@ -14,6 +14,7 @@ from recon.formats.ply import read_ply_vertices, save_gaussians
 from recon.gaussians import SH_C0
 from viz.colors import UNREACHED_RGB
 
+from helpers.logs import error_text
 from helpers.spheres import sphere_gaussians
 from helpers.vtk_files import read_pvd, read_vtu
 
@@ -116,6 +117,35 @@ def test_bad_exports_exit_2_before_any_work(run, tmp_path, caplog):
     assert "/proc/fluidgs-test" in caplog.text and "solid:" not in caplog.text
     assert time.perf_counter() - t0 < 30
     assert not (tmp_path / "r.h5").exists() and not (tmp_path / "v").exists()
+
+
+def test_vtk_folder_is_replaced_only_when_it_holds_an_earlier_export(run, tmp_path, caplog):
+    """`export --vtk DIR` into the folder of an earlier export was exit 4 ("is a folder; give a file name"). The folder
+    is replaced as a whole, so an earlier export is replaced, while a folder holding other files, the input or another
+    output of the same run (each would be deleted with it) is refused before any work (exit 2)."""
+    import shutil
+
+    root, ply, h5 = run
+    vtk = tmp_path / "v"
+    assert cli.main(["export", str(h5), "--vtk", str(vtk)]) == 0
+    (vtk / "probe_pos_z.pvd").write_text("<VTKFile/>")  # as an export of another run would have left it
+    assert cli.main(["export", str(h5), "--vtk", str(vtk)]) == 0  # the earlier export replaced as a whole
+    assert (vtk / "probe_neg_x.pvd").is_file() and not (vtk / "probe_pos_z.pvd").exists()
+    (vtk / "notes.txt").write_text("mine")
+    assert cli.main(["export", str(h5), "--vtk", str(vtk)]) == 2
+    assert "--vtk" in error_text(caplog) and "holds more than an earlier VTK export (notes.txt)" in error_text(caplog)
+    assert (vtk / "notes.txt").read_text() == "mine"
+    inside = tmp_path / "in"
+    inside.mkdir()
+    shutil.copy(h5, inside / "r.h5")
+    assert cli.main(["export", str(inside / "r.h5"), "--vtk", str(inside)]) == 2
+    assert "the input H5" in error_text(caplog) and (inside / "r.h5").read_bytes() == h5.read_bytes()
+    w = tmp_path / "w"
+    for option, path in (("--solid", w / "s.ply"), ("--splishsplash", w / "ss")):
+        caplog.clear()
+        assert cli.main(["export", str(h5), "--vtk", str(w), option, str(path)]) == 2
+        assert f"{option} {path} lies inside --vtk {w}, which is replaced as a whole" in error_text(caplog)
+    assert not w.exists()
 
 
 def test_hostile_hdf5_files_are_refused_before_any_allocation(tmp_path, caplog):

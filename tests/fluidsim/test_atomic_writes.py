@@ -198,6 +198,19 @@ def test_atomic_folder_replaces_a_whole_folder_or_leaves_it(tmp_path):
     assert _listing(out) == ["b.txt"] and _listing(tmp_path) == ["dataset"]
 
 
+def test_atomic_folder_replaces_a_link_to_a_folder_and_leaves_no_temporary(tmp_path):
+    """A folder output that was a symbolic link to a folder: the link was moved aside and shutil.rmtree, which refuses
+    links, left it behind as a `.fgs-*.tmp.old` file. The link is replaced as a file would be; its target is kept."""
+    target = tmp_path / "target"
+    target.mkdir()
+    (target / "old.txt").write_text("0")
+    (tmp_path / "out").symlink_to(target)
+    with atomic_folder(tmp_path / "out") as tmp:
+        (tmp / "a.txt").write_text("1")
+    assert _listing(tmp_path) == ["out", "target"] and not (tmp_path / "out").is_symlink()
+    assert _listing(tmp_path / "out") == ["a.txt"] and _listing(target) == ["old.txt"]
+
+
 def test_json_is_strict_and_takes_numpy_scalars(tmp_path):
     data = {
         "nan": float("nan"),
