@@ -50,6 +50,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+from PIL import Image, UnidentifiedImageError
 
 from fluidsim.files import read_json
 
@@ -377,15 +378,33 @@ def _read_transforms(json_path: Path) -> tuple[dict, list[dict]]:
     return meta, frames
 
 
+def image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) of the image at ``path`` from its header alone, or None when it is not an image.
+
+    Pillow reads the header without decoding the pixels, so a small file that declares a huge image costs nothing
+    (its decompression-bomb limit guards decoding, which does not happen here, so it is lifted while the header is
+    read); the formats Pillow does not know (OpenEXR) are decoded by OpenCV.
+    """
+    limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
+    try:
+        with Image.open(path) as img:
+            return img.size
+    except (UnidentifiedImageError, OSError, ValueError):
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        return None if img is None else (img.shape[1], img.shape[0])
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+
+
 def _frame_size(json_path: Path, frame: dict, keys: dict, index: int, res: int | None) -> tuple[int, int]:
     """(width, height) of a frame for :func:`load_cameras`: ``w`` / ``h``, else its image, else ``res`` (square)."""
     if keys["w"] is not None and keys["h"] is not None:
         return keys["w"], keys["h"]
     if "file_path" in frame:
         for cand in _frame_image_candidates(json_path, frame):
-            img = cv2.imread(str(cand), cv2.IMREAD_UNCHANGED) if cand.is_file() else None
-            if img is not None:
-                return img.shape[1], img.shape[0]
+            size = image_size(cand) if cand.is_file() else None
+            if size is not None:
+                return size
     if res is None:
         raise ValueError(
             f"{_frame_where(json_path, frame, index)} has no 'w'/'h' keys and no readable image; add "

@@ -80,6 +80,37 @@ def test_size_from_image_then_res(tmp_path):
     assert cam.name == "view_000" and (cam.width, cam.height) == (24, 24)
 
 
+def _blank_png(path, width: int, height: int) -> None:
+    """A grey 8-bit PNG of ``width`` x ``height`` zeros, streamed row by row (a few hundred KB on disk)."""
+    import struct
+    import zlib
+
+    packer, row = zlib.compressobj(9), bytes(width + 1)  # filter byte 0, then the row
+    data = b"".join(packer.compress(row) for _ in range(height)) + packer.flush()
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", data) + chunk(b"IEND", b""))
+
+
+def test_size_from_an_image_reads_its_header_only(tmp_path, monkeypatch):
+    """The size of a frame without w/h came from decoding its whole image: a 400 KB PNG of 20000 x 10000 pixels cost
+    200 MB (a 20000 x 20000 RGB one, 2.6 GB, on every frame). Only the header is read now, past Pillow's bomb limit
+    (nothing is decoded), and the camera gets the image's size."""
+    _blank_png(tmp_path / "a.png", 20000, 10000)
+    assert (tmp_path / "a.png").stat().st_size < 1_000_000
+
+    def decode(*args, **kwargs):
+        raise AssertionError("the image was decoded to read its size")
+
+    monkeypatch.setattr(cv2, "imread", decode)
+    frames = [{"file_path": "./a", "transform_matrix": EYE}]
+    cam = load_cameras(_file(tmp_path, frames=frames, w=None, h=None))[0]
+    assert (cam.width, cam.height) == (20000, 10000)
+
+
 def _bad(matrix):
     return [{"file_path": "./a", "transform_matrix": EYE}, {"file_path": "./r_7", "transform_matrix": matrix}]
 
