@@ -148,12 +148,14 @@ H5_MAX_RATIO = 1100  # deflate cannot expand data more than ~1032:1: a larger cl
 H5_SLACK_BYTES = 1 << 20  # a dataset smaller than this is never refused (fill values of small arrays are fine)
 
 
-def check_hdf5_sizes(file, source: str) -> None:
+def check_hdf5_sizes(file, source: str, skip: tuple[str, ...] = ()) -> None:
     """Refuse an open ``h5py.File`` whose datasets declare more than they can hold, before any is read.
 
     Every dataset's declared size (shape x item size) must be at most :data:`H5_MAX_RATIO` times the bytes it stores
     plus :data:`H5_SLACK_BYTES` (a dataset declared with unwritten chunks stores nothing, and would be read as
     gigabytes of fill values), and at most the memory budget (:func:`check_budget`). Only metadata is read.
+
+    Groups named in ``skip`` (e.g. ``"trajectory"``, wherever it lies) are left out: their datasets are not read.
 
     Raises:
         ValueError: naming ``source``, the dataset, its shape and the bytes it stores.
@@ -161,7 +163,7 @@ def check_hdf5_sizes(file, source: str) -> None:
     import h5py  # noqa: PLC0415 - only the HDF5 readers need it
 
     def visit(name: str, obj) -> None:
-        if not isinstance(obj, h5py.Dataset):
+        if not isinstance(obj, h5py.Dataset) or set(name.split("/")[:-1]) & set(skip):
             return
         declared = int(obj.size or 0) * int(obj.dtype.itemsize)
         stored = int(obj.id.get_storage_size())

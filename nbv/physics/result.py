@@ -30,6 +30,7 @@ from nbv.physics.trajectory import (
     read_trajectory,
     write_trajectory,
 )
+from recon.inflate import check_hdf5_sizes
 
 
 @dataclass
@@ -295,6 +296,7 @@ def load_result(path: str | Path, trajectories: bool = False) -> PhysicsResult:
         with h5py.File(p, "r") as f:
             if "gaussians/D" not in f or "config" not in f.attrs:
                 raise ValueError(f"{p} is not a `fluidgs simulate` result (no /gaussians/D); re-run `fluidgs simulate`")
+            check_hdf5_sizes(f, str(p), skip=() if trajectories else ("trajectory",))  # before any is read
             return _read_result(f, trajectories)
     except (OSError, KeyError) as exc:
         raise ValueError(f"cannot read the result file {p}: {exc}; re-run `fluidgs simulate`") from exc

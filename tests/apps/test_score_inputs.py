@@ -47,6 +47,32 @@ def test_score_of_a_result_with_no_completed_probe_says_none_completed(data, no_
     assert "no probe completed" in error_text(caplog) and not out.exists()
 
 
+def test_a_result_declaring_more_than_it_stores_is_refused_before_reading(data, tmp_path, caplog):
+    """score and critical --result read RESULT.h5's datasets whole: a /gaussians/D declared (10^12,) with no chunk
+    written (a few KB on disk) was a 7 TiB MemoryError traceback. It is refused (exit 2) naming the dataset, as view
+    and export refuse it; a recorded trajectory, which load_result reads only when asked, is checked only then."""
+    from nbv.physics.result import load_result
+
+    bad = tmp_path / "huge.h5"
+    shutil.copy(data["h5"], bad)
+    with h5py.File(bad, "r+") as f:
+        del f["gaussians/D"]
+        f.create_dataset("gaussians/D", shape=(10**12,), dtype="f8", chunks=(1024,))
+    for command, extra in (("score", ["--no-png"]), ("critical", [])):
+        out = tmp_path / f"{command}.json"
+        args = ["--cameras", str(data["cameras"]), "--result", str(bad), "-o", str(out), *extra]
+        caplog.clear()
+        assert cli.main([command, str(data["ply"]), *args]) == 2
+        assert "/gaussians/D declares (1000000000000,) float64" in error_text(caplog) and not out.exists()
+    recorded = tmp_path / "recorded.h5"
+    shutil.copy(data["h5"], recorded)
+    with h5py.File(recorded, "r+") as f:
+        f.create_dataset("probes/-x/trajectory/x", shape=(4, 10**10, 3), dtype="f4", chunks=(1, 1024, 3))
+    assert load_result(recorded).divergence.shape == (300,)
+    with pytest.raises(ValueError, match="trajectory/x declares"):
+        load_result(recorded, trajectories=True)
+
+
 def test_absurd_image_sizes_are_refused_naming_the_camera(data, tmp_path, caplog):
     """Cameras with w = h = 1e9 tied every view with no warning."""
     from recon.camera import MAX_IMAGE_SIDE
