@@ -95,6 +95,13 @@ class ExperimentConfig:
             )
         if len(set(self.methods)) != len(self.methods) or len(set(self.seeds)) != len(self.seeds):
             raise ValueError("experiment config: 'methods' and 'seeds' must not repeat entries")
+        folders = Counter(Path(s).resolve() for s in self.scenes)
+        repeated = [s for s in self.scenes if folders[Path(s).resolve()] > 1]
+        if repeated:
+            # The same dataset twice would run every job twice and count it as two scenes in the tables.
+            raise ValueError(
+                f"experiment config: 'scenes' lists the dataset {repeated[0]} more than once; list it once"
+            )
         bad_seeds = [s for s in self.seeds if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s <= MAX_SEED]
         if bad_seeds:
             raise ValueError(

@@ -50,6 +50,18 @@ def test_experiment_config_errors_name_the_key(blender_scene, tmp_path, caplog, 
     assert key in error_text(caplog) and "Config." not in error_text(caplog)
 
 
+def test_experiment_refuses_a_scene_listed_twice(blender_scene, tmp_path, caplog):
+    """The same dataset listed twice (here once through a link) ran every job twice, into runs/scene and
+    runs/scene-2, and the tables counted the copies as two scenes (n = 2, spread 0)."""
+    link = tmp_path / "again"
+    link.symlink_to(blender_scene)
+    path = tmp_path / "exp.json"
+    doc = {"scenes": [str(blender_scene), str(link)], "methods": ["random"], "output": str(tmp_path / "out")}
+    path.write_text(json.dumps(doc))
+    assert cli.main(["experiment", str(path), "--no-progress"]) == 2
+    assert "'scenes' lists the dataset" in error_text(caplog) and not (tmp_path / "out").exists()
+
+
 def _write_experiment(path, scene, output: str) -> None:
     """An experiment of the random method on ``scene`` with a budget of 4 views and no reference, into ``output``."""
     doc = {"scenes": [str(scene)], "methods": ["random"], "reference_views": None, "output": output}
