@@ -9,7 +9,10 @@ opacity buffer per view instead of rendering the surface (:func:`nbv.scores.unoc
 
 On the CPU the cameras are scored side by side on torch's thread count, each thread running single-threaded ops on
 blocks that stay in its cache; :func:`projected_view_scores_reference` is the one-thread twin, the depth test on
-whole arrays. The public names are also importable from :mod:`nbv.scores`.
+whole arrays. The centres inside each view (:func:`projected_counts`, the check that a camera sees anything) are
+counted from the same projected centres, the few within round-off of the image border taking the float64 test
+(:class:`CentreBand`); :func:`projected_counts_reference` is their twin. The public names are also importable from
+:mod:`nbv.scores`.
 """
 
 from __future__ import annotations
@@ -154,10 +157,12 @@ class CentreBand:
     def of(cls, camera: Camera, reach: float, dtype: torch.dtype, near: float) -> CentreBand | None:
         """The band of ``camera`` for centres whose |x| + |y| + |z| is at most ``reach``, computed in ``dtype``;
         None when the bounds are not finite or wider than the image (then every centre takes the float64 test)."""
+        if not near > 0:
+            return None
         unit = torch.finfo(dtype).eps / 2
         t = camera.world_to_camera[:3, 3].to(torch.float64).abs().sum().item()
-        err = 8.0 * (unit + 2.0**-53) * (reach + t + abs(near))
-        k2 = 2.0 * (err / near + 8.0 * unit) if near > 0 else math.inf
+        err = 8.0 * (unit + 2.0**-53) * (reach + t + near)
+        k2 = 2.0 * (err / near + 8.0 * unit)
         bounds = []
         for size, focal, centre in ((camera.width, camera.fx, camera.cx), (camera.height, camera.fy, camera.cy)):
             half = size / 2
@@ -219,7 +224,8 @@ def _centre_count(xyz, camera: Camera, reach: float, block: int, near: float, at
     reaches ``at_most``."""
     band = CentreBand.of(camera, reach, xyz.dtype, near)
     if band is None:
-        return int(_centres_inside(xyz.T.to(torch.float64), camera, near).sum())
+        count = int(_centres_inside(xyz.T.to(torch.float64), camera, near).sum())
+        return count if at_most is None else min(count, at_most)
     count = 0
     for rows, u, v, tz in view_centres(xyz, camera, block, near):
         count += _count_centres(xyz, rows, u, v, tz, band, camera, near)

@@ -143,6 +143,8 @@ def test_projected_counts_equal_the_float64_twin_at_the_borders(dtype):
     broken = means.clone()
     broken[0, 0] = math.nan  # no bound holds: every centre takes the float64 test
     assert torch.equal(scores.projected_counts(broken, cams), scores.projected_counts_reference(broken, cams))
+    assert scores.projected_counts(broken, cams, at_most=3).tolist() == [3, 3, 3]
+    assert torch.equal(scores.projected_counts(means, cams, 0.0), scores.projected_counts_reference(means, cams, 0.0))
 
 
 def test_unoccluded_hides_what_is_behind_the_surface():
