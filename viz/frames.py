@@ -57,7 +57,7 @@ import h5py
 import numpy as np
 from tqdm import tqdm
 
-from fluidsim.files import check_writable, write_bytes_atomic
+from fluidsim.files import atomic_files, check_writable, write_bytes_atomic
 
 from .colors import TURBO_BGR
 from .frame_source import FrameSource, box_corners, check_domain, check_frames_file
@@ -298,15 +298,17 @@ def _write_video(frames: Iterator[np.ndarray], out: Path, style: FrameStyle) -> 
 
 
 def _write_pngs(frames: Iterator[np.ndarray], directory: Path) -> list[Path]:
-    paths = []
-    for i, image in enumerate(frames):
-        ok, data = cv2.imencode(".png", image)
-        if not ok:
-            raise OSError(f"OpenCV failed to encode frame {i} as PNG for {directory}")
-        path = directory / f"frame_{i:06d}.png"
-        write_bytes_atomic(path, data.tobytes())
-        paths.append(path)
-    return paths
+    """The frames as ``directory/frame_NNNNNN.png``, moved in together once all are drawn (a render stopped midway
+    leaves the frames of an earlier render as they were)."""
+    names = []
+    with atomic_files(directory) as tmp:
+        for i, image in enumerate(frames):
+            ok, data = cv2.imencode(".png", image)
+            if not ok:
+                raise OSError(f"OpenCV failed to encode frame {i} as PNG for {directory}")
+            names.append(f"frame_{i:06d}.png")
+            write_bytes_atomic(tmp / names[-1], data.tobytes())
+    return [directory / name for name in names]
 
 
 # ---------------------------------------------------------------------------------------------------

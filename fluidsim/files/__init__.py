@@ -16,6 +16,7 @@ name                           what
 :class:`PendingFile`           the same for a file kept open across calls (``commit()`` / ``discard()``)
 :func:`write_bytes_atomic`     bytes, text and strict JSON (:func:`json_safe`) in one call
 :func:`atomic_folder`          a whole folder under a temporary name, swapped in at the end
+:func:`atomic_files`           a set of files into a folder, moved in together at the end (PNG frames)
 :func:`check_writable`         before any work: folders, name lengths, the temporary name tried in the folder
 :func:`check_not_input`        before any work: no output is an input or another output (links included)
 :func:`check_input_file`       before reading: an input is a regular file (a FIFO, /dev/zero, a link loop named)
@@ -34,6 +35,7 @@ from .atomic import (
     TEMP_PREFIX,
     OutputError,
     PendingFile,
+    atomic_files,
     atomic_folder,
     atomic_output,
     json_safe,
@@ -64,6 +66,7 @@ __all__ = [
     "TEMP_PREFIX",
     "OutputError",
     "PendingFile",
+    "atomic_files",
     "atomic_folder",
     "atomic_output",
     "check_distinct_outputs",

@@ -205,6 +205,29 @@ def atomic_folder(path: PathLike) -> Iterator[Path]:
         _LIVE.discard(tmp)
 
 
+@contextmanager
+def atomic_files(folder: PathLike) -> Iterator[Path]:
+    """Write a set of files into the folder ``folder`` all or none, keeping what else it holds: yields an empty
+    :func:`temp_path` folder inside it; when the block ends normally, each file written there is renamed into
+    ``folder`` (replacing a file of the same name), and the temporary folder is deleted either way. A block stopped
+    midway (a signal, an error) leaves ``folder`` as it was, never half of an earlier set and half of a new one.
+    """
+    folder = Path(folder).absolute()
+    tmp = temp_path(folder / "files")
+    _LIVE.add(tmp)
+    with output_errors(folder):
+        tmp.mkdir()
+    try:
+        with output_errors(folder):
+            yield tmp
+            for p in sorted(tmp.iterdir()):
+                os.replace(p, folder / p.name)
+                note_written(folder / p.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+        _LIVE.discard(tmp)
+
+
 def track_temp(path: PathLike) -> Path:
     """Note ``path`` as a temporary file or folder of this process (:func:`remove_unfinished` removes it)."""
     p = Path(path).absolute()

@@ -211,6 +211,21 @@ def test_atomic_folder_replaces_a_link_to_a_folder_and_leaves_no_temporary(tmp_p
     assert _listing(tmp_path / "out") == ["a.txt"] and _listing(target) == ["old.txt"]
 
 
+def test_atomic_files_moves_a_set_in_together_or_none(tmp_path):
+    from fluidsim.files import atomic_files
+
+    (tmp_path / "a.png").write_text("old a")
+    (tmp_path / "keep.txt").write_text("mine")
+    with pytest.raises(KeyboardInterrupt), atomic_files(tmp_path) as tmp:
+        (tmp / "a.png").write_text("new a")
+        raise KeyboardInterrupt
+    assert _listing(tmp_path) == ["a.png", "keep.txt"] and (tmp_path / "a.png").read_text() == "old a"
+    with atomic_files(tmp_path) as tmp:
+        for name in ("a.png", "b.png"):
+            (tmp / name).write_text("new")
+    assert _listing(tmp_path) == ["a.png", "b.png", "keep.txt"] and (tmp_path / "a.png").read_text() == "new"
+
+
 def test_json_is_strict_and_takes_numpy_scalars(tmp_path):
     data = {
         "nan": float("nan"),

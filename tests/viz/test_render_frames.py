@@ -216,6 +216,27 @@ def test_png_frames_show_the_hot_particle_in_warm_colours(tmp_path):
         np.testing.assert_array_equal(image[v, u], rf._COLORMAP_LUT[0])  # bottom of the scale
 
 
+def test_a_render_stopped_midway_keeps_the_earlier_frames(tmp_path, monkeypatch):
+    """PNG frames went into -o one by one: a render into the folder of an earlier one, stopped midway (Ctrl-C,
+    SIGTERM), left some frames new and the rest old. They are drawn aside and moved in together at the end."""
+    h5 = _write_h5(tmp_path / "OUT.h5")
+    out = tmp_path / "frames"
+    render_frames(h5, out, FrameStyle(width=W, height=H), progress=False)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    drawn = rf._Renderer.frames
+
+    def stopped(self):
+        for i, image in enumerate(drawn(self)):
+            if i == 2:
+                raise KeyboardInterrupt
+            yield image
+
+    monkeypatch.setattr(rf._Renderer, "frames", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        render_frames(h5, out, FrameStyle(view="iso", width=W, height=H), progress=False)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # no temporary folder left either
+
+
 def test_default_vmax_is_the_99th_percentile_over_all_frames(tmp_path):
     h5 = _write_h5(tmp_path / "OUT.h5")
     with h5py.File(h5) as f:
