@@ -179,12 +179,12 @@ def _screen_terms(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewConstants):
     return u, v, tz, a, b, c
 
 
-def _screen_terms_in_place(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewConstants):
+def _screen_terms_in_place(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewConstants, out=None):
     """:func:`_screen_terms` without gradients, in fewer and reused buffers (no new values: the same operations on
     the same operands in the same order, so the same bits; a test holds the two together).
 
     About 20 % faster on the CPU at 32k-element blocks, where the ~60 temporaries of :func:`_screen_terms` do not
-    stay in the cache.
+    stay in the cache. ``out``: (u, v, t_z) tensors to write those three into (:func:`_centres_in_place`).
     """
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = cam.rot
     s00, s01, s02, s11, s12, s22 = sigma
@@ -199,7 +199,7 @@ def _screen_terms_in_place(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewCons
         out = s * q
         return torch.sub(r, out, out=out)
 
-    u, v, tz, xz, yz, inv_z = _centres_in_place(x, y, z, cam)
+    u, v, tz, xz, yz, inv_z = _centres_in_place(x, y, z, cam, out)
     sx, sy = xz.clamp_(-cam.lim_x, cam.lim_x), yz.clamp_(-cam.lim_y, cam.lim_y)
     e00, e01, e02 = edge(r00, sx, r20), edge(r01, sx, r21), edge(r02, sx, r22)
     e10, e11, e12 = edge(r10, sy, r20), edge(r11, sy, r21), edge(r12, sy, r22)
@@ -215,42 +215,48 @@ def _screen_terms_in_place(x, y, z, sigma: Sequence[torch.Tensor], cam: ViewCons
     return u, v, tz, a, b, c
 
 
-def _centres_in_place(x, y, z, cam: ViewConstants):
+def _centres_in_place(x, y, z, cam: ViewConstants, out=None):
     """The projected centres of :func:`_screen_terms_in_place` (its first operations, the same bits): u, v
-    (pixels), the raw depth t_z, the ratios t_x / t_z and t_y / t_z and 1 / max(t_z, near), all [N] and new.
+    (pixels), the raw depth t_z, the ratios t_x / t_z and t_y / t_z and 1 / max(t_z, near), all [N] and new, or u,
+    v and t_z written into the three tensors of ``out``.
 
     The ratios and the reciprocal are handed on to the rest of the core, which overwrites them.
     """
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = cam.rot
+    u_out, v_out, tz_out = (None, None, None) if out is None else out
 
-    def row(a, b, c, t):  # x a + y b + z c + t
-        out = x * a
-        out += y * b
-        out += z * c
-        out += t
-        return out
+    def row(a, b, c, t, into=None):  # x a + y b + z c + t
+        acc = torch.mul(x, a, out=into) if into is not None else x * a
+        acc += y * b
+        acc += z * c
+        acc += t
+        return acc
 
-    tx, ty, tz = row(r00, r01, r02, cam.trans[0]), row(r10, r11, r12, cam.trans[1]), row(r20, r21, r22, cam.trans[2])
+    tx, ty = row(r00, r01, r02, cam.trans[0]), row(r10, r11, r12, cam.trans[1])
+    tz = row(r20, r21, r22, cam.trans[2], tz_out)
     inv_z = tz.clamp_min(cam.near).reciprocal_()
     xz, yz = tx.mul_(inv_z), ty.mul_(inv_z)
-    u, v = xz * cam.fx, yz * cam.fy
+    u = torch.mul(xz, cam.fx, out=u_out) if u_out is not None else xz * cam.fx
+    v = torch.mul(yz, cam.fy, out=v_out) if v_out is not None else yz * cam.fy
     u += cam.cx
     v += cam.cy
     return u, v, tz, xz, yz, inv_z
 
 
-def _footprint_radii(u, v, tz, a, c, det, cam: ViewConstants) -> torch.Tensor:
+def _footprint_radii(u, v, tz, a, c, det, cam: ViewConstants, out: torch.Tensor | None = None) -> torch.Tensor:
     """Float radii ceil(3 sqrt(lambda_max)) of visible footprints, 0 for culled ones, [N] (no gradient).
 
     ``det`` is a c - b^2 of Sigma'. Culled: behind the near plane, not finite, or no pixel centre of the
     image within [u - r, u + r] x [v - r, v + r] (:func:`_axis_margin`). Written with arithmetic only (the
     sign of one min over the margins) because torch's comparisons and ``where`` cost 5-50 times an
-    arithmetic op on the CPU.
+    arithmetic op on the CPU. ``out``: a tensor to write the radii into.
     """
     # in place on its own temporaries (the inputs are left alone): fewer buffers, the same operations and bits
     mid = a + c
     mid *= 0.5
-    radii = mid * mid  # lambda_max = sqrt(max(mid^2 - det, 0)) + mid, then r = min(ceil(3 sqrt(lambda_max)), MAX)
+    radii = (
+        torch.mul(mid, mid, out=out) if out is not None else mid * mid
+    )  # lambda_max = sqrt(max(mid^2 - det, 0)) + mid, then r = min(ceil(3 sqrt(lambda_max)), MAX)
     radii -= det
     radii.clamp_min_(0.0).sqrt_()
     radii += mid
@@ -464,17 +470,38 @@ def inline_ops(device: torch.device):
 def view_blocks(
     terms: GaussianTerms, camera: Camera, index: int, block: int, near_plane: float = NEAR_PLANE
 ) -> Iterator[VisibilityBlock]:
-    """The blocks of one camera (see :func:`iter_visibility`); each block is computed under :func:`inline_ops`."""
+    """The blocks of one camera (see :func:`iter_visibility`); each block is computed under :func:`inline_ops`.
+
+    On the CPU a block larger than CPU_BLOCK is projected in parts of CPU_BLOCK written into its five arrays (the
+    same operations, so the same bits): the core's temporaries stay in the cache (about 12 % less time than whole
+    128k blocks), while the caller's passes over the block keep the longer operations.
+    """
     cam = ViewConstants.of(camera, near_plane, terms.xyz)
+    part = CPU_BLOCK if terms.xyz.device.type == "cpu" else block
     with torch.no_grad():
         for n0 in range(0, terms.num, block):
             cols = slice(n0, min(n0 + block, terms.num))
             with inline_ops(terms.xyz.device):
-                u, v, tz, a, b, c = _screen_terms_in_place(*terms.xyz[:, cols], terms.sigma[:, cols].unbind(0), cam)
-                det = a * c
-                det -= b.mul_(b)
-                radii = _footprint_radii(u, v, tz, a, c, det, cam)
+                if cols.stop - cols.start <= part:
+                    fields = _project_block(terms, cols, cam)
+                else:
+                    fields = torch.empty(5, cols.stop - cols.start, dtype=terms.xyz.dtype, device=terms.xyz.device)
+                    for p0 in range(cols.start, cols.stop, part):
+                        p = slice(p0, min(p0 + part, cols.stop))
+                        _project_block(terms, p, cam, fields[:, p0 - cols.start : p.stop - cols.start])
+                u, v, tz, det, radii = fields
             yield VisibilityBlock(index, cols, radii, u, v, tz, det)
+
+
+def _project_block(terms: GaussianTerms, cols: slice, cam: ViewConstants, out: torch.Tensor | None = None):
+    """(u, v, t_z, det Sigma', radii) of the Gaussians ``cols``: new tensors, or written into the rows of ``out``
+    [5, n]."""
+    rows = (None,) * 5 if out is None else out.unbind(0)
+    u, v, tz, a, b, c = _screen_terms_in_place(*terms.xyz[:, cols], terms.sigma[:, cols].unbind(0), cam, rows[:3])
+    det = torch.mul(a, c, out=rows[3]) if out is not None else a * c
+    det -= b.mul_(b)
+    radii = _footprint_radii(u, v, tz, a, c, det, cam, rows[4])
+    return u, v, tz, det, radii
 
 
 def view_centres(
