@@ -120,6 +120,11 @@ class PhysicsConfig:
                 f"PhysicsConfig.steps must be at most {MAX_STEPS:,} time steps per probe (the paper's run 750), "
                 f"got {self.steps}"
             )
+        if self.accumulate_every > self.steps:  # steps k, 2k, ... are accumulated: none of 1..steps
+            raise ValueError(
+                f"PhysicsConfig.accumulate_every must be at most the {self.steps} steps per probe, got "
+                f"{self.accumulate_every}: no step would be accumulated and D_g would be 0 everywhere"
+            )
         if isinstance(self.probe_snap, bool) or not isinstance(self.probe_snap, int) or self.probe_snap < 0:
             raise ValueError(
                 f"PhysicsConfig.probe_snap must be an integer >= 0 (particle spacings), got {self.probe_snap!r}"

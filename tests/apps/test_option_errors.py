@@ -19,6 +19,18 @@ def test_config_errors_name_the_option_not_the_class(tmp_path, caplog):
     assert "--probe-steps must be an integer >= 1" in msg and "Config." not in msg
 
 
+@pytest.mark.parametrize("command", ["simulate", "critical", "compare"])
+def test_accumulating_less_often_than_once_per_probe_is_refused(command, tmp_path, caplog):
+    """--accumulate-every above --steps accumulated no step: the whole run gave D_g = 0 everywhere and a warning to
+    check the time step, the scale and the up direction. It is refused before any work, naming the option."""
+    out = (
+        ["--cameras", "orbit:4"] if command == "critical" else ["--reference", "g.ply"] if command == "compare" else []
+    )
+    args = [command, "g.ply", "-o", str(tmp_path / "r.json"), *out, "--steps", "20", "--accumulate-every", "21"]
+    assert cli.main(args) == 2
+    assert "--accumulate-every must be at most the 20 steps per probe, got 21" in error_text(caplog)
+
+
 def test_rename_fields_replaces_whole_names_only():
     from apps.options import option_names
     from apps.options.fields import rename_fields
