@@ -46,7 +46,7 @@ from fluidsim.files import check_input_file
 
 from ..gaussians import SH_C0, GaussianSet
 from ..inflate import check_budget
-from ..similarity import invert_similarity, transform_gaussians
+from ..similarity import invert_similarity, split_similarity, transform_gaussians
 from .arrays import gaussians_from_arrays
 
 log = logging.getLogger(__name__)
@@ -328,7 +328,24 @@ def colmap_normalization(folder: Path) -> np.ndarray:
             f"normalisation needs the cameras and the points of the model it was trained on"
         )
     camtoworlds = np.linalg.inv(np.stack([w2c for _, w2c, _, _ in model.images]))
-    return gsplat_normalization(camtoworlds, model.points)
+    try:
+        with np.errstate(divide="ignore", invalid="ignore"):  # cameras in one place: a scale of 1/0
+            return gsplat_normalization(camtoworlds, model.points)
+    except np.linalg.LinAlgError as exc:
+        raise ValueError(
+            f"--colmap {sparse}: gsplat's normalisation of it is undefined ({exc}: the cameras stand in one place); "
+            "pass the COLMAP model gsplat was trained on"
+        ) from None
+
+
+def _undone(normalization: np.ndarray, what: str, fix: str) -> np.ndarray:
+    """The inverse of a trainer's normalisation, or a ValueError naming where it came from (``what``) and ``fix``:
+    a degenerate one (a scale that overflows or vanishes, cameras all in one place) is no similarity."""
+    try:
+        split_similarity(normalization, what)
+    except ValueError as exc:
+        raise ValueError(f"{exc}; pass {fix}") from None
+    return invert_similarity(normalization)
 
 
 def restore_metric_frame(
@@ -345,12 +362,20 @@ def restore_metric_frame(
     if model.trainer == "nerfstudio":
         found = dataparser_transforms or find_dataparser_transforms(path)
         if found is not None:
-            undo = invert_similarity(nerfstudio_normalization(found))
+            undo = _undone(
+                nerfstudio_normalization(found),
+                f"{found}: 'scale' times 'transform'",
+                "the one written beside the run's config.yml",
+            )
             return (transform_gaussians(model.gaussians, undo), undo, f"nerfstudio's normalisation undone with {found}")
         fix = "pass --dataparser-transforms PATH (written beside the run's config.yml)"
     else:
         if colmap is not None:
-            undo = invert_similarity(colmap_normalization(colmap))
+            undo = _undone(
+                colmap_normalization(colmap),
+                f"--colmap {colmap}: gsplat's normalisation of it",
+                "the COLMAP model gsplat was trained on",
+            )
             return (
                 transform_gaussians(model.gaussians, undo),
                 undo,

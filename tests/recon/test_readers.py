@@ -338,6 +338,34 @@ def test_nerfstudio_restored_with_dataparser_transforms(tmp_path, layout, caplog
     torch.testing.assert_close(given.means, metric.means, rtol=0, atol=1e-4)
 
 
+def test_degenerate_normalisations_name_their_file(tmp_path):
+    """A dataparser_transforms.json whose scale overflows or vanishes (1e308, 1e-300) said only "transform is not a
+    similarity", and a COLMAP model whose cameras all stand in one place "Eigenvalues did not converge": no file, no
+    fix. Each names its file (or --colmap) and the fix."""
+    g = random_splats(20, 0)
+    params = {"means": g.means, "quats": g.quats, "scales": g.log_scales, "opacities": g.opacity_logits[:, None]}
+    params["features_dc"] = g.sh[:, 0]
+    ckpt = tmp_path / "step-000000001.ckpt"
+    torch.save({"step": 1, "pipeline": {"_model.gauss_params." + k: v for k, v in params.items()}}, ckpt)
+    doc = tmp_path / "dataparser_transforms.json"
+    for scale in (1e308, 1e-300):
+        doc.write_text(json.dumps({"transform": np.eye(4)[:3].tolist(), "scale": scale}))
+        with pytest.raises(ValueError) as info:
+            formats.load_gaussians_framed(ckpt)
+        assert f"{doc}: 'scale' times 'transform' is not a similarity" in str(info.value)
+        assert "pass the one written beside the run's config.yml" in str(info.value)
+    splats = {"means": g.means, "quats": g.quats, "scales": g.log_scales, "opacities": g.opacity_logits}
+    torch.save({"step": 1, "splats": {**splats, "sh0": g.sh[:, :1]}}, tmp_path / "ckpt_1_rank0.pt")
+    model = tmp_path / "sparse"
+    model.mkdir()
+    (model / "cameras.txt").write_text("1 PINHOLE 100 100 50 50 50 50\n")
+    (model / "images.txt").write_text("1 1 0 0 0 0 0 0 1 a.png\n\n2 1 0 0 0 0 0 0 1 b.png\n\n")  # both at the origin
+    (model / "points3D.txt").write_text("".join(f"{i} {i % 2} {i // 2} {i} 1 1 1 0\n" for i in range(1, 5)))
+    with pytest.raises(ValueError, match="the cameras stand in one place") as info:
+        formats.load_gaussians_framed(tmp_path / "ckpt_1_rank0.pt", formats.LoadOptions(colmap=model))
+    assert f"--colmap {model}" in str(info.value) and "gsplat was trained on" in str(info.value)
+
+
 def test_splatfacto_degree_zero_colour_is_a_logit(tmp_path):
     rgb = torch.tensor([[0.2, 0.5, 0.9]])
     params = {
