@@ -65,6 +65,7 @@ from nbv.ranking import spearman
 from nbv.study import calibration as cal
 from nbv.study.experiment_config import scene_names
 from nbv.study.oracle_config import RULES, OracleConfig, rule_of
+from nbv.study.oracle_pool import state_problem
 from nbv.study.oracle_summary import format_summary, summarise
 from recon.datasets import load_dataset
 from recon.gaussians import GaussianSet
@@ -160,7 +161,7 @@ def _stored(path: Path, config: dict) -> dict | None:
     except ValueError:  # not a finished state (cut short, garbage, nested too deeply): the state is computed again
         return None
     key = {k: v for k, v in config.items() if k not in STUDY_ONLY_KEYS}
-    return data if isinstance(data, dict) and data.get("config") == key else None
+    return data if state_problem(data) is None and data.get("config") == key else None
 
 
 # ---- probes and rules --------------------------------------------------------------------------------

@@ -28,6 +28,39 @@ MAX_STATE_BYTES = 64 << 20  # a state file is a few hundred KB (its rules' score
 POOL_FREE_KEYS = ("scenes", "seeds", "states", "output", "bootstrap", "rules")
 
 
+def _numbers(values: Any, count: int) -> bool:
+    """``values`` is a list of ``count`` numbers (None stands for a NaN that JSON cannot hold)."""
+    return isinstance(values, list) and len(values) == count and all(_number(v) for v in values)
+
+
+def _number(v: Any) -> bool:
+    return v is None or (isinstance(v, (int, float)) and not isinstance(v, bool))
+
+
+def state_problem(state: Any) -> str | None:
+    """What keeps ``state`` (a state file's JSON) from being a finished state of `fluidgs study oracle`, in words, or
+    None: the summary reads its scene, seed and state, and per candidate the rules' scores and the oracle's gains."""
+    if not isinstance(state, dict):
+        return f"holds a JSON {type(state).__name__}, not a state object"
+    kinds = {"config": dict, "scene": str, "seed": int, "n_selected": int, "candidates": list, "shortlist": list}
+    kinds |= {"scores": dict, "oracle": dict}
+    words = {dict: "object", str: "string", int: "integer", list: "list"}
+    wrong = [k for k, kind in kinds.items() if not isinstance(state.get(k), kind) or isinstance(state[k], bool)]
+    if wrong:
+        return f"has no {wrong[0]!r} {words[kinds[wrong[0]]]}"
+    count = len(state["candidates"])
+    lists = {f"scores.{k}": v for k, v in state["scores"].items()}
+    lists |= {f"oracle.{k}": v for k, v in state["oracle"].items() if isinstance(v, list)}
+    bad = [key for key, values in lists.items() if not _numbers(values, count)]
+    if bad:
+        return f"has a {bad[0]!r} that is not {count} numbers, one per candidate"
+    if not all(_number(v) for v in state["oracle"].values() if not isinstance(v, list)):
+        return "has an 'oracle' value that is not a number"
+    if not all(isinstance(i, int) and 0 <= i < count for i in state["shortlist"]):
+        return f"has a 'shortlist' that is not candidate positions below {count}"
+    return None
+
+
 @dataclass
 class Pool:
     """The pooled study: a config whose rules every state scored, the states, and what pooling left out."""
@@ -52,7 +85,11 @@ def _read_folder(folder: Path) -> tuple[dict, list[dict]]:
     states = []
     for path in sorted((folder / "states").rglob("state*.json")):
         check_input_file(path, "the state file", "delete it (a FIFO or a link is never a state) and resume that study")
-        states.append(read_json(path, "the state file", "delete it and resume that study", MAX_STATE_BYTES))
+        state = read_json(path, "the state file", "delete it and resume that study", MAX_STATE_BYTES)
+        problem = state_problem(state)
+        if problem is not None:
+            raise ValueError(f"the state file {path} {problem}; delete it and resume that study")
+        states.append(state)
     return config, states
 
 

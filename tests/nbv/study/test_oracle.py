@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -474,6 +475,34 @@ def test_oracle_pool_names_a_fifo_state_file_instead_of_hanging(study, tmp_path,
     os.mkfifo(state)
     assert main(["study", "oracle-pool", str(copy), "--output", str(tmp_path / "pooled")]) == 2
     assert "is a FIFO" in caplog.text and str(state) in caplog.text
+
+
+@pytest.mark.parametrize(
+    "damage, words",
+    [
+        ({"oracle": "x"}, "has no 'oracle' object"),
+        ({"seed": "zero"}, "has no 'seed' integer"),
+        ({"candidates": list(range(1000))}, "that is not 1000 numbers, one per candidate"),
+    ],
+)
+def test_a_damaged_state_is_named_by_the_pool_and_measured_again_by_the_study(study, tmp_path, caplog, damage, words):
+    """A state file whose config matched but whose body did not (a string for 'oracle', a seed that is a string, the
+    scores of another candidate count) ended both commands in a TypeError traceback or a one-line error that named no
+    file."""
+    import shutil
+
+    import nbv.study.oracle as oracle
+    from apps.cli import main
+
+    config, _, _ = study
+    copy = tmp_path / "copy"
+    shutil.copytree(config.output, copy)
+    state = next((copy / "states").rglob("state*.json"))
+    state.write_text(json.dumps({**json.loads(state.read_text()), **damage}))
+    assert main(["study", "oracle-pool", str(copy), "--output", str(tmp_path / "pooled")]) == 2
+    assert f"the state file {state} " in caplog.text and words in caplog.text
+    job = next(j for j in oracle.plan_jobs(replace(config, output=str(copy))) if j["path"] == str(state))
+    assert oracle._stored(state, job["config"]) is None
 
 
 def test_a_finished_study_resumes_without_training(study):
