@@ -32,6 +32,7 @@ logger = logging.getLogger(__name__)
 CODEC = "libx264"
 PIXEL_FORMAT = "yuv420p"
 DEFAULT_CRF = 18
+MAX_SIDE = 16384  # px: libx264 encodes no wider or taller frame (FFmpeg then writes an empty file and exits 0)
 
 
 def even_size(height: int, width: int) -> tuple[int, int]:
@@ -92,7 +93,8 @@ def write_mp4(
         ``Path(path)``.
 
     Raises:
-        ValueError: no frames, frames of the wrong shape or dtype or of changing size, bad fps or crf.
+        ValueError: no frames, frames of the wrong shape or dtype, of changing size or over 16384 px a side, bad
+            fps or crf.
         fluidsim.files.OutputError: (an OSError, exit code 4) FFmpeg is missing or fails, or the file cannot be written
             (the message names ``path``).
     """
@@ -110,6 +112,8 @@ def write_mp4(
     first = _check_frame(first, 0, None, path)
     size = first.shape[:2]
     out_h, out_w = even_size(*size)
+    if max(out_h, out_w) > MAX_SIDE:
+        raise ValueError(f"{path}: frames of {size[1]}x{size[0]} px; H.264 encodes at most {MAX_SIDE} px a side")
     if (out_h, out_w) != size:
         logger.info(
             "%s: padding %dx%d px frames to %dx%d px (H.264 with 4:2:0 chroma needs an even size)",
@@ -140,6 +144,8 @@ def write_mp4(
                     writer.send(np.ascontiguousarray(pad_to_even(frame)))
             finally:
                 writer.close()  # waits for FFmpeg to finish the file (or stops it after an error)
+            if tmp.stat().st_size == 0:  # FFmpeg gave up on the stream but exited 0
+                raise RuntimeError("FFmpeg wrote no video")
     except (OSError, RuntimeError) as exc:  # FFmpeg's failures, and fluidsim.files' OutputError around an OSError
         cause = exc.__cause__ if isinstance(exc, OutputError) and exc.__cause__ is not None else exc
         err = OutputError(

@@ -6,9 +6,10 @@ from __future__ import annotations
 import argparse
 import math
 
-from viz.frame_style import COLOR_BY, FRAMES, MIN_HEIGHT, MIN_WIDTH, VIEWS, WALLS, FrameStyle
+from viz.frame_style import COLOR_BY, FRAMES, INT_RANGES, VIEWS, WALLS, FrameStyle
 
 from .fields import add_config_options, config_values
+from .numbers import int_in
 
 STYLE_FIELDS = ("color_by", "view", "frame", "walls", "width", "height", "point_size", "vmax", "show_boundary", "fps")
 
@@ -26,14 +27,14 @@ def style_overrides() -> dict[str, dict]:
             "iso from the (+x,+y,+z) corner",
         },
         "width": {
-            "type": _int_at_least(MIN_WIDTH),
+            "type": int_in(*INT_RANGES["width"]),
             "help": "frame width in pixels; an .mp4 pads an odd width by one pixel",
         },
         "height": {
-            "type": _int_at_least(MIN_HEIGHT),
+            "type": int_in(*INT_RANGES["height"]),
             "help": "frame height in pixels; an .mp4 pads an odd height by one pixel",
         },
-        "point_size": {"type": _int_at_least(0), "help": "dot radius in pixels, 0 = one pixel"},
+        "point_size": {"type": int_in(*INT_RANGES["point_size"]), "help": "dot radius in pixels, 0 = one pixel"},
         "vmax": {
             "type": _positive_float,
             "default_text": "the 99th percentile over all frames",
@@ -56,7 +57,7 @@ def style_overrides() -> dict[str, dict]:
             "help": "draw neither the solid nor the walls of /boundary/x",
             "default_text": "the solid in ivory, the walls as --walls says",
         },
-        "fps": {"type": _int_at_least(1), "help": "video frame rate in frames per second, .mp4 only"},
+        "fps": {"type": int_in(*INT_RANGES["fps"]), "help": "video frame rate in frames per second, .mp4 only"},
     }
 
 
@@ -70,19 +71,6 @@ def add_style_arguments(parser, defaults: str = "") -> None:
 def style_values(args: argparse.Namespace) -> dict:
     """The drawing options given on the command line, as FrameStyle fields (the others are left out)."""
     return config_values(FrameStyle, args, STYLE_FIELDS, style_overrides())
-
-
-def _int_at_least(low: int):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < low:
-            raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
-        return value
-
-    return parse
 
 
 def _positive_float(text: str) -> float:

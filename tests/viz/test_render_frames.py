@@ -237,6 +237,23 @@ def test_a_render_stopped_midway_keeps_the_earlier_frames(tmp_path, monkeypatch)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # no temporary folder left either
 
 
+@pytest.mark.parametrize(
+    "option, value", [("--width", "100000"), ("--height", "1000000"), ("--point-size", "1000000"), ("--fps", "1000")]
+)
+def test_drawing_numbers_are_bounded_when_parsed(tmp_path, capsys, option, value):
+    """simulate --video --height 10^6 drew 3 GB frames (20 GB of memory, exit 4 after a minute), --width 10^5 wrote
+    an empty .mp4 with exit 0, --point-size 10^6 was a 116 TiB MemoryError traceback and --fps 1000 a video of 0
+    frames per second; each is refused when parsed (exit 2), naming its range, as FrameStyle refuses it."""
+    from apps import cli as fluidgs
+
+    with pytest.raises(SystemExit) as info:
+        fluidgs.main(["render-frames", str(tmp_path / "OUT.h5"), "-o", str(tmp_path / "f.mp4"), option, value])
+    assert info.value.code == 2 and f"argument {option}: must be an integer from" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="must be an int from"):
+        FrameStyle(**{option[2:].replace("-", "_"): int(value)})
+    assert not (tmp_path / "f.mp4").exists()
+
+
 def test_default_vmax_is_the_99th_percentile_over_all_frames(tmp_path):
     h5 = _write_h5(tmp_path / "OUT.h5")
     with h5py.File(h5) as f:

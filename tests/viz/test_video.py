@@ -93,6 +93,26 @@ def test_bad_frames_raise_and_leave_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_frames_too_large_for_h264_are_refused_and_an_empty_video_is_no_success(tmp_path, monkeypatch):
+    """Frames over 16384 px a side made FFmpeg write an empty file and exit 0, so an empty .mp4 was renamed into place
+    as a success: they are refused before FFmpeg starts, and a video FFmpeg leaves empty is an error (no file left)."""
+    import imageio_ffmpeg
+
+    out = tmp_path / "wide.mp4"
+    with pytest.raises(ValueError, match="frames of 16386x16 px; H.264 encodes at most 16384 px a side"):
+        write_mp4([np.zeros((16, 16386, 3), np.uint8)], out)
+
+    def silent(path, *args, **kwargs):  # an FFmpeg that opens the file, takes every frame and writes nothing
+        open(path, "wb").close()
+        while True:
+            yield
+
+    monkeypatch.setattr(imageio_ffmpeg, "write_frames", silent)
+    with pytest.raises(OSError, match="FFmpeg wrote no video"):
+        write_mp4([np.zeros((32, 32, 3), np.uint8)], out)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_unwritable_folder_is_an_oserror_naming_the_file(tmp_path):
     with pytest.raises(OSError, match="missing.*out.mp4"):
         write_mp4([np.zeros((32, 32, 3), np.uint8)], tmp_path / "missing" / "out.mp4")
