@@ -60,6 +60,10 @@ from .colmap import BINARY_FILES, TEXT_FILES, find_colmap_sparse, read_colmap_mo
 logger = logging.getLogger(__name__)
 
 SPLITS = ("train", "val", "test")
+# Pixels an image file may declare before it is decoded: Pillow's decompression-bomb limit (89.5 MP, beyond a 50 MP
+# photo). Decoding a larger one costs 16 bytes a pixel (8 bits per channel, then float RGB): a 2.7 MB PNG of
+# 30000 x 30000 took 23 GiB.
+MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS
 COLMAP_TEST_EVERY = 8
 
 
@@ -140,7 +144,15 @@ def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
             RGB or RGBA.
     Returns:
         rgb [H, W, 3] float32, alpha [H, W] float32 or None.
+    Raises:
+        ValueError: an image that cannot be read, or whose header declares more than :data:`MAX_IMAGE_PIXELS`.
     """
+    size = image_size(path, decode=False)
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise ValueError(
+            f"{path}: the image declares {size[0]:,} x {size[1]:,} pixels, more than the {MAX_IMAGE_PIXELS:,} an "
+            "image may have (decoding it would take gigabytes); downscale the images"
+        )
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ValueError(f"{path}: cannot read the image (missing, unreadable or not an image file)")
@@ -317,8 +329,9 @@ def _intrinsic_value(where: str, key: str, raw, top_level: bool):
                 f"{raw!r}; fix it, or remove 'w' and 'h' to take the size from the image"
             )
         if val > MAX_IMAGE_SIDE:
+            size = f"{int(val):,}" if val < 1e15 else f"{val:.3g}"  # not 300 digits for 1e308
             raise ValueError(
-                f"{where}: key '{key}'{origin} is {int(val):,} pixels, more than {MAX_IMAGE_SIDE:,}, the largest "
+                f"{where}: key '{key}'{origin} is {size} pixels, more than {MAX_IMAGE_SIDE:,}, the largest "
                 "image side a camera may have; fix it, or remove 'w' and 'h' to take the size from the image"
             )
         return int(val)
@@ -378,18 +391,20 @@ def _read_transforms(json_path: Path) -> tuple[dict, list[dict]]:
     return meta, frames
 
 
-def image_size(path: Path) -> tuple[int, int] | None:
+def image_size(path: Path, decode: bool = True) -> tuple[int, int] | None:
     """(width, height) of the image at ``path`` from its header alone, or None when it is not an image.
 
     Pillow reads the header without decoding the pixels, so a small file that declares a huge image costs nothing
     (its decompression-bomb limit guards decoding, which does not happen here, so it is lifted while the header is
-    read); the formats Pillow does not know (OpenEXR) are decoded by OpenCV.
+    read); the formats Pillow does not know (OpenEXR) are decoded by OpenCV, or give None when ``decode`` is False.
     """
     limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
     try:
         with Image.open(path) as img:
             return img.size
     except (UnidentifiedImageError, OSError, ValueError):
+        if not decode:
+            return None
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         return None if img is None else (img.shape[1], img.shape[0])
     finally:

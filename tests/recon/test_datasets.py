@@ -257,6 +257,33 @@ def test_blender_errors_name_file_and_key(tmp_path, edit, message):
         load_blender(tmp_path)
 
 
+def _png_header_only(path, width: int, height: int) -> None:
+    """A PNG of a few dozen bytes whose header declares ``width`` x ``height`` RGB pixels (its data is one row)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    body = chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 4)) + chunk(b"IEND", b"")
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + body)
+
+
+def test_an_image_that_declares_too_many_pixels_is_refused_before_decoding(tmp_path):
+    """A 2.7 MB PNG of 30000 x 30000 pixels took 23 GiB and 71 s to load (OpenCV decodes it whole, then float RGB)."""
+    from recon.datasets import MAX_IMAGE_PIXELS, read_image
+
+    _blender_dataset(tmp_path)
+    _png_header_only(tmp_path / "train" / "r_1.png", 10_000, 10_000)
+    assert 10_000 * 10_000 > MAX_IMAGE_PIXELS
+    with pytest.raises(ValueError, match=r"r_1\.png: the image declares 10,000 x 10,000 pixels, more than"):
+        load_blender(tmp_path)
+    _png_header_only(tmp_path / "small.png", 4, 1)  # within the limit the header check lets the decoder judge it
+    with pytest.raises(ValueError, match="cannot read the image"):
+        read_image(tmp_path / "small.png")
+
+
 def test_blender_requires_train_and_rejects_bad_options(tmp_path):
     _blender_dataset(tmp_path)
     with pytest.raises(ValueError, match="background"):
