@@ -128,6 +128,8 @@ TOP = r"transforms\.json: frame 0 \(file_path './a'\)"
         ({"w": 0, "h": 0}, None, 24, TOP + r": key 'w' \(top level\) must be a positive integer image size in pixels"),
         ({"w": 0, "h": 0}, None, None, TOP + r": key 'w' \(top level\) must be a positive integer"),
         ({"h": 12.5}, None, None, TOP + r": key 'h' \(top level\) must be a positive integer"),
+        # the size was written out in full: 309 digits
+        ({"w": 1e308}, None, None, TOP + r": key 'w' \(top level\) is 1e\+308 pixels, more than 65,536, the largest"),
         (
             {},
             [{"file_path": "./a", "transform_matrix": EYE}, {"file_path": "./r_7", "transform_matrix": EYE, "w": -3}],
