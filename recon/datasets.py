@@ -52,7 +52,7 @@ import numpy as np
 import torch
 from PIL import Image, UnidentifiedImageError
 
-from fluidsim.files import read_json
+from fluidsim.files import input_problem, read_json
 
 from .camera import MAX_IMAGE_SIDE, Camera
 from .colmap import BINARY_FILES, TEXT_FILES, find_colmap_sparse, read_colmap_model
@@ -231,8 +231,9 @@ def _read_dataset_json(root: Path) -> tuple[Path | None, str | None]:
     mesh_path = meta.get("mesh_path")
     if mesh_path is not None:
         mesh_path = root / mesh_path
-        if not mesh_path.is_file():
-            raise ValueError(f"{path}: key 'mesh_path' names {mesh_path}, which does not exist")
+        problem = input_problem(mesh_path)
+        if problem is not None:  # "does not exist", or a FIFO, a device, a folder, a link loop named as such
+            raise ValueError(f"{path}: key 'mesh_path' names {mesh_path}, which {problem}")
     up_axis = meta.get("up_axis")
     if up_axis is not None and up_axis not in ("y", "z"):
         raise ValueError(f"{path}: key 'up_axis' must be 'y' or 'z', got {up_axis!r}")
@@ -642,7 +643,12 @@ def dataset_format(path) -> str:
             "or a COLMAP model (or its transforms_*.json file)"
         )
     if not root.is_dir():
-        raise ValueError(f"{root}: dataset folder does not exist")
+        problem = input_problem(root, folder_ok=True)
+        raise ValueError(
+            f"{root}: dataset folder does not exist"
+            if problem in (None, "does not exist")
+            else f"{root} {problem}; pass a dataset folder"
+        )
     if (root / "transforms_train.json").is_file():
         return "blender"
     if find_colmap_sparse(root) is not None:

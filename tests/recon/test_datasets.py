@@ -284,6 +284,24 @@ def test_an_image_that_declares_too_many_pixels_is_refused_before_decoding(tmp_p
         read_image(tmp_path / "small.png")
 
 
+def test_a_fifo_or_device_as_the_dataset_or_its_mesh_is_named_as_such(tmp_path):
+    """A FIFO or /dev/zero given as the dataset folder, or as dataset.json's mesh, was said not to exist."""
+    import os
+
+    from recon.datasets import dataset_format
+
+    os.mkfifo(tmp_path / "pipe")
+    with pytest.raises(ValueError, match=r"pipe is a FIFO \(named pipe\).*; pass a dataset folder"):
+        dataset_format(tmp_path / "pipe")
+    with pytest.raises(ValueError, match=r"/dev/zero is a character device"):
+        dataset_format("/dev/zero")
+    _blender_dataset(tmp_path / "ds")
+    os.mkfifo(tmp_path / "ds" / "mesh.ply")
+    (tmp_path / "ds" / "dataset.json").write_text(json.dumps({"mesh_path": "mesh.ply"}))
+    with pytest.raises(ValueError, match=r"'mesh_path' names .*mesh\.ply, which is a FIFO"):
+        load_dataset(tmp_path / "ds")
+
+
 def test_blender_requires_train_and_rejects_bad_options(tmp_path):
     _blender_dataset(tmp_path)
     with pytest.raises(ValueError, match="background"):
