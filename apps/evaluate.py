@@ -66,10 +66,13 @@ def run_command(args: argparse.Namespace) -> int:
     keys = {"ActiveConfig": "active.", "TrainConfig": "active.train.", "PhysicsConfig": "active.physics."}
     with config_keys(keys, f"the run's config {cfg_path}"):  # the keys the file holds, not the config classes
         physics = ActiveConfig.from_dict(read_run_config(args.run)["active"]).physics
-    if args.particle_radius is not None:
-        physics = replace(physics, particle_radius=args.particle_radius)
-    if args.probe_steps is not None:
-        physics = replace(physics, steps=args.probe_steps)
+    from .options.fields import options_named
+
+    with options_named({"PhysicsConfig.particle_radius": "--particle-radius", "PhysicsConfig.steps": "--probe-steps"}):
+        if args.particle_radius is not None:
+            physics = replace(physics, particle_radius=args.particle_radius)
+        if args.probe_steps is not None:
+            physics = replace(physics, steps=args.probe_steps)
     if args.directions is not None:
         physics = replace(physics, directions=parse_directions(args.directions))
     config = config_from_args(EvalConfig, args, EVAL_FIELDS, EVAL_OVERRIDES, physics=physics)

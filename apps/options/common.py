@@ -64,7 +64,9 @@ def add_seed_option(p, help: str) -> None:
 def add_executor_arguments(p: argparse.ArgumentParser, progress_help: str) -> None:
     """--executor, --workers, --threads (per worker), --address (Ray), --output (the results folder) and
     --no-progress: how a study's jobs run (:func:`apps.options.executor.make_executor`)."""
-    from ..runtime import positive_int, thread_count
+    from ..runtime import thread_count
+    from ..taichi_runtime import MAX_THREADS
+    from .numbers import int_in
 
     p.add_argument(
         "--executor",
@@ -72,7 +74,9 @@ def add_executor_arguments(p: argparse.ArgumentParser, progress_help: str) -> No
         default="local",
         help="local: a process pool here; ray: tasks on a Ray cluster (default: %(default)s)",
     )
-    p.add_argument("--workers", type=positive_int, default=1, help="local worker processes (default: %(default)s)")
+    # A process each, started up to the job count (an experiment plans up to 10,000): bounded as --threads is.
+    workers = int_in(1, MAX_THREADS)
+    p.add_argument("--workers", type=workers, default=1, help="local worker processes (default: %(default)s)")
     p.add_argument(
         "--threads", type=thread_count, default=1, help="torch and Taichi CPU threads per worker (default: %(default)s)"
     )

@@ -156,8 +156,14 @@ class PhysicsConfig:
         try:
             self.solver_config()  # validates the pass-through keys now
         except ValueError as exc:
-            if str(exc).split(" ", 1)[0] in ("particle_radius", "dt", "viscosity", "rest_density", "precision"):
+            name = str(exc).split(" ", 1)[0]
+            if name in ("particle_radius", "dt", "viscosity", "rest_density", "precision"):
                 raise ValueError(f"PhysicsConfig.{exc}") from None  # a field of this config: named as one
+            if name.startswith("estimator_") and name not in dict(solver):  # derived from r: r is what is wrong
+                raise ValueError(
+                    f"PhysicsConfig.particle_radius must be a finite number > 0 whose {ESTIMATOR_RADII:g} r (the "
+                    f"estimator radius) is finite, got {self.particle_radius!r}"
+                ) from None
             raise
 
     def check_inflow(self) -> None:

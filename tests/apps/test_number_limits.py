@@ -75,3 +75,29 @@ def test_every_seed_option_of_these_commands_has_the_bounded_type():
             parser = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[name]
         (action,) = [a for a in parser._actions if "--seed" in a.option_strings]
         assert action.type is seed, command
+
+
+@pytest.mark.parametrize("command", [["experiment"], ["study", "oracle"]])
+def test_workers_are_bounded_when_parsed(command, tmp_path, capsys):
+    """`--workers 10^20` was taken: the pool starts min(workers, jobs) processes, up to 10,000 (the planned jobs),
+    each with its own torch and Taichi."""
+    with pytest.raises(SystemExit) as exc:
+        cli.main([*command, str(tmp_path / "config.json"), "--workers", "100000000000000000000"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "argument --workers: must be an integer from 1 to 1,024" in err, err
+
+
+def test_a_particle_radius_whose_estimator_radius_overflows_names_the_option(tmp_path, caplog):
+    """`active --particle-radius 1e308` (and eval's) said "estimator_radius must be a finite number, got inf": a
+    solver field derived from r (4 r), which no option sets."""
+    from nbv.physics import PhysicsConfig
+
+    with pytest.raises(ValueError, match=r"^PhysicsConfig\.particle_radius must be .*got 1e\+308"):
+        PhysicsConfig(particle_radius=1e308)
+    with pytest.raises(ValueError, match="estimator_radius"):  # given explicitly, it is the one named
+        PhysicsConfig(solver={"estimator_radius": float("inf")})
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    (ds / "transforms_train.json").write_text("{}")
+    assert cli.main(["active", str(ds), "-o", str(tmp_path / "run"), "--particle-radius", "1e308"]) == 2
+    assert "--particle-radius must be" in caplog.text and "estimator_radius" not in caplog.text
