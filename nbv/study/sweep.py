@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from fluidsim.config import MAX_STEPS
 from nbv.io import atomic_output
 from nbv.lists import parse_list
 from nbv.physics import PhysicsConfig, PhysicsResult, scene_transform, simulate_gaussians
@@ -97,7 +98,7 @@ class SweepPoint:
 
 def parse_velocities(text: str | Sequence[float]) -> tuple[float, ...]:
     """'3,4,5' or a list -> positive speeds in m/s (ValueError naming --velocities otherwise)."""
-    return parse_list(text, float, "--velocities", positive=True, what="speed")
+    return parse_list(text, float, "--velocities", positive=True, unique=True, what="speed")
 
 
 def schedule(velocities: Sequence[float], dt_base: float, steps_base: int, u_base: float = U_BASE) -> list[SweepStep]:
@@ -114,11 +115,22 @@ def schedule(velocities: Sequence[float], dt_base: float, steps_base: int, u_bas
     if dt_base <= 0 or steps_base < 1 or u_base <= 0:
         raise ValueError(f"sweep base must have dt > 0, steps >= 1, U > 0; got {dt_base}, {steps_base}, {u_base}")
     total = steps_base * dt_base
+    if not math.isfinite(total):
+        raise ValueError(f"--dt {dt_base:g} s x {steps_base} steps is not a finite duration; use a dt of milliseconds")
     out = []
     for u in velocities:
         if not u > 0:
             raise ValueError(f"sweep speeds must be > 0 m/s, got {u}")
+        # the steps grow with U (CFL-constant dt over the same duration): bounded before any probe runs
+        if steps_base * (u / u_base) > MAX_STEPS:
+            raise ValueError(
+                f"--velocities: U = {u:g} m/s would take {steps_base * (u / u_base):,.0f} steps (the {steps_base} "
+                f"steps of {u_base:g} m/s, CFL-constant dt), more than the {MAX_STEPS:,} a probe may run; use speeds "
+                f"up to {MAX_STEPS * u_base / steps_base:,.0f} m/s"
+            )
         dt = dt_base * u_base / u
+        if not math.isfinite(dt):
+            raise ValueError(f"--velocities: U = {u:g} m/s makes the time step {dt} s (from --dt {dt_base:g} s)")
         out.append(SweepStep(float(u), dt, max(1, round(total / dt))))
     return out
 

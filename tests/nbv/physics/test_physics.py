@@ -192,6 +192,21 @@ def test_sweep_schedule_is_cfl_constant():
         sweep.parse_velocities("3,-1")
 
 
+def test_sweep_schedule_bounds_the_steps_a_speed_makes():
+    """`sweep --velocities 1e308` ended in a ZeroDivisionError traceback (dt underflowed to 0), `--dt 1e308` in
+    "cannot convert float NaN to integer", and --velocities 1e6 planned 250,000,000 steps a probe; `3,3` ran twice."""
+    assert sweep.schedule([4000.0], dt_base=0.002, steps_base=750)[0].steps == 1_000_000  # the largest allowed
+    for speeds in ([1e308], [4001.0]):
+        with pytest.raises(ValueError, match=r"^--velocities: U = .* more than the 1,000,000 a probe may run"):
+            sweep.schedule(speeds, dt_base=0.002, steps_base=750)
+    with pytest.raises(ValueError, match=r"^--dt 1e\+308 s x 750 steps is not a finite duration"):
+        sweep.schedule([3.0], dt_base=1e308, steps_base=750)
+    with pytest.raises(ValueError, match=r"^--velocities: U = 1e-300 m/s makes the time step inf s"):
+        sweep.schedule([1e-300], dt_base=1e300, steps_base=1)
+    with pytest.raises(ValueError, match="more than once"):
+        sweep.parse_velocities("3,3")
+
+
 def test_sweep_runs_and_writes_csv(sphere, tmp_path):
     cfg = PhysicsConfig(**COARSE, directions=("-x",))
     pts = sweep.run_sweep(sphere, cfg, [3.0, 6.0], other=sphere_gaussians(200), progress=False)
