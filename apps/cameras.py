@@ -19,6 +19,7 @@ from .options import (
     add_gaussian_file_arguments,
     add_orbit_arguments,
     check_output_file,
+    gaussian_file_inputs,
     load_gaussians_checked,
     physics_config_class,
     physics_config_from_args,
@@ -83,7 +84,7 @@ def run_command(args: argparse.Namespace) -> int:
     else:
         check_output_file(out, (".json",))
         files = {out.name: out}
-    check_not_input({"-o": list(files.values())[0]}, {"GAUSSIANS": args.gaussians})
+    check_not_input([("-o", f) for f in files.values()], gaussian_file_inputs(args))
     gaussians = load_gaussians_checked(args.gaussians, args)
     warn_frame(config, up_given=args.up is not None)
     cams = orbit_cameras_logged(gaussians, config, orbit)

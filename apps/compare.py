@@ -20,6 +20,7 @@ from .options import (
     add_gaussian_file_arguments,
     add_physics_arguments,
     check_output_file,
+    gaussian_file_inputs,
     load_gaussians_checked,
     physics_config_from_args,
 )
@@ -79,7 +80,12 @@ def run_command(args: argparse.Namespace) -> int:
         raise ValueError(f"--plot {plot} is the JSON output too; give two different paths")
     inputs = {"RECON": args.recon, "--reference": args.reference}
     check_not_input(
-        {"-o": args.output, "--plot": plot}, {**inputs, "--reference-transform": matrix_file(args.reference_transform)}
+        {"-o": args.output, "--plot": plot},
+        [
+            *gaussian_file_inputs(args, "RECON", args.recon),
+            ("--reference", args.reference),
+            ("--reference-transform", matrix_file(args.reference_transform)),
+        ],
     )
     for name, path in inputs.items():
         check_input_file(path, name, "pass a mesh, a Gaussian file or a RESULT.h5", folder_ok=True)

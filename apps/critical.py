@@ -24,6 +24,7 @@ from .options import (
     add_visibility_arguments,
     check_output_file,
     check_visibility_arguments,
+    gaussian_file_inputs,
     load_gaussians_checked,
     physics_config_from_args,
     warn_frame,
@@ -72,7 +73,7 @@ def run_command(args: argparse.Namespace) -> int:
     orbit_file = output.with_name(output.stem + "_cameras.json") if orbit is not None else None
     check_not_input(
         {"-o": output, "-o (orbit cameras)": orbit_file, "--save-result": args.save_result},
-        {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras, "--result": args.result},
+        [*gaussian_file_inputs(args), ("--cameras", None if orbit else args.cameras), ("--result", args.result)],
     )
     if args.save_result is not None:
         if args.result is not None:

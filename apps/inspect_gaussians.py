@@ -18,6 +18,7 @@ from .options import (
     add_frame_arguments,
     add_gaussians_input,
     check_output_file,
+    gaussian_file_inputs,
     physics_config_class,
     physics_config_from_args,
     probe_overrides,
@@ -62,7 +63,7 @@ def run_command(args: argparse.Namespace) -> int:
     for path, suffix in ((args.png, ".png"), (args.json, ".json")):
         if path is not None:
             check_output_file(path, (suffix,))
-    check_not_input({"--png": args.png, "--json": args.json}, {"GAUSSIANS": args.gaussians})
+    check_not_input({"--png": args.png, "--json": args.json}, gaussian_file_inputs(args))
     config = physics_config_from_args(args, steps=1)  # inspect runs no probe; the other fields keep their defaults
     check_input_file(args.gaussians, "Gaussian file", folder_ok=True)
     gaussians, fmt, frame = load_gaussians_framed(

@@ -18,6 +18,7 @@ from .options import (
     add_physics_arguments,
     add_record_arguments,
     check_output_file,
+    gaussian_file_inputs,
     load_gaussians_checked,
     physics_config_from_args,
     record_config_from_args,
@@ -72,7 +73,7 @@ def run_command(args: argparse.Namespace) -> int:
     video = output.with_name(f"{output.stem}_probe{args.video}.mp4") if args.video is not None else None
     check_not_input(
         {"-o": output, "--ply": ply, "--video": video, **solid_export_outputs(args.export_solid)},
-        {"GAUSSIANS": args.gaussians},
+        gaussian_file_inputs(args),
     )
     check_output_file(ply, (".ply",))
     if args.video is not None:

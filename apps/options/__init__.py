@@ -56,6 +56,7 @@ from .files import (
     check_output_folder,
     check_outside_dataset,
     dataset_inputs,
+    gaussian_file_inputs,
     load_gaussians_checked,
 )
 from .frame import check_up_against_cameras, frame_hint, up_from_args, warn_frame
@@ -94,6 +95,7 @@ __all__ = [
     "config_values",
     "check_outside_dataset",
     "dataset_inputs",
+    "gaussian_file_inputs",
     "field_docs",
     "float_list",
     "help_and_default",

@@ -139,6 +139,29 @@ def dataset_inputs(dataset) -> list[tuple[str, Path]]:
     ]
 
 
+def gaussian_file_inputs(
+    args: argparse.Namespace, label: str = "GAUSSIANS", path: Path | None = None
+) -> list[tuple[str, Path]]:
+    """The files read for the Gaussian file ``path`` (default ``args.gaussians``), labelled for
+    :func:`fluidsim.files.check_not_input`: the file itself (as ``label``), --dataparser-transforms and the COLMAP
+    model files of --colmap (the folder given, its sparse/0 and sparse), so that no output overwrites a file it needs
+    (`-o dataparser_transforms.json`)."""
+    from recon.colmap import BINARY_FILES, TEXT_FILES  # noqa: PLC0415 - the readers load torch: only when run
+
+    found = [(label, Path(args.gaussians if path is None else path))]
+    if getattr(args, "dataparser_transforms", None) is not None:
+        found.append(("--dataparser-transforms", Path(args.dataparser_transforms)))
+    if getattr(args, "colmap", None) is not None:
+        root = Path(args.colmap)
+        found += [
+            ("--colmap", folder / name)
+            for folder in (root, root / "sparse" / "0", root / "sparse")
+            for name in (*BINARY_FILES, *TEXT_FILES)
+            if (folder / name).is_file()
+        ]
+    return found
+
+
 def check_outside_dataset(output: Path, dataset: Path) -> None:
     """Refuse an output folder that is the dataset folder or lies inside it: the run would write its files among the
     dataset's (a later `render-dataset --overwrite` or a copy of the dataset would take them along)."""

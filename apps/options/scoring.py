@@ -8,7 +8,7 @@ import logging
 from pathlib import Path
 
 from .cameras import check_visibility_arguments, write_orbit_cameras  # noqa: F401 - apps.score reads the second here
-from .files import check_output_file
+from .files import check_output_file, gaussian_file_inputs
 from .results import record_config_from_args
 from .solid_export import solid_export_outputs
 
@@ -72,7 +72,7 @@ def score_outputs(args: argparse.Namespace, config, orbit) -> tuple:
             "-o (orbit cameras)": orbit_file,
             **solid_export_outputs(args.export_solid),
         },
-        {"GAUSSIANS": args.gaussians, "--cameras": None if orbit else args.cameras, "--result": args.result},
+        [*gaussian_file_inputs(args), ("--cameras", None if orbit else args.cameras), ("--result", args.result)],
     )
     if png_dir is not None:
         check_output_file(png_dir / "view.png", (".png",))

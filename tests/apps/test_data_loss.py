@@ -129,6 +129,41 @@ def test_other_commands_refuse_outputs_that_are_inputs(data, tmp_path, caplog):
     assert (dataset / "transforms_train.json").read_text() == '{"frames": []}'
 
 
+@pytest.mark.parametrize("command", ["inspect", "score", "critical", "compare", "cameras"])
+def test_no_output_overwrites_a_file_the_gaussian_file_needs(data, tmp_path, caplog, command):
+    """--dataparser-transforms and the model files of --colmap were not inputs to the output checks: `inspect --json`,
+    score/critical/compare -o overwrote the dataparser_transforms.json, `cameras --format colmap -o DIR --colmap DIR`
+    the COLMAP model, and `cameras G -o DIR --format colmap` an input G named DIR/images.txt. Each is refused before
+    any work, naming the input."""
+    dp = tmp_path / "dataparser_transforms.json"
+    dp.write_text('{"transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]], "scale": 1.0}')
+    model = tmp_path / "sparse"
+    model.mkdir()
+    for name in ("cameras.txt", "images.txt", "points3D.txt"):
+        (model / name).write_text("# the capture's model\n")
+    ply, cams = str(data["ply"]), str(data["cameras"])
+    given = ["--dataparser-transforms", str(dp), "--colmap", str(model)]
+    argv = {
+        "inspect": ["inspect", ply, "--json", str(dp)],
+        "score": ["score", ply, "--cameras", cams, "--result", str(data["h5"]), "-o", str(dp), "--no-png"],
+        "critical": ["critical", ply, "--cameras", cams, "-o", str(dp)],
+        "compare": ["compare", ply, "--reference", ply, "-o", str(dp)],
+        "cameras": ["cameras", ply, "--orbit", "4", "-o", str(model), "--format", "colmap"],
+    }[command]
+    assert cli.main([*argv, *given]) == 2
+    label = "--colmap" if command == "cameras" else "--dataparser-transforms"
+    assert f"is the input {label}" in error_text(caplog), error_text(caplog)
+    if command == "cameras":
+        inside = model / "images.txt"
+        inside.write_bytes(data["ply"].read_bytes())
+        assert cli.main(["cameras", str(inside), "--orbit", "4", "-o", str(model), "--format", "colmap"]) == 2
+        assert f"-o {inside} is the input GAUSSIANS {inside}" in error_text(caplog)
+        assert inside.read_bytes() == data["ply"].read_bytes()
+    assert (
+        dp.read_text().startswith('{"transform"') and (model / "cameras.txt").read_text() == "# the capture's model\n"
+    )
+
+
 def test_render_dataset_overwrite_refuses_a_mesh_inside_the_folder_it_replaces(tmp_path, caplog):
     out = tmp_path / "ds"
     out.mkdir()
