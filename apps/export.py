@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 from .options.numbers import step_count
@@ -127,37 +126,11 @@ def write_splash_scenes(args: argparse.Namespace, is_hdf5: bool, probes: tuple |
     )
 
 
-def check_vtk_folder(folder: Path, outputs: dict) -> None:
-    """Refuse, before any work, what replacing the --vtk folder as a whole would destroy: another output inside it,
-    and an existing folder holding anything but an earlier export's .vtu and .pvd files (ValueError, exit 2); and a
-    folder beside which no new one can be made, as the export is written under a temporary name beside it and
-    renamed into place (OutputError, exit 4)."""
-    from fluidsim.files import check_writable
-
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"--vtk {folder} exists and is not a folder; name a folder")
-    for label, path in outputs.items():
-        if label != "--vtk" and path is not None and Path(path).resolve().is_relative_to(folder.resolve()):
-            raise ValueError(
-                f"{label} {path} lies inside --vtk {folder}, which is replaced as a whole; write it elsewhere"
-            )
-    if folder.is_dir():
-        others = sorted(p.name for p in folder.iterdir() if not (p.is_file() and p.suffix in (".vtu", ".pvd")))
-        if others:
-            shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
-            raise ValueError(
-                f"--vtk {folder} holds more than an earlier VTK export ({shown}), and replacing the folder would "
-                "delete it; give a new or empty folder, or one an earlier --vtk wrote"
-            )
-    where = Path(os.path.abspath(folder))  # the parent of the folder as named: a link is replaced, not followed
-    check_writable(where.with_name(where.name + ".pvd") if where.is_dir() else where)
-
-
 def run_command(args: argparse.Namespace) -> int:
     import h5py
 
     from fluidsim.files import check_input_file, check_not_input, check_writable
-    from nbv.export.particles import check_recorded, check_vtk_source, export_vtk
+    from nbv.export.particles import check_recorded, check_vtk_folder, check_vtk_source, export_vtk
     from nbv.export.solid import solid_of_file
 
     check_input_file(args.h5, "H5", "pass an OUT.h5 (fluidgs sim) or a RESULT.h5 (fluidgs simulate)")

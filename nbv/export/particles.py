@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -37,7 +38,7 @@ import meshio
 import numpy as np
 from tqdm import tqdm
 
-from fluidsim.files import atomic_folder
+from fluidsim.files import atomic_folder, check_writable
 from recon.inflate import check_hdf5_sizes
 
 log = logging.getLogger(__name__)
@@ -200,6 +201,30 @@ def check_recorded(path: str | Path, probes: tuple[str, ...] | None = None) -> l
             f"{','.join(recorded) or 'none'}); choose among those"
         )
     return recorded if probes is None else list(probes)
+
+
+def check_vtk_folder(folder: Path, outputs: dict[str, Path | None]) -> None:
+    """Refuse, before any work, what replacing the --vtk folder of :func:`export_vtk` as a whole would destroy:
+    another output inside it (``outputs``: option -> path) and an existing folder holding anything but an earlier
+    export's .vtu and .pvd files (ValueError, exit 2); and a folder beside which no new one can be made, as the
+    export is written under a temporary name beside it and renamed into place (OutputError, exit 4)."""
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"--vtk {folder} exists and is not a folder; name a folder")
+    for label, path in outputs.items():
+        if label != "--vtk" and path is not None and Path(path).resolve().is_relative_to(folder.resolve()):
+            raise ValueError(
+                f"{label} {path} lies inside --vtk {folder}, which is replaced as a whole; write it elsewhere"
+            )
+    if folder.is_dir():
+        others = sorted(p.name for p in folder.iterdir() if not (p.is_file() and p.suffix in (".vtu", ".pvd")))
+        if others:
+            shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
+            raise ValueError(
+                f"--vtk {folder} holds more than an earlier VTK export ({shown}), and replacing the folder would "
+                "delete it; give a new or empty folder, or one an earlier --vtk wrote"
+            )
+    where = Path(os.path.abspath(folder))  # the parent of the folder as named: a link is replaced, not followed
+    check_writable(where.with_name(where.name + ".pvd") if where.is_dir() else where)
 
 
 def export_vtk(
