@@ -8,9 +8,10 @@ nearest point: that is contact, not a leak. A particle more than about half a sp
 of a filled body is counted. A hollow or one-point-thick shell has no deep interior, so nothing in it ever
 counts; the measure is meant for filled solids.
 
-Counting at every step is one Taichi kernel over the active fluid particles (:func:`nbv.physics.solid_kernels.
-flag_deep_inside`) that adds into a per-step counter on the device; nothing is read back until the probe
-ends. :func:`deep_inside_reference` is its numpy twin.
+Counting at every step (:class:`nbv.physics.solid_kernels.LeakCounter`) is one Taichi kernel over the active fluid
+particles (:func:`nbv.physics.solid_kernels.flag_deep_inside`) that adds into a per-step counter on the device;
+nothing is read back until the probe ends. :func:`deep_inside_reference` is its numpy twin; this module holds the
+measure's numpy side and its HDF5 rows, so that reading a RESULT.h5 loads no Taichi.
 """
 
 from __future__ import annotations
@@ -18,9 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import taichi as ti
-
-from nbv.physics import solid_kernels
 
 
 def deep_interior(occupancy: np.ndarray) -> np.ndarray:
@@ -77,78 +75,6 @@ class ProbeLeaks:
     def max_step(self) -> int:
         """The first step (0-based) with :attr:`max` particles inside (-1 without steps)."""
         return int(np.argmax(self.per_step)) if len(self.per_step) else -1
-
-
-class LeakCounter:
-    """Counts the fluid particles deep inside a solid lattice at every step of a probe (device-side).
-
-    Args:
-        occupancy: [X, Y, Z] bool, the solid lattice (point (i, j, k) at lattice_min + spacing (i, j, k)).
-        lattice_min: [3] m. spacing: m.
-
-    Example:
-        >>> counter = LeakCounter(solid.occupancy, solid.lattice_min, solid.spacing)
-        >>> counter.start(steps)
-        >>> run(solver, steps, on_step=lambda s, st: counter.count(s, st.step))
-        >>> leaks = counter.finish(solver)
-    """
-
-    def __init__(self, occupancy: np.ndarray, lattice_min: np.ndarray, spacing: float):
-        occ = np.asarray(occupancy, dtype=bool)
-        if occ.ndim != 3 or not occ.size:
-            raise ValueError(f"LeakCounter: occupancy must be a non-empty [X, Y, Z] lattice, got shape {occ.shape}")
-        if not (np.isfinite(spacing) and spacing > 0):
-            raise ValueError(f"LeakCounter: spacing must be > 0 m, got {spacing}")
-        self.deep = ti.ndarray(ti.u8, shape=occ.shape)  # one byte per lattice point, held while the probes run
-        self.deep.from_numpy(deep_interior(occ).astype(np.uint8))
-        self.lattice_min = np.asarray(lattice_min, dtype=np.float64).reshape(3)
-        self.spacing = float(spacing)
-        self._origin = ti.Vector(self.lattice_min.tolist(), ti.f64)
-        self._flags = None
-        self._counts = None
-        self._steps = self._run = 0
-
-    def start(self, steps: int) -> None:
-        """Zero the per-step counters of a probe of ``steps`` steps."""
-        self._steps = int(steps)
-        self._run = 0  # the steps counted: fewer than ``steps`` when the probe stopped early (nbv.physics.early_stop)
-        self._counts = ti.ndarray(ti.i32, shape=max(self._steps, 1))
-        self._counts.fill(0)
-
-    def _ensure_flags(self, capacity: int) -> None:
-        if self._flags is None or self._flags.shape[0] < capacity:
-            self._flags = ti.ndarray(ti.i32, shape=max(capacity, 1))
-
-    def count(self, solver, step: int) -> None:
-        """Count the active fluid particles of ``solver`` inside the solid after step ``step`` (0-based)."""
-        f = solver.fluid
-        if 0 <= step < self._steps:
-            self._run = max(self._run, int(step) + 1)
-        if f.active == 0 or not 0 <= step < self._steps:
-            return
-        self._ensure_flags(f.capacity)
-        solid_kernels.flag_deep_inside(
-            f.active, f.x, self.deep, self._origin, 1.0 / self.spacing, int(step), self._flags, self._counts
-        )
-
-    def finish(self, solver) -> ProbeLeaks:
-        """The final positions and ids, the particles inside at the end, and the per-step counts."""
-        if self._counts is None:
-            self.start(0)
-        f = solver.fluid
-        state = solver.fluid_state()
-        ids = np.asarray(state["ids"], np.int32)
-        x = np.asarray(state["x"], np.float32).reshape(-1, 3)
-        leaked = np.zeros(0, np.int32)
-        if f.active:
-            self._ensure_flags(f.capacity)
-            solid_kernels.flag_deep_inside(
-                f.active, f.x, self.deep, self._origin, 1.0 / self.spacing, -1, self._flags, self._counts
-            )
-            flags = self._flags.to_numpy()[: f.active].astype(bool)
-            leaked = np.sort(f.numpy("ids")[flags]).astype(np.int32)
-        per_step = self._counts.to_numpy()[: self._run].astype(np.int32)  # the steps the probe ran
-        return ProbeLeaks(x_final=x, ids_final=ids, leaked_ids=leaked, per_step=per_step)
 
 
 def write_probe_leaks(group, leaks: ProbeLeaks) -> None:

@@ -18,8 +18,8 @@ from fluidsim.solver import DFSPHSolver, StepStats
 from nbv.physics.aggregate import GaussianAccumulator, GaussianLists
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.empty_cache import EmptySamples
-from nbv.physics.leaks import LeakCounter
 from nbv.physics.progress import RunProgress
+from nbv.physics.solid_kernels import LeakCounter
 from nbv.physics.trajectory import TrajectoryRecorder
 
 

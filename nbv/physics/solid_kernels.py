@@ -1,12 +1,16 @@
 """Taichi kernels of :mod:`nbv.physics.solidify` (splatting Gaussians onto the lattice points and edges as
-log-transmittance) and of :mod:`nbv.physics.leaks` (fluid particles deep inside the solid).
+log-transmittance), and the device-side :class:`LeakCounter` of :mod:`nbv.physics.leaks` (fluid particles deep inside
+the solid at every step).
 
 The splats' work is flattened: every (Gaussian, lattice point of its sigma box) pair is one work item, so a
 few large Gaussians do not leave all but one thread idle. A work item finds its Gaussian by binary
 search in the exclusive prefix sum of the box sizes.
 """
 
+import numpy as np
 import taichi as ti
+
+from nbv.physics.leaks import ProbeLeaks, deep_interior
 
 
 @ti.kernel
@@ -177,3 +181,73 @@ def flag_deep_inside(
         flags[p] = inside
         if inside != 0 and slot >= 0:
             ti.atomic_add(counts[slot], 1)
+
+
+class LeakCounter:
+    """Counts the fluid particles deep inside a solid lattice at every step of a probe (device-side).
+
+    Args:
+        occupancy: [X, Y, Z] bool, the solid lattice (point (i, j, k) at lattice_min + spacing (i, j, k)).
+        lattice_min: [3] m. spacing: m.
+
+    Example:
+        >>> counter = LeakCounter(solid.occupancy, solid.lattice_min, solid.spacing)
+        >>> counter.start(steps)
+        >>> run(solver, steps, on_step=lambda s, st: counter.count(s, st.step))
+        >>> leaks = counter.finish(solver)
+    """
+
+    def __init__(self, occupancy: np.ndarray, lattice_min: np.ndarray, spacing: float):
+        occ = np.asarray(occupancy, dtype=bool)
+        if occ.ndim != 3 or not occ.size:
+            raise ValueError(f"LeakCounter: occupancy must be a non-empty [X, Y, Z] lattice, got shape {occ.shape}")
+        if not (np.isfinite(spacing) and spacing > 0):
+            raise ValueError(f"LeakCounter: spacing must be > 0 m, got {spacing}")
+        self.deep = ti.ndarray(ti.u8, shape=occ.shape)  # one byte per lattice point, held while the probes run
+        self.deep.from_numpy(deep_interior(occ).astype(np.uint8))
+        self.lattice_min = np.asarray(lattice_min, dtype=np.float64).reshape(3)
+        self.spacing = float(spacing)
+        self._origin = ti.Vector(self.lattice_min.tolist(), ti.f64)
+        self._flags = None
+        self._counts = None
+        self._steps = self._run = 0
+
+    def start(self, steps: int) -> None:
+        """Zero the per-step counters of a probe of ``steps`` steps."""
+        self._steps = int(steps)
+        self._run = 0  # the steps counted: fewer than ``steps`` when the probe stopped early (nbv.physics.early_stop)
+        self._counts = ti.ndarray(ti.i32, shape=max(self._steps, 1))
+        self._counts.fill(0)
+
+    def _ensure_flags(self, capacity: int) -> None:
+        if self._flags is None or self._flags.shape[0] < capacity:
+            self._flags = ti.ndarray(ti.i32, shape=max(capacity, 1))
+
+    def count(self, solver, step: int) -> None:
+        """Count the active fluid particles of ``solver`` inside the solid after step ``step`` (0-based)."""
+        f = solver.fluid
+        if 0 <= step < self._steps:
+            self._run = max(self._run, int(step) + 1)
+        if f.active == 0 or not 0 <= step < self._steps:
+            return
+        self._ensure_flags(f.capacity)
+        flag_deep_inside(
+            f.active, f.x, self.deep, self._origin, 1.0 / self.spacing, int(step), self._flags, self._counts
+        )
+
+    def finish(self, solver) -> ProbeLeaks:
+        """The final positions and ids, the particles inside at the end, and the per-step counts."""
+        if self._counts is None:
+            self.start(0)
+        f = solver.fluid
+        state = solver.fluid_state()
+        ids = np.asarray(state["ids"], np.int32)
+        x = np.asarray(state["x"], np.float32).reshape(-1, 3)
+        leaked = np.zeros(0, np.int32)
+        if f.active:
+            self._ensure_flags(f.capacity)
+            flag_deep_inside(f.active, f.x, self.deep, self._origin, 1.0 / self.spacing, -1, self._flags, self._counts)
+            flags = self._flags.to_numpy()[: f.active].astype(bool)
+            leaked = np.sort(f.numpy("ids")[flags]).astype(np.int32)
+        per_step = self._counts.to_numpy()[: self._run].astype(np.int32)  # the steps the probe ran
+        return ProbeLeaks(x_final=x, ids_final=ids, leaked_ids=leaked, per_step=per_step)

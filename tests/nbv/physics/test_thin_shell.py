@@ -13,8 +13,9 @@ from fluidsim.probes import DIRECTIONS, ProbeConfig, probe_setup
 from fluidsim.scene import lattice_in_box
 from nbv.physics import PhysicsConfig, load_result, save_result, simulate_gaussians
 from nbv.physics.fill import fill_enclosed
-from nbv.physics.leaks import LeakCounter, deep_inside_reference, deep_interior
+from nbv.physics.leaks import deep_inside_reference, deep_interior
 from nbv.physics.scene_frame import gaussian_arrays_in_sim
+from nbv.physics.solid_kernels import LeakCounter
 from nbv.physics.solidify import (
     SceneTransform,
     SolidifyConfig,
