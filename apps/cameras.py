@@ -55,6 +55,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_gaussian_file_arguments(p)
 
 
+NO_POINTS = "# 3D point list: none (cameras only)\n"
+
+
+def check_colmap_folder(out: Path) -> None:
+    """Refuse a folder that holds a reconstruction: its points3D.txt would be replaced by none (one written here holds
+    only :data:`NO_POINTS`), and beside .bin model files, which readers take before .txt, the cameras written here
+    would be ignored."""
+    from recon.colmap import BINARY_FILES
+
+    found = [name for name in BINARY_FILES if (out / name).is_file()]
+    if (out / "points3D.txt").is_file():
+        with open(out / "points3D.txt", encoding="utf-8", errors="replace") as fh:
+            found += [] if fh.read(len(NO_POINTS)) == NO_POINTS else ["points3D.txt"]
+    if found:
+        raise ValueError(
+            f"-o {out} holds a COLMAP model ({', '.join(found)}) that --format colmap would replace or hide; "
+            "write the cameras into a new folder"
+        )
+
+
 def run_command(args: argparse.Namespace) -> int:
     from fluidsim.files import check_not_input, write_json_atomic, write_text_atomic
     from nbv.orbit import MAX_ORBIT_CAMERAS, object_sphere
@@ -85,6 +105,8 @@ def run_command(args: argparse.Namespace) -> int:
         check_output_file(out, (".json",))
         files = {out.name: out}
     check_not_input([("-o", f) for f in files.values()], gaussian_file_inputs(args))
+    if args.format == "colmap":
+        check_colmap_folder(out)
     gaussians = load_gaussians_checked(args.gaussians, args)
     warn_frame(config, up_given=args.up is not None)
     cams = orbit_cameras_logged(gaussians, config, orbit)
@@ -101,7 +123,7 @@ def run_command(args: argparse.Namespace) -> int:
         cameras_txt, images_txt = colmap_text(cams)
         write_text_atomic(files["cameras.txt"], cameras_txt)
         write_text_atomic(files["images.txt"], images_txt)
-        write_text_atomic(files["points3D.txt"], "# 3D point list: none (cameras only)\n")
+        write_text_atomic(files["points3D.txt"], NO_POINTS)
     centre, radius = object_sphere(gaussians, config, f"orbit:{args.orbit}")
     distance = framing_distance(radius, math.radians(orbit.fov_x_deg), orbit.width, orbit.height)
     print(

@@ -164,6 +164,26 @@ def test_no_output_overwrites_a_file_the_gaussian_file_needs(data, tmp_path, cap
     )
 
 
+def test_cameras_keeps_a_colmap_reconstruction_it_would_replace_or_hide(data, tmp_path, caplog):
+    """`cameras --format colmap -o sparse/0` into a reconstruction's model replaced its points3D.txt by an empty list,
+    and beside .bin files (which the readers take first) its cameras were written and then never read. Both are
+    refused; the folder of an earlier `cameras --format colmap` is written again."""
+    argv = ["cameras", str(data["ply"]), "--orbit", "4", "--format", "colmap", "-o"]
+    model, binary, earlier = tmp_path / "model", tmp_path / "binary", tmp_path / "earlier"
+    model.mkdir()
+    (model / "points3D.txt").write_text("1 0.5 0.5 0.5 255 255 255 0.1\n")
+    binary.mkdir()
+    (binary / "images.bin").write_bytes(bytes(8))
+    for folder, names in ((model, "points3D.txt"), (binary, "images.bin")):
+        caplog.clear()
+        assert cli.main([*argv, str(folder)]) == 2
+        assert f"-o {folder} holds a COLMAP model ({names})" in error_text(caplog)
+    assert (model / "points3D.txt").read_text().startswith("1 0.5") and sorted(p.name for p in binary.iterdir()) == [
+        "images.bin"
+    ]
+    assert cli.main([*argv, str(earlier)]) == 0 and cli.main([*argv, str(earlier)]) == 0
+
+
 def test_render_dataset_overwrite_refuses_a_mesh_inside_the_folder_it_replaces(tmp_path, caplog):
     out = tmp_path / "ds"
     out.mkdir()
