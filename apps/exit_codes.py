@@ -20,6 +20,8 @@ code  meaning
 143   stopped by SIGTERM (kill, timeout, a batch scheduler), with the same clean-up as 130; also any command whose
       Taichi start-up did not end within FLUIDGS_TAICHI_START_TIMEOUT (120 s), after one line saying so
 ====  ==========================================================================================================
+
+`fluidgs view` serves until it is stopped: a signal once it serves is its normal end (exit 0).
 """
 
 from __future__ import annotations
