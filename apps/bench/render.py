@@ -86,7 +86,11 @@ def run_command(args: argparse.Namespace) -> int:
     from recon.device import torch_device
     from recon.render_bench import time_case
 
+    from ..options import check_output_file
+
     cases = parse_sizes(args.sizes)
+    if args.json:
+        check_output_file(args.json, (".json",))  # before the timings, as the other benchmarks check theirs
     device = torch.device(torch_device(args.device))
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)

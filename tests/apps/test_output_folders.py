@@ -41,6 +41,20 @@ def test_bench_forces_refuses_an_output_under_a_file_before_any_engine_runs(opti
     assert (tmp_path / "plain").read_text() == "x"
 
 
+def test_bench_render_refuses_a_json_under_a_file_before_timing(tmp_path, monkeypatch, caplog):
+    """`bench render --json FILE/x.json` timed every case, then ended with exit 2 and "[Errno 20] Not a
+    directory: '.../.fgs-....tmp'"."""
+    import recon.render_bench
+
+    def timed(*args, **kwargs):
+        raise AssertionError("timed a case before checking --json")
+
+    monkeypatch.setattr(recon.render_bench, "time_case", timed)
+    (tmp_path / "plain").write_text("x")
+    assert cli.main(["bench", "render", "--repeats", "1", "--json", str(tmp_path / "plain" / "f.json")]) == 4
+    assert str(tmp_path / "plain") in error_text(caplog) and "Errno" not in error_text(caplog)
+
+
 def test_bench_forces_json_is_never_its_solid(tmp_path, caplog):
     solid = tmp_path / "solid.json"
     solid.write_text("x")
