@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from fluidsim.files import read_json
+from fluidsim.files import input_problem, read_json
 
 from .config import MAX_STEPS, SolverConfig
 
@@ -230,8 +230,13 @@ def parse_scene(data: dict, base_dir: str | Path = ".") -> Scene:
         if ("points" in s) == ("mesh" in s):
             raise SceneError(f"scene key '{key}' needs exactly one of 'points' or 'mesh'")
         path = s.get("points") or s.get("mesh")
-        if not isinstance(path, str) or not (base / path).is_file():
+        if not isinstance(path, str):
+            raise SceneError(f"scene key '{key}': a file path is a string, got {path!r}")
+        problem = input_problem(base / path)
+        if problem == "does not exist":
             raise SceneError(f"scene key '{key}': file {path!r} not found (paths are relative to {base})")
+        if problem is not None:  # a FIFO would block the reader and /dev/zero never ends
+            raise SceneError(f"scene key '{key}': {path!r} {problem}")
         fill = s.get("fill", True)
         if not isinstance(fill, bool):
             raise SceneError(f"scene key '{key}.fill' must be true or false, got {fill!r}")

@@ -39,6 +39,19 @@ def test_bad_scenes_name_the_key(change, key):
         parse_scene(_scene(**change))
 
 
+def test_a_solid_that_is_a_fifo_or_a_device_is_named_as_such(tmp_path):
+    """A solid's 'points' or 'mesh' naming /dev/zero or a FIFO was said to be a file that was "not found"."""
+    import os
+
+    os.mkfifo(tmp_path / "pipe.npy")
+    with pytest.raises(SceneError, match=r"'solids\[0\]': 'pipe\.npy' is a FIFO \(named pipe\)"):
+        parse_scene(_scene(solids=[{"points": "pipe.npy"}]), tmp_path)
+    with pytest.raises(SceneError, match=r"'solids\[0\]': '/dev/zero' is a character device"):
+        parse_scene(_scene(solids=[{"mesh": "/dev/zero"}]), tmp_path)
+    with pytest.raises(SceneError, match=r"'solids\[0\]': file 'nope\.npy' not found"):
+        parse_scene(_scene(solids=[{"points": "nope.npy"}]), tmp_path)
+
+
 def test_scene_round_trips(tmp_path):
     p = tmp_path / "scene.json"
     p.write_text(json.dumps(_scene(solver={"time_step": "cfl"})))
