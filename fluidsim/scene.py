@@ -31,6 +31,8 @@ from fluidsim.files import input_problem, read_json
 
 from .config import MAX_STEPS, SolverConfig
 
+MAX_FLUID_BLOCKS = 1000  # boxes of fluid in a scene (checked pairwise for overlaps)
+
 TOP_KEYS = {
     "particle_radius",
     "rest_density",
@@ -162,6 +164,11 @@ def _box(obj: dict, key: str) -> tuple[tuple, tuple]:
     return lo, hi
 
 
+def _boxes_overlap(lo, hi, other_lo, other_hi) -> bool:
+    """Whether two boxes share a volume (boxes that only touch do not)."""
+    return all(a < d and c < b for a, b, c, d in zip(lo, hi, other_lo, other_hi, strict=True))
+
+
 def _check_block_holds_fluid(key: str, lo: tuple, hi: tuple, spacing: float) -> None:
     """SceneError when a fluid block is thinner than the particle spacing on an axis: its lattice is empty."""
     counts = lattice_counts(lo, hi, spacing)
@@ -207,11 +214,21 @@ def parse_scene(data: dict, base_dir: str | Path = ".") -> Scene:
     blocks_raw = data["fluid_blocks"]
     if not isinstance(blocks_raw, list):
         raise SceneError("scene key 'fluid_blocks' must be a list of {min, max, velocity} objects")
+    if len(blocks_raw) > MAX_FLUID_BLOCKS:
+        raise SceneError(
+            f"scene key 'fluid_blocks' lists {len(blocks_raw):,} blocks, more than the {MAX_FLUID_BLOCKS:,} a scene "
+            "may have; merge them into fewer boxes"
+        )
     blocks = []
     for i, b in enumerate(blocks_raw):
         key = f"fluid_blocks[{i}]"
         _keys(b, key, {"min", "max", "velocity"}, {"min", "max"})
         lo, hi = _box(b, key)
+        # Overlapping blocks put particles on the same lattice points: the density doubles, and 10^5 copies of one
+        # block gave every particle 10^5 neighbours, a first step of hours inside one kernel (no signal stops it).
+        other = next((j for j, o in enumerate(blocks) if _boxes_overlap(lo, hi, o.min, o.max)), None)
+        if other is not None:
+            raise SceneError(f"scene key '{key}' overlaps 'fluid_blocks[{other}]'; fluid blocks must not overlap")
         vel = _vec(b.get("velocity", [0.0, 0.0, 0.0]), f"{key}.velocity")
         if any(l < a or h > c for l, h, a, c in zip(lo, hi, dmin, dmax, strict=True)):
             raise SceneError(

@@ -28,6 +28,10 @@ def _scene(**over) -> dict:
         ({"domain": {"min": [0, 0, 0], "max": [1, 1, 1], "wals": True}}, "wals"),
         ({"fluid_blocks": [{"min": [0, 0, 0], "max": [2, 2, 2]}]}, "fluid_blocks[0]"),
         ({"fluid_blocks": []}, "fluid_blocks"),
+        # 10^5 copies of one block: every particle had 10^5 neighbours, and the first step ran for hours in a kernel
+        # that SIGTERM could not stop
+        ({"fluid_blocks": [{"min": [0.1] * 3, "max": [0.5] * 3}] * 100_000}, "more than the 1,000 a scene"),
+        ({"fluid_blocks": [{"min": [0.1] * 3, "max": [0.5] * 3}, {"min": [0.4] * 3, "max": [0.9] * 3}]}, "overlaps"),
         ({"solids": [{"mesh": "nope.obj"}]}, "solids[0]"),
         ({"solids": [{"points": "a.npy", "mesh": "b.obj"}]}, "solids[0]"),
         ({"solver": {"max_density_eror": 0.1}}, "max_density_eror"),
