@@ -84,8 +84,19 @@ DEMO_FILES = (
 
 
 def output_folder(path) -> Path:
-    """The demo's output folder, made when missing; an OutputError (exit 4) naming -o when it cannot be written."""
+    """The demo's output folder, made when missing; an OutputError (exit 4) naming -o when it cannot be written, and
+    a ValueError (exit 2) when it holds anything the demo does not write: an earlier (or interrupted) demo's folder
+    is written again, a folder of someone else's files is not written into (their result.h5 would be replaced)."""
     out = check_output_folder(path, "-o")
+    if out.is_dir():
+        ours = (*DEMO_FILES, "views")  # and the atomic writers' temporary files
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in ours and not p.name.startswith(".fgs-"))
+        if foreign:
+            shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+            raise ValueError(
+                f"-o {out} holds files the demo does not write ({shown}); give a new or empty folder, or an earlier "
+                "demo's output folder"
+            )
     out.mkdir(parents=True, exist_ok=True)
     return out
 

@@ -60,3 +60,18 @@ def test_bench_forces_json_is_never_its_solid(tmp_path, caplog):
     solid.write_text("x")
     assert cli.main(["bench", "forces", "--solid", str(solid), "--json", str(solid)]) == 2
     assert "would destroy the input" in error_text(caplog) and solid.read_text() == "x"
+
+
+def test_demo_writes_only_into_its_own_folder(tmp_path, caplog):
+    """`demo -o FOLDER` replaced a user's result.h5 in a folder of their files; an earlier demo's folder (its own
+    files and views/) is still written again."""
+    (tmp_path / "notes.txt").write_text("x")
+    (tmp_path / "result.h5").write_text("y")
+    assert cli.main(["demo", "-o", str(tmp_path), "--threads", "1"]) == 2
+    assert "notes.txt" in error_text(caplog) and (tmp_path / "result.h5").read_text() == "y"
+    from apps.options.demo import output_folder
+
+    earlier = tmp_path / "earlier"
+    (earlier / "views").mkdir(parents=True)
+    (earlier / "result.h5").write_text("old")
+    assert output_folder(earlier) == earlier
