@@ -89,8 +89,10 @@ def output_folder(path) -> Path:
     is written again, a folder of someone else's files is not written into (their result.h5 would be replaced)."""
     out = check_output_folder(path, "-o")
     if out.is_dir():
-        ours = (*DEMO_FILES, "views")  # and the atomic writers' temporary files
-        foreign = sorted(p.name for p in out.iterdir() if p.name not in ours and not p.name.startswith(".fgs-"))
+        from fluidsim.files import TEMP_PREFIX  # the atomic writers' temporary files are ours too
+
+        ours = (*DEMO_FILES, "views")
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in ours and not p.name.startswith(TEMP_PREFIX))
         if foreign:
             shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
             raise ValueError(
