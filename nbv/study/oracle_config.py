@@ -34,7 +34,7 @@ from typing import Any
 
 from fluidsim.files import read_json
 from nbv.active import ActiveConfig
-from nbv.active.config import MAX_SEED
+from nbv.active.config import MAX_SEED, MAX_VIEWS
 from nbv.physics import PhysicsConfig
 from nbv.plan import PLANNERS
 from nbv.plan.rules import VALUES
@@ -243,6 +243,11 @@ class OracleConfig:
         if not all(_is_int(s, 0) and s <= MAX_SEED for s in self.seeds):
             raise ValueError(
                 f"oracle config: 'seeds' must be integers from 0 to {MAX_SEED}, got {list(self.seeds)[:5]}"
+            )
+        if not all(_is_int(n, 0) and n < MAX_VIEWS for n in self.states):  # before the budget is made from them
+            raise ValueError(
+                f"oracle config: 'states' must be view counts, integers from 0 to {MAX_VIEWS - 1:,}, got "
+                f"{list(self.states)[:5]}"
             )
         check_preset(self.preset, "oracle config")
         settings = len(self.probes) if isinstance(self.probes, dict) and self.probes else 1

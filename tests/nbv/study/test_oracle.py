@@ -218,6 +218,7 @@ def test_old_rule_names_still_load_with_a_note(tmp_path, caplog):
         ({"rules": ["fisher", "fluid-occc"]}, "rules"),
         ({"horizon": 0}, "horizon"),
         ({"states": [1]}, "states"),
+        ({"states": [1e308]}, "states"),  # was named 'active.budget', built from the states
         ({"planner": "fisherrf"}, "planner"),
         ({"probes": {"a": {"steps": -1}}}, "probes"),
         ({"seeds": list(range(1_000_000))}, "seeds"),  # about 46 days of work: refused before any
