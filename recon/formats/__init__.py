@@ -207,6 +207,13 @@ def load_gaussians_framed(path: str | Path, options: LoadOptions | None = None) 
     options = options or LoadOptions()
     fmt = detect_format(path)
     path = Path(path)
+    undoing = (("--colmap", options.colmap), ("--dataparser-transforms", options.dataparser_transforms))
+    given = [option for option, value in undoing if value is not None]
+    if given and fmt != "checkpoint":  # it would be ignored: say so rather than run in the frame the user undid
+        raise ValueError(
+            f"{given[0]} applies to a trainer's checkpoint (gsplat, nerfstudio), whose normalisation it undoes; {path} "
+            f"is a {FORMATS[fmt]} file, read in its own frame: drop {given[0]}"
+        )
     identity = np.eye(4)
     if fmt == "spz":
         gaussians, chosen, description = _load_spz_decided(path, options.spz_frame)

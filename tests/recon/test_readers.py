@@ -549,3 +549,16 @@ def test_real_capture_matches_the_compressed_ply(name, fmt):
     torch.testing.assert_close(g.means.min(0).values, ref.means.min(0).values, rtol=0, atol=1e-3)
     torch.testing.assert_close(g.means.max(0).values, ref.means.max(0).values, rtol=0, atol=1e-3)
     assert g.means[:, 1].max().item() > -0.05  # y-down, as the .ply: the feet at y = 0
+
+
+@pytest.mark.parametrize("option", ["colmap", "dataparser_transforms"])
+def test_a_checkpoint_option_on_another_format_is_refused(tmp_path, option):
+    """--colmap / --dataparser-transforms undo a trainer checkpoint's normalisation; on a .ply they were ignored, and
+    the run went on in the frame the user meant to undo."""
+    from recon.formats import LoadOptions, load_gaussians_framed
+    from recon.formats.ply import save_gaussians
+    from recon.gaussians import GaussianSet
+
+    ply = save_gaussians(GaussianSet.from_points(torch.zeros(4, 3), scale=0.1, opacity=0.5), tmp_path / "g.ply")
+    with pytest.raises(ValueError, match="applies to a trainer's checkpoint.*g.ply is a standard 3DGS .ply file"):
+        load_gaussians_framed(ply, LoadOptions(**{option: tmp_path}))
