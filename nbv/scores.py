@@ -25,14 +25,13 @@ from collections.abc import Sequence
 
 import torch
 
+from .centre_counts import projected_counts, projected_counts_reference  # noqa: F401  (re-exported)
 from .projected_scores import (  # noqa: F401  (re-exported: nbv.scores is where callers look for them)
     DepthBuffer,
     ProjectedScores,
     coarse_unoccluded,
     coarse_unoccluded_reference,
     depth_test,
-    projected_counts,
-    projected_counts_reference,
     projected_view_scores,
     projected_view_scores_reference,
 )
