@@ -74,6 +74,22 @@ def _check_frame(frame, i: int, size: tuple[int, int] | None, path: Path) -> np.
     return frame
 
 
+def _first_frame(first: np.ndarray | None, path: Path) -> np.ndarray:
+    """The checked first frame of a video, which fixes its size: at most MAX_SIDE px a side once padded to even (the
+    padding logged)."""
+    if first is None:
+        raise ValueError(f"{path}: no frames to write; a video needs at least one frame")
+    first = _check_frame(first, 0, None, path)
+    h, w = first.shape[:2]
+    out_h, out_w = even_size(h, w)
+    if max(out_h, out_w) > MAX_SIDE:
+        raise ValueError(f"{path}: frames of {w}x{h} px; H.264 encodes at most {MAX_SIDE} px a side")
+    if (out_h, out_w) != (h, w):
+        note = "%s: padding %dx%d px frames to %dx%d px (H.264 with 4:2:0 chroma needs an even size)"
+        logger.info(note, path, w, h, out_w, out_h)
+    return first
+
+
 def write_mp4(
     frames: Iterable[np.ndarray], path: str | os.PathLike, fps: float = 30, *, bgr: bool = False, crf: int = DEFAULT_CRF
 ) -> Path:
@@ -106,23 +122,9 @@ def write_mp4(
     if isinstance(crf, bool) or not isinstance(crf, int) or not 0 <= crf <= 51:
         raise ValueError(f"{path}: crf must be an integer in 0..51, got {crf!r}")
     it = iter(frames)
-    first = next(it, None)
-    if first is None:
-        raise ValueError(f"{path}: no frames to write; a video needs at least one frame")
-    first = _check_frame(first, 0, None, path)
+    first = _first_frame(next(it, None), path)
     size = first.shape[:2]
     out_h, out_w = even_size(*size)
-    if max(out_h, out_w) > MAX_SIDE:
-        raise ValueError(f"{path}: frames of {size[1]}x{size[0]} px; H.264 encodes at most {MAX_SIDE} px a side")
-    if (out_h, out_w) != size:
-        logger.info(
-            "%s: padding %dx%d px frames to %dx%d px (H.264 with 4:2:0 chroma needs an even size)",
-            path,
-            size[1],
-            size[0],
-            out_w,
-            out_h,
-        )
     try:
         with atomic_output(path, ".mp4") as tmp:  # FFmpeg picks the container from the extension
             writer = imageio_ffmpeg.write_frames(
