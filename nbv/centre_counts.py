@@ -11,9 +11,10 @@ from :mod:`nbv.scores`.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -134,6 +135,16 @@ def _centre_count(xyz, camera: Camera, reach: float, block: int, near: float, at
     return count
 
 
+def camera_shares(work: Callable[[range], Any], count: int, workers: int, name: str) -> list:
+    """``work`` of each of ``workers`` threads' share of ``count`` cameras, interleaved (similar views per thread),
+    in share order; one share runs on the calling thread."""
+    shares = [range(i, count, workers) for i in range(workers)]
+    if workers == 1:
+        return [work(shares[0])]
+    with ThreadPoolExecutor(workers, thread_name_prefix=name) as pool:
+        return list(pool.map(work, shares))
+
+
 def projected_counts(
     means: torch.Tensor,
     cameras: Sequence,
@@ -177,13 +188,8 @@ def projected_counts(
     def count(ks: range) -> dict[int, int]:
         return {k: _centre_count(xyz, cameras[k], reach, size, near, at_most) for k in ks}
 
-    shares = [range(i, len(cameras), workers) for i in range(workers)]
     with inline_ops(xyz.device):
-        if workers == 1:
-            parts = [count(shares[0])]
-        else:
-            with ThreadPoolExecutor(workers, thread_name_prefix="centre-counts") as pool:
-                parts = list(pool.map(count, shares))
+        parts = camera_shares(count, len(cameras), workers, "centre-counts")
     counts = {k: c for part in parts for k, c in part.items()}
     return torch.tensor([counts[k] for k in range(len(cameras))], dtype=torch.int64)
 

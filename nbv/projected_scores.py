@@ -17,12 +17,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import torch
 
-from nbv.centre_counts import CPU_SCORING_BLOCK, CentreCounter, centre_reach, projected_counts_reference
+from nbv.centre_counts import (
+    CPU_SCORING_BLOCK,
+    CentreCounter,
+    camera_shares,
+    centre_reach,
+    projected_counts_reference,
+)
 from recon.gaussians import GaussianSet
 from recon.projection import (
     GaussianTerms,
@@ -106,6 +111,22 @@ class ProjectedScores:
     coverage: torch.Tensor
     seen: torch.Tensor
     centres: torch.Tensor | None = None
+
+    @classmethod
+    def of(cls, parts: list[tuple[dict, torch.Tensor]], cameras: int, centres: bool) -> ProjectedScores:
+        """From the threads' parts: per camera k its (S, A, counted, centres or None), and each thread's seen flags."""
+        sums = {k: s for part, _ in parts for k, s in part.items()}
+        seen = parts[0][1] > 0
+        for _, other in parts[1:]:
+            seen |= other > 0
+        column = [[sums[k][i] for k in range(cameras)] for i in range(4)]
+        return cls(
+            torch.tensor(column[0], dtype=torch.float64),
+            torch.tensor(column[2], dtype=torch.int64),
+            torch.tensor(column[1], dtype=torch.float64),
+            seen.cpu(),
+            torch.tensor(column[3], dtype=torch.int64) if centres else None,
+        )
 
     @property
     def physics_mean(self) -> torch.Tensor:
@@ -392,23 +413,8 @@ def projected_view_scores(
                 sums[k] = (*sums[k], None if count is None else count.total)
             return sums, seen
 
-        shares = [range(i, len(cameras), workers) for i in range(workers)]  # interleaved: similar views per thread
-        if workers == 1:
-            parts = [score(shares[0])]
-        else:
-            with ThreadPoolExecutor(workers, thread_name_prefix="view-scores") as pool:
-                parts = list(pool.map(score, shares))
-    sums = {k: s for part, _ in parts for k, s in part.items()}
-    seen = parts[0][1] > 0
-    for _, other in parts[1:]:
-        seen |= other > 0
-    return ProjectedScores(
-        torch.tensor([sums[k][0] for k in range(len(cameras))], dtype=torch.float64),
-        torch.tensor([sums[k][2] for k in range(len(cameras))], dtype=torch.int64),
-        torch.tensor([sums[k][1] for k in range(len(cameras))], dtype=torch.float64),
-        seen.cpu(),
-        torch.tensor([sums[k][3] for k in range(len(cameras))], dtype=torch.int64) if centres else None,
-    )
+        parts = camera_shares(score, len(cameras), workers, "view-scores")
+    return ProjectedScores.of(parts, len(cameras), centres)
 
 
 def _frustum_view(terms, cam, k: int, size: int, m, weighted: bool, seen, count=None) -> tuple[float, float, int]:
