@@ -295,18 +295,6 @@ def serial_sort() -> bool:
 
 
 @ti.kernel
-def gather_rows(
-    src: ti.types.ndarray(ndim=1),
-    dst: ti.types.ndarray(ndim=1),
-    order: ti.types.ndarray(dtype=ti.i32, ndim=1),
-    n: ti.i32,
-):
-    """Permutation: ``dst[k] = src[order[k]]`` for k < n."""
-    for k in range(n):
-        dst[k] = src[order[k]]
-
-
-@ti.kernel
 def gather_persistent(
     order: ti.types.ndarray(dtype=ti.i32, ndim=1),
     n: ti.i32,
@@ -326,7 +314,7 @@ def gather_persistent(
     divergence_count_out: ti.types.ndarray(ndim=1),
 ):
     """The permutation of :meth:`fluidsim.particles.FluidParticles.permute` on its seven persistent arrays at
-    once: ``a_out[k] = a[order[k]]`` for k < n (:func:`gather_rows` for seven arrays in one launch)."""
+    once: ``a_out[k] = a[order[k]]`` for k < n."""
     for k in range(n):
         o = order[k]
         x_out[k] = x[o]

@@ -7,14 +7,10 @@ follows two rules:
    memory budget (:func:`memory_budget_bytes`) before anything is inflated or allocated
    (:func:`check_budget`); a header that claims more is refused with a message naming the file.
 2. **Inflate in bounded chunks.** Decompressors are asked for at most the declared size plus one byte
-   (:func:`inflate_zlib`, :func:`inflate_zstd`, :func:`read_zip_member`), so a stream that expands beyond
-   what its header declared is caught without ever holding the excess.
+   (:func:`inflate_zstd`, :func:`read_zip_member`; the gzip .spz reader bounds its own stream), so a stream
+   that expands beyond what its header declared is caught without ever holding the excess.
 
 No paper equation: this is input hygiene.
-
-Example:
-    >>> inflate_zlib(zlib.compress(b"abc"), 3, "x.bin", "payload")
-    b'abc'
 """
 
 from __future__ import annotations
@@ -55,34 +51,6 @@ def check_budget(source: str, what: str, declared: int) -> None:
             f"{BUDGET_ENV} sets it): a "
             f"corrupt or hostile file, or a capture too large for this machine"
         )
-
-
-def inflate_zlib(data: bytes, size: int, source: str, what: str, wbits: int = zlib.MAX_WBITS) -> bytes:
-    """Exactly ``size`` bytes from one zlib/gzip/raw-deflate stream, inflated in chunks of at most
-    :data:`CHUNK_BYTES`; never more than ``size + 1`` bytes are produced.
-
-    Raises:
-        ValueError: a corrupt stream, or one that holds fewer or more than ``size`` bytes.
-    """
-    stream = zlib.decompressobj(wbits)
-    parts, got, tail = [], 0, data
-    try:
-        while got <= size:
-            part = stream.decompress(tail, min(CHUNK_BYTES, size + 1 - got))
-            tail = stream.unconsumed_tail
-            if not part:
-                break
-            parts.append(part)
-            got += len(part)
-        if got < size and not stream.eof:
-            parts.append(stream.flush())
-            got += len(parts[-1])
-    except zlib.error as exc:
-        raise ValueError(f"{source}: corrupt compressed {what} ({exc}); re-download or re-export the file") from None
-    if got != size:
-        more = "more" if got > size else f"only {got}"
-        raise ValueError(f"{source}: corrupt {what}: it decompresses to {more} bytes, its header declares {size}")
-    return b"".join(parts)
 
 
 def inflate_zstd(frame: bytes, size: int, source: str, what: str) -> bytes:

@@ -434,21 +434,6 @@ class GaussianLists:
             self.covered_entries,
         )
 
-    def _table_array(self) -> np.ndarray:
-        """The ``table`` argument of the kernels (see ``aggregate_level_kernels.TABLE_WIDTH``)."""
-        head = np.zeros((1, kernels.TABLE_WIDTH))
-        # Particles outside the levels' grids reach no Gaussian: the kernels' domain test also skips them (most of a
-        # probe's fluid is away from the object), with every level lookup.
-        table = self.levels.table.reshape(-1, kernels.TABLE_WIDTH)
-        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-        if len(table):
-            lo = np.maximum(table[:, 0:3].min(0), self.domain_min)
-            hi = np.minimum((table[:, 0:3] + table[:, 4:5] * table[:, 5:8]).max(0), self.domain_max)
-        head[0, :6] = np.concatenate([lo, hi])
-        head[0, kernels.ITEMS_OFFSET] = self.items_offset
-        head[0, kernels.SPLITS_OFFSET] = self.levels.num_cells + 1
-        return np.concatenate([head, table])
-
 
 def reach_classes(reach: np.ndarray) -> int:
     """An upper bound of the levels :func:`plan_levels` makes of these reaches [G] or of any subset of them (the

@@ -183,10 +183,6 @@ class SceneTransform:
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         return (p @ self.rotation) / self.scale
 
-    def directions_to_sim(self, vectors: np.ndarray) -> np.ndarray:
-        """Scene directions [N, 3] -> simulation directions [N, 3] (rotated, not scaled)."""
-        return np.asarray(vectors, dtype=np.float64).reshape(-1, 3) @ self.rotation.T
-
     def covariances_to_sim(self, covs: np.ndarray) -> np.ndarray:
         """Scene covariances [N, 3, 3] -> simulation covariances scale^2 R Sigma R^T [N, 3, 3] (m^2)."""
         c = np.asarray(covs, dtype=np.float64).reshape(-1, 3, 3)
