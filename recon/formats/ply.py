@@ -346,15 +346,26 @@ def read_ply_vertices(path: str | Path) -> dict[str, np.ndarray]:
         order = PLY_FORMATS[header.fmt]
         if order is None:
             return _read_ascii_vertices(fh, header, source)
+        types = {t for _, t in header.properties}
+        # One scalar type (every trainer's float32 file): the rows read as one table whose columns are views.
+        record = np.dtype(order + types.pop()) if len(types) == 1 else None
         dtype = np.dtype([(p, order + t) for p, t in header.properties])
         available = os.fstat(fh.fileno()).st_size - header.data_offset
         check_declared_size(source, f"{n} vertices of {dtype.itemsize} bytes", n * dtype.itemsize, available)
-        data = np.fromfile(fh, dtype=dtype, count=n) if n > 0 else np.zeros(0, dtype)
-    if data.shape[0] != n:
+        if record is not None:
+            data = np.fromfile(fh, dtype=record, count=n * len(names)) if n > 0 else np.zeros(0, record)
+            present = data.size // len(names)
+        else:
+            data = np.fromfile(fh, dtype=dtype, count=n) if n > 0 else np.zeros(0, dtype)
+            present = data.shape[0]
+    if present != n:
         raise ValueError(
             f"{source}: truncated PLY data: the header declares {n} vertices of {dtype.itemsize} bytes "
-            f"but only {data.shape[0]} are present"
+            f"but only {present} are present"
         )
+    if record is not None:
+        table = data.reshape(n, len(names))
+        return {p: table[:, i].astype(np.float32, copy=False) for i, p in enumerate(names)}
     return {p: data[p].astype(np.float32) for p in names}
 
 
@@ -400,7 +411,7 @@ def gaussians_from_ply_columns(columns: dict[str, np.ndarray], source: str) -> G
     def stack(names: list[str]) -> torch.Tensor:
         if not names:
             return torch.zeros(n, 0)
-        return torch.from_numpy(np.stack([columns[p] for p in names], 1).astype(np.float32))
+        return torch.from_numpy(np.stack([columns[p] for p in names], 1).astype(np.float32, copy=False))
 
     dc = stack(["f_dc_0", "f_dc_1", "f_dc_2"])
     rest = stack(rest_names).reshape(n, 3, k - 1).transpose(1, 2)  # channel-major -> [N, K-1, 3]

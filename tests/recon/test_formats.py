@@ -525,3 +525,30 @@ def test_real_capture_decodes_the_same_from_both_formats():
     assert (c.log_scales[inside] - s.log_scales[inside]).abs().max().item() < 1 / 32 + 1e-3
     assert (sign_aligned(s.quats, c.quats) - c.quats / c.quats.norm(dim=1, keepdim=True)).abs().max() < 5e-3
     assert (c.sh[:, 0] - s.sh[:, 0]).abs().max().item() < 0.5 / (0.15 * 255) + 1e-3
+
+
+def test_ply_vertices_one_type_table_equals_mixed_records(tmp_path):
+    """A PLY of one scalar type is read as one table (columns are views); the same values written with a mixed
+    layout (a uchar column, big-endian doubles) are read record by record: both give the same float32 columns."""
+    from recon.formats.ply import read_ply_vertices
+
+    rng = np.random.default_rng(3)
+    n, names = 257, ["x", "y", "z", "opacity"]
+    values = rng.normal(size=(n, len(names))).astype(np.float32)
+
+    def write(path, fmt, types, rows):
+        props = "".join(f"property {t} {p}\n" for p, t in zip(names + ["red"][: len(types) - 4], types, strict=True))
+        head = f"ply\nformat {fmt} 1.0\nelement vertex {n}\n{props}end_header\n".encode()
+        path.write_bytes(head + rows.tobytes())
+
+    write(tmp_path / "one.ply", "binary_little_endian", ["float"] * 4, values)
+    mixed = np.zeros(n, [(p, ">f8") for p in names] + [("red", "u1")])
+    for i, p in enumerate(names):
+        mixed[p] = values[:, i]
+    mixed["red"] = np.arange(n) % 256
+    write(tmp_path / "mixed.ply", "binary_big_endian", ["double"] * 4 + ["uchar"], mixed)
+    one, other = read_ply_vertices(tmp_path / "one.ply"), read_ply_vertices(tmp_path / "mixed.ply")
+    assert list(one) == names and list(other) == names + ["red"]
+    for p in names:
+        assert one[p].dtype == np.float32 and np.array_equal(one[p], other[p])
+    assert np.array_equal(other["red"], (np.arange(n) % 256).astype(np.float32))
