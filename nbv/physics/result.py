@@ -351,13 +351,29 @@ def _read_result(f, trajectories: bool) -> PhysicsResult:
 
 
 def _stack_probes(probes: list, key: str, g: int, dtype) -> np.ndarray:
-    """(P, G) of each probe's ``key`` dataset; (0, G) of ``dtype`` without probes."""
-    return np.stack([pg[key][()] for pg in probes]) if probes else np.zeros((0, g), dtype)
+    """(P, G) of each probe's ``key`` dataset, read straight into its row; (0, G) of ``dtype`` without probes.
+
+    Raises:
+        ValueError: the probes' datasets differ in shape (a damaged file).
+    """
+    if not probes:
+        return np.zeros((0, g), dtype)
+    first = probes[0][key]
+    out = np.empty((len(probes), *first.shape), first.dtype)
+    for row, pg in zip(out, probes, strict=True):
+        if pg[key].shape != first.shape:
+            raise ValueError(
+                f"{pg.file.filename}: the probes' '{key}' datasets have the shapes {first.shape} and "
+                f"{pg[key].shape} (a damaged result); re-run `fluidgs simulate`"
+            )
+        if row.size:
+            pg[key].read_direct(row)
+    return out
 
 
 def _stack_probes_if_all(probes: list, key: str) -> np.ndarray | None:
     """(P, G) of each probe's optional ``key`` dataset; None unless every probe has it (or there is no probe)."""
-    return np.stack([pg[key][()] for pg in probes]) if probes and all(key in pg for pg in probes) else None
+    return _stack_probes(probes, key, 0, np.float64) if probes and all(key in pg for pg in probes) else None
 
 
 def _optional_float(attrs, key: str) -> float | None:

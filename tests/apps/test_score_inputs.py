@@ -4,6 +4,7 @@ views folder of an earlier run."""
 import shutil
 
 import h5py
+import numpy as np
 import pytest
 import torch
 
@@ -69,6 +70,14 @@ def test_a_result_declaring_more_than_it_stores_is_refused_before_reading(data, 
     with h5py.File(recorded, "r+") as f:
         f.create_dataset("probes/-x/trajectory/x", shape=(4, 10**10, 3), dtype="f4", chunks=(1, 1024, 3))
     assert load_result(recorded).divergence.shape == (300,)
+    uneven = tmp_path / "uneven.h5"
+    shutil.copy(data["h5"], uneven)
+    with h5py.File(uneven, "r+") as f:
+        last = sorted(f["probes"])[-1]
+        del f[f"probes/{last}/D"]
+        f[f"probes/{last}/D"] = np.zeros(299)
+    with pytest.raises(ValueError, match=r"uneven\.h5: the probes' 'D' datasets have the shapes \(300,\) and \(299,\)"):
+        load_result(uneven)
     with pytest.raises(ValueError, match="trajectory/x declares"):
         load_result(recorded, trajectories=True)
 
