@@ -73,9 +73,10 @@ def test_a_result_declaring_more_than_it_stores_is_refused_before_reading(data, 
     uneven = tmp_path / "uneven.h5"
     shutil.copy(data["h5"], uneven)
     with h5py.File(uneven, "r+") as f:
-        last = sorted(f["probes"])[-1]
-        del f[f"probes/{last}/D"]
-        f[f"probes/{last}/D"] = np.zeros(299)
+        f.copy("probes/-x", "probes/+x")  # a second probe whose D lost a row
+        f.attrs["directions"] = '["-x", "+x"]'
+        del f["probes/+x/D"]
+        f["probes/+x/D"] = np.zeros(299)
     with pytest.raises(ValueError, match=r"uneven\.h5: the probes' 'D' datasets have the shapes \(300,\) and \(299,\)"):
         load_result(uneven)
     with pytest.raises(ValueError, match="trajectory/x declares"):
