@@ -1,50 +1,41 @@
 """A disk cache of the empty scene's fluid (the reference of paper Sec. 3.3), so that it is simulated once.
 
 The empty-scene probes run each probe's slab in its walled domain with no solid. Their fluid depends on the probe's
-slab, domain and inflow (:class:`fluidsim.probes.ProbeSetup`), the solver settings, the number of steps and the
-engine, never on the Gaussians: only the accumulation onto the Gaussians does (D_g^empty, paper Eq. 2-3). So the
-cache keeps what the accumulator consumes, every accumulated step's active fluid particles as (x_i, D_i) in the
-solver's own float type (:class:`EmptySamples`), and a later run accumulates them onto its own Gaussians. The
-accumulator's sums are fixed-point integers (:mod:`nbv.physics.aggregate`), exact in any order, so the reference
-D_g from the cache is the same bits as the one accumulated during the simulation.
+setup, the solver settings, the steps and the engine, never on the Gaussians: only the accumulation onto them does
+(D_g^empty, paper Eq. 2-3). So the cache keeps what the accumulator consumes, every accumulated step's active fluid
+particles as (x_i, D_i) in the solver's own float type (:class:`EmptySamples`), and a later run accumulates them onto
+its own Gaussians. The accumulator's sums are fixed-point integers (:mod:`nbv.physics.aggregate`), exact in any order,
+so the reference D_g from the cache is the same bits as the one accumulated during the simulation.
 
-- **Key**: SHA-256 of the setup (slab, domain, inflow velocity), every ``fluidsim.SolverConfig`` field (precision
-  included), the wall layers, the steps and the accumulation stride, the Taichi arch and version, the format
-  version and a digest of the source that makes the fluid (:func:`runner_sources`: the runner
-  :mod:`nbv.physics.empty_scene`, this module and the ``fluidsim`` modules the runner imports), so that an engine
-  change never reads an old trajectory, and an edit elsewhere (the probe run around it) keeps the entries. One entry
-  per probe: the -y probe, which starts at rest, is shared by runs
-  at different inflow speeds.
-- **Folder**: ``$FLUIDGS_CACHE_DIR``, else ``$XDG_CACHE_HOME/fluidgs``, else ``~/.cache/fluidgs``
-  (:func:`cache_folder`).
-- **Bound**: ``$FLUIDGS_CACHE_MAX_GB`` GiB (default :data:`DEFAULT_MAX_GB`); after each write the least recently used
-  entries (by modification time; a read touches its entry) go until the rest fits. An entry larger than the bound
-  is not stored. At the paper's setting the 152k-Gaussian person capture's five probes take 0.58 GB (16 bytes per
-  particle and step in f32), the quick preset's 0.19 GB.
+- **Key** (:func:`cache_key`): one entry per probe, so the -y probe, which starts at rest, is shared by runs at
+  different inflow speeds. It digests the source that makes the fluid (:func:`runner_sources`), so that an engine
+  change never reads an old trajectory and an edit elsewhere (the probe run around it) keeps the entries.
+- **Folder** (:func:`cache_folder`) and **bound** (:func:`max_bytes_from_env`): after each write the least recently
+  used entries (by modification time; a read touches its entry) go until the rest fits. An entry larger than the
+  bound is not stored. At the paper's setting the 152k-Gaussian person capture's five probes take 0.58 GB (16 bytes
+  per particle and step in f32), the quick preset's 0.19 GB.
 - **Concurrent runs**: an entry is written to a temporary file and renamed into place
-  (:func:`fluidsim.files.atomic_output`), so a reader sees a whole entry or none; a reader checks the magic, the
-  key, the size and the SHA-256 of the payload, and an entry that fails (corrupt, truncated, foreign) is logged,
-  removed and rebuilt, never read.
-- **An unwritable folder** turns the cache off for the rest of the run with one warning.
-- **Trust**: the folder is untrusted input. An entry is read only as a regular file (``O_NOFOLLOW | O_NONBLOCK``,
-  checked by its descriptor: no link to /dev/zero, no FIFO) of at most the cache's bound (a means entry: 8 bytes per
-  Gaussian and its header). The hash finds damage, not forgery (a writer of the folder can recompute it), so the
-  reader also checks plausibility: finite samples, and means that name the samples this process keyed them on and
-  are no larger than those samples' largest |D_i| (a mean is an average of them). docs/cli.md says what is left.
+  (:func:`fluidsim.files.atomic_output`), so a reader sees a whole entry or none; an entry that fails the reader's
+  checks (magic, key, size, SHA-256 of the payload: corrupt, truncated, foreign) is logged, removed and rebuilt, never
+  read. An unwritable folder turns the cache off for the rest of the run with one warning.
+- **Trust**: the folder is untrusted input. An entry is read only as a bounded regular file (:func:`_read_entry`). The
+  hash finds damage, not forgery (a writer of the folder can recompute it), so the reader also checks plausibility
+  (:func:`_check_samples`, :meth:`EmptyCache._check_means`). docs/cli.md says what is left.
 
-A second kind of entry keeps the means of those samples accumulated onto one set of Gaussians (:func:`means_key`:
-the samples' key, the Gaussians' centres and reach, the accumulator's source; 8 bytes per Gaussian), so that a run
-on the same Gaussians skips the accumulation too. :class:`EmptyReference` is the one owner of both kinds and of a
-run's memo of means, behind one lookup.
+A second kind of entry keeps the means of those samples accumulated onto one set of Gaussians (:func:`means_key`; 8
+bytes per Gaussian), so that a run on the same Gaussians skips the accumulation too. :class:`EmptyReference` is the
+one owner of both kinds and of a run's memo of means, behind one lookup.
 
 File layout of an entry ``<key>.empty``: 8 bytes :data:`MAGIC`, a little-endian u64 header length, a JSON header
-(format, key, the arrays' names, types and shapes, payload bytes, payload SHA-256), then the arrays: the particles
-per step [S] int64, the positions [N, 3] and the values [N] of the solver's float type; or the means [G] float64.
+(format, key, the arrays' names, types and shapes, payload bytes, payload SHA-256; a means entry also names its
+samples' key), then the arrays: the particles per step [S] int64, the positions [N, 3] and the values [N] of the
+solver's float type; or the means [G] float64.
 """
 
 from __future__ import annotations
 
 import ast
+import contextlib
 import errno
 import hashlib
 import json
@@ -71,6 +62,8 @@ DEFAULT_MAX_GB = 4.0
 # A temporary file older than this was left by a killed writer (a live writer's is younger): removed on eviction.
 STALE_TEMP_S = 24 * 3600.0
 _HEADER_LIMIT = 1 << 16
+_DTYPES = ("<f4", "<f8", "<i8")
+_SAMPLE_ARRAYS = ("step_counts", "positions", "values")  # a fluid entry's arrays, in their order in the file
 
 
 @dataclass(frozen=True)
@@ -86,10 +79,6 @@ class EmptySamples:
     positions: np.ndarray
     values: np.ndarray
     step_counts: np.ndarray
-
-    @property
-    def nbytes(self) -> int:
-        return int(self.step_counts.nbytes + self.positions.nbytes + self.values.nbytes)
 
 
 class SampleRecorder:
@@ -126,39 +115,29 @@ def _source_digest(files: list[tuple[str, Path]]) -> str:
 def _fluidsim_imports(path: Path, fluidsim_root: Path) -> set[Path]:
     """The ``fluidsim`` modules that the file ``path`` imports (every import statement, function-level ones included),
     with the ``__init__.py`` of each package on the way."""
-    inside = path.is_relative_to(fluidsim_root)
-    found = set()
+    top = fluidsim_root.parent
+    package = list(path.parent.relative_to(top).parts) if path.is_relative_to(fluidsim_root) else None
+    dotted = []
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
-            targets = [(a.name.split("."), []) for a in node.names]
+            dotted += [a.name.split(".") for a in node.names]
         elif isinstance(node, ast.ImportFrom):
-            if node.level and inside:  # relative, within fluidsim
-                package = list(path.parent.relative_to(fluidsim_root.parent).parts)
-                parts = package[: len(package) + 1 - node.level] + (node.module.split(".") if node.module else [])
-            else:
-                parts = (node.module or "").split(".")
-            targets = [(parts, [a.name for a in node.names])]
-        else:
-            continue
-        for parts, names in targets:
-            if parts[0] != "fluidsim":
-                continue
-            folder = fluidsim_root.parent.joinpath(*parts)
-            for k in range(1, len(parts) + 1):  # the packages on the way run their __init__
-                init = fluidsim_root.parent.joinpath(*parts[:k], "__init__.py")
-                if init.is_file():
-                    found.add(init)
-            module = folder.with_suffix(".py")
-            found.update(m for m in (module,) if m.is_file())
-            found.update(m for n in names for m in (folder / f"{n}.py", folder / n / "__init__.py") if m.is_file())
+            parts = node.module.split(".") if node.module else []
+            if node.level and package is not None:  # relative, within fluidsim
+                parts = package[: len(package) + 1 - node.level] + parts
+            dotted += [parts] + [[*parts, a.name] for a in node.names]  # an imported name may be a module
+    found = set()
+    for parts in dotted:
+        if parts[:1] == ["fluidsim"]:  # each package on the way runs its __init__
+            prefixes = [top.joinpath(*parts[:k]) for k in range(1, len(parts) + 1)]
+            found.update(m for p in prefixes for m in (p / "__init__.py", p.with_suffix(".py")) if m.is_file())
     return found
 
 
 def runner_sources(physics: Path | None = None, fluidsim_root: Path | None = None) -> list[tuple[str, Path]]:
     """The source files that make the empty scene's fluid, as (name, path): the runner (``empty_scene.py``), this
-    module (the samples and their format) and the ``fluidsim`` modules the runner imports, directly or through each
-    other (by their import statements, :mod:`ast`). Other modules of ``nbv`` (the probe run around them) and of
-    ``fluidsim`` (the recording, the memory estimate) leave the keys as they are.
+    module and the ``fluidsim`` modules the runner imports, directly or through each other. Other modules (the probe
+    run, the recording) leave the keys as they are.
 
     Args:
         physics: the folder of this module and the runner (default: this module's). fluidsim_root: the ``fluidsim``
@@ -179,8 +158,7 @@ def runner_sources(physics: Path | None = None, fluidsim_root: Path | None = Non
 
 
 def code_digest(sources: list[tuple[str, Path]] | None = None) -> str:
-    """SHA-256 of the source that makes the empty scene's fluid (:func:`runner_sources`; an engine change gives new
-    keys, an edit elsewhere does not)."""
+    """SHA-256 of the source that makes the empty scene's fluid (default: :func:`runner_sources`)."""
     return _source_digest(runner_sources() if sources is None else sources)
 
 
@@ -191,8 +169,7 @@ def accumulator_digest() -> str:
 
 def means_key(samples_key: str, centers: np.ndarray, reach: np.ndarray, accumulator: str | None = None) -> str:
     """The entry of the means of the samples under ``samples_key`` accumulated onto these Gaussians ([G, 3] centres
-    and [G] reach, sim metres): a run on the same Gaussians skips the accumulation too. ``accumulator``: the
-    :func:`accumulator_digest` (None: computed)."""
+    and [G] reach, sim metres). ``accumulator``: the :func:`accumulator_digest` (None: computed)."""
     accumulator = accumulator_digest() if accumulator is None else accumulator
     h = hashlib.sha256(f"{samples_key}:{accumulator}:means".encode())
     for a in (centers, reach):
@@ -205,15 +182,14 @@ def means_key(samples_key: str, centers: np.ndarray, reach: np.ndarray, accumula
 def cache_key(
     setup, solver_config, wall_layers: int, steps: int, accumulate_every: int, code: str | None = None
 ) -> str:
-    """The entry of one empty-scene probe: SHA-256 hex of everything its fluid depends on.
+    """The entry of one empty-scene probe: SHA-256 hex (64 digits) of everything its fluid depends on, with the Taichi
+    arch and version and the format version.
 
     Args:
         setup: the probe's ``fluidsim.probes.ProbeSetup`` (its direction name is left out: only the geometry counts).
         solver_config: ``fluidsim.SolverConfig`` (all fields, precision included).
         wall_layers: layers of wall particles. steps: solver steps. accumulate_every: the accumulated stride.
         code: the :func:`code_digest` (None: computed).
-    Returns:
-        64 hex digits.
     """
     import taichi as ti  # noqa: PLC0415 - the runtime's arch and version
 
@@ -249,12 +225,10 @@ def max_bytes_from_env() -> int:
         ValueError: the variable is not a finite number >= 0.
     """
     text = os.environ.get(CACHE_MAX_ENV, "").strip()
-    if not text:
-        return int(DEFAULT_MAX_GB * 2**30)
     try:
-        gb = float(text)
+        gb = float(text or DEFAULT_MAX_GB)
     except ValueError:
-        gb = float("nan")
+        gb = math.nan
     if not math.isfinite(gb) or gb < 0:
         raise ValueError(
             f"{CACHE_MAX_ENV}={text!r}: give the empty-scene cache's bound in GiB, a number >= 0 (0 stores nothing; "
@@ -295,23 +269,22 @@ class EmptyCache:
     def load(self, key: str) -> EmptySamples | None:
         """The fluid samples under ``key``, or None when there are none or the entry is damaged (logged, removed: it
         is rebuilt)."""
-        arrays = self._read(key, ("step_counts", "positions", "values"))
-        return None if arrays is None else EmptySamples(arrays["positions"], arrays["values"], arrays["step_counts"])
+        arrays = self._read(key, _SAMPLE_ARRAYS, self.max_bytes, _check_samples)
+        return None if arrays is None else EmptySamples(**{n: arrays[n] for n in _SAMPLE_ARRAYS})
 
     def load_means(self, key: str, num_gaussians: int, samples_key: str) -> np.ndarray | None:
-        """The [G] float64 means accumulated under ``key`` (:func:`means_key`: the samples under ``samples_key`` onto
-        these Gaussians), or None as :meth:`load`. The entry must name ``samples_key``, and those samples must be
-        stored and bound its means (:meth:`_check_means`)."""
-        arrays = self._read(key, ("means",), num_gaussians, samples_key)
+        """The [G] float64 means under ``key`` (:func:`means_key` of the samples under ``samples_key``), or None as
+        :meth:`load` (or when they fail :meth:`_check_means`)."""
+        limit = 16 + _HEADER_LIMIT + 8 * int(num_gaussians)
+        arrays = self._read(key, ("means",), limit, lambda a: self._check_means(a, num_gaussians, samples_key))
         return None if arrays is None else arrays["means"]
 
-    def _read(
-        self, key: str, names: tuple[str, ...], num_gaussians: int | None = None, samples_key: str | None = None
-    ) -> dict | None:
+    def _read(self, key: str, names: tuple[str, ...], limit: int, check) -> dict | None:
+        """The arrays ``names`` of the entry under ``key`` if it is at most ``limit`` bytes and passes ``check`` (which
+        raises ValueError), else None."""
         if self.disabled:
             return None
         p = self.path(key)
-        limit = self.max_bytes if num_gaussians is None else 16 + _HEADER_LIMIT + 8 * int(num_gaussians)
         try:
             data = _read_entry(p, limit)
         except (FileNotFoundError, NotADirectoryError):
@@ -325,26 +298,23 @@ class EmptyCache:
             return None
         try:
             arrays = _decode(data, key, names)
-            if num_gaussians is not None:
-                if arrays["means"].shape != (num_gaussians,):
-                    raise ValueError(f"{arrays['means'].shape[0]} means for {num_gaussians} Gaussians")
-                self._check_means(samples_key, arrays["means"], arrays.get("samples_key"))
+            check(arrays)
         except ValueError as exc:
             log.warning(
                 "empty-scene cache entry %s is damaged (%s); ignored, the empty scene is simulated again", p, exc
             )
             p.unlink(missing_ok=True)
             return None
-        try:
+        with contextlib.suppress(OSError):
             os.utime(p)  # the entry was used: the last to go
-        except OSError:
-            pass
         return arrays
 
-    def _check_means(self, source: str, means: np.ndarray, named: str | None) -> None:
-        """The means of an entry are plausible: finite, made from the samples ``source`` the reader keyed them on (the
-        header names them; checked against what the reader computed, never against the file alone) and, as averages
-        of those samples' D_i, no larger than the largest |D_i| among them."""
+    def _check_means(self, arrays: dict, num_gaussians: int, source: str) -> None:
+        """The means are plausible: one per Gaussian, finite, made from the samples ``source`` this reader keyed them on
+        (never the file's word alone), which are stored and, as the means average their D_i, bound them."""
+        means, named = arrays["means"], arrays.get("samples_key")
+        if means.shape != (num_gaussians,):
+            raise ValueError(f"{means.shape[0]} means for {num_gaussians} Gaussians")
         if not np.isfinite(means).all():
             raise ValueError("non-finite means")
         if named != source:
@@ -352,10 +322,11 @@ class EmptyCache:
         samples = self.load(source)
         if samples is None:
             raise ValueError("its samples are not in the cache (the means cannot be checked)")
-        largest = float(np.abs(samples.values).max()) if len(samples.values) else 0.0
-        if float(np.abs(means).max(initial=0.0)) > largest * (1 + 1e-6) + 1e-6:
+        largest = float(np.abs(samples.values).max(initial=0.0))
+        biggest = float(np.abs(means).max(initial=0.0))
+        if biggest > largest * (1 + 1e-6) + 1e-6:
             raise ValueError(
-                f"a mean of {float(np.abs(means).max()):.4g} 1/s exceeds the largest |D_i| of its samples, "
+                f"a mean of {biggest:.4g} 1/s exceeds the largest |D_i| of its samples, "
                 f"{largest:.4g} 1/s (not an average of them)"
             )
 
@@ -363,20 +334,17 @@ class EmptyCache:
     def save(self, key: str, samples: EmptySamples) -> bool:
         """Store ``samples`` under ``key`` (atomically), then keep the folder within the bound. An unwritable folder
         turns this cache off with one warning. Returns whether the entry was stored."""
-        return self._write(
-            key, {"step_counts": samples.step_counts, "positions": samples.positions, "values": samples.values}
-        )
+        return self._write(key, {n: getattr(samples, n) for n in _SAMPLE_ARRAYS})
 
     def save_means(self, key: str, means: np.ndarray, samples_key: str) -> bool:
-        """Store [G] float64 means under ``key`` (:func:`means_key` of the samples under ``samples_key``, which the
-        entry names), as :meth:`save`."""
+        """Store [G] float64 means under ``key`` (naming their samples' ``samples_key``), as :meth:`save`."""
         return self._write(key, {"means": np.asarray(means, np.float64)}, samples_key)
 
     def _write(self, key: str, arrays: dict[str, np.ndarray], samples_key: str | None = None) -> bool:
         if self.disabled:
             return False
-        header, payload_parts = _encode(arrays, key, samples_key)
-        size = len(header) + sum(len(b) for b in payload_parts)
+        parts = _encode(arrays, key, samples_key)
+        size = sum(len(b) for b in parts)
         if size > self.max_bytes:
             log.info("empty-scene entry of %.3g GB exceeds the cache bound (%s); not stored", size / 1e9, CACHE_MAX_ENV)
             return False
@@ -384,9 +352,7 @@ class EmptyCache:
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
             with atomic_output(p) as tmp, open(tmp, "wb") as f:
-                f.write(header)
-                for part in payload_parts:
-                    f.write(part)
+                f.writelines(parts)
         except OSError as exc:
             self.disabled = True
             log.warning(
@@ -402,14 +368,16 @@ class EmptyCache:
 
     def entries(self) -> list[tuple[float, int, Path]]:
         """(modification time, bytes, path) of every entry, oldest first."""
+        return self._files(lambda name: name.endswith(SUFFIX))
+
+    def _files(self, match) -> list[tuple[float, int, Path]]:
+        """(modification time, bytes, path) of the folder's files whose names ``match``, oldest first."""
         out = []
         try:
             found = list(os.scandir(self.folder))
         except OSError:
             return out
-        for e in found:
-            if not e.name.endswith(SUFFIX):
-                continue
+        for e in filter(lambda e: match(e.name), found):
             try:
                 st = e.stat(follow_symlinks=False)
             except OSError:
@@ -421,12 +389,10 @@ class EmptyCache:
         """Remove the least recently used entries until the rest fits the bound (``keep`` last), and temporary files
         that killed writers left more than :data:`STALE_TEMP_S` ago. Returns the removed entries."""
         now = time.time()
-        try:
-            for e in os.scandir(self.folder):
-                if TEMP_NAME.match(e.name) and now - e.stat(follow_symlinks=False).st_mtime > STALE_TEMP_S:
-                    Path(e.path).unlink(missing_ok=True)
-        except OSError:
-            pass
+        for mtime, _, p in self._files(TEMP_NAME.match):
+            if now - mtime > STALE_TEMP_S:
+                with contextlib.suppress(OSError):
+                    p.unlink(missing_ok=True)
         entries = self.entries()
         total = sum(size for _, size, _ in entries)
         removed = []
@@ -469,9 +435,7 @@ class EmptyFound:
 class EmptyReference:
     """The one owner of the empty scene's reference: a probe's D_g^empty on a set of Gaussians, looked up in this run's
     memo of means, then the disk's means, then the disk's fluid samples (:class:`EmptyCache`), and put back into all
-    of them once accumulated or simulated. One key scheme: the fluid's :func:`cache_key` (over
-    :func:`runner_sources`' digest, computed once here), and the means' :func:`means_key` of it, which also keys the
-    memo.
+    of them once accumulated or simulated. The means' :func:`means_key` also keys the memo.
 
     Args:
         store: the disk cache (None: nothing is looked up or stored; every probe is simulated).
@@ -538,9 +502,6 @@ class EmptyReference:
             self._memo.pop(next(iter(self._memo)))
 
 
-_DTYPES = ("<f4", "<f8", "<i8")
-
-
 def _read_entry(path: Path, limit: int) -> bytes:
     """The bytes of an entry: a regular file (never through a symbolic link, never a FIFO or a device: opened without
     blocking and checked by its descriptor) of at most ``limit`` bytes. ValueError says what else it is."""
@@ -562,8 +523,8 @@ def _read_entry(path: Path, limit: int) -> bytes:
     return data
 
 
-def _encode(arrays: dict[str, np.ndarray], key: str, samples_key: str | None = None) -> tuple[bytes, list[bytes]]:
-    """(header, payload parts) of an entry holding ``arrays`` (little-endian f4, f8 or i8)."""
+def _encode(arrays: dict[str, np.ndarray], key: str, samples_key: str | None = None) -> list[bytes]:
+    """The header, then the arrays' bytes, of an entry holding ``arrays`` (little-endian f4, f8 or i8)."""
     parts, layout = [], []
     h = hashlib.sha256()
     for name, a in arrays.items():
@@ -585,12 +546,12 @@ def _encode(arrays: dict[str, np.ndarray], key: str, samples_key: str | None = N
     if samples_key is not None:
         head["samples_key"] = samples_key
     text = json.dumps(head, sort_keys=True).encode()
-    return MAGIC + len(text).to_bytes(8, "little") + text, parts
+    return [MAGIC + len(text).to_bytes(8, "little") + text, *parts]
 
 
 def _decode(data: bytes, key: str, names: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """The arrays ``names`` of an entry's bytes (read-only views); ValueError naming what is wrong (magic, header,
-    key, layout, size, hash, and for fluid samples the steps' counts)."""
+    """The arrays ``names`` of an entry's bytes (read-only views), and the header's ``samples_key`` if any; ValueError
+    naming what is wrong (magic, header, key, layout, size, hash)."""
     if len(data) < 16 or data[:8] != MAGIC:
         raise ValueError("not an empty-scene cache entry (wrong magic)")
     n_head = int.from_bytes(data[8:16], "little")
@@ -623,13 +584,17 @@ def _decode(data: bytes, key: str, names: tuple[str, ...]) -> dict[str, np.ndarr
         offset += size
     if "samples_key" in head:
         out["samples_key"] = str(head["samples_key"])
-    if "step_counts" in out:
-        counts, pos, vals = out["step_counts"], out["positions"], out["values"]
-        n = len(vals)
-        if counts.ndim != 1 or pos.shape != (n, 3) or vals.ndim != 1 or pos.dtype != vals.dtype:
-            raise ValueError(f"samples of shapes {pos.shape} and {vals.shape}")
-        if pos.dtype.str not in ("<f4", "<f8") or (counts < 0).any() or int(counts.sum()) != n:
-            raise ValueError(f"the steps' particle counts sum to {int(counts.sum())}, not {n}")
-        if not (np.isfinite(pos).all() and np.isfinite(vals).all()):
-            raise ValueError("non-finite positions or D_i")
     return out
+
+
+def _check_samples(arrays: dict[str, np.ndarray]) -> None:
+    """A fluid entry's arrays are consistent: [N, 3] positions and [N] values of one float type, step counts >= 0
+    summing to N, all finite; ValueError otherwise."""
+    counts, pos, vals = (arrays[n] for n in _SAMPLE_ARRAYS)
+    n = len(vals)
+    if counts.ndim != 1 or pos.shape != (n, 3) or vals.ndim != 1 or pos.dtype != vals.dtype:
+        raise ValueError(f"samples of shapes {pos.shape} and {vals.shape}")
+    if pos.dtype.str not in ("<f4", "<f8") or (counts < 0).any() or int(counts.sum()) != n:
+        raise ValueError(f"the steps' particle counts sum to {int(counts.sum())}, not {n}")
+    if not (np.isfinite(pos).all() and np.isfinite(vals).all()):
+        raise ValueError("non-finite positions or D_i")

@@ -66,22 +66,13 @@ def empty_scene_probes(
     rec = ProbeRecorder(
         centers, reach, replace(config, track_distinct=False), bar, "empty ", grid_bounds=plan.bounds, lists=lists
     )
+    configs = {d: config if steps is None else replace(config, steps=int(steps[d])) for d in config.directions}
     try:
-        out = [
-            _empty_probe(d, plan.setups[d], _probe_config(config, steps, d), rec, reference) for d in config.directions
-        ]
+        out = [_empty_probe(d, plan.setups[d], configs[d], rec, reference) for d in config.directions]
     finally:
         if bar is not progress:  # a bar of its own: closed here; the run's bar is closed by the run
             bar.close()
     return np.stack(out), time.perf_counter() - t0
-
-
-def _probe_config(config: PhysicsConfig, steps: Mapping[str, int] | None, direction: str) -> PhysicsConfig:
-    """The settings of one empty-scene probe: ``config`` run for ``steps[direction]`` steps (no early stop of its own:
-    it stops where its probe with the solid did)."""
-    if steps is None or steps[direction] == config.steps:
-        return config
-    return replace(config, steps=int(steps[direction]))
 
 
 def _empty_probe(
