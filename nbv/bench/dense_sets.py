@@ -15,6 +15,7 @@ No equation of the paper lives here: these sets only make the workload larger wi
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 
@@ -43,7 +44,7 @@ def jittered_copies(gaussians: GaussianSet, copies: int, jitter: float, seed: in
     for _ in range(copies - 1):
         z = torch.randn(sigma.shape, generator=gen, dtype=torch.float64) * jitter * sigma
         means = gaussians.means + torch.einsum("nij,nj->ni", rot, z).to(gaussians.means.dtype)
-        sets.append(GaussianSet(means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh))
+        sets.append(replace(gaussians, means=means))
     return concat(sets)
 
 
@@ -65,11 +66,5 @@ def jittered_to_count(gaussians: GaussianSet, count: int, seed: int) -> Gaussian
     index = torch.arange(reps * n) % n
     jitter = torch.randn(reps * n, 3, generator=gen, dtype=gaussians.dtype) * gaussians.max_radii()[index, None]
     jitter[:n] = 0.0
-    take = slice(0, count)
-    return GaussianSet(
-        gaussians.means[index][take] + jitter[take],
-        gaussians.quats[index][take],
-        gaussians.log_scales[index][take],
-        gaussians.opacity_logits[index][take],
-        gaussians.sh[index][take],
-    )
+    copies = gaussians.subset(index[:count])
+    return replace(copies, means=copies.means + jitter[:count])

@@ -31,15 +31,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
+from nbv.physics.forces import flow_axis
 from nbv.physics.plan import ProbeRunContext, RunFrame
 from nbv.physics.run import simulate_gaussians, simulate_solid
 from nbv.physics.scene_frame import gaussian_arrays_in_sim, inverse_covariances_in_sim
-from nbv.physics.solidify import (
-    MAX_ALPHA,
-    SolidLattice,
-    gaussians_to_solid,
-)
-from recon.gaussians import GaussianSet
+from nbv.physics.solidify import MAX_ALPHA, SolidLattice, gaussians_to_solid
 
 
 @dataclass(frozen=True)
@@ -191,17 +187,12 @@ def disc_offsets(hole: Hole, step: float) -> np.ndarray:
 
 
 def ray_peaks(
-    hole: Hole,
-    means: np.ndarray,
-    inv_covs: np.ndarray,
-    opacities: np.ndarray,
-    offset: tuple[float, float] = (0.0, 0.0),
-    span: tuple[float, float] | None = None,
+    hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray, offset: tuple[float, float] = (0.0, 0.0)
 ) -> np.ndarray:
     """[N] each Gaussian's peak opacity a_g = o_g max_s exp(-d_g(x(s))^2 / 2) on a ray parallel to the hole's axis.
 
-    The ray is x(s) = p + offset + s n, s in ``span`` (default: the hole's slab, +-depth; an infinite depth gives the
-    whole line). d_g^2 is a convex quadratic in s, so the peak is exact (clamped to 1 - 1e-6 as the solid's tests).
+    The ray is x(s) = p + offset + s n, s in the hole's slab, +-depth (an infinite depth: the whole line). d_g^2 is a
+    convex quadratic in s, so the peak is exact (clamped to 1 - 1e-6 as the solid's tests).
 
     Args:
         hole: the hole (its axis). means: [N, 3] m. inv_covs: [N, 3, 3] 1/m^2. opacities: [N].
@@ -210,11 +201,10 @@ def ray_peaks(
     n = np.asarray(hole.normal)
     a, b = _plane_axes(n)
     origin = np.asarray(hole.point) + offset[0] * a + offset[1] * b
-    lo, hi = span if span is not None else (-hole.depth, hole.depth)
     inv = np.asarray(inv_covs, np.float64)
     d = origin - np.asarray(means, np.float64)
     an = inv @ n  # [N, 3]: A n, with n^T A n > 0
-    s = np.clip(-np.einsum("ni,ni->n", d, an) / (an @ n), lo, hi)
+    s = np.clip(-np.einsum("ni,ni->n", d, an) / (an @ n), -hole.depth, hole.depth)
     y = d + s[:, None] * n
     return np.minimum(
         np.asarray(opacities, np.float64) * np.exp(-0.5 * np.einsum("ni,nij,nj->n", y, inv, y)), MAX_ALPHA
@@ -222,54 +212,37 @@ def ray_peaks(
 
 
 def axis_opacity(
-    hole: Hole,
-    means: np.ndarray,
-    inv_covs: np.ndarray,
-    opacities: np.ndarray,
-    offset: tuple[float, float] = (0.0, 0.0),
-    span: tuple[float, float] | None = None,
+    hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray, offset: tuple[float, float] = (0.0, 0.0)
 ) -> tuple[float, float]:
     """What a 3DGS render along a ray parallel to the hole's axis shows (:func:`ray_peaks`).
 
     Returns:
         (combined opacity 1 - prod_g (1 - a_g), the largest single a_g).
     """
-    alpha = ray_peaks(hole, means, inv_covs, opacities, offset, span)
+    alpha = ray_peaks(hole, means, inv_covs, opacities, offset)
     if not len(alpha):
         return 0.0, 0.0
     return float(1.0 - np.exp(np.log1p(-alpha).sum())), float(alpha.max())
 
 
 def open_fraction(
-    hole: Hole,
-    means: np.ndarray,
-    inv_covs: np.ndarray,
-    opacities: np.ndarray,
-    tau: float,
-    step: float = 0.01,
-    span: tuple[float, float] | None = None,
+    hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray, tau: float, step: float = 0.01
 ) -> tuple[float, float]:
     """The fraction of the disc's rays (:func:`disc_offsets`) a render sees through: (combined opacity < tau, and
     no single Gaussian reaching tau, the per-Gaussian test of the hole premise)."""
-    rays = [axis_opacity(hole, means, inv_covs, opacities, tuple(o), span) for o in disc_offsets(hole, step)]
+    rays = [axis_opacity(hole, means, inv_covs, opacities, tuple(o)) for o in disc_offsets(hole, step)]
     c, single = np.array(rays).T
     return float((c < tau).mean()), float((single < tau).mean())
 
 
 def covering(
-    hole: Hole,
-    means: np.ndarray,
-    inv_covs: np.ndarray,
-    opacities: np.ndarray,
-    eps: float,
-    step: float = 0.005,
-    span: tuple[float, float] | None = None,
+    hole: Hole, means: np.ndarray, inv_covs: np.ndarray, opacities: np.ndarray, eps: float, step: float = 0.005
 ) -> np.ndarray:
     """[N] bool, the Gaussians whose peak on some ray through the disc exceeds ``eps`` (a see-through hole also
     removes these: its footprint crosses the disc)."""
     out = np.zeros(len(means), dtype=bool)
     for o in disc_offsets(hole, step):
-        out |= ray_peaks(hole, means, inv_covs, opacities, tuple(o), span) > eps
+        out |= ray_peaks(hole, means, inv_covs, opacities, tuple(o)) > eps
     return out
 
 
@@ -329,20 +302,12 @@ def cut_cylinder(solid: SolidLattice, hole: Hole) -> SolidLattice:
 def _shifted(gaussians, transform, delta_sim: np.ndarray):
     """The set moved by ``delta_sim`` [3] simulation metres (its means only)."""
     d = torch.as_tensor(transform.to_scene(delta_sim[None])[0], dtype=gaussians.means.dtype)
-    return GaussianSet(
-        gaussians.means + d, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh
-    )
+    return replace(gaussians, means=gaussians.means + d)
 
 
 def head_on_probe(directions, normal) -> str:
     """The probe whose flow runs most against the hole's outward normal (the fluid meets the hole head-on)."""
-
-    def flow(label: str) -> np.ndarray:
-        v = np.zeros(3)
-        v["xyz".index(label[1])] = 1.0 if label[0] == "+" else -1.0
-        return v
-
-    return min(directions, key=lambda d: float(flow(d) @ np.asarray(normal)))
+    return min(directions, key=lambda d: float(flow_axis(d) @ np.asarray(normal)))
 
 
 def lattice_keys(points: np.ndarray, spacing: float) -> set[tuple[int, int, int]]:
@@ -416,7 +381,7 @@ def measure_shift(
     spacing = 2.0 * cfg.particle_radius
     delta = np.full(3, shift * spacing)
     moved = _shifted(gaussians, transform, delta) if shift else gaussians
-    h = Hole(tuple(np.asarray(hole.point) + delta), hole.normal, hole.radius, hole.depth, hole.band)
+    h = replace(hole, point=tuple(np.asarray(hole.point) + delta))
     means, _, opacities, _ = gaussian_arrays_in_sim(moved, transform)
     inv = inverse_covariances_in_sim(moved, transform)
     removed = h.removed(means)
@@ -424,12 +389,13 @@ def measure_shift(
         removed |= covering(h, means, inv, opacities, see_through)
     kept = np.nonzero(~removed)[0]
     holed = moved.subset(torch.from_numpy(kept))
+    rim = h.rim(means, ~removed)
     tau = cfg.opacity_threshold
     out = {
         "shift": shift,
         "ideal": ideal,
         "gaussians_removed": int(removed.sum()),
-        "rim_gaussians": int(h.rim(means, ~removed).sum()),
+        "rim_gaussians": int(rim.sum()),
         "axis_opacity_intact": axis_opacity(h, means, inv, opacities),
         "axis_opacity_holed": axis_opacity(h, means[kept], inv[kept], opacities[kept]),
         "open_fraction_holed": open_fraction(h, means[kept], inv[kept], opacities[kept], tau),
@@ -450,9 +416,8 @@ def measure_shift(
         solid_added=len(b - a),
         seconds=time.perf_counter() - t0,
     )
-    if solid_only:
-        return out
-    out.update(probe_figures(res[0], res[1], kept, h.rim(means, ~removed), h.normal))
+    if not solid_only:
+        out.update(probe_figures(res[0], res[1], kept, rim, h.normal))
     return out
 
 

@@ -27,19 +27,17 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
-from fluidsim import DFSPHSolver
 from fluidsim.probes import build_probe_solver, probe_setups
-from fluidsim.scene import lattice_in_box
 from fluidsim.simulation import run as run_solver
-from fluidsim.sources import wall_particles
 from nbv import scores
+from nbv.bench import timed
 from nbv.physics.aggregate import GaussianAccumulator, GaussianLists
 from nbv.physics.early_stop import StopRule, relative_change
 from nbv.physics.plan import ProbePlan, RunFrame
@@ -105,13 +103,6 @@ def reach_mask(centers: np.ndarray, reach: np.ndarray, lo, hi, cell: float) -> n
     return mask
 
 
-def _empty_solver(setup, scfg, wall_layers: int) -> DFSPHSolver:
-    fluid = lattice_in_box(setup.fluid_min, setup.fluid_max, scfg.spacing)
-    vel = np.broadcast_to(np.asarray(setup.velocity), fluid.shape)
-    walls = wall_particles(setup.domain_min, setup.domain_max, scfg.spacing, wall_layers)
-    return DFSPHSolver(scfg, setup.domain_min, setup.domain_max, fluid, vel, walls)
-
-
 def trace_probes(
     frame: RunFrame,
     plan: ProbePlan,
@@ -131,14 +122,10 @@ def trace_probes(
     config = frame.config
     scfg, probe = config.solver_config(), config.probe_config()
     centers, reach = frame.means, frame.reach
-    t0 = time.perf_counter()
-    lists = GaussianLists(centers, reach, *plan.bounds)
-    setup_s = {"lists": time.perf_counter() - t0}
-    t0 = time.perf_counter()
     lo, hi = plan.bounds
     cell = 0.5 * scfg.spacing
-    mask = reach_mask(centers, reach, lo, hi, cell)
-    setup_s["mask"] = time.perf_counter() - t0
+    lists, lists_s, _ = timed(GaussianLists, centers, reach, lo, hi)
+    mask, mask_s, _ = timed(reach_mask, centers, reach, lo, hi, cell)
     runs = [(d, False) for d in config.directions] + ([(d, True) for d in config.directions] if empty else [])
     counts = plan.fluid_counts(config.directions)
     bar = tqdm(
@@ -152,9 +139,7 @@ def trace_probes(
     for d, is_empty in runs:
         setup = plan.setups[d]
         bar.set_description_str(f"{'empty ' if is_empty else ''}{d}", refresh=False)
-        solver = _empty_solver(setup, scfg, probe.wall_layers) if is_empty else None
-        if solver is None:
-            solver = build_probe_solver(solid_points, setup, scfg, probe)
+        solver = build_probe_solver(np.zeros((0, 3)) if is_empty else solid_points, setup, scfg, probe)
         trace = ProbeTrace(d, is_empty, int(solver.fluid.capacity))
         solver.stage_times = {}
         acc = GaussianAccumulator(lists, setup.domain_min, setup.domain_max, max_fluid=solver.fluid.capacity)
@@ -163,9 +148,7 @@ def trace_probes(
         extra = [0.0]  # seconds spent recording the trace, left out of the probe's time
 
         def on_step(s, st, acc=acc, trace=trace, ever=ever, side=side, extra=extra):
-            t = time.perf_counter()
-            acc.add_from_solver(s)
-            trace.aggregation_s += time.perf_counter() - t
+            trace.aggregation_s += timed(acc.add_from_solver, s)[1]
             n = st.step + 1
             t = time.perf_counter()
             if n % reach_every == 0 or n == 1:
@@ -186,9 +169,7 @@ def trace_probes(
 
         t0 = time.perf_counter()
         history = run_solver(solver, config.steps, on_step=on_step)
-        t = time.perf_counter()
-        acc.flush()
-        trace.aggregation_s += time.perf_counter() - t
+        trace.aggregation_s += timed(acc.flush)[1]
         trace.wall_s = time.perf_counter() - t0 - extra[0]
         trace.steps = len(history)
         trace.density_iterations = float(np.mean([h.density_iterations for h in history]))
@@ -198,7 +179,7 @@ def trace_probes(
         traces.append(trace)
         del solver, acc
     bar.close()
-    return traces, setup_s
+    return traces, {"lists": lists_s, "mask": mask_s}
 
 
 def converged_step(trace: ProbeTrace, tolerance: float) -> int:
@@ -231,10 +212,10 @@ class Judged:
     """A stop rule's answer against the uncut run's, on one capture."""
 
     stops: dict[str, int]
+    step_share: float  # fluid particle-steps run, of the uncut run's (solid and empty probes)
     view_spearman: float
     dg_spearman: float
     ratio_move: float  # |ratio_cut / ratio_uncut - 1| of D-bar / D-bar_empty (NaN without the empty scene)
-    step_share: float  # fluid particle-steps run, of the uncut run's (solid and empty probes)
 
     @property
     def kept(self) -> bool:
@@ -375,17 +356,7 @@ def cut_report(cuts: Sequence[tuple[str, Judged]], cameras: int) -> tuple[list[s
             f"{name:<18} {stops:<38} {100 * j.step_share:5.1f} %  {j.view_spearman:.3f}  {j.dg_spearman:.3f}  "
             f"{100 * j.ratio_move:5.2f} %  {'yes' if j.kept else 'no'}"
         )
-        rows.append(
-            {
-                "cut": name,
-                "stops": j.stops,
-                "step_share": j.step_share,
-                "view_spearman": j.view_spearman,
-                "dg_spearman": j.dg_spearman,
-                "ratio_move": j.ratio_move,
-                "kept": j.kept,
-            }
-        )
+        rows.append({"cut": name, **asdict(j), "kept": j.kept})
     return lines, rows
 
 

@@ -19,12 +19,12 @@ report both as text, the timing against its targets (200 cameras x 1M Gaussians 
 from __future__ import annotations
 
 import resource
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from nbv.bench import timed
 from nbv.bench.dense_sets import jittered_to_count
 from nbv.orbit import Orbit, orbit_cameras
 from nbv.physics import check_result_matches, load_result
@@ -63,11 +63,6 @@ def load_divergence(path: Path | None, gaussians, seed: int) -> tuple[np.ndarray
     return np.asarray(result.divergence, np.float64), f"D_g (max over probes) of {path}"
 
 
-def _projected_radii(gaussians, cams) -> list[torch.Tensor]:
-    radii, _ = project_visibility(gaussians, cams)
-    return list(radii.cpu())
-
-
 def _occlusion_agreement(g, cams, renders, metric: torch.Tensor) -> dict:
     """The coarse depth buffer against the render-based depth test (see the module docstring)."""
     reach = 3.0 * g.max_radii().double().cpu()
@@ -101,21 +96,19 @@ def compare_with_renders(gaussians, cams, d: np.ndarray, occlusion: bool, device
     """
     metric = torch.from_numpy(d)
     g = gaussians.detach().to(device)
-    t = time.perf_counter()
     with torch.no_grad():
-        renders = [render(g, c, 1.0) for c in cams]
-    t_render = time.perf_counter() - t
+        renders, t_render, _ = timed(lambda: [render(g, c, 1.0) for c in cams])
     full = view_scores(metric, renders)
-    t = time.perf_counter()
-    fast = projected_view_scores(metric, g, cams).scores
-    t_proj = time.perf_counter() - t
-    radii_equal = all(torch.equal(o.radii.cpu(), r) for o, r in zip(renders, _projected_radii(g, cams), strict=True))
+    scored, t_proj, _ = timed(projected_view_scores, metric, g, cams)
+    fast = scored.scores
+    radii = project_visibility(g, cams)[0].cpu()
+    radii_equal = all(torch.equal(o.radii.cpu(), r) for o, r in zip(renders, radii, strict=True))
     out = {
         "views": len(cams),
         "render_s": t_render,
         "projection_s": t_proj,
         "radii_equal": radii_equal,
-        "max_relative_difference": float(((fast - full).abs() / full.abs().clamp_min(1e-300)).max()),
+        "max_relative_difference": largest_relative_difference(fast, full),
         "spearman": spearman(fast, full),
         "identical_order": rank(fast).tolist() == rank(full).tolist(),
         "order": rank(fast).tolist(),
@@ -123,13 +116,6 @@ def compare_with_renders(gaussians, cams, d: np.ndarray, occlusion: bool, device
     if occlusion:
         out["occlusion"] = _occlusion_agreement(g, cams, renders, metric)
     return out
-
-
-def _timed(score, *args, **kwargs):
-    """(result, wall s, process CPU s) of one call."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    out = score(*args, **kwargs)
-    return out, time.perf_counter() - wall, time.process_time() - cpu
 
 
 def largest_relative_difference(got: torch.Tensor, expected: torch.Tensor) -> float:
@@ -174,7 +160,7 @@ def time_projected_scores(
     workers = threads or torch.get_num_threads()
     pairs = len(cams) * big.num
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    scored, total, cpu = _timed(projected_view_scores, metric, big, cams, threads=workers)
+    scored, total, cpu = timed(projected_view_scores, metric, big, cams, threads=workers)
     out = {
         "gaussians": big.num,
         "views": len(cams),
@@ -189,7 +175,7 @@ def time_projected_scores(
         "visible_fraction": float(scored.counted.sum()) / pairs,
     }
     if occlusion:
-        hidden, total, cpu = _timed(
+        hidden, total, cpu = timed(
             projected_view_scores, metric, big, cams, depth_buffer=DepthBuffer(), threads=workers
         )
         out.update(
@@ -202,8 +188,8 @@ def time_projected_scores(
         few = cams[: min(reference_views, len(cams))]
         out["reference"] = []
         for config in (None, DepthBuffer()) if occlusion else (None,):
-            expected, ref_s, _ = _timed(projected_view_scores_reference, metric, big, few, depth_buffer=config)
-            got, fast_s, _ = _timed(projected_view_scores, metric, big, few, depth_buffer=config, threads=workers)
+            expected, ref_s, _ = timed(projected_view_scores_reference, metric, big, few, depth_buffer=config)
+            got, fast_s, _ = timed(projected_view_scores, metric, big, few, depth_buffer=config, threads=workers)
             out["reference"].append(
                 {
                     "depth_test": config is not None,

@@ -26,7 +26,6 @@ in Pa*s, wall-clock timings in milliseconds.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import math
@@ -49,6 +48,7 @@ from .splash_worker import EXIT_NO_SPLASH
 log = logging.getLogger(__name__)
 
 WORKER = Path(__file__).resolve().with_name("splash_worker.py")  # run as a script in a child process
+BOX_MESH = "box.obj"  # the unit box the walls scale
 INSTALL_HINT = (
     "Install it with `.venv/bin/pip install pysplishsplash` (bench/test extra) and make sure the system "
     "OpenGL dispatch library exists (`apt-get install -y libgl1 libx11-6`, which provides "
@@ -234,42 +234,16 @@ def peer_solver(scene: PeerScene, particles: PeerParticles, config: SolverConfig
 def icosphere(subdivisions: int) -> tuple[list[tuple[float, float, float]], list[tuple[int, int, int]]]:
     """Unit icosphere (radius 1), faces wound counter-clockwise seen from outside (outward normals)."""
     t = (1.0 + math.sqrt(5.0)) / 2.0
-    verts = [
-        (-1, t, 0),
-        (1, t, 0),
-        (-1, -t, 0),
-        (1, -t, 0),
-        (0, -1, t),
-        (0, 1, t),
-        (0, -1, -t),
-        (0, 1, -t),
-        (t, 0, -1),
-        (t, 0, 1),
-        (-t, 0, -1),
-        (-t, 0, 1),
-    ]
-    faces = [
-        (0, 11, 5),
-        (0, 5, 1),
-        (0, 1, 7),
-        (0, 7, 10),
-        (0, 10, 11),
-        (1, 5, 9),
-        (5, 11, 4),
-        (11, 10, 2),
-        (10, 7, 6),
-        (7, 1, 8),
-        (3, 9, 4),
-        (3, 4, 2),
-        (3, 2, 6),
-        (3, 6, 8),
-        (3, 8, 9),
-        (4, 9, 5),
-        (2, 4, 11),
-        (6, 2, 10),
-        (8, 6, 7),
-        (9, 8, 1),
-    ]
+    # the 12 vertices are the cyclic permutations of (+-1, +-t, 0)
+    pairs = [(a, b) for b in (t, -t) for a in (-1, 1)]
+    verts = [(a, b, 0) for a, b in pairs] + [(0, a, b) for a, b in pairs] + [(b, 0, a) for a, b in pairs]
+    # the 5 faces around vertex 0, their 5 neighbours, the 5 around vertex 3 (opposite), and their 5 neighbours
+    faces = (
+        [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11)]
+        + [(1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6), (7, 1, 8)]
+        + [(3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9)]
+        + [(4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    )
 
     def unit(v):
         n = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
@@ -313,35 +287,47 @@ def write_obj(path: Path, verts, faces) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def splash_scene_json(scene: PeerScene, sphere_obj: str, box_obj: str) -> dict:
-    """SPlisHSPlasH scene description (its JSON scene format) for ``scene``.
+def dfsph_scene(
+    config: SolverConfig,
+    domain: tuple,
+    solid: dict,
+    block: tuple,
+    stop_at: float | None = None,
+    box_mesh: str = BOX_MESH,
+) -> dict:
+    """SPlisHSPlasH's scene (its JSON scene format) with this engine's solver settings ``config``.
 
-    Fluid block: SPlisHSPlasH's ``denseMode 0`` lattice puts the first particle 2r inside ``start`` and
-    fills ``round((end - start) / 2r) - 1`` particles per axis, so the block is widened by r on each side
-    to reproduce our cell-centred lattice exactly.
+    DFSPH (simulationMethod 4) at a fixed dt (cflMethod 0), the density/divergence tolerances (%) and iteration bounds
+    of ``config`` for both solvers, "Standard" viscosity (viscosityMethod 1, the Laplacian of :mod:`fluidsim.viscosity`)
+    with the kinematic nu = mu / rho0 and nu_b = mu_b / rho0, Akinci et al. 2012 boundary particles
+    (boundaryHandlingMethod 0); headless, no export.
+
+    Args:
+        config: the solver settings. domain: (min, max) of the closed walls, m: the unit box ``box_mesh`` scaled, a
+            static inverted rigid body. solid: the second rigid body's entry. block: (start, end, initial velocity)
+            of the ``denseMode 0`` fluid block. stop_at: the scene's ``stopAt``, s (None: not set).
     """
-    r = scene.particle_radius
-    start = [lo - r for lo in scene.fluid_min]
-    end = [hi + r for hi in scene.fluid_max]
-    box_center = [(lo + hi) / 2 for lo, hi in zip(scene.domain_min, scene.domain_max, strict=True)]
-    box_size = [hi - lo for lo, hi in zip(scene.domain_min, scene.domain_max, strict=True)]
+    lo, hi = np.asarray(domain[0], np.float64), np.asarray(domain[1], np.float64)
+    nu = config.viscosity / config.rest_density
+    nu_b = config.wall_viscosity / config.rest_density
     iterations = {
-        "minIterations": scene.min_iterations,
-        "maxIterations": scene.max_iterations,
-        "maxError": scene.max_density_error_percent,
-        "maxIterationsV": scene.max_iterations,
-        "maxErrorV": scene.max_divergence_error_percent,
-        "enableDivergenceSolver": True,
+        "minIterations": config.min_iterations,
+        "maxIterations": config.max_iterations,
+        "maxError": config.max_density_error,
+        "maxIterationsV": config.max_iterations,
+        "maxErrorV": config.max_divergence_error,
+        "enableDivergenceSolver": config.divergence_solver,
     }
     return {
         "Configuration": {
-            "particleRadius": r,
+            "particleRadius": config.particle_radius,
             "sim2D": False,
             "simulationMethod": 4,  # DFSPH
             "boundaryHandlingMethod": 0,  # Akinci et al. 2012 boundary particles
-            "gravitation": list(scene.gravity),
-            "timeStepSize": scene.dt,
-            "cflMethod": 0,  # no CFL adaptivity: fixed dt
+            "gravitation": list(config.gravity),
+            "timeStepSize": config.dt,
+            "cflMethod": 0,  # no CFL adaptivity: fixed dt, as this engine's
+            **({} if stop_at is None else {"stopAt": stop_at}),
             **HEADLESS,
             **iterations,
             "DFSPH": dict(iterations),
@@ -349,11 +335,11 @@ def splash_scene_json(scene: PeerScene, sphere_obj: str, box_obj: str) -> dict:
         "Materials": [
             {
                 "id": "Fluid",
-                "density0": scene.rest_density,
+                "density0": config.rest_density,
                 "viscosityMethod": 1,  # "Standard"
-                "viscosity": scene.kinematic_viscosity,
-                "viscosityBoundary": 0.0,
-                "Standard viscosity": {"viscosity": scene.kinematic_viscosity, "viscosityBoundary": 0.0},
+                "viscosity": nu,
+                "viscosityBoundary": nu_b,
+                "Standard viscosity": {"viscosity": nu, "viscosityBoundary": nu_b},
                 "surfaceTensionMethod": 0,
                 "vorticityMethod": 0,
                 "dragMethod": 0,
@@ -362,38 +348,45 @@ def splash_scene_json(scene: PeerScene, sphere_obj: str, box_obj: str) -> dict:
         ],
         "RigidBodies": [
             {
-                "geometryFile": box_obj,
-                "translation": box_center,
+                "geometryFile": box_mesh,
+                "translation": ((lo + hi) / 2).tolist(),
                 "rotationAxis": [1, 0, 0],
                 "rotationAngle": 0,
-                "scale": box_size,
+                "scale": (hi - lo).tolist(),
                 "isDynamic": False,
                 "isWall": True,
                 "mapInvert": True,
                 "samplingMode": 1,  # regular triangle sampling
             },
-            {
-                "geometryFile": sphere_obj,
-                "translation": list(scene.sphere_center),
-                "rotationAxis": [1, 0, 0],
-                "rotationAngle": 0,
-                "scale": [scene.sphere_radius] * 3,
-                "isDynamic": False,
-                "isWall": False,
-                "mapInvert": False,
-                "samplingMode": 1,
-            },
+            solid,
         ],
         "FluidBlocks": [
-            {
-                "id": "Fluid",
-                "denseMode": 0,
-                "start": start,
-                "end": end,
-                "initialVelocity": list(scene.fluid_velocity),
-            }
+            {"id": "Fluid", "denseMode": 0, "start": block[0], "end": block[1], "initialVelocity": list(block[2])}
         ],
     }
+
+
+def splash_scene_json(scene: PeerScene, sphere_obj: str, box_obj: str) -> dict:
+    """SPlisHSPlasH scene description (its JSON scene format, :func:`dfsph_scene`) for ``scene``.
+
+    Fluid block: SPlisHSPlasH's ``denseMode 0`` lattice puts the first particle 2r inside ``start`` and
+    fills ``round((end - start) / 2r) - 1`` particles per axis, so the block is widened by r on each side
+    to reproduce our cell-centred lattice exactly.
+    """
+    r = scene.particle_radius
+    sphere = {
+        "geometryFile": sphere_obj,
+        "translation": list(scene.sphere_center),
+        "rotationAxis": [1, 0, 0],
+        "rotationAngle": 0,
+        "scale": [scene.sphere_radius] * 3,
+        "isDynamic": False,
+        "isWall": False,
+        "mapInvert": False,
+        "samplingMode": 1,
+    }
+    block = ([lo - r for lo in scene.fluid_min], [hi + r for hi in scene.fluid_max], scene.fluid_velocity)
+    return dfsph_scene(peer_config(scene), (scene.domain_min, scene.domain_max), sphere, block, box_mesh=box_obj)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -403,6 +396,37 @@ def splash_scene_json(scene: PeerScene, sphere_obj: str, box_obj: str) -> dict:
 
 def _worker_cmd(*args: str) -> list[str]:
     return [sys.executable, str(WORKER), *args]
+
+
+def run_worker(folder: Path, job: dict, steps: int, threads: int, timeout_s: float) -> dict:
+    """Run the worker (:mod:`nbv.bench.splash_worker`) on ``job`` for ``steps`` steps with ``threads`` OpenMP threads,
+    its files in ``folder``, and return its result.
+
+    Raises:
+        RuntimeError: pysplishsplash is missing, crashes, or times out (the message says how to install).
+    """
+    job = {**job, "output_dir": str(folder / "output"), "result_file": str(folder / "result.json"), "steps": steps}
+    job_file = folder / "job.json"
+    job_file.write_text(json.dumps(job))
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads))
+    if env.pop("FLUIDGS_OMP_POLICY_SET", None):  # the passive policy fluidgs set for torch: not the peer's
+        env.pop("OMP_WAIT_POLICY", None)
+    try:
+        proc = subprocess.run(
+            _worker_cmd("--worker", str(job_file)), env=env, capture_output=True, text=True, timeout=timeout_s
+        )
+    except subprocess.TimeoutExpired as exc:
+        raise RuntimeError(f"SPlisHSPlasH run timed out after {timeout_s} s") from exc
+    result_file = folder / "result.json"
+    if proc.returncode == EXIT_NO_SPLASH:
+        raise RuntimeError(f"pysplishsplash is not importable: {proc.stderr.strip()[-800:]}\n{INSTALL_HINT}")
+    if proc.returncode != 0 or not result_file.exists():
+        tail = (proc.stdout[-1500:] + "\n" + proc.stderr[-1500:]).strip()
+        raise RuntimeError(
+            f"SPlisHSPlasH worker failed (exit code {proc.returncode}"
+            f"{', segfault' if proc.returncode == -11 else ''}).\n{tail}\n{INSTALL_HINT}"
+        )
+    return json.loads(result_file.read_text())
 
 
 def splash_available(timeout_s: float = 120.0) -> bool:
@@ -423,18 +447,13 @@ def splash_available(timeout_s: float = 120.0) -> bool:
 def run_splash(scene: PeerScene, timeout_s: float = 1200) -> dict:
     """Run SPlisHSPlasH's DFSPH on ``scene`` in a subprocess and time every step.
 
-    Setup: DFSPH (simulationMethod 4), fixed ``dt`` (cflMethod 0), density/divergence tolerances,
-    min/max iterations (same bounds for both solvers), gravity as given; viscosity method "Standard"
-    (viscosityMethod 1, SPlisHSPlasH's Viscosity_Standard: the Monaghan/Morris-type Laplacian
-    ``a_i = 10 nu sum_j (m_j / rho_j) (v_ij . x_ij) / (|x_ij|^2 + 0.01 h^2) grad W_ij``, so its coefficient
-    is the kinematic viscosity nu = mu / rho0, m^2/s) with zero boundary viscosity (free slip at the
-    walls and the sphere, as in SPlisHSPlasH's own scenes); no surface tension, vorticity, drag or
-    elasticity.  Note: SPlisHSPlasH applies ``min_iterations`` to the density solver only; its
-    divergence solver stops after 1 iteration once converged.  Boundaries
-    use Akinci et al. 2012 particles (boundaryHandlingMethod 0): the sphere is a static rigid body
-    (``isDynamic false``) made from a generated icosphere OBJ, the domain a static inverted unit box
-    (``isWall true``, ``mapInvert true``).  No GUI, no boundary cache, no partio/VTK/state export; the log
-    file SPlisHSPlasH always writes goes to a temp dir that is deleted afterwards.
+    Setup: :func:`splash_scene_json`. SPlisHSPlasH's Viscosity_Standard is the Monaghan/Morris-type Laplacian
+    ``a_i = 10 nu sum_j (m_j / rho_j) (v_ij . x_ij) / (|x_ij|^2 + 0.01 h^2) grad W_ij`` with the kinematic nu, and zero
+    boundary viscosity (free slip at the walls and the sphere, as in SPlisHSPlasH's own scenes); no surface tension,
+    vorticity, drag or elasticity. Note: SPlisHSPlasH applies ``min_iterations`` to the density solver only; its
+    divergence solver stops after 1 iteration once converged. The sphere is a static rigid body made from a generated
+    icosphere OBJ. No GUI, no boundary cache; the log file SPlisHSPlasH always writes goes to a temp dir that is
+    deleted afterwards.
 
     Timing: ``time.perf_counter`` around each ``SimulatorBase.timeStepNoGUI()`` (DFSPH step + boundary
     update).  Step 1 is executed inside ``runSimulation()`` together with SPlisHSPlasH's deferred boundary
@@ -460,45 +479,17 @@ def run_splash(scene: PeerScene, timeout_s: float = 1200) -> dict:
     with tempfile.TemporaryDirectory(prefix="splash_peer_") as tmp:
         tmpdir = Path(tmp)
         write_obj(tmpdir / "sphere.obj", *icosphere(5))
-        write_obj(tmpdir / "box.obj", *unit_box())
+        write_obj(tmpdir / BOX_MESH, *unit_box())
         scene_file = tmpdir / "scene.json"
-        scene_file.write_text(json.dumps(splash_scene_json(scene, "sphere.obj", "box.obj"), indent=1))
-        job = {
-            "scene_file": str(scene_file),
-            "output_dir": str(tmpdir / "output"),
-            "result_file": str(tmpdir / "result.json"),
-            "steps": scene.steps,
-            "threads": scene.threads,
-            "dt": scene.dt,
-            "expect": dataclasses.asdict(scene),
-        }
-        job_file = tmpdir / "job.json"
-        job_file.write_text(json.dumps(job))
-        env = dict(os.environ, OMP_NUM_THREADS=str(scene.threads))
-        if env.pop("FLUIDGS_OMP_POLICY_SET", None):  # the passive policy fluidgs set for torch: not the peer's
-            env.pop("OMP_WAIT_POLICY", None)
+        scene_file.write_text(json.dumps(splash_scene_json(scene, "sphere.obj", BOX_MESH), indent=1))
         log.info(
             "running SPlisHSPlasH DFSPH: %d steps, %d threads, ~%d fluid particles",
             scene.steps,
             scene.threads,
             scene.expected_fluid_particles(),
         )
-        try:
-            proc = subprocess.run(
-                _worker_cmd("--worker", str(job_file)), env=env, capture_output=True, text=True, timeout=timeout_s
-            )
-        except subprocess.TimeoutExpired as exc:
-            raise RuntimeError(f"SPlisHSPlasH run timed out after {timeout_s} s") from exc
-        result_file = tmpdir / "result.json"
-        if proc.returncode == EXIT_NO_SPLASH:
-            raise RuntimeError(f"pysplishsplash is not importable: {proc.stderr.strip()[-800:]}\n{INSTALL_HINT}")
-        if proc.returncode != 0 or not result_file.exists():
-            tail = (proc.stdout[-1500:] + "\n" + proc.stderr[-1500:]).strip()
-            raise RuntimeError(
-                f"SPlisHSPlasH worker failed (exit code {proc.returncode}"
-                f"{', segfault' if proc.returncode == -11 else ''}).\n{tail}\n{INSTALL_HINT}"
-            )
-        result = json.loads(result_file.read_text())
+        job = {"scene_file": str(scene_file), "dt": scene.dt}
+        result = run_worker(tmpdir, job, scene.steps, scene.threads, timeout_s)
     log.info(
         "SPlisHSPlasH: %d fluid / %d boundary particles, median %.1f ms/step (steps 2..%d)",
         result["fluid_particles"],

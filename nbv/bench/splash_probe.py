@@ -1,7 +1,7 @@
 """A probe scene in SPlisHSPlasH's scene format, and the force on the solid in both engines.
 
 A probe (:mod:`fluidsim.probes`, paper Sec. 3.2) is a static solid, a fluid slab moving at the inflow speed and the
-closed walls of its domain. :func:`write_probe_scene` writes it as a SPlisHSPlasH scene (JSON) with its meshes, so
+closed walls of its domain. :func:`write_probe_scenes` writes it as a SPlisHSPlasH scene (JSON) with its meshes, so
 that the reference engine (Bender & Koschier 2017 DFSPH, pysplishsplash) can rerun it:
 
 - the **walls**: a static inverted box (``isWall``) spanning the probe's domain (our walls are two particle layers
@@ -14,10 +14,8 @@ that the reference engine (Bender & Koschier 2017 DFSPH, pysplishsplash) can rer
   (:func:`voxel_surface`). SPlisHSPlasH samples its boundary particles on the mesh, so they sit where ours are; on
   the cubes' faces they sat half a spacing outside ours, and its drag was 4-15 % above ours on blunt bodies (a
   tetrahedron, the Ahmed body). A rigid body with ``isWall: false``;
-- the **settings**: particle radius r, rho_0, fixed dt (CFL off), DFSPH (simulationMethod 4) with our density and
-  divergence tolerances (%) and iteration bounds, "Standard" viscosity (viscosityMethod 1, the Laplacian of
-  :mod:`fluidsim.viscosity`) with the kinematic nu = mu / rho_0 and the boundary's nu_b = mu_b / rho_0, and the
-  Akinci et al. 2012 boundary (boundaryHandlingMethod 0), whose particles SPlisHSPlasH samples on the meshes.
+- the **settings**: this engine's (:func:`nbv.bench.splash.dfsph_scene`); SPlisHSPlasH samples the Akinci et al. 2012
+  boundary particles on the meshes.
 
 The force check (:func:`force_check`, ``fluidgs bench forces``) runs one probe in both engines and compares the
 time-mean drag over the second half of the run (:func:`nbv.physics.forces.second_half_mean`). SPlisHSPlasH records a
@@ -34,8 +32,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,14 +39,14 @@ from pathlib import Path
 import numpy as np
 
 from fluidsim.config import SolverConfig
-from fluidsim.probes import ProbeConfig, ProbeSetup
+from fluidsim.probes import ProbeConfig, ProbeSetup, build_probe_solver
 from fluidsim.scene import lattice_counts
+from fluidsim.simulation import run
 
-from .splash import HEADLESS, INSTALL_HINT, _worker_cmd, unit_box, write_obj
-from .splash_worker import EXIT_NO_SPLASH
+from . import timed
+from .splash import BOX_MESH, dfsph_scene, run_worker, unit_box, write_obj
 
 SOLID_MESH = "solid.obj"
-BOX_MESH = "box.obj"
 SOLID_BODY = 1  # the solid's index among the scene's rigid bodies (the walls' box is 0)
 
 
@@ -112,9 +108,7 @@ def voxel_surface(points: np.ndarray, spacing: float, inset: float = 0.0) -> tup
     q = inverse.reshape(-1, 4)
     faces = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
     vertices = origin + (keys - 1.5) * spacing  # corner k of cell c sits at origin + (k - 1/2 - 1) spacing
-    if inset:
-        # each vertex moves inward by ``inset`` along every distinct face normal it touches: a flat vertex along its
-        # face's, an edge's along both faces', a corner's along all three (convex or concave alike)
+    if inset:  # each vertex inward along every distinct normal of its faces (the docstring)
         pairs = np.unique(np.stack([q.reshape(-1), np.repeat(np.concatenate(normals), 4)], 1), axis=0)
         unit = np.zeros((6, 3))
         unit[np.arange(6), np.arange(6) // 2] = np.where(np.arange(6) % 2 == 1, 1.0, -1.0)
@@ -137,7 +131,7 @@ def fluid_block(setup: ProbeSetup, particle_radius: float) -> tuple[list[float],
 def probe_scene_json(
     setup: ProbeSetup, config: SolverConfig, steps: int, solid_mesh: str = SOLID_MESH, dynamic: bool = False
 ) -> dict:
-    """SPlisHSPlasH's scene (its JSON format) for one probe (module docstring).
+    """SPlisHSPlasH's scene (its JSON format, :func:`nbv.bench.splash.dfsph_scene`) for one probe (module docstring).
 
     Args:
         setup: the probe's domain, slab and inflow. config: this engine's solver settings of the probe.
@@ -145,18 +139,6 @@ def probe_scene_json(
         dynamic: make the solid a dynamic rigid body (the force check's copy; SPlisHSPlasH records forces only on
             dynamic bodies, and the worker keeps it at rest).
     """
-    nu = config.viscosity / config.rest_density
-    nu_b = config.wall_viscosity / config.rest_density
-    start, end = fluid_block(setup, config.particle_radius)
-    lo, hi = np.asarray(setup.domain_min, np.float64), np.asarray(setup.domain_max, np.float64)
-    iterations = {
-        "minIterations": config.min_iterations,
-        "maxIterations": config.max_iterations,
-        "maxError": config.max_density_error,
-        "maxIterationsV": config.max_iterations,
-        "maxErrorV": config.max_divergence_error,
-        "enableDivergenceSolver": config.divergence_solver,
-    }
     solid = {
         "geometryFile": solid_mesh,
         "translation": [0.0, 0.0, 0.0],
@@ -169,52 +151,8 @@ def probe_scene_json(
     }
     if dynamic:  # no collision geometry (the rigid-body solver never moves it: the worker keeps it at rest)
         solid.update({"density": float(config.rest_density), "collisionObjectType": 0})
-    return {
-        "Configuration": {
-            "particleRadius": config.particle_radius,
-            "sim2D": False,
-            "simulationMethod": 4,  # DFSPH
-            "boundaryHandlingMethod": 0,  # Akinci et al. 2012 boundary particles
-            "gravitation": list(config.gravity),
-            "timeStepSize": config.dt,
-            "cflMethod": 0,  # fixed dt, as this engine's probes
-            "stopAt": steps * config.dt,
-            **HEADLESS,
-            **iterations,
-            "DFSPH": dict(iterations),
-        },
-        "Materials": [
-            {
-                "id": "Fluid",
-                "density0": config.rest_density,
-                "viscosityMethod": 1,  # "Standard"
-                "viscosity": nu,
-                "viscosityBoundary": nu_b,
-                "Standard viscosity": {"viscosity": nu, "viscosityBoundary": nu_b},
-                "surfaceTensionMethod": 0,
-                "vorticityMethod": 0,
-                "dragMethod": 0,
-                "elasticityMethod": 0,
-            }
-        ],
-        "RigidBodies": [
-            {
-                "geometryFile": BOX_MESH,
-                "translation": ((lo + hi) / 2).tolist(),
-                "rotationAxis": [1, 0, 0],
-                "rotationAngle": 0,
-                "scale": (hi - lo).tolist(),
-                "isDynamic": False,
-                "isWall": True,
-                "mapInvert": True,
-                "samplingMode": 1,
-            },
-            solid,
-        ],
-        "FluidBlocks": [
-            {"id": "Fluid", "denseMode": 0, "start": start, "end": end, "initialVelocity": list(setup.velocity)}
-        ],
-    }
+    block = (*fluid_block(setup, config.particle_radius), setup.velocity)
+    return dfsph_scene(config, (setup.domain_min, setup.domain_max), solid, block, stop_at=steps * config.dt)
 
 
 def scene_name(direction: str) -> str:
@@ -231,8 +169,7 @@ def write_probe_scenes(
     dynamic: bool = False,
 ) -> dict[str, Path]:
     """Write one SPlisHSPlasH scene per probe into ``folder``, with ``solid.obj`` (:func:`voxel_surface`, through the
-    outer particles' centres) and
-    ``box.obj`` (the unit box the walls scale) beside them.
+    outer particles' centres) and ``box.obj`` (the unit box the walls scale) beside them.
 
     Args:
         folder: created when missing. solid_points: (M, 3) the solid, m. setups: {direction: ProbeSetup}.
@@ -278,57 +215,23 @@ def run_splash_forces(scene: Path, steps: int, threads: int = 2, timeout_s: floa
     Raises:
         RuntimeError: pysplishsplash is missing, crashes or times out (the message says how to install it).
     """
+    scene = Path(scene).resolve()
+    config = json.loads(scene.read_text())["Configuration"]
+    dt = float(config["timeStepSize"])
+    job = {"scene_file": str(scene), "dt": dt, "force_body": SOLID_BODY, "gravity": config["gravitation"]}
     with tempfile.TemporaryDirectory(prefix="splash_forces_") as tmp:
-        tmpdir = Path(tmp)
-        config = json.loads(Path(scene).read_text())["Configuration"]
-        job = {
-            "scene_file": str(Path(scene).resolve()),
-            "output_dir": str(tmpdir / "output"),
-            "result_file": str(tmpdir / "result.json"),
-            "steps": int(steps),
-            "dt": float(config["timeStepSize"]),
-            "force_body": SOLID_BODY,
-            "gravity": list(config["gravitation"]),
-        }
-        (tmpdir / "job.json").write_text(json.dumps(job))
-        env = dict(os.environ, OMP_NUM_THREADS=str(threads))
-        if env.pop("FLUIDGS_OMP_POLICY_SET", None):
-            env.pop("OMP_WAIT_POLICY", None)
-        try:
-            proc = subprocess.run(
-                _worker_cmd("--worker", str(tmpdir / "job.json")),
-                env=env,
-                capture_output=True,
-                text=True,
-                timeout=timeout_s,
-            )
-        except subprocess.TimeoutExpired as exc:
-            raise RuntimeError(f"SPlisHSPlasH run timed out after {timeout_s} s") from exc
-        if proc.returncode == EXIT_NO_SPLASH:
-            raise RuntimeError(f"pysplishsplash is not importable: {proc.stderr.strip()[-800:]}\n{INSTALL_HINT}")
-        result_file = tmpdir / "result.json"
-        if proc.returncode != 0 or not result_file.exists():
-            tail = (proc.stdout[-1500:] + "\n" + proc.stderr[-1500:]).strip()
-            raise RuntimeError(f"SPlisHSPlasH worker failed (exit code {proc.returncode}).\n{tail}\n{INSTALL_HINT}")
-        result = json.loads(result_file.read_text())
+        result = run_worker(Path(tmp), job, int(steps), threads, timeout_s)
     series = np.asarray(result["forces"], np.float64).reshape(-1, 3)
-    return ForceRun(series, np.full(len(series), job["dt"]), int(result["fluid_particles"]), result["steps_s"])
+    return ForceRun(series, np.full(len(series), dt), int(result["fluid_particles"]), result["steps_s"])
 
 
 def run_our_forces(
     solid_points: np.ndarray, setup: ProbeSetup, config: SolverConfig, probe: ProbeConfig, steps: int
 ) -> ForceRun:
     """Run one probe in this engine (Taichi must be initialised) and return the force on the solid per step."""
-    import time  # noqa: PLC0415
-
-    from fluidsim.probes import build_probe_solver  # noqa: PLC0415
-    from fluidsim.simulation import run  # noqa: PLC0415
-
     solver = build_probe_solver(solid_points, setup, config, probe)
-    fluid = int(solver.fluid.active) if hasattr(solver, "fluid") else 0
-    t0 = time.perf_counter()
-    stats = run(solver, steps)
-    seconds = time.perf_counter() - t0
+    fluid = int(solver.fluid.active)  # the slab, before any particle retires
+    stats, seconds, _ = timed(run, solver, steps)
     return ForceRun(
         np.array([s.solid_force for s in stats], np.float64).reshape(-1, 3),
         np.array([s.dt for s in stats], np.float64),

@@ -1,6 +1,6 @@
 """The child process of the SPlisHSPlasH peer (:mod:`nbv.bench.splash`): the only place ``pysplishsplash`` is imported.
 
-Run as a script by :func:`nbv.bench.splash.run_splash` and :func:`nbv.bench.splash.splash_available`, never imported by
+Run as a script by :func:`nbv.bench.splash.run_worker` and :func:`nbv.bench.splash.splash_available`, never imported by
 the engine::
 
     python nbv/bench/splash_worker.py --worker JOB.json   # set up the scene, time every step, write the result JSON
@@ -74,24 +74,6 @@ def _to_builtin(obj):
     if hasattr(obj, "tolist"):
         return obj.tolist()
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
-
-
-def _enforce_settings(sph, expect: dict, dt: float) -> None:
-    """Set fixed dt, the solver bounds and tolerances and the kinematic viscosity through the API as well (the
-    scene file should already have set them)."""
-    sim = sph.Simulation.getCurrent()
-    ts = sim.getTimeStep()
-    visco = sim.getFluidModel(0).getViscosityBase()
-    sim.setValueInt(sim.CFL_METHOD, sim.ENUM_CFL_NONE)
-    sph.TimeManager.getCurrent().setTimeStepSize(dt)
-    ts.setValueUInt(ts.MIN_ITERATIONS, int(expect["min_iterations"]))
-    ts.setValueUInt(ts.MAX_ITERATIONS, int(expect["max_iterations"]))
-    ts.setValueUInt(ts.MAX_ITERATIONS_V, int(expect["max_iterations"]))
-    ts.setValueFloat(ts.MAX_ERROR, float(expect["max_density_error_percent"]))
-    ts.setValueFloat(ts.MAX_ERROR_V, float(expect["max_divergence_error_percent"]))
-    ts.setValueBool(ts.USE_DIVERGENCE_SOLVER, True)
-    nu = float(expect["viscosity"]) / float(expect["rest_density"])
-    visco.setValueFloat(visco.VISCOSITY_COEFFICIENT, nu)
 
 
 def _read_config(sph, base) -> dict:
@@ -210,32 +192,11 @@ def _force_worker(sph, base, job: dict) -> dict:
     return {"forces": forces, "steps_s": steps_s, "fluid_particles": int(fluid.numActiveParticles()), "mass": mass}
 
 
-def _worker(job_file: str) -> int:
-    """Child process: set up the scene, step it, write the result JSON (keys: :func:`nbv.bench.splash.run_splash`;
-    with ``force_body`` in the job: :func:`_force_worker`)."""
-    job = json.loads(Path(job_file).read_text())
-    if job.get("force_body") is not None:
-        sph = _import_splash()
-        base = sph.Exec.SimulatorBase()
-        base.init(
-            sceneFile=job["scene_file"], useCache=False, outputDir=job["output_dir"], initialPause=False, useGui=False
-        )
-        base.initSimulation()
-        result = _force_worker(sph, base, job)
-        Path(job["result_file"]).write_text(json.dumps(result, default=_to_builtin))
-        sys.stdout.flush()
-        os._exit(0)
+def _timed_steps(sph, base, job: dict, t0: float) -> dict:
+    """Step the scene, each step timed, and return the result (keys: :func:`nbv.bench.splash.run_splash`); ``t0``:
+    when ``initSimulation()`` started."""
     steps = int(job["steps"])
     dt = float(job["dt"])
-    sph = _import_splash()
-
-    base = sph.Exec.SimulatorBase()
-    base.init(
-        sceneFile=job["scene_file"], useCache=False, outputDir=job["output_dir"], initialPause=False, useGui=False
-    )
-    t0 = time.perf_counter()
-    base.initSimulation()
-    _enforce_settings(sph, job["expect"], dt)
     config = _read_config(sph, base)
     ts = sph.Simulation.getCurrent().getTimeStep()
     pressure_its: list[int] = []
@@ -260,7 +221,7 @@ def _worker(job_file: str) -> int:
         ms_per_step.append((time.perf_counter() - t) * 1e3)
 
     end = _end_state(sph)  # after the timing
-    result = {
+    return {
         "fluid_particles": end.pop("fluid_particles"),
         "boundary_particles": end.pop("boundary_particles"),
         "steps": len(ms_per_step),
@@ -277,6 +238,20 @@ def _worker(job_file: str) -> int:
         **end,
         "config": config,
     }
+
+
+def _worker(job_file: str) -> int:
+    """Child process: set up the scene, step it, write the result JSON (keys: :func:`nbv.bench.splash.run_splash`;
+    with ``force_body`` in the job: :func:`_force_worker`)."""
+    job = json.loads(Path(job_file).read_text())
+    sph = _import_splash()
+    base = sph.Exec.SimulatorBase()
+    base.init(
+        sceneFile=job["scene_file"], useCache=False, outputDir=job["output_dir"], initialPause=False, useGui=False
+    )
+    t0 = time.perf_counter()
+    base.initSimulation()
+    result = _force_worker(sph, base, job) if job.get("force_body") is not None else _timed_steps(sph, base, job, t0)
     Path(job["result_file"]).write_text(json.dumps(result, default=_to_builtin))
     sys.stdout.flush()
     # Skip SPlisHSPlasH's destructors (they print timing tables and can crash at interpreter exit).
