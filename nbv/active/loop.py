@@ -193,16 +193,11 @@ class RunState:
     phase: str = "rounds"  # "rounds" while selecting, "final" while training to the end, "done" once written
 
 
-def _dataset_run_config(dataset_path: Path, config: ActiveConfig) -> dict:
-    return {"dataset": str(Path(dataset_path).resolve()), "active": config.to_dict()}
-
-
 def load_active_dataset(dataset_path: str | Path, config: ActiveConfig):
     """The dataset at the run's resolution, checked against the config (before any training).
 
     Raises:
-        ValueError: too few train (candidate) views for the budget, an initial id out of range, or no test views
-            (evaluation needs them; a warning only).
+        ValueError: too few train (candidate) views for the budget, or an initial id out of range.
     """
     ds = load_dataset(dataset_path, resolution=config.resolution)
     n = len(ds.train)
@@ -295,9 +290,8 @@ class ActiveRun:
             log.info("%s does not read the empty-scene probes: the rounds run without them", config.method)
             self.physics_config = replace(self.physics_config, empty_reference=False)
         self.physics_fn = physics_fn
-        self.resumable = self.run_dir is not None and prepare_run_dir(
-            self.run_dir, _dataset_run_config(self.dataset_path, config), overwrite
-        )
+        run_config = {"dataset": str(self.dataset_path.resolve()), "active": config.to_dict()}
+        self.resumable = self.run_dir is not None and prepare_run_dir(self.run_dir, run_config, overwrite)
         self.views = [view_to(v, device) for v in self.dataset.train]
         self.cameras = [v.camera for v in self.dataset.train]
         self.extent = scene_extent(self.cameras)
@@ -324,21 +318,20 @@ class ActiveRun:
             backend=self.config.backend,
         )
 
-    def _physics(self, record: dict, fields: dict | None = None) -> Callable[[GaussianSet], torch.Tensor]:
+    def _physics(self, record: dict, fields: dict) -> Callable[[GaussianSet], torch.Tensor]:
         """The context's physics callable; it notes D-bar, per-probe D-bar and the time in ``record``, and puts
-        the run's :class:`nbv.plan.ProbeFields` in ``fields["fields"]`` (when ``fields`` is given)."""
-        store = {} if fields is None else fields
+        the run's :class:`nbv.plan.ProbeFields` in ``fields["fields"]``."""
 
         def run(gaussians: GaussianSet) -> torch.Tensor:
             t0 = time.perf_counter()
             if self.physics_fn is not None:
                 d = torch.as_tensor(self.physics_fn(gaussians)).to(torch.float64).cpu()
                 record["physics"] = {"seconds": time.perf_counter() - t0, "source": "custom"}
-                store["fields"] = ProbeFields(("custom",), d.reshape(1, -1))
+                fields["fields"] = ProbeFields(("custom",), d.reshape(1, -1))
                 return d
 
             probes = probe_run(gaussians, self.physics_config, f"round {record['round']}", self.progress)
-            store["fields"] = probes.fields
+            fields["fields"] = probes.fields
             res = probes.result
             if res is None:
                 record["physics"] = {"seconds": time.perf_counter() - t0, "error": probes.error}
@@ -436,48 +429,48 @@ class ActiveRun:
             context = self._context(trainer, selected, r, n, record, {})
             if n == n_selected:
                 return Reached(trainer, selected, r, context, record)
-            if len(picks) > n:
-                selected.append(int(picks[n]))
-                continue
-            selected.append(context.candidate_ids[self._planner(r).select(context).pick])
+            known = len(picks) > n
+            selected.append(int(picks[n]) if known else context.candidate_ids[self._planner(r).select(context).pick])
         raise AssertionError("unreachable: n_selected is a round")
 
-    def _train(self, trainer: Trainer, views: list, iterations: int, label: str) -> dict:
+    def _train(
+        self,
+        trainer: Trainer,
+        views: list,
+        iterations: int,
+        label: str,
+        chunk: int = 0,
+        after_chunk: Callable[[], None] | None = None,
+    ) -> dict:
+        """Train ``iterations`` iterations on ``views`` (in chunks of ``chunk``, calling ``after_chunk`` after
+        each); returns the training record."""
+        summary: dict[str, Any] = {"iterations": 0, "seconds": 0.0}
         if iterations <= 0:
-            return {"iterations": 0, "seconds": 0.0}
+            return summary
         with tqdm(total=iterations, desc=label, unit="it", disable=not self.progress, leave=False) as bar:
-            out = trainer.train(views, iterations, callback=lambda st: bar.update(1))
-        return {
-            "iterations": iterations,
-            "seconds": out.wall_time_s,
-            "final_loss": out.losses[-1],
-            "final_psnr": out.psnrs[-1],
-            "num_gaussians": out.num_gaussians[-1],
-        }
+            while summary["iterations"] < iterations:
+                n = min(chunk or iterations, iterations - summary["iterations"])
+                out = trainer.train(views, n, callback=lambda st: bar.update(1))
+                summary["iterations"] += n
+                summary["seconds"] += out.wall_time_s
+                summary["final_loss"] = out.losses[-1]
+                summary["final_psnr"] = out.psnrs[-1]
+                summary["num_gaussians"] = out.num_gaussians[-1]
+                if after_chunk is not None:
+                    after_chunk()
+        return summary
 
     def _train_final(self, state: RunState, trainer: Trainer, views: list) -> dict:
         """Train to ``total_iterations`` in chunks, with a checkpoint (trainer included) after each chunk."""
-        total = self.config.total_iterations
         start = trainer.iteration
-        summary: dict[str, Any] = {"iterations": 0, "seconds": 0.0}
-        with tqdm(
-            total=max(total - start, 0), desc="final train", unit="it", disable=not self.progress, leave=False
-        ) as bar:
-            while trainer.iteration < total:
-                n = min(self.final_checkpoint_every, total - trainer.iteration)
-                out = trainer.train(views, n, callback=lambda st: bar.update(1))
-                summary.update(
-                    {
-                        "iterations": summary["iterations"] + n,
-                        "seconds": summary["seconds"] + out.wall_time_s,
-                        "final_loss": out.losses[-1],
-                        "final_psnr": out.psnrs[-1],
-                        "num_gaussians": out.num_gaussians[-1],
-                    }
-                )
-                self._save_checkpoint(state, trainer)
-                if self.on_final_checkpoint is not None:
-                    self.on_final_checkpoint(trainer.iteration)
+
+        def checkpoint() -> None:
+            self._save_checkpoint(state, trainer)
+            if self.on_final_checkpoint is not None:
+                self.on_final_checkpoint(trainer.iteration)
+
+        remaining = self.config.total_iterations - start
+        summary = self._train(trainer, views, remaining, "final train", self.final_checkpoint_every, checkpoint)
         summary["resumed_from_iteration"] = start
         return summary
 
@@ -554,9 +547,8 @@ class ActiveRun:
             state, trainer = self._load()
             log.info("%s: resuming after %d of %d selections", self.run_dir, len(state.rounds), len(c.rounds()))
             return state, trainer
-        state, trainer = RunState(self.initial_ids(), []), None
-        if c.mode == "continue":
-            trainer = self.new_trainer(c.total_iterations)
+        state = RunState(self.initial_ids(), [])
+        trainer = self.new_trainer(c.total_iterations) if c.mode == "continue" else None
         self._write_rounds(state)
         return state, trainer
 

@@ -36,7 +36,8 @@ import json
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -64,7 +65,7 @@ from nbv.plan.variance_model import VarianceConfig
 from nbv.ranking import spearman
 from nbv.study import calibration as cal
 from nbv.study.experiment_config import scene_names
-from nbv.study.oracle_config import RULES, OracleConfig, rule_of
+from nbv.study.oracle_config import RULES, OracleConfig, Rule, rule_of
 from nbv.study.oracle_pool import state_problem
 from nbv.study.oracle_summary import format_summary, summarise
 from recon.datasets import load_dataset
@@ -93,8 +94,8 @@ def check_scenes(config: OracleConfig) -> dict[str, dict]:
             naming the config key and the fix.
     """
     out = {}
+    acfg, largest = config.active_config(config.seeds[0]), max(config.states)
     for scene in config.scenes:
-        acfg = config.active_config(config.seeds[0])
         try:
             ds = load_dataset(scene, resolution=acfg.resolution)
         except ValueError as exc:
@@ -104,7 +105,6 @@ def check_scenes(config: OracleConfig) -> dict[str, dict]:
                 f"oracle config 'scenes': {scene} has no test views; the oracle gain is a test PSNR, so "
                 "render the dataset with test views (fluidgs render-dataset --test N) or drop the scene"
             )
-        largest = max(config.states)
         if largest >= len(ds.train):
             raise ValueError(
                 f"oracle config 'states': a state of {largest} views leaves no candidate of the "
@@ -134,22 +134,13 @@ def state_key(config: OracleConfig) -> dict:
 
 def plan_jobs(config: OracleConfig) -> list[dict]:
     """One picklable job per (scene, seed, state)."""
-    jobs = []
-    cfg = json_safe(config.to_dict())
-    for scene, name in zip(config.scenes, scene_names(config.scenes), strict=True):
-        for seed in config.seeds:
-            for n in sorted(config.states):
-                jobs.append(
-                    {
-                        "scene": name,
-                        "dataset": scene,
-                        "seed": seed,
-                        "n": n,
-                        "config": cfg,
-                        "path": str(state_path(config.output, name, seed, n)),
-                    }
-                )
-    return jobs
+    cfg, path = json_safe(config.to_dict()), partial(state_path, config.output)
+    return [
+        {"scene": name, "dataset": scene, "seed": seed, "n": n, "config": cfg, "path": str(path(name, seed, n))}
+        for scene, name in zip(config.scenes, scene_names(config.scenes), strict=True)
+        for seed in config.seeds
+        for n in sorted(config.states)
+    ]
 
 
 def _stored(path: Path, config: dict) -> dict | None:
@@ -162,6 +153,14 @@ def _stored(path: Path, config: dict) -> dict | None:
         return None
     key = {k: v for k, v in config.items() if k not in STUDY_ONLY_KEYS}
     return data if state_problem(data) is None and data.get("config") == key else None
+
+
+@contextmanager
+def _timed(seconds: dict[str, float], name: str) -> Iterator[None]:
+    """Note the wall time of the ``with`` body in ``seconds[name]``."""
+    t0 = time.perf_counter()
+    yield
+    seconds[name] = time.perf_counter() - t0
 
 
 # ---- probes and rules --------------------------------------------------------------------------------
@@ -218,55 +217,50 @@ def score_rules(
     scores: dict[str, list[float]] = {}
     seconds: dict[str, float] = {}
     wanted = set(config.scored_rules())
-    t0 = time.perf_counter()
-    shortlist, fisher = FisherPlanner(FisherConfig(seed=seed)).rank(context, min(shortlist_k, count))
+
+    def summed(at: PlanningContext, rule: Rule, who: str) -> list[float]:
+        """S(T) of the rule's per-Gaussian values at ``at``, with the rule's visibility."""
+        v = per_gaussian_values(rule.values, at, seed, who)
+        return physics_view_scores(g, cams, v, occlusion=rule.depth_test)
+
+    with _timed(seconds, "fisher"):
+        shortlist, fisher = FisherPlanner(FisherConfig(seed=seed)).rank(context, min(shortlist_k, count))
     scores["fisher"] = list(fisher)
-    seconds["fisher"] = time.perf_counter() - t0
     if "variance" in wanted:
-        t0 = time.perf_counter()
-        scores["variance"] = list(VariancePlanner(VarianceConfig(seed=seed)).rank(context, count)[1])
-        seconds["variance"] = time.perf_counter() - t0
+        with _timed(seconds, "variance"):
+            scores["variance"] = list(VariancePlanner(VarianceConfig(seed=seed)).rank(context, count)[1])
     if "fvs" in wanted:
         scores["fvs"] = farthest_view_distances(cams, [v.camera for v in context.train_views])
     if "random" in wanted:
         scores["random"] = np.random.default_rng([seed, 7]).random(count).tolist()
-    t0 = time.perf_counter()
-    ones = per_gaussian_values("area", context, seed)
-    coverage = {occ: physics_view_scores(g, cams, ones, occlusion=occ) for occ in (False, True)}
-    for name, rule in RULES.items():  # the per-Gaussian rules without probes: the coverages, the transparencies
-        if name not in wanted or not rule.per_gaussian or rule.physics:
-            continue
-        if rule.values == "area":
-            scores[name] = coverage[rule.depth_test]
-        else:
-            v = per_gaussian_values(rule.values, context, seed, name)
-            scores[name] = physics_view_scores(g, cams, v, occlusion=rule.depth_test)
-    seconds["coverage"] = time.perf_counter() - t0
+    with _timed(seconds, "coverage"):
+        ones = per_gaussian_values("area", context, seed)
+        coverage = {occ: physics_view_scores(g, cams, ones, occlusion=occ) for occ in (False, True)}
+        for name, rule in RULES.items():  # the per-Gaussian rules without probes: the coverages, the transparencies
+            if name in wanted and rule.per_gaussian and not rule.physics:
+                scores[name] = coverage[rule.depth_test] if rule.values == "area" else summed(context, rule, name)
     runs = {}
     for setting, pcfg in physics.items():
         labels = [label for label in config.physics_rules() if label.endswith(f":{setting}")]
         if not labels:
             continue
-        t0 = time.perf_counter()
-        probes = any(VALUES[rule_of(label).values].probes for label in labels)
-        runs[setting] = run = setting_run(g, pcfg, probes, f"probe setting {setting}")
-        t1 = time.perf_counter()
-        at = setting_context(context, run)
-        cache: dict[tuple[str, bool], list[float]] = {}
-        for label in labels:
-            rule = rule_of(label)
-            key = (rule.values, rule.depth_test)
-            if key not in cache:
-                v = per_gaussian_values(rule.values, at, seed, label)
-                cache[key] = physics_view_scores(g, cams, v, occlusion=rule.depth_test)
-            s, a = cache[key], coverage[rule.depth_test]
-            if rule.combine == "balanced":
-                s = balanced_scores(a, s)
-            elif rule.combine == "ratio":
-                s = [si / ai if ai > 0 else 0.0 for si, ai in zip(s, a, strict=True)]
-            scores[label] = list(s)
-        seconds[f"probes:{setting}"] = t1 - t0
-        seconds[f"scores:{setting}"] = time.perf_counter() - t1
+        with _timed(seconds, f"probes:{setting}"):
+            probes = any(VALUES[rule_of(label).values].probes for label in labels)
+            runs[setting] = run = setting_run(g, pcfg, probes, f"probe setting {setting}")
+        with _timed(seconds, f"scores:{setting}"):
+            at = setting_context(context, run)
+            cache: dict[tuple[str, bool], list[float]] = {}
+            for label in labels:
+                rule = rule_of(label)
+                key = (rule.values, rule.depth_test)
+                if key not in cache:
+                    cache[key] = summed(at, rule, label)
+                s, a = cache[key], coverage[rule.depth_test]
+                if rule.combine == "balanced":
+                    s = balanced_scores(a, s)
+                elif rule.combine == "ratio":
+                    s = [si / ai if ai > 0 else 0.0 for si, ai in zip(s, a, strict=True)]
+                scores[label] = list(s)
     return scores, list(shortlist), {"runs": runs, "seconds": seconds}
 
 
@@ -282,8 +276,7 @@ def copy_gains(
 ) -> dict[str, Any]:
     """Train one copy per candidate (and one without) for ``horizon`` iterations from ``state``; measure each.
 
-    Every copy starts from the same trainer state (parameters, Adam moments, iteration, RNG), so they share the seed
-    and the schedule. A candidate's gain in a metric is the copy's value with it minus the value without.
+    A candidate's gain in a metric is the copy's value with it minus the value without.
 
     Args:
         new_trainer: builds a Trainer of the run's config (its state is replaced by ``state``).
@@ -471,31 +464,30 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
     if stored is not None:
         log.info("%s: already measured", path)
         return stored
-    config = OracleConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in job["config"].items()})
+    config = OracleConfig(**job["config"])  # its lists become tuples there
     seed, target = int(job["seed"]), int(job["n"])
-    t0 = time.perf_counter()
-    active = ActiveRun(job["dataset"], None, config.active_config(seed), progress=False)
-    reached = active.reach(target, _known_picks(job, config))
-    t_reach = time.perf_counter() - t0
+    seconds: dict[str, float] = {}
+    with _timed(seconds, "reach"):
+        active = ActiveRun(job["dataset"], None, config.active_config(seed), progress=False)
+        reached = active.reach(target, _known_picks(job, config))
     ds, views, context, selected = active.dataset, active.views, reached.context, reached.selected
     remaining = context.candidate_ids
     k = config.top_k if config.top_k is not None else fused_k(active.config.budget, target)
-    t0 = time.perf_counter()
     ps = planner_seed(seed, reached.round)
-    scores, shortlist, extra = score_rules(config, context, config.probe_configs(active.physics_config.up), ps, k)
-    t_rules = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    oracle = copy_gains(
-        partial(active.new_trainer, active.config.total_iterations),
-        reached.trainer.state_dict(),
-        [views[i] for i in selected],
-        [views[i] for i in remaining],
-        config.horizon,
-        state_measure(config, active),
-        progress,
-    )
-    functional_gains(oracle)
-    t_oracle = time.perf_counter() - t0
+    with _timed(seconds, "rules"):
+        scores, shortlist, extra = score_rules(config, context, config.probe_configs(active.physics_config.up), ps, k)
+    with _timed(seconds, "oracle"):
+        oracle = copy_gains(
+            partial(active.new_trainer, active.config.total_iterations),
+            reached.trainer.state_dict(),
+            [views[i] for i in selected],
+            [views[i] for i in remaining],
+            config.horizon,
+            state_measure(config, active),
+            progress,
+        )
+        functional_gains(oracle)
+    seconds.update(extra["seconds"])
     record: dict[str, Any] = {
         "config": state_key(config),
         "scene": job["scene"],
@@ -513,20 +505,19 @@ def run_state(job: dict, progress: Callable[[], None] | None = None) -> dict:
         "thin_share": {name: float(run.thin.double().mean()) for name, run in extra["runs"].items()},
     }
     if config.calibration and ds.mesh_path is not None:
-        t0 = time.perf_counter()
-        record["calibration"] = calibrate(
-            context.gaussians,
-            str(ds.mesh_path),
-            [v.camera for v in context.train_views],
-            context.candidates,
-            active.background,
-            calibration_signals(extra["runs"], context, ps),
-            scores,
-            oracle["gain_psnr"],
-            seed,
-        )
-        extra["seconds"]["calibration"] = time.perf_counter() - t0
-    record["seconds"] = {"reach": t_reach, "rules": t_rules, "oracle": t_oracle, **extra["seconds"]}
+        with _timed(seconds, "calibration"):
+            record["calibration"] = calibrate(
+                context.gaussians,
+                str(ds.mesh_path),
+                [v.camera for v in context.train_views],
+                context.candidates,
+                active.background,
+                calibration_signals(extra["runs"], context, ps),
+                scores,
+                oracle["gain_psnr"],
+                seed,
+            )
+    record["seconds"] = seconds
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, json_safe(record))
     return record
@@ -572,27 +563,23 @@ def run_oracle(config: OracleConfig, executor, progress: bool = True) -> dict[st
     jobs = plan_jobs(config)
     todo = [j for j in jobs if _stored(Path(j["path"]), j["config"]) is None]
     with tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="states", unit="state", disable=not progress) as bar:
-        results = executor.map(_state_task, todo)
-        while True:
-            try:
-                job, row = next(results)
-            except StopIteration:
-                break
-            except Exception as exc:
-                failed = getattr(exc, "job", None)
-                where = f"{failed['scene']} seed {failed['seed']} state {failed['n']}" if failed else "a state"
-                raise RuntimeError(
-                    f"oracle {where} failed: {exc}. Finished states are kept under {out / 'states'}; "
-                    "fix the cause and run the same command again to resume"
-                ) from exc
-            bar.update(1)
-            log.info(
-                "done: %s seed %d state %d (%.0f s oracle)",
-                job["scene"],
-                job["seed"],
-                job["n"],
-                row["seconds"]["oracle"],
-            )
+        try:
+            for job, row in executor.map(_state_task, todo):
+                bar.update(1)
+                log.info(
+                    "done: %s seed %d state %d (%.0f s oracle)",
+                    job["scene"],
+                    job["seed"],
+                    job["n"],
+                    row["seconds"]["oracle"],
+                )
+        except Exception as exc:
+            failed = getattr(exc, "job", None)
+            where = f"{failed['scene']} seed {failed['seed']} state {failed['n']}" if failed else "a state"
+            raise RuntimeError(
+                f"oracle {where} failed: {exc}. Finished states are kept under {out / 'states'}; "
+                "fix the cause and run the same command again to resume"
+            ) from exc
     states = [json.loads(Path(j["path"]).read_text()) for j in jobs]
     summary = summarise(config, states)
     markdown = format_summary(summary)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import difflib
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -46,23 +46,6 @@ log = logging.getLogger(__name__)
 # Bootstrap resamples of an interval: 2000 is the default; each resample re-ranks every state, so a mistyped count is
 # refused before the study runs rather than after its states.
 MAX_BOOTSTRAP = 1_000_000
-
-CONFIG_KEYS = (
-    "scenes",
-    "seeds",
-    "states",
-    "planner",
-    "rules",
-    "probes",
-    "horizon",
-    "top_k",
-    "preset",
-    "active",
-    "calibration",
-    "bootstrap",
-    "output",
-    "functional",
-)
 
 # The rules that score the candidates themselves; every other rule sums per-Gaussian values v_g over a view
 # (S(T) = sum_g w_g(T) v_g) and names them as the fused planners do (nbv.plan.rules.VALUES).
@@ -173,10 +156,8 @@ def rule_of(label: str) -> Rule:
     return RULES[label.partition(":")[0]]
 
 
-def _renamed(rules: Any) -> Any:
+def _renamed(rules: Sequence) -> Sequence:
     """``rules`` with the old names (:data:`OLD_RULE_NAMES`) read as the rules they name, with a note in the log."""
-    if isinstance(rules, (str, bytes)) or not isinstance(rules, Sequence):
-        return rules
     old = [r for r in rules if isinstance(r, str) and r in OLD_RULE_NAMES]
     if not old:
         return rules
@@ -191,23 +172,11 @@ def _is_int(v: Any, low: int) -> bool:
 
 @dataclass(frozen=True)
 class OracleConfig:
-    """An oracle study (see the module docstring for the JSON form).
+    """An oracle study; the module docstring shows the JSON form and what each key means.
 
     Attributes:
-        scenes: dataset folders (each needs test views).
-        seeds: run seeds.
-        states: numbers of selected views at which the oracle is measured (each >= the initial views and below
-            the number of candidates).
-        planner: the registered planner whose picks reach the states.
-        rules: names of :data:`RULES`.
-        probes: probe setting name -> PhysicsConfig overrides on the preset's selection physics.
-        horizon: M, training iterations of each oracle copy (>= 1).
-        top_k: size of FisherRF's shortlist for the regret (None: the loop's K = max(B - n, 2)).
-        preset: ActiveConfig preset.
-        active: ActiveConfig overrides.
-        calibration: compute the per-Gaussian calibration against the dataset's mesh (where it has one).
-        bootstrap: bootstrap resamples of the intervals (>= 100).
-        output: results folder.
+        states: each at least the initial views and below the number of candidates.
+        probes: overrides on the preset's selection physics.
         functional: the functional target's probe settings (PhysicsConfig overrides on the selection physics, e.g.
             {"particle_radius": 0.05, "steps": 300, "directions": ["-x"]}), or None (default): no functional target.
             With it, each copy is also measured by its functional error against the dataset's mesh
@@ -232,11 +201,12 @@ class OracleConfig:
     functional: dict | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "rules", _renamed(self.rules))
         for name in ("scenes", "seeds", "states", "rules"):
             v = getattr(self, name)
             if isinstance(v, (str, bytes)) or not isinstance(v, Sequence) or len(v) == 0:
                 raise ValueError(f"oracle config: {name!r} must be a non-empty list, got {v!r}")
+            if name == "rules":
+                v = _renamed(v)
             if len(set(v)) != len(v):
                 raise ValueError(f"oracle config: {name!r} must not repeat entries, got {list(v)}")
             object.__setattr__(self, name, tuple(v))
@@ -267,7 +237,7 @@ class OracleConfig:
             self.probe_config(name)
         low = base.initial_count
         for n in self.states:
-            if not _is_int(n, low):
+            if n < low:
                 raise ValueError(
                     f"oracle config: 'states' entry {n!r} must be an integer >= the {low} initial "
                     "views; lower it or set active.initial_count"
@@ -357,35 +327,34 @@ class OracleConfig:
             cfg = ActiveConfig.from_preset(self.preset, **{**over, "budget": need})
         return cfg
 
-    def probe_config(self, name: str) -> PhysicsConfig:
+    def _physics(self, over: dict, up: str | tuple[float, float, float] | None, key: str) -> PhysicsConfig:
+        """The selection physics with the overrides ``over`` (and the up direction ``up`` when given); an error names
+        the config ``key``."""
+        base = self.active_config(self.seeds[0]).physics.to_dict()
+        try:
+            return PhysicsConfig.from_dict({**base, **over, **({} if up is None else {"up": up})})
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"oracle config: {key}: {exc}") from exc
+
+    def probe_config(self, name: str, up: str | tuple[float, float, float] | None = None) -> PhysicsConfig:
         """The PhysicsConfig of probe setting ``name``: the selection physics with the setting's overrides (and the
         empty scene when an ``excess`` rule is asked for)."""
-        base = self.active_config(self.seeds[0]).physics.to_dict()
         over = dict(self.probes[name])
         if any(RULES[r].values == "excess" for r in self.rules):
             over["empty_reference"] = True
-        try:
-            return PhysicsConfig.from_dict({**base, **over})
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"oracle config: 'probes' setting {name!r}: {exc}") from exc
+        return self._physics(over, up, f"'probes' setting {name!r}")
 
     def functional_config(self, up: str | tuple[float, float, float] | None = None) -> PhysicsConfig | None:
         """The functional target's PhysicsConfig (the selection physics with ``functional``'s overrides, no empty
         scene; default direction -x, head-on), or None without a functional target."""
         if self.functional is None:
             return None
-        base = self.active_config(self.seeds[0]).physics.to_dict()
         over = {"directions": ["-x"], **self.functional, "empty_reference": False, "track_distinct": False}
-        if up is not None:
-            over["up"] = up
-        try:
-            return PhysicsConfig.from_dict({**base, **over})
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"oracle config: 'functional': {exc}") from exc
+        return self._physics(over, up, "'functional'")
 
     def probe_configs(self, up: str | tuple[float, float, float]) -> dict[str, PhysicsConfig]:
         """Every probe setting's PhysicsConfig (:meth:`probe_config`) with the up direction ``up``."""
-        return {name: PhysicsConfig.from_dict({**self.probe_config(name).to_dict(), "up": up}) for name in self.probes}
+        return {name: self.probe_config(name, up) for name in self.probes}
 
     def physics_rules(self) -> list[str]:
         """The reported labels of the physics rules, ``RULE:SETTING``, and their coverage controls."""
@@ -411,3 +380,6 @@ class OracleConfig:
         if d["functional"] is None:
             del d["functional"]
         return d
+
+
+CONFIG_KEYS = tuple(f.name for f in fields(OracleConfig))  # the JSON keys, in the order to_dict writes them
