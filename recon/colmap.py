@@ -3,16 +3,11 @@
 
 No paper equation is implemented here; the paper's Mip-NeRF 360 scenes come as COLMAP models.
 
-Binary layout (COLMAP ``src/colmap/scene/reconstruction_io_binary.cc``; all little-endian, no padding;
-``camera_t``, ``image_t`` and ``point2D_t`` are uint32, ``point3D_t`` uint64):
-
-- ``cameras.bin``: uint64 count; per camera uint32 camera_id, int32 model_id, uint64 width, uint64 height,
-  then the model's ``num_params`` doubles (:data:`CAMERA_MODELS`).
-- ``images.bin``: uint64 count; per image uint32 image_id, double qw qx qy qz, double tx ty tz (the
-  world-to-camera rotation as a unit quaternion and translation), uint32 camera_id, the name as bytes
-  ending in a NUL, uint64 num_points2D, then num_points2D x (double x, double y, uint64 point3D_id).
-- ``points3D.bin``: uint64 count; per point uint64 point3D_id, double x y z, uint8 r g b, double error,
-  uint64 track_length, then track_length x (uint32 image_id, uint32 point2D_idx).
+Binary layout (COLMAP ``src/colmap/scene/reconstruction_io_binary.cc``; little-endian, no padding): a uint64
+record count, then per record its fixed head (``_CAMERA_HEAD``, ``_IMAGE_HEAD``, ``_POINT_HEAD`` below, field by
+field) and a variable part: a camera's ``num_params`` doubles (:data:`CAMERA_MODELS`); an image's name ending in a
+NUL, then a uint64 count of (double x, double y, uint64 point3D_id); a point's track_length x (uint32 image_id,
+uint32 point2D_idx).
 
 Each declared count is checked against the bytes left in the file before anything is read or allocated,
 so a truncated or corrupt file raises a ValueError naming the file, the record and the byte offset.
@@ -148,13 +143,10 @@ def _pinhole(where: str, cam_id: int, model: str, width: int, height: int, param
         raise ValueError(f"{where}: camera {cam_id} has non-finite parameters {params}")
     if width < 1 or height < 1:
         raise ValueError(f"{where}: camera {cam_id} has image size {width}x{height}; width and height must be >= 1")
-    if model in _SINGLE_FOCAL:
-        fx = fy = params[0]
-        cx, cy = params[1], params[2]
-        distortion = params[3:]
-    else:
-        fx, fy, cx, cy = params[:4]
-        distortion = params[4:]
+    if model in _SINGLE_FOCAL:  # f, cx, cy, ...: fx = fy = f
+        params = [params[0], *params]
+    fx, fy, cx, cy = params[:4]
+    distortion = params[4:]
     if any(d != 0.0 for d in distortion):
         logger.warning(
             "%s: camera %d (%s) has distortion %s, which is ignored; undistort the images for exact projections",
@@ -166,45 +158,60 @@ def _pinhole(where: str, cam_id: int, model: str, width: int, height: int, param
     return width, height, fx, fy, cx, cy
 
 
-def _pose(where: str, image_id: int, q: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """[4, 4] world-to-camera of a (w, x, y, z) quaternion and a translation."""
-    if not (np.isfinite(q).all() and np.isfinite(t).all()) or np.linalg.norm(q) == 0:
+def _pose(where: str, image_id: int, qt: list[float]) -> np.ndarray:
+    """[4, 4] world-to-camera of (qw, qx, qy, qz, tx, ty, tz): a quaternion and a translation."""
+    qt = np.asarray(qt, dtype=np.float64)
+    if not np.isfinite(qt).all() or np.linalg.norm(qt[:4]) == 0:
         raise ValueError(f"{where}: image {image_id} has a non-finite or zero quaternion/translation")
     w2c = np.eye(4)
-    w2c[:3, :3] = quaternion_wxyz_to_matrix(q)
-    w2c[:3, 3] = t
+    w2c[:3, :3] = quaternion_wxyz_to_matrix(qt[:4])
+    w2c[:3, 3] = qt[4:]
     return w2c
 
 
 # ---- text ------------------------------------------------------------------------------------------
 
 
-def _data_lines(path: Path) -> list[tuple[int, str]]:
-    """(line number, text) of the lines of a COLMAP text file, comments dropped, blank lines kept."""
-    return [
-        (i + 1, line.strip())
-        for i, line in enumerate(path.read_text().splitlines())
-        if not line.lstrip().startswith("#")
-    ]
+def _text_records(path: Path, expected: str, parse, lines_per_record: int = 1) -> list[tuple[str, tuple]]:
+    """(``"FILE:LINE"``, parse(tokens)) of each record of a COLMAP text file; comments and blank lines are skipped, and
+    so are the ``lines_per_record - 1`` lines after a record's first, even when empty."""
+    path = Path(path)
+    text = enumerate(path.read_text().splitlines(), start=1)
+    lines = ((lineno, line.strip()) for lineno, line in text if not line.lstrip().startswith("#"))
+    out = []
+    for lineno, line in lines:
+        if not line:
+            continue
+        try:
+            out.append((f"{path}:{lineno}", parse(line.split())))
+        except (IndexError, ValueError) as exc:
+            raise ValueError(f"{path}:{lineno}: expected '{expected}', got {line!r}") from exc
+        for _ in range(lines_per_record - 1):
+            next(lines, None)
+    return out
+
+
+def _parse_camera(tok: list[str]) -> tuple:
+    return int(tok[0]), tok[1], int(tok[2]), int(tok[3]), [float(t) for t in tok[4:]]
+
+
+def _parse_image(tok: list[str]) -> tuple:
+    if len(tok) < 10:  # no name
+        raise IndexError
+    return int(tok[0]), [float(t) for t in tok[1:8]], int(tok[8]), " ".join(tok[9:])
+
+
+def _parse_point(tok: list[str]) -> list[float]:
+    return [float(tok[k]) for k in (1, 2, 3)] + [int(tok[k]) for k in (4, 5, 6)]
 
 
 def read_colmap_cameras(path: Path) -> dict[int, Intrinsics]:
     """``cameras.txt`` -> {camera_id: (width, height, fx, fy, cx, cy)}; distortion dropped with a warning."""
-    path = Path(path)
-    cams = {}
-    for lineno, line in _data_lines(path):
-        if not line:
-            continue
-        tok = line.split()
-        try:
-            cam_id, model, width, height = int(tok[0]), tok[1], int(tok[2]), int(tok[3])
-            params = [float(t) for t in tok[4:]]
-        except (IndexError, ValueError) as exc:
-            raise ValueError(
-                f"{path}:{lineno}: expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...', got {line!r}"
-            ) from exc
-        cams[cam_id] = _pinhole(f"{path}:{lineno}", cam_id, model, width, height, params)
-    return cams
+    records = _text_records(path, "CAMERA_ID MODEL WIDTH HEIGHT PARAMS...", _parse_camera)
+    return {
+        cam_id: _pinhole(where, cam_id, model, width, height, params)
+        for where, (cam_id, model, width, height, params) in records
+    }
 
 
 def read_colmap_images(path: Path) -> list[ImageRecord]:
@@ -213,57 +220,21 @@ def read_colmap_images(path: Path) -> list[ImageRecord]:
     Each image takes two lines: ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` then its 2-D points
     (possibly an empty line), which are skipped.
     """
-    path = Path(path)
-    lines = _data_lines(path)
-    out = []
-    i = 0
-    while i < len(lines):
-        lineno, line = lines[i]
-        if not line:
-            i += 1
-            continue
-        tok = line.split()
-        try:
-            image_id = int(tok[0])
-            q = np.array([float(t) for t in tok[1:5]])
-            t = np.array([float(t) for t in tok[5:8]])
-            cam_id = int(tok[8])
-            name = " ".join(tok[9:])
-            if not name or len(q) != 4 or len(t) != 3:
-                raise IndexError
-        except (IndexError, ValueError) as exc:
-            raise ValueError(
-                f"{path}:{lineno}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME', got {line!r}"
-            ) from exc
-        out.append((image_id, _pose(f"{path}:{lineno}", image_id, q, t), cam_id, name))
-        i += 2  # the POINTS2D line follows (it may be empty)
-    return out
+    records = _text_records(path, "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME", _parse_image, lines_per_record=2)
+    return [(image_id, _pose(where, image_id, qt), cam_id, name) for where, (image_id, qt, cam_id, name) in records]
 
 
 def read_colmap_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """``points3D.txt`` -> (xyz [P, 3] float32, rgb [P, 3] float32 in [0, 1])."""
-    path = Path(path)
-    xyz, rgb = [], []
-    for lineno, line in _data_lines(path):
-        if not line:
-            continue
-        tok = line.split()
-        try:
-            xyz.append([float(t) for t in tok[1:4]])
-            rgb.append([int(t) for t in tok[4:7]])
-            if len(xyz[-1]) != 3 or len(rgb[-1]) != 3:
-                raise IndexError
-        except (IndexError, ValueError) as exc:
-            raise ValueError(
-                f"{path}:{lineno}: expected 'POINT3D_ID X Y Z R G B ERROR TRACK...', got {line!r}"
-            ) from exc
-    return (np.asarray(xyz, dtype=np.float32).reshape(-1, 3), np.asarray(rgb, dtype=np.float32).reshape(-1, 3) / 255.0)
+    records = _text_records(path, "POINT3D_ID X Y Z R G B ERROR TRACK...", _parse_point)
+    xyz_rgb = np.asarray([values for _, values in records], dtype=np.float64).reshape(-1, 6)
+    return xyz_rgb[:, :3].astype(np.float32), xyz_rgb[:, 3:].astype(np.float32) / 255.0
 
 
 # ---- binary ----------------------------------------------------------------------------------------
 
 _CAMERA_HEAD = struct.Struct("<IiQQ")  # camera_id, model_id, width, height
-_IMAGE_HEAD = struct.Struct("<I4d3dI")  # image_id, qvec (w, x, y, z), tvec, camera_id
+_IMAGE_HEAD = struct.Struct("<I4d3dI")  # image_id, world-to-camera qvec (w, x, y, z) and tvec, camera_id
 _POINT2D_BYTES = struct.calcsize("<ddQ")  # x, y, point3D_id
 _POINT_HEAD = struct.Struct("<Q3d3BdQ")  # point3D_id, xyz, rgb, error, track_length
 _TRACK_BYTES = struct.calcsize("<II")  # image_id, point2D_idx
@@ -271,111 +242,98 @@ _COUNT = struct.Struct("<Q")
 
 
 class _Bytes:
-    """A binary COLMAP file in memory with a read offset; every read checks that the bytes are there."""
+    """A binary COLMAP file in memory with a read offset; every read checks that the bytes are there, the record count
+    (``declared``) is checked against the file size at once, and :meth:`records` checks that no bytes are left."""
 
-    def __init__(self, path: Path, what: str):
-        self.path, self.what = path, what
-        self.data = path.read_bytes()
-        self.offset = 0
-
-    def truncated(self, declared: int, record: int, end: int) -> ValueError:
-        """The error for a record (0-based index ``record``) that needs the bytes up to ``end``."""
-        return ValueError(
-            f"{self.path}: truncated: declares {declared} {self.what} but ends at byte {len(self.data)} inside "
-            f"{self.what[:-1]} {record + 1} (which needs bytes {self.offset} to {end}); the file is incomplete "
-            f"or corrupt: copy it again or {_REEXPORT}"
-        )
-
-    def count(self, min_record_bytes: int) -> int:
-        """The leading uint64 record count, checked against the bytes that follow it."""
+    def __init__(self, path: Path, what: str, min_record_bytes: int):
+        self.path, self.what = Path(path), what
+        self.data = self.path.read_bytes()
         if len(self.data) < _COUNT.size:
             raise ValueError(
                 f"{self.path}: {len(self.data)} bytes, too short for the uint64 {self.what} count; "
                 f"the file is empty or not a COLMAP binary model: {_REEXPORT}"
             )
         (n,) = _COUNT.unpack_from(self.data, 0)
-        self.offset = _COUNT.size
+        self.declared, self.record, self.offset = n, 0, _COUNT.size
         left = len(self.data) - self.offset
         if n * min_record_bytes > left:
             raise ValueError(
                 f"{self.path}: truncated or corrupt: declares {n} {self.what} (at least {n * min_record_bytes} "
                 f"bytes) but only {left} bytes follow the count; copy the file again or {_REEXPORT}"
             )
-        return n
 
-    def unpack(self, fmt: struct.Struct, declared: int, record: int) -> tuple:
-        if self.offset + fmt.size > len(self.data):
-            raise self.truncated(declared, record, self.offset + fmt.size)
-        values = fmt.unpack_from(self.data, self.offset)
-        self.offset += fmt.size
-        return values
-
-    def skip(self, nbytes: int, declared: int, record: int) -> None:
-        if self.offset + nbytes > len(self.data):
-            raise self.truncated(declared, record, self.offset + nbytes)
-        self.offset += nbytes
-
-    def name(self, declared: int, record: int) -> str:
-        end = self.data.find(b"\0", self.offset)
-        if end < 0:
-            raise self.truncated(declared, record, len(self.data) + 1)
-        raw = self.data[self.offset : end]
-        self.offset = end + 1
-        try:
-            return raw.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise ValueError(
-                f"{self.path}: image {record + 1}'s name {raw[:40]!r} is not UTF-8; the file is corrupt: {_REEXPORT}"
-            ) from exc
-
-    def finish(self, declared: int) -> None:
+    def records(self):
+        """The 0-based index of each record, the one the reads that follow belong to."""
+        for record in range(self.declared):
+            self.record = record  # named in the errors of the reads
+            yield record
         extra = len(self.data) - self.offset
         if extra:
             raise ValueError(
-                f"{self.path}: {extra} bytes after the last of its {declared} {self.what} "
+                f"{self.path}: {extra} bytes after the last of its {self.declared} {self.what} "
                 f"(byte {self.offset}); the file is corrupt or not a COLMAP {self.path.name}: "
                 f"{_REEXPORT}"
             )
 
+    def skip(self, nbytes: int) -> int:
+        """Move past the next ``nbytes`` bytes; returns the offset where they start."""
+        start, end = self.offset, self.offset + nbytes
+        if end > len(self.data):
+            raise ValueError(
+                f"{self.path}: truncated: declares {self.declared} {self.what} but ends at byte {len(self.data)} "
+                f"inside {self.what[:-1]} {self.record + 1} (which needs bytes {start} to {end}); the file is "
+                f"incomplete or corrupt: copy it again or {_REEXPORT}"
+            )
+        self.offset = end
+        return start
+
+    def unpack(self, fmt: struct.Struct) -> tuple:
+        return fmt.unpack_from(self.data, self.skip(fmt.size))
+
+    def name(self) -> str:
+        end = self.data.find(b"\0", self.offset)
+        end = len(self.data) if end < 0 else end  # no NUL: the name would need a byte past the end
+        raw = self.data[self.skip(end + 1 - self.offset) : end]
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ValueError(
+                f"{self.path}: image {self.record + 1}'s name {raw[:40]!r} is not UTF-8; the file is corrupt: "
+                f"{_REEXPORT}"
+            ) from exc
+
 
 def read_colmap_cameras_binary(path: Path) -> dict[int, Intrinsics]:
     """``cameras.bin`` -> {camera_id: (width, height, fx, fy, cx, cy)}; distortion dropped with a warning."""
-    path = Path(path)
-    buf = _Bytes(path, "cameras")
-    n = buf.count(_CAMERA_HEAD.size + 8 * min(m.num_params for m in CAMERA_MODELS))
+    buf = _Bytes(path, "cameras", _CAMERA_HEAD.size + 8 * min(m.num_params for m in CAMERA_MODELS))
     cams = {}
-    for i in range(n):
-        cam_id, model_id, width, height = buf.unpack(_CAMERA_HEAD, n, i)
+    for i in buf.records():
+        cam_id, model_id, width, height = buf.unpack(_CAMERA_HEAD)
         model = MODELS_BY_ID.get(model_id)
         if model is None:
             raise ValueError(
-                f"{path}: camera {cam_id} (record {i + 1} of {n}, byte {buf.offset - _CAMERA_HEAD.size}) "
-                f"has unknown model id {model_id} (COLMAP's are 0-{len(CAMERA_MODELS) - 1}); "
-                f"the file is corrupt: {_REEXPORT}"
+                f"{buf.path}: camera {cam_id} (record {i + 1} of {buf.declared}, byte "
+                f"{buf.offset - _CAMERA_HEAD.size}) has unknown model id {model_id} (COLMAP's are "
+                f"0-{len(CAMERA_MODELS) - 1}); the file is corrupt: {_REEXPORT}"
             )
-        params = list(buf.unpack(struct.Struct(f"<{model.num_params}d"), n, i))
-        cams[cam_id] = _pinhole(str(path), cam_id, model.name, width, height, params)
-    buf.finish(n)
+        params = list(buf.unpack(struct.Struct(f"<{model.num_params}d")))
+        cams[cam_id] = _pinhole(str(buf.path), cam_id, model.name, width, height, params)
     return cams
 
 
 def read_colmap_images_binary(path: Path) -> list[ImageRecord]:
     """``images.bin`` -> [(image_id, world_to_camera [4, 4], camera_id, name)] in file order (2-D points skipped)."""
-    path = Path(path)
-    buf = _Bytes(path, "images")
-    n = buf.count(_IMAGE_HEAD.size + 1 + _COUNT.size)  # the shortest record has an empty name and no points
+    buf = _Bytes(path, "images", _IMAGE_HEAD.size + 1 + _COUNT.size)  # the shortest: an empty name, no points
     out = []
-    for i in range(n):
-        image_id, qw, qx, qy, qz, tx, ty, tz, cam_id = buf.unpack(_IMAGE_HEAD, n, i)
-        name = buf.name(n, i)
-        (num_points2d,) = buf.unpack(_COUNT, n, i)
-        buf.skip(num_points2d * _POINT2D_BYTES, n, i)
+    for i in buf.records():
+        image_id, *qt, cam_id = buf.unpack(_IMAGE_HEAD)
+        name = buf.name()
+        buf.skip(buf.unpack(_COUNT)[0] * _POINT2D_BYTES)
         if not name:
-            raise ValueError(f"{path}: image {image_id} (record {i + 1} of {n}) has an empty name; {_REEXPORT}")
-        out.append(
-            (image_id, _pose(str(path), image_id, np.array([qw, qx, qy, qz]), np.array([tx, ty, tz])), cam_id, name)
-        )
-    buf.finish(n)
+            raise ValueError(
+                f"{buf.path}: image {image_id} (record {i + 1} of {buf.declared}) has an empty name; {_REEXPORT}"
+            )
+        out.append((image_id, _pose(str(buf.path), image_id, qt), cam_id, name))
     return out
 
 
@@ -385,29 +343,19 @@ def read_colmap_points_binary(path: Path) -> tuple[np.ndarray, np.ndarray]:
     The records have variable length (their tracks), so one Python pass finds where each starts (reading
     only its track length) and numpy gathers the positions and colours from those offsets.
     """
-    path = Path(path)
-    buf = _Bytes(path, "points")
-    n = buf.count(_POINT_HEAD.size)  # bounds the arrays below by the file size
+    buf = _Bytes(path, "points", _POINT_HEAD.size)  # bounds the arrays below by the file size
     data, size, head = buf.data, len(buf.data), _POINT_HEAD.size
     track_length_at = head - _COUNT.size  # the track length is the record head's last field
     read_count = _COUNT.unpack_from
     offsets = []
-    off = buf.offset
-    for i in range(n):
-        if off + head > size:
-            buf.offset = off
-            raise buf.truncated(n, i, off + head)
-        offsets.append(off)
-        end = off + head + _TRACK_BYTES * read_count(data, off + track_length_at)[0]
-        if end > size:
-            buf.offset = off
-            raise buf.truncated(n, i, end)
-        off = end
-    buf.offset = off
-    buf.finish(n)
-    starts = np.asarray(offsets, dtype=np.int64).reshape(n, 1)
+    for _ in buf.records():
+        nbytes = head
+        if buf.offset + head <= size:
+            nbytes += _TRACK_BYTES * read_count(data, buf.offset + track_length_at)[0]
+        offsets.append(buf.skip(nbytes))
+    starts = np.asarray(offsets, dtype=np.int64).reshape(-1, 1)
     raw = np.frombuffer(data, dtype=np.uint8)
-    xyz = raw[starts + np.arange(8, 32)].view("<f8").reshape(n, 3)  # after the uint64 id
+    xyz = raw[starts + np.arange(8, 32)].view("<f8").reshape(-1, 3)  # after the uint64 id
     rgb = raw[starts + np.arange(32, 35)]
     return xyz.astype(np.float32), rgb.astype(np.float32) / 255.0
 
@@ -418,11 +366,9 @@ def read_colmap_points_binary(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def colmap_model_kind(folder: Path) -> str | None:
     """``"binary"`` when ``folder`` holds cameras/images/points3D ``.bin``, else ``"text"`` for the ``.txt``
     files, else None (binary wins where both are complete)."""
-    folder = Path(folder)
-    if all((folder / f).is_file() for f in BINARY_FILES):
-        return "binary"
-    if all((folder / f).is_file() for f in TEXT_FILES):
-        return "text"
+    for kind, files in (("binary", BINARY_FILES), ("text", TEXT_FILES)):
+        if all((Path(folder) / f).is_file() for f in files):
+            return kind
     return None
 
 
@@ -445,21 +391,18 @@ def read_colmap_model(folder: Path) -> ColmapModel:
     kind = colmap_model_kind(folder)
     if kind is None:
         raise ValueError(f"{folder}: no COLMAP model; expected {', '.join(BINARY_FILES)} or {', '.join(TEXT_FILES)}")
-    if kind == "text":
-        cams = read_colmap_cameras(folder / TEXT_FILES[0])
-        images = read_colmap_images(folder / TEXT_FILES[1])
-        xyz, rgb = read_colmap_points(folder / TEXT_FILES[2])
-    else:
-        try:
-            cams = read_colmap_cameras_binary(folder / BINARY_FILES[0])
-            images = read_colmap_images_binary(folder / BINARY_FILES[1])
-            xyz, rgb = read_colmap_points_binary(folder / BINARY_FILES[2])
-        except ValueError as exc:
-            if all((folder / f).is_file() for f in TEXT_FILES):
-                raise ValueError(
-                    f"{exc} ({folder} also holds a text model, which is read when the .bin files are moved away)"
-                ) from exc
-            raise
+    binary = kind == "binary"
+    cams_file, images_file, points_file = (folder / f for f in (BINARY_FILES if binary else TEXT_FILES))
+    try:
+        cams = (read_colmap_cameras_binary if binary else read_colmap_cameras)(cams_file)
+        images = (read_colmap_images_binary if binary else read_colmap_images)(images_file)
+        xyz, rgb = (read_colmap_points_binary if binary else read_colmap_points)(points_file)
+    except ValueError as exc:
+        if binary and all((folder / f).is_file() for f in TEXT_FILES):
+            raise ValueError(
+                f"{exc} ({folder} also holds a text model, which is read when the .bin files are moved away)"
+            ) from exc
+        raise
     logger.debug(
         "read COLMAP %s model %s: %d cameras, %d images, %d points", kind, folder, len(cams), len(images), len(xyz)
     )

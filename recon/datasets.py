@@ -16,17 +16,13 @@ without images):
     ``background`` (straight alpha). Without a ``dataset.json`` the up axis is "z" (Blender's world, as
     in NeRF-synthetic). A malformed key raises a ValueError naming the file, the frame (index and
     ``file_path``) and the key.
-COLMAP (:func:`load_colmap`, files read by :mod:`recon.colmap`):
-    ``cameras``, ``images``, ``points3D`` as ``.bin`` (COLMAP's default; preferred when both exist, as in
-    graphdeco's 3DGS) or ``.txt`` in ``sparse/0/``, ``sparse/`` or the folder itself; images in an
-    ``images/`` folder next to the sparse folder or one or two levels above it.
-    Models SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL and OPENCV; distortion is ignored (a warning
-    names the camera), so undistorted models are expected. COLMAP's pose is world-to-camera in the
-    OpenCV axes with pixel centres at i + 0.5, exactly :class:`~recon.camera.Camera`'s convention.
-    Images are sorted by name and every 8th (index 0, 8, 16, ...) goes to test, the rest to train,
-    as in the LLFF / 3DGS evaluations; val is empty. COLMAP frames are arbitrary: the up axis is
-    reported as "y" by convention only (for Mip-NeRF 360 scenes the true up is often close to -y;
-    :func:`recon.frames.up_from_cameras` estimates it).
+COLMAP (:func:`load_colmap`; :mod:`recon.colmap` reads the model and says which camera models and pose
+    convention it takes): ``cameras``, ``images``, ``points3D`` as ``.bin`` (preferred) or ``.txt`` in
+    ``sparse/0/``, ``sparse/`` or the folder itself; images in an ``images/`` folder next to the sparse
+    folder or one or two levels above it. Images are sorted by name and every 8th (index 0, 8, 16, ...)
+    goes to test, the rest to train, as in the LLFF / 3DGS evaluations; val is empty. COLMAP frames are
+    arbitrary: the up axis is reported as "y" by convention only (for Mip-NeRF 360 scenes the true up is
+    often close to -y; :func:`recon.frames.up_from_cameras` estimates it).
 ``dataset.json`` (written by ``render-dataset``), when present in the dataset folder, provides the
 reference mesh (``mesh_path``, relative to the folder) and ``up_axis``.
 
@@ -45,6 +41,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import cv2
@@ -115,27 +112,6 @@ class Dataset:
 # ---- shared helpers ------------------------------------------------------------------------------
 
 
-def _check_background(background) -> tuple[float, float, float]:
-    try:
-        bg = tuple(float(c) for c in background)
-    except TypeError as exc:
-        raise ValueError(f"background must be an (r, g, b) tuple in [0, 1], got {background!r}") from exc
-    if len(bg) != 3 or not all(0.0 <= c <= 1.0 for c in bg):
-        raise ValueError(f"background must be an (r, g, b) tuple in [0, 1], got {background!r}")
-    return bg
-
-
-def _check_scale(downscale: float, resolution: int | None) -> None:
-    if not (math.isfinite(downscale) and downscale >= 1.0):
-        raise ValueError(f"downscale must be a finite factor >= 1 (2 halves the images), got {downscale}")
-    if resolution is not None and (int(resolution) != resolution or resolution < 1):
-        raise ValueError(f"resolution must be a positive integer image width in pixels, got {resolution}")
-
-
-def _scale_factor(width: int, downscale: float, resolution: int | None) -> float:
-    return resolution / width if resolution is not None else 1.0 / downscale
-
-
 def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     """Read an image as float32 RGB in [0, 1] and its alpha (None without an alpha channel).
 
@@ -156,68 +132,69 @@ def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ValueError(f"{path}: cannot read the image (missing, unreadable or not an image file)")
-    if img.dtype == np.uint8:
-        img = img.astype(np.float32) / 255.0
-    elif img.dtype == np.uint16:
-        img = img.astype(np.float32) / 65535.0
+    if img.dtype in (np.uint8, np.uint16):
+        img = img.astype(np.float32) / np.iinfo(img.dtype).max
     elif img.dtype == np.float32:
         img = np.clip(img, 0.0, 1.0)
     else:
         raise ValueError(f"{path}: unsupported pixel type {img.dtype}; use 8- or 16-bit images")
-    if img.ndim == 2:
-        img = img[:, :, None]
+    img = img.reshape(*img.shape[:2], -1)
     channels = img.shape[2]
-    if channels == 1:
-        return np.repeat(img, 3, axis=2), None
-    if channels == 2:  # grey + alpha
-        return np.repeat(img[:, :, :1], 3, axis=2), np.ascontiguousarray(img[:, :, 1])
-    if channels == 3:
-        return np.ascontiguousarray(img[:, :, ::-1]), None
-    if channels == 4:
-        return np.ascontiguousarray(img[:, :, 2::-1]), np.ascontiguousarray(img[:, :, 3])
-    raise ValueError(f"{path}: {channels} channels; expected grey, RGB or RGBA")
+    if channels > 4:
+        raise ValueError(f"{path}: {channels} channels; expected grey, RGB or RGBA")
+    # grey, grey + alpha, BGR, BGRA
+    rgb = np.repeat(img[:, :, :1], 3, axis=2) if channels < 3 else np.ascontiguousarray(img[:, :, 2::-1])
+    return rgb, np.ascontiguousarray(img[:, :, -1]) if channels in (2, 4) else None
 
 
-def _make_view(
-    make_camera,
-    path: Path,
-    background: tuple[float, float, float],
-    downscale: float,
-    resolution: int | None,
-    cache: dict,
-) -> View:
-    """Load, composite and resize one image and build its camera with ``make_camera(width, height)``.
+class _ViewLoader:
+    """``load(make_camera, path) -> View`` with checked background and scale settings; splits that name the same
+    file (a val split copying test) share its pixel tensors."""
 
-    ``cache`` shares pixel tensors between splits that name the same file (a val split copying test).
-    """
-    key = path.resolve()
-    if key not in cache:
-        rgb, alpha = read_image(path)
-        if alpha is not None:
-            rgb = rgb * alpha[:, :, None] + np.asarray(background, dtype=np.float32) * (1.0 - alpha[:, :, None])
-        cache[key] = (rgb, alpha, {})
-    rgb, alpha, resized = cache[key]
-    h, w = rgb.shape[:2]
-    camera = make_camera(w, h)
-    if (w, h) != (camera.width, camera.height):
-        raise ValueError(
-            f"{path}: image is {w}x{h} pixels but its camera says {camera.width}x{camera.height}; "
-            "fix the w/h keys or the image"
-        )
-    factor = _scale_factor(w, downscale, resolution)
-    if factor != 1.0:
-        camera = camera.scaled(factor)
-    size = (camera.width, camera.height)
-    if size not in resized:
-        if size != (w, h):
-            rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
-            alpha = None if alpha is None else cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
-        resized[size] = (
-            torch.from_numpy(np.ascontiguousarray(rgb, dtype=np.float32)),
-            None if alpha is None else torch.from_numpy(np.ascontiguousarray(alpha, dtype=np.float32)),
-        )
-    image, alpha_t = resized[size]
-    return View(camera=camera, image=image, alpha=alpha_t, name=path.stem)
+    def __init__(self, background, downscale: float, resolution: int | None):
+        try:
+            bg = tuple(float(c) for c in background)
+        except TypeError:  # not iterable
+            bg = ()
+        if len(bg) != 3 or not all(0.0 <= c <= 1.0 for c in bg):
+            raise ValueError(f"background must be an (r, g, b) tuple in [0, 1], got {background!r}")
+        if not (math.isfinite(downscale) and downscale >= 1.0):
+            raise ValueError(f"downscale must be a finite factor >= 1 (2 halves the images), got {downscale}")
+        if resolution is not None and (int(resolution) != resolution or resolution < 1):
+            raise ValueError(f"resolution must be a positive integer image width in pixels, got {resolution}")
+        self.background, self.downscale, self.resolution = bg, downscale, resolution
+        self.cache: dict = {}
+
+    def __call__(self, make_camera, path: Path) -> View:
+        """Load, composite and resize one image and build its camera with ``make_camera(width, height)``."""
+        key = path.resolve()
+        if key not in self.cache:
+            rgb, alpha = read_image(path)
+            if alpha is not None:
+                a = alpha[:, :, None]
+                rgb = rgb * a + np.asarray(self.background, dtype=np.float32) * (1.0 - a)
+            self.cache[key] = rgb, alpha
+        rgb, alpha = self.cache[key]
+        h, w = rgb.shape[:2]
+        camera = make_camera(w, h)
+        if (w, h) != (camera.width, camera.height):
+            raise ValueError(
+                f"{path}: image is {w}x{h} pixels but its camera says {camera.width}x{camera.height}; "
+                "fix the w/h keys or the image"
+            )
+        factor = self.resolution / w if self.resolution is not None else 1.0 / self.downscale
+        if factor != 1.0:
+            camera = camera.scaled(factor)
+        size = (camera.width, camera.height)
+        if (key, size) not in self.cache:
+            if size != (w, h):
+                rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+                alpha = None if alpha is None else cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
+            self.cache[key, size] = tuple(
+                None if a is None else torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)) for a in (rgb, alpha)
+            )
+        image, alpha_t = self.cache[key, size]
+        return View(camera=camera, image=image, alpha=alpha_t, name=path.stem)
 
 
 def _read_dataset_json(root: Path) -> tuple[Path | None, str | None]:
@@ -360,15 +337,10 @@ def _blender_intrinsics(json_path: Path, meta: dict, frame: dict, index: int) ->
 
 def _blender_camera(keys: dict, w2c: np.ndarray, where: str, name: str, image_width: int, image_height: int) -> Camera:
     """The camera of checked intrinsic ``keys``; the image size fills in a missing ``w`` / ``h``."""
-    width = keys["w"] if keys["w"] is not None else image_width
-    height = keys["h"] if keys["h"] is not None else image_height
-    fx = keys["fl_x"] if keys["fl_x"] is not None else 0.5 * width / math.tan(0.5 * keys["camera_angle_x"])
-    if keys["fl_y"] is not None:
-        fy = keys["fl_y"]
-    elif keys["camera_angle_y"] is not None:
-        fy = 0.5 * height / math.tan(0.5 * keys["camera_angle_y"])
-    else:
-        fy = fx
+    # w, h, the focal lengths and the angles are > 0 where given (:func:`_intrinsic_value`), so `or` picks the default
+    width, height = keys["w"] or image_width, keys["h"] or image_height
+    fx = keys["fl_x"] or 0.5 * width / math.tan(0.5 * keys["camera_angle_x"])
+    fy = keys["fl_y"] or (0.5 * height / math.tan(0.5 * keys["camera_angle_y"]) if keys["camera_angle_y"] else fx)
     cx = keys["cx"] if keys["cx"] is not None else width / 2.0
     cy = keys["cy"] if keys["cy"] is not None else height / 2.0
     try:
@@ -456,8 +428,7 @@ def load_cameras(path, res: int | None = None) -> list[Camera]:
         )
     cams = []
     for i, frame in enumerate(frames):
-        keys = _blender_intrinsics(json_path, meta, frame, i)
-        w2c = _blender_pose(json_path, frame, i)
+        keys, w2c = _blender_intrinsics(json_path, meta, frame, i), _blender_pose(json_path, frame, i)
         width, height = _frame_size(json_path, frame, keys, i, res)
         name = Path(str(frame["file_path"])).stem if "file_path" in frame else f"view_{i:03d}"
         cam = _blender_camera(keys, w2c, _frame_where(json_path, frame, i), name, width, height)
@@ -465,29 +436,15 @@ def load_cameras(path, res: int | None = None) -> list[Camera]:
     return cams
 
 
-def _load_blender_split(
-    json_path: Path, background, downscale: float, resolution: int | None, cache: dict
-) -> list[View]:
+def _load_blender_split(json_path: Path, load_view: _ViewLoader) -> list[View]:
     meta, frames = _read_transforms(json_path)
     # Validate every frame (keys, paths, matrices) before reading any pixel data.
     checked = []
     for i, frame in enumerate(frames):
-        checked.append(
-            (
-                i,
-                _frame_image_path(json_path, frame, i),
-                _blender_intrinsics(json_path, meta, frame, i),
-                _blender_pose(json_path, frame, i),
-            )
-        )
-    views = []
-    for i, path, keys, w2c in checked:
-
-        def make_camera(w, h, i=i, path=path, keys=keys, w2c=w2c):
-            return _blender_camera(keys, w2c, f"{json_path}: frame {i}", path.stem, w, h)
-
-        views.append(_make_view(make_camera, path, background, downscale, resolution, cache))
-    return views
+        path = _frame_image_path(json_path, frame, i)
+        keys, w2c = _blender_intrinsics(json_path, meta, frame, i), _blender_pose(json_path, frame, i)
+        checked.append((partial(_blender_camera, keys, w2c, f"{json_path}: frame {i}", path.stem), path))
+    return [load_view(make_camera, path) for make_camera, path in checked]
 
 
 def load_blender(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, resolution: int | None = None) -> Dataset:
@@ -495,40 +452,26 @@ def load_blender(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, re
 
     Args:
         path: the folder holding the transforms files.
-        background: (r, g, b) in [0, 1] that RGBA images are composited on.
-        downscale: divide the image size by this factor (>= 1).
-        resolution: target image width in pixels (overrides ``downscale``).
+        background, downscale, resolution: as :func:`load_dataset`.
     Returns:
         :class:`Dataset`; ``points`` is None, ``up_axis`` is "z" unless ``dataset.json`` says otherwise.
     """
     root = Path(path)
-    bg = _check_background(background)
-    _check_scale(downscale, resolution)
+    load_view = _ViewLoader(background, downscale, resolution)
     if not (root / "transforms_train.json").is_file():
         raise ValueError(f"{root}: no transforms_train.json; a Blender dataset needs at least the train split")
     mesh_path, up_axis = _read_dataset_json(root)
-    cache: dict = {}
-    splits = {}
-    for split in SPLITS:
-        json_path = root / f"transforms_{split}.json"
-        splits[split] = _load_blender_split(json_path, bg, downscale, resolution, cache) if json_path.is_file() else []
+    json_paths = {split: root / f"transforms_{split}.json" for split in SPLITS}
+    splits = {split: _load_blender_split(p, load_view) if p.is_file() else [] for split, p in json_paths.items()}
     if not splits["train"]:
         raise ValueError(
             f"{root / 'transforms_train.json'}: 'frames' is empty; a dataset needs at least one train view (a frame "
             "with 'file_path' and 'transform_matrix')"
         )
-    logger.info(
-        "loaded Blender dataset %s: %d train, %d val, %d test views",
-        root,
-        len(splits["train"]),
-        len(splits["val"]),
-        len(splits["test"]),
-    )
+    logger.info("loaded Blender dataset %s: %d train, %d val, %d test views", root, *map(len, splits.values()))
     return Dataset(
-        train=splits["train"],
-        val=splits["val"],
-        test=splits["test"],
-        background=bg,
+        **splits,
+        background=load_view.background,
         points=None,
         point_colors=None,
         mesh_path=mesh_path,
@@ -548,11 +491,6 @@ def _colmap_images_dir(sparse: Path) -> Path:
     raise ValueError(f"{sparse}: no images folder; looked for {', '.join(str(c) for c in candidates)}")
 
 
-_NO_COLMAP = (
-    f"no COLMAP model ({', '.join(BINARY_FILES)} or {', '.join(TEXT_FILES)}) in sparse/0, sparse or the folder itself"
-)
-
-
 def _colmap_entries(model, images_dir: Path) -> list[tuple[Camera, Path]]:
     """(camera, image file) of every image of a :class:`recon.colmap.ColmapModel`, sorted by image name."""
     cams_file, images_file = (model.folder / f for f in model.files[:2])
@@ -565,9 +503,8 @@ def _colmap_entries(model, images_dir: Path) -> list[tuple[Camera, Path]]:
         image_path = images_dir / name
         if not image_path.is_file():
             raise ValueError(f"{images_file}: image {image_id}: no file {image_path}")
-        width, height, fx, fy, cx, cy = model.cameras[cam_id]
         try:
-            cam = Camera(width, height, fx, fy, cx, cy, torch.from_numpy(w2c), name=Path(name).stem)
+            cam = Camera(*model.cameras[cam_id], torch.from_numpy(w2c), name=Path(name).stem)
         except ValueError as exc:
             raise ValueError(
                 f"{cams_file} / {images_file.name}: image {image_id} ({name}), camera {cam_id}: {exc}"
@@ -581,26 +518,23 @@ def load_colmap(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, res
 
     Args:
         path: the scene folder (holding ``sparse/0``, ``sparse`` or the model files) or the sparse folder.
-        background: (r, g, b) in [0, 1] that RGBA images (if any) are composited on.
-        downscale: divide the image size by this factor (>= 1).
-        resolution: target image width in pixels (overrides ``downscale``).
+        background, downscale, resolution: as :func:`load_dataset`.
     Returns:
         :class:`Dataset` with views sorted by image name, every 8th in test, val empty, ``points`` and
         ``point_colors`` from points3D, ``up_axis`` "y" (a convention: COLMAP frames are arbitrary).
     """
     root = Path(path)
-    bg = _check_background(background)
-    _check_scale(downscale, resolution)
+    load_view = _ViewLoader(background, downscale, resolution)
     sparse = find_colmap_sparse(root)
     if sparse is None:
-        raise ValueError(f"{root}: {_NO_COLMAP}; run COLMAP's mapper, or point at the folder holding the model")
+        raise ValueError(
+            f"{root}: no COLMAP model ({', '.join(BINARY_FILES)} or {', '.join(TEXT_FILES)}) in sparse/0, sparse or "
+            "the folder itself; run COLMAP's mapper, or point at the folder holding the model"
+        )
     model = read_colmap_model(sparse)
     entries = _colmap_entries(model, _colmap_images_dir(sparse))
-    cache: dict = {}
-    train, test = [], []
-    for index, (cam, image_path) in enumerate(entries):
-        view = _make_view(lambda w, h, cam=cam: cam, image_path, bg, downscale, resolution, cache)
-        (test if index % COLMAP_TEST_EVERY == 0 else train).append(view)
+    views = [load_view(lambda w, h, cam=cam: cam, image_path) for cam, image_path in entries]
+    test, train = views[::COLMAP_TEST_EVERY], [v for i, v in enumerate(views) if i % COLMAP_TEST_EVERY]
     mesh_path, up_axis = _read_dataset_json(root)
     logger.info(
         "loaded COLMAP %s dataset %s: %d train, %d test views, %d points",
@@ -614,7 +548,7 @@ def load_colmap(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, res
         train=train,
         val=[],
         test=test,
-        background=bg,
+        background=load_view.background,
         points=torch.from_numpy(model.points),
         point_colors=torch.from_numpy(model.point_colors),
         mesh_path=mesh_path,
@@ -626,6 +560,12 @@ def load_colmap(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, res
 # ---- auto-detection ------------------------------------------------------------------------------
 
 
+def _dataset_folder(path) -> Path:
+    """``path``, or the folder of the ``transforms_*.json`` file it names."""
+    path = Path(path)
+    return path.parent if path.is_file() and path.name.startswith("transforms_") and path.suffix == ".json" else path
+
+
 def dataset_format(path) -> str:
     """``"blender"`` or ``"colmap"``: the format of a dataset folder, detected from its files without loading them.
 
@@ -634,9 +574,7 @@ def dataset_format(path) -> str:
     Raises:
         ValueError: the folder does not exist or holds neither format (the message lists what was looked for).
     """
-    root = Path(path)
-    if root.is_file() and root.name.startswith("transforms_") and root.suffix == ".json":
-        root = root.parent
+    root = _dataset_folder(path)
     if root.is_file():
         raise ValueError(
             f"{root}: a file, not a dataset folder; pass the folder that holds transforms_train.json "
@@ -673,9 +611,7 @@ def load_dataset(path, *, background=(1.0, 1.0, 1.0), downscale: float = 1.0, re
     Raises:
         ValueError: the folder holds neither format (the message lists what was looked for).
     """
-    root = Path(path)
-    if root.is_file() and root.name.startswith("transforms_") and root.suffix == ".json":
-        root = root.parent
+    root = _dataset_folder(path)
     loader = load_blender if dataset_format(root) == "blender" else load_colmap
     dataset = loader(root, background=background, downscale=downscale, resolution=resolution)
     if not dataset.train:
