@@ -12,7 +12,6 @@ re-coloured by D_g on the TURBO map, rendered with the same camera). This is the
 from __future__ import annotations
 
 import logging
-import os
 import re
 import time
 from dataclasses import dataclass
@@ -143,22 +142,17 @@ def project_scores(
     """S(T), the coverage A(T) and the counted Gaussians of every camera from the projection alone
     (:func:`nbv.scores.projected_view_scores`; ``occlusion``: the coarse depth test, else frustum culling; ``centres``:
     also the centres inside each view, from the same projection)."""
-    dev = torch.device(torch_device(device))
     start = time.perf_counter()
     scored = projected_view_scores(
         torch.from_numpy(np.asarray(values, np.float64)),
-        gaussians.detach().to(dev),
+        gaussians.detach().to(torch.device(torch_device(device))),
         cams,
         weighted=weighted,
         depth_buffer=DepthBuffer() if occlusion else None,
         centres=centres,
     )
-    log.info(
-        "scored %d views of %d Gaussians from the projection in %.2f s",
-        len(cams),
-        gaussians.num,
-        time.perf_counter() - start,
-    )
+    seconds = time.perf_counter() - start
+    log.info("scored %d views of %d Gaussians from the projection in %.2f s", len(cams), gaussians.num, seconds)
     return scored
 
 
@@ -192,10 +186,7 @@ def ranked_rows(scored, cams, idx: list[int], value: str = "score", visible_cent
             "index": idx[k],
             "name": cams[k].name,
             value: float(s[k]),
-            "coverage": parts[k]["coverage"],
-            "physics_mean": parts[k]["physics_mean"],
-            "coverage_rank": parts[k]["coverage_rank"],
-            "physics_rank": parts[k]["physics_rank"],
+            **{key: parts[k][key] for key in ("coverage", "physics_mean", "coverage_rank", "physics_rank")},
             "visible": int(scored.counted[k]),
         }
         if visible_centres is not None:
@@ -241,8 +232,7 @@ def rank_views(
 def best_views(scored, top: int | None) -> list[int]:
     """Positions of the best ``top`` candidates by S(T) (None: every candidate), best first: the views a views
     folder shows."""
-    order = rank(scored.scores).tolist()
-    return order if top is None else order[:top]
+    return rank(scored.scores).tolist()[:top]
 
 
 def score_views(
@@ -263,16 +253,12 @@ def score_views(
     """Score the candidates from the projection alone, rank them and render PNGs of the best ones.
 
     Args:
-        gaussians: the GaussianSet (scene units). cams: the candidate cameras; idx: their indices in the file.
-        result: a PhysicsResult of these Gaussians. metric: see :func:`metric_values`.
+        gaussians, cams, idx, result, visible_centres: as in :func:`rank_views`. metric: see :func:`metric_values`.
         png_dir: folder for ``rank<r>_<index>_<name>.png`` (render | D_g heat-map), or None.
-        weighted: Eq. 5 weights. occlusion: the coarse depth test (:class:`nbv.scores.DepthBuffer`; the default);
-            False: the paper's frustum culling.
-        device: torch device. visible_centres: [C] projected-centre counts for the rows.
+        weighted, occlusion, device: as in :class:`ScoreSettings`.
         png_top: PNGs for the best ``png_top`` views only (None: every view).
     Returns:
-        rows (best first), see :func:`ranked_rows`: rank, index, name, score, coverage, physics_mean, their ranks,
-        visible.
+        the rows best first (:func:`ranked_rows`).
 
     Example:
         >>> rows = score_views(gaussians, cams, list(range(len(cams))), result)  # doctest: +SKIP
@@ -293,13 +279,12 @@ def format_table(rows: list[dict], top_k: int | None = None, value: str = "score
     """The ranked rows as a text table: rank, index, name, ``value`` (S), the coverage A and the physics part S/A
     with their ranks, and the Gaussians counted; the best ``top_k`` only when given. The numbers carry
     :data:`nbv.coverage.SCORE_DIGITS` significant digits."""
-    shown = rows if top_k is None else rows[:top_k]
     head = {"score": "S", "critical_score": "C"}.get(value, value)
     lines = [
         f"{'rank':>4}  {'index':>5}  {'name':<24} {head:>9}  {'A':>9} {'A#':>4}  {head + '/A':>9} "
         f"{head + '/A#':>5}  {'visible':>8}"
     ]
-    for r in shown:
+    for r in rows[:top_k]:
         lines.append(
             f"{r['rank']:>4}  {r['index']:>5}  {r['name'][:24]:<24} {format_number(r[value]):>9}  "
             f"{format_number(r.get('coverage')):>9} {r.get('coverage_rank') or '-':>4}  "
@@ -307,10 +292,6 @@ def format_table(rows: list[dict], top_k: int | None = None, value: str = "score
             f"{r['visible']:>8}"
         )
     return "\n".join(lines)
-
-
-def _bgr(image: torch.Tensor) -> np.ndarray:
-    return to_bgr(image.detach().cpu().numpy())
 
 
 def write_view_pngs(
@@ -333,7 +314,7 @@ def write_view_pngs(
     v = np.asarray(values, np.float64)
     vmax = color_scale(v if reached is None else v[np.asarray(reached, bool)])
     heat = colored_gaussians(gaussians, values, vmax=vmax, reached=reached)
-    over = (np.asarray(values, np.float64) > vmax).astype(np.float64)
+    over = (v > vmax).astype(np.float64)
     png_dir.mkdir(parents=True, exist_ok=True)
     dev = torch.device(device)
     layers = [gaussians.detach().to(dev), heat.detach().to(dev)]
@@ -343,30 +324,26 @@ def write_view_pngs(
         over_layer, top = value_layer(layers[0], over)
         layers.append(over_layer)
         backgrounds.append(0.0)
-    for r, k in enumerate(tqdm(shown, desc="render", unit="view", disable=not progress)):
+    legend = [f"D_g ({metric}), 0..{vmax:.3g}+ 1/s", "+: above" + ("" if reached is None else ", grey: not reached")]
+    for k, row in zip(tqdm(shown, desc="render", unit="view", disable=not progress), rows, strict=False):
         with torch.no_grad():  # the three images share one projection and one pairing (recon.render.render_layers)
             outs = render_layers(layers, cams[k], backgrounds)
-        out, himg = outs[0], outs[1].image
-        row = rows[r]
+        render, heat_bgr = (to_bgr(o.image.detach().cpu().numpy()) for o in outs[:2])
         left = label(
-            _bgr(out.image),
+            render,
             [
                 f"#{row['rank']} {cams[k].name}",
                 f"S = {format_number(row['score'])}",
                 f"A = {format_number(row.get('coverage'))}, S/A = {format_number(row.get('physics_mean'))}",
             ],
         )
-        heat_bgr = _bgr(himg)
         if top is not None:
             share, _ = composited_values(outs[2], top)
             mask = cv2.resize(
                 (share > 0.5).astype(np.uint8), (heat_bgr.shape[1], heat_bgr.shape[0]), interpolation=cv2.INTER_NEAREST
             ).astype(bool)
             heat_bgr = over_range_marks(heat_bgr, mask)
-        right = label(
-            heat_bgr,
-            [f"D_g ({metric}), 0..{vmax:.3g}+ 1/s", "+: above" + ("" if reached is None else ", grey: not reached")],
-        )
+        right = label(heat_bgr, legend)
         path = png_dir / f"{view_file_stem(row['rank'], row['index'], cams[k].name)}.png"
         write_png_atomic(path, np.hstack([left, right]))
 
@@ -408,14 +385,13 @@ def write_uncertainty_images(
     images = [uncertainty_image(gaussians, cams[k], values, device)[0] for k in shown]
     vmax = uncertainty_scale(images)
     written = {}
-    for r, (k, img) in enumerate(zip(shown, images, strict=True)):
-        row = rows[r]
+    for k, img, row in zip(shown, images, rows, strict=False):  # rows: every view, best first
         stem = f"{view_file_stem(row['rank'], row['index'], cams[k].name)}_uncertainty"
         write_atomic(png_dir / f"{stem}.npy", lambda tmp, img=img: np.save(tmp, img), suffix=".npy")
-        grey = None if reached is None else unreached_pixels(gaussians, cams[k], reached, device)
-        big, grey = enlarged(img), None if grey is None else enlarged(grey)  # room for the labels: >= 320 px wide
+        # enlarged: room for the labels, >= 320 px wide
+        grey = None if reached is None else enlarged(unreached_pixels(gaussians, cams[k], reached, device))
         picture = label(
-            uncertainty_png(big, vmax, "1/s", grey),
+            uncertainty_png(enlarged(img), vmax, "1/s", grey),
             [
                 f"#{row['rank']} {cams[k].name}: composited D_g ({metric})",
                 f"0..{vmax:.3g}+ 1/s" + ("" if grey is None else "; grey: not reached"),
@@ -442,7 +418,7 @@ def remove_stale(earlier: dict[Path, int]) -> list[Path]:
     """Remove the view files an earlier run wrote that this run did not write again (the same inode: every writer
     replaces its file atomically, so a rewritten file has a new one); nothing else in the folder is touched. Returns
     the files removed."""
-    stale = [p for p, inode in earlier.items() if p.is_file() and os.stat(p).st_ino == inode]
+    stale = [p for p, inode in earlier.items() if p.is_file() and p.stat().st_ino == inode]
     for p in stale:
         p.unlink()
     return stale
@@ -461,27 +437,21 @@ def write_views_folder(
     uncertainty: bool = False,
     reached: np.ndarray | None = None,
 ) -> tuple[dict[int, dict], list[Path]]:
-    """The views folder of a ranking: the render | D_g heat-map PNGs (:func:`write_view_pngs`) of the best ``top``
-    views (None: every view), with ``uncertainty`` also their physics-uncertainty images
-    (:func:`write_uncertainty_images`); then the view files of an earlier run that this one did not write again are
-    removed (:func:`remove_stale`). ``png_dir`` None: no views folder, nothing written. ``reached`` [N] bool: the
-    Gaussians some probe's fluid reached (the others are drawn grey).
+    """The views folder of a ranking in ``png_dir`` (None: nothing written): the PNGs of the best ``top`` views
+    (None: every view; :func:`write_view_pngs`), with ``uncertainty`` also their physics-uncertainty images
+    (:func:`write_uncertainty_images`; the Gaussians not ``reached`` grey in both); then the view files of an earlier
+    run that this one did not write again are removed (:func:`remove_stale`).
 
     Returns:
-        (the uncertainty images, as :func:`write_uncertainty_images` returns them (empty without ``uncertainty``),
-        the stale files removed).
+        (the uncertainty images ({} without ``uncertainty``), the stale files removed).
     """
     if png_dir is None:
         return {}, []
     earlier = view_files(png_dir)
-    shown = best_views(scored, top)
+    views = (gaussians, cams, best_views(scored, top), rows, values, settings.metric, png_dir)
     device = torch_device(settings.device)
-    write_view_pngs(gaussians, cams, shown, rows, values, settings.metric, png_dir, device, True, reached)
-    images = {}
-    if uncertainty:
-        images = write_uncertainty_images(
-            gaussians, cams, shown, rows, values, settings.metric, png_dir, device, reached
-        )
+    write_view_pngs(*views, device, True, reached)
+    images = write_uncertainty_images(*views, device, reached) if uncertainty else {}
     return images, remove_stale(earlier)
 
 
@@ -529,17 +499,15 @@ def _ratio(value: float | None, reference: float | None) -> str:
 def probe_lines(result) -> list[str]:
     """Per probe of a PhysicsResult, what the fluid reached: D-bar / D-bar_empty of that probe (first), the share
     of the (kept) Gaussians it reached, and its leak counts; then the combined D-bar / D-bar_empty and D-bar."""
-    covs = torch.from_numpy(np.asarray(result.covariances))
     kept = np.ones(result.num_gaussians, bool) if result.kept is None else np.asarray(result.kept, bool)
-    probes = [torch.from_numpy(np.asarray(p)) for p in result.per_probe]
-    empties = (
-        None if result.empty_per_probe is None else [torch.from_numpy(np.asarray(p)) for p in result.empty_per_probe]
-    )
-    dbars = geometry_divergences(covs, probes + (empties or []))  # the weights pi s_g^2 once for all the probes
+    total = int(kept.sum())
+    empties = [] if result.empty_per_probe is None else list(result.empty_per_probe)
+    probes = [torch.from_numpy(np.asarray(p)) for p in [*result.per_probe, *empties]]
+    # the weights pi s_g^2 once for all the probes: D-bar of each probe, then of each empty-scene probe
+    dbars = geometry_divergences(torch.from_numpy(np.asarray(result.covariances)), probes)
     lines = []
     for i, d in enumerate(result.directions):
-        dbar = dbars[i]
-        empty = None if empties is None else dbars[len(probes) + i]
+        empty = None if result.empty_per_probe is None else dbars[len(result.per_probe) + i]
         reached = int((np.asarray(result.per_probe_counts[i])[kept] > 0).sum())
         leak = result.leaks.get(d)
         if leak is None:
@@ -548,10 +516,9 @@ def probe_lines(result) -> list[str]:
             leaks = "; no fluid leaked into the solid"
         else:
             leaks = f"; leaked into the solid: {leak.final} at the end, at most {leak.max} (step {leak.max_step})"
-        share = reached / max(int(kept.sum()), 1)
         lines.append(
-            f"  probe {d:>3}: D-bar/D-bar_empty {_ratio(dbar, empty)}, reached {share:.0%} of the Gaussians "
-            f"({reached:,} of {int(kept.sum()):,}){leaks}"
+            f"  probe {d:>3}: D-bar/D-bar_empty {_ratio(dbars[i], empty)}, reached {reached / max(total, 1):.0%} of "
+            f"the Gaussians ({reached:,} of {total:,}){leaks}"
         )
     empty = "n/a" if result.dbar_empty is None else f"{result.dbar_empty:.2g}"
     lines.append(
@@ -567,15 +534,12 @@ def reach_warning(values, seen, config, what: str = "D_g", symbol: str = "S") ->
     otherwise."""
     seen = np.asarray(seen, bool)
     counted = int(seen.sum())
-    if counted == 0:
-        return None
     got = int((np.asarray(values)[seen] > 0).sum())
-    if got >= REACHED_WARNING * counted:
+    if counted == 0 or got >= REACHED_WARNING * counted:
         return None
     return (
         f"only {got / counted:.0%} of the {counted:,} Gaussians the views count got any {what} ({got:,}); "
-        f"{symbol}(T) rests "
-        f"on the few the fluid reached. Reach more with finer particles (--particle-radius, now "
+        f"{symbol}(T) rests on the few the fluid reached. Reach more with finer particles (--particle-radius, now "
         f"{config.particle_radius:g} m; each halving gives 8x the particles) or a longer run (--steps, now "
         f"{config.steps})"
     )

@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nbv.functional.flow import FlowRecord, SampleGrid, flow_errors, run_flow
-from nbv.functional.solids import SolidSource, resample_cubes
+from nbv.functional.flow import FlowRecord, SampleGrid, flow_errors, relative_l2, run_flow
+from nbv.functional.solids import SolidSource, lattice_keys, resample_cubes
 from nbv.physics.config import PhysicsConfig
 from nbv.physics.forces import FORCE_WINDOW_S, flow_axis, moving_mean
 from nbv.physics.replicas import replica_offsets
@@ -61,18 +61,14 @@ def solid_overlap(a: np.ndarray, b: np.ndarray, spacing: float) -> Overlap:
     resampled onto the lattice of offset 0 (so two lattices of other offsets compare as shapes, not as point sets)."""
     from scipy.spatial import cKDTree  # noqa: PLC0415
 
-    if len(a) == 0 or len(b) == 0:
-        return Overlap(0.0, float("inf"))
     a, b = resample_cubes(a, spacing, (0, 0, 0)), resample_cubes(b, spacing, (0, 0, 0))  # one lattice for both
-    ka = {tuple(k) for k in np.round(a / spacing).astype(np.int64)}
-    kb = {tuple(k) for k in np.round(b / spacing).astype(np.int64)}
+    ka, kb = ({tuple(k) for k in lattice_keys(p, spacing, (0, 0, 0))} for p in (a, b))
     union = len(ka | kb)
     iou = len(ka & kb) / union if union else 0.0
     if len(a) == 0 or len(b) == 0:
         return Overlap(float(iou), float("inf"))
-    da = cKDTree(b).query(a)[0].mean()
-    db = cKDTree(a).query(b)[0].mean()
-    return Overlap(float(iou), float(0.5 * (da + db)))
+    chamfer = 0.5 * (cKDTree(b).query(a)[0].mean() + cKDTree(a).query(b)[0].mean())
+    return Overlap(float(iou), float(chamfer))
 
 
 # ---- the reference's flows, cached --------------------------------------------------------------------------------
@@ -141,7 +137,6 @@ class FlowCache:
         ok = (
             rec.forces.shape == (steps, 3)
             and rec.dt.shape == (steps,)
-            and rec.velocities.ndim == 3
             and rec.velocities.shape[1:] == (points, 3)
             and all(np.isfinite(a).all() for a in (rec.forces, rec.dt, rec.velocities))
             and (rec.dt > 0).all()
@@ -198,7 +193,6 @@ class Comparison:
 
     def record(self) -> dict:
         """JSON-able: every figure beside its floor, the overlap, the grids and the settings."""
-        dt = self.settings["dt"]
         return {
             "functional_error": {"metric": HEADLINE, "value": self.error, "floor": self.floor},
             "overall": {m: {"value": self.overall[m], "floor": self.overall_floor[m]} for m in METRICS},
@@ -212,7 +206,7 @@ class Comparison:
                 "chamfer_m": self.overlap.chamfer,
                 "chamfer_floor_m": self.overlap_floor.chamfer,
             },
-            "grids": {d: g.describe(dt) for d, g in self.grids.items()},
+            "grids": {d: g.describe(self.settings["dt"]) for d, g in self.grids.items()},
             "force_window_s": FORCE_WINDOW_S,
             "settings": self.settings,
             "warnings": self.warnings,
@@ -221,21 +215,19 @@ class Comparison:
 
 def overall_errors(flows: dict[str, dict[str, FlowRecord]], which: str, per_probe: dict) -> dict[str, float]:
     """The errors over all probes: the L2 ones over every probe's samples stacked, the time-mean ones averaged."""
-    from nbv.functional.flow import relative_l2  # noqa: PLC0415
 
-    a = [flows[d][which] for d in flows]
-    b = [flows[d]["reference"] for d in flows]
+    def l2(part) -> float:
+        return relative_l2(*(np.concatenate([part(f[w]) for f in flows.values()]) for w in (which, "reference")))
+
+    def averaged(metric: str) -> float:
+        return float(np.mean([p[metric] for p in per_probe.values()]))
+
     return {
-        "mean_force": float(np.mean([p["mean_force"] for p in per_probe.values()])),
-        "force_l2": relative_l2(
-            np.concatenate([moving_mean(r.forces, r.dt) for r in a]),
-            np.concatenate([moving_mean(r.forces, r.dt) for r in b]),
-        ),
-        "drag": float(np.mean([p["drag"] for p in per_probe.values()])),
-        "lift": float(np.mean([p["lift"] for p in per_probe.values()])),
-        "velocity_l2": relative_l2(
-            np.concatenate([r.velocities.ravel() for r in a]), np.concatenate([r.velocities.ravel() for r in b])
-        ),
+        "mean_force": averaged("mean_force"),
+        "force_l2": l2(lambda r: moving_mean(r.forces, r.dt)),
+        "drag": averaged("drag"),
+        "lift": averaged("lift"),
+        "velocity_l2": l2(lambda r: r.velocities.ravel()),
     }
 
 
@@ -268,6 +260,8 @@ def compare(
     Raises:
         ValueError: solids that do not overlap, before any probe runs.
     """
+    from tqdm import tqdm  # noqa: PLC0415
+
     from fluidsim.probes import probe_setups  # noqa: PLC0415 - Taichi
 
     cfg = replace(config, directions=tuple(directions))
@@ -286,13 +280,13 @@ def compare(
     setups = probe_setups(ref, cfg.probe_config(), spacing, cfg.directions)  # laid out once, around the reference
     warnings = list(reference.warnings) + list(recon.warnings) + outside_warnings(rec, setups)
     cache = cache or FlowCache(None)
-    runs = _Runs(len(cfg.directions) * 3, cfg.steps, progress)
     flows, grids, probes, floors = {}, {}, {}, {}
-    try:
+    # one bar over the three probe runs of every direction, one ETA
+    with tqdm(total=len(cfg.directions) * 3 * cfg.steps, disable=not progress, unit="step", leave=False) as bar:
+        runs = _Runs(bar, cfg.steps)
         for d in cfg.directions:
             st = setups[d]
-            grid = SampleGrid.around(ref, np.asarray(st.domain_min), np.asarray(st.domain_max), spacing, cfg.steps)
-            grids[d] = grid
+            grids[d] = grid = SampleGrid.around(ref, st.domain_min, st.domain_max, spacing, cfg.steps)
             flows[d] = {
                 "reference": runs.cached(cache, ref, st, cfg, grid, f"{d} reference"),
                 "shifted": runs.cached(cache, ref_shifted, st, cfg, grid, f"{d} reference, shifted lattice"),
@@ -302,8 +296,6 @@ def compare(
             floors[d] = flow_errors(flows[d]["shifted"], flows[d]["reference"], d)
             if not np.any(flows[d]["reconstruction"].forces):
                 warnings.append(f"probe {d}: the fluid never reached the reconstruction: its force is 0")
-    finally:
-        runs.close()
     settings = {
         **run_settings(cfg, shift, reference, recon),
         "solid_particles": {"reference": len(ref), "shifted": len(ref_shifted), "reconstruction": len(rec)},
@@ -355,13 +347,10 @@ def run_settings(cfg: PhysicsConfig, shift, reference: SolidSource, recon: Solid
 
 
 class _Runs:
-    """The probe runs of a comparison with one progress bar (steps of every run still to do, one ETA)."""
+    """The probe runs of a comparison on one progress ``bar`` (a cached run moves it by its ``steps`` at once)."""
 
-    def __init__(self, total: int, steps: int, progress: bool):
-        from tqdm import tqdm  # noqa: PLC0415
-
-        self.bar = tqdm(total=total * steps, disable=not progress, unit="step", leave=False)
-        self.steps, self.done, self.hits, self.seconds = steps, 0, 0, 0.0
+    def __init__(self, bar, steps: int):
+        self.bar, self.steps, self.done, self.hits, self.seconds = bar, steps, 0, 0, 0.0
 
     def run(self, solid, setup, cfg, grid, label: str) -> FlowRecord:
         self.bar.set_description(label)
@@ -382,9 +371,6 @@ class _Runs:
         cache.put(key, rec)
         return rec
 
-    def close(self) -> None:
-        self.bar.close()
-
 
 def comparison_lines(c: Comparison) -> list[str]:
     """The printed table: every figure beside its floor, per probe and in all, then the overlap."""
@@ -395,8 +381,7 @@ def comparison_lines(c: Comparison) -> list[str]:
 
     head = "  probe  " + "  ".join(f"{m} (floor)" for m in METRICS)
     lines = ["functional error against the reference (relative; floor: the reference on a shifted lattice):", head]
-    for d in c.probes:
-        lines.append(row(d, c.probes[d], c.floors[d]))
+    lines += [row(d, c.probes[d], c.floors[d]) for d in c.probes]
     if len(c.probes) > 1:
         lines.append(row("all", c.overall, c.overall_floor))
     for d, p in c.probes.items():
@@ -451,11 +436,9 @@ def plot_forces(c: Comparison, path: Path) -> Path:
     for ax, (d, flows) in zip(axes[:, 0], c.flows.items(), strict=True):
         for key, style in (("reference", "k-"), ("shifted", "0.6"), ("reconstruction", "C3-")):
             rec = flows[key]
-            t = np.cumsum(rec.dt)
-            drag = moving_mean(rec.forces, rec.dt) @ flow_axis(d)
-            ax.plot(
-                t[len(t) - len(drag) :], drag, style, lw=1.2, label=key if key != "shifted" else "reference, shifted"
-            )
+            t, drag = np.cumsum(rec.dt), moving_mean(rec.forces, rec.dt) @ flow_axis(d)
+            label = "reference, shifted" if key == "shifted" else key
+            ax.plot(t[len(t) - len(drag) :], drag, style, lw=1.2, label=label)
         ax.set_title(f"probe {d}: drag ({FORCE_WINDOW_S:g} s moving mean)", fontsize=9)
         ax.set_xlabel("t (s)")
         ax.set_ylabel("N")

@@ -91,15 +91,11 @@ def sph_velocity(points: np.ndarray, x: np.ndarray, v: np.ndarray, h: float, vol
     from scipy.spatial import cKDTree  # noqa: PLC0415
 
     points = np.asarray(points, np.float64)
-    out = np.zeros((len(points), 3))
     if len(x) == 0 or len(points) == 0:
-        return out
+        return np.zeros((len(points), 3))
     pairs = cKDTree(points).sparse_distance_matrix(cKDTree(np.asarray(x, np.float64)), h, output_type="coo_matrix")
-    w = volume * cubic_w_np(pairs.data, h)
-    vv = np.asarray(v, np.float64)[pairs.col]
-    for d in range(3):
-        out[:, d] = np.bincount(pairs.row, weights=w * vv[:, d], minlength=len(points))
-    return out
+    wv = (volume * cubic_w_np(pairs.data, h))[:, None] * np.asarray(v, np.float64)[pairs.col]
+    return np.stack([np.bincount(pairs.row, weights=wv[:, d], minlength=len(points)) for d in range(3)], 1)
 
 
 def sph_velocity_np(points: np.ndarray, x: np.ndarray, v: np.ndarray, h: float, volume: float) -> np.ndarray:

@@ -228,10 +228,8 @@ def reference_source(path: Path, config: PhysicsConfig, matrix: np.ndarray | Non
             )
             log.warning(warnings[0])
         up = config.up if config.up != "auto" else "+y"
-        verts = np.asarray(mesh.vertices)
-        transform = SceneTransform(up, _auto_scale(verts, config, up))
-        sim = o3d_transformed(mesh, transform)
-        return SolidSource(path, "mesh", transform, warnings, _mesh=sim)
+        transform = SceneTransform(up, _auto_scale(np.asarray(mesh.vertices), config, up))
+        return SolidSource(path, "mesh", transform, warnings, _mesh=o3d_transformed(mesh, transform))
     from nbv.physics.plan import RunFrame  # noqa: PLC0415
 
     if matrix is not None:
@@ -259,9 +257,8 @@ def reconstruction_source(path: Path, config: PhysicsConfig, transform: SceneTra
         from nbv.physics.result import load_result  # noqa: PLC0415
 
         res = load_result(path)
-        pts = transform.to_sim(res.transform.to_scene(res.solid))
         spacing = 2.0 * config.particle_radius
-        on_lattice = np.round(pts / spacing) * spacing
+        on_lattice = np.round(transform.to_sim(res.transform.to_scene(res.solid)) / spacing) * spacing
         return SolidSource(path, "result", transform, (), _solid=np.unique(on_lattice, axis=0))
     if is_mesh_file(path):
         mesh = _load_mesh(path, None)
