@@ -170,14 +170,8 @@ class TrainLog:
 
 
 def _gaussians_to_params(g: GaussianSet) -> dict[str, torch.Tensor]:
-    return {
-        "means": g.means,
-        "quats": g.quats,
-        "log_scales": g.log_scales,
-        "opacity_logits": g.opacity_logits,
-        "sh_dc": g.sh[:, :1],
-        "sh_rest": g.sh[:, 1:],
-    }
+    tensors = (g.means, g.quats, g.log_scales, g.opacity_logits, g.sh[:, :1], g.sh[:, 1:])
+    return dict(zip(PARAM_NAMES, tensors, strict=True))
 
 
 def _params_to_gaussians(p: dict[str, torch.Tensor]) -> GaussianSet:
@@ -226,15 +220,13 @@ def check_views(views: Sequence, background: str, data_background: Sequence[floa
     """Raise ``ValueError`` naming the view when a training view cannot be used (before any training)."""
     if not views:
         raise ValueError("no training views; pass at least one view (check --views and the dataset's train split)")
+    needs_alpha = background == "random" or background_color(background).tolist() != [float(c) for c in data_background]
     for v in views:
         if v.image is None:
             raise ValueError(f"view {v.name!r} has no image; training needs ground-truth images")
         want = (v.camera.height, v.camera.width, 3)
         if tuple(v.image.shape) != want:
             raise ValueError(f"view {v.name!r}: image shape {tuple(v.image.shape)} does not match its camera {want}")
-        needs_alpha = background == "random" or tuple(background_color(background).tolist()) != tuple(
-            float(c) for c in data_background
-        )
         if needs_alpha and v.alpha is None:
             raise ValueError(
                 f"view {v.name!r} has no alpha channel, so it cannot be re-composited on a {background} "
@@ -319,8 +311,7 @@ class Trainer:
 
     def load_state_dict(self, state: dict) -> None:
         """Restore a :meth:`state_dict` (the config is taken from the checkpoint)."""
-        cfg = dict(state["config"])
-        self.config = TrainConfig(**cfg)
+        self.config = TrainConfig(**state["config"])
         self.extent = float(state["extent"])
         self.iteration = int(state["iteration"])
         self.active_sh_degree = int(state["active_sh_degree"])
@@ -332,25 +323,21 @@ class Trainer:
         self.data_background = state["data_background"].clone()
 
     # ---- one iteration -------------------------------------------------------------------------
-    def _update_schedule(self) -> None:
+    def train_step(self, view) -> TrainStepStats:
+        """One iteration on ``view`` (a :class:`recon.datasets.View` with image, optional alpha and camera)."""
         c = self.config
+        self.iteration += 1
+        it = self.iteration
         self.adam.lrs["means"] = self.extent * expon_lr(
-            self.iteration,
+            it,
             c.position_lr_init,
             c.position_lr_final,
             c.position_lr_max_steps,
             c.position_lr_delay_steps,
             c.position_lr_delay_mult,
         )
-        if self.iteration % c.sh_increase_interval == 0:
+        if it % c.sh_increase_interval == 0:
             self.active_sh_degree = min(self.active_sh_degree + 1, c.sh_degree)
-
-    def train_step(self, view) -> TrainStepStats:
-        """One iteration on ``view`` (a :class:`recon.datasets.View` with image, optional alpha and camera)."""
-        c = self.config
-        self.iteration += 1
-        it = self.iteration
-        self._update_schedule()
         bg = background_color(c.background, self.generator)
         target = composite_target(view.image, view.alpha, self.data_background, bg).to(self.adam.params["means"])
         out = render(
@@ -399,20 +386,19 @@ class Trainer:
         )
         if res.gaussians.num == 0:
             log.warning("iteration %d: density control would remove every Gaussian; keeping the set unchanged", it)
-            self.stats = DensityStats.zeros(g.num, device=g.device)
-            return
-        self.adam.remap(_gaussians_to_params(res.gaussians), res.origin)
-        self.stats = DensityStats.zeros(res.gaussians.num, device=g.device)
-        self.log_event(
-            {
-                "iteration": it,
-                "kind": "densify",
-                "cloned": res.cloned,
-                "split": res.split,
-                "pruned": res.pruned,
-                "num_gaussians": res.gaussians.num,
-            }
-        )
+        else:
+            self.adam.remap(_gaussians_to_params(res.gaussians), res.origin)
+            self.log_event(
+                {
+                    "iteration": it,
+                    "kind": "densify",
+                    "cloned": res.cloned,
+                    "split": res.split,
+                    "pruned": res.pruned,
+                    "num_gaussians": res.gaussians.num,
+                }
+            )
+        self.stats = DensityStats.zeros(self.adam.params["means"].shape[0], device=g.device)
 
     def log_event(self, event: dict) -> None:
         """Record a density-control event (the running :meth:`train` call collects it)."""
@@ -450,7 +436,7 @@ class Trainer:
         if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
             raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
         train_log = TrainLog()
-        self._events = []
+        self._events = train_log.events  # log_event appends to the log of this call
         start = time.perf_counter()
         for _ in range(iterations):
             st = self.train_step(views[self.next_view_index(len(views))])
@@ -465,7 +451,6 @@ class Trainer:
                     {"iteration": st.iteration, "psnr": metrics["psnr"], "ssim": metrics["ssim"]}
                 )
         train_log.wall_time_s = time.perf_counter() - start
-        train_log.events = self._events
         self._events = []
         return train_log
 
@@ -494,11 +479,8 @@ def evaluate(
         image = render(gaussians, v.camera, bg.to(gaussians.means), backend=backend).image.clamp(0, 1)
         ref = v.image.to(image)
         rows.append({"name": v.name, "psnr": float(psnr(image, ref)), "ssim": float(ssim(image, ref))})
-    return {
-        "psnr": sum(r["psnr"] for r in rows) / len(rows),
-        "ssim": sum(r["ssim"] for r in rows) / len(rows),
-        "per_view": rows,
-    }
+    means = {k: sum(r[k] for r in rows) / len(rows) for k in ("psnr", "ssim")}
+    return {**means, "per_view": rows}
 
 
 def initial_gaussians(

@@ -23,21 +23,18 @@ top    -y               +x       -z          camera above; +z points down the im
 iso    -(1,1,1)/sqrt3   (1,0,-1) (-1,2,-1)   camera at the (+x,+y,+z) corner, normalised
 ====== ================ ======== =========== ==========================================
 
-The camera box is fitted into the scene viewport (the frame minus a header line and a colour-bar
-panel, see :func:`scene_viewport`) keeping the aspect ratio: with ``frame="object"`` (the default) the solid's
-bounding box grown by ``OBJECT_MARGIN`` of its largest extent on every side, so that the object fills the
-picture; with ``frame="domain"`` (or without a solid) the domain box, whose edges are then drawn. Dots are
-splatted with a z-buffer: the nearest particle wins each pixel. The solid and the fluid share one z-buffer, so
-the object hides the fluid behind it and fluid in front of it shows. The solid is drawn in its own colour,
-ivory (``SOLID_BGR``, darker with depth across the object), which no colour of the TURBO map comes near. The
-walls are hidden by default (``walls="hidden"``); ``"faint"`` draws them in a dark grey just above the
-background and ``"shown"`` in the grey of old, both behind everything. Fluid is coloured with the TURBO
-colormap on a fixed scale [0, vmax] shared by all frames; values above vmax take the top colour.
+The camera box (:func:`camera_box`: with ``frame="object"``, the default, the solid's bounding box with a margin,
+so that the object fills the picture; otherwise the domain box, whose edges are then drawn) is fitted into the
+scene viewport (the frame minus a header line and a colour-bar panel, :func:`scene_viewport`) keeping the aspect
+ratio. Dots are splatted with a z-buffer: the nearest particle wins each pixel. The solid and the fluid share one
+z-buffer, so the object hides the fluid behind it and fluid in front of it shows. The solid is drawn in ivory
+(:func:`solid_colors`), which no colour of the TURBO map comes near; the walls (``FrameStyle.walls``, hidden by
+default) in grey behind everything. Fluid is coloured with the TURBO colormap on a fixed scale [0, vmax] shared
+by all frames; values above vmax take the top colour.
 
-Output. An ``.mp4`` is H.264 in yuv420p with the index at the front, which web browsers play
-(:func:`viz.video.write_mp4`; an odd frame size is padded by one edge pixel); otherwise a folder of PNG frames.
-Every file is written atomically (:mod:`fluidsim.files`). This module never imports Taichi or torch; the command
-line is ``fluidgs render-frames`` (:mod:`apps.render_frames`).
+Output: an ``.mp4`` (H.264 in yuv420p with the index at the front, which web browsers play;
+:func:`viz.video.write_mp4`) or a folder of PNG frames, every file written atomically (:mod:`fluidsim.files`).
+This module never imports Taichi or torch; the command line is ``fluidgs render-frames`` (:mod:`apps.render_frames`).
 
 Example:
     >>> from viz.frames import FrameStyle, render_frames
@@ -69,19 +66,13 @@ logger = logging.getLogger(__name__)
 OBJECT_MARGIN = 0.35  # the object's box grows by this fraction of its largest extent on every side
 MAX_SOLID_RADIUS = 24  # px
 
-_SQRT2, _SQRT3, _SQRT6 = math.sqrt(2.0), math.sqrt(3.0), math.sqrt(6.0)
+_ISO = np.array([[1.0, 0.0, -1.0], [-1.0, 2.0, -1.0], [-1.0, -1.0, -1.0]])
 # rows: right, up, forward (viewing direction); right x up = -forward, so no view is mirrored.
 _VIEW_BASES = {
     "front": np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]),
     "side": np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),
     "top": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]]),
-    "iso": np.array(
-        [
-            [1.0 / _SQRT2, 0.0, -1.0 / _SQRT2],
-            [-1.0 / _SQRT6, 2.0 / _SQRT6, -1.0 / _SQRT6],
-            [-1.0 / _SQRT3, -1.0 / _SQRT3, -1.0 / _SQRT3],
-        ]
-    ),
+    "iso": _ISO / np.linalg.norm(_ISO, axis=1, keepdims=True),
 }
 _BOX_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
 
@@ -177,8 +168,7 @@ def scene_viewport(width: int, height: int) -> tuple[int, int, int, int]:
     Returns:
         (x0, y0, w, h) in pixels.
     """
-    layout = _Layout.of(width, height)
-    return layout.viewport
+    return _Layout.of(width, height).viewport
 
 
 def render_frames(
@@ -191,9 +181,8 @@ def render_frames(
 
     Args:
         h5_path: simulation output file (``OUT.h5``), or a RESULT.h5 with a recorded probe (``--record-probe``).
-        out: a path ending in ``.mp4`` writes one video (H.264, yuv420p: plays in browsers); a path without a
-            suffix (or an existing directory) is a directory that receives ``frame_000000.png``,
-            ``frame_000001.png``, ... numbered by frame order; any other suffix is an error (:func:`output_is_video`).
+        out: an ``.mp4`` video, or a directory that receives ``frame_000000.png``, ``frame_000001.png``, ... in
+            frame order; :func:`output_is_video` tells which (any other suffix is an error).
         style: drawing options.
         progress: show a tqdm progress bar on stderr.
         png: write PNG frames into the directory ``out`` whatever its name (a folder named ``run.v2``).
@@ -233,7 +222,7 @@ def render_frames(
         )
         renderer = _Renderer(source, style, vmax)
         frames = tqdm(renderer.frames(), total=len(source.keys), desc="render", unit="frame", disable=not progress)
-        paths = _write_video(frames, out, style) if is_video else _write_pngs(frames, out)
+        paths = [write_mp4(frames, out, style.fps, bgr=True)] if is_video else _write_pngs(frames, out)
         if source.dropped:
             logger.warning("%s: skipped %d particle positions that were NaN or inf", h5_path, source.dropped)
     return paths
@@ -285,16 +274,8 @@ def _prepare_output(out: Path, is_video: bool) -> None:
             "(or give a path ending in .mp4 for a video)"
         )
     check_writable(out if is_video else out / "frame_000000.png")  # creates the folders, tries a file: exit 4
-    if not is_video:
-        stale = sorted(out.glob("frame_*.png"))
-        if stale:
-            logger.warning(
-                "%s already holds %d frame_*.png files; those beyond this render stay as they are", out, len(stale)
-            )
-
-
-def _write_video(frames: Iterator[np.ndarray], out: Path, style: FrameStyle) -> list[Path]:
-    return [write_mp4(frames, out, style.fps, bgr=True)]
+    if not is_video and (stale := len(list(out.glob("frame_*.png")))):
+        logger.warning("%s already holds %d frame_*.png files; those beyond this render stay as they are", out, stale)
 
 
 def _write_pngs(frames: Iterator[np.ndarray], directory: Path) -> list[Path]:
@@ -369,28 +350,24 @@ class _Renderer:
     def __init__(self, source: FrameSource, style: FrameStyle, vmax: float) -> None:
         self.source, self.style, self.vmax = source, style, vmax
         self.layout = _Layout.of(style.width, style.height)
-        x0, y0, vw, vh = self.layout.viewport
+        x0, y0, *self.viewport_size = self.layout.viewport
         self.offset = np.array([x0, y0], dtype=np.int64)
-        self.viewport_size = (vw, vh)
         solid = source.boundary if source.boundary is not None else np.zeros((0, 3))
         self.lo, self.hi = camera_box(solid, source.domain_min, source.domain_max, style.frame)
         self.draw_box = style.frame == "domain" or not len(solid)
-        corners = box_corners(source.domain_min, source.domain_max)
-        self.corner_uv, self.corner_depth = self._project(corners)
-        self.depth_range = (float(self.corner_depth.min()), float(self.corner_depth.max()))
+        corner_uv, self.corner_depth = self._project(box_corners(source.domain_min, source.domain_max))
+        self.corner_uv = [tuple(map(int, uv)) for uv in corner_uv]  # cv2 takes points as int tuples
         self.solid_uv, self.solid_depth = self._project(solid)
-        self.solid_radius = solid_radius(source.spacing(solid), self._pixels_per_metre(), style.point_size)
-        self.solid_zbuffer = np.full((style.height, style.width), np.inf)
+        ends, _ = self._project(np.stack([np.zeros(3), view_basis(style.view)[0]]))  # 1 m along the screen's x
+        pixels_per_metre = float(np.linalg.norm(ends[1] - ends[0]))
+        self.solid_radius = solid_radius(source.spacing(solid), pixels_per_metre, style.point_size)
+        shape = (style.height, style.width)
+        self.solid_zbuffer = depth_buffer(self.solid_uv, self.solid_depth, self.solid_radius, shape)
         self.background = self._static_layer()
 
     def _project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         uv, depth = project(points, self.lo, self.hi, self.style.view, *self.viewport_size)
         return uv + self.offset, depth
-
-    def _pixels_per_metre(self) -> float:
-        right = view_basis(self.style.view)[0]
-        uv, _ = self._project(np.stack([np.zeros(3), right]))
-        return float(np.linalg.norm(uv[1] - uv[0]))
 
     def _box_edges(self, image: np.ndarray, front: bool) -> None:
         if not self.draw_box:
@@ -399,23 +376,15 @@ class _Renderer:
         centre = float(self.corner_depth.mean())
         for a, b in _BOX_EDGES:
             if (0.5 * (self.corner_depth[a] + self.corner_depth[b]) < centre - 1e-12) == front:
-                cv2.line(
-                    image,
-                    tuple(map(int, self.corner_uv[a])),
-                    tuple(map(int, self.corner_uv[b])),
-                    _BOX_COLOR,
-                    1,
-                    cv2.LINE_AA,
-                )
+                cv2.line(image, self.corner_uv[a], self.corner_uv[b], _BOX_COLOR, 1, cv2.LINE_AA)
 
     def _static_layer(self) -> np.ndarray:
-        image = np.empty((self.style.height, self.style.width, 3), dtype=np.uint8)
-        image[:] = _BACKGROUND
+        image = np.full((self.style.height, self.style.width, 3), _BACKGROUND, dtype=np.uint8)
         self._box_edges(image, front=False)
         walls = self.source.walls
         if walls is not None and len(walls) and self.style.walls != "hidden":
             uv, depth = self._project(walls)
-            near, far = self.depth_range
+            near, far = float(self.corner_depth.min()), float(self.corner_depth.max())
             t = np.clip((depth - near) / max(far - near, 1e-12), 0.0, 1.0)
             g_near, g_far = (
                 (_FAINT_GREY_NEAR, _FAINT_GREY_FAR)
@@ -426,36 +395,28 @@ class _Renderer:
             splat(image, uv, depth, np.repeat(grey[:, None], 3, axis=1), self.style.point_size)
         if len(self.solid_uv):
             splat(image, self.solid_uv, self.solid_depth, solid_colors(self.solid_depth), self.solid_radius)
-            self.solid_zbuffer = depth_buffer(self.solid_uv, self.solid_depth, self.solid_radius, image.shape[:2])
         return image
 
     def frames(self) -> Iterator[np.ndarray]:
-        for i in range(len(self.source.keys)):
-            yield self.draw(i)
+        return map(self.draw, range(len(self.source.keys)))
 
     def draw(self, i: int) -> np.ndarray:
         x, values, time, step = self.source.frame(i)
         image = self.background.copy()
-        if len(x):
-            uv, depth = self._project(x)
-            # the object hides the fluid behind it: a particle whose centre pixel lies behind the solid is not drawn
-            h, w = self.solid_zbuffer.shape
-            on = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
-            seen = ~on
-            seen[on] = depth[on] <= self.solid_zbuffer[uv[on, 1], uv[on, 0]]
-            splat(image, uv[seen], depth[seen], colorize(values[seen], self.vmax), self.style.point_size)
+        uv, depth = self._project(x)
+        # the object hides the fluid behind it: a particle whose centre pixel lies behind the solid is not drawn
+        h, w = self.solid_zbuffer.shape
+        on = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        seen = ~on
+        seen[on] = depth[on] <= self.solid_zbuffer[uv[on, 1], uv[on, 0]]
+        splat(image, uv[seen], depth[seen], colorize(values[seen], self.vmax), self.style.point_size)
         self._box_edges(image, front=True)
-        self._header(
-            image,
-            f"t = {time:.4f} s   step {step}   {len(x):,} fluid particles   frame {i + 1}/{len(self.source.keys)}",
-        )
-        self._colorbar(image)
-        return image
-
-    def _header(self, image: np.ndarray, text: str) -> None:
         lay = self.layout
         image[: lay.header_h] = _BACKGROUND
-        lay.put_text(image, text, lay.pad, lay.header_h // 2)
+        header = f"t = {time:.4f} s   step {step}   {len(x):,} fluid particles   frame {i + 1}/{len(self.source.keys)}"
+        lay.put_text(image, header, lay.pad, lay.header_h // 2)
+        self._colorbar(image)
+        return image
 
     def _colorbar(self, image: np.ndarray) -> None:
         lay = self.layout
@@ -473,10 +434,8 @@ class _Renderer:
         rows = np.linspace(255, 0, bottom - top + 1).round().astype(np.intp)
         image[top : bottom + 1, x : x + lay.bar_w] = _COLORMAP_LUT[rows][:, None, :]
         cv2.rectangle(image, (x - 1, top - 1), (x + lay.bar_w, bottom + 1), _BOX_COLOR, 1)
-        label_x = x + lay.bar_w + lay.pad
-        lay.put_text(image, f"{self.vmax:.3g}", label_x, top)
-        lay.put_text(image, f"{0.5 * self.vmax:.3g}", label_x, (top + bottom) // 2)
-        lay.put_text(image, "0", label_x, bottom)
+        for label, y in ((f"{self.vmax:.3g}", top), (f"{0.5 * self.vmax:.3g}", (top + bottom) // 2), ("0", bottom)):
+            lay.put_text(image, label, x + lay.bar_w + lay.pad, y)
 
 
 def camera_box(solid: np.ndarray, domain_min, domain_max, frame: str = "object") -> tuple[np.ndarray, np.ndarray]:
@@ -505,7 +464,7 @@ def solid_radius(spacing: float | None, pixels_per_metre: float, point_size: int
     if spacing is None or not spacing > 0:
         return point_size
     d = spacing * pixels_per_metre
-    return int(min(max(point_size, math.ceil(d / _SQRT2 - 0.5)), MAX_SOLID_RADIUS))
+    return int(min(max(point_size, math.ceil(d / math.sqrt(2.0) - 0.5)), MAX_SOLID_RADIUS))
 
 
 def depth_buffer(uv: np.ndarray, depth: np.ndarray, radius: int, shape: tuple[int, int]) -> np.ndarray:
