@@ -11,13 +11,12 @@ from :mod:`nbv.scores`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 
+from nbv.camera_shares import camera_shares
 from recon.camera import Camera
 from recon.projection import CPU_BLOCK, NEAR_PLANE, inline_ops, view_centres
 
@@ -135,16 +134,6 @@ def _centre_count(xyz, camera: Camera, reach: float, block: int, near: float, at
     return count
 
 
-def camera_shares(work: Callable[[range], Any], count: int, workers: int, name: str) -> list:
-    """``work`` of each of ``workers`` threads' share of ``count`` cameras, interleaved (similar views per thread),
-    in share order; one share runs on the calling thread."""
-    shares = [range(i, count, workers) for i in range(workers)]
-    if workers == 1:
-        return [work(shares[0])]
-    with ThreadPoolExecutor(workers, thread_name_prefix=name) as pool:
-        return list(pool.map(work, shares))
-
-
 def projected_counts(
     means: torch.Tensor,
     cameras: Sequence,
@@ -189,7 +178,8 @@ def projected_counts(
         return {k: _centre_count(xyz, cameras[k], reach, size, near, at_most) for k in ks}
 
     with inline_ops(xyz.device):
-        parts = camera_shares(count, len(cameras), workers, "centre-counts")
+        pairs = xyz.shape[1] * len(cameras) if at_most is None else 0  # a pre-check reads about one block a camera
+        parts = camera_shares(count, len(cameras), workers, "centre-counts", pairs)
     counts = {k: c for part in parts for k, c in part.items()}
     return torch.tensor([counts[k] for k in range(len(cameras))], dtype=torch.int64)
 

@@ -21,10 +21,10 @@ from dataclasses import dataclass
 
 import torch
 
+from nbv.camera_shares import camera_shares
 from nbv.centre_counts import (
     CPU_SCORING_BLOCK,
     CentreCounter,
-    camera_shares,
     centre_reach,
     projected_counts_reference,
 )
@@ -413,7 +413,7 @@ def projected_view_scores(
                 sums[k] = (*sums[k], None if count is None else count.total)
             return sums, seen
 
-        parts = camera_shares(score, len(cameras), workers, "view-scores")
+        parts = camera_shares(score, len(cameras), workers, "view-scores", terms.num * len(cameras))
     return ProjectedScores.of(parts, len(cameras), centres)
 
 

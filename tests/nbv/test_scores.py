@@ -110,7 +110,7 @@ def _points_at_pixels(camera: Camera, pixels: torch.Tensor, depths: torch.Tensor
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_projected_counts_equal_the_float64_twin_at_the_borders(dtype):
+def test_projected_counts_equal_the_float64_twin_at_the_borders(dtype, monkeypatch):
     """The fast count decides most centres in the means' dtype and sends those within round-off of the image border
     or the near plane to the float64 test: the counts equal the twin's exactly, on centres placed on the borders."""
     gen = torch.Generator().manual_seed(3)
@@ -135,6 +135,10 @@ def test_projected_counts_equal_the_float64_twin_at_the_borders(dtype):
     assert expected.min() > 0 and expected.max() < means.shape[0]
     for block, threads in ((None, 1), (333, 2), (7, 3)):
         assert torch.equal(scores.projected_counts(means, cams, block=block, threads=threads), expected)
+    from nbv import camera_shares
+
+    monkeypatch.setattr(camera_shares, "FORK_MIN_PAIRS", 0)  # the shares in forked processes (on Linux)
+    assert torch.equal(scores.projected_counts(means, cams, block=333, threads=3), expected)
     assert scores.projected_counts(means, cams, at_most=1).tolist() == [1, 1, 1]
     capped = scores.projected_counts(means, cams, at_most=500, block=64)
     assert torch.equal(capped, expected.clamp_max(500))
@@ -412,9 +416,14 @@ def test_time_projected_scores_figures():
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("occlusion", [False, True])
 @pytest.mark.parametrize("weighted", [True, False])
-def test_fast_path_equals_its_twin(dtype, occlusion, weighted):
+@pytest.mark.parametrize("processes", [False, True])
+def test_fast_path_equals_its_twin(dtype, occlusion, weighted, processes, monkeypatch):
     """Counted Gaussians and seen flags exactly; S(T) and A(T) exactly without the depth test (the same block sums
-    in the same order), to the float64 summation order with it (the twin sums each view in one dot product)."""
+    in the same order), to the float64 summation order with it (the twin sums each view in one dot product); the
+    cameras' shares on threads and, on Linux, in forked processes (nbv.camera_shares)."""
+    from nbv import camera_shares
+
+    monkeypatch.setattr(camera_shares, "FORK_MIN_PAIRS", 0 if processes else 2**62)
     g, cams, metric = _scene(500, seed=4, dtype=dtype)
     configs = (
         [scores.DepthBuffer(), scores.DepthBuffer(cell_radii=2.5, depth_bins=3, min_alpha=0.3)] if occlusion else [None]
