@@ -29,7 +29,7 @@ Example:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -81,22 +81,10 @@ class AhmedBody:
     stilt_half_track: float = 0.1635
 
     def __post_init__(self) -> None:
-        for name in (
-            "resolution",
-            "length",
-            "width",
-            "height",
-            "front_radius",
-            "slant_length",
-            "clearance",
-            "stilt_diameter",
-            "stilt_from_nose",
-            "stilt_from_base",
-            "stilt_half_track",
-        ):
-            value = getattr(self, name)
+        for field in fields(self)[2:]:  # every length: the fields after slant_deg and stilts
+            value = getattr(self, field.name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ValueError(f"AhmedBody.{name} must be a finite number > 0, got {value!r}")
+                raise ValueError(f"AhmedBody.{field.name} must be a finite number > 0, got {value!r}")
         if not (isinstance(self.slant_deg, int | float) and 0.0 <= self.slant_deg <= 40.0):
             raise ValueError(f"AhmedBody.slant_deg must be in [0, 40] degrees, got {self.slant_deg!r}")
         r = self.front_radius
@@ -188,12 +176,9 @@ class _MeshBuilder:
     def add_triangles(self, t) -> None:
         self.triangles.append(np.asarray(t, dtype=np.int64).reshape(-1, 3))
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        return np.concatenate(self.vertices), np.concatenate(self.triangles)
-
 
 def _orient(vertices: np.ndarray, tris: np.ndarray, outward: np.ndarray) -> np.ndarray:
-    """Flip the triangles whose normal points against ``outward`` ([T, 3] directions)."""
+    """Flip the triangles whose normal points against ``outward`` ([T, 3] or one [3] direction)."""
     a, b, c = (vertices[tris[:, i]] for i in range(3))
     flip = (np.cross(b - a, c - a) * outward).sum(1) < 0
     tris = tris.copy()
@@ -204,15 +189,13 @@ def _orient(vertices: np.ndarray, tris: np.ndarray, outward: np.ndarray) -> np.n
 def _zip_loops(outer: np.ndarray, inner: np.ndarray, points: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """Triangulate the planar ring between two closed loops around ``centre`` (x, z), merging them by angle."""
 
-    def by_angle(ids):
+    def by_angle(ids):  # the loop sorted by angle and closed: its first point again at the end, one turn later
         ang = np.arctan2(points[ids, 2] - centre[1], points[ids, 0] - centre[0]) % (2 * math.pi)
         order = np.argsort(ang)
-        return ids[order], ang[order]
+        return np.r_[ids[order], ids[order[0]]], np.r_[ang[order], ang[order[0]] + 2 * math.pi]
 
     o_ids, o_ang = by_angle(outer)
     i_ids, i_ang = by_angle(inner)
-    o_ids, o_ang = np.r_[o_ids, o_ids[0]], np.r_[o_ang, o_ang[0] + 2 * math.pi]
-    i_ids, i_ang = np.r_[i_ids, i_ids[0]], np.r_[i_ang, i_ang[0] + 2 * math.pi]
     tris, i, j = [], 0, 0
     while i < len(o_ids) - 1 or j < len(i_ids) - 1:
         if j == len(i_ids) - 1 or (i < len(o_ids) - 1 and o_ang[i + 1] <= i_ang[j + 1]):
@@ -252,21 +235,20 @@ def _add_stilts(mb: _MeshBuilder, body: AhmedBody, openings: list) -> None:
         centre_id = mb.add_vertices([xc, -body.clearance, zc])[0]
         verts = np.concatenate(mb.vertices)
         annulus = _zip_loops(ring, top, verts, np.array([xc, zc]))
-        mb.add_triangles(_orient(verts, annulus, np.broadcast_to(down, annulus.shape)))
+        mb.add_triangles(_orient(verts, annulus, down))
         nxt = np.roll(np.arange(n_circle), -1)
         wall = np.concatenate([np.stack([top, top[nxt], foot[nxt]], 1), np.stack([top, foot[nxt], foot], 1)])
         radial = verts[wall].mean(1) - [xc, 0.0, zc]
         radial[:, 1] = 0.0
         mb.add_triangles(_orient(verts, wall, radial))
         fan = np.stack([np.full(n_circle, centre_id), foot, foot[nxt]], 1)
-        mb.add_triangles(_orient(verts, fan, np.broadcast_to(down, fan.shape)))
+        mb.add_triangles(_orient(verts, fan, down))
 
 
 def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
     """Vertices [V, 3] (m, in the module's frame) and outward-oriented triangles [T, 3] of ``body``."""
     res, length = body.resolution, body.length
-    stilt_r = body.stilt_diameter / 2
-    hole = 1.6 * stilt_r  # half-size of the square opening in the underside around each stilt
+    hole = 1.6 * body.stilt_diameter / 2  # half-size of the square opening in the underside around each stilt
     stations = _stations(body, hole)
     y_lo, y_hi, z_half = body.section(stations)
     # ---- section loops: bottom edge (z up), right side (y up), top edge (z down), left side (y down) ---------
@@ -278,12 +260,8 @@ def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
     loop_s = np.r_[np.zeros(kz + 1), s[1:-1], np.ones(kz + 1), s[-2:0:-1]]  # (y - y_lo) / (y_hi - y_lo)
     n_loop = len(loop_t)
     mb = _MeshBuilder()
-    secs = np.stack(
-        [
-            np.stack([np.full(n_loop, x), lo + loop_s * (hi - lo), loop_t * zh], 1)
-            for x, lo, hi, zh in zip(stations, y_lo, y_hi, z_half, strict=True)
-        ]
-    )
+    x, lo, hi, zh = (a[:, None] for a in (stations, y_lo, y_hi, z_half))
+    secs = np.stack(np.broadcast_arrays(x, lo + loop_s * (hi - lo), loop_t * zh), -1)
     ids = mb.add_vertices(secs).reshape(len(stations), n_loop)
     # ---- lateral surface: quads between consecutive sections, minus the stilt openings in the underside --------
     keep = np.ones((len(stations) - 1, n_loop), dtype=bool)
@@ -295,13 +273,8 @@ def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
             j0 = int(np.searchsorted(z_grid, zc - hole, side="right")) - 1
             j1 = int(np.searchsorted(z_grid, zc + hole, side="left"))
             keep[i0:i1, j0:j1] = False
-            ring = (
-                [ids[i0, j] for j in range(j0, j1)]
-                + [ids[i, j1] for i in range(i0, i1)]
-                + [ids[i1, j] for j in range(j1, j0, -1)]
-                + [ids[i, j0] for i in range(i1, i0, -1)]
-            )
-            openings.append((xc, zc, np.array(ring)))
+            ring = np.r_[ids[i0, j0:j1], ids[i0:i1, j1], ids[i1, j1:j0:-1], ids[i1:i0:-1, j0]]
+            openings.append((xc, zc, ring))
     i, p = np.nonzero(keep)
     q = (p + 1) % n_loop
     a, b, c, d = ids[i, p], ids[i, q], ids[i + 1, q], ids[i + 1, p]
@@ -321,12 +294,9 @@ def ahmed_mesh_arrays(body: AhmedBody) -> tuple[np.ndarray, np.ndarray]:
     body_tris = np.concatenate([lateral, *cap_tris])
     verts = np.concatenate(mb.vertices)
     centre = np.array([length / 2, body.height / 2, 0.0])  # the body is convex: faces look away from its centre
-    body_tris = _orient(verts, body_tris, verts[body_tris].mean(1) - centre)
-    mb.add_triangles(body_tris)
+    mb.add_triangles(_orient(verts, body_tris, verts[body_tris].mean(1) - centre))
     _add_stilts(mb, body, openings)
-    verts, tris = mb.arrays()
-    verts = verts + [-length / 2, body.clearance, 0.0]
-    return verts, tris
+    return np.concatenate(mb.vertices) + [-length / 2, body.clearance, 0.0], np.concatenate(mb.triangles)
 
 
 def ahmed_body(
@@ -401,9 +371,6 @@ def write_ahmed(
     scale: float = 1.0,
 ) -> Path:
     """Write :func:`ahmed_body` (same arguments) to ``path`` with :func:`save_mesh`; returns the path."""
-    path = Path(path)
-    if path.suffix.lower() not in MESH_SUFFIXES:
-        raise ValueError(f"{path}: unsupported mesh file type {path.suffix!r}; use one of {list(MESH_SUFFIXES)}")
     return save_mesh(ahmed_body(slant_deg, resolution, stilts=stilts, up=up, scale=scale), path)
 
 

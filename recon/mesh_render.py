@@ -14,14 +14,12 @@ Pipeline (:func:`render_mesh_dataset`):
 2. Draw ``n_train + n_test`` cameras uniformly on the sphere of radius ``radius`` (or the upper
    hemisphere) with :func:`recon.camera_paths.random_sphere` and ``seed``; the first ``n_train`` are the
    train / candidate views, the rest the test views. Each camera looks at the origin with the up axis up.
-3. Cast one ray per sub-pixel through :class:`~recon.camera.Camera`'s own intrinsics and pose
-   (:func:`camera_rays`; pixel centres at i + 0.5, ``supersample`` x ``supersample`` sub-pixels at
-   i + (k + 0.5) / s), so the images follow the loader's conventions by construction.
-4. Shade hits with Lambert + ambient (:func:`shade`): ``colour * (ambient + (1 - ambient) * (0.7 max(0,
-   n.l_key) + 0.3 max(0, n.l_fill)))``, the triangle normal flipped to face the camera. The lights are
-   fixed in the world (not headlights), so the radiance of a surface point is the same from every view,
-   which is what a 3DGS model with view-independent colour can reproduce: a key light from above (the up
-   axis) and the front-right, and a weaker fill light from below-behind. No shadows, no gamma.
+3. Cast ``supersample`` x ``supersample`` rays per pixel through :class:`~recon.camera.Camera`'s own
+   intrinsics and pose (:func:`camera_rays`), so the images follow the loader's conventions by construction.
+4. Shade hits with Lambert + ambient (:func:`shade`), the triangle normal flipped to face the camera. The
+   lights (:func:`light_directions`) are fixed in the world, not headlights, so the radiance of a surface
+   point is the same from every view, which is what a 3DGS model with view-independent colour can
+   reproduce. No shadows, no gamma.
 5. Alpha is the fraction of sub-pixel rays that hit (255 on full hits, 0 on the background); colour is
    the mean over the hits (straight alpha, as NeRF-synthetic's PNGs).
 
@@ -239,8 +237,7 @@ def camera_rays(camera: Camera, supersample: int = 1) -> tuple[np.ndarray, np.nd
     """
     s = int(supersample)
     offsets = (np.arange(s) + 0.5) / s
-    u = (np.arange(camera.width)[:, None] + offsets[None, :]).reshape(-1)
-    v = (np.arange(camera.height)[:, None] + offsets[None, :]).reshape(-1)
+    u, v = ((np.arange(n)[:, None] + offsets[None, :]).reshape(-1) for n in (camera.width, camera.height))
     uu, vv = np.meshgrid(u, v)
     dirs_cam = np.stack([(uu - camera.cx) / camera.fx, (vv - camera.cy) / camera.fy, np.ones_like(uu)], axis=-1)
     c2w = camera.camera_to_world.numpy()
@@ -435,12 +432,39 @@ def render_mesh_dataset(
 
     out_dir = out_dir.absolute()
     with atomic_folder(out_dir) as tmp:
-        _render_splits(tmp, splits, caster, normals, config, progress)
-        for split, cams in splits.items():
-            _write_json(tmp / f"transforms_{split}.json", _transforms(cams, split, config.fov_x_rad))
+        with tqdm(total=len(cameras), desc="render-dataset", unit="view", disable=not progress, leave=False) as bar:
+            for split, cams in splits.items():
+                (tmp / split).mkdir()
+                for i, cam in enumerate(cams):
+                    rgba = render_view(caster, normals, cam, config)
+                    target = tmp / split / f"r_{i:03d}.png"
+                    if not cv2.imwrite(str(target), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA)):
+                        raise OSError(f"{target}: cv2 could not write the image")
+                    bar.update(1)
+                _write_json(tmp / f"transforms_{split}.json", _transforms(cams, split, config.fov_x_rad))
         _write_json(tmp / "transforms_val.json", _transforms(splits["test"], "test", config.fov_x_rad))
         _write_mesh(tmp / "mesh.ply", vertices, triangles)
-        _write_json(tmp / "dataset.json", _dataset_record(mesh_path, scale, offset, bounding_radius, splits, config))
+        key, fill = light_directions(config.up_axis)
+        record = {
+            "source_mesh": str(mesh_path.absolute()),
+            "mesh_path": "mesh.ply",
+            "normalization": "mesh.ply vertices = scale * source vertices + offset",
+            "scale": scale,
+            "offset": offset.tolist(),
+            "bounding_radius": bounding_radius,
+            "up_axis": config.up_axis,
+            "seed": config.seed,
+            "config": asdict(config),
+            "lights": {
+                "key": key.tolist(),
+                "key_weight": KEY_WEIGHT,
+                "fill": fill.tolist(),
+                "fill_weight": FILL_WEIGHT,
+                "ambient": config.ambient,
+            },
+            "splits": {"train": len(splits["train"]), "test": len(splits["test"]), "val": "copy of test"},
+        }
+        _write_json(tmp / "dataset.json", record)
     logger.info(
         "wrote %s: %d train and %d test views at %d px, mesh scale %.4g",
         out_dir,
@@ -474,48 +498,6 @@ def _check_camera_distance(
             config.radius,
         )
     return bounding_radius
-
-
-def _render_splits(
-    tmp: Path, splits: dict, caster: MeshRaycaster, normals: np.ndarray, config: MeshDatasetConfig, progress: bool
-) -> None:
-    """Each split's views as tmp/<split>/r_<i>.png (RGBA)."""
-    total = sum(len(cams) for cams in splits.values())
-    with tqdm(total=total, desc="render-dataset", unit="view", disable=not progress, leave=False) as bar:
-        for split, cams in splits.items():
-            (tmp / split).mkdir()
-            for i, cam in enumerate(cams):
-                rgba = render_view(caster, normals, cam, config)
-                target = tmp / split / f"r_{i:03d}.png"
-                if not cv2.imwrite(str(target), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA)):
-                    raise OSError(f"{target}: cv2 could not write the image")
-                bar.update(1)
-
-
-def _dataset_record(
-    mesh_path: Path, scale: float, offset: np.ndarray, bounding_radius: float, splits: dict, config: MeshDatasetConfig
-) -> dict:
-    """dataset.json: the source mesh, its normalisation, the lights and the splits."""
-    key, fill = light_directions(config.up_axis)
-    return {
-        "source_mesh": str(mesh_path.absolute()),
-        "mesh_path": "mesh.ply",
-        "normalization": "mesh.ply vertices = scale * source vertices + offset",
-        "scale": scale,
-        "offset": offset.tolist(),
-        "bounding_radius": bounding_radius,
-        "up_axis": config.up_axis,
-        "seed": config.seed,
-        "config": asdict(config),
-        "lights": {
-            "key": key.tolist(),
-            "key_weight": KEY_WEIGHT,
-            "fill": fill.tolist(),
-            "fill_weight": FILL_WEIGHT,
-            "ambient": config.ambient,
-        },
-        "splits": {"train": len(splits["train"]), "test": len(splits["test"]), "val": "copy of test"},
-    }
 
 
 def _write_mesh(path: Path, vertices: np.ndarray, triangles: np.ndarray) -> None:
