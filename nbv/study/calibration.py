@@ -208,12 +208,8 @@ def sparsification_curve(uncertainty, error, steps: int = 100) -> np.ndarray:
         raise ValueError(f"sparsification_curve: {u.size} uncertainties against {e.size} errors (need >= 1 each)")
     order = np.lexsort((e, -u))  # by u descending, ties: the smaller error removed first
     tail = np.cumsum(e[order][::-1])[::-1]  # tail[i] = sum of the errors from position i on
-    n = len(u)
-    out = np.empty(steps)
-    for k in range(steps):
-        i = min(int(math.floor(k * n / steps)), n - 1)
-        out[k] = tail[i] / (n - i)
-    return out
+    i = np.minimum(np.arange(steps) * len(u) // steps, len(u) - 1)  # the first kept position per fraction
+    return tail[i] / (len(u) - i)
 
 
 def ause(uncertainty, error, steps: int = 100) -> float:

@@ -286,21 +286,18 @@ def critical_metrics(gaussians, result, renders, rows, views, config: EvalConfig
 def physics_metrics(result) -> dict[str, Any]:
     """D-bar, the empty-scene D-bar and the per-direction D-bars of one probe run."""
     covs = torch.from_numpy(result.covariances)
-    per_dir = {
-        d: geometry_divergence(covs, torch.from_numpy(result.per_probe[i])) for i, d in enumerate(result.directions)
-    }
-    empty_dir = None
-    if result.empty_per_probe is not None:
-        empty_dir = {
-            d: geometry_divergence(covs, torch.from_numpy(result.empty_per_probe[i]))
-            for i, d in enumerate(result.directions)
-        }
+
+    def per_direction(per_probe) -> dict[str, float] | None:
+        if per_probe is None:
+            return None
+        return {d: geometry_divergence(covs, torch.from_numpy(per_probe[i])) for i, d in enumerate(result.directions)}
+
     return {
         "dbar": result.dbar,
         "dbar_mean": result.dbar_mean,
         "dbar_empty": result.dbar_empty,
-        "dbar_per_direction": per_dir,
-        "dbar_empty_per_direction": empty_dir,
+        "dbar_per_direction": per_direction(result.per_probe),
+        "dbar_empty_per_direction": per_direction(result.empty_per_probe),
         "solid_particles": int(len(result.solid)),
         "physics_seconds": result.timings.get("total"),
     }
@@ -398,10 +395,5 @@ def _fmt(v: Any, digits: int = 4) -> str:
 def markdown_line(out: dict[str, Any]) -> str:
     """A Markdown table (header and one row) of the headline metrics."""
     cols = ("method", "seed", *SUMMARY_KEYS)
-    head = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
-    return (
-        head
-        + "| "
-        + " | ".join(str(out.get(c)) if c in ("method", "seed") else _fmt(out.get(c)) for c in cols)
-        + " |\n"
-    )
+    cells = [str(out.get("method")), str(out.get("seed"))] + [_fmt(out.get(k)) for k in SUMMARY_KEYS]
+    return "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n| " + " | ".join(cells) + " |\n"

@@ -87,35 +87,24 @@ def plan_jobs(config: ExperimentConfig) -> list[dict]:
     jobs = []
     for scene, name in zip(config.scenes, scene_names(config.scenes), strict=True):
         for seed in config.seeds:
-            for method in config.methods:
-                jobs.append(
-                    {
-                        "kind": "method",
-                        "scene": name,
-                        "dataset": scene,
-                        "method": method,
-                        "seed": seed,
-                        "run_dir": str(out / "runs" / name / method_folder(method) / f"seed{seed}"),
-                        "active": config.active_config(method, seed).to_dict(),
-                        "eval": eval_cfg,
-                    }
-                )
+            runs = [("method", m, method_folder(m), config.active_config(m, seed)) for m in config.methods]
             if config.reference_views is not None:
                 n = config.reference_views
                 ref = config.active_config("random", seed, budget=n, initial_ids=tuple(range(n)))
-                label = reference_label(n)
-                jobs.append(
-                    {
-                        "kind": "reference",
-                        "scene": name,
-                        "dataset": scene,
-                        "method": label,
-                        "seed": seed,
-                        "run_dir": str(out / "runs" / name / label / f"seed{seed}"),
-                        "active": ref.to_dict(),
-                        "eval": eval_cfg,
-                    }
-                )
+                runs.append(("reference", reference_label(n), reference_label(n), ref))
+            jobs += [
+                {
+                    "kind": kind,
+                    "scene": name,
+                    "dataset": scene,
+                    "method": method,
+                    "seed": seed,
+                    "run_dir": str(out / "runs" / name / folder / f"seed{seed}"),
+                    "active": active.to_dict(),
+                    "eval": eval_cfg,
+                }
+                for kind, method, folder, active in runs
+            ]
     return jobs
 
 

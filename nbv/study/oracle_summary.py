@@ -142,37 +142,27 @@ def _summarise_functional(config, states, labels, per_state, versus, b) -> dict[
     rule against its coverage control; the mean error and its noise floor. States whose copies have no finite error
     (no solid) are left out of the Spearman (NaN)."""
 
-    def rho_of(label: str):
+    def where_finite(value) -> list[list[float]]:
+        """``value(st, gain)`` per state, NaN where the state's functional gain is not finite."""
         return per_state(
             lambda st: (
-                spearman(st["scores"][label], st["oracle"]["gain_functional"])
-                if _finite(st["oracle"]["gain_functional"])
-                else math.nan
+                value(st, st["oracle"]["gain_functional"]) if _finite(st["oracle"]["gain_functional"]) else math.nan
             )
         )
 
     rows = {}
     for label in labels:
-        reg = per_state(
-            lambda st, label=label: (
-                regret(st["scores"][label], st["oracle"]["gain_functional"], st["shortlist"])
-                if _finite(st["oracle"]["gain_functional"])
-                else math.nan
-            )
-        )
-        rho = rho_of(label)
+        rho = where_finite(lambda st, gain, label=label: spearman(st["scores"][label], gain))
+        reg = where_finite(lambda st, gain, label=label: regret(st["scores"][label], gain, st["shortlist"]))
         rows[label] = {
             "spearman": bootstrap_interval(rho, b),
             "regret": bootstrap_interval(reg, b),
             "per_state": [x for g in rho for x in g],
         }
-    paired = {}
-    for label in config.physics_rules():
-        paired[label] = versus(label, rule_of(label).control, "gain_functional")
+    paired = {label: versus(label, rule_of(label).control, "gain_functional") for label in config.physics_rules()}
     errors = [st["oracle"]["functional_error_base"] for st in states]
     floors = [st["oracle"]["functional_floor_base"] for st in states]
-    gains = [np.asarray(st["oracle"]["gain_functional"], float) for st in states]
-    spread = [float(np.nanstd(g)) for g in gains]
+    spread = [float(np.nanstd(np.asarray(st["oracle"]["gain_functional"], float))) for st in states]
     return {
         "rules": rows,
         "paired": paired,
@@ -189,59 +179,29 @@ def _summarise_calibration(groups: dict, keys: list, resamples: int, labels: Seq
     with_cal = [k for k in keys if any("calibration" in st for st in groups[k])]
     if not with_cal:
         return {}
-    names = list(
-        dict.fromkeys(
-            n for k in with_cal for st in groups[k] if "calibration" in st for n in st["calibration"]["signals"]
-        )
-    )
-    signals = {}
-    for name in names:
+    cals = [st["calibration"] for k in with_cal for st in groups[k] if "calibration" in st]
 
-        def vals(field: str, name=name) -> list[list[float]]:
-            return [
-                [
-                    st["calibration"]["signals"][name][field]
-                    for st in groups[k]
-                    if "calibration" in st and name in st["calibration"]["signals"]
-                ]
+    def interval(value, has=lambda cal: True) -> tuple[float, float, float]:
+        """The interval of ``value(calibration)`` over the pairs, from the states that hold one (and pass ``has``)."""
+        return bootstrap_interval(
+            [
+                [value(st["calibration"]) for st in groups[k] if "calibration" in st and has(st["calibration"])]
                 for k in with_cal
-            ]
-
-        signals[name] = {
-            "spearman": bootstrap_interval(vals("spearman"), resamples),
-            "ause": bootstrap_interval(vals("ause"), resamples),
-        }
-    rules = list(
-        dict.fromkeys(
-            r
-            for k in with_cal
-            for st in groups[k]
-            if "calibration" in st
-            for r in st["calibration"]["rules_vs_missing"]
-            if r in labels
-        )
-    )
-    missing = {
-        r: bootstrap_interval(
-            [[st["calibration"]["rules_vs_missing"][r] for st in groups[k] if "calibration" in st] for k in with_cal],
+            ],
             resamples,
         )
-        for r in rules
+
+    signals = {
+        name: {
+            field: interval(lambda cal, f=field, n=name: cal["signals"][n][f], lambda cal, n=name: n in cal["signals"])
+            for field in ("spearman", "ause")
+        }
+        for name in dict.fromkeys(n for cal in cals for n in cal["signals"])
     }
-    gain = bootstrap_interval(
-        [[st["calibration"]["gain_vs_missing"] for st in groups[k] if "calibration" in st] for k in with_cal], resamples
-    )
-    share = bootstrap_interval(
-        [
-            [
-                st["calibration"]["missing"]["missing"] / st["calibration"]["missing"]["samples"]
-                for st in groups[k]
-                if "calibration" in st
-            ]
-            for k in with_cal
-        ],
-        resamples,
-    )
+    rules = dict.fromkeys(r for cal in cals for r in cal["rules_vs_missing"] if r in labels)
+    missing = {r: interval(lambda cal, r=r: cal["rules_vs_missing"][r]) for r in rules}
+    gain = interval(lambda cal: cal["gain_vs_missing"])
+    share = interval(lambda cal: cal["missing"]["missing"] / cal["missing"]["samples"])
     return {"signals": signals, "rules_vs_missing": missing, "gain_vs_missing": gain, "missing_share": share}
 
 

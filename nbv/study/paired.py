@@ -46,14 +46,7 @@ def sign_test_p(wins: int, losses: int) -> float:
     Returns:
         p in (0, 1]; 1 when there is no non-tied pair.
     """
-    if (
-        isinstance(wins, bool)
-        or isinstance(losses, bool)
-        or not isinstance(wins, int)
-        or not isinstance(losses, int)
-        or wins < 0
-        or losses < 0
-    ):
+    if any(isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in (wins, losses)):
         raise ValueError(f"sign_test_p: wins and losses must be integers >= 0, got {wins!r}, {losses!r}")
     n = wins + losses
     if n == 0:
@@ -246,21 +239,10 @@ def _paired_comparison(
             continue
         st = paired_stats(a, b, higher)
         verdict = st.significant(alpha)
-        body.append(
-            [
-                label,
-                metric,
-                str(st.n),
-                str(st.wins),
-                str(st.losses),
-                str(st.ties),
-                format_diff(st.mean_diff),
-                format_diff(st.median_diff),
-                format_p(st.sign_p),
-                format_p(st.wilcoxon_p, st.wilcoxon_note),
-                verdict,
-            ]
-        )
+        wilcoxon = format_p(st.wilcoxon_p, st.wilcoxon_note)
+        counts = [str(st.n), str(st.wins), str(st.losses), str(st.ties)]
+        diffs = [format_diff(st.mean_diff), format_diff(st.median_diff)]
+        body.append([label, metric, *counts, *diffs, format_p(st.sign_p), wilcoxon, verdict])
         if verdict == "neither":
             failed.append(metric)
         else:
@@ -269,7 +251,7 @@ def _paired_comparison(
             )
             passed.append(
                 f"{metric} ({better}, {st.wins}/{st.n} pairs better; {verdict}: sign p = "
-                f"{format_p(st.sign_p)}, Wilcoxon p = {format_p(st.wilcoxon_p, st.wilcoxon_note)})"
+                f"{format_p(st.sign_p)}, Wilcoxon p = {wilcoxon})"
             )
     return body, passed, failed
 

@@ -38,6 +38,11 @@ def _cell(values: Sequence[Any]) -> str:
     return f"{m:.3e} ± {s:.1e}" if big else f"{m:.4f} ± {s:.4f}"
 
 
+def _cells(rs: list[dict], *keys: str) -> list[str]:
+    """One :func:`_cell` per key over the runs ``rs`` (a key a row lacks counts as missing)."""
+    return [_cell([r.get(k) for r in rs]) for k in keys]
+
+
 def _table(title: str, header: list[str], body: list[list[str]]) -> tuple[str, str]:
     md = [f"### {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     md += ["| " + " | ".join(r) + " |" for r in body]
@@ -84,30 +89,12 @@ def _n(rs: list[dict]) -> str:
 
 def _visual_table(methods: dict[str, list[dict]], refs: dict[str, list[dict]]) -> tuple[str, str]:
     vis_cols = ["method", "n", "PSNR (dB)", "SSIM", "LPIPS", "Chamfer (scene units)"]
-    body = [
-        [
-            m,
-            _n(rs),
-            _cell([r["psnr"] for r in rs]),
-            _cell([r["ssim"] for r in rs]),
-            _cell([r["lpips"] for r in rs]),
-            _cell([r["chamfer"] for r in rs]),
-        ]
-        for m, rs in {**methods, **refs}.items()
-    ]
+    body = [[m, _n(rs), *_cells(rs, "psnr", "ssim", "lpips", "chamfer")] for m, rs in {**methods, **refs}.items()]
     return _table("Visual metrics (test views)", vis_cols, body)
 
 
 def _physics_row(name: str, rs: list[dict]) -> list[str]:
-    return [
-        name,
-        _n(rs),
-        _cell([r["dbar"] for r in rs]),
-        _cell([r["critical_psnr"] for r in rs]),
-        _cell([r["critical_dbar"] for r in rs]),
-        _cell([r.get("functional_error") for r in rs]),
-        _cell([r.get("functional_floor") for r in rs]),
-    ]
+    return [name, _n(rs), *_cells(rs, "dbar", "critical_psnr", "critical_dbar", "functional_error", "functional_floor")]
 
 
 def _physics_table(methods: dict[str, list[dict]], refs: dict[str, list[dict]]) -> tuple[str, str]:
@@ -122,7 +109,7 @@ def _physics_table(methods: dict[str, list[dict]], refs: dict[str, list[dict]]) 
     ]
     body = [_physics_row(m, rs) for m, rs in methods.items()]
     all_runs = [r for rs in methods.values() for r in rs]
-    body.append(["empty scene (reference)", _n(all_runs), _cell([r["dbar_empty"] for r in all_runs]), "", "", "", ""])
+    body.append(["empty scene (reference)", _n(all_runs), *_cells(all_runs, "dbar_empty"), "", "", "", ""])
     body += [_physics_row(f"many-view: {m}", rs) for m, rs in refs.items()]
     return _table("Geometry divergence D-bar (lower is better) with the references", phys_cols, body)
 
@@ -142,17 +129,7 @@ def _ablation_random_table(methods: dict[str, list[dict]]) -> tuple[str, str]:
             else ("all (random pick)" if m == "random" else "all")
         )
         physics_pick = PICKS[pick] if fused else ("yes" if m == "physics" else "no")
-        body.append(
-            [
-                m,
-                shortlist,
-                physics_pick,
-                _n(rs),
-                _cell([r["psnr"] for r in rs]),
-                _cell([r["dbar"] for r in rs]),
-                _cell([r["critical_dbar"] for r in rs]),
-            ]
-        )
+        body.append([m, shortlist, physics_pick, _n(rs), *_cells(rs, "psnr", "dbar", "critical_dbar")])
     return _table("Selection ablation: random vs visual shortlist, with / without physics", abl_cols, body)
 
 
@@ -162,7 +139,7 @@ def _direction_table(rows: list[dict], methods: dict[str, list[dict]], refs: dic
     body = [
         [m, _n(rs)]
         + [_cell([(r.get("dbar_per_direction") or {}).get(d) for r in rs]) for d in dirs]
-        + [_cell([r["dbar"] for r in rs])]
+        + _cells(rs, "dbar")
         for m, rs in {**methods, **refs}.items()
     ]
     return _table("Per-direction ablation: D-bar of each probe's own D_g", dir_cols, body)
@@ -185,17 +162,7 @@ def _selection_direction_table(methods: dict[str, list[dict]], single: dict[str,
         base, direction = split_method(m)
         driven = direction or ("all five probes" if base.endswith("+fluid") or base == "physics" else "none")
         rs = methods[m]
-        body.append(
-            [
-                m,
-                driven,
-                _n(rs),
-                _cell([r["psnr"] for r in rs]),
-                _cell([r["ssim"] for r in rs]),
-                _cell([r["dbar"] for r in rs]),
-                _cell([r["critical_dbar"] for r in rs]),
-            ]
-        )
+        body.append([m, driven, _n(rs), *_cells(rs, "psnr", "ssim", "dbar", "critical_dbar")])
     return _table("Per-direction ablation of the selection: physics from one probe direction", cols, body)
 
 
