@@ -26,10 +26,7 @@ from nbv.physics.forces import ProbeForces, result_forces
 from nbv.physics.leaks import read_probe_leaks, write_probe_leaks
 from nbv.physics.replicas import ReplicaRuns, read_replicas, write_replicas
 from nbv.physics.scene_frame import SceneTransform, gaussian_arrays_in_sim
-from nbv.physics.trajectory import (
-    read_trajectory,
-    write_trajectory,
-)
+from nbv.physics.trajectory import read_trajectory, write_trajectory
 from recon.inflate import check_hdf5_sizes
 
 
@@ -150,6 +147,10 @@ def _t(a: np.ndarray):
     return torch.from_numpy(np.asarray(a, np.float64))
 
 
+# how a diverged run's failure is stored: attribute diverged_<key>, read back with the type
+_FAILURE_KEYS = (("probe", str), ("step", int), ("reason", str))
+
+
 # ---- HDF5 ------------------------------------------------------------------------------------------
 def save_result(path: str | Path, result: PhysicsResult) -> Path:
     """Write a result to HDF5 atomically (a temporary file in the same folder, then rename).
@@ -252,7 +253,7 @@ def _write_run_attributes(f, result: PhysicsResult, p: Path) -> None:
     f.attrs["timings"] = json.dumps(result.timings)
     f.attrs["gaussians_sha256"], f.attrs["status"] = result.gaussians_sha256, result.status
     if result.failure is not None:
-        for key in ("probe", "step", "reason"):
+        for key, _ in _FAILURE_KEYS:
             f.attrs[f"diverged_{key}"] = result.failure[key]
 
 
@@ -386,11 +387,7 @@ def _read_failure(attrs) -> dict | None:
     """Which probe diverged at which step and why; None for a complete run."""
     if "diverged_probe" not in attrs:
         return None
-    return {
-        "probe": str(attrs["diverged_probe"]),
-        "step": int(attrs["diverged_step"]),
-        "reason": str(attrs["diverged_reason"]),
-    }
+    return {key: kind(attrs[f"diverged_{key}"]) for key, kind in _FAILURE_KEYS}
 
 
 def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> None:
@@ -423,25 +420,24 @@ def check_result_matches(result: PhysicsResult, gaussians, path: str | Path) -> 
         return
     if result.gaussians_sha256:
         digest = gaussians_sha256(gaussians)
-        if digest != result.gaussians_sha256:
-            raise ValueError(
-                f"{path} was computed for other Gaussians (same count, {num}, but different positions, "
-                f"shapes or opacities: content hash {result.gaussians_sha256[:12]}... vs "
-                f"{digest[:12]}... of this file); pass the result of these Gaussians or drop --result "
-                "to simulate again"
-            )
-        return
-
-    means = np.asarray(gaussian_arrays_in_sim(gaussians, result.transform)[0], np.float64)
-    stored = np.asarray(result.means, np.float64)
-    size = float(np.ptp(stored, axis=0).max()) if len(stored) else 0.0
-    gap = float(np.abs(means - stored).max()) if len(stored) else 0.0
-    if not gap <= 1e-5 * max(size, 1e-12):
-        raise ValueError(
-            f"{path} was computed for other Gaussians (same count, {num}, but centres up to {gap:.3g} m "
-            "away from the stored ones); pass the result of these Gaussians or drop --result to "
-            "simulate again"
+        if digest == result.gaussians_sha256:
+            return
+        differs = (
+            f"different positions, shapes or opacities: content hash {result.gaussians_sha256[:12]}... vs "
+            f"{digest[:12]}... of this file"
         )
+    else:
+        means = np.asarray(gaussian_arrays_in_sim(gaussians, result.transform)[0], np.float64)
+        stored = np.asarray(result.means, np.float64)
+        size = float(np.ptp(stored, axis=0).max()) if len(stored) else 0.0
+        gap = float(np.abs(means - stored).max()) if len(stored) else 0.0
+        if gap <= 1e-5 * max(size, 1e-12):
+            return
+        differs = f"centres up to {gap:.3g} m away from the stored ones"
+    raise ValueError(
+        f"{path} was computed for other Gaussians (same count, {num}, but {differs}); pass the result of these "
+        "Gaussians or drop --result to simulate again"
+    )
 
 
 # ---- replicas ------------------------------------------------------------------------------------------------
@@ -449,9 +445,7 @@ def _dbar(covariances: np.ndarray, divergence: np.ndarray, kept: np.ndarray | No
     """D-bar of ``divergence`` [G] over the simulated Gaussians (the kept ones with a crop, as one run reports)."""
     if kept is not None:
         covariances, divergence = covariances[kept], divergence[kept]
-    return scores.geometry_divergence(
-        torch.from_numpy(np.asarray(covariances, np.float64)), torch.from_numpy(np.asarray(divergence, np.float64))
-    )
+    return scores.geometry_divergence(_t(covariances), _t(divergence))
 
 
 def combine_replicas(

@@ -46,11 +46,9 @@ depth maps, the points some camera sees in front of the surface are outside and 
 also closes captures with holes.
 
 The fast paths are Taichi kernels (:mod:`nbv.physics.solid_kernels`); :func:`combined_opacity_reference` and
-:func:`edge_log_transmittance_reference` are their brute-force numpy twins. The outside region
-(:mod:`nbv.physics.fill`) is found in numpy by labelling runs of free points along z and joining the runs that touch
-across an open edge (union of roots by the smaller label, then pointer jumping): a few O(points) rounds, 0.5 s for
-10^7 points (3 s for the worst case measured, 30 % random solid points; the old line sweeps took 62 s on a lattice
-of nested shells whose outside winds through every one).
+:func:`edge_log_transmittance_reference` are their brute-force numpy twins. The outside region is found in numpy
+(:mod:`nbv.physics.fill`): 0.5 s for 10^7 points (3 s for the worst case measured, 30 % random solid points; the old
+line sweeps took 62 s on a lattice of nested shells whose outside winds through every one).
 """
 
 from __future__ import annotations
@@ -100,42 +98,50 @@ class SolidLattice:
     counts: dict[str, int] = field(default_factory=dict)
 
 
-def _flat_work(first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Non-empty boxes: their indices, the exclusive prefix sum of their sizes (G' + 1,), and the total."""
-    sizes = np.prod(np.maximum(last - first + 1, 0), axis=1)
-    keep = np.nonzero(sizes > 0)[0]
-    offsets = np.concatenate([[0], np.cumsum(sizes[keep])]).astype(np.int64)
-    return keep, offsets, int(offsets[-1])
-
-
-def _splat_boxes(splat, lead: tuple, first, last, means, inv_covs, opacities, lattice_min, spacing: float, out) -> None:
+def _splat_boxes(splat, lead: tuple, first, last, sim, inv_covs, lattice_min, spacing: float, out) -> None:
     """Run the Taichi kernel ``splat`` over every lattice point (or edge) of each Gaussian's box [first, last],
     ``_WORK_CHUNK`` work items per launch, adding into ``out``; ``lead``: the kernel's arguments between the chunk
     and the boxes (the edge axis)."""
-    keep, offsets, total = _flat_work(first, last)
+    sizes = np.prod(np.maximum(last - first + 1, 0), axis=1)
+    keep = np.nonzero(sizes > 0)[0]  # the non-empty boxes
+    offsets = np.concatenate([[0], np.cumsum(sizes[keep])]).astype(np.int64)  # exclusive prefix sum, (G' + 1,)
+    total = int(offsets[-1])
     if not total:
         return
-    args = _ndarrays(
-        offsets=(offsets, ti.i64),
-        box_lo=(first[keep].astype(np.int32), ti.i32),
-        box_dims=((last[keep] - first[keep] + 1).astype(np.int32), ti.i32),
-        means=(means[keep], ti.f64),
-        inv_covs=(inv_covs[keep], ti.f64),
-        opacities=(opacities[keep], ti.f64),
-    )
-    boxes = [args[k] for k in ("offsets", "box_lo", "box_dims", "means", "inv_covs", "opacities")]
+    boxes = []
+    for arr, dtype in (
+        (offsets, ti.i64),
+        (first[keep].astype(np.int32), ti.i32),
+        ((last[keep] - first[keep] + 1).astype(np.int32), ti.i32),
+        (sim.means[keep], ti.f64),
+        (inv_covs[keep], ti.f64),
+        (sim.opacities[keep], ti.f64),
+    ):
+        boxes.append(ti.ndarray(dtype, shape=arr.shape))
+        boxes[-1].from_numpy(np.ascontiguousarray(arr))
     origin = ti.Vector(lattice_min.tolist(), ti.f64)
     for start in range(0, total, _WORK_CHUNK):
         splat(start, min(_WORK_CHUNK, total - start), *lead, *boxes, origin, float(spacing), MAX_ALPHA, out)
 
 
-def _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config) -> np.ndarray:
+def _on_lattice(gaussians, config: SolidifyConfig, transform: SceneTransform, lattice=None, **tests) -> tuple:
+    """(sim, lattice_min, dims): the Gaussians in the simulation frame, and the origin and point counts of ``lattice``
+    (None: theirs) once its guards (:func:`nbv.physics.lattice.checked_lattice`; ``tests``: the tests that will run)
+    passed."""
+    sim = as_sim(gaussians, transform)
+    if lattice is None:
+        lattice = Lattice.of(sim.means, sim.covariances, sim.opacities, config)
+    origin, dims, _ = checked_lattice(lattice, sim.means, sim.covariances, config, transform, sim.opacities, **tests)
+    return sim, origin, dims
+
+
+def _log_transmittance(sim: SimGaussians, inv_covs, lattice_min, dims, config) -> np.ndarray:
     """Test 1's field: [X, Y, Z] float32 sum_g log(1 - o_g exp(-d_g^2 / 2)) (Taichi)."""
-    first, last = box_index_ranges(means, covs, lattice_min, dims, config)
+    first, last = box_index_ranges(sim.means, sim.covariances, lattice_min, dims, config)
     log_t = ti.ndarray(ti.f32, shape=tuple(int(d) for d in dims))
     log_t.fill(0.0)
     splat = solid_kernels.splat_log_transmittance
-    _splat_boxes(splat, (), first, last, means, inv_covs, opacities, lattice_min, config.spacing, log_t)
+    _splat_boxes(splat, (), first, last, sim, inv_covs, lattice_min, config.spacing, log_t)
     return log_t.to_numpy()
 
 
@@ -154,12 +160,8 @@ def lattice_log_transmittance(
     Raises:
         ValueError: the lattice would exceed ``config.max_points`` (with the estimate and the fix).
     """
-    sim = as_sim(gaussians, transform)
-    means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice = Lattice.of(means, covs, opacities, config)
-    lattice_min, dims, _ = checked_lattice(lattice, means, covs, config, transform, opacities, edges=False)
-    inv_covs = sim.inverse_covariances()
-    return lattice_min, _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
+    sim, lattice_min, dims = _on_lattice(gaussians, config, transform, edges=False)
+    return lattice_min, _log_transmittance(sim, sim.inverse_covariances(), lattice_min, dims, config)
 
 
 def _edge_boxes(means, covs, lattice_min, dims, config: SolidifyConfig, axis: int) -> tuple[np.ndarray, np.ndarray]:
@@ -180,16 +182,16 @@ def _edge_boxes(means, covs, lattice_min, dims, config: SolidifyConfig, axis: in
     return first, last
 
 
-def _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config) -> np.ndarray:
+def _edge_log_transmittance(sim: SimGaussians, inv_covs, lattice_min, dims, config) -> np.ndarray:
     """Test 2's field: [3, X, Y, Z] float32 sum_g log(1 - o_g max_{x in e} exp(-d_g(x)^2 / 2)) per edge (Taichi)."""
     edges = ti.ndarray(ti.f32, shape=(3, *(int(d) for d in dims)))
     edges.fill(0.0)
     for axis in range(3):
         if dims[axis] < 2:
             continue
-        first, last = _edge_boxes(means, covs, lattice_min, dims, config, axis)
+        first, last = _edge_boxes(sim.means, sim.covariances, lattice_min, dims, config, axis)
         splat = solid_kernels.splat_edge_log_transmittance
-        _splat_boxes(splat, (axis,), first, last, means, inv_covs, opacities, lattice_min, config.spacing, edges)
+        _splat_boxes(splat, (axis,), first, last, sim, inv_covs, lattice_min, config.spacing, edges)
     return edges.to_numpy()
 
 
@@ -206,12 +208,8 @@ def lattice_edge_log_transmittance(
         [a, i, j, k] belongs to the edge from point (i, j, k) to its neighbour along axis a (0 on the last layer,
         which starts no edge). The edge is cut where it is <= log(1 - tau) (:func:`lattice_cut_edges`).
     """
-    sim = as_sim(gaussians, transform)
-    means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice = Lattice.of(means, covs, opacities, config)
-    lattice_min, dims, _ = checked_lattice(lattice, means, covs, config, transform, opacities, points=False)
-    inv_covs = sim.inverse_covariances()
-    return lattice_min, _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
+    sim, lattice_min, dims = _on_lattice(gaussians, config, transform, points=False)
+    return lattice_min, _edge_log_transmittance(sim, sim.inverse_covariances(), lattice_min, dims, config)
 
 
 def lattice_cut_edges(
@@ -263,9 +261,7 @@ def edge_log_transmittance_reference(
             out[axis] += term
     out = out.reshape(3, *shape)
     for axis in range(3):
-        last = [slice(None)] * 3
-        last[axis] = -1
-        out[(axis, *last)] = 0.0
+        out[(axis, *[slice(None)] * axis, -1)] = 0.0  # the last layer starts no edge
     return out
 
 
@@ -296,12 +292,7 @@ def gaussians_to_solid(
         >>> solid = gaussians_to_solid(g, SolidifyConfig(spacing=0.05), SceneTransform("z", 1.0))
         >>> solid.points.shape  # (M, 3) metres, Y-up
     """
-    sim = as_sim(gaussians, transform)
-    lattice = Lattice.of(sim.means, sim.covariances, sim.opacities, config)
-    lattice_min, occupancy, counts = _occupancy(sim, lattice, config, transform)
-    if cameras is not None:
-        occupancy, counts["carved"] = _carve(occupancy, sim, lattice_min, config, transform, cameras, depths)
-    return _solid_lattice(lattice_min, occupancy, counts, config, transform, sim.num)
+    return _solid(gaussians, None, config, transform, cameras, depths)
 
 
 def solid_on_lattice(
@@ -309,48 +300,42 @@ def solid_on_lattice(
 ) -> SolidLattice:
     """:func:`gaussians_to_solid` (with no carving) on a lattice already sized for ``sim`` under ``config`` (a run's,
     sized once: :attr:`nbv.physics.plan.RunFrame.lattice`)."""
-    return _solid_lattice(*_occupancy(sim, lattice, config, transform), config, transform, sim.num)
+    return _solid(sim, lattice, config, transform)
 
 
-def _occupancy(
-    sim: SimGaussians, lattice: Lattice, config: SolidifyConfig, transform: SceneTransform
-) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
-    """Tests 1-3 and the specks on ``lattice`` (its guards first): lattice_min [3] m, occupancy [X, Y, Z] bool, and
-    the lattice points per test (``carved`` 0)."""
-    means, covs, opacities = sim.means, sim.covariances, sim.opacities
-    lattice_min, dims, _ = checked_lattice(lattice, means, covs, config, transform, opacities)
+def _solid(
+    gaussians, lattice, config: SolidifyConfig, transform: SceneTransform, cameras=None, depths=None
+) -> SolidLattice:
+    """:func:`gaussians_to_solid` on ``lattice`` (None: the Gaussians' own): tests 1-3 and the specks after the
+    lattice's guards, the carving, then the ValueError when too few points are solid; logged."""
+    sim, lattice_min, dims = _on_lattice(gaussians, config, transform, lattice)
+    tau = config.opacity_threshold
     inv_covs = sim.inverse_covariances()
-    log_t = _log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config)
-    cuts = (
-        below(
-            _edge_log_transmittance(means, covs, inv_covs, opacities, lattice_min, dims, config),
-            config.opacity_threshold,
-        )
-        if config.thin
-        else None
-    )
-    occupancy, counts = occupancy_from_fields(log_t, cuts, config.opacity_threshold, config.fill_cavities)
+    log_t = _log_transmittance(sim, inv_covs, lattice_min, dims, config)
+    cuts = below(_edge_log_transmittance(sim, inv_covs, lattice_min, dims, config), tau) if config.thin else None
+    occupancy, counts = occupancy_from_fields(log_t, cuts, tau, config.fill_cavities)
     del log_t, cuts
     counts["specks"] = counts["carved"] = 0
     if config.thin:
-        specks = speck_points(occupancy, means, opacities, lattice_min, config.spacing, config.opacity_threshold)
+        specks = speck_points(occupancy, sim.means, sim.opacities, lattice_min, config.spacing, tau)
         counts["specks"] = int(specks.sum())
         occupancy |= specks
-    return lattice_min, occupancy, counts
-
-
-def _solid_lattice(
-    lattice_min: np.ndarray,
-    occupancy: np.ndarray,
-    counts: dict[str, int],
-    config: SolidifyConfig,
-    transform: SceneTransform,
-    num_gaussians: int,
-) -> SolidLattice:
-    """The solid points of ``occupancy`` (ValueError when too few for ``num_gaussians`` Gaussians), logged."""
-    count = int(occupancy.sum())
-    counts["total"] = count
-    _check_enough_points(count, num_gaussians, config, transform)
+    if cameras is not None:
+        before = int(occupancy.sum())
+        if depths is None:
+            depths = surface_depths(sim.gaussians, cameras)
+        occupancy = carve_outside(
+            occupancy, lattice_min, config.spacing, cameras, depths, transform, margin=config.carve_margin
+        )
+        counts["carved"] = int(occupancy.sum()) - before
+    count = counts["total"] = int(occupancy.sum())
+    if count < config.min_points:
+        what = "empty" if count == 0 else f"degenerate ({count} points < min_points = {config.min_points})"
+        raise ValueError(
+            f"the solid is {what}: too few lattice points reach the combined opacity tau = "
+            f"{tau} at spacing {config.spacing} m over {sim.num} Gaussians; use a lower "
+            f"opacity_threshold (tau), a smaller spacing, or check the scene scale ({transform.scale} m per unit)"
+        )
     points = lattice_min + config.spacing * np.argwhere(occupancy).astype(np.float64)
     log.info(
         "solid: %d of %d lattice points (%s at %.4g m): %s",
@@ -368,46 +353,6 @@ def _solid_lattice(
         spacing=float(config.spacing),
         counts=counts,
     )
-
-
-def _carve(
-    occupancy: np.ndarray,
-    sim: SimGaussians,
-    lattice_min: np.ndarray,
-    config: SolidifyConfig,
-    transform: SceneTransform,
-    cameras,
-    depths,
-) -> tuple[np.ndarray, int]:
-    """The occupancy with the space the cameras see empty carved out, and the change in its point count (<= 0)."""
-    if depths is None:
-        depths = surface_depths(sim.gaussians, cameras)
-    before = int(occupancy.sum())
-    occupancy = carve_outside(
-        occupancy, lattice_min, config.spacing, cameras, depths, transform, margin=config.carve_margin
-    )
-    return occupancy, int(occupancy.sum()) - before
-
-
-def _check_enough_points(count: int, num_gaussians: int, config: SolidifyConfig, transform: SceneTransform) -> None:
-    """Raise ValueError, with the fixes, when the solid has fewer than ``config.min_points`` points."""
-    if count < config.min_points:
-        what = "empty" if count == 0 else f"degenerate ({count} points < min_points = {config.min_points})"
-        raise ValueError(
-            f"the solid is {what}: too few lattice points reach the combined opacity tau = "
-            f"{config.opacity_threshold} at spacing {config.spacing} m over {num_gaussians} Gaussians; use a lower "
-            f"opacity_threshold (tau), a smaller spacing, or check the scene scale ({transform.scale} m per unit)"
-        )
-
-
-def _ndarrays(**arrays) -> dict:
-    """Taichi ndarrays from (numpy array, Taichi dtype) pairs."""
-    out = {}
-    for name, (arr, dtype) in arrays.items():
-        nd = ti.ndarray(dtype, shape=arr.shape)
-        nd.from_numpy(np.ascontiguousarray(arr))
-        out[name] = nd
-    return out
 
 
 def combined_opacity_reference(
