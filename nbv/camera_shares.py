@@ -11,6 +11,7 @@ the shares run on threads. The work per camera is the same code either way, so t
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import pickle
 import signal
@@ -21,6 +22,7 @@ from typing import Any
 
 PROCESSES_ENV = "FLUIDGS_SCORING_PROCESSES"
 FORK_MIN_PAIRS = 20_000_000  # (Gaussian, camera) pairs below which a fork (milliseconds) is not worth it
+PR_SET_PDEATHSIG = 1  # Linux prctl option: the signal a child gets when its parent dies
 
 
 def camera_shares(work: Callable[[range], Any], count: int, workers: int, name: str, pairs: int = 0) -> list:
@@ -44,12 +46,13 @@ def _forked(work: Callable[[range], Any], shares: list[range]) -> list:
     """The first share here, each other one in a forked child; a child still running when this raises is killed."""
     children: list[tuple[int, int]] = []
     try:
+        parent = os.getpid()
         for share in shares[1:]:
             read_end, write_end = os.pipe()
             pid = os.fork()
             if pid == 0:
                 os.close(read_end)
-                _child(work, share, write_end)
+                _child(work, share, write_end, parent)
             os.close(write_end)
             children.append((pid, read_end))
         first = work(shares[0])
@@ -64,13 +67,18 @@ def _forked(work: Callable[[range], Any], shares: list[range]) -> list:
                     os.waitpid(pid, 0)
 
 
-def _child(work: Callable[[range], Any], share: range, fd: int) -> None:
+def _child(work: Callable[[range], Any], share: range, fd: int, parent: int) -> None:
     """In the child: ``work(share)`` (or the exception it raised), pickled into ``fd``; leaves with ``os._exit``, so
-    none of the parent's exit handlers or buffered output runs twice. Interrupts are the parent's to handle."""
+    none of the parent's exit handlers or buffered output runs twice. Interrupts are the parent's to handle, and the
+    child dies with it (``PR_SET_PDEATHSIG``), so a killed parent leaves no child scoring on."""
     code = 1
     try:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        if os.getppid() != parent:  # the parent died before the line above
+            return
         try:
             payload = ("result", work(share))
         except BaseException as exc:  # noqa: BLE001 - sent to the parent, which raises it

@@ -63,3 +63,42 @@ def test_a_childs_exception_and_death_reach_the_caller():
         cs.camera_shares(_fails_in_child, 4, 2, "t", pairs=cs.FORK_MIN_PAIRS)
     with pytest.raises(RuntimeError, match=r"without its result \(killed by signal 9.*FLUIDGS_SCORING_PROCESSES=0"):
         cs.camera_shares(_dies_in_child, 4, 2, "t", pairs=cs.FORK_MIN_PAIRS)
+
+
+@linux_only
+def test_a_killed_parent_leaves_no_child(tmp_path):
+    """The child dies with its parent (PR_SET_PDEATHSIG): a SIGKILLed command leaves nothing scoring on."""
+    import subprocess
+    import time
+
+    pids = tmp_path / "child.pid"
+    script = f"""
+import os, time
+from nbv import camera_shares as cs
+def work(ks):
+    if 1 in ks:
+        open({str(pids)!r}, "w").write(str(os.getpid()))
+    time.sleep(60)
+cs.camera_shares(work, 2, 2, "t", pairs=cs.FORK_MIN_PAIRS)
+"""
+    parent = subprocess.Popen([sys.executable, "-c", script], cwd=os.getcwd())
+    try:
+        deadline = time.monotonic() + 60
+        while not (pids.exists() and pids.read_text()) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        child = int(pids.read_text())
+    finally:
+        parent.kill()
+        parent.wait()
+
+    def running() -> bool:  # a zombie waiting for a reaper (PID 1 of a container may not reap) has ended
+        try:
+            with open(f"/proc/{child}/stat") as stat:
+                return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
+        except FileNotFoundError:
+            return False
+
+    deadline = time.monotonic() + 10
+    while running() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not running()
