@@ -7,9 +7,10 @@ bit) and reduces over the Gaussians block by block, so C candidates cost no rend
 depth test (:class:`DepthBuffer`, not in the paper) composites the projected centres into a coarse depth-binned
 opacity buffer per view instead of rendering the surface (:func:`nbv.scores.unoccluded` is the render-based test).
 
-On the CPU the cameras are scored side by side on torch's thread count, each thread running single-threaded ops on
-blocks that stay in its cache; :func:`projected_view_scores_reference` is the one-thread twin, the depth test on
-whole arrays. With ``centres=True`` the centres inside each view are counted from the same projected blocks
+On the CPU the cameras are scored side by side on torch's thread count (in forked processes for large work on
+Linux, else threads: :mod:`nbv.camera_shares`), each running single-threaded ops on blocks that stay in its cache;
+:func:`projected_view_scores_reference` is the one-thread twin, the depth test on whole arrays. With
+``centres=True`` the centres inside each view are counted from the same projected blocks
 (:class:`nbv.centre_counts.CentreCounter`). The public names are also importable from :mod:`nbv.scores`.
 """
 
@@ -358,12 +359,12 @@ def projected_view_scores(
 
     The radii and visibility are :func:`recon.projection.iter_visibility`'s, equal to the renderer's, so the
     scores equal ``view_scores(per_gaussian, [render(gaussians, c) for c in cameras])`` up to the float64
-    summation order. On the CPU the cameras are shared among ``threads`` threads, each scoring whole cameras with
-    single-threaded torch operations on blocks of Gaussians; the depth test keeps each view's blocks and fills its
-    buffer block by block. The counts and seen flags equal :func:`projected_view_scores_reference`'s bit for bit
-    whatever the thread count, and so do the frustum-culled S(T) and A(T) at the same ``block``; otherwise S(T) and
-    A(T) agree to the float64 summation order. Memory: O(block + N) per thread (with the depth test, about 40 bytes
-    per Gaussian per thread).
+    summation order. On the CPU the cameras are shared among ``threads`` workers (forked processes or threads:
+    :mod:`nbv.camera_shares`), each scoring whole cameras with single-threaded torch operations on blocks of
+    Gaussians; the depth test keeps each view's blocks and fills its buffer block by block. The counts and seen
+    flags equal :func:`projected_view_scores_reference`'s bit for bit whatever the worker count, and so do the
+    frustum-culled S(T) and A(T) at the same ``block``; otherwise S(T) and A(T) agree to the float64 summation
+    order. Memory: O(block + N) per worker (with the depth test, about 40 bytes per Gaussian per worker).
 
     Args:
         per_gaussian: [N] metric M_g (D_g in 1/s, counts, ...).
@@ -373,7 +374,7 @@ def projected_view_scores(
         depth_buffer: a :class:`DepthBuffer` to count only Gaussians not hidden (None: frustum culling only,
             the paper's visibility).
         block: Gaussians per block (default: CPU_SCORING_BLOCK on the CPU, the projection's on a GPU).
-        threads: CPU threads scoring cameras side by side (default: ``torch.get_num_threads()``; 1 on a GPU).
+        threads: CPU workers scoring cameras side by side (default: ``torch.get_num_threads()``; 1 on a GPU).
         centres: also count the centres inside each view from the projected blocks, equal to
             :func:`projected_counts` (``ProjectedScores.centres``).
     Returns:
