@@ -361,14 +361,14 @@ def _stack_probes(probes: list, key: str, g: int, dtype) -> np.ndarray:
         return np.zeros((0, g), dtype)
     first = probes[0][key]
     out = np.empty((len(probes), *first.shape), first.dtype)
-    for row, pg in zip(out, probes, strict=True):
-        if pg[key].shape != first.shape:
+    for row, dataset in zip(out, (pg[key] for pg in probes), strict=True):
+        if dataset.shape != first.shape:
             raise ValueError(
-                f"{pg.file.filename}: the probes' '{key}' datasets have the shapes {first.shape} and "
-                f"{pg[key].shape} (a damaged result); re-run `fluidgs simulate`"
+                f"{dataset.file.filename}: the probes' '{key}' datasets have the shapes {first.shape} and "
+                f"{dataset.shape} (a damaged result); re-run `fluidgs simulate`"
             )
         if row.size:
-            pg[key].read_direct(row)
+            dataset.read_direct(row)
     return out
 
 
