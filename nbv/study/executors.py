@@ -105,8 +105,11 @@ def hangup_shielded() -> Iterator[None]:
 def terminate_workers(pool: ProcessPoolExecutor, grace_s: float = 10.0) -> None:
     """Stop every worker process of ``pool`` now: SIGTERM (a worker set up by ``apps.signals.worker_signals`` removes
     its unfinished files and exits), SIGKILL for one still alive after ``grace_s`` seconds; the queued jobs are
-    cancelled. The pool's own threads then end, and with the last worker the resource tracker."""
+    cancelled. The pool's manager thread is waited for: Python 3.11's exit hook writes to that thread's wake-up pipe
+    while the thread may be closing it (an "OSError: Bad file descriptor" traceback at exit, one stop in ~25 under
+    load), and ``shutdown(wait=False)`` forgets the thread. With the last worker the resource tracker ends."""
     processes = list((getattr(pool, "_processes", None) or {}).values())  # the standard library keeps them here
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
         if proc.is_alive():
@@ -117,6 +120,8 @@ def terminate_workers(pool: ProcessPoolExecutor, grace_s: float = 10.0) -> None:
             log.warning("worker %d did not stop on SIGTERM within %.0f s; killing it", proc.pid, grace_s)
             proc.kill()
             proc.join(grace_s)
+    if manager is not None:
+        manager.join(grace_s)
 
 
 def _ray_task(fn: Callable[[Any], Any], job: Any, initializer: Callable[..., None], initargs: tuple) -> Any:
