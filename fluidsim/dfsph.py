@@ -37,6 +37,7 @@ list pass of its own:
 
 import taichi as ti
 
+from .launch import fast_kernel
 from .neighbors import FREE_SURFACE_NEIGHBORS, fluid_pair
 from .reductions import quanta_average, quantum_cap, to_quanta
 
@@ -94,7 +95,7 @@ def density_warm_record(
     return with_stiffness(x[i], w)
 
 
-@ti.kernel
+@fast_kernel
 def divergence_solve_error(
     n: ti.i32,
     dt: float,
@@ -144,7 +145,7 @@ def divergence_solve_error(
     return quanta_average(total, over, n, inv_quantum)
 
 
-@ti.kernel
+@fast_kernel
 def divergence_solve_cold_start(
     n: ti.i32,
     dt: float,
@@ -171,14 +172,14 @@ def divergence_solve_cold_start(
     return quanta_average(total, over, n, inv_quantum)
 
 
-@ti.kernel
+@fast_kernel
 def undo_push(n: ti.i32, warm_scale: float, push: ti.types.ndarray(ndim=1), v: ti.types.ndarray(ndim=1)):
     """v_i += warm_scale P_i: takes back the divergence warm start of a neighbourhood pass that must run again."""
     for i in range(n):
         v[i] += warm_scale * push[i]
 
 
-@ti.kernel
+@fast_kernel
 def density_solve_error(
     n: ti.i32,
     dt: float,
@@ -210,7 +211,7 @@ def density_solve_error(
     return quanta_average(total, over, n, inv_quantum)
 
 
-@ti.kernel
+@fast_kernel
 def density_warm_stiffness(
     n: ti.i32,
     dt: float,
@@ -254,7 +255,7 @@ def velocity_update(
     return dv, ki
 
 
-@ti.kernel
+@fast_kernel
 def apply_stiffness(
     n: ti.i32,
     dt: float,
@@ -275,7 +276,7 @@ def apply_stiffness(
         stiffness_sum[i] += ki
 
 
-@ti.kernel
+@fast_kernel
 def finish_solve(
     n: ti.i32,
     dt: float,

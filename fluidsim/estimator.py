@@ -29,6 +29,7 @@ import taichi as ti
 
 from .grid import ivec3
 from .kernels import cubic_grad_w, cubic_grad_w_np
+from .launch import fast_kernel
 from .neighbors import fluid_pair, for_each_neighbor, unpack_pair
 
 vec3d = ti.types.vector(3, ti.f64)
@@ -64,7 +65,7 @@ def record_estimate(i, d, divergence: ti.template(), divergence_sum: ti.template
     divergence_count[i] += 1
 
 
-@ti.kernel
+@fast_kernel
 def divergence_estimate_from_gradients(
     n: ti.i32,
     x: ti.types.ndarray(ndim=1),
@@ -90,7 +91,7 @@ def divergence_estimate_from_gradients(
         record_estimate(i, ti.abs(s), divergence, divergence_sum, divergence_count)
 
 
-@ti.kernel
+@fast_kernel
 def divergence_estimate_from_lists(
     n: ti.i32,
     h_r: float,
@@ -154,7 +155,7 @@ def _estimate_pair(s: ti.template(), j, r, ctx: ti.template()):
             ctx.total -= ctx.bvolume[j] * ctx.vi.dot(cubic_grad_w(r, ctx.h_k))
 
 
-@ti.kernel
+@fast_kernel
 def divergence_estimate_from_grid(
     n: ti.i32,
     h_r: float,

@@ -29,13 +29,14 @@ import numpy as np
 import taichi as ti
 
 from .kernels import cubic_grad_w_np
+from .launch import fast_kernel
 from .viscosity import LAPLACIAN_EPS, LAPLACIAN_FACTOR
 
 BLOCK = 4096  # fluid particles per partial sum
 vec6d = ti.types.vector(6, ti.f64)
 
 
-@ti.kernel
+@fast_kernel
 def force_partials(
     n: ti.i32,
     block: ti.i32,

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
+from .launch import fast_kernel
+
 ivec3 = ti.types.vector(3, ti.i32)
 # Block count of the two-level prefix sum; enough parallel slack for CPUs and small GPUs.
 SCAN_BLOCKS = 256
@@ -261,7 +263,7 @@ def _sort(
     return starts[num_buckets - 1]
 
 
-@ti.kernel
+@fast_kernel
 def counting_sort(
     xs: ti.types.ndarray(ndim=1),
     n: ti.i32,
@@ -294,7 +296,7 @@ def serial_sort() -> bool:
     return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
 
 
-@ti.kernel
+@fast_kernel
 def gather_persistent(
     order: ti.types.ndarray(dtype=ti.i32, ndim=1),
     n: ti.i32,

@@ -43,6 +43,7 @@ from taichi.lang import impl
 
 from .grid import cell_coord, ivec3, z_reach
 from .kernels import cubic_from_table, cubic_w
+from .launch import fast_kernel
 
 vec3d = ti.types.vector(3, ti.f64)
 # Below this many neighbours a particle is at the free surface and takes no divergence correction
@@ -214,7 +215,7 @@ def _add_weight(s: ti.template(), k, r, ctx: ti.template()):
     ctx.total += cubic_w(r.norm(), ctx.h)
 
 
-@ti.kernel
+@fast_kernel
 def compute_boundary_volumes(
     bx: ti.types.ndarray(ndim=1),
     starts: ti.types.ndarray(dtype=ti.i32, ndim=1),
@@ -308,7 +309,7 @@ def _gather_pair(s: ti.template(), j, r, ctx: ti.template()):
             ctx.nb += 1
 
 
-@ti.kernel
+@fast_kernel
 def build_neighborhoods(
     n: ti.i32,
     x: ti.types.ndarray(ndim=1),
@@ -454,7 +455,7 @@ def build_neighborhoods(
     return ivec3(max_f, max_b, too_far)
 
 
-@ti.kernel
+@fast_kernel
 def flag_near_boundary(
     n: ti.i32,
     x: ti.types.ndarray(ndim=1),

@@ -25,13 +25,14 @@ import taichi as ti
 
 from .estimator import record_estimate
 from .kernels import cubic_grad_w_np
+from .launch import fast_kernel
 from .neighbors import fluid_pair, unpack_pair
 
 LAPLACIAN_FACTOR = 2.0 * (3 + 2)  # 2 (d + 2), d = 3
 LAPLACIAN_EPS = 0.01  # times h^2, in the denominator of the Laplacian
 
 
-@ti.kernel
+@fast_kernel
 def predict_velocities(
     n: ti.i32,
     capacity: ti.i32,

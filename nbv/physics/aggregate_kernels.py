@@ -11,6 +11,7 @@ from typing import NamedTuple
 
 import taichi as ti
 
+from fluidsim.launch import fast_kernel
 from nbv.physics.aggregate_level_kernels import ITEMS_OFFSET, SPLITS_OFFSET
 
 vec3d = ti.types.vector(3, ti.f64)
@@ -261,7 +262,7 @@ def visit_all(
                     visit_particle(i, row, samples, levels, mode, sums)
 
 
-@ti.kernel
+@fast_kernel
 def accumulate(
     n: ti.i32,
     steps: ti.types.ndarray(dtype=ti.i32, ndim=1),
@@ -301,7 +302,7 @@ def accumulate(
     )
 
 
-@ti.kernel
+@fast_kernel
 def accumulate_tracked(
     n: ti.i32,
     steps: ti.types.ndarray(dtype=ti.i32, ndim=1),
@@ -364,7 +365,7 @@ def stage_one(
         last[pid] = ti.cast(xs[i], ti.f64)
 
 
-@ti.kernel
+@fast_kernel
 def stage_particles(
     n: ti.i32,
     offset: ti.i32,
@@ -394,7 +395,7 @@ def stage_particles(
             stage_one(i, offset, xs, values, ids, staged_x, staged_values, staged_ids, last, staged_prev, track)
 
 
-@ti.kernel
+@fast_kernel
 def insert_keys(
     n: ti.i32,
     keys: ti.types.ndarray(dtype=ti.i64, ndim=1),
@@ -407,7 +408,7 @@ def insert_keys(
             set_insert(hashes, fill, keys[i])
 
 
-@ti.kernel
+@fast_kernel
 def set_bits(n: ti.i32, keys: ti.types.ndarray(dtype=ti.i64, ndim=1), bits: ti.types.ndarray(dtype=ti.u32, ndim=2)):
     """Set bit id of row g of ``bits`` [G, words] for every key g * 2^32 + id among ``keys[:n]`` (atomic or)."""
     for i in range(n):
@@ -416,7 +417,7 @@ def set_bits(n: ti.i32, keys: ti.types.ndarray(dtype=ti.i64, ndim=1), bits: ti.t
         ti.atomic_or(bits[g, pid >> 5], ti.cast(1, ti.u32) << ti.cast(pid & 31, ti.u32))
 
 
-@ti.kernel
+@fast_kernel
 def count_keys(hashes: ti.types.ndarray(dtype=ti.i64, ndim=1), counts: ti.types.ndarray(dtype=ti.i64, ndim=1)):
     """``counts[g]`` += the number of keys g * 2^32 + id in the set (the distinct ids recorded for g)."""
     for s in range(hashes.shape[0]):
@@ -425,7 +426,7 @@ def count_keys(hashes: ti.types.ndarray(dtype=ti.i64, ndim=1), counts: ti.types.
             ti.atomic_add(counts[ti.cast(key >> 32, ti.i32)], ti.i64(1))
 
 
-@ti.kernel
+@fast_kernel
 def count_bits(bits: ti.types.ndarray(dtype=ti.u32, ndim=2), counts: ti.types.ndarray(dtype=ti.i64, ndim=1)):
     """``counts[g]`` = the bits set in row g of ``bits`` (the distinct ids recorded for g)."""
     for g in range(bits.shape[0]):
@@ -435,7 +436,7 @@ def count_bits(bits: ti.types.ndarray(dtype=ti.u32, ndim=2), counts: ti.types.nd
         counts[g] = total
 
 
-@ti.kernel
+@fast_kernel
 def spread_cells(
     table: ti.types.ndarray(dtype=ti.f64, ndim=2),
     lists: ti.types.ndarray(dtype=ti.i32, ndim=1),

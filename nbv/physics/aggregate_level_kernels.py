@@ -11,6 +11,8 @@ per run (counting pass, prefix sum on the host, fill pass); :mod:`nbv.physics.ag
 
 import taichi as ti
 
+from fluidsim.launch import fast_kernel
+
 vec4d = ti.types.vector(4, ti.f64)
 
 # Layout of the ``table`` [L + 1, TABLE_WIDTH] f64 array. Row 0: domain_min (3), domain_max (3) (the probe's domain
@@ -51,7 +53,7 @@ def covers(center, c, origin, cell, slack, reach2):
     return d2 * (1.0 + 1e-9) < reach2
 
 
-@ti.kernel
+@fast_kernel
 def list_cells(
     lv: ti.i32,
     reach_cells: ti.i32,
@@ -112,14 +114,14 @@ def list_cells(
             cover_counts[offset + t] = covering
 
 
-@ti.kernel
+@fast_kernel
 def copy_into(src: ti.types.ndarray(dtype=ti.i32, ndim=1), dst: ti.types.ndarray(dtype=ti.i32, ndim=1)):
     """``dst[:len(src)] = src``."""
     for c in range(src.shape[0]):
         dst[c] = src[c]
 
 
-@ti.kernel
+@fast_kernel
 def scatter_cells(
     first: ti.i32,
     last: ti.i32,

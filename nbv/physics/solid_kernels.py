@@ -10,10 +10,11 @@ search in the exclusive prefix sum of the box sizes.
 import numpy as np
 import taichi as ti
 
+from fluidsim.launch import fast_kernel
 from nbv.physics.leaks import ProbeLeaks, deep_interior
 
 
-@ti.kernel
+@fast_kernel
 def splat_log_transmittance(
     work_start: ti.i64,
     work_count: ti.i32,
@@ -74,7 +75,7 @@ def splat_log_transmittance(
         log_transmittance[i, j, k] += ti.cast(ti.log(1.0 - alpha), ti.f32)
 
 
-@ti.kernel
+@fast_kernel
 def splat_edge_log_transmittance(
     work_start: ti.i64,
     work_count: ti.i32,
@@ -148,7 +149,7 @@ def splat_edge_log_transmittance(
         edge_log_transmittance[axis, i, j, k] += ti.cast(ti.log(1.0 - alpha), ti.f32)
 
 
-@ti.kernel
+@fast_kernel
 def flag_deep_inside(
     n: ti.i32,
     x: ti.types.ndarray(ndim=1),
