@@ -54,7 +54,9 @@ def _run(call, power):
     a, v = _arrays()
     out = []
     for k in range(3):
-        ret = call(a, v, 1.0 + 0.1 * k, 0.25 * k, 5 + k % 2, np.array([0.5, -1.25, 2.0]) * (k + 1), (2, 3, 4 + k), power)
+        ret = call(
+            a, v, 1.0 + 0.1 * k, 0.25 * k, 5 + k % 2, np.array([0.5, -1.25, 2.0]) * (k + 1), (2, 3, 4 + k), power
+        )
         out.append((ret, a.to_numpy().copy(), v.to_numpy().copy()))
     return out
 
