@@ -41,6 +41,15 @@ def scaled(a: ti.types.ndarray(ndim=1), factor: ti.f32):
         a[i] = a[i] * factor
 
 
+@fast_kernel
+def extremes(a: ti.types.ndarray(ndim=1), n: ti.i32) -> tuple[ti.types.vector(2, ti.f64), ivec3, ti.u32]:
+    lo, hi = 1e30, -1e30
+    for i in range(n):
+        ti.atomic_min(lo, ti.cast(a[i], ti.f64))
+        ti.atomic_max(hi, ti.cast(a[i], ti.f64))
+    return ti.Vector([lo, hi]), ti.Vector([n, -n, 2 * n]), ti.u32(n) + ti.u32(4000000000)
+
+
 def _arrays(dtype=ti.f32):
     a = ti.ndarray(dtype, 7)
     a.from_numpy(np.linspace(0.5, 2.0, 7).astype(np.float32 if dtype == ti.f32 else np.float64))
@@ -71,6 +80,15 @@ def _same(x, y):
 def test_every_argument_kind_gives_the_plain_launchs_bits():
     assert isinstance(mixed, FastKernel)
     _same(_run(mixed, 2), _run(mixed.plain, 2))
+
+
+def test_vector_and_unsigned_returns_come_back_as_the_plain_launchs_numbers():
+    a, _ = _arrays()
+    for n in (7, 3, 5):
+        fast = extremes(a, n)
+        vec, ivec, big = extremes.plain(a, n)
+        assert fast == [tuple(vec), tuple(ivec), big]
+        assert fast[0] == (0.5, float(a.to_numpy()[n - 1])) and fast[2] == n + 4000000000
 
 
 def test_repeated_calls_skip_taichis_instance_lookup(monkeypatch):
