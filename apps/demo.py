@@ -153,9 +153,10 @@ def simulate_demo(gaussians, cfg, source: str, args: argparse.Namespace, out: Pa
     from nbv.outputs import divergence_columns, save_colored_gaussians
     from nbv.physics import save_result, simulate_gaussians
 
+    from .options.scoring import empty_worker_setup
     from .runtime import init_taichi
 
-    init_taichi(args.device, cfg.precision, args.threads)
+    used = init_taichi(args.device, cfg.precision, args.threads)
     from nbv.outputs import VIDEO_EVERY
     from nbv.physics.trajectory import RecordConfig  # the -x probe's fluid, for `fluidgs view` and the video
 
@@ -166,6 +167,7 @@ def simulate_demo(gaussians, cfg, source: str, args: argparse.Namespace, out: Pa
         source=source,
         record=RecordConfig(("-x",), every=max(1, cfg.steps // 30) if args.no_video else VIDEO_EVERY),
         source_frame=getattr(args, "source_frame", ""),
+        empty_worker=empty_worker_setup(used, cfg.precision, args.threads),
     )
     save_result(out / "result.h5", result)
     save_colored_gaussians(

@@ -11,7 +11,6 @@ the shares run on threads. The work per camera is the same code either way, so t
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import os
 import pickle
 import signal
@@ -20,9 +19,10 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+from fluidsim.host import die_with_parent
+
 PROCESSES_ENV = "FLUIDGS_SCORING_PROCESSES"
 FORK_MIN_PAIRS = 20_000_000  # (Gaussian, camera) pairs below which a fork (milliseconds) is not worth it
-PR_SET_PDEATHSIG = 1  # Linux prctl option: the signal a child gets when its parent dies
 
 
 def camera_shares(work: Callable[[range], Any], count: int, workers: int, name: str, pairs: int = 0) -> list:
@@ -75,8 +75,7 @@ def _child(work: Callable[[range], Any], share: range, fd: int, parent: int) -> 
     try:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
-        with contextlib.suppress(OSError, AttributeError):
-            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        die_with_parent(signal.SIGKILL)
         if os.getppid() != parent:  # the parent died before the line above
             return
         try:

@@ -20,6 +20,22 @@ def init_worker(threads: int, precision: str) -> None:
     init_taichi("cpu", precision, threads)
 
 
+def init_empty_worker(precision: str, threads: int, debug: bool = False) -> None:
+    """The empty-scene worker's set-up (:mod:`nbv.physics.empty_worker`): the signals of a worker, warnings only (the
+    parent's bar and log speak for the run), one torch thread and ``threads`` Taichi threads on the CPU, in the
+    parent's precision and debug mode (debug mode compiles other float code: the bits would differ)."""
+    import torch
+
+    from ..runtime import init_taichi
+    from ..signals import worker_signals
+
+    worker_signals()
+    quiet_progress_lock()
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s (empty-scene worker): %(message)s")
+    torch.set_num_threads(1)
+    init_taichi("cpu", precision, threads, debug=debug)
+
+
 def quiet_progress_lock() -> None:
     """Give tqdm a thread lock in this worker. Its default lock holds a multiprocessing semaphore, for bars shared with
     processes this one would start (it starts none); a semaphore made in a spawned worker is registered with the

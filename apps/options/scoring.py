@@ -4,7 +4,9 @@ before any work, the orbit cameras written beside the output, and the RESULT.h5 
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
+import os
 from pathlib import Path
 
 from .cameras import check_visibility_arguments, write_orbit_cameras  # noqa: F401 - apps.score reads the second here
@@ -97,7 +99,7 @@ def simulate_from_args(args, gaussians, config, record=None):
 
     from ..runtime import init_taichi
 
-    init_taichi(args.device, config.precision, args.threads)
+    used = init_taichi(args.device, config.precision, args.threads)
     return simulate_gaussians(
         gaussians,
         config,
@@ -105,7 +107,22 @@ def simulate_from_args(args, gaussians, config, record=None):
         source=str(args.gaussians),
         source_frame=getattr(args, "source_frame", ""),
         record=record,
+        empty_worker=empty_worker_setup(used, config.precision, args.threads),
     )
+
+
+def empty_worker_setup(used: str, precision: str, threads: int | None):
+    """The set-up of the empty-scene worker beside the probes (:mod:`nbv.physics.empty_worker`), for a run on the
+    device ``used`` with ``threads`` (None: all cores), or None: on the CPU with two threads or more, the worker
+    gets half as many (on two cores the probes leave about 0.6 of a core idle), in this runtime's debug mode."""
+    import taichi as ti
+
+    from .executor import init_empty_worker
+
+    threads = threads or os.cpu_count() or 1
+    if used != "cpu" or threads < 2:
+        return None
+    return functools.partial(init_empty_worker, precision, threads // 2, bool(ti.lang.impl.current_cfg().debug))
 
 
 def obtain_result(args, gaussians, config, record=None):

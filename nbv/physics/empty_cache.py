@@ -473,10 +473,7 @@ class EmptyReference:
         ([G, 3] centres, [G] reach, sim metres): its means, else its fluid, else only its keys."""
         if self.store is None:
             return EmptyFound()
-        wall_layers = config.probe_config().wall_layers
-        solver = config.solver_config()
-        samples_key = cache_key(setup, solver, wall_layers, config.steps, config.accumulate_every, self._code)
-        key = means_key(samples_key, centers, reach, self._accumulator)
+        samples_key, key = self._keys(setup, config, centers, reach)
         means = self._memo.pop(key, None)
         if means is None:
             means = self.store.load_means(key, len(centers), samples_key)
@@ -486,6 +483,14 @@ class EmptyReference:
         found = self.store.load(samples_key)
         return EmptyFound(samples_key, key, samples=found, where=str(self.store.path(samples_key)))
 
+    def holds(self, setup, config, centers: np.ndarray, reach: np.ndarray) -> bool:
+        """Whether :meth:`lookup` would find the probe's means or fluid (nothing is read but the memo and the folder's
+        names; a damaged entry counts, and :meth:`lookup` then simulates it)."""
+        if self.store is None:
+            return False
+        samples_key, key = self._keys(setup, config, centers, reach)
+        return key in self._memo or self.store.path(key).exists() or self.store.path(samples_key).exists()
+
     def put(self, found: EmptyFound, means: np.ndarray, samples: EmptySamples | None = None) -> None:
         """Store the ``means`` of a probe looked up as ``found`` (and its simulated fluid ``samples``)."""
         if self.store is None or found.means_key is None:
@@ -494,6 +499,13 @@ class EmptyReference:
             self.store.save(found.samples_key, samples)
         self.store.save_means(found.means_key, means, found.samples_key)
         self._remember(found.means_key, means)
+
+    def _keys(self, setup, config, centers: np.ndarray, reach: np.ndarray) -> tuple[str, str]:
+        """(the fluid's key, the means' key) of a probe on these Gaussians."""
+        wall_layers = config.probe_config().wall_layers
+        solver = config.solver_config()
+        samples_key = cache_key(setup, solver, wall_layers, config.steps, config.accumulate_every, self._code)
+        return samples_key, means_key(samples_key, centers, reach, self._accumulator)
 
     def _remember(self, key: str, means: np.ndarray) -> None:
         self._memo.pop(key, None)

@@ -39,6 +39,7 @@ def empty_scene_probes(
     lists: GaussianLists | None = None,
     reference: EmptyReference | None = None,
     steps: Mapping[str, int] | None = None,
+    helper=None,
 ) -> tuple[np.ndarray, float]:
     """D_g^(IC) of the empty scene: each probe's slab in its walled domain with no solid, onto the same Gaussians.
 
@@ -55,6 +56,9 @@ def empty_scene_probes(
         steps: the steps each probe's empty scene runs: those its probe with the solid ran, so that D-bar / D-bar_empty
             compares the same time window when the probe stopped early (``config.stop_tolerance``); the cache keys
             hold them. None: ``config.steps``.
+        helper: the worker process the probes handed their empty scenes to
+            (:class:`nbv.physics.empty_worker.EmptyHelper`, which imports this module in its worker): those it has
+            not started run here, it gets the next between them, and its means are gathered (None: all run here).
     Returns:
         ([P, G] float64 per-probe means, seconds spent).
     """
@@ -67,15 +71,28 @@ def empty_scene_probes(
         centers, reach, replace(config, track_distinct=False), bar, "empty ", grid_bounds=plan.bounds, lists=lists
     )
     configs = {d: config if steps is None else replace(config, steps=int(steps[d])) for d in config.directions}
+    offered = set() if helper is None else helper.offered
     try:
-        out = [_empty_probe(d, plan.setups[d], configs[d], rec, reference) for d in config.directions]
+        out = {
+            d: empty_probe_means(d, plan.setups[d], configs[d], rec, reference)
+            for d in config.directions
+            if d not in offered
+        }
+        if helper is not None:  # the worker's: those it has not started run here, then its means
+            while (job := helper.take()) is not None:
+                out[job[0]] = empty_probe_means(job[0], plan.setups[job[0]], job[1], rec, reference)
+            helper.wait()
+            helper.raise_error()
+            for d, cfg in helper.lost():
+                out[d] = empty_probe_means(d, plan.setups[d], cfg, rec, reference)
+            out.update(helper.means)
     finally:
         if bar is not progress:  # a bar of its own: closed here; the run's bar is closed by the run
             bar.close()
-    return np.stack(out), time.perf_counter() - t0
+    return np.stack([out[d] for d in config.directions]), time.perf_counter() - t0
 
 
-def _empty_probe(
+def empty_probe_means(
     direction: str, setup: ProbeSetup, config: PhysicsConfig, rec: ProbeRecorder, reference: EmptyReference
 ) -> np.ndarray:
     """One probe's [G] reference: found (its means, or its fluid accumulated here), else simulated; stored."""

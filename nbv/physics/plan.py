@@ -23,6 +23,7 @@ Example:
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -207,6 +208,9 @@ class ProbeRunContext:
         record: the probes to record (:class:`nbv.physics.trajectory.RecordConfig`), or None.
         exact_memory: check the memory around the solid (False: the Gaussians' box was checked and fits).
         started: the run's start (``time.perf_counter()``). solidify_s: the solidification's seconds.
+        empty_worker: sets up a worker process that runs empty-scene probes beside the probes
+            (:mod:`nbv.physics.empty_worker`; from ``apps``, which alone initialises Taichi), or None: this process
+            runs them after the probes.
     """
 
     frame: RunFrame
@@ -216,3 +220,4 @@ class ProbeRunContext:
     exact_memory: bool = True
     started: float = field(default_factory=time.perf_counter)
     solidify_s: float = 0.0
+    empty_worker: Callable[[], None] | None = None

@@ -33,6 +33,7 @@ class RunProgress:
         self.count = len(config.directions) * (2 if empty else 1)
         self.index = 0
         self.weight = 0
+        self.poll = None  # called at every step (EmptyHelper.poll), or None
         total = self.steps * sum(self.weights.values()) * (2 if empty else 1)
         self.bar = tqdm(
             total=total,
@@ -58,8 +59,16 @@ class RunProgress:
         past the steps it will not run, so the ETA stays one over what is left."""
         self.bar.update(max(self.steps - steps_run, 0) * self.weight)
 
+    def done_elsewhere(self, direction: str) -> None:
+        """An empty-scene probe ran in the worker process (:mod:`nbv.physics.empty_worker`): the bar moves past it."""
+        self.index += 1
+        self.bar.update(self.steps * self.weights[direction])
+
     def tick(self, stats: StepStats) -> None:
-        """One step of the current probe ran."""
+        """One step of the current probe ran (and ``poll``, when set, is called: the empty-scene worker's
+        messages are read between steps)."""
+        if self.poll is not None:
+            self.poll()
         self.bar.update(self.weight)
         self.bar.set_postfix(
             step=f"{stats.step + 1}/{self.steps}",

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -38,6 +38,7 @@ from nbv.physics.config import PhysicsConfig
 from nbv.physics.early_stop import ConvergenceCheck
 from nbv.physics.empty_cache import EmptyReference
 from nbv.physics.empty_scene import empty_scene_probes
+from nbv.physics.empty_worker import EmptyHelper, empty_helper, offer_empty
 from nbv.physics.memory import check_memory, check_memory_bound
 from nbv.physics.plan import ProbePlan, ProbeRunContext, RunFrame
 from nbv.physics.progress import RunProgress
@@ -145,6 +146,7 @@ def simulate_gaussians(
     record: RecordConfig | None = None,
     *,
     source_frame: str = "",
+    empty_worker: Callable[[], None] | None = None,
 ) -> PhysicsResult:
     """Run the probes against the solid of ``gaussians`` and aggregate D_i onto every Gaussian (Eq. 2-3).
 
@@ -159,6 +161,9 @@ def simulate_gaussians(
             stored in RESULT.h5.
         record: a :class:`nbv.physics.trajectory.RecordConfig`: keep those probes' fluid every k steps in
             ``PhysicsResult.trajectories`` (None: nothing recorded).
+        empty_worker: sets up a worker process (logging, signals, its own one-thread Taichi runtime) that simulates
+            empty-scene probes beside the probes (:mod:`nbv.physics.empty_worker`; the same bits); None: they run in
+            this process after the probes.
     Returns:
         PhysicsResult; with ``config.replicas`` > 1, the replicas combined
         (:func:`simulate_replicas`).
@@ -172,7 +177,7 @@ def simulate_gaussians(
         record.check_probes(config.directions, config.steps)
     frame = RunFrame.of(gaussians, config, source)  # Sec. 3.2: the kept Gaussians in simulation metres, Y-up
     exact_memory = check_memory_bound(frame)  # the Gaussians' box fits, or the solid will be checked
-    run = ProbeRunContext(frame, progress, source, record, exact_memory, started)
+    run = ProbeRunContext(frame, progress, source, record, exact_memory, started, empty_worker=empty_worker)
     try:
         if config.replicas > 1:  # the probes once per shifted lattice, combined
             result = simulate_replicas(run)
@@ -218,21 +223,29 @@ def simulate_solid(run: ProbeRunContext, solid: SolidLattice) -> PhysicsResult:
     # the empty scene's reference, its cache's bound read now (a bad FLUIDGS_CACHE_MAX_GB is refused before any probe)
     reference = EmptyReference.of(config)
     bar = RunProgress(plan, config, run.progress)  # "probe k of n", one ETA over the probes and the empty scene
+    helper = empty_helper(run, plan, bar)  # a worker process for the empty scene beside the probes, or None
     try:  # Eq. 1-3: D_i of every step onto the Gaussians within n r_g
-        result = _probe(run, solid, plan, bar, reference)
+        result = _probe(run, solid, plan, bar, reference, helper)
     except ProbeDiverged as exc:
         exc.result = frame.expand(exc.result)
         raise
     finally:
+        if helper is not None:
+            helper.close()
         bar.close()
     return frame.expand(result)  # every Gaussian of the run gets its row
 
 
 def _probe(
-    run: ProbeRunContext, solid: SolidLattice, plan: ProbePlan, bar: RunProgress, reference: EmptyReference
+    run: ProbeRunContext,
+    solid: SolidLattice,
+    plan: ProbePlan,
+    bar: RunProgress,
+    reference: EmptyReference,
+    helper: EmptyHelper | None,
 ) -> PhysicsResult:
-    """The probes and, with ``config.empty_reference``, the empty scene (from ``reference`` where there): the result on
-    the simulated Gaussians."""
+    """The probes and, with ``config.empty_reference``, the empty scene (from ``reference`` where there; simulated
+    by ``helper``'s worker beside the probes, or here): the result on the simulated Gaussians."""
     frame = run.frame
     config, scfg = frame.config, frame.config.solver_config()
     means, covs, reach = frame.means, frame.covariances, frame.reach
@@ -258,6 +271,11 @@ def _probe(
             "total": time.perf_counter() - run.started,
         }
 
+    def probe_end(direction: str, solver, history) -> None:
+        recorder.end(direction, solver, history)
+        if helper is not None:  # its empty scene, unless cached, goes to the worker
+            offer_empty(helper, reference, plan, config, direction, len(history), means, reach)
+
     try:
         run_probes(
             solid.points,
@@ -266,7 +284,7 @@ def _probe(
             config.steps,
             on_step=recorder.step,
             on_probe_start=recorder.start,
-            on_probe_end=recorder.end,
+            on_probe_end=probe_end,
             progress=lambda d, st: recorder.tick(st),
             setups=plan.setups,
             stop=early_stop(recorder, config),
@@ -282,7 +300,7 @@ def _probe(
         return result
     try:
         steps = {d: len(recorder.histories[d]) for d in config.directions}  # each as long as its probe ran
-        empty, empty_s = empty_scene_probes(plan, means, reach, config, bar, recorder.lists, reference, steps)
+        empty, empty_s = empty_scene_probes(plan, means, reach, config, bar, recorder.lists, reference, steps, helper)
     except SimulationDiverged as exc:
         probe = getattr(exc, "probe", "empty-scene")
         failure = {"probe": probe, "step": int(exc.step), "reason": exc.reason}

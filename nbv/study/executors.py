@@ -23,8 +23,9 @@ import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
 from typing import Any
+
+from fluidsim.host import hangup_shielded
 
 log = logging.getLogger(__name__)
 
@@ -84,22 +85,6 @@ class LocalExecutor:
             except (KeyboardInterrupt, SystemExit, GeneratorExit):
                 terminate_workers(pool)  # a signal or an abandoned map: no worker may outlive it
                 raise
-
-
-@contextmanager
-def hangup_shielded() -> Iterator[None]:
-    """While entered, SIGHUP is blocked in this thread, so the processes it starts inherit the block: a closed terminal
-    sends SIGHUP to the whole process group, and the workers and the resource tracker (which ignores only SIGINT and
-    SIGTERM) must be stopped by their parent, not killed halfway. A SIGHUP that arrives meanwhile is delivered to this
-    process when the block ends."""
-    if not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def terminate_workers(pool: ProcessPoolExecutor, grace_s: float = 10.0) -> None:
