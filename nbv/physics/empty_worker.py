@@ -49,7 +49,8 @@ WORKER_BASE_BYTES = 600 * 2**20
 def helper_wanted(initializer, config, cpus: int | None = None) -> bool:
     """Whether a run may use a worker: an initializer, an empty scene, at least two CPUs, Linux (where the worker
     can die with its parent), and ``FLUIDGS_EMPTY_PROCESS`` not 0."""
-    cpus = os.cpu_count() if cpus is None else cpus
+    if cpus is None:  # the CPUs this process may run on (a taskset or cgroup may allow fewer than the machine has)
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return (
         initializer is not None
         and config.empty_reference
