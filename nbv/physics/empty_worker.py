@@ -25,7 +25,6 @@ import os
 import pickle
 import signal
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -93,7 +92,7 @@ class EmptyHelper:
     """This process's side of the worker (module docstring).
 
     Args:
-        initializer: sets up the worker (logging, signals, its one-thread Taichi runtime); picklable.
+        initializer: sets up the worker (logging, signals, its own Taichi runtime on the CPU); picklable.
         plan: the run's probes (:class:`nbv.physics.plan.ProbePlan`). centers, reach: [G, 3], [G] sim metres.
         config: the run's settings (:class:`nbv.physics.config.PhysicsConfig`).
         progress: the run's bar (:class:`nbv.physics.progress.RunProgress`), moved as the worker's probes end.
@@ -107,7 +106,6 @@ class EmptyHelper:
         self.means: dict[str, np.ndarray] = {}
         self.errors: list[BaseException] = []  # raised by raise_error, after this process's own probes
         self.offered: set[str] = set()
-        self.worker_s = 0.0
         self._process = None
         self._conn = None
         self._ready = False  # the worker said it is set up (its imports and runtime take seconds)
@@ -204,12 +202,11 @@ class EmptyHelper:
         log.info("empty scene: a worker process (pid %d) runs it beside the probes", self._process.pid)
 
     def _receive(self, message) -> None:
-        kind, direction, value, seconds = message
+        kind, direction, value = message
         if kind == "ready":  # set up: it may take a probe
             self._ready = True
             return
         self.running = None
-        self.worker_s += seconds
         if kind == "means":
             self.means[direction] = value
             self.progress.done_elsewhere(direction)
@@ -254,21 +251,20 @@ def _worker_main(conn, initializer, plan, centers, reach, config, parent: int) -
     reference = EmptyReference.of(config)
     bar = RunProgress(plan, config, enabled=False)
     rec = ProbeRecorder(centers, reach, config, bar, "empty ", grid_bounds=plan.bounds)
-    conn.send(("ready", None, None, 0.0))
+    conn.send(("ready", None, None))
     while True:
         job = conn.recv()
         if job is None:
             return
         direction, probe_config = job
-        t0 = time.perf_counter()
         try:
             means = empty_probe_means(direction, plan.setups[direction], probe_config, rec, reference)
-            message = ("means", direction, means, time.perf_counter() - t0)
+            message = ("means", direction, means)
         except SimulationDiverged as exc:
             info = (exc.step, exc.reason, getattr(exc, "probe", f"empty-scene {direction}"))
-            message = ("diverged", direction, info, time.perf_counter() - t0)
+            message = ("diverged", direction, info)
         except Exception as exc:  # noqa: BLE001 - sent to the parent, which raises it
-            message = ("error", direction, _portable(exc), time.perf_counter() - t0)
+            message = ("error", direction, _portable(exc))
         conn.send(message)
 
 

@@ -104,7 +104,7 @@ def test_a_worker_that_dies_is_replaced_by_this_process(release_runtime, patient
 def test_a_diverged_empty_scene_in_the_worker_is_raised_as_its_own():
     helper = EmptyHelper(None, None, None, None, CFG, progress=None)
     helper.running = ("-x", CFG)
-    helper._receive(("diverged", "-x", (12, "the fluid left the domain", "empty-scene -x"), 0.5))
+    helper._receive(("diverged", "-x", (12, "the fluid left the domain", "empty-scene -x")))
     with pytest.raises(SimulationDiverged, match="diverged at step 12: the fluid left") as err:
         helper.raise_error()
     assert err.value.probe == "empty-scene -x" and err.value.step == 12 and helper.running is None
