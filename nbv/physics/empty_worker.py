@@ -111,17 +111,16 @@ class EmptyHelper:
         self._ready = False  # the worker said it is set up (its imports and runtime take seconds)
         self._dead = False
 
-    def offer(self, direction: str, config) -> bool:
-        """Queue ``direction``'s empty scene (``config`` with the steps its probe ran) for the worker; False when the
-        worker cannot take it (it died), so this process runs it."""
+    def offer(self, direction: str, config) -> None:
+        """Queue ``direction``'s empty scene (``config`` with the steps its probe ran) for the worker; not when the
+        worker died (it is not in ``offered`` then, and this process runs it)."""
         if self._dead:
-            return False
+            return
         if self._process is None:
             self._start()
         self.pending.append((direction, config))
         self.offered.add(direction)
         self.poll()
-        return True
 
     def poll(self) -> None:
         """Read the worker's finished probe, if any, and hand it the next pending one when it is idle. Cheap enough
