@@ -70,7 +70,7 @@ def empty_scene_probes(
     rec = ProbeRecorder(
         centers, reach, replace(config, track_distinct=False), bar, "empty ", grid_bounds=plan.bounds, lists=lists
     )
-    configs = {d: config if steps is None else replace(config, steps=int(steps[d])) for d in config.directions}
+    configs = {d: config if steps is None else empty_probe_config(config, steps[d]) for d in config.directions}
     offered = set() if helper is None else helper.offered
     try:
         out = {
@@ -90,6 +90,12 @@ def empty_scene_probes(
         if bar is not progress:  # a bar of its own: closed here; the run's bar is closed by the run
             bar.close()
     return np.stack([out[d] for d in config.directions]), time.perf_counter() - t0
+
+
+def empty_probe_config(config: PhysicsConfig, steps: int) -> PhysicsConfig:
+    """The settings of one empty-scene probe: ``config`` run for the ``steps`` its probe with the solid ran (no early
+    stop of its own)."""
+    return replace(config, steps=int(steps))
 
 
 def empty_probe_means(

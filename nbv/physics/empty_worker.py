@@ -32,7 +32,11 @@ import numpy as np
 
 from fluidsim.host import die_with_parent, hangup_shielded
 from fluidsim.simulation import SimulationDiverged
+from nbv.physics.empty_cache import EmptyReference
+from nbv.physics.empty_scene import empty_probe_config, empty_probe_means
 from nbv.physics.memory import estimate_memory, memory_limit_bytes
+from nbv.physics.progress import RunProgress
+from nbv.physics.recorder import ProbeRecorder
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +87,7 @@ def empty_helper(run, plan, bar) -> EmptyHelper | None:
 def offer_empty(helper: EmptyHelper, reference, plan, config, direction: str, steps: int, centers, reach) -> None:
     """After probe ``direction`` ran ``steps`` steps: its empty scene goes to the worker unless ``reference`` holds
     it (its means or its fluid, which this process reads after the probes)."""
-    probe_config = replace(config, steps=int(steps))
+    probe_config = empty_probe_config(config, steps)
     if not reference.holds(plan.setups[direction], probe_config, centers, reach):
         helper.offer(direction, probe_config)
 
@@ -242,11 +246,6 @@ def _worker_main(conn, initializer, plan, centers, reach, config, parent: int) -
     if os.getppid() != parent:  # the parent died before the line above
         return
     initializer()
-    from nbv.physics.empty_cache import EmptyReference  # noqa: PLC0415 - after the runtime is set up
-    from nbv.physics.empty_scene import empty_probe_means  # noqa: PLC0415
-    from nbv.physics.progress import RunProgress  # noqa: PLC0415
-    from nbv.physics.recorder import ProbeRecorder  # noqa: PLC0415
-
     reference = EmptyReference.of(config)
     bar = RunProgress(plan, config, enabled=False)
     rec = ProbeRecorder(centers, reach, config, bar, "empty ", grid_bounds=plan.bounds)

@@ -161,7 +161,7 @@ def simulate_gaussians(
             stored in RESULT.h5.
         record: a :class:`nbv.physics.trajectory.RecordConfig`: keep those probes' fluid every k steps in
             ``PhysicsResult.trajectories`` (None: nothing recorded).
-        empty_worker: sets up a worker process (logging, signals, its own one-thread Taichi runtime) that simulates
+        empty_worker: sets up a worker process (logging, signals, its own Taichi runtime on the CPU) that simulates
             empty-scene probes beside the probes (:mod:`nbv.physics.empty_worker`; the same bits); None: they run in
             this process after the probes.
     Returns:
