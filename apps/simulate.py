@@ -120,7 +120,7 @@ def run_command(args: argparse.Namespace) -> int:
 
 def print_result(result) -> None:
     """Per probe: mean and max D_g, the Gaussians reached, retired and leaked particles, warnings; the forces, D-bar,
-    the replicas' agreement and the timings."""
+    the replicas' agreement and the timings. D_g and D-bar to two digits, as far as a rerun reproduces them."""
     from nbv.outputs import result_summary
     from nbv.physics.forces import force_lines
     from nbv.physics.replicas import replicas_gaussian_line
@@ -132,7 +132,7 @@ def print_result(result) -> None:
     )
     for d, pr in s["probes"].items():
         print(
-            f"  probe {d:>3}: mean D_g {pr['mean_D']:.4g} 1/s, max {pr['max_D']:.4g} 1/s, "
+            f"  probe {d:>3}: mean D_g {pr['mean_D']:.2g} 1/s, max {pr['max_D']:.2g} 1/s, "
             f"{pr['touched_gaussians']} Gaussians reached, {pr['retired']} retired"
             + (
                 f", leaked into the solid: {pr['leaked']['final']} at the end, at most {pr['leaked']['max']} "
@@ -144,8 +144,10 @@ def print_result(result) -> None:
         for w in result.warnings.get(d, []):
             print(f"    WARNING: {w}")
     print("\n".join(force_lines(result.forces)))
-    empty = "n/a" if result.dbar_empty is None else f"{result.dbar_empty:.4g}"
-    print(f"D-bar {result.dbar:.4g} m^4/s (mean-combined {result.dbar_mean:.4g}; empty scene {empty})")
+    # two digits: the same run with other float roundings moves D-bar and its empty scene's by up to tens of per
+    # cent (docs/performance.md, "The answer's rounding floor"); RESULT.h5 keeps every digit
+    empty = "n/a" if result.dbar_empty is None else f"{result.dbar_empty:.2g}"
+    print(f"D-bar {result.dbar:.2g} m^4/s (mean-combined {result.dbar_mean:.2g}; empty scene {empty})")
     if result.replicas is not None:
         print(replicas_gaussian_line(result.replicas))
     t = result.timings

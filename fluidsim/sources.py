@@ -27,9 +27,21 @@ import math
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
 
 logger = logging.getLogger(__name__)
+
+
+class _Open3d:
+    """open3d, imported on first use: it takes about 0.6 s, and only meshes and ``.ply`` point clouds need it (every
+    command imports this module for the walls)."""
+
+    def __getattr__(self, name: str):
+        import open3d  # noqa: PLC0415 - the point of this class
+
+        return getattr(open3d, name)
+
+
+o3d = _Open3d()
 
 POINT_EXTENSIONS = (".npy", ".ply")
 MESH_EXTENSIONS = (".obj", ".stl", ".ply")

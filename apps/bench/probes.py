@@ -19,6 +19,7 @@ import argparse
 import logging
 import resource
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 from ..options.common import (
@@ -28,7 +29,7 @@ from ..options.common import (
     add_probe_size_options,
     add_up_option,
 )
-from ..options.numbers import positive_number, step_list, tolerance_list
+from ..options.numbers import int_in, positive_number, step_list, tolerance_list
 from ..runtime import positive_int, thread_count
 
 
@@ -65,6 +66,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="how far the slabs span past the solid across the flow, as a fraction of the solid's largest extent "
         "(default: the probes' 0.15); with --against the uncut run, what trimming the slab changes",
+    )
+    p.add_argument(
+        "--rounding",
+        type=int_in(0, 100),
+        default=0,
+        help="run the uncut probes this many more times with the time step nudged by a millionth of itself (a few "
+        "float32 ulps: the same physics, other roundings) and judge each cut against how far that alone moves the "
+        "answer; each run costs as long as the first",
     )
     p.add_argument("--threads", type=thread_count, default=2, help="CPU threads")
     add_json_option(p)
@@ -112,8 +121,10 @@ def run_command(args: argparse.Namespace) -> int:
         against_line,
         answer,
         cut_report,
+        full_stops,
         judge_cuts,
         profile_report,
+        rounding_floor,
         save_traces,
         trace_probes,
         trimmed_plan,
@@ -156,12 +167,19 @@ def run_command(args: argparse.Namespace) -> int:
     print("\n".join(lines))
     logging.getLogger("nbv.view_scoring").setLevel(logging.WARNING)  # one line per judged cut, not per scoring
     view_scores = view_scorer(gaussians, orbit_cameras(gaussians, cfg, Orbit(args.cameras)), frame.kept)
-    lines, judged = cut_report(judge_cuts(traces, rules, args.fixed, frame.covariances, view_scores), args.cameras)
-    print("\n".join(lines))
-    d_g, ratio = answer(traces, {t.direction: t.checkpoints[-1] for t in traces}, frame.covariances)
+    d_g, ratio = answer(traces, full_stops(traces), frame.covariances)
     views = view_scores(d_g)
+    floor = None
+    if args.rounding:
+        empty = not args.no_empty
+        floor = rounding_floor(
+            frame, plan, solid.points, (d_g, ratio, views), args.rounding, view_scores, every=args.every, empty=empty
+        )
+    cuts = judge_cuts(traces, rules, args.fixed, frame.covariances, view_scores)
+    lines, judged = cut_report(cuts, args.cameras, floor)
+    print("\n".join(lines))
     if args.save is not None:
-        save_traces(args.save, traces, frame.covariances, d_g, ratio, views)
+        save_traces(args.save, traces, frame.covariances, d_g, ratio, views, floor)
     if args.against is not None:
         print(against_line(args.against, d_g, ratio, views))
     print(f"whole command {time.perf_counter() - wall0:.1f} s wall, {_cpu() - cpu0:.1f} s CPU")
@@ -176,6 +194,7 @@ def run_command(args: argparse.Namespace) -> int:
                 "particle_radius": cfg.particle_radius,
                 "steps": cfg.steps,
                 "dt": cfg.dt,
+                "rounding_floor": None if floor is None else asdict(floor),
             },
         )
     return 0

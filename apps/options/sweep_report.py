@@ -29,12 +29,13 @@ def print_points(points, other: bool) -> None:
         f"{'drag N':>9}" + ("  D-bar OTHER         gap" if other else "")
     )
     for p in points:
-        extra = f" {p.dbar_other:>12.4g} {p.gap:>11.4g}" if p.dbar_other is not None else ""
-        empty = "n/a" if p.dbar_empty is None else f"{p.dbar_empty:.4g}"
+        # two digits, as far as a rerun with other float roundings reproduces them (docs/performance.md)
+        extra = f" {p.dbar_other:>12.2g} {p.gap:>11.2g}" if p.dbar_other is not None else ""
+        empty = "n/a" if p.dbar_empty is None else f"{p.dbar_empty:.2g}"
         cd = "n/a" if p.drag_coefficient is None else f"{p.drag_coefficient:.3g}"
         drag = "n/a" if p.drag is None else f"{p.drag:.3g}"
         print(
-            f"{p.speed:>7g} {p.reynolds:>10.4g} {p.dt:>10.3g} {p.steps:>6} {p.dbar:>12.4g} {empty:>12} {cd:>6} "
+            f"{p.speed:>7g} {p.reynolds:>10.4g} {p.dt:>10.3g} {p.steps:>6} {p.dbar:>12.2g} {empty:>12} {cd:>6} "
             f"{drag:>9}{extra}"
         )
 

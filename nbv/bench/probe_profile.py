@@ -20,6 +20,11 @@ S(T) over orbit cameras, depth-tested), the per-Gaussian D_g (Spearman) and D-ba
 The report of the command is made here too, as lines and JSON rows: :func:`profile_report` (per probe and stage),
 :func:`judge_cuts` and :func:`cut_report` (the stop rules and fixed lengths), :func:`save_traces` and
 :func:`against_line` (a run's answer saved, and compared with a saved one).
+
+:func:`rounding_floor` runs the uncut probes again with the time step nudged by a millionth of itself: the same
+physics with other float roundings. The answer moves under that by more than the fixed criteria above allow (measured
+on the bundled asset and a real capture, docs/performance.md), so a cut that is not bit-identical is judged against
+this floor as well (:class:`RoundingFloor`).
 """
 
 from __future__ import annotations
@@ -48,6 +53,9 @@ from nbv.view_scoring import project_scores
 VIEW_SPEARMAN_MIN = 0.97
 DG_SPEARMAN_MIN = 0.9
 RATIO_MOVE_MAX = 0.05
+# A rounding replica runs the uncut probes again with dt nudged by this fraction of itself (a few float32 ulps): the
+# same physics, other roundings. How far that moves the answer is the floor under any cut that is not bit-identical.
+ROUNDING_NUDGE = 1e-6
 # The solver stages timed apart, in the order of the profile's columns (the rest of the step is one more column).
 STAGES = ("neighbors", "divergence_solve", "density_solve", "divergence_estimate", "forces")
 
@@ -237,10 +245,15 @@ def answer(traces: list[ProbeTrace], stops: dict[str, int], covariances: np.ndar
     return d_g, dbar / dbar_e if dbar_e > 0 else float("nan")
 
 
+def full_stops(traces: Sequence[ProbeTrace]) -> dict[str, int]:
+    """{direction: the steps it ran}: every probe uncut."""
+    return {t.direction: t.checkpoints[-1] for t in traces}
+
+
 def judge_stops(traces: list[ProbeTrace], stops: dict[str, int], covariances: np.ndarray, view_scores) -> Judged:
     """Compare the answer with the probes stopped at ``stops`` against the uncut one (``view_scores(values [G]) ->
     [C]`` scores the candidate views)."""
-    full = {t.direction: t.checkpoints[-1] for t in traces}
+    full = full_stops(traces)
     d_cut, r_cut = answer(traces, stops, covariances)
     d_full, r_full = answer(traces, full, covariances)
     run = sum(t.fluid * stops[t.direction] for t in traces)
@@ -249,9 +262,86 @@ def judge_stops(traces: list[ProbeTrace], stops: dict[str, int], covariances: np
         stops=dict(stops),
         view_spearman=spearman(view_scores(d_cut), view_scores(d_full)),
         dg_spearman=spearman(d_cut, d_full),
-        ratio_move=abs(r_cut / r_full - 1.0) if r_full and not math.isnan(r_full) else float("nan"),
+        ratio_move=ratio_move(r_cut, r_full),
         step_share=run / whole,
     )
+
+
+def ratio_move(ratio: float, reference: float) -> float:
+    """|ratio / reference - 1|, NaN without a reference (no empty scene)."""
+    return abs(ratio / reference - 1.0) if reference and not math.isnan(reference) else float("nan")
+
+
+def rounding_dt(dt: float, k: int) -> float:
+    """Rounding replica k's (1, 2, 3, ...) time step: dt (1 + n), dt (1 - n), dt (1 + 2 n), ... with n
+    :data:`ROUNDING_NUDGE`."""
+    if k < 1:
+        raise ValueError(f"a rounding replica is numbered from 1, got {k}")
+    m = (k + 1) // 2
+    return dt * (1.0 + (m if k % 2 else -m) * ROUNDING_NUDGE)
+
+
+@dataclass(frozen=True)
+class RoundingFloor:
+    """How far rounding alone moves the uncut answer: each rounding replica's agreement with the uncut run (the same
+    physics with dt nudged by :data:`ROUNDING_NUDGE`, so other float roundings from the first step on).
+
+    A cut that is not bit-identical changes the roundings too, so it cannot be expected to agree with the uncut run
+    better than these; :meth:`holds` asks whether it agrees at least as well as the worst replica."""
+
+    views: tuple[float, ...]
+    dg: tuple[float, ...]
+    ratio: tuple[float, ...]  # relative moves of D-bar / D-bar_empty (NaN without the empty scene)
+
+    @classmethod
+    def of(cls, uncut: tuple[np.ndarray, float, np.ndarray], replicas) -> RoundingFloor:
+        """From the uncut (D_g, ratio, view scores) and each replica's."""
+        d_g, ratio, views = uncut
+        return cls(
+            tuple(spearman(v, views) for _, _, v in replicas),
+            tuple(spearman(d, d_g) for d, _, _ in replicas),
+            tuple(ratio_move(r, ratio) for _, r, _ in replicas),
+        )
+
+    def holds(self, view_spearman: float, dg_spearman: float, move: float) -> bool:
+        """Whether an answer that agrees with the uncut one this well is within the floor."""
+        ratio_ok = math.isnan(move) or not all(map(math.isfinite, self.ratio)) or move <= max(self.ratio)
+        return view_spearman >= min(self.views) and dg_spearman >= min(self.dg) and ratio_ok
+
+    def line(self) -> str:
+        """One line: the replicas and the range of each figure."""
+
+        def span(values, fmt):
+            return f"{fmt(min(values))}-{fmt(max(values))}" if len(values) > 1 else fmt(values[0])
+
+        ratio = "n/a" if not all(map(math.isfinite, self.ratio)) else span(self.ratio, lambda v: f"{100 * v:.2g} %")
+        return (
+            f"rounding floor ({len(self.views)} uncut runs with dt nudged by {ROUNDING_NUDGE:g} of itself, against the "
+            f"uncut run): views {span(self.views, lambda v: f'{v:.3f}')}, D_g {span(self.dg, lambda v: f'{v:.3f}')}, "
+            f"ratio moved {ratio}"
+        )
+
+
+def rounding_floor(
+    frame: RunFrame,
+    plan: ProbePlan,
+    solid_points: np.ndarray,
+    uncut: tuple[np.ndarray, float, np.ndarray],
+    replicas: int,
+    view_scores,
+    *,
+    every: int = 25,
+    empty: bool = True,
+) -> RoundingFloor:
+    """Run the uncut probes ``replicas`` more times at :func:`rounding_dt` and measure their agreement with ``uncut``
+    (D_g, ratio, view scores): :class:`RoundingFloor`."""
+    answers = []
+    for k in range(1, replicas + 1):
+        nudged = replace(frame, config=replace(frame.config, dt=rounding_dt(frame.config.dt, k)))
+        traces, _ = trace_probes(nudged, plan, solid_points, every=every, empty=empty)
+        d_g, ratio = answer(traces, full_stops(traces), frame.covariances)
+        answers.append((d_g, ratio, view_scores(d_g)))
+    return RoundingFloor.of(uncut, answers)
 
 
 def judge_rule(traces: list[ProbeTrace], rule: StopRule, covariances: np.ndarray, view_scores) -> Judged:
@@ -341,22 +431,31 @@ def judge_cuts(
     return cuts
 
 
-def cut_report(cuts: Sequence[tuple[str, Judged]], cameras: int) -> tuple[list[str], list[dict]]:
+def cut_report(
+    cuts: Sequence[tuple[str, Judged]], cameras: int, floor: RoundingFloor | None = None
+) -> tuple[list[str], list[dict]]:
     """(lines, rows) of :func:`judge_cuts`' answer judged on ``cameras`` orbit cameras: the criteria, then one line
-    (and one JSON row) per cut."""
+    (and one JSON row) per cut; with ``floor``, its line and a column saying whether each cut is within it."""
     lines = [
         f"judged against the uncut run on {cameras} orbit cameras (depth test); kept when views >= "
         f"{VIEW_SPEARMAN_MIN:g}, D_g >= {DG_SPEARMAN_MIN:g}, ratio move <= {100 * RATIO_MOVE_MAX:g} %",
-        "cut                      stops (per probe)               steps run  views  D_g    ratio   kept",
     ]
+    if floor is not None:
+        lines.append(floor.line() + "; 'floor': the cut agrees at least as well as the worst of them")
+    lines.append(
+        "cut                      stops (per probe)               steps run  views  D_g    ratio   kept"
+        + ("  floor" if floor is not None else "")
+    )
     rows = []
     for name, j in cuts:
         stops = " ".join(f"{d}:{s}" for d, s in j.stops.items())
+        within = None if floor is None else floor.holds(j.view_spearman, j.dg_spearman, j.ratio_move)
         lines.append(
             f"{name:<18} {stops:<38} {100 * j.step_share:5.1f} %  {j.view_spearman:.3f}  {j.dg_spearman:.3f}  "
-            f"{100 * j.ratio_move:5.2f} %  {'yes' if j.kept else 'no'}"
+            f"{100 * j.ratio_move:5.2f} %  {'yes' if j.kept else 'no ':<3}"
+            + ("" if within is None else f"  {'yes' if within else 'no'}")
         )
-        rows.append({"cut": name, **asdict(j), "kept": j.kept})
+        rows.append({"cut": name, **asdict(j), "kept": j.kept, "within_rounding_floor": within})
     return lines, rows
 
 
@@ -366,16 +465,26 @@ def npz_path(path: Path) -> Path:
     return Path(path) if str(path).endswith(".npz") else Path(f"{path}.npz")
 
 
-def save_traces(path: Path, traces, covariances: np.ndarray, d_g: np.ndarray, ratio: float, views: np.ndarray) -> Path:
-    """Write a run's answer (covariances, D_g, D-bar / D-bar_empty, view scores) and every probe's running means and
-    checkpoints to :func:`npz_path` of ``path``; returns that path."""
+def save_traces(
+    path: Path,
+    traces,
+    covariances: np.ndarray,
+    d_g: np.ndarray,
+    ratio: float,
+    views: np.ndarray,
+    floor: RoundingFloor | None = None,
+) -> Path:
+    """Write a run's answer (covariances, D_g, D-bar / D-bar_empty, view scores), every probe's running means and
+    checkpoints, and its rounding floor when measured, to :func:`npz_path` of ``path``; returns that path."""
     out = npz_path(path)
+    extra = {} if floor is None else {"floor_views": floor.views, "floor_dg": floor.dg, "floor_ratio": floor.ratio}
     np.savez(
         out,
         covariances=covariances,
         d_g=d_g,
         ratio=ratio,
         views=views,
+        **extra,
         **{f"{'empty' if t.empty else 'solid'}{t.direction}": np.stack(t.means) for t in traces},
         **{f"steps{'empty' if t.empty else 'solid'}{t.direction}": np.asarray(t.checkpoints) for t in traces},
     )
@@ -384,10 +493,16 @@ def save_traces(path: Path, traces, covariances: np.ndarray, d_g: np.ndarray, ra
 
 def against_line(path: Path, d_g: np.ndarray, ratio: float, views: np.ndarray) -> str:
     """How this run's answer agrees with the one :func:`save_traces` wrote to ``path``: the views' and D_g's
-    Spearman, and D-bar / D-bar_empty against the saved one."""
+    Spearman, and D-bar / D-bar_empty against the saved one; with that run's rounding floor saved, whether this
+    agreement is within it."""
     other = np.load(path)
-    return (
-        f"against {path.name}: views Spearman {spearman(views, other['views']):.3f}, D_g Spearman "
-        f"{spearman(d_g, other['d_g']):.3f}, D-bar / D-bar_empty {ratio:.4g} against {float(other['ratio']):.4g} "
-        f"(moved {100 * abs(ratio / float(other['ratio']) - 1):.2f} %)"
+    view_s, dg_s = spearman(views, other["views"]), spearman(d_g, other["d_g"])
+    move = ratio_move(ratio, float(other["ratio"]))
+    line = (
+        f"against {path.name}: views Spearman {view_s:.3f}, D_g Spearman {dg_s:.3f}, D-bar / D-bar_empty {ratio:.4g} "
+        f"against {float(other['ratio']):.4g} (moved {100 * move:.2f} %)"
     )
+    if "floor_views" not in other:
+        return line
+    floor = RoundingFloor(*(tuple(float(v) for v in other[k]) for k in ("floor_views", "floor_dg", "floor_ratio")))
+    return f"{line}; within its {floor.line()}: {'yes' if floor.holds(view_s, dg_s, move) else 'no'}"

@@ -15,18 +15,25 @@ def test_bench_probes_profiles_and_judges_cuts(assets_dir, tmp_path, capsys):
     args = ["bench", "probes", "--gaussians", str(assets_dir / "ahmed_gaussians.ply"), "--particle-radius", "0.08"]
     args += ["--steps", "50", "--every", "25", "--window", "25", "--min-steps", "25", "--fixed", "25"]
     args += ["--cameras", "4", "--tolerances", "0.5", "--json", str(out), "--save", str(tmp_path / "t.npz")]
-    assert cli.main(args) == 0
+    assert cli.main([*args, "--rounding", "1"]) == 0
     text = capsys.readouterr().out
     assert "neighbors" in text and "aggregation" in text and "fixed 25" in text and "rule tol 0.5" in text
+    assert "rounding floor (1 uncut runs with dt nudged by 1e-06 of itself" in text
     figures = json.loads(out.read_text())
     probes = {p["probe"]: p for p in figures["probes"]}
     assert set(probes) == {"-x", "+x", "-z", "+z", "-y", "empty -x", "empty +x", "empty -z", "empty +z", "empty -y"}
     assert all(p["steps"] == 50 and 0 <= p["reached"] <= 1 and p["fluid"] > 0 for p in probes.values())
     fixed = next(c for c in figures["cuts"] if c["cut"] == "fixed 25")
     assert fixed["stops"] == {d: 25 for d in ("-x", "+x", "-z", "+z", "-y")} and fixed["step_share"] == 0.5
-    # the same run judged against its own saved answer agrees exactly (the sums are exact integers)
+    floor = figures["rounding_floor"]
+    assert all(len(floor[k]) == 1 for k in ("views", "dg", "ratio")) and -1 <= floor["dg"][0] <= 1
+    assert all(isinstance(c["within_rounding_floor"], bool) for c in figures["cuts"])
+    # the same run judged against its own saved answer agrees exactly (the sums are exact integers), so it lies
+    # within that run's rounding floor
     assert cli.main([*args[:-4], "--against", str(tmp_path / "t.npz")]) == 0
-    assert "views Spearman 1.000, D_g Spearman 1.000" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "views Spearman 1.000, D_g Spearman 1.000" in text and "within its rounding floor" in text
+    assert text.rstrip().splitlines()[-2].endswith(": yes")
 
 
 def _fail_if_probes_run(monkeypatch):

@@ -3,6 +3,7 @@
 import csv
 import json
 import math
+import re
 import time
 
 import h5py
@@ -59,6 +60,22 @@ def test_simulate_outputs(scene):
     assert (colored.sh[hi, 0] - colored.sh[lo, 0]).abs().max() > 0.5
     info = video_info(scene["root"] / "result_probe-x.mp4")  # --video takes render-frames' drawing options
     assert (info.width, info.height) == (320, 240) and info.frames >= 2
+
+
+def test_simulate_prints_d_to_the_digits_a_rerun_reproduces(scene, capsys):
+    """D_g and D-bar move by up to tens of per cent when only the float roundings change (docs/performance.md, "The
+    answer's rounding floor"): two significant digits, not four."""
+    from apps.simulate import print_result
+
+    print_result(load_result(scene["h5"]))
+    text = capsys.readouterr().out
+    figures = re.findall(r"mean D_g (\S+) 1/s, max (\S+) 1/s", text)
+    dbar = re.search(r"D-bar (\S+) m\^4/s \(mean-combined (\S+); empty scene (\S+)\)", text)
+    assert len(figures) == 2 and dbar, text
+    values = [v for pair in figures for v in pair] + [dbar[1], dbar[2]] + ([] if dbar[3] == "n/a" else [dbar[3]])
+    for v in values:
+        mantissa = v.lower().split("e")[0].replace("-", "").replace(".", "").lstrip("0")
+        assert 1 <= len(mantissa) <= 2, (v, text)
 
 
 def test_score_ranks_views(scene, tmp_path):

@@ -45,3 +45,14 @@ def test_an_export_is_not_shadowed_by_its_submodule():
         "print(callable(recon.render), recon.render.__module__, sys.modules['recon.render'].__name__)"
     )
     assert _last_line(code) == "True recon.render recon.render"
+
+
+def test_the_walls_need_no_open3d_but_a_mesh_loads_it():
+    """Every probe builds its walls with fluidsim.sources; open3d (about 0.6 s) is imported on a mesh's first use."""
+    code = (
+        "import sys, fluidsim.sources as s; s.wall_particles([0, 0, 0], [1, 1, 1], 0.5); "
+        "before = 'open3d' in sys.modules; "
+        "box = s.o3d.geometry.TriangleMesh.create_box(); "
+        "print(before, 'open3d' in sys.modules, int(s.points_inside_mesh(box, [[0.5, 0.5, 0.5], [2, 2, 2]]).sum()))"
+    )
+    assert _last_line(code) == "False True 1"
