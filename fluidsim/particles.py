@@ -12,6 +12,7 @@ import numpy as np
 import taichi as ti
 
 from .grid import gather_persistent
+from .host_copy import rows_to_numpy
 from .neighbors import NARROW, WIDE, pair_dtype, unpack_fluid_pairs_np, unpack_pairs_np
 
 
@@ -103,8 +104,7 @@ class FluidParticles:
 
     def numpy(self, name: str, active_only: bool = True) -> np.ndarray:
         """A copy of one array as numpy, the active particles first (sorted order, not by id)."""
-        arr = getattr(self, name).to_numpy()
-        return arr[: self.active] if active_only else arr[: self.capacity]
+        return rows_to_numpy(getattr(self, name), self.active if active_only else self.capacity)
 
 
 class BoundaryParticles:
