@@ -29,7 +29,7 @@ from .options import (
     physics_config_from_args,
     warn_frame,
 )
-from .options.cameras import candidate_cameras_from_args, orbit_cameras_written
+from .options.cameras import candidate_cameras_from_args, orbit_cameras_logged, write_orbit_cameras
 from .options.common import add_output_option
 from .options.scoring import obtain_result
 from .runtime import positive_int
@@ -84,10 +84,7 @@ def run_command(args: argparse.Namespace) -> int:
     if result is not None:  # the result fixes the frame (up, crop) that the cameras use
         config = result.config
     warn_frame(config, file_cams, up_given=args.up is not None or args.result is not None)
-    if orbit is None:
-        all_cams = file_cams
-    else:
-        all_cams = orbit_cameras_written(gaussians, config, orbit, orbit_file, "critical", args.cameras)
+    all_cams = file_cams if orbit is None else orbit_cameras_logged(gaussians, config, orbit)
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     check_cameras_see(gaussians, cams, [c.name for c in cams])
@@ -109,6 +106,8 @@ def run_command(args: argparse.Namespace) -> int:
         log.warning("%s", too_many)
     cameras = orbit_file or args.cameras
     record = critical_record(views, distinct, idx, result, cameras, args.gaussians, occlusion, args.result, too_many)
+    # the orbit cameras with their record, not before the probes: a run that fails leaves an earlier run's pair as is
+    write_orbit_cameras(orbit_file, all_cams, "critical", args.cameras, orbit)
     write_json_atomic(output, record)
     print(f"critical views: {output}" + (f"\ncameras: {orbit_file} ({orbit.describe()})" if orbit_file else ""))
     return 0

@@ -114,7 +114,6 @@ def run_command(args: argparse.Namespace) -> int:
     idx = parse_candidates(args.candidates, len(all_cams))
     cams = [render_size(all_cams[i], args.render_width) for i in idx]
     check_cameras_see(gaussians, cams, [c.name for c in cams], at_most=1)  # the counts come with the scores
-    write_orbit_cameras(orbit_file, all_cams, "score", args.cameras, orbit)
     if result is None:
         try:
             result = obtain_result(args, gaussians, config, record)
@@ -140,6 +139,8 @@ def run_command(args: argparse.Namespace) -> int:
         log.info("removed %d view images of an earlier run from %s", len(stale), stale[0].parent)
     cameras = orbit_file if orbit_file is not None else args.cameras
     scores = scores_record(rows, agreement, result, settings, cameras, args.gaussians, images, png_dir)
+    # the orbit cameras with their scores, not before the probes: a run that fails leaves an earlier run's pair as is
+    write_orbit_cameras(orbit_file, all_cams, "score", args.cameras, orbit)
     write_json_atomic(output, scores)
     print(
         f"scores: {output}"

@@ -145,12 +145,22 @@ def test_cameras_command_names_its_own_options(extra, message, tmp_path, caplog)
 
 def test_score_orbit_runs_up_to_the_probes_and_says_what_it_built(tmp_path, caplog, stop_before_probes):
     ply = _ply(tmp_path)
+    (tmp_path / "s_cameras.json").write_text("an earlier run's")
     with pytest.raises(_Stop):
         _run(["score", str(ply), "--cameras", "orbit:5", "-o", str(tmp_path / "s.json"), "--no-png"], caplog)
     log = " ".join(r.getMessage() for r in caplog.records)
     assert "an orbit of 5 cameras on rings at 15, 45 deg" in log
     assert frame_hint() in log  # no --up: the one-line hint
-    assert len(load_camera_file(tmp_path / "s_cameras.json")) == 5  # written beside the scores, for `fluidgs view`
+    # the cameras are written with their scores: a run stopped before them leaves an earlier run's pair as it was
+    assert (tmp_path / "s_cameras.json").read_text() == "an earlier run's"
+
+
+def test_critical_orbit_stopped_before_the_probes_keeps_an_earlier_cameras_file(tmp_path, caplog, stop_before_probes):
+    ply = _ply(tmp_path)
+    (tmp_path / "c_cameras.json").write_text("an earlier run's")
+    with pytest.raises(_Stop):
+        _run(["critical", str(ply), "--cameras", "orbit:5", "-o", str(tmp_path / "c.json")], caplog)
+    assert (tmp_path / "c_cameras.json").read_text() == "an earlier run's"
 
 
 def test_demo_on_other_gaussians_scores_an_orbit_and_says_so(tmp_path, caplog, stop_before_probes):

@@ -14,6 +14,7 @@ import torch
 from apps import cli
 from nbv.physics import load_result
 from recon.camera import Camera
+from recon.camera_files import load_camera_file
 from recon.formats import load_gaussians
 from recon.formats.ply import save_gaussians
 from viz.video import video_info
@@ -76,6 +77,16 @@ def test_simulate_prints_d_to_the_digits_a_rerun_reproduces(scene, capsys):
     for v in values:
         mantissa = v.lower().split("e")[0].replace("-", "").replace(".", "").lstrip("0")
         assert 1 <= len(mantissa) <= 2, (v, text)
+
+
+def test_score_writes_its_orbit_beside_the_scores(scene, tmp_path):
+    out = tmp_path / "s.json"
+    assert (
+        cli.main(["score", str(scene["ply"]), "--result", str(scene["h5"]), "--cameras", "orbit:4", "-o", str(out)])
+        == 0
+    )
+    scores = json.loads(out.read_text())
+    assert len(load_camera_file(tmp_path / "s_cameras.json")) == 4 == len(scores["views"])  # for `fluidgs view`
 
 
 def test_score_ranks_views(scene, tmp_path):
