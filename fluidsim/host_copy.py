@@ -4,7 +4,8 @@ empty-scene cache, the force's partial sums).
 Taichi's ``to_numpy`` sets up a parallel copy of the whole array through its own launch. For the rows a step reads
 that took about four times as long: 395 against 99 us for 10k positions and D_i, 143 against 38 us for three rows of
 partial sums (measured 2026-12-06, 2-core CPU). :func:`rows_to_numpy` gives the same array as
-``arr.to_numpy()[:n]`` (its twin, compared in the tests).
+``arr.to_numpy()[:n]`` (its twin, compared in the tests), and is that twin on a GPU, where a serial loop would run on
+one thread.
 """
 
 import numpy as np
@@ -38,6 +39,8 @@ def rows_to_numpy(arr, n: int) -> np.ndarray:
     """
     if not 0 <= n <= arr.shape[0]:
         raise ValueError(f"{n} rows asked of an array of {arr.shape[0]}")
+    if ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64):  # a serial loop would run on one GPU thread
+        return np.ascontiguousarray(arr.to_numpy()[:n])
     dtype = to_numpy_type(arr.dtype)
     if hasattr(arr, "n"):  # a vector ndarray
         out = np.empty((n, arr.n), dtype)

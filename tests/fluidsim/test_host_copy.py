@@ -41,3 +41,21 @@ def test_rows_beyond_the_array_are_refused():
         rows_to_numpy(arr, 4)
     with pytest.raises(ValueError, match="-1 rows"):
         rows_to_numpy(arr, -1)
+
+
+def test_a_gpu_runtime_copies_by_taichis_own_to_numpy(monkeypatch):
+    """On a GPU the serial copy would run on one thread: the rows come from ``to_numpy`` there."""
+    import types
+
+    import fluidsim.host_copy as host_copy
+
+    arr = ti.Vector.ndarray(3, ti.f32, shape=5)
+    arr.from_numpy(np.arange(15, dtype=np.float32).reshape(5, 3))
+
+    def serial(*args):
+        raise AssertionError("the serial copy ran on a GPU runtime")
+
+    monkeypatch.setattr(host_copy, "_vectors_to_numpy", serial)
+    monkeypatch.setattr(ti.lang.impl, "current_cfg", lambda: types.SimpleNamespace(arch=ti.cuda))
+    rows = rows_to_numpy(arr, 3)
+    assert np.array_equal(rows, np.arange(9, dtype=np.float32).reshape(3, 3)) and rows.flags.c_contiguous
