@@ -76,7 +76,7 @@ def check_colmap_folder(out: Path) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from fluidsim.files import check_not_input, write_json_atomic, write_text_atomic
+    from fluidsim.files import atomic_files, check_not_input, write_json_atomic
     from nbv.orbit import MAX_ORBIT_CAMERAS, object_sphere
     from nbv.physics.scene_frame import parse_up, up_label
     from recon.camera import MAX_IMAGE_SIDE
@@ -121,9 +121,9 @@ def run_command(args: argparse.Namespace) -> int:
     else:
         out.mkdir(parents=True, exist_ok=True)
         cameras_txt, images_txt = colmap_text(cams)
-        write_text_atomic(files["cameras.txt"], cameras_txt)
-        write_text_atomic(files["images.txt"], images_txt)
-        write_text_atomic(files["points3D.txt"], NO_POINTS)
+        with atomic_files(out) as tmp:  # the three together: never one new file beside two of an earlier run
+            for name, text in (("cameras.txt", cameras_txt), ("images.txt", images_txt), ("points3D.txt", NO_POINTS)):
+                (tmp / name).write_bytes(text.encode("utf-8"))
     centre, radius = object_sphere(gaussians, config, f"orbit:{args.orbit}")
     distance = framing_distance(radius, math.radians(orbit.fov_x_deg), orbit.width, orbit.height)
     print(

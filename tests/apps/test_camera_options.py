@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,6 +103,33 @@ def test_cameras_command_writes_the_orbit_in_every_format(tmp_path, caplog):
             torch.testing.assert_close(a.world_to_camera, b.world_to_camera, atol=1e-9, rtol=0, msg=fmt)
             assert (a.width, a.height, a.fx) == pytest.approx((b.width, b.height, b.fx)), fmt
     assert "frame: no --up given" not in log  # --up was given
+
+
+def test_colmap_cameras_stopped_midway_leave_the_earlier_three_files(tmp_path, caplog, monkeypatch):
+    """The three text files were written one after another: a stop between them left a new cameras.txt beside an
+    earlier run's images.txt. Now they are moved in together at the end."""
+    from apps.cameras import NO_POINTS
+
+    ply = _ply(tmp_path)
+    model = tmp_path / "model"
+    model.mkdir()
+    earlier = {"cameras.txt": "# earlier cameras\n", "images.txt": "# earlier images\n", "points3D.txt": NO_POINTS}
+    for name, text in earlier.items():
+        (model / name).write_text(text)
+    real = Path.write_bytes
+
+    def write_bytes(self, data):
+        if self.name == "points3D.txt":
+            raise KeyboardInterrupt  # stopped after two of the three were written
+        return real(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", write_bytes)
+    code, _ = _run(["cameras", str(ply), "--orbit", "4", "--format", "colmap", "-o", str(model)], caplog)
+    assert code == 130  # Ctrl-C's exit code
+    assert {p.name: p.read_text() for p in model.iterdir()} == earlier  # no temporary folder left either
+    monkeypatch.undo()
+    assert _run(["cameras", str(ply), "--orbit", "4", "--format", "colmap", "-o", str(model)], caplog)[0] == 0
+    assert len(load_camera_file(model)) == 4 and (model / "points3D.txt").read_text() == NO_POINTS
 
 
 @pytest.mark.parametrize(
