@@ -169,12 +169,8 @@ def run_command(args: argparse.Namespace) -> int:
     view_scores = view_scorer(gaussians, orbit_cameras(gaussians, cfg, Orbit(args.cameras)), frame.kept)
     d_g, ratio = answer(traces, full_stops(traces), frame.covariances)
     views = view_scores(d_g)
-    floor = None
-    if args.rounding:
-        empty = not args.no_empty
-        floor = rounding_floor(
-            frame, plan, solid.points, (d_g, ratio, views), args.rounding, view_scores, every=args.every, empty=empty
-        )
+    uncut, empty = (d_g, ratio, views), not args.no_empty
+    floor = rounding_floor(frame, plan, solid.points, uncut, args.rounding, view_scores, every=args.every, empty=empty)
     cuts = judge_cuts(traces, rules, args.fixed, frame.covariances, view_scores)
     lines, judged = cut_report(cuts, args.cameras, floor)
     print("\n".join(lines))

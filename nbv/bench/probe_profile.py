@@ -332,9 +332,11 @@ def rounding_floor(
     *,
     every: int = 25,
     empty: bool = True,
-) -> RoundingFloor:
+) -> RoundingFloor | None:
     """Run the uncut probes ``replicas`` more times at :func:`rounding_dt` and measure their agreement with ``uncut``
-    (D_g, ratio, view scores): :class:`RoundingFloor`."""
+    (D_g, ratio, view scores): :class:`RoundingFloor` (None for no replicas: nothing is run)."""
+    if replicas == 0:
+        return None
     answers = []
     for k in range(1, replicas + 1):
         nudged = replace(frame, config=replace(frame.config, dt=rounding_dt(frame.config.dt, k)))

@@ -71,3 +71,5 @@ def test_rounding_floor_runs_the_uncut_probes_at_the_nudged_steps(monkeypatch):
     assert all(s[1] is plan and s[2] == 10 and s[3] is False for s in seen)
     assert floor.views == (1.0, 1.0) and floor.ratio == (0.0, 0.0)
     assert frame.config.dt == 0.002  # the uncut frame is left as it was
+    seen.clear()
+    assert profile.rounding_floor(frame, plan, np.zeros((1, 3)), (None, 1.0, None), 0, None) is None and not seen
