@@ -150,6 +150,12 @@ def print_result(result) -> None:
     print(f"D-bar {result.dbar:.2g} m^4/s (mean-combined {result.dbar_mean:.2g}; empty scene {empty})")
     if result.replicas is not None:
         print(replicas_gaussian_line(result.replicas))
+    else:  # one run's D_g per Gaussian is noisy: say so before someone reads single Gaussians off the coloured PLY
+        print(
+            "one run's D_g per Gaussian repeats at Spearman 0.66-0.80 when only the float roundings change (--quick, "
+            "three captures, docs/performance.md): read regions of the coloured Gaussians, not single ones; "
+            "--replicas 2 measures it on yours"
+        )
     t = result.timings
     print(
         f"time: simulation {t['simulation']:.1f} s, aggregation {t['aggregation']:.2f} s, "

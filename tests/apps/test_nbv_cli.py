@@ -77,6 +77,7 @@ def test_simulate_prints_d_to_the_digits_a_rerun_reproduces(scene, capsys):
     for v in values:
         mantissa = v.lower().split("e")[0].replace("-", "").replace(".", "").lstrip("0")
         assert 1 <= len(mantissa) <= 2, (v, text)
+    assert "D_g per Gaussian repeats at Spearman" in text and "--replicas 2" in text  # no replicas: how noisy it is
 
 
 def test_score_writes_its_orbit_beside_the_scores(scene, tmp_path):
