@@ -27,7 +27,7 @@ from pathlib import Path
 from fluidsim.files import write_json_atomic
 
 from .options import load_gaussians_checked, physics_config_from_args, warn_frame
-from .options.cameras import candidate_cameras_from_args, orbit_cameras_written
+from .options.cameras import candidate_cameras_from_args, orbit_cameras_logged, write_orbit_cameras
 from .options.demo import CAMERAS, DEMO_FILES, DEMO_ORBIT, GAUSSIANS, add_demo_arguments, output_folder, run_mesh_demo
 
 log = logging.getLogger("fluidgs")
@@ -63,11 +63,11 @@ def run_command(args: argparse.Namespace) -> int:
     gaussians, source = demo_gaussians(gpath, args)
     warn_frame(cfg, file_cams, up_given=args.up is not None or bundled)
     cpath = None if orbit is None else Path(args.output) / "cameras.json"
-    cams = (
-        [c.scaled(args.render_width / c.width) for c in file_cams]
-        if orbit is None
-        else orbit_cameras_written(gaussians, cfg, orbit, cpath, "demo", args.cameras)
-    )
+    if orbit is None:
+        cams = [c.scaled(args.render_width / c.width) for c in file_cams]
+    else:
+        cams = orbit_cameras_logged(gaussians, cfg, orbit)
+        write_orbit_cameras(cpath, cams, "demo", args.cameras, orbit)
     cameras_label = str(args.cameras) if orbit is None else f"{args.cameras} ({cpath})"
     centres = check_cameras_see(gaussians, cams, [c.name for c in cams])
     result = simulate_demo(gaussians, cfg, source, args, out)

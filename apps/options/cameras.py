@@ -94,14 +94,6 @@ def candidate_cameras_from_args(args: argparse.Namespace, width: int) -> tuple:
     return orbit, (None if orbit is not None else camera_file_from_args(args))
 
 
-def orbit_cameras_written(gaussians, config, orbit, path, command: str, spec: str):
-    """:func:`orbit_cameras_logged`, also written to ``path`` as a transforms.json naming ``fluidgs command --cameras
-    spec`` (nothing written when ``path`` is None)."""
-    cams = orbit_cameras_logged(gaussians, config, orbit)
-    write_orbit_cameras(path, cams, command, spec, orbit)
-    return cams
-
-
 def write_orbit_cameras(path: Path | None, cameras, command: str, spec: str, orbit) -> None:
     """Write the orbit cameras of ``--cameras orbit:N`` to ``path`` as a transforms.json (nothing when None)."""
     if path is None:
